@@ -1,0 +1,224 @@
+"""How the two Slotine–Li routes scale on planar chains of n identical links.
+
+The explicit route forms B and C (``n²`` entries, each a sum over the chain), so
+its expression grows roughly quadratically in n; the matrix-free route only takes
+directional derivatives of the kinetic energy and grows linearly. This module
+measures both on the same chains: instructions of the CasADi function, bytes of
+generated C, time to build, generate and compile, and nanoseconds per call timed
+in C (:func:`softgen.codegen.cbench.time_in_c`).
+
+Example
+-------
+>>> rows = scaling_table((2, 5, 10), calls=20000)   # doctest: +SKIP
+>>> print(format_table(rows))                       # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import dataclasses
+import resource
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import casadi as ca
+
+from .codegen.cbench import compiler_path, time_in_c
+from .errors import BuildError
+from .model import RobotModel, load_model
+from .symbolic.mechanics import Mechanics, nominal_values
+
+__all__ = ["chain_model", "measure_route", "scaling_table", "format_table"]
+
+#: Address-space cap for one compiler run. gcc -O3 on one huge straight-line
+#: function can take many GiB; the cap turns that into a BuildError, not an OOM kill.
+COMPILE_MEMORY_BYTES = 4 * 2**30
+#: Wall-clock cap for one compiler run, in seconds.
+COMPILE_TIMEOUT = 600.0
+
+_LINK = """
+[[links]]
+name = "link{i}"
+joint = "revolute"
+mass = 0.1
+length = 0.1
+com = 0.05
+inertia = 1e-4
+"""
+
+
+def chain_model(n: int) -> RobotModel:
+    """A planar chain of ``n`` identical revolute links.
+
+    Each link has m = 0.1 kg, l = 0.1 m, centre of mass mid-link and
+    I = 1e-4 kg m² about it. The model is written to a temporary TOML file and
+    loaded with :func:`softgen.model.load_model`, so it passes the same checks
+    as a shipped model; the file is removed afterwards and ``path`` is None.
+
+    Raises
+    ------
+    ValueError
+        ``n`` is not a positive integer.
+    """
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"n: expected a positive integer, got {n!r}")
+    text = (f'[model]\nname = "planar_chain{n}"\nkind = "planar"\n'
+            f'description = "Planar chain of {n} identical revolute links"\n'
+            'source = "softgen.chains"\n\n[gravity]\ng = 9.81\n'
+            + "".join(_LINK.format(i=i) for i in range(1, n + 1)))
+    with tempfile.TemporaryDirectory(prefix="softgen-chain-") as tmp:
+        path = Path(tmp) / f"planar_chain{n}.toml"
+        path.write_text(text)
+        model = load_model(path)
+    # The file is gone: a path pointing at it would make source_text() fail later.
+    return dataclasses.replace(model, path=None)
+
+
+def _limit_compiler_memory() -> None:
+    """Child-side cap (runs between fork and exec of the compiler)."""
+    resource.setrlimit(resource.RLIMIT_AS, (COMPILE_MEMORY_BYTES, COMPILE_MEMORY_BYTES))
+
+
+def _compile_shared(c_file: Path, lib: Path) -> float:
+    """Compile ``c_file`` to ``lib`` as the bundles are built; return the seconds taken."""
+    cmd = [compiler_path(), "-O3", "-fPIC", "-shared", "-o", str(lib), str(c_file), "-lm"]
+    t0 = time.perf_counter()
+    try:
+        subprocess.run(cmd, check=True, capture_output=True, text=True,
+                       timeout=COMPILE_TIMEOUT, preexec_fn=_limit_compiler_memory)
+    except subprocess.CalledProcessError as exc:
+        raise BuildError(f"compiling {c_file.name} failed", exc.stderr) from None
+    except subprocess.TimeoutExpired:
+        raise BuildError(f"compiling {c_file.name} took over {COMPILE_TIMEOUT:.0f} s") from None
+    return time.perf_counter() - t0
+
+
+def measure_route(n: int, route: str, *, compile: bool = True, time_c: bool = True,
+                  calls: int = 20000) -> dict:
+    """Size and speed of ``Mechanics.slotine_li(route)`` for :func:`chain_model` (n).
+
+    Builds τ = B q̈_r + C q̇_r + G at nominal values as a ``casadi.Function`` of
+    ``q, qd, qd_r, qdd_r`` with ``{"cse": True}``, generates C for it, and
+    optionally compiles and times it.
+
+    Parameters
+    ----------
+    n
+        Number of links.
+    route
+        ``"explicit"`` or ``"matrix-free"``.
+    compile
+        Compile the C into a shared library (gcc -O3 -fPIC -shared).
+    time_c
+        Time the function in a C loop with :func:`~softgen.codegen.cbench.time_in_c`.
+    calls
+        Calls per timed repeat.
+
+    Returns
+    -------
+    dict
+        ``n, route, build_seconds, instructions, c_bytes, generate_seconds,
+        compile_seconds`` (None if not compiled), ``ns_per_call`` (None if not timed).
+
+    Raises
+    ------
+    BuildError
+        No compiler, or compiling failed (also when over the memory or time cap).
+    """
+    if route not in ("explicit", "matrix-free"):
+        raise ValueError(f"route: expected 'explicit' or 'matrix-free', got {route!r}")
+    model = chain_model(n)
+    name = f"tau_{route.replace('-', '_')}_{n}"
+
+    t0 = time.perf_counter()
+    mech = Mechanics(model, nominal_values(model))
+    tau = mech.slotine_li(route)
+    f = ca.Function(name, [mech.q, mech.qd, mech.qd_r, mech.qdd_r], [tau],
+                    ["q", "qd", "qd_r", "qdd_r"], ["tau"], {"cse": True})
+    build_seconds = time.perf_counter() - t0
+
+    row: dict[str, Any] = {"n": n, "route": route, "build_seconds": build_seconds,
+                           "instructions": int(f.n_instructions())}
+    with tempfile.TemporaryDirectory(prefix="softgen-chains-") as tmp:
+        t0 = time.perf_counter()
+        gen = ca.CodeGenerator(f"{name}.c", {"with_header": True})
+        gen.add(f)
+        gen.generate(tmp + "/")   # CodeGenerator joins prefix and file name as strings
+        row["generate_seconds"] = time.perf_counter() - t0
+        c_file = Path(tmp) / f"{name}.c"
+        row["c_bytes"] = c_file.stat().st_size
+        row["compile_seconds"] = (_compile_shared(c_file, Path(tmp) / f"lib{name}.so")
+                                  if compile else None)
+        row["ns_per_call"] = (time_in_c(c_file, [name], calls=calls)[name]
+                              if time_c else None)
+    return row
+
+
+def scaling_table(ns=(2, 5, 10, 20, 40), routes=("explicit", "matrix-free"), *,
+                  max_explicit_n: int = 10, **kw) -> list[dict]:
+    """:func:`measure_route` for every ``n`` in ``ns`` and every route in ``routes``.
+
+    The explicit route is not measured above ``max_explicit_n``: its expression
+    grows about quadratically and gcc -O3 on it becomes the bottleneck (time and
+    memory). Such points are recorded as ``{"n", "route", "skipped": reason}``;
+    a point whose compilation fails is recorded with ``"error"`` so the rest of
+    the table is kept.
+
+    Parameters
+    ----------
+    ns, routes
+        Chain lengths and routes to measure.
+    max_explicit_n
+        Largest n for which the explicit route is measured.
+    **kw
+        Passed to :func:`measure_route` (``compile``, ``time_c``, ``calls``).
+    """
+    rows: list[dict] = []
+    for n in ns:
+        for route in routes:
+            if route == "explicit" and n > max_explicit_n:
+                rows.append({"n": n, "route": route,
+                             "skipped": f"explicit route above n = {max_explicit_n}"})
+                continue
+            try:
+                rows.append(measure_route(n, route, **kw))
+            except BuildError as exc:
+                rows.append({"n": n, "route": route, "error": str(exc).splitlines()[0]})
+    return rows
+
+
+_COLUMNS = (  # key, header, format
+    ("n", "n", "{}"),
+    ("route", "route", "{}"),
+    ("instructions", "instructions", "{}"),
+    ("c_bytes", "C bytes", "{}"),
+    ("build_seconds", "build s", "{:.3f}"),
+    ("generate_seconds", "generate s", "{:.3f}"),
+    ("compile_seconds", "compile s", "{:.2f}"),
+    ("ns_per_call", "ns/call", "{:.1f}"),
+)
+
+
+def format_table(rows: list[dict]) -> str:
+    """Aligned plain-text table of :func:`scaling_table` rows.
+
+    Missing values print as ``-``; skipped or failed points carry their reason
+    in a last ``note`` column.
+    """
+    header = [h for _, h, _ in _COLUMNS] + ["note"]
+    body = []
+    for row in rows:
+        cells = [fmt.format(row[key]) if row.get(key) is not None else "-"
+                 for key, _, fmt in _COLUMNS]
+        cells.append(row.get("skipped") or row.get("error") or "")
+        body.append(cells)
+    widths = [max(len(r[i]) for r in [header, *body]) for i in range(len(header))]
+    # Text columns (route, note) left-aligned, numbers right-aligned.
+    left = {1, len(header) - 1}
+
+    def line(cells: list[str]) -> str:
+        return "  ".join(c.ljust(w) if i in left else c.rjust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+
+    return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, body)])

@@ -1,0 +1,160 @@
+"""The ``softgen`` command line: a thin argparse layer over the library.
+
+Exit status 0 on success; on bad input one line ``softgen: error: ...`` on stderr
+and status 2 (DESIGN.md section 2).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from .errors import SoftgenError
+
+
+def _cmd_list(args) -> int:
+    from .experiments.registry import experiment_ids, get
+    from .model import list_models, load_model
+    print("models:")
+    for name in list_models():
+        m = load_model(name)
+        print(f"  {name:<20} {m.kind:<8} {m.dof} dof  {m.description}")
+    print("experiments:")
+    for exp_id in experiment_ids():
+        e = get(exp_id)
+        print(f"  {exp_id:<24} {e.title}  [{e.section}]")
+    return 0
+
+
+def _cmd_generate(args) -> int:
+    from .bundle import GENERATED_DIR, generate
+    from .codegen.build import build, find_compiler
+    from .model import list_models
+    if args.all == bool(args.models):
+        raise SoftgenError("generate: give MODEL names or --all (not both)")
+    names = list_models() if args.all else args.models
+    out = Path(args.out) if args.out else GENERATED_DIR
+    compiler = None if args.no_build else find_compiler()
+    if not args.no_build and compiler is None:
+        print("softgen: warning: no C compiler found; wrote sources only", file=sys.stderr)
+    for name in names:
+        t0 = time.perf_counter()
+        bundle = generate(name, out)
+        msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
+        if compiler is not None:
+            lib, secs = build(bundle)
+            msg += f", {'built' if secs else 'cached'} {lib.name}" + (f" in {secs:.2f} s"
+                                                                     if secs else "")
+        print(msg)
+    return 0
+
+
+def _cmd_info(args) -> int:
+    from .bundle import GENERATED_DIR, BundleOptions, bundle_spec
+    from .model import load_model
+    model = load_model(args.model)
+    spec = bundle_spec(model, BundleOptions())
+    manifest_path = GENERATED_DIR / model.name / "manifest.json"
+    c_path = GENERATED_DIR / model.name / f"{model.name}.c"
+    info = {
+        "model": model.name, "kind": model.kind, "dof": model.dof,
+        "description": model.description, "file": str(model.path),
+        "uncertain": list(model.uncertain),
+        "parameters": spec.parameters,
+        "functions": {g.function.name(): {
+            "inputs": {g.function.name_in(i): list(g.function.size_in(i))
+                       for i in range(g.function.n_in())},
+            "outputs": {g.function.name_out(i): list(g.function.size_out(i))
+                        for i in range(g.function.n_out())},
+            "instructions": int(g.function.n_instructions()), "doc": g.doc}
+            for g in spec.functions},
+        "c_bytes": c_path.stat().st_size if c_path.exists() else None,
+        "generated": manifest_path.exists(),
+    }
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    print(f"{model.name}: {model.description} ({model.kind}, {model.dof} dof)  [{model.path}]")
+    print(f"uncertain physical parameters: {', '.join(model.uncertain)}")
+    print(f"base parameters pi ({len(spec.parameters['names'])} of "
+          f"{spec.extra['full_parameter_count']} monomials):")
+    for n, v, e in zip(spec.parameters["names"], spec.parameters["nominal"],
+                       spec.parameters["expressions"]):
+        print(f"  {n:<14} = {v:<12.6g} {e}")
+    print("functions:")
+    for name, f in info["functions"].items():
+        ins = ", ".join(f"{k}{tuple(v)}" for k, v in f["inputs"].items())
+        outs = ", ".join(f"{k}{tuple(v)}" for k, v in f["outputs"].items())
+        print(f"  {name:<40} ({ins}) -> ({outs})  {f['instructions']} instructions")
+    if info["c_bytes"] is not None:
+        print(f"C source: {c_path} ({info['c_bytes']} bytes)")
+    else:
+        print(f"C source: not generated yet (softgen generate {model.name})")
+    return 0
+
+
+def _cmd_reproduce(args) -> int:
+    from .experiments.runner import reproduce
+    results = reproduce(args.ids, Path(args.out), quick=args.quick, jobs=args.jobs)
+    failed = [r["experiment"] for r in results if "error" in r]
+    if failed:
+        for r in results:
+            if "error" in r:
+                print(r["traceback"], file=sys.stderr)
+        raise SoftgenError(f"reproduce: {len(failed)} experiment(s) failed: {', '.join(failed)}")
+    return 0
+
+
+def _cmd_bench(args) -> int:
+    from .bench import run_bench
+    run_bench(models=args.models or None, chains=args.chains, calls=args.calls,
+              json_out=Path(args.json) if args.json else None)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="softgen", description="Soft-robot models, regressors, "
+                                "generated C and adaptive loops (thesis: Trumić 2021).")
+    sub = p.add_subparsers(dest="command", required=True)
+    s = sub.add_parser("list", help="models and experiments")
+    s.set_defaults(func=_cmd_list)
+    s = sub.add_parser("generate", help="write generated/<model>/ and compile it")
+    s.add_argument("models", nargs="*", metavar="MODEL")
+    s.add_argument("--all", action="store_true", help="every model in models/")
+    s.add_argument("--out", help="output root (default: generated/)")
+    s.add_argument("--no-build", action="store_true", help="write sources only")
+    s.set_defaults(func=_cmd_generate)
+    s = sub.add_parser("info", help="functions, shapes, parameters, sizes of a model")
+    s.add_argument("model", metavar="MODEL")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=_cmd_info)
+    s = sub.add_parser("reproduce", help="run thesis experiments; metrics, figures, report")
+    s.add_argument("ids", nargs="*", metavar="ID")
+    s.add_argument("--out", default="results", help="output directory (default: results/)")
+    s.add_argument("--quick", action="store_true", help="shortened runs")
+    s.add_argument("--jobs", type=int, default=None, help="worker processes")
+    s.set_defaults(func=_cmd_reproduce)
+    s = sub.add_parser("bench", help="latency, sizes, build time, closed-loop speed")
+    s.add_argument("models", nargs="*", metavar="MODEL")
+    s.add_argument("--chains", action="store_true",
+                   help="also the expression-size study on planar chains up to 40 links")
+    s.add_argument("--calls", type=int, default=200_000, help="calls per C timing loop")
+    s.add_argument("--json", help="also write the figures to this JSON file")
+    s.set_defaults(func=_cmd_bench)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (SoftgenError, ValueError, FileNotFoundError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"softgen: error: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

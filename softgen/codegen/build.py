@@ -1,0 +1,105 @@
+"""Compile a generated bundle into a shared library, cached by content hash.
+
+The library's file name carries the manifest hash (acados ``hash_class_instance``
+convention), and the C source's sha256 is checked against the manifest before
+building, so a stale library is never loaded and a hand-edited source is caught.
+Compilers run through ``subprocess.run`` and failures raise :class:`BuildError`
+with the compiler's stderr (DESIGN.md section 3 item 5).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+from ..errors import BuildError, BundleError
+
+#: -O3 is worth ~10-30 % on the regressors; -fno-math-errno lets gcc inline sqrt.
+CFLAGS = ("-O3", "-fPIC", "-shared", "-fno-math-errno")
+LDLIBS = ("-lm",)   # gcc merges sin and cos into sincos: the library must link libm
+
+
+def find_compiler(cc: str | None = None) -> str | None:
+    """``cc``, else ``$CC``, else the first of cc, gcc, clang on PATH; None if none."""
+    for cand in ([cc] if cc else []) + ([os.environ["CC"]] if os.environ.get("CC") else []) + [
+            "cc", "gcc", "clang"]:
+        path = shutil.which(cand)
+        if path:
+            return path
+    return None
+
+
+def read_manifest(bundle: Path) -> dict:
+    path = Path(bundle) / "manifest.json"
+    if not path.exists():
+        raise BundleError(f"{bundle}: no manifest.json; run `softgen generate` for this model")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise BundleError(f"{path}: not valid JSON ({exc})") from None
+
+
+def check_source(bundle: Path, manifest: dict) -> Path:
+    """The bundle's C file, after checking it is the one the manifest describes."""
+    c_file = Path(bundle) / f"{manifest['model']}.c"
+    if not c_file.exists():
+        raise BundleError(f"{c_file}: missing; run `softgen generate {manifest['model']}`")
+    digest = hashlib.sha256(c_file.read_bytes()).hexdigest()
+    if digest != manifest.get("source_sha256"):
+        raise BundleError(f"{c_file}: does not match manifest.json (stale or edited); "
+                          f"run `softgen generate {manifest['model']}`")
+    return c_file
+
+
+def library_path(bundle: Path, manifest: dict) -> Path:
+    return Path(bundle) / manifest["library"]
+
+
+def build(bundle: Path, *, cc: str | None = None, force: bool = False) -> tuple[Path, float]:
+    """Compile ``bundle``'s C source into its hashed shared library.
+
+    Returns
+    -------
+    (path, seconds)
+        The library and the compile time (0.0 when the cached library was reused).
+
+    Raises
+    ------
+    BuildError
+        No compiler, or the compiler failed.
+    BundleError
+        Manifest or source missing or stale.
+    """
+    bundle = Path(bundle)
+    manifest = read_manifest(bundle)
+    c_file = check_source(bundle, manifest)
+    lib = library_path(bundle, manifest)
+    if lib.exists() and not force:
+        return lib, 0.0
+    compiler = find_compiler(cc)
+    if compiler is None:
+        raise BuildError("no C compiler found: install gcc (or clang) or set CC")
+    lib.parent.mkdir(parents=True, exist_ok=True)
+    # Build to a temporary name and rename: concurrent builds never expose half a library.
+    fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.", suffix=".so")
+    os.close(fd)
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run([compiler, *CFLAGS, "-o", tmp, str(c_file), *LDLIBS],
+                              capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise BuildError(f"compiling {c_file} failed", proc.stderr)
+        os.replace(tmp, lib)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+    seconds = time.perf_counter() - t0
+    # Old libraries of this bundle are stale by construction (other hash): remove them.
+    for old in lib.parent.glob(f"lib{manifest['model']}_*.so"):
+        if old != lib:
+            old.unlink(missing_ok=True)
+    return lib, seconds

@@ -1,0 +1,251 @@
+"""Per-call latency of generated C functions, timed in a plain C loop.
+
+Timing through Python (ctypes or ``casadi.Function`` calls) measures the
+binding overhead, which is larger than the whole evaluation of small
+functions. Here a throw-away C harness calls each function in a tight loop and
+reports the median nanoseconds per call, so the number is what a C controller
+would pay.
+"""
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+from ..errors import BuildError
+
+__all__ = ["compiler_path", "time_in_c"]
+
+
+def compiler_path(cc: str | None = None) -> str:
+    """The C compiler to use: ``cc``, else ``$CC``, else the first of cc, gcc, clang.
+
+    An explicit ``cc`` that does not exist is an error rather than a silent
+    fallback, so a benchmark never runs with a compiler other than the one asked for.
+
+    Raises
+    ------
+    BuildError
+        No compiler found.
+    """
+    if cc:
+        candidates = [cc]
+    elif os.environ.get("CC"):
+        candidates = [os.environ["CC"]]
+    else:
+        candidates = ["cc", "gcc", "clang"]
+    for cand in candidates:
+        path = shutil.which(cand)
+        if path:
+            return path
+    raise BuildError("no C compiler found: install gcc or set CC")
+
+
+_HEAD = r"""/* Benchmark harness written by softgen.codegen.cbench; safe to delete. */
+#define _POSIX_C_SOURCE 199309L
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+#include "{header}"
+
+static unsigned long long lcg_state;
+
+/* Deterministic inputs in [-1, 1]: the same seed gives the same numbers everywhere. */
+static double lcg_uniform(void) {{
+  lcg_state = lcg_state * 6364136223846793005ULL + 1442695040888963407ULL;
+  return (double)(lcg_state >> 11) * (2.0 / 9007199254740992.0) - 1.0;
+}}
+
+static void *xmalloc(size_t n) {{
+  void *p = malloc(n ? n : 1);
+  if (!p) {{ fprintf(stderr, "out of memory\n"); exit(1); }}
+  return p;
+}}
+
+static double now_ns(void) {{
+  struct timespec t;
+  if (clock_gettime(CLOCK_MONOTONIC, &t) != 0) {{
+    fprintf(stderr, "clock_gettime failed\n"); exit(1);
+  }}
+  return (double)t.tv_sec * 1e9 + (double)t.tv_nsec;
+}}
+
+static int cmp_double(const void *a, const void *b) {{
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}}
+
+static double median(double *v, int n) {{
+  qsort(v, (size_t)n, sizeof(double), cmp_double);
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}}
+
+static casadi_int nnz_of(const casadi_int *sp) {{
+  /* CasADi compressed column: [nrow, ncol, colind[ncol+1], row[nnz]], except that
+     generated code writes a dense pattern as [nrow, ncol, 1] (colind[0] is 0 otherwise). */
+  if (sp[2] == 1) return sp[0] * sp[1];
+  return sp[2 + sp[1]];
+}}
+
+/* The sink keeps the compiler from discarding the loop or the result. */
+static volatile double sink;
+
+#define CALLS {calls}LL
+#define REPEATS {repeats}
+#define SEED {seed}ULL
+"""
+
+_BENCH = r"""
+static void bench_{name}(void) {{
+  casadi_int sz_arg, sz_res, sz_iw, sz_w, n_in, n_out, i, k;
+  const casadi_real **arg;
+  casadi_real **res, *w;
+  casadi_int *iw;
+  double t[REPEATS];
+  int r, mem, out_k = -1;
+  long long c;
+
+  {name}_incref();
+  if ({name}_work(&sz_arg, &sz_res, &sz_iw, &sz_w) != 0) {{
+    fprintf(stderr, "{name}_work failed\n"); exit(1);
+  }}
+  n_in = {name}_n_in();
+  n_out = {name}_n_out();
+  /* arg/res are sz_arg/sz_res long: CasADi may use the tail as scratch. */
+  arg = xmalloc(sizeof(*arg) * (size_t)(sz_arg > n_in ? sz_arg : n_in));
+  res = xmalloc(sizeof(*res) * (size_t)(sz_res > n_out ? sz_res : n_out));
+  iw = xmalloc(sizeof(*iw) * (size_t)sz_iw);
+  w = xmalloc(sizeof(*w) * (size_t)sz_w);
+  for (k = 0; k < sz_arg; ++k) arg[k] = 0;
+  for (k = 0; k < sz_res; ++k) res[k] = 0;
+  lcg_state = SEED;
+  for (k = 0; k < n_in; ++k) {{
+    casadi_int nnz = nnz_of({name}_sparsity_in(k));
+    casadi_real *a = xmalloc(sizeof(casadi_real) * (size_t)nnz);
+    for (i = 0; i < nnz; ++i) a[i] = lcg_uniform();
+    arg[k] = a;
+  }}
+  for (k = 0; k < n_out; ++k) {{
+    casadi_int nnz = nnz_of({name}_sparsity_out(k));
+    res[k] = xmalloc(sizeof(casadi_real) * (size_t)nnz);
+    if (out_k < 0 && nnz > 0) out_k = (int)k;
+  }}
+  mem = {name}_checkout();
+  if (mem < 0) {{ fprintf(stderr, "{name}_checkout failed\n"); exit(1); }}
+
+  /* Warm-up: caches, branch predictors and CPU frequency settle before timing. */
+  for (c = 0; c < CALLS / 10 + 1; ++c) {{
+    if ({name}(arg, res, iw, w, mem) != 0) {{
+      fprintf(stderr, "{name} returned non-zero\n"); exit(1);
+    }}
+  }}
+  for (r = 0; r < REPEATS; ++r) {{
+    int bad = 0;
+    double acc = 0.0, t0 = now_ns();
+    for (c = 0; c < CALLS; ++c) {{
+      bad |= {name}(arg, res, iw, w, mem);
+      if (out_k >= 0) acc += res[out_k][0];
+    }}
+    t[r] = (now_ns() - t0) / (double)CALLS;
+    if (bad) {{ fprintf(stderr, "{name} returned non-zero\n"); exit(1); }}
+    sink += acc;
+  }}
+  printf("{name} %.6f\n", median(t, REPEATS));
+
+  {name}_release(mem);
+  {name}_decref();
+  for (k = 0; k < n_in; ++k) free((void *)arg[k]);
+  for (k = 0; k < n_out; ++k) free(res[k]);
+  free(arg); free(res); free(iw); free(w);
+}}
+"""
+
+
+def _c_string(text: str) -> str:
+    """``text`` escaped for a C string literal (paths may hold quotes or backslashes)."""
+    return text.replace("\\", "\\\\").replace('"', '\\"')
+
+
+def _harness(header: Path, names: list[str], calls: int, repeats: int, seed: int) -> str:
+    parts = [_HEAD.format(header=_c_string(str(header)), calls=calls, repeats=repeats,
+                          seed=seed % 2**64)]
+    parts += [_BENCH.format(name=n) for n in names]
+    parts.append("\nint main(void) {\n")
+    parts += [f"  bench_{n}();\n" for n in names]
+    parts.append("  return 0;\n}\n")
+    return "".join(parts)
+
+
+def time_in_c(c_file: Path, names: list[str], *, calls: int = 200_000, repeats: int = 5,
+              cc: str | None = None, seed: int = 0, opt: str = "-O3") -> dict[str, float]:
+    """Median nanoseconds per call of each named function, timed in a plain C loop.
+
+    Parameters
+    ----------
+    c_file
+        C source from ``casadi.CodeGenerator`` with ``{"with_header": True}``;
+        its header (same stem, ``.h``) must sit beside it.
+    names
+        Functions of ``c_file`` to time (CasADi calling convention).
+    calls, repeats
+        Calls per timed repeat, and number of repeats (the median is reported).
+    cc
+        Compiler; default ``$CC``, else the first of cc, gcc, clang on PATH.
+    seed
+        Seed of the pseudo-random inputs in [-1, 1].
+    opt
+        Optimisation flag passed to the compiler.
+
+    Returns
+    -------
+    dict
+        ``{name: ns_per_call}``.
+
+    Raises
+    ------
+    BuildError
+        No compiler, the harness did not compile, or it exited with an error.
+    ValueError
+        A name is not a C identifier, or ``calls``/``repeats`` is not positive.
+    """
+    c_file = Path(c_file).resolve()
+    header = c_file.with_suffix(".h")
+    names = list(dict.fromkeys(names))   # a repeated name would define bench_NAME twice
+    for n in names:
+        # Names are pasted into C source: anything but an identifier would be injection.
+        if not (n.isidentifier() and n.isascii()):
+            raise ValueError(f"names: {n!r} is not a C identifier")
+    if calls < 1 or repeats < 1:
+        raise ValueError(f"calls and repeats must be positive, got {calls} and {repeats}")
+    if not c_file.is_file():
+        raise FileNotFoundError(f"{c_file}: no such C file")
+    if not header.is_file():
+        raise FileNotFoundError(f"{header}: missing; generate with {{'with_header': True}}")
+    compiler = compiler_path(cc)
+    with tempfile.TemporaryDirectory(prefix="softgen-cbench-") as tmp:
+        harness = Path(tmp) / "harness.c"
+        exe = Path(tmp) / "harness"
+        harness.write_text(_harness(header, names, calls, repeats, seed))
+        try:
+            subprocess.run([compiler, opt, "-o", str(exe), str(harness), str(c_file), "-lm"],
+                           check=True, capture_output=True, text=True)
+        except subprocess.CalledProcessError as exc:
+            raise BuildError("compiling the benchmark harness failed", exc.stderr) from None
+        except OSError as exc:
+            raise BuildError(f"cannot run the C compiler {compiler!r} ({exc})") from None
+        proc = subprocess.run([str(exe)], capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise BuildError(f"the benchmark harness exited with status {proc.returncode}",
+                             proc.stderr)
+    out: dict[str, float] = {}
+    for line in proc.stdout.splitlines():
+        name, _, value = line.partition(" ")
+        out[name] = float(value)
+    missing = [n for n in names if n not in out or not math.isfinite(out[n])]
+    if missing:
+        raise BuildError(f"the benchmark harness gave no timing for {', '.join(missing)}",
+                         proc.stdout)
+    return {n: out[n] for n in names}

@@ -1,0 +1,132 @@
+"""Named casadi.Functions -> ``<name>.c``, ``<name>.h`` and ``manifest.json``.
+
+This module knows nothing of robots: it takes a bundle name, the functions with
+one-line docs, the parameter vector they use, and the bytes that identify what
+produced them, and writes the bundle in one pass (acados ``GenerateContext``
+convention, DESIGN.md section 3 item 3). The manifest is the contract of
+DESIGN.md section 2; it is extended (never changed) with ``source_sha256``,
+``instructions``, ``parameters.expressions`` and ``softgen_version``.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+
+#: Bumped whenever the generated code for the same model would change.
+CODEGEN_VERSION = "1"
+
+CODEGEN_OPTS = {"with_header": True}
+
+
+@dataclass(frozen=True)
+class Generated:
+    """One function to emit: the casadi.Function and a one-line description."""
+
+    function: ca.Function
+    doc: str
+
+
+@dataclass
+class BundleSpec:
+    """Everything a bundle is made of."""
+
+    name: str
+    functions: list[Generated]
+    parameters: dict = field(default_factory=lambda: {"names": [], "nominal": []})
+    identity: bytes = b""          # model file bytes + options: what the hash covers
+    extra: dict = field(default_factory=dict)   # extra manifest keys (e.g. "model_file")
+
+
+def content_hash(identity: bytes) -> str:
+    """sha256 of what produced the bundle, the CasADi version and softgen's codegen version."""
+    h = hashlib.sha256()
+    h.update(identity)
+    h.update(f"\ncasadi={ca.__version__}\ncodegen={CODEGEN_VERSION}\n".encode())
+    return h.hexdigest()
+
+
+def library_name(name: str, digest: str) -> str:
+    """Relative path of the compiled library: the hash in the name, so a stale one is never loaded."""
+    return f"build/lib{name}_{digest[:16]}.so"
+
+
+def _signature(f: ca.Function) -> dict:
+    def shape(sp: ca.Sparsity) -> list[int]:
+        return [int(sp.size1()), int(sp.size2())]
+
+    return {
+        "inputs": [{"name": f.name_in(i), "shape": shape(f.sparsity_in(i))}
+                   for i in range(f.n_in())],
+        "outputs": [{"name": f.name_out(i), "shape": shape(f.sparsity_out(i))}
+                    for i in range(f.n_out())],
+    }
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    """Write via a temporary file and rename, so a reader never sees half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.chmod(tmp, 0o644)   # mkstemp makes 0600; generated sources are ordinary files
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def render(spec: BundleSpec) -> dict[str, bytes]:
+    """The bundle's files as bytes, keyed by file name (nothing is written)."""
+    names = [g.function.name() for g in spec.functions]
+    if len(set(names)) != len(names):
+        raise ValueError(f"functions: duplicate names in bundle {spec.name!r}: {names}")
+    for n in names:
+        if not n.startswith(spec.name + "_"):
+            raise ValueError(f"functions: {n!r} must be named {spec.name}_<quantity>")
+    with tempfile.TemporaryDirectory() as tmp:
+        cg = ca.CodeGenerator(f"{spec.name}.c", CODEGEN_OPTS)
+        for g in spec.functions:
+            cg.add(g.function)
+        cg.generate(tmp + os.sep)
+        c_src = (Path(tmp) / f"{spec.name}.c").read_bytes()
+        h_src = (Path(tmp) / f"{spec.name}.h").read_bytes()
+    digest = content_hash(spec.identity)
+    manifest = {
+        "model": spec.name,
+        "hash": digest,
+        "casadi_version": ca.__version__,
+        "softgen_codegen_version": CODEGEN_VERSION,
+        "library": library_name(spec.name, digest),
+        "source_sha256": hashlib.sha256(c_src).hexdigest(),
+        "parameters": spec.parameters,
+        "functions": {
+            g.function.name(): {**_signature(g.function), "doc": g.doc,
+                                "instructions": int(g.function.n_instructions())}
+            for g in spec.functions
+        },
+        **spec.extra,
+    }
+    text = json.dumps(manifest, indent=2, sort_keys=False) + "\n"
+    return {f"{spec.name}.c": c_src, f"{spec.name}.h": h_src, "manifest.json": text.encode()}
+
+
+def write_bundle(spec: BundleSpec, out_root: Path) -> Path:
+    """Write ``out_root/<name>/{<name>.c, <name>.h, manifest.json}``; return the bundle dir.
+
+    Files whose bytes are unchanged are not rewritten, so their timestamps (and any
+    build system watching them) stay quiet.
+    """
+    bundle = Path(out_root) / spec.name
+    for fname, data in render(spec).items():
+        path = bundle / fname
+        if path.exists() and path.read_bytes() == data:
+            continue
+        _write_atomic(path, data)
+    return bundle

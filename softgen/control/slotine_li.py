@@ -1,0 +1,163 @@
+"""Slotine–Li adaptive tracking control (thesis Prop. 10, eq. 9.2) as generated steps.
+
+Continuous law::
+
+    q̃ = q_d − q,  q̇_r = q̇_d + Λ q̃,  s = q̇_r − q̇ = dq̃/dt + Λ q̃,
+    τ = Y(q, q̇, q̇_r, q̈_r) π̂ + K_d s,     dπ̂/dt = K_π Yᵀ s,
+
+with q̈_r = q̈_d + Λ (q̇_d − q̇). The discrete step holds τ over one sample time
+(zero-order hold) and integrates π̂ by forward Euler over the same sample. The
+gains are diagonal and passed as vectors, so one generated function serves
+every tuning.
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ..symbolic.rigid import FUNCTION_OPTS, RigidDynamics
+
+
+def _law(dyn: RigidDynamics, pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd):
+    m = dyn.nominal
+    e = q_d - q
+    qd_r = qd_d + lam * e
+    qdd_r = qdd_d + lam * (qd_d - qd)
+    s = qd_r - qd
+    Y = ca.substitute([dyn.base.Y], [m.q, m.qd, m.qd_r, m.qdd_r], [q, qd, qd_r, qdd_r])[0]
+    tau = ca.mtimes(Y, pi_hat) + kd * s
+    return tau, ca.mtimes(Y.T, s)
+
+
+def controller_fun(dyn: RigidDynamics) -> ca.Function:
+    """``<model>_slotine_li``: one controller sample.
+
+    Inputs ``pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd, kpi, dt``; outputs
+    ``pi_hat_next, tau`` (Prop. 10 with Euler integration of π̂).
+    """
+    n, p = dyn.model.dof, len(dyn.base.names)
+    pi_hat, kpi = ca.SX.sym("pi_hat", p), ca.SX.sym("kpi", p)
+    q, qd, q_d, qd_d, qdd_d, lam, kd = (ca.SX.sym(s, n) for s in
+                                        ("q", "qd", "q_d", "qd_d", "qdd_d", "lam", "kd"))
+    dt = ca.SX.sym("dt")
+    tau, yts = _law(dyn, pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd)
+    return ca.Function(f"{dyn.name}_slotine_li",
+                       [pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd, kpi, dt],
+                       [pi_hat + dt * kpi * yts, tau],
+                       ["pi_hat", "q", "qd", "q_d", "qd_d", "qdd_d", "lam", "kd", "kpi", "dt"],
+                       ["pi_hat_next", "tau"], FUNCTION_OPTS)
+
+
+def _rk4(f, x, u, h):
+    k1 = f(x, u)
+    k2 = f(x + h / 2 * k1, u)
+    k3 = f(x + h / 2 * k2, u)
+    k4 = f(x + h * k3, u)
+    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def plant_rhs(dyn: RigidDynamics) -> ca.Function:
+    """ẋ = (q̇, q̈) of the nominal model with x = (q, q̇)."""
+    n = dyn.model.dof
+    m = dyn.nominal
+    tau = ca.SX.sym("tau", n)
+    qdd = dyn.forward_dynamics_expr(tau)
+    x = ca.vertcat(m.q, m.qd)
+    return ca.Function("rhs", [x, tau], [ca.vertcat(m.qd, qdd)], ["x", "tau"], ["xdot"])
+
+
+def plant_step_fun(dyn: RigidDynamics) -> ca.Function:
+    """``<model>_plant_rk4``: one classical RK4 step of length ``h`` with τ held."""
+    n = dyn.model.dof
+    x, tau, h = ca.SX.sym("x", 2 * n), ca.SX.sym("tau", n), ca.SX.sym("h")
+    return ca.Function(f"{dyn.name}_plant_rk4", [x, tau, h], [_rk4(plant_rhs(dyn), x, tau, h)],
+                       ["x", "tau", "h"], ["x_next"], FUNCTION_OPTS)
+
+
+def closed_loop_fun(dyn: RigidDynamics, *, steps: int, substeps: int) -> ca.Function:
+    """``<model>_slotine_li_loop``: ``steps`` controller samples of the closed loop in one call.
+
+    Per sample: measure x = (q, q̇), run :func:`controller_fun`, then integrate the
+    nominal plant over ``dt`` with ``substeps`` RK4 steps (ZOH on τ). Built with
+    CasADi ``mapaccum`` so the whole loop runs in the generated C.
+
+    Inputs: ``x0`` (2n), ``pi_hat0`` (p), ``ref`` (3n × steps: q_d, q̇_d, q̈_d per
+    column), ``lam, kd`` (n), ``kpi`` (p), ``dt``. Outputs: ``x`` (2n × steps, the
+    state after each sample), ``pi_hat`` (p × steps), ``tau`` (n × steps).
+    """
+    n, p = dyn.model.dof, len(dyn.base.names)
+    x, pi_hat = ca.SX.sym("x", 2 * n), ca.SX.sym("pi_hat", p)
+    ref = ca.SX.sym("ref", 3 * n)
+    lam, kd, kpi, dt = ca.SX.sym("lam", n), ca.SX.sym("kd", n), ca.SX.sym("kpi", p), ca.SX.sym("dt")
+    q, qd = x[:n], x[n:]
+    tau, yts = _law(dyn, pi_hat, q, qd, ref[:n], ref[n:2 * n], ref[2 * n:], lam, kd)
+    rhs = plant_rhs(dyn)
+    h = dt / substeps
+    xn = x
+    for _ in range(substeps):
+        xn = _rk4(rhs, xn, tau, h)
+    acc = ca.vertcat(xn, pi_hat + dt * kpi * yts)
+    one = ca.Function("one_sample", [ca.vertcat(x, pi_hat), ref, lam, kd, kpi, dt], [acc, tau],
+                      ["z", "ref", "lam", "kd", "kpi", "dt"], ["z_next", "tau"], FUNCTION_OPTS)
+    # Only the state is accumulated; references vary per column, gains are shared.
+    loop = one.mapaccum("loop", steps, [0], [0])
+    x0, pi0 = ca.MX.sym("x0", 2 * n), ca.MX.sym("pi_hat0", p)
+    R = ca.MX.sym("ref", 3 * n, steps)
+    L, Kd, Kpi, DT = ca.MX.sym("lam", n), ca.MX.sym("kd", n), ca.MX.sym("kpi", p), ca.MX.sym("dt")
+    Z, T = loop(ca.vertcat(x0, pi0), R, L, Kd, Kpi, DT)
+    return ca.Function(f"{dyn.name}_slotine_li_loop", [x0, pi0, R, L, Kd, Kpi, DT],
+                       [Z[:2 * n, :], Z[2 * n:, :], T],
+                       ["x0", "pi_hat0", "ref", "lam", "kd", "kpi", "dt"],
+                       ["x", "pi_hat", "tau"])
+
+
+class SlotineLi:
+    """Runtime Slotine–Li controller stepping a bundle's ``<model>_slotine_li``.
+
+    Follows :class:`softgen.runtime.simulate.Controller`. ``reference(t)`` returns
+    (q_d, q̇_d, q̈_d). Gains are diagonal: ``lam`` (Λ), ``kd`` (K_d), ``kpi`` (K_π).
+    """
+
+    def __init__(self, bundle, *, reference, lam, kd, kpi, dt: float, pi_hat0=None):
+        self.fn = bundle.slotine_li
+        n = bundle.manifest["dof"]
+        p = len(bundle.parameter_names)
+        self.reference = reference
+        self.dt = float(dt)
+        if not self.dt > 0:
+            raise ValueError(f"dt: expected a positive sample time, got {dt!r}")
+        self.lam, self.kd = _gain(lam, n, "lam"), _gain(kd, n, "kd")
+        self.kpi = _gain(kpi, p, "kpi")
+        self.pi_hat0 = np.zeros(p) if pi_hat0 is None else _gain(pi_hat0, p, "pi_hat0", pos=False)
+        self.reset()
+
+    def reset(self) -> None:
+        self.pi_hat = self.pi_hat0.copy()
+        self._pis: list[np.ndarray] = []
+
+    def step(self, k: int, t: float, x: np.ndarray) -> np.ndarray:
+        n = self.lam.size
+        q_d, qd_d, qdd_d = self.reference(t)
+        ins = self.fn.inputs
+        ins[0][:] = self.pi_hat
+        ins[1][:] = x[:n]
+        ins[2][:] = x[n:]
+        ins[3][:], ins[4][:], ins[5][:] = q_d, qd_d, qdd_d
+        ins[6][:], ins[7][:], ins[8][:], ins[9][0] = self.lam, self.kd, self.kpi, self.dt
+        self.fn.call()
+        self._pis.append(self.pi_hat)
+        self.pi_hat = self.fn.outputs[0].copy()
+        return self.fn.outputs[1].copy()
+
+    def log(self) -> dict[str, np.ndarray]:
+        return {"pi_hat": np.array(self._pis)}
+
+
+def _gain(v, n: int, name: str, pos: bool = True) -> np.ndarray:
+    a = np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy() if np.ndim(v) == 0 else \
+        np.asarray(v, dtype=float).ravel()
+    if a.shape != (n,):
+        raise ValueError(f"{name}: expected a scalar or {n} values, got shape {np.shape(v)}")
+    if pos and not np.all(a > 0):
+        raise ValueError(f"{name}: expected positive gains, got {a.tolist()}")
+    return a

@@ -1,0 +1,42 @@
+"""Registry of reproducible experiments, keyed by the ids of thesis/NOTES.md.
+
+An experiment is a module exposing ``EXPERIMENT``, an :class:`Experiment` whose
+``run(config, out_dir)`` simulates, draws its figures into ``out_dir`` and returns
+the metrics computed from that run. Nothing else imports ``experiments/``.
+"""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from ..errors import ExperimentError
+
+#: id -> module (relative to this package); order is the order of ``softgen list``.
+_MODULES = {
+    "rigid-2link-adaptive": ".rigid_2link_adaptive",
+}
+
+
+@dataclass(frozen=True)
+class Experiment:
+    id: str
+    title: str
+    section: str                      # where in the thesis (or "softgen" if our own)
+    run: Callable[[dict, Path], dict]  # (config, out_dir) -> metrics
+    config: dict                      # full run
+    quick: dict = field(default_factory=dict)   # overrides for a quick run
+    thesis: dict = field(default_factory=dict)  # numbers the thesis reports, same keys
+
+
+def experiment_ids() -> list[str]:
+    return list(_MODULES)
+
+
+def get(exp_id: str) -> Experiment:
+    if exp_id not in _MODULES:
+        raise ExperimentError(f"unknown experiment {exp_id!r}: expected one of "
+                              f"{', '.join(_MODULES)}")
+    module = importlib.import_module(_MODULES[exp_id], __package__)
+    return module.EXPERIMENT

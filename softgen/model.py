@@ -1,0 +1,395 @@
+"""Robot models declared in TOML files (``models/<name>.toml``).
+
+A model file is data: a serial chain of revolute or prismatic joints with the
+inertial and geometric values of each link, gravity, optional viscous damping and
+joint stiffness, and the list of parameters treated as uncertain. Loading checks
+everything before any symbolic work happens and raises one :class:`ModelError`
+naming the file and the key (DESIGN.md section 3, items 2 and 8).
+
+Two kinds of chain are accepted:
+
+``kind = "planar"``
+    Links move in the x-y plane, joints rotate about (or slide along) the
+    link's own x axis; ``base_angle_deg`` orients the zero configuration
+    (default -90: the arm hangs along gravity, so angles are measured from the
+    downward vertical as in thesis eq. 10.9, where G holds sin q1 and
+    sin(q1 + q2)). Each link has ``length``, ``mass``, ``com`` (distance along
+    the link, or ``[x, y]`` in the link frame) and ``inertia`` (scalar, about
+    the centre of mass unless ``inertia_about = "joint"``).
+``kind = "spatial"``
+    URDF-like: each joint has ``origin_xyz``, ``origin_rpy`` (placement in the
+    previous link frame) and a unit ``axis``; each link a 3-vector ``com`` and
+    a 3x3 ``inertia``.
+
+Every scalar of the model has a canonical parameter name (``m1``, ``l1``,
+``c1``, ``I1``, ``d1``, ``k1``, ``g``, ...), so the symbolic layer can make any
+of them a CasADi symbol, and the regressor can factor the dynamics in them.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Union
+
+import numpy as np
+
+from .errors import ModelError
+
+#: A scalar of the model: either a number (fixed) or the name of a parameter.
+Scalar = Union[float, str]
+
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+
+_GROUPS = {
+    "mass": "m",
+    "length": "l",
+    "com": "c",
+    "inertia": "I",
+    "damping": "d",
+    "stiffness": "k",
+    "origin": "p",
+    "gravity": "g",
+}
+_DEFAULT_UNCERTAIN = ("mass", "com", "inertia", "damping", "stiffness")
+
+_TOP_KEYS = {"model", "gravity", "links", "parameters"}
+_MODEL_KEYS = {"name", "kind", "description", "source", "base_angle_deg"}
+_GRAVITY_KEYS = {"g", "vector"}
+_PARAM_KEYS = {"uncertain"}
+_PLANAR_LINK_KEYS = {"name", "joint", "length", "mass", "com", "inertia", "inertia_about",
+                     "damping", "stiffness"}
+_SPATIAL_LINK_KEYS = {"name", "joint", "axis", "origin_xyz", "origin_rpy", "mass", "com",
+                      "inertia", "inertia_about", "damping", "stiffness"}
+
+
+@dataclass(frozen=True)
+class Link:
+    """One joint and the rigid link it moves, in the spatial form.
+
+    Every scalar is a number or a parameter name resolved by
+    :meth:`RobotModel.resolve`.
+    """
+
+    name: str
+    joint: str                         # "revolute" | "prismatic"
+    origin_xyz: tuple[Scalar, Scalar, Scalar]
+    origin_rpy: tuple[float, float, float]
+    axis: tuple[float, float, float]
+    mass: Scalar
+    com: tuple[Scalar, Scalar, Scalar]
+    # (xx, yy, zz, xy, xz, yz)
+    inertia: tuple[Scalar, Scalar, Scalar, Scalar, Scalar, Scalar]
+    inertia_about: str                 # "com" | "joint"
+    damping: Scalar | None = None
+    stiffness: Scalar | None = None
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    """A validated serial-chain robot.
+
+    Attributes
+    ----------
+    name, kind, description, source
+        From the ``[model]`` table.
+    links
+        The chain, base to tip.
+    gravity_direction
+        Unit vector of gravity in the world frame; its magnitude is parameter ``g``.
+    base_rpy
+        Orientation of the base frame in the world frame.
+    nominal
+        Parameter name -> nominal value, in declaration order.
+    uncertain
+        Names of the parameters treated as unknown (symbols in the regressor).
+    path
+        File the model came from (``None`` if built in memory).
+    """
+
+    name: str
+    kind: str
+    description: str
+    source: str
+    links: tuple[Link, ...]
+    gravity_direction: tuple[float, float, float]
+    base_rpy: tuple[float, float, float]
+    nominal: dict[str, float] = field(hash=False)
+    uncertain: tuple[str, ...]
+    path: Path | None = None
+
+    @property
+    def dof(self) -> int:
+        return len(self.links)
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(self.nominal)
+
+    @property
+    def known(self) -> tuple[str, ...]:
+        return tuple(n for n in self.nominal if n not in self.uncertain)
+
+    def has_damping(self) -> bool:
+        return any(link.damping is not None for link in self.links)
+
+    def has_stiffness(self) -> bool:
+        return any(link.stiffness is not None for link in self.links)
+
+    def resolve(self, value: Scalar | None, values: dict[str, Any]) -> Any:
+        """A link scalar as a number or as ``values[name]`` for a parameter name."""
+        if value is None:
+            return 0.0
+        if isinstance(value, str):
+            return values[value]
+        return value
+
+    def source_text(self) -> str:
+        return self.path.read_text() if self.path is not None else ""
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def model_path(name_or_path: str | Path) -> Path:
+    """The file of a model given by name (``planar_2link``) or by path."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    candidate = MODELS_DIR / f"{name_or_path}.toml"
+    if not candidate.exists():
+        known = ", ".join(list_models()) or "(none)"
+        raise ModelError(f"unknown model {str(name_or_path)!r}: expected one of {known} "
+                         f"or a path to a .toml file")
+    return candidate
+
+
+def list_models() -> list[str]:
+    """Names of the models shipped in ``models/``."""
+    return sorted(p.stem for p in MODELS_DIR.glob("*.toml"))
+
+
+def load_model(name_or_path: str | Path) -> RobotModel:
+    """Load and validate a model file.
+
+    Raises
+    ------
+    ModelError
+        Unknown key, missing field, wrong shape or non-physical value; the message
+        names the file and the key.
+    """
+    path = model_path(name_or_path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ModelError(f"{path}: cannot read model file ({exc.strerror})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ModelError(f"{path}: not valid TOML ({exc})") from None
+    return _Parser(path).parse(data)
+
+
+class _Parser:
+    def __init__(self, path: Path):
+        self.path = path
+        self._link_names: set[str] = set()
+
+    def fail(self, key: str, msg: str) -> ModelError:
+        return ModelError(f"{self.path}: {key}: {msg}")
+
+    # -- small typed readers -----------------------------------------------------
+    def keys(self, table: Any, where: str, allowed: set[str], required: set[str]) -> dict:
+        if not isinstance(table, dict):
+            raise self.fail(where, f"expected a table, got {type(table).__name__}")
+        for k in table:
+            if k not in allowed:
+                raise self.fail(f"{where}.{k}" if where else k,
+                                f"unknown key (expected one of: {', '.join(sorted(allowed))})")
+        for k in sorted(required):
+            if k not in table:
+                raise self.fail(f"{where}.{k}" if where else k, "missing required field")
+        return table
+
+    def number(self, v: Any, key: str, *, positive=False, nonneg=False) -> float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise self.fail(key, f"expected a number, got {v!r}")
+        x = float(v)
+        if not math.isfinite(x):
+            raise self.fail(key, f"expected a finite number, got {v!r}")
+        if positive and not x > 0:
+            raise self.fail(key, f"expected a positive number, got {v!r}")
+        if nonneg and x < 0:
+            raise self.fail(key, f"expected a non-negative number, got {v!r}")
+        return x
+
+    def vector(self, v: Any, key: str, n: int) -> tuple[float, ...]:
+        if not isinstance(v, list) or len(v) != n:
+            raise self.fail(key, f"expected a list of {n} numbers, got {v!r}")
+        return tuple(self.number(x, f"{key}[{i}]") for i, x in enumerate(v))
+
+    def choice(self, v: Any, key: str, options: tuple[str, ...]) -> str:
+        if v not in options:
+            raise self.fail(key, f"expected one of {', '.join(map(repr, options))}, got {v!r}")
+        return v
+
+    # -- the file ----------------------------------------------------------------
+    def parse(self, data: dict) -> RobotModel:
+        self.keys(data, "", _TOP_KEYS, {"model", "links"})
+        meta = self.keys(data["model"], "model", _MODEL_KEYS, {"name", "kind"})
+        name = meta["name"]
+        # The name prefixes every generated C symbol: ASCII identifiers only.
+        if not isinstance(name, str) or not name.isascii() or not name.isidentifier():
+            raise self.fail("model.name", f"expected a C identifier, got {name!r}")
+        kind = self.choice(meta["kind"], "model.kind", ("planar", "spatial"))
+        links_raw = data["links"]
+        if not isinstance(links_raw, list) or not links_raw:
+            raise self.fail("links", "expected a non-empty array of tables [[links]]")
+
+        nominal: dict[str, float] = {}
+        if kind == "planar":
+            links = self.planar_links(links_raw, nominal)
+            base_angle = self.number(meta.get("base_angle_deg", -90.0), "model.base_angle_deg")
+            base_rpy = (0.0, 0.0, math.radians(base_angle))
+        else:
+            if "base_angle_deg" in meta:
+                raise self.fail("model.base_angle_deg", "only for kind = \"planar\"; "
+                                "place a spatial base with links[0].origin_rpy")
+            links = self.spatial_links(links_raw, nominal)
+            base_rpy = (0.0, 0.0, 0.0)
+
+        gdir, gmag = self.gravity(data.get("gravity", {}), kind)
+        nominal["g"] = gmag
+        uncertain = self.uncertain(data.get("parameters", {}), nominal)
+        return RobotModel(name=name, kind=kind, description=str(meta.get("description", "")),
+                          source=str(meta.get("source", "")), links=tuple(links),
+                          gravity_direction=gdir, base_rpy=base_rpy, nominal=nominal,
+                          uncertain=uncertain, path=self.path)
+
+    def gravity(self, g: Any, kind: str) -> tuple[tuple[float, float, float], float]:
+        g = self.keys(g, "gravity", _GRAVITY_KEYS, set())
+        if kind == "planar":
+            if "vector" in g:
+                raise self.fail("gravity.vector", "planar models take gravity.g "
+                                "(acting along -y of the world)")
+            return (0.0, -1.0, 0.0), self.number(g.get("g", 9.81), "gravity.g", nonneg=True)
+        if "g" in g:
+            raise self.fail("gravity.g", "spatial models take gravity.vector = [gx, gy, gz]")
+        vec = np.array(self.vector(g.get("vector", [0.0, 0.0, -9.81]), "gravity.vector", 3))
+        mag = float(np.linalg.norm(vec))
+        direction = tuple(float(x) for x in (vec / mag if mag > 0 else np.array([0, 0, -1.0])))
+        return direction, mag
+
+    def link_common(self, raw: dict, key: str, i: int, nominal: dict) -> dict:
+        out: dict[str, Any] = {}
+        name = raw.get("name", f"link{i}")
+        if not isinstance(name, str) or not name:
+            raise self.fail(f"{key}.name", f"expected a non-empty string, got {name!r}")
+        if name in self._link_names:
+            raise self.fail(f"{key}.name", f"duplicate link name {name!r}")
+        self._link_names.add(name)
+        out["name"] = name
+        out["joint"] = self.choice(raw["joint"], f"{key}.joint", ("revolute", "prismatic"))
+        nominal[f"m{i}"] = self.number(raw["mass"], f"{key}.mass", nonneg=True)
+        out["mass"] = f"m{i}"
+        about = raw.get("inertia_about", "com")
+        out["inertia_about"] = self.choice(about, f"{key}.inertia_about", ("com", "joint"))
+        for field_, prefix in (("damping", "d"), ("stiffness", "k")):
+            if field_ in raw:
+                nominal[f"{prefix}{i}"] = self.number(raw[field_], f"{key}.{field_}", nonneg=True)
+                out[field_] = f"{prefix}{i}"
+        return out
+
+    def planar_links(self, links_raw: list, nominal: dict) -> list[Link]:
+        links = []
+        prev_length: str | None = None
+        for i, raw in enumerate(links_raw, start=1):
+            key = f"links[{i - 1}]"
+            self.keys(raw, key, _PLANAR_LINK_KEYS, {"joint", "length", "mass", "com", "inertia"})
+            common = self.link_common(raw, key, i, nominal)
+            nominal[f"l{i}"] = self.number(raw["length"], f"{key}.length", nonneg=True)
+            com = raw["com"]
+            if isinstance(com, list):
+                cx, cy = self.vector(com, f"{key}.com", 2)
+                nominal[f"c{i}x"], nominal[f"c{i}y"] = cx, cy
+                com_s: tuple[Scalar, Scalar, Scalar] = (f"c{i}x", f"c{i}y", 0.0)
+            else:
+                nominal[f"c{i}"] = self.number(com, f"{key}.com")
+                com_s = (f"c{i}", 0.0, 0.0)
+            nominal[f"I{i}"] = self.number(raw["inertia"], f"{key}.inertia", positive=True)
+            origin: tuple[Scalar, Scalar, Scalar] = (prev_length or 0.0, 0.0, 0.0)
+            # Joint i sits at the tip of link i-1 (its length parameter). A prismatic
+            # joint slides along the previous link's x axis.
+            axis = (0.0, 0.0, 1.0) if common["joint"] == "revolute" else (1.0, 0.0, 0.0)
+            links.append(Link(origin_xyz=origin, origin_rpy=(0.0, 0.0, 0.0), axis=axis,
+                              com=com_s, inertia=(0.0, 0.0, f"I{i}", 0.0, 0.0, 0.0), **common))
+            prev_length = f"l{i}"
+        return links
+
+    def spatial_links(self, links_raw: list, nominal: dict) -> list[Link]:
+        links = []
+        for i, raw in enumerate(links_raw, start=1):
+            key = f"links[{i - 1}]"
+            self.keys(raw, key, _SPATIAL_LINK_KEYS, {"joint", "axis", "mass", "com", "inertia"})
+            common = self.link_common(raw, key, i, nominal)
+            axis = np.array(self.vector(raw["axis"], f"{key}.axis", 3))
+            norm = float(np.linalg.norm(axis))
+            if norm < 1e-12:
+                raise self.fail(f"{key}.axis", "expected a non-zero vector")
+            origin = self.vector(raw.get("origin_xyz", [0.0, 0.0, 0.0]), f"{key}.origin_xyz", 3)
+            rpy = self.vector(raw.get("origin_rpy", [0.0, 0.0, 0.0]), f"{key}.origin_rpy", 3)
+            for ax, v in zip("xyz", origin):
+                nominal[f"p{i}{ax}"] = v
+            com = self.vector(raw["com"], f"{key}.com", 3)
+            for ax, v in zip("xyz", com):
+                nominal[f"c{i}{ax}"] = v
+            inertia = self.inertia3(raw["inertia"], f"{key}.inertia")
+            names = ("xx", "yy", "zz", "xy", "xz", "yz")
+            for n, v in zip(names, inertia):
+                nominal[f"I{i}{n}"] = v
+            links.append(Link(origin_xyz=tuple(f"p{i}{a}" for a in "xyz"), origin_rpy=rpy,
+                              axis=tuple(float(a) for a in axis / norm),
+                              com=tuple(f"c{i}{a}" for a in "xyz"),
+                              inertia=tuple(f"I{i}{n}" for n in names), **common))
+        return links
+
+    def inertia3(self, v: Any, key: str) -> tuple[float, ...]:
+        if isinstance(v, list) and len(v) == 3 and all(isinstance(r, list) for r in v):
+            rows = [self.vector(r, f"{key}[{j}]", 3) for j, r in enumerate(v)]
+            m = np.array(rows)
+            if not np.allclose(m, m.T, rtol=0, atol=1e-12 * max(1.0, abs(m).max())):
+                raise self.fail(key, "expected a symmetric 3x3 matrix")
+        elif isinstance(v, list) and len(v) == 6:
+            xx, yy, zz, xy, xz, yz = self.vector(v, key, 6)
+            m = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+        else:
+            raise self.fail(key, "expected a 3x3 matrix or [ixx, iyy, izz, ixy, ixz, iyz], "
+                            f"got {v!r}")
+        if np.linalg.eigvalsh(m).min() <= 0:
+            raise self.fail(key, f"inertia not positive definite (eigenvalues "
+                            f"{np.round(np.linalg.eigvalsh(m), 12).tolist()})")
+        return (m[0, 0], m[1, 1], m[2, 2], m[0, 1], m[0, 2], m[1, 2])
+
+    def uncertain(self, table: Any, nominal: dict) -> tuple[str, ...]:
+        table = self.keys(table, "parameters", _PARAM_KEYS, set())
+        spec = table.get("uncertain", list(_DEFAULT_UNCERTAIN))
+        if not isinstance(spec, list) or not all(isinstance(s, str) for s in spec):
+            raise self.fail("parameters.uncertain", f"expected a list of names, got {spec!r}")
+        chosen: set[str] = set()
+        for s in spec:
+            if s in _GROUPS:
+                prefix = _GROUPS[s]
+                chosen.update(n for n in nominal if _group_of(n) == prefix)
+            elif s in nominal:
+                chosen.add(s)
+            else:
+                raise self.fail("parameters.uncertain",
+                                f"unknown parameter or group {s!r} (groups: "
+                                f"{', '.join(_GROUPS)}; parameters: {', '.join(nominal)})")
+        return tuple(n for n in nominal if n in chosen)
+
+
+def _group_of(name: str) -> str:
+    """Group prefix of a canonical parameter name (``I2zz`` -> ``I``)."""
+    return name.rstrip("xyz0123456789") if name != "g" else "g"

@@ -1,0 +1,50 @@
+"""Metrics of a ``softgen reproduce`` run -> ``report.md`` beside the thesis's numbers."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def _fmt(x) -> str:
+    if x is None:
+        return "—"
+    if isinstance(x, (int, float)):
+        return f"{x:.4g}"
+    return str(x)
+
+
+def write_report(results: list[dict], path: Path) -> None:
+    """One table per experiment: metric | ours | thesis | ours/thesis.
+
+    Every metric we computed gets a row; a thesis number we have no metric for
+    gets a row too (so a missing comparison is visible, not hidden).
+    """
+    lines = ["# softgen: reproduction report", "",
+             "Numbers under *ours* are computed by the run that wrote this report; "
+             "*thesis* repeats what the thesis prints for the same quantity (— where it "
+             "reports none).", ""]
+    for res in results:
+        exp = res["experiment"]
+        lines.append(f"## {exp}")
+        lines.append("")
+        if "error" in res:
+            lines += [f"**failed**: `{res['error']}`", ""]
+            continue
+        cfg = res.get("config", {})
+        if cfg.get("title"):
+            lines.append(f"{cfg['title']} (thesis: {cfg.get('section', '')}). "
+                         f"Wall time {res['wall_seconds']:.2f} s"
+                         + (", quick run" if cfg.get("quick") else "") + ".")
+            lines.append("")
+        lines += ["| metric | ours | thesis | ours / thesis |", "|---|---|---|---|"]
+        ours, thesis = res["metrics"], res.get("thesis", {})
+        for key in list(ours) + [k for k in thesis if k not in ours]:
+            o, t = ours.get(key), thesis.get(key)
+            ratio = (o / t) if isinstance(o, (int, float)) and isinstance(t, (int, float)) \
+                and t != 0 else None
+            lines.append(f"| {key} | {_fmt(o)} | {_fmt(t)} | {_fmt(ratio)} |")
+        figs = sorted(p.name for p in (path.parent / exp).glob("*.png"))
+        if figs:
+            lines.append("")
+            lines += [f"![{f}]({exp}/{f})" for f in figs]
+        lines.append("")
+    path.write_text("\n".join(lines))

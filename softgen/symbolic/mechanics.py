@@ -1,0 +1,268 @@
+"""Rigid serial-chain mechanics in CasADi SX (thesis eq. 2.1 / 9.1).
+
+Builds, for any planar or spatial chain of revolute and prismatic joints, the
+kinetic and potential energy by one forward recursion over the links, and from
+them
+
+* ``B(q)``, the inertia matrix (Hessian of the kinetic energy in q̇);
+* ``C(q, q̇)``, the Coriolis matrix of the Christoffel symbols of the first kind,
+  ``C_ij = Σ_k Γ_ijk q̇_k`` with ``Γ_ijk = ½(∂B_ij/∂q_k + ∂B_ik/∂q_j − ∂B_jk/∂q_i)``,
+  so that ``Ḃ − 2C`` is skew-symmetric (property used by Prop. 10);
+* ``G(q) = ∂U/∂q``;
+* the Slotine–Li left-hand side ``B q̈_r + C q̇_r + G + D q̇ + K q``.
+
+Two routes are offered for ``C``:
+
+``explicit``
+    ``C = ½ (Ḃ + J − Jᵀ)`` with ``J = ∂(B q̇)/∂q``. This is the Christoffel
+    definition summed over k in matrix form (the three terms are the three
+    Christoffel terms), so the tensor is never formed, but B is.
+``matrix-free``
+    ``C v = ½ (∂(Bv)/∂q q̇ + ∂(Bq̇)/∂q v − ∂(vᵀBq̇)/∂q)`` with ``B w`` itself the
+    gradient of the kinetic energy in q̇ evaluated at q̇ = w. Only directional
+    derivatives (``jtimes``) and one gradient of a scalar are taken, so neither
+    B nor C is formed; this is the route that scales to 40-joint chains.
+
+Functions here are pure expression builders: no files, no numerics.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import casadi as ca
+import numpy as np
+
+from ..model import RobotModel
+
+Values = Mapping[str, "ca.SX | float"]
+
+
+def _rpy(r: float, p: float, y: float) -> np.ndarray:
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _axis_rotation(axis: tuple[float, float, float], angle: ca.SX) -> ca.SX:
+    """Rotation by ``angle`` about a constant unit ``axis`` (Rodrigues' formula)."""
+    x, y, z = axis
+    # Exact structural zeros for the coordinate axes keep expressions small.
+    if axis == (0.0, 0.0, 1.0):
+        c, s = ca.cos(angle), ca.sin(angle)
+        return ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
+    if axis == (1.0, 0.0, 0.0):
+        c, s = ca.cos(angle), ca.sin(angle)
+        return ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, c, -s), ca.horzcat(0, s, c))
+    if axis == (0.0, 1.0, 0.0):
+        c, s = ca.cos(angle), ca.sin(angle)
+        return ca.vertcat(ca.horzcat(c, 0, s), ca.horzcat(0, 1, 0), ca.horzcat(-s, 0, c))
+    k = ca.DM([[0, -z, y], [z, 0, -x], [-y, x, 0]])
+    return ca.DM.eye(3) + ca.sin(angle) * k + (1 - ca.cos(angle)) * ca.mtimes(k, k)
+
+
+def _simplify_const(m: np.ndarray) -> ca.DM:
+    """Round a constant rotation so exact 0/±1 entries stay exact (smaller code)."""
+    out = np.where(np.abs(m) < 1e-15, 0.0, m)
+    out = np.where(np.abs(np.abs(out) - 1.0) < 1e-15, np.sign(out), out)
+    return ca.DM(out)
+
+
+@dataclass
+class LinkState:
+    """World-frame kinematics of one link, as expressions in q (and q̇)."""
+
+    R: ca.SX          # rotation link -> world
+    origin: ca.SX     # joint origin in world
+    com: ca.SX        # centre of mass in world
+    omega: ca.SX      # angular velocity (world)
+    v_origin: ca.SX   # linear velocity of the joint origin (world)
+    v_com: ca.SX      # linear velocity of the centre of mass (world)
+
+
+def forward_kinematics(model: RobotModel, q: ca.SX, qd: ca.SX, values: Values) -> list[LinkState]:
+    """One forward recursion over the chain: frames, origins, velocities.
+
+    Cost is linear in the number of links because each link's expressions reuse
+    the previous link's (CasADi's SX graph shares them).
+    """
+    R = _simplify_const(_rpy(*model.base_rpy))
+    o = ca.SX.zeros(3)
+    omega = ca.SX.zeros(3)
+    v = ca.SX.zeros(3)
+    states = []
+    for i, link in enumerate(model.links):
+        placement = _simplify_const(_rpy(*link.origin_rpy))
+        offset = ca.vertcat(*[model.resolve(x, values) for x in link.origin_xyz])
+        o_new = o + ca.mtimes(R, offset)
+        v_new = v + ca.cross(omega, o_new - o)
+        R_joint = ca.mtimes(R, placement)
+        axis_world = ca.mtimes(R_joint, ca.DM(link.axis))
+        if link.joint == "revolute":
+            R_new = ca.mtimes(R_joint, _axis_rotation(link.axis, q[i]))
+            omega_new = omega + axis_world * qd[i]
+        else:
+            R_new = R_joint
+            o_new = o_new + axis_world * q[i]
+            v_new = v_new + axis_world * qd[i]
+            omega_new = omega
+        c_local = ca.vertcat(*[model.resolve(x, values) for x in link.com])
+        c_world = ca.mtimes(R_new, c_local)
+        states.append(LinkState(R=R_new, origin=o_new, com=o_new + c_world, omega=omega_new,
+                                v_origin=v_new, v_com=v_new + ca.cross(omega_new, c_world)))
+        R, o, omega, v = R_new, o_new, omega_new, v_new
+    return states
+
+
+def _inertia_matrix(model: RobotModel, link, values: Values) -> ca.SX:
+    xx, yy, zz, xy, xz, yz = [model.resolve(x, values) for x in link.inertia]
+    return ca.vertcat(ca.horzcat(xx, xy, xz), ca.horzcat(xy, yy, yz), ca.horzcat(xz, yz, zz))
+
+
+def kinetic_energy(model: RobotModel, q: ca.SX, qd: ca.SX, values: Values) -> ca.SX:
+    """T(q, q̇) = Σ ½ m |v_c|² + ½ ω_bᵀ I_c ω_b (or the joint-origin form)."""
+    T = 0
+    for link, st in zip(model.links, forward_kinematics(model, q, qd, values)):
+        m = model.resolve(link.mass, values)
+        w_body = ca.mtimes(st.R.T, st.omega)
+        I = _inertia_matrix(model, link, values)
+        rot = 0.5 * ca.dot(w_body, ca.mtimes(I, w_body))
+        if link.inertia_about == "com":
+            T += 0.5 * m * ca.dot(st.v_com, st.v_com) + rot
+        else:
+            # Inertia about the joint origin: T = ½ m|v_o|² + m v_o·(ω × c) + ½ ωᵀ I_o ω.
+            c_world = st.com - st.origin
+            T += (0.5 * m * ca.dot(st.v_origin, st.v_origin)
+                  + m * ca.dot(st.v_origin, ca.cross(st.omega, c_world)) + rot)
+    return T
+
+
+def potential_energy(model: RobotModel, q: ca.SX, values: Values) -> ca.SX:
+    """Gravitational potential U(q) = −Σ m g·p_c."""
+    g = model.resolve("g", values) * ca.DM(model.gravity_direction)
+    zeros = ca.SX.zeros(q.shape[0])
+    U = 0
+    for link, st in zip(model.links, forward_kinematics(model, q, zeros, values)):
+        U -= model.resolve(link.mass, values) * ca.dot(g, st.com)
+    return U
+
+
+class Mechanics:
+    """Symbolic dynamics of one chain with parameter values given by ``values``.
+
+    ``values`` maps every parameter name of the model to a number or an SX
+    symbol; symbols make the expressions functions of those parameters (used by
+    the regressor). The symbols ``q, qd, qd_r, qdd_r`` are created here.
+    """
+
+    def __init__(self, model: RobotModel, values: Values):
+        self.model = model
+        self.values = dict(values)
+        n = model.dof
+        self.n = n
+        self.q = ca.SX.sym("q", n)
+        self.qd = ca.SX.sym("qd", n)
+        self.qd_r = ca.SX.sym("qd_r", n)
+        self.qdd_r = ca.SX.sym("qdd_r", n)
+        self._w = ca.SX.sym("w", n)
+        self._T = kinetic_energy(model, self.q, self._w, self.values)
+        # B(q) w as the gradient of T in q̇ at q̇ = w: exact because T is quadratic in q̇.
+        self._p = ca.gradient(self._T, self._w)
+        self.U = potential_energy(model, self.q, self.values)
+
+    # -- energies and their derivatives ------------------------------------------
+    def kinetic(self) -> ca.SX:
+        return ca.substitute(self._T, self._w, self.qd)
+
+    def momentum(self, w: ca.SX) -> ca.SX:
+        """B(q) w without forming B."""
+        return ca.substitute(self._p, self._w, w)
+
+    def inertia(self) -> ca.SX:
+        """B(q) (thesis eq. 2.1), symmetric by construction."""
+        return ca.jacobian(self.momentum(self.qd), self.qd)
+
+    def gravity(self) -> ca.SX:
+        """G(q) = ∂U/∂q (gravity only; joint springs are :meth:`spring`)."""
+        return ca.gradient(self.U, self.q)
+
+    def spring(self) -> ca.SX:
+        """K q (linear joint stiffness; zero for joints that declare none)."""
+        k = [self.model.resolve(link.stiffness, self.values) for link in self.model.links]
+        return ca.vertcat(*[ki * self.q[i] for i, ki in enumerate(k)])
+
+    def damping(self) -> ca.SX:
+        """D q̇ (viscous joint damping; zero for joints that declare none)."""
+        d = [self.model.resolve(link.damping, self.values) for link in self.model.links]
+        return ca.vertcat(*[di * self.qd[i] for i, di in enumerate(d)])
+
+    def coriolis(self) -> ca.SX:
+        """C(q, q̇) from Christoffel symbols, matrix form ½(Ḃ + J − Jᵀ), J = ∂(Bq̇)/∂q."""
+        n = self.n
+        B = self.inertia()
+        Bdot = ca.reshape(ca.jtimes(ca.vec(B), self.q, self.qd), n, n)
+        J = ca.jacobian(self.momentum(self.qd), self.q)
+        return 0.5 * (Bdot + J - J.T)
+
+    def coriolis_times(self, v: ca.SX) -> ca.SX:
+        """C(q, q̇) v, matrix-free (never forms B, C or the Christoffel tensor)."""
+        Bv = self.momentum(v)
+        Bqd = self.momentum(self.qd)
+        return 0.5 * (ca.jtimes(Bv, self.q, self.qd) + ca.jtimes(Bqd, self.q, v)
+                      - ca.gradient(ca.dot(v, Bqd), self.q))
+
+    def slotine_li(self, route: str = "matrix-free") -> ca.SX:
+        """B q̈_r + C q̇_r + G + K q + D q̇ (thesis eq. 9.1, Slotine–Li form of Prop. 10)."""
+        if route == "matrix-free":
+            tau = self.momentum(self.qdd_r) + self.coriolis_times(self.qd_r)
+        elif route == "explicit":
+            tau = ca.mtimes(self.inertia(), self.qdd_r) + ca.mtimes(self.coriolis(), self.qd_r)
+        else:
+            raise ValueError(f"route: expected 'matrix-free' or 'explicit', got {route!r}")
+        return tau + self.gravity() + self.spring() + self.damping()
+
+    # -- kinematics ----------------------------------------------------------------
+    def tip(self) -> tuple[ca.SX, ca.SX]:
+        """Tip position (world) and the 6×n geometric Jacobian [J_v; J_ω] of the tip.
+
+        For planar chains the tip is at the end of the last link (``l_n`` along its
+        x axis); for spatial chains it is the origin of the last joint frame.
+        """
+        states = forward_kinematics(self.model, self.q, self.qd, self.values)
+        last = states[-1]
+        if self.model.kind == "planar":
+            n = self.model.dof
+            offset = ca.vertcat(self.model.resolve(f"l{n}", self.values), 0, 0)
+        else:
+            offset = ca.vertcat(0, 0, 0)
+        r = ca.mtimes(last.R, offset)
+        p = last.origin + r
+        v = last.v_origin + ca.cross(last.omega, r)
+        J = ca.vertcat(ca.jacobian(v, self.qd), ca.jacobian(last.omega, self.qd))
+        return p, J
+
+    def link_jacobians(self) -> list[ca.SX]:
+        """6×n geometric Jacobians [J_v; J_ω] of every link's centre of mass."""
+        states = forward_kinematics(self.model, self.q, self.qd, self.values)
+        return [ca.vertcat(ca.jacobian(s.v_com, self.qd), ca.jacobian(s.omega, self.qd))
+                for s in states]
+
+
+def nominal_values(model: RobotModel) -> dict[str, float]:
+    """All parameters at their nominal values (numbers, no symbols)."""
+    return dict(model.nominal)
+
+
+def symbolic_values(model: RobotModel, names: tuple[str, ...] | None = None
+                    ) -> tuple[dict[str, object], ca.SX]:
+    """Nominal values with ``names`` (default: the uncertain ones) made SX symbols.
+
+    Returns the value map and the column of symbols in the order of ``names``.
+    """
+    names = model.uncertain if names is None else names
+    values: dict[str, object] = dict(model.nominal)
+    syms = [ca.SX.sym(n) for n in names]
+    for n, s in zip(names, syms):
+        values[n] = s
+    return values, (ca.vertcat(*syms) if syms else ca.SX(0, 1))

@@ -1,0 +1,232 @@
+"""Linear-in-parameters factorisation and base-parameter reduction (thesis eq. 9.1).
+
+Given an expression ``tau(x, p)`` that is polynomial in the uncertain physical
+parameters ``p`` (masses and inertias enter linearly; lengths and centres of mass
+polynomially through the kinematics), :func:`factor_polynomial` writes it as
+
+    tau(x, p) = tau_0(x) + Σ_α Y_α(x) p^α
+
+by exact symbolic differentiation (the coefficient of ``p_j^k`` is
+``(1/k!) ∂^k tau/∂p_j^k`` at ``p_j = 0``, recursively over the parameters).
+:func:`base_parameters` then keeps a maximal set of linearly independent columns
+of ``Y`` (the identifiable, or base, parameters) and folds the dependent ones into
+them with the exact coefficients, giving ``tau = Y_b(x) π_b(p)`` where
+``π_b(p) = π_indep(p) + K π_dep(p)`` is the map from physical to base parameters.
+
+Column independence is decided numerically on random seeded samples of ``x``
+(the method of Gautier and Khalil); the regressor itself stays symbolic.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from fractions import Fraction
+
+import casadi as ca
+import numpy as np
+
+from ..errors import ModelError
+
+MAX_DEGREE = 8
+
+
+@dataclass(frozen=True)
+class Monomial:
+    exponents: tuple[int, ...]          # one per parameter symbol
+
+    def degree(self) -> int:
+        return sum(self.exponents)
+
+    def name(self, names: tuple[str, ...]) -> str:
+        parts = []
+        for n, e in zip(names, self.exponents):
+            if e == 1:
+                parts.append(n)
+            elif e > 1:
+                parts.append(f"{n}^{e}")
+        return "*".join(parts) if parts else "1"
+
+    def evaluate(self, p):
+        out = 1
+        for pj, e in zip(p, self.exponents):
+            if e:
+                out = out * pj ** e
+        return out
+
+
+@dataclass
+class PolynomialFactorisation:
+    columns: list[ca.SX]               # each n×1, coefficient of a monomial
+    monomials: list[Monomial]
+    constant: ca.SX | None             # tau_0(x), terms multiplying no parameter
+
+
+def _numerically_zero(expr: ca.SX, inputs: list[ca.SX], samples: list[list[np.ndarray]],
+                      scale: float) -> bool:
+    f = ca.Function("z", inputs, [expr])
+    return all(np.max(np.abs(np.array(f(*s)))) <= 1e-11 * scale for s in samples)
+
+
+def factor_polynomial(tau: ca.SX, params: ca.SX, inputs: list[ca.SX], *, seed: int = 0,
+                      n_samples: int = 3) -> PolynomialFactorisation:
+    """Split ``tau(x, p)`` into monomials of ``p`` with exact symbolic coefficients.
+
+    Parameters
+    ----------
+    tau
+        Column expression.
+    params
+        Column of the parameter symbols ``p``.
+    inputs
+        The other symbols ``x`` the expression depends on (used to sample).
+
+    Raises
+    ------
+    ModelError
+        If ``tau`` is not a polynomial of degree ≤ ``MAX_DEGREE`` in some parameter.
+    """
+    rng = np.random.default_rng(seed)
+    syms = [params[j] for j in range(params.shape[0])]
+    all_inputs = list(inputs) + [params]
+    samples = [[rng.normal(size=i.shape) for i in inputs] + [rng.uniform(0.5, 2.0, params.shape)]
+               for _ in range(n_samples)]
+    f_tau = ca.Function("tau", all_inputs, [tau])
+    scale = max(1.0, max(float(np.max(np.abs(np.array(f_tau(*s))))) for s in samples))
+
+    columns: list[ca.SX] = []
+    monomials: list[Monomial] = []
+    constant: list[ca.SX] = []
+
+    def split(expr: ca.SX, j: int, exps: tuple[int, ...]) -> None:
+        if j == len(syms):
+            if _numerically_zero(expr, all_inputs, samples, scale):
+                return
+            if sum(exps) == 0:
+                constant.append(expr)
+            else:
+                columns.append(expr)
+                monomials.append(Monomial(exps))
+            return
+        s = syms[j]
+        cur = expr
+        for k in range(MAX_DEGREE + 1):
+            if not ca.depends_on(cur, s):
+                # Coefficient of s^k is cur itself; all higher ones vanish exactly.
+                split(cur / math.factorial(k), j + 1, exps + (k,))
+                return
+            coeff = ca.substitute(cur, s, 0) / math.factorial(k)
+            split(coeff, j + 1, exps + (k,))
+            cur = ca.jacobian(cur, s)
+        raise ModelError(f"parameter {s.name()!r} does not enter the dynamics polynomially "
+                         f"(degree > {MAX_DEGREE}); it cannot be an uncertain parameter")
+
+    split(tau, 0, ())
+    return PolynomialFactorisation(columns, monomials, constant[0] if constant else None)
+
+
+@dataclass
+class BaseParameters:
+    """Result of :func:`base_parameters`.
+
+    Attributes
+    ----------
+    Y
+        n×r symbolic base regressor.
+    pi
+        r×1 expression of the base parameters in the physical parameter symbols.
+    names, expressions
+        Short name of each base parameter (its leading monomial) and the full
+        linear combination, human-readable.
+    full_rank
+        Number of distinct monomials before reduction.
+    constant
+        Terms multiplying no uncertain parameter (``None`` when there are none).
+    """
+
+    Y: ca.SX
+    pi: ca.SX
+    names: list[str]
+    expressions: list[str]
+    full_rank: int
+    constant: ca.SX | None
+
+
+def _exact(x: float) -> float:
+    """Snap a dependency coefficient to a nearby simple fraction, else 12 digits.
+
+    Dependencies between rigid-body regressor columns are ±1 or small
+    fractions; snapping makes the generated code independent of LAPACK round-off,
+    so two machines write byte-identical C.
+    """
+    fr = Fraction(x).limit_denominator(1000)
+    if abs(float(fr) - x) <= 1e-9 * max(1.0, abs(x)):
+        return float(fr)
+    return float(f"{x:.12g}")
+
+
+def base_parameters(fact: PolynomialFactorisation, params: ca.SX, names: tuple[str, ...],
+                    inputs: list[ca.SX], *, seed: int = 0, n_samples: int = 40,
+                    tol: float = 1e-9) -> BaseParameters:
+    """Reduce the monomial columns to a base (identifiable) parameter set.
+
+    Columns are scanned in order of increasing monomial degree (ties in the order
+    of the model's parameters) and kept when they raise the numerical rank of the
+    sampled regressor; each dropped column is written exactly in terms of the kept
+    ones by least squares, snapped to a simple fraction (see :func:`_exact`).
+    """
+    if not fact.columns:
+        raise ModelError("the dynamics depend on none of the uncertain parameters")
+    rng = np.random.default_rng(seed)
+    order = sorted(range(len(fact.monomials)),
+                   key=lambda i: (fact.monomials[i].degree(),
+                                  tuple(-e for e in fact.monomials[i].exponents)))
+    cols = [fact.columns[i] for i in order]
+    mons = [fact.monomials[i] for i in order]
+    Yfull = ca.horzcat(*cols)
+    f = ca.Function("Yfull", list(inputs), [Yfull])
+    W = np.vstack([np.array(f(*[rng.uniform(-np.pi, np.pi, i.shape) for i in inputs]))
+                   for _ in range(n_samples)])
+    norms = np.linalg.norm(W, axis=0)
+    Wn = W / np.where(norms > 0, norms, 1.0)
+
+    kept: list[int] = []
+    for j in range(Wn.shape[1]):
+        trial = Wn[:, kept + [j]]
+        s = np.linalg.svd(trial, compute_uv=False)
+        if s[-1] > tol * s[0] * np.sqrt(trial.shape[0]):
+            kept.append(j)
+    dropped = [j for j in range(Wn.shape[1]) if j not in kept]
+    Kmat, *_ = np.linalg.lstsq(W[:, kept], W[:, dropped], rcond=None) if dropped else (
+        np.zeros((len(kept), 0)),)
+    Kmat = np.vectorize(_exact)(Kmat) if dropped else Kmat
+    resid = W[:, kept] @ Kmat - W[:, dropped] if dropped else np.zeros(1)
+    if np.max(np.abs(resid), initial=0.0) > 1e-8 * max(1.0, np.max(np.abs(W))):
+        raise ModelError("internal: base-parameter reduction left a residual "
+                         f"{np.max(np.abs(resid)):.3e}; the regressor columns are not "
+                         "exactly dependent")
+
+    psyms = [params[j] for j in range(params.shape[0])]
+    mon_vals = [m.evaluate(psyms) for m in mons]
+    pi, pnames, pexprs = [], [], []
+    for a, j in enumerate(kept):
+        expr = mon_vals[j]
+        text = [mons[j].name(names)]
+        for b, d in enumerate(dropped):
+            c = Kmat[a, b]
+            if c != 0.0:
+                expr = expr + c * mon_vals[d]
+                text.append(_term(c, mons[d].name(names)))
+        pi.append(expr)
+        pnames.append(mons[j].name(names))
+        pexprs.append(" ".join([text[0]] + text[1:]))
+    return BaseParameters(Y=ca.horzcat(*[cols[j] for j in kept]), pi=ca.vertcat(*pi),
+                          names=pnames, expressions=pexprs, full_rank=len(mons),
+                          constant=fact.constant)
+
+
+def _term(c: float, mon: str) -> str:
+    sign = "-" if c < 0 else "+"
+    mag = abs(c)
+    coef = "" if mag == 1.0 else f"{Fraction(mag).limit_denominator(1000)}*" \
+        if abs(float(Fraction(mag).limit_denominator(1000)) - mag) < 1e-12 else f"{mag:.12g}*"
+    return f"{sign} {coef}{mon}"
