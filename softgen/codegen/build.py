@@ -25,9 +25,13 @@ LDLIBS = ("-lm",)   # gcc merges sin and cos into sincos: the library must link 
 
 
 def find_compiler(cc: str | None = None) -> str | None:
-    """``cc``, else ``$CC``, else the first of cc, gcc, clang on PATH; None if none."""
-    for cand in ([cc] if cc else []) + ([os.environ["CC"]] if os.environ.get("CC") else []) + [
-            "cc", "gcc", "clang"]:
+    """The C compiler to use, or None if there is none.
+
+    An explicit ``cc`` (or ``$CC``) is the only candidate when given: asking for a
+    compiler that is not there must not silently build with another one.
+    """
+    explicit = cc or os.environ.get("CC")
+    for cand in [explicit] if explicit else ["cc", "gcc", "clang"]:
         path = shutil.which(cand)
         if path:
             return path
@@ -83,7 +87,8 @@ def build(bundle: Path, *, cc: str | None = None, force: bool = False) -> tuple[
         return lib, 0.0
     compiler = find_compiler(cc)
     if compiler is None:
-        raise BuildError("no C compiler found: install gcc (or clang) or set CC")
+        raise BuildError(f"C compiler {cc or os.environ.get('CC')!r} not found" if (
+            cc or os.environ.get("CC")) else "no C compiler found: install gcc (or clang) or set CC")
     lib.parent.mkdir(parents=True, exist_ok=True)
     # Build to a temporary name and rename: concurrent builds never expose half a library.
     fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.", suffix=".so")

@@ -37,12 +37,13 @@ def _safe_run(exp_id: str, out_root: Path, quick: bool) -> dict:
 
 
 def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
-              jobs: int | None = None, progress: TextIO = sys.stderr) -> list[dict]:
+              jobs: int | None = None, progress: TextIO | None = None) -> list[dict]:
     """Run ``ids`` (default: all) with ``jobs`` worker processes; write ``report.md``.
 
     Returns the results in the order of ``ids``; a failed experiment's entry has
     an ``error`` key instead of metrics.
     """
+    progress = progress or sys.stderr   # looked up now: tests and callers swap sys.stderr
     ids = list(ids) if ids else experiment_ids()
     for i in ids:
         get(i)  # unknown ids fail before anything runs

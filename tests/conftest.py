@@ -1,0 +1,103 @@
+"""Shared fixtures: models written on the fly, and the C-compiler marker."""
+from __future__ import annotations
+
+import pytest
+
+from softgen.codegen.build import find_compiler
+from softgen.model import load_model
+
+#: A spatial 3-joint arm mixing revolute and prismatic joints, with damping and
+#: joint stiffness, off-diagonal inertias and a tilted gravity: exercises every
+#: branch of the mechanics that the shipped planar models do not.
+SPATIAL3 = """\
+[model]
+name = "spatial3"
+kind = "spatial"
+
+[gravity]
+vector = [0.3, -0.2, -9.81]
+
+[[links]]
+joint = "revolute"
+axis = [0, 0, 1]
+mass = 1.2
+com = [0.05, 0.01, 0.1]
+inertia = [0.02, 0.03, 0.015, 0.001, -0.002, 0.0005]
+damping = 0.05
+
+[[links]]
+joint = "prismatic"
+axis = [0.6, 0, 0.8]
+origin_xyz = [0.1, 0.0, 0.3]
+origin_rpy = [0.1, -0.2, 0.3]
+mass = 0.8
+com = [0.0, 0.02, 0.05]
+inertia = [[0.01, 0.0, 0.001], [0.0, 0.012, 0.0], [0.001, 0.0, 0.008]]
+stiffness = 40.0
+
+[[links]]
+joint = "revolute"
+axis = [0, 1, 0]
+origin_xyz = [0.0, 0.05, 0.25]
+mass = 0.5
+com = [0.1, 0.0, 0.0]
+inertia = [0.002, 0.004, 0.004, 0.0, 0.0, 0.0]
+damping = 0.01
+stiffness = 2.0
+
+[parameters]
+uncertain = ["mass", "com", "inertia", "damping", "stiffness"]
+"""
+
+#: A planar 3-link arm with a prismatic middle joint, lateral com offset,
+#: damping, stiffness and uncertain lengths (parameters entering polynomially).
+PLANAR3 = """\
+[model]
+name = "planar3"
+kind = "planar"
+
+[[links]]
+joint = "revolute"
+length = 0.4
+mass = 1.0
+com = [0.2, 0.01]
+inertia = 0.02
+damping = 0.1
+
+[[links]]
+joint = "prismatic"
+length = 0.3
+mass = 0.7
+com = 0.15
+inertia = 0.01
+stiffness = 30.0
+
+[[links]]
+joint = "revolute"
+length = 0.2
+mass = 0.3
+com = 0.1
+inertia = 0.002
+damping = 0.02
+stiffness = 1.5
+
+[parameters]
+uncertain = ["mass", "length", "com", "inertia", "damping", "stiffness"]
+"""
+
+
+@pytest.fixture(scope="session")
+def extra_models(tmp_path_factory):
+    d = tmp_path_factory.mktemp("models")
+    out = {}
+    for name, text in (("spatial3", SPATIAL3), ("planar3", PLANAR3)):
+        path = d / f"{name}.toml"
+        path.write_text(text)
+        out[name] = load_model(path)
+    return out
+
+
+@pytest.fixture
+def need_compiler():
+    if find_compiler() is None:
+        pytest.skip("no C compiler found")

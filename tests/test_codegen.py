@@ -1,0 +1,196 @@
+"""Generated bundles: reproducible bytes, manifest contract, compiled == casadi.Function."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import textwrap
+
+import numpy as np
+import pytest
+
+from softgen.bundle import GENERATED_DIR, BundleOptions, bundle_spec, generate
+from softgen.codegen.build import build, find_compiler
+from softgen.codegen.generate import render
+from softgen.errors import BuildError, BundleError
+from softgen.model import list_models, load_model
+from softgen.runtime import library
+from softgen.runtime.library import load_bundle
+
+
+@pytest.fixture(scope="module")
+def specs():
+    return {name: bundle_spec(load_model(name)) for name in list_models()}
+
+
+def test_generated_dir_matches_generate_all(specs):
+    """generated/ in the repository is exactly what `softgen generate --all` writes."""
+    present = sorted(p.name for p in GENERATED_DIR.iterdir() if p.is_dir())
+    assert present == list_models()
+    for name, spec in specs.items():
+        for fname, data in render(spec).items():
+            path = GENERATED_DIR / name / fname
+            assert path.exists(), f"{path} missing: run softgen generate --all"
+            assert path.read_bytes() == data, f"{path} is stale: run softgen generate --all"
+
+
+def test_generation_is_byte_identical(tmp_path):
+    a = generate("planar_2link", tmp_path / "a")
+    b = generate("planar_2link", tmp_path / "b")
+    for f in ("planar_2link.c", "planar_2link.h", "manifest.json"):
+        assert (a / f).read_bytes() == (b / f).read_bytes()
+
+
+def test_manifest_contract(specs):
+    for name in specs:
+        m = json.loads((GENERATED_DIR / name / "manifest.json").read_text())
+        for key in ("model", "hash", "casadi_version", "library", "parameters", "functions"):
+            assert key in m
+        assert m["model"] == name
+        assert len(m["parameters"]["names"]) == len(m["parameters"]["nominal"])
+        for q in ("inertia", "coriolis", "gravity", "regressor"):
+            assert f"{name}_{q}" in m["functions"]
+        reg = m["functions"][f"{name}_regressor"]
+        assert [i["name"] for i in reg["inputs"]] == ["q", "qd", "qd_r", "qdd_r"]
+        assert reg["outputs"][0]["name"] == "Y"
+        assert reg["outputs"][0]["shape"] == [m["dof"], len(m["parameters"]["names"])]
+        assert m["hash"][:16] in m["library"]
+        for fn in m["functions"].values():
+            assert fn["doc"] and "\n" not in fn["doc"]
+
+
+def test_regressor_identity_from_the_manifest_alone(need_compiler):
+    """Y(q, qd, qd_r, qdd_r) @ pi == inverse dynamics, read from the bundle only."""
+    for name in list_models():
+        b = load_bundle(name)
+        rng = np.random.default_rng(11)
+        n = b.manifest["dof"]
+        for _ in range(20):
+            x = [rng.uniform(-3, 3, n) for _ in range(4)]
+            assert np.allclose(b.regressor(*x) @ b.parameter_nominal, b.inverse_dynamics(*x),
+                               rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.compiler
+def test_compiled_library_equals_casadi_function(need_compiler, specs):
+    for name, spec in specs.items():
+        b = load_bundle(name, backend="c")
+        rng = np.random.default_rng(12)
+        for g in spec.functions:
+            f = g.function
+            cf = b[f.name()]
+            for _ in range(3):
+                args = [rng.uniform(-1, 1, f.size_in(i)) for i in range(f.n_in())]
+                # Sample times, step lengths and gains must be positive (a random
+                # negative gain makes the 1000-sample closed loop diverge to NaN).
+                # A random pi_hat0 may hold negative inertias: start the loop from 0.
+                scale = {"dt": 1e-3, "h": 1e-3, "lam": 5.0, "kd": 0.1, "kpi": 0.01,
+                         "pi_hat0": 0.0, "ref": 0.1}
+                args = [np.abs(a) * scale[f.name_in(i)] if f.name_in(i) in scale else a
+                        for i, a in enumerate(args)]
+                ref = f(*args)
+                ref = [ref] if f.n_out() == 1 else ref
+                got = cf(*[a.ravel() if a.shape[1] == 1 else a for a in args])
+                got = [got] if f.n_out() == 1 else got
+                for r, o in zip(ref, got):
+                    r = np.array(r)
+                    r = r.ravel() if r.shape[1] == 1 else r
+                    assert np.all(np.isfinite(r)), f.name()
+                    assert np.allclose(o, r, rtol=1e-12, atol=1e-12), f.name()
+
+
+@pytest.mark.compiler
+def test_library_loads_from_a_plain_c_program(need_compiler, tmp_path):
+    """The shared library links libm itself: dlopen from C with no -lm works."""
+    b = load_bundle("planar_2link", backend="c")
+    src = tmp_path / "main.c"
+    src.write_text(textwrap.dedent(f"""
+        #include <dlfcn.h>
+        #include <stdio.h>
+        typedef int (*fn_t)(const double**, double**, long long*, double*, int);
+        int main(void) {{
+            void* h = dlopen("{b.library}", RTLD_NOW);
+            if (!h) {{ printf("dlopen: %s\\n", dlerror()); return 1; }}
+            fn_t f = (fn_t) dlsym(h, "planar_2link_gravity");
+            if (!f) return 2;
+            double q[2] = {{0.5, 0.2}}, G[2];
+            const double* arg[1] = {{q}};
+            double* res[1] = {{G}};
+            double w[64]; long long iw[64];
+            if (f(arg, res, iw, w, 0)) return 3;
+            printf("%.15g %.15g\\n", G[0], G[1]);
+            return 0;
+        }}"""))
+    exe = tmp_path / "main"
+    subprocess.run([find_compiler(), str(src), "-o", str(exe), "-ldl"], check=True,
+                   capture_output=True)
+    out = subprocess.run([str(exe)], check=True, capture_output=True, text=True).stdout
+    G = [float(v) for v in out.split()]
+    assert np.allclose(G, b.gravity([0.5, 0.2]), rtol=1e-14)
+
+
+@pytest.fixture
+def bundle_copy(tmp_path):
+    dst = tmp_path / "planar_2link"
+    shutil.copytree(GENERATED_DIR / "planar_2link", dst,
+                    ignore=shutil.ignore_patterns("build"))
+    return dst
+
+
+def test_edited_source_is_refused(bundle_copy):
+    c = bundle_copy / "planar_2link.c"
+    c.write_text(c.read_text() + "\n/* edited */\n")
+    with pytest.raises(BundleError, match="stale or edited"):
+        load_bundle(bundle_copy)
+
+
+def test_bundle_of_an_older_model_file_is_refused(bundle_copy):
+    m = json.loads((bundle_copy / "manifest.json").read_text())
+    m["hash"] = "0" * 64
+    (bundle_copy / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(BundleError, match="stale"):
+        load_bundle(bundle_copy)
+
+
+def test_missing_library_without_build_is_a_clear_error(bundle_copy):
+    with pytest.raises(BundleError, match="compiled library missing"):
+        load_bundle(bundle_copy, build_missing=False)
+
+
+def test_missing_bundle_is_a_clear_error(tmp_path):
+    with pytest.raises(BundleError, match="softgen generate"):
+        load_bundle(tmp_path / "nothing_here")
+
+
+def test_no_compiler_falls_back_to_casadi_with_a_warning(bundle_copy, monkeypatch):
+    monkeypatch.setattr(library, "find_compiler", lambda cc=None: None)
+    with pytest.warns(RuntimeWarning, match="no C compiler"):
+        b = load_bundle(bundle_copy)
+    assert b.backend == "casadi"
+    x = [np.full(2, 0.3)] * 4
+    assert np.allclose(b.regressor(*x) @ b.parameter_nominal, b.inverse_dynamics(*x))
+
+
+def test_missing_compiler_is_a_build_error(bundle_copy):
+    with pytest.raises(BuildError, match="not found"):
+        build(bundle_copy, cc="/nonexistent/cc")
+
+
+@pytest.mark.compiler
+def test_compiler_failure_carries_stderr(need_compiler, bundle_copy):
+    import hashlib
+    c = bundle_copy / "planar_2link.c"
+    c.write_text("this is not C\n")
+    m = json.loads((bundle_copy / "manifest.json").read_text())
+    m["source_sha256"] = hashlib.sha256(c.read_bytes()).hexdigest()
+    (bundle_copy / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(BuildError, match="failed") as err:
+        build(bundle_copy)
+    assert err.value.stderr
+
+
+def test_bundle_options_are_checked():
+    with pytest.raises(ValueError, match="route"):
+        BundleOptions(route="lagrange").check()
+    with pytest.raises(ValueError, match="loop_steps"):
+        BundleOptions(loop_steps=0).check()
