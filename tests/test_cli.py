@@ -81,3 +81,11 @@ def test_reproduce_quick_writes_metrics_figures_report(capsys, tmp_path, need_co
     assert (d / "tracking_error.png").exists() and (d / "parameter_estimates.png").exists()
     report = (tmp_path / "report.md").read_text()
     assert "position_rms_error_joint1" in report
+
+
+def test_ci_runs_the_readme_test_command():
+    """.ci/run must run exactly the README's test command."""
+    ci = (ROOT / ".ci" / "run").read_text().splitlines()
+    cmd = [line for line in ci if line.startswith("python3 -m venv")]
+    assert len(cmd) == 1
+    assert cmd[0] in (ROOT / "README.md").read_text()

@@ -1,6 +1,7 @@
 """Generated bundles: reproducible bytes, manifest contract, compiled == casadi.Function."""
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 import subprocess
@@ -11,7 +12,7 @@ import pytest
 
 from softgen.bundle import GENERATED_DIR, BundleOptions, bundle_spec, generate
 from softgen.codegen.build import build, find_compiler
-from softgen.codegen.generate import render
+from softgen.codegen.generate import library_name, render
 from softgen.errors import BuildError, BundleError
 from softgen.model import list_models, load_model
 from softgen.runtime import library
@@ -54,7 +55,9 @@ def test_manifest_contract(specs):
         assert [i["name"] for i in reg["inputs"]] == ["q", "qd", "qd_r", "qdd_r"]
         assert reg["outputs"][0]["name"] == "Y"
         assert reg["outputs"][0]["shape"] == [m["dof"], len(m["parameters"]["names"])]
-        assert m["hash"][:16] in m["library"]
+        src = (GENERATED_DIR / name / f"{name}.c").read_bytes()
+        assert m["library"] == library_name(name, src)
+        assert m["source_sha256"] == hashlib.sha256(src).hexdigest()
         for fn in m["functions"].values():
             assert fn["doc"] and "\n" not in fn["doc"]
 
@@ -178,7 +181,6 @@ def test_missing_compiler_is_a_build_error(bundle_copy):
 
 @pytest.mark.compiler
 def test_compiler_failure_carries_stderr(need_compiler, bundle_copy):
-    import hashlib
     c = bundle_copy / "planar_2link.c"
     c.write_text("this is not C\n")
     m = json.loads((bundle_copy / "manifest.json").read_text())

@@ -51,9 +51,15 @@ def content_hash(identity: bytes) -> str:
     return h.hexdigest()
 
 
-def library_name(name: str, digest: str) -> str:
-    """Relative path of the compiled library: the hash in the name, so a stale one is never loaded."""
-    return f"build/lib{name}_{digest[:16]}.so"
+def library_name(name: str, c_source: bytes) -> str:
+    """Relative path of the compiled library.
+
+    Its name carries the hash of exactly what it is built from (the C source and
+    the compiler flags), so a library built from anything else is never loaded.
+    """
+    from .build import CFLAGS, LDLIBS
+    h = hashlib.sha256(c_source + " ".join(CFLAGS + LDLIBS).encode()).hexdigest()
+    return f"build/lib{name}_{h[:16]}.so"
 
 
 def _signature(f: ca.Function) -> dict:
@@ -66,6 +72,15 @@ def _signature(f: ca.Function) -> dict:
         "outputs": [{"name": f.name_out(i), "shape": shape(f.sparsity_out(i))}
                     for i in range(f.n_out())],
     }
+
+
+def _can_fail(f: ca.Function) -> bool:
+    """Whether the generated C can return non-zero.
+
+    CasADi emits SX functions as straight-line code whose only exit is
+    ``return 0``; anything else (MX graphs, maps, calls) may propagate a code.
+    """
+    return not f.is_a("SXFunction")
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
@@ -103,12 +118,13 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         "hash": digest,
         "casadi_version": ca.__version__,
         "softgen_codegen_version": CODEGEN_VERSION,
-        "library": library_name(spec.name, digest),
+        "library": library_name(spec.name, c_src),
         "source_sha256": hashlib.sha256(c_src).hexdigest(),
         "parameters": spec.parameters,
         "functions": {
             g.function.name(): {**_signature(g.function), "doc": g.doc,
-                                "instructions": int(g.function.n_instructions())}
+                                "instructions": int(g.function.n_instructions()),
+                                "can_fail": _can_fail(g.function)}
             for g in spec.functions
         },
         **spec.extra,

@@ -62,16 +62,16 @@ class BundleFunction:
         for i, b in enumerate(flat_out):
             buf.set_res(i, memoryview(b))
         self._buf = buf        # the evaluator points into it: keep it alive
-        self.call = self._eval  # fast path: see call() below
+        self.can_fail = bool(sig.get("can_fail", True))
+        # Reading the return code through SWIG costs 1.4 µs, six times a small call.
+        # It is read on every call of a function whose C can return non-zero
+        # (manifest "can_fail"); the others are straight-line SX code whose only
+        # exit is `return 0`, so there is nothing to read.
+        self.call = self.checked_call if self.can_fail else self._eval
         self.checked_call()     # probe once: a broken library fails here, not in a loop
 
-    def call(self) -> None:  # replaced per instance by the bare evaluator
-        """Evaluate on the current input buffers into the output buffers.
-
-        The return code is not read here: reading it through SWIG costs 1.4 µs,
-        six times the call, and CasADi's SX code generator emits functions whose
-        only exit is ``return 0``. :meth:`checked_call` and ``__call__`` read it.
-        """
+    def call(self) -> None:  # replaced per instance (see __init__)
+        """Evaluate on the current input buffers into the output buffers."""
 
     def checked_call(self) -> None:
         """:meth:`call`, then raise if the C function returned non-zero."""
@@ -91,7 +91,7 @@ class BundleFunction:
                 dst[...] = a
             else:
                 self._load_slow(k, a)
-        self.checked_call()
+        self.call()
         if len(self.outputs) == 1:
             return self.outputs[0].copy()
         return tuple(o.copy() for o in self.outputs)
