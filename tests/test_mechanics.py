@@ -32,6 +32,15 @@ def dynamics(models):
 
 ALL = SHIPPED + ["spatial3", "planar3"]
 
+# Table 7.1 and eq. 10.9's parameter vector Π (times K_1): the thesis's printed values.
+m1 = m2 = 0.26
+l1 = l2 = 0.09
+I1 = I2 = 0.0021
+g = 9.81
+PI_EQ_10_9 = np.array([I1 + m1 * (l1 / 2) ** 2 + I2 + m2 * (l2 / 2) ** 2 + m2 * l1 ** 2,
+                       I2 + m2 * (l2 / 2) ** 2, 0.5 * m2 * l1 * l2, (0.5 * m1 + m2) * l1 * g,
+                       0.5 * m2 * l2 * g])
+
 
 def _random_state(rng, n, scale=1.0):
     return [scale * rng.uniform(-np.pi, np.pi, n) for _ in range(4)]
@@ -136,13 +145,6 @@ def test_planar_2link_has_the_five_base_parameters_of_eq_10_9(dynamics):
     # Eq. 10.9's Π (times K): Π2 = I2 + m2 (l2/2)², Π3 = ½ m2 l1 l2, Π4 = (½m1 + m2) l1 g,
     # Π5 = ½ m2 l2 g. Ours span the same space; compare by reconstructing the thesis's
     # Y_* columns from ours: both must reproduce the dynamics with the thesis's numbers.
-    m1 = m2 = 0.26
-    l1 = l2 = 0.09
-    I1 = I2 = 0.0021
-    g = 9.81
-    Pi = np.array([I1 + m1 * (l1 / 2) ** 2 + I2 + m2 * (l2 / 2) ** 2 + m2 * l1 ** 2,
-                   I2 + m2 * (l2 / 2) ** 2, 0.5 * m2 * l1 * l2, (0.5 * m1 + m2) * l1 * g,
-                   0.5 * m2 * l2 * g])
 
     def Y_thesis_slotine_li(q, qd, qdr, qddr):
         # Eq. 10.9 with Y13, Y23 as derived in NOTES section 2 item 13 (Slotine-Li form).
@@ -157,19 +159,12 @@ def test_planar_2link_has_the_five_base_parameters_of_eq_10_9(dynamics):
     for _ in range(20):
         x = _random_state(rng, 2)
         t = np.array(tau(*x)).ravel()
-        assert np.allclose(Y_thesis_slotine_li(*x) @ Pi, t, rtol=1e-12, atol=1e-14)
+        assert np.allclose(Y_thesis_slotine_li(*x) @ PI_EQ_10_9, t, rtol=1e-12, atol=1e-14)
         assert np.allclose(np.array(Y(*x)) @ d.parameter_nominal, t, rtol=1e-12, atol=1e-14)
 
 
 def test_printed_eq_10_9_entries_are_not_slotine_li(dynamics):
     """NOTES section 2 item 13: the printed Y13, Y23 do not reproduce B q̈_r + C q̇_r + G."""
-    m1 = m2 = 0.26
-    l1 = l2 = 0.09
-    I1 = I2 = 0.0021
-    g = 9.81
-    Pi = np.array([I1 + m1 * (l1 / 2) ** 2 + I2 + m2 * (l2 / 2) ** 2 + m2 * l1 ** 2,
-                   I2 + m2 * (l2 / 2) ** 2, 0.5 * m2 * l1 * l2, (0.5 * m1 + m2) * l1 * g,
-                   0.5 * m2 * l2 * g])
     q, qd, qdr, qddr = np.array([0.3, 0.9]), np.array([1.1, -0.7]), np.array([0.4, 0.8]), \
         np.array([0.2, -0.5])
     s2, c2 = np.sin(q[1]), np.cos(q[1])
@@ -178,16 +173,12 @@ def test_printed_eq_10_9_entries_are_not_slotine_li(dynamics):
     Yp = np.array([[qddr[0], qddr[1], y13, np.sin(q[0]), np.sin(q.sum())],
                    [0, qddr.sum(), y23, 0, np.sin(q.sum())]])
     t = np.array(dynamics["planar_2link"].inverse_dynamics_fun()(q, qd, qdr, qddr)).ravel()
-    assert not np.allclose(Yp @ Pi, t, rtol=1e-6)
+    assert not np.allclose(Yp @ PI_EQ_10_9, t, rtol=1e-6)
 
 
 def test_planar_2link_matches_thesis_b_c_g_with_corrections(dynamics):
     """Section 10.2's B, C, G with NOTES section 2 item 6 applied (B22 = I2 + m2 l2²/4)."""
     d = dynamics["planar_2link"]
-    m1 = m2 = 0.26
-    l1 = l2 = 0.09
-    I1 = I2 = 0.0021
-    g = 9.81
     rng = np.random.default_rng(9)
     for _ in range(10):
         q, qd = rng.uniform(-np.pi, np.pi, 2), rng.normal(size=2)

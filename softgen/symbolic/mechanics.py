@@ -115,36 +115,59 @@ def forward_kinematics(model: RobotModel, q: ca.SX, qd: ca.SX, values: Values) -
     return states
 
 
-def _inertia_matrix(model: RobotModel, link, values: Values) -> ca.SX:
-    xx, yy, zz, xy, xz, yz = [model.resolve(x, values) for x in link.inertia]
-    return ca.vertcat(ca.horzcat(xx, xy, xz), ca.horzcat(xy, yy, yz), ca.horzcat(xz, yz, zz))
+@dataclass
+class Inertial:
+    """Inertial parameters of one link about its joint origin, in the link frame.
+
+    ``m`` mass, ``h = m c`` first moment of mass, ``I`` 3×3 inertia about the joint
+    origin. The kinetic and potential energy are linear in (m, h, I): this is the
+    form in which the dynamics are linear in parameters (the "barycentric"
+    parameters of Atkeson, An and Hollerbach).
+    """
+
+    m: object
+    h: ca.SX
+    I: ca.SX
 
 
-def kinetic_energy(model: RobotModel, q: ca.SX, qd: ca.SX, values: Values) -> ca.SX:
-    """T(q, q̇) = Σ ½ m |v_c|² + ½ ω_bᵀ I_c ω_b (or the joint-origin form)."""
-    T = 0
-    for link, st in zip(model.links, forward_kinematics(model, q, qd, values)):
+def physical_inertials(model: RobotModel, values: Values) -> list[Inertial]:
+    """(m, h, I_o) of every link from its mass, centre of mass and inertia.
+
+    An inertia about the centre of mass is moved to the joint origin by the
+    parallel-axis theorem, I_o = I_c + m (cᵀc 1 − c cᵀ).
+    """
+    out = []
+    for link in model.links:
         m = model.resolve(link.mass, values)
-        w_body = ca.mtimes(st.R.T, st.omega)
-        I = _inertia_matrix(model, link, values)
-        rot = 0.5 * ca.dot(w_body, ca.mtimes(I, w_body))
+        c = ca.vertcat(*[model.resolve(x, values) for x in link.com])
+        xx, yy, zz, xy, xz, yz = [model.resolve(x, values) for x in link.inertia]
+        I = ca.vertcat(ca.horzcat(xx, xy, xz), ca.horzcat(xy, yy, yz), ca.horzcat(xz, yz, zz))
         if link.inertia_about == "com":
-            T += 0.5 * m * ca.dot(st.v_com, st.v_com) + rot
-        else:
-            # Inertia about the joint origin: T = ½ m|v_o|² + m v_o·(ω × c) + ½ ωᵀ I_o ω.
-            c_world = st.com - st.origin
-            T += (0.5 * m * ca.dot(st.v_origin, st.v_origin)
-                  + m * ca.dot(st.v_origin, ca.cross(st.omega, c_world)) + rot)
+            I = I + m * (ca.dot(c, c) * ca.DM.eye(3) - ca.mtimes(c, c.T))
+        out.append(Inertial(m=m, h=m * c, I=I))
+    return out
+
+
+def kinetic_energy(model: RobotModel, q: ca.SX, qd: ca.SX, values: Values,
+                   inertials: list[Inertial]) -> ca.SX:
+    """T = Σ ½ m|v_o|² + v_o·(ω × R h) + ½ ω_bᵀ I_o ω_b  (linear in m, h, I_o)."""
+    T = 0
+    for inert, st in zip(inertials, forward_kinematics(model, q, qd, values)):
+        w_body = ca.mtimes(st.R.T, st.omega)
+        T += (0.5 * inert.m * ca.dot(st.v_origin, st.v_origin)
+              + ca.dot(st.v_origin, ca.cross(st.omega, ca.mtimes(st.R, inert.h)))
+              + 0.5 * ca.dot(w_body, ca.mtimes(inert.I, w_body)))
     return T
 
 
-def potential_energy(model: RobotModel, q: ca.SX, values: Values) -> ca.SX:
-    """Gravitational potential U(q) = −Σ m g·p_c."""
+def potential_energy(model: RobotModel, q: ca.SX, values: Values,
+                     inertials: list[Inertial]) -> ca.SX:
+    """Gravitational potential U(q) = −Σ g·(m o + R h)  (linear in m, h)."""
     g = model.resolve("g", values) * ca.DM(model.gravity_direction)
     zeros = ca.SX.zeros(q.shape[0])
     U = 0
-    for link, st in zip(model.links, forward_kinematics(model, q, zeros, values)):
-        U -= model.resolve(link.mass, values) * ca.dot(g, st.com)
+    for inert, st in zip(inertials, forward_kinematics(model, q, zeros, values)):
+        U -= ca.dot(g, inert.m * st.origin + ca.mtimes(st.R, inert.h))
     return U
 
 
@@ -153,12 +176,17 @@ class Mechanics:
 
     ``values`` maps every parameter name of the model to a number or an SX
     symbol; symbols make the expressions functions of those parameters (used by
-    the regressor). The symbols ``q, qd, qd_r, qdd_r`` are created here.
+    the regressor). ``inertials`` replaces the links' inertial parameters (by
+    default derived from ``values``), e.g. by symbols in which the dynamics are
+    linear (:mod:`softgen.symbolic.linear`). The symbols ``q, qd, qd_r, qdd_r``
+    are created here.
     """
 
-    def __init__(self, model: RobotModel, values: Values):
+    def __init__(self, model: RobotModel, values: Values,
+                 inertials: list[Inertial] | None = None):
         self.model = model
         self.values = dict(values)
+        inertials = physical_inertials(model, values) if inertials is None else inertials
         n = model.dof
         self.n = n
         self.q = ca.SX.sym("q", n)
@@ -166,10 +194,10 @@ class Mechanics:
         self.qd_r = ca.SX.sym("qd_r", n)
         self.qdd_r = ca.SX.sym("qdd_r", n)
         self._w = ca.SX.sym("w", n)
-        self._T = kinetic_energy(model, self.q, self._w, self.values)
+        self._T = kinetic_energy(model, self.q, self._w, self.values, inertials)
         # B(q) w as the gradient of T in q̇ at q̇ = w: exact because T is quadratic in q̇.
         self._p = ca.gradient(self._T, self._w)
-        self.U = potential_energy(model, self.q, self.values)
+        self.U = potential_energy(model, self.q, self.values, inertials)
 
     # -- energies and their derivatives ------------------------------------------
     def kinetic(self) -> ca.SX:
