@@ -1,9 +1,10 @@
-"""How the two Slotine–Li routes scale on planar chains of n identical links.
+"""How the symbolic routes scale on planar chains of n identical links.
 
 The explicit route forms B and C (``n²`` entries, each a sum over the chain), so
 its expression grows roughly quadratically in n; the matrix-free route only takes
-directional derivatives of the kinetic energy and grows linearly. This module
-measures both on the same chains: instructions of the CasADi function, bytes of
+directional derivatives of the kinetic energy and grows linearly. The same holds
+for the adaptive law's regressor products: forming Y is quadratic, Y δ and Yᵀ s
+without Y are linear (:data:`ROUTES`). This module measures them on the same chains: instructions of the CasADi function, bytes of
 generated C, time to build, generate and compile, and nanoseconds per call timed
 in C (:func:`softgen.codegen.cbench.time_in_c`).
 
@@ -24,9 +25,11 @@ from typing import Any
 
 import casadi as ca
 
-from .codegen.cbench import compiler_path, time_in_c
+from .codegen.build import CFLAGS, LDLIBS, require_compiler
+from .codegen.cbench import time_in_c
 from .errors import BuildError
 from .model import RobotModel, load_model
+from .symbolic.linear import LinearParameters
 from .symbolic.mechanics import Mechanics, nominal_values
 
 __all__ = ["chain_model", "measure_route", "scaling_table", "format_table"]
@@ -82,7 +85,7 @@ def _limit_compiler_memory() -> None:
 
 def _compile_shared(c_file: Path, lib: Path) -> float:
     """Compile ``c_file`` to ``lib`` as the bundles are built; return the seconds taken."""
-    cmd = [compiler_path(), "-O3", "-fPIC", "-shared", "-o", str(lib), str(c_file), "-lm"]
+    cmd = [require_compiler(), *CFLAGS, "-o", str(lib), str(c_file), *LDLIBS]
     t0 = time.perf_counter()
     try:
         subprocess.run(cmd, check=True, capture_output=True, text=True,
@@ -92,6 +95,31 @@ def _compile_shared(c_file: Path, lib: Path) -> float:
     except subprocess.TimeoutExpired:
         raise BuildError(f"compiling {c_file.name} took over {COMPILE_TIMEOUT:.0f} s") from None
     return time.perf_counter() - t0
+
+
+#: What each route measures. The first two build τ = B q̈_r + C q̇_r + G; the
+#: last three are the adaptive law's products with the regressor of the
+#: linear-in-inertial-parameters form (softgen.symbolic.linear).
+ROUTES = {
+    "explicit": "tau, forming B and C = 1/2 (Bdot + J - J^T)",
+    "matrix-free": "tau, C qd_r by jtimes/gradient of the kinetic energy",
+    "y-delta": "Y delta without forming Y (tau linear in delta)",
+    "yt-s": "Y^T s without forming Y (gradient of s^T tau)",
+    "y-formed": "Y itself (jacobian of tau in delta)",
+}
+#: Routes whose expression grows about quadratically in n.
+QUADRATIC = ("explicit", "y-formed")
+
+
+def _route_function(model: RobotModel, route: str, name: str) -> ca.Function:
+    if route in ("explicit", "matrix-free"):
+        mech = Mechanics(model, nominal_values(model))
+        return ca.Function(name, [mech.q, mech.qd, mech.qd_r, mech.qdd_r],
+                           [mech.slotine_li(route)], ["q", "qd", "qd_r", "qdd_r"], ["tau"],
+                           {"cse": True})
+    lin = LinearParameters(model)
+    return {"y-delta": lin.regressor_times_fun, "yt-s": lin.regressor_transpose_times_fun,
+            "y-formed": lin.regressor_fun}[route](name)
 
 
 def measure_route(n: int, route: str, *, compile: bool = True, time_c: bool = True,
@@ -107,7 +135,7 @@ def measure_route(n: int, route: str, *, compile: bool = True, time_c: bool = Tr
     n
         Number of links.
     route
-        ``"explicit"`` or ``"matrix-free"``.
+        A key of :data:`ROUTES`.
     compile
         Compile the C into a shared library (gcc -O3 -fPIC -shared).
     time_c
@@ -126,16 +154,13 @@ def measure_route(n: int, route: str, *, compile: bool = True, time_c: bool = Tr
     BuildError
         No compiler, or compiling failed (also when over the memory or time cap).
     """
-    if route not in ("explicit", "matrix-free"):
-        raise ValueError(f"route: expected 'explicit' or 'matrix-free', got {route!r}")
+    if route not in ROUTES:
+        raise ValueError(f"route: expected one of {', '.join(ROUTES)}, got {route!r}")
     model = chain_model(n)
-    name = f"tau_{route.replace('-', '_')}_{n}"
+    name = f"{route.replace('-', '_')}_{n}"
 
     t0 = time.perf_counter()
-    mech = Mechanics(model, nominal_values(model))
-    tau = mech.slotine_li(route)
-    f = ca.Function(name, [mech.q, mech.qd, mech.qd_r, mech.qdd_r], [tau],
-                    ["q", "qd", "qd_r", "qdd_r"], ["tau"], {"cse": True})
+    f = _route_function(model, route, name)
     build_seconds = time.perf_counter() - t0
 
     row: dict[str, Any] = {"n": n, "route": route, "build_seconds": build_seconds,
@@ -159,8 +184,8 @@ def scaling_table(ns=(2, 5, 10, 20, 40), routes=("explicit", "matrix-free"), *,
                   max_explicit_n: int = 10, **kw) -> list[dict]:
     """:func:`measure_route` for every ``n`` in ``ns`` and every route in ``routes``.
 
-    The explicit route is not measured above ``max_explicit_n``: its expression
-    grows about quadratically and gcc -O3 on it becomes the bottleneck (time and
+    The quadratic routes (:data:`QUADRATIC`) are not measured above
+    ``max_explicit_n``: their expressions grow about quadratically and gcc -O3 on it becomes the bottleneck (time and
     memory). Such points are recorded as ``{"n", "route", "skipped": reason}``;
     a point whose compilation fails is recorded with ``"error"`` so the rest of
     the table is kept.
@@ -170,16 +195,16 @@ def scaling_table(ns=(2, 5, 10, 20, 40), routes=("explicit", "matrix-free"), *,
     ns, routes
         Chain lengths and routes to measure.
     max_explicit_n
-        Largest n for which the explicit route is measured.
+        Largest n for which the quadratic routes are measured.
     **kw
         Passed to :func:`measure_route` (``compile``, ``time_c``, ``calls``).
     """
     rows: list[dict] = []
     for n in ns:
         for route in routes:
-            if route == "explicit" and n > max_explicit_n:
+            if route in QUADRATIC and n > max_explicit_n:
                 rows.append({"n": n, "route": route,
-                             "skipped": f"explicit route above n = {max_explicit_n}"})
+                             "skipped": f"quadratic route above n = {max_explicit_n}"})
                 continue
             try:
                 rows.append(measure_route(n, route, **kw))

@@ -232,3 +232,26 @@ def test_tip_jacobian_matches_finite_differences(dynamics):
         assert np.allclose(J[:3, j:j + 1], fd, atol=1e-7)
     # q = 0 hangs straight down (angles from the downward vertical).
     assert np.allclose(np.array(f([0.0, 0.0])[0]).ravel(), [0.0, -0.18, 0.0], atol=1e-15)
+
+
+@pytest.mark.parametrize("name", ["planar_2link", "spatial3", "planar3"])
+def test_link_jacobians_give_the_kinetic_energy(dynamics, name):
+    """Σ ½ (m |J_v q̇|² + ω_bᵀ I_c ω_b) over links with com Jacobians equals ½ q̇ᵀ B q̇."""
+    d = dynamics[name]
+    m = d.nominal
+    from softgen.symbolic.mechanics import forward_kinematics
+    states = forward_kinematics(d.model, m.q, m.qd, d.model.nominal)
+    T = 0
+    for link, st, J in zip(d.model.links, states, m.link_jacobians()):
+        mass = d.model.resolve(link.mass, d.model.nominal)
+        v = ca.mtimes(J[:3, :], m.qd)
+        w = ca.mtimes(J[3:, :], m.qd)
+        assert link.inertia_about == "com"
+        xx, yy, zz, xy, xz, yz = [d.model.resolve(x, d.model.nominal) for x in link.inertia]
+        Ic = ca.DM([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+        wb = ca.mtimes(st.R.T, w)
+        T += 0.5 * mass * ca.dot(v, v) + 0.5 * ca.dot(wb, ca.mtimes(Ic, wb))
+    f = ca.Function("f", [m.q, m.qd], [T - 0.5 * ca.dot(m.qd, ca.mtimes(m.inertia(), m.qd))])
+    rng = np.random.default_rng(13)
+    for _ in range(10):
+        assert abs(float(f(rng.uniform(-3, 3, m.n), rng.normal(size=m.n)))) < 1e-12

@@ -38,6 +38,16 @@ def find_compiler(cc: str | None = None) -> str | None:
     return None
 
 
+def require_compiler(cc: str | None = None) -> str:
+    """:func:`find_compiler`, raising :class:`BuildError` when there is none."""
+    compiler = find_compiler(cc)
+    if compiler is None:
+        explicit = cc or os.environ.get("CC")
+        raise BuildError(f"C compiler {explicit!r} not found" if explicit else
+                         "no C compiler found: install gcc (or clang) or set CC")
+    return compiler
+
+
 def read_manifest(bundle: Path) -> dict:
     path = Path(bundle) / "manifest.json"
     if not path.exists():
@@ -85,10 +95,7 @@ def build(bundle: Path, *, cc: str | None = None, force: bool = False) -> tuple[
     lib = library_path(bundle, manifest)
     if lib.exists() and not force:
         return lib, 0.0
-    compiler = find_compiler(cc)
-    if compiler is None:
-        raise BuildError(f"C compiler {cc or os.environ.get('CC')!r} not found" if (
-            cc or os.environ.get("CC")) else "no C compiler found: install gcc (or clang) or set CC")
+    compiler = require_compiler(cc)
     lib.parent.mkdir(parents=True, exist_ok=True)
     # Build to a temporary name and rename: concurrent builds never expose half a library.
     fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.", suffix=".so")

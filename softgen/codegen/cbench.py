@@ -9,39 +9,14 @@ would pay.
 from __future__ import annotations
 
 import math
-import os
-import shutil
 import subprocess
 import tempfile
 from pathlib import Path
 
 from ..errors import BuildError
+from .build import require_compiler
 
-__all__ = ["compiler_path", "time_in_c"]
-
-
-def compiler_path(cc: str | None = None) -> str:
-    """The C compiler to use: ``cc``, else ``$CC``, else the first of cc, gcc, clang.
-
-    An explicit ``cc`` that does not exist is an error rather than a silent
-    fallback, so a benchmark never runs with a compiler other than the one asked for.
-
-    Raises
-    ------
-    BuildError
-        No compiler found.
-    """
-    if cc:
-        candidates = [cc]
-    elif os.environ.get("CC"):
-        candidates = [os.environ["CC"]]
-    else:
-        candidates = ["cc", "gcc", "clang"]
-    for cand in candidates:
-        path = shutil.which(cand)
-        if path:
-            return path
-    raise BuildError("no C compiler found: install gcc or set CC")
+__all__ = ["time_in_c"]
 
 
 _HEAD = r"""/* Benchmark harness written by softgen.codegen.cbench; safe to delete. */
@@ -224,7 +199,7 @@ def time_in_c(c_file: Path, names: list[str], *, calls: int = 200_000, repeats: 
         raise FileNotFoundError(f"{c_file}: no such C file")
     if not header.is_file():
         raise FileNotFoundError(f"{header}: missing; generate with {{'with_header': True}}")
-    compiler = compiler_path(cc)
+    compiler = require_compiler(cc)
     with tempfile.TemporaryDirectory(prefix="softgen-cbench-") as tmp:
         harness = Path(tmp) / "harness.c"
         exe = Path(tmp) / "harness"
