@@ -28,9 +28,9 @@ from softgen.runtime.library import load_bundle
 
 
 def pinocchio_model(model):
-    if model.kind != "planar" or any(l.joint != "revolute" for l in model.links):
+    if model.kind != "planar" or any(lk.joint != "revolute" for lk in model.links):
         raise SystemExit(f"{model.name}: only planar revolute chains are translated")
-    if any(l.inertia_about != "com" for l in model.links):
+    if any(lk.inertia_about != "com" for lk in model.links):
         raise SystemExit(f"{model.name}: lumped (inertia about the joint) models have no "
                          "rigid-body equivalent in Pinocchio")
     p = model.nominal
@@ -39,7 +39,7 @@ def pinocchio_model(model):
     parent = 0
     # softgen's planar base frame is rotated by base_angle about z.
     base = pin.SE3(pin.rpy.rpyToMatrix(*model.base_rpy), np.zeros(3))
-    for i, link in enumerate(model.links, start=1):
+    for i in range(1, model.dof + 1):
         offset = np.zeros(3) if i == 1 else np.array([p[f"l{i - 1}"], 0.0, 0.0])
         placement = base if i == 1 else pin.SE3(np.eye(3), offset)
         jid = pm.addJoint(parent, pin.JointModelRZ(), placement, f"j{i}")

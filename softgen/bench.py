@@ -32,7 +32,7 @@ from .runtime.simulate import simulate
 def _python_latency(f, rng, repeats: int = 5, number: int = 20000) -> tuple[float, float]:
     """(fast buffer path, checked call path) in ns per call, best of ``repeats``."""
     args = []
-    for buf, shape in zip(f.inputs, f.in_shapes):
+    for buf in f.inputs:
         v = rng.uniform(-1, 1, buf.shape)
         if f.in_names[len(args)] in ("dt", "h"):
             v = np.abs(v) * 1e-3

@@ -23,13 +23,14 @@ GENERATED_DIR = MODELS_DIR.parent / "generated"
 class BundleOptions:
     """Options that change the generated code (part of the content hash)."""
 
-    route: str = "matrix-free"      # how C q̇_r is built (symbolic/mechanics.py)
+    route: str = "auto"             # how C q̇_r is built (symbolic/rigid.py, mechanics.py)
     loop_steps: int = 1000          # controller samples per call of <model>_slotine_li_loop
     loop_substeps: int = 1          # RK4 steps per controller sample in that loop
 
-    def check(self) -> "BundleOptions":
-        if self.route not in ("matrix-free", "explicit"):
-            raise ValueError(f"route: expected 'matrix-free' or 'explicit', got {self.route!r}")
+    def check(self) -> BundleOptions:
+        if self.route not in ("auto", "matrix-free", "explicit"):
+            raise ValueError(f"route: expected 'auto', 'matrix-free' or 'explicit', "
+                             f"got {self.route!r}")
         for name in ("loop_steps", "loop_substeps"):
             v = getattr(self, name)
             if not isinstance(v, int) or v < 1:
@@ -80,7 +81,7 @@ def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> 
     }
     identity = identity_bytes(model.source_text(), options)
     extra = {"dof": n, "model_file": f"models/{model.name}.toml",
-             "options": dict(options.__dict__),
+             "options": dict(options.__dict__), "route": dyn.route,
              "full_parameter_count": dyn.base.full_rank}
     return BundleSpec(name=model.name, functions=fns, parameters=params, identity=identity,
                       extra=extra)

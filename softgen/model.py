@@ -31,14 +31,14 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 
 from .errors import ModelError
 
 #: A scalar of the model: either a number (fixed) or the name of a parameter.
-Scalar = Union[float, str]
+Scalar = float | str
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 

@@ -128,6 +128,18 @@ def test_regressor_identity_at_random_physical_parameters(models, name):
                            rtol=1e-11, atol=1e-13)
 
 
+@pytest.mark.parametrize("name", ["planar_2link", "spatial3", "planar3"])
+def test_both_routes_give_the_same_regressor(models, name):
+    a = RigidDynamics(models[name], route="explicit")
+    b = RigidDynamics(models[name], route="matrix-free")
+    assert a.parameter_names == b.parameter_names
+    assert np.allclose(a.parameter_nominal, b.parameter_nominal, rtol=1e-14)
+    rng = np.random.default_rng(14)
+    for _ in range(10):
+        x = _random_state(rng, a.model.dof)
+        assert np.allclose(a.regressor(*x), b.regressor(*x), rtol=1e-11, atol=1e-13)
+
+
 @pytest.mark.parametrize("name", ALL)
 def test_regressor_rank_equals_base_parameter_count(dynamics, name):
     d = dynamics[name]

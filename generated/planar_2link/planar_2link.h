@@ -250,7 +250,7 @@ int planar_2link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_r
 #define planar_2link_slotine_li_loop_SZ_ARG 31
 #define planar_2link_slotine_li_loop_SZ_RES 11
 #define planar_2link_slotine_li_loop_SZ_IW 0
-#define planar_2link_slotine_li_loop_SZ_W 30107
+#define planar_2link_slotine_li_loop_SZ_W 30109
 void planar_2link_casadi_version(int* major, int* minor, int* patch);
 int planar_2link_casadi_int_size(void);
 int planar_2link_casadi_real_size(void);

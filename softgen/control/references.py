@@ -15,7 +15,7 @@ class Sinusoid:
     phase: tuple[float, ...] | None = None
     offset: tuple[float, ...] | None = None
 
-    def check(self) -> "Sinusoid":
+    def check(self) -> Sinusoid:
         n = len(self.amplitude)
         for name in ("frequency", "phase", "offset"):
             v = getattr(self, name)

@@ -51,7 +51,7 @@ class LinearParameters:
             inertials.append(Inertial(m=s["m"], h=h, I=I))
         values = dict(model.nominal)
         # Damping and stiffness are linear too: they join δ when declared.
-        for link_i, link in enumerate(model.links, start=1):
+        for link in model.links:
             for attr in ("damping", "stiffness"):
                 pname = getattr(link, attr)
                 if pname is not None:

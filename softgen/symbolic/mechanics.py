@@ -28,7 +28,7 @@ Functions here are pure expression builders: no files, no numerics.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping
+from collections.abc import Mapping
 
 import casadi as ca
 import numpy as np
