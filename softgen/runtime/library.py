@@ -56,6 +56,11 @@ class BundleFunction:
         self.outputs = [_view(f, s) for f, s in zip(flat_out, self.out_shapes)]
         self._flat_in = flat_in
         self._expect = [(r,) if c == 1 else (r, c) for r, c in self.in_shapes]
+        # Assigning into a memoryview copies and checks shape and dtype in one C-level
+        # step (~0.1 µs against ~0.5 µs for numpy's check + setitem); it only takes
+        # 1-D targets, so functions with matrix inputs use the numpy path.
+        self._in_mv = ([memoryview(f) for f in flat_in]
+                       if all(c == 1 for _, c in self.in_shapes) else None)
         buf, self._eval = function.buffer()
         for i, b in enumerate(flat_in):
             buf.set_arg(i, memoryview(b))
@@ -85,11 +90,13 @@ class BundleFunction:
         if len(args) != len(self.inputs):
             raise ShapeError(f"{self.name}: expected {len(self.inputs)} inputs "
                              f"({', '.join(self.in_names)}), got {len(args)}")
-        for k, a in enumerate(args):
-            dst = self.inputs[k]
-            if type(a) is np.ndarray and a.shape == self._expect[k]:
-                dst[...] = a
-            else:
+        try:
+            if self._in_mv is None:
+                raise TypeError
+            for mv, a in zip(self._in_mv, args):
+                mv[:] = a     # float64 1-D of the right length, or ValueError/TypeError
+        except (ValueError, TypeError):
+            for k, a in enumerate(args):   # lists, columns, ints, matrices; or the error
                 self._load_slow(k, a)
         self.call()
         if len(self.outputs) == 1:
