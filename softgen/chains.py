@@ -30,7 +30,7 @@ from .codegen.cbench import time_in_c
 from .errors import BuildError
 from .model import RobotModel, load_model
 from .symbolic.linear import LinearParameters
-from .symbolic.mechanics import Mechanics, nominal_values
+from .symbolic.mechanics import Mechanics
 
 __all__ = ["chain_model", "measure_route", "scaling_table", "format_table"]
 
@@ -113,7 +113,7 @@ QUADRATIC = ("explicit", "y-formed")
 
 def _route_function(model: RobotModel, route: str, name: str) -> ca.Function:
     if route in ("explicit", "matrix-free"):
-        mech = Mechanics(model, nominal_values(model))
+        mech = Mechanics(model, model.nominal)
         return ca.Function(name, [mech.q, mech.qd, mech.qd_r, mech.qdd_r],
                            [mech.slotine_li(route)], ["q", "qd", "qd_r", "qdd_r"], ["tau"],
                            {"cse": True})

@@ -277,11 +277,6 @@ class Mechanics:
                 for s in states]
 
 
-def nominal_values(model: RobotModel) -> dict[str, float]:
-    """All parameters at their nominal values (numbers, no symbols)."""
-    return dict(model.nominal)
-
-
 def symbolic_values(model: RobotModel, names: tuple[str, ...] | None = None
                     ) -> tuple[dict[str, object], ca.SX]:
     """Nominal values with ``names`` (default: the uncertain ones) made SX symbols.
