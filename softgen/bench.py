@@ -32,9 +32,9 @@ from .runtime.simulate import simulate
 def _python_latency(f, rng, repeats: int = 5, number: int = 20000) -> tuple[float, float]:
     """(fast buffer path, checked call path) in ns per call, best of ``repeats``."""
     args = []
-    for buf in f.inputs:
+    for buf, name in zip(f.inputs, f.in_names):
         v = rng.uniform(-1, 1, buf.shape)
-        if f.in_names[len(args)] in ("dt", "h"):
+        if name in ("dt", "h"):       # sample times must be positive and small
             v = np.abs(v) * 1e-3
         buf[...] = v
         args.append(v.copy())

@@ -16,8 +16,6 @@ Example
 from __future__ import annotations
 
 import dataclasses
-import resource
-import subprocess
 import tempfile
 import time
 from pathlib import Path
@@ -25,7 +23,7 @@ from typing import Any
 
 import casadi as ca
 
-from .codegen.build import CFLAGS, LDLIBS, require_compiler
+from .codegen.build import compile_shared
 from .codegen.cbench import time_in_c
 from .errors import BuildError
 from .model import RobotModel, load_model
@@ -76,25 +74,6 @@ def chain_model(n: int) -> RobotModel:
         model = load_model(path)
     # The file is gone: a path pointing at it would make source_text() fail later.
     return dataclasses.replace(model, path=None)
-
-
-def _limit_compiler_memory() -> None:
-    """Child-side cap (runs between fork and exec of the compiler)."""
-    resource.setrlimit(resource.RLIMIT_AS, (COMPILE_MEMORY_BYTES, COMPILE_MEMORY_BYTES))
-
-
-def _compile_shared(c_file: Path, lib: Path) -> float:
-    """Compile ``c_file`` to ``lib`` as the bundles are built; return the seconds taken."""
-    cmd = [require_compiler(), *CFLAGS, "-o", str(lib), str(c_file), *LDLIBS]
-    t0 = time.perf_counter()
-    try:
-        subprocess.run(cmd, check=True, capture_output=True, text=True,
-                       timeout=COMPILE_TIMEOUT, preexec_fn=_limit_compiler_memory)
-    except subprocess.CalledProcessError as exc:
-        raise BuildError(f"compiling {c_file.name} failed", exc.stderr) from None
-    except subprocess.TimeoutExpired:
-        raise BuildError(f"compiling {c_file.name} took over {COMPILE_TIMEOUT:.0f} s") from None
-    return time.perf_counter() - t0
 
 
 #: What each route measures. The first two build τ = B q̈_r + C q̇_r + G; the
@@ -173,8 +152,9 @@ def measure_route(n: int, route: str, *, compile: bool = True, time_c: bool = Tr
         row["generate_seconds"] = time.perf_counter() - t0
         c_file = Path(tmp) / f"{name}.c"
         row["c_bytes"] = c_file.stat().st_size
-        row["compile_seconds"] = (_compile_shared(c_file, Path(tmp) / f"lib{name}.so")
-                                  if compile else None)
+        row["compile_seconds"] = (
+            compile_shared(c_file, Path(tmp) / f"lib{name}.so", timeout=COMPILE_TIMEOUT,
+                           memory_bytes=COMPILE_MEMORY_BYTES) if compile else None)
         row["ns_per_call"] = (time_in_c(c_file, [name], calls=calls)[name]
                               if time_c else None)
     return row

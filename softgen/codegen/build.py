@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import resource
 import shutil
 import subprocess
 import tempfile
@@ -46,6 +47,30 @@ def require_compiler(cc: str | None = None) -> str:
         raise BuildError(f"C compiler {explicit!r} not found" if explicit else
                          "no C compiler found: install gcc (or clang) or set CC")
     return compiler
+
+
+def compile_shared(c_file: Path, out: Path, *, cc: str | None = None,
+                   timeout: float | None = None, memory_bytes: int | None = None) -> float:
+    """Compile ``c_file`` into the shared library ``out``; return the seconds taken.
+
+    ``timeout`` (s) and ``memory_bytes`` (address-space cap of the compiler process)
+    turn a runaway compile of a huge expression into a :class:`BuildError` instead
+    of an out-of-memory kill.
+    """
+    cmd = [require_compiler(cc), *CFLAGS, "-o", str(out), str(c_file), *LDLIBS]
+
+    def limit() -> None:   # runs in the child, between fork and exec
+        resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
+
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
+                              preexec_fn=limit if memory_bytes else None)
+    except subprocess.TimeoutExpired:
+        raise BuildError(f"compiling {c_file} took over {timeout:.0f} s") from None
+    if proc.returncode != 0:
+        raise BuildError(f"compiling {c_file} failed", proc.stderr)
+    return time.perf_counter() - t0
 
 
 def read_manifest(bundle: Path) -> dict:
@@ -95,21 +120,16 @@ def build(bundle: Path, *, cc: str | None = None, force: bool = False) -> tuple[
     lib = library_path(bundle, manifest)
     if lib.exists() and not force:
         return lib, 0.0
-    compiler = require_compiler(cc)
+    require_compiler(cc)   # before creating anything
     lib.parent.mkdir(parents=True, exist_ok=True)
     # Build to a temporary name and rename: concurrent builds never expose half a library.
     fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.", suffix=".so")
     os.close(fd)
-    t0 = time.perf_counter()
     try:
-        proc = subprocess.run([compiler, *CFLAGS, "-o", tmp, str(c_file), *LDLIBS],
-                              capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise BuildError(f"compiling {c_file} failed", proc.stderr)
+        seconds = compile_shared(c_file, Path(tmp), cc=cc)
         os.replace(tmp, lib)
     finally:
         Path(tmp).unlink(missing_ok=True)
-    seconds = time.perf_counter() - t0
     # Old libraries of this bundle are stale by construction (other hash): remove them.
     for old in lib.parent.glob(f"lib{manifest['model']}_*.so"):
         if old != lib:

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import casadi as ca
 
+from .build import CFLAGS, LDLIBS
+
 #: Bumped whenever the generated code for the same model would change.
 CODEGEN_VERSION = "1"
 
@@ -57,7 +59,6 @@ def library_name(name: str, c_source: bytes) -> str:
     Its name carries the hash of exactly what it is built from (the C source and
     the compiler flags), so a library built from anything else is never loaded.
     """
-    from .build import CFLAGS, LDLIBS
     h = hashlib.sha256(c_source + " ".join(CFLAGS + LDLIBS).encode()).hexdigest()
     return f"build/lib{name}_{h[:16]}.so"
 

@@ -90,18 +90,24 @@ class BundleFunction:
         if len(args) != len(self.inputs):
             raise ShapeError(f"{self.name}: expected {len(self.inputs)} inputs "
                              f"({', '.join(self.in_names)}), got {len(args)}")
-        try:
-            if self._in_mv is None:
-                raise TypeError
-            for mv, a in zip(self._in_mv, args):
-                mv[:] = a     # float64 1-D of the right length, or ValueError/TypeError
-        except (ValueError, TypeError):
+        if not self._load_fast(args):
             for k, a in enumerate(args):   # lists, columns, ints, matrices; or the error
                 self._load_slow(k, a)
         self.call()
         if len(self.outputs) == 1:
             return self.outputs[0].copy()
         return tuple(o.copy() for o in self.outputs)
+
+    def _load_fast(self, args: tuple) -> bool:
+        """Copy float64 1-D arrays of the right lengths in; False if any is not one."""
+        if self._in_mv is None:
+            return False
+        try:
+            for mv, a in zip(self._in_mv, args):
+                mv[:] = a     # checks length and dtype in C: ValueError/TypeError otherwise
+        except (ValueError, TypeError):
+            return False
+        return True
 
     def _load_slow(self, k: int, a) -> None:
         try:
