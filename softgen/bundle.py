@@ -72,6 +72,7 @@ def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> 
     known = dyn.known_torque_fun()
     if known is not None:
         fns.append(Generated(known, "terms of the dynamics multiplying no uncertain parameter"))
+    estimators = _actuator_functions(model, dyn, fns)
     params = {
         "names": dyn.parameter_names,
         "nominal": [float(v) for v in dyn.parameter_nominal],
@@ -83,8 +84,46 @@ def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> 
     extra = {"dof": n, "model_file": f"models/{model.name}.toml",
              "options": dict(options.__dict__), "route": dyn.route,
              "full_parameter_count": dyn.base.full_rank}
+    if model.actuator_type is not None:
+        extra["actuator"] = model.actuator_type
+        extra["estimators"] = {e.step_fun().name(): e.describe() for e in estimators}
     return BundleSpec(name=model.name, functions=fns, parameters=params, identity=identity,
                       extra=extra)
+
+
+def _actuator_functions(model: RobotModel, dyn: RigidDynamics, fns: list) -> list:
+    """Actuator model, actuated plant and the estimators (thesis defaults) of ``model``."""
+    from .estimation.estimators import EstimatorConfig, StiffnessEstimator
+    from .symbolic.actuated import electric_plant_fun, pneumatic_plant_fun
+    from .symbolic.actuators import McKibbenPairs, QbmoveSprings
+
+    if model.actuator_type is None:
+        return []
+    if model.actuator_type == "mckibben":
+        act = McKibbenPairs(model)
+        fns += [Generated(f, doc) for f, doc in act.functions()]
+        fns.append(Generated(pneumatic_plant_fun(dyn, act, substeps=PLANT_SUBSTEPS),
+                             f"{PLANT_SUBSTEPS} RK4 steps of the pneumatic robot (eq. 2.5) "
+                             "over one sample, pressures held"))
+        methods = ["pneumatic"] if model.dof == 1 else []
+    else:
+        springs = QbmoveSprings(model)
+        fns += [Generated(f, doc) for f, doc in springs.functions()]
+        fns.append(Generated(electric_plant_fun(dyn, springs, substeps=PLANT_SUBSTEPS),
+                             f"{PLANT_SUBSTEPS} RK4 steps of the electric VSA robot (eq. 2.6) "
+                             "over one sample, motor torques held"))
+        methods = ["electric", "noninvasive"]
+    estimators = [StiffnessEstimator(model, EstimatorConfig(m)) for m in methods]
+    for e in estimators:
+        c = e.config
+        fns.append(Generated(e.step_fun(), f"{c.method} stiffness estimator step, T = {c.dt} s, "
+                             f"delay {c.delay}: (state, y_k) -> estimates for sample k - "
+                             f"{c.delay} (chapters 6-7)"))
+    return estimators
+
+
+#: RK4 steps per sample in the generated actuated plants.
+PLANT_SUBSTEPS = 10
 
 
 def identity_bytes(model_text: str, options: BundleOptions) -> bytes:

@@ -54,7 +54,7 @@ _GROUPS = {
 }
 _DEFAULT_UNCERTAIN = ("mass", "com", "inertia", "damping", "stiffness")
 
-_TOP_KEYS = {"model", "gravity", "links", "parameters"}
+_TOP_KEYS = {"model", "gravity", "links", "parameters", "actuators"}
 _MODEL_KEYS = {"name", "kind", "description", "source", "base_angle_deg"}
 _GRAVITY_KEYS = {"g", "vector"}
 _PARAM_KEYS = {"uncertain"}
@@ -84,6 +84,39 @@ class Link:
     inertia_about: str                 # "com" | "joint"
     damping: Scalar | None = None
     stiffness: Scalar | None = None
+
+
+#: Actuator types and their keys: name -> (required, optional). A value given as a
+#: number applies to both muscles / springs of the pair; ``[a, b]`` sets each side.
+_ACTUATOR_KEYS = {
+    # Antagonistic McKibben pair, thesis section 2.1: radius R, muscle gain K^g,
+    # nominal and minimum muscle lengths, pressure range of the regulators.
+    "mckibben": ({"joint", "type", "radius", "gain", "nominal_length", "min_length"},
+                 {"pressure_max"}),
+    # qbmove-style electric VSA, thesis sections 2.2 and 6.2: tau^e = k sinh(a phi)
+    # per spring, two motors with inertia b and viscous damping d.
+    "qbmove": ({"joint", "type", "a", "k", "motor_inertia", "motor_damping"}, set()),
+}
+_PAIRED = {"nominal_length", "min_length", "a", "k", "motor_inertia", "motor_damping"}
+
+
+@dataclass(frozen=True)
+class Actuator:
+    """The antagonistic actuator of one joint.
+
+    ``values`` maps each key of the model file to a number (``radius``, ``gain``,
+    ``pressure_max``) or an ``(a side, b side)`` pair (the keys in ``_PAIRED``).
+    """
+
+    type: str                           # "mckibben" | "qbmove"
+    joint: int                          # 0-based index of the actuated joint
+    values: tuple[tuple[str, Any], ...]
+
+    def __getitem__(self, key: str) -> Any:
+        return dict(self.values)[key]
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return dict(self.values).get(key, default)
 
 
 @dataclass(frozen=True)
@@ -118,6 +151,12 @@ class RobotModel:
     nominal: dict[str, float] = field(hash=False)
     uncertain: tuple[str, ...]
     path: Path | None = None
+    actuators: tuple[Actuator, ...] = ()
+
+    @property
+    def actuator_type(self) -> str | None:
+        """``"mckibben"``, ``"qbmove"`` or ``None`` (every joint has the same type)."""
+        return self.actuators[0].type if self.actuators else None
 
     @property
     def dof(self) -> int:
@@ -262,10 +301,70 @@ class _Parser:
         gdir, gmag = self.gravity(data.get("gravity", {}), kind)
         nominal["g"] = gmag
         uncertain = self.uncertain(data.get("parameters", {}), nominal)
+        actuators = self.actuators(data.get("actuators", []), links)
         return RobotModel(name=name, kind=kind, description=str(meta.get("description", "")),
                           source=str(meta.get("source", "")), links=tuple(links),
                           gravity_direction=gdir, base_rpy=base_rpy, nominal=nominal,
-                          uncertain=uncertain, path=self.path)
+                          uncertain=uncertain, path=self.path, actuators=actuators)
+
+    def actuators(self, raw: Any, links: list[Link]) -> tuple[Actuator, ...]:
+        """``[[actuators]]``: one antagonistic actuator per revolute joint, all one type."""
+        if not isinstance(raw, list):
+            raise self.fail("actuators", "expected an array of tables [[actuators]]")
+        if not raw:
+            return ()
+        names = [link.name for link in links]
+        out: dict[int, Actuator] = {}
+        for i, table in enumerate(raw):
+            key = f"actuators[{i}]"
+            if not isinstance(table, dict):
+                raise self.fail(key, f"expected a table, got {type(table).__name__}")
+            kind = self.choice(table.get("type"), f"{key}.type", tuple(_ACTUATOR_KEYS))
+            required, optional = _ACTUATOR_KEYS[kind]
+            self.keys(table, key, required | optional, required)
+            joint = table["joint"]
+            if joint not in names:
+                raise self.fail(f"{key}.joint", f"expected a link name ({', '.join(names)}), "
+                                f"got {joint!r}")
+            j = names.index(joint)
+            if links[j].joint != "revolute":
+                raise self.fail(f"{key}.joint", f"{joint!r} is prismatic; antagonistic "
+                                "actuators drive revolute joints")
+            if j in out:
+                raise self.fail(f"{key}.joint", f"joint {joint!r} already has an actuator")
+            values: list[tuple[str, Any]] = []
+            for field_ in sorted((required | optional) - {"joint", "type"}):
+                if field_ not in table:
+                    continue
+                v = table[field_]
+                if field_ in _PAIRED:
+                    if isinstance(v, list):
+                        pair = self.vector(v, f"{key}.{field_}", 2)
+                    else:
+                        pair = (self.number(v, f"{key}.{field_}"),) * 2
+                    for side, x in zip("ab", pair):
+                        if not x > 0:
+                            raise self.fail(f"{key}.{field_}", f"expected positive values, "
+                                            f"got {x!r} for side {side}")
+                    values.append((field_, pair))
+                else:
+                    values.append((field_, self.number(v, f"{key}.{field_}", positive=True)))
+            act = Actuator(type=kind, joint=j, values=tuple(values))
+            if kind == "mckibben":
+                for side, ln, lm in zip("ab", act["nominal_length"], act["min_length"]):
+                    if not ln > lm:
+                        raise self.fail(f"{key}.nominal_length", f"side {side}: nominal "
+                                        f"length {ln} must exceed min_length {lm}")
+            out[j] = act
+        kinds = {a.type for a in out.values()}
+        if len(kinds) > 1:
+            raise self.fail("actuators", f"expected one actuator type for the whole robot, "
+                            f"got {sorted(kinds)}")
+        missing = [names[j] for j in range(len(links)) if j not in out]
+        if missing:
+            raise self.fail("actuators", f"every joint needs an actuator; missing for "
+                            f"{', '.join(missing)}")
+        return tuple(out[j] for j in range(len(links)))
 
     def gravity(self, g: Any, kind: str) -> tuple[tuple[float, float, float], float]:
         g = self.keys(g, "gravity", _GRAVITY_KEYS, set())

@@ -39,7 +39,13 @@ extern "C" {
 #define casadi_f14 CASADI_PREFIX(f14)
 #define casadi_f15 CASADI_PREFIX(f15)
 #define casadi_f16 CASADI_PREFIX(f16)
+#define casadi_f17 CASADI_PREFIX(f17)
+#define casadi_f18 CASADI_PREFIX(f18)
+#define casadi_f19 CASADI_PREFIX(f19)
 #define casadi_f2 CASADI_PREFIX(f2)
+#define casadi_f20 CASADI_PREFIX(f20)
+#define casadi_f21 CASADI_PREFIX(f21)
+#define casadi_f22 CASADI_PREFIX(f22)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
@@ -47,8 +53,11 @@ extern "C" {
 #define casadi_f7 CASADI_PREFIX(f7)
 #define casadi_f8 CASADI_PREFIX(f8)
 #define casadi_f9 CASADI_PREFIX(f9)
+#define casadi_fmin CASADI_PREFIX(fmin)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
+#define casadi_s10 CASADI_PREFIX(s10)
+#define casadi_s11 CASADI_PREFIX(s11)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
@@ -57,6 +66,7 @@ extern "C" {
 #define casadi_s7 CASADI_PREFIX(s7)
 #define casadi_s8 CASADI_PREFIX(s8)
 #define casadi_s9 CASADI_PREFIX(s9)
+#define casadi_sq CASADI_PREFIX(sq)
 #define casadi_zeros CASADI_PREFIX(zeros)
 
 /* Symbol visibility in DLLs */
@@ -85,6 +95,17 @@ void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
   }
 }
 
+casadi_real casadi_sq(casadi_real x) { return x*x;}
+
+casadi_real casadi_fmin(casadi_real x, casadi_real y) {
+/* Pre-c99 compatibility */
+#if __STDC_VERSION__ < 199901L
+  return x<y ? x : y;
+#else
+  return fmin(x, y);
+#endif
+}
+
 /* Configuration this file was compiled with */
 CASADI_SYMBOL_EXPORT void pendulum_1link_casadi_version(int* major, int* minor, int* patch) {
   *major = 3;
@@ -105,6 +126,8 @@ static const casadi_int casadi_s6[1000] =
 static const casadi_int casadi_s7[3] = {3, 1000, 1};
 static const casadi_int casadi_s8[3] = {2, 1000, 1};
 static const casadi_int casadi_s9[3] = {1, 1000, 1};
+static const casadi_int casadi_s10[3] = {1, 2, 1};
+static const casadi_int casadi_s11[3] = {53, 1, 1};
 
 static const casadi_real casadi_zeros[3000] = 
   {0.};
@@ -2345,6 +2368,3012 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_slotine_li_loop_work_bytes(casadi_int *s
   if (sz_res) *sz_res = 11*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w) *sz_w = 19710*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_mckibben_torque:(q,p[2])->(tau,sigma) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6;
+  a0=2.2400000000000002e-03;
+  a1=3.5999999999999999e-01;
+  a2=1.6000000000000000e-02;
+  a3=arg[0]? arg[0][0] : 0;
+  a2=(a2*a3);
+  a3=(a1-a2);
+  a4=casadi_sq(a3);
+  a5=6.2500000000000000e-02;
+  a4=(a4-a5);
+  a4=(a0*a4);
+  a6=arg[1]? arg[1][0] : 0;
+  a4=(a4*a6);
+  a1=(a1+a2);
+  a2=casadi_sq(a1);
+  a2=(a2-a5);
+  a0=(a0*a2);
+  a2=arg[1]? arg[1][1] : 0;
+  a0=(a0*a2);
+  a4=(a4-a0);
+  if (res[0]!=0) res[0][0]=a4;
+  a4=-7.1680000000000005e-05;
+  a4=(a4*a3);
+  a4=(a4*a6);
+  a6=7.1680000000000005e-05;
+  a6=(a6*a1);
+  a6=(a6*a2);
+  a4=(a4-a6);
+  a4=(-a4);
+  if (res[1]!=0) res[1][0]=a4;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f17(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_torque_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_torque_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_torque_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_torque_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_mckibben_torque_n_in(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_mckibben_torque_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_mckibben_torque_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_mckibben_torque_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "q";
+    case 1: return "p";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_mckibben_torque_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "tau";
+    case 1: return "sigma";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_mckibben_torque_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s5;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_mckibben_torque_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_torque_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 2;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_torque_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_mckibben_phi:(q)->(Phi[1x2],Phi_q[1x2]) */
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4;
+  a0=3.5999999999999999e-01;
+  a1=1.6000000000000000e-02;
+  a2=arg[0]? arg[0][0] : 0;
+  a1=(a1*a2);
+  a2=(a0-a1);
+  a3=casadi_sq(a2);
+  a4=6.2500000000000000e-02;
+  a3=(a3-a4);
+  if (res[0]!=0) res[0][0]=a3;
+  a0=(a0+a1);
+  a1=casadi_sq(a0);
+  a1=(a1-a4);
+  a1=(-a1);
+  if (res[0]!=0) res[0][1]=a1;
+  a1=-3.2000000000000001e-02;
+  a1=(a1*a2);
+  if (res[1]!=0) res[1][0]=a1;
+  a1=3.2000000000000001e-02;
+  a1=(a1*a0);
+  a1=(-a1);
+  if (res[1]!=0) res[1][1]=a1;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_phi(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f18(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_phi_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_phi_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_phi_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_phi_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_mckibben_phi_n_in(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_mckibben_phi_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_mckibben_phi_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_mckibben_phi_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "q";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_mckibben_phi_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "Phi";
+    case 1: return "Phi_q";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_mckibben_phi_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_mckibben_phi_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s10;
+    case 1: return casadi_s10;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_phi_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 1;
+  if (sz_res) *sz_res = 2;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_phi_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 1*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_mckibben_stiffness_rate:(q,qd,p[2],pd[2])->(sigma_dot) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5;
+  a0=-7.1680000000000005e-05;
+  a1=3.5999999999999999e-01;
+  a2=1.6000000000000000e-02;
+  a3=arg[0]? arg[0][0] : 0;
+  a2=(a2*a3);
+  a3=(a1-a2);
+  a0=(a0*a3);
+  a3=arg[3]? arg[3][0] : 0;
+  a0=(a0*a3);
+  a3=arg[2]? arg[2][0] : 0;
+  a4=-1.1468800000000001e-06;
+  a5=arg[1]? arg[1][0] : 0;
+  a4=(a4*a5);
+  a3=(a3*a4);
+  a0=(a0-a3);
+  a3=arg[2]? arg[2][1] : 0;
+  a4=1.1468800000000001e-06;
+  a4=(a4*a5);
+  a3=(a3*a4);
+  a4=7.1680000000000005e-05;
+  a1=(a1+a2);
+  a4=(a4*a1);
+  a1=arg[3]? arg[3][1] : 0;
+  a4=(a4*a1);
+  a3=(a3+a4);
+  a0=(a0-a3);
+  a0=(-a0);
+  if (res[0]!=0) res[0][0]=a0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_stiffness_rate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f19(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_stiffness_rate_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_stiffness_rate_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_stiffness_rate_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_stiffness_rate_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_mckibben_stiffness_rate_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_mckibben_stiffness_rate_n_out(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_mckibben_stiffness_rate_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_mckibben_stiffness_rate_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "q";
+    case 1: return "qd";
+    case 2: return "p";
+    case 3: return "pd";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_mckibben_stiffness_rate_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "sigma_dot";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_mckibben_stiffness_rate_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s0;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_mckibben_stiffness_rate_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_stiffness_rate_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 1;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_stiffness_rate_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 1*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_mckibben_allocation:(q,tau,sigma)->(p[2]) */
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6;
+  a0=7.1680000000000005e-05;
+  a1=3.5999999999999999e-01;
+  a2=1.6000000000000000e-02;
+  a3=arg[0]? arg[0][0] : 0;
+  a2=(a2*a3);
+  a3=(a1+a2);
+  a0=(a0*a3);
+  a4=2.2400000000000002e-03;
+  a1=(a1-a2);
+  a2=casadi_sq(a1);
+  a5=6.2500000000000000e-02;
+  a2=(a2-a5);
+  a2=(a4*a2);
+  a6=(a2*a0);
+  a3=casadi_sq(a3);
+  a3=(a3-a5);
+  a4=(a4*a3);
+  a3=-7.1680000000000005e-05;
+  a3=(a3*a1);
+  a1=(a4*a3);
+  a6=(a6-a1);
+  a0=(a0/a6);
+  a1=arg[1]? arg[1][0] : 0;
+  a0=(a0*a1);
+  a4=(a4/a6);
+  a5=arg[2]? arg[2][0] : 0;
+  a4=(a4*a5);
+  a0=(a0+a4);
+  if (res[0]!=0) res[0][0]=a0;
+  a3=(a3/a6);
+  a3=(a3*a1);
+  a2=(a2/a6);
+  a2=(a2*a5);
+  a3=(a3+a2);
+  if (res[0]!=0) res[0][1]=a3;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_allocation(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f20(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_allocation_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_allocation_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_allocation_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_mckibben_allocation_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_mckibben_allocation_n_in(void) { return 3;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_mckibben_allocation_n_out(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_mckibben_allocation_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_mckibben_allocation_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "q";
+    case 1: return "tau";
+    case 2: return "sigma";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_mckibben_allocation_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "p";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_mckibben_allocation_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s0;
+    case 2: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_mckibben_allocation_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_allocation_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 3;
+  if (sz_res) *sz_res = 1;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_allocation_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 3*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 1*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_pneumatic_plant:(x[2],p[2],h)->(x_next[2]) */
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[2]? arg[2][0] : 0;
+  a02=10.;
+  a01=(a01/a02);
+  a02=6.;
+  a02=(a01/a02);
+  a03=arg[0]? arg[0][1] : 0;
+  a04=2.;
+  a04=(a01/a04);
+  a05=2.2400000000000002e-03;
+  a06=3.5999999999999999e-01;
+  a07=1.6000000000000000e-02;
+  a08=(a07*a00);
+  a09=(a06-a08);
+  a09=casadi_sq(a09);
+  a10=6.2500000000000000e-02;
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a11=arg[1]? arg[1][0] : 0;
+  a09=(a09*a11);
+  a08=(a06+a08);
+  a08=casadi_sq(a08);
+  a08=(a08-a10);
+  a08=(a05*a08);
+  a12=arg[1]? arg[1][1] : 0;
+  a08=(a08*a12);
+  a09=(a09-a08);
+  a08=1.0000000000000001e-05;
+  a13=(a08*a03);
+  a14=-1.1772000000000000e+00;
+  a15=sin(a00);
+  a15=(a14*a15);
+  a13=(a13-a15);
+  a09=(a09-a13);
+  a13=1.4999999999999999e-02;
+  a09=(a09/a13);
+  a15=(a04*a09);
+  a15=(a03+a15);
+  a16=(2.*a15);
+  a16=(a03+a16);
+  a17=(a04*a03);
+  a17=(a00+a17);
+  a18=(a07*a17);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a19=(a19*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a19=(a19-a18);
+  a18=(a08*a15);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a18=(a18-a17);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a17=(2.*a18);
+  a16=(a16+a17);
+  a15=(a04*a15);
+  a15=(a00+a15);
+  a17=(a07*a15);
+  a20=(a06-a17);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a11);
+  a17=(a06+a17);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a17=(a17*a12);
+  a20=(a20-a17);
+  a17=(a08*a18);
+  a15=sin(a15);
+  a15=(a14*a15);
+  a17=(a17-a15);
+  a20=(a20-a17);
+  a20=(a20/a13);
+  a17=(a01*a20);
+  a17=(a03+a17);
+  a16=(a16+a17);
+  a16=(a02*a16);
+  a16=(a00+a16);
+  a19=(2.*a19);
+  a09=(a09+a19);
+  a20=(2.*a20);
+  a09=(a09+a20);
+  a18=(a01*a18);
+  a00=(a00+a18);
+  a18=(a07*a00);
+  a20=(a06-a18);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a20=(a20-a18);
+  a17=(a08*a17);
+  a00=sin(a00);
+  a00=(a14*a00);
+  a17=(a17-a00);
+  a20=(a20-a17);
+  a20=(a20/a13);
+  a09=(a09+a20);
+  a09=(a02*a09);
+  a03=(a03+a09);
+  a09=(a07*a16);
+  a20=(a06-a09);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a11);
+  a09=(a06+a09);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a12);
+  a20=(a20-a09);
+  a09=(a08*a03);
+  a17=sin(a16);
+  a17=(a14*a17);
+  a09=(a09-a17);
+  a20=(a20-a09);
+  a20=(a20/a13);
+  a09=(a04*a20);
+  a09=(a03+a09);
+  a17=(2.*a09);
+  a17=(a03+a17);
+  a00=(a04*a03);
+  a00=(a16+a00);
+  a18=(a07*a00);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a19=(a19*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a19=(a19-a18);
+  a18=(a08*a09);
+  a00=sin(a00);
+  a00=(a14*a00);
+  a18=(a18-a00);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a00=(2.*a18);
+  a17=(a17+a00);
+  a09=(a04*a09);
+  a09=(a16+a09);
+  a00=(a07*a09);
+  a15=(a06-a00);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a11);
+  a00=(a06+a00);
+  a00=casadi_sq(a00);
+  a00=(a00-a10);
+  a00=(a05*a00);
+  a00=(a00*a12);
+  a15=(a15-a00);
+  a00=(a08*a18);
+  a09=sin(a09);
+  a09=(a14*a09);
+  a00=(a00-a09);
+  a15=(a15-a00);
+  a15=(a15/a13);
+  a00=(a01*a15);
+  a00=(a03+a00);
+  a17=(a17+a00);
+  a17=(a02*a17);
+  a17=(a16+a17);
+  a19=(2.*a19);
+  a20=(a20+a19);
+  a15=(2.*a15);
+  a20=(a20+a15);
+  a18=(a01*a18);
+  a16=(a16+a18);
+  a18=(a07*a16);
+  a15=(a06-a18);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a15=(a15-a18);
+  a00=(a08*a00);
+  a16=sin(a16);
+  a16=(a14*a16);
+  a00=(a00-a16);
+  a15=(a15-a00);
+  a15=(a15/a13);
+  a20=(a20+a15);
+  a20=(a02*a20);
+  a03=(a03+a20);
+  a20=(a07*a17);
+  a15=(a06-a20);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a11);
+  a20=(a06+a20);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a12);
+  a15=(a15-a20);
+  a20=(a08*a03);
+  a00=sin(a17);
+  a00=(a14*a00);
+  a20=(a20-a00);
+  a15=(a15-a20);
+  a15=(a15/a13);
+  a20=(a04*a15);
+  a20=(a03+a20);
+  a00=(2.*a20);
+  a00=(a03+a00);
+  a16=(a04*a03);
+  a16=(a17+a16);
+  a18=(a07*a16);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a19=(a19*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a19=(a19-a18);
+  a18=(a08*a20);
+  a16=sin(a16);
+  a16=(a14*a16);
+  a18=(a18-a16);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a16=(2.*a18);
+  a00=(a00+a16);
+  a20=(a04*a20);
+  a20=(a17+a20);
+  a16=(a07*a20);
+  a09=(a06-a16);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a11);
+  a16=(a06+a16);
+  a16=casadi_sq(a16);
+  a16=(a16-a10);
+  a16=(a05*a16);
+  a16=(a16*a12);
+  a09=(a09-a16);
+  a16=(a08*a18);
+  a20=sin(a20);
+  a20=(a14*a20);
+  a16=(a16-a20);
+  a09=(a09-a16);
+  a09=(a09/a13);
+  a16=(a01*a09);
+  a16=(a03+a16);
+  a00=(a00+a16);
+  a00=(a02*a00);
+  a00=(a17+a00);
+  a19=(2.*a19);
+  a15=(a15+a19);
+  a09=(2.*a09);
+  a15=(a15+a09);
+  a18=(a01*a18);
+  a17=(a17+a18);
+  a18=(a07*a17);
+  a09=(a06-a18);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a09=(a09-a18);
+  a16=(a08*a16);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a16=(a16-a17);
+  a09=(a09-a16);
+  a09=(a09/a13);
+  a15=(a15+a09);
+  a15=(a02*a15);
+  a03=(a03+a15);
+  a15=(a07*a00);
+  a09=(a06-a15);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a11);
+  a15=(a06+a15);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a12);
+  a09=(a09-a15);
+  a15=(a08*a03);
+  a16=sin(a00);
+  a16=(a14*a16);
+  a15=(a15-a16);
+  a09=(a09-a15);
+  a09=(a09/a13);
+  a15=(a04*a09);
+  a15=(a03+a15);
+  a16=(2.*a15);
+  a16=(a03+a16);
+  a17=(a04*a03);
+  a17=(a00+a17);
+  a18=(a07*a17);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a19=(a19*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a19=(a19-a18);
+  a18=(a08*a15);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a18=(a18-a17);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a17=(2.*a18);
+  a16=(a16+a17);
+  a15=(a04*a15);
+  a15=(a00+a15);
+  a17=(a07*a15);
+  a20=(a06-a17);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a11);
+  a17=(a06+a17);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a17=(a17*a12);
+  a20=(a20-a17);
+  a17=(a08*a18);
+  a15=sin(a15);
+  a15=(a14*a15);
+  a17=(a17-a15);
+  a20=(a20-a17);
+  a20=(a20/a13);
+  a17=(a01*a20);
+  a17=(a03+a17);
+  a16=(a16+a17);
+  a16=(a02*a16);
+  a16=(a00+a16);
+  a19=(2.*a19);
+  a09=(a09+a19);
+  a20=(2.*a20);
+  a09=(a09+a20);
+  a18=(a01*a18);
+  a00=(a00+a18);
+  a18=(a07*a00);
+  a20=(a06-a18);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a20=(a20-a18);
+  a17=(a08*a17);
+  a00=sin(a00);
+  a00=(a14*a00);
+  a17=(a17-a00);
+  a20=(a20-a17);
+  a20=(a20/a13);
+  a09=(a09+a20);
+  a09=(a02*a09);
+  a03=(a03+a09);
+  a09=(a07*a16);
+  a20=(a06-a09);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a11);
+  a09=(a06+a09);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a12);
+  a20=(a20-a09);
+  a09=(a08*a03);
+  a17=sin(a16);
+  a17=(a14*a17);
+  a09=(a09-a17);
+  a20=(a20-a09);
+  a20=(a20/a13);
+  a09=(a04*a20);
+  a09=(a03+a09);
+  a17=(2.*a09);
+  a17=(a03+a17);
+  a00=(a04*a03);
+  a00=(a16+a00);
+  a18=(a07*a00);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a19=(a19*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a19=(a19-a18);
+  a18=(a08*a09);
+  a00=sin(a00);
+  a00=(a14*a00);
+  a18=(a18-a00);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a00=(2.*a18);
+  a17=(a17+a00);
+  a09=(a04*a09);
+  a09=(a16+a09);
+  a00=(a07*a09);
+  a15=(a06-a00);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a11);
+  a00=(a06+a00);
+  a00=casadi_sq(a00);
+  a00=(a00-a10);
+  a00=(a05*a00);
+  a00=(a00*a12);
+  a15=(a15-a00);
+  a00=(a08*a18);
+  a09=sin(a09);
+  a09=(a14*a09);
+  a00=(a00-a09);
+  a15=(a15-a00);
+  a15=(a15/a13);
+  a00=(a01*a15);
+  a00=(a03+a00);
+  a17=(a17+a00);
+  a17=(a02*a17);
+  a17=(a16+a17);
+  a19=(2.*a19);
+  a20=(a20+a19);
+  a15=(2.*a15);
+  a20=(a20+a15);
+  a18=(a01*a18);
+  a16=(a16+a18);
+  a18=(a07*a16);
+  a15=(a06-a18);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a15=(a15-a18);
+  a00=(a08*a00);
+  a16=sin(a16);
+  a16=(a14*a16);
+  a00=(a00-a16);
+  a15=(a15-a00);
+  a15=(a15/a13);
+  a20=(a20+a15);
+  a20=(a02*a20);
+  a03=(a03+a20);
+  a20=(a07*a17);
+  a15=(a06-a20);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a11);
+  a20=(a06+a20);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a12);
+  a15=(a15-a20);
+  a20=(a08*a03);
+  a00=sin(a17);
+  a00=(a14*a00);
+  a20=(a20-a00);
+  a15=(a15-a20);
+  a15=(a15/a13);
+  a20=(a04*a15);
+  a20=(a03+a20);
+  a00=(2.*a20);
+  a00=(a03+a00);
+  a16=(a04*a03);
+  a16=(a17+a16);
+  a18=(a07*a16);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a19=(a19*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a19=(a19-a18);
+  a18=(a08*a20);
+  a16=sin(a16);
+  a16=(a14*a16);
+  a18=(a18-a16);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a16=(2.*a18);
+  a00=(a00+a16);
+  a20=(a04*a20);
+  a20=(a17+a20);
+  a16=(a07*a20);
+  a09=(a06-a16);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a11);
+  a16=(a06+a16);
+  a16=casadi_sq(a16);
+  a16=(a16-a10);
+  a16=(a05*a16);
+  a16=(a16*a12);
+  a09=(a09-a16);
+  a16=(a08*a18);
+  a20=sin(a20);
+  a20=(a14*a20);
+  a16=(a16-a20);
+  a09=(a09-a16);
+  a09=(a09/a13);
+  a16=(a01*a09);
+  a16=(a03+a16);
+  a00=(a00+a16);
+  a00=(a02*a00);
+  a00=(a17+a00);
+  a19=(2.*a19);
+  a15=(a15+a19);
+  a09=(2.*a09);
+  a15=(a15+a09);
+  a18=(a01*a18);
+  a17=(a17+a18);
+  a18=(a07*a17);
+  a09=(a06-a18);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a09=(a09-a18);
+  a16=(a08*a16);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a16=(a16-a17);
+  a09=(a09-a16);
+  a09=(a09/a13);
+  a15=(a15+a09);
+  a15=(a02*a15);
+  a03=(a03+a15);
+  a15=(a07*a00);
+  a09=(a06-a15);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a11);
+  a15=(a06+a15);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a12);
+  a09=(a09-a15);
+  a15=(a08*a03);
+  a16=sin(a00);
+  a16=(a14*a16);
+  a15=(a15-a16);
+  a09=(a09-a15);
+  a09=(a09/a13);
+  a15=(a04*a09);
+  a15=(a03+a15);
+  a16=(2.*a15);
+  a16=(a03+a16);
+  a17=(a04*a03);
+  a17=(a00+a17);
+  a18=(a07*a17);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a19=(a19*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a19=(a19-a18);
+  a18=(a08*a15);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a18=(a18-a17);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a17=(2.*a18);
+  a16=(a16+a17);
+  a15=(a04*a15);
+  a15=(a00+a15);
+  a17=(a07*a15);
+  a20=(a06-a17);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a11);
+  a17=(a06+a17);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a17=(a17*a12);
+  a20=(a20-a17);
+  a17=(a08*a18);
+  a15=sin(a15);
+  a15=(a14*a15);
+  a17=(a17-a15);
+  a20=(a20-a17);
+  a20=(a20/a13);
+  a17=(a01*a20);
+  a17=(a03+a17);
+  a16=(a16+a17);
+  a16=(a02*a16);
+  a16=(a00+a16);
+  a19=(2.*a19);
+  a09=(a09+a19);
+  a20=(2.*a20);
+  a09=(a09+a20);
+  a18=(a01*a18);
+  a00=(a00+a18);
+  a18=(a07*a00);
+  a20=(a06-a18);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a20=(a20-a18);
+  a17=(a08*a17);
+  a00=sin(a00);
+  a00=(a14*a00);
+  a17=(a17-a00);
+  a20=(a20-a17);
+  a20=(a20/a13);
+  a09=(a09+a20);
+  a09=(a02*a09);
+  a03=(a03+a09);
+  a09=(a07*a16);
+  a20=(a06-a09);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a11);
+  a09=(a06+a09);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a12);
+  a20=(a20-a09);
+  a09=(a08*a03);
+  a17=sin(a16);
+  a17=(a14*a17);
+  a09=(a09-a17);
+  a20=(a20-a09);
+  a20=(a20/a13);
+  a09=(a04*a20);
+  a09=(a03+a09);
+  a17=(2.*a09);
+  a17=(a03+a17);
+  a00=(a04*a03);
+  a00=(a16+a00);
+  a18=(a07*a00);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a19=(a19*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a19=(a19-a18);
+  a18=(a08*a09);
+  a00=sin(a00);
+  a00=(a14*a00);
+  a18=(a18-a00);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a00=(2.*a18);
+  a17=(a17+a00);
+  a09=(a04*a09);
+  a09=(a16+a09);
+  a00=(a07*a09);
+  a15=(a06-a00);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a11);
+  a00=(a06+a00);
+  a00=casadi_sq(a00);
+  a00=(a00-a10);
+  a00=(a05*a00);
+  a00=(a00*a12);
+  a15=(a15-a00);
+  a00=(a08*a18);
+  a09=sin(a09);
+  a09=(a14*a09);
+  a00=(a00-a09);
+  a15=(a15-a00);
+  a15=(a15/a13);
+  a00=(a01*a15);
+  a00=(a03+a00);
+  a17=(a17+a00);
+  a17=(a02*a17);
+  a17=(a16+a17);
+  a19=(2.*a19);
+  a20=(a20+a19);
+  a15=(2.*a15);
+  a20=(a20+a15);
+  a18=(a01*a18);
+  a16=(a16+a18);
+  a18=(a07*a16);
+  a15=(a06-a18);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a15=(a15-a18);
+  a00=(a08*a00);
+  a16=sin(a16);
+  a16=(a14*a16);
+  a00=(a00-a16);
+  a15=(a15-a00);
+  a15=(a15/a13);
+  a20=(a20+a15);
+  a20=(a02*a20);
+  a03=(a03+a20);
+  a20=(a07*a17);
+  a15=(a06-a20);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a11);
+  a20=(a06+a20);
+  a20=casadi_sq(a20);
+  a20=(a20-a10);
+  a20=(a05*a20);
+  a20=(a20*a12);
+  a15=(a15-a20);
+  a20=(a08*a03);
+  a00=sin(a17);
+  a00=(a14*a00);
+  a20=(a20-a00);
+  a15=(a15-a20);
+  a15=(a15/a13);
+  a20=(a04*a15);
+  a20=(a03+a20);
+  a00=(2.*a20);
+  a00=(a03+a00);
+  a16=(a04*a03);
+  a16=(a17+a16);
+  a18=(a07*a16);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a19=(a19*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a19=(a19-a18);
+  a18=(a08*a20);
+  a16=sin(a16);
+  a16=(a14*a16);
+  a18=(a18-a16);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a16=(2.*a18);
+  a00=(a00+a16);
+  a20=(a04*a20);
+  a20=(a17+a20);
+  a16=(a07*a20);
+  a09=(a06-a16);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a11);
+  a16=(a06+a16);
+  a16=casadi_sq(a16);
+  a16=(a16-a10);
+  a16=(a05*a16);
+  a16=(a16*a12);
+  a09=(a09-a16);
+  a16=(a08*a18);
+  a20=sin(a20);
+  a20=(a14*a20);
+  a16=(a16-a20);
+  a09=(a09-a16);
+  a09=(a09/a13);
+  a16=(a01*a09);
+  a16=(a03+a16);
+  a00=(a00+a16);
+  a00=(a02*a00);
+  a00=(a17+a00);
+  a19=(2.*a19);
+  a15=(a15+a19);
+  a09=(2.*a09);
+  a15=(a15+a09);
+  a18=(a01*a18);
+  a17=(a17+a18);
+  a18=(a07*a17);
+  a09=(a06-a18);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a09=(a09-a18);
+  a16=(a08*a16);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a16=(a16-a17);
+  a09=(a09-a16);
+  a09=(a09/a13);
+  a15=(a15+a09);
+  a15=(a02*a15);
+  a03=(a03+a15);
+  a15=(a07*a00);
+  a09=(a06-a15);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a09=(a09*a11);
+  a15=(a06+a15);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a12);
+  a09=(a09-a15);
+  a15=(a08*a03);
+  a16=sin(a00);
+  a16=(a14*a16);
+  a15=(a15-a16);
+  a09=(a09-a15);
+  a09=(a09/a13);
+  a15=(a04*a09);
+  a15=(a03+a15);
+  a16=(2.*a15);
+  a16=(a03+a16);
+  a17=(a04*a03);
+  a17=(a00+a17);
+  a18=(a07*a17);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a19=(a19*a11);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a18=(a18*a12);
+  a19=(a19-a18);
+  a18=(a08*a15);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a18=(a18-a17);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a17=(2.*a18);
+  a16=(a16+a17);
+  a04=(a04*a15);
+  a04=(a00+a04);
+  a15=(a07*a04);
+  a17=(a06-a15);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a17=(a17*a11);
+  a15=(a06+a15);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a15=(a15*a12);
+  a17=(a17-a15);
+  a15=(a08*a18);
+  a04=sin(a04);
+  a04=(a14*a04);
+  a15=(a15-a04);
+  a17=(a17-a15);
+  a17=(a17/a13);
+  a15=(a01*a17);
+  a15=(a03+a15);
+  a16=(a16+a15);
+  a16=(a02*a16);
+  a16=(a00+a16);
+  if (res[0]!=0) res[0][0]=a16;
+  a19=(2.*a19);
+  a09=(a09+a19);
+  a17=(2.*a17);
+  a09=(a09+a17);
+  a01=(a01*a18);
+  a00=(a00+a01);
+  a07=(a07*a00);
+  a01=(a06-a07);
+  a01=casadi_sq(a01);
+  a01=(a01-a10);
+  a01=(a05*a01);
+  a01=(a01*a11);
+  a06=(a06+a07);
+  a06=casadi_sq(a06);
+  a06=(a06-a10);
+  a05=(a05*a06);
+  a05=(a05*a12);
+  a01=(a01-a05);
+  a08=(a08*a15);
+  a00=sin(a00);
+  a14=(a14*a00);
+  a08=(a08-a14);
+  a01=(a01-a08);
+  a01=(a01/a13);
+  a09=(a09+a01);
+  a02=(a02*a09);
+  a03=(a03+a02);
+  if (res[0]!=0) res[0][1]=a03;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f21(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_plant_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_pneumatic_plant_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_pneumatic_plant_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_pneumatic_plant_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_pneumatic_plant_n_in(void) { return 3;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_pneumatic_plant_n_out(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_pneumatic_plant_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_pneumatic_plant_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "p";
+    case 2: return "h";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_pneumatic_plant_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_next";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_plant_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    case 1: return casadi_s5;
+    case 2: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_plant_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_plant_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 3;
+  if (sz_res) *sz_res = 1;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_plant_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 3*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 1*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_pneumatic_estimator_step:(state[53],y[3])->(state_next[53],sigma_hat,tau_hat,tau_uio,updating) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
+  casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
+  casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
+  casadi_real a036, a037, a038, a039, a040, a041, a042, a043, a044, a045, a046, a047;
+  casadi_real a048, a049, a050, a051, a052, a053, a054, a055, a056, a057, a058, a059;
+  casadi_real a060, a061, a062, a063, a064, a065, a066, a067, a068, a069, a070, a071;
+  casadi_real a072, a073, a074, a075, a076, a077, a078, a079, a080, a081, a082, a083;
+  casadi_real a084, a085, a086, a087, a088, a089, a090, a091, a092, a093, a094, a095;
+  casadi_real a096, a097, a098, a099, a100, a101, a102, a103, a104, a105, a106, a107;
+  casadi_real a108, a109, a110, a111, a112, a113, a114, a115, a116, a117, a118, a119;
+  casadi_real a120, a121, a122, a123, a124, a125, a126, a127, a128, a129, a130, a131;
+  casadi_real a132, a133;
+  a000=arg[0]? arg[0][3] : 0;
+  if (res[0]!=0) res[0][0]=a000;
+  a000=arg[0]? arg[0][4] : 0;
+  if (res[0]!=0) res[0][1]=a000;
+  a000=arg[0]? arg[0][5] : 0;
+  if (res[0]!=0) res[0][2]=a000;
+  a000=arg[1]? arg[1][0] : 0;
+  if (res[0]!=0) res[0][3]=a000;
+  a001=arg[1]? arg[1][1] : 0;
+  if (res[0]!=0) res[0][4]=a001;
+  a001=arg[1]? arg[1][2] : 0;
+  if (res[0]!=0) res[0][5]=a001;
+  a001=arg[0]? arg[0][6] : 0;
+  a002=1.;
+  a003=(a001+a002);
+  a004=1000000000.;
+  a003=casadi_fmin(a003,a004);
+  if (res[0]!=0) res[0][6]=a003;
+  a003=arg[0]? arg[0][7] : 0;
+  a004=1.0000000000000000e-02;
+  a005=arg[0]? arg[0][8] : 0;
+  a004=(a004*a005);
+  a004=(a003+a004);
+  if (res[0]!=0) res[0][7]=a004;
+  a004=-9.9999999999999986e+01;
+  a004=(a004*a003);
+  a006=-9.9999999999999978e-01;
+  a006=(a006*a005);
+  a004=(a004+a006);
+  a006=9.9999999999999986e+01;
+  a006=(a006*a000);
+  a004=(a004+a006);
+  if (res[0]!=0) res[0][8]=a004;
+  a006=4.;
+  a006=(a006<=a001);
+  a000=(a006&&a002);
+  a007=arg[0]? arg[0][9] : 0;
+  a008=arg[0]? arg[0][15] : 0;
+  a009=1.0000000000000001e-05;
+  a010=arg[0]? arg[0][1] : 0;
+  a010=(a009*a010);
+  a011=(a008*a010);
+  a012=arg[0]? arg[0][21] : 0;
+  a013=arg[0]? arg[0][0] : 0;
+  a014=(a010*a013);
+  a015=(a012*a014);
+  a011=(a011+a015);
+  a015=arg[0]? arg[0][27] : 0;
+  a016=casadi_sq(a013);
+  a017=(a010*a016);
+  a018=(a015*a017);
+  a011=(a011+a018);
+  a018=arg[0]? arg[0][33] : 0;
+  a019=arg[0]? arg[0][2] : 0;
+  a019=(a009*a019);
+  a020=(a018*a019);
+  a011=(a011+a020);
+  a020=arg[0]? arg[0][39] : 0;
+  a021=(a019*a013);
+  a022=(a020*a021);
+  a011=(a011+a022);
+  a022=arg[0]? arg[0][45] : 0;
+  a016=(a019*a016);
+  a023=(a022*a016);
+  a011=(a011+a023);
+  a023=(a010*a011);
+  a024=arg[0]? arg[0][16] : 0;
+  a025=(a024*a010);
+  a026=arg[0]? arg[0][22] : 0;
+  a027=(a026*a014);
+  a025=(a025+a027);
+  a027=arg[0]? arg[0][28] : 0;
+  a028=(a027*a017);
+  a025=(a025+a028);
+  a028=arg[0]? arg[0][34] : 0;
+  a029=(a028*a019);
+  a025=(a025+a029);
+  a029=arg[0]? arg[0][40] : 0;
+  a030=(a029*a021);
+  a025=(a025+a030);
+  a030=arg[0]? arg[0][46] : 0;
+  a031=(a030*a016);
+  a025=(a025+a031);
+  a031=(a014*a025);
+  a023=(a023+a031);
+  a031=arg[0]? arg[0][17] : 0;
+  a032=(a031*a010);
+  a033=arg[0]? arg[0][23] : 0;
+  a034=(a033*a014);
+  a032=(a032+a034);
+  a034=arg[0]? arg[0][29] : 0;
+  a035=(a034*a017);
+  a032=(a032+a035);
+  a035=arg[0]? arg[0][35] : 0;
+  a036=(a035*a019);
+  a032=(a032+a036);
+  a036=arg[0]? arg[0][41] : 0;
+  a037=(a036*a021);
+  a032=(a032+a037);
+  a037=arg[0]? arg[0][47] : 0;
+  a038=(a037*a016);
+  a032=(a032+a038);
+  a038=(a017*a032);
+  a023=(a023+a038);
+  a038=arg[0]? arg[0][18] : 0;
+  a039=(a038*a010);
+  a040=arg[0]? arg[0][24] : 0;
+  a041=(a040*a014);
+  a039=(a039+a041);
+  a041=arg[0]? arg[0][30] : 0;
+  a042=(a041*a017);
+  a039=(a039+a042);
+  a042=arg[0]? arg[0][36] : 0;
+  a043=(a042*a019);
+  a039=(a039+a043);
+  a043=arg[0]? arg[0][42] : 0;
+  a044=(a043*a021);
+  a039=(a039+a044);
+  a044=arg[0]? arg[0][48] : 0;
+  a045=(a044*a016);
+  a039=(a039+a045);
+  a045=(a019*a039);
+  a023=(a023+a045);
+  a045=arg[0]? arg[0][19] : 0;
+  a046=(a045*a010);
+  a047=arg[0]? arg[0][25] : 0;
+  a048=(a047*a014);
+  a046=(a046+a048);
+  a048=arg[0]? arg[0][31] : 0;
+  a049=(a048*a017);
+  a046=(a046+a049);
+  a049=arg[0]? arg[0][37] : 0;
+  a050=(a049*a019);
+  a046=(a046+a050);
+  a050=arg[0]? arg[0][43] : 0;
+  a051=(a050*a021);
+  a046=(a046+a051);
+  a051=arg[0]? arg[0][49] : 0;
+  a052=(a051*a016);
+  a046=(a046+a052);
+  a052=(a021*a046);
+  a023=(a023+a052);
+  a052=arg[0]? arg[0][20] : 0;
+  a053=(a052*a010);
+  a054=arg[0]? arg[0][26] : 0;
+  a055=(a054*a014);
+  a053=(a053+a055);
+  a055=arg[0]? arg[0][32] : 0;
+  a056=(a055*a017);
+  a053=(a053+a056);
+  a056=arg[0]? arg[0][38] : 0;
+  a057=(a056*a019);
+  a053=(a053+a057);
+  a057=arg[0]? arg[0][44] : 0;
+  a058=(a057*a021);
+  a053=(a053+a058);
+  a058=arg[0]? arg[0][50] : 0;
+  a059=(a058*a016);
+  a053=(a053+a059);
+  a059=(a016*a053);
+  a023=(a023+a059);
+  a023=(a002+a023);
+  a011=(a011/a023);
+  a059=1.4999999999999998e+00;
+  a060=9.9999333333333329e-01;
+  a060=(a060*a005);
+  a004=(a004-a060);
+  a059=(a059*a004);
+  a009=(a009*a005);
+  a005=-1.1772000000000000e+00;
+  a003=sin(a003);
+  a005=(a005*a003);
+  a005=(a009-a005);
+  a059=(a059+a005);
+  a059=(a059-a009);
+  a009=(a010*a007);
+  a005=arg[0]? arg[0][10] : 0;
+  a003=(a014*a005);
+  a009=(a009+a003);
+  a003=arg[0]? arg[0][11] : 0;
+  a004=(a017*a003);
+  a009=(a009+a004);
+  a004=arg[0]? arg[0][12] : 0;
+  a060=(a019*a004);
+  a009=(a009+a060);
+  a060=arg[0]? arg[0][13] : 0;
+  a061=(a021*a060);
+  a009=(a009+a061);
+  a061=arg[0]? arg[0][14] : 0;
+  a062=(a016*a061);
+  a009=(a009+a062);
+  a009=(a059-a009);
+  a062=(a011*a009);
+  a062=(a007+a062);
+  a062=(a000?a062:0);
+  a063=(!a000);
+  a007=(a063?a007:0);
+  a062=(a062+a007);
+  if (res[0]!=0) res[0][9]=a062;
+  a025=(a025/a023);
+  a007=(a025*a009);
+  a007=(a005+a007);
+  a007=(a000?a007:0);
+  a005=(a063?a005:0);
+  a007=(a007+a005);
+  if (res[0]!=0) res[0][10]=a007;
+  a032=(a032/a023);
+  a005=(a032*a009);
+  a005=(a003+a005);
+  a005=(a000?a005:0);
+  a003=(a063?a003:0);
+  a005=(a005+a003);
+  if (res[0]!=0) res[0][11]=a005;
+  a039=(a039/a023);
+  a003=(a039*a009);
+  a003=(a004+a003);
+  a003=(a000?a003:0);
+  a004=(a063?a004:0);
+  a003=(a003+a004);
+  if (res[0]!=0) res[0][12]=a003;
+  a046=(a046/a023);
+  a004=(a046*a009);
+  a004=(a060+a004);
+  a004=(a000?a004:0);
+  a060=(a063?a060:0);
+  a004=(a004+a060);
+  if (res[0]!=0) res[0][13]=a004;
+  a053=(a053/a023);
+  a009=(a053*a009);
+  a009=(a061+a009);
+  a009=(a000?a009:0);
+  a061=(a063?a061:0);
+  a009=(a009+a061);
+  if (res[0]!=0) res[0][14]=a009;
+  a061=(a011*a010);
+  a061=(a002-a061);
+  a023=(a061*a008);
+  a060=(a011*a014);
+  a064=(a060*a024);
+  a023=(a023-a064);
+  a064=(a011*a017);
+  a065=(a064*a031);
+  a023=(a023-a065);
+  a065=(a011*a019);
+  a066=(a065*a038);
+  a023=(a023-a066);
+  a066=(a011*a021);
+  a067=(a066*a045);
+  a023=(a023-a067);
+  a067=(a011*a016);
+  a068=(a067*a052);
+  a023=(a023-a068);
+  a068=(a023*a061);
+  a069=(a061*a012);
+  a070=(a060*a026);
+  a069=(a069-a070);
+  a070=(a064*a033);
+  a069=(a069-a070);
+  a070=(a065*a040);
+  a069=(a069-a070);
+  a070=(a066*a047);
+  a069=(a069-a070);
+  a070=(a067*a054);
+  a069=(a069-a070);
+  a070=(a069*a060);
+  a068=(a068-a070);
+  a070=(a061*a015);
+  a071=(a060*a027);
+  a070=(a070-a071);
+  a071=(a064*a034);
+  a070=(a070-a071);
+  a071=(a065*a041);
+  a070=(a070-a071);
+  a071=(a066*a048);
+  a070=(a070-a071);
+  a071=(a067*a055);
+  a070=(a070-a071);
+  a071=(a070*a064);
+  a068=(a068-a071);
+  a071=(a061*a018);
+  a072=(a060*a028);
+  a071=(a071-a072);
+  a072=(a064*a035);
+  a071=(a071-a072);
+  a072=(a065*a042);
+  a071=(a071-a072);
+  a072=(a066*a049);
+  a071=(a071-a072);
+  a072=(a067*a056);
+  a071=(a071-a072);
+  a072=(a071*a065);
+  a068=(a068-a072);
+  a072=(a061*a020);
+  a073=(a060*a029);
+  a072=(a072-a073);
+  a073=(a064*a036);
+  a072=(a072-a073);
+  a073=(a065*a043);
+  a072=(a072-a073);
+  a073=(a066*a050);
+  a072=(a072-a073);
+  a073=(a067*a057);
+  a072=(a072-a073);
+  a073=(a072*a066);
+  a068=(a068-a073);
+  a073=(a061*a022);
+  a074=(a060*a030);
+  a073=(a073-a074);
+  a074=(a064*a037);
+  a073=(a073-a074);
+  a074=(a065*a044);
+  a073=(a073-a074);
+  a074=(a066*a051);
+  a073=(a073-a074);
+  a074=(a067*a058);
+  a073=(a073-a074);
+  a074=(a073*a067);
+  a068=(a068-a074);
+  a074=casadi_sq(a011);
+  a068=(a068+a074);
+  a068=(a000?a068:0);
+  a074=(a063?a008:0);
+  a068=(a068+a074);
+  if (res[0]!=0) res[0][15]=a068;
+  a068=5.0000000000000000e-01;
+  a074=(a025*a014);
+  a074=(a002-a074);
+  a075=(a074*a024);
+  a076=(a025*a010);
+  a077=(a076*a008);
+  a075=(a075-a077);
+  a077=(a025*a017);
+  a078=(a077*a031);
+  a075=(a075-a078);
+  a078=(a025*a019);
+  a079=(a078*a038);
+  a075=(a075-a079);
+  a079=(a025*a021);
+  a080=(a079*a045);
+  a075=(a075-a080);
+  a080=(a025*a016);
+  a081=(a080*a052);
+  a075=(a075-a081);
+  a081=(a075*a061);
+  a082=(a074*a026);
+  a083=(a076*a012);
+  a082=(a082-a083);
+  a083=(a077*a033);
+  a082=(a082-a083);
+  a083=(a078*a040);
+  a082=(a082-a083);
+  a083=(a079*a047);
+  a082=(a082-a083);
+  a083=(a080*a054);
+  a082=(a082-a083);
+  a083=(a082*a060);
+  a081=(a081-a083);
+  a083=(a074*a027);
+  a084=(a076*a015);
+  a083=(a083-a084);
+  a084=(a077*a034);
+  a083=(a083-a084);
+  a084=(a078*a041);
+  a083=(a083-a084);
+  a084=(a079*a048);
+  a083=(a083-a084);
+  a084=(a080*a055);
+  a083=(a083-a084);
+  a084=(a083*a064);
+  a081=(a081-a084);
+  a084=(a074*a028);
+  a085=(a076*a018);
+  a084=(a084-a085);
+  a085=(a077*a035);
+  a084=(a084-a085);
+  a085=(a078*a042);
+  a084=(a084-a085);
+  a085=(a079*a049);
+  a084=(a084-a085);
+  a085=(a080*a056);
+  a084=(a084-a085);
+  a085=(a084*a065);
+  a081=(a081-a085);
+  a085=(a074*a029);
+  a086=(a076*a020);
+  a085=(a085-a086);
+  a086=(a077*a036);
+  a085=(a085-a086);
+  a086=(a078*a043);
+  a085=(a085-a086);
+  a086=(a079*a050);
+  a085=(a085-a086);
+  a086=(a080*a057);
+  a085=(a085-a086);
+  a086=(a085*a066);
+  a081=(a081-a086);
+  a086=(a074*a030);
+  a087=(a076*a022);
+  a086=(a086-a087);
+  a087=(a077*a037);
+  a086=(a086-a087);
+  a087=(a078*a044);
+  a086=(a086-a087);
+  a087=(a079*a051);
+  a086=(a086-a087);
+  a087=(a080*a058);
+  a086=(a086-a087);
+  a087=(a086*a067);
+  a081=(a081-a087);
+  a087=(a025*a011);
+  a081=(a081+a087);
+  a087=(a069*a074);
+  a088=(a023*a076);
+  a087=(a087-a088);
+  a088=(a070*a077);
+  a087=(a087-a088);
+  a088=(a071*a078);
+  a087=(a087-a088);
+  a088=(a072*a079);
+  a087=(a087-a088);
+  a088=(a073*a080);
+  a087=(a087-a088);
+  a088=(a011*a025);
+  a087=(a087+a088);
+  a088=(a081+a087);
+  a088=(a068*a088);
+  a088=(a000?a088:0);
+  a089=(a063?a024:0);
+  a088=(a088+a089);
+  if (res[0]!=0) res[0][16]=a088;
+  a088=(a032*a017);
+  a088=(a002-a088);
+  a089=(a088*a031);
+  a090=(a032*a010);
+  a091=(a090*a008);
+  a092=(a032*a014);
+  a093=(a092*a024);
+  a091=(a091+a093);
+  a089=(a089-a091);
+  a091=(a032*a019);
+  a093=(a091*a038);
+  a089=(a089-a093);
+  a093=(a032*a021);
+  a094=(a093*a045);
+  a089=(a089-a094);
+  a094=(a032*a016);
+  a095=(a094*a052);
+  a089=(a089-a095);
+  a095=(a089*a061);
+  a096=(a088*a033);
+  a097=(a090*a012);
+  a098=(a092*a026);
+  a097=(a097+a098);
+  a096=(a096-a097);
+  a097=(a091*a040);
+  a096=(a096-a097);
+  a097=(a093*a047);
+  a096=(a096-a097);
+  a097=(a094*a054);
+  a096=(a096-a097);
+  a097=(a096*a060);
+  a095=(a095-a097);
+  a097=(a088*a034);
+  a098=(a090*a015);
+  a099=(a092*a027);
+  a098=(a098+a099);
+  a097=(a097-a098);
+  a098=(a091*a041);
+  a097=(a097-a098);
+  a098=(a093*a048);
+  a097=(a097-a098);
+  a098=(a094*a055);
+  a097=(a097-a098);
+  a098=(a097*a064);
+  a095=(a095-a098);
+  a098=(a088*a035);
+  a099=(a090*a018);
+  a100=(a092*a028);
+  a099=(a099+a100);
+  a098=(a098-a099);
+  a099=(a091*a042);
+  a098=(a098-a099);
+  a099=(a093*a049);
+  a098=(a098-a099);
+  a099=(a094*a056);
+  a098=(a098-a099);
+  a099=(a098*a065);
+  a095=(a095-a099);
+  a099=(a088*a036);
+  a100=(a090*a020);
+  a101=(a092*a029);
+  a100=(a100+a101);
+  a099=(a099-a100);
+  a100=(a091*a043);
+  a099=(a099-a100);
+  a100=(a093*a050);
+  a099=(a099-a100);
+  a100=(a094*a057);
+  a099=(a099-a100);
+  a100=(a099*a066);
+  a095=(a095-a100);
+  a100=(a088*a037);
+  a101=(a090*a022);
+  a102=(a092*a030);
+  a101=(a101+a102);
+  a100=(a100-a101);
+  a101=(a091*a044);
+  a100=(a100-a101);
+  a101=(a093*a051);
+  a100=(a100-a101);
+  a101=(a094*a058);
+  a100=(a100-a101);
+  a101=(a100*a067);
+  a095=(a095-a101);
+  a101=(a032*a011);
+  a095=(a095+a101);
+  a101=(a070*a088);
+  a102=(a023*a090);
+  a103=(a069*a092);
+  a102=(a102+a103);
+  a101=(a101-a102);
+  a102=(a071*a091);
+  a101=(a101-a102);
+  a102=(a072*a093);
+  a101=(a101-a102);
+  a102=(a073*a094);
+  a101=(a101-a102);
+  a102=(a011*a032);
+  a101=(a101+a102);
+  a102=(a095+a101);
+  a102=(a068*a102);
+  a102=(a000?a102:0);
+  a103=(a063?a031:0);
+  a102=(a102+a103);
+  if (res[0]!=0) res[0][17]=a102;
+  a102=(a039*a019);
+  a102=(a002-a102);
+  a103=(a102*a038);
+  a104=(a039*a010);
+  a105=(a104*a008);
+  a106=(a039*a014);
+  a107=(a106*a024);
+  a105=(a105+a107);
+  a107=(a039*a017);
+  a108=(a107*a031);
+  a105=(a105+a108);
+  a103=(a103-a105);
+  a105=(a039*a021);
+  a108=(a105*a045);
+  a103=(a103-a108);
+  a108=(a039*a016);
+  a109=(a108*a052);
+  a103=(a103-a109);
+  a109=(a103*a061);
+  a110=(a102*a040);
+  a111=(a104*a012);
+  a112=(a106*a026);
+  a111=(a111+a112);
+  a112=(a107*a033);
+  a111=(a111+a112);
+  a110=(a110-a111);
+  a111=(a105*a047);
+  a110=(a110-a111);
+  a111=(a108*a054);
+  a110=(a110-a111);
+  a111=(a110*a060);
+  a109=(a109-a111);
+  a111=(a102*a041);
+  a112=(a104*a015);
+  a113=(a106*a027);
+  a112=(a112+a113);
+  a113=(a107*a034);
+  a112=(a112+a113);
+  a111=(a111-a112);
+  a112=(a105*a048);
+  a111=(a111-a112);
+  a112=(a108*a055);
+  a111=(a111-a112);
+  a112=(a111*a064);
+  a109=(a109-a112);
+  a112=(a102*a042);
+  a113=(a104*a018);
+  a114=(a106*a028);
+  a113=(a113+a114);
+  a114=(a107*a035);
+  a113=(a113+a114);
+  a112=(a112-a113);
+  a113=(a105*a049);
+  a112=(a112-a113);
+  a113=(a108*a056);
+  a112=(a112-a113);
+  a113=(a112*a065);
+  a109=(a109-a113);
+  a113=(a102*a043);
+  a114=(a104*a020);
+  a115=(a106*a029);
+  a114=(a114+a115);
+  a115=(a107*a036);
+  a114=(a114+a115);
+  a113=(a113-a114);
+  a114=(a105*a050);
+  a113=(a113-a114);
+  a114=(a108*a057);
+  a113=(a113-a114);
+  a114=(a113*a066);
+  a109=(a109-a114);
+  a114=(a102*a044);
+  a115=(a104*a022);
+  a116=(a106*a030);
+  a115=(a115+a116);
+  a116=(a107*a037);
+  a115=(a115+a116);
+  a114=(a114-a115);
+  a115=(a105*a051);
+  a114=(a114-a115);
+  a115=(a108*a058);
+  a114=(a114-a115);
+  a115=(a114*a067);
+  a109=(a109-a115);
+  a115=(a039*a011);
+  a109=(a109+a115);
+  a115=(a071*a102);
+  a116=(a023*a104);
+  a117=(a069*a106);
+  a116=(a116+a117);
+  a117=(a070*a107);
+  a116=(a116+a117);
+  a115=(a115-a116);
+  a116=(a072*a105);
+  a115=(a115-a116);
+  a116=(a073*a108);
+  a115=(a115-a116);
+  a116=(a011*a039);
+  a115=(a115+a116);
+  a116=(a109+a115);
+  a116=(a068*a116);
+  a116=(a000?a116:0);
+  a117=(a063?a038:0);
+  a116=(a116+a117);
+  if (res[0]!=0) res[0][18]=a116;
+  a116=(a046*a021);
+  a116=(a002-a116);
+  a117=(a116*a045);
+  a118=(a046*a010);
+  a119=(a118*a008);
+  a120=(a046*a014);
+  a121=(a120*a024);
+  a119=(a119+a121);
+  a121=(a046*a017);
+  a122=(a121*a031);
+  a119=(a119+a122);
+  a122=(a046*a019);
+  a123=(a122*a038);
+  a119=(a119+a123);
+  a117=(a117-a119);
+  a119=(a046*a016);
+  a123=(a119*a052);
+  a117=(a117-a123);
+  a123=(a117*a061);
+  a124=(a116*a047);
+  a125=(a118*a012);
+  a126=(a120*a026);
+  a125=(a125+a126);
+  a126=(a121*a033);
+  a125=(a125+a126);
+  a126=(a122*a040);
+  a125=(a125+a126);
+  a124=(a124-a125);
+  a125=(a119*a054);
+  a124=(a124-a125);
+  a125=(a124*a060);
+  a123=(a123-a125);
+  a125=(a116*a048);
+  a126=(a118*a015);
+  a127=(a120*a027);
+  a126=(a126+a127);
+  a127=(a121*a034);
+  a126=(a126+a127);
+  a127=(a122*a041);
+  a126=(a126+a127);
+  a125=(a125-a126);
+  a126=(a119*a055);
+  a125=(a125-a126);
+  a126=(a125*a064);
+  a123=(a123-a126);
+  a126=(a116*a049);
+  a127=(a118*a018);
+  a128=(a120*a028);
+  a127=(a127+a128);
+  a128=(a121*a035);
+  a127=(a127+a128);
+  a128=(a122*a042);
+  a127=(a127+a128);
+  a126=(a126-a127);
+  a127=(a119*a056);
+  a126=(a126-a127);
+  a127=(a126*a065);
+  a123=(a123-a127);
+  a127=(a116*a050);
+  a128=(a118*a020);
+  a129=(a120*a029);
+  a128=(a128+a129);
+  a129=(a121*a036);
+  a128=(a128+a129);
+  a129=(a122*a043);
+  a128=(a128+a129);
+  a127=(a127-a128);
+  a128=(a119*a057);
+  a127=(a127-a128);
+  a128=(a127*a066);
+  a123=(a123-a128);
+  a128=(a116*a051);
+  a129=(a118*a022);
+  a130=(a120*a030);
+  a129=(a129+a130);
+  a130=(a121*a037);
+  a129=(a129+a130);
+  a130=(a122*a044);
+  a129=(a129+a130);
+  a128=(a128-a129);
+  a129=(a119*a058);
+  a128=(a128-a129);
+  a129=(a128*a067);
+  a123=(a123-a129);
+  a129=(a046*a011);
+  a123=(a123+a129);
+  a129=(a072*a116);
+  a130=(a023*a118);
+  a131=(a069*a120);
+  a130=(a130+a131);
+  a131=(a070*a121);
+  a130=(a130+a131);
+  a131=(a071*a122);
+  a130=(a130+a131);
+  a129=(a129-a130);
+  a130=(a073*a119);
+  a129=(a129-a130);
+  a130=(a011*a046);
+  a129=(a129+a130);
+  a130=(a123+a129);
+  a130=(a068*a130);
+  a130=(a000?a130:0);
+  a131=(a063?a045:0);
+  a130=(a130+a131);
+  if (res[0]!=0) res[0][19]=a130;
+  a130=(a053*a016);
+  a002=(a002-a130);
+  a130=(a002*a052);
+  a131=(a053*a010);
+  a008=(a131*a008);
+  a132=(a053*a014);
+  a024=(a132*a024);
+  a008=(a008+a024);
+  a024=(a053*a017);
+  a031=(a024*a031);
+  a008=(a008+a031);
+  a031=(a053*a019);
+  a038=(a031*a038);
+  a008=(a008+a038);
+  a038=(a053*a021);
+  a045=(a038*a045);
+  a008=(a008+a045);
+  a130=(a130-a008);
+  a061=(a130*a061);
+  a008=(a002*a054);
+  a045=(a131*a012);
+  a133=(a132*a026);
+  a045=(a045+a133);
+  a133=(a024*a033);
+  a045=(a045+a133);
+  a133=(a031*a040);
+  a045=(a045+a133);
+  a133=(a038*a047);
+  a045=(a045+a133);
+  a008=(a008-a045);
+  a060=(a008*a060);
+  a061=(a061-a060);
+  a060=(a002*a055);
+  a045=(a131*a015);
+  a133=(a132*a027);
+  a045=(a045+a133);
+  a133=(a024*a034);
+  a045=(a045+a133);
+  a133=(a031*a041);
+  a045=(a045+a133);
+  a133=(a038*a048);
+  a045=(a045+a133);
+  a060=(a060-a045);
+  a064=(a060*a064);
+  a061=(a061-a064);
+  a064=(a002*a056);
+  a045=(a131*a018);
+  a133=(a132*a028);
+  a045=(a045+a133);
+  a133=(a024*a035);
+  a045=(a045+a133);
+  a133=(a031*a042);
+  a045=(a045+a133);
+  a133=(a038*a049);
+  a045=(a045+a133);
+  a064=(a064-a045);
+  a065=(a064*a065);
+  a061=(a061-a065);
+  a065=(a002*a057);
+  a045=(a131*a020);
+  a133=(a132*a029);
+  a045=(a045+a133);
+  a133=(a024*a036);
+  a045=(a045+a133);
+  a133=(a031*a043);
+  a045=(a045+a133);
+  a133=(a038*a050);
+  a045=(a045+a133);
+  a065=(a065-a045);
+  a066=(a065*a066);
+  a061=(a061-a066);
+  a066=(a002*a058);
+  a045=(a131*a022);
+  a133=(a132*a030);
+  a045=(a045+a133);
+  a133=(a024*a037);
+  a045=(a045+a133);
+  a133=(a031*a044);
+  a045=(a045+a133);
+  a133=(a038*a051);
+  a045=(a045+a133);
+  a066=(a066-a045);
+  a067=(a066*a067);
+  a061=(a061-a067);
+  a067=(a053*a011);
+  a061=(a061+a067);
+  a073=(a073*a002);
+  a023=(a023*a131);
+  a069=(a069*a132);
+  a023=(a023+a069);
+  a070=(a070*a024);
+  a023=(a023+a070);
+  a071=(a071*a031);
+  a023=(a023+a071);
+  a072=(a072*a038);
+  a023=(a023+a072);
+  a073=(a073-a023);
+  a011=(a011*a053);
+  a073=(a073+a011);
+  a011=(a061+a073);
+  a011=(a068*a011);
+  a011=(a000?a011:0);
+  a052=(a063?a052:0);
+  a011=(a011+a052);
+  if (res[0]!=0) res[0][20]=a011;
+  a087=(a087+a081);
+  a087=(a068*a087);
+  a087=(a000?a087:0);
+  a012=(a063?a012:0);
+  a087=(a087+a012);
+  if (res[0]!=0) res[0][21]=a087;
+  a087=(a082*a074);
+  a012=(a075*a076);
+  a087=(a087-a012);
+  a012=(a083*a077);
+  a087=(a087-a012);
+  a012=(a084*a078);
+  a087=(a087-a012);
+  a012=(a085*a079);
+  a087=(a087-a012);
+  a012=(a086*a080);
+  a087=(a087-a012);
+  a012=casadi_sq(a025);
+  a087=(a087+a012);
+  a087=(a000?a087:0);
+  a026=(a063?a026:0);
+  a087=(a087+a026);
+  if (res[0]!=0) res[0][22]=a087;
+  a087=(a096*a074);
+  a026=(a089*a076);
+  a087=(a087-a026);
+  a026=(a097*a077);
+  a087=(a087-a026);
+  a026=(a098*a078);
+  a087=(a087-a026);
+  a026=(a099*a079);
+  a087=(a087-a026);
+  a026=(a100*a080);
+  a087=(a087-a026);
+  a026=(a032*a025);
+  a087=(a087+a026);
+  a026=(a083*a088);
+  a012=(a075*a090);
+  a081=(a082*a092);
+  a012=(a012+a081);
+  a026=(a026-a012);
+  a012=(a084*a091);
+  a026=(a026-a012);
+  a012=(a085*a093);
+  a026=(a026-a012);
+  a012=(a086*a094);
+  a026=(a026-a012);
+  a012=(a025*a032);
+  a026=(a026+a012);
+  a012=(a087+a026);
+  a012=(a068*a012);
+  a012=(a000?a012:0);
+  a033=(a063?a033:0);
+  a012=(a012+a033);
+  if (res[0]!=0) res[0][23]=a012;
+  a012=(a110*a074);
+  a033=(a103*a076);
+  a012=(a012-a033);
+  a033=(a111*a077);
+  a012=(a012-a033);
+  a033=(a112*a078);
+  a012=(a012-a033);
+  a033=(a113*a079);
+  a012=(a012-a033);
+  a033=(a114*a080);
+  a012=(a012-a033);
+  a033=(a039*a025);
+  a012=(a012+a033);
+  a033=(a084*a102);
+  a081=(a075*a104);
+  a011=(a082*a106);
+  a081=(a081+a011);
+  a011=(a083*a107);
+  a081=(a081+a011);
+  a033=(a033-a081);
+  a081=(a085*a105);
+  a033=(a033-a081);
+  a081=(a086*a108);
+  a033=(a033-a081);
+  a081=(a025*a039);
+  a033=(a033+a081);
+  a081=(a012+a033);
+  a081=(a068*a081);
+  a081=(a000?a081:0);
+  a040=(a063?a040:0);
+  a081=(a081+a040);
+  if (res[0]!=0) res[0][24]=a081;
+  a081=(a124*a074);
+  a040=(a117*a076);
+  a081=(a081-a040);
+  a040=(a125*a077);
+  a081=(a081-a040);
+  a040=(a126*a078);
+  a081=(a081-a040);
+  a040=(a127*a079);
+  a081=(a081-a040);
+  a040=(a128*a080);
+  a081=(a081-a040);
+  a040=(a046*a025);
+  a081=(a081+a040);
+  a040=(a085*a116);
+  a011=(a075*a118);
+  a052=(a082*a120);
+  a011=(a011+a052);
+  a052=(a083*a121);
+  a011=(a011+a052);
+  a052=(a084*a122);
+  a011=(a011+a052);
+  a040=(a040-a011);
+  a011=(a086*a119);
+  a040=(a040-a011);
+  a011=(a025*a046);
+  a040=(a040+a011);
+  a011=(a081+a040);
+  a011=(a068*a011);
+  a011=(a000?a011:0);
+  a047=(a063?a047:0);
+  a011=(a011+a047);
+  if (res[0]!=0) res[0][25]=a011;
+  a074=(a008*a074);
+  a076=(a130*a076);
+  a074=(a074-a076);
+  a077=(a060*a077);
+  a074=(a074-a077);
+  a078=(a064*a078);
+  a074=(a074-a078);
+  a079=(a065*a079);
+  a074=(a074-a079);
+  a080=(a066*a080);
+  a074=(a074-a080);
+  a080=(a053*a025);
+  a074=(a074+a080);
+  a086=(a086*a002);
+  a075=(a075*a131);
+  a082=(a082*a132);
+  a075=(a075+a082);
+  a083=(a083*a024);
+  a075=(a075+a083);
+  a084=(a084*a031);
+  a075=(a075+a084);
+  a085=(a085*a038);
+  a075=(a075+a085);
+  a086=(a086-a075);
+  a025=(a025*a053);
+  a086=(a086+a025);
+  a025=(a074+a086);
+  a025=(a068*a025);
+  a025=(a000?a025:0);
+  a054=(a063?a054:0);
+  a025=(a025+a054);
+  if (res[0]!=0) res[0][26]=a025;
+  a101=(a101+a095);
+  a101=(a068*a101);
+  a101=(a000?a101:0);
+  a015=(a063?a015:0);
+  a101=(a101+a015);
+  if (res[0]!=0) res[0][27]=a101;
+  a026=(a026+a087);
+  a026=(a068*a026);
+  a026=(a000?a026:0);
+  a027=(a063?a027:0);
+  a026=(a026+a027);
+  if (res[0]!=0) res[0][28]=a026;
+  a026=(a097*a088);
+  a027=(a089*a090);
+  a087=(a096*a092);
+  a027=(a027+a087);
+  a026=(a026-a027);
+  a027=(a098*a091);
+  a026=(a026-a027);
+  a027=(a099*a093);
+  a026=(a026-a027);
+  a027=(a100*a094);
+  a026=(a026-a027);
+  a027=casadi_sq(a032);
+  a026=(a026+a027);
+  a026=(a000?a026:0);
+  a034=(a063?a034:0);
+  a026=(a026+a034);
+  if (res[0]!=0) res[0][29]=a026;
+  a026=(a111*a088);
+  a034=(a103*a090);
+  a027=(a110*a092);
+  a034=(a034+a027);
+  a026=(a026-a034);
+  a034=(a112*a091);
+  a026=(a026-a034);
+  a034=(a113*a093);
+  a026=(a026-a034);
+  a034=(a114*a094);
+  a026=(a026-a034);
+  a034=(a039*a032);
+  a026=(a026+a034);
+  a034=(a098*a102);
+  a027=(a089*a104);
+  a087=(a096*a106);
+  a027=(a027+a087);
+  a087=(a097*a107);
+  a027=(a027+a087);
+  a034=(a034-a027);
+  a027=(a099*a105);
+  a034=(a034-a027);
+  a027=(a100*a108);
+  a034=(a034-a027);
+  a027=(a032*a039);
+  a034=(a034+a027);
+  a027=(a026+a034);
+  a027=(a068*a027);
+  a027=(a000?a027:0);
+  a041=(a063?a041:0);
+  a027=(a027+a041);
+  if (res[0]!=0) res[0][30]=a027;
+  a027=(a125*a088);
+  a041=(a117*a090);
+  a087=(a124*a092);
+  a041=(a041+a087);
+  a027=(a027-a041);
+  a041=(a126*a091);
+  a027=(a027-a041);
+  a041=(a127*a093);
+  a027=(a027-a041);
+  a041=(a128*a094);
+  a027=(a027-a041);
+  a041=(a046*a032);
+  a027=(a027+a041);
+  a041=(a099*a116);
+  a087=(a089*a118);
+  a101=(a096*a120);
+  a087=(a087+a101);
+  a101=(a097*a121);
+  a087=(a087+a101);
+  a101=(a098*a122);
+  a087=(a087+a101);
+  a041=(a041-a087);
+  a087=(a100*a119);
+  a041=(a041-a087);
+  a087=(a032*a046);
+  a041=(a041+a087);
+  a087=(a027+a041);
+  a087=(a068*a087);
+  a087=(a000?a087:0);
+  a048=(a063?a048:0);
+  a087=(a087+a048);
+  if (res[0]!=0) res[0][31]=a087;
+  a088=(a060*a088);
+  a090=(a130*a090);
+  a092=(a008*a092);
+  a090=(a090+a092);
+  a088=(a088-a090);
+  a091=(a064*a091);
+  a088=(a088-a091);
+  a093=(a065*a093);
+  a088=(a088-a093);
+  a094=(a066*a094);
+  a088=(a088-a094);
+  a094=(a053*a032);
+  a088=(a088+a094);
+  a100=(a100*a002);
+  a089=(a089*a131);
+  a096=(a096*a132);
+  a089=(a089+a096);
+  a097=(a097*a024);
+  a089=(a089+a097);
+  a098=(a098*a031);
+  a089=(a089+a098);
+  a099=(a099*a038);
+  a089=(a089+a099);
+  a100=(a100-a089);
+  a032=(a032*a053);
+  a100=(a100+a032);
+  a032=(a088+a100);
+  a032=(a068*a032);
+  a032=(a000?a032:0);
+  a055=(a063?a055:0);
+  a032=(a032+a055);
+  if (res[0]!=0) res[0][32]=a032;
+  a115=(a115+a109);
+  a115=(a068*a115);
+  a115=(a000?a115:0);
+  a018=(a063?a018:0);
+  a115=(a115+a018);
+  if (res[0]!=0) res[0][33]=a115;
+  a033=(a033+a012);
+  a033=(a068*a033);
+  a033=(a000?a033:0);
+  a028=(a063?a028:0);
+  a033=(a033+a028);
+  if (res[0]!=0) res[0][34]=a033;
+  a034=(a034+a026);
+  a034=(a068*a034);
+  a034=(a000?a034:0);
+  a035=(a063?a035:0);
+  a034=(a034+a035);
+  if (res[0]!=0) res[0][35]=a034;
+  a034=(a112*a102);
+  a035=(a103*a104);
+  a026=(a110*a106);
+  a035=(a035+a026);
+  a026=(a111*a107);
+  a035=(a035+a026);
+  a034=(a034-a035);
+  a035=(a113*a105);
+  a034=(a034-a035);
+  a035=(a114*a108);
+  a034=(a034-a035);
+  a035=casadi_sq(a039);
+  a034=(a034+a035);
+  a034=(a000?a034:0);
+  a042=(a063?a042:0);
+  a034=(a034+a042);
+  if (res[0]!=0) res[0][36]=a034;
+  a034=(a126*a102);
+  a042=(a117*a104);
+  a035=(a124*a106);
+  a042=(a042+a035);
+  a035=(a125*a107);
+  a042=(a042+a035);
+  a034=(a034-a042);
+  a042=(a127*a105);
+  a034=(a034-a042);
+  a042=(a128*a108);
+  a034=(a034-a042);
+  a042=(a046*a039);
+  a034=(a034+a042);
+  a042=(a113*a116);
+  a035=(a103*a118);
+  a026=(a110*a120);
+  a035=(a035+a026);
+  a026=(a111*a121);
+  a035=(a035+a026);
+  a026=(a112*a122);
+  a035=(a035+a026);
+  a042=(a042-a035);
+  a035=(a114*a119);
+  a042=(a042-a035);
+  a035=(a039*a046);
+  a042=(a042+a035);
+  a035=(a034+a042);
+  a035=(a068*a035);
+  a035=(a000?a035:0);
+  a049=(a063?a049:0);
+  a035=(a035+a049);
+  if (res[0]!=0) res[0][37]=a035;
+  a102=(a064*a102);
+  a104=(a130*a104);
+  a106=(a008*a106);
+  a104=(a104+a106);
+  a107=(a060*a107);
+  a104=(a104+a107);
+  a102=(a102-a104);
+  a105=(a065*a105);
+  a102=(a102-a105);
+  a108=(a066*a108);
+  a102=(a102-a108);
+  a108=(a053*a039);
+  a102=(a102+a108);
+  a114=(a114*a002);
+  a103=(a103*a131);
+  a110=(a110*a132);
+  a103=(a103+a110);
+  a111=(a111*a024);
+  a103=(a103+a111);
+  a112=(a112*a031);
+  a103=(a103+a112);
+  a113=(a113*a038);
+  a103=(a103+a113);
+  a114=(a114-a103);
+  a039=(a039*a053);
+  a114=(a114+a039);
+  a039=(a102+a114);
+  a039=(a068*a039);
+  a039=(a000?a039:0);
+  a056=(a063?a056:0);
+  a039=(a039+a056);
+  if (res[0]!=0) res[0][38]=a039;
+  a129=(a129+a123);
+  a129=(a068*a129);
+  a129=(a000?a129:0);
+  a020=(a063?a020:0);
+  a129=(a129+a020);
+  if (res[0]!=0) res[0][39]=a129;
+  a040=(a040+a081);
+  a040=(a068*a040);
+  a040=(a000?a040:0);
+  a029=(a063?a029:0);
+  a040=(a040+a029);
+  if (res[0]!=0) res[0][40]=a040;
+  a041=(a041+a027);
+  a041=(a068*a041);
+  a041=(a000?a041:0);
+  a036=(a063?a036:0);
+  a041=(a041+a036);
+  if (res[0]!=0) res[0][41]=a041;
+  a042=(a042+a034);
+  a042=(a068*a042);
+  a042=(a000?a042:0);
+  a043=(a063?a043:0);
+  a042=(a042+a043);
+  if (res[0]!=0) res[0][42]=a042;
+  a042=(a127*a116);
+  a043=(a117*a118);
+  a034=(a124*a120);
+  a043=(a043+a034);
+  a034=(a125*a121);
+  a043=(a043+a034);
+  a034=(a126*a122);
+  a043=(a043+a034);
+  a042=(a042-a043);
+  a043=(a128*a119);
+  a042=(a042-a043);
+  a043=casadi_sq(a046);
+  a042=(a042+a043);
+  a042=(a000?a042:0);
+  a050=(a063?a050:0);
+  a042=(a042+a050);
+  if (res[0]!=0) res[0][43]=a042;
+  a116=(a065*a116);
+  a118=(a130*a118);
+  a120=(a008*a120);
+  a118=(a118+a120);
+  a121=(a060*a121);
+  a118=(a118+a121);
+  a122=(a064*a122);
+  a118=(a118+a122);
+  a116=(a116-a118);
+  a119=(a066*a119);
+  a116=(a116-a119);
+  a119=(a053*a046);
+  a116=(a116+a119);
+  a128=(a128*a002);
+  a117=(a117*a131);
+  a124=(a124*a132);
+  a117=(a117+a124);
+  a125=(a125*a024);
+  a117=(a117+a125);
+  a126=(a126*a031);
+  a117=(a117+a126);
+  a127=(a127*a038);
+  a117=(a117+a127);
+  a128=(a128-a117);
+  a046=(a046*a053);
+  a128=(a128+a046);
+  a046=(a116+a128);
+  a046=(a068*a046);
+  a046=(a000?a046:0);
+  a057=(a063?a057:0);
+  a046=(a046+a057);
+  if (res[0]!=0) res[0][44]=a046;
+  a073=(a073+a061);
+  a073=(a068*a073);
+  a073=(a000?a073:0);
+  a022=(a063?a022:0);
+  a073=(a073+a022);
+  if (res[0]!=0) res[0][45]=a073;
+  a086=(a086+a074);
+  a086=(a068*a086);
+  a086=(a000?a086:0);
+  a030=(a063?a030:0);
+  a086=(a086+a030);
+  if (res[0]!=0) res[0][46]=a086;
+  a100=(a100+a088);
+  a100=(a068*a100);
+  a100=(a000?a100:0);
+  a037=(a063?a037:0);
+  a100=(a100+a037);
+  if (res[0]!=0) res[0][47]=a100;
+  a114=(a114+a102);
+  a114=(a068*a114);
+  a114=(a000?a114:0);
+  a044=(a063?a044:0);
+  a114=(a114+a044);
+  if (res[0]!=0) res[0][48]=a114;
+  a128=(a128+a116);
+  a068=(a068*a128);
+  a068=(a000?a068:0);
+  a051=(a063?a051:0);
+  a068=(a068+a051);
+  if (res[0]!=0) res[0][49]=a068;
+  a066=(a066*a002);
+  a130=(a130*a131);
+  a008=(a008*a132);
+  a130=(a130+a008);
+  a060=(a060*a024);
+  a130=(a130+a060);
+  a064=(a064*a031);
+  a130=(a130+a064);
+  a065=(a065*a038);
+  a130=(a130+a065);
+  a066=(a066-a130);
+  a053=casadi_sq(a053);
+  a066=(a066+a053);
+  a066=(a000?a066:0);
+  a063=(a063?a058:0);
+  a066=(a066+a063);
+  if (res[0]!=0) res[0][50]=a066;
+  a066=4.5000000000000000e+00;
+  a001=(a001<a066);
+  a066=(a001?a013:0);
+  a001=(!a001);
+  a063=arg[0]? arg[0][51] : 0;
+  a058=(a001?a063:0);
+  a066=(a066+a058);
+  a066=(a006?a066:0);
+  a058=(!a006);
+  a063=(a058?a063:0);
+  a066=(a066+a063);
+  if (res[0]!=0) res[0][51]=a066;
+  a066=arg[0]? arg[0][52] : 0;
+  a001=(a001?a066:0);
+  a006=(a006?a001:0);
+  a058=(a058?a066:0);
+  a006=(a006+a058);
+  if (res[0]!=0) res[0][52]=a006;
+  a006=(a010*a007);
+  a013=(2.*a013);
+  a058=(a010*a013);
+  a058=(a058*a005);
+  a006=(a006+a058);
+  a058=(a019*a004);
+  a006=(a006+a058);
+  a013=(a019*a013);
+  a013=(a013*a009);
+  a006=(a006+a013);
+  a006=(-a006);
+  if (res[1]!=0) res[1][0]=a006;
+  a010=(a010*a062);
+  a014=(a014*a007);
+  a010=(a010+a014);
+  a017=(a017*a005);
+  a010=(a010+a017);
+  a019=(a019*a003);
+  a010=(a010+a019);
+  a021=(a021*a004);
+  a010=(a010+a021);
+  a016=(a016*a009);
+  a010=(a010+a016);
+  if (res[2]!=0) res[2][0]=a010;
+  if (res[3]!=0) res[3][0]=a059;
+  if (res[4]!=0) res[4][0]=a000;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f22(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_estimator_step_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_pneumatic_estimator_step_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_pneumatic_estimator_step_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_pneumatic_estimator_step_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_pneumatic_estimator_step_n_in(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_pneumatic_estimator_step_n_out(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_pneumatic_estimator_step_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_pneumatic_estimator_step_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "state";
+    case 1: return "y";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_pneumatic_estimator_step_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "state_next";
+    case 1: return "sigma_hat";
+    case 2: return "tau_hat";
+    case 3: return "tau_uio";
+    case 4: return "updating";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_estimator_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s11;
+    case 1: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_estimator_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s11;
+    case 1: return casadi_s0;
+    case 2: return casadi_s0;
+    case 3: return casadi_s0;
+    case 4: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_estimator_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 5;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_estimator_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 5*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 

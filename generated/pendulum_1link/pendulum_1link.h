@@ -251,6 +251,114 @@ int pendulum_1link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz
 #define pendulum_1link_slotine_li_loop_SZ_RES 11
 #define pendulum_1link_slotine_li_loop_SZ_IW 0
 #define pendulum_1link_slotine_li_loop_SZ_W 19710
+int pendulum_1link_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_mckibben_torque_checkout(void);
+void pendulum_1link_mckibben_torque_release(int mem);
+void pendulum_1link_mckibben_torque_incref(void);
+void pendulum_1link_mckibben_torque_decref(void);
+casadi_int pendulum_1link_mckibben_torque_n_in(void);
+casadi_int pendulum_1link_mckibben_torque_n_out(void);
+casadi_real pendulum_1link_mckibben_torque_default_in(casadi_int i);
+const char* pendulum_1link_mckibben_torque_name_in(casadi_int i);
+const char* pendulum_1link_mckibben_torque_name_out(casadi_int i);
+const casadi_int* pendulum_1link_mckibben_torque_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_mckibben_torque_sparsity_out(casadi_int i);
+int pendulum_1link_mckibben_torque_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_mckibben_torque_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_mckibben_torque_SZ_ARG 2
+#define pendulum_1link_mckibben_torque_SZ_RES 2
+#define pendulum_1link_mckibben_torque_SZ_IW 0
+#define pendulum_1link_mckibben_torque_SZ_W 0
+int pendulum_1link_mckibben_phi(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_mckibben_phi_checkout(void);
+void pendulum_1link_mckibben_phi_release(int mem);
+void pendulum_1link_mckibben_phi_incref(void);
+void pendulum_1link_mckibben_phi_decref(void);
+casadi_int pendulum_1link_mckibben_phi_n_in(void);
+casadi_int pendulum_1link_mckibben_phi_n_out(void);
+casadi_real pendulum_1link_mckibben_phi_default_in(casadi_int i);
+const char* pendulum_1link_mckibben_phi_name_in(casadi_int i);
+const char* pendulum_1link_mckibben_phi_name_out(casadi_int i);
+const casadi_int* pendulum_1link_mckibben_phi_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_mckibben_phi_sparsity_out(casadi_int i);
+int pendulum_1link_mckibben_phi_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_mckibben_phi_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_mckibben_phi_SZ_ARG 1
+#define pendulum_1link_mckibben_phi_SZ_RES 2
+#define pendulum_1link_mckibben_phi_SZ_IW 0
+#define pendulum_1link_mckibben_phi_SZ_W 0
+int pendulum_1link_mckibben_stiffness_rate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_mckibben_stiffness_rate_checkout(void);
+void pendulum_1link_mckibben_stiffness_rate_release(int mem);
+void pendulum_1link_mckibben_stiffness_rate_incref(void);
+void pendulum_1link_mckibben_stiffness_rate_decref(void);
+casadi_int pendulum_1link_mckibben_stiffness_rate_n_in(void);
+casadi_int pendulum_1link_mckibben_stiffness_rate_n_out(void);
+casadi_real pendulum_1link_mckibben_stiffness_rate_default_in(casadi_int i);
+const char* pendulum_1link_mckibben_stiffness_rate_name_in(casadi_int i);
+const char* pendulum_1link_mckibben_stiffness_rate_name_out(casadi_int i);
+const casadi_int* pendulum_1link_mckibben_stiffness_rate_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_mckibben_stiffness_rate_sparsity_out(casadi_int i);
+int pendulum_1link_mckibben_stiffness_rate_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_mckibben_stiffness_rate_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_mckibben_stiffness_rate_SZ_ARG 4
+#define pendulum_1link_mckibben_stiffness_rate_SZ_RES 1
+#define pendulum_1link_mckibben_stiffness_rate_SZ_IW 0
+#define pendulum_1link_mckibben_stiffness_rate_SZ_W 0
+int pendulum_1link_mckibben_allocation(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_mckibben_allocation_checkout(void);
+void pendulum_1link_mckibben_allocation_release(int mem);
+void pendulum_1link_mckibben_allocation_incref(void);
+void pendulum_1link_mckibben_allocation_decref(void);
+casadi_int pendulum_1link_mckibben_allocation_n_in(void);
+casadi_int pendulum_1link_mckibben_allocation_n_out(void);
+casadi_real pendulum_1link_mckibben_allocation_default_in(casadi_int i);
+const char* pendulum_1link_mckibben_allocation_name_in(casadi_int i);
+const char* pendulum_1link_mckibben_allocation_name_out(casadi_int i);
+const casadi_int* pendulum_1link_mckibben_allocation_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_mckibben_allocation_sparsity_out(casadi_int i);
+int pendulum_1link_mckibben_allocation_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_mckibben_allocation_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_mckibben_allocation_SZ_ARG 3
+#define pendulum_1link_mckibben_allocation_SZ_RES 1
+#define pendulum_1link_mckibben_allocation_SZ_IW 0
+#define pendulum_1link_mckibben_allocation_SZ_W 0
+int pendulum_1link_pneumatic_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_pneumatic_plant_checkout(void);
+void pendulum_1link_pneumatic_plant_release(int mem);
+void pendulum_1link_pneumatic_plant_incref(void);
+void pendulum_1link_pneumatic_plant_decref(void);
+casadi_int pendulum_1link_pneumatic_plant_n_in(void);
+casadi_int pendulum_1link_pneumatic_plant_n_out(void);
+casadi_real pendulum_1link_pneumatic_plant_default_in(casadi_int i);
+const char* pendulum_1link_pneumatic_plant_name_in(casadi_int i);
+const char* pendulum_1link_pneumatic_plant_name_out(casadi_int i);
+const casadi_int* pendulum_1link_pneumatic_plant_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_pneumatic_plant_sparsity_out(casadi_int i);
+int pendulum_1link_pneumatic_plant_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_pneumatic_plant_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_pneumatic_plant_SZ_ARG 3
+#define pendulum_1link_pneumatic_plant_SZ_RES 1
+#define pendulum_1link_pneumatic_plant_SZ_IW 0
+#define pendulum_1link_pneumatic_plant_SZ_W 0
+int pendulum_1link_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_pneumatic_estimator_step_checkout(void);
+void pendulum_1link_pneumatic_estimator_step_release(int mem);
+void pendulum_1link_pneumatic_estimator_step_incref(void);
+void pendulum_1link_pneumatic_estimator_step_decref(void);
+casadi_int pendulum_1link_pneumatic_estimator_step_n_in(void);
+casadi_int pendulum_1link_pneumatic_estimator_step_n_out(void);
+casadi_real pendulum_1link_pneumatic_estimator_step_default_in(casadi_int i);
+const char* pendulum_1link_pneumatic_estimator_step_name_in(casadi_int i);
+const char* pendulum_1link_pneumatic_estimator_step_name_out(casadi_int i);
+const casadi_int* pendulum_1link_pneumatic_estimator_step_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_pneumatic_estimator_step_sparsity_out(casadi_int i);
+int pendulum_1link_pneumatic_estimator_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_pneumatic_estimator_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_pneumatic_estimator_step_SZ_ARG 2
+#define pendulum_1link_pneumatic_estimator_step_SZ_RES 5
+#define pendulum_1link_pneumatic_estimator_step_SZ_IW 0
+#define pendulum_1link_pneumatic_estimator_step_SZ_W 0
 void pendulum_1link_casadi_version(int* major, int* minor, int* patch);
 int pendulum_1link_casadi_int_size(void);
 int pendulum_1link_casadi_real_size(void);

@@ -251,6 +251,114 @@ int planar_2link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_r
 #define planar_2link_slotine_li_loop_SZ_RES 11
 #define planar_2link_slotine_li_loop_SZ_IW 0
 #define planar_2link_slotine_li_loop_SZ_W 30109
+int planar_2link_qbmove_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_qbmove_torque_checkout(void);
+void planar_2link_qbmove_torque_release(int mem);
+void planar_2link_qbmove_torque_incref(void);
+void planar_2link_qbmove_torque_decref(void);
+casadi_int planar_2link_qbmove_torque_n_in(void);
+casadi_int planar_2link_qbmove_torque_n_out(void);
+casadi_real planar_2link_qbmove_torque_default_in(casadi_int i);
+const char* planar_2link_qbmove_torque_name_in(casadi_int i);
+const char* planar_2link_qbmove_torque_name_out(casadi_int i);
+const casadi_int* planar_2link_qbmove_torque_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_qbmove_torque_sparsity_out(casadi_int i);
+int planar_2link_qbmove_torque_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_qbmove_torque_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_qbmove_torque_SZ_ARG 3
+#define planar_2link_qbmove_torque_SZ_RES 6
+#define planar_2link_qbmove_torque_SZ_IW 0
+#define planar_2link_qbmove_torque_SZ_W 0
+int planar_2link_qbmove_stiffness_rate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_qbmove_stiffness_rate_checkout(void);
+void planar_2link_qbmove_stiffness_rate_release(int mem);
+void planar_2link_qbmove_stiffness_rate_incref(void);
+void planar_2link_qbmove_stiffness_rate_decref(void);
+casadi_int planar_2link_qbmove_stiffness_rate_n_in(void);
+casadi_int planar_2link_qbmove_stiffness_rate_n_out(void);
+casadi_real planar_2link_qbmove_stiffness_rate_default_in(casadi_int i);
+const char* planar_2link_qbmove_stiffness_rate_name_in(casadi_int i);
+const char* planar_2link_qbmove_stiffness_rate_name_out(casadi_int i);
+const casadi_int* planar_2link_qbmove_stiffness_rate_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_qbmove_stiffness_rate_sparsity_out(casadi_int i);
+int planar_2link_qbmove_stiffness_rate_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_qbmove_stiffness_rate_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_qbmove_stiffness_rate_SZ_ARG 6
+#define planar_2link_qbmove_stiffness_rate_SZ_RES 1
+#define planar_2link_qbmove_stiffness_rate_SZ_IW 0
+#define planar_2link_qbmove_stiffness_rate_SZ_W 0
+int planar_2link_qbmove_deflection(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_qbmove_deflection_checkout(void);
+void planar_2link_qbmove_deflection_release(int mem);
+void planar_2link_qbmove_deflection_incref(void);
+void planar_2link_qbmove_deflection_decref(void);
+casadi_int planar_2link_qbmove_deflection_n_in(void);
+casadi_int planar_2link_qbmove_deflection_n_out(void);
+casadi_real planar_2link_qbmove_deflection_default_in(casadi_int i);
+const char* planar_2link_qbmove_deflection_name_in(casadi_int i);
+const char* planar_2link_qbmove_deflection_name_out(casadi_int i);
+const casadi_int* planar_2link_qbmove_deflection_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_qbmove_deflection_sparsity_out(casadi_int i);
+int planar_2link_qbmove_deflection_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_qbmove_deflection_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_qbmove_deflection_SZ_ARG 1
+#define planar_2link_qbmove_deflection_SZ_RES 2
+#define planar_2link_qbmove_deflection_SZ_IW 0
+#define planar_2link_qbmove_deflection_SZ_W 0
+int planar_2link_electric_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_plant_checkout(void);
+void planar_2link_electric_plant_release(int mem);
+void planar_2link_electric_plant_incref(void);
+void planar_2link_electric_plant_decref(void);
+casadi_int planar_2link_electric_plant_n_in(void);
+casadi_int planar_2link_electric_plant_n_out(void);
+casadi_real planar_2link_electric_plant_default_in(casadi_int i);
+const char* planar_2link_electric_plant_name_in(casadi_int i);
+const char* planar_2link_electric_plant_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_plant_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_plant_sparsity_out(casadi_int i);
+int planar_2link_electric_plant_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_plant_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_plant_SZ_ARG 4
+#define planar_2link_electric_plant_SZ_RES 1
+#define planar_2link_electric_plant_SZ_IW 0
+#define planar_2link_electric_plant_SZ_W 0
+int planar_2link_electric_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_estimator_step_checkout(void);
+void planar_2link_electric_estimator_step_release(int mem);
+void planar_2link_electric_estimator_step_incref(void);
+void planar_2link_electric_estimator_step_decref(void);
+casadi_int planar_2link_electric_estimator_step_n_in(void);
+casadi_int planar_2link_electric_estimator_step_n_out(void);
+casadi_real planar_2link_electric_estimator_step_default_in(casadi_int i);
+const char* planar_2link_electric_estimator_step_name_in(casadi_int i);
+const char* planar_2link_electric_estimator_step_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_estimator_step_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_estimator_step_sparsity_out(casadi_int i);
+int planar_2link_electric_estimator_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_estimator_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_estimator_step_SZ_ARG 2
+#define planar_2link_electric_estimator_step_SZ_RES 5
+#define planar_2link_electric_estimator_step_SZ_IW 0
+#define planar_2link_electric_estimator_step_SZ_W 0
+int planar_2link_noninvasive_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_noninvasive_estimator_step_checkout(void);
+void planar_2link_noninvasive_estimator_step_release(int mem);
+void planar_2link_noninvasive_estimator_step_incref(void);
+void planar_2link_noninvasive_estimator_step_decref(void);
+casadi_int planar_2link_noninvasive_estimator_step_n_in(void);
+casadi_int planar_2link_noninvasive_estimator_step_n_out(void);
+casadi_real planar_2link_noninvasive_estimator_step_default_in(casadi_int i);
+const char* planar_2link_noninvasive_estimator_step_name_in(casadi_int i);
+const char* planar_2link_noninvasive_estimator_step_name_out(casadi_int i);
+const casadi_int* planar_2link_noninvasive_estimator_step_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_noninvasive_estimator_step_sparsity_out(casadi_int i);
+int planar_2link_noninvasive_estimator_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_noninvasive_estimator_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_noninvasive_estimator_step_SZ_ARG 2
+#define planar_2link_noninvasive_estimator_step_SZ_RES 5
+#define planar_2link_noninvasive_estimator_step_SZ_IW 0
+#define planar_2link_noninvasive_estimator_step_SZ_W 0
 void planar_2link_casadi_version(int* major, int* minor, int* patch);
 int planar_2link_casadi_int_size(void);
 int planar_2link_casadi_real_size(void);

@@ -63,7 +63,7 @@ def library_name(name: str, c_source: bytes) -> str:
     return f"build/lib{name}_{h[:16]}.so"
 
 
-def _signature(f: ca.Function) -> dict:
+def signature(f: ca.Function) -> dict:
     def shape(sp: ca.Sparsity) -> list[int]:
         return [int(sp.size1()), int(sp.size2())]
 
@@ -123,7 +123,7 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         "source_sha256": hashlib.sha256(c_src).hexdigest(),
         "parameters": spec.parameters,
         "functions": {
-            g.function.name(): {**_signature(g.function), "doc": g.doc,
+            g.function.name(): {**signature(g.function), "doc": g.doc,
                                 "instructions": int(g.function.n_instructions()),
                                 "can_fail": _can_fail(g.function)}
             for g in spec.functions

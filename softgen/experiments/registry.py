@@ -16,6 +16,12 @@ from ..errors import ExperimentError
 #: id -> module (relative to this package); order is the order of ``softgen list``.
 _MODULES = {
     "rigid-2link-adaptive": ".rigid_2link_adaptive",
+    "ch6-pneumatic-invasive": ".ch6_pneumatic_invasive",
+    "ch6-electric-invasive": ".ch6_electric_invasive",
+    "ch7-noninvasive-1dof": ".ch7_noninvasive:EXPERIMENT_1DOF",
+    "ch7-noninvasive-2dof": ".ch7_noninvasive:EXPERIMENT_2DOF",
+    "ch6-electric-protocol": ".ch6_electric_protocol",
+    "ch7-noninvasive-protocol": ".ch7_noninvasive_protocol",
 }
 
 
@@ -38,5 +44,6 @@ def get(exp_id: str) -> Experiment:
     if exp_id not in _MODULES:
         raise ExperimentError(f"unknown experiment {exp_id!r}: expected one of "
                               f"{', '.join(_MODULES)}")
-    module = importlib.import_module(_MODULES[exp_id], __package__)
-    return module.EXPERIMENT
+    module_name, _, attr = _MODULES[exp_id].partition(":")
+    module = importlib.import_module(module_name, __package__)
+    return getattr(module, attr or "EXPERIMENT")

@@ -1,0 +1,118 @@
+"""Plants of robots driven by antagonistic actuators: rigid links + actuator model.
+
+Pneumatic (eq. 2.5, with instantaneous pressure regulators, as the thesis assumes):
+x = (q, q̇), input the pressures p; B q̈ + C q̇ + G (+ D q̇ + K q) = K Φ(q) p.
+
+Electric (eq. 2.6 / 2.10): x = (q, q̇, q_a, q̇_a, q_b, q̇_b), input the motor torques
+(τ_a, τ_b);
+    B q̈ + C q̇ + G (+ D q̇) = −τ_e,     b_j q̈_j + d_j q̇_j − τ^e_j(q − q_j) = τ_j.
+The springs may differ from the nominal model by a factor per spring
+(``spring_scale``), to emulate the 20 % mismatch of section 6.2.4.1.
+
+Each plant is one generated step: ``substeps`` classical RK4 steps over one sample
+with the input held (zero-order hold).
+"""
+from __future__ import annotations
+
+import casadi as ca
+
+from .actuators import McKibbenPairs, QbmoveSprings
+from .rigid import FUNCTION_OPTS, RigidDynamics
+
+
+def _rk4_steps(rhs, x, u, h, substeps: int):
+    dt = h / substeps
+    for _ in range(substeps):
+        k1 = rhs(x, u)
+        k2 = rhs(x + dt / 2 * k1, u)
+        k3 = rhs(x + dt / 2 * k2, u)
+        k4 = rhs(x + dt * k3, u)
+        x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
+
+
+def pneumatic_plant_fun(dyn: RigidDynamics, act: McKibbenPairs, *, substeps: int
+                        ) -> ca.Function:
+    """``<model>_pneumatic_plant``: one sample of length h of eq. 2.5, pressures held."""
+    n = dyn.model.dof
+    x, p, h = ca.SX.sym("x", 2 * n), ca.SX.sym("p", 2 * n), ca.SX.sym("h")
+
+    xs, ps = ca.SX.sym("xs", 2 * n), ca.SX.sym("ps", 2 * n)
+    qdd = ca.substitute(dyn.forward_dynamics_expr(act.torque(dyn.nominal.q, ps)),
+                        ca.vertcat(dyn.nominal.q, dyn.nominal.qd), xs)
+    rhs = ca.Function("rhs", [xs, ps], [ca.vertcat(xs[n:], qdd)])
+    return ca.Function(f"{dyn.name}_pneumatic_plant", [x, p, h],
+                       [_rk4_steps(rhs, x, p, h, substeps)], ["x", "p", "h"], ["x_next"],
+                       FUNCTION_OPTS)
+
+
+def electric_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: int
+                       ) -> ca.Function:
+    """``<model>_electric_plant``: one sample of eq. 2.6, motor torques held.
+
+    Inputs: x (6n: q, q̇, q_a, q̇_a, q_b, q̇_b), u (2n: τ_a, τ_b), spring_scale (2n:
+    factor on k of each agonist then antagonist spring; 1 = nominal), h (sample time).
+    """
+    n = dyn.model.dof
+    m = dyn.nominal
+    x, u, h = ca.SX.sym("x", 6 * n), ca.SX.sym("u", 2 * n), ca.SX.sym("h")
+    scale = ca.SX.sym("spring_scale", 2 * n)
+
+    xs, us, sc = ca.SX.sym("xs", 6 * n), ca.SX.sym("us", 2 * n), ca.SX.sym("sc", 2 * n)
+    q, qd, qa, qad, qb, qbd = (xs[i * n:(i + 1) * n] for i in range(6))
+    ta = springs.spring_torque(q - qa, "a", sc[:n])
+    tb = springs.spring_torque(q - qb, "b", sc[n:])
+    qdd = ca.substitute(dyn.forward_dynamics_expr(-(ta + tb)), ca.vertcat(m.q, m.qd),
+                        ca.vertcat(q, qd))
+    qadd = (us[:n] + ta - springs.d_a * qad) / springs.b_a
+    qbdd = (us[n:] + tb - springs.d_b * qbd) / springs.b_b
+    rhs = ca.Function("rhs", [xs, us, sc], [ca.vertcat(qd, qdd, qad, qadd, qbd, qbdd)])
+
+    def f(xx, uu):
+        return rhs(xx, uu, scale)
+
+    return ca.Function(f"{dyn.name}_electric_plant", [x, u, scale, h],
+                       [_rk4_steps(f, x, u, h, substeps)], ["x", "u", "spring_scale", "h"],
+                       ["x_next"], FUNCTION_OPTS)
+
+
+def servo_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: int,
+                    bandwidth: float, damping_ratio: float = 1.0) -> ca.Function:
+    """``<model>_servo_plant``: eq. 2.6 with each motor under its own position servo.
+
+    The qbmove motors are position-controlled by their own electronics, faster
+    than the estimator's sample rate. Inside the sample, each motor torque is
+    τ_j = b_j (ω² (q_j,ref − q_j) − 2ζω q̇_j) − τ^e_j,nominal(φ_j): a continuous PD
+    of bandwidth ω with compensation of the *nominal* spring, while the plant's
+    springs are scaled by ``spring_scale`` (the model mismatch). References are held
+    over the sample. Outputs the state at the end of the sample and the motor
+    torques at its start (what a current sensor sampled then reads).
+    """
+    n = dyn.model.dof
+    m = dyn.nominal
+    w, z = float(bandwidth), float(damping_ratio)
+    x, ref, h = ca.SX.sym("x", 6 * n), ca.SX.sym("q_ref", 2 * n), ca.SX.sym("h")
+    scale = ca.SX.sym("spring_scale", 2 * n)
+    xs, rs, sc = ca.SX.sym("xs", 6 * n), ca.SX.sym("rs", 2 * n), ca.SX.sym("sc", 2 * n)
+
+    def parts(xx, rr, ss):
+        q, qd, qa, qad, qb, qbd = (xx[i * n:(i + 1) * n] for i in range(6))
+        ta = springs.spring_torque(q - qa, "a", ss[:n])
+        tb = springs.spring_torque(q - qb, "b", ss[n:])
+        ua = springs.b_a * (w * w * (rr[:n] - qa) - 2 * z * w * qad) \
+            - springs.spring_torque(q - qa, "a")
+        ub = springs.b_b * (w * w * (rr[n:] - qb) - 2 * z * w * qbd) \
+            - springs.spring_torque(q - qb, "b")
+        return q, qd, qa, qad, qb, qbd, ta, tb, ua, ub
+
+    q, qd, qa, qad, qb, qbd, ta, tb, ua, ub = parts(xs, rs, sc)
+    qdd = ca.substitute(dyn.forward_dynamics_expr(-(ta + tb)), ca.vertcat(m.q, m.qd),
+                        ca.vertcat(q, qd))
+    qadd = (ua + ta - springs.d_a * qad) / springs.b_a
+    qbdd = (ub + tb - springs.d_b * qbd) / springs.b_b
+    rhs = ca.Function("rhs", [xs, rs, sc], [ca.vertcat(qd, qdd, qad, qadd, qbd, qbdd)])
+    x_next = _rk4_steps(lambda xx, uu: rhs(xx, uu, scale), x, ref, h, substeps)
+    *_, ua0, ub0 = parts(x, ref, scale)
+    return ca.Function(f"{dyn.name}_servo_plant", [x, ref, scale, h],
+                       [x_next, ca.vertcat(ua0, ub0)], ["x", "q_ref", "spring_scale", "h"],
+                       ["x_next", "tau_motor"], FUNCTION_OPTS)
