@@ -114,6 +114,57 @@ def _cmd_bench(args) -> int:
     return 0
 
 
+def _cmd_estimate(args) -> int:
+    """Stiffness from a CSV log: invasive (thesis chapter 6) or non-invasive (chapter 7)."""
+    import math
+    from dataclasses import replace
+
+    from .estimation.csvlog import read_log, step_tolerance, write_estimates
+    from .estimation.estimators import EstimatorConfig, StiffnessEstimator
+    from .estimation.offline import run_offline
+    from .model import load_model
+    t0 = time.perf_counter()
+    model = load_model(args.model)
+    kind = model.actuator_type
+    if args.method == "invasive" and kind in ("mckibben", "qbmove"):
+        method = "pneumatic" if kind == "mckibben" else "electric"
+    elif args.method == "noninvasive" and kind == "qbmove":
+        method = "noninvasive"
+    else:
+        needs = ("McKibben (pneumatic, section 6.1) or qbmove (electric, section 6.2) "
+                 "actuators" if args.method == "invasive" else "qbmove actuators (chapter 7)")
+        raise SoftgenError(f"estimate: model {model.name!r} has actuator type "
+                           f"{kind or 'none'}; --method {args.method} needs {needs}")
+    powers = None
+    if args.powers is not None:
+        try:
+            powers = tuple(int(p) for p in args.powers.split(","))
+        except ValueError:
+            raise SoftgenError(f"estimate: --powers: expected comma-separated integers "
+                               f"such as 1,3,5,7, got {args.powers!r}") from None
+    for flag, v in (("--dt", args.dt), ("--p0", args.p0)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise SoftgenError(f"estimate: {flag}: expected a positive number, got {v!r}")
+    log = Path(args.log)
+    out = Path(args.out) if args.out else log.with_name(f"{log.stem}_estimate.csv")
+    if out.resolve() == log.resolve():
+        raise SoftgenError(f"estimate: --out {out} is the log itself; choose another file")
+    config = EstimatorConfig(method, dt=args.dt, powers=powers, p0=args.p0)
+    est = StiffnessEstimator(model, config)      # checks the settings before reading the log
+    t, Y, dt = read_log(log, est.measurements, min_rows=est.config.delay + 2)
+    if args.dt is not None and abs(args.dt - dt) > step_tolerance(dt):
+        raise SoftgenError(f"estimate: --dt {args.dt:g} s disagrees with the median time "
+                           f"step {dt:.9g} s of {log}; drop --dt or resample the log")
+    if args.dt is None:
+        est = StiffnessEstimator(model, replace(config, dt=dt))
+    result = run_offline(est, Y)
+    write_estimates(out, t, result, est)
+    label = method if method == args.method else f"{method} ({args.method})"
+    print(f"estimate: {len(t)} samples, dt {est.config.dt:.9g} s, method {label}, "
+          f"delay {est.config.delay}, {time.perf_counter() - t0:.2f} s wall -> {out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="softgen", description="Soft-robot models, regressors, "
                                 "generated C and adaptive loops (thesis: Trumić 2021).")
@@ -143,6 +194,22 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--calls", type=int, default=200_000, help="calls per C timing loop")
     s.add_argument("--json", help="also write the figures to this JSON file")
     s.set_defaults(func=_cmd_bench)
+    s = sub.add_parser("estimate", help="joint stiffness from a CSV measurement log "
+                       "(thesis chapters 6, 7)")
+    s.add_argument("model", metavar="MODEL")
+    s.add_argument("--log", required=True, metavar="FILE.csv",
+                   help="header row; time column t (or time) and the estimator's "
+                        "measurement columns; uniform sampling")
+    s.add_argument("--method", choices=("invasive", "noninvasive"), default="invasive",
+                   help="invasive: pneumatic (McKibben) or electric (qbmove), chapter 6; "
+                        "noninvasive: qbmove, chapter 7 (default: invasive)")
+    s.add_argument("--out", metavar="OUT.csv",
+                   help="estimates (default: <log stem>_estimate.csv beside the log)")
+    s.add_argument("--dt", type=float, metavar="SECONDS",
+                   help="sample time; must agree with the log's median time step")
+    s.add_argument("--powers", metavar="1,3,5,7", help="RLS regressor exponents")
+    s.add_argument("--p0", type=float, help="initial RLS covariance (times I)")
+    s.set_defaults(func=_cmd_estimate)
     return p
 
 

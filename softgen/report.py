@@ -42,6 +42,8 @@ def write_report(results: list[dict], path: Path) -> None:
             ratio = (o / t) if isinstance(o, (int, float)) and isinstance(t, (int, float)) \
                 and t != 0 else None
             lines.append(f"| {key} | {_fmt(o)} | {_fmt(t)} | {_fmt(ratio)} |")
+        if res.get("discussion"):
+            lines += ["", res["discussion"].strip()]
         figs = sorted(p.name for p in (path.parent / exp).glob("*.png"))
         if figs:
             lines.append("")

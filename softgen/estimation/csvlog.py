@@ -122,8 +122,8 @@ def read_log(path: str | Path, names: Sequence[str], *,
     bad = np.flatnonzero(steps <= 0)
     if bad.size:
         k = int(bad[0]) + 1
-        raise LogError(f"{path}: row {lines[k]}: time {t[k]!r} s is not after "
-                       f"{t[k - 1]!r} s of row {lines[k - 1]}; the time column must "
+        raise LogError(f"{path}: row {lines[k]}: time {float(t[k])!r} s is not after "
+                       f"{float(t[k - 1])!r} s of row {lines[k - 1]}; the time column must "
                        f"strictly increase")
     dt = float(np.median(steps))
     tol = step_tolerance(dt)

@@ -43,6 +43,10 @@ CONFIG = {
     "delay": 2,
     "discretization": "euler",
     "metric_window": None,       # None: after the first 10 % of the run
+    "plant_integrator": "rk4",
+    # Diagnostics (why our errors exceed the thesis's): the same run at T/2 and T/4,
+    # and on an explicit-Euler plant at T, the observer's own discrete model.
+    "diagnostics": True,
 }
 
 THESIS = {"torque_mse_joint1": 1.7e-14, "stiffness_mse_joint1": 1.2e-5,
@@ -66,13 +70,30 @@ def allocation_control_fun(dyn: RigidDynamics, act: McKibbenPairs) -> ca.Functio
 
 
 def run(config: dict, out: Path) -> dict:
+    metrics = _run(config, out, figures=True)
+    if config.get("diagnostics"):
+        base = {**config, "diagnostics": False}
+        for tag, over in (("T_half", {"dt": config["dt"] / 2}),
+                          ("T_quarter", {"dt": config["dt"] / 4}),
+                          ("euler_plant", {"plant_integrator": "euler", "substeps": 1})):
+            sub = out / f"diagnostic_{tag}"
+            sub.mkdir(exist_ok=True)
+            m = _run({**base, **over}, sub, figures=False)
+            for key in ("stiffness_mse_joint1", "torque_mse_joint1",
+                        "observer_torque_mse_joint1"):
+                metrics[f"diagnostic_{tag}_{key}"] = m[key]
+    return metrics
+
+
+def _run(config: dict, out: Path, *, figures: bool) -> dict:
     model = load_model(config["model"])
     dyn, act = RigidDynamics(model), McKibbenPairs(model)
     est = StiffnessEstimator(model, EstimatorConfig(
         "pneumatic", dt=config["dt"], delay=config["delay"], powers=tuple(config["powers"]),
         p0=config["p0"], discretization=config["discretization"]))
     fns = load_functions(model.name, [
-        (pneumatic_plant_fun(dyn, act, substeps=config["substeps"]), "plant, one sample"),
+        (pneumatic_plant_fun(dyn, act, substeps=config["substeps"],
+                             integrator=config["plant_integrator"]), "plant, one sample"),
         (allocation_control_fun(dyn, act), "computed torque + exact pressure allocation"),
         (act.functions()[0][0], "torque and stiffness of the pair"),
         (est.step_fun(), "invasive pneumatic estimator step (Theorem 1 + RLS)"),
@@ -127,9 +148,11 @@ def run(config: dict, out: Path) -> dict:
     np.savez_compressed(out / "traces.npz", t=t, q=X[:, 0], qd=X[:, 1], p=Pr,
                         tau_true=tau_true, sigma_true=sigma_true, sigma_hat=res.sigma_hat,
                         tau_hat=res.tau_hat, tau_uio=res.tau_uio, theta=res.theta["joint1"])
-    estimation_figures(out, t, sigma_true[:, None], tau_true[:, None], res,
-                       title="pneumatic, invasive", names={"joint1": est.parameter_names("joint1")})
-    _tracking_figure(out, t, X, qd_ref, sigma_ref, sigma_true, Pr)
+    if figures:
+        estimation_figures(out, t, sigma_true[:, None], tau_true[:, None], res,
+                           title="pneumatic, invasive",
+                           names={"joint1": est.parameter_names("joint1")})
+        _tracking_figure(out, t, X, qd_ref, sigma_ref, sigma_true, Pr)
     return metrics
 
 
@@ -165,4 +188,17 @@ EXPERIMENT = Experiment(
     config=CONFIG,
     quick={"duration": 30.0},
     thesis=THESIS,
+    discussion="""
+**Reading.** Our stiffness MSREP is of the thesis's order; our MSEs are far above its
+numbers. The diagnostics say why. The thesis's observer is designed on the
+Euler-discretised model, so its input estimate is a second difference of q: on a
+continuous plant it errs by O(T), and the `diagnostic_T_half_*` and
+`diagnostic_T_quarter_*` MSEs fall about 4x per halving of T (O(T²) in MSE). On a
+plant integrated by explicit Euler at T, i.e. the observer's own model
+(`diagnostic_euler_plant_*`), the observer is exact to round-off and the torque and
+stiffness MSEs drop to the thesis's order: its printed numbers are what this
+estimator gives on its own discrete model, not on a continuous plant. The thesis's
+MSE and MSREP for stiffness also disagree with each other: with σ ≈ 5 N m/rad an
+MSE of 1.2e-5 means a mean squared relative error near 5e-7, i.e. 5e-5 %, not 0.45.
+""",
 )

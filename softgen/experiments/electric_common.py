@@ -72,9 +72,7 @@ def motor_references(model: RobotModel, fns: dict, q_d, qd_d, qdd_d, sigma_d) ->
     h = fns[f"{model.name}_inverse_dynamics"].function
     K = q_d.shape[1]
     tau_link = np.array(h.map(K)(q_d, qd_d, qd_d, qdd_d))     # B q̈ + C q̇ + G (+ D q̇)
-    phi_a, phi_b = springs.preset(-tau_link.ravel(order="F"), sigma_d.ravel(order="F"))
-    n = model.dof
-    phi_a, phi_b = phi_a.reshape(K, n), phi_b.reshape(K, n)
+    phi_a, phi_b = springs.preset(-tau_link.T, np.asarray(sigma_d).T)   # (K, n) each
     return np.hstack([q_d.T - phi_a, q_d.T - phi_b])
 
 

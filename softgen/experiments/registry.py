@@ -34,6 +34,9 @@ class Experiment:
     config: dict                      # full run
     quick: dict = field(default_factory=dict)   # overrides for a quick run
     thesis: dict = field(default_factory=dict)  # numbers the thesis reports, same keys
+    # How to read ours against the thesis's (markdown; refers to metric names, never
+    # to numbers, which come only from the run).
+    discussion: str = ""
 
 
 def experiment_ids() -> list[str]:

@@ -24,6 +24,8 @@ def run_one(exp_id: str, out_root: Path, quick: bool) -> dict:
     result = {"experiment": exp_id, "metrics": metrics, "thesis": dict(exp.thesis),
               "config": {**config, "quick": quick, "section": exp.section, "title": exp.title},
               "wall_seconds": time.perf_counter() - t0}
+    if exp.discussion:
+        result["discussion"] = exp.discussion
     (out / "metrics.json").write_text(json.dumps(result, indent=2) + "\n")
     return result
 

@@ -31,9 +31,24 @@ def _rk4_steps(rhs, x, u, h, substeps: int):
     return x
 
 
-def pneumatic_plant_fun(dyn: RigidDynamics, act: McKibbenPairs, *, substeps: int
-                        ) -> ca.Function:
-    """``<model>_pneumatic_plant``: one sample of length h of eq. 2.5, pressures held."""
+def _euler_steps(rhs, x, u, h, substeps: int):
+    dt = h / substeps
+    for _ in range(substeps):
+        x = x + dt * rhs(x, u)
+    return x
+
+
+def pneumatic_plant_fun(dyn: RigidDynamics, act: McKibbenPairs, *, substeps: int,
+                        integrator: str = "rk4") -> ca.Function:
+    """``<model>_pneumatic_plant``: one sample of length h of eq. 2.5, pressures held.
+
+    ``integrator="euler"`` integrates with explicit Euler instead of RK4: with one
+    substep it is exactly the discrete model the thesis's observer is designed for
+    (a diagnostic of where estimation errors come from, not a plant to trust).
+    """
+    if integrator not in ("rk4", "euler"):
+        raise ValueError(f"integrator: expected 'rk4' or 'euler', got {integrator!r}")
+    step = _rk4_steps if integrator == "rk4" else _euler_steps
     n = dyn.model.dof
     x, p, h = ca.SX.sym("x", 2 * n), ca.SX.sym("p", 2 * n), ca.SX.sym("h")
 
@@ -42,7 +57,7 @@ def pneumatic_plant_fun(dyn: RigidDynamics, act: McKibbenPairs, *, substeps: int
                         ca.vertcat(dyn.nominal.q, dyn.nominal.qd), xs)
     rhs = ca.Function("rhs", [xs, ps], [ca.vertcat(xs[n:], qdd)])
     return ca.Function(f"{dyn.name}_pneumatic_plant", [x, p, h],
-                       [_rk4_steps(rhs, x, p, h, substeps)], ["x", "p", "h"], ["x_next"],
+                       [step(rhs, x, p, h, substeps)], ["x", "p", "h"], ["x_next"],
                        FUNCTION_OPTS)
 
 

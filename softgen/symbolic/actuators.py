@@ -227,6 +227,7 @@ class QbmoveSprings:
         ValueError
             If σ is too small for τ (no co-contraction realises it).
         """
+        # Arrays broadcast against the joints on their last axis: (n,) or (K, n).
         tau = np.atleast_1d(np.asarray(tau, dtype=float))
         sigma = np.atleast_1d(np.asarray(sigma, dtype=float))
         a, k = 0.5 * (self.a_a + self.a_b), 0.5 * (self.k_a + self.k_b)
