@@ -17,9 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..estimation.estimators import StiffnessEstimator
 from ..estimation.offline import run_offline
-from ..model import load_model
 from . import electric_common as ec
 from ..symbolic.actuators import QbmoveSprings
 from .estimation_common import error_metrics, estimation_figures, mse, msrep
@@ -45,13 +43,8 @@ THESIS = {"stiffness_mse_joint1": 1.84e-7, "stiffness_mse_joint2": 1.92e-7,
 
 
 def run(config: dict, out: Path) -> dict:
-    model = load_model(config["model"])
-    n = model.dof
-    est = StiffnessEstimator(model, ec.estimator_config("electric", config))
-    fns = ec.functions(model, config, [est], out, servo=False)
-    dt = config["dt"]
-    K = int(round(config["duration"] / dt)) + 1
-    t = np.arange(K) * dt
+    model, est, fns, t = ec.setup("electric", config, out, servo=False)
+    n, dt, K = model.dof, config["dt"], len(t)
     # Motor order in the plant input: (tau_a of each joint, tau_b of each joint);
     # the thesis's tau_ij is joint i, motor j.
     f = np.array(config["torque_frequency"]).reshape(n, 2)

@@ -21,9 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..estimation.estimators import StiffnessEstimator
 from ..estimation.offline import run_offline
-from ..model import load_model
 from . import electric_common as ec
 from .estimation_common import error_metrics, estimation_figures
 from .registry import Experiment
@@ -69,13 +67,8 @@ def references(t, c):
 
 
 def run(config: dict, out: Path) -> dict:
-    model = load_model(config["model"])
-    n = model.dof
-    est = StiffnessEstimator(model, ec.estimator_config("noninvasive", config))
-    fns = ec.functions(model, config, [est], out, servo=True)
-    dt = config["dt"]
-    K = int(round(config["duration"] / dt)) + 1
-    t = np.arange(K) * dt
+    model, est, fns, t = ec.setup("noninvasive", config, out, servo=True)
+    n, dt, K = model.dof, config["dt"], len(t)
     q_d, qd_d, qdd_d, sigma_d = references(t, config)
     refs = ec.motor_references(model, fns, q_d, qd_d, qdd_d, sigma_d)
     x0 = np.concatenate([q_d[:, 0], qd_d[:, 0], refs[0, :n], qd_d[:, 0], refs[0, n:],

@@ -66,6 +66,16 @@ def functions(model: RobotModel, c: dict, estimators: list[StiffnessEstimator], 
     return load_functions(model.name, fns, out, c)
 
 
+def setup(method: str, config: dict, out: Path, *, servo: bool):
+    """Model, estimator, loaded functions and sample times of one electric experiment."""
+    from ..model import load_model
+    model = load_model(config["model"])
+    est = StiffnessEstimator(model, estimator_config(method, config))
+    fns = functions(model, config, [est], out, servo=servo)
+    K = int(round(config["duration"] / config["dt"])) + 1
+    return model, est, fns, np.arange(K) * config["dt"]
+
+
 def motor_references(model: RobotModel, fns: dict, q_d, qd_d, qdd_d, sigma_d) -> np.ndarray:
     """(K, 2n) motor position references for link references (n, K) and σ_d (n, K)."""
     springs = QbmoveSprings(model)
