@@ -210,3 +210,13 @@ def test_gate_freezes_the_rls_while_the_deflection_is_still():
 def test_bad_estimator_configs(model, config, match):
     with pytest.raises((ValueError, ModelError), match=match):
         StiffnessEstimator(load_model(model), config)
+
+
+def test_placed_observer_pole_reaches_the_observers():
+    est = StiffnessEstimator(load_model("pendulum_qbmove"),
+                             EstimatorConfig("noninvasive", pole=0.5))
+    for ob in est.observers:
+        assert np.allclose(np.linalg.eigvals(ob.uio.E), 0.5, atol=1e-4)
+    assert est.warmup > est.config.delay + 3
+    with pytest.raises(ValueError, match="pole"):
+        StiffnessEstimator(load_model("pendulum_qbmove"), EstimatorConfig("noninvasive", pole=1.2))

@@ -84,8 +84,10 @@ class EstimatorConfig:
         Update-stop rule (:class:`~softgen.estimation.rls.ExcitationGate`), or None.
     discretization
         ``"euler"`` (the thesis) or ``"zoh"`` for the observer's model.
-    poles
-        Observer poles (default deadbeat).
+    pole
+        Place every observer eigenvalue at this real value in [0, 1) (default None:
+        deadbeat, the thesis's F̂1 = 0). A pole near 1 low-passes the observer's
+        finite differences, at the price of a slower transient.
     """
 
     method: str
@@ -96,7 +98,7 @@ class EstimatorConfig:
     forgetting: float = 1.0
     gate: ExcitationGate | None = None
     discretization: str = "euler"
-    poles: tuple[float, ...] | None = None
+    pole: float | None = None
     warmup: int | None = None            # samples before RLS starts (default L + n_x)
 
     def resolved(self) -> EstimatorConfig:
@@ -123,6 +125,8 @@ class EstimatorConfig:
                              f"got {c.discretization!r}")
         if c.gate is not None:
             c.gate.check()
+        if c.pole is not None and not (isinstance(c.pole, (int, float)) and 0 <= c.pole < 1):
+            raise ValueError(f"pole: expected a real observer pole in [0, 1), got {c.pole!r}")
         return c
 
 
@@ -192,8 +196,9 @@ class StiffnessEstimator:
     def _design(self, Ac, Bc, C, D, name, select) -> _Observer:
         c = self.config
         A, B = discretize(Ac, Bc, c.dt, method=c.discretization)
+        poles = None if not c.pole else [float(c.pole)] * A.shape[0]
         uio = design_uio(A, B, np.atleast_2d(C), np.atleast_2d(D), delay=c.delay,
-                         poles=c.poles, dt=c.dt)
+                         poles=poles, dt=c.dt)
         return _Observer(name, uio, select)
 
     def _observers(self) -> list[_Observer]:
@@ -252,8 +257,11 @@ class StiffnessEstimator:
             lay.add(f"exc_var_{r}", k)
         self.layout = lay.slices
         self.n_state = lay.size
-        self.warmup = c.warmup if c.warmup is not None else L + max(
-            ob.uio.n_states for ob in self.observers)
+        n_x = max(ob.uio.n_states for ob in self.observers)
+        if c.pole:
+            # Until the initial error has decayed by 1e-9 (|E^k| ~ k^(n-1) p^k).
+            n_x += int(np.ceil(np.log(1e-9) / np.log(c.pole))) + n_x
+        self.warmup = c.warmup if c.warmup is not None else L + n_x
 
         s = ca.SX.sym("state", lay.size)
         y = ca.SX.sym("y", self.n_meas)
@@ -445,7 +453,8 @@ class StiffnessEstimator:
                 "rls": {r: self.parameter_names(r) for r in self.rls_names},
                 "gate": None if c.gate is None else {"window": c.gate.window,
                                                      "threshold": c.gate.threshold},
-                "forgetting": c.forgetting, "discretization": c.discretization}
+                "forgetting": c.forgetting, "discretization": c.discretization,
+                "pole": c.pole}
 
 
 def _uio_step(uio: UIO, xh, rows):

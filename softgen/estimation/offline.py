@@ -33,11 +33,16 @@ class EstimationResult:
 
 
 def run_offline(est: StiffnessEstimator, Y: np.ndarray, *, step=None,
-                state0: np.ndarray | None = None) -> EstimationResult:
+                state0: np.ndarray | None = None,
+                freeze_at: int | None = None) -> EstimationResult:
     """Run ``est`` over measurements ``Y`` (K × len(est.measurements)).
 
     ``step`` is a loaded function with buffers (a compiled bundle's
     ``<model>_<method>_estimator_step``); by default the casadi.Function is wrapped.
+    ``state0`` replaces the initial state (e.g. a P(0) per joint, section 7.4).
+    ``freeze_at`` stops every RLS update from that sample on, as the thesis does once
+    the parameters have converged (section 7.4): each covariance is set to zero, so
+    the gain of eq. 5.5 is zero and Π̂ and P stay as they are.
     """
     from ..codegen.generate import signature
     from ..runtime.library import BundleFunction
@@ -63,8 +68,12 @@ def run_offline(est: StiffnessEstimator, Y: np.ndarray, *, step=None,
     s_next, o_sigma, o_tau, o_tau_u, o_upd = step.outputs
     s_in[:] = est.initial_state() if state0 is None else state0
     call = step.call
+    p_slices = [est.layout[f"P_{r}"] for r in est.rls_names]
     t0 = time.perf_counter()
     for k in range(K):
+        if k == freeze_at:
+            for sl in p_slices:
+                s_in[sl] = 0.0
         y_in[:] = Y[k]
         call()
         s_in[:] = s_next
@@ -76,4 +85,6 @@ def run_offline(est: StiffnessEstimator, Y: np.ndarray, *, step=None,
     # The parameters after the step that estimated sample j were produced at k = j + L.
     theta = {r: np.vstack([v[L:], np.full((L, v.shape[1]), np.nan)])
              for r, v in est.theta(states).items()}
+    if freeze_at is not None:
+        upd[max(0, freeze_at - L):] = 0.0     # the step's flag does not see P = 0
     return EstimationResult(sigma, tau, tau_u, upd, theta, L, wall)

@@ -44,6 +44,7 @@ def estimator_config(method: str, c: dict) -> EstimatorConfig:
     return EstimatorConfig(method, dt=c["dt"], delay=c.get("delay"),
                            powers=tuple(c["powers"]), p0=_p0(c["p0"]),
                            forgetting=c.get("forgetting", 1.0),
+                           pole=c.get("observer_pole"),
                            gate=ExcitationGate(**gate) if gate else None)
 
 
