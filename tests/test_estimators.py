@@ -220,3 +220,19 @@ def test_placed_observer_pole_reaches_the_observers():
     assert est.warmup > est.config.delay + 3
     with pytest.raises(ValueError, match="pole"):
         StiffnessEstimator(load_model("pendulum_qbmove"), EstimatorConfig("noninvasive", pole=1.2))
+
+
+def test_rls_names_and_initial_covariances():
+    from softgen.estimation.estimators import rls_joint
+    assert rls_joint("joint12a") == 11 and rls_joint("joint3") == 2
+    est = StiffnessEstimator(load_model("planar_2link"), EstimatorConfig("noninvasive"))
+    s = est.initial_state([1.0, list(range(1, 7))])
+    P2 = s[est.layout["P_joint2"]].reshape(6, 6, order="F")
+    assert np.array_equal(np.diag(P2), np.arange(1, 7))
+    with pytest.raises(ValueError, match="one entry per RLS"):
+        est.initial_state([1.0])
+    with pytest.raises(ValueError, match="p0 of joint1"):
+        est.initial_state([[1.0, 2.0], 1.0])
+    with pytest.raises(ValueError, match="name"):
+        StiffnessEstimator(load_model("planar_2link"), EstimatorConfig("noninvasive"),
+                           name="other_estimator")

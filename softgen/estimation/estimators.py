@@ -155,7 +155,7 @@ class StiffnessEstimator:
     Attributes
     ----------
     name
-        ``<model>_<method>_estimator``: the generated function's name.
+        ``<model>_<method>_estimator`` unless given: prefix of the step's name.
     measurements
         Names of the entries of y_k, in order (also the CSV column names of
         ``softgen estimate``).
@@ -165,12 +165,16 @@ class StiffnessEstimator:
         State vector layout: name -> slice.
     """
 
-    def __init__(self, model: RobotModel, config: EstimatorConfig):
+    def __init__(self, model: RobotModel, config: EstimatorConfig, *, name: str | None = None):
         self.model = model
         self.config = c = config.resolved()
         self.n = n = model.dof
         self.dyn = RigidDynamics(model)
-        self.name = f"{model.name}_{c.method}_estimator"
+        # Variants of one method in one bundle need their own names.
+        self.name = name or f"{model.name}_{c.method}_estimator"
+        if not self.name.startswith(f"{model.name}_"):
+            raise ValueError(f"name: expected a name starting with {model.name + '_'!r}, "
+                             f"got {self.name!r}")
         if c.method == "pneumatic":
             if model.actuator_type != "mckibben":
                 raise ModelError(f"{model.name}: the pneumatic estimator needs McKibben "
@@ -292,7 +296,7 @@ class StiffnessEstimator:
         for r in self.rls_names:
             theta = part[f"theta_{r}"]
             P = ca.reshape(part[f"P_{r}"], n_par, n_par)
-            sig = ca.vertcat(*[self._signal(y0, name) for name in self.rls_signals[r]])
+            sig = ca.vertcat(*[self._signal(y0, *spec) for spec in self.rls_signals[r]])
             mean, var = part[f"exc_mean_{r}"], part[f"exc_var_{r}"]
             # Start the excitation statistics at the first valid sample, not at zero.
             first = count < self.warmup + 0.5
@@ -310,7 +314,7 @@ class StiffnessEstimator:
             new[f"P_{r}"] = ca.vec(P_n)
             new[f"exc_mean_{r}"] = ca.if_else(valid, mean_n, part[f"exc_mean_{r}"])
             new[f"exc_var_{r}"] = ca.if_else(valid, var_n, part[f"exc_var_{r}"])
-            j = self._joint_of(r)
+            j = rls_joint(r)
             sigma_hat[j] += sigma_of[r](theta_n)
             tau_hat[j] += torque_of[r](theta_n)
             flags.append(active)
@@ -324,33 +328,29 @@ class StiffnessEstimator:
             ["state", "y"], ["state_next", "sigma_hat", "tau_hat", "tau_uio", "updating"],
             FUNCTION_OPTS)
 
-    def _signal(self, w, name: str):
+    def _signal(self, w, kind: str, i: int):
+        """Link position ``"q"`` or deflection ``"phia"``/``"phib"`` of joint i in sample w."""
         n = self.n
-        kind, i = name[:-1], int(name[-1]) - 1
         if kind == "q":
             return w[i]
-        if kind == "phia":
-            return w[i] - w[n + i]
-        return w[i] - w[2 * n + i]            # phib
-
-    @staticmethod
-    def _joint_of(r: str) -> int:
-        return int(r.rstrip("ab")[len("joint"):]) - 1
+        return w[i] - w[(n if kind == "phia" else 2 * n) + i]
 
     @property
     def n_parameters(self) -> int:
         k = len(self.config.powers)
         return 2 * k if self.config.method in ("pneumatic", "noninvasive") else k
 
-    def _rls_instances(self) -> tuple[list[str], dict[str, list[str]]]:
+    def _rls_instances(self) -> tuple[list[str], dict[str, list[tuple[str, int]]]]:
+        """RLS names (``joint<i>`` or ``joint<i><side>``) and the signals their gate watches."""
         n = self.n
         if self.config.method == "electric":
-            names = [f"joint{i + 1}{s}" for s in "ab" for i in range(n)]
-            return names, {r: [f"phi{r[-1]}{r[5:-1]}"] for r in names}
+            sides = [(s, i) for s in "ab" for i in range(n)]
+            return ([f"joint{i + 1}{s}" for s, i in sides],
+                    {f"joint{i + 1}{s}": [(f"phi{s}", i)] for s, i in sides})
         if self.config.method == "pneumatic":
-            return ["joint1"], {"joint1": ["q1"]}
+            return ["joint1"], {"joint1": [("q", 0)]}
         names = [f"joint{i + 1}" for i in range(n)]
-        return names, {r: [f"phia{r[5:]}", f"phib{r[5:]}"] for r in names}
+        return names, {f"joint{i + 1}": [("phia", i), ("phib", i)] for i in range(n)}
 
     def parameter_names(self, r: str) -> list[str]:
         """Names of the RLS parameters of instance ``r`` (e.g. ``pi_a2`` for φ_a² terms)."""
@@ -392,7 +392,7 @@ class StiffnessEstimator:
                 _, u = est[ob.name]
                 i, side = k % n, "ab"[k // n]
                 r = f"joint{i + 1}{side}"
-                phi = self._signal(y0, f"phi{side}{i + 1}")
+                phi = self._signal(y0, f"phi{side}", i)
                 ps = ca.SX.sym("ps")
                 basis = ca.vertcat(*[ps ** j for j in pw])
                 reg = ca.substitute(basis, ps, phi)
@@ -415,7 +415,7 @@ class StiffnessEstimator:
         xd, _ = est["deflection"]
         for i in range(n):
             r = f"joint{i + 1}"
-            pa, pb = self._signal(y0, f"phia{i + 1}"), self._signal(y0, f"phib{i + 1}")
+            pa, pb = self._signal(y0, "phia", i), self._signal(y0, "phib", i)
             pad, pbd = xd[2 * n + i], xd[3 * n + i]      # φ̇ from the deflection observer
             reg = ca.vertcat(*[pad * pa ** j for j in pw], *[pbd * pb ** j for j in pw])
             sbasis = ca.vertcat(*[pa ** j for j in pw], *[pb ** j for j in pw])
@@ -431,13 +431,25 @@ class StiffnessEstimator:
         updating), estimates for sample k − L."""
         return self._step
 
-    def initial_state(self) -> np.ndarray:
-        """Zero observer states and parameters, P(0) from the config."""
+    def initial_state(self, p0=None) -> np.ndarray:
+        """Zero observer states and parameters; P(0) = diag(p0).
+
+        ``p0`` defaults to the config's (one for every RLS); a list with one entry per
+        RLS instance (scalar or diagonal each) sets them apart, as the per-joint
+        P₁, P₂ of section 7.4.
+        """
         s = np.zeros(self.n_state)
         n_par = self.n_parameters
-        p0 = np.broadcast_to(np.asarray(self.config.p0, dtype=float), (n_par,))
-        for r in self.rls_names:
-            s[self.layout[f"P_{r}"]] = np.diag(p0).ravel(order="F")
+        per = [self.config.p0] * len(self.rls_names) if p0 is None else list(p0)
+        if len(per) != len(self.rls_names):
+            raise ValueError(f"p0: expected one entry per RLS ({', '.join(self.rls_names)}), "
+                             f"got {len(per)}")
+        for r, v in zip(self.rls_names, per):
+            diag = np.asarray(v, dtype=float)
+            if diag.ndim > 1 or diag.size not in (1, n_par) or np.any(diag <= 0):
+                raise ValueError(f"p0 of {r}: expected a positive scalar or {n_par} positive "
+                                 f"values, got {v!r}")
+            s[self.layout[f"P_{r}"]] = np.diag(np.broadcast_to(diag, (n_par,))).ravel(order="F")
         return s
 
     def theta(self, state: np.ndarray) -> dict[str, np.ndarray]:
@@ -455,6 +467,11 @@ class StiffnessEstimator:
                                                      "threshold": c.gate.threshold},
                 "forgetting": c.forgetting, "discretization": c.discretization,
                 "pole": c.pole}
+
+
+def rls_joint(r: str) -> int:
+    """0-based joint of an RLS instance name (``joint12a`` -> 11)."""
+    return int(r.rstrip("ab")[len("joint"):]) - 1
 
 
 def _uio_step(uio: UIO, xh, rows):

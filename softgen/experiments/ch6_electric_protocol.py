@@ -99,14 +99,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import casadi as ca
 import numpy as np
 
 from ..estimation.estimators import StiffnessEstimator
 from ..estimation.offline import EstimationResult, run_offline
 from ..estimation.rls import excitation_step
 from ..model import RobotModel, load_model
-from ..symbolic.rigid import FUNCTION_OPTS
 from . import electric_common as ec
 from .estimation_common import error_metrics, estimation_figures, mse, msrep, window_mask
 from .registry import Experiment
@@ -177,21 +175,6 @@ def phased_references(t: np.ndarray, c: dict, n: int):
 
 def phase_index(t: np.ndarray, c: dict) -> np.ndarray:
     return np.minimum((t // c["phase_duration"]).astype(int), len(c["phases"]) - 1)
-
-
-class Renamed:
-    """An estimator's step under another name, so two variants share one bundle."""
-
-    def __init__(self, est: StiffnessEstimator, suffix: str):
-        f = est.step_fun()
-        ins = f.sx_in()
-        self.name = f"{est.name}_{suffix}_step"
-        self._f = ca.Function(self.name, ins, f.call(ins),
-                              f.name_in(), f.name_out(), FUNCTION_OPTS)
-        self.config = est.config
-
-    def step_fun(self) -> ca.Function:
-        return self._f
 
 
 @dataclass
@@ -338,8 +321,10 @@ def achieved_stiffness(tr: ec.Traces, sigma_d, phase) -> dict:
 # -- the experiment -----------------------------------------------------------------------
 
 def _estimator(model, c, gated: bool) -> StiffnessEstimator:
+    """The electric estimator with or without the stop (one bundle: distinct names)."""
     return StiffnessEstimator(model, ec.estimator_config(
-        "electric", {**c, "gate": c["gate"] if gated else None}))
+        "electric", {**c, "gate": c["gate"] if gated else None}),
+        name=f"{model.name}_electric_{'gated' if gated else 'free'}_estimator")
 
 
 def run(config: dict, out: Path) -> dict:
@@ -351,15 +336,15 @@ def run(config: dict, out: Path) -> dict:
 
     # 1-DoF: the same measurements through the estimator without and with the stop.
     model = load_model(c["models"]["dof1"])
-    free, gated = _estimator(model, c, False), Renamed(_estimator(model, c, True), "gated")
+    free, gated = _estimator(model, c, False), _estimator(model, c, True)
     hw = emulate(model, c, [free, gated], out, method="electric", K=K)
     t, phase, n = hw.t, phase_index(hw.t, c), model.dof
     phi = measured_deflections(hw.Y, n)
     metrics.update(deflection_stats(t, phase, phi, c["dt"], c["gate"]["window"], "dof1_"))
     metrics.update(prefixed(achieved_stiffness(hw.tr, hw.sigma_d, phase), "dof1_"))
     interval = None
-    for tag, est, fname in (("drift", free, f"{free.name}_step"),
-                            ("stop", free, gated.name)):
+    for tag, est in (("drift", free), ("stop", gated)):
+        fname = est.step_fun().name()
         res = run_offline(est, hw.Y, step=hw.fns[fname])
         m, interval = error_metrics(t, hw.tr.sigma, hw.tr.tau_e, res, c["metric_window"])
         m.update(nominal_metrics(t, hw.tr, res, c["metric_window"]))
@@ -387,7 +372,7 @@ def run(config: dict, out: Path) -> dict:
         est2 = _estimator(model2, c, True)
         hw2 = emulate(model2, c, [est2], out, method="electric", K=K)
         phi2 = measured_deflections(hw2.Y, model2.dof)
-        res2 = run_offline(est2, hw2.Y, step=hw2.fns[f"{est2.name}_step"])
+        res2 = run_offline(est2, hw2.Y, step=hw2.fns[est2.step_fun().name()])
         m, interval = error_metrics(t, hw2.tr.sigma, hw2.tr.tau_e, res2, c["metric_window"])
         metrics.update(m)
         metrics.update(nominal_metrics(t, hw2.tr, res2, c["metric_window"]))

@@ -130,7 +130,7 @@ def _run(config: dict, out: Path, *, figures: bool) -> dict:
         tau_true[k], sigma_true[k] = truth.outputs[0][0], truth.outputs[1][0]
         pi_[0][:], pi_[1][:] = x, Pr[k]
         plant.call()
-        x = plant.outputs[0].copy()
+        x[:] = plant.outputs[0]
     if not np.all(np.isfinite(X)) or np.any(Pr < 0):
         raise FloatingPointError("ch6-pneumatic-invasive: plant diverged or a pressure went "
                                  f"negative (min {Pr.min():.3g} Pa)")

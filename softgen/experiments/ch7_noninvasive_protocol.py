@@ -122,24 +122,11 @@ THESIS = {
 }
 
 
-def run_estimator(est: StiffnessEstimator, Y: np.ndarray, step, *,
-                  state0: np.ndarray | None = None,
-                  freeze_at: int | None = None) -> EstimationResult:
-    """:func:`run_offline` on the compiled step, optionally frozen at ``freeze_at``."""
-    return run_offline(est, Y, step=step, state0=state0, freeze_at=freeze_at)
-
-
 def _estimator(model, c, p0, gated: bool) -> StiffnessEstimator:
+    """The non-invasive estimator with or without the gate (one bundle: distinct names)."""
     return StiffnessEstimator(model, ec.estimator_config(
-        "noninvasive", {**c, "p0": p0, "gate": c["gate"] if gated else None}))
-
-
-def _initial_state(est: StiffnessEstimator, p0s: list) -> np.ndarray:
-    """P(0) per joint (the thesis's P₁, P₂)."""
-    s = est.initial_state()
-    for r, p0 in zip(est.rls_names, p0s):
-        s[est.layout[f"P_{r}"]] = np.diag(np.asarray(p0, float)).ravel(order="F")
-    return s
+        "noninvasive", {**c, "p0": p0, "gate": c["gate"] if gated else None}),
+        name=f"{model.name}_noninvasive_{'gated' if gated else 'free'}_estimator")
 
 
 def _noise_metrics(t, hw: hwp.Hardware, res: EstimationResult, window) -> dict:
@@ -166,7 +153,7 @@ def _noise_metrics(t, hw: hwp.Hardware, res: EstimationResult, window) -> dict:
 
 
 def _run_variant(est, hw, step, window, phase, *, state0=None, freeze_at=None):
-    res = run_estimator(est, hw.Y, step, state0=state0, freeze_at=freeze_at)
+    res = run_offline(est, hw.Y, step=step, state0=state0, freeze_at=freeze_at)
     m, interval = error_metrics(hw.t, hw.tr.sigma, hw.tr.rotatum, res, window)
     m.update(hwp.nominal_metrics(hw.t, hw.tr, res, window))
     m.update(hwp.update_fractions(res, phase))
@@ -185,7 +172,7 @@ def run(config: dict, out: Path) -> dict:
 
     model = load_model(c["models"]["dof1"])
     gated = _estimator(model, c, c["p0"], True)
-    free = hwp.Renamed(_estimator(model, c, c["p0"], False), "free")
+    free = _estimator(model, c, c["p0"], False)
     hw = hwp.emulate(model, c, [gated, free], out, method="noninvasive", K=K)
     t, phase = hw.t, hwp.phase_index(hw.t, c)
     phi = hwp.measured_deflections(hw.Y, model.dof)
@@ -195,8 +182,8 @@ def run(config: dict, out: Path) -> dict:
     interval = None
     updating = {}
     for tag, step, freeze in (("", gated.step_fun().name(), None),
-                              ("nostop_", free.name, None),
-                              ("freeze_", free.name, k_freeze)):
+                              ("nostop_", free.step_fun().name(), None),
+                              ("freeze_", free.step_fun().name(), k_freeze)):
         res, m, interval = _run_variant(gated, hw, hw.fns[step], window, phase,
                                         freeze_at=freeze)
         if tag == "":
@@ -232,7 +219,7 @@ def run(config: dict, out: Path) -> dict:
         est2 = _estimator(model2, c2, c["p0_dof2"][0], True)
         hw2 = hwp.emulate(model2, c2, [est2], out, method="noninvasive", K=K)
         res2, m, interval = _run_variant(est2, hw2, hw2.fns[est2.step_fun().name()], window,
-                                         phase, state0=_initial_state(est2, c["p0_dof2"]))
+                                         phase, state0=est2.initial_state(c["p0_dof2"]))
         m.update(_noise_metrics(t, hw2, res2, window))
         phi2 = hwp.measured_deflections(hw2.Y, model2.dof)
         m.update(hwp.deflection_stats(t, phase, phi2, c["dt"], c["gate"]["window"], ""))

@@ -94,15 +94,14 @@ def simulate(model: RobotModel, fns: dict, *, dt: float, K: int, x0: np.ndarray,
     plant = fns[f"{model.name}_{'servo' if servo else 'electric'}_plant"]
     X = np.empty((K, 6 * n))
     U = np.empty((K, 2 * n))
-    pin = plant.inputs
-    pin[2][:], pin[3][0] = spring_scale, dt
-    x = np.array(x0, dtype=float)
+    pin, pout = plant.inputs, plant.outputs
+    pin[0][:], pin[2][:], pin[3][0] = x0, spring_scale, dt
     for k in range(K):
-        X[k] = x
-        pin[0][:], pin[1][:] = x, inputs[k]
+        X[k] = pin[0]
+        pin[1][:] = inputs[k]
         plant.call()
-        x = plant.outputs[0].copy()
-        U[k] = plant.outputs[1] if servo else inputs[k]
+        pin[0][:] = pout[0]
+        U[k] = pout[1] if servo else inputs[k]
     if not np.all(np.isfinite(X)):
         raise FloatingPointError(f"{model.name}: plant diverged")
     return _truth(model, fns, np.arange(K) * dt, X, U, spring_scale)

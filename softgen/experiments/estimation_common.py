@@ -14,6 +14,7 @@ import numpy as np
 
 from ..codegen.build import find_compiler
 from ..codegen.generate import BundleSpec, Generated, signature, write_bundle
+from ..estimation.estimators import rls_joint
 from ..estimation.offline import EstimationResult
 from ..runtime.library import Bundle, BundleFunction
 
@@ -119,7 +120,7 @@ def estimation_figures(out: Path, t, truth_sigma, truth_tau, res: EstimationResu
         ax[2, i].set_ylabel("|relative error| [%]")
         ax[2, i].legend(fontsize=7)
         for r, th in res.theta.items():
-            if _joint_of(r) == i:
+            if rls_joint(r) == i:
                 for j in range(th.shape[1]):
                     label = (names or {}).get(r, [f"pi{jj}" for jj in range(th.shape[1])])[j]
                     ax[3, i].plot(t, th[:, j], lw=0.8, label=f"{r} {label}")
@@ -131,6 +132,3 @@ def estimation_figures(out: Path, t, truth_sigma, truth_tau, res: EstimationResu
     fig.savefig(Path(out) / f"{prefix}estimation.png", dpi=100)
     plt.close(fig)
 
-
-def _joint_of(r: str) -> int:
-    return int(r.rstrip("ab")[len("joint"):]) - 1
