@@ -33,3 +33,53 @@ class Sinusoid:
         off = np.zeros(a.shape) if self.offset is None else np.array(self.offset).reshape(a.shape)
         arg = w * t + ph
         return off + a * np.sin(arg), a * w * np.cos(arg), -a * w ** 2 * np.sin(arg)
+
+
+def _septic(u: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Smoothstep s(u) = 35u⁴ − 84u⁵ + 70u⁶ − 20u⁷ on [0, 1] and its first three
+    u-derivatives: s(0) = 0, s(1) = 1, and s', s'', s''' vanish at both ends (C³)."""
+    u = np.clip(u, 0.0, 1.0)
+    s = u ** 4 * (35 - 84 * u + 70 * u ** 2 - 20 * u ** 3)
+    d1 = 140 * u ** 3 * (1 - u) ** 3
+    d2 = 420 * u ** 2 * (1 - u) ** 2 * (1 - 2 * u)
+    d3 = 840 * u * (1 - u) * (1 - 5 * u + 5 * u ** 2)
+    return s, d1, d2, d3
+
+
+@dataclass(frozen=True)
+class SmoothSteps:
+    """Smoothed stepwise references (section 10.3.3): C³, so q⃛_d exists.
+
+    ``values[j]`` is the level after ``times[j]`` (``values[0]`` holds before
+    ``times[1]``; ``times[0]`` is ignored); each change takes ``rise`` seconds along a
+    septic smoothstep starting at its time. One channel; stack channels to get
+    several joints.
+    """
+
+    times: tuple[float, ...]
+    values: tuple[float, ...]
+    rise: float
+
+    def check(self) -> SmoothSteps:
+        if len(self.times) != len(self.values) or not self.times:
+            raise ValueError(f"times/values: expected equal, non-zero lengths, got "
+                             f"{len(self.times)} and {len(self.values)}")
+        if not self.rise > 0:
+            raise ValueError(f"rise: expected a positive rise time, got {self.rise!r}")
+        if any(b - a < self.rise for a, b in zip(self.times[1:], self.times[2:])):
+            raise ValueError("times: consecutive steps closer than the rise time")
+        return self
+
+    def __call__(self, t) -> np.ndarray:
+        """Array (4, *t.shape): the value and its first three time derivatives."""
+        t = np.asarray(t, dtype=float)
+        out = np.zeros((4,) + t.shape)
+        out[0] = self.values[0]
+        for t0, a, b in zip(self.times[1:], self.values[:-1], self.values[1:]):
+            s, d1, d2, d3 = _septic((t - t0) / self.rise)
+            h = b - a
+            out[0] += h * s
+            out[1] += h * d1 / self.rise
+            out[2] += h * d2 / self.rise ** 2
+            out[3] += h * d3 / self.rise ** 3
+        return out

@@ -15,6 +15,7 @@ with the input held (zero-order hold).
 from __future__ import annotations
 
 import casadi as ca
+import numpy as np
 
 from .actuators import McKibbenPairs, QbmoveSprings
 from .rigid import FUNCTION_OPTS, RigidDynamics
@@ -131,3 +132,32 @@ def servo_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: int
     return ca.Function(f"{dyn.name}_servo_plant", [x, ref, scale, h],
                        [x_next, ca.vertcat(ua0, ub0)], ["x", "q_ref", "spring_scale", "h"],
                        ["x_next", "tau_motor"], FUNCTION_OPTS)
+
+
+def valve_plant_fun(dyn: RigidDynamics, act: McKibbenPairs, *, substeps: int) -> ca.Function:
+    """``<model>_valve_plant``: eq. 2.5 with first-order pressure regulators.
+
+    x = (q, q̇, p) (4n). Each muscle's pressure follows its command through
+    ṗ = (sat(p_c) − p) / T_p, the valve model of section 10.4 (the thesis gives no
+    time constant; ``T_p`` is an input, 2n values). The command is saturated to
+    [0, p_max] of the model file: a valve can neither pull a vacuum nor exceed its
+    supply, so an infeasible command is clipped here and reported by
+    :func:`softgen.control.feasibility.check_pressures`, never turned into NaN.
+    Inputs ``x, p_c, T_p, h``; output ``x_next``.
+    """
+    n = dyn.model.dof
+    m = dyn.nominal
+    x, pc, tp, h = (ca.SX.sym("x", 4 * n), ca.SX.sym("p_c", 2 * n), ca.SX.sym("T_p", 2 * n),
+                    ca.SX.sym("h"))
+    pmax = ca.DM(np.repeat(act.pressure_max, 2))
+    xs, us = ca.SX.sym("xs", 4 * n), ca.SX.sym("us", 2 * n)
+    q, qd, p = xs[:n], xs[n:2 * n], xs[2 * n:]
+    qdd = ca.substitute(dyn.forward_dynamics_expr(act.torque(m.q, p)),
+                        ca.vertcat(m.q, m.qd), ca.vertcat(q, qd))
+    sat = ca.fmin(ca.fmax(us, 0), pmax) if np.all(np.isfinite(act.pressure_max)) \
+        else ca.fmax(us, 0)
+    ts = ca.SX.sym("ts", 2 * n)
+    rhs = ca.Function("rhs", [xs, us, ts], [ca.vertcat(qd, qdd, (sat - p) / ts)])
+    return ca.Function(f"{dyn.name}_valve_plant", [x, pc, tp, h],
+                       [_rk4_steps(lambda xx, uu: rhs(xx, uu, tp), x, pc, h, substeps)], ["x", "p_c", "T_p", "h"],
+                       ["x_next"], FUNCTION_OPTS)

@@ -76,6 +76,37 @@ class McKibbenPairs:
         phi_a, phi_b = self.elongations(q)
         return self._blocks(_diag_jacobian(phi_a, q), -_diag_jacobian(phi_b, q))
 
+    def Phi_pinv(self, q: ca.SX) -> ca.SX:
+        """Φ(q)^† = Φᵀ(ΦΦᵀ)⁻¹ (2n × n, Theorem 5 proof).
+
+        Each row of Φ touches only its own joint's two columns, so ΦΦᵀ is diagonal
+        with entries φ_a² + φ_b² > 0 and the inverse is an exact division.
+        """
+        Phi = self.Phi(q)
+        gram = ca.sum2(Phi * Phi)                       # diag(ΦΦᵀ), n × 1
+        return Phi.T @ ca.diag(1 / gram)
+
+    def null_basis(self, q: ca.SX) -> ca.SX:
+        """Φ^⊥(q) (2n × n), column i = (φ_b,i, φ_a,i)ᵀ on joint i's muscles.
+
+        Φ Φ^⊥ = 0 since φ_a φ_b − φ_b φ_a = 0 (NOTES section 2 item 5; with the
+        printed φ_a = φ_b, Φ_q Φ^⊥ would vanish and Theorem 5 could not decouple).
+        """
+        phi_a, phi_b = self.elongations(q)
+        N = ca.SX.zeros(2 * self.n, self.n)
+        for i in range(self.n):
+            N[2 * i, i] = phi_b[i]
+            N[2 * i + 1, i] = phi_a[i]
+        return N
+
+    def stiffness_direction(self, q: ca.SX) -> ca.SX:
+        """Φ_q(q) Φ^⊥(q) (n × n, diagonal): how the null-space coordinate ν moves K⁻¹σ.
+
+        Entry i is φ_a,q φ_b − φ_b,q φ_a; for l_n > l_min both elongations are
+        positive and their slopes have opposite signs, so it never vanishes.
+        """
+        return self.Phi_q(q) @ self.null_basis(q)
+
     def _blocks(self, a: ca.SX, b: ca.SX) -> ca.SX:
         M = ca.SX.zeros(self.n, 2 * self.n)
         for i in range(self.n):

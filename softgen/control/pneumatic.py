@@ -1,0 +1,237 @@
+"""Adaptive control of robots driven by antagonistic McKibben pairs (thesis ch. 9-10).
+
+Four generated discrete-time steps share one symbolic core, :class:`PneumaticArm`:
+
+``<model>_pneumatic_slotine_li``  (Prop. 11)
+    p = Φ^† τ_*, τ_* = Y_* Π̂ + K_d s, dΠ̂/dt = K_π Y_*ᵀ s. Minimum-norm pressures:
+    one muscle of each pair gets a negative pressure whenever τ_* ≠ 0, which is why
+    the null space is needed.
+``<model>_open_loop_stiffness``  (Tonietti and Bicchi 2002, section 10.3.4)
+    the same position loop, plus p = Φ^† τ_* + Φ^⊥ ν with ν solved algebraically so
+    that the actuator model gives the wanted stiffness, −K̂ Φ_q p = σ_d: stiffness
+    in open loop.
+``<model>_theorem5``  (Theorem 5, eq. 10.1-10.4)
+    ν is a controller state, dν/dt = (Φ_q Φ^⊥)^† (K_σ(σ − σ_d) − K̂⁻¹ σ̇_d
+    − Φ_q d/dt(Φ^† τ_*) − Φ̇_q Φ^† τ_* − (Φ̇_q Φ^⊥ + Φ_q Φ̇^⊥) ν), eq. 10.1 as
+    re-derived in NOTES section 2 item 4 (the printed one lost its dots).
+``<model>_corollary2``  (Corollary 2, eq. 10.7)
+    Theorem 5 with σ̇_d = 0: no K̂⁻¹ input at all.
+
+Regressor and parameters (Prop. 11): the dynamics B q̈ + C q̇ + G = K Φ p become
+K⁻¹ Y π = Φ p. With K_i = K_1 / c_i, Y_* = diag(c) Y and Π = π / K_1, where the
+ratios c_i = K_1/K_i are taken as known from the model file (1 for the thesis's
+equal muscles, for which Y_* = Y, eq. 10.9). Π̂ is in units of π / K_1 with p in Pa.
+
+Time derivatives (Remark 8) are taken by the chain rule with ``jtimes`` along every
+signal whose rate the controller knows without measuring it: q (rate q̇), Π̂ (its
+adaptation law) and the references (their next derivative, so q_d must be C³).
+Φ^† τ_* also depends on q̇ (through s, q̈_r and the Coriolis terms); that path needs
+q̈, which the thesis avoids (section 10.3.3: "no information regarding the
+acceleration is necessary"). It is dropped here too, so the stiffness loop sees
+−Φ_q Φ^† (∂τ_*/∂q̇) q̈ as a disturbance that K_σ rejects: the short stiffness
+transients at position changes of Fig. 10.2 and 10.14(c).
+
+Every step integrates its states by forward Euler over the sample ``dt`` and holds p
+(zero-order hold). Gains are diagonal and passed as vectors.
+"""
+from __future__ import annotations
+
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+
+from ..errors import ModelError
+from ..model import RobotModel
+from ..symbolic.actuators import McKibbenPairs
+from ..symbolic.rigid import FUNCTION_OPTS, RigidDynamics
+
+#: Reference layout of every step: q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d (n each).
+REFERENCE_BLOCKS = ("q_d", "qd_d", "qdd_d", "qddd_d", "sigma_d", "sigmad_d")
+
+#: Controller kinds -> generated function suffix.
+KINDS = {
+    "prop11": "pneumatic_slotine_li",
+    "open_loop": "open_loop_stiffness",
+    "theorem5": "theorem5",
+    "corollary2": "corollary2",
+}
+
+
+class PneumaticArm:
+    """Symbolic core of the chapter-10 controllers for one McKibben-driven model."""
+
+    def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None,
+                 act: McKibbenPairs | None = None):
+        self.model = model
+        self.dyn = dyn or RigidDynamics(model)
+        self.act = act or McKibbenPairs(model)
+        self.n = model.dof
+        # c_i = K_1 / K_i: assumed known (same muscles, known pulley radii).
+        self.gain_ratio = self.act.K[0] / self.act.K
+        self.K1 = float(self.act.K[0])
+
+    @property
+    def name(self) -> str:
+        return self.model.name
+
+    @cached_property
+    def n_params(self) -> int:
+        return len(self.dyn.base.names)
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return [f"{n}/K1" for n in self.dyn.base.names]
+
+    @cached_property
+    def Pi_nominal(self) -> np.ndarray:
+        """Π = π / K_1 at the model's nominal values (Prop. 11)."""
+        return self.dyn.parameter_nominal / self.K1
+
+    def regressor_star(self, q, qd, qd_r, qdd_r) -> tuple[ca.SX, ca.SX | None]:
+        """(Y_*, K_1⁻¹ diag(c) τ_0): Y_* Π + the known part = K⁻¹(B q̈_r + C q̇_r + G)."""
+        m = self.dyn.nominal
+        base = self.dyn.base
+        frm, to = [m.q, m.qd, m.qd_r, m.qdd_r], [q, qd, qd_r, qdd_r]
+        c = ca.DM(self.gain_ratio)
+        Y = ca.diag(c) @ ca.substitute([base.Y], frm, to)[0]
+        known = None
+        if base.constant is not None:
+            # Terms of the dynamics that multiply no uncertain parameter need K: the
+            # nominal K_1 is used (Prop. 11 assumes every term is uncertain).
+            known = ca.diag(c) @ ca.substitute([base.constant], frm, to)[0] / self.K1
+        return Y, known
+
+    def tracking(self, q, qd, Pi_hat, ref, lam, kd):
+        """τ_* (eq. 10.4), Y_*ᵀ s (eq. 10.2) and s for the references ``ref`` (6n)."""
+        n = self.n
+        q_d, qd_d, qdd_d = ref[:n], ref[n:2 * n], ref[2 * n:3 * n]
+        e = q_d - q
+        qd_r = qd_d + lam * e
+        qdd_r = qdd_d + lam * (qd_d - qd)
+        s = qd_r - qd
+        Y, known = self.regressor_star(q, qd, qd_r, qdd_r)
+        tau_star = Y @ Pi_hat + kd * s
+        if known is not None:
+            tau_star = tau_star + known
+        return tau_star, Y.T @ s, s
+
+    def open_loop_nu(self, q, tau_star, sigma_d, kinv):
+        """ν making the model's stiffness −K̂ Φ_q p equal σ_d at p = Φ^†τ_* + Φ^⊥ν."""
+        a = self.act
+        M = ca.diag(a.stiffness_direction(q))
+        return (-kinv * sigma_d - a.Phi_q(q) @ (a.Phi_pinv(q) @ tau_star)) / M
+
+    def theorem5_rates(self, q, qd, sigma, nu, Pi_hat, ref, lam, kd, kpi, ksigma,
+                       kinv=None):
+        """(p, τ_*, dν/dt, dΠ̂/dt) of Theorem 5; ``kinv=None`` gives Corollary 2."""
+        n, a = self.n, self.act
+        tau_star, yts, _ = self.tracking(q, qd, Pi_hat, ref, lam, kd)
+        Pi_dot = kpi * yts
+        g = a.Phi_pinv(q) @ tau_star                     # Φ^† τ_*
+        # d/dt(Φ^† τ_*) along q, Π̂ and the references (module docstring).
+        ref_pos = ref[:3 * n]
+        ref_rate = ref[n:4 * n]
+        g_dot = ca.jtimes(g, ca.vertcat(q, Pi_hat, ref_pos), ca.vertcat(qd, Pi_dot, ref_rate))
+        Phi_q, N = a.Phi_q(q), a.null_basis(q)
+        Phi_q_dot, N_dot = ca.jtimes(Phi_q, q, qd), ca.jtimes(N, q, qd)
+        sigma_d, sigmad_d = ref[4 * n:5 * n], ref[5 * n:]
+        rhs = ksigma * (sigma - sigma_d) - Phi_q @ g_dot - Phi_q_dot @ g \
+            - (Phi_q_dot @ N + Phi_q @ N_dot) @ nu
+        if kinv is not None:
+            rhs = rhs - kinv * sigmad_d
+        # (Φ_q Φ^⊥)^† of a diagonal, never-singular matrix is its inverse.
+        nu_dot = rhs / ca.diag(a.stiffness_direction(q))
+        p = g + N @ nu
+        return p, tau_star, nu_dot, Pi_dot
+
+    # -- generated steps ----------------------------------------------------------------
+    def _symbols(self):
+        n, k = self.n, self.n_params
+        return dict(
+            q=ca.SX.sym("q", n), qd=ca.SX.sym("qd", n), sigma=ca.SX.sym("sigma", n),
+            ref=ca.SX.sym("ref", 6 * n), lam=ca.SX.sym("lam", n), kd=ca.SX.sym("kd", n),
+            kpi=ca.SX.sym("kpi", k), ksigma=ca.SX.sym("ksigma", n),
+            kinv=ca.SX.sym("kinv", n), dt=ca.SX.sym("dt"))
+
+    def step_fun(self, kind: str) -> ca.Function:
+        """The generated step of controller ``kind`` (a key of :data:`KINDS`).
+
+        Every step maps ``(z, measurements, ref, gains, dt)`` to ``(z_next, p, tau_star,
+        nu)``: z is the controller state (Π̂ for ``prop11`` and ``open_loop``; (ν, Π̂)
+        for ``theorem5`` and ``corollary2``), p the pressures to apply over the next
+        sample, ν the null-space coordinate in use (0 for ``prop11``).
+        """
+        if kind not in KINDS:
+            raise ValueError(f"kind: expected one of {', '.join(KINDS)}, got {kind!r}")
+        n, k = self.n, self.n_params
+        S = self._symbols()
+        q, qd, ref, lam, kd, kpi, dt = (S[x] for x in ("q", "qd", "ref", "lam", "kd", "kpi",
+                                                       "dt"))
+        a = self.act
+        if kind in ("prop11", "open_loop"):
+            Pi_hat = ca.SX.sym("z", k)
+            z = Pi_hat
+            tau_star, yts, _ = self.tracking(q, qd, Pi_hat, ref, lam, kd)
+            z_next = Pi_hat + dt * kpi * yts
+            if kind == "prop11":
+                nu = ca.SX.zeros(n)
+                ins, names = [z, q, qd, ref, lam, kd, kpi, dt], \
+                    ["z", "q", "qd", "ref", "lam", "kd", "kpi", "dt"]
+            else:
+                nu = self.open_loop_nu(q, tau_star, ref[4 * n:5 * n], S["kinv"])
+                ins, names = [z, q, qd, ref, lam, kd, kpi, S["kinv"], dt], \
+                    ["z", "q", "qd", "ref", "lam", "kd", "kpi", "kinv", "dt"]
+            p = a.Phi_pinv(q) @ tau_star + a.null_basis(q) @ nu
+        else:
+            z = ca.SX.sym("z", n + k)
+            nu, Pi_hat = z[:n], z[n:]
+            kinv = S["kinv"] if kind == "theorem5" else None
+            p, tau_star, nu_dot, Pi_dot = self.theorem5_rates(
+                q, qd, S["sigma"], nu, Pi_hat, ref, lam, kd, kpi, S["ksigma"], kinv)
+            z_next = z + dt * ca.vertcat(nu_dot, Pi_dot)
+            ins = [z, q, qd, S["sigma"], ref, lam, kd, kpi, S["ksigma"]]
+            names = ["z", "q", "qd", "sigma", "ref", "lam", "kd", "kpi", "ksigma"]
+            if kinv is not None:
+                ins.append(kinv)
+                names.append("kinv")
+            ins.append(dt)
+            names.append("dt")
+        return ca.Function(f"{self.name}_{KINDS[kind]}", ins,
+                           [z_next, p, tau_star, ca.densify(ca.SX(nu))], names,
+                           ["z_next", "p", "tau_star", "nu"], FUNCTION_OPTS)
+
+    def derived_fun(self) -> ca.Function:
+        """``<model>_null_space``: Φ^†, Φ^⊥, Φ_q Φ^⊥ and their chain-rule rates at (q, q̇)."""
+        a = self.act
+        q, qd = ca.SX.sym("q", self.n), ca.SX.sym("qd", self.n)
+        P, N, M = a.Phi_pinv(q), a.null_basis(q), a.stiffness_direction(q)
+        outs = [P, N, M, ca.jtimes(P, q, qd), ca.jtimes(N, q, qd), ca.jtimes(a.Phi_q(q), q, qd)]
+        return ca.Function(f"{self.name}_null_space", [q, qd], [ca.densify(o) for o in outs],
+                           ["q", "qd"],
+                           ["Phi_pinv", "Phi_perp", "Phi_q_Phi_perp", "Phi_pinv_dot",
+                            "Phi_perp_dot", "Phi_q_dot"], FUNCTION_OPTS)
+
+    def functions(self) -> list[tuple[ca.Function, str]]:
+        """Every chapter-10 function of this model, with one-line docs."""
+        return [
+            (self.derived_fun(), "pinv, null-space basis (phi_b, phi_a) per joint, Phi_q Phi_perp "
+                                 "and their chain-rule time derivatives (Th. 5, Remark 8)"),
+            (self.step_fun("prop11"), "actuator-aware Slotine-Li step, p = pinv(Phi) tau_* "
+                                      "(Prop. 11)"),
+            (self.step_fun("open_loop"), "adaptive position control with open-loop stiffness "
+                                         "(Tonietti and Bicchi 2002, sec. 10.3.4)"),
+            (self.step_fun("theorem5"), "decoupled adaptive position and stiffness control "
+                                        "(Theorem 5, eq. 10.1-10.4, NOTES item 4)"),
+            (self.step_fun("corollary2"), "Theorem 5 for piecewise-constant stiffness "
+                                          "references, independent of K (Corollary 2)"),
+        ]
+
+
+def pneumatic_arm(model: RobotModel) -> PneumaticArm:
+    """:class:`PneumaticArm` of ``model``, or one clear error if it has no McKibben pairs."""
+    if model.actuator_type != "mckibben":
+        got = model.actuator_type or "no [[actuators]]"
+        raise ModelError(f"{model.name}: the chapter-10 controllers need McKibben pairs "
+                         f"(type = \"mckibben\") on every joint, got {got}")
+    return PneumaticArm(model)
