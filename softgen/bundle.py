@@ -87,14 +87,29 @@ def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> 
     if model.actuator_type is not None:
         extra["actuator"] = model.actuator_type
         extra["estimators"] = {e.step_fun().name(): e.describe() for e in estimators}
+    if model.actuator_type == "mckibben":
+        from .control.pneumatic import KINDS, REFERENCE_BLOCKS, PneumaticArm
+        arm = PneumaticArm(model, dyn=dyn)
+        extra["controllers"] = {
+            "steps": {k: f"{model.name}_{v}" for k, v in KINDS.items()},
+            "reference_layout": list(REFERENCE_BLOCKS),
+            "state_layout": {"theorem5": ["nu", "Pi_hat"], "corollary2": ["nu", "Pi_hat"],
+                             "open_loop": ["Pi_hat"], "prop11": ["Pi_hat"]},
+            "Pi_names": arm.parameter_names,
+            "Pi_nominal": [float(v) for v in arm.Pi_nominal],
+            "K1": arm.K1,
+            "pressure_unit": "Pa",
+        }
     return BundleSpec(name=model.name, functions=fns, parameters=params, identity=identity,
                       extra=extra)
 
 
 def _actuator_functions(model: RobotModel, dyn: RigidDynamics, fns: list) -> list:
-    """Actuator model, actuated plant and the estimators (thesis defaults) of ``model``."""
+    """Actuator model, actuated plants, estimators (thesis defaults) and, for McKibben
+    pairs, the chapter-10 controllers of ``model``."""
     from .estimation.estimators import EstimatorConfig, StiffnessEstimator
-    from .symbolic.actuated import electric_plant_fun, pneumatic_plant_fun
+    from .control.pneumatic import PneumaticArm
+    from .symbolic.actuated import electric_plant_fun, pneumatic_plant_fun, valve_plant_fun
     from .symbolic.actuators import McKibbenPairs, QbmoveSprings
 
     if model.actuator_type is None:
@@ -105,6 +120,10 @@ def _actuator_functions(model: RobotModel, dyn: RigidDynamics, fns: list) -> lis
         fns.append(Generated(pneumatic_plant_fun(dyn, act, substeps=PLANT_SUBSTEPS),
                              f"{PLANT_SUBSTEPS} RK4 steps of the pneumatic robot (eq. 2.5) "
                              "over one sample, pressures held"))
+        fns.append(Generated(valve_plant_fun(dyn, act, substeps=PLANT_SUBSTEPS),
+                             f"{PLANT_SUBSTEPS} RK4 steps of the pneumatic robot with "
+                             "first-order valves (sec. 10.4), commands clipped to [0, p_max]"))
+        fns += [Generated(f, doc) for f, doc in PneumaticArm(model, dyn=dyn, act=act).functions()]
         methods = ["pneumatic"] if model.dof == 1 else []
     else:
         springs = QbmoveSprings(model)

@@ -46,6 +46,12 @@ extern "C" {
 #define casadi_f20 CASADI_PREFIX(f20)
 #define casadi_f21 CASADI_PREFIX(f21)
 #define casadi_f22 CASADI_PREFIX(f22)
+#define casadi_f23 CASADI_PREFIX(f23)
+#define casadi_f24 CASADI_PREFIX(f24)
+#define casadi_f25 CASADI_PREFIX(f25)
+#define casadi_f26 CASADI_PREFIX(f26)
+#define casadi_f27 CASADI_PREFIX(f27)
+#define casadi_f28 CASADI_PREFIX(f28)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
@@ -53,6 +59,7 @@ extern "C" {
 #define casadi_f7 CASADI_PREFIX(f7)
 #define casadi_f8 CASADI_PREFIX(f8)
 #define casadi_f9 CASADI_PREFIX(f9)
+#define casadi_fmax CASADI_PREFIX(fmax)
 #define casadi_fmin CASADI_PREFIX(fmin)
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
@@ -96,6 +103,15 @@ void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
 }
 
 casadi_real casadi_sq(casadi_real x) { return x*x;}
+
+casadi_real casadi_fmax(casadi_real x, casadi_real y) {
+/* Pre-c99 compatibility */
+#if __STDC_VERSION__ < 199901L
+  return x>y ? x : y;
+#else
+  return fmax(x, y);
+#endif
+}
 
 casadi_real casadi_fmin(casadi_real x, casadi_real y) {
 /* Pre-c99 compatibility */
@@ -3890,8 +3906,2540 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_plant_work_bytes(casadi_int *s
   return 0;
 }
 
-/* pendulum_1link_pneumatic_estimator_step:(state[53],y[3])->(state_next[53],sigma_hat,tau_hat,tau_uio,updating) */
+/* pendulum_1link_valve_plant:(x[4],p_c[2],T_p[2],h)->(x_next[4]) */
 static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[3]? arg[3][0] : 0;
+  a02=10.;
+  a01=(a01/a02);
+  a02=6.;
+  a02=(a01/a02);
+  a03=arg[0]? arg[0][1] : 0;
+  a04=2.;
+  a04=(a01/a04);
+  a05=2.2400000000000002e-03;
+  a06=3.5999999999999999e-01;
+  a07=1.6000000000000000e-02;
+  a08=(a07*a00);
+  a09=(a06-a08);
+  a09=casadi_sq(a09);
+  a10=6.2500000000000000e-02;
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a11=arg[0]? arg[0][2] : 0;
+  a09=(a09*a11);
+  a08=(a06+a08);
+  a08=casadi_sq(a08);
+  a08=(a08-a10);
+  a08=(a05*a08);
+  a12=arg[0]? arg[0][3] : 0;
+  a08=(a08*a12);
+  a09=(a09-a08);
+  a08=1.0000000000000001e-05;
+  a13=(a08*a03);
+  a14=-1.1772000000000000e+00;
+  a15=sin(a00);
+  a15=(a14*a15);
+  a13=(a13-a15);
+  a09=(a09-a13);
+  a13=1.4999999999999999e-02;
+  a09=(a09/a13);
+  a15=(a04*a09);
+  a15=(a03+a15);
+  a16=(2.*a15);
+  a16=(a03+a16);
+  a17=(a04*a03);
+  a17=(a00+a17);
+  a18=(a07*a17);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a20=arg[1]? arg[1][0] : 0;
+  a21=0.;
+  a20=casadi_fmax(a20,a21);
+  a22=(a20-a11);
+  a23=arg[2]? arg[2][0] : 0;
+  a22=(a22/a23);
+  a24=(a04*a22);
+  a24=(a11+a24);
+  a19=(a19*a24);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a25=arg[1]? arg[1][1] : 0;
+  a25=casadi_fmax(a25,a21);
+  a21=(a25-a12);
+  a26=arg[2]? arg[2][1] : 0;
+  a21=(a21/a26);
+  a27=(a04*a21);
+  a27=(a12+a27);
+  a18=(a18*a27);
+  a19=(a19-a18);
+  a18=(a08*a15);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a18=(a18-a17);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a17=(2.*a18);
+  a16=(a16+a17);
+  a15=(a04*a15);
+  a15=(a00+a15);
+  a17=(a07*a15);
+  a28=(a06-a17);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a24=(a20-a24);
+  a24=(a24/a23);
+  a29=(a04*a24);
+  a29=(a11+a29);
+  a28=(a28*a29);
+  a17=(a06+a17);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a27=(a25-a27);
+  a27=(a27/a26);
+  a30=(a04*a27);
+  a30=(a12+a30);
+  a17=(a17*a30);
+  a28=(a28-a17);
+  a17=(a08*a18);
+  a15=sin(a15);
+  a15=(a14*a15);
+  a17=(a17-a15);
+  a28=(a28-a17);
+  a28=(a28/a13);
+  a17=(a01*a28);
+  a17=(a03+a17);
+  a16=(a16+a17);
+  a16=(a02*a16);
+  a16=(a00+a16);
+  a19=(2.*a19);
+  a09=(a09+a19);
+  a28=(2.*a28);
+  a09=(a09+a28);
+  a18=(a01*a18);
+  a00=(a00+a18);
+  a18=(a07*a00);
+  a28=(a06-a18);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a29=(a20-a29);
+  a29=(a29/a23);
+  a19=(a01*a29);
+  a19=(a11+a19);
+  a28=(a28*a19);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a30=(a25-a30);
+  a30=(a30/a26);
+  a15=(a01*a30);
+  a15=(a12+a15);
+  a18=(a18*a15);
+  a28=(a28-a18);
+  a17=(a08*a17);
+  a00=sin(a00);
+  a00=(a14*a00);
+  a17=(a17-a00);
+  a28=(a28-a17);
+  a28=(a28/a13);
+  a09=(a09+a28);
+  a09=(a02*a09);
+  a03=(a03+a09);
+  a09=(a07*a16);
+  a28=(a06-a09);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a24=(2.*a24);
+  a22=(a22+a24);
+  a29=(2.*a29);
+  a22=(a22+a29);
+  a19=(a20-a19);
+  a19=(a19/a23);
+  a22=(a22+a19);
+  a22=(a02*a22);
+  a11=(a11+a22);
+  a28=(a28*a11);
+  a09=(a06+a09);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a27=(2.*a27);
+  a21=(a21+a27);
+  a30=(2.*a30);
+  a21=(a21+a30);
+  a15=(a25-a15);
+  a15=(a15/a26);
+  a21=(a21+a15);
+  a21=(a02*a21);
+  a12=(a12+a21);
+  a09=(a09*a12);
+  a28=(a28-a09);
+  a09=(a08*a03);
+  a21=sin(a16);
+  a21=(a14*a21);
+  a09=(a09-a21);
+  a28=(a28-a09);
+  a28=(a28/a13);
+  a09=(a04*a28);
+  a09=(a03+a09);
+  a21=(2.*a09);
+  a21=(a03+a21);
+  a15=(a04*a03);
+  a15=(a16+a15);
+  a30=(a07*a15);
+  a27=(a06-a30);
+  a27=casadi_sq(a27);
+  a27=(a27-a10);
+  a27=(a05*a27);
+  a22=(a20-a11);
+  a22=(a22/a23);
+  a19=(a04*a22);
+  a19=(a11+a19);
+  a27=(a27*a19);
+  a30=(a06+a30);
+  a30=casadi_sq(a30);
+  a30=(a30-a10);
+  a30=(a05*a30);
+  a29=(a25-a12);
+  a29=(a29/a26);
+  a24=(a04*a29);
+  a24=(a12+a24);
+  a30=(a30*a24);
+  a27=(a27-a30);
+  a30=(a08*a09);
+  a15=sin(a15);
+  a15=(a14*a15);
+  a30=(a30-a15);
+  a27=(a27-a30);
+  a27=(a27/a13);
+  a30=(a04*a27);
+  a30=(a03+a30);
+  a15=(2.*a30);
+  a21=(a21+a15);
+  a09=(a04*a09);
+  a09=(a16+a09);
+  a15=(a07*a09);
+  a17=(a06-a15);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a19=(a20-a19);
+  a19=(a19/a23);
+  a00=(a04*a19);
+  a00=(a11+a00);
+  a17=(a17*a00);
+  a15=(a06+a15);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a24=(a25-a24);
+  a24=(a24/a26);
+  a18=(a04*a24);
+  a18=(a12+a18);
+  a15=(a15*a18);
+  a17=(a17-a15);
+  a15=(a08*a30);
+  a09=sin(a09);
+  a09=(a14*a09);
+  a15=(a15-a09);
+  a17=(a17-a15);
+  a17=(a17/a13);
+  a15=(a01*a17);
+  a15=(a03+a15);
+  a21=(a21+a15);
+  a21=(a02*a21);
+  a21=(a16+a21);
+  a27=(2.*a27);
+  a28=(a28+a27);
+  a17=(2.*a17);
+  a28=(a28+a17);
+  a30=(a01*a30);
+  a16=(a16+a30);
+  a30=(a07*a16);
+  a17=(a06-a30);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a00=(a20-a00);
+  a00=(a00/a23);
+  a27=(a01*a00);
+  a27=(a11+a27);
+  a17=(a17*a27);
+  a30=(a06+a30);
+  a30=casadi_sq(a30);
+  a30=(a30-a10);
+  a30=(a05*a30);
+  a18=(a25-a18);
+  a18=(a18/a26);
+  a09=(a01*a18);
+  a09=(a12+a09);
+  a30=(a30*a09);
+  a17=(a17-a30);
+  a15=(a08*a15);
+  a16=sin(a16);
+  a16=(a14*a16);
+  a15=(a15-a16);
+  a17=(a17-a15);
+  a17=(a17/a13);
+  a28=(a28+a17);
+  a28=(a02*a28);
+  a03=(a03+a28);
+  a28=(a07*a21);
+  a17=(a06-a28);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a19=(2.*a19);
+  a22=(a22+a19);
+  a00=(2.*a00);
+  a22=(a22+a00);
+  a27=(a20-a27);
+  a27=(a27/a23);
+  a22=(a22+a27);
+  a22=(a02*a22);
+  a11=(a11+a22);
+  a17=(a17*a11);
+  a28=(a06+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a24=(2.*a24);
+  a29=(a29+a24);
+  a18=(2.*a18);
+  a29=(a29+a18);
+  a09=(a25-a09);
+  a09=(a09/a26);
+  a29=(a29+a09);
+  a29=(a02*a29);
+  a12=(a12+a29);
+  a28=(a28*a12);
+  a17=(a17-a28);
+  a28=(a08*a03);
+  a29=sin(a21);
+  a29=(a14*a29);
+  a28=(a28-a29);
+  a17=(a17-a28);
+  a17=(a17/a13);
+  a28=(a04*a17);
+  a28=(a03+a28);
+  a29=(2.*a28);
+  a29=(a03+a29);
+  a09=(a04*a03);
+  a09=(a21+a09);
+  a18=(a07*a09);
+  a24=(a06-a18);
+  a24=casadi_sq(a24);
+  a24=(a24-a10);
+  a24=(a05*a24);
+  a22=(a20-a11);
+  a22=(a22/a23);
+  a27=(a04*a22);
+  a27=(a11+a27);
+  a24=(a24*a27);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a00=(a25-a12);
+  a00=(a00/a26);
+  a19=(a04*a00);
+  a19=(a12+a19);
+  a18=(a18*a19);
+  a24=(a24-a18);
+  a18=(a08*a28);
+  a09=sin(a09);
+  a09=(a14*a09);
+  a18=(a18-a09);
+  a24=(a24-a18);
+  a24=(a24/a13);
+  a18=(a04*a24);
+  a18=(a03+a18);
+  a09=(2.*a18);
+  a29=(a29+a09);
+  a28=(a04*a28);
+  a28=(a21+a28);
+  a09=(a07*a28);
+  a15=(a06-a09);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a27=(a20-a27);
+  a27=(a27/a23);
+  a16=(a04*a27);
+  a16=(a11+a16);
+  a15=(a15*a16);
+  a09=(a06+a09);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a19=(a25-a19);
+  a19=(a19/a26);
+  a30=(a04*a19);
+  a30=(a12+a30);
+  a09=(a09*a30);
+  a15=(a15-a09);
+  a09=(a08*a18);
+  a28=sin(a28);
+  a28=(a14*a28);
+  a09=(a09-a28);
+  a15=(a15-a09);
+  a15=(a15/a13);
+  a09=(a01*a15);
+  a09=(a03+a09);
+  a29=(a29+a09);
+  a29=(a02*a29);
+  a29=(a21+a29);
+  a24=(2.*a24);
+  a17=(a17+a24);
+  a15=(2.*a15);
+  a17=(a17+a15);
+  a18=(a01*a18);
+  a21=(a21+a18);
+  a18=(a07*a21);
+  a15=(a06-a18);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a16=(a20-a16);
+  a16=(a16/a23);
+  a24=(a01*a16);
+  a24=(a11+a24);
+  a15=(a15*a24);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a30=(a25-a30);
+  a30=(a30/a26);
+  a28=(a01*a30);
+  a28=(a12+a28);
+  a18=(a18*a28);
+  a15=(a15-a18);
+  a09=(a08*a09);
+  a21=sin(a21);
+  a21=(a14*a21);
+  a09=(a09-a21);
+  a15=(a15-a09);
+  a15=(a15/a13);
+  a17=(a17+a15);
+  a17=(a02*a17);
+  a03=(a03+a17);
+  a17=(a07*a29);
+  a15=(a06-a17);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a27=(2.*a27);
+  a22=(a22+a27);
+  a16=(2.*a16);
+  a22=(a22+a16);
+  a24=(a20-a24);
+  a24=(a24/a23);
+  a22=(a22+a24);
+  a22=(a02*a22);
+  a11=(a11+a22);
+  a15=(a15*a11);
+  a17=(a06+a17);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a19=(2.*a19);
+  a00=(a00+a19);
+  a30=(2.*a30);
+  a00=(a00+a30);
+  a28=(a25-a28);
+  a28=(a28/a26);
+  a00=(a00+a28);
+  a00=(a02*a00);
+  a12=(a12+a00);
+  a17=(a17*a12);
+  a15=(a15-a17);
+  a17=(a08*a03);
+  a00=sin(a29);
+  a00=(a14*a00);
+  a17=(a17-a00);
+  a15=(a15-a17);
+  a15=(a15/a13);
+  a17=(a04*a15);
+  a17=(a03+a17);
+  a00=(2.*a17);
+  a00=(a03+a00);
+  a28=(a04*a03);
+  a28=(a29+a28);
+  a30=(a07*a28);
+  a19=(a06-a30);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a22=(a20-a11);
+  a22=(a22/a23);
+  a24=(a04*a22);
+  a24=(a11+a24);
+  a19=(a19*a24);
+  a30=(a06+a30);
+  a30=casadi_sq(a30);
+  a30=(a30-a10);
+  a30=(a05*a30);
+  a16=(a25-a12);
+  a16=(a16/a26);
+  a27=(a04*a16);
+  a27=(a12+a27);
+  a30=(a30*a27);
+  a19=(a19-a30);
+  a30=(a08*a17);
+  a28=sin(a28);
+  a28=(a14*a28);
+  a30=(a30-a28);
+  a19=(a19-a30);
+  a19=(a19/a13);
+  a30=(a04*a19);
+  a30=(a03+a30);
+  a28=(2.*a30);
+  a00=(a00+a28);
+  a17=(a04*a17);
+  a17=(a29+a17);
+  a28=(a07*a17);
+  a09=(a06-a28);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a24=(a20-a24);
+  a24=(a24/a23);
+  a21=(a04*a24);
+  a21=(a11+a21);
+  a09=(a09*a21);
+  a28=(a06+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a27=(a25-a27);
+  a27=(a27/a26);
+  a18=(a04*a27);
+  a18=(a12+a18);
+  a28=(a28*a18);
+  a09=(a09-a28);
+  a28=(a08*a30);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a28=(a28-a17);
+  a09=(a09-a28);
+  a09=(a09/a13);
+  a28=(a01*a09);
+  a28=(a03+a28);
+  a00=(a00+a28);
+  a00=(a02*a00);
+  a00=(a29+a00);
+  a19=(2.*a19);
+  a15=(a15+a19);
+  a09=(2.*a09);
+  a15=(a15+a09);
+  a30=(a01*a30);
+  a29=(a29+a30);
+  a30=(a07*a29);
+  a09=(a06-a30);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a21=(a20-a21);
+  a21=(a21/a23);
+  a19=(a01*a21);
+  a19=(a11+a19);
+  a09=(a09*a19);
+  a30=(a06+a30);
+  a30=casadi_sq(a30);
+  a30=(a30-a10);
+  a30=(a05*a30);
+  a18=(a25-a18);
+  a18=(a18/a26);
+  a17=(a01*a18);
+  a17=(a12+a17);
+  a30=(a30*a17);
+  a09=(a09-a30);
+  a28=(a08*a28);
+  a29=sin(a29);
+  a29=(a14*a29);
+  a28=(a28-a29);
+  a09=(a09-a28);
+  a09=(a09/a13);
+  a15=(a15+a09);
+  a15=(a02*a15);
+  a03=(a03+a15);
+  a15=(a07*a00);
+  a09=(a06-a15);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a24=(2.*a24);
+  a22=(a22+a24);
+  a21=(2.*a21);
+  a22=(a22+a21);
+  a19=(a20-a19);
+  a19=(a19/a23);
+  a22=(a22+a19);
+  a22=(a02*a22);
+  a11=(a11+a22);
+  a09=(a09*a11);
+  a15=(a06+a15);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a27=(2.*a27);
+  a16=(a16+a27);
+  a18=(2.*a18);
+  a16=(a16+a18);
+  a17=(a25-a17);
+  a17=(a17/a26);
+  a16=(a16+a17);
+  a16=(a02*a16);
+  a12=(a12+a16);
+  a15=(a15*a12);
+  a09=(a09-a15);
+  a15=(a08*a03);
+  a16=sin(a00);
+  a16=(a14*a16);
+  a15=(a15-a16);
+  a09=(a09-a15);
+  a09=(a09/a13);
+  a15=(a04*a09);
+  a15=(a03+a15);
+  a16=(2.*a15);
+  a16=(a03+a16);
+  a17=(a04*a03);
+  a17=(a00+a17);
+  a18=(a07*a17);
+  a27=(a06-a18);
+  a27=casadi_sq(a27);
+  a27=(a27-a10);
+  a27=(a05*a27);
+  a22=(a20-a11);
+  a22=(a22/a23);
+  a19=(a04*a22);
+  a19=(a11+a19);
+  a27=(a27*a19);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a21=(a25-a12);
+  a21=(a21/a26);
+  a24=(a04*a21);
+  a24=(a12+a24);
+  a18=(a18*a24);
+  a27=(a27-a18);
+  a18=(a08*a15);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a18=(a18-a17);
+  a27=(a27-a18);
+  a27=(a27/a13);
+  a18=(a04*a27);
+  a18=(a03+a18);
+  a17=(2.*a18);
+  a16=(a16+a17);
+  a15=(a04*a15);
+  a15=(a00+a15);
+  a17=(a07*a15);
+  a28=(a06-a17);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a19=(a20-a19);
+  a19=(a19/a23);
+  a29=(a04*a19);
+  a29=(a11+a29);
+  a28=(a28*a29);
+  a17=(a06+a17);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a24=(a25-a24);
+  a24=(a24/a26);
+  a30=(a04*a24);
+  a30=(a12+a30);
+  a17=(a17*a30);
+  a28=(a28-a17);
+  a17=(a08*a18);
+  a15=sin(a15);
+  a15=(a14*a15);
+  a17=(a17-a15);
+  a28=(a28-a17);
+  a28=(a28/a13);
+  a17=(a01*a28);
+  a17=(a03+a17);
+  a16=(a16+a17);
+  a16=(a02*a16);
+  a16=(a00+a16);
+  a27=(2.*a27);
+  a09=(a09+a27);
+  a28=(2.*a28);
+  a09=(a09+a28);
+  a18=(a01*a18);
+  a00=(a00+a18);
+  a18=(a07*a00);
+  a28=(a06-a18);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a29=(a20-a29);
+  a29=(a29/a23);
+  a27=(a01*a29);
+  a27=(a11+a27);
+  a28=(a28*a27);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a30=(a25-a30);
+  a30=(a30/a26);
+  a15=(a01*a30);
+  a15=(a12+a15);
+  a18=(a18*a15);
+  a28=(a28-a18);
+  a17=(a08*a17);
+  a00=sin(a00);
+  a00=(a14*a00);
+  a17=(a17-a00);
+  a28=(a28-a17);
+  a28=(a28/a13);
+  a09=(a09+a28);
+  a09=(a02*a09);
+  a03=(a03+a09);
+  a09=(a07*a16);
+  a28=(a06-a09);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a19=(2.*a19);
+  a22=(a22+a19);
+  a29=(2.*a29);
+  a22=(a22+a29);
+  a27=(a20-a27);
+  a27=(a27/a23);
+  a22=(a22+a27);
+  a22=(a02*a22);
+  a11=(a11+a22);
+  a28=(a28*a11);
+  a09=(a06+a09);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a24=(2.*a24);
+  a21=(a21+a24);
+  a30=(2.*a30);
+  a21=(a21+a30);
+  a15=(a25-a15);
+  a15=(a15/a26);
+  a21=(a21+a15);
+  a21=(a02*a21);
+  a12=(a12+a21);
+  a09=(a09*a12);
+  a28=(a28-a09);
+  a09=(a08*a03);
+  a21=sin(a16);
+  a21=(a14*a21);
+  a09=(a09-a21);
+  a28=(a28-a09);
+  a28=(a28/a13);
+  a09=(a04*a28);
+  a09=(a03+a09);
+  a21=(2.*a09);
+  a21=(a03+a21);
+  a15=(a04*a03);
+  a15=(a16+a15);
+  a30=(a07*a15);
+  a24=(a06-a30);
+  a24=casadi_sq(a24);
+  a24=(a24-a10);
+  a24=(a05*a24);
+  a22=(a20-a11);
+  a22=(a22/a23);
+  a27=(a04*a22);
+  a27=(a11+a27);
+  a24=(a24*a27);
+  a30=(a06+a30);
+  a30=casadi_sq(a30);
+  a30=(a30-a10);
+  a30=(a05*a30);
+  a29=(a25-a12);
+  a29=(a29/a26);
+  a19=(a04*a29);
+  a19=(a12+a19);
+  a30=(a30*a19);
+  a24=(a24-a30);
+  a30=(a08*a09);
+  a15=sin(a15);
+  a15=(a14*a15);
+  a30=(a30-a15);
+  a24=(a24-a30);
+  a24=(a24/a13);
+  a30=(a04*a24);
+  a30=(a03+a30);
+  a15=(2.*a30);
+  a21=(a21+a15);
+  a09=(a04*a09);
+  a09=(a16+a09);
+  a15=(a07*a09);
+  a17=(a06-a15);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a27=(a20-a27);
+  a27=(a27/a23);
+  a00=(a04*a27);
+  a00=(a11+a00);
+  a17=(a17*a00);
+  a15=(a06+a15);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a19=(a25-a19);
+  a19=(a19/a26);
+  a18=(a04*a19);
+  a18=(a12+a18);
+  a15=(a15*a18);
+  a17=(a17-a15);
+  a15=(a08*a30);
+  a09=sin(a09);
+  a09=(a14*a09);
+  a15=(a15-a09);
+  a17=(a17-a15);
+  a17=(a17/a13);
+  a15=(a01*a17);
+  a15=(a03+a15);
+  a21=(a21+a15);
+  a21=(a02*a21);
+  a21=(a16+a21);
+  a24=(2.*a24);
+  a28=(a28+a24);
+  a17=(2.*a17);
+  a28=(a28+a17);
+  a30=(a01*a30);
+  a16=(a16+a30);
+  a30=(a07*a16);
+  a17=(a06-a30);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a00=(a20-a00);
+  a00=(a00/a23);
+  a24=(a01*a00);
+  a24=(a11+a24);
+  a17=(a17*a24);
+  a30=(a06+a30);
+  a30=casadi_sq(a30);
+  a30=(a30-a10);
+  a30=(a05*a30);
+  a18=(a25-a18);
+  a18=(a18/a26);
+  a09=(a01*a18);
+  a09=(a12+a09);
+  a30=(a30*a09);
+  a17=(a17-a30);
+  a15=(a08*a15);
+  a16=sin(a16);
+  a16=(a14*a16);
+  a15=(a15-a16);
+  a17=(a17-a15);
+  a17=(a17/a13);
+  a28=(a28+a17);
+  a28=(a02*a28);
+  a03=(a03+a28);
+  a28=(a07*a21);
+  a17=(a06-a28);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a27=(2.*a27);
+  a22=(a22+a27);
+  a00=(2.*a00);
+  a22=(a22+a00);
+  a24=(a20-a24);
+  a24=(a24/a23);
+  a22=(a22+a24);
+  a22=(a02*a22);
+  a11=(a11+a22);
+  a17=(a17*a11);
+  a28=(a06+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a19=(2.*a19);
+  a29=(a29+a19);
+  a18=(2.*a18);
+  a29=(a29+a18);
+  a09=(a25-a09);
+  a09=(a09/a26);
+  a29=(a29+a09);
+  a29=(a02*a29);
+  a12=(a12+a29);
+  a28=(a28*a12);
+  a17=(a17-a28);
+  a28=(a08*a03);
+  a29=sin(a21);
+  a29=(a14*a29);
+  a28=(a28-a29);
+  a17=(a17-a28);
+  a17=(a17/a13);
+  a28=(a04*a17);
+  a28=(a03+a28);
+  a29=(2.*a28);
+  a29=(a03+a29);
+  a09=(a04*a03);
+  a09=(a21+a09);
+  a18=(a07*a09);
+  a19=(a06-a18);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a22=(a20-a11);
+  a22=(a22/a23);
+  a24=(a04*a22);
+  a24=(a11+a24);
+  a19=(a19*a24);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a00=(a25-a12);
+  a00=(a00/a26);
+  a27=(a04*a00);
+  a27=(a12+a27);
+  a18=(a18*a27);
+  a19=(a19-a18);
+  a18=(a08*a28);
+  a09=sin(a09);
+  a09=(a14*a09);
+  a18=(a18-a09);
+  a19=(a19-a18);
+  a19=(a19/a13);
+  a18=(a04*a19);
+  a18=(a03+a18);
+  a09=(2.*a18);
+  a29=(a29+a09);
+  a28=(a04*a28);
+  a28=(a21+a28);
+  a09=(a07*a28);
+  a15=(a06-a09);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a24=(a20-a24);
+  a24=(a24/a23);
+  a16=(a04*a24);
+  a16=(a11+a16);
+  a15=(a15*a16);
+  a09=(a06+a09);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a27=(a25-a27);
+  a27=(a27/a26);
+  a30=(a04*a27);
+  a30=(a12+a30);
+  a09=(a09*a30);
+  a15=(a15-a09);
+  a09=(a08*a18);
+  a28=sin(a28);
+  a28=(a14*a28);
+  a09=(a09-a28);
+  a15=(a15-a09);
+  a15=(a15/a13);
+  a09=(a01*a15);
+  a09=(a03+a09);
+  a29=(a29+a09);
+  a29=(a02*a29);
+  a29=(a21+a29);
+  a19=(2.*a19);
+  a17=(a17+a19);
+  a15=(2.*a15);
+  a17=(a17+a15);
+  a18=(a01*a18);
+  a21=(a21+a18);
+  a18=(a07*a21);
+  a15=(a06-a18);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a16=(a20-a16);
+  a16=(a16/a23);
+  a19=(a01*a16);
+  a19=(a11+a19);
+  a15=(a15*a19);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a30=(a25-a30);
+  a30=(a30/a26);
+  a28=(a01*a30);
+  a28=(a12+a28);
+  a18=(a18*a28);
+  a15=(a15-a18);
+  a09=(a08*a09);
+  a21=sin(a21);
+  a21=(a14*a21);
+  a09=(a09-a21);
+  a15=(a15-a09);
+  a15=(a15/a13);
+  a17=(a17+a15);
+  a17=(a02*a17);
+  a03=(a03+a17);
+  a17=(a07*a29);
+  a15=(a06-a17);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a24=(2.*a24);
+  a22=(a22+a24);
+  a16=(2.*a16);
+  a22=(a22+a16);
+  a19=(a20-a19);
+  a19=(a19/a23);
+  a22=(a22+a19);
+  a22=(a02*a22);
+  a11=(a11+a22);
+  a15=(a15*a11);
+  a17=(a06+a17);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a27=(2.*a27);
+  a00=(a00+a27);
+  a30=(2.*a30);
+  a00=(a00+a30);
+  a28=(a25-a28);
+  a28=(a28/a26);
+  a00=(a00+a28);
+  a00=(a02*a00);
+  a12=(a12+a00);
+  a17=(a17*a12);
+  a15=(a15-a17);
+  a17=(a08*a03);
+  a00=sin(a29);
+  a00=(a14*a00);
+  a17=(a17-a00);
+  a15=(a15-a17);
+  a15=(a15/a13);
+  a17=(a04*a15);
+  a17=(a03+a17);
+  a00=(2.*a17);
+  a00=(a03+a00);
+  a28=(a04*a03);
+  a28=(a29+a28);
+  a30=(a07*a28);
+  a27=(a06-a30);
+  a27=casadi_sq(a27);
+  a27=(a27-a10);
+  a27=(a05*a27);
+  a22=(a20-a11);
+  a22=(a22/a23);
+  a19=(a04*a22);
+  a19=(a11+a19);
+  a27=(a27*a19);
+  a30=(a06+a30);
+  a30=casadi_sq(a30);
+  a30=(a30-a10);
+  a30=(a05*a30);
+  a16=(a25-a12);
+  a16=(a16/a26);
+  a24=(a04*a16);
+  a24=(a12+a24);
+  a30=(a30*a24);
+  a27=(a27-a30);
+  a30=(a08*a17);
+  a28=sin(a28);
+  a28=(a14*a28);
+  a30=(a30-a28);
+  a27=(a27-a30);
+  a27=(a27/a13);
+  a30=(a04*a27);
+  a30=(a03+a30);
+  a28=(2.*a30);
+  a00=(a00+a28);
+  a17=(a04*a17);
+  a17=(a29+a17);
+  a28=(a07*a17);
+  a09=(a06-a28);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a19=(a20-a19);
+  a19=(a19/a23);
+  a21=(a04*a19);
+  a21=(a11+a21);
+  a09=(a09*a21);
+  a28=(a06+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a24=(a25-a24);
+  a24=(a24/a26);
+  a18=(a04*a24);
+  a18=(a12+a18);
+  a28=(a28*a18);
+  a09=(a09-a28);
+  a28=(a08*a30);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a28=(a28-a17);
+  a09=(a09-a28);
+  a09=(a09/a13);
+  a28=(a01*a09);
+  a28=(a03+a28);
+  a00=(a00+a28);
+  a00=(a02*a00);
+  a00=(a29+a00);
+  a27=(2.*a27);
+  a15=(a15+a27);
+  a09=(2.*a09);
+  a15=(a15+a09);
+  a30=(a01*a30);
+  a29=(a29+a30);
+  a30=(a07*a29);
+  a09=(a06-a30);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a21=(a20-a21);
+  a21=(a21/a23);
+  a27=(a01*a21);
+  a27=(a11+a27);
+  a09=(a09*a27);
+  a30=(a06+a30);
+  a30=casadi_sq(a30);
+  a30=(a30-a10);
+  a30=(a05*a30);
+  a18=(a25-a18);
+  a18=(a18/a26);
+  a17=(a01*a18);
+  a17=(a12+a17);
+  a30=(a30*a17);
+  a09=(a09-a30);
+  a28=(a08*a28);
+  a29=sin(a29);
+  a29=(a14*a29);
+  a28=(a28-a29);
+  a09=(a09-a28);
+  a09=(a09/a13);
+  a15=(a15+a09);
+  a15=(a02*a15);
+  a03=(a03+a15);
+  a15=(a07*a00);
+  a09=(a06-a15);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a19=(2.*a19);
+  a22=(a22+a19);
+  a21=(2.*a21);
+  a22=(a22+a21);
+  a27=(a20-a27);
+  a27=(a27/a23);
+  a22=(a22+a27);
+  a22=(a02*a22);
+  a11=(a11+a22);
+  a09=(a09*a11);
+  a15=(a06+a15);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a24=(2.*a24);
+  a16=(a16+a24);
+  a18=(2.*a18);
+  a16=(a16+a18);
+  a17=(a25-a17);
+  a17=(a17/a26);
+  a16=(a16+a17);
+  a16=(a02*a16);
+  a12=(a12+a16);
+  a15=(a15*a12);
+  a09=(a09-a15);
+  a15=(a08*a03);
+  a16=sin(a00);
+  a16=(a14*a16);
+  a15=(a15-a16);
+  a09=(a09-a15);
+  a09=(a09/a13);
+  a15=(a04*a09);
+  a15=(a03+a15);
+  a16=(2.*a15);
+  a16=(a03+a16);
+  a17=(a04*a03);
+  a17=(a00+a17);
+  a18=(a07*a17);
+  a24=(a06-a18);
+  a24=casadi_sq(a24);
+  a24=(a24-a10);
+  a24=(a05*a24);
+  a22=(a20-a11);
+  a22=(a22/a23);
+  a27=(a04*a22);
+  a27=(a11+a27);
+  a24=(a24*a27);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a21=(a25-a12);
+  a21=(a21/a26);
+  a19=(a04*a21);
+  a19=(a12+a19);
+  a18=(a18*a19);
+  a24=(a24-a18);
+  a18=(a08*a15);
+  a17=sin(a17);
+  a17=(a14*a17);
+  a18=(a18-a17);
+  a24=(a24-a18);
+  a24=(a24/a13);
+  a18=(a04*a24);
+  a18=(a03+a18);
+  a17=(2.*a18);
+  a16=(a16+a17);
+  a15=(a04*a15);
+  a15=(a00+a15);
+  a17=(a07*a15);
+  a28=(a06-a17);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a27=(a20-a27);
+  a27=(a27/a23);
+  a29=(a04*a27);
+  a29=(a11+a29);
+  a28=(a28*a29);
+  a17=(a06+a17);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a19=(a25-a19);
+  a19=(a19/a26);
+  a30=(a04*a19);
+  a30=(a12+a30);
+  a17=(a17*a30);
+  a28=(a28-a17);
+  a17=(a08*a18);
+  a15=sin(a15);
+  a15=(a14*a15);
+  a17=(a17-a15);
+  a28=(a28-a17);
+  a28=(a28/a13);
+  a17=(a01*a28);
+  a17=(a03+a17);
+  a16=(a16+a17);
+  a16=(a02*a16);
+  a16=(a00+a16);
+  a24=(2.*a24);
+  a09=(a09+a24);
+  a28=(2.*a28);
+  a09=(a09+a28);
+  a18=(a01*a18);
+  a00=(a00+a18);
+  a18=(a07*a00);
+  a28=(a06-a18);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a29=(a20-a29);
+  a29=(a29/a23);
+  a24=(a01*a29);
+  a24=(a11+a24);
+  a28=(a28*a24);
+  a18=(a06+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a10);
+  a18=(a05*a18);
+  a30=(a25-a30);
+  a30=(a30/a26);
+  a15=(a01*a30);
+  a15=(a12+a15);
+  a18=(a18*a15);
+  a28=(a28-a18);
+  a17=(a08*a17);
+  a00=sin(a00);
+  a00=(a14*a00);
+  a17=(a17-a00);
+  a28=(a28-a17);
+  a28=(a28/a13);
+  a09=(a09+a28);
+  a09=(a02*a09);
+  a03=(a03+a09);
+  a09=(a07*a16);
+  a28=(a06-a09);
+  a28=casadi_sq(a28);
+  a28=(a28-a10);
+  a28=(a05*a28);
+  a27=(2.*a27);
+  a22=(a22+a27);
+  a29=(2.*a29);
+  a22=(a22+a29);
+  a24=(a20-a24);
+  a24=(a24/a23);
+  a22=(a22+a24);
+  a22=(a02*a22);
+  a11=(a11+a22);
+  a28=(a28*a11);
+  a09=(a06+a09);
+  a09=casadi_sq(a09);
+  a09=(a09-a10);
+  a09=(a05*a09);
+  a19=(2.*a19);
+  a21=(a21+a19);
+  a30=(2.*a30);
+  a21=(a21+a30);
+  a15=(a25-a15);
+  a15=(a15/a26);
+  a21=(a21+a15);
+  a21=(a02*a21);
+  a12=(a12+a21);
+  a09=(a09*a12);
+  a28=(a28-a09);
+  a09=(a08*a03);
+  a21=sin(a16);
+  a21=(a14*a21);
+  a09=(a09-a21);
+  a28=(a28-a09);
+  a28=(a28/a13);
+  a09=(a04*a28);
+  a09=(a03+a09);
+  a21=(2.*a09);
+  a21=(a03+a21);
+  a15=(a04*a03);
+  a15=(a16+a15);
+  a30=(a07*a15);
+  a19=(a06-a30);
+  a19=casadi_sq(a19);
+  a19=(a19-a10);
+  a19=(a05*a19);
+  a22=(a20-a11);
+  a22=(a22/a23);
+  a24=(a04*a22);
+  a24=(a11+a24);
+  a19=(a19*a24);
+  a30=(a06+a30);
+  a30=casadi_sq(a30);
+  a30=(a30-a10);
+  a30=(a05*a30);
+  a29=(a25-a12);
+  a29=(a29/a26);
+  a27=(a04*a29);
+  a27=(a12+a27);
+  a30=(a30*a27);
+  a19=(a19-a30);
+  a30=(a08*a09);
+  a15=sin(a15);
+  a15=(a14*a15);
+  a30=(a30-a15);
+  a19=(a19-a30);
+  a19=(a19/a13);
+  a30=(a04*a19);
+  a30=(a03+a30);
+  a15=(2.*a30);
+  a21=(a21+a15);
+  a09=(a04*a09);
+  a09=(a16+a09);
+  a15=(a07*a09);
+  a17=(a06-a15);
+  a17=casadi_sq(a17);
+  a17=(a17-a10);
+  a17=(a05*a17);
+  a24=(a20-a24);
+  a24=(a24/a23);
+  a00=(a04*a24);
+  a00=(a11+a00);
+  a17=(a17*a00);
+  a15=(a06+a15);
+  a15=casadi_sq(a15);
+  a15=(a15-a10);
+  a15=(a05*a15);
+  a27=(a25-a27);
+  a27=(a27/a26);
+  a04=(a04*a27);
+  a04=(a12+a04);
+  a15=(a15*a04);
+  a17=(a17-a15);
+  a15=(a08*a30);
+  a09=sin(a09);
+  a09=(a14*a09);
+  a15=(a15-a09);
+  a17=(a17-a15);
+  a17=(a17/a13);
+  a15=(a01*a17);
+  a15=(a03+a15);
+  a21=(a21+a15);
+  a21=(a02*a21);
+  a21=(a16+a21);
+  if (res[0]!=0) res[0][0]=a21;
+  a19=(2.*a19);
+  a28=(a28+a19);
+  a17=(2.*a17);
+  a28=(a28+a17);
+  a30=(a01*a30);
+  a16=(a16+a30);
+  a07=(a07*a16);
+  a30=(a06-a07);
+  a30=casadi_sq(a30);
+  a30=(a30-a10);
+  a30=(a05*a30);
+  a00=(a20-a00);
+  a00=(a00/a23);
+  a17=(a01*a00);
+  a17=(a11+a17);
+  a30=(a30*a17);
+  a06=(a06+a07);
+  a06=casadi_sq(a06);
+  a06=(a06-a10);
+  a05=(a05*a06);
+  a04=(a25-a04);
+  a04=(a04/a26);
+  a01=(a01*a04);
+  a01=(a12+a01);
+  a05=(a05*a01);
+  a30=(a30-a05);
+  a08=(a08*a15);
+  a16=sin(a16);
+  a14=(a14*a16);
+  a08=(a08-a14);
+  a30=(a30-a08);
+  a30=(a30/a13);
+  a28=(a28+a30);
+  a28=(a02*a28);
+  a03=(a03+a28);
+  if (res[0]!=0) res[0][1]=a03;
+  a24=(2.*a24);
+  a22=(a22+a24);
+  a00=(2.*a00);
+  a22=(a22+a00);
+  a20=(a20-a17);
+  a20=(a20/a23);
+  a22=(a22+a20);
+  a22=(a02*a22);
+  a11=(a11+a22);
+  if (res[0]!=0) res[0][2]=a11;
+  a27=(2.*a27);
+  a29=(a29+a27);
+  a04=(2.*a04);
+  a29=(a29+a04);
+  a25=(a25-a01);
+  a25=(a25/a26);
+  a29=(a29+a25);
+  a02=(a02*a29);
+  a12=(a12+a02);
+  if (res[0]!=0) res[0][3]=a12;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_valve_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f22(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_valve_plant_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_valve_plant_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_valve_plant_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_valve_plant_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_valve_plant_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_valve_plant_n_out(void) { return 1;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_valve_plant_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_valve_plant_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "p_c";
+    case 2: return "T_p";
+    case 3: return "h";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_valve_plant_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_next";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_valve_plant_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_valve_plant_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_valve_plant_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 1;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_valve_plant_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 1*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_null_space:(q,qd)->(Phi_pinv[2],Phi_perp[2],Phi_q_Phi_perp,Phi_pinv_dot[2],Phi_perp_dot[2],Phi_q_dot[1x2]) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
+  a0=3.5999999999999999e-01;
+  a1=1.6000000000000000e-02;
+  a2=arg[0]? arg[0][0] : 0;
+  a2=(a1*a2);
+  a3=(a0-a2);
+  a4=casadi_sq(a3);
+  a5=6.2500000000000000e-02;
+  a4=(a4-a5);
+  a6=casadi_sq(a4);
+  a0=(a0+a2);
+  a2=casadi_sq(a0);
+  a2=(a2-a5);
+  a5=casadi_sq(a2);
+  a6=(a6+a5);
+  a5=(a4/a6);
+  if (res[0]!=0) res[0][0]=a5;
+  a7=(a2/a6);
+  a8=(-a7);
+  if (res[0]!=0) res[0][1]=a8;
+  if (res[1]!=0) res[1][0]=a2;
+  if (res[1]!=0) res[1][1]=a4;
+  a8=-3.2000000000000001e-02;
+  a8=(a8*a3);
+  a8=(a8*a2);
+  a9=3.2000000000000001e-02;
+  a9=(a9*a0);
+  a9=(a9*a4);
+  a8=(a8-a9);
+  if (res[2]!=0) res[2][0]=a8;
+  a3=(2.*a3);
+  a8=arg[1]? arg[1][0] : 0;
+  a1=(a1*a8);
+  a3=(a3*a1);
+  a9=(a3/a6);
+  a5=(a5/a6);
+  a2=(2.*a2);
+  a0=(2.*a0);
+  a0=(a0*a1);
+  a2=(a2*a0);
+  a4=(2.*a4);
+  a4=(a4*a3);
+  a2=(a2-a4);
+  a5=(a5*a2);
+  a9=(a9+a5);
+  a9=(-a9);
+  if (res[3]!=0) res[3][0]=a9;
+  a9=(a0/a6);
+  a7=(a7/a6);
+  a7=(a7*a2);
+  a9=(a9-a7);
+  a9=(-a9);
+  if (res[3]!=0) res[3][1]=a9;
+  if (res[4]!=0) res[4][0]=a0;
+  a3=(-a3);
+  if (res[4]!=0) res[4][1]=a3;
+  a3=-5.1199999999999998e-04;
+  a3=(a3*a8);
+  a3=(-a3);
+  if (res[5]!=0) res[5][0]=a3;
+  a3=5.1199999999999998e-04;
+  a3=(a3*a8);
+  a3=(-a3);
+  if (res[5]!=0) res[5][1]=a3;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_null_space(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f23(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_null_space_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_null_space_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_null_space_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_null_space_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_null_space_n_in(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_null_space_n_out(void) { return 6;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_null_space_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_null_space_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "q";
+    case 1: return "qd";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_null_space_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "Phi_pinv";
+    case 1: return "Phi_perp";
+    case 2: return "Phi_q_Phi_perp";
+    case 3: return "Phi_pinv_dot";
+    case 4: return "Phi_perp_dot";
+    case 5: return "Phi_q_dot";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_null_space_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_null_space_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    case 1: return casadi_s5;
+    case 2: return casadi_s0;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s10;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_null_space_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2;
+  if (sz_res) *sz_res = 6;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_null_space_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 2*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_pneumatic_slotine_li:(z[3],q,qd,ref[6],lam,kd,kpi[3],dt)->(z_next[3],p[2],tau_star,nu) */
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[7]? arg[7][0] : 0;
+  a02=arg[6]? arg[6][0] : 0;
+  a02=(a01*a02);
+  a03=arg[2]? arg[2][0] : 0;
+  a04=arg[3]? arg[3][1] : 0;
+  a05=arg[4]? arg[4][0] : 0;
+  a06=arg[3]? arg[3][0] : 0;
+  a07=arg[1]? arg[1][0] : 0;
+  a06=(a06-a07);
+  a06=(a05*a06);
+  a06=(a04+a06);
+  a06=(a06-a03);
+  a08=(a03*a06);
+  a02=(a02*a08);
+  a02=(a00+a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a02=arg[0]? arg[0][1] : 0;
+  a08=arg[6]? arg[6][1] : 0;
+  a08=(a01*a08);
+  a09=arg[3]? arg[3][2] : 0;
+  a04=(a04-a03);
+  a05=(a05*a04);
+  a09=(a09+a05);
+  a05=(a09*a06);
+  a08=(a08*a05);
+  a08=(a02+a08);
+  if (res[0]!=0) res[0][1]=a08;
+  a08=arg[0]? arg[0][2] : 0;
+  a05=arg[6]? arg[6][2] : 0;
+  a01=(a01*a05);
+  a05=-9.8100000000000005e+00;
+  a04=sin(a07);
+  a05=(a05*a04);
+  a04=(a05*a06);
+  a01=(a01*a04);
+  a01=(a08-a01);
+  if (res[0]!=0) res[0][2]=a01;
+  a01=3.5999999999999999e-01;
+  a04=1.6000000000000000e-02;
+  a04=(a04*a07);
+  a07=(a01-a04);
+  a07=casadi_sq(a07);
+  a10=6.2500000000000000e-02;
+  a07=(a07-a10);
+  a11=casadi_sq(a07);
+  a01=(a01+a04);
+  a01=casadi_sq(a01);
+  a01=(a01-a10);
+  a10=casadi_sq(a01);
+  a11=(a11+a10);
+  a07=(a07/a11);
+  a03=(a03*a00);
+  a09=(a09*a02);
+  a03=(a03+a09);
+  a05=(a05*a08);
+  a03=(a03-a05);
+  a05=arg[5]? arg[5][0] : 0;
+  a05=(a05*a06);
+  a03=(a03+a05);
+  a07=(a07*a03);
+  if (res[1]!=0) res[1][0]=a07;
+  a01=(a01/a11);
+  a01=(a01*a03);
+  a01=(-a01);
+  if (res[1]!=0) res[1][1]=a01;
+  if (res[2]!=0) res[2][0]=a03;
+  a03=0.;
+  if (res[3]!=0) res[3][0]=a03;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_slotine_li(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f24(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_slotine_li_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_pneumatic_slotine_li_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_pneumatic_slotine_li_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_pneumatic_slotine_li_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_pneumatic_slotine_li_n_in(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_pneumatic_slotine_li_n_out(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_pneumatic_slotine_li_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_pneumatic_slotine_li_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "q";
+    case 2: return "qd";
+    case 3: return "ref";
+    case 4: return "lam";
+    case 5: return "kd";
+    case 6: return "kpi";
+    case 7: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_pneumatic_slotine_li_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "p";
+    case 2: return "tau_star";
+    case 3: return "nu";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_slotine_li_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s2;
+    case 1: return casadi_s0;
+    case 2: return casadi_s0;
+    case 3: return casadi_s4;
+    case 4: return casadi_s0;
+    case 5: return casadi_s0;
+    case 6: return casadi_s2;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_slotine_li_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s2;
+    case 1: return casadi_s5;
+    case 2: return casadi_s0;
+    case 3: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_slotine_li_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 8;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_slotine_li_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 8*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_open_loop_stiffness:(z[3],q,qd,ref[6],lam,kd,kpi[3],kinv,dt)->(z_next[3],p[2],tau_star,nu) */
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[8]? arg[8][0] : 0;
+  a02=arg[6]? arg[6][0] : 0;
+  a02=(a01*a02);
+  a03=arg[2]? arg[2][0] : 0;
+  a04=arg[3]? arg[3][1] : 0;
+  a05=arg[4]? arg[4][0] : 0;
+  a06=arg[3]? arg[3][0] : 0;
+  a07=arg[1]? arg[1][0] : 0;
+  a06=(a06-a07);
+  a06=(a05*a06);
+  a06=(a04+a06);
+  a06=(a06-a03);
+  a08=(a03*a06);
+  a02=(a02*a08);
+  a02=(a00+a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a02=arg[0]? arg[0][1] : 0;
+  a08=arg[6]? arg[6][1] : 0;
+  a08=(a01*a08);
+  a09=arg[3]? arg[3][2] : 0;
+  a04=(a04-a03);
+  a05=(a05*a04);
+  a09=(a09+a05);
+  a05=(a09*a06);
+  a08=(a08*a05);
+  a08=(a02+a08);
+  if (res[0]!=0) res[0][1]=a08;
+  a08=arg[0]? arg[0][2] : 0;
+  a05=arg[6]? arg[6][2] : 0;
+  a01=(a01*a05);
+  a05=-9.8100000000000005e+00;
+  a04=sin(a07);
+  a05=(a05*a04);
+  a04=(a05*a06);
+  a01=(a01*a04);
+  a01=(a08-a01);
+  if (res[0]!=0) res[0][2]=a01;
+  a01=3.5999999999999999e-01;
+  a04=1.6000000000000000e-02;
+  a04=(a04*a07);
+  a07=(a01-a04);
+  a10=casadi_sq(a07);
+  a11=6.2500000000000000e-02;
+  a10=(a10-a11);
+  a12=casadi_sq(a10);
+  a01=(a01+a04);
+  a04=casadi_sq(a01);
+  a04=(a04-a11);
+  a11=casadi_sq(a04);
+  a12=(a12+a11);
+  a11=(a10/a12);
+  a03=(a03*a00);
+  a09=(a09*a02);
+  a03=(a03+a09);
+  a05=(a05*a08);
+  a03=(a03-a05);
+  a05=arg[5]? arg[5][0] : 0;
+  a05=(a05*a06);
+  a03=(a03+a05);
+  a11=(a11*a03);
+  a05=arg[7]? arg[7][0] : 0;
+  a06=arg[3]? arg[3][4] : 0;
+  a05=(a05*a06);
+  a06=-3.2000000000000001e-02;
+  a06=(a06*a07);
+  a07=(a06*a11);
+  a08=3.2000000000000001e-02;
+  a08=(a08*a01);
+  a12=(a04/a12);
+  a12=(a12*a03);
+  a01=(a08*a12);
+  a07=(a07+a01);
+  a05=(a05+a07);
+  a06=(a06*a04);
+  a08=(a08*a10);
+  a06=(a06-a08);
+  a05=(a05/a06);
+  a04=(a04*a05);
+  a11=(a11-a04);
+  if (res[1]!=0) res[1][0]=a11;
+  a10=(a10*a05);
+  a12=(a12+a10);
+  a12=(-a12);
+  if (res[1]!=0) res[1][1]=a12;
+  if (res[2]!=0) res[2][0]=a03;
+  a05=(-a05);
+  if (res[3]!=0) res[3][0]=a05;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_open_loop_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f25(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_open_loop_stiffness_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_open_loop_stiffness_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_open_loop_stiffness_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_open_loop_stiffness_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_open_loop_stiffness_n_in(void) { return 9;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_open_loop_stiffness_n_out(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_open_loop_stiffness_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_open_loop_stiffness_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "q";
+    case 2: return "qd";
+    case 3: return "ref";
+    case 4: return "lam";
+    case 5: return "kd";
+    case 6: return "kpi";
+    case 7: return "kinv";
+    case 8: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_open_loop_stiffness_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "p";
+    case 2: return "tau_star";
+    case 3: return "nu";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_open_loop_stiffness_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s2;
+    case 1: return casadi_s0;
+    case 2: return casadi_s0;
+    case 3: return casadi_s4;
+    case 4: return casadi_s0;
+    case 5: return casadi_s0;
+    case 6: return casadi_s2;
+    case 7: return casadi_s0;
+    case 8: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_open_loop_stiffness_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s2;
+    case 1: return casadi_s5;
+    case 2: return casadi_s0;
+    case 3: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_open_loop_stiffness_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 9;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_open_loop_stiffness_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 9*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_theorem5:(z[4],q,qd,sigma,ref[6],lam,kd,kpi[3],ksigma,kinv,dt)->(z_next[4],p[2],tau_star,nu) */
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[10]? arg[10][0] : 0;
+  a02=arg[8]? arg[8][0] : 0;
+  a03=arg[3]? arg[3][0] : 0;
+  a04=arg[4]? arg[4][4] : 0;
+  a03=(a03-a04);
+  a02=(a02*a03);
+  a03=-3.2000000000000001e-02;
+  a04=3.5999999999999999e-01;
+  a05=1.6000000000000000e-02;
+  a06=arg[1]? arg[1][0] : 0;
+  a07=(a05*a06);
+  a08=(a04-a07);
+  a03=(a03*a08);
+  a09=casadi_sq(a08);
+  a10=6.2500000000000000e-02;
+  a09=(a09-a10);
+  a11=casadi_sq(a09);
+  a04=(a04+a07);
+  a07=casadi_sq(a04);
+  a07=(a07-a10);
+  a10=casadi_sq(a07);
+  a11=(a11+a10);
+  a10=(a09/a11);
+  a12=arg[2]? arg[2][0] : 0;
+  a13=arg[7]? arg[7][0] : 0;
+  a14=arg[4]? arg[4][1] : 0;
+  a15=arg[5]? arg[5][0] : 0;
+  a16=arg[4]? arg[4][0] : 0;
+  a16=(a16-a06);
+  a16=(a15*a16);
+  a16=(a14+a16);
+  a16=(a16-a12);
+  a17=(a12*a16);
+  a13=(a13*a17);
+  a17=(a12*a13);
+  a18=arg[0]? arg[0][2] : 0;
+  a19=arg[4]? arg[4][3] : 0;
+  a20=arg[4]? arg[4][2] : 0;
+  a21=(a15*a20);
+  a19=(a19+a21);
+  a19=(a18*a19);
+  a14=(a14-a12);
+  a15=(a15*a14);
+  a20=(a20+a15);
+  a15=arg[7]? arg[7][1] : 0;
+  a14=(a20*a16);
+  a15=(a15*a14);
+  a14=(a20*a15);
+  a19=(a19+a14);
+  a17=(a17+a19);
+  a19=arg[0]? arg[0][3] : 0;
+  a14=-9.8100000000000005e+00;
+  a21=cos(a06);
+  a21=(a21*a12);
+  a21=(a14*a21);
+  a21=(a19*a21);
+  a06=sin(a06);
+  a14=(a14*a06);
+  a06=arg[7]? arg[7][2] : 0;
+  a22=(a14*a16);
+  a06=(a06*a22);
+  a22=(a14*a06);
+  a21=(a21-a22);
+  a17=(a17-a21);
+  a21=arg[6]? arg[6][0] : 0;
+  a22=(a21*a20);
+  a17=(a17+a22);
+  a22=(a10*a17);
+  a23=arg[0]? arg[0][1] : 0;
+  a24=(a12*a23);
+  a20=(a20*a18);
+  a24=(a24+a20);
+  a14=(a14*a19);
+  a24=(a24-a14);
+  a21=(a21*a16);
+  a24=(a24+a21);
+  a08=(2.*a08);
+  a05=(a05*a12);
+  a08=(a08*a05);
+  a21=(a08/a11);
+  a16=(a10/a11);
+  a14=(2.*a07);
+  a20=(2.*a04);
+  a20=(a20*a05);
+  a14=(a14*a20);
+  a05=(2.*a09);
+  a05=(a05*a08);
+  a14=(a14-a05);
+  a16=(a16*a14);
+  a21=(a21+a16);
+  a21=(a24*a21);
+  a22=(a22-a21);
+  a22=(a03*a22);
+  a21=3.2000000000000001e-02;
+  a21=(a21*a04);
+  a04=(a20/a11);
+  a16=(a07/a11);
+  a11=(a16/a11);
+  a11=(a11*a14);
+  a04=(a04-a11);
+  a04=(a24*a04);
+  a17=(a16*a17);
+  a04=(a04+a17);
+  a04=(a21*a04);
+  a22=(a22+a04);
+  a02=(a02-a22);
+  a22=5.1199999999999998e-04;
+  a22=(a22*a12);
+  a16=(a16*a24);
+  a04=(a22*a16);
+  a17=-5.1199999999999998e-04;
+  a17=(a17*a12);
+  a10=(a10*a24);
+  a12=(a17*a10);
+  a04=(a04-a12);
+  a02=(a02-a04);
+  a20=(a03*a20);
+  a08=(a21*a08);
+  a20=(a20+a08);
+  a17=(a17*a07);
+  a22=(a22*a09);
+  a17=(a17+a22);
+  a20=(a20-a17);
+  a20=(a20*a00);
+  a02=(a02-a20);
+  a20=arg[9]? arg[9][0] : 0;
+  a17=arg[4]? arg[4][5] : 0;
+  a20=(a20*a17);
+  a02=(a02-a20);
+  a03=(a03*a07);
+  a21=(a21*a09);
+  a03=(a03-a21);
+  a02=(a02/a03);
+  a02=(a01*a02);
+  a02=(a00+a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a13=(a01*a13);
+  a23=(a23+a13);
+  if (res[0]!=0) res[0][1]=a23;
+  a15=(a01*a15);
+  a18=(a18+a15);
+  if (res[0]!=0) res[0][2]=a18;
+  a01=(a01*a06);
+  a19=(a19-a01);
+  if (res[0]!=0) res[0][3]=a19;
+  a07=(a07*a00);
+  a10=(a10+a07);
+  if (res[1]!=0) res[1][0]=a10;
+  a09=(a09*a00);
+  a09=(a09-a16);
+  if (res[1]!=0) res[1][1]=a09;
+  if (res[2]!=0) res[2][0]=a24;
+  if (res[3]!=0) res[3][0]=a00;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f26(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_theorem5_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_theorem5_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_theorem5_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_theorem5_n_in(void) { return 11;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_theorem5_n_out(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_theorem5_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_theorem5_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "q";
+    case 2: return "qd";
+    case 3: return "sigma";
+    case 4: return "ref";
+    case 5: return "lam";
+    case 6: return "kd";
+    case 7: return "kpi";
+    case 8: return "ksigma";
+    case 9: return "kinv";
+    case 10: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_theorem5_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "p";
+    case 2: return "tau_star";
+    case 3: return "nu";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_theorem5_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    case 1: return casadi_s0;
+    case 2: return casadi_s0;
+    case 3: return casadi_s0;
+    case 4: return casadi_s4;
+    case 5: return casadi_s0;
+    case 6: return casadi_s0;
+    case 7: return casadi_s2;
+    case 8: return casadi_s0;
+    case 9: return casadi_s0;
+    case 10: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_theorem5_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    case 1: return casadi_s5;
+    case 2: return casadi_s0;
+    case 3: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 11;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 11*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_corollary2:(z[4],q,qd,sigma,ref[6],lam,kd,kpi[3],ksigma,dt)->(z_next[4],p[2],tau_star,nu) */
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[9]? arg[9][0] : 0;
+  a02=arg[8]? arg[8][0] : 0;
+  a03=arg[3]? arg[3][0] : 0;
+  a04=arg[4]? arg[4][4] : 0;
+  a03=(a03-a04);
+  a02=(a02*a03);
+  a03=-3.2000000000000001e-02;
+  a04=3.5999999999999999e-01;
+  a05=1.6000000000000000e-02;
+  a06=arg[1]? arg[1][0] : 0;
+  a07=(a05*a06);
+  a08=(a04-a07);
+  a03=(a03*a08);
+  a09=casadi_sq(a08);
+  a10=6.2500000000000000e-02;
+  a09=(a09-a10);
+  a11=casadi_sq(a09);
+  a04=(a04+a07);
+  a07=casadi_sq(a04);
+  a07=(a07-a10);
+  a10=casadi_sq(a07);
+  a11=(a11+a10);
+  a10=(a09/a11);
+  a12=arg[2]? arg[2][0] : 0;
+  a13=arg[7]? arg[7][0] : 0;
+  a14=arg[4]? arg[4][1] : 0;
+  a15=arg[5]? arg[5][0] : 0;
+  a16=arg[4]? arg[4][0] : 0;
+  a16=(a16-a06);
+  a16=(a15*a16);
+  a16=(a14+a16);
+  a16=(a16-a12);
+  a17=(a12*a16);
+  a13=(a13*a17);
+  a17=(a12*a13);
+  a18=arg[0]? arg[0][2] : 0;
+  a19=arg[4]? arg[4][3] : 0;
+  a20=arg[4]? arg[4][2] : 0;
+  a21=(a15*a20);
+  a19=(a19+a21);
+  a19=(a18*a19);
+  a14=(a14-a12);
+  a15=(a15*a14);
+  a20=(a20+a15);
+  a15=arg[7]? arg[7][1] : 0;
+  a14=(a20*a16);
+  a15=(a15*a14);
+  a14=(a20*a15);
+  a19=(a19+a14);
+  a17=(a17+a19);
+  a19=arg[0]? arg[0][3] : 0;
+  a14=-9.8100000000000005e+00;
+  a21=cos(a06);
+  a21=(a21*a12);
+  a21=(a14*a21);
+  a21=(a19*a21);
+  a06=sin(a06);
+  a14=(a14*a06);
+  a06=arg[7]? arg[7][2] : 0;
+  a22=(a14*a16);
+  a06=(a06*a22);
+  a22=(a14*a06);
+  a21=(a21-a22);
+  a17=(a17-a21);
+  a21=arg[6]? arg[6][0] : 0;
+  a22=(a21*a20);
+  a17=(a17+a22);
+  a22=(a10*a17);
+  a23=arg[0]? arg[0][1] : 0;
+  a24=(a12*a23);
+  a20=(a20*a18);
+  a24=(a24+a20);
+  a14=(a14*a19);
+  a24=(a24-a14);
+  a21=(a21*a16);
+  a24=(a24+a21);
+  a08=(2.*a08);
+  a05=(a05*a12);
+  a08=(a08*a05);
+  a21=(a08/a11);
+  a16=(a10/a11);
+  a14=(2.*a07);
+  a20=(2.*a04);
+  a20=(a20*a05);
+  a14=(a14*a20);
+  a05=(2.*a09);
+  a05=(a05*a08);
+  a14=(a14-a05);
+  a16=(a16*a14);
+  a21=(a21+a16);
+  a21=(a24*a21);
+  a22=(a22-a21);
+  a22=(a03*a22);
+  a21=3.2000000000000001e-02;
+  a21=(a21*a04);
+  a04=(a20/a11);
+  a16=(a07/a11);
+  a11=(a16/a11);
+  a11=(a11*a14);
+  a04=(a04-a11);
+  a04=(a24*a04);
+  a17=(a16*a17);
+  a04=(a04+a17);
+  a04=(a21*a04);
+  a22=(a22+a04);
+  a02=(a02-a22);
+  a22=5.1199999999999998e-04;
+  a22=(a22*a12);
+  a16=(a16*a24);
+  a04=(a22*a16);
+  a17=-5.1199999999999998e-04;
+  a17=(a17*a12);
+  a10=(a10*a24);
+  a12=(a17*a10);
+  a04=(a04-a12);
+  a02=(a02-a04);
+  a20=(a03*a20);
+  a08=(a21*a08);
+  a20=(a20+a08);
+  a17=(a17*a07);
+  a22=(a22*a09);
+  a17=(a17+a22);
+  a20=(a20-a17);
+  a20=(a20*a00);
+  a02=(a02-a20);
+  a03=(a03*a07);
+  a21=(a21*a09);
+  a03=(a03-a21);
+  a02=(a02/a03);
+  a02=(a01*a02);
+  a02=(a00+a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a13=(a01*a13);
+  a23=(a23+a13);
+  if (res[0]!=0) res[0][1]=a23;
+  a15=(a01*a15);
+  a18=(a18+a15);
+  if (res[0]!=0) res[0][2]=a18;
+  a01=(a01*a06);
+  a19=(a19-a01);
+  if (res[0]!=0) res[0][3]=a19;
+  a07=(a07*a00);
+  a10=(a10+a07);
+  if (res[1]!=0) res[1][0]=a10;
+  a09=(a09*a00);
+  a09=(a09-a16);
+  if (res[1]!=0) res[1][1]=a09;
+  if (res[2]!=0) res[2][0]=a24;
+  if (res[3]!=0) res[3][0]=a00;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_corollary2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f27(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_corollary2_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_corollary2_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_corollary2_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_corollary2_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_corollary2_n_in(void) { return 10;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_corollary2_n_out(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_corollary2_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_corollary2_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "q";
+    case 2: return "qd";
+    case 3: return "sigma";
+    case 4: return "ref";
+    case 5: return "lam";
+    case 6: return "kd";
+    case 7: return "kpi";
+    case 8: return "ksigma";
+    case 9: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_corollary2_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "p";
+    case 2: return "tau_star";
+    case 3: return "nu";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_corollary2_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    case 1: return casadi_s0;
+    case 2: return casadi_s0;
+    case 3: return casadi_s0;
+    case 4: return casadi_s4;
+    case 5: return casadi_s0;
+    case 6: return casadi_s0;
+    case 7: return casadi_s2;
+    case 8: return casadi_s0;
+    case 9: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_corollary2_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    case 1: return casadi_s5;
+    case 2: return casadi_s0;
+    case 3: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_corollary2_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 10;
+  if (sz_res) *sz_res = 4;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_corollary2_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 10*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_pneumatic_estimator_step:(state[53],y[3])->(state_next[53],sigma_hat,tau_hat,tau_uio,updating) */
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -5297,7 +7845,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_estimator_step_checkout(void) {

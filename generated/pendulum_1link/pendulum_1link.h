@@ -341,6 +341,114 @@ int pendulum_1link_pneumatic_plant_work_bytes(casadi_int *sz_arg, casadi_int* sz
 #define pendulum_1link_pneumatic_plant_SZ_RES 1
 #define pendulum_1link_pneumatic_plant_SZ_IW 0
 #define pendulum_1link_pneumatic_plant_SZ_W 0
+int pendulum_1link_valve_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_valve_plant_checkout(void);
+void pendulum_1link_valve_plant_release(int mem);
+void pendulum_1link_valve_plant_incref(void);
+void pendulum_1link_valve_plant_decref(void);
+casadi_int pendulum_1link_valve_plant_n_in(void);
+casadi_int pendulum_1link_valve_plant_n_out(void);
+casadi_real pendulum_1link_valve_plant_default_in(casadi_int i);
+const char* pendulum_1link_valve_plant_name_in(casadi_int i);
+const char* pendulum_1link_valve_plant_name_out(casadi_int i);
+const casadi_int* pendulum_1link_valve_plant_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_valve_plant_sparsity_out(casadi_int i);
+int pendulum_1link_valve_plant_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_valve_plant_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_valve_plant_SZ_ARG 4
+#define pendulum_1link_valve_plant_SZ_RES 1
+#define pendulum_1link_valve_plant_SZ_IW 0
+#define pendulum_1link_valve_plant_SZ_W 0
+int pendulum_1link_null_space(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_null_space_checkout(void);
+void pendulum_1link_null_space_release(int mem);
+void pendulum_1link_null_space_incref(void);
+void pendulum_1link_null_space_decref(void);
+casadi_int pendulum_1link_null_space_n_in(void);
+casadi_int pendulum_1link_null_space_n_out(void);
+casadi_real pendulum_1link_null_space_default_in(casadi_int i);
+const char* pendulum_1link_null_space_name_in(casadi_int i);
+const char* pendulum_1link_null_space_name_out(casadi_int i);
+const casadi_int* pendulum_1link_null_space_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_null_space_sparsity_out(casadi_int i);
+int pendulum_1link_null_space_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_null_space_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_null_space_SZ_ARG 2
+#define pendulum_1link_null_space_SZ_RES 6
+#define pendulum_1link_null_space_SZ_IW 0
+#define pendulum_1link_null_space_SZ_W 0
+int pendulum_1link_pneumatic_slotine_li(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_pneumatic_slotine_li_checkout(void);
+void pendulum_1link_pneumatic_slotine_li_release(int mem);
+void pendulum_1link_pneumatic_slotine_li_incref(void);
+void pendulum_1link_pneumatic_slotine_li_decref(void);
+casadi_int pendulum_1link_pneumatic_slotine_li_n_in(void);
+casadi_int pendulum_1link_pneumatic_slotine_li_n_out(void);
+casadi_real pendulum_1link_pneumatic_slotine_li_default_in(casadi_int i);
+const char* pendulum_1link_pneumatic_slotine_li_name_in(casadi_int i);
+const char* pendulum_1link_pneumatic_slotine_li_name_out(casadi_int i);
+const casadi_int* pendulum_1link_pneumatic_slotine_li_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_pneumatic_slotine_li_sparsity_out(casadi_int i);
+int pendulum_1link_pneumatic_slotine_li_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_pneumatic_slotine_li_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_pneumatic_slotine_li_SZ_ARG 8
+#define pendulum_1link_pneumatic_slotine_li_SZ_RES 4
+#define pendulum_1link_pneumatic_slotine_li_SZ_IW 0
+#define pendulum_1link_pneumatic_slotine_li_SZ_W 0
+int pendulum_1link_open_loop_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_open_loop_stiffness_checkout(void);
+void pendulum_1link_open_loop_stiffness_release(int mem);
+void pendulum_1link_open_loop_stiffness_incref(void);
+void pendulum_1link_open_loop_stiffness_decref(void);
+casadi_int pendulum_1link_open_loop_stiffness_n_in(void);
+casadi_int pendulum_1link_open_loop_stiffness_n_out(void);
+casadi_real pendulum_1link_open_loop_stiffness_default_in(casadi_int i);
+const char* pendulum_1link_open_loop_stiffness_name_in(casadi_int i);
+const char* pendulum_1link_open_loop_stiffness_name_out(casadi_int i);
+const casadi_int* pendulum_1link_open_loop_stiffness_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_open_loop_stiffness_sparsity_out(casadi_int i);
+int pendulum_1link_open_loop_stiffness_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_open_loop_stiffness_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_open_loop_stiffness_SZ_ARG 9
+#define pendulum_1link_open_loop_stiffness_SZ_RES 4
+#define pendulum_1link_open_loop_stiffness_SZ_IW 0
+#define pendulum_1link_open_loop_stiffness_SZ_W 0
+int pendulum_1link_theorem5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_theorem5_checkout(void);
+void pendulum_1link_theorem5_release(int mem);
+void pendulum_1link_theorem5_incref(void);
+void pendulum_1link_theorem5_decref(void);
+casadi_int pendulum_1link_theorem5_n_in(void);
+casadi_int pendulum_1link_theorem5_n_out(void);
+casadi_real pendulum_1link_theorem5_default_in(casadi_int i);
+const char* pendulum_1link_theorem5_name_in(casadi_int i);
+const char* pendulum_1link_theorem5_name_out(casadi_int i);
+const casadi_int* pendulum_1link_theorem5_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_theorem5_sparsity_out(casadi_int i);
+int pendulum_1link_theorem5_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_theorem5_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_theorem5_SZ_ARG 11
+#define pendulum_1link_theorem5_SZ_RES 4
+#define pendulum_1link_theorem5_SZ_IW 0
+#define pendulum_1link_theorem5_SZ_W 0
+int pendulum_1link_corollary2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_corollary2_checkout(void);
+void pendulum_1link_corollary2_release(int mem);
+void pendulum_1link_corollary2_incref(void);
+void pendulum_1link_corollary2_decref(void);
+casadi_int pendulum_1link_corollary2_n_in(void);
+casadi_int pendulum_1link_corollary2_n_out(void);
+casadi_real pendulum_1link_corollary2_default_in(casadi_int i);
+const char* pendulum_1link_corollary2_name_in(casadi_int i);
+const char* pendulum_1link_corollary2_name_out(casadi_int i);
+const casadi_int* pendulum_1link_corollary2_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_corollary2_sparsity_out(casadi_int i);
+int pendulum_1link_corollary2_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_corollary2_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_corollary2_SZ_ARG 10
+#define pendulum_1link_corollary2_SZ_RES 4
+#define pendulum_1link_corollary2_SZ_IW 0
+#define pendulum_1link_corollary2_SZ_W 0
 int pendulum_1link_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pendulum_1link_pneumatic_estimator_step_checkout(void);
 void pendulum_1link_pneumatic_estimator_step_release(int mem);

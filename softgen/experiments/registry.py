@@ -22,6 +22,7 @@ _MODULES = {
     "ch7-noninvasive-2dof": ".ch7_noninvasive:EXPERIMENT_2DOF",
     "ch6-electric-protocol": ".ch6_electric_protocol",
     "ch7-noninvasive-protocol": ".ch7_noninvasive_protocol",
+    "ch10-pneumatic-adaptive": ".ch10_pneumatic_adaptive",
 }
 
 

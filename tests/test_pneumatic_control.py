@@ -1,0 +1,251 @@
+"""Chapter-10 controllers: null-space identities, Theorem 5's stiffness law, loops, feasibility."""
+from __future__ import annotations
+
+import warnings
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from softgen.control.feasibility import PressureWarning, check_pressures
+from softgen.control.pneumatic import KINDS, pneumatic_arm
+from softgen.control.pneumatic_loop import closed_loop_fun
+from softgen.control.references import SmoothSteps
+from softgen.errors import ModelError
+from softgen.model import load_model
+
+SPECIAL = (0.0, 1e-12, 1e-6, 1e-3)
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return pneumatic_arm(load_model("planar_2link_mckibben"))
+
+
+@pytest.fixture(scope="module")
+def arm1():
+    return pneumatic_arm(load_model("gioste_1link"))
+
+
+@pytest.fixture(scope="module")
+def derived(arm):
+    return arm.derived_fun()
+
+
+def _qs(rng, n):
+    return [rng.uniform(-0.5, 0.5, n) for _ in range(5)] + [np.full(n, v) for v in SPECIAL]
+
+
+def test_pinv_and_null_space_identities(arm, derived):
+    rng = np.random.default_rng(0)
+    phi = ca.Function("phi", [q := ca.SX.sym("q", 2)], [arm.act.Phi(q), arm.act.Phi_q(q)])
+    for q in _qs(rng, 2):
+        P, N, M, *_ = (np.array(o) for o in derived(q, np.zeros(2)))
+        Phi, Phi_q = (np.array(o) for o in phi(q))
+        assert np.allclose(Phi @ P, np.eye(2), atol=1e-12)
+        assert np.allclose(P, np.linalg.pinv(Phi), rtol=1e-10, atol=1e-12)
+        assert np.allclose(Phi @ N, 0, atol=1e-15)
+        assert np.allclose(M, Phi_q @ N, atol=1e-15)
+        assert np.allclose(M, np.diag(np.diag(M)))
+        # Never singular for l_n > l_min (NOTES section 2 item 5).
+        assert np.all(np.abs(np.diag(M)) > 1e-4)
+
+
+def test_chain_rule_rates_match_finite_differences(derived):
+    rng = np.random.default_rng(1)
+    h = 1e-6
+    for _ in range(4):
+        q, qd = rng.uniform(-0.5, 0.5, 2), rng.uniform(-2, 2, 2)
+        out = [np.array(o) for o in derived(q, qd)]
+        plus = [np.array(o) for o in derived(q + h * qd, qd)]
+        minus = [np.array(o) for o in derived(q - h * qd, qd)]
+        for k, rate in ((0, 3), (1, 4)):    # Φ^† and Φ^⊥ against their chain-rule rates
+            fd = (plus[k] - minus[k]) / (2 * h)
+            assert np.allclose(out[rate], fd, rtol=1e-6, atol=1e-9)
+
+
+def _inputs(arm, rng, kind):
+    n, k = arm.n, arm.n_params
+    vals = {
+        "q": rng.uniform(-0.4, 0.4, n), "qd": rng.uniform(-1, 1, n),
+        "sigma": rng.uniform(1, 4, n),
+        "ref": np.concatenate([rng.uniform(-0.4, 0.4, n), rng.uniform(-1, 1, 3 * n),
+                               rng.uniform(1, 4, n), rng.uniform(-1, 1, n)]),
+        "lam": rng.uniform(1, 10, n), "kd": rng.uniform(1, 20, n),
+        "kpi": rng.uniform(0, 40, k), "ksigma": rng.uniform(10, 500, n),
+        "kinv": 1 / arm.act.K * rng.uniform(0.8, 1.2, n), "dt": 1e-3,
+    }
+    nz = n + k if kind in ("theorem5", "corollary2") else k
+    vals["z"] = np.concatenate([rng.uniform(-1e3, 1e3, nz - k),
+                                arm.Pi_nominal * rng.uniform(0.8, 1.2, k)])
+    return vals
+
+
+def test_null_space_never_changes_the_torque(arm):
+    """Φ p = τ_* for every controller: ν only moves the stiffness (eq. 10.3)."""
+    rng = np.random.default_rng(2)
+    phi = ca.Function("phi", [q := ca.SX.sym("q", 2)], [arm.act.Phi(q)])
+    for kind in KINDS:
+        f = arm.step_fun(kind)
+        for _ in range(3):
+            v = _inputs(arm, rng, kind)
+            out = f.call({k: v[k] for k in f.name_in()})
+            Phi = np.array(phi(v["q"]))
+            assert np.allclose(Phi @ np.array(out["p"]).ravel(),
+                               np.array(out["tau_star"]).ravel(), rtol=1e-10, atol=1e-9), kind
+
+
+def test_open_loop_stiffness_is_exact_with_the_true_gain(arm):
+    rng = np.random.default_rng(3)
+    f = arm.step_fun("open_loop")
+    q = ca.SX.sym("q", 2)
+    p = ca.SX.sym("p", 4)
+    sig = ca.Function("s", [q, p], [arm.act.stiffness(q, p)])
+    for _ in range(3):
+        v = _inputs(arm, rng, "open_loop")
+        v["kinv"] = 1 / arm.act.K
+        out = f.call({k: v[k] for k in f.name_in()})
+        got = np.array(sig(v["q"], out["p"])).ravel()
+        assert np.allclose(got, v["ref"][8:10], rtol=1e-10)
+
+
+def _theorem5_stiffness_rate(arm, kind):
+    """Independent check of eq. 10.1: differentiate the commanded p numerically along a
+    motion with q̈ = 0 (the path Theorem 5 omits) and form u_σ = −Φ̇_q p − Φ_q ṗ."""
+    rng = np.random.default_rng(4)
+    f = arm.step_fun(kind)
+    n = arm.n
+    q_s, qd_s = ca.SX.sym("q", n), ca.SX.sym("qd", n)
+    phi_q = ca.Function("pq", [q_s], [arm.act.Phi_q(q_s)])
+    phi_q_dot = ca.Function("pqd", [q_s, qd_s], [ca.jtimes(arm.act.Phi_q(q_s), q_s, qd_s)])
+    for _ in range(4):
+        v = _inputs(arm, rng, kind)
+        dt = v["dt"]
+
+        def run(vv):
+            return f.call({k: vv[k] for k in f.name_in()})
+
+        out = run(v)
+        zdot = (np.array(out["z_next"]).ravel() - v["z"]) / dt
+        ref = v["ref"]
+        ref_rate = np.concatenate([ref[n:4 * n], np.zeros(n), ref[5 * n:], np.zeros(n)])
+        h = 1e-6
+
+        def shifted(sign):
+            w = dict(v)
+            w["q"] = v["q"] + sign * h * v["qd"]
+            w["z"] = v["z"] + sign * h * zdot
+            w["ref"] = ref + sign * h * ref_rate
+            # σ_d and its rate enter p only through ν̇, not p itself: keep σ_d's shift.
+            return np.array(run(w)["p"]).ravel()
+
+        p = np.array(out["p"]).ravel()
+        p_dot = (shifted(1) - shifted(-1)) / (2 * h)
+        u_sigma = -np.array(phi_q_dot(v["q"], v["qd"])) @ p - np.array(phi_q(v["q"])) @ p_dot
+        sigma_d, sigmad_d = ref[4 * n:5 * n], ref[5 * n:]
+        want = -v["ksigma"] * (v["sigma"] - sigma_d)
+        if kind == "theorem5":
+            want = want + v["kinv"] * sigmad_d
+        assert np.allclose(u_sigma, want, rtol=1e-5, atol=1e-6 * np.abs(want).max())
+
+
+def test_theorem5_realises_the_stiffness_law(arm):
+    """K⁻¹σ̇ = K⁻¹σ̇_d − K_σ(σ − σ_d) (eq. 10.6) along motions without acceleration."""
+    _theorem5_stiffness_rate(arm, "theorem5")
+
+
+def test_corollary2_realises_the_stiffness_law_without_k(arm):
+    _theorem5_stiffness_rate(arm, "corollary2")
+    assert "kinv" not in arm.step_fun("corollary2").name_in()
+
+
+def test_steps_are_finite_at_and_near_zero(arm):
+    rng = np.random.default_rng(5)
+    for kind in KINDS:
+        f = arm.step_fun(kind)
+        for v0 in SPECIAL:
+            v = _inputs(arm, rng, kind)
+            v["q"] = np.full(2, v0)
+            v["qd"] = np.full(2, v0)
+            v["ref"] = np.full(12, v0)
+            out = f.call({k: v[k] for k in f.name_in()})
+            for o in out.values():
+                assert np.all(np.isfinite(np.array(o))), (kind, v0)
+
+
+def test_one_link_regressor_is_the_thesis_one(arm1):
+    """Section 10.3.3: Y_* = (q̈_1r, sin q_1), Π = ((I + m l²/4)/K, m g l/2/K)."""
+    q = ca.SX.sym("q")
+    Y, known = arm1.regressor_star(q, ca.SX.sym("qd"), ca.SX.sym("qdr"), qddr := ca.SX.sym("a"))
+    assert known is None
+    f = ca.Function("Y", [q, qddr], [Y])
+    mass, com, inertia = 0.44, 0.165, 0.004        # models/gioste_1link.toml
+    I_joint = inertia + mass * com ** 2
+    for qq, a in ((0.3, 1.2), (-1.0, -0.4)):
+        y = np.array(f(qq, a)).ravel()
+        tau = y @ arm1.Pi_nominal * arm1.K1
+        assert tau == pytest.approx(I_joint * a + mass * 9.81 * com * np.sin(qq),
+                                    rel=1e-12)
+
+
+def test_closed_loop_tracks_and_keeps_stiffness(arm):
+    """Exact Π̂: q follows a smoothed step and σ stays at σ_d (ideal plant, 3 s)."""
+    steps, dt = 3000, 1e-3
+    f = closed_loop_fun(arm, "theorem5", plant="ideal", steps=steps)
+    t = np.arange(steps) * dt
+    r = SmoothSteps((0, 0.2), (0.0, 0.1), 1.5).check()(t)
+    ref = np.zeros((12, steps))
+    for d in range(4):
+        ref[2 * d] = r[d]
+    ref[8:10] = 2.5
+    ol = arm.step_fun("open_loop")
+    n = 2
+    lam, kd = np.full(n, 15.0), np.full(n, 18.0)
+    kinv = 1 / arm.act.K
+    out = ol(arm.Pi_nominal, np.zeros(n), np.zeros(n), ref[:, 0], lam, kd, np.zeros(5), kinv, dt)
+    p0, nu0 = np.array(out[1]).ravel(), np.array(out[3]).ravel()
+    X, Z, P, S = (np.array(o) for o in f(np.r_[np.zeros(4), p0], np.r_[nu0, arm.Pi_nominal],
+                                        ref, lam, kd, np.full(5, 35.0),
+                                        np.full(n, 2 / arm.K1), kinv, np.ones(4), dt))
+    assert np.all(np.isfinite(X))
+    assert abs(X[0, -1] - 0.1) < 1e-3
+    assert np.max(np.abs(S - 2.5)) < 0.05
+    assert np.all(P > 0)
+
+
+def test_bad_inputs_are_clear_errors(arm):
+    with pytest.raises(ValueError, match="kind: expected one of"):
+        arm.step_fun("theorem6")
+    with pytest.raises(ModelError, match="McKibben"):
+        pneumatic_arm(load_model("planar_2link"))
+    with pytest.raises(ValueError, match="plant: expected"):
+        closed_loop_fun(arm, "theorem5", plant="magic", steps=2)
+
+
+def test_infeasible_pressure_warns_with_joint_and_time():
+    t = np.arange(10) * 0.1
+    p = np.full((10, 4), 1e5)
+    p[3:6, 2] = -2e4
+    with pytest.warns(PressureWarning, match=r"joint 2 muscle a.*t = 0\.3 s to t = 0\.5 s"):
+        v = check_pressures(t, p, [8e5, 8e5], label="x")
+    assert len(v) == 1 and v[0].worst == -2e4 and v[0].bound == 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert check_pressures(t, np.full((10, 4), 1e5), [8e5, 8e5]) == []
+    p[7, 1] = 9e5
+    assert [x.joint for x in check_pressures(t, p, [8e5, 8e5], warn=False)] == [2, 1]
+    with pytest.raises(ValueError, match="expected shape"):
+        check_pressures(t, p[:, :3], 8e5)
+
+
+def test_smooth_steps_derivatives_are_consistent():
+    r = SmoothSteps((0, 1.0, 5.0), (0.0, 1.0, -2.0), 2.0).check()
+    t = np.linspace(0, 9, 90001)
+    v = r(t)
+    h = t[1] - t[0]
+    for d in range(3):
+        fd = np.gradient(v[d], h)
+        assert np.max(np.abs(fd - v[d + 1])[1:-1]) < 1e-2 * max(1.0, np.abs(v[d + 1]).max())
+    assert v[0, 0] == 0 and v[0, -1] == pytest.approx(-2.0)
+    with pytest.raises(ValueError, match="rise"):
+        SmoothSteps((0, 1), (0, 1), 0.0).check()
