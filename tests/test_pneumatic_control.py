@@ -109,12 +109,16 @@ def test_open_loop_stiffness_is_exact_with_the_true_gain(arm):
         assert np.allclose(got, v["ref"][8:10], rtol=1e-10)
 
 
-def _theorem5_stiffness_rate(arm, kind):
+def _theorem5_stiffness_rate(arm, kind, exact_motion=False):
     """Independent check of eq. 10.1: differentiate the commanded p numerically along a
-    motion with q̈ = 0 (the path Theorem 5 omits) and form u_σ = −Φ̇_q p − Φ_q ṗ."""
+    motion and form u_σ = −Φ̇_q p − Φ_q ṗ. The motion has q̈ = 0 (the path Theorem 5
+    omits) or, with ``exact_motion``, the q̈ the plant gets from p (Π̂ = Π)."""
     rng = np.random.default_rng(4)
     f = arm.step_fun(kind)
     n = arm.n
+    tau_s = ca.SX.sym("tau", n)
+    fwd = ca.Function("fwd", [arm.dyn.nominal.q, arm.dyn.nominal.qd, tau_s],
+                      [arm.dyn.forward_dynamics_expr(tau_s)])
     q_s, qd_s = ca.SX.sym("q", n), ca.SX.sym("qd", n)
     phi_q = ca.Function("pq", [q_s], [arm.act.Phi_q(q_s)])
     phi_q_dot = ca.Function("pqd", [q_s, qd_s], [ca.jtimes(arm.act.Phi_q(q_s), q_s, qd_s)])
@@ -125,7 +129,13 @@ def _theorem5_stiffness_rate(arm, kind):
         def run(vv):
             return f.call({k: vv[k] for k in f.name_in()})
 
+        if exact_motion:
+            v["z"][n:] = arm.Pi_nominal
         out = run(v)
+        qdd = np.zeros(n)
+        if exact_motion:
+            tau = arm.act.K * np.array(out["tau_star"]).ravel()
+            qdd = np.array(fwd(v["q"], v["qd"], tau)).ravel()
         zdot = (np.array(out["z_next"]).ravel() - v["z"]) / dt
         ref = v["ref"]
         ref_rate = np.concatenate([ref[n:4 * n], np.zeros(n), ref[5 * n:], np.zeros(n)])
@@ -134,6 +144,7 @@ def _theorem5_stiffness_rate(arm, kind):
         def shifted(sign):
             w = dict(v)
             w["q"] = v["q"] + sign * h * v["qd"]
+            w["qd"] = v["qd"] + sign * h * qdd
             w["z"] = v["z"] + sign * h * zdot
             w["ref"] = ref + sign * h * ref_rate
             # σ_d and its rate enter p only through ν̇, not p itself: keep σ_d's shift.
@@ -152,6 +163,19 @@ def _theorem5_stiffness_rate(arm, kind):
 def test_theorem5_realises_the_stiffness_law(arm):
     """K⁻¹σ̇ = K⁻¹σ̇_d − K_σ(σ − σ_d) (eq. 10.6) along motions without acceleration."""
     _theorem5_stiffness_rate(arm, "theorem5")
+
+
+def test_model_acceleration_realises_the_law_along_the_true_motion(arm):
+    """With q̈ from the adapted model (exact here), the law holds with q̈ ≠ 0 too."""
+    model_arm = pneumatic_arm(arm.model, acceleration="model")
+    _theorem5_stiffness_rate(model_arm, "theorem5", exact_motion=True)
+    assert model_arm.step_fun("theorem5").name().endswith("_theorem5_model_acceleration")
+
+
+def test_omitted_acceleration_path_is_visible_along_the_true_motion(arm):
+    """The thesis's law (q̈ path omitted) does not hold exactly once q̈ ≠ 0."""
+    with pytest.raises(AssertionError):
+        _theorem5_stiffness_rate(arm, "theorem5", exact_motion=True)
 
 
 def test_corollary2_realises_the_stiffness_law_without_k(arm):
@@ -218,6 +242,8 @@ def test_bad_inputs_are_clear_errors(arm):
         arm.step_fun("theorem6")
     with pytest.raises(ModelError, match="McKibben"):
         pneumatic_arm(load_model("planar_2link"))
+    with pytest.raises(ValueError, match="acceleration: expected"):
+        pneumatic_arm(arm.model, acceleration="measured")
     with pytest.raises(ValueError, match="plant: expected"):
         closed_loop_fun(arm, "theorem5", plant="magic", steps=2)
 

@@ -29,7 +29,9 @@ adaptation law) and the references (their next derivative, so q_d must be C³).
 q̈, which the thesis avoids (section 10.3.3: "no information regarding the
 acceleration is necessary"). It is dropped here too, so the stiffness loop sees
 −Φ_q Φ^† (∂τ_*/∂q̇) q̈ as a disturbance that K_σ rejects: the short stiffness
-transients at position changes of Fig. 10.2 and 10.14(c).
+transients at position changes of Fig. 10.2 and 10.14(c). ``acceleration="model"``
+closes that path with the q̈ of the adapted model instead (:data:`ACCELERATION`); its
+functions carry the suffix ``_model_acceleration``.
 
 Every step integrates its states by forward Euler over the sample ``dt`` and holds p
 (zero-order hold). Gains are diagonal and passed as vectors.
@@ -49,6 +51,11 @@ from ..symbolic.rigid import FUNCTION_OPTS, RigidDynamics
 #: Reference layout of every step: q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d (n each).
 REFERENCE_BLOCKS = ("q_d", "qd_d", "qdd_d", "qddd_d", "sigma_d", "sigmad_d")
 
+#: How d/dt(Φ^† τ_*) treats its q̇ dependence: "omit" drops the q̈ path (the thesis,
+#: section 10.3.3); "model" closes it with q̈ from the adapted model, M̂(q) q̈ =
+#: τ_* − Y_*(q, q̇, q̇, 0) Π̂, since Φ p = τ_* makes Y_*(q, q̇, q̇, q̈) Π = τ_*.
+ACCELERATION = ("omit", "model")
+
 #: Controller kinds -> generated function suffix.
 KINDS = {
     "prop11": "pneumatic_slotine_li",
@@ -62,7 +69,11 @@ class PneumaticArm:
     """Symbolic core of the chapter-10 controllers for one McKibben-driven model."""
 
     def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None,
-                 act: McKibbenPairs | None = None):
+                 act: McKibbenPairs | None = None, acceleration: str = "omit"):
+        if acceleration not in ACCELERATION:
+            raise ValueError(f"acceleration: expected one of {', '.join(ACCELERATION)}, "
+                             f"got {acceleration!r}")
+        self.acceleration = acceleration
         self.model = model
         self.dyn = dyn or RigidDynamics(model)
         self.act = act or McKibbenPairs(model)
@@ -116,6 +127,15 @@ class PneumaticArm:
             tau_star = tau_star + known
         return tau_star, Y.T @ s, s
 
+    def model_acceleration(self, q, qd, Pi_hat, tau_star):
+        """q̈ the adapted model predicts under τ_* (see :data:`ACCELERATION`)."""
+        a = ca.SX.sym("a", self.n)
+        Y, known = self.regressor_star(q, qd, qd, a)
+        lhs = Y @ Pi_hat + (known if known is not None else 0)
+        M = ca.jacobian(lhs, a)                      # K⁻¹ B̂(q): lhs is affine in q̈
+        bias = ca.substitute(lhs, a, ca.DM.zeros(self.n))
+        return ca.solve(M, tau_star - bias)
+
     def open_loop_nu(self, q, tau_star, sigma_d, kinv):
         """ν making the model's stiffness −K̂ Φ_q p equal σ_d at p = Φ^†τ_* + Φ^⊥ν."""
         a = self.act
@@ -133,6 +153,8 @@ class PneumaticArm:
         ref_pos = ref[:3 * n]
         ref_rate = ref[n:4 * n]
         g_dot = ca.jtimes(g, ca.vertcat(q, Pi_hat, ref_pos), ca.vertcat(qd, Pi_dot, ref_rate))
+        if self.acceleration == "model":
+            g_dot = g_dot + ca.jtimes(g, qd, self.model_acceleration(q, qd, Pi_hat, tau_star))
         Phi_q, N = a.Phi_q(q), a.null_basis(q)
         Phi_q_dot, N_dot = ca.jtimes(Phi_q, q, qd), ca.jtimes(N, q, qd)
         sigma_d, sigmad_d = ref[4 * n:5 * n], ref[5 * n:]
@@ -197,7 +219,9 @@ class PneumaticArm:
                 names.append("kinv")
             ins.append(dt)
             names.append("dt")
-        return ca.Function(f"{self.name}_{KINDS[kind]}", ins,
+        suffix = "_model_acceleration" if self.acceleration == "model" and \
+            kind in ("theorem5", "corollary2") else ""
+        return ca.Function(f"{self.name}_{KINDS[kind]}{suffix}", ins,
                            [z_next, p, tau_star, ca.densify(ca.SX(nu))], names,
                            ["z_next", "p", "tau_star", "nu"], FUNCTION_OPTS)
 
@@ -228,10 +252,10 @@ class PneumaticArm:
         ]
 
 
-def pneumatic_arm(model: RobotModel) -> PneumaticArm:
+def pneumatic_arm(model: RobotModel, *, acceleration: str = "omit") -> PneumaticArm:
     """:class:`PneumaticArm` of ``model``, or one clear error if it has no McKibben pairs."""
     if model.actuator_type != "mckibben":
         got = model.actuator_type or "no [[actuators]]"
         raise ModelError(f"{model.name}: the chapter-10 controllers need McKibben pairs "
                          f"(type = \"mckibben\") on every joint, got {got}")
-    return PneumaticArm(model)
+    return PneumaticArm(model, acceleration=acceleration)

@@ -43,7 +43,7 @@ def _ideal_plant(arm: PneumaticArm, substeps: int) -> ca.Function:
 
 def closed_loop_fun(arm: PneumaticArm, kind: str, *, plant: str, steps: int,
                     substeps: int = 1) -> ca.Function:
-    """``<model>_<kind>_loop_<plant>``: ``steps`` samples of controller + plant.
+    """``<controller step name>_loop_<plant>``: ``steps`` samples of controller + plant.
 
     Inputs: ``x0`` (4n: q, q̇, p), ``z0`` (controller state), ``ref`` (6n × steps),
     ``lam, kd`` (n), ``kpi`` (κ), ``ksigma, kinv`` (n; ignored by controllers that do
@@ -85,7 +85,7 @@ def closed_loop_fun(arm: PneumaticArm, kind: str, *, plant: str, steps: int,
             (("lam", n), ("kd", n), ("kpi", k), ("ksigma", n), ("kinv", n), ("T_p", 2 * n),
              ("dt", 1))]
     XZ, P, S = loop(ca.vertcat(X0, Z0), R, *syms)
-    return ca.Function(f"{arm.name}_{KINDS[kind]}_loop_{plant}", [X0, Z0, R, *syms],
+    return ca.Function(f"{ctrl.name()}_loop_{plant}", [X0, Z0, R, *syms],
                        [XZ[:4 * n, :], XZ[4 * n:, :], P, S],
                        ["x0", "z0", "ref", "lam", "kd", "kpi", "ksigma", "kinv", "T_p", "dt"],
                        ["x", "z", "p_cmd", "sigma"])
