@@ -23,6 +23,9 @@ _MODULES = {
     "ch6-electric-protocol": ".ch6_electric_protocol",
     "ch7-noninvasive-protocol": ".ch7_noninvasive_protocol",
     "ch10-pneumatic-adaptive": ".ch10_pneumatic_adaptive",
+    "ch10-feedback-linearization": ".ch10_feedback_linearization",
+    "ch10-gioste-1dof": ".ch10_gioste:EXPERIMENT_1DOF",
+    "ch10-gioste-2dof": ".ch10_gioste:EXPERIMENT_2DOF",
 }
 
 

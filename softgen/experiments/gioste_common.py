@@ -1,0 +1,842 @@
+"""Emulated GioSte hardware (thesis section 10.3) and the closed loop that drives it.
+
+The thesis ran its chapter-10 controllers on GioSte, a pneumatic arm with one or two
+joints, each driven by an antagonistic McKibben pair through SMC ITV-2050 valves
+(0-6 V) and read by HEDS-5500 encoders. That hardware is emulated here from what
+the thesis identified on it; the controllers keep their own, different, actuator
+model (``models/gioste_*.toml``: Table 10.1 muscles), so the mismatch between the
+two is the "residual inaccuracy of the actuator model" of section 10.3.4.
+
+Emulated hardware (every choice, and why)
+-----------------------------------------
+Valves (eq. 10.10)
+    Steady-state pressure p = (c₂V² + c₁V + c₀)·10⁵ Pa per muscle. The controller's
+    pressure command is turned into a voltage by the inverse of this map and clipped
+    to [0, 6] V (:meth:`ValveMap.voltage`). Below V₀ = f⁻¹(0) ≈ 0.5-0.6 V the fit
+    gives a negative gauge pressure, which a regulator fed from a compressor cannot
+    make: the valve's target pressure is max(f(V), 0). The pressure in the muscle
+    follows the target as a first-order lag (time constant ``valve_tau``, 0.15 s by
+    default: the ITV-2050 is specified at about 0.1 s without load, and the thesis
+    "adjusted the pressure response time" to stop chattering, i.e. made it no faster)
+    after a transport delay (``valve_delay``, 10 ms by default: the pilot stage and
+    the tubing).
+Torque (eq. 10.11 and section 10.3.5)
+    τ_i = A_i(q_i) V_i,a − B_i(q_i) V_i,b with the identified quadratics. The maps
+    were fitted from steady states, where the muscle pressure equals the valve
+    target, so here they are evaluated at the voltage *equivalent* to the actual
+    (lagged) pressure, V_eq = f⁻¹(p_actual): the torque follows the air in the
+    muscle, not the command. V_eq ≥ V₀ because p ≥ 0. Joint 1 of the two-link arm
+    uses the shoulder maps of section 10.3.5, every other joint the one-link maps,
+    and every muscle of joint i the valve maps of eq. 10.10 (section 10.3.5 says so).
+Stiffness: two of them
+    Eq. 10.11 also gives an identified stiffness map S_i(q, V) = S_a(q) V_a + S_b(q)
+    V_b, but it is not −∂τ/∂q of the torque map: at fixed voltages
+    −∂τ_i/∂q_i = −A_i'(q) V_a + B_i'(q) V_b, e.g. (2.34 + 1.42 q) V_a + (2.07 − 1.16 q)
+    V_b for the one-link arm against the map's (2.34 − 0.57 q) V_a + (2.07 + 0.57 q)
+    V_b. Both agree at q = 0 (the map is the linearisation there) and differ
+    elsewhere. The emulated arm's *physical* stiffness is −∂τ/∂q at the actual
+    pressures (:meth:`JointMaps.sigma_physical`); the controller, like the thesis's,
+    "measures" σ as the identified map S at the measured angle and the voltages it
+    commanded the sample before (:meth:`JointMaps.sigma_identified`): there was no
+    stiffness sensor on GioSte. Metrics report both.
+Links
+    The controller's model values (``models/gioste_*.toml``: section 10.4 links,
+    angles from the downward vertical): the thesis gives none for GioSte and fitted
+    its torque maps against m g l/2 sin q with them, so the emulation's only
+    mismatch is in the actuator. Viscous joint friction ``friction`` (default
+    0.05 N m s/rad per joint: the bearings and the braid of the muscles) is added
+    to the plant; the controller does not know it (the thesis neglects it, section
+    10.3.3). Without it the lightly damped one-link mode (about 25 rad/s at
+    σ = 10 N m/rad) is damped only by K_d, which in the controller's units is
+    2·K_1 ≈ 0.02 N m s/rad (K_1 of the fitted model).
+Encoders
+    HEDS-5500 A12: 500 cycles per revolution. Read in quadrature (×4) that is 2000
+    counts, 3.1·10⁻³ rad, but the thesis states 1.6·10⁻³ rad "in quadrature mode",
+    i.e. 4000 counts/rev (2π/4000 = 1.57·10⁻³). We take the thesis's stated
+    resolution, ``counts_per_rev`` = 4000: it is the number the thesis measured its
+    steady-state error against. The angle is rounded to the nearest count (the
+    encoders are zeroed against the vertical, so readings are absolute).
+Velocity
+    A dirty derivative of the encoder reading: v_k = a v_{k−1} + (1 − a)(q_k −
+    q_{k−1})/T, a = exp(−T/τ_f), τ_f = ``velocity_filter`` = 0.02 s (first-order
+    low-pass at 50 rad/s on the backward difference). One count per sample would
+    read 1.6 rad/s raw; the filter brings a single count's kick down to
+    1.6·(1 − a) ≈ 0.08 rad/s.
+Sample time
+    T = 1 ms (a Simulink real-time loop on the PCIe-6323), controller held by
+    zero-order hold; the controllers integrate ν and Π̂ by forward Euler over T.
+    The plant (q, q̇ and the 2n muscle pressures) is integrated by RK4 with
+    ``substeps`` steps per sample. Halving T is checked by the experiments.
+
+The runner (:func:`run_loop`) steps, per sample k: sense (encoder, velocity filter,
+σ map of the previous voltages) → controller step → voltages (inverse eq. 10.10,
+clip) → delay line → plant over one sample. The whole sample, delay line included,
+is one generated function repeated ``chunk`` times in C (``mapaccum``,
+:meth:`GiosteEmulation.loop_fun`); Python only checks each chunk for the emergency
+stop. A Python loop over the separate functions gave the same metrics to the last
+digit in twice the wall time (full one-link run).
+
+Diagnostic variant: ``GiosteEmulation(arm, hw, actuator="model")`` keeps the valves,
+encoders and friction but makes the muscles the controller's own model (τ = KΦ(q)p,
+σ = −KΦ_q(q)p at the valves' pressures): it separates what the hardware effects do
+from what the actuator-model mismatch does.
+
+Controller's actuator model: :func:`fitted_model` fits each joint's pulley radius
+and muscle gain to the pressure-proportional part of the identified torque map
+(why: :mod:`softgen.experiments.ch10_gioste`); :func:`kpi_vector` converts the
+thesis's K_π to our parameterisation.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from ..codegen.generate import signature
+from ..control.feasibility import PressureViolation, PressureWarning, check_pressures
+from ..control.pneumatic import PneumaticArm
+from ..model import RobotModel
+from ..runtime.library import BundleFunction
+from ..symbolic.rigid import FUNCTION_OPTS
+from .estimation_common import load_functions
+
+BAR = 1e5          # Pa per bar: eq. 10.10 is in bar
+V_MAX = 6.0        # ITV-2050 command range [0, 6] V (section 10.3.1)
+
+
+# -- identified maps ---------------------------------------------------------------------
+
+def _poly(c, x):
+    """c[0] + c[1] x + c[2] x² + … (works on floats, arrays and CasADi symbols)."""
+    out = 0 * x + c[-1]
+    for a in reversed(c[:-1]):
+        out = out * x + a
+    return out
+
+
+def _dpoly(c, x):
+    return _poly([k * a for k, a in enumerate(c)][1:] or [0.0], x)
+
+
+@dataclass(frozen=True)
+class ValveMap:
+    """One valve's steady state p = (c₂V² + c₁V + c₀)·10⁵ Pa (eq. 10.10)."""
+
+    c0: float
+    c1: float
+    c2: float
+
+    def pressure(self, V):
+        """Pressure [Pa] the fit gives at voltage V (may be negative below V₀)."""
+        return (self.c2 * V * V + self.c1 * V + self.c0) * BAR
+
+    def voltage(self, p, sqrt=np.sqrt, fmax=np.maximum):
+        """Inverse of :meth:`pressure` on its increasing branch: the voltage for ``p`` [Pa].
+
+        Written as 2(p̃ − c₀)/(c₁ + √(c₁² + 4c₂(p̃ − c₀))), which stays accurate as
+        c₂ → 0; the discriminant is clipped at 0 (it only vanishes tens of bar away).
+        Pass ``sqrt=ca.sqrt, fmax=ca.fmax`` for symbols. Not clipped to [0, 6] V.
+        """
+        d = p / BAR - self.c0
+        return 2 * d / (self.c1 + sqrt(fmax(self.c1 ** 2 + 4 * self.c2 * d, 0.0)))
+
+    @property
+    def v0(self) -> float:
+        """Voltage at which the fitted pressure crosses zero."""
+        return float(self.voltage(0.0))
+
+    @property
+    def p_max(self) -> float:
+        """Pressure at the top of the command range, 6 V [Pa]."""
+        return float(self.pressure(V_MAX))
+
+
+#: Eq. 10.10, muscles a and b of the one-link arm; section 10.3.5 uses the same for
+#: every joint of the two-link arm.
+VALVE_A = ValveMap(-0.4543, 0.8611, 0.0025)
+VALVE_B = ValveMap(-0.5382, 0.9024, -0.0036)
+
+
+@dataclass(frozen=True)
+class JointMaps:
+    """Identified voltage→torque and voltage→stiffness maps of one joint (eq. 10.11).
+
+    τ = A(q) V_a − B(q) V_b and S = S_a(q) V_a + S_b(q) V_b; coefficients in ascending
+    powers of q.
+    """
+
+    torque_a: tuple[float, ...]
+    torque_b: tuple[float, ...]
+    sigma_a: tuple[float, ...]
+    sigma_b: tuple[float, ...]
+
+    def torque(self, q, Va, Vb):
+        """Elastic torque [N m] of the pair (eq. 10.11, first line)."""
+        return _poly(self.torque_a, q) * Va - _poly(self.torque_b, q) * Vb
+
+    def sigma_identified(self, q, Va, Vb):
+        """The identified stiffness map [N m/rad] (eq. 10.11, second line)."""
+        return _poly(self.sigma_a, q) * Va + _poly(self.sigma_b, q) * Vb
+
+    def sigma_physical(self, q, Va, Vb):
+        """−∂τ/∂q at fixed voltages: the stiffness the emulated arm really has."""
+        return -(_dpoly(self.torque_a, q) * Va - _dpoly(self.torque_b, q) * Vb)
+
+
+#: Eq. 10.11 (one-link arm; joint 2 of the two-link arm, section 10.3.5).
+ONE_LINK = JointMaps((6.96, -2.34, -0.71), (7.03, 2.07, -0.58), (2.34, -0.57), (2.07, 0.57))
+#: Section 10.3.5, shoulder of the two-link arm.
+SHOULDER = JointMaps((2.28, -2.87, 2.16), (2.54, 2.28, 6.09), (2.87, 0.83), (2.28, -0.83))
+
+
+def joint_maps(n: int) -> tuple[JointMaps, ...]:
+    """Maps of the one-link (n = 1) or two-link (n = 2) GioSte, joint by joint."""
+    if n == 1:
+        return (ONE_LINK,)
+    if n == 2:
+        return (SHOULDER, ONE_LINK)
+    raise ValueError(f"GioSte has one or two joints, got {n}")
+
+
+# -- the controller's actuator model ------------------------------------------------------
+
+def fit_muscles(jm: JointMaps, nominal_length: float, min_length: float,
+                q_range=(-0.3, 0.5)) -> tuple[float, float]:
+    """(R, K_g) of a McKibben pair whose torque per pascal best matches ``jm``.
+
+    The controller's model gives muscle a the torque K φ_a(q) p_a with
+    φ_a = (l_n − qR)² − l_min², K = K_g R (section 2.1); the identified map gives
+    A(q) V_a with V_a ≈ p_a / (c₁·10⁵) + V₀ (eq. 10.10 linearised). Matching the parts
+    proportional to pressure, K φ_a(q) ≈ A(q)/(c₁,a 10⁵) and K φ_b(q) ≈ B(q)/(c₁,b 10⁵),
+    by least squares over ``q_range`` with l_n, l_min kept (Table 10.1): K is linear
+    (closed form), R is found on a 10 µm grid. The constant part A(q) V₀ cannot be
+    represented by any pressure-proportional model; it stays a mismatch.
+    """
+    q = np.linspace(*q_range, 81)
+    y = np.concatenate([_poly(jm.torque_a, q) / (VALVE_A.c1 * BAR),
+                        _poly(jm.torque_b, q) / (VALVE_B.c1 * BAR)])
+    R = np.arange(1e-3, 0.06, 1e-5)[:, None]
+    X = np.concatenate([(nominal_length - q * R) ** 2 - min_length ** 2,
+                        (nominal_length + q * R) ** 2 - min_length ** 2], axis=1)
+    K = (X @ y) / np.sum(X * X, axis=1)
+    r = np.sum((K[:, None] * X - y) ** 2, axis=1)
+    j = int(np.argmin(r))
+    return float(R[j, 0]), float(K[j] / R[j, 0])
+
+
+def fitted_model(model: RobotModel) -> RobotModel:
+    """``model`` with each joint's radius and gain fitted to the identified torque maps.
+
+    Named ``<name>_fitted`` so that its generated functions never collide with the
+    original's. Only equal-length muscles (one l_n, one l_min per joint) are handled.
+    """
+    acts = []
+    for a, jm in zip(model.actuators, joint_maps(model.dof)):
+        ln, lm = a["nominal_length"], a["min_length"]
+        if ln[0] != ln[1] or lm[0] != lm[1]:
+            raise ValueError(f"{model.name}: fitted_model expects equal muscles per joint")
+        R, Kg = fit_muscles(jm, ln[0], lm[0])
+        vals = dict(a.values)
+        vals.update(radius=R, gain=Kg)
+        acts.append(dataclasses.replace(a, values=tuple(sorted(vals.items()))))
+    return dataclasses.replace(model, name=f"{model.name}_fitted", actuators=tuple(acts))
+
+
+def kpi_vector(arm: PneumaticArm, kpi: float, *, per_g2: bool = True) -> np.ndarray:
+    """K_π per base parameter, in the thesis's parameterisation.
+
+    The thesis's regressors carry sin q, not g sin q (section 10.3.3: Y_* = (q̈_r,
+    sin q); eq. 10.9 likewise), so its gravity parameters are g times ours; a
+    diagonal gain K_π on them is K_π/g² on ours (Π̇ = K_π Yᵀ s). Columns of our
+    regressor with no inertial part are the gravity ones.
+    """
+    dyn = arm.dyn
+    n = arm.n
+    g = float(arm.model.nominal.get("g", 9.81))
+    q = np.full(n, 0.3)
+    z = np.zeros(n)
+    grav = dyn.regressor(q, z, z, z)
+    inertial = dyn.regressor(q, np.ones(n), np.ones(n), np.ones(n)) - grav
+    pure = np.all(np.abs(inertial) < 1e-12, axis=0) & np.any(np.abs(grav) > 0, axis=0)
+    out = np.full(arm.n_params, float(kpi))
+    if per_g2:
+        out[pure] /= g * g
+    return out
+
+
+# -- the emulation -----------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class HardwareConfig:
+    """Emulation choices (module docstring); defaults are the experiments' values."""
+
+    valve_tau: float = 0.15          # s, first-order pressure response
+    valve_delay: float = 0.01        # s, transport delay before the lag
+    friction: float = 0.05           # N m s/rad, viscous, every joint
+    counts_per_rev: int = 4000       # 1.6e-3 rad, the thesis's quadrature resolution
+    velocity_filter: float = 0.02    # s, dirty-derivative time constant
+    substeps: int = 2                # RK4 steps of the plant per sample
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> HardwareConfig:
+        return cls(**(d or {}))
+
+
+class GiosteEmulation:
+    """Symbolic emulated GioSte for a controller ``arm`` (its links, the identified maps).
+
+    Muscle order everywhere is the controller's: (p_1a, p_1b, …, p_na, p_nb).
+    """
+
+    def __init__(self, arm: PneumaticArm, hw: HardwareConfig = HardwareConfig(), *,
+                 actuator: str = "identified"):
+        if actuator not in ("identified", "model"):
+            raise ValueError(f"actuator: expected 'identified' or 'model', got {actuator!r}")
+        self.arm = arm
+        self.hw = hw
+        self.n = arm.n
+        self.name = arm.name
+        self.actuator = actuator
+        # Function names <model>_<tag>_<quantity>: both variants can share a bundle dir.
+        self.tag = "gioste" if actuator == "identified" else "matched"
+        self.joints = joint_maps(self.n)
+        self.valves = (VALVE_A, VALVE_B)
+
+    def fname(self, quantity: str) -> str:
+        return f"{self.name}_{self.tag}_{quantity}"
+
+    # numeric helpers ------------------------------------------------------------------
+    @property
+    def encoder_step(self) -> float:
+        return 2 * math.pi / self.hw.counts_per_rev
+
+    @property
+    def p_max(self) -> np.ndarray:
+        """Per joint, the smaller of its two muscles' pressures at 6 V [Pa]."""
+        return np.full(self.n, min(v.p_max for v in self.valves))
+
+    def voltages(self, p):
+        """Unclipped voltages for pressures ``p`` (…, 2n), by the inverse of eq. 10.10."""
+        p = np.asarray(p, dtype=float)
+        V = np.empty_like(p)
+        V[..., 0::2] = VALVE_A.voltage(p[..., 0::2])
+        V[..., 1::2] = VALVE_B.voltage(p[..., 1::2])
+        return V
+
+    def pressures(self, V):
+        V = np.asarray(V, dtype=float)
+        p = np.empty_like(V)
+        p[..., 0::2] = VALVE_A.pressure(V[..., 0::2])
+        p[..., 1::2] = VALVE_B.pressure(V[..., 1::2])
+        return p
+
+    def calibrated_gain(self, sigma_range) -> np.ndarray:
+        """K̂ per joint: the controller's K that best matches the identified map.
+
+        At q = 0 and zero torque both muscles of a joint get the same pressure p in
+        the controller's model (φ_a = φ_b there), whose stiffness is K·x with
+        x = −Φ_q p. For σ on a grid over ``sigma_range`` we solve S(0, V(p), V(p)) = σ
+        for p (S rises with p) and fit σ = K̂ x through the origin (least squares).
+        This is what an identification gives the open-loop stiffness law of Tonietti
+        and Bicchi (and Theorem 5's σ̇_d feed-forward): one gain, exact nowhere because
+        the valves' offsets make the map affine in p.
+        """
+        if self.actuator == "model":
+            return np.array(self.arm.act.K, dtype=float)
+        lo, hi = float(min(sigma_range)), float(max(sigma_range))
+        grid = np.linspace(lo, hi, 9) if hi > lo else np.array([lo])
+        qs = ca.SX.sym("q", self.n)
+        Phi_q0 = np.array(ca.Function("Phi_q", [qs], [ca.densify(self.arm.act.Phi_q(qs))])(
+            np.zeros(self.n)))
+        K = np.empty(self.n)
+        for i, jm in enumerate(self.joints):
+            xs = []
+            for s in grid:
+                a, b = 0.0, 8e5
+                for _ in range(80):     # bisection: S is increasing in p
+                    m = 0.5 * (a + b)
+                    S = jm.sigma_identified(0.0, VALVE_A.voltage(m), VALVE_B.voltage(m))
+                    a, b = (m, b) if S < s else (a, m)
+                p = 0.5 * (a + b)
+                xs.append(-(Phi_q0[i, 2 * i] + Phi_q0[i, 2 * i + 1]) * p)
+            xs = np.array(xs)
+            K[i] = float(grid @ xs / (xs @ xs))
+        return K
+
+    # symbolic pieces ------------------------------------------------------------------
+    def _veq(self, p):
+        """Voltage equivalent of actual muscle pressures (symbolic, 2n)."""
+        out = []
+        for j in range(2 * self.n):
+            v = self.valves[j % 2]
+            out.append(v.voltage(p[j], sqrt=ca.sqrt, fmax=ca.fmax))
+        return ca.vertcat(*out)
+
+    def _maps(self, q, V):
+        """(τ, σ_physical, σ_identified) of every joint at angles q and voltages V.
+
+        With ``actuator="model"`` (a diagnostic, not GioSte) the muscles are the
+        controller's own model at the valves' steady pressures: τ = KΦ(q)p and both
+        stiffnesses −KΦ_q(q)p, so only valves, sensors and friction differ from it.
+        """
+        if self.actuator == "model":
+            p = ca.vertcat(*[ca.fmax(self.valves[j % 2].pressure(V[j]), 0.0)
+                             for j in range(2 * self.n)])
+            qs = ca.SX.sym("qs", self.n)     # Φ_q is built by differentiation: needs a symbol
+            tau, sig = ca.substitute([self.arm.act.torque(qs, p), self.arm.act.stiffness(qs, p)],
+                                     [qs], [q])
+            return tau, sig, sig
+        tau, sp, si = [], [], []
+        for i, jm in enumerate(self.joints):
+            Va, Vb = V[2 * i], V[2 * i + 1]
+            tau.append(jm.torque(q[i], Va, Vb))
+            sp.append(jm.sigma_physical(q[i], Va, Vb))
+            si.append(jm.sigma_identified(q[i], Va, Vb))
+        return ca.vertcat(*tau), ca.vertcat(*sp), ca.vertcat(*si)
+
+    def plant_fun(self) -> ca.Function:
+        """``<model>_gioste_plant``: one sample of the emulated arm, valve targets held.
+
+        x = (q, q̇, p) with p the 2n actual muscle pressures; B q̈ + C q̇ + G + β q̇ =
+        τ(q, V_eq(p)) (eq. 10.11 at the voltage equivalent of the actual pressures),
+        ṗ = (p_target − p)/τ_v; ``substeps`` RK4 steps over h.
+        """
+        n, dyn = self.n, self.arm.dyn
+        xs, us = ca.SX.sym("xs", 4 * n), ca.SX.sym("us", 2 * n)
+        q, qd, p = xs[:n], xs[n:2 * n], xs[2 * n:]
+        tau, _, _ = self._maps(q, self._veq(p))
+        m = dyn.nominal
+        qdd = ca.substitute(dyn.forward_dynamics_expr(tau - self.hw.friction * qd),
+                            ca.vertcat(m.q, m.qd), ca.vertcat(q, qd))
+        rhs = ca.Function("rhs", [xs, us], [ca.vertcat(qd, qdd, (us - p) / self.hw.valve_tau)])
+        x, u, h = ca.SX.sym("x", 4 * n), ca.SX.sym("p_target", 2 * n), ca.SX.sym("h")
+        dt = h / self.hw.substeps
+        z = x
+        for _ in range(self.hw.substeps):
+            k1 = rhs(z, u)
+            k2 = rhs(z + dt / 2 * k1, u)
+            k3 = rhs(z + dt / 2 * k2, u)
+            k4 = rhs(z + dt * k3, u)
+            z = z + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        return ca.Function(self.fname("plant"), [x, u, h], [z],
+                           ["x", "p_target", "h"], ["x_next"], FUNCTION_OPTS)
+
+    def interface_fun(self) -> ca.Function:
+        """``<model>_gioste_valves``: commanded pressures → (V clipped, valve targets, V raw)."""
+        p = ca.SX.sym("p_cmd", 2 * self.n)
+        raw = []
+        for j in range(2 * self.n):
+            raw.append(self.valves[j % 2].voltage(p[j], sqrt=ca.sqrt, fmax=ca.fmax))
+        raw = ca.vertcat(*raw)
+        V = ca.fmin(ca.fmax(raw, 0.0), V_MAX)
+        tgt = ca.vertcat(*[ca.fmax(self.valves[j % 2].pressure(V[j]), 0.0)
+                           for j in range(2 * self.n)])
+        return ca.Function(self.fname("valves"), [p], [V, tgt, raw], ["p_cmd"],
+                           ["V", "p_target", "V_raw"], FUNCTION_OPTS)
+
+    def sense_fun(self) -> ca.Function:
+        """``<model>_gioste_sense``: encoder, dirty derivative, σ map of the last voltages.
+
+        (q, q_m,prev, v_prev, V_prev, T) → (q_m, v, σ_m): q_m the angle rounded to one
+        count, v = a v_prev + (1 − a)(q_m − q_m,prev)/T with a = exp(−T/τ_f), σ_m the
+        identified map at (q_m, V_prev) (what the thesis's controller used).
+        """
+        n, step = self.n, self.encoder_step
+        q, qm_prev, v_prev = (ca.SX.sym(s, n) for s in ("q", "qm_prev", "v_prev"))
+        V, T = ca.SX.sym("V_prev", 2 * n), ca.SX.sym("T")
+        qm = ca.floor(q / step + 0.5) * step
+        a = ca.exp(-T / self.hw.velocity_filter)
+        v = a * v_prev + (1 - a) * (qm - qm_prev) / T
+        _, _, sig = self._maps(qm, V)
+        return ca.Function(self.fname("sense"), [q, qm_prev, v_prev, V, T],
+                           [qm, v, sig], ["q", "qm_prev", "v_prev", "V_prev", "T"],
+                           ["q_m", "v", "sigma_m"], FUNCTION_OPTS)
+
+    def truth_fun(self) -> ca.Function:
+        """``<model>_gioste_truth``: (q, p actual) → (τ, σ physical, σ map at V_eq)."""
+        q, p = ca.SX.sym("q", self.n), ca.SX.sym("p", 2 * self.n)
+        tau, sp, si = self._maps(q, self._veq(p))
+        return ca.Function(self.fname("truth"), [q, p], [tau, sp, si], ["q", "p"],
+                           ["tau", "sigma_physical", "sigma_identified"], FUNCTION_OPTS)
+
+    def maps_fun(self) -> ca.Function:
+        """``<model>_gioste_maps``: (q, V) → (τ, σ physical, σ identified), for tests."""
+        q, V = ca.SX.sym("q", self.n), ca.SX.sym("V", 2 * self.n)
+        return ca.Function(self.fname("maps"), [q, V], list(self._maps(q, V)),
+                           ["q", "V"], ["tau", "sigma_physical", "sigma_identified"],
+                           FUNCTION_OPTS)
+
+    def loop_fun(self, kind: str, delay_samples: int, chunk: int) -> ca.Function:
+        """``<model>_<tag>_<kind>_loop_d<d>``: ``chunk`` samples of controller + hardware.
+
+        One sample k, all in generated code (DESIGN: whole loops in C where it pays):
+        sense (encoder rounding, dirty derivative, σ map of the voltages commanded at
+        k − 1), controller step ``kind``, voltages (inverse eq. 10.10, clipped) and the
+        valves' targets, a delay line of ``delay_samples`` targets, the plant over one
+        sample with the target issued ``delay_samples`` samples ago.
+
+        State S = (x (4n), delay line (d·2n, oldest first), q_m, v, V_prev, z). Inputs
+        ``S0``, ``ref`` (6n × chunk) and the gains (one column, used every sample),
+        ``dt``. Outputs ``S`` (state after each sample) and ``rec`` (per sample, before
+        it: x, q_m, v, σ_m, p_cmd, V, V_raw, ν, z).
+        """
+        n, d = self.n, int(delay_samples)
+        ctrl = self.arm.step_fun(kind)
+        nz = ctrl.size1_in(0)
+        plant, valves, sense = self.plant_fun(), self.interface_fun(), self.sense_fun()
+        ns = 4 * n + 2 * n * d + n + n + 2 * n + nz
+        S, ref = ca.SX.sym("S", ns), ca.SX.sym("ref", 6 * n)
+        g = {name: ca.SX.sym(name, ctrl.size1_in(i)) for i, name in enumerate(ctrl.name_in())
+             if name not in ("z", "q", "qd", "sigma", "ref")}
+        dt = g["dt"]
+        o = 0
+        x = S[o:o + 4 * n]; o += 4 * n                                   # noqa: E702
+        ring = S[o:o + 2 * n * d]; o += 2 * n * d                        # noqa: E702
+        qm_prev = S[o:o + n]; o += n                                     # noqa: E702
+        v_prev = S[o:o + n]; o += n                                      # noqa: E702
+        V_prev = S[o:o + 2 * n]; o += 2 * n                              # noqa: E702
+        z = S[o:o + nz]
+        qm, v, sig = sense(x[:n], qm_prev, v_prev, V_prev, dt)
+        args = {"z": z, "q": qm, "qd": v, "sigma": sig, "ref": ref, **g}
+        res = ctrl.call({name: args[name] for name in ctrl.name_in()})
+        V, tgt, raw = valves(res["p"])
+        if d:
+            p_del = ring[:2 * n]
+            ring_next = ca.vertcat(ring[2 * n:], tgt)
+        else:
+            p_del, ring_next = tgt, ring
+        x_next = plant(x, p_del, dt)
+        S_next = ca.vertcat(x_next, ring_next, qm, v, V, res["z_next"])
+        rec = ca.vertcat(x, qm, v, sig, res["p"], V, raw, res["nu"], z)
+        gnames = [name for name in ctrl.name_in() if name in g]
+        one = ca.Function("one_sample", [S, ref, *[g[k] for k in gnames]], [S_next, rec],
+                          ["S", "ref", *gnames], ["S_next", "rec"], FUNCTION_OPTS)
+        loop = one.mapaccum("loop", chunk, [0], [0])
+        S0 = ca.MX.sym("S0", ns)
+        R = ca.MX.sym("ref", 6 * n, chunk)
+        G = [ca.MX.sym(k, g[k].numel()) for k in gnames]
+        Sk, rec = loop(S0, R, *G)
+        return ca.Function(self.fname(f"{kind}_loop_d{d}"), [S0, R, *G], [Sk, rec],
+                           ["S0", "ref", *gnames], ["S", "rec"])
+
+    def functions(self, kinds, delays=(), chunk: int = 1000) -> list[tuple[ca.Function, str]]:
+        """Hardware functions, controller steps ``kinds`` and their closed loops.
+
+        One loop per kind and delay (in samples) in ``delays``: the delay line is part
+        of the loop's state, so its length is fixed when the code is generated.
+        """
+        fs = [
+            (self.plant_fun(), "emulated GioSte: links + identified torque map at the actual "
+                               "pressures (eq. 10.11), first-order valves, RK4"),
+            (self.interface_fun(), "pressure command -> valve voltage (inverse eq. 10.10, "
+                                   "clipped to [0, 6] V) and the valve's target pressure"),
+            (self.sense_fun(), "encoder rounding, dirty derivative, identified stiffness "
+                               "map of the commanded voltages (eq. 10.11)"),
+            (self.truth_fun(), "torque, physical and identified stiffness at the actual "
+                               "pressures"),
+        ]
+        for k in kinds:
+            fs.append((self.arm.step_fun(k), f"controller step {k} (chapter 10)"))
+        for k in kinds:
+            for d in sorted(set(int(x) for x in delays)):
+                fs.append((self.loop_fun(k, d, chunk),
+                           f"{chunk} samples of controller {k} on the emulated hardware, "
+                           f"valve delay {d} samples"))
+        return fs
+
+
+def delay_samples(hw: HardwareConfig, dt: float) -> int:
+    """The valves' transport delay in whole samples of ``dt``."""
+    return int(round(hw.valve_delay / dt))
+
+
+def build(emu: GiosteEmulation, kinds, out: Path | None, config: dict, *, dts=(),
+          chunk: int = 1000, compile: bool = True) -> dict[str, BundleFunction]:
+    """Compiled (``compile``) or directly evaluated hardware, controller and loop functions.
+
+    ``dts``: the sample times the loops will run at (one loop per distinct delay).
+    """
+    fs = emu.functions(kinds, [delay_samples(emu.hw, dt) for dt in dts], chunk)
+    if compile and out is not None:
+        return load_functions(emu.name, fs, out, {**config, "_chunk": chunk,
+                                                  "_tag": emu.tag})
+    return {f.name(): BundleFunction(f, signature(f)) for f, _ in fs}
+
+
+# -- references --------------------------------------------------------------------------
+
+def reference_array(channels_q, channels_sigma, t) -> np.ndarray:
+    """(6n, K) reference of the controllers: q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d per joint.
+
+    ``channels_*`` are callables (one per joint) returning (4, K) value + derivatives,
+    e.g. :class:`~softgen.control.references.SmoothSteps`.
+    """
+    Q = np.stack([c(t) for c in channels_q], axis=1)       # (4, n, K)
+    S = np.stack([c(t) for c in channels_sigma], axis=1)
+    return np.concatenate([Q[0], Q[1], Q[2], Q[3], S[0], S[1]], axis=0)
+
+
+# -- the closed loop ---------------------------------------------------------------------
+
+@dataclass
+class Gains:
+    """Controller gains as vectors (diagonal matrices of chapter 10)."""
+
+    lam: np.ndarray
+    kd: np.ndarray
+    kpi: np.ndarray
+    ksigma: np.ndarray
+    kinv: np.ndarray
+
+
+@dataclass
+class Trace:
+    """One closed-loop run: time, truth, measurements, commands, controller state."""
+
+    kind: str
+    t: np.ndarray            # (K,)
+    ref: np.ndarray          # (K, 6n)
+    q: np.ndarray            # (K, n) true angle
+    qd: np.ndarray           # (K, n)
+    p: np.ndarray            # (K, 2n) actual muscle pressures
+    q_m: np.ndarray          # (K, n) encoder reading
+    v: np.ndarray            # (K, n) filtered velocity
+    sigma_m: np.ndarray      # (K, n) the controller's stiffness "measurement"
+    p_cmd: np.ndarray        # (K, 2n) controller output
+    V: np.ndarray            # (K, 2n) clipped valve voltages
+    V_raw: np.ndarray        # (K, 2n) before clipping
+    nu: np.ndarray           # (K, n)
+    Pi_hat: np.ndarray       # (K, κ)
+    diverged_at: float | None = None
+    truth: dict = field(default_factory=dict)   # tau, sigma_physical, sigma_identified
+
+    @property
+    def n(self) -> int:
+        return self.q.shape[1]
+
+    def sl(self, block: int) -> np.ndarray:
+        """Reference block (0 q_d, 1 q̇_d, 2 q̈_d, 3 q⃛_d, 4 σ_d, 5 σ̇_d), (K, n)."""
+        return self.ref[:, block * self.n:(block + 1) * self.n]
+
+    @property
+    def q_d(self) -> np.ndarray:
+        return self.sl(0)
+
+    @property
+    def sigma_d(self) -> np.ndarray:
+        return self.sl(4)
+
+    @property
+    def valid(self) -> np.ndarray:
+        return np.isfinite(self.q[:, 0])
+
+    def position_error(self, bound: float) -> np.ndarray:
+        """q − q_d (K, n); after an emergency stop counted as ``bound`` (the stop threshold).
+
+        A run that trips the stop has failed; its error afterwards is at least the
+        threshold, and counting it so keeps every index finite and ordered by badness.
+        """
+        e = self.q - self.q_d
+        e[~self.valid] = bound
+        return e
+
+    def stiffness_error(self, which: str = "sigma_m") -> np.ndarray:
+        """σ − σ_d (K, n) for the measured (``sigma_m``) or a ``truth`` stiffness.
+
+        After an emergency stop the valves are vented (0 V), so the identified map
+        gives σ = 0 and the error is −σ_d.
+        """
+        s = self.sigma_m if which == "sigma_m" else self.truth[which]
+        e = s - self.sigma_d
+        e[~self.valid] = -self.sigma_d[~self.valid]
+        return e
+
+    def arrays(self, prefix: str) -> dict[str, np.ndarray]:
+        out = {f"{prefix}{k}": getattr(self, k) for k in
+               ("t", "ref", "q", "qd", "p", "q_m", "v", "sigma_m", "p_cmd", "V", "V_raw",
+                "nu", "Pi_hat")}
+        out.update({f"{prefix}{k}": v for k, v in self.truth.items()})
+        return out
+
+
+def equilibrium(emu: GiosteEmulation, fns: dict, p: np.ndarray, q0: np.ndarray) -> np.ndarray:
+    """Angle where the emulated arm rests under constant muscle pressures ``p``.
+
+    Newton on τ(q, V_eq(p)) − G(q) = 0 with a finite-difference Jacobian, from q0.
+    """
+    truth = fns[emu.fname("truth")]
+    q = np.array(q0, dtype=float)
+
+    def resid(q):
+        tau = truth(q, p)[0]
+        return tau - emu.arm.dyn.gravity(q)
+
+    for _ in range(30):
+        r = resid(q)
+        J = np.empty((emu.n, emu.n))
+        for j in range(emu.n):
+            e = np.zeros(emu.n)
+            e[j] = 1e-6
+            J[:, j] = (resid(q + e) - r) / 1e-6
+        dq = np.linalg.solve(J, -r)
+        q = q + dq
+        if np.max(np.abs(dq)) < 1e-12:
+            break
+    return q
+
+
+def run_loop(emu: GiosteEmulation, fns: dict, kind: str, ref: np.ndarray, gains: Gains,
+             dt: float, *, Pi_hat0: np.ndarray, divergence: float = 0.5) -> Trace:
+    """Run controller ``kind`` on the emulated arm along ``ref`` (6n, K) at sample ``dt``.
+
+    Start: the controller's first command is computed at q = q_d(0) with ν from the
+    open-loop stiffness law (its model stiffness equals σ_d(0)), the muscles are at
+    those pressures (inflated beforehand, as in section 10.2) and the arm rests where
+    they hold it (:func:`equilibrium`). Π̂(0) = ``Pi_hat0``.
+
+    The loop runs in generated chunks (:meth:`GiosteEmulation.loop_fun`). Emergency
+    stop: at the first sample where |q − q_d| exceeds ``divergence`` rad on a joint or
+    the controller's command is not finite, ``diverged_at`` records the time and that
+    sample and all later ones are NaN.
+    """
+    n, K = emu.n, ref.shape[1]
+    d = delay_samples(emu.hw, dt)
+    loop = fns[emu.fname(f"{kind}_loop_d{d}")]
+    valves = fns[emu.fname("valves")]
+    ol = fns[f"{emu.arm.model.name}_open_loop_stiffness"]
+    kappa = emu.arm.n_params
+    chunk = loop.in_shapes[1][1]
+    t = np.arange(K) * dt
+
+    q0 = ref[:n, 0].copy()
+    zero = np.zeros(n)
+    _, p0, _, nu0 = ol(Pi_hat0, q0, zero, ref[:, 0], gains.lam, gains.kd, np.zeros(kappa),
+                       gains.kinv, dt)
+    V0, tgt0, _ = valves(p0)
+    q_start = equilibrium(emu, fns, tgt0, q0)
+    z0 = Pi_hat0.copy() if kind in ("open_loop", "prop11") else np.concatenate([nu0, Pi_hat0])
+    qm0 = np.floor(q_start / emu.encoder_step + 0.5) * emu.encoder_step
+    S = np.concatenate([q_start, zero, tgt0, np.tile(tgt0, d), qm0, zero, V0, z0])
+
+    nz = len(z0)
+    widths = (("x", 4 * n), ("q_m", n), ("v", n), ("sigma_m", n), ("p_cmd", 2 * n),
+              ("V", 2 * n), ("V_raw", 2 * n), ("nu", n), ("z", nz))
+    chunks = -(-K // chunk)
+    R = np.zeros((6 * n, chunks * chunk))
+    R[:, :K] = ref
+    R[:, K:] = ref[:, -1:]                  # padding past the end, dropped afterwards
+    ins = loop.inputs
+    gain = {"lam": gains.lam, "kd": gains.kd, "kpi": gains.kpi, "ksigma": gains.ksigma,
+            "kinv": gains.kinv, "dt": dt}
+    for j, name in enumerate(loop.in_names[2:], 2):
+        ins[j][...] = np.reshape(gain[name], ins[j].shape)
+    rec = np.full((chunks * chunk, loop.out_shapes[1][0]), np.nan)
+    diverged_at = None
+    for c in range(chunks):
+        sl = slice(c * chunk, (c + 1) * chunk)
+        ins[0][:] = S
+        ins[1][...] = R[:, sl]
+        loop.call()
+        block = loop.outputs[1].T
+        q, qd_ref = block[:, :n], R[:n, sl].T
+        bad = (~np.all(np.isfinite(block[:, :4 * n]), axis=1)
+               | np.any(np.abs(q - qd_ref) > divergence, axis=1)
+               | ~np.all(np.isfinite(block[:, 7 * n:9 * n]), axis=1))
+        if bad.any():
+            j = int(np.argmax(bad))
+            rec[c * chunk:c * chunk + j] = block[:j]
+            if c * chunk + j < K:
+                diverged_at = float(t[c * chunk + j])
+            break
+        rec[sl] = block
+        S = loop.outputs[0][:, -1].copy()
+    rec = rec[:K]
+    cols, o = {}, 0
+    for name, w in widths:
+        cols[name] = rec[:, o:o + w]
+        o += w
+    x, z = cols["x"], cols["z"]
+    tr = Trace(kind, t, ref.T.copy(), x[:, :n], x[:, n:2 * n], x[:, 2 * n:], cols["q_m"],
+               cols["v"], cols["sigma_m"], cols["p_cmd"], cols["V"], cols["V_raw"],
+               cols["nu"], z[:, nz - kappa:], diverged_at=diverged_at)
+    ok = tr.valid
+    truth = fns[emu.fname("truth")].function
+    res = truth.map(int(ok.sum()))(tr.q[ok].T, tr.p[ok].T) if ok.any() else None
+    for i, key in enumerate(("tau", "sigma_physical", "sigma_identified")):
+        arr = np.full((K, n), np.nan)
+        if res is not None:
+            arr[ok] = np.array(res[i]).T
+        tr.truth[key] = arr
+    return tr
+
+
+def static_net_stiffness(emu: GiosteEmulation, fns: dict, kind: str, ref0: np.ndarray,
+                         gains: Gains, Pi_hat0: np.ndarray, *, h: float = 1e-4) -> np.ndarray:
+    """−∂(τ − G)/∂q of the arm under the controller's first command law, state frozen.
+
+    The controller's pressures at (q, q̇ = 0) with ν and Π̂ held at their initial
+    values are applied as steady pressures; the emulated arm's torque minus gravity is
+    differentiated in q by central differences. In the controller's own model this is
+    −∂(K Φ p − G)/∂q with K Φ p = τ_*: the null-space pressures cancel the muscles'
+    stiffness exactly. A negative value means the arm falls away from the start
+    faster than the (weak) feedback can act: the mismatch is statically unstable.
+    """
+    n = emu.n
+    name = emu.arm.model.name
+    ol = fns[f"{name}_open_loop_stiffness"]
+    ctrl = fns[f"{name}_{_suffix(kind)}"]
+    truth = fns[emu.fname("truth")]
+    valves = fns[emu.fname("valves")]
+    q0 = ref0[:n]
+    zero = np.zeros(n)
+    _, _, _, nu0 = ol(Pi_hat0, q0, zero, ref0, gains.lam, gains.kd, np.zeros(len(Pi_hat0)),
+                      gains.kinv, 1e-3)
+    z0 = np.concatenate([nu0, Pi_hat0])
+    out = np.empty(n)
+    for j in range(n):
+        f = []
+        for sgn in (1.0, -1.0):
+            q = q0.copy()
+            q[j] += sgn * h
+            args = {"z": z0, "q": q, "qd": zero, "sigma": ref0[4 * n:5 * n], "ref": ref0,
+                    "lam": gains.lam, "kd": gains.kd, "kpi": np.zeros(len(Pi_hat0)),
+                    "ksigma": gains.ksigma, "kinv": gains.kinv, "dt": 1e-3}
+            p = ctrl(*[args[k] for k in ctrl.in_names])[1]
+            tgt = valves(p)[1]
+            tau = truth(q, tgt)[0]
+            f.append(tau[j] - emu.arm.dyn.gravity(q)[j])
+        out[j] = -(f[0] - f[1]) / (2 * h)
+    return out
+
+
+def _suffix(kind: str) -> str:
+    from ..control.pneumatic import KINDS
+    return KINDS[kind]
+
+
+# -- feasibility -------------------------------------------------------------------------
+
+def feasibility(emu: GiosteEmulation, tr: Trace, label: str, *, warn: bool = True
+                ) -> tuple[list[PressureViolation], float]:
+    """Pressure episodes outside [0, p(6 V)] and the fraction of samples with a clipped volt.
+
+    A commanded pressure below 0 (a muscle asked to push) or above what 6 V gives is
+    unreachable; :func:`~softgen.control.feasibility.check_pressures` finds each
+    episode with joint, muscle and time. With ``warn``, one
+    :class:`~softgen.control.feasibility.PressureWarning` per run names the first
+    episode (joint, muscle, time span) and counts the others: an oscillating run can
+    have thousands. The bound per joint is the lower of its two valves' 6 V pressures.
+    """
+    ok = tr.valid
+    viol = check_pressures(tr.t[ok], tr.p_cmd[ok], emu.p_max, label=label, warn=False)
+    if warn and viol:
+        more = f" (and {len(viol) - 1} more episodes)" if len(viol) > 1 else ""
+        warnings.warn(viol[0].message(label) + more, PressureWarning, stacklevel=2)
+    raw = tr.V_raw[ok]
+    clipped = np.any((raw < 0.0) | (raw > V_MAX) | ~np.isfinite(raw), axis=1)
+    return viol, float(clipped.mean()) if clipped.size else 0.0

@@ -1,0 +1,269 @@
+"""Emulated GioSte hardware (section 10.3): identified maps, valves, encoders, loop wiring."""
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import pytest
+
+from softgen.control.feasibility import PressureWarning
+from softgen.control.pneumatic import pneumatic_arm
+from softgen.control.references import SmoothSteps
+from softgen.experiments import gioste_common as gc
+from softgen.model import load_model
+
+
+@pytest.fixture(scope="module")
+def one_link():
+    arm = pneumatic_arm(gc.fitted_model(load_model("gioste_1link")))
+    return arm, gc.GiosteEmulation(arm)
+
+
+@pytest.fixture(scope="module")
+def one_link_fns(one_link):
+    arm, emu = one_link
+    return gc.build(emu, ("theorem5", "open_loop"), None, {}, dts=(1e-3,), chunk=250,
+                    compile=False)
+
+
+def _gains(emu, arm, sigma):
+    k = emu.calibrated_gain([sigma])
+    return gc.Gains(lam=np.array([1.8]), kd=np.array([12.0]), kpi=gc.kpi_vector(arm, 45.0),
+                    ksigma=1.0 / k, kinv=1.0 / k)
+
+
+# -- valves (eq. 10.10) ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("valve", [gc.VALVE_A, gc.VALVE_B])
+def test_valve_inverse_round_trip(valve):
+    V = np.linspace(0.0, 6.0, 61)
+    np.testing.assert_allclose(valve.voltage(valve.pressure(V)), V, atol=1e-12)
+    p = np.linspace(0.0, valve.p_max, 41)
+    np.testing.assert_allclose(valve.pressure(valve.voltage(p)), p, rtol=1e-12, atol=1e-6)
+    # The fitted coefficients as printed: 0.8611 bar/V and −0.4543 bar for muscle a.
+    assert valve.pressure(0.0) == pytest.approx(valve.c0 * 1e5)
+    assert 0.5 < valve.v0 < 0.65
+
+
+def test_valve_interface_clips_and_targets_reachable_pressures(one_link):
+    _, emu = one_link
+    f = emu.interface_fun()
+    pa_max, pb_max = gc.VALVE_A.p_max, gc.VALVE_B.p_max
+    cmd = np.array([2.0e5, 3.0e5])
+    V, tgt, raw = (np.array(x).ravel() for x in f(cmd))
+    np.testing.assert_allclose(tgt, cmd, rtol=1e-12)          # reachable: exact round trip
+    np.testing.assert_allclose(V, raw)
+    V, tgt, raw = (np.array(x).ravel() for x in f(np.array([-1.0e5, 9.0e5])))
+    assert raw[0] < 0 and raw[1] > 6.0                         # what the controller asked
+    np.testing.assert_allclose(V, [0.0, 6.0])                 # what the valves got
+    assert tgt[0] == 0.0                                       # no vacuum below V0
+    assert tgt[1] == pytest.approx(pb_max)
+    assert pa_max > 4.7e5 and pb_max > 4.7e5
+
+
+# -- identified maps (eq. 10.11, section 10.3.5) ---------------------------------------------
+
+@pytest.mark.parametrize("jm", [gc.ONE_LINK, gc.SHOULDER], ids=["one_link", "shoulder"])
+def test_physical_stiffness_is_minus_dtau_dq(jm):
+    rng = np.random.default_rng(0)
+    h = 1e-6
+    for q, Va, Vb in zip(rng.uniform(-0.4, 0.6, 20), rng.uniform(0, 6, 20),
+                         rng.uniform(0, 6, 20)):
+        fd = -(jm.torque(q + h, Va, Vb) - jm.torque(q - h, Va, Vb)) / (2 * h)
+        assert jm.sigma_physical(q, Va, Vb) == pytest.approx(fd, rel=1e-7, abs=1e-8)
+    # The identified stiffness map is the linearisation at q = 0 only.
+    assert jm.sigma_identified(0.0, 2.0, 3.0) == pytest.approx(jm.sigma_physical(0.0, 2.0, 3.0))
+    assert abs(jm.sigma_identified(0.3, 2.0, 3.0) - jm.sigma_physical(0.3, 2.0, 3.0)) > 0.1
+
+
+def test_one_link_maps_as_printed():
+    # Eq. 10.11 at q = 0.2, V = (2, 3), by hand.
+    q, Va, Vb = 0.2, 2.0, 3.0
+    tau = (6.96 - 2.34 * q - 0.71 * q * q) * Va - (7.03 + 2.07 * q - 0.58 * q * q) * Vb
+    sig = (2.34 - 0.57 * q) * Va + (2.07 + 0.57 * q) * Vb
+    assert gc.ONE_LINK.torque(q, Va, Vb) == pytest.approx(tau, rel=1e-14)
+    assert gc.ONE_LINK.sigma_identified(q, Va, Vb) == pytest.approx(sig, rel=1e-14)
+    assert [m.torque_a for m in gc.joint_maps(2)] == [gc.SHOULDER.torque_a,
+                                                     gc.ONE_LINK.torque_a]
+
+
+# -- sensors ---------------------------------------------------------------------------------
+
+def test_encoder_quantisation_step(one_link):
+    _, emu = one_link
+    step = 2 * math.pi / 4000
+    assert emu.encoder_step == pytest.approx(step)
+    assert step == pytest.approx(1.57e-3, abs=1e-5)          # the thesis's 1.6e-3 rad
+    f = emu.sense_fun()
+    q = np.random.default_rng(1).uniform(-1, 1, 200)
+    qm = np.array([float(f(x, 0.0, 0.0, np.array([2.0, 2.0]), 1e-3)[0]) for x in q])
+    np.testing.assert_allclose(np.round(qm / step), qm / step, atol=1e-9)
+    assert np.max(np.abs(qm - q)) <= step / 2 + 1e-12
+    assert len(np.unique(np.round(qm / step))) > 100          # not stuck on a few levels
+
+
+def test_dirty_derivative_reads_a_ramp(one_link):
+    _, emu = one_link
+    f = emu.sense_fun()
+    T, w = 1e-3, 0.5
+    qm, v = 0.0, 0.0
+    for k in range(1, 400):                                   # 20 filter time constants
+        qm, v, _ = (np.array(x).ravel() for x in f(w * k * T, qm, v, np.zeros(2), T))
+    assert float(v[0]) == pytest.approx(w, rel=0.1)           # quantised ramp, filtered
+
+
+# -- controller's model and the loop -----------------------------------------------------------
+
+def test_fitted_muscles_match_the_map_per_pascal():
+    m = gc.fitted_model(load_model("gioste_1link"))
+    a = m.actuators[0]
+    K, R = a["gain"] * a["radius"], a["radius"]
+    q = np.linspace(-0.3, 0.5, 9)
+    phi_a = (a["nominal_length"][0] - q * R) ** 2 - a["min_length"][0] ** 2
+    target = gc.ONE_LINK.torque(q, 1.0, 0.0) / (gc.VALVE_A.c1 * 1e5)
+    np.testing.assert_allclose(K * phi_a, target, rtol=0.05)
+
+
+def test_kpi_vector_divides_gravity_parameters_by_g2():
+    arm = pneumatic_arm(load_model("gioste_1link"))
+    np.testing.assert_allclose(gc.kpi_vector(arm, 45.0), [45.0, 45.0 / 9.81 ** 2])
+    arm2 = pneumatic_arm(load_model("gioste_2link"))
+    kp = gc.kpi_vector(arm2, 45.0)
+    assert sorted(kp.tolist()) == sorted([45.0, 45.0, 45.0, 45.0 / 9.81 ** 2,
+                                          45.0 / 9.81 ** 2])
+
+
+def test_matched_arm_has_only_the_feedback_stiffness():
+    # With the controller's own muscles as the arm, Theorem 5's null-space pressures
+    # cancel the muscles' stiffness and Π̂ = Π cancels gravity: what is left of
+    # −∂(τ − G)/∂q is the feedback K_d Λ K_1 (section 10.3.3, ∂τ_*/∂q = cos q Π̂_2 − K_d Λ).
+    arm = pneumatic_arm(load_model("gioste_1link"))
+    emu = gc.GiosteEmulation(arm, actuator="model")
+    fns = gc.build(emu, ("theorem5", "open_loop"), None, {}, compile=False)
+    g = _gains(emu, arm, 10.0)
+    ref0 = np.array([0.1, 0, 0, 0, 10.0, 0])
+    net = gc.static_net_stiffness(emu, fns, "theorem5", ref0, g, arm.Pi_nominal)
+    assert net[0] == pytest.approx(12.0 * 1.8 * arm.K1, rel=1e-4)
+
+
+def test_loop_is_the_composition_of_its_parts(one_link, one_link_fns):
+    """One generated chunk equals sensing, controller, valves, delay line, plant by hand."""
+    arm, emu = one_link
+    fns = one_link_fns
+    d = gc.delay_samples(emu.hw, 1e-3)
+    assert d == 10
+    g = _gains(emu, arm, 7.0)
+    t = np.arange(250) * 1e-3
+    ref = gc.reference_array([SmoothSteps((0.0, 0.0), (0.0, 0.2), 1.0)],
+                             [SmoothSteps((0.0,), (7.0,), 1.0)], t)
+    tr = gc.run_loop(emu, fns, "open_loop", ref, g, 1e-3, Pi_hat0=arm.Pi_nominal)
+    assert tr.diverged_at is None
+    sense = emu.sense_fun()
+    ctrl = arm.step_fun("open_loop")
+    valves, plant = emu.interface_fun(), emu.plant_fun()
+    x = np.concatenate([tr.q[0], tr.qd[0], tr.p[0]])
+    # The loop starts from the open-loop law's command at q_d(0), already in the
+    # muscles, in the delay line and in the voltages the stiffness map reads.
+    p0 = arm.step_fun("open_loop")(arm.Pi_nominal, ref[:1, 0], 0.0, ref[:, 0], g.lam, g.kd,
+                                   np.zeros(2), g.kinv, 1e-3)[1]
+    V = np.array(valves(p0)[0]).ravel()
+    np.testing.assert_allclose(np.array(valves(p0)[1]).ravel(), tr.p[0])
+    qm, v = tr.q_m[0], np.zeros(1)
+    ring = [tr.p[0]] * d
+    z = tr.Pi_hat[0]
+    for k in range(60):
+        qm, v, sig = (np.array(a).ravel() for a in sense(x[:1], qm, v, V, 1e-3))
+        assert qm == pytest.approx(tr.q_m[k], abs=1e-12)
+        assert sig == pytest.approx(tr.sigma_m[k], rel=1e-12)
+        out = ctrl(z, qm, v, ref[:, k], g.lam, g.kd, g.kpi, g.kinv, 1e-3)
+        z, p = np.array(out[0]).ravel(), np.array(out[1]).ravel()
+        np.testing.assert_allclose(p, tr.p_cmd[k], rtol=1e-10)
+        V, tgt, _ = (np.array(a).ravel() for a in valves(p))
+        ring.append(tgt)
+        x = np.array(plant(x, ring.pop(0), 1e-3)).ravel()
+        np.testing.assert_allclose(x[:1], tr.q[k + 1], rtol=1e-10, atol=1e-13)
+
+
+def test_feasibility_warning_names_joint_and_time(one_link, one_link_fns):
+    arm, emu = one_link
+    g = _gains(emu, arm, 60.0)
+    t = np.arange(300) * 1e-3
+    # 60 N m/rad needs more than 6 V on both muscles: unreachable from the start.
+    ref = gc.reference_array([SmoothSteps((0.0,), (0.1,), 1.0)],
+                             [SmoothSteps((0.0,), (60.0,), 1.0)], t)
+    tr = gc.run_loop(emu, one_link_fns, "theorem5", ref, g, 1e-3, Pi_hat0=arm.Pi_nominal)
+    with pytest.warns(PressureWarning) as rec:
+        viol, clipped = gc.feasibility(emu, tr, "unreachable")
+    msg = str(rec[0].message)
+    assert viol and clipped > 0.9
+    assert "unreachable: joint 1 muscle" in msg
+    assert re.search(r"from t = [0-9.e+-]+ s to t = [0-9.e+-]+ s", msg)
+    # A reachable reference raises nothing.
+    ok = gc.reference_array([SmoothSteps((0.0,), (0.1,), 1.0)],
+                            [SmoothSteps((0.0,), (8.0,), 1.0)], t)
+    tr = gc.run_loop(emu, one_link_fns, "theorem5", ok, _gains(emu, arm, 8.0), 1e-3,
+                     Pi_hat0=arm.Pi_nominal)
+    viol, clipped = gc.feasibility(emu, tr, "reachable", warn=False)
+    assert not viol and clipped == 0.0
+
+
+def test_emergency_stop_fills_errors(one_link, one_link_fns):
+    arm, emu = one_link
+    t = np.arange(500) * 1e-3
+    ref = gc.reference_array([SmoothSteps((0.0,), (0.1,), 1.0)],
+                             [SmoothSteps((0.0,), (8.0,), 1.0)], t)
+    tr = gc.run_loop(emu, one_link_fns, "theorem5", ref, _gains(emu, arm, 8.0), 1e-3,
+                     Pi_hat0=arm.Pi_nominal, divergence=0.05)
+    # The arm rests off the reference (the map's offset) by more than 0.05 rad.
+    assert tr.diverged_at is not None
+    k = int(round(tr.diverged_at / 1e-3))
+    assert np.all(np.isfinite(tr.q[:k])) and np.all(np.isnan(tr.q[k:]))
+    assert np.all(tr.position_error(0.05)[k:] == 0.05)
+    np.testing.assert_allclose(tr.stiffness_error()[k:], -8.0)
+
+
+# -- the experiments ---------------------------------------------------------------------------
+
+@pytest.mark.slow
+def test_quick_experiments(tmp_path):
+    import warnings
+
+    from softgen.experiments.ch10_gioste import EXPERIMENT_1DOF, EXPERIMENT_2DOF
+
+    expected = [
+        (EXPERIMENT_1DOF, ["position_rms_error_joint1_phase1", "stiffness_rms_error_joint1_phase3",
+                          "position_to_stiffness_coupling_joint1",
+                          "stiffness_to_position_coupling_joint1",
+                          "parameter_estimate_max_ratio", "pressure_violations",
+                          "open_loop_position_rms_error_rise1", "closed_loop_unstable_rise2",
+                          "open_loop_position_to_stiffness_coupling_joint1",
+                          "open_loop_stiffness_to_position_coupling_joint1",
+                          "closed_loop_stiffness_to_position_coupling_joint1"]),
+        (EXPERIMENT_2DOF, ["position_rms_error_joint2_phase3", "stiffness_rms_error_joint1_phase2",
+                          "position_to_stiffness_coupling_joint2",
+                          "stiffness_to_position_coupling_joint1",
+                          "parameter_estimate_max_ratio", "pressure_violations"]),
+    ]
+    for exp, names in expected:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", PressureWarning)
+            m = exp.run({**exp.config, **exp.quick}, tmp_path / exp.id)
+        for name in names:
+            assert name in m, (exp.id, name)
+        for name, v in m.items():
+            if "coupling" in name and not math.isfinite(v):
+                # Undefined only when the run it comes from was stopped.
+                stops = [k for k in m if "diverged_at" in k and m[k] < _duration(exp)]
+                assert stops, (exp.id, name)
+            else:
+                assert math.isfinite(v), (exp.id, name, v)
+        assert (tmp_path / exp.id / "traces.npz").exists()
+        assert list((tmp_path / exp.id).glob("*.png"))
+
+
+def _duration(exp) -> float:
+    c = {**exp.config, **exp.quick}
+    if "phase_duration" in c:
+        return 3 * c["phase_duration"]
+    return c["tracking"]["duration"]
