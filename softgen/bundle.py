@@ -88,6 +88,7 @@ def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> 
         extra["actuator"] = model.actuator_type
         extra["estimators"] = {e.step_fun().name(): e.describe() for e in estimators}
     if model.actuator_type == "mckibben":
+        from .control.feedback_linearization import GAIN_NAMES as FL_GAIN_NAMES
         from .control.pneumatic import KINDS, REFERENCE_BLOCKS, PneumaticArm
         arm = PneumaticArm(model, dyn=dyn)
         extra["controllers"] = {
@@ -99,6 +100,12 @@ def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> 
             "Pi_nominal": [float(v) for v in arm.Pi_nominal],
             "K1": arm.K1,
             "pressure_unit": "Pa",
+            "feedback_linearization": {
+                "step": f"{model.name}_feedback_linearization",
+                "lie_derivatives": f"{model.name}_fl_lie",
+                "state_layout": ["q", "qd", "p"],
+                "gains": list(FL_GAIN_NAMES),
+            },
         }
     return BundleSpec(name=model.name, functions=fns, parameters=params, identity=identity,
                       extra=extra)
@@ -108,6 +115,7 @@ def _actuator_functions(model: RobotModel, dyn: RigidDynamics, fns: list) -> lis
     """Actuator model, actuated plants, estimators (thesis defaults) and, for McKibben
     pairs, the chapter-10 controllers of ``model``."""
     from .estimation.estimators import EstimatorConfig, StiffnessEstimator
+    from .control.feedback_linearization import FeedbackLinearization
     from .control.pneumatic import PneumaticArm
     from .symbolic.actuated import electric_plant_fun, pneumatic_plant_fun, valve_plant_fun
     from .symbolic.actuators import McKibbenPairs, QbmoveSprings
@@ -124,6 +132,8 @@ def _actuator_functions(model: RobotModel, dyn: RigidDynamics, fns: list) -> lis
                              f"{PLANT_SUBSTEPS} RK4 steps of the pneumatic robot with "
                              "first-order valves (sec. 10.4), commands clipped to [0, p_max]"))
         fns += [Generated(f, doc) for f, doc in PneumaticArm(model, dyn=dyn, act=act).functions()]
+        fns += [Generated(f, doc) for f, doc in
+                FeedbackLinearization(model, dyn=dyn, act=act).functions()]
         methods = ["pneumatic"] if model.dof == 1 else []
     else:
         springs = QbmoveSprings(model)

@@ -51,6 +51,8 @@ extern "C" {
 #define casadi_f25 CASADI_PREFIX(f25)
 #define casadi_f26 CASADI_PREFIX(f26)
 #define casadi_f27 CASADI_PREFIX(f27)
+#define casadi_f28 CASADI_PREFIX(f28)
+#define casadi_f29 CASADI_PREFIX(f29)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
@@ -70,6 +72,7 @@ extern "C" {
 #define casadi_s15 CASADI_PREFIX(s15)
 #define casadi_s16 CASADI_PREFIX(s16)
 #define casadi_s17 CASADI_PREFIX(s17)
+#define casadi_s18 CASADI_PREFIX(s18)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
@@ -155,6 +158,7 @@ static const casadi_int casadi_s14[3] = {2, 4, 1};
 static const casadi_int casadi_s15[3] = {4, 2, 1};
 static const casadi_int casadi_s16[3] = {12, 1, 1};
 static const casadi_int casadi_s17[3] = {7, 1, 1};
+static const casadi_int casadi_s18[3] = {4, 4, 1};
 
 static const casadi_real casadi_zeros[6000] = 
   {0.};
@@ -23095,6 +23099,1223 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_corollary2_work(casadi_int *sz_arg,
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_corollary2_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 10*sizeof(const casadi_real*);
   if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* arm_2link_pneumatic_feedback_linearization:(x[8],ref[12],pi[5],K[2],T_p[4],kq0[2],kq1[2],kq2[2],ks0[2])->(p_c[4],qdd[2],sigma[2],v[4],L[4],E[4x4]) */
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62, a63, a64, a65, a66, a67, a68, a69, a70, a71;
+  casadi_real a72, a73, a74, a75, a76, a77, a78, a79, a80, a81, a82, a83;
+  casadi_real a84, a85, a86, a87;
+  a00=arg[3]? arg[3][0] : 0;
+  a01=5.9999999999999998e-02;
+  a02=1.7000000000000001e-01;
+  a03=2.9999999999999999e-02;
+  a04=arg[0]? arg[0][0] : 0;
+  a05=(a03*a04);
+  a06=(a02+a05);
+  a07=(a01*a06);
+  a07=(a00*a07);
+  a08=arg[4]? arg[4][1] : 0;
+  a09=(a07/a08);
+  a05=(a02-a05);
+  a10=casadi_sq(a05);
+  a11=1.9600000000000003e-02;
+  a10=(a10-a11);
+  a10=(a00*a10);
+  a12=arg[4]? arg[4][0] : 0;
+  a13=(a10/a12);
+  a14=(a13*a09);
+  a15=casadi_sq(a06);
+  a15=(a15-a11);
+  a15=(a00*a15);
+  a16=(a15/a08);
+  a17=-5.9999999999999998e-02;
+  a18=(a17*a05);
+  a18=(a00*a18);
+  a19=(a18/a12);
+  a20=(a16*a19);
+  a14=(a14-a20);
+  a20=(a09/a14);
+  a21=arg[2]? arg[2][0] : 0;
+  a22=arg[2]? arg[2][1] : 0;
+  a21=(a21+a22);
+  a23=arg[2]? arg[2][4] : 0;
+  a24=cos(a04);
+  a25=arg[0]? arg[0][1] : 0;
+  a26=cos(a25);
+  a27=(a24*a26);
+  a28=sin(a04);
+  a29=sin(a25);
+  a30=(a28*a29);
+  a27=(a27-a30);
+  a30=(a24*a27);
+  a31=(a28*a26);
+  a32=(a24*a29);
+  a33=(a31+a32);
+  a34=(a28*a33);
+  a35=(a30+a34);
+  a30=(a35+a30);
+  a30=(a30+a34);
+  a30=(a23*a30);
+  a21=(a21+a30);
+  a30=arg[1]? arg[1][6] : 0;
+  a34=arg[7]? arg[7][0] : 0;
+  a36=arg[1]? arg[1][4] : 0;
+  a37=(a21*a22);
+  a35=(a23*a35);
+  a35=(a22+a35);
+  a38=casadi_sq(a35);
+  a37=(a37-a38);
+  a38=(a22/a37);
+  a39=arg[0]? arg[0][4] : 0;
+  a40=(a10*a39);
+  a41=arg[0]? arg[0][5] : 0;
+  a42=(a15*a41);
+  a40=(a40-a42);
+  a42=9.8100000000000005e+00;
+  a43=(a42*a24);
+  a44=arg[2]? arg[2][2] : 0;
+  a45=(a43*a44);
+  a46=(a42*a26);
+  a47=(a24*a46);
+  a48=(a42*a29);
+  a49=(a28*a48);
+  a47=(a47-a49);
+  a49=arg[2]? arg[2][3] : 0;
+  a47=(a47*a49);
+  a45=(a45+a47);
+  a47=arg[0]? arg[0][2] : 0;
+  a50=5.0000000000000000e-01;
+  a51=(a24*a47);
+  a52=(a26*a51);
+  a53=arg[0]? arg[0][3] : 0;
+  a54=(a29*a53);
+  a55=(a28*a54);
+  a52=(a52-a55);
+  a55=(a26*a53);
+  a56=(a24*a55);
+  a57=(a28*a47);
+  a58=(a29*a57);
+  a56=(a56-a58);
+  a58=(a52+a56);
+  a59=(a28*a58);
+  a60=(a51*a33);
+  a61=(a59+a60);
+  a62=(a26*a57);
+  a63=(a24*a54);
+  a64=(a62+a63);
+  a65=(a29*a51);
+  a66=(a28*a55);
+  a67=(a65+a66);
+  a64=(a64+a67);
+  a67=(a24*a64);
+  a68=(a57*a27);
+  a69=(a67+a68);
+  a61=(a61-a69);
+  a69=(a61-a69);
+  a60=(a60+a59);
+  a69=(a69+a60);
+  a69=(a50*a69);
+  a70=(a47*a69);
+  a68=(a68+a67);
+  a60=(a60-a68);
+  a68=(a47*a28);
+  a71=(a68*a27);
+  a72=(a47*a24);
+  a32=(a32+a31);
+  a31=(a72*a32);
+  a31=(a71-a31);
+  a73=(a47+a53);
+  a74=(a73*a32);
+  a75=(a24*a74);
+  a31=(a31-a75);
+  a75=(a73*a27);
+  a76=(a28*a75);
+  a31=(a31+a76);
+  a60=(a60+a31);
+  a76=(a26*a24);
+  a77=(a29*a28);
+  a76=(a76-a77);
+  a77=(a68*a76);
+  a78=(a72*a33);
+  a77=(a77+a78);
+  a78=(a26*a28);
+  a79=(a29*a24);
+  a78=(a78+a79);
+  a79=(a72*a78);
+  a79=(a79+a71);
+  a77=(a77-a79);
+  a60=(a60-a77);
+  a60=(a50*a60);
+  a79=(a53*a60);
+  a70=(a70+a79);
+  a70=(a70*a23);
+  a45=(a45+a70);
+  a40=(a40-a45);
+  a45=(a38*a40);
+  a70=(a35/a37);
+  a79=arg[3]? arg[3][1] : 0;
+  a71=(a03*a25);
+  a80=(a02-a71);
+  a81=casadi_sq(a80);
+  a81=(a81-a11);
+  a81=(a79*a81);
+  a82=arg[0]? arg[0][6] : 0;
+  a83=(a81*a82);
+  a02=(a02+a71);
+  a71=casadi_sq(a02);
+  a71=(a71-a11);
+  a71=(a79*a71);
+  a11=arg[0]? arg[0][7] : 0;
+  a84=(a71*a11);
+  a83=(a83-a84);
+  a84=(a26*a43);
+  a85=(a42*a28);
+  a86=(a29*a85);
+  a84=(a84-a86);
+  a84=(a84*a49);
+  a61=(a61+a77);
+  a61=(a61-a31);
+  a61=(a50*a61);
+  a31=(a47*a61);
+  a31=(a31*a23);
+  a84=(a84+a31);
+  a83=(a83-a84);
+  a84=(a70*a83);
+  a45=(a45-a84);
+  a36=(a36-a45);
+  a34=(a34*a36);
+  a30=(a30+a34);
+  a34=arg[6]? arg[6][0] : 0;
+  a36=arg[1]? arg[1][2] : 0;
+  a36=(a36-a47);
+  a34=(a34*a36);
+  a30=(a30+a34);
+  a34=arg[5]? arg[5][0] : 0;
+  a36=arg[1]? arg[1][0] : 0;
+  a36=(a36-a04);
+  a34=(a34*a36);
+  a30=(a30+a34);
+  a34=(a21*a30);
+  a36=arg[1]? arg[1][7] : 0;
+  a04=arg[7]? arg[7][1] : 0;
+  a84=arg[1]? arg[1][5] : 0;
+  a21=(a21/a37);
+  a83=(a21*a83);
+  a40=(a70*a40);
+  a83=(a83-a40);
+  a84=(a84-a83);
+  a04=(a04*a84);
+  a36=(a36+a04);
+  a04=arg[6]? arg[6][1] : 0;
+  a84=arg[1]? arg[1][3] : 0;
+  a84=(a84-a53);
+  a04=(a04*a84);
+  a36=(a36+a04);
+  a04=arg[5]? arg[5][1] : 0;
+  a84=arg[1]? arg[1][1] : 0;
+  a84=(a84-a25);
+  a04=(a04*a84);
+  a36=(a36+a04);
+  a04=(a35*a36);
+  a34=(a34+a04);
+  a05=(2.*a05);
+  a04=(a03*a47);
+  a05=(a05*a04);
+  a05=(a00*a05);
+  a05=(a39*a05);
+  a12=(a39/a12);
+  a10=(a10*a12);
+  a05=(a05+a10);
+  a06=(2.*a06);
+  a06=(a06*a04);
+  a06=(a00*a06);
+  a06=(a41*a06);
+  a08=(a41/a08);
+  a15=(a15*a08);
+  a06=(a06-a15);
+  a05=(a05+a06);
+  a69=(a69*a45);
+  a06=(a58*a51);
+  a15=(a24*a45);
+  a04=(a47*a57);
+  a15=(a15-a04);
+  a04=(a26*a15);
+  a10=(a51*a54);
+  a04=(a04-a10);
+  a10=(a54*a51);
+  a84=(a53*a55);
+  a25=(a29*a83);
+  a84=(a84+a25);
+  a25=(a28*a84);
+  a10=(a10+a25);
+  a04=(a04-a10);
+  a10=(a26*a83);
+  a25=(a53*a54);
+  a10=(a10-a25);
+  a25=(a24*a10);
+  a40=(a55*a57);
+  a25=(a25-a40);
+  a40=(a57*a55);
+  a37=(a47*a51);
+  a31=(a28*a45);
+  a77=(a37+a31);
+  a86=(a29*a77);
+  a40=(a40+a86);
+  a25=(a25-a40);
+  a04=(a04+a25);
+  a04=(a28*a04);
+  a06=(a06+a04);
+  a04=(a33*a15);
+  a25=(a51*a58);
+  a25=(a04+a25);
+  a40=(a06+a25);
+  a86=(a26*a77);
+  a87=(a57*a54);
+  a86=(a86-a87);
+  a84=(a24*a84);
+  a87=(a54*a57);
+  a84=(a84-a87);
+  a86=(a86+a84);
+  a84=(a51*a55);
+  a87=(a29*a15);
+  a84=(a84+a87);
+  a87=(a55*a51);
+  a10=(a28*a10);
+  a87=(a87+a10);
+  a84=(a84+a87);
+  a86=(a86+a84);
+  a86=(a24*a86);
+  a84=(a64*a57);
+  a86=(a86-a84);
+  a77=(a27*a77);
+  a84=(a57*a64);
+  a77=(a77-a84);
+  a84=(a86+a77);
+  a40=(a40-a84);
+  a84=(a40-a84);
+  a25=(a25+a06);
+  a84=(a84+a25);
+  a84=(a50*a84);
+  a84=(a47*a84);
+  a69=(a69+a84);
+  a60=(a60*a83);
+  a77=(a77+a86);
+  a25=(a25-a77);
+  a31=(a31+a37);
+  a37=(a27*a31);
+  a77=(a68*a64);
+  a37=(a37-a77);
+  a77=(a32*a15);
+  a56=(a56+a52);
+  a52=(a72*a56);
+  a77=(a77+a52);
+  a77=(a37-a77);
+  a52=(a45+a83);
+  a32=(a32*a52);
+  a56=(a73*a56);
+  a32=(a32+a56);
+  a32=(a24*a32);
+  a74=(a74*a57);
+  a32=(a32-a74);
+  a77=(a77-a32);
+  a75=(a75*a51);
+  a52=(a27*a52);
+  a73=(a73*a64);
+  a52=(a52-a73);
+  a52=(a28*a52);
+  a75=(a75+a52);
+  a77=(a77+a75);
+  a25=(a25+a77);
+  a76=(a76*a31);
+  a63=(a63+a62);
+  a66=(a66+a65);
+  a63=(a63+a66);
+  a68=(a68*a63);
+  a76=(a76-a68);
+  a72=(a72*a58);
+  a04=(a04+a72);
+  a76=(a76+a04);
+  a78=(a78*a15);
+  a78=(a78+a72);
+  a78=(a78+a37);
+  a76=(a76-a78);
+  a25=(a25-a76);
+  a25=(a50*a25);
+  a25=(a53*a25);
+  a60=(a60+a25);
+  a69=(a69+a60);
+  a69=(a23*a69);
+  a60=(a42*a57);
+  a44=(a44*a60);
+  a46=(a46*a57);
+  a25=(a42*a54);
+  a24=(a24*a25);
+  a46=(a46+a24);
+  a48=(a48*a51);
+  a24=(a42*a55);
+  a28=(a28*a24);
+  a48=(a48+a28);
+  a46=(a46+a48);
+  a46=(a49*a46);
+  a44=(a44+a46);
+  a69=(a69-a44);
+  a05=(a05+a69);
+  a33=(a33*a51);
+  a33=(a33+a59);
+  a27=(a27*a57);
+  a27=(a27+a67);
+  a67=(a33-a27);
+  a27=(a67-a27);
+  a27=(a27+a33);
+  a27=(a23*a27);
+  a27=(a45*a27);
+  a67=(a23*a67);
+  a33=(a83*a67);
+  a27=(a27+a33);
+  a05=(a05+a27);
+  a34=(a34+a05);
+  a20=(a20*a34);
+  a27=(a16/a14);
+  a33=arg[1]? arg[1][10] : 0;
+  a57=arg[8]? arg[8][0] : 0;
+  a59=arg[1]? arg[1][8] : 0;
+  a69=(a18*a39);
+  a44=(a07*a41);
+  a69=(a69-a44);
+  a59=(a59+a69);
+  a57=(a57*a59);
+  a33=(a33+a57);
+  a57=-1.8000000000000000e-03;
+  a59=(a57*a47);
+  a59=(a00*a59);
+  a39=(a39*a59);
+  a18=(a18*a12);
+  a39=(a39+a18);
+  a18=1.8000000000000000e-03;
+  a12=(a18*a47);
+  a00=(a00*a12);
+  a41=(a41*a00);
+  a07=(a07*a08);
+  a41=(a41-a07);
+  a39=(a39+a41);
+  a41=(a33-a39);
+  a27=(a27*a41);
+  a20=(a20+a27);
+  if (res[0]!=0) res[0][0]=a20;
+  a20=(a19/a14);
+  a20=(a20*a34);
+  a14=(a13/a14);
+  a14=(a14*a41);
+  a20=(a20+a14);
+  if (res[0]!=0) res[0][1]=a20;
+  a01=(a01*a02);
+  a01=(a79*a01);
+  a20=arg[4]? arg[4][3] : 0;
+  a14=(a01/a20);
+  a41=arg[4]? arg[4][2] : 0;
+  a34=(a81/a41);
+  a27=(a34*a14);
+  a07=(a71/a20);
+  a17=(a17*a80);
+  a17=(a79*a17);
+  a08=(a17/a41);
+  a00=(a07*a08);
+  a27=(a27-a00);
+  a00=(a14/a27);
+  a35=(a35*a30);
+  a22=(a22*a36);
+  a35=(a35+a22);
+  a80=(2.*a80);
+  a03=(a03*a53);
+  a80=(a80*a03);
+  a80=(a79*a80);
+  a80=(a82*a80);
+  a41=(a82/a41);
+  a81=(a81*a41);
+  a80=(a80+a81);
+  a02=(2.*a02);
+  a02=(a02*a03);
+  a02=(a79*a02);
+  a02=(a11*a02);
+  a20=(a11/a20);
+  a71=(a71*a20);
+  a02=(a02-a71);
+  a80=(a80+a02);
+  a61=(a61*a45);
+  a40=(a40+a76);
+  a40=(a40-a77);
+  a50=(a50*a40);
+  a47=(a47*a50);
+  a61=(a61+a47);
+  a23=(a23*a61);
+  a43=(a43*a54);
+  a26=(a26*a60);
+  a43=(a43+a26);
+  a85=(a85*a55);
+  a42=(a42*a51);
+  a29=(a29*a42);
+  a85=(a85+a29);
+  a43=(a43+a85);
+  a49=(a49*a43);
+  a23=(a23-a49);
+  a80=(a80+a23);
+  a67=(a45*a67);
+  a80=(a80+a67);
+  a35=(a35+a80);
+  a00=(a00*a35);
+  a67=(a07/a27);
+  a23=arg[1]? arg[1][11] : 0;
+  a49=arg[8]? arg[8][1] : 0;
+  a43=arg[1]? arg[1][9] : 0;
+  a85=(a17*a82);
+  a29=(a01*a11);
+  a85=(a85-a29);
+  a43=(a43+a85);
+  a49=(a49*a43);
+  a23=(a23+a49);
+  a57=(a57*a53);
+  a57=(a79*a57);
+  a82=(a82*a57);
+  a17=(a17*a41);
+  a82=(a82+a17);
+  a18=(a18*a53);
+  a79=(a79*a18);
+  a11=(a11*a79);
+  a01=(a01*a20);
+  a11=(a11-a01);
+  a82=(a82+a11);
+  a11=(a23-a82);
+  a67=(a67*a11);
+  a00=(a00+a67);
+  if (res[0]!=0) res[0][2]=a00;
+  a00=(a08/a27);
+  a00=(a00*a35);
+  a27=(a34/a27);
+  a27=(a27*a11);
+  a00=(a00+a27);
+  if (res[0]!=0) res[0][3]=a00;
+  if (res[1]!=0) res[1][0]=a45;
+  if (res[1]!=0) res[1][1]=a83;
+  a69=(-a69);
+  if (res[2]!=0) res[2][0]=a69;
+  a85=(-a85);
+  if (res[2]!=0) res[2][1]=a85;
+  if (res[3]!=0) res[3][0]=a30;
+  if (res[3]!=0) res[3][1]=a36;
+  if (res[3]!=0) res[3][2]=a33;
+  if (res[3]!=0) res[3][3]=a23;
+  a23=(a70*a80);
+  a33=(a38*a05);
+  a23=(a23-a33);
+  if (res[4]!=0) res[4][0]=a23;
+  a05=(a70*a05);
+  a80=(a21*a80);
+  a05=(a05-a80);
+  if (res[4]!=0) res[4][1]=a05;
+  if (res[4]!=0) res[4][2]=a39;
+  if (res[4]!=0) res[4][3]=a82;
+  a82=(a38*a13);
+  if (res[5]!=0) res[5][0]=a82;
+  a13=(a70*a13);
+  a13=(-a13);
+  if (res[5]!=0) res[5][1]=a13;
+  a19=(-a19);
+  if (res[5]!=0) res[5][2]=a19;
+  a19=0.;
+  if (res[5]!=0) res[5][3]=a19;
+  a38=(a38*a16);
+  a38=(-a38);
+  if (res[5]!=0) res[5][4]=a38;
+  a16=(a70*a16);
+  if (res[5]!=0) res[5][5]=a16;
+  if (res[5]!=0) res[5][6]=a09;
+  if (res[5]!=0) res[5][7]=a19;
+  a09=(a70*a34);
+  a09=(-a09);
+  if (res[5]!=0) res[5][8]=a09;
+  a34=(a21*a34);
+  if (res[5]!=0) res[5][9]=a34;
+  if (res[5]!=0) res[5][10]=a19;
+  a08=(-a08);
+  if (res[5]!=0) res[5][11]=a08;
+  a70=(a70*a07);
+  if (res[5]!=0) res[5][12]=a70;
+  a21=(a21*a07);
+  a21=(-a21);
+  if (res[5]!=0) res[5][13]=a21;
+  if (res[5]!=0) res[5][14]=a19;
+  if (res[5]!=0) res[5][15]=a14;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f28(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_feedback_linearization_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void arm_2link_pneumatic_feedback_linearization_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void arm_2link_pneumatic_feedback_linearization_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void arm_2link_pneumatic_feedback_linearization_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int arm_2link_pneumatic_feedback_linearization_n_in(void) { return 9;}
+
+CASADI_SYMBOL_EXPORT casadi_int arm_2link_pneumatic_feedback_linearization_n_out(void) { return 6;}
+
+CASADI_SYMBOL_EXPORT casadi_real arm_2link_pneumatic_feedback_linearization_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* arm_2link_pneumatic_feedback_linearization_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "ref";
+    case 2: return "pi";
+    case 3: return "K";
+    case 4: return "T_p";
+    case 5: return "kq0";
+    case 6: return "kq1";
+    case 7: return "kq2";
+    case 8: return "ks0";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* arm_2link_pneumatic_feedback_linearization_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "p_c";
+    case 1: return "qdd";
+    case 2: return "sigma";
+    case 3: return "v";
+    case 4: return "L";
+    case 5: return "E";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* arm_2link_pneumatic_feedback_linearization_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s4;
+    case 1: return casadi_s16;
+    case 2: return casadi_s3;
+    case 3: return casadi_s0;
+    case 4: return casadi_s7;
+    case 5: return casadi_s0;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* arm_2link_pneumatic_feedback_linearization_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s7;
+    case 1: return casadi_s0;
+    case 2: return casadi_s0;
+    case 3: return casadi_s7;
+    case 4: return casadi_s7;
+    case 5: return casadi_s18;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_feedback_linearization_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 9;
+  if (sz_res) *sz_res = 6;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_feedback_linearization_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 9*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* arm_2link_pneumatic_fl_lie:(x[8],p_c[4],pi[5],K[2],T_p[4])->(L[4],E[4x4],y_rate[4]) */
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62, a63, a64, a65, a66, a67, a68, a69, a70, a71;
+  casadi_real a72, a73, a74, a75, a76, a77, a78;
+  a00=arg[2]? arg[2][1] : 0;
+  a01=arg[2]? arg[2][4] : 0;
+  a02=arg[0]? arg[0][0] : 0;
+  a03=cos(a02);
+  a04=arg[0]? arg[0][1] : 0;
+  a05=cos(a04);
+  a06=(a03*a05);
+  a07=sin(a02);
+  a08=sin(a04);
+  a09=(a07*a08);
+  a06=(a06-a09);
+  a09=(a03*a06);
+  a10=(a07*a05);
+  a11=(a03*a08);
+  a12=(a10+a11);
+  a13=(a07*a12);
+  a14=(a09+a13);
+  a15=(a01*a14);
+  a15=(a00+a15);
+  a16=arg[2]? arg[2][0] : 0;
+  a16=(a16+a00);
+  a14=(a14+a09);
+  a14=(a14+a13);
+  a14=(a01*a14);
+  a16=(a16+a14);
+  a14=(a16*a00);
+  a13=casadi_sq(a15);
+  a14=(a14-a13);
+  a15=(a15/a14);
+  a13=arg[0]? arg[0][6] : 0;
+  a09=arg[3]? arg[3][1] : 0;
+  a17=1.7000000000000001e-01;
+  a18=2.9999999999999999e-02;
+  a04=(a18*a04);
+  a19=(a17-a04);
+  a20=(2.*a19);
+  a21=arg[0]? arg[0][3] : 0;
+  a22=(a18*a21);
+  a20=(a20*a22);
+  a20=(a09*a20);
+  a20=(a13*a20);
+  a23=casadi_sq(a19);
+  a24=1.9600000000000003e-02;
+  a23=(a23-a24);
+  a23=(a09*a23);
+  a25=arg[4]? arg[4][2] : 0;
+  a26=(a13/a25);
+  a27=(a23*a26);
+  a20=(a20+a27);
+  a27=arg[0]? arg[0][7] : 0;
+  a04=(a17+a04);
+  a28=(2.*a04);
+  a28=(a28*a22);
+  a28=(a09*a28);
+  a28=(a27*a28);
+  a22=casadi_sq(a04);
+  a22=(a22-a24);
+  a22=(a09*a22);
+  a29=arg[4]? arg[4][3] : 0;
+  a30=(a27/a29);
+  a31=(a22*a30);
+  a28=(a28-a31);
+  a20=(a20+a28);
+  a28=5.0000000000000000e-01;
+  a31=arg[0]? arg[0][2] : 0;
+  a32=(a03*a31);
+  a33=(a05*a32);
+  a34=(a08*a21);
+  a35=(a07*a34);
+  a33=(a33-a35);
+  a35=(a05*a21);
+  a36=(a03*a35);
+  a37=(a07*a31);
+  a38=(a08*a37);
+  a36=(a36-a38);
+  a38=(a33+a36);
+  a39=(a07*a38);
+  a40=(a32*a12);
+  a41=(a39+a40);
+  a42=(a05*a37);
+  a43=(a03*a34);
+  a44=(a42+a43);
+  a45=(a08*a32);
+  a46=(a07*a35);
+  a47=(a45+a46);
+  a44=(a44+a47);
+  a47=(a03*a44);
+  a48=(a37*a06);
+  a49=(a47+a48);
+  a41=(a41-a49);
+  a50=(a31*a07);
+  a51=(a05*a03);
+  a52=(a08*a07);
+  a51=(a51-a52);
+  a52=(a50*a51);
+  a53=(a31*a03);
+  a54=(a53*a12);
+  a52=(a52+a54);
+  a54=(a05*a07);
+  a55=(a08*a03);
+  a54=(a54+a55);
+  a55=(a53*a54);
+  a56=(a50*a06);
+  a55=(a55+a56);
+  a52=(a52-a55);
+  a55=(a41+a52);
+  a11=(a11+a10);
+  a10=(a53*a11);
+  a56=(a56-a10);
+  a10=(a31+a21);
+  a57=(a10*a11);
+  a58=(a03*a57);
+  a56=(a56-a58);
+  a58=(a10*a06);
+  a59=(a07*a58);
+  a56=(a56+a59);
+  a55=(a55-a56);
+  a55=(a28*a55);
+  a00=(a00/a14);
+  a59=arg[3]? arg[3][0] : 0;
+  a02=(a18*a02);
+  a60=(a17-a02);
+  a61=casadi_sq(a60);
+  a61=(a61-a24);
+  a61=(a59*a61);
+  a62=arg[0]? arg[0][4] : 0;
+  a63=(a61*a62);
+  a17=(a17+a02);
+  a02=casadi_sq(a17);
+  a02=(a02-a24);
+  a02=(a59*a02);
+  a24=arg[0]? arg[0][5] : 0;
+  a64=(a02*a24);
+  a63=(a63-a64);
+  a64=9.8100000000000005e+00;
+  a65=(a64*a03);
+  a66=arg[2]? arg[2][2] : 0;
+  a67=(a65*a66);
+  a68=(a64*a05);
+  a69=(a03*a68);
+  a70=(a64*a08);
+  a71=(a07*a70);
+  a69=(a69-a71);
+  a71=arg[2]? arg[2][3] : 0;
+  a69=(a69*a71);
+  a67=(a67+a69);
+  a41=(a41-a49);
+  a40=(a40+a39);
+  a41=(a41+a40);
+  a41=(a28*a41);
+  a49=(a31*a41);
+  a48=(a48+a47);
+  a40=(a40-a48);
+  a40=(a40+a56);
+  a40=(a40-a52);
+  a40=(a28*a40);
+  a52=(a21*a40);
+  a49=(a49+a52);
+  a49=(a49*a01);
+  a67=(a67+a49);
+  a63=(a63-a67);
+  a67=(a00*a63);
+  a49=(a23*a13);
+  a52=(a22*a27);
+  a49=(a49-a52);
+  a52=(a05*a65);
+  a56=(a64*a07);
+  a48=(a08*a56);
+  a52=(a52-a48);
+  a52=(a52*a71);
+  a48=(a31*a55);
+  a48=(a48*a01);
+  a52=(a52+a48);
+  a49=(a49-a52);
+  a52=(a15*a49);
+  a67=(a67-a52);
+  a55=(a55*a67);
+  a52=(a38*a32);
+  a48=(a03*a67);
+  a69=(a31*a37);
+  a48=(a48-a69);
+  a69=(a05*a48);
+  a72=(a32*a34);
+  a69=(a69-a72);
+  a72=(a34*a32);
+  a73=(a21*a35);
+  a16=(a16/a14);
+  a49=(a16*a49);
+  a63=(a15*a63);
+  a49=(a49-a63);
+  a63=(a08*a49);
+  a73=(a73+a63);
+  a63=(a07*a73);
+  a72=(a72+a63);
+  a69=(a69-a72);
+  a72=(a05*a49);
+  a63=(a21*a34);
+  a72=(a72-a63);
+  a63=(a03*a72);
+  a14=(a35*a37);
+  a63=(a63-a14);
+  a14=(a37*a35);
+  a74=(a31*a32);
+  a75=(a07*a67);
+  a76=(a74+a75);
+  a77=(a08*a76);
+  a14=(a14+a77);
+  a63=(a63-a14);
+  a69=(a69+a63);
+  a69=(a07*a69);
+  a52=(a52+a69);
+  a69=(a12*a48);
+  a63=(a32*a38);
+  a63=(a69+a63);
+  a14=(a52+a63);
+  a77=(a05*a76);
+  a78=(a37*a34);
+  a77=(a77-a78);
+  a73=(a03*a73);
+  a78=(a34*a37);
+  a73=(a73-a78);
+  a77=(a77+a73);
+  a73=(a32*a35);
+  a78=(a08*a48);
+  a73=(a73+a78);
+  a78=(a35*a32);
+  a72=(a07*a72);
+  a78=(a78+a72);
+  a73=(a73+a78);
+  a77=(a77+a73);
+  a77=(a03*a77);
+  a73=(a44*a37);
+  a77=(a77-a73);
+  a76=(a06*a76);
+  a73=(a37*a44);
+  a76=(a76-a73);
+  a73=(a77+a76);
+  a14=(a14-a73);
+  a75=(a75+a74);
+  a51=(a51*a75);
+  a43=(a43+a42);
+  a46=(a46+a45);
+  a43=(a43+a46);
+  a43=(a50*a43);
+  a51=(a51-a43);
+  a38=(a53*a38);
+  a69=(a69+a38);
+  a51=(a51+a69);
+  a54=(a54*a48);
+  a54=(a54+a38);
+  a75=(a06*a75);
+  a50=(a50*a44);
+  a75=(a75-a50);
+  a54=(a54+a75);
+  a51=(a51-a54);
+  a54=(a14+a51);
+  a48=(a11*a48);
+  a36=(a36+a33);
+  a53=(a53*a36);
+  a48=(a48+a53);
+  a75=(a75-a48);
+  a48=(a67+a49);
+  a11=(a11*a48);
+  a36=(a10*a36);
+  a11=(a11+a36);
+  a11=(a03*a11);
+  a57=(a57*a37);
+  a11=(a11-a57);
+  a75=(a75-a11);
+  a58=(a58*a32);
+  a48=(a06*a48);
+  a10=(a10*a44);
+  a48=(a48-a10);
+  a48=(a07*a48);
+  a58=(a58+a48);
+  a75=(a75+a58);
+  a54=(a54-a75);
+  a54=(a28*a54);
+  a54=(a31*a54);
+  a55=(a55+a54);
+  a55=(a01*a55);
+  a65=(a65*a34);
+  a54=(a64*a37);
+  a05=(a05*a54);
+  a65=(a65+a05);
+  a56=(a56*a35);
+  a05=(a64*a32);
+  a08=(a08*a05);
+  a56=(a56+a08);
+  a65=(a65+a56);
+  a65=(a71*a65);
+  a55=(a55-a65);
+  a20=(a20+a55);
+  a12=(a12*a32);
+  a12=(a12+a39);
+  a06=(a06*a37);
+  a06=(a06+a47);
+  a47=(a12-a06);
+  a39=(a01*a47);
+  a55=(a67*a39);
+  a20=(a20+a55);
+  a55=(a15*a20);
+  a65=(2.*a60);
+  a18=(a18*a31);
+  a65=(a65*a18);
+  a65=(a59*a65);
+  a65=(a62*a65);
+  a56=arg[4]? arg[4][0] : 0;
+  a08=(a62/a56);
+  a05=(a61*a08);
+  a65=(a65+a05);
+  a05=(2.*a17);
+  a05=(a05*a18);
+  a05=(a59*a05);
+  a05=(a24*a05);
+  a18=arg[4]? arg[4][1] : 0;
+  a58=(a24/a18);
+  a48=(a02*a58);
+  a05=(a05-a48);
+  a65=(a65+a05);
+  a41=(a41*a67);
+  a14=(a14-a73);
+  a63=(a63+a52);
+  a14=(a14+a63);
+  a14=(a28*a14);
+  a14=(a31*a14);
+  a41=(a41+a14);
+  a40=(a40*a49);
+  a76=(a76+a77);
+  a63=(a63-a76);
+  a63=(a63+a75);
+  a63=(a63-a51);
+  a28=(a28*a63);
+  a28=(a21*a28);
+  a40=(a40+a28);
+  a41=(a41+a40);
+  a41=(a01*a41);
+  a66=(a66*a54);
+  a68=(a68*a37);
+  a34=(a64*a34);
+  a03=(a03*a34);
+  a68=(a68+a03);
+  a70=(a70*a32);
+  a64=(a64*a35);
+  a07=(a07*a64);
+  a70=(a70+a07);
+  a68=(a68+a70);
+  a71=(a71*a68);
+  a66=(a66+a71);
+  a41=(a41-a66);
+  a65=(a65+a41);
+  a47=(a47-a06);
+  a47=(a47+a12);
+  a01=(a01*a47);
+  a67=(a67*a01);
+  a49=(a49*a39);
+  a67=(a67+a49);
+  a65=(a65+a67);
+  a67=(a00*a65);
+  a55=(a55-a67);
+  if (res[0]!=0) res[0][0]=a55;
+  a65=(a15*a65);
+  a20=(a16*a20);
+  a65=(a65-a20);
+  if (res[0]!=0) res[0][1]=a65;
+  a20=-1.8000000000000000e-03;
+  a67=(a20*a31);
+  a67=(a59*a67);
+  a62=(a62*a67);
+  a67=-5.9999999999999998e-02;
+  a60=(a67*a60);
+  a60=(a59*a60);
+  a08=(a60*a08);
+  a62=(a62+a08);
+  a08=1.8000000000000000e-03;
+  a31=(a08*a31);
+  a31=(a59*a31);
+  a24=(a24*a31);
+  a31=5.9999999999999998e-02;
+  a17=(a31*a17);
+  a59=(a59*a17);
+  a58=(a59*a58);
+  a24=(a24-a58);
+  a62=(a62+a24);
+  if (res[0]!=0) res[0][2]=a62;
+  a20=(a20*a21);
+  a20=(a09*a20);
+  a13=(a13*a20);
+  a67=(a67*a19);
+  a67=(a09*a67);
+  a26=(a67*a26);
+  a13=(a13+a26);
+  a08=(a08*a21);
+  a08=(a09*a08);
+  a27=(a27*a08);
+  a31=(a31*a04);
+  a09=(a09*a31);
+  a30=(a09*a30);
+  a27=(a27-a30);
+  a13=(a13+a27);
+  if (res[0]!=0) res[0][3]=a13;
+  a61=(a61/a56);
+  a27=(a00*a61);
+  if (res[1]!=0) res[1][0]=a27;
+  a61=(a15*a61);
+  a30=(-a61);
+  if (res[1]!=0) res[1][1]=a30;
+  a60=(a60/a56);
+  a56=(-a60);
+  if (res[1]!=0) res[1][2]=a56;
+  a56=0.;
+  if (res[1]!=0) res[1][3]=a56;
+  a02=(a02/a18);
+  a00=(a00*a02);
+  a30=(-a00);
+  if (res[1]!=0) res[1][4]=a30;
+  a02=(a15*a02);
+  if (res[1]!=0) res[1][5]=a02;
+  a59=(a59/a18);
+  if (res[1]!=0) res[1][6]=a59;
+  if (res[1]!=0) res[1][7]=a56;
+  a23=(a23/a25);
+  a18=(a15*a23);
+  a30=(-a18);
+  if (res[1]!=0) res[1][8]=a30;
+  a23=(a16*a23);
+  if (res[1]!=0) res[1][9]=a23;
+  if (res[1]!=0) res[1][10]=a56;
+  a67=(a67/a25);
+  a25=(-a67);
+  if (res[1]!=0) res[1][11]=a25;
+  a22=(a22/a29);
+  a15=(a15*a22);
+  if (res[1]!=0) res[1][12]=a15;
+  a16=(a16*a22);
+  a22=(-a16);
+  if (res[1]!=0) res[1][13]=a22;
+  if (res[1]!=0) res[1][14]=a56;
+  a09=(a09/a29);
+  if (res[1]!=0) res[1][15]=a09;
+  a29=arg[1]? arg[1][0] : 0;
+  a27=(a27*a29);
+  a56=arg[1]? arg[1][1] : 0;
+  a00=(a00*a56);
+  a27=(a27-a00);
+  a00=arg[1]? arg[1][2] : 0;
+  a18=(a18*a00);
+  a27=(a27-a18);
+  a18=arg[1]? arg[1][3] : 0;
+  a15=(a15*a18);
+  a27=(a27+a15);
+  a55=(a55+a27);
+  if (res[2]!=0) res[2][0]=a55;
+  a02=(a02*a56);
+  a61=(a61*a29);
+  a02=(a02-a61);
+  a23=(a23*a00);
+  a02=(a02+a23);
+  a16=(a16*a18);
+  a02=(a02-a16);
+  a65=(a65+a02);
+  if (res[2]!=0) res[2][1]=a65;
+  a59=(a59*a56);
+  a60=(a60*a29);
+  a59=(a59-a60);
+  a62=(a62+a59);
+  if (res[2]!=0) res[2][2]=a62;
+  a09=(a09*a18);
+  a67=(a67*a00);
+  a09=(a09-a67);
+  a13=(a13+a09);
+  if (res[2]!=0) res[2][3]=a13;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_fl_lie(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f29(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_fl_lie_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void arm_2link_pneumatic_fl_lie_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void arm_2link_pneumatic_fl_lie_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void arm_2link_pneumatic_fl_lie_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int arm_2link_pneumatic_fl_lie_n_in(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_int arm_2link_pneumatic_fl_lie_n_out(void) { return 3;}
+
+CASADI_SYMBOL_EXPORT casadi_real arm_2link_pneumatic_fl_lie_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* arm_2link_pneumatic_fl_lie_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "p_c";
+    case 2: return "pi";
+    case 3: return "K";
+    case 4: return "T_p";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* arm_2link_pneumatic_fl_lie_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "L";
+    case 1: return "E";
+    case 2: return "y_rate";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* arm_2link_pneumatic_fl_lie_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s4;
+    case 1: return casadi_s7;
+    case 2: return casadi_s3;
+    case 3: return casadi_s0;
+    case 4: return casadi_s7;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* arm_2link_pneumatic_fl_lie_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s7;
+    case 1: return casadi_s18;
+    case 2: return casadi_s7;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_fl_lie_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 5;
+  if (sz_res) *sz_res = 3;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_fl_lie_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 5*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;

@@ -449,6 +449,42 @@ int arm_2link_pneumatic_corollary2_work_bytes(casadi_int *sz_arg, casadi_int* sz
 #define arm_2link_pneumatic_corollary2_SZ_RES 4
 #define arm_2link_pneumatic_corollary2_SZ_IW 0
 #define arm_2link_pneumatic_corollary2_SZ_W 0
+int arm_2link_pneumatic_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int arm_2link_pneumatic_feedback_linearization_checkout(void);
+void arm_2link_pneumatic_feedback_linearization_release(int mem);
+void arm_2link_pneumatic_feedback_linearization_incref(void);
+void arm_2link_pneumatic_feedback_linearization_decref(void);
+casadi_int arm_2link_pneumatic_feedback_linearization_n_in(void);
+casadi_int arm_2link_pneumatic_feedback_linearization_n_out(void);
+casadi_real arm_2link_pneumatic_feedback_linearization_default_in(casadi_int i);
+const char* arm_2link_pneumatic_feedback_linearization_name_in(casadi_int i);
+const char* arm_2link_pneumatic_feedback_linearization_name_out(casadi_int i);
+const casadi_int* arm_2link_pneumatic_feedback_linearization_sparsity_in(casadi_int i);
+const casadi_int* arm_2link_pneumatic_feedback_linearization_sparsity_out(casadi_int i);
+int arm_2link_pneumatic_feedback_linearization_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int arm_2link_pneumatic_feedback_linearization_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define arm_2link_pneumatic_feedback_linearization_SZ_ARG 9
+#define arm_2link_pneumatic_feedback_linearization_SZ_RES 6
+#define arm_2link_pneumatic_feedback_linearization_SZ_IW 0
+#define arm_2link_pneumatic_feedback_linearization_SZ_W 0
+int arm_2link_pneumatic_fl_lie(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int arm_2link_pneumatic_fl_lie_checkout(void);
+void arm_2link_pneumatic_fl_lie_release(int mem);
+void arm_2link_pneumatic_fl_lie_incref(void);
+void arm_2link_pneumatic_fl_lie_decref(void);
+casadi_int arm_2link_pneumatic_fl_lie_n_in(void);
+casadi_int arm_2link_pneumatic_fl_lie_n_out(void);
+casadi_real arm_2link_pneumatic_fl_lie_default_in(casadi_int i);
+const char* arm_2link_pneumatic_fl_lie_name_in(casadi_int i);
+const char* arm_2link_pneumatic_fl_lie_name_out(casadi_int i);
+const casadi_int* arm_2link_pneumatic_fl_lie_sparsity_in(casadi_int i);
+const casadi_int* arm_2link_pneumatic_fl_lie_sparsity_out(casadi_int i);
+int arm_2link_pneumatic_fl_lie_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int arm_2link_pneumatic_fl_lie_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define arm_2link_pneumatic_fl_lie_SZ_ARG 5
+#define arm_2link_pneumatic_fl_lie_SZ_RES 3
+#define arm_2link_pneumatic_fl_lie_SZ_IW 0
+#define arm_2link_pneumatic_fl_lie_SZ_W 0
 void arm_2link_pneumatic_casadi_version(int* major, int* minor, int* patch);
 int arm_2link_pneumatic_casadi_int_size(void);
 int arm_2link_pneumatic_casadi_real_size(void);

@@ -449,6 +449,42 @@ int gioste_1link_corollary2_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, c
 #define gioste_1link_corollary2_SZ_RES 4
 #define gioste_1link_corollary2_SZ_IW 0
 #define gioste_1link_corollary2_SZ_W 0
+int gioste_1link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int gioste_1link_feedback_linearization_checkout(void);
+void gioste_1link_feedback_linearization_release(int mem);
+void gioste_1link_feedback_linearization_incref(void);
+void gioste_1link_feedback_linearization_decref(void);
+casadi_int gioste_1link_feedback_linearization_n_in(void);
+casadi_int gioste_1link_feedback_linearization_n_out(void);
+casadi_real gioste_1link_feedback_linearization_default_in(casadi_int i);
+const char* gioste_1link_feedback_linearization_name_in(casadi_int i);
+const char* gioste_1link_feedback_linearization_name_out(casadi_int i);
+const casadi_int* gioste_1link_feedback_linearization_sparsity_in(casadi_int i);
+const casadi_int* gioste_1link_feedback_linearization_sparsity_out(casadi_int i);
+int gioste_1link_feedback_linearization_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int gioste_1link_feedback_linearization_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define gioste_1link_feedback_linearization_SZ_ARG 9
+#define gioste_1link_feedback_linearization_SZ_RES 6
+#define gioste_1link_feedback_linearization_SZ_IW 0
+#define gioste_1link_feedback_linearization_SZ_W 0
+int gioste_1link_fl_lie(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int gioste_1link_fl_lie_checkout(void);
+void gioste_1link_fl_lie_release(int mem);
+void gioste_1link_fl_lie_incref(void);
+void gioste_1link_fl_lie_decref(void);
+casadi_int gioste_1link_fl_lie_n_in(void);
+casadi_int gioste_1link_fl_lie_n_out(void);
+casadi_real gioste_1link_fl_lie_default_in(casadi_int i);
+const char* gioste_1link_fl_lie_name_in(casadi_int i);
+const char* gioste_1link_fl_lie_name_out(casadi_int i);
+const casadi_int* gioste_1link_fl_lie_sparsity_in(casadi_int i);
+const casadi_int* gioste_1link_fl_lie_sparsity_out(casadi_int i);
+int gioste_1link_fl_lie_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int gioste_1link_fl_lie_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define gioste_1link_fl_lie_SZ_ARG 5
+#define gioste_1link_fl_lie_SZ_RES 3
+#define gioste_1link_fl_lie_SZ_IW 0
+#define gioste_1link_fl_lie_SZ_W 0
 int gioste_1link_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int gioste_1link_pneumatic_estimator_step_checkout(void);
 void gioste_1link_pneumatic_estimator_step_release(int mem);

@@ -51,6 +51,8 @@ extern "C" {
 #define casadi_f25 CASADI_PREFIX(f25)
 #define casadi_f26 CASADI_PREFIX(f26)
 #define casadi_f27 CASADI_PREFIX(f27)
+#define casadi_f28 CASADI_PREFIX(f28)
+#define casadi_f29 CASADI_PREFIX(f29)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
@@ -70,6 +72,7 @@ extern "C" {
 #define casadi_s15 CASADI_PREFIX(s15)
 #define casadi_s16 CASADI_PREFIX(s16)
 #define casadi_s17 CASADI_PREFIX(s17)
+#define casadi_s18 CASADI_PREFIX(s18)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
@@ -155,6 +158,7 @@ static const casadi_int casadi_s14[3] = {2, 4, 1};
 static const casadi_int casadi_s15[3] = {4, 2, 1};
 static const casadi_int casadi_s16[3] = {12, 1, 1};
 static const casadi_int casadi_s17[3] = {7, 1, 1};
+static const casadi_int casadi_s18[3] = {4, 4, 1};
 
 static const casadi_real casadi_zeros[6000] = 
   {0.};
@@ -23036,6 +23040,1233 @@ CASADI_SYMBOL_EXPORT int gioste_2link_corollary2_work(casadi_int *sz_arg, casadi
 CASADI_SYMBOL_EXPORT int gioste_2link_corollary2_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
   if (sz_arg) *sz_arg = 10*sizeof(const casadi_real*);
   if (sz_res) *sz_res = 4*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* gioste_2link_feedback_linearization:(x[8],ref[12],pi[5],K[2],T_p[4],kq0[2],kq1[2],kq2[2],ks0[2])->(p_c[4],qdd[2],sigma[2],v[4],L[4],E[4x4]) */
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62, a63, a64, a65, a66, a67, a68, a69, a70, a71;
+  casadi_real a72, a73, a74, a75, a76, a77, a78, a79, a80, a81, a82, a83;
+  casadi_real a84, a85, a86, a87, a88, a89;
+  a00=arg[3]? arg[3][0] : 0;
+  a01=5.9999999999999998e-02;
+  a02=1.7000000000000001e-01;
+  a03=2.9999999999999999e-02;
+  a04=arg[0]? arg[0][0] : 0;
+  a05=(a03*a04);
+  a06=(a02+a05);
+  a07=(a01*a06);
+  a07=(a00*a07);
+  a08=arg[4]? arg[4][1] : 0;
+  a09=(a07/a08);
+  a05=(a02-a05);
+  a10=casadi_sq(a05);
+  a11=1.9600000000000003e-02;
+  a10=(a10-a11);
+  a10=(a00*a10);
+  a12=arg[4]? arg[4][0] : 0;
+  a13=(a10/a12);
+  a14=(a13*a09);
+  a15=casadi_sq(a06);
+  a15=(a15-a11);
+  a15=(a00*a15);
+  a16=(a15/a08);
+  a17=-5.9999999999999998e-02;
+  a18=(a17*a05);
+  a18=(a00*a18);
+  a19=(a18/a12);
+  a20=(a16*a19);
+  a14=(a14-a20);
+  a20=(a09/a14);
+  a21=arg[2]? arg[2][0] : 0;
+  a22=arg[2]? arg[2][1] : 0;
+  a21=(a21+a22);
+  a23=arg[2]? arg[2][4] : 0;
+  a24=sin(a04);
+  a25=arg[0]? arg[0][1] : 0;
+  a26=cos(a25);
+  a27=(a24*a26);
+  a28=cos(a04);
+  a29=sin(a25);
+  a30=(a28*a29);
+  a27=(a27+a30);
+  a30=(a24*a27);
+  a31=(a24*a29);
+  a32=(a28*a26);
+  a33=(a31-a32);
+  a34=(a28*a33);
+  a35=(a30-a34);
+  a30=(a35+a30);
+  a30=(a30-a34);
+  a30=(a23*a30);
+  a21=(a21+a30);
+  a30=arg[1]? arg[1][6] : 0;
+  a34=arg[7]? arg[7][0] : 0;
+  a36=arg[1]? arg[1][4] : 0;
+  a37=(a21*a22);
+  a35=(a23*a35);
+  a35=(a22+a35);
+  a38=casadi_sq(a35);
+  a37=(a37-a38);
+  a38=(a22/a37);
+  a39=arg[0]? arg[0][4] : 0;
+  a40=(a10*a39);
+  a41=arg[0]? arg[0][5] : 0;
+  a42=(a15*a41);
+  a40=(a40-a42);
+  a42=9.8100000000000005e+00;
+  a43=(a42*a29);
+  a44=(a28*a43);
+  a45=(a42*a26);
+  a46=(a24*a45);
+  a44=(a44+a46);
+  a46=arg[2]? arg[2][3] : 0;
+  a44=(a44*a46);
+  a47=-9.8100000000000005e+00;
+  a48=(a47*a24);
+  a49=arg[2]? arg[2][2] : 0;
+  a48=(a48*a49);
+  a44=(a44-a48);
+  a48=arg[0]? arg[0][2] : 0;
+  a50=5.0000000000000000e-01;
+  a51=(a28*a48);
+  a52=(a26*a51);
+  a53=arg[0]? arg[0][3] : 0;
+  a54=(a29*a53);
+  a55=(a24*a54);
+  a52=(a52-a55);
+  a55=(a26*a53);
+  a56=(a28*a55);
+  a57=(a24*a48);
+  a58=(a29*a57);
+  a56=(a56-a58);
+  a58=(a52+a56);
+  a59=(a24*a58);
+  a60=(a51*a27);
+  a61=(a59+a60);
+  a62=(a29*a51);
+  a63=(a24*a55);
+  a64=(a62+a63);
+  a65=(a26*a57);
+  a66=(a28*a54);
+  a67=(a65+a66);
+  a68=(a64+a67);
+  a69=(a28*a68);
+  a70=(a57*a33);
+  a71=(a69-a70);
+  a61=(a61-a71);
+  a60=(a60+a59);
+  a72=(a61+a60);
+  a70=(a70-a69);
+  a72=(a72+a70);
+  a72=(a50*a72);
+  a70=(a48*a72);
+  a60=(a60-a71);
+  a71=(a48*a24);
+  a32=(a32-a31);
+  a31=(a71*a32);
+  a73=(a48*a28);
+  a74=(a73*a27);
+  a31=(a31-a74);
+  a75=(a48+a53);
+  a76=(a75*a32);
+  a77=(a24*a76);
+  a31=(a31+a77);
+  a77=(a75*a27);
+  a78=(a28*a77);
+  a31=(a31-a78);
+  a60=(a60+a31);
+  a78=(a26*a28);
+  a79=(a29*a24);
+  a78=(a78-a79);
+  a79=(a71*a78);
+  a79=(a79+a74);
+  a74=(a29*a28);
+  a80=(a26*a24);
+  a74=(a74+a80);
+  a80=(a73*a74);
+  a81=(a71*a33);
+  a80=(a80-a81);
+  a79=(a79-a80);
+  a60=(a60-a79);
+  a60=(a50*a60);
+  a80=(a53*a60);
+  a70=(a70+a80);
+  a70=(a70*a23);
+  a44=(a44+a70);
+  a40=(a40-a44);
+  a44=(a38*a40);
+  a70=(a35/a37);
+  a80=arg[3]? arg[3][1] : 0;
+  a81=(a03*a25);
+  a82=(a02-a81);
+  a83=casadi_sq(a82);
+  a83=(a83-a11);
+  a83=(a80*a83);
+  a84=arg[0]? arg[0][6] : 0;
+  a85=(a83*a84);
+  a02=(a02+a81);
+  a81=casadi_sq(a02);
+  a81=(a81-a11);
+  a81=(a80*a81);
+  a11=arg[0]? arg[0][7] : 0;
+  a86=(a81*a11);
+  a85=(a85-a86);
+  a86=(a42*a28);
+  a87=(a29*a86);
+  a88=(a42*a24);
+  a89=(a26*a88);
+  a87=(a87+a89);
+  a87=(a87*a46);
+  a61=(a61+a79);
+  a61=(a61-a31);
+  a61=(a50*a61);
+  a31=(a48*a61);
+  a31=(a31*a23);
+  a87=(a87+a31);
+  a85=(a85-a87);
+  a87=(a70*a85);
+  a44=(a44-a87);
+  a36=(a36-a44);
+  a34=(a34*a36);
+  a30=(a30+a34);
+  a34=arg[6]? arg[6][0] : 0;
+  a36=arg[1]? arg[1][2] : 0;
+  a36=(a36-a48);
+  a34=(a34*a36);
+  a30=(a30+a34);
+  a34=arg[5]? arg[5][0] : 0;
+  a36=arg[1]? arg[1][0] : 0;
+  a36=(a36-a04);
+  a34=(a34*a36);
+  a30=(a30+a34);
+  a34=(a21*a30);
+  a36=arg[1]? arg[1][7] : 0;
+  a04=arg[7]? arg[7][1] : 0;
+  a87=arg[1]? arg[1][5] : 0;
+  a21=(a21/a37);
+  a85=(a21*a85);
+  a40=(a70*a40);
+  a85=(a85-a40);
+  a87=(a87-a85);
+  a04=(a04*a87);
+  a36=(a36+a04);
+  a04=arg[6]? arg[6][1] : 0;
+  a87=arg[1]? arg[1][3] : 0;
+  a87=(a87-a53);
+  a04=(a04*a87);
+  a36=(a36+a04);
+  a04=arg[5]? arg[5][1] : 0;
+  a87=arg[1]? arg[1][1] : 0;
+  a87=(a87-a25);
+  a04=(a04*a87);
+  a36=(a36+a04);
+  a04=(a35*a36);
+  a34=(a34+a04);
+  a05=(2.*a05);
+  a04=(a03*a48);
+  a05=(a05*a04);
+  a05=(a00*a05);
+  a05=(a39*a05);
+  a12=(a39/a12);
+  a10=(a10*a12);
+  a05=(a05+a10);
+  a06=(2.*a06);
+  a06=(a06*a04);
+  a06=(a00*a06);
+  a06=(a41*a06);
+  a08=(a41/a08);
+  a15=(a15*a08);
+  a06=(a06-a15);
+  a05=(a05+a06);
+  a06=(a42*a55);
+  a06=(a28*a06);
+  a43=(a43*a57);
+  a06=(a06-a43);
+  a45=(a45*a51);
+  a43=(a42*a54);
+  a43=(a24*a43);
+  a45=(a45-a43);
+  a06=(a06+a45);
+  a06=(a46*a06);
+  a47=(a47*a51);
+  a49=(a49*a47);
+  a06=(a06-a49);
+  a72=(a72*a44);
+  a49=(a58*a51);
+  a47=(a28*a44);
+  a45=(a48*a57);
+  a47=(a47-a45);
+  a45=(a26*a47);
+  a43=(a51*a54);
+  a45=(a45-a43);
+  a43=(a54*a51);
+  a15=(a53*a55);
+  a04=(a29*a85);
+  a15=(a15+a04);
+  a04=(a24*a15);
+  a43=(a43+a04);
+  a45=(a45-a43);
+  a43=(a26*a85);
+  a04=(a53*a54);
+  a43=(a43-a04);
+  a04=(a28*a43);
+  a10=(a55*a57);
+  a04=(a04-a10);
+  a10=(a57*a55);
+  a87=(a48*a51);
+  a25=(a24*a44);
+  a40=(a87+a25);
+  a37=(a29*a40);
+  a10=(a10+a37);
+  a04=(a04-a10);
+  a45=(a45+a04);
+  a45=(a24*a45);
+  a49=(a49+a45);
+  a45=(a27*a47);
+  a04=(a51*a58);
+  a04=(a45+a04);
+  a10=(a49+a04);
+  a37=(a51*a55);
+  a31=(a29*a47);
+  a37=(a37+a31);
+  a31=(a55*a51);
+  a43=(a24*a43);
+  a31=(a31+a43);
+  a37=(a37+a31);
+  a31=(a26*a40);
+  a43=(a57*a54);
+  a31=(a31-a43);
+  a15=(a28*a15);
+  a43=(a54*a57);
+  a15=(a15-a43);
+  a31=(a31+a15);
+  a37=(a37+a31);
+  a37=(a28*a37);
+  a31=(a68*a57);
+  a37=(a37-a31);
+  a40=(a33*a40);
+  a31=(a57*a68);
+  a40=(a40+a31);
+  a31=(a37-a40);
+  a10=(a10-a31);
+  a04=(a04+a49);
+  a49=(a10+a04);
+  a40=(a40-a37);
+  a49=(a49+a40);
+  a49=(a50*a49);
+  a49=(a48*a49);
+  a72=(a72+a49);
+  a60=(a60*a85);
+  a04=(a04-a31);
+  a25=(a25+a87);
+  a87=(a32*a25);
+  a67=(a67+a64);
+  a64=(a71*a67);
+  a87=(a87-a64);
+  a64=(a73*a58);
+  a45=(a45+a64);
+  a87=(a87-a45);
+  a76=(a76*a51);
+  a64=(a44+a85);
+  a32=(a32*a64);
+  a67=(a75*a67);
+  a32=(a32-a67);
+  a24=(a24*a32);
+  a76=(a76+a24);
+  a87=(a87+a76);
+  a64=(a27*a64);
+  a75=(a75*a58);
+  a64=(a64+a75);
+  a28=(a28*a64);
+  a77=(a77*a57);
+  a28=(a28-a77);
+  a87=(a87-a28);
+  a04=(a04+a87);
+  a78=(a78*a25);
+  a66=(a66+a65);
+  a63=(a63+a62);
+  a66=(a66+a63);
+  a66=(a71*a66);
+  a78=(a78-a66);
+  a78=(a78+a45);
+  a74=(a74*a47);
+  a56=(a56+a52);
+  a73=(a73*a56);
+  a74=(a74+a73);
+  a25=(a33*a25);
+  a71=(a71*a68);
+  a25=(a25+a71);
+  a74=(a74-a25);
+  a78=(a78-a74);
+  a04=(a04-a78);
+  a04=(a50*a04);
+  a04=(a53*a04);
+  a60=(a60+a04);
+  a72=(a72+a60);
+  a72=(a23*a72);
+  a06=(a06+a72);
+  a05=(a05+a06);
+  a27=(a27*a51);
+  a27=(a27+a59);
+  a33=(a33*a57);
+  a69=(a69-a33);
+  a33=(a27-a69);
+  a27=(a33+a27);
+  a27=(a27-a69);
+  a27=(a23*a27);
+  a27=(a44*a27);
+  a33=(a23*a33);
+  a69=(a85*a33);
+  a27=(a27+a69);
+  a05=(a05+a27);
+  a34=(a34+a05);
+  a20=(a20*a34);
+  a27=(a16/a14);
+  a69=arg[1]? arg[1][10] : 0;
+  a59=arg[8]? arg[8][0] : 0;
+  a06=arg[1]? arg[1][8] : 0;
+  a72=(a18*a39);
+  a60=(a07*a41);
+  a72=(a72-a60);
+  a06=(a06+a72);
+  a59=(a59*a06);
+  a69=(a69+a59);
+  a59=-1.8000000000000000e-03;
+  a06=(a59*a48);
+  a06=(a00*a06);
+  a39=(a39*a06);
+  a18=(a18*a12);
+  a39=(a39+a18);
+  a18=1.8000000000000000e-03;
+  a12=(a18*a48);
+  a00=(a00*a12);
+  a41=(a41*a00);
+  a07=(a07*a08);
+  a41=(a41-a07);
+  a39=(a39+a41);
+  a41=(a69-a39);
+  a27=(a27*a41);
+  a20=(a20+a27);
+  if (res[0]!=0) res[0][0]=a20;
+  a20=(a19/a14);
+  a20=(a20*a34);
+  a14=(a13/a14);
+  a14=(a14*a41);
+  a20=(a20+a14);
+  if (res[0]!=0) res[0][1]=a20;
+  a01=(a01*a02);
+  a01=(a80*a01);
+  a20=arg[4]? arg[4][3] : 0;
+  a14=(a01/a20);
+  a41=arg[4]? arg[4][2] : 0;
+  a34=(a83/a41);
+  a27=(a34*a14);
+  a07=(a81/a20);
+  a17=(a17*a82);
+  a17=(a80*a17);
+  a08=(a17/a41);
+  a00=(a07*a08);
+  a27=(a27-a00);
+  a00=(a14/a27);
+  a35=(a35*a30);
+  a22=(a22*a36);
+  a35=(a35+a22);
+  a82=(2.*a82);
+  a03=(a03*a53);
+  a82=(a82*a03);
+  a82=(a80*a82);
+  a82=(a84*a82);
+  a41=(a84/a41);
+  a83=(a83*a41);
+  a82=(a82+a83);
+  a02=(2.*a02);
+  a02=(a02*a03);
+  a02=(a80*a02);
+  a02=(a11*a02);
+  a20=(a11/a20);
+  a81=(a81*a20);
+  a02=(a02-a81);
+  a82=(a82+a02);
+  a86=(a86*a55);
+  a57=(a42*a57);
+  a29=(a29*a57);
+  a86=(a86-a29);
+  a42=(a42*a51);
+  a26=(a26*a42);
+  a88=(a88*a54);
+  a26=(a26-a88);
+  a86=(a86+a26);
+  a46=(a46*a86);
+  a61=(a61*a44);
+  a10=(a10+a78);
+  a10=(a10-a87);
+  a50=(a50*a10);
+  a48=(a48*a50);
+  a61=(a61+a48);
+  a23=(a23*a61);
+  a46=(a46+a23);
+  a82=(a82+a46);
+  a33=(a44*a33);
+  a82=(a82+a33);
+  a35=(a35+a82);
+  a00=(a00*a35);
+  a33=(a07/a27);
+  a46=arg[1]? arg[1][11] : 0;
+  a23=arg[8]? arg[8][1] : 0;
+  a61=arg[1]? arg[1][9] : 0;
+  a48=(a17*a84);
+  a50=(a01*a11);
+  a48=(a48-a50);
+  a61=(a61+a48);
+  a23=(a23*a61);
+  a46=(a46+a23);
+  a59=(a59*a53);
+  a59=(a80*a59);
+  a84=(a84*a59);
+  a17=(a17*a41);
+  a84=(a84+a17);
+  a18=(a18*a53);
+  a80=(a80*a18);
+  a11=(a11*a80);
+  a01=(a01*a20);
+  a11=(a11-a01);
+  a84=(a84+a11);
+  a11=(a46-a84);
+  a33=(a33*a11);
+  a00=(a00+a33);
+  if (res[0]!=0) res[0][2]=a00;
+  a00=(a08/a27);
+  a00=(a00*a35);
+  a27=(a34/a27);
+  a27=(a27*a11);
+  a00=(a00+a27);
+  if (res[0]!=0) res[0][3]=a00;
+  if (res[1]!=0) res[1][0]=a44;
+  if (res[1]!=0) res[1][1]=a85;
+  a72=(-a72);
+  if (res[2]!=0) res[2][0]=a72;
+  a48=(-a48);
+  if (res[2]!=0) res[2][1]=a48;
+  if (res[3]!=0) res[3][0]=a30;
+  if (res[3]!=0) res[3][1]=a36;
+  if (res[3]!=0) res[3][2]=a69;
+  if (res[3]!=0) res[3][3]=a46;
+  a46=(a70*a82);
+  a69=(a38*a05);
+  a46=(a46-a69);
+  if (res[4]!=0) res[4][0]=a46;
+  a05=(a70*a05);
+  a82=(a21*a82);
+  a05=(a05-a82);
+  if (res[4]!=0) res[4][1]=a05;
+  if (res[4]!=0) res[4][2]=a39;
+  if (res[4]!=0) res[4][3]=a84;
+  a84=(a38*a13);
+  if (res[5]!=0) res[5][0]=a84;
+  a13=(a70*a13);
+  a13=(-a13);
+  if (res[5]!=0) res[5][1]=a13;
+  a19=(-a19);
+  if (res[5]!=0) res[5][2]=a19;
+  a19=0.;
+  if (res[5]!=0) res[5][3]=a19;
+  a38=(a38*a16);
+  a38=(-a38);
+  if (res[5]!=0) res[5][4]=a38;
+  a16=(a70*a16);
+  if (res[5]!=0) res[5][5]=a16;
+  if (res[5]!=0) res[5][6]=a09;
+  if (res[5]!=0) res[5][7]=a19;
+  a09=(a70*a34);
+  a09=(-a09);
+  if (res[5]!=0) res[5][8]=a09;
+  a34=(a21*a34);
+  if (res[5]!=0) res[5][9]=a34;
+  if (res[5]!=0) res[5][10]=a19;
+  a08=(-a08);
+  if (res[5]!=0) res[5][11]=a08;
+  a70=(a70*a07);
+  if (res[5]!=0) res[5][12]=a70;
+  a21=(a21*a07);
+  a21=(-a21);
+  if (res[5]!=0) res[5][13]=a21;
+  if (res[5]!=0) res[5][14]=a19;
+  if (res[5]!=0) res[5][15]=a14;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int gioste_2link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f28(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int gioste_2link_feedback_linearization_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void gioste_2link_feedback_linearization_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void gioste_2link_feedback_linearization_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void gioste_2link_feedback_linearization_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int gioste_2link_feedback_linearization_n_in(void) { return 9;}
+
+CASADI_SYMBOL_EXPORT casadi_int gioste_2link_feedback_linearization_n_out(void) { return 6;}
+
+CASADI_SYMBOL_EXPORT casadi_real gioste_2link_feedback_linearization_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* gioste_2link_feedback_linearization_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "ref";
+    case 2: return "pi";
+    case 3: return "K";
+    case 4: return "T_p";
+    case 5: return "kq0";
+    case 6: return "kq1";
+    case 7: return "kq2";
+    case 8: return "ks0";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* gioste_2link_feedback_linearization_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "p_c";
+    case 1: return "qdd";
+    case 2: return "sigma";
+    case 3: return "v";
+    case 4: return "L";
+    case 5: return "E";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* gioste_2link_feedback_linearization_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s4;
+    case 1: return casadi_s16;
+    case 2: return casadi_s3;
+    case 3: return casadi_s0;
+    case 4: return casadi_s7;
+    case 5: return casadi_s0;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* gioste_2link_feedback_linearization_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s7;
+    case 1: return casadi_s0;
+    case 2: return casadi_s0;
+    case 3: return casadi_s7;
+    case 4: return casadi_s7;
+    case 5: return casadi_s18;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int gioste_2link_feedback_linearization_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 9;
+  if (sz_res) *sz_res = 6;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int gioste_2link_feedback_linearization_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 9*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* gioste_2link_fl_lie:(x[8],p_c[4],pi[5],K[2],T_p[4])->(L[4],E[4x4],y_rate[4]) */
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62, a63, a64, a65, a66, a67, a68, a69, a70, a71;
+  casadi_real a72, a73, a74, a75, a76, a77, a78, a79;
+  a00=arg[2]? arg[2][1] : 0;
+  a01=arg[2]? arg[2][4] : 0;
+  a02=arg[0]? arg[0][0] : 0;
+  a03=sin(a02);
+  a04=arg[0]? arg[0][1] : 0;
+  a05=cos(a04);
+  a06=(a03*a05);
+  a07=cos(a02);
+  a08=sin(a04);
+  a09=(a07*a08);
+  a06=(a06+a09);
+  a09=(a03*a06);
+  a10=(a03*a08);
+  a11=(a07*a05);
+  a12=(a10-a11);
+  a13=(a07*a12);
+  a14=(a09-a13);
+  a15=(a01*a14);
+  a15=(a00+a15);
+  a16=arg[2]? arg[2][0] : 0;
+  a16=(a16+a00);
+  a14=(a14+a09);
+  a14=(a14-a13);
+  a14=(a01*a14);
+  a16=(a16+a14);
+  a14=(a16*a00);
+  a13=casadi_sq(a15);
+  a14=(a14-a13);
+  a15=(a15/a14);
+  a13=arg[0]? arg[0][6] : 0;
+  a09=arg[3]? arg[3][1] : 0;
+  a17=1.7000000000000001e-01;
+  a18=2.9999999999999999e-02;
+  a04=(a18*a04);
+  a19=(a17-a04);
+  a20=(2.*a19);
+  a21=arg[0]? arg[0][3] : 0;
+  a22=(a18*a21);
+  a20=(a20*a22);
+  a20=(a09*a20);
+  a20=(a13*a20);
+  a23=casadi_sq(a19);
+  a24=1.9600000000000003e-02;
+  a23=(a23-a24);
+  a23=(a09*a23);
+  a25=arg[4]? arg[4][2] : 0;
+  a26=(a13/a25);
+  a27=(a23*a26);
+  a20=(a20+a27);
+  a27=arg[0]? arg[0][7] : 0;
+  a04=(a17+a04);
+  a28=(2.*a04);
+  a28=(a28*a22);
+  a28=(a09*a28);
+  a28=(a27*a28);
+  a22=casadi_sq(a04);
+  a22=(a22-a24);
+  a22=(a09*a22);
+  a29=arg[4]? arg[4][3] : 0;
+  a30=(a27/a29);
+  a31=(a22*a30);
+  a28=(a28-a31);
+  a20=(a20+a28);
+  a28=arg[2]? arg[2][3] : 0;
+  a31=9.8100000000000005e+00;
+  a32=(a31*a07);
+  a33=(a05*a21);
+  a34=(a32*a33);
+  a35=arg[0]? arg[0][2] : 0;
+  a36=(a03*a35);
+  a37=(a31*a36);
+  a37=(a08*a37);
+  a34=(a34-a37);
+  a37=(a07*a35);
+  a38=(a31*a37);
+  a38=(a05*a38);
+  a39=(a31*a03);
+  a40=(a08*a21);
+  a41=(a39*a40);
+  a38=(a38-a41);
+  a34=(a34+a38);
+  a34=(a28*a34);
+  a38=5.0000000000000000e-01;
+  a41=(a05*a37);
+  a42=(a03*a40);
+  a41=(a41-a42);
+  a42=(a07*a33);
+  a43=(a08*a36);
+  a42=(a42-a43);
+  a43=(a41+a42);
+  a44=(a03*a43);
+  a45=(a37*a06);
+  a46=(a44+a45);
+  a47=(a08*a37);
+  a48=(a03*a33);
+  a49=(a47+a48);
+  a50=(a05*a36);
+  a51=(a07*a40);
+  a52=(a50+a51);
+  a53=(a49+a52);
+  a54=(a07*a53);
+  a55=(a36*a12);
+  a56=(a54-a55);
+  a46=(a46-a56);
+  a57=(a35*a03);
+  a58=(a05*a07);
+  a59=(a08*a03);
+  a58=(a58-a59);
+  a59=(a57*a58);
+  a60=(a35*a07);
+  a61=(a60*a06);
+  a59=(a59+a61);
+  a62=(a08*a07);
+  a63=(a05*a03);
+  a62=(a62+a63);
+  a63=(a60*a62);
+  a64=(a57*a12);
+  a63=(a63-a64);
+  a59=(a59-a63);
+  a63=(a46+a59);
+  a11=(a11-a10);
+  a10=(a57*a11);
+  a10=(a10-a61);
+  a61=(a35+a21);
+  a64=(a61*a11);
+  a65=(a03*a64);
+  a10=(a10+a65);
+  a65=(a61*a06);
+  a66=(a07*a65);
+  a10=(a10-a66);
+  a63=(a63-a10);
+  a63=(a38*a63);
+  a00=(a00/a14);
+  a66=arg[3]? arg[3][0] : 0;
+  a02=(a18*a02);
+  a67=(a17-a02);
+  a68=casadi_sq(a67);
+  a68=(a68-a24);
+  a68=(a66*a68);
+  a69=arg[0]? arg[0][4] : 0;
+  a70=(a68*a69);
+  a17=(a17+a02);
+  a02=casadi_sq(a17);
+  a02=(a02-a24);
+  a02=(a66*a02);
+  a24=arg[0]? arg[0][5] : 0;
+  a71=(a02*a24);
+  a70=(a70-a71);
+  a71=(a31*a08);
+  a72=(a07*a71);
+  a73=(a31*a05);
+  a74=(a03*a73);
+  a72=(a72+a74);
+  a72=(a72*a28);
+  a74=-9.8100000000000005e+00;
+  a75=(a74*a03);
+  a76=arg[2]? arg[2][2] : 0;
+  a75=(a75*a76);
+  a72=(a72-a75);
+  a45=(a45+a44);
+  a46=(a46+a45);
+  a55=(a55-a54);
+  a46=(a46+a55);
+  a46=(a38*a46);
+  a55=(a35*a46);
+  a45=(a45-a56);
+  a45=(a45+a10);
+  a45=(a45-a59);
+  a45=(a38*a45);
+  a59=(a21*a45);
+  a55=(a55+a59);
+  a55=(a55*a01);
+  a72=(a72+a55);
+  a70=(a70-a72);
+  a72=(a00*a70);
+  a55=(a23*a13);
+  a59=(a22*a27);
+  a55=(a55-a59);
+  a32=(a08*a32);
+  a39=(a05*a39);
+  a32=(a32+a39);
+  a32=(a32*a28);
+  a39=(a35*a63);
+  a39=(a39*a01);
+  a32=(a32+a39);
+  a55=(a55-a32);
+  a32=(a15*a55);
+  a72=(a72-a32);
+  a63=(a63*a72);
+  a32=(a43*a37);
+  a39=(a07*a72);
+  a59=(a35*a36);
+  a39=(a39-a59);
+  a59=(a05*a39);
+  a10=(a37*a40);
+  a59=(a59-a10);
+  a10=(a40*a37);
+  a56=(a21*a33);
+  a16=(a16/a14);
+  a55=(a16*a55);
+  a70=(a15*a70);
+  a55=(a55-a70);
+  a70=(a08*a55);
+  a56=(a56+a70);
+  a70=(a03*a56);
+  a10=(a10+a70);
+  a59=(a59-a10);
+  a10=(a05*a55);
+  a70=(a21*a40);
+  a10=(a10-a70);
+  a70=(a07*a10);
+  a14=(a33*a36);
+  a70=(a70-a14);
+  a14=(a36*a33);
+  a75=(a35*a37);
+  a77=(a03*a72);
+  a78=(a75+a77);
+  a79=(a08*a78);
+  a14=(a14+a79);
+  a70=(a70-a14);
+  a59=(a59+a70);
+  a59=(a03*a59);
+  a32=(a32+a59);
+  a59=(a06*a39);
+  a70=(a37*a43);
+  a70=(a59+a70);
+  a14=(a32+a70);
+  a79=(a37*a33);
+  a08=(a08*a39);
+  a79=(a79+a08);
+  a08=(a33*a37);
+  a10=(a03*a10);
+  a08=(a08+a10);
+  a79=(a79+a08);
+  a05=(a05*a78);
+  a08=(a36*a40);
+  a05=(a05-a08);
+  a56=(a07*a56);
+  a08=(a40*a36);
+  a56=(a56-a08);
+  a05=(a05+a56);
+  a79=(a79+a05);
+  a79=(a07*a79);
+  a05=(a53*a36);
+  a79=(a79-a05);
+  a78=(a12*a78);
+  a05=(a36*a53);
+  a78=(a78+a05);
+  a05=(a79-a78);
+  a14=(a14-a05);
+  a77=(a77+a75);
+  a58=(a58*a77);
+  a51=(a51+a50);
+  a48=(a48+a47);
+  a51=(a51+a48);
+  a51=(a57*a51);
+  a58=(a58-a51);
+  a51=(a60*a43);
+  a59=(a59+a51);
+  a58=(a58+a59);
+  a62=(a62*a39);
+  a42=(a42+a41);
+  a60=(a60*a42);
+  a62=(a62+a60);
+  a60=(a12*a77);
+  a53=(a57*a53);
+  a60=(a60+a53);
+  a62=(a62-a60);
+  a58=(a58-a62);
+  a62=(a14+a58);
+  a77=(a11*a77);
+  a52=(a52+a49);
+  a57=(a57*a52);
+  a77=(a77-a57);
+  a77=(a77-a59);
+  a64=(a64*a37);
+  a59=(a72+a55);
+  a11=(a11*a59);
+  a52=(a61*a52);
+  a11=(a11-a52);
+  a11=(a03*a11);
+  a64=(a64+a11);
+  a77=(a77+a64);
+  a59=(a06*a59);
+  a61=(a61*a43);
+  a59=(a59+a61);
+  a59=(a07*a59);
+  a65=(a65*a36);
+  a59=(a59-a65);
+  a77=(a77-a59);
+  a62=(a62-a77);
+  a62=(a38*a62);
+  a62=(a35*a62);
+  a63=(a63+a62);
+  a63=(a01*a63);
+  a34=(a34+a63);
+  a20=(a20+a34);
+  a06=(a06*a37);
+  a06=(a06+a44);
+  a12=(a12*a36);
+  a54=(a54-a12);
+  a12=(a06-a54);
+  a44=(a01*a12);
+  a34=(a72*a44);
+  a20=(a20+a34);
+  a34=(a15*a20);
+  a63=(2.*a67);
+  a18=(a18*a35);
+  a63=(a63*a18);
+  a63=(a66*a63);
+  a63=(a69*a63);
+  a62=arg[4]? arg[4][0] : 0;
+  a59=(a69/a62);
+  a65=(a68*a59);
+  a63=(a63+a65);
+  a65=(2.*a17);
+  a65=(a65*a18);
+  a65=(a66*a65);
+  a65=(a24*a65);
+  a18=arg[4]? arg[4][1] : 0;
+  a61=(a24/a18);
+  a43=(a02*a61);
+  a65=(a65-a43);
+  a63=(a63+a65);
+  a33=(a31*a33);
+  a07=(a07*a33);
+  a71=(a71*a36);
+  a07=(a07-a71);
+  a73=(a73*a37);
+  a31=(a31*a40);
+  a03=(a03*a31);
+  a73=(a73-a03);
+  a07=(a07+a73);
+  a28=(a28*a07);
+  a74=(a74*a37);
+  a76=(a76*a74);
+  a28=(a28-a76);
+  a46=(a46*a72);
+  a70=(a70+a32);
+  a14=(a14+a70);
+  a78=(a78-a79);
+  a14=(a14+a78);
+  a14=(a38*a14);
+  a14=(a35*a14);
+  a46=(a46+a14);
+  a45=(a45*a55);
+  a70=(a70-a05);
+  a70=(a70+a77);
+  a70=(a70-a58);
+  a38=(a38*a70);
+  a38=(a21*a38);
+  a45=(a45+a38);
+  a46=(a46+a45);
+  a46=(a01*a46);
+  a28=(a28+a46);
+  a63=(a63+a28);
+  a12=(a12+a06);
+  a12=(a12-a54);
+  a01=(a01*a12);
+  a72=(a72*a01);
+  a55=(a55*a44);
+  a72=(a72+a55);
+  a63=(a63+a72);
+  a72=(a00*a63);
+  a34=(a34-a72);
+  if (res[0]!=0) res[0][0]=a34;
+  a63=(a15*a63);
+  a20=(a16*a20);
+  a63=(a63-a20);
+  if (res[0]!=0) res[0][1]=a63;
+  a20=-1.8000000000000000e-03;
+  a72=(a20*a35);
+  a72=(a66*a72);
+  a69=(a69*a72);
+  a72=-5.9999999999999998e-02;
+  a67=(a72*a67);
+  a67=(a66*a67);
+  a59=(a67*a59);
+  a69=(a69+a59);
+  a59=1.8000000000000000e-03;
+  a35=(a59*a35);
+  a35=(a66*a35);
+  a24=(a24*a35);
+  a35=5.9999999999999998e-02;
+  a17=(a35*a17);
+  a66=(a66*a17);
+  a61=(a66*a61);
+  a24=(a24-a61);
+  a69=(a69+a24);
+  if (res[0]!=0) res[0][2]=a69;
+  a20=(a20*a21);
+  a20=(a09*a20);
+  a13=(a13*a20);
+  a72=(a72*a19);
+  a72=(a09*a72);
+  a26=(a72*a26);
+  a13=(a13+a26);
+  a59=(a59*a21);
+  a59=(a09*a59);
+  a27=(a27*a59);
+  a35=(a35*a04);
+  a09=(a09*a35);
+  a30=(a09*a30);
+  a27=(a27-a30);
+  a13=(a13+a27);
+  if (res[0]!=0) res[0][3]=a13;
+  a68=(a68/a62);
+  a27=(a00*a68);
+  if (res[1]!=0) res[1][0]=a27;
+  a68=(a15*a68);
+  a30=(-a68);
+  if (res[1]!=0) res[1][1]=a30;
+  a67=(a67/a62);
+  a62=(-a67);
+  if (res[1]!=0) res[1][2]=a62;
+  a62=0.;
+  if (res[1]!=0) res[1][3]=a62;
+  a02=(a02/a18);
+  a00=(a00*a02);
+  a30=(-a00);
+  if (res[1]!=0) res[1][4]=a30;
+  a02=(a15*a02);
+  if (res[1]!=0) res[1][5]=a02;
+  a66=(a66/a18);
+  if (res[1]!=0) res[1][6]=a66;
+  if (res[1]!=0) res[1][7]=a62;
+  a23=(a23/a25);
+  a18=(a15*a23);
+  a30=(-a18);
+  if (res[1]!=0) res[1][8]=a30;
+  a23=(a16*a23);
+  if (res[1]!=0) res[1][9]=a23;
+  if (res[1]!=0) res[1][10]=a62;
+  a72=(a72/a25);
+  a25=(-a72);
+  if (res[1]!=0) res[1][11]=a25;
+  a22=(a22/a29);
+  a15=(a15*a22);
+  if (res[1]!=0) res[1][12]=a15;
+  a16=(a16*a22);
+  a22=(-a16);
+  if (res[1]!=0) res[1][13]=a22;
+  if (res[1]!=0) res[1][14]=a62;
+  a09=(a09/a29);
+  if (res[1]!=0) res[1][15]=a09;
+  a29=arg[1]? arg[1][0] : 0;
+  a27=(a27*a29);
+  a62=arg[1]? arg[1][1] : 0;
+  a00=(a00*a62);
+  a27=(a27-a00);
+  a00=arg[1]? arg[1][2] : 0;
+  a18=(a18*a00);
+  a27=(a27-a18);
+  a18=arg[1]? arg[1][3] : 0;
+  a15=(a15*a18);
+  a27=(a27+a15);
+  a34=(a34+a27);
+  if (res[2]!=0) res[2][0]=a34;
+  a02=(a02*a62);
+  a68=(a68*a29);
+  a02=(a02-a68);
+  a23=(a23*a00);
+  a02=(a02+a23);
+  a16=(a16*a18);
+  a02=(a02-a16);
+  a63=(a63+a02);
+  if (res[2]!=0) res[2][1]=a63;
+  a66=(a66*a62);
+  a67=(a67*a29);
+  a66=(a66-a67);
+  a69=(a69+a66);
+  if (res[2]!=0) res[2][2]=a69;
+  a09=(a09*a18);
+  a72=(a72*a00);
+  a09=(a09-a72);
+  a13=(a13+a09);
+  if (res[2]!=0) res[2][3]=a13;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int gioste_2link_fl_lie(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f29(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int gioste_2link_fl_lie_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void gioste_2link_fl_lie_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void gioste_2link_fl_lie_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void gioste_2link_fl_lie_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int gioste_2link_fl_lie_n_in(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_int gioste_2link_fl_lie_n_out(void) { return 3;}
+
+CASADI_SYMBOL_EXPORT casadi_real gioste_2link_fl_lie_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* gioste_2link_fl_lie_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "p_c";
+    case 2: return "pi";
+    case 3: return "K";
+    case 4: return "T_p";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* gioste_2link_fl_lie_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "L";
+    case 1: return "E";
+    case 2: return "y_rate";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* gioste_2link_fl_lie_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s4;
+    case 1: return casadi_s7;
+    case 2: return casadi_s3;
+    case 3: return casadi_s0;
+    case 4: return casadi_s7;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* gioste_2link_fl_lie_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s7;
+    case 1: return casadi_s18;
+    case 2: return casadi_s7;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int gioste_2link_fl_lie_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 5;
+  if (sz_res) *sz_res = 3;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int gioste_2link_fl_lie_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 5*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;

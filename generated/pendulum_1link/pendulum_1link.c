@@ -52,7 +52,9 @@ extern "C" {
 #define casadi_f26 CASADI_PREFIX(f26)
 #define casadi_f27 CASADI_PREFIX(f27)
 #define casadi_f28 CASADI_PREFIX(f28)
+#define casadi_f29 CASADI_PREFIX(f29)
 #define casadi_f3 CASADI_PREFIX(f3)
+#define casadi_f30 CASADI_PREFIX(f30)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
@@ -65,6 +67,7 @@ extern "C" {
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s10 CASADI_PREFIX(s10)
 #define casadi_s11 CASADI_PREFIX(s11)
+#define casadi_s12 CASADI_PREFIX(s12)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
@@ -143,7 +146,8 @@ static const casadi_int casadi_s7[3] = {3, 1000, 1};
 static const casadi_int casadi_s8[3] = {2, 1000, 1};
 static const casadi_int casadi_s9[3] = {1, 1000, 1};
 static const casadi_int casadi_s10[3] = {1, 2, 1};
-static const casadi_int casadi_s11[3] = {53, 1, 1};
+static const casadi_int casadi_s11[3] = {2, 2, 1};
+static const casadi_int casadi_s12[3] = {53, 1, 1};
 
 static const casadi_real casadi_zeros[3000] = 
   {0.};
@@ -6438,8 +6442,445 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_corollary2_work_bytes(casadi_int *sz_arg
   return 0;
 }
 
-/* pendulum_1link_pneumatic_estimator_step:(state[53],y[3])->(state_next[53],sigma_hat,tau_hat,tau_uio,updating) */
+/* pendulum_1link_feedback_linearization:(x[4],ref[6],pi[3],K,T_p[2],kq0,kq1,kq2,ks0)->(p_c[2],qdd,sigma,v[2],L[2],E[2x2]) */
 static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29;
+  a00=arg[3]? arg[3][0] : 0;
+  a01=3.2000000000000001e-02;
+  a02=3.5999999999999999e-01;
+  a03=1.6000000000000000e-02;
+  a04=arg[0]? arg[0][0] : 0;
+  a05=(a03*a04);
+  a06=(a02+a05);
+  a01=(a01*a06);
+  a01=(a00*a01);
+  a07=arg[4]? arg[4][1] : 0;
+  a08=(a01/a07);
+  a02=(a02-a05);
+  a05=casadi_sq(a02);
+  a09=6.2500000000000000e-02;
+  a05=(a05-a09);
+  a05=(a00*a05);
+  a10=arg[4]? arg[4][0] : 0;
+  a11=(a05/a10);
+  a12=(a11*a08);
+  a13=casadi_sq(a06);
+  a13=(a13-a09);
+  a13=(a00*a13);
+  a09=(a13/a07);
+  a14=-3.2000000000000001e-02;
+  a14=(a14*a02);
+  a14=(a00*a14);
+  a15=(a14/a10);
+  a16=(a09*a15);
+  a12=(a12-a16);
+  a16=(a08/a12);
+  a17=arg[2]? arg[2][1] : 0;
+  a18=arg[1]? arg[1][3] : 0;
+  a19=arg[7]? arg[7][0] : 0;
+  a20=arg[1]? arg[1][2] : 0;
+  a21=arg[0]? arg[0][2] : 0;
+  a22=(a05*a21);
+  a23=arg[0]? arg[0][3] : 0;
+  a24=(a13*a23);
+  a22=(a22-a24);
+  a24=arg[0]? arg[0][1] : 0;
+  a25=arg[2]? arg[2][0] : 0;
+  a26=(a24*a25);
+  a27=-9.8100000000000005e+00;
+  a28=sin(a04);
+  a28=(a27*a28);
+  a29=arg[2]? arg[2][2] : 0;
+  a28=(a28*a29);
+  a26=(a26-a28);
+  a22=(a22-a26);
+  a22=(a22/a17);
+  a20=(a20-a22);
+  a19=(a19*a20);
+  a18=(a18+a19);
+  a19=arg[6]? arg[6][0] : 0;
+  a20=arg[1]? arg[1][1] : 0;
+  a20=(a20-a24);
+  a19=(a19*a20);
+  a18=(a18+a19);
+  a19=arg[5]? arg[5][0] : 0;
+  a20=arg[1]? arg[1][0] : 0;
+  a20=(a20-a04);
+  a19=(a19*a20);
+  a18=(a18+a19);
+  a19=(a17*a18);
+  a02=(2.*a02);
+  a03=(a03*a24);
+  a02=(a02*a03);
+  a02=(a00*a02);
+  a02=(a21*a02);
+  a10=(a21/a10);
+  a05=(a05*a10);
+  a02=(a02+a05);
+  a06=(2.*a06);
+  a06=(a06*a03);
+  a06=(a00*a06);
+  a06=(a23*a06);
+  a07=(a23/a07);
+  a13=(a13*a07);
+  a06=(a06-a13);
+  a02=(a02+a06);
+  a25=(a25*a22);
+  a04=cos(a04);
+  a04=(a04*a24);
+  a27=(a27*a04);
+  a29=(a29*a27);
+  a25=(a25-a29);
+  a02=(a02+a25);
+  a19=(a19+a02);
+  a16=(a16*a19);
+  a25=(a09/a12);
+  a29=arg[1]? arg[1][5] : 0;
+  a27=arg[8]? arg[8][0] : 0;
+  a04=arg[1]? arg[1][4] : 0;
+  a06=(a14*a21);
+  a13=(a01*a23);
+  a06=(a06-a13);
+  a04=(a04+a06);
+  a27=(a27*a04);
+  a29=(a29+a27);
+  a27=-5.1199999999999998e-04;
+  a27=(a27*a24);
+  a27=(a00*a27);
+  a21=(a21*a27);
+  a14=(a14*a10);
+  a21=(a21+a14);
+  a14=5.1199999999999998e-04;
+  a14=(a14*a24);
+  a00=(a00*a14);
+  a23=(a23*a00);
+  a01=(a01*a07);
+  a23=(a23-a01);
+  a21=(a21+a23);
+  a23=(a29-a21);
+  a25=(a25*a23);
+  a16=(a16+a25);
+  if (res[0]!=0) res[0][0]=a16;
+  a16=(a15/a12);
+  a16=(a16*a19);
+  a12=(a11/a12);
+  a12=(a12*a23);
+  a16=(a16+a12);
+  if (res[0]!=0) res[0][1]=a16;
+  if (res[1]!=0) res[1][0]=a22;
+  a06=(-a06);
+  if (res[2]!=0) res[2][0]=a06;
+  if (res[3]!=0) res[3][0]=a18;
+  if (res[3]!=0) res[3][1]=a29;
+  a02=(a02/a17);
+  a02=(-a02);
+  if (res[4]!=0) res[4][0]=a02;
+  if (res[4]!=0) res[4][1]=a21;
+  a11=(a11/a17);
+  if (res[5]!=0) res[5][0]=a11;
+  a15=(-a15);
+  if (res[5]!=0) res[5][1]=a15;
+  a09=(a09/a17);
+  a09=(-a09);
+  if (res[5]!=0) res[5][2]=a09;
+  if (res[5]!=0) res[5][3]=a08;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f28(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_feedback_linearization_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_feedback_linearization_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_feedback_linearization_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_feedback_linearization_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_feedback_linearization_n_in(void) { return 9;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_feedback_linearization_n_out(void) { return 6;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_feedback_linearization_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_feedback_linearization_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "ref";
+    case 2: return "pi";
+    case 3: return "K";
+    case 4: return "T_p";
+    case 5: return "kq0";
+    case 6: return "kq1";
+    case 7: return "kq2";
+    case 8: return "ks0";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_feedback_linearization_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "p_c";
+    case 1: return "qdd";
+    case 2: return "sigma";
+    case 3: return "v";
+    case 4: return "L";
+    case 5: return "E";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_feedback_linearization_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    case 1: return casadi_s4;
+    case 2: return casadi_s2;
+    case 3: return casadi_s0;
+    case 4: return casadi_s5;
+    case 5: return casadi_s0;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_feedback_linearization_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    case 1: return casadi_s0;
+    case 2: return casadi_s0;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s11;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_feedback_linearization_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 9;
+  if (sz_res) *sz_res = 6;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_feedback_linearization_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 9*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 6*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_fl_lie:(x[4],p_c[2],pi[3],K,T_p[2])->(L[2],E[2x2],y_rate[2]) */
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19;
+  a00=arg[0]? arg[0][2] : 0;
+  a01=arg[3]? arg[3][0] : 0;
+  a02=3.5999999999999999e-01;
+  a03=1.6000000000000000e-02;
+  a04=arg[0]? arg[0][0] : 0;
+  a05=(a03*a04);
+  a06=(a02-a05);
+  a07=(2.*a06);
+  a08=arg[0]? arg[0][1] : 0;
+  a03=(a03*a08);
+  a07=(a07*a03);
+  a07=(a01*a07);
+  a07=(a00*a07);
+  a09=casadi_sq(a06);
+  a10=6.2500000000000000e-02;
+  a09=(a09-a10);
+  a09=(a01*a09);
+  a11=arg[4]? arg[4][0] : 0;
+  a12=(a00/a11);
+  a13=(a09*a12);
+  a07=(a07+a13);
+  a13=arg[0]? arg[0][3] : 0;
+  a02=(a02+a05);
+  a05=(2.*a02);
+  a05=(a05*a03);
+  a05=(a01*a05);
+  a05=(a13*a05);
+  a03=casadi_sq(a02);
+  a03=(a03-a10);
+  a03=(a01*a03);
+  a10=arg[4]? arg[4][1] : 0;
+  a14=(a13/a10);
+  a15=(a03*a14);
+  a05=(a05-a15);
+  a07=(a07+a05);
+  a05=arg[2]? arg[2][0] : 0;
+  a15=(a09*a00);
+  a16=(a03*a13);
+  a15=(a15-a16);
+  a16=(a08*a05);
+  a17=-9.8100000000000005e+00;
+  a18=sin(a04);
+  a18=(a17*a18);
+  a19=arg[2]? arg[2][2] : 0;
+  a18=(a18*a19);
+  a16=(a16-a18);
+  a15=(a15-a16);
+  a16=arg[2]? arg[2][1] : 0;
+  a15=(a15/a16);
+  a05=(a05*a15);
+  a04=cos(a04);
+  a04=(a04*a08);
+  a17=(a17*a04);
+  a19=(a19*a17);
+  a05=(a05-a19);
+  a07=(a07+a05);
+  a07=(a07/a16);
+  a05=(-a07);
+  if (res[0]!=0) res[0][0]=a05;
+  a05=-5.1199999999999998e-04;
+  a05=(a05*a08);
+  a05=(a01*a05);
+  a00=(a00*a05);
+  a05=-3.2000000000000001e-02;
+  a05=(a05*a06);
+  a05=(a01*a05);
+  a12=(a05*a12);
+  a00=(a00+a12);
+  a12=5.1199999999999998e-04;
+  a12=(a12*a08);
+  a12=(a01*a12);
+  a13=(a13*a12);
+  a12=3.2000000000000001e-02;
+  a12=(a12*a02);
+  a01=(a01*a12);
+  a14=(a01*a14);
+  a13=(a13-a14);
+  a00=(a00+a13);
+  if (res[0]!=0) res[0][1]=a00;
+  a09=(a09/a11);
+  a09=(a09/a16);
+  if (res[1]!=0) res[1][0]=a09;
+  a05=(a05/a11);
+  a11=(-a05);
+  if (res[1]!=0) res[1][1]=a11;
+  a03=(a03/a10);
+  a03=(a03/a16);
+  a16=(-a03);
+  if (res[1]!=0) res[1][2]=a16;
+  a01=(a01/a10);
+  if (res[1]!=0) res[1][3]=a01;
+  a10=arg[1]? arg[1][0] : 0;
+  a09=(a09*a10);
+  a16=arg[1]? arg[1][1] : 0;
+  a03=(a03*a16);
+  a09=(a09-a03);
+  a09=(a09-a07);
+  if (res[2]!=0) res[2][0]=a09;
+  a01=(a01*a16);
+  a05=(a05*a10);
+  a01=(a01-a05);
+  a00=(a00+a01);
+  if (res[2]!=0) res[2][1]=a00;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_fl_lie(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f29(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_fl_lie_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_fl_lie_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_fl_lie_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_fl_lie_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_fl_lie_n_in(void) { return 5;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_fl_lie_n_out(void) { return 3;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_fl_lie_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_fl_lie_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "p_c";
+    case 2: return "pi";
+    case 3: return "K";
+    case 4: return "T_p";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_fl_lie_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "L";
+    case 1: return "E";
+    case 2: return "y_rate";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_fl_lie_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    case 1: return casadi_s5;
+    case 2: return casadi_s2;
+    case 3: return casadi_s0;
+    case 4: return casadi_s5;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_fl_lie_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    case 1: return casadi_s11;
+    case 2: return casadi_s5;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_fl_lie_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 5;
+  if (sz_res) *sz_res = 3;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_fl_lie_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 5*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 3*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_1link_pneumatic_estimator_step:(state[53],y[3])->(state_next[53],sigma_hat,tau_hat,tau_uio,updating) */
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -7845,7 +8286,7 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f28(arg, res, iw, w, mem);
+  return casadi_f30(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_estimator_step_checkout(void) {
@@ -7892,7 +8333,7 @@ CASADI_SYMBOL_EXPORT const char* pendulum_1link_pneumatic_estimator_step_name_ou
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_estimator_step_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s11;
+    case 0: return casadi_s12;
     case 1: return casadi_s2;
     default: return 0;
   }
@@ -7900,7 +8341,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_estimator_step_s
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_estimator_step_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s11;
+    case 0: return casadi_s12;
     case 1: return casadi_s0;
     case 2: return casadi_s0;
     case 3: return casadi_s0;

@@ -449,6 +449,42 @@ int pendulum_1link_corollary2_work_bytes(casadi_int *sz_arg, casadi_int* sz_res,
 #define pendulum_1link_corollary2_SZ_RES 4
 #define pendulum_1link_corollary2_SZ_IW 0
 #define pendulum_1link_corollary2_SZ_W 0
+int pendulum_1link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_feedback_linearization_checkout(void);
+void pendulum_1link_feedback_linearization_release(int mem);
+void pendulum_1link_feedback_linearization_incref(void);
+void pendulum_1link_feedback_linearization_decref(void);
+casadi_int pendulum_1link_feedback_linearization_n_in(void);
+casadi_int pendulum_1link_feedback_linearization_n_out(void);
+casadi_real pendulum_1link_feedback_linearization_default_in(casadi_int i);
+const char* pendulum_1link_feedback_linearization_name_in(casadi_int i);
+const char* pendulum_1link_feedback_linearization_name_out(casadi_int i);
+const casadi_int* pendulum_1link_feedback_linearization_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_feedback_linearization_sparsity_out(casadi_int i);
+int pendulum_1link_feedback_linearization_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_feedback_linearization_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_feedback_linearization_SZ_ARG 9
+#define pendulum_1link_feedback_linearization_SZ_RES 6
+#define pendulum_1link_feedback_linearization_SZ_IW 0
+#define pendulum_1link_feedback_linearization_SZ_W 0
+int pendulum_1link_fl_lie(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_1link_fl_lie_checkout(void);
+void pendulum_1link_fl_lie_release(int mem);
+void pendulum_1link_fl_lie_incref(void);
+void pendulum_1link_fl_lie_decref(void);
+casadi_int pendulum_1link_fl_lie_n_in(void);
+casadi_int pendulum_1link_fl_lie_n_out(void);
+casadi_real pendulum_1link_fl_lie_default_in(casadi_int i);
+const char* pendulum_1link_fl_lie_name_in(casadi_int i);
+const char* pendulum_1link_fl_lie_name_out(casadi_int i);
+const casadi_int* pendulum_1link_fl_lie_sparsity_in(casadi_int i);
+const casadi_int* pendulum_1link_fl_lie_sparsity_out(casadi_int i);
+int pendulum_1link_fl_lie_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_1link_fl_lie_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_1link_fl_lie_SZ_ARG 5
+#define pendulum_1link_fl_lie_SZ_RES 3
+#define pendulum_1link_fl_lie_SZ_IW 0
+#define pendulum_1link_fl_lie_SZ_W 0
 int pendulum_1link_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pendulum_1link_pneumatic_estimator_step_checkout(void);
 void pendulum_1link_pneumatic_estimator_step_release(int mem);

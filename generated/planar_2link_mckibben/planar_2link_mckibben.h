@@ -449,6 +449,42 @@ int planar_2link_mckibben_corollary2_work_bytes(casadi_int *sz_arg, casadi_int* 
 #define planar_2link_mckibben_corollary2_SZ_RES 4
 #define planar_2link_mckibben_corollary2_SZ_IW 0
 #define planar_2link_mckibben_corollary2_SZ_W 0
+int planar_2link_mckibben_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_mckibben_feedback_linearization_checkout(void);
+void planar_2link_mckibben_feedback_linearization_release(int mem);
+void planar_2link_mckibben_feedback_linearization_incref(void);
+void planar_2link_mckibben_feedback_linearization_decref(void);
+casadi_int planar_2link_mckibben_feedback_linearization_n_in(void);
+casadi_int planar_2link_mckibben_feedback_linearization_n_out(void);
+casadi_real planar_2link_mckibben_feedback_linearization_default_in(casadi_int i);
+const char* planar_2link_mckibben_feedback_linearization_name_in(casadi_int i);
+const char* planar_2link_mckibben_feedback_linearization_name_out(casadi_int i);
+const casadi_int* planar_2link_mckibben_feedback_linearization_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_mckibben_feedback_linearization_sparsity_out(casadi_int i);
+int planar_2link_mckibben_feedback_linearization_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_mckibben_feedback_linearization_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_mckibben_feedback_linearization_SZ_ARG 9
+#define planar_2link_mckibben_feedback_linearization_SZ_RES 6
+#define planar_2link_mckibben_feedback_linearization_SZ_IW 0
+#define planar_2link_mckibben_feedback_linearization_SZ_W 0
+int planar_2link_mckibben_fl_lie(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_mckibben_fl_lie_checkout(void);
+void planar_2link_mckibben_fl_lie_release(int mem);
+void planar_2link_mckibben_fl_lie_incref(void);
+void planar_2link_mckibben_fl_lie_decref(void);
+casadi_int planar_2link_mckibben_fl_lie_n_in(void);
+casadi_int planar_2link_mckibben_fl_lie_n_out(void);
+casadi_real planar_2link_mckibben_fl_lie_default_in(casadi_int i);
+const char* planar_2link_mckibben_fl_lie_name_in(casadi_int i);
+const char* planar_2link_mckibben_fl_lie_name_out(casadi_int i);
+const casadi_int* planar_2link_mckibben_fl_lie_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_mckibben_fl_lie_sparsity_out(casadi_int i);
+int planar_2link_mckibben_fl_lie_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_mckibben_fl_lie_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_mckibben_fl_lie_SZ_ARG 5
+#define planar_2link_mckibben_fl_lie_SZ_RES 3
+#define planar_2link_mckibben_fl_lie_SZ_IW 0
+#define planar_2link_mckibben_fl_lie_SZ_W 0
 void planar_2link_mckibben_casadi_version(int* major, int* minor, int* patch);
 int planar_2link_mckibben_casadi_int_size(void);
 int planar_2link_mckibben_casadi_real_size(void);
