@@ -12,16 +12,44 @@ def _fmt(x) -> str:
     return str(x)
 
 
+def _cell(x) -> str:
+    """Text safe inside a markdown table cell: ``|`` escaped, one line."""
+    return " ".join(str(x).splitlines()).replace("|", "\\|")
+
+
+def _summary(results: list[dict]) -> list[str]:
+    """experiment | claim | verdict over every experiment with findings (none: no lines)."""
+    rows = [f"| {_cell(res['experiment'])} | {_cell(f['claim'])} | {_cell(f['verdict'])} |"
+            for res in results for f in res.get("findings", [])]
+    if not rows:
+        return []
+    return ["**Claims checked** (verdicts computed from this run's metrics; evidence in each "
+            "experiment's section)", "", "| experiment | claim | verdict |", "|---|---|---|",
+            *rows, ""]
+
+
+def _claims(findings: list[dict]) -> list[str]:
+    """claim | verdict | evidence of one experiment (no findings: no lines)."""
+    if not findings:
+        return []
+    return ["**Claims checked**", "", "| claim | verdict | evidence |", "|---|---|---|",
+            *(f"| {_cell(f['claim'])} | {_cell(f['verdict'])} | {_cell(f['evidence'])} |"
+              for f in findings), ""]
+
+
 def write_report(results: list[dict], path: Path) -> None:
     """One table per experiment: metric | ours | thesis | ours/thesis.
 
     Every metric we computed gets a row; a thesis number we have no metric for
-    gets a row too (so a missing comparison is visible, not hidden).
+    gets a row too (so a missing comparison is visible, not hidden). Experiments
+    with ``findings`` get a claim | verdict | evidence table before it, and all
+    verdicts are summed up at the top.
     """
     lines = ["# softgen: reproduction report", "",
              "Numbers under *ours* are computed by the run that wrote this report; "
              "*thesis* repeats what the thesis prints for the same quantity (— where it "
              "reports none).", ""]
+    lines += _summary(results)
     for res in results:
         exp = res["experiment"]
         lines.append(f"## {exp}")
@@ -35,6 +63,7 @@ def write_report(results: list[dict], path: Path) -> None:
                          f"Wall time {res['wall_seconds']:.2f} s"
                          + (", quick run" if cfg.get("quick") else "") + ".")
             lines.append("")
+        lines += _claims(res.get("findings", []))
         lines += ["| metric | ours | thesis | ours / thesis |", "|---|---|---|---|"]
         ours, thesis = res["metrics"], res.get("thesis", {})
         for key in list(ours) + [k for k in thesis if k not in ours]:

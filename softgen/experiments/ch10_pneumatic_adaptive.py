@@ -35,7 +35,7 @@ from ..control.references import SmoothSteps
 from ..model import load_model
 from .estimation_common import load_functions
 from .pneumatic_common import coupling, parameter_ratio, phase_rms
-from .registry import Experiment
+from .registry import Experiment, absent, finding, graded, not_checked, num, times
 
 PHASES = ((0.0, 190.0), (190.0, 250.0), (250.0, 350.0))
 
@@ -245,6 +245,84 @@ def _figures(tr: dict, arm, out) -> None:
     plt.close(fig)
 
 
+def findings(m: dict) -> list[dict]:
+    """The claims of section 10.2 (Fig. 10.2-10.3) checked against the metrics ``m``.
+
+    Thresholds, stated again in each evidence text: rms errors (second half of each
+    phase) below 1e-3 rad and 1e-2 N m/rad; coupling indices below what lets a 0.1 rad
+    position step move σ by 1e-2 N m/rad, or a 1 N m/rad stiffness step move q by
+    1e-3 rad (the tracking tolerances); ‖Π̂‖/‖Π‖ below 10; no pressure violation.
+    """
+    pos_tol, stiff_tol = 1e-3, 1e-2          # rad, N m/rad
+    p2s_tol, s2p_tol = stiff_tol / 0.1, pos_tol / 1.0
+    ratio_tol = 10.0
+    joints, phases = (1, 2), (1, 2, 3)
+    out = []
+
+    claim = ("Fig. 10.2 (section 10.2): position and stiffness references are tracked with "
+             "errors that go to zero after adaptation.")
+    pos = {(i, k): f"position_rms_error_joint{i}_phase{k}" for i in joints for k in phases}
+    sti = {(i, k): f"stiffness_rms_error_joint{i}_phase{k}" for i in joints for k in phases}
+    if lost := absent(m, [*pos.values(), *sti.values()]):
+        out.append(not_checked(claim, lost))
+    else:
+        pi, pk = max(pos, key=lambda ik: m[pos[ik]])
+        si, sk = max(sti, key=lambda ik: m[sti[ik]])
+        p_worst, s_worst = m[pos[pi, pk]], m[sti[si, sk]]
+        out.append(finding(claim, graded([p_worst < pos_tol, s_worst < stiff_tol]),
+                           f"Largest rms error over the second half of a phase: position "
+                           f"{num(p_worst)} rad (joint {pi}, phase {pk}), stiffness "
+                           f"{num(s_worst)} N m/rad (joint {si}, phase {sk}); thresholds "
+                           f"< {pos_tol:g} rad and < {stiff_tol:g} N m/rad."))
+
+    claim = ("Fig. 10.2 (section 10.2): position commands have almost no influence on the "
+             "stiffness, and stiffness commands almost none on the position.")
+    p2s = {i: f"position_to_stiffness_coupling_joint{i}" for i in joints}
+    s2p = {i: f"stiffness_to_position_coupling_joint{i}" for i in joints}
+    if lost := absent(m, [*p2s.values(), *s2p.values()]):
+        out.append(not_checked(claim, lost))
+    else:
+        def quote(d: dict, unit: str) -> str:
+            # Against the open-loop stiffness controller when the run has it (full runs).
+            parts = []
+            for i, key in d.items():
+                ol = m.get(f"open_loop_{key}")
+                rel = "" if ol is None else f"; {times(m[key], ol)} open loop"
+                parts.append(f"{num(m[key])} {unit} (joint {i}{rel})")
+            return ", ".join(parts)
+
+        ok = [all(m[k] < p2s_tol for k in p2s.values()), all(m[k] < s2p_tol for k in s2p.values())]
+        has_ol = not absent(m, [f"open_loop_{k}" for k in [*p2s.values(), *s2p.values()]])
+        out.append(finding(
+            claim, graded(ok),
+            f"Stiffness deviation per rad of position step {quote(p2s, 'N m/rad')}; position "
+            f"deviation per N m/rad of stiffness step {quote(s2p, 'rad')}"
+            + ("" if has_ol else " (open-loop stiffness controller not run here)")
+            + f"; thresholds < {p2s_tol:g} N m/rad per rad and < {s2p_tol:g} rad per "
+            "N m/rad."))
+
+    claim = "Fig. 10.3 (section 10.2): the parameter estimates stay bounded."
+    if lost := absent(m, ["parameter_estimate_max_ratio"]):
+        out.append(not_checked(claim, lost))
+    else:
+        r = m["parameter_estimate_max_ratio"]
+        out.append(finding(claim, graded([r < ratio_tol]),
+                           f"Largest ‖Π̂(t)‖/‖Π‖ {num(r)}; threshold < {ratio_tol:g}."))
+
+    claim = "Section 10.2: the commanded pressures are feasible (within [0, p_max])."
+    if lost := absent(m, ["pressure_violations"]):
+        out.append(not_checked(claim, lost))
+    else:
+        v = m["pressure_violations"]
+        span = (f"; commanded pressures ranged over [{num(m['pressure_min_pa'])}, "
+                f"{num(m['pressure_max_pa'])}] Pa"
+                if not absent(m, ["pressure_min_pa", "pressure_max_pa"]) else "")
+        out.append(finding(claim, graded([v == 0]),
+                           f"{v:g} episode(s) of a commanded pressure outside [0, p_max]"
+                           f"{span}; required: 0."))
+    return out
+
+
 EXPERIMENT = Experiment(
     id="ch10-pneumatic-adaptive",
     title="Decoupled adaptive position and stiffness control of a two-link McKibben arm",
@@ -253,6 +331,7 @@ EXPERIMENT = Experiment(
     config=CONFIG,
     quick={"compare_open_loop": False, "check_dt_halving": False,
            "compare_model_acceleration": False},
+    findings=findings,
     discussion=(
         "The thesis prints no numbers for this simulation, only Fig. 10.2-10.3. Read "
         "`position_rms_error_joint{i}_phase{k}` and `stiffness_rms_error_joint{i}_phase{k}` "

@@ -3,9 +3,10 @@
 The thesis ran its chapter-10 controllers on GioSte, a pneumatic arm with one or two
 joints, each driven by an antagonistic McKibben pair through SMC ITV-2050 valves
 (0-6 V) and read by HEDS-5500 encoders. That hardware is emulated here from what
-the thesis identified on it; the controllers keep their own, different, actuator
-model (``models/gioste_*.toml``: Table 10.1 muscles), so the mismatch between the
-two is the "residual inaccuracy of the actuator model" of section 10.3.4.
+the thesis identified on it. The controllers keep their own McKibben model of the
+actuator (section 2.1), identified from the same maps (:func:`fitted_model`); what the
+McKibben form cannot represent of the maps is the "residual inaccuracy of the actuator
+model identification" of section 10.3.4.
 
 Emulated hardware (every choice, and why)
 -----------------------------------------
@@ -21,16 +22,22 @@ Valves (eq. 10.10)
     after a transport delay (``valve_delay``, 10 ms by default: the pilot stage and
     the tubing).
 Torque (eq. 10.11 and section 10.3.5)
-    τ_i = A_i(q_i) V_i,a − B_i(q_i) V_i,b with the identified quadratics. The maps
+    τ_i = A_i(q_i) u_i,a − B_i(q_i) u_i,b with the identified quadratics. The maps
     were fitted from steady states, where the muscle pressure equals the valve
     target, so here they are evaluated at the voltage *equivalent* to the actual
     (lagged) pressure, V_eq = f⁻¹(p_actual): the torque follows the air in the
-    muscle, not the command. V_eq ≥ V₀ because p ≥ 0. Joint 1 of the two-link arm
-    uses the shoulder maps of section 10.3.5, every other joint the one-link maps,
-    and every muscle of joint i the valve maps of eq. 10.10 (section 10.3.5 says so).
+    muscle, not the command. Eq. 10.11 is linear in V through V = 0, but eq. 10.10
+    gives zero pressure at V₀ ≈ 0.5-0.6 V; composed literally, every muscle at zero
+    pressure would pull with A(q) V₀ ≈ 3.7 N m. A McKibben muscle at zero gauge
+    pressure exerts no force (F = K_g φ p, section 2.1), so the maps are read from V₀:
+    u = V_eq − V₀ (:func:`map_voltage`, ``map_origin = "zero_pressure"``; the literal
+    reading is ``"zero_voltage"``). Both fits agree on the slope, which is all this
+    keeps of them. Joint 1 of the two-link arm uses the shoulder maps of section
+    10.3.5, every other joint the one-link maps, and every muscle of joint i the valve
+    maps of eq. 10.10 (section 10.3.5 says so).
 Stiffness: two of them
-    Eq. 10.11 also gives an identified stiffness map S_i(q, V) = S_a(q) V_a + S_b(q)
-    V_b, but it is not −∂τ/∂q of the torque map: at fixed voltages
+    Eq. 10.11 also gives an identified stiffness map S_i(q, u) = S_a(q) u_a + S_b(q)
+    u_b, but it is not −∂τ/∂q of the torque map: at fixed voltages
     −∂τ_i/∂q_i = −A_i'(q) V_a + B_i'(q) V_b, e.g. (2.34 + 1.42 q) V_a + (2.07 − 1.16 q)
     V_b for the one-link arm against the map's (2.34 − 0.57 q) V_a + (2.07 + 0.57 q)
     V_b. Both agree at q = 0 (the map is the linearisation there) and differ
@@ -47,21 +54,20 @@ Links
     0.05 N m s/rad per joint: the bearings and the braid of the muscles) is added
     to the plant; the controller does not know it (the thesis neglects it, section
     10.3.3). Without it the lightly damped one-link mode (about 25 rad/s at
-    σ = 10 N m/rad) is damped only by K_d, which in the controller's units is
-    2·K_1 ≈ 0.02 N m s/rad (K_1 of the fitted model).
+    σ = 10 N m/rad) is damped only by the feedback, which in the controller's units
+    is K_d K_1, a few hundredths of a N m s/rad.
 Encoders
-    HEDS-5500 A12: 500 cycles per revolution. Read in quadrature (×4) that is 2000
-    counts, 3.1·10⁻³ rad, but the thesis states 1.6·10⁻³ rad "in quadrature mode",
-    i.e. 4000 counts/rev (2π/4000 = 1.57·10⁻³). We take the thesis's stated
-    resolution, ``counts_per_rev`` = 4000: it is the number the thesis measured its
-    steady-state error against. The angle is rounded to the nearest count (the
-    encoders are zeroed against the vertical, so readings are absolute).
+    HEDS-5500 A12: 500 cycles per revolution, read in quadrature (×4):
+    ``counts_per_rev`` = 2000, 3.1·10⁻³ rad per count. The thesis prints 1.6·10⁻³ rad
+    for the same encoder, which would take 4000 counts (2π/4000 = 1.57·10⁻³); we
+    follow the part number. The angle is rounded to the nearest count (the encoders
+    are zeroed against the vertical, so readings are absolute).
 Velocity
     A dirty derivative of the encoder reading: v_k = a v_{k−1} + (1 − a)(q_k −
     q_{k−1})/T, a = exp(−T/τ_f), τ_f = ``velocity_filter`` = 0.02 s (first-order
     low-pass at 50 rad/s on the backward difference). One count per sample would
-    read 1.6 rad/s raw; the filter brings a single count's kick down to
-    1.6·(1 − a) ≈ 0.08 rad/s.
+    read 3.1 rad/s raw; the filter brings a single count's kick down to
+    3.1·(1 − a) ≈ 0.15 rad/s.
 Sample time
     T = 1 ms (a Simulink real-time loop on the PCIe-6323), controller held by
     zero-order hold; the controllers integrate ν and Π̂ by forward Euler over T.
@@ -81,10 +87,10 @@ encoders and friction but makes the muscles the controller's own model (τ = KΦ
 σ = −KΦ_q(q)p at the valves' pressures): it separates what the hardware effects do
 from what the actuator-model mismatch does.
 
-Controller's actuator model: :func:`fitted_model` fits each joint's pulley radius
-and muscle gain to the pressure-proportional part of the identified torque map
-(why: :mod:`softgen.experiments.ch10_gioste`); :func:`kpi_vector` converts the
-thesis's K_π to our parameterisation.
+Controller's actuator model: :func:`fitted_model` identifies each joint's pulley
+radius, muscle gain and the lengths of muscle b from the torque maps by least squares
+over the operating range (why: :mod:`softgen.experiments.ch10_gioste`);
+:func:`kpi_vector` converts the thesis's K_π to our parameterisation.
 """
 from __future__ import annotations
 
@@ -205,46 +211,104 @@ def joint_maps(n: int) -> tuple[JointMaps, ...]:
 
 # -- the controller's actuator model ------------------------------------------------------
 
-def fit_muscles(jm: JointMaps, nominal_length: float, min_length: float,
-                q_range=(-0.3, 0.5)) -> tuple[float, float]:
-    """(R, K_g) of a McKibben pair whose torque per pascal best matches ``jm``.
+#: Operating range of the identification (angles in rad, gauge pressures in Pa): the
+#: protocols' angles with margin, and the pressures that give GioSte's 7-19 N m/rad.
+FIT_Q_RANGE = (-0.3, 0.5)
+FIT_P_RANGE = (0.2 * BAR, 4.0 * BAR)
+
+
+def map_voltage(V, valve: ValveMap, origin: str, fmax=np.maximum):
+    """The voltage the identified maps are evaluated at, for a valve voltage ``V``.
+
+    ``origin="zero_pressure"``: V − V₀, floored at 0, so a muscle at zero gauge pressure
+    exerts no force (section 2.1: F = K_g φ p). Eq. 10.11 is linear in V through V = 0
+    while eq. 10.10 gives zero pressure only at V₀ ≈ 0.5-0.6 V; composed literally
+    (``origin="zero_voltage"``) the two fits give every muscle at zero pressure a pull of
+    A(q) V₀ ≈ 3.7 N m, which no McKibben muscle has. Both fits agree on the slope, which
+    is all that ``zero_pressure`` keeps of them.
+    """
+    if origin == "zero_pressure":
+        return fmax(V - valve.v0, 0.0)
+    if origin == "zero_voltage":
+        return V
+    raise ValueError(f"map_origin: expected 'zero_pressure' or 'zero_voltage', got {origin!r}")
+
+
+def fit_muscles(jm: JointMaps, lengths_a: tuple[float, float], *,
+                origin: str = "zero_pressure", valves: tuple[ValveMap, ValveMap] | None = None,
+                q_range=FIT_Q_RANGE, p_range=FIT_P_RANGE) -> dict:
+    """A McKibben pair (section 2.1) identified from the maps of one joint.
 
     The controller's model gives muscle a the torque K φ_a(q) p_a with
-    φ_a = (l_n − qR)² − l_min², K = K_g R (section 2.1); the identified map gives
-    A(q) V_a with V_a ≈ p_a / (c₁·10⁵) + V₀ (eq. 10.10 linearised). Matching the parts
-    proportional to pressure, K φ_a(q) ≈ A(q)/(c₁,a 10⁵) and K φ_b(q) ≈ B(q)/(c₁,b 10⁵),
-    by least squares over ``q_range`` with l_n, l_min kept (Table 10.1): K is linear
-    (closed form), R is found on a 10 µm grid. The constant part A(q) V₀ cannot be
-    represented by any pressure-proportional model; it stays a mismatch.
+    φ_a = (l_n,a − qR)² − l_m,a², φ_b = (l_n,b + qR)² − l_m,b², K = K_g R; the emulated
+    muscle gives A(q) u_a(p_a) with u the map voltage of the pressure (eq. 10.10
+    inverted, :func:`map_voltage`). Least squares over a grid of ``q_range`` ×
+    ``p_range`` fits K, R and the lengths of muscle b (the thesis identified "the nominal
+    and minimum lengths of the two muscles", section 10.3.3), so unequal muscles are
+    modelled, not left as a torque bias at co-contraction. Muscle a keeps
+    ``lengths_a`` = (l_n, l_min) of the model file: K φ is invariant under
+    (K, R, l) → (cK, R/√c, l/√c), and with every length free the fit runs to the
+    unphysical corner l_min → l_n, K → ∞ (a flatter profile than any muscle near its
+    rest length gives). What no McKibben pair represents stays a mismatch: the maps'
+    q² terms have the opposite sign of K R².
+
+    Returns ``{"radius", "gain", "nominal_length": (a, b), "min_length": (a, b),
+    "rms_error"}``, the last the fit's rms torque error in N m over the grid.
     """
-    q = np.linspace(*q_range, 81)
-    y = np.concatenate([_poly(jm.torque_a, q) / (VALVE_A.c1 * BAR),
-                        _poly(jm.torque_b, q) / (VALVE_B.c1 * BAR)])
-    R = np.arange(1e-3, 0.06, 1e-5)[:, None]
-    X = np.concatenate([(nominal_length - q * R) ** 2 - min_length ** 2,
-                        (nominal_length + q * R) ** 2 - min_length ** 2], axis=1)
-    K = (X @ y) / np.sum(X * X, axis=1)
-    r = np.sum((K[:, None] * X - y) ** 2, axis=1)
-    j = int(np.argmin(r))
-    return float(R[j, 0]), float(K[j] / R[j, 0])
+    from scipy.optimize import least_squares
+
+    q, p = np.meshgrid(np.linspace(*q_range, 41), np.linspace(*p_range, 21))
+    q, p = q.ravel(), p.ravel()
+    va, vb = valves or (VALVE_A, VALVE_B)
+    ua = map_voltage(va.voltage(p), va, origin)
+    ub = map_voltage(vb.voltage(p), vb, origin)
+    y = np.concatenate([_poly(jm.torque_a, q) * ua, _poly(jm.torque_b, q) * ub])
+    lna, lma = (float(v) for v in lengths_a)
+
+    def model(x):
+        K, R, lnb, lmb = x
+        return np.concatenate([K * ((lna - q * R) ** 2 - lma ** 2) * p,
+                               K * ((lnb + q * R) ** 2 - lmb ** 2) * p])
+
+    # Start: muscle a's level and slope at q = 0 matched, muscle b equal to it.
+    c0 = _poly(jm.torque_a, 0.0) / (va.c1 * BAR)
+    c1 = -_dpoly(jm.torque_a, 0.0) / (va.c1 * BAR)
+    K0 = c0 / (lna ** 2 - lma ** 2)
+    x0 = np.array([K0, c1 / (2 * K0 * lna), lna, lma])
+    sol = least_squares(lambda x: model(x * x0) - y, np.ones(4), method="trf",
+                        bounds=(1e-3, np.inf), xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    K, R, lnb, lmb = sol.x * x0
+    if not (sol.success and lmb < lnb):
+        raise ValueError(f"fit_muscles: no physical McKibben pair fits these maps "
+                         f"(l_n,b = {lnb:.4g}, l_m,b = {lmb:.4g} m)")
+    return {"radius": float(R), "gain": float(K / R), "nominal_length": (lna, float(lnb)),
+            "min_length": (lma, float(lmb)),
+            "rms_error": float(np.sqrt(np.mean((model(sol.x * x0) - y) ** 2)))}
 
 
-def fitted_model(model: RobotModel) -> RobotModel:
-    """``model`` with each joint's radius and gain fitted to the identified torque maps.
+def fitted_model(model: RobotModel, *, origin: str = "zero_pressure") -> RobotModel:
+    """``model`` with each joint's McKibben pair identified from the maps (:func:`fit_muscles`).
 
     Named ``<name>_fitted`` so that its generated functions never collide with the
-    original's. Only equal-length muscles (one l_n, one l_min per joint) are handled.
+    original's. Muscle a keeps its lengths from the model file.
     """
     acts = []
     for a, jm in zip(model.actuators, joint_maps(model.dof)):
-        ln, lm = a["nominal_length"], a["min_length"]
-        if ln[0] != ln[1] or lm[0] != lm[1]:
-            raise ValueError(f"{model.name}: fitted_model expects equal muscles per joint")
-        R, Kg = fit_muscles(jm, ln[0], lm[0])
+        fit = fit_muscles(jm, (a["nominal_length"][0], a["min_length"][0]), origin=origin)
         vals = dict(a.values)
-        vals.update(radius=R, gain=Kg)
+        vals.update(radius=fit["radius"], gain=fit["gain"],
+                    nominal_length=fit["nominal_length"], min_length=fit["min_length"])
         acts.append(dataclasses.replace(a, values=tuple(sorted(vals.items()))))
     return dataclasses.replace(model, name=f"{model.name}_fitted", actuators=tuple(acts))
+
+
+def gravity_columns(arm: PneumaticArm) -> np.ndarray:
+    """Mask of the base parameters that only multiply gravity terms (g sin q, …)."""
+    n = arm.n
+    q, z = np.full(n, 0.3), np.zeros(n)
+    grav = arm.dyn.regressor(q, z, z, z)
+    inertial = arm.dyn.regressor(q, np.ones(n), np.ones(n), np.ones(n)) - grav
+    return np.all(np.abs(inertial) < 1e-12, axis=0) & np.any(np.abs(grav) > 0, axis=0)
 
 
 def kpi_vector(arm: PneumaticArm, kpi: float, *, per_g2: bool = True) -> np.ndarray:
@@ -252,20 +316,12 @@ def kpi_vector(arm: PneumaticArm, kpi: float, *, per_g2: bool = True) -> np.ndar
 
     The thesis's regressors carry sin q, not g sin q (section 10.3.3: Y_* = (q̈_r,
     sin q); eq. 10.9 likewise), so its gravity parameters are g times ours; a
-    diagonal gain K_π on them is K_π/g² on ours (Π̇ = K_π Yᵀ s). Columns of our
-    regressor with no inertial part are the gravity ones.
+    diagonal gain K_π on them is K_π/g² on ours (Π̇ = K_π Yᵀ s).
     """
-    dyn = arm.dyn
-    n = arm.n
     g = float(arm.model.nominal.get("g", 9.81))
-    q = np.full(n, 0.3)
-    z = np.zeros(n)
-    grav = dyn.regressor(q, z, z, z)
-    inertial = dyn.regressor(q, np.ones(n), np.ones(n), np.ones(n)) - grav
-    pure = np.all(np.abs(inertial) < 1e-12, axis=0) & np.any(np.abs(grav) > 0, axis=0)
     out = np.full(arm.n_params, float(kpi))
     if per_g2:
-        out[pure] /= g * g
+        out[gravity_columns(arm)] /= g * g
     return out
 
 
@@ -278,9 +334,10 @@ class HardwareConfig:
     valve_tau: float = 0.15          # s, first-order pressure response
     valve_delay: float = 0.01        # s, transport delay before the lag
     friction: float = 0.05           # N m s/rad, viscous, every joint
-    counts_per_rev: int = 4000       # 1.6e-3 rad, the thesis's quadrature resolution
+    counts_per_rev: int = 2000       # HEDS-5500 A12: 500 cycles/rev, quadrature (x4) decoding
     velocity_filter: float = 0.02    # s, dirty-derivative time constant
     substeps: int = 2                # RK4 steps of the plant per sample
+    map_origin: str = "zero_pressure"  # how eq. 10.10 and 10.11 compose (map_voltage)
 
     @classmethod
     def from_dict(cls, d: dict | None) -> HardwareConfig:
@@ -360,7 +417,9 @@ class GiosteEmulation:
                 a, b = 0.0, 8e5
                 for _ in range(80):     # bisection: S is increasing in p
                     m = 0.5 * (a + b)
-                    S = jm.sigma_identified(0.0, VALVE_A.voltage(m), VALVE_B.voltage(m))
+                    S = jm.sigma_identified(
+                        0.0, map_voltage(VALVE_A.voltage(m), VALVE_A, self.hw.map_origin),
+                        map_voltage(VALVE_B.voltage(m), VALVE_B, self.hw.map_origin))
                     a, b = (m, b) if S < s else (a, m)
                 p = 0.5 * (a + b)
                 xs.append(-(Phi_q0[i, 2 * i] + Phi_q0[i, 2 * i + 1]) * p)
@@ -392,8 +451,10 @@ class GiosteEmulation:
                                      [qs], [q])
             return tau, sig, sig
         tau, sp, si = [], [], []
+        origin = self.hw.map_origin
         for i, jm in enumerate(self.joints):
-            Va, Vb = V[2 * i], V[2 * i + 1]
+            Va = map_voltage(V[2 * i], VALVE_A, origin, fmax=ca.fmax)
+            Vb = map_voltage(V[2 * i + 1], VALVE_B, origin, fmax=ca.fmax)
             tau.append(jm.torque(q[i], Va, Vb))
             sp.append(jm.sigma_physical(q[i], Va, Vb))
             si.append(jm.sigma_identified(q[i], Va, Vb))

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TextIO
 
 from ..report import write_report
-from .registry import experiment_ids, get
+from .registry import VERDICTS, Experiment, experiment_ids, finding, get
 
 
 def run_one(exp_id: str, out_root: Path, quick: bool) -> dict:
@@ -26,8 +26,30 @@ def run_one(exp_id: str, out_root: Path, quick: bool) -> dict:
               "wall_seconds": time.perf_counter() - t0}
     if exp.discussion:
         result["discussion"] = exp.discussion
+    if exp.findings is not None:
+        result["findings"] = check_findings(exp, metrics)
     (out / "metrics.json").write_text(json.dumps(result, indent=2) + "\n")
     return result
+
+
+def check_findings(exp: Experiment, metrics: dict) -> list[dict]:
+    """``exp.findings(metrics)``, validated; a failure becomes one "not checked" finding.
+
+    The metrics cost a simulation, the findings are a reading of them: a bug in the
+    reading must not lose the run.
+    """
+    try:
+        out = list(exp.findings(metrics))
+        for f in out:
+            if not (isinstance(f, dict) and set(f) == {"claim", "verdict", "evidence"}
+                    and all(isinstance(v, str) for v in f.values())
+                    and f["verdict"] in VERDICTS):
+                raise ValueError(f"malformed finding {f!r}: expected str claim, verdict "
+                                 f"(one of {', '.join(VERDICTS)}) and evidence")
+        return out
+    except Exception as exc:
+        return [finding(f"claims of {exp.id}", "not checked",
+                        f"findings raised {type(exc).__name__}: {exc}")]
 
 
 def _safe_run(exp_id: str, out_root: Path, quick: bool) -> dict:

@@ -1,0 +1,405 @@
+"""Computed claims: verdicts follow the stated thresholds, evidence quotes the metrics,
+a failing findings function loses nothing, and the report shows every verdict.
+
+Metric dicts are synthetic (no simulation): a base that passes every claim, then one
+metric moved across its threshold.
+"""
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from softgen.experiments import runner
+from softgen.experiments.registry import VERDICTS, Experiment, finding, get, num
+from softgen.report import write_report
+
+PNEUMATIC = get("ch10-pneumatic-adaptive")
+FL = get("ch10-feedback-linearization")
+JOINTS = (1, 2)
+
+
+def pneumatic_metrics(open_loop: bool = True) -> dict:
+    """Metrics of a run that passes every section-10.2 claim; ``open_loop``: full run."""
+    m = {}
+    for i in JOINTS:
+        for k in (1, 2, 3):
+            m[f"position_rms_error_joint{i}_phase{k}"] = 1e-5 * (i + k)
+            m[f"stiffness_rms_error_joint{i}_phase{k}"] = 1e-4 * (i + k)
+        m[f"position_to_stiffness_coupling_joint{i}"] = 0.04 / i
+        m[f"stiffness_to_position_coupling_joint{i}"] = 3e-15 * i
+        if open_loop:
+            m[f"open_loop_position_to_stiffness_coupling_joint{i}"] = 1e-4 / i
+            m[f"open_loop_stiffness_to_position_coupling_joint{i}"] = 3e-15
+    m.update(parameter_estimate_max_ratio=1.003, pressure_violations=0.0,
+             pressure_min_pa=1.2e4, pressure_max_pa=4.9e4)
+    return m
+
+
+def fl_metrics() -> dict:
+    """Metrics of a run that passes every section-10.4 claim."""
+    m = {"steady_position_error_fl": 0.83, "steady_position_error_adaptive": 4.5e-8,
+         "steady_position_error_fl_exact": 3.3e-11,
+         "steady_position_error_adaptive_exact": 4.9e-9}
+    for i in JOINTS:
+        m[f"fl_exact_final_stiffness_error_max_joint{i}"] = 3e-13 * i
+        m[f"adaptive_exact_final_stiffness_error_max_joint{i}"] = 4.8e-8 / i
+        m[f"fl_1pct_predicted_steady_error_joint{i}"] = 0.83 / i
+        m[f"fl_1pct_final_position_error_joint{i}"] = 0.83 / i * (1 + 1e-9)
+        m[f"fl_exact_position_to_stiffness_coupling_joint{i}"] = 1e-12 * i
+        m[f"adaptive_exact_position_to_stiffness_coupling_joint{i}"] = 0.86 / i
+        m[f"fl_1pct_stiffness_rms_joint{i}"] = 1.2e-14 * i
+        m[f"adaptive_1pct_stiffness_rms_error_joint{i}_phase4"] = 8.8e-10 * i
+        m[f"fl_exact_stiffness_rms_joint{i}"] = 1.3e-13 * i
+        m[f"adaptive_exact_stiffness_rms_error_joint{i}_phase4"] = 2.3e-10 * i
+    return m
+
+
+def verdicts(exp: Experiment, m: dict) -> list[str]:
+    return [f["verdict"] for f in exp.findings(m)]
+
+
+# -- verdicts -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("exp,base", [(PNEUMATIC, pneumatic_metrics), (FL, fl_metrics)])
+def test_base_metrics_reproduce_every_claim(exp, base):
+    out = exp.findings(base())
+    assert len(out) == 4
+    for f in out:
+        assert set(f) == {"claim", "verdict", "evidence"}
+        assert f["verdict"] == "reproduced", f
+        assert re.search(r"(Fig\.|[Ss]ection) 10\.", f["claim"]), f["claim"]
+
+
+#: (claim index, {metric: value}, verdict) of the pneumatic-adaptive findings.
+PNEUMATIC_FLIPS = [
+    (0, {"position_rms_error_joint2_phase3": 0.99e-3}, "reproduced"),
+    (0, {"position_rms_error_joint2_phase3": 1.01e-3}, "partly reproduced"),
+    (0, {"stiffness_rms_error_joint1_phase1": 1.01e-2}, "partly reproduced"),
+    (0, {"position_rms_error_joint1_phase2": 2e-3, "stiffness_rms_error_joint2_phase2": 0.5},
+     "not reproduced"),
+    (1, {"position_to_stiffness_coupling_joint2": 0.099}, "reproduced"),
+    (1, {"position_to_stiffness_coupling_joint2": 0.101}, "partly reproduced"),
+    (1, {"stiffness_to_position_coupling_joint1": 1.01e-3}, "partly reproduced"),
+    (1, {"position_to_stiffness_coupling_joint1": 0.2,
+         "stiffness_to_position_coupling_joint2": 0.01}, "not reproduced"),
+    (2, {"parameter_estimate_max_ratio": 9.9}, "reproduced"),
+    (2, {"parameter_estimate_max_ratio": 10.1}, "not reproduced"),
+    (3, {"pressure_violations": 1.0}, "not reproduced"),
+]
+
+#: The same for the feedback-linearisation findings.
+FL_FLIPS = [
+    (0, {"steady_position_error_adaptive_exact": 1.01e-3}, "partly reproduced"),
+    (0, {"fl_exact_final_stiffness_error_max_joint2": 1.01e-2}, "partly reproduced"),
+    (0, {"steady_position_error_fl_exact": 2e-3, "steady_position_error_adaptive_exact": 2e-3},
+     "not reproduced"),
+    (1, {"steady_position_error_adaptive": 0.83 / 101}, "reproduced"),
+    (1, {"steady_position_error_adaptive": 0.83 / 99}, "partly reproduced"),
+    (1, {"steady_position_error_fl": 0.99e-3, "steady_position_error_adaptive": 0.0},
+     "not reproduced"),
+    (1, {"steady_position_error_fl": 1.01e-3, "steady_position_error_adaptive": 0.0},
+     "reproduced"),
+    # "small": 10 % of the smallest σ_d (3.5) per largest step (0.2 rad) of the schedule.
+    (2, {"adaptive_exact_position_to_stiffness_coupling_joint1": 1.74}, "reproduced"),
+    (2, {"adaptive_exact_position_to_stiffness_coupling_joint1": 1.76}, "partly reproduced"),
+    (2, {"adaptive_exact_position_to_stiffness_coupling_joint1": 0.0,
+         "adaptive_exact_position_to_stiffness_coupling_joint2": 0.0}, "partly reproduced"),
+    (2, {"fl_exact_position_to_stiffness_coupling_joint2": 1.01e-6}, "not reproduced"),
+    (3, {"fl_1pct_stiffness_rms_joint1": 1.01e-2}, "partly reproduced"),
+    (3, {"adaptive_1pct_stiffness_rms_error_joint2_phase4": 1.01e-2}, "partly reproduced"),
+    (3, {"fl_1pct_stiffness_rms_joint1": 0.02,
+         "adaptive_1pct_stiffness_rms_error_joint1_phase4": 0.02}, "not reproduced"),
+]
+
+
+@pytest.mark.parametrize("exp,base,k,change,verdict",
+                         [(PNEUMATIC, pneumatic_metrics, *f) for f in PNEUMATIC_FLIPS]
+                         + [(FL, fl_metrics, *f) for f in FL_FLIPS])
+def test_verdict_flips_at_the_stated_threshold(exp, base, k, change, verdict):
+    m = {**base(), **change}
+    got = verdicts(exp, m)
+    assert got[k] == verdict
+    # The other claims read other metrics and keep their verdict.
+    assert all(v == "reproduced" for j, v in enumerate(got) if j != k)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_verdicts_follow_thresholds_for_random_metrics(seed):
+    """Random rms errors on a log scale: the tracking claim is the stated conjunction."""
+    rng = np.random.default_rng(seed)
+    for _ in range(50):
+        m = pneumatic_metrics()
+        for key in [k for k in m if "rms_error" in k]:
+            m[key] = float(10 ** rng.uniform(-6, -1))
+        pos_ok = max(v for k, v in m.items() if k.startswith("position_rms")) < 1e-3
+        stiff_ok = max(v for k, v in m.items() if k.startswith("stiffness_rms")) < 1e-2
+        expect = {(True, True): "reproduced", (False, False): "not reproduced"}.get(
+            (pos_ok, stiff_ok), "partly reproduced")
+        assert verdicts(PNEUMATIC, m)[0] == expect
+
+
+# -- evidence ---------------------------------------------------------------------------
+
+def test_thresholds_are_stated_in_the_evidence():
+    ev = [f["evidence"] for f in PNEUMATIC.findings(pneumatic_metrics())]
+    assert "< 0.001 rad" in ev[0] and "< 0.01 N m/rad" in ev[0]
+    assert "< 0.1 N m/rad per rad" in ev[1] and "< 0.001 rad per N m/rad" in ev[1]
+    assert "< 10" in ev[2] and "required: 0" in ev[3]
+    ev = [f["evidence"] for f in FL.findings(fl_metrics())]
+    assert "< 0.001 rad" in ev[0] and "< 0.01 N m/rad" in ev[0]
+    assert "FL > 0.001 rad" in ev[1] and "> 100× adaptive" in ev[1]
+    assert "FL < 1e-06" in ev[2] and "[1e-06, 1.75)" in ev[2]
+    assert "< 0.01 N m/rad" in ev[3]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_evidence_quotes_the_metrics_passed_in(seed):
+    """Random values stay on the passing side; the quoted ones appear as formatted."""
+    rng = np.random.default_rng(seed)
+    m = pneumatic_metrics()
+    for key in list(m):
+        if "rms_error" in key:
+            m[key] = float(rng.uniform(1e-6, 9e-4))
+    m["position_to_stiffness_coupling_joint1"] = float(rng.uniform(0.01, 0.09))
+    m["parameter_estimate_max_ratio"] = float(rng.uniform(1, 9))
+    m["pressure_max_pa"] = float(rng.uniform(4e4, 8e5))
+    ev = [f["evidence"] for f in PNEUMATIC.findings(m)]
+    worst_q = max(v for k, v in m.items() if k.startswith("position_rms"))
+    worst_s = max(v for k, v in m.items() if k.startswith("stiffness_rms"))
+    assert num(worst_q) in ev[0] and num(worst_s) in ev[0]
+    c = m["position_to_stiffness_coupling_joint1"]
+    ol = m["open_loop_position_to_stiffness_coupling_joint1"]
+    assert num(c) in ev[1] and f"{num(c / ol)}× open loop" in ev[1]
+    assert num(m["parameter_estimate_max_ratio"]) in ev[2]
+    assert num(m["pressure_max_pa"]) in ev[3]
+
+    f = fl_metrics()
+    f["steady_position_error_fl"] = fl = float(rng.uniform(0.01, 1))
+    f["steady_position_error_adaptive"] = ad = float(rng.uniform(1e-9, 1e-5))
+    f["fl_1pct_predicted_steady_error_joint2"] = pred = float(rng.uniform(0.1, 0.5))
+    f["adaptive_exact_position_to_stiffness_coupling_joint2"] = cp = float(rng.uniform(0.1, 0.9))
+    f["adaptive_1pct_stiffness_rms_error_joint1_phase4"] = st = float(rng.uniform(1e-3, 9e-3))
+    ev = [x["evidence"] for x in FL.findings(f)]
+    assert num(fl) in ev[1] and num(ad) in ev[1] and f"{num(fl / ad)}×" in ev[1]
+    assert num(pred) in ev[1]
+    assert num(cp) in ev[2] and num(st) in ev[3]
+
+
+@pytest.mark.parametrize("exp,base", [(PNEUMATIC, pneumatic_metrics), (FL, fl_metrics)])
+def test_every_metric_read_moves_the_findings(exp, base):
+    """The base dicts hold only metrics the findings read: raising any one of them (above
+    every other, so it becomes the quoted worst) changes the evidence or the verdict."""
+    m0 = base()
+    f0 = exp.findings(m0)
+    unread = [key for key in m0 if exp.findings({**m0, key: 2 * m0[key] + 1e-3}) == f0]
+    assert unread == []
+
+
+#: Thresholds as the evidence states them, and joint/phase indices.
+STATED = {"0", "1", "2", "3", "4", "0.001", "0.01", "0.1", "10", "100", "1e-06", "1.75"}
+
+
+@pytest.mark.parametrize("exp,base", [(PNEUMATIC, pneumatic_metrics), (FL, fl_metrics)])
+def test_evidence_numbers_come_from_metrics_or_thresholds(exp, base):
+    """Each number in the evidence is a formatted metric, a ratio or relative difference
+    of two, an index or a stated threshold: none is carried over from another run."""
+    m = base()
+    vals = list(m.values())
+    allowed = STATED | {num(v) for v in vals}
+    allowed |= {num(a / b) for a in vals for b in vals if b}
+    allowed |= {num(abs(a - b) / max(abs(a), abs(b))) for a in vals for b in vals if a or b}
+    for f in exp.findings(m):
+        for tok in re.findall(r"\d+(?:\.\d+)?(?:e[-+]\d+)?", f["evidence"]):
+            assert tok in allowed, (tok, f["evidence"])
+
+
+# -- metrics a quick run does not compute -------------------------------------------------
+
+def test_quick_run_without_open_loop_reports_only_ours():
+    out = PNEUMATIC.findings(pneumatic_metrics(open_loop=False))
+    assert out[1]["verdict"] == "reproduced"
+    assert "open loop" not in out[1]["evidence"].replace("open-loop stiffness controller not "
+                                                         "run here", "")
+    assert "not run here" in out[1]["evidence"]
+
+
+@pytest.mark.parametrize("exp,base,key,k", [
+    (PNEUMATIC, pneumatic_metrics, "stiffness_rms_error_joint2_phase3", 0),
+    (PNEUMATIC, pneumatic_metrics, "pressure_violations", 3),
+    (FL, fl_metrics, "fl_1pct_predicted_steady_error_joint1", 1),
+    (FL, fl_metrics, "adaptive_exact_position_to_stiffness_coupling_joint2", 2),
+])
+def test_absent_metric_gives_not_checked(exp, base, key, k):
+    m = base()
+    del m[key]
+    out = exp.findings(m)
+    assert out[k]["verdict"] == "not checked" and key in out[k]["evidence"]
+    assert all(f["verdict"] == "reproduced" for j, f in enumerate(out) if j != k)
+
+
+# -- runner ------------------------------------------------------------------------------
+
+def _experiment(findings) -> Experiment:
+    return Experiment(id="fake", title="Fake", section="0.0", config={},
+                      run=lambda config, out: {"x": 2.0}, findings=findings)
+
+
+def _boom(m):
+    raise KeyError("no_such_metric")
+
+
+@pytest.mark.parametrize("bad,match", [
+    (_boom, "KeyError: 'no_such_metric'"),
+    (lambda m: [{"claim": "c", "verdict": "maybe", "evidence": "e"}], "malformed finding"),
+    (lambda m: [{"claim": "c", "verdict": "reproduced"}], "malformed finding"),
+    (lambda m: None, "TypeError"),
+])
+def test_failing_findings_become_one_not_checked(bad, match):
+    out = runner.check_findings(_experiment(bad), {"x": 1.0})
+    assert len(out) == 1 and out[0]["verdict"] == "not checked"
+    assert match in out[0]["evidence"]
+
+
+def test_run_one_stores_findings_beside_the_metrics(tmp_path, monkeypatch):
+    def fine(m):
+        return [finding("x is two", "reproduced" if m["x"] == 2 else "not reproduced",
+                        f"x = {num(m['x'])}")]
+
+    for fn, verdict in ((fine, "reproduced"), (_boom, "not checked"), (None, None)):
+        monkeypatch.setattr(runner, "get", lambda exp_id, fn=fn: _experiment(fn))
+        res = runner.run_one("fake", tmp_path, quick=True)
+        saved = json.loads((tmp_path / "fake" / "metrics.json").read_text())
+        assert saved == json.loads(json.dumps(res))
+        assert saved["metrics"] == {"x": 2.0}                  # the run is kept either way
+        if verdict is None:
+            assert "findings" not in saved
+        else:
+            assert [f["verdict"] for f in saved["findings"]] == [verdict]
+
+
+def test_registered_findings_are_wired():
+    assert PNEUMATIC.findings is not None and FL.findings is not None
+    assert set(VERDICTS) >= {"reproduced", "partly reproduced", "not reproduced", "not checked"}
+
+
+# -- report ----------------------------------------------------------------------------
+
+def _results() -> list[dict]:
+    def res(exp_id, findings=None):
+        r = {"experiment": exp_id, "metrics": {"a_metric": 1.5}, "thesis": {},
+             "config": {"title": f"Title of {exp_id}", "section": "10.2", "quick": True},
+             "wall_seconds": 1.0}
+        if findings is not None:
+            r["findings"] = findings
+        return r
+
+    return [res("exp-a", [finding("A holds | both ways", "reproduced", "a = 1.5\nsee table"),
+                          finding("B holds", "partly reproduced", "b = 3")]),
+            res("exp-b"),
+            {"experiment": "exp-c", "error": "RuntimeError: boom", "traceback": ""},
+            res("exp-d", [finding("D holds", "not checked", "metrics absent: `d`")])]
+
+
+def test_report_renders_summary_and_per_experiment_claims(tmp_path):
+    path = tmp_path / "report.md"
+    write_report(_results(), path)
+    text = path.read_text()
+    lines = text.splitlines()
+    summary = lines.index("| experiment | claim | verdict |")
+    assert summary < lines.index("## exp-a")
+    assert lines[summary - 2].startswith("**Claims checked**")
+    assert lines[summary + 2:summary + 5] == [
+        r"| exp-a | A holds \| both ways | reproduced |",
+        "| exp-a | B holds | partly reproduced |",
+        "| exp-d | D holds | not checked |"]
+    # Per experiment: the claims table comes before the metric table.
+    a = text.split("## exp-a")[1].split("## exp-b")[0]
+    assert a.index("**Claims checked**") < a.index("| claim | verdict | evidence |") \
+        < a.index("| metric | ours | thesis | ours / thesis |")
+    assert r"| A holds \| both ways | reproduced | a = 1.5 see table |" in a
+    assert "| B holds | partly reproduced | b = 3 |" in a
+    b = text.split("## exp-b")[1].split("## exp-c")[0]
+    assert "Claims checked" not in b and "| a_metric | 1.5 |" in b
+    assert "**failed**: `RuntimeError: boom`" in text
+    assert text.count("| claim | verdict | evidence |") == 2
+
+
+def test_report_without_findings_has_no_summary(tmp_path):
+    path = tmp_path / "report.md"
+    write_report([r for r in _results() if "findings" not in r], path)
+    text = path.read_text()
+    assert "Claims checked" not in text and "| experiment | claim | verdict |" not in text
+
+
+# -- the GioSte emulations (section 10.3) ------------------------------------------------------
+
+GIOSTE1 = get("ch10-gioste-1dof")
+GIOSTE2 = get("ch10-gioste-2dof")
+RES = 2 * np.pi / 2000
+
+
+def gioste1_metrics(study: bool = True) -> dict:
+    """A one-link run that passes every claim (``study``: with the gain study's metrics)."""
+    m = {"encoder_resolution_rad": RES, "parameter_estimate_max_ratio": 1.2,
+         "pressure_violations": 0.0, "voltage_clipped_fraction": 0.0}
+    prefixes = [""] + (["gain_study_inertial_kpi_x0.01_"] if study else [])
+    for p in prefixes:
+        for k in (1, 2, 3):
+            m[f"{p}completed_phase{k}"] = 1.0
+            m[f"{p}diverged_at_phase{k}"] = 125.0
+            m[f"{p}final_position_error_phase{k}"] = 0.5 * RES
+            m[f"{p}stiffness_rms_error_joint1_phase{k}"] = 1e-3
+        m[f"{p}parameter_estimate_max_ratio"] = 1.2
+        m[f"{p}position_to_stiffness_coupling_joint1"] = 0.02
+        m[f"{p}stiffness_to_position_coupling_joint1"] = 1e-3
+    for k in (1, 2, 3, 4):
+        m[f"open_loop_unstable_rise{k}"] = float(k == 4)
+        m[f"closed_loop_unstable_rise{k}"] = 0.0
+        m[f"open_loop_oscillation_amplitude_rise{k}"] = 0.01 * k
+        m[f"open_closed_max_position_difference_rise{k}"] = 0.1
+        m[f"open_loop_stiffness_rms_error_rise{k}"] = 0.07
+        m[f"closed_loop_stiffness_rms_error_rise{k}"] = 0.007
+    m["open_loop_stiffness_to_position_coupling_joint1"] = 0.02
+    m["closed_loop_stiffness_to_position_coupling_joint1"] = 0.01
+    return m
+
+
+@pytest.mark.parametrize("change,k,verdict", [
+    ({}, 0, "reproduced"),
+    ({"completed_phase2": 0.0}, 0, "not reproduced"),
+    ({"final_position_error_phase3": 2.01 * RES}, 0, "not reproduced"),
+    ({"stiffness_rms_error_joint1_phase1": 0.071}, 0, "not reproduced"),
+    ({"position_to_stiffness_coupling_joint1": float("nan")}, 2, "not checked"),
+    ({"stiffness_to_position_coupling_joint1": 2.01 * RES}, 2, "not reproduced"),
+    ({"open_loop_unstable_rise4": 0.0}, 4, "not reproduced"),
+    ({"open_loop_unstable_rise4": 0.0, "open_loop_unstable_rise2": 1.0}, 4,
+     "partly reproduced"),
+    ({"closed_loop_unstable_rise3": 1.0}, 4, "partly reproduced"),
+    ({"closed_loop_stiffness_rms_error_rise2": 0.057}, 5, "not reproduced"),
+    ({"closed_loop_stiffness_to_position_coupling_joint1": 0.017}, 6, "not reproduced"),
+    ({"voltage_clipped_fraction": 1e-4}, 7, "not reproduced"),
+])
+def test_gioste_verdicts_flip_at_the_stated_threshold(change, k, verdict):
+    out = GIOSTE1.findings({**gioste1_metrics(), **change})
+    # Order: tracking, tracking (study), decoupling, decoupling (study), Fig. 10.10,
+    # stiffness loop, Fig. 10.11, feasibility.
+    assert len(out) == 8
+    assert out[k]["verdict"] == verdict, out[k]
+    assert all(f["verdict"] in VERDICTS for f in out)
+
+
+def test_gioste_quick_run_has_no_study_claims_and_two_link_reads_its_own_keys():
+    out = GIOSTE1.findings(gioste1_metrics(study=False))
+    assert len(out) == 6 and not any("gain study" in f["claim"] for f in out)
+    m = {"encoder_resolution_rad": RES, "completed": 1.0, "diverged_at": 180.0,
+         "final_position_error": RES, "parameter_estimate_max_ratio": 2.0,
+         "pressure_violations": 0.0, "voltage_clipped_fraction": 0.0,
+         **{f"stiffness_rms_error_joint{i}_phase{k}": 1e-3 for i in JOINTS for k in (1, 2, 3)},
+         **{f"position_to_stiffness_coupling_joint{i}": 0.1 for i in JOINTS},
+         **{f"stiffness_to_position_coupling_joint{i}": 1e-3 for i in JOINTS}}
+    assert [f["verdict"] for f in GIOSTE2.findings(m)] == ["reproduced"] * 4
+    m["completed"] = 0.0
+    assert [f["verdict"] for f in GIOSTE2.findings(m)][0] == "not reproduced"
