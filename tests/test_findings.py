@@ -403,3 +403,24 @@ def test_gioste_quick_run_has_no_study_claims_and_two_link_reads_its_own_keys():
     assert [f["verdict"] for f in GIOSTE2.findings(m)] == ["reproduced"] * 4
     m["completed"] = 0.0
     assert [f["verdict"] for f in GIOSTE2.findings(m)][0] == "not reproduced"
+
+
+def test_undefined_metrics_are_null_in_strict_json(tmp_path, monkeypatch):
+    seen = {}
+
+    def read(m):
+        seen.update(m)                  # findings see the run's own NaN, before JSON
+        return []
+
+    exp = Experiment(id="fake", title="t", section="s", config={}, findings=read,
+                     run=lambda c, out: {"x": 2.0, "nan": float("nan"), "inf": float("inf")})
+    monkeypatch.setattr(runner, "get", lambda exp_id: exp)
+    runner.run_one("fake", tmp_path, quick=False)
+    text = (tmp_path / "fake" / "metrics.json").read_text()
+
+    def strict(c):
+        raise ValueError(c)
+
+    saved = json.loads(text, parse_constant=strict)          # no NaN/Infinity literals
+    assert saved["metrics"] == {"x": 2.0, "nan": None, "inf": None}
+    assert np.isnan(seen["nan"])

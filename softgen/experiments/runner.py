@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 import traceback
@@ -21,14 +22,19 @@ def run_one(exp_id: str, out_root: Path, quick: bool) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     metrics = exp.run(config, out)
+    findings = check_findings(exp, metrics) if exp.findings is not None else None
+    # JSON has no NaN or infinity: a metric the run could not define (e.g. a coupling
+    # index with no complete window) is written as null.
+    metrics = {k: (v if not isinstance(v, float) or math.isfinite(v) else None)
+               for k, v in metrics.items()}
     result = {"experiment": exp_id, "metrics": metrics, "thesis": dict(exp.thesis),
               "config": {**config, "quick": quick, "section": exp.section, "title": exp.title},
               "wall_seconds": time.perf_counter() - t0}
     if exp.discussion:
         result["discussion"] = exp.discussion
-    if exp.findings is not None:
-        result["findings"] = check_findings(exp, metrics)
-    (out / "metrics.json").write_text(json.dumps(result, indent=2) + "\n")
+    if findings is not None:
+        result["findings"] = findings
+    (out / "metrics.json").write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
     return result
 
 
