@@ -55,8 +55,8 @@ import numpy as np
 from ..errors import ModelError
 from ..model import RobotModel
 from ..symbolic.actuated import valve_plant_fun
-from ..symbolic.actuators import McKibbenPairs
-from ..symbolic.rigid import FUNCTION_OPTS, RigidDynamics
+from ..symbolic.rigid import FUNCTION_OPTS
+from .pneumatic import McKibbenRobot
 
 #: Reference layout, the same as the adaptive steps of :mod:`softgen.control.pneumatic`.
 REFERENCE_BLOCKS = ("q_d", "qd_d", "qdd_d", "qddd_d", "sigma_d", "sigmad_d")
@@ -97,23 +97,8 @@ def hurwitz_gains(n: int, poles_q=(-1.0, -1.0, -1.0), pole_sigma: float = -1.0
             "ks0": -float(np.real(pole_sigma)) * one}
 
 
-class FeedbackLinearization:
+class FeedbackLinearization(McKibbenRobot):
     """Symbolic feedback linearisation of one McKibben-driven model (section 10.4)."""
-
-    def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None,
-                 act: McKibbenPairs | None = None):
-        self.model = model
-        self.dyn = dyn or RigidDynamics(model)
-        self.act = act or McKibbenPairs(model)
-        self.n = model.dof
-
-    @property
-    def name(self) -> str:
-        return self.model.name
-
-    @cached_property
-    def n_params(self) -> int:
-        return len(self.dyn.base.names)
 
     @property
     def parameter_nominal(self) -> np.ndarray:

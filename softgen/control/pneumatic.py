@@ -65,22 +65,18 @@ KINDS = {
 }
 
 
-class PneumaticArm:
-    """Symbolic core of the chapter-10 controllers for one McKibben-driven model."""
+class McKibbenRobot:
+    """A model's rigid dynamics and McKibben pairs: what every chapter-10 controller uses.
+
+    ``dyn`` and ``act`` may be passed in so that a bundle derives them once.
+    """
 
     def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None,
-                 act: McKibbenPairs | None = None, acceleration: str = "omit"):
-        if acceleration not in ACCELERATION:
-            raise ValueError(f"acceleration: expected one of {', '.join(ACCELERATION)}, "
-                             f"got {acceleration!r}")
-        self.acceleration = acceleration
+                 act: McKibbenPairs | None = None):
         self.model = model
         self.dyn = dyn or RigidDynamics(model)
         self.act = act or McKibbenPairs(model)
         self.n = model.dof
-        # c_i = K_1 / K_i: assumed known (same muscles, known pulley radii).
-        self.gain_ratio = self.act.K[0] / self.act.K
-        self.K1 = float(self.act.K[0])
 
     @property
     def name(self) -> str:
@@ -89,6 +85,21 @@ class PneumaticArm:
     @cached_property
     def n_params(self) -> int:
         return len(self.dyn.base.names)
+
+
+class PneumaticArm(McKibbenRobot):
+    """Symbolic core of the chapter-10 controllers for one McKibben-driven model."""
+
+    def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None,
+                 act: McKibbenPairs | None = None, acceleration: str = "omit"):
+        if acceleration not in ACCELERATION:
+            raise ValueError(f"acceleration: expected one of {', '.join(ACCELERATION)}, "
+                             f"got {acceleration!r}")
+        super().__init__(model, dyn=dyn, act=act)
+        self.acceleration = acceleration
+        # c_i = K_1 / K_i: assumed known (same muscles, known pulley radii).
+        self.gain_ratio = self.act.K[0] / self.act.K
+        self.K1 = float(self.act.K[0])
 
     @property
     def parameter_names(self) -> list[str]:
