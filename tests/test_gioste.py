@@ -249,7 +249,8 @@ def test_emergency_stop_fills_errors(one_link, one_link_fns):
                              [SmoothSteps((0.0,), (8.0,), 1.0)], t)
     tr = gc.run_loop(emu, one_link_fns, "theorem5", ref, _gains(emu, arm, 8.0), 1e-3,
                      Pi_hat0=arm.Pi_nominal, divergence=0.05)
-    # The arm rests off the reference (the map's offset) by more than 0.05 rad.
+    # The arm drifts off the reference by more than 0.05 rad (a residual error of the
+    # muscle model against a feedback stiffness K_d Λ K_1 of about 0.2 N m/rad).
     assert tr.diverged_at is not None
     k = int(round(tr.diverged_at / 1e-3))
     assert np.all(np.isfinite(tr.q[:k])) and np.all(np.isnan(tr.q[k:]))

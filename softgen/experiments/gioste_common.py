@@ -400,8 +400,9 @@ class GiosteEmulation:
         x = −Φ_q p. For σ on a grid over ``sigma_range`` we solve S(0, V(p), V(p)) = σ
         for p (S rises with p) and fit σ = K̂ x through the origin (least squares).
         This is what an identification gives the open-loop stiffness law of Tonietti
-        and Bicchi (and Theorem 5's σ̇_d feed-forward): one gain, exact nowhere because
-        the valves' offsets make the map affine in p.
+        and Bicchi (and Theorem 5's σ̇_d feed-forward): one gain, exact only at q = 0
+        and as far as the valve map is linear (its c₂ term; with ``map_origin =
+        "zero_voltage"`` also its offset V₀).
         """
         if self.actuator == "model":
             return np.array(self.arm.act.K, dtype=float)
