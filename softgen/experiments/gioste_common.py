@@ -108,6 +108,7 @@ from ..control.feasibility import PressureViolation, PressureWarning, check_pres
 from ..control.pneumatic import PneumaticArm
 from ..model import RobotModel
 from ..runtime.library import BundleFunction
+from ..symbolic.actuated import _rk4_steps
 from ..symbolic.rigid import FUNCTION_OPTS
 from .estimation_common import load_functions
 
@@ -430,7 +431,7 @@ class GiosteEmulation:
 
     # symbolic pieces ------------------------------------------------------------------
     def _veq(self, p):
-        """Voltage equivalent of actual muscle pressures (symbolic, 2n)."""
+        """Voltages for pressures ``p`` by the inverse of eq. 10.10 (symbolic, 2n, unclipped)."""
         out = []
         for j in range(2 * self.n):
             v = self.valves[j % 2]
@@ -477,24 +478,14 @@ class GiosteEmulation:
                             ca.vertcat(m.q, m.qd), ca.vertcat(q, qd))
         rhs = ca.Function("rhs", [xs, us], [ca.vertcat(qd, qdd, (us - p) / self.hw.valve_tau)])
         x, u, h = ca.SX.sym("x", 4 * n), ca.SX.sym("p_target", 2 * n), ca.SX.sym("h")
-        dt = h / self.hw.substeps
-        z = x
-        for _ in range(self.hw.substeps):
-            k1 = rhs(z, u)
-            k2 = rhs(z + dt / 2 * k1, u)
-            k3 = rhs(z + dt / 2 * k2, u)
-            k4 = rhs(z + dt * k3, u)
-            z = z + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        z = _rk4_steps(rhs, x, u, h, self.hw.substeps)
         return ca.Function(self.fname("plant"), [x, u, h], [z],
                            ["x", "p_target", "h"], ["x_next"], FUNCTION_OPTS)
 
     def interface_fun(self) -> ca.Function:
         """``<model>_gioste_valves``: commanded pressures → (V clipped, valve targets, V raw)."""
         p = ca.SX.sym("p_cmd", 2 * self.n)
-        raw = []
-        for j in range(2 * self.n):
-            raw.append(self.valves[j % 2].voltage(p[j], sqrt=ca.sqrt, fmax=ca.fmax))
-        raw = ca.vertcat(*raw)
+        raw = self._veq(p)
         V = ca.fmin(ca.fmax(raw, 0.0), V_MAX)
         tgt = ca.vertcat(*[ca.fmax(self.valves[j % 2].pressure(V[j]), 0.0)
                            for j in range(2 * self.n)])
