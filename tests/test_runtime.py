@@ -5,7 +5,13 @@ import numpy as np
 import pytest
 
 from softgen.control.references import Sinusoid
-from softgen.control.slotine_li import SlotineLi
+import casadi as ca
+
+from softgen.blocks import Block, ClosedLoop
+from softgen.control.references import sinusoid_block
+from softgen.control.slotine_li import controller_block, plant_block
+from softgen.model import load_model
+from softgen.symbolic.rigid import RigidDynamics
 from softgen.errors import ShapeError
 from softgen.runtime.library import load_bundle
 from softgen.runtime.simulate import simulate
@@ -56,70 +62,65 @@ def test_unknown_function_name(arm):
         arm.nope
 
 
-class _Hold:
-    def __init__(self, dt):
-        self.dt = dt
-
-    def reset(self):
-        pass
-
-    def step(self, k, t, x):
-        return np.zeros(2)
+def _loop(dyn, dt=1e-3, substeps=1):
+    ref = Sinusoid(amplitude=(0.6, 0.5), frequency=(0.25, 0.4), offset=(0.0, 0.3))
+    return ref, ClosedLoop("test_slotine_li", [sinusoid_block("ref", ref),
+                                              controller_block(dyn, dt),
+                                              plant_block(dyn, dt, substeps=substeps)])
 
 
-def test_simulate_refuses_mismatched_sample_times(arm):
-    with pytest.raises(ValueError, match="dt"):
-        simulate(plant_step=arm.plant_rk4, controller=_Hold(1e-3), x0=np.zeros(4),
-                 duration=0.01, dt=2e-3)
+@pytest.fixture(scope="module")
+def dyn():
+    return RigidDynamics(load_model("planar_2link"))
 
 
-def test_free_fall_conserves_energy(arm):
+def test_free_fall_conserves_energy(arm, dyn):
     """RK4 at 1 ms on the undamped arm: total energy drifts by < 1e-7 of its swing."""
-    r = simulate(plant_step=arm.plant_rk4, controller=_Hold(1e-3), x0=[1.0, -0.5, 0, 0],
-                 duration=2.0, substeps=2)
+    hold = Block.define("hold", dt=1e-3, outputs={"tau": 2},
+                        body=lambda x, u, p: ({}, {"tau": ca.SX.zeros(2)}))
+    d = ClosedLoop("free_fall", [hold, plant_block(dyn, 1e-3, substeps=2)])
+    r = simulate(d, duration=2.0, x0={"plant.q": [1.0, -0.5]})
     m1 = m2 = 0.26
     l1, c, g = 0.09, 0.045, 9.81
-    q, qd = r.x[:, :2], r.x[:, 2:]
+    q, qd = r["plant.q"], r["plant.qd"]
     T = np.array([0.5 * v @ arm.inertia(p) @ v for p, v in zip(q, qd)])
     U = -g * ((m1 * c + m2 * l1) * np.cos(q[:, 0]) + m2 * c * np.cos(q.sum(axis=1)))
     E = T + U
     assert np.ptp(E) < 1e-7 * np.ptp(U)
 
 
-def test_generated_loop_equals_python_stepped_loop(arm):
-    """<model>_slotine_li_loop (mapaccum in C) == SlotineLi + plant_rk4 stepped from Python."""
+def test_diagram_loop_equals_bundle_loop(arm, dyn):
+    """The driver's diagram (blocks) == the bundle's <model>_slotine_li_loop (mapaccum)."""
     dt, steps = 1e-3, arm.slotine_li_loop.in_shapes[2][1]
-    ref = Sinusoid(amplitude=(0.6, 0.5), frequency=(0.25, 0.4), offset=(0.0, 0.3))
-    gains = dict(lam=10.0, kd=0.2, kpi=0.05)
-    ctl = SlotineLi(arm, reference=ref, dt=dt, **gains)
-    r = simulate(plant_step=arm.plant_rk4, controller=ctl, x0=[0, 0.3, 0, 0],
-                 duration=steps * dt)
+    ref, d = _loop(dyn, dt)
+    gains = {"ctrl.lam": 10.0, "ctrl.kd": 0.2, "ctrl.kpi": 0.05}
+    r = simulate(d, steps=steps, x0={"plant.q": [0, 0.3]}, params=gains)
     t = np.arange(steps) * dt
     R = np.vstack(ref(t))
     X, P, U = arm.slotine_li_loop([0, 0.3, 0, 0], np.zeros(5), R, [10, 10], [0.2, 0.2],
                                   [0.05] * 5, dt)
-    assert np.allclose(X.T, r.x[1:], rtol=1e-12, atol=1e-14)
-    assert np.allclose(U.T, r.u, rtol=1e-12, atol=1e-14)
-    assert np.allclose(P[:, -1], ctl.pi_hat, rtol=1e-12, atol=1e-16)
+    # The bundle's loop returns the state after each sample, the trace the one at it.
+    assert np.allclose(X.T[:-1, :2], r["plant.q"][1:], rtol=1e-12, atol=1e-14)
+    assert np.allclose(U.T, r["ctrl.tau"], rtol=1e-12, atol=1e-14)
+    assert np.allclose(P[:, -1], r.final_state["ctrl.pi_hat"], rtol=1e-12, atol=1e-16)
 
 
-def test_adaptive_control_with_true_parameters_tracks_from_the_start(arm):
+def test_adaptive_control_with_true_parameters_tracks_from_the_start(dyn):
     """Prop. 10 with π̂(0) = π and K_π → 0 is computed torque + PD: error stays tiny."""
-    ref = Sinusoid(amplitude=(0.6, 0.5), frequency=(0.25, 0.4), offset=(0.0, 0.3))
-    ctl = SlotineLi(arm, reference=ref, dt=1e-3, lam=10.0, kd=0.2, kpi=1e-12,
-                    pi_hat0=arm.parameter_nominal)
+    ref, d = _loop(dyn)
     q0, qd0, _ = ref(0.0)       # start on the reference, position and velocity
-    r = simulate(plant_step=arm.plant_rk4, controller=ctl, x0=np.concatenate([q0, qd0]),
-                 duration=2.0)
-    err = ref(r.t)[0].T - r.x[:, :2]
+    r = simulate(d, duration=2.0, x0={"plant.q": q0, "plant.qd": qd0,
+                                      "ctrl.pi_hat": dyn.parameter_nominal},
+                 params={"ctrl.lam": 10.0, "ctrl.kd": 0.2, "ctrl.kpi": 1e-12})
+    err = r["ref.q_d"] - r["plant.q"]
     assert np.max(np.abs(err)) < 1e-3   # ZOH at 1 ms is the only error source
 
 
-def test_slotine_li_rejects_bad_gains(arm):
-    ref = Sinusoid(amplitude=(0.1, 0.1), frequency=(1.0, 1.0))
-    with pytest.raises(ValueError, match="kd"):
-        SlotineLi(arm, reference=ref, dt=1e-3, lam=1.0, kd=-1.0, kpi=1.0)
-    with pytest.raises(ValueError, match="kpi"):
-        SlotineLi(arm, reference=ref, dt=1e-3, lam=1.0, kd=1.0, kpi=[1.0, 2.0])
+def test_slotine_li_rejects_bad_gains(dyn):
+    _, d = _loop(dyn)
+    with pytest.raises(ValueError, match=r"params: ctrl.kd: expected positive values"):
+        simulate(d, steps=2, params={"ctrl.lam": 1.0, "ctrl.kd": -1.0})
+    with pytest.raises(ValueError, match=r"params: ctrl.kpi: expected 5 values, got 2"):
+        simulate(d, steps=2, params={"ctrl.lam": 1.0, "ctrl.kd": 1.0, "ctrl.kpi": [1.0, 2.0]})
     with pytest.raises(ValueError, match="dt"):
-        SlotineLi(arm, reference=ref, dt=0.0, lam=1.0, kd=1.0, kpi=1.0)
+        controller_block(dyn, 0.0)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from ..blocks import Block
 from ..symbolic.actuated import _rk4_steps, valve_plant_fun
 from ..symbolic.rigid import FUNCTION_OPTS
 from .pneumatic import KINDS, PneumaticArm
@@ -89,3 +90,56 @@ def closed_loop_fun(arm: PneumaticArm, kind: str, *, plant: str, steps: int,
                        [XZ[:4 * n, :], XZ[4 * n:, :], P, S],
                        ["x0", "z0", "ref", "lam", "kd", "kpi", "ksigma", "kinv", "T_p", "dt"],
                        ["x", "z", "p_cmd", "sigma"])
+
+
+# -- blocks ------------------------------------------------------------------------------
+
+def controller_block(arm: PneumaticArm, kind: str, dt: float, *, name: str = "ctrl") -> Block:
+    """Controller ``kind`` as a block: reads q, q̇, σ and ``ref``; emits the pressures ``p``.
+
+    State (ν, Π̂) for Theorem 5 and Corollary 2, Π̂ otherwise; gains are parameters
+    (``lam``, ``kd``, ``kpi``, and ``ksigma``, ``kinv`` where the law has them).
+    """
+    if kind not in KINDS:
+        raise ValueError(f"kind: expected one of {', '.join(KINDS)}, got {kind!r}")
+    f = arm.step_fun(kind)
+    parts = [("Pi_hat", arm.n_params)]
+    if kind in ("theorem5", "corollary2"):
+        parts = [("nu", arm.n)] + parts
+    params = [g for g in ("lam", "kd", "kpi", "ksigma", "kinv") if g in f.name_in()]
+    return Block.wrap(name, f, dt=dt, state={"z": "z_next"}, state_parts={"z": parts},
+                      params=params, constants={"dt": dt}, doc=f"chapter-10 controller {kind}",
+                      rules={"lam": "positive", "kd": "positive", "kpi": "nonnegative"},
+                      meta={"kind": kind})
+
+
+def plant_block(arm: PneumaticArm, dt: float, *, plant: str = "ideal", substeps: int = 1,
+                name: str = "plant") -> Block:
+    """The McKibben arm over one sample, command ``p_cmd`` held.
+
+    State (q, q̇, p); outputs the same and the stiffness σ = −KΦ_q p of the pressures
+    acting at the sample. ``plant``: ``"ideal"`` (p = clipped command at once) or
+    ``"valve"`` (first-order regulators with time constants ``T_p``, a parameter).
+    """
+    if plant not in PLANTS:
+        raise ValueError(f"plant: expected one of {', '.join(PLANTS)}, got {plant!r}")
+    n = arm.n
+    f = valve_plant_fun(arm.dyn, arm.act, substeps=substeps) if plant == "valve" \
+        else _ideal_plant(arm, substeps)
+
+    def body(x, u, p):
+        xv = ca.vertcat(x["q"], x["qd"], x["p"])
+        xn = f(xv, u["p_cmd"], p["T_p"], dt) if plant == "valve" else f(xv, u["p_cmd"], dt)
+        return ({"q": xn[:n], "qd": xn[n:2 * n], "p": xn[2 * n:]},
+                {"q": x["q"], "qd": x["qd"], "p": x["p"],
+                 "sigma": arm.act.stiffness(x["q"], x["p"])})
+
+    return Block.define(name, dt=dt, state=[("q", n, "rad"), ("qd", n, "rad/s"),
+                                            ("p", 2 * n, "Pa")],
+                        inputs=[("p_cmd", 2 * n, "Pa")],
+                        outputs=[("q", n, "rad"), ("qd", n, "rad/s"), ("p", 2 * n, "Pa"),
+                                 ("sigma", n, "N m/rad")],
+                        params=[("T_p", 2 * n, "s")] if plant == "valve" else [],
+                        p0={"T_p": 0.05} if plant == "valve" else None,
+                        body=body, doc=f"McKibben arm, {plant} pressures",
+                        meta={"model": arm.name})

@@ -83,3 +83,81 @@ class SmoothSteps:
             out[2] += h * d2 / self.rise ** 2
             out[3] += h * d3 / self.rise ** 3
         return out
+
+
+# -- the same references as symbolic expressions (reference blocks) -------------------------
+
+def smooth_steps_expr(t, steps: SmoothSteps) -> list:
+    """:class:`SmoothSteps` at a CasADi time ``t``: value and first three derivatives.
+
+    Transitions do not overlap (:meth:`SmoothSteps.check`), so at most one is under
+    way: the levels of the finished ones are summed by comparisons, and the septic
+    polynomial is evaluated once, at the active transition's phase. The cost grows by
+    a few operations per step instead of a polynomial per step.
+    """
+    import casadi as ca
+    level = ca.SX(float(steps.values[0]))
+    u_act, h_act = ca.SX(0.0), ca.SX(0.0)
+    for t0, a, b in zip(steps.times[1:], steps.values[:-1], steps.values[1:]):
+        u = (t - t0) / steps.rise
+        active = ca.logic_and(u > 0, u < 1)
+        level += (b - a) * (u >= 1)
+        u_act += active * u
+        h_act += active * (b - a)
+    u = u_act
+    s = u ** 4 * (35 - 84 * u + 70 * u ** 2 - 20 * u ** 3)
+    d1 = 140 * u ** 3 * (1 - u) ** 3
+    d2 = 420 * u ** 2 * (1 - u) ** 2 * (1 - 2 * u)
+    d3 = 840 * u * (1 - u) * (1 - 5 * u + 5 * u ** 2)
+    r = steps.rise
+    return [level + h_act * s, h_act * d1 / r, h_act * d2 / r ** 2, h_act * d3 / r ** 3]
+
+
+def sinusoid_block(name: str, ref: Sinusoid):
+    """:class:`Sinusoid` as a block: reads ``t``, emits ``q_d``, ``qd_d``, ``qdd_d``."""
+    import casadi as ca
+
+    from ..blocks import Block
+    ref.check()
+    n = len(ref.amplitude)
+    a = np.array(ref.amplitude, dtype=float)
+    w = 2 * np.pi * np.array(ref.frequency, dtype=float)
+    ph = np.zeros(n) if ref.phase is None else np.array(ref.phase, dtype=float)
+    off = np.zeros(n) if ref.offset is None else np.array(ref.offset, dtype=float)
+
+    def body(x, u, p):
+        arg = ca.DM(w) * u["t"] + ca.DM(ph)
+        return {}, {"q_d": ca.DM(off) + ca.DM(a) * ca.sin(arg),
+                    "qd_d": ca.DM(a * w) * ca.cos(arg),
+                    "qdd_d": -ca.DM(a * w ** 2) * ca.sin(arg)}
+
+    return Block.define(name, dt=None, inputs={"t": 1},
+                        outputs=[("q_d", n, "rad"), ("qd_d", n, "rad/s"),
+                                 ("qdd_d", n, "rad/s^2")],
+                        body=body, doc="sinusoidal references")
+
+
+def stiffness_reference_block(name: str, q: list[SmoothSteps], sigma: list[SmoothSteps]):
+    """Reference block of the chapter-10 controllers: reads ``t``, emits ``ref``.
+
+    ``ref`` = (q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d), n entries each (the controllers'
+    ``REFERENCE_BLOCKS`` layout); ``q_d`` and ``sigma_d`` are also emitted alone.
+    """
+    import casadi as ca
+
+    from ..blocks import Block
+    n = len(q)
+    if len(sigma) != n:
+        raise ValueError(f"sigma: expected {n} channels (one per joint), got {len(sigma)}")
+
+    def body(x, u, p):
+        qs = [smooth_steps_expr(u["t"], s.check()) for s in q]
+        ss = [smooth_steps_expr(u["t"], s.check()) for s in sigma]
+        rows = [qs[j][d] for d in range(4) for j in range(n)]
+        rows += [ss[j][0] for j in range(n)] + [ss[j][1] for j in range(n)]
+        ref = ca.vertcat(*rows)
+        return {}, {"ref": ref, "q_d": ref[:n], "sigma_d": ref[4 * n:5 * n]}
+
+    return Block.define(name, dt=None, inputs={"t": 1},
+                        outputs=[("ref", 6 * n), ("q_d", n, "rad"), ("sigma_d", n, "N m/rad")],
+                        body=body, doc="smoothed stepwise position and stiffness references")

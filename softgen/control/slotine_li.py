@@ -15,6 +15,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from ..blocks import Block
 from ..symbolic.rigid import FUNCTION_OPTS, RigidDynamics
 
 
@@ -111,46 +112,39 @@ def closed_loop_fun(dyn: RigidDynamics, *, steps: int, substeps: int) -> ca.Func
                        ["x", "pi_hat", "tau"])
 
 
-class SlotineLi:
-    """Runtime Slotine–Li controller stepping a bundle's ``<model>_slotine_li``.
+def controller_block(dyn: RigidDynamics, dt: float, *, name: str = "ctrl") -> Block:
+    """Prop. 10 as a block: reads q, q̇ and (q_d, q̇_d, q̈_d); emits τ; state π̂.
 
-    Follows :class:`softgen.runtime.simulate.Controller`. ``reference(t)`` returns
-    (q_d, q̇_d, q̈_d). Gains are diagonal: ``lam`` (Λ), ``kd`` (K_d), ``kpi`` (K_π).
+    Gains ``lam`` (Λ), ``kd`` (K_d) and ``kpi`` (K_π) are parameters (diagonals).
     """
+    return Block.wrap(name, controller_fun(dyn), dt=dt, state={"pi_hat": "pi_hat_next"},
+                      params=["lam", "kd", "kpi"], constants={"dt": dt},
+                      rules={"lam": "positive", "kd": "positive", "kpi": "nonnegative"},
+                      doc="Slotine-Li adaptive control (Prop. 10)", meta={"model": dyn.name})
 
-    def __init__(self, bundle, *, reference, lam, kd, kpi, dt: float, pi_hat0=None):
-        self.fn = bundle.slotine_li
-        n = bundle.manifest["dof"]
-        p = len(bundle.parameter_names)
-        self.reference = reference
-        self.dt = float(dt)
-        if not self.dt > 0:
-            raise ValueError(f"dt: expected a positive sample time, got {dt!r}")
-        self.lam, self.kd = _gain(lam, n, "lam"), _gain(kd, n, "kd")
-        self.kpi = _gain(kpi, p, "kpi")
-        self.pi_hat0 = np.zeros(p) if pi_hat0 is None else _gain(pi_hat0, p, "pi_hat0", pos=False)
-        self.reset()
 
-    def reset(self) -> None:
-        self.pi_hat = self.pi_hat0.copy()
-        self._pis: list[np.ndarray] = []
+def plant_block(dyn: RigidDynamics, dt: float, *, substeps: int = 1,
+                name: str = "plant") -> Block:
+    """The nominal rigid robot over one sample: ``substeps`` RK4 steps with τ held.
 
-    def step(self, k: int, t: float, x: np.ndarray) -> np.ndarray:
-        n = self.lam.size
-        q_d, qd_d, qdd_d = self.reference(t)
-        ins = self.fn.inputs
-        ins[0][:] = self.pi_hat
-        ins[1][:] = x[:n]
-        ins[2][:] = x[n:]
-        ins[3][:], ins[4][:], ins[5][:] = q_d, qd_d, qdd_d
-        ins[6][:], ins[7][:], ins[8][:], ins[9][0] = self.lam, self.kd, self.kpi, self.dt
-        self.fn.call()
-        self._pis.append(self.pi_hat)
-        self.pi_hat = self.fn.outputs[0].copy()
-        return self.fn.outputs[1].copy()
+    State and outputs (q, q̇).
+    """
+    n = dyn.model.dof
+    if not isinstance(substeps, int) or substeps < 1:
+        raise ValueError(f"substeps: expected a positive integer, got {substeps!r}")
+    rhs = plant_rhs(dyn)
 
-    def log(self) -> dict[str, np.ndarray]:
-        return {"pi_hat": np.array(self._pis)}
+    def body(x, u, p):
+        z = ca.vertcat(x["q"], x["qd"])
+        for _ in range(substeps):
+            z = _rk4(rhs, z, u["tau"], dt / substeps)
+        return {"q": z[:n], "qd": z[n:]}, {"q": x["q"], "qd": x["qd"]}
+
+    return Block.define(name, dt=dt, state=[("q", n, "rad"), ("qd", n, "rad/s")],
+                        inputs=[("tau", n, "N m")], outputs=[("q", n, "rad"),
+                                                             ("qd", n, "rad/s")],
+                        body=body, doc=f"{dyn.name}, RK4 x{substeps}",
+                        meta={"model": dyn.name})
 
 
 def _gain(v, n: int, name: str, pos: bool = True) -> np.ndarray:

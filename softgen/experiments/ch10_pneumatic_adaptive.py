@@ -24,18 +24,21 @@ The same run with the open-loop stiffness controller of Tonietti and Bicchi (K_�
 """
 from __future__ import annotations
 
-import time
+from dataclasses import dataclass
 
 import numpy as np
+from matplotlib.figure import Figure
 
+from ..blocks import ClosedLoop
 from ..control.feasibility import check_pressures
 from ..control.pneumatic import pneumatic_arm
-from ..control.pneumatic_loop import closed_loop_fun
-from ..control.references import SmoothSteps
+from ..control.pneumatic_loop import controller_block, plant_block
+from ..control.references import SmoothSteps, stiffness_reference_block
 from ..model import load_model
-from .estimation_common import load_functions
-from .pneumatic_common import coupling, parameter_ratio, phase_rms
-from .registry import Experiment, absent, finding, graded, not_checked, num, times
+from ..runtime.simulate import Trace, simulate
+from .pneumatic_common import coupling_records, parameter_ratio, phase_rms_records
+from .registry import (Config, Experiment, Metrics, absent, finding, graded, not_checked, num,
+                       times)
 
 PHASES = ((0.0, 190.0), (190.0, 250.0), (250.0, 350.0))
 
@@ -47,34 +50,34 @@ SCHEDULE = {
     "s2": ((0, 205, 230, 290, 320), (2.0, 2.5, 3.0, 2.0, 2.5)),
 }
 
-CONFIG = {
-    "model": "planar_2link_mckibben",
-    "controller": "theorem5",
-    "dt": 1e-3,
-    "chunk": 1000,
-    "preset": 5.0,
-    "duration": 350.0,
-    "rise": 2.0,
-    "lam": 15.0,
-    "kd": 18.0,
-    "kpi": 35.0,
-    "stiffness_rate": 2.0,
-    "sigma_preset": 2.0,
-    "pi_hat0_ratio": 0.9,
-    "adaptation_settle": 40.0,
-    "compare_open_loop": True,
-    "check_dt_halving": True,
-    "compare_model_acceleration": True,
-}
 
+@dataclass(frozen=True)
+class Ch10AdaptiveConfig(Config):
+    model: str = "planar_2link_mckibben"
+    controller: str = "theorem5"
+    dt: float = 1e-3
+    chunk: int = 1000
+    preset: float = 5.0                 # s at rest with K_π = 0 before t = 0
+    duration: float = 350.0
+    rise: float = 2.0                   # s, rise time of every smoothed step
+    lam: float = 15.0
+    kd: float = 18.0
+    kpi: float = 35.0
+    stiffness_rate: float = 2.0         # 1/s: K_σ = rate / K_1 (not printed in the thesis)
+    sigma_preset: float = 2.0           # N m/rad
+    pi_hat0_ratio: float = 0.9          # Π̂(0) = ratio · Π
+    adaptation_settle: float = 40.0     # s before the coupling windows count
+    compare_open_loop: bool = True
+    check_dt_halving: bool = True
+    compare_model_acceleration: bool = True
 
-def references(t: np.ndarray, rise: float) -> np.ndarray:
-    """(6n × len(t)): q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d of the schedule."""
-    q = [SmoothSteps(*SCHEDULE[k], rise).check()(t) for k in ("q1", "q2")]
-    s = [SmoothSteps(*SCHEDULE[k], rise).check()(t) for k in ("s1", "s2")]
-    rows = [q[j][d] for d in range(4) for j in range(2)]
-    rows += [s[j][0] for j in range(2)] + [s[j][1] for j in range(2)]
-    return np.array(rows)
+    def validate(self) -> None:
+        for k in ("dt", "preset", "duration", "rise"):
+            if getattr(self, k) <= 0:
+                raise ValueError(f"{k}: expected a positive number, got {getattr(self, k)}")
+        if self.controller != "theorem5":
+            raise ValueError(f"controller: this experiment runs 'theorem5', got "
+                             f"{self.controller!r}")
 
 
 def _windows(kind: str, rise: float, settle: float) -> list[tuple[float, float, float]]:
@@ -84,8 +87,8 @@ def _windows(kind: str, rise: float, settle: float) -> list[tuple[float, float, 
     changes = sorted({t for k in own + other for t in SCHEDULE[k][0][1:]})
     out = []
     for key in own:
-        times, values = SCHEDULE[key]
-        for t0, a, b in zip(times[1:], values[:-1], values[1:]):
+        times_, values = SCHEDULE[key]
+        for t0, a, b in zip(times_[1:], values[:-1], values[1:]):
             if t0 < settle or any(abs(t0 - u) < rise for u in other_times):
                 continue
             t1 = min([c for c in changes if c > t0] + [PHASES[-1][1]])
@@ -93,136 +96,122 @@ def _windows(kind: str, rise: float, settle: float) -> list[tuple[float, float, 
     return out
 
 
-def simulate(arm, fns: dict, kind: str, c: dict, dt: float) -> dict[str, np.ndarray]:
-    """Preset, then the three phases, in chunks of one generated loop call."""
+def diagram(arm, kind: str, c: Ch10AdaptiveConfig, dt: float) -> ClosedLoop:
+    """Smoothed-step references -> controller ``kind`` -> McKibben arm (ideal pressures)."""
+    ref = stiffness_reference_block(
+        "ref", [SmoothSteps(*SCHEDULE[k], c.rise) for k in ("q1", "q2")],
+        [SmoothSteps(*SCHEDULE[k], c.rise) for k in ("s1", "s2")])
+    return ClosedLoop(f"ch10_{arm.name}_{kind}_{'_'.join(f'{dt:g}'.split('.'))}".replace("-", "m"),
+                      [ref, controller_block(arm, kind, dt), plant_block(arm, dt)],
+                      [("ctrl.p", "plant.p_cmd")])
+
+
+#: What the metrics and figures read.
+RECORD = ("ref.q_d", "ref.sigma_d", "plant.q", "plant.sigma", "ctrl.p", "ctrl.nu", "ctrl.Pi_hat")
+
+
+def run_case(arm, kind: str, c: Ch10AdaptiveConfig, dt: float) -> Trace:
+    """Preset (K_π = 0, t < 0), then the three phases: one diagram, two driver calls."""
     n, K1 = arm.n, arm.K1
-    chunk = int(c["chunk"])
-    loop = fns[f"{arm.step_fun(kind).name()}_loop_ideal"]
+    d = diagram(arm, kind, c, dt)
     Pi = arm.Pi_nominal
-    lam, kd = np.full(n, c["lam"]), np.full(n, c["kd"])
-    ksigma, kinv = np.full(n, c["stiffness_rate"] / K1), 1 / arm.act.K
-    tp = np.ones(2 * n)                              # unused by the ideal plant
-    pi0 = c["pi_hat0_ratio"] * Pi
+    gains = {"lam": c.lam, "kd": c.kd, "kpi": 0.0}
+    for name, value in (("ksigma", c.stiffness_rate / K1), ("kinv", 1 / arm.act.K)):
+        if f"ctrl.{name}" in d.params:      # only the laws that take them
+            gains[name] = value
+    pi0 = c.pi_hat0_ratio * Pi
     # Preset inflation: the ν (and pressures) the actuator model gives σ_preset at rest.
-    ol = fns[f"{arm.name}_open_loop_stiffness"]
-    ref0 = references(np.array([0.0]), c["rise"])[:, 0]
-    ref0[4 * n:5 * n] = c["sigma_preset"]
-    _, p0, _, nu0 = ol(pi0, np.zeros(n), np.zeros(n), ref0, lam, kd, np.zeros(arm.n_params),
-                       kinv, dt)
-    x = np.concatenate([np.zeros(2 * n), p0])
-    z = np.concatenate([nu0, pi0]) if kind == "theorem5" else pi0.copy()
-    n_pre = int(round(c["preset"] / dt / chunk)) * chunk
-    n_run = int(round(c["duration"] / dt / chunk)) * chunk
-    t = (np.arange(n_pre + n_run) - n_pre) * dt
-    X, Z, P, S = [], [], [], []
-    for start in range(0, t.size, chunk):
-        tt = t[start:start + chunk]
-        R = references(np.maximum(tt, 0.0), c["rise"])
-        kpi = np.full(arm.n_params, c["kpi"] if tt[0] >= 0 else 0.0)
-        xs, zs, ps, ss = loop(x, z, R, lam, kd, kpi, ksigma, kinv, tp, dt)
-        x, z = xs[:, -1].copy(), zs[:, -1].copy()
-        X.append(xs)
-        Z.append(zs)
-        P.append(ps)
-        S.append(ss)
-        if not np.all(np.isfinite(x)):
-            raise FloatingPointError(f"{kind}: state not finite at t = {tt[-1]:.3f} s")
-    keep = t >= 0
-    X, Z, P, S = (np.hstack(a)[:, keep] for a in (X, Z, P, S))
-    t = t[keep]
-    R = references(t, c["rise"])
-    nz = 0 if kind != "theorem5" else n
-    return {"t": t, "q": X[:n].T, "qd": X[n:2 * n].T, "p": X[2 * n:].T, "p_cmd": P.T,
-            "sigma": S.T, "q_d": R[:n].T, "sigma_d": R[4 * n:5 * n].T,
-            "nu": Z[:nz].T, "Pi_hat": Z[nz:].T}
+    ref0 = np.array(d.blocks["ref"].eval(u=[0.0])[1][:6 * n])
+    ref0[4 * n:5 * n] = c.sigma_preset
+    ol = arm.step_fun("open_loop")
+    _, p0, _, nu0 = (np.array(v).ravel() for v in ol(
+        pi0, np.zeros(n), np.zeros(n), ref0, np.full(n, c.lam), np.full(n, c.kd),
+        np.zeros(arm.n_params), 1 / arm.act.K, dt))
+    x0 = {"plant.p": p0, "ctrl.Pi_hat": pi0}
+    if kind == "theorem5":
+        x0["ctrl.nu"] = nu0
+    chunk = int(c.chunk)
+    n_pre = int(round(c.preset / dt / chunk)) * chunk
+    n_run = int(round(c.duration / dt / chunk)) * chunk
+    ctrl = {f"ctrl.{k}": v for k, v in gains.items()}
+    pre = simulate(d, steps=n_pre, k0=-n_pre, x0=x0, params=ctrl, chunk=chunk,
+                   record=["plant.q"], label=f"ch10 {kind} preset")
+    tr = simulate(d, steps=n_run, k0=0, x0=pre.final_state, params={**ctrl, "ctrl.kpi": c.kpi},
+                  chunk=chunk, record=RECORD, label=f"ch10 {kind}")
+    tr.wall_seconds += pre.wall_seconds
+    tr.meta["preset_steps"] = n_pre
+    return tr
 
 
-def _metrics(tr: dict, Pi: np.ndarray, c: dict, prefix: str = "") -> dict[str, float]:
-    t = tr["t"]
-    m = {}
-    m.update(phase_rms(t, tr["q"] - tr["q_d"], PHASES, f"{prefix}position_rms_error"))
-    m.update(phase_rms(t, tr["sigma"] - tr["sigma_d"], PHASES,
-                       f"{prefix}stiffness_rms_error"))
-    m.update(coupling(t, tr["sigma"] - tr["sigma_d"],
-                      _windows("q", c["rise"], c["adaptation_settle"]),
-                      f"{prefix}position_to_stiffness_coupling"))
-    m.update(coupling(t, tr["q"] - tr["q_d"], _windows("s", c["rise"], c["adaptation_settle"]),
-                      f"{prefix}stiffness_to_position_coupling"))
-    m[f"{prefix}parameter_estimate_max_ratio"] = parameter_ratio(tr["Pi_hat"], Pi)
+def _metrics(tr: Trace, Pi: np.ndarray, c: Ch10AdaptiveConfig, prefix: str = "") -> Metrics:
+    t = tr.t
+    m = Metrics()
+    phase_rms_records(m, t, tr["plant.q"] - tr["ref.q_d"], PHASES, "position_rms_error", "rad",
+                      prefix)
+    phase_rms_records(m, t, tr["plant.sigma"] - tr["ref.sigma_d"], PHASES,
+                      "stiffness_rms_error", "N m/rad", prefix)
+    coupling_records(m, t, tr["plant.sigma"] - tr["ref.sigma_d"],
+                     _windows("q", c.rise, c.adaptation_settle),
+                     "position_to_stiffness_coupling", "N m/rad per rad", prefix)
+    coupling_records(m, t, tr["plant.q"] - tr["ref.q_d"],
+                     _windows("s", c.rise, c.adaptation_settle),
+                     "stiffness_to_position_coupling", "rad per N m/rad", prefix)
+    m.add("parameter_estimate_max_ratio", parameter_ratio(tr["ctrl.Pi_hat"], Pi), "",
+          prefix=prefix)
     return m
 
 
-def run(config: dict, out) -> dict:
-    c = config
-    arm = pneumatic_arm(load_model(c["model"]))
-    kinds = ["theorem5"] + (["open_loop"] if c["compare_open_loop"] else [])
-    fns = [(closed_loop_fun(arm, k, plant="ideal", steps=int(c["chunk"])), f"{k} closed loop")
-           for k in kinds]
-    fns.append((arm.step_fun("open_loop"), "open-loop stiffness step (preset)"))
-    fns = load_functions(arm.name, fns, out, c)
-    t0 = time.perf_counter()
-    tr = simulate(arm, fns, "theorem5", c, c["dt"])
-    wall = time.perf_counter() - t0
-    pmax = arm.act.pressure_max
-    viol = check_pressures(tr["t"], tr["p_cmd"], pmax, label="ch10-pneumatic-adaptive")
+def run(c: Ch10AdaptiveConfig, out) -> Metrics:
+    arm = pneumatic_arm(load_model(c.model))
+    tr = run_case(arm, "theorem5", c, c.dt)
+    viol = check_pressures(tr.t, tr["ctrl.p"], arm.act.pressure_max,
+                           label="ch10-pneumatic-adaptive")
     m = _metrics(tr, arm.Pi_nominal, c)
-    m["pressure_violations"] = float(len(viol))
-    # Preset plus the three phases, controller and plant in generated C loops.
-    m["simulated_seconds_per_wall_second"] = (c["preset"] + c["duration"]) / wall
-    m["pressure_min_pa"] = float(tr["p_cmd"].min())
-    m["pressure_max_pa"] = float(tr["p_cmd"].max())
-    np.savez_compressed(out / "traces.npz", **tr)
-    if c["compare_open_loop"]:
-        ol = simulate(arm, fns, "open_loop", c, c["dt"])
-        m.update({k: v for k, v in _metrics(ol, arm.Pi_nominal, c, "open_loop_").items()
-                  if "coupling" in k or "position_rms" in k})
-    if c["check_dt_halving"]:
-        m["dt_halving_max_rms_change"] = _dt_check(arm, c, out, m)
-    if c["compare_model_acceleration"]:
+    m.add("pressure_violations", len(viol), "")
+    # Preset plus the three phases, references, controller and plant in one generated loop.
+    m.add("simulated_seconds_per_wall_second",
+          (c.preset + c.duration) / tr.wall_seconds, "s/s")
+    m.add("pressure_min_pa", tr["ctrl.p"].min(), "Pa")
+    m.add("pressure_max_pa", tr["ctrl.p"].max(), "Pa")
+    np.savez_compressed(out / "traces.npz", t=tr.t.astype(np.float32),
+                        **{k.replace(".", "_"): v[::10].astype(np.float32)
+                           for k, v in tr.signals.items()})
+    if c.compare_open_loop:
+        ol = run_case(arm, "open_loop", c, c.dt)
+        m.extend(_metrics(ol, arm.Pi_nominal, c), prefix="open_loop_",
+                 keep=lambda r: "coupling" in r.quantity or "position_rms" in r.quantity)
+    if c.check_dt_halving:
+        c2 = c.replace(dt=c.dt / 2, compare_open_loop=False)
+        m2 = _metrics(run_case(arm, "theorem5", c2, c2.dt), arm.Pi_nominal, c2).flat()
+        flat = m.flat()
+        m.add("dt_halving_max_rms_change",
+              max(abs(m2[k] - flat[k]) for k in m2 if "rms_error" in k), "")
+    if c.compare_model_acceleration:
         # Theorem 5 with the q̈ path of d/dt(Φ^†τ_*) closed by the adapted model.
         arm_a = pneumatic_arm(arm.model, acceleration="model")
-        fa = load_functions(arm.name, [
-            (closed_loop_fun(arm_a, "theorem5", plant="ideal", steps=int(c["chunk"])),
-             "Theorem 5 (model acceleration) closed loop"),
-            (arm.step_fun("open_loop"), "open-loop step (preset)")], out / "model_acceleration", c)
-        ma = simulate(arm_a, fa, "theorem5", c, c["dt"])
-        m.update({k: v for k, v in _metrics(ma, arm.Pi_nominal, c, "model_acceleration_").items()
-                  if "coupling" in k or "stiffness_rms" in k})
+        ma = run_case(arm_a, "theorem5", c, c.dt)
+        m.extend(_metrics(ma, arm.Pi_nominal, c), prefix="model_acceleration_",
+                 keep=lambda r: "coupling" in r.quantity or "stiffness_rms" in r.quantity)
     _figures(tr, arm, out)
     return m
 
 
-def _dt_check(arm, c: dict, out, m: dict) -> float:
-    """Largest |change| of the rms-error metrics when the sample time is halved."""
-    c2 = {**c, "dt": c["dt"] / 2, "compare_open_loop": False}
-    fns = load_functions(arm.name,
-                         [(closed_loop_fun(arm, "theorem5", plant="ideal",
-                                           steps=int(c2["chunk"])), "Theorem 5 closed loop"),
-                          (arm.step_fun("open_loop"), "open-loop step (preset)")],
-                         out / "half_dt", c2)
-    tr = simulate(arm, fns, "theorem5", c2, c2["dt"])
-    m2 = _metrics(tr, arm.Pi_nominal, c2)
-    return max(abs(m2[k] - m[k]) for k in m2 if "rms_error" in k)
-
-
-def _figures(tr: dict, arm, out) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = tr["t"]
-    fig, ax = plt.subplots(4, 2, figsize=(11, 10), sharex=True)
+def _figures(tr: Trace, arm, out) -> None:
+    t = tr.t
+    fig = Figure(figsize=(11, 10))
+    ax = fig.subplots(4, 2, sharex=True)
+    p = tr["ctrl.p"]
     for j in range(2):
-        ax[0, j].plot(t, tr["q_d"][:, j], "k--", lw=1, label="q_d")
-        ax[0, j].plot(t, tr["q"][:, j], lw=1, label="q")
+        ax[0, j].plot(t, tr["ref.q_d"][:, j], "k--", lw=1, label="q_d")
+        ax[0, j].plot(t, tr["plant.q"][:, j], lw=1, label="q")
         ax[0, j].set_ylabel(f"q{j + 1} [rad]")
-        ax[1, j].plot(t, tr["sigma_d"][:, j], "k--", lw=1, label="σ_d")
-        ax[1, j].plot(t, tr["sigma"][:, j], lw=1, label="σ")
+        ax[1, j].plot(t, tr["ref.sigma_d"][:, j], "k--", lw=1, label="σ_d")
+        ax[1, j].plot(t, tr["plant.sigma"][:, j], lw=1, label="σ")
         ax[1, j].set_ylabel(f"σ{j + 1} [N m/rad]")
-        ax[2, j].plot(t, tr["p_cmd"][:, 2 * j] / 1e5, lw=1, label="p_a")
-        ax[2, j].plot(t, tr["p_cmd"][:, 2 * j + 1] / 1e5, lw=1, label="p_b")
+        ax[2, j].plot(t, p[:, 2 * j] / 1e5, lw=1, label="p_a")
+        ax[2, j].plot(t, p[:, 2 * j + 1] / 1e5, lw=1, label="p_b")
         ax[2, j].set_ylabel("pressure [bar]")
-        ax[3, j].plot(t, tr["nu"][:, j], lw=1)
+        ax[3, j].plot(t, tr["ctrl.nu"][:, j], lw=1)
         ax[3, j].set_ylabel(f"ν{j + 1}")
         ax[3, j].set_xlabel("t [s]")
         for a in ax[:3, j]:
@@ -233,16 +222,15 @@ def _figures(tr: dict, arm, out) -> None:
     fig.suptitle("Theorem 5 on the two-link McKibben arm (cf. Fig. 10.2)")
     fig.tight_layout()
     fig.savefig(out / "fig10_2_tracking.png", dpi=110)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(8, 4))
-    ax.plot(t, tr["Pi_hat"] / arm.Pi_nominal, lw=1)
-    ax.legend(arm.parameter_names, fontsize=7)
+    fig = Figure(figsize=(8, 4))
+    ax = fig.subplots()
+    ax.plot(t, tr["ctrl.Pi_hat"] / arm.Pi_nominal, lw=1)
+    ax.legend(arm.parameter_names, fontsize=7, loc="upper right")
     ax.set_xlabel("t [s]")
     ax.set_ylabel("Π̂ / Π")
     ax.set_title("Parameter estimates (cf. Fig. 10.3)")
     fig.tight_layout()
     fig.savefig(out / "fig10_3_parameters.png", dpi=110)
-    plt.close(fig)
 
 
 def findings(m: dict) -> list[dict]:
@@ -328,7 +316,7 @@ EXPERIMENT = Experiment(
     title="Decoupled adaptive position and stiffness control of a two-link McKibben arm",
     section="10.2, Fig. 10.2-10.3",
     run=run,
-    config=CONFIG,
+    config=Ch10AdaptiveConfig().check(),
     quick={"compare_open_loop": False, "check_dt_halving": False,
            "compare_model_acceleration": False},
     findings=findings,

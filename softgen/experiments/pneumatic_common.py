@@ -9,20 +9,36 @@ from __future__ import annotations
 
 import numpy as np
 
+from .registry import Metrics
 
-def phase_rms(t, err, phases, name: str) -> dict[str, float]:
-    """``{name}_joint{i}_phase{k}``: rms of ``err`` (samples × n) over the second half
-    of each phase ``(t0, t1)``."""
+
+def phase_rms_records(m: Metrics, t, err, phases, quantity: str, unit: str,
+                      prefix: str = "") -> Metrics:
+    """Add ``{prefix}{quantity}_joint{i}_phase{k}``: rms of ``err`` (samples × n) over the
+    second half of each phase ``(t0, t1)``."""
     t = np.asarray(t)
     err = np.asarray(err)
-    out = {}
     for k, (t0, t1) in enumerate(phases, 1):
         mask = (t >= (t0 + t1) / 2) & (t < t1)
         if not mask.any():
             raise ValueError(f"phase {k} ({t0}, {t1}) holds no samples")
         for i in range(err.shape[1]):
-            out[f"{name}_joint{i + 1}_phase{k}"] = float(np.sqrt(np.mean(err[mask, i] ** 2)))
-    return out
+            m.add(quantity, np.sqrt(np.mean(err[mask, i] ** 2)), unit, joint=i + 1, phase=k,
+                  prefix=prefix)
+    return m
+
+
+def phase_rms(t, err, phases, name: str) -> dict[str, float]:
+    """:func:`phase_rms_records` as a flat dict (``name`` = prefix + quantity)."""
+    return phase_rms_records(Metrics(), t, err, phases, name, "").flat()
+
+
+def coupling_records(m: Metrics, t, deviation, windows, quantity: str, unit: str,
+                     prefix: str = "") -> Metrics:
+    """:func:`coupling` as records ``{prefix}{quantity}_joint{i}``."""
+    for k, v in coupling(t, deviation, windows, "x").items():
+        m.add(quantity, v, unit, joint=int(k.rpartition("joint")[2]), prefix=prefix)
+    return m
 
 
 def coupling(t, deviation, windows, name: str) -> dict[str, float]:

@@ -9,7 +9,11 @@ An experiment may also check the thesis's claims against those metrics
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib
+import math
+import types
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from collections.abc import Callable, Iterable
@@ -32,13 +36,175 @@ _MODULES = {
 }
 
 
+# -- typed configs ---------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Config:
+    """Base of the experiments' typed configs: frozen dataclasses with :meth:`check`.
+
+    :meth:`replace` and :meth:`from_dict` raise ``ValueError`` naming an unknown key;
+    :meth:`check` checks every field against its annotation (numbers finite, tuples of
+    the declared element type) and then :meth:`validate`, which subclasses extend with
+    their own rules (DESIGN.md section 3 item 2).
+    """
+
+    def replace(self, **changes) -> Config:
+        bad = [k for k in changes if k not in self._fields()]
+        if bad:
+            raise ValueError(f"{type(self).__name__}: unknown key(s) {', '.join(bad)}: expected "
+                             f"some of {', '.join(self._fields())}")
+        return dataclasses.replace(self, **changes).check()
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Config:
+        bad = [k for k in d if k not in cls._fields()]
+        if bad:
+            raise ValueError(f"{cls.__name__}: unknown key(s) {', '.join(bad)}: expected some "
+                             f"of {', '.join(cls._fields())}")
+        return cls(**d).check()
+
+    @classmethod
+    def _fields(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(cls))
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def check(self) -> Config:
+        hints = typing.get_type_hints(type(self))
+        for f in dataclasses.fields(self):
+            _check_value(type(self).__name__, f.name, getattr(self, f.name), hints[f.name])
+        self.validate()
+        return self
+
+    def validate(self) -> None:
+        """Rules across fields; raise ``ValueError`` naming the key."""
+
+
+def _check_value(owner: str, key: str, v, hint) -> None:
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    where = f"{owner}.{key}"
+    if origin in (typing.Union, types.UnionType):
+        errors = []
+        for a in args:
+            try:
+                _check_value(owner, key, v, a)
+                return
+            except ValueError as exc:
+                errors.append(str(exc))
+        raise ValueError(f"{where}: expected {hint}, got {v!r}")
+    if hint is type(None):
+        if v is not None:
+            raise ValueError(f"{where}: expected None, got {v!r}")
+        return
+    if hint is float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"{where}: expected a finite number, got {v!r}")
+        return
+    if hint is int or hint is bool or hint is str:
+        if not isinstance(v, hint) or (hint is int and isinstance(v, bool)):
+            raise ValueError(f"{where}: expected {hint.__name__}, got {v!r}")
+        return
+    if origin is tuple:
+        if not isinstance(v, tuple):
+            raise ValueError(f"{where}: expected a tuple, got {type(v).__name__}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            for i, x in enumerate(v):
+                _check_value(owner, f"{key}[{i}]", x, args[0])
+        elif args:
+            if len(v) != len(args):
+                raise ValueError(f"{where}: expected {len(args)} entries, got {len(v)}")
+            for i, (x, a) in enumerate(zip(v, args)):
+                _check_value(owner, f"{key}[{i}]", x, a)
+        return
+    if dataclasses.is_dataclass(hint) and isinstance(v, hint):
+        if isinstance(v, Config):
+            v.check()
+        return
+    if origin is dict or hint is dict:
+        if not isinstance(v, dict):
+            raise ValueError(f"{where}: expected a mapping, got {type(v).__name__}")
+        return
+    if isinstance(hint, type) and not isinstance(v, hint):
+        raise ValueError(f"{where}: expected {hint.__name__}, got {v!r}")
+
+
+# -- metric records --------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Metric:
+    """One number of a run, as a record; :attr:`key` is its flat name in metrics.json.
+
+    ``{prefix}{quantity}[_joint{j}][_phase{k}][_{suffix}]``: the names are the contract
+    of ``metrics.json``, the record is what code reads and groups.
+    """
+
+    quantity: str
+    value: float | None
+    unit: str = ""
+    joint: int | None = None
+    phase: int | None = None
+    prefix: str = ""
+    suffix: str = ""
+
+    @property
+    def key(self) -> str:
+        k = f"{self.prefix}{self.quantity}"
+        if self.joint is not None:
+            k += f"_joint{self.joint}"
+        if self.phase is not None:
+            k += f"_phase{self.phase}"
+        return k + (f"_{self.suffix}" if self.suffix else "")
+
+
+class Metrics:
+    """An ordered collection of :class:`Metric` records."""
+
+    def __init__(self, records: Iterable[Metric] = ()):
+        self.records: list[Metric] = list(records)
+
+    def add(self, quantity: str, value, unit: str = "", **kw) -> Metrics:
+        self.records.append(Metric(quantity, None if value is None else float(value), unit, **kw))
+        return self
+
+    def extend(self, other: Metrics, *, prefix: str = "", suffix: str = "",
+               keep: Callable[[Metric], bool] | None = None) -> Metrics:
+        """Add ``other``'s records under an extra prefix/suffix (a variant run)."""
+        for r in other.records:
+            if keep is None or keep(r):
+                self.records.append(dataclasses.replace(
+                    r, prefix=prefix + r.prefix,
+                    suffix="_".join(x for x in (r.suffix, suffix) if x)))
+        return self
+
+    def flat(self) -> dict[str, float | None]:
+        out = {}
+        for r in self.records:
+            if r.key in out:
+                raise ValueError(f"metrics: {r.key!r} recorded twice")
+            out[r.key] = r.value
+        return out
+
+    def units(self) -> dict[str, str]:
+        return {r.key: r.unit for r in self.records if r.unit}
+
+    def __getitem__(self, key: str) -> float | None:
+        return self.flat()[key]
+
+    def __iter__(self):
+        return iter(self.records)
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+
 @dataclass(frozen=True)
 class Experiment:
     id: str
     title: str
     section: str                      # where in the thesis (or "softgen" if our own)
-    run: Callable[[dict, Path], dict]  # (config, out_dir) -> metrics
-    config: dict                      # full run
+    run: Callable[[Config, Path], Metrics | dict]  # (config, out_dir) -> metrics
+    config: Config | dict             # full run (typed; dict only for legacy modules)
     quick: dict = field(default_factory=dict)   # overrides for a quick run
     thesis: dict = field(default_factory=dict)  # numbers the thesis reports, same keys
     # How to read ours against the thesis's (markdown; refers to metric names, never

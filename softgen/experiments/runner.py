@@ -11,25 +11,35 @@ from pathlib import Path
 from typing import TextIO
 
 from ..report import write_report
-from .registry import VERDICTS, Experiment, experiment_ids, finding, get
+from .registry import VERDICTS, Config, Experiment, Metrics, experiment_ids, finding, get
 
 
 def run_one(exp_id: str, out_root: Path, quick: bool) -> dict:
     """Run one experiment in this process; write ``out_root/<id>/metrics.json``."""
     exp = get(exp_id)
-    config = {**exp.config, **(exp.quick if quick else {})}
+    if isinstance(exp.config, Config):
+        config = exp.config.replace(**(exp.quick if quick else {})).check()
+        config_dict = config.to_dict()
+    else:
+        config = config_dict = {**exp.config, **(exp.quick if quick else {})}
     out = Path(out_root) / exp_id
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     metrics = exp.run(config, out)
+    units = {}
+    if isinstance(metrics, Metrics):
+        units, metrics = metrics.units(), metrics.flat()
     findings = check_findings(exp, metrics) if exp.findings is not None else None
     # JSON has no NaN or infinity: a metric the run could not define (e.g. a coupling
     # index with no complete window) is written as null.
     metrics = {k: (v if not isinstance(v, float) or math.isfinite(v) else None)
                for k, v in metrics.items()}
     result = {"experiment": exp_id, "metrics": metrics, "thesis": dict(exp.thesis),
-              "config": {**config, "quick": quick, "section": exp.section, "title": exp.title},
+              "config": {**config_dict, "quick": quick, "section": exp.section,
+                         "title": exp.title},
               "wall_seconds": time.perf_counter() - t0}
+    if units:
+        result["units"] = units
     if exp.discussion:
         result["discussion"] = exp.discussion
     if findings is not None:

@@ -55,6 +55,8 @@ class BundleFunction:
         self.inputs = [_view(f, s) for f, s in zip(flat_in, self.in_shapes)]
         self.outputs = [_view(f, s) for f, s in zip(flat_out, self.out_shapes)]
         self._flat_in = flat_in
+        self._flat_out = flat_out
+        self._bound: dict[int, np.ndarray] = {}
         self._expect = [(r,) if c == 1 else (r, c) for r, c in self.in_shapes]
         # Assigning into a memoryview copies and checks shape and dtype in one C-level
         # step (~0.1 µs against ~0.5 µs for numpy's check + setitem); it only takes
@@ -74,6 +76,20 @@ class BundleFunction:
         # exit is `return 0`, so there is nothing to read.
         self.call = self.checked_call if self.can_fail else self._eval
         self.checked_call()     # probe once: a broken library fails here, not in a loop
+
+    def bind_output(self, k: int, array: np.ndarray) -> None:
+        """Make the next calls write output ``k`` into ``array`` (no copy afterwards).
+
+        ``array`` must be C-contiguous float64 with exactly as many entries as the
+        output: a block of rows of a (samples × signals) array is the (signals ×
+        samples) column-major layout the C writes. It stays bound until bound again.
+        """
+        if not (isinstance(array, np.ndarray) and array.dtype == np.float64
+                and array.flags.c_contiguous and array.size == self._flat_out[k].size):
+            raise ShapeError(f"{self.name}: output {self.out_names[k]!r} needs a C-contiguous "
+                             f"float64 array of {self._flat_out[k].size} entries")
+        self._buf.set_res(k, memoryview(array.reshape(-1)))
+        self._bound[k] = array          # the evaluator points into it: keep it alive
 
     def call(self) -> None:  # replaced per instance (see __init__)
         """Evaluate on the current input buffers into the output buffers."""

@@ -1,101 +1,259 @@
-"""Closed-loop simulation: discrete controller with zero-order hold, RK4 plant.
+"""The one loop driver: run a :class:`~softgen.blocks.ClosedLoop` for a duration.
 
-Every controller, observer and plant is a discrete step with an explicit sample
-time (DESIGN.md section 1). :func:`simulate` runs any controller that follows
-the :class:`Controller` protocol against a plant step ``x_next = step(x, u, h)``
-(for example a bundle's ``<model>_plant_rk4``), integrating the plant with
-``substeps`` fixed RK4 steps per controller sample. Estimators and controllers
-of later chapters plug in the same way.
+:func:`simulate` compiles the diagram's N-step function once (shared cache,
+:mod:`softgen.runtime.compiled`), then calls it chunk after chunk. Between chunks it
+only copies buffers and checks:
+
+- **non-finite values**: the first sample at which a signal or a state is NaN or
+  infinite raises :class:`DivergenceError` naming the time and the signal (signals are
+  searched in evaluation order, so the block where it started is the one named: a NaN
+  reference is blamed on the reference, not on the plant); or, with
+  ``on_nonfinite="stop"``, ends the run there;
+- **stop conditions** (an emergency stop, a runaway link): ``(reason, predicate)``
+  pairs, evaluated on each chunk; the run ends at the first sample where one holds;
+- **progress**: a line on stderr every few seconds on long runs.
+
+It returns a :class:`Trace` of named signals.
 """
 from __future__ import annotations
 
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
-from collections.abc import Callable
 
 import numpy as np
 
+from ..blocks.diagram import EXT, TIME, ClosedLoop
+from ..errors import SoftgenError
+from .compiled import compile_functions
 
-class Controller(Protocol):
-    """What :func:`simulate` needs of a controller."""
 
-    dt: float
+class DivergenceError(SoftgenError, FloatingPointError):
+    """A closed loop produced a non-finite value; names the time and the signal."""
 
-    def reset(self) -> None: ...
-
-    def step(self, k: int, t: float, x: np.ndarray) -> np.ndarray:
-        """Control held over [t, t + dt), from the state measured at t."""
+    def __init__(self, diagram: str, time: float, signal: str):
+        super().__init__(f"{diagram}: {signal} is not finite at t = {time:.6g} s "
+                         "(the first non-finite value of the run)")
+        self.time, self.signal = time, signal
 
 
 @dataclass
-class SimResult:
-    t: np.ndarray                     # sample times, shape (N + 1,)
-    x: np.ndarray                     # states at the sample times, (N + 1, nx)
-    u: np.ndarray                     # inputs held after each sample, (N, nu)
-    log: dict[str, np.ndarray] = field(default_factory=dict)   # controller-specific traces
+class Trace:
+    """Named signals of a run, one row per sample.
+
+    ``trace["plant.q"]`` is an array (samples × size); a signal's short name
+    (``trace["q"]``) works when only one block has it. ``t`` holds the sample times.
+    ``final_state`` (``{"block.state": value}``) continues the run
+    (``simulate(..., x0=trace.final_state, k0=trace.next_k)``).
+    """
+
+    t: np.ndarray
+    signals: dict[str, np.ndarray]
+    final_state: dict[str, np.ndarray]
+    next_k: int
+    stopped_at: float | None = None
+    stop_reason: str | None = None
+    wall_seconds: float = 0.0
+    meta: dict = field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name in self.signals:
+            return self.signals[name]
+        hits = [k for k in self.signals if k.rpartition(".")[2] == name]
+        if len(hits) == 1:
+            return self.signals[hits[0]]
+        raise KeyError(f"trace: no signal {name!r}" + (
+            f" (ambiguous: {', '.join(hits)})" if hits else
+            f"; expected one of {', '.join(self.signals)}"))
+
+    def __contains__(self, name: str) -> bool:
+        try:
+            self[name]
+        except KeyError:
+            return False
+        return True
+
+    @property
+    def simulated_seconds(self) -> float:
+        return float(self.t.size * self.meta.get("dt", 0.0))
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated seconds per wall second of the loop calls (compilation excluded)."""
+        return self.simulated_seconds / self.wall_seconds if self.wall_seconds else float("inf")
 
 
-def _plant_stepper(plant_step) -> Callable[[np.ndarray, np.ndarray, float], np.ndarray]:
-    """A fast (x, u, h) -> x_next from a bundle function (buffer path) or any callable."""
-    if hasattr(plant_step, "inputs") and hasattr(plant_step, "call"):
-        xb, ub, hb = plant_step.inputs
-        out = plant_step.outputs[0]
-        call = plant_step.call
-
-        def step(x, u, h):
-            xb[:] = x
-            ub[:] = u
-            hb[0] = h
-            call()
-            return out.copy()
-        return step
-    return lambda x, u, h: np.asarray(plant_step(x, u, h), dtype=float).ravel()
+Predicate = Callable[[Trace], np.ndarray]
 
 
-def simulate(*, plant_step, controller: Controller, x0, duration: float, substeps: int = 1,
-             dt: float | None = None) -> SimResult:
-    """Run the closed loop for ``duration`` seconds.
+def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int | None = None,
+             x0: Mapping | None = None, params: Mapping | None = None,
+             externals: Mapping[str, np.ndarray] | None = None, k0: int = 0,
+             chunk: int = 1000, stop: Sequence[tuple[str, Predicate]] = (),
+             on_nonfinite: str = "raise", record: Sequence[str] | None = None,
+             progress: bool | None = None, label: str | None = None,
+             backend: str = "auto") -> Trace:
+    """Run ``diagram`` for ``duration`` seconds (or ``steps`` samples) from sample ``k0``.
 
     Parameters
     ----------
-    plant_step
-        ``x_next = plant_step(x, u, h)``: one integration step of length ``h``.
-    controller
-        Follows :class:`Controller`; its ``dt`` is the sample time.
-    x0
-        Initial plant state.
-    duration
-        Simulated seconds (rounded to a whole number of samples).
-    substeps
-        Plant integration steps per controller sample (RK4 step = dt / substeps).
-    dt
-        If given, must equal ``controller.dt`` (blocks with different sample times
-        cannot be combined; python-control ``common_timebase``).
+    x0, params
+        Overrides of the blocks' defaults: ``{"block.signal": value}`` or
+        ``{"block": {"signal": value}}``.
+    externals
+        ``{name: array (steps × size)}`` for every external input of the diagram.
+    chunk
+        Samples per generated call (the loop is compiled for this many).
+    stop
+        ``(reason, predicate)``: ``predicate(chunk_trace)`` returns a boolean per sample;
+        the run ends before the first sample where it is true (``Trace.stopped_at``).
+    on_nonfinite
+        ``"raise"`` (:class:`DivergenceError`) or ``"stop"`` (end the run there).
+    record
+        Signals to keep (default all); ``t`` is always kept.
+    progress
+        Lines on stderr every ~2 s; default: when stderr is a terminal.
     """
-    if dt is not None and not np.isclose(dt, controller.dt, rtol=1e-12, atol=0):
-        raise ValueError(f"dt: the controller samples every {controller.dt} s, not {dt} s")
-    if not isinstance(substeps, int) or substeps < 1:
-        raise ValueError(f"substeps: expected a positive integer, got {substeps!r}")
-    dt = controller.dt
-    steps = int(round(duration / dt))
+    if on_nonfinite not in ("raise", "stop"):
+        raise ValueError(f"on_nonfinite: expected 'raise' or 'stop', got {on_nonfinite!r}")
+    dt = diagram.dt
+    if steps is None:
+        if duration is None:
+            raise ValueError("simulate: give duration (seconds) or steps (samples)")
+        steps = int(round(float(duration) / dt))
+    steps = int(steps)
     if steps < 1:
-        raise ValueError(f"duration: expected at least one sample of {dt} s, got {duration}")
-    x = np.array(x0, dtype=float).ravel()
-    step = _plant_stepper(plant_step)
-    h = dt / substeps
-    controller.reset()
-    xs = np.empty((steps + 1, x.size))
-    xs[0] = x
-    us = None
-    for k in range(steps):
-        u = np.asarray(controller.step(k, k * dt, x), dtype=float)
-        if us is None:
-            us = np.empty((steps, u.size))
-        us[k] = u
-        for _ in range(substeps):
-            x = step(x, u, h)
-        if not np.all(np.isfinite(x)):
-            raise FloatingPointError(f"plant state not finite at t = {(k + 1) * dt:.6g} s")
-        xs[k + 1] = x
-    log = controller.log() if hasattr(controller, "log") else {}
-    return SimResult(t=np.arange(steps + 1) * dt, x=xs, u=us, log=log)
+        raise ValueError(f"duration: expected at least one sample of {dt:g} s, got "
+                         f"{duration if duration is not None else steps}")
+    chunk = max(1, min(int(chunk), steps))
+    label = label or diagram.name
+    X = diagram.initial_state(x0)
+    P = diagram.parameters(params)
+    E = _externals(diagram, externals or {}, steps)
+    rows = diagram.recorded(record)
+    key = (chunk, None if record is None else tuple(record), backend)
+    if key not in diagram.compiled:
+        diagram.compiled[key] = compile_functions(
+            diagram.loop_name(record), [diagram.loop_fun(chunk, record)], backend=backend)
+    loop = next(iter(diagram.compiled[key].values()))
+    ins, outs = loop.inputs, loop.outputs
+    ins[1][:] = P
+    # Samples × signals in C order is the generated function's column-major
+    # (signals × samples) layout: each chunk writes straight into the trace, so nothing
+    # is copied and no memory is touched twice.
+    n_chunks = -(-steps // chunk)
+    Y = np.empty((n_chunks * chunk, rows.size))
+    show = sys.stderr.isatty() if progress is None else progress
+    t_wall = time.perf_counter()
+    last_print = t_wall
+    n_done, stopped_at, reason = 0, None, None
+    final = X.copy()
+    while n_done < steps:
+        n = min(chunk, steps - n_done)
+        ins[0][:] = X
+        ins[2][0] = k0 + n_done
+        if E is not None:
+            ins[3][:, :n] = E[:, n_done:n_done + n]
+            if n < chunk:
+                ins[3][:, n:] = E[:, n_done + n - 1:n_done + n]
+        block = Y[n_done:n_done + chunk]
+        loop.bind_output(1, block)
+        loop.call()
+        Xc, Yc = outs[0][:, :n], block[:n].T
+        # One reduction finds out whether anything is non-finite (a NaN or an infinity
+        # makes the sum non-finite); only then is the chunk searched.
+        bad = None if np.isfinite(np.add.reduce(Yc, axis=None) + np.add.reduce(Xc, axis=None)) \
+            else _first_nonfinite(diagram, rows, Xc, Yc)
+        cut = n
+        if bad is not None:
+            j, name, after = bad
+            if on_nonfinite == "raise":
+                raise DivergenceError(label, (k0 + n_done + j + after) * dt, name)
+            cut, reason = j + after, f"non-finite {name}"
+        if stop:
+            view = _chunk_trace(rows, k0 + n_done, Yc[:, :cut], dt)
+            for why, pred in stop:
+                hit = np.flatnonzero(np.asarray(pred(view), dtype=bool)[:cut])
+                if hit.size and hit[0] < cut:
+                    cut, reason = int(hit[0]), why
+        final = (X if cut == 0 else Xc[:, cut - 1]).copy()
+        n_done += cut
+        if cut < n or reason is not None:
+            stopped_at = (k0 + n_done) * dt
+            break
+        X = final
+        if show and time.perf_counter() - last_print > 2.0:
+            last_print = time.perf_counter()
+            el = last_print - t_wall
+            print(f"{label}: {n_done * dt:.1f}/{steps * dt:.1f} s simulated, "
+                  f"{n_done / steps * 100:.0f} %, ETA {el * (steps - n_done) / n_done:.0f} s",
+                  file=sys.stderr, flush=True)
+    wall = time.perf_counter() - t_wall
+    Y = Y[:n_done]
+    signals = {r.name: Y[:, rows.slice(r.name)] for r in rows}
+    t = signals.pop(TIME)[:, 0].copy()
+    return Trace(t=t, signals=signals, final_state=diagram.state.split(final),
+                 next_k=k0 + n_done, stopped_at=stopped_at, stop_reason=reason,
+                 wall_seconds=wall, meta={"dt": dt, "diagram": diagram.name})
+
+
+def _externals(diagram: ClosedLoop, given: Mapping, steps: int) -> np.ndarray | None:
+    lay = diagram.externals
+    if not lay.size:
+        if given:
+            raise ValueError(f"externals: diagram {diagram.name} has no external inputs, got "
+                             f"{', '.join(given)}")
+        return None
+    missing = [n for n in lay.names if n not in given]
+    extra = [n for n in given if n not in lay]
+    if missing or extra:
+        raise ValueError(f"externals: expected exactly {', '.join(lay.names)}; "
+                         + (f"missing {', '.join(missing)}" if missing else "")
+                         + (f" unknown {', '.join(extra)}" if extra else ""))
+    E = np.empty((lay.size, steps))
+    for s in lay:
+        a = np.asarray(given[s.name], dtype=float)
+        a = a.reshape(-1, 1) if a.ndim == 1 else a
+        if a.shape != (steps, s.size):
+            raise ValueError(f"externals: {s.name}: expected shape ({steps}, {s.size}) "
+                             f"(samples × size), got {np.shape(given[s.name])}")
+        E[lay.slice(s.name)] = a.T
+    return E
+
+
+def _first_nonfinite(diagram: ClosedLoop, rows, Xc: np.ndarray, Yc: np.ndarray):
+    """``(sample, name, after)`` of the first non-finite value, or None.
+
+    Signals at sample j come before the states after sample j (``after`` = 1).
+    """
+    ybad = ~np.isfinite(Yc)
+    xbad = ~np.isfinite(Xc)
+    yj = np.flatnonzero(ybad.any(axis=0))
+    xj = np.flatnonzero(xbad.any(axis=0))
+    if not yj.size and not xj.size:
+        return None
+    if yj.size and (not xj.size or yj[0] <= xj[0]):
+        j = int(yj[0])
+        row = int(np.flatnonzero(ybad[:, j])[0])
+        return j, _name_at(rows, row), 0
+    j = int(xj[0])
+    row = int(np.flatnonzero(xbad[:, j])[0])
+    return j, f"state {_name_at(diagram.state, row)}", 1
+
+
+def _name_at(layout, row: int) -> str:
+    for s in layout:
+        sl = layout.slice(s.name)
+        if sl.start <= row < sl.stop:
+            return s.name
+    return f"row {row}"
+
+
+def _chunk_trace(rows, k: int, Yc: np.ndarray, dt: float) -> Trace:
+    sig = {s.name: Yc[rows.slice(s.name)].T for s in rows}
+    t = sig.pop(TIME)[:, 0]
+    return Trace(t=t, signals=sig, final_state={}, next_k=k, meta={"dt": dt})
+
+
+__all__ = ["DivergenceError", "Trace", "simulate", "EXT"]

@@ -1,0 +1,11 @@
+"""Typed discrete-time blocks and closed-loop diagrams (DESIGN.md section 1).
+
+``Block``: a step ``x_next, y = step(x, u, p)`` with a sample time and named
+layouts. ``ClosedLoop``: blocks wired by signal name, checked, generated as one
+N-step function. The driver that runs a diagram is :func:`softgen.runtime.simulate`.
+"""
+from .block import Block
+from .diagram import ClosedLoop
+from .layout import Layout, Signal
+
+__all__ = ["Block", "ClosedLoop", "Layout", "Signal"]

@@ -1,0 +1,65 @@
+"""One build cache for generated functions that are not a model's bundle.
+
+Diagrams, experiment loops and other functions built at run time are compiled once
+per content and kept in a user-level cache, shared by every experiment, run and
+output directory (acados ``hash_class_instance`` convention: the hash of the C source
+names the library, so a stale one is never loaded). The cache is
+
+- ``$SOFTGEN_CACHE_DIR`` if set,
+- else ``$XDG_CACHE_HOME/softgen``,
+- else ``~/.cache/softgen``.
+
+Without a C compiler the casadi.Functions are evaluated by CasADi (slower), with one
+warning per process.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import warnings
+from pathlib import Path
+
+import casadi as ca
+
+from ..codegen.build import find_compiler
+from ..codegen.generate import BundleSpec, Generated, render, signature, write_bundle
+from .library import Bundle, BundleFunction
+
+_warned = False
+
+
+def cache_dir() -> Path:
+    """Where compiled run-time functions live (see the module docstring)."""
+    env = os.environ.get("SOFTGEN_CACHE_DIR")
+    if env:
+        return Path(env).expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".cache") / "softgen"
+
+
+def compile_functions(name: str, functions: list[ca.Function], *,
+                      docs: dict[str, str] | None = None,
+                      backend: str = "auto") -> dict[str, BundleFunction]:
+    """Compile ``functions`` (named ``<name>_<quantity>``) once; load them with buffers.
+
+    ``backend``: ``"auto"`` (C if a compiler exists, else CasADi), ``"c"`` or
+    ``"casadi"``.
+    """
+    global _warned
+    if backend not in ("auto", "c", "casadi"):
+        raise ValueError(f"backend: expected 'auto', 'c' or 'casadi', got {backend!r}")
+    if backend == "casadi" or (backend == "auto" and find_compiler() is None):
+        if backend == "auto" and not _warned:
+            warnings.warn("no C compiler found (install gcc or set CC): evaluating generated "
+                          "loops with CasADi, much slower", RuntimeWarning, stacklevel=2)
+            _warned = True
+        return {f.name(): BundleFunction(f, signature(f)) for f in functions}
+    docs = docs or {}
+    spec = BundleSpec(name=name, functions=[Generated(f, docs.get(f.name(), "")) for f in functions])
+    files = render(spec)
+    digest = hashlib.sha256(files[f"{name}.c"]).hexdigest()[:16]
+    spec.identity = files[f"{name}.c"]
+    root = cache_dir() / f"{name}_{digest}"
+    if not (root / name / "manifest.json").is_file():
+        write_bundle(spec, root)
+    return Bundle(root / name).functions
