@@ -19,7 +19,7 @@ import casadi as ca
 import numpy as np
 
 from ..blocks import Block
-from ..symbolic.actuated import _rk4_steps, valve_plant_fun
+from ..symbolic.actuated import rk4_steps, valve_plant_fun
 from ..symbolic.rigid import FUNCTION_OPTS
 from .pneumatic import KINDS, PneumaticArm
 
@@ -38,7 +38,7 @@ def _ideal_plant(arm: PneumaticArm, substeps: int) -> ca.Function:
     qdd = ca.substitute(dyn.forward_dynamics_expr(act.torque(m.q, ps)),
                         ca.vertcat(m.q, m.qd), xs)
     rhs = ca.Function("rhs", [xs, ps], [ca.vertcat(xs[n:], qdd)])
-    xn = _rk4_steps(rhs, x[:2 * n], p, h, substeps)
+    xn = rk4_steps(rhs, x[:2 * n], p, h, substeps)
     return ca.Function("ideal_plant", [x, pc, h], [ca.vertcat(xn, p)])
 
 

@@ -108,7 +108,7 @@ from ..control.feasibility import PressureViolation, PressureWarning, check_pres
 from ..control.pneumatic import PneumaticArm
 from ..model import RobotModel
 from ..runtime.library import BundleFunction
-from ..symbolic.actuated import _rk4_steps
+from ..symbolic.actuated import rk4_steps
 from ..symbolic.rigid import FUNCTION_OPTS
 from .estimation_common import load_functions
 
@@ -478,7 +478,7 @@ class GiosteEmulation:
                             ca.vertcat(m.q, m.qd), ca.vertcat(q, qd))
         rhs = ca.Function("rhs", [xs, us], [ca.vertcat(qd, qdd, (us - p) / self.hw.valve_tau)])
         x, u, h = ca.SX.sym("x", 4 * n), ca.SX.sym("p_target", 2 * n), ca.SX.sym("h")
-        z = _rk4_steps(rhs, x, u, h, self.hw.substeps)
+        z = rk4_steps(rhs, x, u, h, self.hw.substeps)
         return ca.Function(self.fname("plant"), [x, u, h], [z],
                            ["x", "p_target", "h"], ["x_next"], FUNCTION_OPTS)
 

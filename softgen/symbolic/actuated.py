@@ -21,7 +21,7 @@ from .actuators import McKibbenPairs, QbmoveSprings
 from .rigid import FUNCTION_OPTS, RigidDynamics
 
 
-def _rk4_steps(rhs, x, u, h, substeps: int):
+def rk4_steps(rhs, x, u, h, substeps: int):
     dt = h / substeps
     for _ in range(substeps):
         k1 = rhs(x, u)
@@ -32,7 +32,7 @@ def _rk4_steps(rhs, x, u, h, substeps: int):
     return x
 
 
-def _euler_steps(rhs, x, u, h, substeps: int):
+def euler_steps(rhs, x, u, h, substeps: int):
     dt = h / substeps
     for _ in range(substeps):
         x = x + dt * rhs(x, u)
@@ -49,7 +49,7 @@ def pneumatic_plant_fun(dyn: RigidDynamics, act: McKibbenPairs, *, substeps: int
     """
     if integrator not in ("rk4", "euler"):
         raise ValueError(f"integrator: expected 'rk4' or 'euler', got {integrator!r}")
-    step = _rk4_steps if integrator == "rk4" else _euler_steps
+    step = rk4_steps if integrator == "rk4" else euler_steps
     n = dyn.model.dof
     x, p, h = ca.SX.sym("x", 2 * n), ca.SX.sym("p", 2 * n), ca.SX.sym("h")
 
@@ -88,7 +88,7 @@ def electric_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: 
         return rhs(xx, uu, scale)
 
     return ca.Function(f"{dyn.name}_electric_plant", [x, u, scale, h],
-                       [_rk4_steps(f, x, u, h, substeps)], ["x", "u", "spring_scale", "h"],
+                       [rk4_steps(f, x, u, h, substeps)], ["x", "u", "spring_scale", "h"],
                        ["x_next"], FUNCTION_OPTS)
 
 
@@ -127,7 +127,7 @@ def servo_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: int
     qadd = (ua + ta - springs.d_a * qad) / springs.b_a
     qbdd = (ub + tb - springs.d_b * qbd) / springs.b_b
     rhs = ca.Function("rhs", [xs, rs, sc], [ca.vertcat(qd, qdd, qad, qadd, qbd, qbdd)])
-    x_next = _rk4_steps(lambda xx, uu: rhs(xx, uu, scale), x, ref, h, substeps)
+    x_next = rk4_steps(lambda xx, uu: rhs(xx, uu, scale), x, ref, h, substeps)
     *_, ua0, ub0 = parts(x, ref, scale)
     return ca.Function(f"{dyn.name}_servo_plant", [x, ref, scale, h],
                        [x_next, ca.vertcat(ua0, ub0)], ["x", "q_ref", "spring_scale", "h"],
@@ -159,5 +159,5 @@ def valve_plant_fun(dyn: RigidDynamics, act: McKibbenPairs, *, substeps: int) ->
     ts = ca.SX.sym("ts", 2 * n)
     rhs = ca.Function("rhs", [xs, us, ts], [ca.vertcat(qd, qdd, (sat - p) / ts)])
     return ca.Function(f"{dyn.name}_valve_plant", [x, pc, tp, h],
-                       [_rk4_steps(lambda xx, uu: rhs(xx, uu, tp), x, pc, h, substeps)], ["x", "p_c", "T_p", "h"],
+                       [rk4_steps(lambda xx, uu: rhs(xx, uu, tp), x, pc, h, substeps)], ["x", "p_c", "T_p", "h"],
                        ["x_next"], FUNCTION_OPTS)

@@ -1,0 +1,125 @@
+"""Metric records and checked claims (findings) of a run.
+
+A :class:`Metric` is a number with its quantity, unit, joint, phase and variant; a
+:class:`Metrics` collection flattens them to the names of ``metrics.json`` only when
+that file is written. A *finding* is one claim of the thesis checked against the
+run's metrics: a verdict computed by thresholds written in code, and the evidence
+formatted from the numbers.
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One number of a run, as a record; :attr:`key` is its flat name in metrics.json.
+
+    ``{prefix}{quantity}[_joint{j}][_phase{k}][_{suffix}]``: the names are the contract
+    of ``metrics.json``, the record is what code reads and groups.
+    """
+
+    quantity: str
+    value: float | None
+    unit: str = ""
+    joint: int | None = None
+    phase: int | None = None
+    prefix: str = ""
+    suffix: str = ""
+
+    @property
+    def key(self) -> str:
+        k = f"{self.prefix}{self.quantity}"
+        if self.joint is not None:
+            k += f"_joint{self.joint}"
+        if self.phase is not None:
+            k += f"_phase{self.phase}"
+        return k + (f"_{self.suffix}" if self.suffix else "")
+
+
+class Metrics:
+    """An ordered collection of :class:`Metric` records."""
+
+    def __init__(self, records: Iterable[Metric] = ()):
+        self.records: list[Metric] = list(records)
+
+    def add(self, quantity: str, value, unit: str = "", **kw) -> Metrics:
+        self.records.append(Metric(quantity, None if value is None else float(value), unit, **kw))
+        return self
+
+    def extend(self, other: Metrics, *, prefix: str = "", suffix: str = "",
+               keep: Callable[[Metric], bool] | None = None) -> Metrics:
+        """Add ``other``'s records under an extra prefix/suffix (a variant run)."""
+        for r in other.records:
+            if keep is None or keep(r):
+                self.records.append(dataclasses.replace(
+                    r, prefix=prefix + r.prefix,
+                    suffix="_".join(x for x in (r.suffix, suffix) if x)))
+        return self
+
+    def flat(self) -> dict[str, float | None]:
+        out = {}
+        for r in self.records:
+            if r.key in out:
+                raise ValueError(f"metrics: {r.key!r} recorded twice")
+            out[r.key] = r.value
+        return out
+
+    def units(self) -> dict[str, str]:
+        return {r.key: r.unit for r in self.records if r.unit}
+
+    def __getitem__(self, key: str) -> float | None:
+        return self.flat()[key]
+
+    def __iter__(self):
+        return iter(self.records)
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+
+
+#: What a finding may conclude; "not checked" when the metrics could not decide it.
+VERDICTS = ("reproduced", "partly reproduced", "not reproduced", "not checked")
+
+
+def finding(claim: str, verdict: str, evidence: str) -> dict:
+    """One checked claim: the thesis's claim, our verdict, the run's numbers behind it."""
+    if verdict not in VERDICTS:
+        raise ValueError(f"verdict {verdict!r}: expected one of {', '.join(VERDICTS)}")
+    return {"claim": claim, "verdict": verdict, "evidence": evidence}
+
+
+def absent(m: dict, keys: Iterable[str]) -> list[str]:
+    """The ``keys`` that ``m`` lacks (e.g. metrics only a full run computes)."""
+    return [k for k in keys if k not in m]
+
+
+def not_checked(claim: str, missing: list[str]) -> dict:
+    """The finding for a claim whose metrics this run did not compute."""
+    shown = ", ".join(f"`{k}`" for k in missing[:4]) + (" ..." if len(missing) > 4 else "")
+    return finding(claim, "not checked", f"metrics absent from this run (e.g. a quick run): "
+                                         f"{shown}")
+
+
+def graded(passed: Iterable[bool]) -> str:
+    """"reproduced" if every part of a claim passed, "not reproduced" if none did."""
+    passed = list(passed)
+    if all(passed):
+        return "reproduced"
+    return "partly reproduced" if any(passed) else "not reproduced"
+
+
+def num(x: float) -> str:
+    """A metric as evidence quotes it: three significant digits, kept ("1.00", not "1")."""
+    s = f"{x:#.3g}"
+    return s.replace(".e", "e") if "e" in s else s.rstrip(".")
+
+
+def times(a: float, b: float) -> str:
+    """``a`` as a multiple of ``b`` ("12.3×"), or why there is none."""
+    if b == 0:
+        return "undefined (0/0)" if a == 0 else "∞×"
+    return f"{num(a / b)}×"
