@@ -30,7 +30,7 @@ def _cmd_list(args) -> int:
 
 def _cmd_generate(args) -> int:
     from .bundle import GENERATED_DIR, generate
-    from .codegen.build import build, find_compiler
+    from .codegen.build import ensure_library, find_compiler
     from .model import list_models
     if args.all == bool(args.models):
         raise SoftgenError("generate: give MODEL names or --all (not both)")
@@ -44,9 +44,10 @@ def _cmd_generate(args) -> int:
         bundle = generate(name, out)
         msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
         if compiler is not None:
-            lib, secs = build(bundle)
-            msg += f", {'built' if secs else 'cached'} {lib.name}" + (f" in {secs:.2f} s"
-                                                                     if secs else "")
+            lib, secs, repaired = ensure_library(bundle)
+            msg += (f", {'rebuilt' if repaired else 'built' if secs else 'cached'} {lib.name}"
+                    + (f" in {secs:.2f} s" if secs else "")
+                    + (f" (cached library rejected: {repaired})" if repaired else ""))
         print(msg)
     return 0
 

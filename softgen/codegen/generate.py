@@ -130,7 +130,14 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         },
         **spec.extra,
     }
-    text = json.dumps(manifest, indent=2, sort_keys=False) + "\n"
+    try:   # strict JSON: a non-finite number is an error here, never "Infinity" on disk
+        text = json.dumps(manifest, indent=2, sort_keys=False, allow_nan=False) + "\n"
+    except ValueError:
+        from .manifest import validate_manifest   # names the offending key
+        validate_manifest(manifest, f"{spec.name}/manifest.json (not written)")
+        raise
+    from .manifest import validate_manifest   # what the loader will check, checked first
+    validate_manifest(manifest, f"{spec.name}/manifest.json (not written)")
     return {f"{spec.name}.c": c_src, f"{spec.name}.h": h_src, "manifest.json": text.encode()}
 
 
