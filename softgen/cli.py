@@ -120,7 +120,8 @@ def _cmd_estimate(args) -> int:
     import math
     from dataclasses import replace
 
-    from .estimation.csvlog import read_log, step_tolerance, write_estimates
+    from .errors import NonFiniteError
+    from .estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
     from .estimation.estimators import EstimatorConfig, StiffnessEstimator
     from .estimation.offline import run_offline
     from .model import load_model
@@ -160,6 +161,12 @@ def _cmd_estimate(args) -> int:
         est = StiffnessEstimator(model, replace(config, dt=dt))
     result = run_offline(est, Y)
     write_estimates(out, t, result, est)
+    bad = first_non_finite(t, result, est)
+    if bad is not None:
+        k, column, value = bad
+        raise NonFiniteError(f"estimate: diverged: {column} is {value!r} at t = {float(t[k])!r} s "
+                             f"(sample {k} of {log}); estimates written to {out} ('nan'/'inf' "
+                             f"where diverged, empty only where there is no estimate yet)")
     label = method if method == args.method else f"{method} ({args.method})"
     print(f"estimate: {len(t)} samples, dt {est.config.dt:.9g} s, method {label}, "
           f"delay {est.config.delay}, {time.perf_counter() - t0:.2f} s wall -> {out}")
@@ -221,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     except (SoftgenError, ValueError, FileNotFoundError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"softgen: error: {msg}", file=sys.stderr)
-        return 2
+        return getattr(exc, "exit_status", 2)
 
 
 if __name__ == "__main__":
