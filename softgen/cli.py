@@ -98,7 +98,8 @@ def _cmd_info(args) -> int:
 
 def _cmd_reproduce(args) -> int:
     from .experiments.runner import reproduce
-    results = reproduce(args.ids, Path(args.out), quick=args.quick, jobs=args.jobs)
+    results = reproduce(args.ids, Path(args.out), quick=args.quick, jobs=args.jobs,
+                        resume=args.resume)
     failed = [r["experiment"] for r in results if "error" in r]
     if failed:
         for r in results:
@@ -194,6 +195,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="results", help="output directory (default: results/)")
     s.add_argument("--quick", action="store_true", help="shortened runs")
     s.add_argument("--jobs", type=int, default=None, help="worker processes")
+    s.add_argument("--resume", action="store_true",
+                   help="skip experiments whose metrics.json matches the current code and "
+                        "config")
     s.set_defaults(func=_cmd_reproduce)
     s = sub.add_parser("bench", help="latency, sizes, build time, closed-loop speed")
     s.add_argument("models", nargs="*", metavar="MODEL")
@@ -225,6 +229,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
+    except KeyboardInterrupt:
+        print("softgen: error: interrupted", file=sys.stderr)
+        return 130
     except (SoftgenError, ValueError, FileNotFoundError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"softgen: error: {msg}", file=sys.stderr)
