@@ -1,7 +1,10 @@
 """The ``softgen`` command line: a thin argparse layer over the library.
 
 Exit status 0 on success; on bad input one line ``softgen: error: ...`` on stderr
-and status 2 (DESIGN.md section 2).
+and status 2 (DESIGN.md section 2). A result that is not finite (``estimate`` on a
+log that makes the estimator diverge) gives one such line and status 1; an
+interrupted ``reproduce`` (SIGINT, SIGTERM) status 130, after writing
+``report.md`` marked incomplete.
 """
 from __future__ import annotations
 

@@ -10,7 +10,17 @@ Two ways to call:
     (column vectors as 1-D arrays).
 ``f.inputs[i][...] = ...; f.call(); f.outputs[j]``
     Fast path for loops: no checks, no allocation (overhead measured by
-    ``softgen bench``).
+    ``softgen bench``). Bind ``ins, call, outs = f.inputs, f.call, f.outputs``
+    once before the loop. Each thread gets its own buffers (issue 16: two threads
+    used to read each other's results); ``inputs`` and ``outputs`` are tuples,
+    so rebinding a buffer (``f.inputs[0] = x``) raises instead of being ignored.
+
+Before loading, the manifest is checked against its schema
+(:mod:`softgen.codegen.manifest`), the C source and the model file against the
+manifest, the compiled library against its build record
+(:func:`softgen.codegen.build.verify_library`; rebuilt when it does not match),
+and the parameter vector against the library (``Y @ nominal ==
+inverse_dynamics`` at a seeded state).
 
 Every C return code is checked. Without a C compiler the bundle falls back to
 CasADi's own evaluation of the same functions, with a warning.
@@ -27,6 +37,8 @@ import numpy as np
 from ..codegen.build import (check_source, ensure_library, find_compiler, library_path,
                              read_manifest, verify_library)
 from ..errors import BundleError, ShapeError
+
+_get_ident = threading.get_ident
 
 class _Buffers(tuple):
     """The fixed buffers of a function: fill them in place, never rebind them.
@@ -127,7 +139,7 @@ class BundleFunction:
         return st
 
     def _state(self) -> _ThreadState:
-        if threading.get_ident() == self._owner:
+        if _get_ident() == self._owner:
             return self._main
         st = getattr(self._local, "state", None)
         if st is None:
@@ -137,6 +149,8 @@ class BundleFunction:
     @property
     def inputs(self) -> tuple:
         """The calling thread's input buffers (fill in place: ``f.inputs[i][:] = x``)."""
+        if _get_ident() == self._owner:     # the common case, kept short
+            return self._main.inputs
         return self._state().inputs
 
     @inputs.setter
@@ -147,6 +161,8 @@ class BundleFunction:
     @property
     def outputs(self) -> tuple:
         """The calling thread's output buffers (overwritten by every call)."""
+        if _get_ident() == self._owner:     # the common case, kept short
+            return self._main.outputs
         return self._state().outputs
 
     @outputs.setter
@@ -156,6 +172,8 @@ class BundleFunction:
     @property
     def call(self):
         """Evaluate the calling thread's input buffers into its output buffers."""
+        if _get_ident() == self._owner:     # the common case, kept short
+            return self._main.call
         return self._state().call
 
     def checked_call(self) -> None:
