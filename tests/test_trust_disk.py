@@ -19,7 +19,6 @@ import warnings
 import numpy as np
 import pytest
 
-from softgen import bundle as bundle_mod
 from softgen.bundle import GENERATED_DIR, check_inertia_positive_definite, generate
 from softgen.cli import main
 from softgen.codegen.build import (clean_orphans, ensure_library, library_path, read_manifest,
@@ -143,6 +142,18 @@ def test_orphan_temporaries_of_dead_builders_are_removed(tmp_path):
         p.write_bytes(b"x")
     assert clean_orphans(build) == [orphan]
     assert running.exists() and keep.exists() and not orphan.exists()
+
+
+def test_orphan_temporaries_of_generate_are_removed(tmp_path):
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    bundle = generate("pendulum_1link", tmp_path)
+    orphan = bundle / f".manifest.json.{dead.pid}.x1y2z3w4"
+    other = bundle / ".keep"
+    orphan.write_text("{")
+    other.write_text("")
+    generate("pendulum_1link", tmp_path)
+    assert not orphan.exists() and other.exists()
 
 
 # -- case 2: staleness for every model -------------------------------------------------

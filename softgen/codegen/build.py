@@ -207,23 +207,27 @@ def _pid_alive(pid: int) -> bool:
 ORPHAN_AGE = 3600.0
 
 
-def clean_orphans(build_dir: Path) -> list[Path]:
-    """Remove temporaries (``.lib*.<pid>.*``) of builds whose process is gone.
+def clean_orphans(build_dir: Path, prefixes: tuple[str, ...] = (".lib",)) -> list[Path]:
+    """Remove temporaries (``<prefix>*.<pid>.*``) of writers whose process is gone.
 
     A SIGKILL between ``mkstemp`` and ``os.replace`` leaves one behind; the
     process id in its name tells a running concurrent build from a dead one.
+    Library temporaries without a process id (older softgen) go once they are
+    :data:`ORPHAN_AGE` seconds old.
     """
     removed = []
     build_dir = Path(build_dir)
     if not build_dir.is_dir():
         return removed
     now = time.time()
-    for tmp in build_dir.glob(".lib*"):
+    for tmp in build_dir.iterdir():
+        if not tmp.name.startswith(prefixes) or not tmp.is_file():
+            continue
         parts = tmp.name.split(".")
         pid = next((int(p) for p in parts[3:] if p.isdigit()), None)
         try:
             dead = (not _pid_alive(pid)) if pid is not None else \
-                now - tmp.stat().st_mtime > ORPHAN_AGE
+                tmp.name.startswith(".lib") and now - tmp.stat().st_mtime > ORPHAN_AGE
             if dead:
                 tmp.unlink()
                 removed.append(tmp)
