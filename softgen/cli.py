@@ -1,7 +1,10 @@
 """The ``softgen`` command line: a thin argparse layer over the library.
 
 Exit status 0 on success; on bad input one line ``softgen: error: ...`` on stderr
-and status 2 (DESIGN.md section 2).
+and status 2 (DESIGN.md section 2). A result that is not finite (``estimate`` on a
+log that makes the estimator diverge) gives one such line and status 1; an
+interrupted ``reproduce`` (SIGINT, SIGTERM) status 130, after writing
+``report.md`` marked incomplete.
 """
 from __future__ import annotations
 
@@ -30,7 +33,7 @@ def _cmd_list(args) -> int:
 
 def _cmd_generate(args) -> int:
     from .bundle import GENERATED_DIR, generate
-    from .codegen.build import build, find_compiler
+    from .codegen.build import ensure_library, find_compiler
     from .model import list_models
     if args.all == bool(args.models):
         raise SoftgenError("generate: give MODEL names or --all (not both)")
@@ -44,9 +47,10 @@ def _cmd_generate(args) -> int:
         bundle = generate(name, out)
         msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
         if compiler is not None:
-            lib, secs = build(bundle)
-            msg += f", {'built' if secs else 'cached'} {lib.name}" + (f" in {secs:.2f} s"
-                                                                     if secs else "")
+            lib, secs, repaired = ensure_library(bundle)
+            msg += (f", {'rebuilt' if repaired else 'built' if secs else 'cached'} {lib.name}"
+                    + (f" in {secs:.2f} s" if secs else "")
+                    + (f" (cached library rejected: {repaired})" if repaired else ""))
         print(msg)
     return 0
 
@@ -97,7 +101,8 @@ def _cmd_info(args) -> int:
 
 def _cmd_reproduce(args) -> int:
     from .experiments.runner import reproduce
-    results = reproduce(args.ids, Path(args.out), quick=args.quick, jobs=args.jobs)
+    results = reproduce(args.ids, Path(args.out), quick=args.quick, jobs=args.jobs,
+                        resume=args.resume)
     failed = [r["experiment"] for r in results if "error" in r]
     if failed:
         for r in results:
@@ -119,7 +124,8 @@ def _cmd_estimate(args) -> int:
     import math
     from dataclasses import replace
 
-    from .estimation.csvlog import read_log, step_tolerance, write_estimates
+    from .errors import NonFiniteError
+    from .estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
     from .estimation.estimators import EstimatorConfig, StiffnessEstimator
     from .estimation.offline import run_offline
     from .model import load_model
@@ -159,6 +165,12 @@ def _cmd_estimate(args) -> int:
         est = StiffnessEstimator(model, replace(config, dt=dt))
     result = run_offline(est, Y)
     write_estimates(out, t, result, est)
+    bad = first_non_finite(t, result, est)
+    if bad is not None:
+        k, column, value = bad
+        raise NonFiniteError(f"estimate: diverged: {column} is {value!r} at t = {float(t[k])!r} s "
+                             f"(sample {k} of {log}); estimates written to {out} ('nan'/'inf' "
+                             f"where diverged, empty only where there is no estimate yet)")
     label = method if method == args.method else f"{method} ({args.method})"
     print(f"estimate: {len(t)} samples, dt {est.config.dt:.9g} s, method {label}, "
           f"delay {est.config.delay}, {time.perf_counter() - t0:.2f} s wall -> {out}")
@@ -186,6 +198,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="results", help="output directory (default: results/)")
     s.add_argument("--quick", action="store_true", help="shortened runs")
     s.add_argument("--jobs", type=int, default=None, help="worker processes")
+    s.add_argument("--resume", action="store_true",
+                   help="skip experiments whose metrics.json matches the current code and "
+                        "config")
     s.set_defaults(func=_cmd_reproduce)
     s = sub.add_parser("bench", help="latency, sizes, build time, closed-loop speed")
     s.add_argument("models", nargs="*", metavar="MODEL")
@@ -217,10 +232,13 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
+    except KeyboardInterrupt:
+        print("softgen: error: interrupted", file=sys.stderr)
+        return 130
     except (SoftgenError, ValueError, FileNotFoundError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"softgen: error: {msg}", file=sys.stderr)
-        return 2
+        return getattr(exc, "exit_status", 2)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,7 @@
 """Metrics of a ``softgen reproduce`` run -> ``report.md`` beside the thesis's numbers."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 
@@ -37,18 +38,22 @@ def _claims(findings: list[dict]) -> list[str]:
               for f in findings), ""]
 
 
-def write_report(results: list[dict], path: Path) -> None:
+def write_report(results: list[dict], path: Path, *, incomplete: str | None = None) -> None:
     """One table per experiment: metric | ours | thesis | ours/thesis.
 
     Every metric we computed gets a row; a thesis number we have no metric for
     gets a row too (so a missing comparison is visible, not hidden). Experiments
     with ``findings`` get a claim | verdict | evidence table before it, and all
-    verdicts are summed up at the top.
+    verdicts are summed up at the top. ``incomplete`` (why the run stopped, what
+    did not finish) marks the report as incomplete at its top.
     """
     lines = ["# softgen: reproduction report", "",
              "Numbers under *ours* are computed by the run that wrote this report; "
              "*thesis* repeats what the thesis prints for the same quantity (— where it "
              "reports none).", ""]
+    if incomplete:
+        lines += [f"**Incomplete run**: {_cell(incomplete)}. Only the experiments below "
+                  "finished in this run.", ""]
     lines += _summary(results)
     for res in results:
         exp = res["experiment"]
@@ -78,4 +83,10 @@ def write_report(results: list[dict], path: Path) -> None:
             lines.append("")
             lines += [f"![{f}]({exp}/{f})" for f in figs]
         lines.append("")
-    path.write_text("\n".join(lines))
+    # Write and rename: an interrupted write never leaves half a report.
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text("\n".join(lines))
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)

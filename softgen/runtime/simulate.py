@@ -190,6 +190,7 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
                   f"{n_done / steps * 100:.0f} %, ETA {el * (steps - n_done) / n_done:.0f} s",
                   file=sys.stderr, flush=True)
     wall = time.perf_counter() - t_wall
+    loop.release_output(1)      # the cached loop must not keep this trace alive
     Y = Y[:n_done]
     signals = {r.name: Y[:, rows.slice(r.name)] for r in rows}
     t = signals.pop(TIME)[:, 0].copy()
