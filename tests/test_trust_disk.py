@@ -38,7 +38,7 @@ def one_line(capsys) -> str:
     return err
 
 
-def copy_bundle(tmp_path, name: str, *, with_build: bool) -> "os.PathLike":
+def copy_bundle(tmp_path, name: str, *, with_build: bool) -> os.PathLike:
     if with_build:
         ensure_library(GENERATED_DIR / name)     # cached normally; builds if needed
     dst = tmp_path / name

@@ -56,7 +56,7 @@ def test_bad_row_early_in_a_million_row_log_is_reported_at_once(tmp_path):
     line = "0.0,0.1,-0.3,0.5\n"
     with path.open("w") as fh:
         fh.write("t,q1,qa1,qb1\n0.0,0.1,-0.3,0.5\n0.005,abc,-0.3,0.5\n")
-        for k in range(1_000_000):
+        for _ in range(1_000_000):
             fh.write(line)
     tracemalloc.start()
     t0 = time.perf_counter()
