@@ -18,7 +18,8 @@ import numpy as np
 from .codegen.generate import BundleSpec, Generated, content_hash, write_bundle
 from .control.slotine_li import closed_loop_fun, controller_fun, plant_step_fun
 from .errors import BundleError, ModelError
-from .model import MODELS_DIR, RobotModel, list_models, load_model
+from .model import MAX_NAME, MODELS_DIR, RobotModel, list_models, load_model
+from .runtime.library import Bundle
 from .symbolic.rigid import RigidDynamics
 
 GENERATED_DIR = MODELS_DIR.parent / "generated"
@@ -304,3 +305,25 @@ def generate(name_or_path: str | Path, out_root: Path = GENERATED_DIR,
 def generate_all(out_root: Path = GENERATED_DIR) -> list[Path]:
     """Bundles of every model in ``models/``."""
     return [generate(name, out_root) for name in list_models()]
+
+
+def load_bundle(name_or_path: str | Path, *, generated_root: Path | None = None,
+                **kwargs) -> Bundle:
+    """Load ``generated/<model>`` (or a bundle directory path), checked against its model.
+
+    A bare name (no path separator) is the bundle of that model under
+    ``generated_root``, even if a directory of that name is in the current
+    directory; give ``./name`` or another path to load a directory. The bundle is
+    refused if its model file changed since generation (:func:`check_model_unchanged`);
+    without a C compiler its functions are rebuilt from the model file.
+    """
+    kwargs.setdefault("model_check", check_model_unchanged)
+    kwargs.setdefault("fallback", casadi_functions)
+    text = str(name_or_path)
+    if isinstance(name_or_path, Path) or "/" in text or "\\" in text or text in (".", ".."):
+        return Bundle(Path(name_or_path), **kwargs)
+    if not (len(text) <= MAX_NAME and text.isascii() and text.isidentifier()):
+        raise BundleError(f"model name {text[:40]!r}{'...' if len(text) > 40 else ''}: "
+                          f"expected a C identifier of at most {MAX_NAME} characters, or a "
+                          "path to a bundle directory")
+    return Bundle(Path(generated_root or GENERATED_DIR) / text, **kwargs)

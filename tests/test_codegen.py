@@ -16,7 +16,7 @@ from softgen.codegen.generate import library_name, render
 from softgen.errors import BuildError, BundleError
 from softgen.model import list_models, load_model
 from softgen.runtime import library
-from softgen.runtime.library import load_bundle
+from softgen.bundle import load_bundle
 
 
 @pytest.fixture(scope="module")

@@ -26,7 +26,7 @@ from softgen.codegen.build import (clean_orphans, ensure_library, library_path, 
 from softgen.codegen.manifest import validate_manifest
 from softgen.errors import BundleError, ModelError
 from softgen.model import MODELS_DIR, load_model
-from softgen.runtime.library import load_bundle
+from softgen.bundle import load_bundle
 
 PENDULUM = (MODELS_DIR / "pendulum_1link.toml").read_text()
 

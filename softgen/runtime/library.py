@@ -272,7 +272,7 @@ class Bundle:
     """
 
     def __init__(self, path: Path, *, build_missing: bool = True, backend: str = "auto",
-                 cc: str | None = None):
+                 cc: str | None = None, model_check=None, fallback=None):
         if backend not in ("auto", "c", "casadi"):
             raise ValueError(f"backend: expected 'auto', 'c' or 'casadi', got {backend!r}")
         self.path = Path(path)
@@ -282,8 +282,11 @@ class Bundle:
         self.manifest = read_manifest(self.path)      # schema-checked (codegen/manifest.py)
         self.name = self.manifest["model"]
         check_source(self.path, self.manifest)
-        from ..bundle import check_model_unchanged
-        check_model_unchanged(self.manifest, self.path)
+        # The model-aware parts are given by the caller (softgen.bundle.load_bundle): the
+        # runtime knows nothing of model files or the symbolic layer.
+        if model_check is not None:
+            model_check(self.manifest, self.path)
+        self._fallback = fallback
         self.parameter_names = list(self.manifest["parameters"]["names"])
         self.parameter_nominal = np.array(self.manifest["parameters"]["nominal"], dtype=float)
         self.build_seconds = 0.0
@@ -367,8 +370,10 @@ class Bundle:
                                       f"({str(exc).splitlines()[-1]}); regenerate the "
                                       "bundle") from None
         else:
-            from ..bundle import casadi_functions  # the symbolic layer, only for the fallback
-            fns = casadi_functions(self.manifest)
+            if self._fallback is None:
+                raise BundleError(f"{self.name}: no compiled library and no way to rebuild the "
+                                  "functions here; load it with softgen.bundle.load_bundle")
+            fns = self._fallback(self.manifest)
         return {name: BundleFunction(fns[name], sig) for name, sig in sigs.items()}
 
     def __getitem__(self, name: str):
@@ -387,27 +392,3 @@ class Bundle:
 
     def __repr__(self) -> str:
         return f"Bundle({self.name!r}, backend={self.backend!r}, functions={list(self.functions)})"
-
-
-#: Longest model name accepted (it becomes file names such as
-#: ``build/lib<name>_<16 hex>.so`` and C symbols ``<name>_<quantity>``).
-MAX_NAME = 64
-
-
-def load_bundle(name_or_path: str | Path, *, generated_root: Path | None = None,
-                **kwargs) -> Bundle:
-    """Load ``generated/<model>`` (or a bundle directory path).
-
-    A bare name (no path separator) is the bundle of that model under
-    ``generated_root``, even if a directory of that name is in the current
-    directory; give ``./name`` or another path to load a directory.
-    """
-    from ..bundle import GENERATED_DIR
-    text = str(name_or_path)
-    if isinstance(name_or_path, Path) or "/" in text or "\\" in text or text in (".", ".."):
-        return Bundle(Path(name_or_path), **kwargs)
-    if not (len(text) <= MAX_NAME and text.isascii() and text.isidentifier()):
-        raise BundleError(f"model name {text[:40]!r}{'...' if len(text) > 40 else ''}: "
-                          f"expected a C identifier of at most {MAX_NAME} characters, or a "
-                          "path to a bundle directory")
-    return Bundle(Path(generated_root or GENERATED_DIR) / text, **kwargs)
