@@ -20,15 +20,34 @@ from .errors import SoftgenError
 def _cmd_list(args) -> int:
     from .experiments.registry import experiment_ids, get
     from .model import list_models, load_model
+    models = [load_model(name) for name in list_models()]
+    w = max((len(m.name) for m in models), default=0)
+    k = max((len(m.kind) for m in models), default=0)
     print("models:")
-    for name in list_models():
-        m = load_model(name)
-        print(f"  {name:<20} {m.kind:<8} {m.dof} dof  {m.description}")
+    for m in models:
+        print(f"  {m.name:<{w}}  {m.kind:<{k}}  {m.dof:>2} dof  {m.description}")
+    ids = experiment_ids()
+    w = max((len(i) for i in ids), default=0)
     print("experiments:")
-    for exp_id in experiment_ids():
+    for exp_id in ids:
         e = get(exp_id)
-        print(f"  {exp_id:<24} {e.title}  [{e.section}]")
+        print(f"  {exp_id:<{w}}  {e.title}  [{e.section}]")
     return 0
+
+
+def _output_dir(path: str, flag: str) -> Path:
+    """``path`` as a writable directory (created if absent), checked before any work."""
+    import os
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise SoftgenError(f"{flag} {p}: exists and is not a directory; give a directory")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SoftgenError(f"{flag} {p}: cannot create the directory ({exc.strerror})") from None
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise SoftgenError(f"{flag} {p}: directory is not writable")
+    return p
 
 
 def _cmd_generate(args) -> int:
@@ -38,7 +57,7 @@ def _cmd_generate(args) -> int:
     if args.all == bool(args.models):
         raise SoftgenError("generate: give MODEL names or --all (not both)")
     names = list_models() if args.all else args.models
-    out = Path(args.out) if args.out else GENERATED_DIR
+    out = _output_dir(args.out, "--out") if args.out else GENERATED_DIR
     compiler = None if args.no_build else find_compiler()
     if not args.no_build and compiler is None:
         print("softgen: warning: no C compiler found; wrote sources only", file=sys.stderr)
@@ -101,8 +120,12 @@ def _cmd_info(args) -> int:
 
 def _cmd_reproduce(args) -> int:
     from .experiments.runner import reproduce
-    results = reproduce(args.ids, Path(args.out), quick=args.quick, jobs=args.jobs,
-                        resume=args.resume)
+    if args.jobs is not None and args.jobs < 1:
+        raise SoftgenError(f"reproduce: --jobs: expected a positive integer, got {args.jobs}")
+    out = _output_dir(args.out, "--out")
+    results = reproduce(args.ids, out, quick=args.quick, jobs=args.jobs,
+                        resume=args.resume, show_progress=True if args.progress else None,
+                        full_traces=args.full_traces)
     failed = [r["experiment"] for r in results if "error" in r]
     if failed:
         for r in results:
@@ -155,6 +178,15 @@ def _cmd_estimate(args) -> int:
     out = Path(args.out) if args.out else log.with_name(f"{log.stem}_estimate.csv")
     if out.resolve() == log.resolve():
         raise SoftgenError(f"estimate: --out {out} is the log itself; choose another file")
+    if out.is_dir():
+        raise SoftgenError(f"estimate: --out {out} is a directory; give a file name")
+    if out.exists() and not args.force:
+        raise SoftgenError(f"estimate: --out {out} exists; add --force to overwrite it")
+    if not out.parent.is_dir():
+        raise SoftgenError(f"estimate: --out {out}: no directory {out.parent}")
+    import os
+    if not os.access(out.parent, os.W_OK):
+        raise SoftgenError(f"estimate: --out {out}: directory {out.parent} is not writable")
     config = EstimatorConfig(method, dt=args.dt, powers=powers, p0=args.p0)
     est = StiffnessEstimator(model, config)      # checks the settings before reading the log
     t, Y, dt = read_log(log, est.measurements, min_rows=est.config.delay + 2)
@@ -197,7 +229,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("ids", nargs="*", metavar="ID")
     s.add_argument("--out", default="results", help="output directory (default: results/)")
     s.add_argument("--quick", action="store_true", help="shortened runs")
-    s.add_argument("--jobs", type=int, default=None, help="worker processes")
+    s.add_argument("--jobs", type=int, default=None,
+                   help="worker processes (default: the number of CPUs)")
+    s.add_argument("--progress", action="store_true",
+                   help="progress lines on stderr even when it is not a terminal")
+    s.add_argument("--full-traces", action="store_true",
+                   help="keep every sample of the traces in float64 (large; default: "
+                        "float32, decimated for figures)")
     s.add_argument("--resume", action="store_true",
                    help="skip experiments whose metrics.json matches the current code and "
                         "config")
@@ -224,6 +262,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="sample time; must agree with the log's median time step")
     s.add_argument("--powers", metavar="1,3,5,7", help="RLS regressor exponents")
     s.add_argument("--p0", type=float, help="initial RLS covariance (times I)")
+    s.add_argument("--force", action="store_true", help="overwrite an existing --out file")
     s.set_defaults(func=_cmd_estimate)
     return p
 

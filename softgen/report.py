@@ -69,13 +69,18 @@ def write_report(results: list[dict], path: Path, *, incomplete: str | None = No
                          + (", quick run" if cfg.get("quick") else "") + ".")
             lines.append("")
         lines += _claims(res.get("findings", []))
-        lines += ["| metric | ours | thesis | ours / thesis |", "|---|---|---|---|"]
+        lines += ["| metric | unit | ours | thesis | ours / thesis |", "|---|---|---|---|---|"]
         ours, thesis = res["metrics"], res.get("thesis", {})
+        units = res.get("units", {})
         for key in list(ours) + [k for k in thesis if k not in ours]:
             o, t = ours.get(key), thesis.get(key)
             ratio = (o / t) if isinstance(o, (int, float)) and isinstance(t, (int, float)) \
                 and t != 0 else None
-            lines.append(f"| {key} | {_fmt(o)} | {_fmt(t)} | {_fmt(ratio)} |")
+            lines.append(f"| {key} | {_cell(units.get(key, ''))} | {_fmt(o)} | {_fmt(t)} | "
+                         f"{_fmt(ratio)} |")
+        if res.get("warnings"):
+            lines += ["", "Warnings raised during the run:", ""]
+            lines += [f"- {_cell(w)}" for w in res["warnings"]]
         if res.get("discussion"):
             lines += ["", res["discussion"].strip()]
         figs = sorted(p.name for p in (path.parent / exp).glob("*.png"))

@@ -135,7 +135,7 @@ def run_case(arm, kind: str, c: Ch10AdaptiveConfig, dt: float) -> Trace:
     n_run = int(round(c.duration / dt / chunk)) * chunk
     ctrl = {f"ctrl.{k}": v for k, v in gains.items()}
     pre = simulate(d, steps=n_pre, k0=-n_pre, x0=x0, params=ctrl, chunk=chunk,
-                   record=["plant.q"], label=f"ch10 {kind} preset")
+                   record=RECORD, label=f"ch10 {kind} preset")
     tr = simulate(d, steps=n_run, k0=0, x0=pre.final_state, params={**ctrl, "ctrl.kpi": c.kpi},
                   chunk=chunk, record=RECORD, label=f"ch10 {kind}")
     tr.wall_seconds += pre.wall_seconds
@@ -173,9 +173,7 @@ def run(c: Ch10AdaptiveConfig, out) -> Metrics:
           (c.preset + c.duration) / tr.wall_seconds, "s/s")
     m.add("pressure_min_pa", tr["ctrl.p"].min(), "Pa")
     m.add("pressure_max_pa", tr["ctrl.p"].max(), "Pa")
-    np.savez_compressed(out / "traces.npz", t=tr.t.astype(np.float32),
-                        **{k.replace(".", "_"): v[::10].astype(np.float32)
-                           for k, v in tr.signals.items()})
+    tr.save(out / "traces.npz")
     if c.compare_open_loop:
         ol = run_case(arm, "open_loop", c, c.dt)
         m.extend(_metrics(ol, arm.Pi_nominal, c), prefix="open_loop_",

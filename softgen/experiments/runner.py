@@ -15,6 +15,7 @@ import hashlib
 import json
 import math
 import os
+import warnings
 import signal
 import sys
 import tempfile
@@ -28,6 +29,7 @@ from typing import TextIO
 
 from ..errors import Interrupted
 from ..report import write_report
+from ..runtime.simulate import progress_context, set_full_traces, set_progress
 from .registry import VERDICTS, Config, Experiment, Metrics, experiment_ids, finding, get
 
 #: Seconds to wait for killed workers before giving up on them.
@@ -90,7 +92,12 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None) -
     out = Path(out_root) / exp_id
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    metrics = exp.run(config, out)
+    # Library warnings (a legend that is slow to place, an infeasible pressure) belong
+    # to the run's record, not to the terminal: they are kept in metrics.json and shown
+    # in the report.
+    with warnings.catch_warnings(record=True) as caught, progress_context(exp_id):
+        warnings.simplefilter("always")
+        metrics = exp.run(config, out)
     units = {}
     if isinstance(metrics, Metrics):
         units, metrics = metrics.units(), metrics.flat()
@@ -105,6 +112,9 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None) -
               "wall_seconds": time.perf_counter() - t0}
     if units:
         result["units"] = units
+    seen = list(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
+    if seen:
+        result["warnings"] = seen
     if exp.discussion:
         result["discussion"] = exp.discussion
     if findings is not None:
@@ -142,10 +152,12 @@ def _safe_run(exp_id: str, out_root: Path, quick: bool, code: str | None = None)
                 "traceback": traceback.format_exc()}
 
 
-def _worker_init() -> None:
+def _worker_init(show_progress: bool | None = None, full_traces: bool = False) -> None:
     """Workers leave SIGINT and SIGTERM to the main process, which stops them."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    set_progress(show_progress)
+    set_full_traces(full_traces)
 
 
 class _Stop(BaseException):
@@ -175,7 +187,8 @@ def _resumable(exp_id: str, out_root: Path, expected: str) -> dict | None:
 
 def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
               jobs: int | None = None, progress: TextIO | None = None,
-              resume: bool = False) -> list[dict]:
+              resume: bool = False, show_progress: bool | None = None,
+              full_traces: bool = False) -> list[dict]:
     """Run ``ids`` (default: all) with ``jobs`` worker processes; write ``report.md``.
 
     Returns the results in the order of ``ids``; a failed experiment's entry has
@@ -204,7 +217,10 @@ def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
                 print(f"[resume] {i}: metrics.json matches the current code and config; "
                       "kept", file=progress, flush=True)
     todo = [i for i in ids if i not in results]
-    jobs = max(1, min(jobs or len(todo) or 1, len(todo) or 1))
+    # Default: one worker per CPU (more only adds load), never more than experiments.
+    jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo) or 1))
+    set_progress(show_progress)
+    set_full_traces(full_traces)
     t0 = time.perf_counter()
     print(f"reproducing {len(todo)} experiment(s) with {jobs} worker(s) -> {out_root}",
           file=progress, flush=True)
@@ -219,7 +235,8 @@ def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
                 results[exp_id] = _safe_run(exp_id, out_root, quick, code)
                 _report_line(results[exp_id], k, len(todo), t0, progress)
         else:
-            _run_pool(todo, out_root, quick, code, jobs, results, t0, progress)
+            _run_pool(todo, out_root, quick, code, jobs, results, t0, progress,
+                      (show_progress, full_traces))
     except _Stop as stop:
         stopped = stop.signum
     finally:
@@ -236,14 +253,32 @@ def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
         raise Interrupted(f"reproduce: interrupted by {name}; {len(ordered)} of {len(ids)} "
                           f"experiment(s) finished; {out_root / 'report.md'} is marked "
                           "incomplete (re-run with --resume to finish)")
-    write_report(ordered, out_root / "report.md")
+    # The report covers every experiment with a metrics.json in out_root, so a partial
+    # re-run keeps the other sections (the ones run now replace their old results).
+    write_report(_all_results(out_root, results), out_root / "report.md")
     print(f"report: {out_root / 'report.md'}", file=progress, flush=True)
     return ordered
 
 
+def _all_results(out_root: Path, fresh: dict[str, dict]) -> list[dict]:
+    """This run's results and every other registered experiment's saved metrics.json."""
+    out = []
+    for i in experiment_ids():
+        if i in fresh:
+            out.append(fresh[i])
+            continue
+        try:
+            saved = json.loads((out_root / i / "metrics.json").read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(saved, dict) and saved.get("experiment") == i and "metrics" in saved:
+            out.append(saved)
+    return out
+
+
 def _run_pool(todo: list[str], out_root: Path, quick: bool, code: str, jobs: int,
-              results: dict, t0: float, progress: TextIO) -> None:
-    pool = ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init)
+              results: dict, t0: float, progress: TextIO, init: tuple) -> None:
+    pool = ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init, initargs=init)
     futures = {}
     try:
         futures = {pool.submit(_safe_run, i, out_root, quick, code): i for i in todo}
