@@ -36,17 +36,21 @@ def _cmd_list(args) -> int:
 
 
 def _output_dir(path: str, flag: str) -> Path:
-    """``path`` as a writable directory (created if absent), checked before any work."""
+    """``path`` as a directory that can be written (or created), checked before any work.
+
+    Nothing is created here: a run that fails later leaves no empty directory behind.
+    """
     import os
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise SoftgenError(f"{flag} {p}: exists and is not a directory; give a directory")
-    try:
-        p.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SoftgenError(f"{flag} {p}: cannot create the directory ({exc.strerror})") from None
-    if not os.access(p, os.W_OK | os.X_OK):
-        raise SoftgenError(f"{flag} {p}: directory is not writable")
+    base = p
+    while not base.exists():
+        base = base.parent
+    if not base.is_dir():
+        raise SoftgenError(f"{flag} {p}: {base} is not a directory")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise SoftgenError(f"{flag} {p}: {base} is not writable")
     return p
 
 
