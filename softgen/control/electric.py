@@ -378,7 +378,9 @@ class ElectricArm:
             G2 = ca.substitute(ca.jacobian(qdd_a, alpha), alpha, zero)
             em = qm - q_ref
             if _is_adaptive(variant):
-                # Theorem 8 under the adapted motor model: b̂ α = b̂(q̈_{j,d} − Λ ė) − k s.
+                # Theorem 8 under the adapted motor model: b̂ α = b̂(q̈_{j,d} − Λ ė) − k s,
+                # solved by regularised least squares (finite for b̂ = 0, where the
+                # adapted model says nothing about α).
                 b_hat = Z["pi_m_hat"][:2 * n]
                 lam_m, k_m = G["lam_m"], G["k_m"]
                 M = ca.diag(b_hat) @ (ca.DM.eye(2 * n) - G2 - ca.diag(lam_m) @ G1) \
@@ -402,7 +404,7 @@ class ElectricArm:
             filt_next = [q_ref + dt * qd_c_next, qd_c_next]
 
         # Inner loop, per motor (a then b).
-        te = ca.vertcat(*self.spring_torques(q, qa, qb))
+        te = ca.vertcat(*self.spring_torques(q + dt / 2 * qd, qa + dt / 2 * qad, qb + dt / 2 * qbd))
         em, emd = qm - q_ref, qmd - qd_ref
         s = self.springs
         if _is_adaptive(variant):
@@ -438,11 +440,13 @@ class ElectricArm:
                  "(thesis ch. 11)") for v in VARIANTS]
 
     # -- helpers (numbers, not generated code) ------------------------------------------------
-    def initial_state(self, variant: str, x0, *, pi_hat0=None, pi_m_hat0=None) -> np.ndarray:
-        """z at t = 0: ξ = 0; π̂, π̂_m as given (default 0, as section 11.2); the filter
-        at the measured motor positions and velocities."""
+    def initial_state(self, variant: str, x0, *, xi0=None, pi_hat0=None, pi_m_hat0=None
+                      ) -> np.ndarray:
+        """z at t = 0: ξ as given (default 0; see :func:`integral_start`); π̂, π̂_m as
+        given (default 0, as section 11.2); the filter at the measured motor positions
+        and velocities."""
         n, x0 = self.n, np.asarray(x0, dtype=float).ravel()
-        blocks = {"xi": np.zeros(n),
+        blocks = {"xi": np.zeros(n) if xi0 is None else xi0,
                   "pi_hat": np.zeros(self.n_params) if pi_hat0 is None else pi_hat0,
                   "pi_m_hat": np.zeros(4 * n) if pi_m_hat0 is None else pi_m_hat0,
                   "q_c": np.concatenate([x0[2 * n:3 * n], x0[4 * n:5 * n]]),
@@ -632,27 +636,83 @@ def electric_arm(model: RobotModel, *, derivatives: str = "model") -> ElectricAr
     return ElectricArm(model, derivatives=derivatives)
 
 
-def initial_plant_state(arm: ElectricArm, ref_fn, t0: float = 0.0, *, h: float = 1e-6
-                        ) -> np.ndarray:
+def _spring_pair_torques(arm: ElectricArm, tau, sigma) -> tuple[np.ndarray, np.ndarray]:
+    phi_a, phi_b = arm.springs.preset(tau, sigma)
+    s = arm.springs
+    return s.k_a * np.sinh(s.a_a * phi_a), s.k_b * np.sinh(s.a_b * phi_b)
+
+
+def quasi_steady_stiffness(arm: ElectricArm, tau, sigma_d, ksigma, delta) -> np.ndarray:
+    """σ at which eq. 11.4's stiffness row is at rest without the integral:
+    k_σ (σ − σ_d) = −Δ (τ^e_a − τ^e_b), with the springs co-contracted to give σ at the
+    total torque ``tau`` (rates and γ neglected). This is the bounded stiffness error of
+    Remark 10; starting there avoids the start-up jump of the co-contraction."""
+    tau, sigma_d = np.asarray(tau, float).ravel(), np.asarray(sigma_d, float).ravel()
+    ksigma = np.broadcast_to(np.asarray(ksigma, float).ravel(), tau.shape)
+    delta = np.broadcast_to(np.asarray(delta, float).ravel(), tau.shape)
+    s = arm.springs
+    a, k = 0.5 * (s.a_a + s.a_b), 0.5 * (s.k_a + s.k_b)
+    # preset needs (σ/(a k))² − (τ/k)² ≥ 4: the least co-contraction.
+    lo = a * k * np.sqrt(4.0 + (tau / k) ** 2) * (1 + 1e-9)
+    out = np.array(sigma_d, dtype=float)
+    for i in range(tau.size):
+        def g(x):
+            sig = np.array(sigma_d, dtype=float)
+            sig[i] = x
+            ta, tb = _spring_pair_torques(arm, tau, sig)
+            return ksigma[i] * (x - sigma_d[i]) + delta[i] * (ta[i] - tb[i])
+        a_, b_ = lo[i], max(sigma_d[i], lo[i] * (1 + 1e-6))
+        if g(a_) > 0 or g(b_) < 0:
+            raise ValueError(f"sigma_d: no quasi-steady stiffness on joint {i} between "
+                             f"{a_} and {b_}")
+        for _ in range(100):                       # bisection: g increases with σ
+            m = 0.5 * (a_ + b_)
+            a_, b_ = (m, b_) if g(m) < 0 else (a_, m)
+        out[i] = 0.5 * (a_ + b_)
+    return out
+
+
+def initial_plant_state(arm: ElectricArm, ref_fn, t0: float = 0.0, *, ksigma=None,
+                        delta=None, h: float = 1e-6) -> np.ndarray:
     """Plant state x (6n) on the references at ``t0``: q = q_d, q̇ = q̇_d, and motors
     whose springs give the torque of the reference motion, −(B q̈_d + C q̇_d + G), at
     the stiffness σ_d (:meth:`QbmoveSprings.preset`); motor velocities by a central
     difference of that preset over ±``h``. ``ref_fn(t)`` returns the 9n reference column.
+
+    With ``ksigma`` and ``delta`` (the variants without integral) the stiffness is the
+    :func:`quasi_steady_stiffness` (σ_d plus the Δ offset) instead of σ_d.
     """
     n = arm.n
     q, qd, qdd = (ca.SX.sym(s, n) for s in ("q", "qd", "qdd"))
     id_fun = ca.Function("id", [q, qd, qdd], [arm.inverse_dynamics(q, qd, qd, qdd)])
+    offset = np.zeros(n)
+    if ksigma is not None and delta is not None:
+        r = np.asarray(ref_fn(t0), float).ravel()
+        tau = -np.array(id_fun(r[:n], r[n:2 * n], r[2 * n:3 * n])).ravel()
+        offset = quasi_steady_stiffness(arm, tau, r[5 * n:6 * n], ksigma, delta) \
+            - r[5 * n:6 * n]
 
     def phis(t):
         r = np.asarray(ref_fn(t), float).ravel()
         tau = -np.array(id_fun(r[:n], r[n:2 * n], r[2 * n:3 * n])).ravel()
-        return r, np.concatenate(arm.springs.preset(tau, r[5 * n:6 * n]))
+        return r, np.concatenate(arm.springs.preset(tau, r[5 * n:6 * n] + offset))
 
     r, phi = phis(t0)
     phid = (phis(t0 + h)[1] - phis(t0 - h)[1]) / (2 * h)
     q0, qd0 = r[:n], r[n:2 * n]
     return np.concatenate([q0, qd0, q0 - phi[:n], qd0 - phid[:n], q0 - phi[n:],
                            qd0 - phid[n:]])
+
+
+def integral_start(arm: ElectricArm, x0, delta, ki) -> np.ndarray:
+    """ξ(0) = −Δ (τ^e_a − τ^e_b) / k_I at ``x0``: the integral state that already holds
+    the Δ offset (eq. 11.8 at rest with e_σ = 0), so the integral variants start
+    without the co-contraction jump."""
+    n, x0 = arm.n, np.asarray(x0, float).ravel()
+    q, qa, qb = x0[:n], x0[2 * n:3 * n], x0[4 * n:5 * n]
+    s = arm.springs
+    ta, tb = s.k_a * np.sinh(s.a_a * (q - qa)), s.k_b * np.sinh(s.a_b * (q - qb))
+    return -np.asarray(delta, float) * (ta - tb) / np.asarray(ki, float)
 
 
 def run_closed_loop(arm: ElectricArm, variant: str, loop, *, x0, z0, ref, gains: dict,
