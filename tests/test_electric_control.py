@@ -38,6 +38,13 @@ def steps(arm):
 
 
 @pytest.fixture(scope="module")
+def filtered(arm):
+    """The command-filter route (same dynamics), and its steps."""
+    f = ElectricArm(arm.model, dyn=arm.dyn, springs=arm.springs, derivatives="filter")
+    return f, {v: f.step_fun(v) for v in VARIANTS}
+
+
+@pytest.fixture(scope="module")
 def plant_funs(arm):
     dyn, sp = arm.dyn, arm.springs
     q, qa, qb = (ca.SX.sym(s, N) for s in ("q", "qa", "qb"))
@@ -67,7 +74,7 @@ def _random_case(rng, arm, variant):
     lam, k = rng.uniform(1, 10, N), rng.uniform(1, 10, N)
     lam_m, k_m = rng.uniform(1, 30, 2 * N), rng.uniform(0.5, 30, 2 * N)
     g = {"ksigma": rng.uniform(10, 200, N), "delta": rng.uniform(60, 150, N),
-         "ki": rng.uniform(1, 30, N)}
+         "ki": rng.uniform(1, 30, N), "omega_f": rng.uniform(20, 500, 1)}
     if variant.startswith("adaptive"):
         g.update(lam_m=lam_m, k_m=k_m * 1e-3, kpi_m=rng.uniform(1e-4, 1e-2, 4 * N),
                  lam=lam, k=k * 0.01, kpi=rng.uniform(0.1, 10, arm.n_params))
@@ -184,8 +191,12 @@ def test_theorem9_outer_adaptive_lyapunov(arm, steps, plant_funs, variant):
 
 
 @pytest.mark.parametrize("variant", ["pd", "pd_integral"])
-def test_theorem6_inner_pd_lyapunov(arm, steps, variant):
-    """Theorem 6: with the motor equation 11.1c-d, s_j ṡ_j = −k_j s_j² per motor."""
+@pytest.mark.parametrize("route", ["model", "filter"])
+def test_theorem6_inner_pd_lyapunov(arm, steps, filtered, variant, route):
+    """Theorem 6: with the motor equation 11.1c-d, s_j ṡ_j = −k_j s_j² per motor
+    (whichever route produced the motor references)."""
+    if route == "filter":
+        arm, steps = filtered
     rng = np.random.default_rng(3)
     sp = arm.springs
     b, d = np.concatenate([sp.b_a, sp.b_b]), np.concatenate([sp.d_a, sp.d_b])
@@ -204,8 +215,11 @@ def test_theorem6_inner_pd_lyapunov(arm, steps, variant):
 
 
 @pytest.mark.parametrize("variant", ["adaptive", "adaptive_integral"])
-def test_theorem8_inner_adaptive_lyapunov(arm, steps, variant):
+@pytest.mark.parametrize("route", ["model", "filter"])
+def test_theorem8_inner_adaptive_lyapunov(arm, steps, filtered, variant, route):
     """Theorem 8: V_j = ½ b s² + ½ π̃ᵀK_π⁻¹π̃ gives V̇_j = −k_j s_j² per motor."""
+    if route == "filter":
+        arm, steps = filtered
     rng = np.random.default_rng(4)
     sp = arm.springs
     b, d = np.concatenate([sp.b_a, sp.b_b]), np.concatenate([sp.d_a, sp.d_b])

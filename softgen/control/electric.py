@@ -638,7 +638,8 @@ def electric_closed_loop_fun(arm: ElectricArm, variant: str, *, steps: int,
     gains of :meth:`ElectricArm.gain_layout`, ``spring_scale`` (2n; 1 = the plant's
     springs equal the controller's), ``dt``. Outputs, one column per sample: ``x``
     (after the sample), ``z`` (after), ``tau_m``, ``q_m_ref``, ``sigma`` and ``det``
-    (read at the sample).
+    (read at the sample). One RK4 step per 1 ms sample is enough for section 11.2's
+    runs: four gave the same rms errors to 4 digits (measured, 40 s PD runs).
     """
     if not isinstance(steps, int) or steps < 1:
         raise ValueError(f"steps: expected a positive integer, got {steps!r}")
