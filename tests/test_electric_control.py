@@ -38,10 +38,14 @@ def steps(arm):
 
 
 @pytest.fixture(scope="module")
-def filtered(arm):
-    """The command-filter route (same dynamics), and its steps."""
-    f = ElectricArm(arm.model, dyn=arm.dyn, springs=arm.springs, derivatives="filter")
-    return f, {v: f.step_fun(v) for v in VARIANTS}
+def routes(arm, steps):
+    """Each derivative route (same dynamics) and its steps."""
+    out = {"model": (arm, steps)}
+    for key, kw in (("filter", {"derivatives": "filter"}),
+                    ("measured", {"acceleration": "measured"})):
+        a = ElectricArm(arm.model, dyn=arm.dyn, springs=arm.springs, **kw)
+        out[key] = (a, {v: a.step_fun(v) for v in VARIANTS})
+    return out
 
 
 @pytest.fixture(scope="module")
@@ -191,12 +195,11 @@ def test_theorem9_outer_adaptive_lyapunov(arm, steps, plant_funs, variant):
 
 
 @pytest.mark.parametrize("variant", ["pd", "pd_integral"])
-@pytest.mark.parametrize("route", ["model", "filter"])
-def test_theorem6_inner_pd_lyapunov(arm, steps, filtered, variant, route):
+@pytest.mark.parametrize("route", ["model", "filter", "measured"])
+def test_theorem6_inner_pd_lyapunov(routes, variant, route):
     """Theorem 6: with the motor equation 11.1c-d, s_j ṡ_j = −k_j s_j² per motor
     (whichever route produced the motor references)."""
-    if route == "filter":
-        arm, steps = filtered
+    arm, steps = routes[route]
     rng = np.random.default_rng(3)
     sp = arm.springs
     b, d = np.concatenate([sp.b_a, sp.b_b]), np.concatenate([sp.d_a, sp.d_b])
@@ -215,11 +218,10 @@ def test_theorem6_inner_pd_lyapunov(arm, steps, filtered, variant, route):
 
 
 @pytest.mark.parametrize("variant", ["adaptive", "adaptive_integral"])
-@pytest.mark.parametrize("route", ["model", "filter"])
-def test_theorem8_inner_adaptive_lyapunov(arm, steps, filtered, variant, route):
+@pytest.mark.parametrize("route", ["model", "filter", "measured"])
+def test_theorem8_inner_adaptive_lyapunov(routes, variant, route):
     """Theorem 8: V_j = ½ b s² + ½ π̃ᵀK_π⁻¹π̃ gives V̇_j = −k_j s_j² per motor."""
-    if route == "filter":
-        arm, steps = filtered
+    arm, steps = routes[route]
     rng = np.random.default_rng(4)
     sp = arm.springs
     b, d = np.concatenate([sp.b_a, sp.b_b]), np.concatenate([sp.d_a, sp.d_b])
@@ -412,6 +414,20 @@ def test_thesis_run_reports_metrics(arm):
     assert r["finite"] and r["near_singular"] == []
     assert len(r["position_rms_error"]) == N and len(r["motor_rms_error"]) == 2 * N
     # The integral variant starts without the Δ offset (integral_start): measured
-    # −0.19/−0.06 over this second (the offset still moves with σ_d), against the
-    # −0.70/−0.31 of the PD variant without integral.
+    # −0.19/−0.06 over this second (the offset still moves with σ_d); the PD variant
+    # without integral holds −0.70/−0.31 (second half of a 5 s run).
     assert np.all(np.abs(r["stiffness_mean_error"]) < 0.3)
+
+
+def test_measured_acceleration_route_keeps_the_velocity(routes):
+    arm, steps = routes["measured"]
+    rng = np.random.default_rng(8)
+    for v in VARIANTS:
+        lay = arm.state_layout(v)
+        assert lay[-1] == ("qd_prev", N)
+        x, z, ref, g, _ = _random_case(rng, arm, v)
+        out = _call(steps[v], z, x, ref, g, dt=1e-3)
+        assert np.array_equal(out["z_next"][-N:], x[N:2 * N])
+        # the outer law does not depend on where q̈ comes from
+        ref_out = _call(routes["model"][1][v], z[:-N], x, ref, g, dt=1e-3)
+        assert np.allclose(out["tau_e_ref"], ref_out["tau_e_ref"], rtol=1e-13, atol=1e-15)
