@@ -101,6 +101,14 @@ commanded away in one sample, a transient the cascade does not survive (measured
 :func:`initial_plant_state` with ``ksigma``/``delta`` starts at that quasi-steady
 stiffness; the integral variants start at σ_d with ξ(0) from :func:`integral_start`.
 
+**Known limits** (measured on section 11.2's runs, dt = 1 ms; see the report of
+issue 12): the adaptive cascades track from nominal estimates with the thesis's gains
+(``"measured"`` acceleration), but not from π̂_m(0) = 0: with b̂ = 0 the adapted motor
+model has no inertia and the motor-acceleration loop degenerates (diverges within
+0.3 s; from 10 % of the nominal b̂ it runs, with a link π̂(0) = 0 it learns slowly,
+joint-2 rms 0.09-0.14 rad). Remark 11's k_π = 7 diverges at dt = 1 ms whatever the
+start (forward-Euler adaptation too fast for the sample); k_π = 0.2 works.
+
 **Layouts** (all vectors; motors ordered a-side joints 1..n, then b-side):
 
 - inputs ``z, x, ref, <gains>, dt``; x = (q, q̇, q_a, q̇_a, q_b, q̇_b) (6n, measured);
@@ -724,9 +732,10 @@ def bundle_functions(model: RobotModel, *, dyn: RigidDynamics | None = None,
     return out
 
 
-def electric_arm(model: RobotModel, *, derivatives: str = "model") -> ElectricArm:
+def electric_arm(model: RobotModel, *, derivatives: str = "model",
+                 acceleration: str = "model") -> ElectricArm:
     """:class:`ElectricArm` of ``model`` (one clear error if it has no qbmove actuators)."""
-    return ElectricArm(model, derivatives=derivatives)
+    return ElectricArm(model, derivatives=derivatives, acceleration=acceleration)
 
 
 def _spring_pair_torques(arm: ElectricArm, tau, sigma) -> tuple[np.ndarray, np.ndarray]:
