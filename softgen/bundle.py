@@ -147,6 +147,10 @@ def _actuator_functions(model: RobotModel, dyn: RigidDynamics, fns: list) -> lis
         fns.append(Generated(electric_plant_fun(dyn, springs, substeps=PLANT_SUBSTEPS),
                              f"{PLANT_SUBSTEPS} RK4 steps of the electric VSA robot (eq. 2.6) "
                              "over one sample, motor torques held"))
+        from .control.electric import CASCADE_MODELS, bundle_functions
+        if model.name in CASCADE_MODELS:        # chapter-11 cascades (Theorems 6-9)
+            fns += [Generated(f, doc) for f, doc in
+                    bundle_functions(model, dyn=dyn, springs=springs)]
         methods = ["electric", "noninvasive"]
     estimators = [StiffnessEstimator(model, EstimatorConfig(m)) for m in methods]
     for e in estimators:
