@@ -1,92 +1,62 @@
 """ch10-feedback-linearization: feedback linearisation against Theorem 5 (section 10.4, Fig. 10.14).
 
-Plant: the section-10.4 arm (``models/arm_2link_pneumatic``: m1 = 0.44, m2 = 0.35 kg,
-l1 = 0.33, l2 = 0.225 m, I1 = 0.004, I2 = 0.0015 kg m², angles from the horizontal)
-with the Table 10.1 McKibben pairs, driven through first-order valves
-ṗ = (sat(p_c) − p)/T_p (eq. 10.12; :func:`softgen.symbolic.actuated.valve_plant_fun`,
-commands clipped to [0, 8 bar]). Four cases on the same plant and references:
+Plant: the section-10.4 arm (``models/arm_2link_pneumatic``, angles from the horizontal)
+with the Table 10.1 McKibben pairs behind first-order valves ṗ = (sat(p_c) − p)/T_p
+(eq. 10.12, commands clipped to [0, 8 bar]). Four :data:`CASES` on the same plant and
+references: feedback linearisation (eq. 10.12-10.16, every pole at −1) with the exact π
+and with the controller's π = 0.99 π (dynamic parameters only: K = K_g R and T_p stay
+exact); Theorem 5 (Λ = 1, K_d = 1, K_π = 20) with Π̂(0) = Π and Π̂(0) = 0.99 Π.
 
-(a) ``fl_exact``: feedback linearisation (eq. 10.12-10.16,
-    :mod:`softgen.control.feedback_linearization`), all poles at −1 (thesis), exact π;
-(b) ``fl_1pct``: the same with the controller's π = 0.99 π. "Dynamic model
-    parameters" only: the actuator gains K = K_g R and T_p stay exact in the
-    controller;
-(c) ``adaptive_exact``: Theorem 5 (:mod:`softgen.control.pneumatic`) with Λ = 1,
-    K_d = 1, K_π = 20 (thesis), Π̂(0) = Π;
-(d) ``adaptive_1pct``: the same with Π̂(0) = 0.99 Π.
+Choices the thesis leaves open:
 
-Choices the thesis leaves open, stated here:
-
-- Valve time constant T_p = ``T_p`` = 0.05 s on every muscle, known to the FL
-  controller (it enters E); Theorem 5 does not model the valves at all.
-- K_σ of Theorem 5: K_σ = r/K_1 with r = ``stiffness_rate`` = 1 1/s, so its stiffness
-  error decays as exp(−t), the same rate as the FL stiffness pole at −1.
-- Time discretisation: the thesis simulated in Simulink, in continuous time. Both
-  controllers are therefore run as continuous-time laws: the FL law and Theorem 5's
-  ν̇, dΠ̂/dt are part of the closed-loop ODE, integrated together with the plant by
-  one classical RK4 step of ``dt`` = 1 ms (references evaluated at the RK4 stage
-  times). The whole run is repeated at dt/2 and the largest change of the tracking
-  metrics is reported (``dt_halving_max_position_change_rad``,
-  ``dt_halving_max_stiffness_change``).
-- Sampled-data diagnostic (``sampled_diagnostic``): the same four cases with digital
-  controllers at ``sample_time`` = 1 ms, command held over the sample (Theorem 5 by
-  the repository's forward-Euler step), reported as ``sampled_*``. FL is sensitive to
-  the hold: the held valve command realises about 1 − dt/(2 T_p) of the pressure rate
-  eq. 10.15 asks for, and the triple pole of the error dynamics moves like the cube
-  root of such a perturbation, so a 1 % rate error is not a 1 % effect. The run
-  ``sampled_fl_exact_hc_*`` corrects the held command for the valve's exponential
-  response (:meth:`FeedbackLinearization.closed_loop_fun`, ``hold_compensation``).
-- References (the thesis prints none): C³ smoothed steps (:class:`SmoothSteps`, rise
-  ``rise`` = 2 s) in four phases, :data:`SCHEDULE` and :data:`PHASES`: positions only
-  [0, 25) s, stiffnesses only [25, 45) s, both [45, 67) s, then a constant hold to
-  ``duration`` = 100 s. The hold is at q_d = (0.35, 0.15) rad, where gravity loads both
-  joints (angles from the horizontal), so a parameter error shows as a static offset.
-  Positions stay in q1 ∈ [0.2, 0.45], q2 ∈ [0, 0.3] rad and stiffnesses in
-  σ1 ∈ [6, 10], σ2 ∈ [3.5, 5] N m/rad: every commanded pressure stays in [0, 8 bar]
-  (``pressure_violations`` counts the excursions, from
-  :func:`softgen.control.feasibility.check_pressures`), and the FL 1 % offset (closed
-  form below), which pulls q1 down and q2 up, keeps |q| below 1 rad, where one muscle
-  of a Table 10.1 pair reaches its minimum length ((l_n − l_min)/R = 1 rad) and the
-  model stops holding.
-- Start: at rest at q_d(0) with the pressures that hold it at σ_d(0) by the exact
-  model. Theorem 5 starts from the ν the open-loop stiffness step gives for Π̂(0)
-  (K_π = 0), the preset of section 10.2.
-- Metric names: per case ``<case>_…``; the chapter-10 names without a prefix
-  (``position_rms_error_joint{i}_phase{k}``, the coupling indices,
-  ``parameter_estimate_max_ratio``) are those of ``adaptive_1pct``.
-- Steady position error: ``steady_position_error_fl`` / ``_adaptive`` = max over joints
-  and over the final window (last ``final_window`` = 20 % of the run, t ∈ [80, 100] s,
-  where every reference is constant) of |q − q_d|, for the 1 % cases.
-
-The FL steady error has a closed form, used as a check of the simulation
-(``fl_1pct_predicted_steady_error_joint{i}``): at rest with p = p_c, L_f³ h + E p_c = 0
-for any π (Coriolis terms are quadratic in q̇), so eq. 10.16 gives
-k0 (q_d − q) = k2 q̈̂, and the model acceleration of a controller with π̂ = (1 − δ) π
-is q̈̂ = M̂⁻¹(G − Ĝ) = δ/(1 − δ) M(q)⁻¹ G(q). The offset is (k2/k0) δ/(1 − δ) M⁻¹G at
-the equilibrium q, solved by a root finder.
+- T_p = 0.05 s on every muscle, known to FL (it enters E); Theorem 5 ignores the valves.
+  K_σ = r/K_1 with r = ``stiffness_rate`` = 1 1/s, the rate of the FL stiffness pole.
+- Continuous time, as the thesis's Simulink: each controller and the plant form one ODE,
+  integrated by one RK4 step of ``dt`` = 1 ms per sample with references at the stage
+  times (:meth:`FeedbackLinearization.continuous_block`,
+  :func:`theorem5_continuous_block`). The run is repeated at dt/2
+  (``dt_halving_max_*_change``). ``sampled_*``: the same cases with digital controllers
+  at ``sample_time``, command held (Theorem 5 by its forward-Euler step);
+  ``sampled_fl_exact_hc_*`` corrects FL's held command for the valve's exponential
+  response (``hold_compensation``): a held command realises about 1 − dt/(2 T_p) of the
+  pressure rate eq. 10.15 asks for, and the triple pole moves like the cube root of such
+  a perturbation.
+- References: C³ smoothed steps (rise ``rise`` = 2 s), :data:`SCHEDULE`, in the four
+  :data:`PHASES` (positions, stiffnesses, both, then a hold at q_d = (0.35, 0.15) rad where
+  gravity loads both joints, so a parameter error shows as a static offset). Every
+  commanded pressure stays in [0, 8 bar] (``pressure_violations``) and |q| < 1 rad, where
+  a Table 10.1 muscle reaches its minimum length.
+- Start at rest at q_d(0) with the pressures that hold σ_d(0) (exact model); Theorem 5
+  from the ν of the open-loop stiffness step for Π̂(0) (K_π = 0), as section 10.2.
+- Traces: the run records x_0 … x_N; metrics read x_1 … x_N (the states the
+  integration produced) and the commands issued at t_0 … t_{N−1}. Unprefixed chapter-10
+  names are those of ``adaptive_1pct``. ``steady_position_error_*``: max |q − q_d| over
+  the last ``final_window`` of the run, where every reference is constant.
+- ``fl_1pct_predicted_steady_error_joint{i}``: the closed-form FL offset
+  (k2/k0) δ/(1 − δ) M⁻¹G (:meth:`FeedbackLinearization.predicted_offset`).
 """
 from __future__ import annotations
 
-import time
+from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
+from matplotlib.figure import Figure
 
+from ..blocks import ClosedLoop
 from ..control.feasibility import check_pressures
-from ..control.feedback_linearization import (GAIN_NAMES, feedback_linearization, hurwitz_gains,
-                                              rk4_closed_loop_fun)
+from ..control.feedback_linearization import feedback_linearization, hurwitz_gains
 from ..control.pneumatic import pneumatic_arm
-from ..control.pneumatic_loop import closed_loop_fun
-from ..control.references import SmoothSteps
-from ..errors import ExperimentError
+from ..control.pneumatic_loop import (controller_block, plant_block, stage_reference_block,
+                                      theorem5_continuous_block)
+from ..control.references import SmoothSteps, stiffness_reference_block
 from ..model import load_model
-from .estimation_common import load_functions
-from .pneumatic_common import coupling, parameter_ratio, phase_rms
-from .registry import Experiment, absent, finding, graded, not_checked, num, times
+from ..runtime.simulate import simulate
+from .pneumatic_common import parameter_ratio, phase_rms_records
+from .registry import (Config, Experiment, Metrics, absent, finding, graded, not_checked, num,
+                       times)
 
 #: (start, end) of: positions only, stiffnesses only, both, constant hold (s).
 PHASES = ((0.0, 25.0), (25.0, 45.0), (45.0, 67.0), (67.0, 100.0))
-
 #: (times, values) of the smoothed steps: q1, q2 (rad), s1, s2 (N m/rad).
 SCHEDULE = {
     "q1": ((0, 3, 13, 47, 57), (0.2, 0.4, 0.3, 0.45, 0.35)),
@@ -94,394 +64,246 @@ SCHEDULE = {
     "s1": ((0, 27, 37, 48, 58, 65), (8.0, 10.0, 7.0, 9.0, 6.0, 8.0)),
     "s2": ((0, 32, 42, 52, 62), (4.0, 5.0, 3.5, 4.5, 4.0)),
 }
-
-CASES = ("fl_exact", "fl_1pct", "adaptive_exact", "adaptive_1pct")
-
-CONFIG = {
-    "model": "arm_2link_pneumatic",
-    "dt": 1e-3,
-    "chunk": 1000,
-    "substeps": 1,
-    "duration": 100.0,
-    "rise": 2.0,
-    "T_p": 0.05,
-    "poles_q": [-1.0, -1.0, -1.0],
-    "pole_sigma": -1.0,
-    "lam": 1.0,
-    "kd": 1.0,
-    "kpi": 20.0,
-    "stiffness_rate": 1.0,
-    "parameter_error": 0.01,
-    "final_window": 0.2,
-    "adaptation_settle": 15.0,
-    "check_dt_halving": True,
-    "sampled_diagnostic": True,
-    "sample_time": 1e-3,
-    "trace_stride": 10,
-}
+LAST_CHANGE = max(max(t[1:]) for t, _ in SCHEDULE.values())
 
 
-def references(t: np.ndarray, rise: float) -> np.ndarray:
-    """(6n × len(t)): q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d of :data:`SCHEDULE`."""
-    q = [SmoothSteps(*SCHEDULE[k], rise).check()(t) for k in ("q1", "q2")]
-    s = [SmoothSteps(*SCHEDULE[k], rise).check()(t) for k in ("s1", "s2")]
-    rows = [q[j][d] for d in range(4) for j in range(2)]
-    rows += [s[j][0] for j in range(2)] + [s[j][1] for j in range(2)]
-    return np.array(rows)
+@dataclass(frozen=True)
+class Case:
+    name: str
+    law: str                 # "fl" or "adaptive" (Theorem 5)
+    perturbed: bool          # controller's π (FL) or Π̂(0) (adaptive) 1 − parameter_error
 
 
-def _last_change(rise: float) -> float:
-    return max(max(times[1:]) for times, _ in SCHEDULE.values()) + rise
+CASES = (Case("fl_exact", "fl", False), Case("fl_1pct", "fl", True),
+         Case("adaptive_exact", "adaptive", False), Case("adaptive_1pct", "adaptive", True))
+CONTRACT = ("position_rms_error", "stiffness_rms_error", "position_to_stiffness_coupling",
+            "stiffness_to_position_coupling")
+POSITION = ("position_rms", "final_position_error_max", "position_rms_error")
+STIFFNESS = ("stiffness_rms", "final_stiffness_error_max", "stiffness_rms_error")
 
 
-def _windows(kind: str, rise: float, settle: float, end: float
-             ) -> list[tuple[float, float, float]]:
-    """Intervals in which only ``kind`` ("q" or "s") references move, with step sizes.
+@dataclass(frozen=True)
+class FLConfig(Config):
+    model: str = "arm_2link_pneumatic"
+    dt: float = 1e-3                     # s, RK4 step of the continuous-time loops
+    chunk: int = 1000
+    substeps: int = 1                    # RK4 steps per sample of the sampled plant
+    duration: float = 100.0
+    rise: float = 2.0
+    T_p: float = 0.05                    # s, valve time constant
+    poles_q: tuple[float, ...] = (-1.0, -1.0, -1.0)
+    pole_sigma: float = -1.0
+    lam: float = 1.0
+    kd: float = 1.0
+    kpi: float = 20.0
+    stiffness_rate: float = 1.0          # 1/s: K_σ = rate / K_1
+    parameter_error: float = 0.01
+    final_window: float = 0.2            # fraction of the run
+    adaptation_settle: float = 15.0      # s before the coupling windows count
+    check_dt_halving: bool = True
+    sampled_diagnostic: bool = True
+    sample_time: float = 1e-3
+    trace_stride: int = 10
 
-    A window runs from a step of ``kind`` to the next change of any reference; steps
-    before ``settle`` (adaptation transient) or within ``rise`` of a step of the other
-    kind are left out.
-    """
+    def validate(self) -> None:
+        for k in ("dt", "duration", "rise", "T_p", "sample_time"):
+            if getattr(self, k) <= 0:
+                raise ValueError(f"{k}: expected a positive number, got {getattr(self, k)}")
+        if (1 - self.final_window) * self.duration < LAST_CHANGE + self.rise:
+            raise ValueError(f"final_window: the final window must start after the last "
+                             f"reference change ({LAST_CHANGE + self.rise} s)")
+
+
+def windows(kind: str, c: FLConfig) -> list[tuple[float, float, float]]:
+    """(t0, t1, step) in which only ``kind`` ("q" or "s") references move; steps before
+    ``adaptation_settle`` or within ``rise`` of a step of the other kind left out."""
     own, other = (("q1", "q2"), ("s1", "s2")) if kind == "q" else (("s1", "s2"), ("q1", "q2"))
-    other_times = sorted({t for k in other for t in SCHEDULE[k][0][1:]})
+    other_times = {t for k in other for t in SCHEDULE[k][0][1:]}
     changes = sorted({t for k in own + other for t in SCHEDULE[k][0][1:]})
-    out = []
-    for key in own:
-        times, values = SCHEDULE[key]
-        for t0, a, b in zip(times[1:], values[:-1], values[1:]):
-            if t0 < settle or any(abs(t0 - u) < rise for u in other_times):
-                continue
-            t1 = min([c for c in changes if c > t0] + [end])
-            out.append((float(t0), float(t1), abs(b - a)))
-    return out
+    return [(float(t0), float(min([u for u in changes if u > t0] + [c.duration])), abs(b - a))
+            for key in own for t0, a, b in zip(SCHEDULE[key][0][1:], SCHEDULE[key][1],
+                                               SCHEDULE[key][1][1:])
+            if t0 >= c.adaptation_settle and all(abs(t0 - u) >= c.rise for u in other_times)]
 
 
-def _relative_coupling(t, err, windows, name: str) -> dict[str, float]:
-    """:func:`coupling` of the change of ``err`` since each window's start.
+class Setup:
+    """Model, controllers and diagrams of one run (each diagram built and compiled once)."""
 
-    The change, not the error itself: a controller with a constant offset (FL with a
-    parameter error) is charged only for what the other references' steps add.
-    """
-    out: dict[str, float] = {}
-    for t0, t1, step in windows:
-        k0 = int(np.searchsorted(t, t0))
-        one = coupling(t, err - err[k0], [(t0, t1, step)], name)
-        for key, v in one.items():
-            out[key] = max(out.get(key, 0.0), v)
-    if not out:
-        out = {f"{name}_joint{i + 1}": 0.0 for i in range(err.shape[1])}
-    return out
+    def __init__(self, c: FLConfig):
+        model = load_model(c.model)
+        self.c, self.arm = c, pneumatic_arm(model)
+        self.fl = feedback_linearization(model, dyn=self.arm.dyn, act=self.arm.act)
+        self.gains = hurwitz_gains(self.fl.n, c.poles_q, c.pole_sigma)
+        self.diagrams: dict = {}
+        self.wall = 0.0                     # s in the generated loops
 
+    def diagram(self, law: str, dt: float, mode: str, hc: bool) -> ClosedLoop:
+        key = (law, dt, mode, hc)
+        if key not in self.diagrams:
+            c, fl, arm = self.c, self.fl, self.arm
+            ref = stiffness_reference_block(
+                "ref", [SmoothSteps(*SCHEDULE[k], c.rise) for k in ("q1", "q2")],
+                [SmoothSteps(*SCHEDULE[k], c.rise) for k in ("s1", "s2")])
+            if mode == "continuous":
+                loop = fl.continuous_block(dt) if law == "fl" else \
+                    theorem5_continuous_block(arm, dt)
+                blocks, wires = [stage_reference_block(ref, dt), loop], []
+            else:
+                ctrl = fl.controller_block(dt, hold_compensation=hc) if law == "fl" else \
+                    controller_block(arm, "theorem5", dt)
+                blocks = [ref, ctrl, plant_block(arm, dt, plant="valve", substeps=c.substeps)]
+                wires = [] if law == "fl" else [("ctrl.p", "plant.p_cmd")]
+            tag = f"{law}_{mode}{'_hc' if hc else ''}_{dt:g}".replace(".", "_").replace("-", "m")
+            self.diagrams[key] = ClosedLoop(f"ch10_fl_{tag}", blocks, wires)
+        return self.diagrams[key]
 
-# -- helpers evaluated once, with CasADi --------------------------------------------------
-
-def _static_functions(fl):
-    """(allocation(q, τ, σ) -> p, gravity(q), M(q)⁻¹G(q), σ(q, p) with the true K)."""
-    n, act, dyn = fl.n, fl.act, fl.dyn
-    q, tau, sig = ca.SX.sym("q", n), ca.SX.sym("tau", n), ca.SX.sym("sigma", n)
-    p = ca.SX.sym("p", 2 * n)
-    m = dyn.nominal
-    G = ca.substitute(m.gravity(), m.q, q)
-    B = ca.substitute(m.inertia(), m.q, q)
-    alloc = ca.Function("alloc", [q, tau, sig], [act.allocation(q, tau, sig)])
-    grav = ca.Function("grav", [q], [G])
-    minv_g = ca.Function("minv_g", [q], [ca.solve(B, G)])
-    stiff = ca.Function("stiff", [q, p], [act.stiffness(q, p)])
-    return alloc, grav, minv_g, stiff
-
-
-def predicted_fl_offset(minv_g, q_d: np.ndarray, gains: dict, delta: float) -> np.ndarray:
-    """q_d − q at the FL equilibrium with π̂ = (1 − δ)π (module docstring).
-
-    Solves e = (k2/k0) δ/(1 − δ) M(q_d − e)⁻¹ G(q_d − e) with scipy's hybrid Powell
-    method (plain fixed-point iteration is not a contraction here).
-    """
-    from scipy.optimize import root
-
-    scale = gains["kq2"] / gains["kq0"] * delta / (1 - delta)
-    sol = root(lambda e: e - scale * np.array(minv_g(q_d - e)).ravel(),
-               scale * np.array(minv_g(q_d)).ravel(), tol=1e-13)
-    if not sol.success:
-        raise FloatingPointError(f"predicted_fl_offset: {sol.message}")
-    return sol.x
-
-
-# -- closed loops ------------------------------------------------------------------------------
-
-def theorem5_continuous_fun(arm, fl, *, steps: int) -> ca.Function:
-    """``<model>_theorem5_loop_continuous``: Theorem 5 as a continuous-time law on the valves.
-
-    State s = (x, ν, Π̂); ṡ = (valve plant with p_c = p of Theorem 5, ν̇, dΠ̂/dt) from
-    :meth:`PneumaticArm.theorem5_rates`, σ read from the plant's pressures. One RK4
-    step per sample (:func:`rk4_closed_loop_fun`); ``ref`` is 18n per step.
-    """
-    n, k = arm.n, arm.n_params
-    s = ca.SX.sym("s", 5 * n + k)
-    x, nu, Pi_hat = s[:4 * n], s[4 * n:5 * n], s[5 * n:]
-    q, qd, p = x[:n], x[n:2 * n], x[2 * n:]
-    ref = ca.SX.sym("ref", 6 * n)
-    lam, kd, kpi = ca.SX.sym("lam", n), ca.SX.sym("kd", n), ca.SX.sym("kpi", k)
-    ksigma, kinv, tp = ca.SX.sym("ksigma", n), ca.SX.sym("kinv", n), ca.SX.sym("T_p", 2 * n)
-    sigma = arm.act.stiffness(q, p)
-    p_cmd, _, nu_dot, Pi_dot = arm.theorem5_rates(q, qd, sigma, nu, Pi_hat, ref, lam, kd, kpi,
-                                                   ksigma, kinv)
-    params = [lam, kd, kpi, ksigma, kinv, tp]
-    rhs = ca.Function("rhs", [s, ref, *params],
-                      [ca.vertcat(fl.valve_rhs_fun()(x, p_cmd, tp), nu_dot, Pi_dot)])
-    out = ca.Function("out", [s, ref, *params], [p_cmd])
-    return rk4_closed_loop_fun(f"{arm.name}_theorem5_loop_continuous", rhs, out, steps=steps,
-                               names=["s", "lam", "kd", "kpi", "ksigma", "kinv", "T_p"],
-                               out_names=["s", "p_cmd"])
-
-
-def _stage_references(t: np.ndarray, dt: float, rise: float) -> np.ndarray:
-    """References at t, t + dt/2, t + dt, stacked (the RK4 stage times)."""
-    return np.vstack([references(t, rise), references(t + dt / 2, rise),
-                      references(t + dt, rise)])
-
-
-# -- simulation ----------------------------------------------------------------------------
-
-def _simulate(case: str, ctx: dict, c: dict, dt: float, mode: str = "continuous",
-              hold_compensation: bool = False) -> dict[str, np.ndarray]:
-    """One case, in chunks of one generated loop call; traces at the sample ends.
-
-    ``mode`` "continuous": both controllers inside the RK4 step of the plant;
-    "sampled": digital controllers, command held over ``dt``.
-    """
-    fl, arm, fns = ctx["fl"], ctx["arm"], ctx["fns"]
-    n, chunk = fl.n, int(c["chunk"])
-    steps = int(round(c["duration"] / dt / chunk)) * chunk
-    t = np.arange(steps) * dt
-    tp = np.full(2 * n, c["T_p"])
-    ref0 = references(np.array([0.0]), c["rise"])[:, 0]
-    x0 = np.concatenate([ref0[:n], np.zeros(n), ctx["p0"]])
-    ratio = 1 - c["parameter_error"] if case.endswith("1pct") else 1.0
-    continuous = mode == "continuous"
-    if case.startswith("fl"):
-        suffix = "continuous" if continuous else "sampled" + ("_hc" if hold_compensation else "")
-        loop = fns[f"{fl.name}_feedback_linearization_loop_{suffix}"]
-        params = [ratio * fl.parameter_nominal, fl.act.K, tp,
-                  *[ctx["gains"][g] for g in GAIN_NAMES], dt]
-        s = x0
-    else:
-        lam, kd = np.full(n, c["lam"]), np.full(n, c["kd"])
-        kpi = np.full(arm.n_params, c["kpi"])
-        ksigma, kinv = np.full(n, c["stiffness_rate"] / arm.K1), 1 / arm.act.K
-        pi0 = ratio * arm.Pi_nominal
-        # Preset: the ν the actuator model gives σ_d(0) at rest with Π̂(0) (K_π = 0).
-        _, _, _, nu0 = ctx["fns"][f"{arm.name}_open_loop_stiffness"](
-            pi0, x0[:n], np.zeros(n), ref0, lam, kd, np.zeros(arm.n_params), kinv, dt)
-        if continuous:
-            loop = fns[f"{arm.name}_theorem5_loop_continuous"]
-            params = [lam, kd, kpi, ksigma, kinv, tp, dt]
-            s = np.concatenate([x0, nu0, pi0])
+    def run(self, case: Case, dt: float, mode: str = "continuous", hc: bool = False) -> dict:
+        """One case: a trace dict of t, q, q_d, σ, σ_d (x_1 … x_N), t_cmd, p_cmd (t_0 …)."""
+        c, arm, n = self.c, self.arm, self.fl.n
+        d = self.diagram(case.law, dt, mode, hc)
+        ratio = 1 - c.parameter_error if case.perturbed else 1.0
+        ref0 = d.blocks["ref"].eval(u=[0.0])[1][:6 * n]
+        plant = "loop" if mode == "continuous" else "plant"
+        x0 = {f"{plant}.q": ref0[:n], f"{plant}.p": self.fl.rest_pressures(ref0[:n],
+                                                                         ref0[4 * n:5 * n])}
+        ctrl = "loop" if mode == "continuous" else "ctrl"
+        if case.law == "fl":
+            params = {f"{ctrl}.pi": ratio * self.fl.parameter_nominal, f"{ctrl}.T_p": c.T_p,
+                      **{f"{ctrl}.{g}": v for g, v in self.gains.items()}}
+            cmd = f"{ctrl}.p_cmd"
         else:
-            loop = fns[f"{arm.name}_theorem5_loop_valve"]
-            s = (x0, np.concatenate([nu0, pi0]))
-            params = [lam, kd, kpi, ksigma, kinv, tp, dt]
-    S, P = [], []
-    for start in range(0, steps, chunk):
-        tt = t[start:start + chunk]
-        if continuous:
-            R = _stage_references(tt, dt, c["rise"])
-            ss, ps = loop(s, R, *params)
-            s = ss[:, -1].copy()
-        elif isinstance(s, tuple):                 # sampled Theorem 5: (x, z) apart
-            xs, zs, ps, _ = loop(s[0], s[1], references(tt, c["rise"]), *params)
-            s = (xs[:, -1].copy(), zs[:, -1].copy())
-            ss = np.vstack([xs, zs])
-        else:
-            ss, ps = loop(s, references(tt, c["rise"]), *params)
-            s = ss[:, -1].copy()
-        S.append(ss)
-        P.append(ps)
-        if not np.all(np.isfinite(ss[:, -1])):
-            raise FloatingPointError(f"{case} ({mode}): state not finite at t = {tt[-1]:.3f} s")
-    S, P = np.hstack(S), np.hstack(P)
-    ts = t + dt                                        # state columns are after each sample
-    R = references(ts, c["rise"])
-    X = S[:4 * n]
-    sigma = np.array(ctx["stiff"].map(steps)(X[:n], X[2 * n:])).T
-    tr = {"t": ts, "t_cmd": t, "q": X[:n].T, "qd": X[n:2 * n].T, "p": X[2 * n:].T,
-          "p_cmd": P.T, "sigma": sigma, "q_d": R[:n].T, "sigma_d": R[4 * n:5 * n].T}
-    if S.shape[0] > 4 * n:
-        tr["nu"], tr["Pi_hat"] = S[4 * n:5 * n].T, S[5 * n:].T
-    return tr
+            pi0, kinv = ratio * arm.Pi_nominal, 1 / arm.act.K
+            g = {"lam": c.lam, "kd": c.kd, "kpi": c.kpi, "ksigma": c.stiffness_rate / arm.K1,
+                 "kinv": kinv}
+            # Preset: the ν the actuator model gives σ_d(0) at rest with Π̂(0) (K_π = 0).
+            nu0 = arm.step_fun("open_loop")(pi0, ref0[:n], np.zeros(n), ref0, c.lam, c.kd,
+                                            np.zeros(arm.n_params), kinv, dt)[3]
+            x0.update({f"{ctrl}.nu": np.array(nu0).ravel(), f"{ctrl}.Pi_hat": pi0})
+            params = {f"{ctrl}.{k}": v for k, v in g.items()}
+            cmd = "loop.p_cmd" if mode == "continuous" else "ctrl.p"
+        params[f"{plant}.T_p"] = c.T_p
+        sig = {"q": f"{plant}.q", "sigma": f"{plant}.sigma", "q_d": "ref.q_d",
+               "sigma_d": "ref.sigma_d", "p_cmd": cmd}
+        if case.law == "adaptive":
+            sig.update(nu=f"{ctrl}.nu", Pi_hat=f"{ctrl}.Pi_hat")
+        tr = simulate(d, steps=int(round(c.duration / dt)) + 1, x0=x0, params=params,
+                      chunk=c.chunk, record=list(sig.values()), label=f"{case.name} {mode}")
+        out = {k: tr[s][1:] for k, s in sig.items()}
+        out.update(t=tr.t[1:], t_cmd=tr.t[:-1], p_cmd=tr[cmd][:-1])
+        self.wall += tr.wall_seconds
+        return out
 
 
-def _case_metrics(case: str, tr: dict, c: dict) -> dict[str, float]:
-    t, n = tr["t"], tr["q"].shape[1]
-    eq, es = tr["q"] - tr["q_d"], tr["sigma"] - tr["sigma_d"]
-    final = t >= (1 - c["final_window"]) * c["duration"]
-    m = {}
-    for i in range(n):
-        j = i + 1
-        m[f"{case}_position_rms_joint{j}"] = float(np.sqrt(np.mean(eq[:, i] ** 2)))
-        m[f"{case}_stiffness_rms_joint{j}"] = float(np.sqrt(np.mean(es[:, i] ** 2)))
-        m[f"{case}_final_position_error_max_joint{j}"] = float(np.abs(eq[final, i]).max())
-        m[f"{case}_final_stiffness_error_max_joint{j}"] = float(np.abs(es[final, i]).max())
-    phases = PHASES[:-1] + ((PHASES[-1][0], c["duration"]),)
-    m.update(phase_rms(t, eq, phases, f"{case}_position_rms_error"))
-    m.update(phase_rms(t, es, phases, f"{case}_stiffness_rms_error"))
-    end = c["duration"]
-    m.update(_relative_coupling(t, es, _windows("q", c["rise"], c["adaptation_settle"], end),
-                                f"{case}_position_to_stiffness_coupling"))
-    m.update(_relative_coupling(t, eq, _windows("s", c["rise"], c["adaptation_settle"], end),
-                                f"{case}_stiffness_to_position_coupling"))
+def case_metrics(tr: dict, c: FLConfig) -> Metrics:
+    t, eq, es = tr["t"], tr["q"] - tr["q_d"], tr["sigma"] - tr["sigma_d"]
+    final = t >= (1 - c.final_window) * c.duration
+    m = Metrics()
+    for i in range(eq.shape[1]):
+        for quantity, err, sel, unit in (("position_rms", eq, None, "rad"),
+                                         ("stiffness_rms", es, None, "N m/rad"),
+                                         ("final_position_error_max", eq, final, "rad"),
+                                         ("final_stiffness_error_max", es, final, "N m/rad")):
+            e = err[:, i]
+            m.add(quantity, np.sqrt(np.mean(e ** 2)) if sel is None else np.abs(e[sel]).max(),
+                  unit, joint=i + 1)
+    phases = PHASES[:-1] + ((PHASES[-1][0], c.duration),)
+    phase_rms_records(m, t, eq, phases, "position_rms_error", "rad")
+    phase_rms_records(m, t, es, phases, "stiffness_rms_error", "N m/rad")
+    # The change of the error since each window's start: a constant offset (FL with a
+    # parameter error) is charged only for what the other references' steps add.
+    for quantity, err, kind, unit in (("position_to_stiffness_coupling", es, "q", "N m/rad per rad"),
+                                      ("stiffness_to_position_coupling", eq, "s", "rad per N m/rad")):
+        worst = np.zeros(err.shape[1])
+        for t0, t1, step in windows(kind, c):
+            mask = (t >= t0) & (t < t1)
+            if mask.any() and step > 0:
+                dev = np.abs(err[mask] - err[np.searchsorted(t, t0)])
+                worst = np.maximum(worst, dev.max(axis=0) / step)
+        for i, v in enumerate(worst):
+            m.add(quantity, v, unit, joint=i + 1)
     return m
 
 
-def _run_all(ctx: dict, c: dict, dt: float) -> tuple[dict, dict]:
-    traces, metrics = {}, {}
-    for case in CASES:
-        tr = _simulate(case, ctx, c, dt)
-        traces[case] = tr
-        metrics.update(_case_metrics(case, tr, c))
-    return traces, metrics
-
-
-def _context(c: dict, out) -> dict:
-    model = load_model(c["model"])
-    fl = feedback_linearization(model)
-    arm = pneumatic_arm(model)
-    chunk = int(c["chunk"])
-    funcs = [
-        (fl.closed_loop_fun(steps=chunk, mode="continuous"),
-         "feedback linearisation (eq. 10.12-10.16) in the RK4 step of the valve plant"),
-        (theorem5_continuous_fun(arm, fl, steps=chunk),
-         "Theorem 5 in the RK4 step of the valve plant"),
-        (arm.step_fun("open_loop"), "open-loop stiffness step (preset of nu)"),
-    ]
-    if c["sampled_diagnostic"]:
-        funcs += [
-            (fl.closed_loop_fun(steps=chunk, mode="sampled", substeps=int(c["substeps"])),
-             "feedback linearisation, sampled, command held"),
-            (fl.closed_loop_fun(steps=chunk, mode="sampled", substeps=int(c["substeps"]),
-                                hold_compensation=True),
-             "feedback linearisation, sampled, hold-compensated valve command"),
-            (closed_loop_fun(arm, "theorem5", plant="valve", steps=chunk,
-                             substeps=int(c["substeps"])), "Theorem 5, sampled, Euler"),
-        ]
-    fns = load_functions(model.name, funcs, out, c)
-    alloc, grav, minv_g, stiff = _static_functions(fl)
-    q0 = references(np.array([0.0]), c["rise"])[:fl.n, 0]
-    s0 = references(np.array([0.0]), c["rise"])[4 * fl.n:5 * fl.n, 0]
-    p0 = np.array(alloc(q0, grav(q0), s0)).ravel()
-    gains = hurwitz_gains(fl.n, c["poles_q"], c["pole_sigma"])
-    return {"fl": fl, "arm": arm, "fns": fns, "p0": p0, "gains": gains, "minv_g": minv_g,
-            "stiff": stiff}
-
-
-def run(config: dict, out) -> dict:
-    c = config
-    if (1 - c["final_window"]) * c["duration"] < _last_change(c["rise"]):
-        raise ExperimentError("final_window: the final window must start after the last "
-                              f"reference change ({_last_change(c['rise'])} s)")
-    ctx = _context(c, out)
-    t0 = time.perf_counter()
-    traces, m = _run_all(ctx, c, c["dt"])
-    m["simulation_seconds"] = time.perf_counter() - t0
-    fl, arm = ctx["fl"], ctx["arm"]
-    n = fl.n
-    # The chapter-10 metric names without a case prefix are Theorem 5's under the
-    # parameter error (the thesis's controller in the case it is proposed for).
-    contract = ("position_rms_error_joint", "stiffness_rms_error_joint",
-                "position_to_stiffness_coupling_joint", "stiffness_to_position_coupling_joint")
-    m.update({k[len("adaptive_1pct_"):]: v for k, v in list(m.items())
-              if k.startswith("adaptive_1pct_") and k[len("adaptive_1pct_"):].startswith(contract)})
-    m["steady_position_error_fl"] = max(m[f"fl_1pct_final_position_error_max_joint{i + 1}"]
-                                        for i in range(n))
-    m["steady_position_error_adaptive"] = max(
-        m[f"adaptive_1pct_final_position_error_max_joint{i + 1}"] for i in range(n))
-    m["steady_position_error_fl_exact"] = max(
-        m[f"fl_exact_final_position_error_max_joint{i + 1}"] for i in range(n))
-    m["steady_position_error_adaptive_exact"] = max(
-        m[f"adaptive_exact_final_position_error_max_joint{i + 1}"] for i in range(n))
-    q_hold = traces["fl_1pct"]["q_d"][-1]
-    pred = predicted_fl_offset(ctx["minv_g"], q_hold, ctx["gains"], c["parameter_error"])
+def run(c: FLConfig, out) -> Metrics:
+    s = Setup(c)
+    arm, n = s.arm, s.fl.n
+    traces = {case.name: s.run(case, c.dt) for case in CASES}
+    per = {name: case_metrics(tr, c) for name, tr in traces.items()}
+    m = Metrics()
+    for name, cm in per.items():
+        m.extend(cm, prefix=f"{name}_")
+    m.add("simulation_seconds", s.wall, "s")
+    m.extend(per["adaptive_1pct"], keep=lambda r: r.quantity in CONTRACT)
+    for tag, name in (("fl", "fl_1pct"), ("adaptive", "adaptive_1pct"),
+                      ("fl_exact", "fl_exact"), ("adaptive_exact", "adaptive_exact")):
+        m.add(f"steady_position_error_{tag}", max(
+            r.value for r in per[name] if r.quantity == "final_position_error_max"), "rad")
+    q_hold, q_end = traces["fl_1pct"]["q_d"][-1], traces["fl_1pct"]["q"][-1]
+    pred = s.fl.predicted_offset(q_hold, s.gains, c.parameter_error)
     for i in range(n):
-        m[f"fl_1pct_predicted_steady_error_joint{i + 1}"] = float(abs(pred[i]))
-        m[f"fl_1pct_final_position_error_joint{i + 1}"] = float(
-            abs(traces["fl_1pct"]["q"][-1, i] - q_hold[i]))
-    m["parameter_estimate_max_ratio"] = parameter_ratio(traces["adaptive_1pct"]["Pi_hat"],
-                                                        arm.Pi_nominal)
-    m["adaptive_exact_parameter_estimate_max_ratio"] = parameter_ratio(
-        traces["adaptive_exact"]["Pi_hat"], arm.Pi_nominal)
-    m["adaptive_1pct_final_parameter_ratio_max"] = float(
-        np.max(traces["adaptive_1pct"]["Pi_hat"][-1] / arm.Pi_nominal))
-    m["adaptive_1pct_final_parameter_ratio_min"] = float(
-        np.min(traces["adaptive_1pct"]["Pi_hat"][-1] / arm.Pi_nominal))
-    pmax = arm.act.pressure_max
+        m.add("predicted_steady_error", abs(pred[i]), "rad", joint=i + 1, prefix="fl_1pct_")
+        m.add("final_position_error", abs(q_end[i] - q_hold[i]), "rad", joint=i + 1,
+              prefix="fl_1pct_")
+    Pi = arm.Pi_nominal
+    m.add("parameter_estimate_max_ratio", parameter_ratio(traces["adaptive_1pct"]["Pi_hat"], Pi))
+    m.add("adaptive_exact_parameter_estimate_max_ratio",
+          parameter_ratio(traces["adaptive_exact"]["Pi_hat"], Pi))
+    final_ratio = traces["adaptive_1pct"]["Pi_hat"][-1] / Pi
+    m.add("adaptive_1pct_final_parameter_ratio_max", final_ratio.max())
+    m.add("adaptive_1pct_final_parameter_ratio_min", final_ratio.min())
     total = 0
-    for case, tr in traces.items():
-        viol = check_pressures(tr["t_cmd"], tr["p_cmd"], pmax,
-                               label=f"ch10-feedback-linearization {case}")
-        m[f"{case}_pressure_violations"] = float(len(viol))
-        m[f"{case}_pressure_min_pa"] = float(tr["p_cmd"].min())
-        m[f"{case}_pressure_max_pa"] = float(tr["p_cmd"].max())
+    for name, tr in traces.items():
+        viol = check_pressures(tr["t_cmd"], tr["p_cmd"], arm.act.pressure_max,
+                               label=f"ch10-feedback-linearization {name}")
         total += len(viol)
-    m["pressure_violations"] = float(total)
-    if c["check_dt_halving"]:
-        _, m2 = _run_all(ctx, c, c["dt"] / 2)
-        keys = [k for k in m2 if "_rms" in k or "final_" in k]
-        m["dt_halving_max_position_change_rad"] = max(
-            abs(m2[k] - m[k]) for k in keys if "position" in k)
-        m["dt_halving_max_stiffness_change"] = max(
-            abs(m2[k] - m[k]) for k in keys if "stiffness" in k)
-    if c["sampled_diagnostic"]:
-        m.update(_sampled_metrics(ctx, c))
-    # Traces and figures every ``trace_stride`` samples: the metrics above use all of
-    # them; at 10 ms the files and figures lose nothing visible and stay small.
-    k = int(c["trace_stride"])
-    thin = {case: {key: v[::k] for key, v in tr.items()} for case, tr in traces.items()}
-    np.savez_compressed(out / "traces.npz", **{f"{case}__{key}": v for case, tr in thin.items()
+        m.add("pressure_violations", len(viol), prefix=f"{name}_")
+        m.add("pressure_min_pa", tr["p_cmd"].min(), "Pa", prefix=f"{name}_")
+        m.add("pressure_max_pa", tr["p_cmd"].max(), "Pa", prefix=f"{name}_")
+    m.add("pressure_violations", total)
+    simulated = len(CASES) * c.duration
+    if c.check_dt_halving:
+        half = {case.name: case_metrics(s.run(case, c.dt / 2), c) for case in CASES}
+        simulated += len(CASES) * c.duration
+        for kind, qs, unit in (("position_change_rad", POSITION, "rad"),
+                               ("stiffness_change", STIFFNESS, "N m/rad")):
+            m.add(f"dt_halving_max_{kind}", max(
+                abs(a.value - b.value) for name in per for a, b in zip(per[name], half[name])
+                if a.quantity in qs), unit)
+    if c.sampled_diagnostic:
+        for tag, case, hc in [(k.name, k, False) for k in CASES] + [("fl_exact_hc", CASES[0], True)]:
+            tr = s.run(case, c.sample_time, mode="sampled", hc=hc)
+            m.extend(case_metrics(tr, c), prefix=f"sampled_{tag}_",
+                     keep=lambda r: r.quantity in ("position_rms", "stiffness_rms",
+                                                   "final_position_error_max"))
+            m.add("pressure_violations", len(check_pressures(
+                tr["t_cmd"], tr["p_cmd"], arm.act.pressure_max,
+                label=f"ch10-feedback-linearization sampled {tag}")), prefix=f"sampled_{tag}_")
+            simulated += c.duration
+    m.add("simulated_seconds_per_wall_second", simulated / s.wall, "s/s")
+    k = c.trace_stride
+    thin = {name: {key: v[::k] for key, v in tr.items()}
+            for name, tr in traces.items()}
+    np.savez_compressed(out / "traces.npz", **{f"{name}__{key}": v for name, tr in thin.items()
                                                for key, v in tr.items()})
     _figures(thin, arm, out)
     return m
 
 
-def _sampled_metrics(ctx: dict, c: dict) -> dict[str, float]:
-    """The four cases with digital controllers at ``sample_time``, command held (ZOH).
-
-    Plus FL with the hold-compensated valve command (``sampled_fl_exact_hc_*``).
-    """
-    runs = [(case, case, False) for case in CASES] + [("fl_exact_hc", "fl_exact", True)]
-    m = {}
-    for tag, case, hc in runs:
-        tr = _simulate(case, ctx, c, c["sample_time"], mode="sampled", hold_compensation=hc)
-        full = _case_metrics(case, tr, c)
-        n = tr["q"].shape[1]
-        for i in range(n):
-            j = i + 1
-            for key in (f"position_rms_joint{j}", f"stiffness_rms_joint{j}",
-                        f"final_position_error_max_joint{j}"):
-                m[f"sampled_{tag}_{key}"] = full[f"{case}_{key}"]
-        m[f"sampled_{tag}_pressure_violations"] = float(len(check_pressures(
-            tr["t_cmd"], tr["p_cmd"], ctx["arm"].act.pressure_max,
-            label=f"ch10-feedback-linearization sampled {tag}")))
-    return m
+TITLES = {"fl_exact": "(a) feedback linearisation, exact π",
+          "fl_1pct": "(b) feedback linearisation, π − 1 %",
+          "adaptive_exact": "(c) adaptive (Th. 5), Π̂(0) = Π",
+          "adaptive_1pct": "(d) adaptive (Th. 5), Π̂(0) = 0.99 Π"}
 
 
 def _figures(traces: dict, arm, out) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    titles = {"fl_exact": "(a) feedback linearisation, exact π",
-              "fl_1pct": "(b) feedback linearisation, π − 1 %",
-              "adaptive_exact": "(c) adaptive (Th. 5), Π̂(0) = Π",
-              "adaptive_1pct": "(d) adaptive (Th. 5), Π̂(0) = 0.99 Π"}
-    fig, ax = plt.subplots(2, 4, figsize=(18, 7), sharex=True, sharey="row")
-    for k, case in enumerate(CASES):
-        tr = traces[case]
-        t = tr["t"]
+    fig = Figure(figsize=(18, 7))
+    ax = fig.subplots(2, 4, sharex=True, sharey="row")
+    for k, (name, tr) in enumerate(traces.items()):
         for j in range(tr["q"].shape[1]):
-            ax[0, k].plot(t, tr["q_d"][:, j], "k--", lw=0.8)
-            ax[0, k].plot(t, tr["q"][:, j], lw=1, label=f"q{j + 1}")
-            ax[1, k].plot(t, tr["sigma_d"][:, j], "k--", lw=0.8)
-            ax[1, k].plot(t, tr["sigma"][:, j], lw=1, label=f"σ{j + 1}")
-        ax[0, k].set_title(titles[case], fontsize=10)
+            for row, (y, yd, lbl) in enumerate((("q", "q_d", "q"), ("sigma", "sigma_d", "σ"))):
+                ax[row, k].plot(tr["t"], tr[yd][:, j], "k--", lw=0.8)
+                ax[row, k].plot(tr["t"], tr[y][:, j], lw=1, label=f"{lbl}{j + 1}")
+        ax[0, k].set_title(TITLES[name], fontsize=10)
         ax[1, k].set_xlabel("t [s]")
         for a in ax[:, k]:
             for t0, _ in PHASES[1:]:
@@ -492,33 +314,25 @@ def _figures(traces: dict, arm, out) -> None:
     fig.suptitle("Positions and stiffnesses, FL against Theorem 5 (cf. Fig. 10.14)")
     fig.tight_layout()
     fig.savefig(out / "fig10_14_comparison.png", dpi=100)
-    plt.close(fig)
-
-    fig, ax = plt.subplots(1, 3, figsize=(16, 4))
-    for case in CASES:
-        tr = traces[case]
-        e = np.max(np.abs(tr["q"] - tr["q_d"]), axis=1)
-        s = np.max(np.abs(tr["sigma"] - tr["sigma_d"]), axis=1)
-        ax[0].semilogy(tr["t"], np.maximum(e, 1e-12), lw=0.8, label=case)
-        ax[1].semilogy(tr["t"], np.maximum(s, 1e-12), lw=0.8, label=case)
+    fig = Figure(figsize=(16, 4))
+    ax = fig.subplots(1, 3)
+    for name, tr in traces.items():
+        for a, (y, yd) in zip(ax, (("q", "q_d"), ("sigma", "sigma_d"))):
+            e = np.max(np.abs(tr[y] - tr[yd]), axis=1)
+            a.semilogy(tr["t"], np.maximum(e, 1e-12), lw=0.8, label=name)
     ax[0].set_ylabel("max_i |q_i − q_d,i| [rad]")
     ax[1].set_ylabel("max_i |σ_i − σ_d,i| [N m/rad]")
-    for case, style in (("adaptive_exact", "--"), ("adaptive_1pct", "-")):
-        ratio = traces[case]["Pi_hat"] / arm.Pi_nominal
-        for j, name in enumerate(arm.parameter_names):
-            ax[2].plot(traces[case]["t"], ratio[:, j], style, lw=0.8, color=f"C{j}",
-                       label=name if case == "adaptive_1pct" else None)
+    for name, style in (("adaptive_exact", "--"), ("adaptive_1pct", "-")):
+        ratio = traces[name]["Pi_hat"] / arm.Pi_nominal
+        for j, pn in enumerate(arm.parameter_names):
+            ax[2].plot(traces[name]["t"], ratio[:, j], style, lw=0.8, color=f"C{j}",
+                       label=pn if name == "adaptive_1pct" else None)
     ax[2].set_ylabel("Π̂ / Π (solid: Π̂(0) = 0.99 Π, dashed: Π̂(0) = Π)")
-    ax[2].legend(loc="upper left", fontsize=7)
     for a in ax:
         a.set_xlabel("t [s]")
-    ax[0].legend(loc="upper right", fontsize=7)
-    ax[1].legend(loc="upper right", fontsize=7)
+        a.legend(loc="upper right", fontsize=7)
     fig.tight_layout()
     fig.savefig(out / "fig10_14_errors.png", dpi=100)
-    plt.close(fig)
-
-
 def findings(m: dict) -> list[dict]:
     """The claims of section 10.4 (Fig. 10.14) checked against the metrics ``m``.
 
@@ -634,7 +448,7 @@ EXPERIMENT = Experiment(
     title="Feedback linearisation against decoupled adaptive control, 1 % parameter error",
     section="10.4, Fig. 10.14",
     run=run,
-    config=CONFIG,
+    config=FLConfig().check(),
     quick={"check_dt_halving": False, "sampled_diagnostic": False, "dt": 2e-3},
     findings=findings,
     discussion=(
