@@ -52,12 +52,13 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from ..blocks import Block
+from ..blocks import Block, ClosedLoop
 from ..errors import ModelError
 from ..model import RobotModel
 from ..symbolic.rigid import FUNCTION_OPTS
-from .pneumatic import McKibbenRobot
-from .pneumatic_loop import rk4_stage_step, valve_rhs_fun
+from .pneumatic import McKibbenRobot, PneumaticArm
+from .pneumatic_loop import (controller_block, plant_block, preset_nu, rk4_stage_step,
+                             stage_reference_block, theorem5_continuous_block, valve_rhs_fun)
 
 #: Reference layout, the same as the adaptive steps of :mod:`softgen.control.pneumatic`.
 REFERENCE_BLOCKS = ("q_d", "qd_d", "qdd_d", "qddd_d", "sigma_d", "sigmad_d")
@@ -351,3 +352,79 @@ def feedback_linearization(model: RobotModel, **shared) -> FeedbackLinearization
         raise ModelError(f"{model.name}: feedback linearisation (section 10.4) needs McKibben "
                          f"pairs (type = \"mckibben\") on every joint, got {got}")
     return FeedbackLinearization(model, **shared)
+
+
+# -- the closed loops of section 10.4 (Fig. 10.14) ---------------------------------------------
+
+#: Controllers of the section-10.4 comparison.
+LAWS = ("fl", "theorem5")
+
+
+def valve_loop(fl: FeedbackLinearization, arm: PneumaticArm, ref: Block, law: str, dt: float,
+               *, mode: str = "continuous", hold_compensation: bool = False, substeps: int = 1,
+               name: str | None = None) -> ClosedLoop:
+    """References ``ref`` → ``law`` (FL or Theorem 5) → the valve plant (section 10.4).
+
+    ``ref``: a stateless block reading ``t`` and emitting ``ref`` (6n), ``q_d`` and
+    ``sigma_d`` (e.g. :func:`~softgen.control.references.stiffness_reference_block`).
+    ``mode="continuous"``: one block ``loop`` integrates law and plant over each sample
+    (:meth:`FeedbackLinearization.continuous_block`,
+    :func:`~softgen.control.pneumatic_loop.theorem5_continuous_block`), ``ref`` read at
+    the RK4 stage times too. ``mode="sampled"``: ``ctrl`` → ``plant``
+    (:func:`~softgen.control.pneumatic_loop.plant_block`, ``substeps`` RK4 steps), the
+    command held over the sample; FL may compensate the hold. :func:`valve_loop_start`
+    gives initial state and parameters, :func:`valve_loop_signals` the signal names.
+    """
+    if law not in LAWS or mode not in ("continuous", "sampled"):
+        raise ValueError(f"law, mode: expected one of {LAWS} and 'continuous' or 'sampled', "
+                         f"got {law!r}, {mode!r}")
+    if hold_compensation and (law, mode) != ("fl", "sampled"):
+        raise ValueError("hold_compensation: only for law='fl', mode='sampled'")
+    if mode == "continuous":
+        blocks = [stage_reference_block(ref, dt), fl.continuous_block(dt) if law == "fl"
+                  else theorem5_continuous_block(arm, dt)]
+    else:
+        blocks = [ref, fl.controller_block(dt, hold_compensation=hold_compensation)
+                  if law == "fl" else controller_block(arm, "theorem5", dt),
+                  plant_block(arm, dt, plant="valve", substeps=substeps)]
+    tag = f"{law}_{mode}{'_hc' if hold_compensation else ''}_{dt:g}"
+    return ClosedLoop(name or f"{fl.name}_{tag}".replace(".", "_").replace("-", "m"), blocks,
+                      [("ctrl.p", "plant.p_cmd")] if (law, mode) == ("theorem5", "sampled")
+                      else [])
+
+
+def valve_loop_signals(d: ClosedLoop) -> dict[str, str]:
+    """Signal names of a :func:`valve_loop` diagram: ``q``, ``sigma`` (plant, at the
+    sample), ``q_d``, ``sigma_d``, ``p_cmd`` (the command issued), and for Theorem 5
+    ``nu``, ``Pi_hat``."""
+    sig = {k: f"{b.name}.{k}" for b in d.blocks.values()
+           for k in ("q", "sigma", "q_d", "sigma_d", "nu", "Pi_hat") if k in b.outputs}
+    sig["p_cmd"] = "ctrl.p" if "ctrl.p" in d.signals else \
+        "loop.p_cmd" if "loop" in d.blocks else "ctrl.p_cmd"
+    return sig
+
+
+def valve_loop_start(d: ClosedLoop, fl: FeedbackLinearization, arm: PneumaticArm, *,
+                     gains: dict, ratio: float = 1.0, T_p: float = 0.05) -> tuple[dict, dict]:
+    """``(x0, params)`` of a :func:`valve_loop` diagram, for :func:`simulate`.
+
+    At rest at q_d(0) with the pressures that hold σ_d(0) (true model). ``gains``: FL's
+    ``kq0 … ks0`` (:func:`hurwitz_gains`) or Theorem 5's ``lam, kd, kpi, ksigma, kinv``.
+    ``ratio`` scales the controller's belief: FL's π = ratio·π, Theorem 5's
+    Π̂(0) = ratio·Π, from the ν of the open-loop stiffness preset
+    (:func:`~softgen.control.pneumatic_loop.preset_nu`, section 10.2). ``T_p`` is the
+    valves' time constant, known to FL.
+    """
+    n = fl.n
+    ref0 = d.blocks["ref"].eval(u=[0.0])[1][d.blocks["ref"].outputs.slice("ref")]
+    x0 = {"q": ref0[:n], "p": fl.rest_pressures(ref0[:n], ref0[4 * n:5 * n])}
+    par = {"T_p": T_p, **gains}
+    if any("pi" in b.params for b in d.blocks.values()):          # FL
+        par["pi"] = ratio * fl.parameter_nominal
+    else:
+        Pi0 = ratio * arm.Pi_nominal
+        x0.update(Pi_hat=Pi0, nu=preset_nu(arm, Pi0, ref0[:n], ref0, lam=gains["lam"],
+                                           kd=gains["kd"], dt=d.dt))
+    # Short names to every block that has them (T_p: the FL controller's and the plant's).
+    return tuple({f"{b.name}.{k}": v for k, v in vals.items() for b in d.blocks.values()
+                  if k in getattr(b, lay)} for vals, lay in ((x0, "state"), (par, "params")))

@@ -254,3 +254,13 @@ def theorem5_continuous_block(arm: PneumaticArm, dt: float, *, name: str = "loop
                                "T_p": "positive"},
                         doc="Theorem 5 and valve plant, continuous time, RK4 per sample",
                         meta={"model": arm.name})
+
+
+def preset_nu(arm: PneumaticArm, Pi_hat: np.ndarray, q: np.ndarray, ref: np.ndarray,
+              *, lam, kd, dt: float) -> np.ndarray:
+    """ν that gives σ_d of ``ref`` at rest at ``q`` by the actuator model with Π̂ (the
+    "initially inflated" preset of section 10.2: the open-loop stiffness step, K_π = 0)."""
+    n = arm.n
+    out = arm.step_fun("open_loop")(Pi_hat, q, np.zeros(n), ref, lam, kd,
+                                    np.zeros(arm.n_params), 1 / arm.act.K, dt)
+    return np.array(out[3]).ravel()
