@@ -264,3 +264,35 @@ def preset_nu(arm: PneumaticArm, Pi_hat: np.ndarray, q: np.ndarray, ref: np.ndar
     out = arm.step_fun("open_loop")(Pi_hat, q, np.zeros(n), ref, lam, kd,
                                     np.zeros(arm.n_params), 1 / arm.act.K, dt)
     return np.array(out[3]).ravel()
+
+
+# -- decoupling of position and stiffness (chapter 10) ------------------------------------------
+
+def decoupling_windows(own, other, *, settle: float, end: float) -> list[tuple[float, float, float]]:
+    """``(t0, t1, step)``: intervals in which only the ``own`` references move.
+
+    ``own`` and ``other`` are lists of :class:`~softgen.control.references.SmoothSteps`
+    (e.g. positions and stiffnesses). Each step of ``own`` opens a window that lasts to
+    the next change of any reference (or ``end``); steps before ``settle`` (an adaptation
+    transient) or within one rise time of a step of ``other`` are left out.
+    """
+    other_times = {t for s in other for t in s.times[1:]}
+    changes = sorted({t for s in [*own, *other] for t in s.times[1:]})
+    return [(float(t0), float(min([u for u in changes if u > t0] + [end])), abs(b - a))
+            for s in own for t0, a, b in zip(s.times[1:], s.values, s.values[1:])
+            if t0 >= settle and all(abs(t0 - u) >= s.rise for u in other_times)]
+
+
+def decoupling_index(t, err, windows) -> np.ndarray:
+    """Per joint, max over ``windows`` of the change of ``err`` (samples × n) since the
+    window's start, over the window's step: e.g. the stiffness error per radian of
+    position step while only positions move. The change, not the error itself, so that a
+    constant offset is charged only for what the other references' steps add."""
+    t, err = np.asarray(t), np.asarray(err)
+    worst = np.zeros(err.shape[1])
+    for t0, t1, step in windows:
+        mask = (t >= t0) & (t < t1)
+        if mask.any() and step > 0:
+            dev = np.abs(err[mask] - err[np.searchsorted(t, t0)])
+            worst = np.maximum(worst, dev.max(axis=0) / step)
+    return worst
