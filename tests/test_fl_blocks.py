@@ -13,10 +13,12 @@ import pytest
 
 from softgen.blocks import ClosedLoop
 from softgen.control.feedback_linearization import (GAIN_NAMES, feedback_linearization,
-                                                    hurwitz_gains)
+                                                    hurwitz_gains, valve_loop, valve_loop_signals,
+                                                    valve_loop_start)
 from softgen.control.pneumatic import pneumatic_arm
-from softgen.control.pneumatic_loop import (plant_block, stage_reference_block,
-                                            theorem5_continuous_block, valve_rhs_fun)
+from softgen.control.pneumatic_loop import (decoupling_index, decoupling_windows, plant_block,
+                                            stage_reference_block, theorem5_continuous_block,
+                                            valve_rhs_fun)
 from softgen.control.references import SmoothSteps, stiffness_reference_block
 from softgen.model import load_model
 from softgen.runtime.simulate import simulate
@@ -186,3 +188,39 @@ def test_generated_loop_equals_python_steps(fl, arm, mode):
     for sig in (f"{plant}.q", f"{plant}.sigma", f"{'loop' if mode == 'continuous' else 'ctrl'}.p_cmd"):
         np.testing.assert_allclose(tr[sig], ys[:, d.signals.slice(sig)], rtol=1e-12, atol=1e-12)
     assert np.ptp(tr["ref.q_d"][:, 0]) > 5e-3 and np.ptp(tr[f"{plant}.q"][:, 0]) > 0
+
+
+def test_valve_loop_start_sets_every_block_and_rejects_bad_arguments(fl, arm):
+    """Sampled FL: T_p reaches controller and plant; Theorem 5: Π̂(0) = ratio·Π and the
+    preset ν; unknown law, mode or a misplaced hold compensation raise."""
+    ref = _ref_block()
+    d = valve_loop(fl, arm, ref, "fl", DT, mode="sampled")
+    x0, par = valve_loop_start(d, fl, arm, gains=hurwitz_gains(2), ratio=0.99, T_p=0.07)
+    assert par["ctrl.T_p"] == par["plant.T_p"] == 0.07
+    np.testing.assert_allclose(par["ctrl.pi"], 0.99 * fl.parameter_nominal)
+    assert set(valve_loop_signals(d).values()) <= set(d.signals.names)
+    gains = {"lam": 1.0, "kd": 1.0, "kpi": 20.0, "ksigma": 0.1, "kinv": 1 / arm.act.K}
+    for mode in ("continuous", "sampled"):
+        d = valve_loop(fl, arm, ref, "theorem5", DT, mode=mode)
+        x0, par = valve_loop_start(d, fl, arm, gains=gains, ratio=0.99)
+        blk = "loop" if mode == "continuous" else "ctrl"
+        np.testing.assert_allclose(x0[f"{blk}.Pi_hat"], 0.99 * arm.Pi_nominal)
+        assert np.all(np.isfinite(x0[f"{blk}.nu"])) and set(x0) <= set(d.state.names)
+        assert set(par) <= set(d.params.names)
+    with pytest.raises(ValueError, match="law, mode"):
+        valve_loop(fl, arm, ref, "pid", DT)
+    with pytest.raises(ValueError, match="hold_compensation"):
+        valve_loop(fl, arm, ref, "fl", DT, hold_compensation=True)
+
+
+def test_decoupling_index_charges_only_the_change_inside_windows():
+    q = [SmoothSteps((0, 20, 40), (0.0, 0.2, 0.1), 2.0)]
+    s = [SmoothSteps((0, 30), (5.0, 6.0), 2.0)]
+    w = decoupling_windows(q, s, settle=10.0, end=60.0)
+    assert w == [(20.0, 30.0, 0.2), (40.0, 60.0, pytest.approx(0.1))]
+    assert decoupling_windows(q, s, settle=25.0, end=60.0) == [w[1]]
+    t = np.arange(0, 60, 0.5)
+    err = np.full((t.size, 1), 3.0)                      # a constant offset costs nothing
+    err[(t >= 22) & (t < 24), 0] += 0.05                 # a transient in the first window
+    err[t >= 30, 0] += 1.0                               # outside any window of q
+    np.testing.assert_allclose(decoupling_index(t, err, w), [0.05 / 0.2])

@@ -189,23 +189,13 @@ def run(c: FLConfig, out) -> Metrics:
           parameter_ratio(traces["adaptive_exact"]["Pi_hat"], Pi))
     m.add("adaptive_1pct_final_parameter_ratio_max", np.max(Pi_hat[-1] / Pi))
     m.add("adaptive_1pct_final_parameter_ratio_min", np.min(Pi_hat[-1] / Pi))
-    runs = [("", k.name, c.dt, k, False) for k in CASES]
-    if c.sampled_diagnostic:
-        runs += [("sampled_", k.name, c.sample_time, k, False) for k in CASES] \
-            + [("sampled_", "fl_exact_hc", c.sample_time, CASES[0], True)]
     total = 0
-    for pre, tag, dt, case, hc in runs:
-        tr = traces[tag] if not pre else s.run(case, dt, mode="sampled", hc=hc)
-        n_viol = len(check_pressures(tr["t_cmd"], tr["p_cmd"], pmax,
-                                     label=f"{EXPERIMENT.id} {pre}{tag}"))
-        m.add("pressure_violations", n_viol, prefix=f"{pre}{tag}_")
-        if pre:
-            m.extend(case_metrics(tr, c), prefix=f"{pre}{tag}_", keep=lambda r: r.quantity in (
-                "position_rms", "stiffness_rms", "final_position_error_max"))
-            continue
-        total += n_viol
-        m.add("pressure_min_pa", tr["p_cmd"].min(), "Pa", prefix=f"{tag}_")
-        m.add("pressure_max_pa", tr["p_cmd"].max(), "Pa", prefix=f"{tag}_")
+    for name, tr in traces.items():
+        viol = check_pressures(tr["t_cmd"], tr["p_cmd"], pmax, label=f"{EXPERIMENT.id} {name}")
+        total += len(viol)
+        m.add("pressure_violations", len(viol), prefix=f"{name}_")
+        m.add("pressure_min_pa", tr["p_cmd"].min(), "Pa", prefix=f"{name}_")
+        m.add("pressure_max_pa", tr["p_cmd"].max(), "Pa", prefix=f"{name}_")
     m.add("pressure_violations", total)
     if c.check_dt_halving:
         half = {case.name: case_metrics(s.run(case, c.dt / 2), c) for case in CASES}
@@ -213,6 +203,14 @@ def run(c: FLConfig, out) -> Metrics:
             m.add(f"dt_halving_max_{kind}", max(abs(a.value - b.value) for name in per
                                                 for a, b in zip(per[name], half[name])
                                                 if a.quantity in qs))
+    if c.sampled_diagnostic:        # digital controllers, and FL with the hold compensated
+        for tag, case, hc in [(k.name, k, False) for k in CASES] + [("fl_exact_hc", CASES[0], True)]:
+            tr = s.run(case, c.sample_time, mode="sampled", hc=hc)
+            m.extend(case_metrics(tr, c), prefix=f"sampled_{tag}_", keep=lambda r: r.quantity in (
+                "position_rms", "stiffness_rms", "final_position_error_max"))
+            m.add("pressure_violations", len(check_pressures(
+                tr["t_cmd"], tr["p_cmd"], pmax, label=f"{EXPERIMENT.id} sampled {tag}")),
+                prefix=f"sampled_{tag}_")
     m.add("simulated_seconds_per_wall_second", s.simulated / s.wall, "s/s")
     thin = {name: {k: v[::c.trace_stride] for k, v in tr.items()} for name, tr in traces.items()}
     np.savez_compressed(out / "traces.npz", **{f"{name}__{k}": v for name, tr in thin.items()
