@@ -161,10 +161,13 @@ def test_stage_references_are_the_references_at_the_stage_times():
                               DT)
 
 
+@pytest.mark.parametrize("backend", ["casadi", pytest.param("c", marks=pytest.mark.slow)])
 @pytest.mark.parametrize("mode", ["continuous", "sampled"])
-def test_generated_loop_equals_python_steps(fl, arm, mode):
-    """The diagram's N-step loop (CasADi-evaluated, no compiler needed) equals N Python
-    steps of its one-sample function, for both FL arrangements."""
+def test_generated_loop_equals_python_steps(fl, arm, mode, backend, request):
+    """The diagram's N-step loop equals N Python steps of its one-sample function, for both
+    FL arrangements: evaluated by CasADi (fast suite) and compiled to C (slow)."""
+    if backend == "c":
+        request.getfixturevalue("need_compiler")
     ref = _ref_block()
     if mode == "continuous":
         d = ClosedLoop(f"fl_{mode}", [stage_reference_block(ref, DT), fl.continuous_block(DT)])
@@ -176,7 +179,7 @@ def test_generated_loop_equals_python_steps(fl, arm, mode):
     q0 = np.array([0.2, 0.1])
     x0 = {f"{plant}.q": q0, f"{plant}.p": fl.rest_pressures(q0, [8.0, 4.0])}
     N = 40
-    tr = simulate(d, steps=N, x0=x0, chunk=16, backend="casadi")
+    tr = simulate(d, steps=N, x0=x0, chunk=16, backend=backend)
     step = d.step_fun()
     x, p = d.initial_state(x0), d.parameters()
     ys = []
