@@ -6,24 +6,20 @@ Plant: the section-10.4 arm (``arm_2link_pneumatic``, angles from the horizontal
 controller's π = 0.99 π (K and T_p exact); Theorem 5 (Λ = 1, K_d = 1, K_π = 20) with
 Π̂(0) = Π and 0.99 Π. Choices the thesis leaves open:
 
-- T_p = 0.05 s, known to FL (it enters E); Theorem 5 ignores the valves. K_σ = r/K_1 with
-  r = ``stiffness_rate`` = 1 1/s, the rate of the FL stiffness pole.
+- T_p = 0.05 s, known to FL; K_σ = r/K_1, r = ``stiffness_rate`` = 1 1/s (FL's σ pole).
 - Continuous time, as the thesis's Simulink: law and plant are one ODE, one RK4 step of
-  ``dt`` per sample, references at the stage times (:func:`valve_loop`), repeated at dt/2
-  (``dt_halving_*``). ``sampled_*``: digital controllers at ``sample_time``, command held
-  (Theorem 5 by its Euler step); a held FL command realises about 1 − dt/(2 T_p) of the
-  pressure rate of eq. 10.15, and the triple pole moves like its cube root, so
-  ``sampled_fl_exact_hc_*`` compensates the hold.
+  ``dt`` per sample (:func:`valve_loop`), repeated at dt/2 (``dt_halving_*``).
+  ``sampled_*``: digital controllers at ``sample_time``, command held (Theorem 5 by its
+  Euler step; ``_hc``: FL with the hold compensated, :meth:`controller_block`).
 - References: C³ smoothed steps (``rise`` = 2 s), :data:`SCHEDULE` in :data:`PHASES`
   (positions, stiffnesses, both, a hold at q_d = (0.35, 0.15) rad where gravity loads both
   joints, so a parameter error shows as an offset); pressures stay in [0, 8 bar] and
   |q| < 1 rad (beyond, a muscle is shorter than its minimum length). Start at rest at
-  q_d(0) holding σ_d(0); Theorem 5 from the open-loop stiffness preset (section 10.2).
+  q_d(0) holding σ_d(0) (:func:`valve_loop_start`).
 - Metrics read the states x_1 … x_N the integration produced and the commands at t_0 …
   t_{N−1}; unprefixed chapter-10 names are ``adaptive_1pct``'s. ``steady_position_error_*``:
-  max |q − q_d| over the last ``final_window`` (constant references);
-  ``fl_1pct_predicted_steady_error_joint{i}``: the closed-form FL offset (k2/k0) δ/(1 − δ)
-  M⁻¹G (:meth:`~softgen.control.feedback_linearization.FeedbackLinearization.predicted_offset`).
+  max |q − q_d| over the last ``final_window``; ``fl_1pct_predicted_steady_error_joint{i}``:
+  the closed-form FL offset (:meth:`FeedbackLinearization.predicted_offset`).
 """
 from __future__ import annotations
 
@@ -345,13 +341,12 @@ EXPERIMENT = Experiment(
     discussion=(
         "The thesis prints no numbers here, only Fig. 10.14: with underestimated dynamic "
         "parameters FL keeps a constant position error, the adaptive controller removes it "
-        "(`steady_position_error_fl` against `steady_position_error_adaptive`; `_exact` with "
-        "exact parameters). The closed-form offset `fl_1pct_predicted_steady_error_joint{i}` "
-        "agreeing with `fl_1pct_final_position_error_joint{i}` locates the cause in the "
-        "model q̈ of eq. 10.16, which the slow poles and the light elbow amplify into a large "
-        "angle. Theorem 5's estimates need not converge to Π (`parameter_estimate_max_ratio`, "
-        "`adaptive_1pct_final_parameter_ratio_*`). The coupling indices (change of one error "
-        "per unit step of the other reference) test FL's untouched stiffness against "
-        "Theorem 5's transients. `dt_halving_*` checks the RK4 step, `sampled_*` what a "
-        "digital controller with a held command changes (module docstring)."),
+        "(`steady_position_error_fl` against `steady_position_error_adaptive`; `_exact`: exact "
+        "parameters). The closed-form offset `fl_1pct_predicted_steady_error_joint{i}` agreeing "
+        "with `fl_1pct_final_position_error_joint{i}` locates the cause in the model q̈ of eq. "
+        "10.16, amplified by the slow poles and the light elbow. Theorem 5's estimates need not "
+        "converge to Π (`parameter_estimate_max_ratio`). The coupling indices (change of one "
+        "error per unit step of the other reference) test FL's untouched stiffness against "
+        "Theorem 5's transients; `dt_halving_*` checks the RK4 step, `sampled_*` a digital "
+        "controller (module docstring)."),
 )
