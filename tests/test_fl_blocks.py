@@ -210,6 +210,8 @@ def test_valve_loop_start_sets_every_block_and_rejects_bad_arguments(fl, arm):
         np.testing.assert_allclose(x0[f"{blk}.Pi_hat"], 0.99 * arm.Pi_nominal)
         assert np.all(np.isfinite(x0[f"{blk}.nu"])) and set(x0) <= set(d.state.names)
         assert set(par) <= set(d.params.names)
+    with pytest.raises(ValueError, match="kq0.*not a parameter"):
+        valve_loop_start(d, fl, arm, gains={**gains, **hurwitz_gains(2)})
     with pytest.raises(ValueError, match="law, mode"):
         valve_loop(fl, arm, ref, "pid", DT)
     with pytest.raises(ValueError, match="hold_compensation"):

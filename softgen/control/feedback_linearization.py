@@ -426,5 +426,10 @@ def valve_loop_start(d: ClosedLoop, fl: FeedbackLinearization, arm: PneumaticArm
         x0.update(Pi_hat=Pi0, nu=preset_nu(arm, Pi0, ref0[:n], ref0, lam=gains["lam"],
                                            kd=gains["kd"], dt=d.dt))
     # Short names to every block that has them (T_p: the FL controller's and the plant's).
-    return tuple({f"{b.name}.{k}": v for k, v in vals.items() for b in d.blocks.values()
-                  if k in getattr(b, lay)} for vals, lay in ((x0, "state"), (par, "params")))
+    out = tuple({f"{b.name}.{k}": v for k, v in vals.items() for b in d.blocks.values()
+                 if k in getattr(b, lay)} for vals, lay in ((x0, "state"), (par, "params")))
+    placed = {key.partition(".")[2] for part in out for key in part}
+    if lost := sorted((set(x0) | set(par)) - placed):
+        raise ValueError(f"gains: {', '.join(lost)}: not a parameter of diagram {d.name} "
+                         f"(expected some of {', '.join(d.params.names)})")
+    return out
