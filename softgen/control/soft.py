@@ -1,0 +1,114 @@
+"""Adaptive control of soft-bodied robots (thesis Theorem 10, ch. 12) and the soft plant.
+
+Theorem 10, with σ the sliding variable of ch. 12 (NOTES item 11, not a stiffness)::
+
+    q̃ = q_d − q,   q̇_r = q̇_d + Λ q̃,   q̈_r = q̈_d + Λ (q̇_d − q̇),   σ = q̇_r − q̇,
+    τ = A(q)† (Y(q, q̇, q̇_r, q̈_r) π̂ + K_d σ),     dπ̂/dt = K_π Yᵀ σ.
+
+The step holds τ over one sample (zero-order hold) and integrates π̂ by forward
+Euler over the same sample. Y π̂ and Yᵀ σ are computed without forming Y
+(:class:`softgen.symbolic.pcc.LinearRoute`). A(q)† is applied per segment
+block: A_i⁻¹ where A_i is square (PCC; det A_i = sinc²(Δ_i) in 3D, singular only
+at Δ_i = kπ), (A_iᵀA_i)⁻¹A_iᵀ where it is a column (the affine pendulum,
+A = H(1, 0)ᵀ). A uses the nominal rest lengths: the thesis treats A as known.
+
+The plant step integrates eq. 3.6 with external forces on the segment tips,
+B q̈ + C q̇ + G + K q + D q̇ = A τ + Σ_i J_iᵀ f_i (J_i: 3×n Jacobian of tip i's
+world position), by classical RK4 with τ and f held, and adds measurement noise
+to the returned output.
+"""
+from __future__ import annotations
+
+import casadi as ca
+
+from ..symbolic.pcc import FUNCTION_OPTS, LinearRoute, SoftDynamics
+
+#: Inputs of ``<model>_theorem10_step``, in order.
+THEOREM10_INPUTS = ["pi_hat", "q", "qd", "q_d", "qd_d", "qdd_d", "lam", "kd", "kpi", "dt"]
+THEOREM10_OUTPUTS = ["pi_hat_next", "tau", "sigma"]
+PLANT_INPUTS = ["x", "tau", "f_ext", "noise", "dt"]
+PLANT_OUTPUTS = ["x_next", "y"]
+
+
+def apply_pinv(blocks: list, v):
+    """A† v for block-diagonal A = diag(blocks) (square blocks: solve; columns: LS)."""
+    out, row = [], 0
+    for A in blocks:
+        r, c = A.shape
+        v_i = v[row:row + r]
+        if r == c:
+            out.append(v_i / A[0, 0] if r == 1 else ca.solve(A, v_i))
+        else:
+            out.append(ca.solve(ca.mtimes(A.T, A), ca.mtimes(A.T, v_i)))
+        row += r
+    return ca.vertcat(*out)
+
+
+def theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None) -> ca.Function:
+    """``<model>_theorem10_step``: one sample of Theorem 10.
+
+    Inputs ``pi_hat`` (r), ``q, qd, q_d, qd_d, qdd_d`` (n), ``lam, kd`` (n, the
+    diagonals of Λ and K_d), ``kpi`` (r, diagonal of K_π), ``dt``. Outputs
+    ``pi_hat_next = pi_hat + dt K_π Yᵀσ``, ``tau`` (the actuator inputs, m) and
+    ``sigma`` (n).
+    """
+    lin = LinearRoute(dyn) if lin is None else lin
+    n, r = dyn.model.dof, lin.r
+    pi_hat, kpi = ca.SX.sym("pi_hat", r), ca.SX.sym("kpi", r)
+    q, qd, q_d, qd_d, qdd_d, lam, kd = (ca.SX.sym(s, n) for s in
+                                        ("q", "qd", "q_d", "qd_d", "qdd_d", "lam", "kd"))
+    dt = ca.SX.sym("dt")
+    qd_r = qd_d + lam * (q_d - q)
+    qdd_r = qdd_d + lam * (qd_d - qd)
+    sigma = qd_r - qd
+    y_pi, yt_s = lin.at(pi_hat, q, qd, qd_r, qdd_r, sigma)
+    tau_star = y_pi + kd * sigma
+    if dyn.base.constant is not None:      # terms multiplying no uncertain parameter
+        tau_star = tau_star + ca.substitute(
+            dyn.base.constant, ca.vertcat(dyn.nominal.q, dyn.nominal.qd, dyn.nominal.qd_r,
+                                          dyn.nominal.qdd_r), ca.vertcat(q, qd, qd_r, qdd_r))
+    blocks = [ca.substitute(A, dyn.nominal.q, q) for A in dyn.nominal.actuation_blocks()]
+    tau = apply_pinv(blocks, tau_star)
+    return ca.Function(f"{dyn.name}_theorem10_step",
+                       [pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd, kpi, dt],
+                       [pi_hat + dt * kpi * yt_s, tau, sigma],
+                       THEOREM10_INPUTS, THEOREM10_OUTPUTS, FUNCTION_OPTS)
+
+
+def _rk4(f, x, u, h):
+    k1 = f(x, u)
+    k2 = f(x + h / 2 * k1, u)
+    k3 = f(x + h / 2 * k2, u)
+    k4 = f(x + h * k3, u)
+    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def plant_rhs(dyn: SoftDynamics) -> ca.Function:
+    """ẋ = (q̇, q̈) of eq. 3.6 at nominal parameters, x = (q, q̇), u = (τ, f_ext)."""
+    b = dyn.nominal
+    tau = ca.SX.sym("tau", b.n_inputs)
+    f_ext = ca.SX.sym("f_ext", 3 * dyn.model.n_segments)
+    qdd = dyn.forward_dynamics_expr(tau, f_ext)
+    return ca.Function("rhs", [ca.vertcat(b.q, b.qd), ca.vertcat(tau, f_ext)],
+                       [ca.vertcat(b.qd, qdd)], ["x", "u"], ["xdot"])
+
+
+def plant_fun(dyn: SoftDynamics, *, substeps: int = 1) -> ca.Function:
+    """``<model>_plant``: ``substeps`` RK4 steps over one sample ``dt``, τ and f held.
+
+    Inputs ``x = (q, q̇)`` (2n), ``tau`` (m), ``f_ext`` (3 per segment tip, world
+    frame, segment 1 first; planar models ignore z), ``noise`` (2n, added to the
+    output), ``dt``. Outputs ``x_next`` and ``y = x_next + noise``.
+    """
+    n = dyn.model.dof
+    b = dyn.nominal
+    x, tau = ca.SX.sym("x", 2 * n), ca.SX.sym("tau", b.n_inputs)
+    f_ext, noise = ca.SX.sym("f_ext", 3 * dyn.model.n_segments), ca.SX.sym("noise", 2 * n)
+    dt = ca.SX.sym("dt")
+    rhs = plant_rhs(dyn)
+    u = ca.vertcat(tau, f_ext)
+    xn = x
+    for _ in range(substeps):
+        xn = _rk4(rhs, xn, u, dt / substeps)
+    return ca.Function(f"{dyn.name}_plant", [x, tau, f_ext, noise, dt], [xn, xn + noise],
+                       PLANT_INPUTS, PLANT_OUTPUTS, FUNCTION_OPTS)
