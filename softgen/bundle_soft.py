@@ -61,8 +61,8 @@ def soft_bundle_spec(model: SoftModel, options) -> BundleSpec:
         Generated(theorem10_fun(dyn, lin), "one sample of Theorem 10: tau = A^+ (Y pi_hat + "
                                            "K_d sigma), Euler update of pi_hat"),
         Generated(plant_fun(dyn, substeps=options.loop_substeps),
-                  f"{options.loop_substeps} RK4 step(s) of eq. 3.6 over dt with tau and tip "
-                  "forces held; y = x_next + noise"),
+                  f"{options.loop_substeps} ROS2 step(s) (L-stable, order 2) of eq. 3.6 over "
+                  "dt, tau and tip forces held; y = x_next + noise"),
     ]
     known = None
     if dyn.base.constant is not None:

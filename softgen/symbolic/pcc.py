@@ -64,7 +64,7 @@ import numpy as np
 
 from ..model import Link, RobotModel
 from ..soft_model import SoftModel
-from .mechanics import Mechanics, _rpy
+from .mechanics import Mechanics, _rpy, forward_kinematics
 from .regressor import BaseParameters, base_parameters, factor_polynomial
 from .smooth import cosc_w, nu_w, sinc_w
 
@@ -533,7 +533,17 @@ def augmented_route(body: SoftBody):
     values = {k: body.values[k] for k in rigid.nominal}
     mech = Mechanics(rigid, values)
     xi, Jm = _augmented(body.model, body.q, body.values)
-    Bxi = ca.substitute(mech.inertia(), mech.q, xi)
+    # B_ξ = Σ m J_ξᵀ J_ξ from the rigid robot's frame origins (``forward_kinematics``).
+    # Not ``mech.inertia()``: the velocity recursion of mechanics.py omits ω × (axis q)
+    # for a prismatic joint behind revolute ones (its positions are right), which this
+    # chain (R R P R R ...) exercises.
+    states = forward_kinematics(rigid, mech.q, mech.qd, values)
+    Bxi = 0
+    for link, st in zip(rigid.links, states):
+        if link.mass != 0.0:
+            J = ca.jacobian(st.origin, mech.q)
+            Bxi += rigid.resolve(link.mass, values) * ca.mtimes(J.T, J)
+    Bxi = ca.substitute(Bxi, mech.q, xi)
     Gxi = ca.substitute(mech.gravity(), mech.q, xi)
     return ca.mtimes([Jm.T, Bxi, Jm]), ca.mtimes(Jm.T, Gxi)
 

@@ -1,0 +1,157 @@
+"""Soft-body bundles: contract, finiteness and continuity at the straight configuration,
+compiled library == casadi.Function, and Theorem 10 closing the loop."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from softgen.bundle import bundle_spec
+from softgen.model import load_model
+
+MODELS = ("soft_pendulum", "pcc_planar_4seg", "pcc_3d_4seg")
+EPS = (1e-12, 1e-8, 1e-6, 1e-3)
+#: Exempt from continuity (not finiteness): φ = atan2(Δy, Δx) has no limit at Δ = 0.
+NO_LIMIT = ("_augmented_map", "_augmented_jacobian")
+
+
+@pytest.fixture(scope="module")
+def specs():
+    return {n: bundle_spec(load_model(n)) for n in MODELS}
+
+
+def _inputs(f, rng):
+    """Random fixed inputs other than the configuration (positive gains and times)."""
+    args = {}
+    for i in range(f.n_in()):
+        name, shape = f.name_in(i), f.size_in(i)
+        v = rng.uniform(-1, 1, shape)
+        if name in ("dt",):
+            v = np.full(shape, 1e-3)
+        elif name in ("lam", "kd", "kpi"):
+            v = np.abs(v) + 0.1
+        elif name == "s":
+            v = np.full(shape, 0.7)
+        args[name] = v
+    return args
+
+
+def _config_input(f):
+    names = [f.name_in(i) for i in range(f.n_in())]
+    return "q" if "q" in names else ("x" if "x" in names else None)
+
+
+def test_soft_contract(specs):
+    for name, spec in specs.items():
+        fns = {g.function.name(): g.function for g in spec.functions}
+        for q in ("inertia", "coriolis", "gravity", "regressor", "regressor_times",
+                  "regressor_transpose_times", "inverse_dynamics", "forward_dynamics",
+                  "actuation", "backbone", "theorem10_step", "plant"):
+            assert f"{name}_{q}" in fns, q
+        assert [fns[f"{name}_forward_dynamics"].name_in(i) for i in range(3)] == \
+            ["q", "qd", "tau"]
+        assert fns[f"{name}_backbone"].size_out(0) == (3, 1)
+        three_d = name == "pcc_3d_4seg"
+        assert (f"{name}_augmented_map" in fns) == three_d
+        assert (f"{name}_augmented_jacobian" in fns) == three_d
+        assert spec.extra["soft"]["n_segments"] == load_model(name).n_segments
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_finite_and_continuous_at_the_straight_configuration(specs, name):
+    """Every function at q = 0 exactly and at 1e-12, 1e-8, 1e-6, 1e-3 in random directions:
+    values and derivatives (Jacobian in q) finite, and both continuous."""
+    rng = np.random.default_rng(21)
+    for g in specs[name].functions:
+        f = g.function
+        key = _config_input(f)
+        if key is None:
+            continue
+        args = _inputs(f, rng)
+        n = f.size_in(f.index_in(key))[0]
+        qs = ca.MX.sym("q", n)
+        mx_args = [qs if f.name_in(i) == key else ca.MX(ca.DM(args[f.name_in(i)]))
+                   for i in range(f.n_in())]
+        outs = f(*mx_args)
+        outs = [outs] if f.n_out() == 1 else list(outs)
+        flat = ca.vertcat(*[ca.vec(o) for o in outs])
+        F = ca.Function("F", [qs], [flat, ca.jacobian(flat, qs)])
+        v0, d0 = (np.array(a) for a in F(np.zeros(n)))
+        assert np.all(np.isfinite(v0)) and np.all(np.isfinite(d0)), f.name()
+        exempt = f.name().endswith(NO_LIMIT)
+        for eps in EPS:
+            for _ in range(2):
+                d = rng.normal(size=n)
+                v, dv = (np.array(a) for a in F(eps * d / np.linalg.norm(d)))
+                assert np.all(np.isfinite(v)) and np.all(np.isfinite(dv)), (f.name(), eps)
+                if exempt:
+                    continue
+                # Lipschitz-type bounds; the 3D model's light modes (B ≈ 3e-6 at q = 0)
+                # make forward dynamics and the plant sensitive, hence the generous C.
+                sv = 1e6 * (1 + np.abs(v0).max())
+                sd = 1e6 * (1 + np.abs(d0).max())
+                assert np.abs(v - v0).max() <= sv * eps, (f.name(), eps, np.abs(v - v0).max())
+                assert np.abs(dv - d0).max() <= sd * max(eps, 1e-9), \
+                    (f.name(), eps, np.abs(dv - d0).max())
+
+
+def _pendulum_loop(specs, pi_hat0, kpi, seconds):
+    fns = {g.function.name(): g.function for g in specs["soft_pendulum"].functions}
+    ctl, plant = fns["soft_pendulum_theorem10_step"], fns["soft_pendulum_plant"]
+    dt = 1e-3
+    x = np.array([np.pi / 4, -np.pi / 4, 0.0, 0.0])
+    zero2 = np.zeros(2)
+    lam, kd = np.full(2, 0.3), np.full(2, 0.05)
+    # One loop: controller + plant per sample, mapaccum over the samples.
+    z = ca.MX.sym("z", 8)
+    pin, tau, _ = ctl(z[4:], z[:2], z[2:4], zero2, zero2, zero2, lam, kd, kpi, dt)
+    xn, _ = plant(z[:4], tau, np.zeros(3), np.zeros(4), dt)
+    one = ca.Function("one", [z], [ca.vertcat(xn, pin)])
+    Z = np.array(one.mapaccum("loop", int(seconds / dt))(np.concatenate([x, pi_hat0])))
+    assert np.all(np.isfinite(Z))
+    return Z
+
+
+def test_pendulum_theorem10_with_exact_parameters_regulates_upright(specs):
+    """Thesis §12.2.2 gains (Λ = 0.3, K_d = 0.05), π̂ = π, K_π = 0: from (π/4, −π/4) the
+    underactuated pendulum (A = H(1, 0)ᵀ, τ = A†(Yπ̂ + K_d σ)) goes upright."""
+    pi = np.array(specs["soft_pendulum"].parameters["nominal"])
+    Z = _pendulum_loop(specs, pi, np.zeros(4), 20.0)
+    err = np.abs(Z[:2, :]).max(axis=0)
+    assert err[-1] < 0.05 * err[0]
+    assert np.array_equal(Z[4:, -1], pi)
+
+
+@pytest.mark.slow
+def test_pendulum_theorem10_adaptive_from_zero_estimates(specs):
+    """π̂(0) = 0, K_π = 0.01 (Fig. 12.4, k = 1): upright within 150 s, π̂ bounded."""
+    Z = _pendulum_loop(specs, np.zeros(4), np.full(4, 0.01), 150.0)
+    err = np.abs(Z[:2, :]).max(axis=0)
+    assert err[-1] < 0.3 * err[0]
+    assert np.abs(Z[4:, :]).max() < 10
+
+
+@pytest.mark.compiler
+def test_compiled_library_equals_casadi_function_at_singular_points(need_compiler, specs):
+    from softgen.runtime.library import load_bundle
+    rng = np.random.default_rng(22)
+    for name, spec in specs.items():
+        b = load_bundle(name, backend="c")
+        for g in spec.functions:
+            f = g.function
+            key = _config_input(f)
+            args = _inputs(f, rng)
+            for eps in (0.0, 1e-12, 1e-6):
+                if key is not None:
+                    n = f.size_in(f.index_in(key))[0]
+                    args[key] = eps * rng.normal(size=(n, 1))
+                vals = [args[f.name_in(i)] for i in range(f.n_in())]
+                ref = f(*vals)
+                ref = [ref] if f.n_out() == 1 else ref
+                got = b[f.name()](*[v.ravel() if v.shape[1] == 1 else v for v in vals])
+                got = [got] if f.n_out() == 1 else got
+                for r, o in zip(ref, got):
+                    r = np.array(r)
+                    r = r.ravel() if r.shape[1] == 1 else r
+                    assert np.all(np.isfinite(o)), f.name()
+                    assert np.allclose(o, r, rtol=1e-12, atol=1e-12), f.name()
