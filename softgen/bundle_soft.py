@@ -10,6 +10,8 @@ and measurement noise.
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 from .codegen.generate import BundleSpec, Generated
 from .control.soft import (PLANT_INPUTS, PLANT_OUTPUTS, THEOREM10_INPUTS, THEOREM10_OUTPUTS,
                            plant_fun, theorem10_fun)
@@ -18,10 +20,20 @@ from .symbolic.pcc import LinearRoute, SoftDynamics
 
 
 def soft_bundle_spec(model: SoftModel, options) -> BundleSpec:
-    """The functions, parameter vector and identity of a soft model's bundle."""
+    """The functions, parameter vector and identity of a soft model's bundle.
+
+    Cached per (model file text, path, options) within a process: the derivation of
+    the 3D bundle takes seconds and several callers (generate, info, tests) ask.
+    """
+    options.check()
+    return _cached_spec(model.source_text(), model.path, options, model)
+
+
+@lru_cache(maxsize=8)
+def _cached_spec(text: str, path, options, model: SoftModel) -> BundleSpec:
     from .bundle import identity_bytes
 
-    options.check()
+    del text, path       # the cache key; ``model`` was parsed from them
     dyn = SoftDynamics(model, route=options.route)
     lin = LinearRoute(dyn)
     n = model.dof

@@ -37,9 +37,10 @@ Actuation A(q) (eq. 3.6, A_i after Prop. 5)
     and y axes of the base frame) and, in 3D, an axial force along the tip
     tangent. For a planar PCC segment A_i = 1; for the affine pendulum
     A = (∂α(1)/∂θ)ᵀ = H (1, 0)ᵀ (§3.2); in 3D this reproduces the printed A_i
-    (mirrored, see above) with sinc(Δ_i) where the conversion prints sin Δ_i in
-    the (1,2) and (2,1) entries: only then is det A_i = sinc²(Δ_i) as the thesis
-    states (tested).
+    with sinc(Δ_i) where the conversion prints sin Δ_i in the (1,2) and (2,1)
+    entries (only then is det A_i = sinc²(Δ_i), as the thesis states), times
+    diag(−1, −1, 1): the moments here are about +x and +y of the base frame
+    (tested).
 
 Augmented rigid robot (eq. 3.2-3.5), pcc-3d only
     ξ_i = (φ, θ/2 − η, b, η, −φ, φ, η, b, θ/2 − η, −φ) for the 10-joint chain
