@@ -155,3 +155,63 @@ def test_compiled_library_equals_casadi_function_at_singular_points(need_compile
                     r = r.ravel() if r.shape[1] == 1 else r
                     assert np.all(np.isfinite(o)), f.name()
                     assert np.allclose(o, r, rtol=1e-12, atol=1e-12), f.name()
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_theorem10_step_structure(specs, name):
+    """A(q) τ = Y π̂ + K_d σ (exactly where A is square; its projection for the pendulum),
+    σ = q̇_d − q̇ + Λ(q_d − q), and π̂⁺ = π̂ + dt K_π Yᵀσ, with Y the formed regressor."""
+    fns = {g.function.name(): g.function for g in specs[name].functions}
+    step = fns[f"{name}_theorem10_step"]
+    Yf, Af = fns[f"{name}_regressor"], fns[f"{name}_actuation"]
+    n = step.size_in(1)[0]
+    r = step.size_in(0)[0]
+    rng = np.random.default_rng(23)
+    for _ in range(3):
+        pi_hat = rng.normal(size=r)
+        q, qd, q_d, qd_d, qdd_d = (rng.uniform(-0.8, 0.8, n) for _ in range(5))
+        lam, kd, kpi = rng.uniform(0.5, 2, n), rng.uniform(0.5, 2, n), rng.uniform(0.5, 2, r)
+        dt = 1e-3
+        pin, tau, sigma = (np.array(v).ravel() for v in
+                           step(pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd, kpi, dt))
+        qd_r = qd_d + lam * (q_d - q)
+        qdd_r = qdd_d + lam * (qd_d - qd)
+        s = qd_r - qd
+        assert np.allclose(sigma, s, rtol=1e-14, atol=1e-14)
+        Y = np.array(Yf(q, qd, qd_r, qdd_r))
+        A = np.array(Af(q))
+        tau_star = Y @ pi_hat + kd * s
+        if A.shape[0] == A.shape[1]:
+            assert np.allclose(A @ tau, tau_star, rtol=1e-10, atol=1e-10)
+        else:
+            assert np.allclose(A.T @ (A @ tau), A.T @ tau_star, rtol=1e-10, atol=1e-10)
+        assert np.allclose(pin, pi_hat + dt * kpi * (Y.T @ s), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_plant_tip_forces_enter_through_the_tip_jacobians(specs, name):
+    """B (q̈(f) − q̈(0)) = Σ J_iᵀ f_i with J_i by central differences of the tip positions;
+    the output is x_next + noise."""
+    from softgen.control.soft import plant_rhs
+    from softgen.symbolic.pcc import SoftDynamics
+    dyn = SoftDynamics(load_model(name))
+    fns = {g.function.name(): g.function for g in specs[name].functions}
+    tips, B = fns[f"{name}_tips"], fns[f"{name}_inertia"]
+    rhs = plant_rhs(dyn)
+    n, m, ns = dyn.model.dof, dyn.nominal.n_inputs, dyn.model.n_segments
+    rng = np.random.default_rng(24)
+    q, qd, tau = rng.uniform(-0.6, 0.6, n), rng.normal(size=n), rng.normal(size=m)
+    f = rng.normal(size=3 * ns)
+    if dyn.model.kind != "pcc-3d":
+        f[2::3] = 0.0                      # planar: forces in the plane
+    x = np.concatenate([q, qd])
+    a_f = np.array(rhs(x, np.concatenate([tau, f]))).ravel()[n:]
+    a_0 = np.array(rhs(x, np.concatenate([tau, np.zeros(3 * ns)]))).ravel()[n:]
+    h = 1e-6
+    J = np.column_stack([(np.array(tips(q + h * e)[0]) - np.array(tips(q - h * e)[0]))
+                         .T.ravel() / (2 * h) for e in np.eye(n)])
+    assert np.allclose(np.array(B(q)) @ (a_f - a_0), J.T @ f, rtol=1e-6, atol=1e-7)
+    plant = fns[f"{name}_plant"]
+    noise = rng.normal(size=2 * n)
+    xn, y = (np.array(v).ravel() for v in plant(x, tau, f, noise, 1e-3))
+    assert np.allclose(y, xn + noise, rtol=0, atol=1e-15)
