@@ -13,8 +13,9 @@ from __future__ import annotations
 from functools import lru_cache
 
 from .codegen.generate import BundleSpec, Generated
-from .control.soft import (PLANT_INPUTS, PLANT_OUTPUTS, THEOREM10_INPUTS, THEOREM10_OUTPUTS,
-                           plant_fun, theorem10_fun)
+from .control.soft import (CLOSED_LOOP_INPUTS, CLOSED_LOOP_OUTPUTS, PLANT_INPUTS,
+                           PLANT_OUTPUTS, THEOREM10_INPUTS, THEOREM10_OUTPUTS,
+                           closed_loop_fun, plant_fun, theorem10_fun)
 from .soft_model import SoftModel
 from .symbolic.pcc import LinearRoute, SoftDynamics
 
@@ -69,9 +70,12 @@ def _cached_spec(text: str, path, options, model: SoftModel) -> BundleSpec:
                           "phi = 0 at Delta = 0"),
                 Generated(dyn.augmented_jacobian_fun(), "J_m = dm/dq (eq. 3.5); at Delta = 0 "
                           "the average of its directional limits (only db/ddL = 1/2)")]
+    ctl = theorem10_fun(dyn, lin)
     fns += [
-        Generated(theorem10_fun(dyn, lin), "one sample of Theorem 10: tau = A^+ (Y pi_hat + "
-                                           "K_d sigma), Euler update of pi_hat"),
+        Generated(ctl, "one sample of Theorem 10: tau = A^+ (Y pi_hat + K_d sigma), Euler "
+                       "update of pi_hat"),
+        Generated(closed_loop_fun(dyn, lin, ctl), "one ROS2 step of Theorem 10 in continuous "
+                  "time, z = (q, qd, pi_hat); for the stiff lumped-mass models"),
         Generated(plant_fun(dyn, substeps=options.loop_substeps),
                   f"{options.loop_substeps} ROS2 step(s) (L-stable, order 2) of eq. 3.6 over "
                   "dt, tau and tip forces held; y = x_next + noise"),
@@ -101,6 +105,10 @@ def _cached_spec(text: str, path, options, model: SoftModel) -> BundleSpec:
             "n_inputs": dyn.nominal.n_inputs,
             "theorem10": {"step": f"{model.name}_theorem10_step", "inputs": THEOREM10_INPUTS,
                           "outputs": THEOREM10_OUTPUTS, "state_layout": ["pi_hat"]},
+            "closed_loop": {"step": f"{model.name}_theorem10_closed_loop",
+                            "inputs": CLOSED_LOOP_INPUTS, "outputs": CLOSED_LOOP_OUTPUTS,
+                            "state_layout": ["q", "qd", "pi_hat"],
+                            "ref_layout": ["q_d", "qd_d", "qdd_d"]},
             "plant": {"step": f"{model.name}_plant", "inputs": PLANT_INPUTS,
                       "outputs": PLANT_OUTPUTS, "state_layout": ["q", "qd"],
                       "f_ext_layout": "3 per segment tip (world x, y, z), segment 1 first"},

@@ -152,3 +152,80 @@ def plant_fun(dyn: SoftDynamics, *, substeps: int = 1, method: str = "ros2") -> 
     suffix = "plant" if method == "ros2" else "plant_rk4"
     return ca.Function(f"{dyn.name}_{suffix}", [x, tau, f_ext, noise, dt], [xn, xn + noise],
                        PLANT_INPUTS, PLANT_OUTPUTS, FUNCTION_OPTS)
+
+
+CLOSED_LOOP_INPUTS = ["z", "ref0", "ref1", "lam", "kd", "kpi", "f_ext", "noise", "dt"]
+CLOSED_LOOP_OUTPUTS = ["z_next", "tau", "sigma"]
+
+
+def _projector(blocks: list):
+    """A A† per block (identity for square blocks)."""
+    out = []
+    for A in blocks:
+        r, c = A.shape
+        out.append(ca.SX.eye(r) if r == c else
+                   ca.mtimes(A, ca.solve(ca.mtimes(A.T, A), A.T)))
+    return ca.diagcat(*out)
+
+
+def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
+                    ctl: ca.Function | None = None) -> ca.Function:
+    """``<model>_theorem10_closed_loop``: one step of Theorem 10 in continuous time.
+
+    The controller acts continuously inside the ODE (as in the thesis's
+    simulations), state ``z = (q, q̇, π̂)``; one ROS2 step of length ``dt``. A
+    sampled (zero-order-hold) controller cannot stabilise the lumped-mass models
+    at millisecond rates: K_d σ acts on modes with inertia down to 3e-10 kg m²
+    (planar) or 3e-6 (3D), i.e. rates K_d/B of 1e6-1e10 1/s. The W matrix holds
+    the stiff linear part of the closed loop, B q̈ ≈ −(K + P K_d Λ) q − (D + P K_d) q̇
+    with P = A A† (I where A is square).
+
+    Inputs ``z`` (2n + r), ``ref0``/``ref1`` (3n: q_d, q̇_d, q̈_d at the start and
+    the end of the step: ROS2 evaluates at both), ``lam, kd`` (n), ``kpi`` (r),
+    ``f_ext`` (3 per segment tip, world), ``noise`` (2n, added to the measured
+    (q, q̇) the controller sees, held over the step), ``dt``. Outputs ``z_next``,
+    ``tau`` and ``sigma`` at the start of the step.
+    """
+    lin = LinearRoute(dyn) if lin is None else lin
+    ctl = theorem10_fun(dyn, lin) if ctl is None else ctl
+    n, r, ns = dyn.model.dof, lin.r, dyn.model.n_segments
+    b = dyn.nominal
+    # SX pieces, called twice each from an MX graph so that the C holds them once.
+    tau_s, f_s = ca.SX.sym("tau", b.n_inputs), ca.SX.sym("f_ext", 3 * ns)
+    qdd = ca.Function(f"{dyn.name}_cl_qdd", [b.q, b.qd, tau_s, f_s],
+                      [dyn.forward_dynamics_expr(tau_s, f_s)], FUNCTION_OPTS)
+    qm_s, kd_s, lam_s = ca.SX.sym("qm", n), ca.SX.sym("kd", n), ca.SX.sym("lam", n)
+    h_s, v_s = ca.SX.sym("h"), ca.SX.sym("v", 2 * n)
+    B = b.inertia_pm()
+    P = _projector([ca.substitute(A, b.q, qm_s) for A in b.actuation_blocks()])
+    K = b._quadratic_form("k") + ca.mtimes(P, ca.diag(kd_s * lam_s))
+    D = b._quadratic_form("d") + ca.mtimes(P, ca.diag(kd_s))
+    g = ROS2_GAMMA * h_s
+    kv = ca.solve(B + g * D + g * g * K, ca.mtimes(B, v_s[n:]) - g * ca.mtimes(K, v_s[:n]))
+    wsolve = ca.Function(f"{dyn.name}_cl_wsolve", [b.q, qm_s, kd_s, lam_s, h_s, v_s],
+                         [ca.vertcat(v_s[:n] + g * kv, kv)], FUNCTION_OPTS)
+
+    z = ca.MX.sym("z", 2 * n + r)
+    ref0, ref1 = ca.MX.sym("ref0", 3 * n), ca.MX.sym("ref1", 3 * n)
+    lam, kd, kpi = ca.MX.sym("lam", n), ca.MX.sym("kd", n), ca.MX.sym("kpi", r)
+    f_ext, noise, dt = ca.MX.sym("f_ext", 3 * ns), ca.MX.sym("noise", 2 * n), ca.MX.sym("dt")
+
+    def rhs(zz, ref):
+        q, qd, pi_hat = zz[:n], zz[n:2 * n], zz[2 * n:]
+        qm, qdm = q + noise[:n], qd + noise[n:]
+        pin, tau, sigma = ctl(pi_hat, qm, qdm, ref[:n], ref[n:2 * n], ref[2 * n:],
+                              lam, kd, kpi, 1.0)
+        return ca.vertcat(qd, qdd(q, qd, tau, f_ext), pin - pi_hat), tau, sigma
+
+    def W(v):
+        return ca.vertcat(wsolve(z[:n], z[:n] + noise[:n], kd, lam, dt, v[:2 * n]),
+                          v[2 * n:])
+
+    f1, tau, sigma = rhs(z, ref0)
+    k1 = W(f1)
+    f2, _, _ = rhs(z + dt * k1, ref1)
+    k2 = W(f2 - 2 * k1)
+    z_next = z + 1.5 * dt * k1 + 0.5 * dt * k2
+    return ca.Function(f"{dyn.name}_theorem10_closed_loop",
+                       [z, ref0, ref1, lam, kd, kpi, f_ext, noise, dt],
+                       [z_next, tau, sigma], CLOSED_LOOP_INPUTS, CLOSED_LOOP_OUTPUTS)
