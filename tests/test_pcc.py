@@ -179,10 +179,10 @@ def test_actuation_matrices(dyns):
             Ai = Am[3 * i:3 * i + 3, 3 * i:3 * i + 3]
             assert np.isclose(np.linalg.det(Ai), sinc ** 2, rtol=1e-12, atol=1e-14)
             if D > 1e-3:
-                nu, L = 1 - sinc, 1.0 + dL
+                nu, L, D2 = 1 - sinc, 1.0 + dL, D * D
                 printed = np.array([
-                    [x * y * nu / D ** 2, -(x * x * nu + D * D * sinc) / D ** 2, x * nu * L / D ** 2],
-                    [(y * y * nu + D * D * sinc) / D ** 2, -x * y * nu / D ** 2, y * nu * L / D ** 2],
+                    [x * y * nu / D2, -(x * x * nu + D2 * sinc) / D2, x * nu * L / D2],
+                    [(y * y * nu + D2 * sinc) / D2, -x * y * nu / D2, y * nu * L / D2],
                     [0, 0, sinc]])
                 # The axial column is the printed one; the two moment inputs come out
                 # with the opposite sign (moments about the base x and y axes here).

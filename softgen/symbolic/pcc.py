@@ -288,7 +288,6 @@ class SoftBody:
         """World position of the backbone at s ∈ [0, n_segments] (segment i: [i−1, i])."""
         n = self.model.n_segments
         R, o = self.base_frame(), ca.SX.zeros(3)
-        out = None
         s = ca.fmin(ca.fmax(s, 0), n)
         pieces = []
         for i in range(n):
@@ -359,7 +358,10 @@ class SoftBody:
         return out + self.spring() + self.damping()
 
     def slotine_li_pm(self):
-        """B q̈_r + C q̇_r + G + K q + D q̇ = Σ_j m_j J_jᵀ (J_j q̈_r + J̇_j q̇_r − g) + K q + D q̇."""
+        """B q̈_r + C q̇_r + G + K q + D q̇ = Σ_j m_j J_jᵀ (J_j q̈_r + J̇_j q̇_r − g) + K q + D q̇.
+
+        Equal to :meth:`slotine_li` (point masses: C = Σ m Jᵀ J̇); the smaller code.
+        """
         g = self.values["g"] * ca.DM(self.model.gravity_direction)
         out = 0
         for m, p in self.mass_points:
