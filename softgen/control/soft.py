@@ -18,6 +18,12 @@ world position), with τ and f held over the sample, and adds measurement noise
 to the returned output. The lumped-mass models are stiff (light modes: B⁻¹D up
 to 3e8 1/s for the planar arm), so the generated plant uses the L-stable ROS2
 method; classical RK4 (``method="rk4"``) is kept for small steps and tests.
+
+A controller sampled with zero-order hold cannot stabilise those light modes at
+millisecond rates (K_d/B up to 1e10 1/s), so :func:`closed_loop_fun` also gives
+Theorem 10 in continuous time, controller inside the ODE, as one ROS2 step: this
+is the loop to use for the thesis's planar and 3D PCC simulations. The sampled
+step works for the affine pendulum (distributed mass).
 """
 from __future__ import annotations
 
