@@ -46,6 +46,9 @@ class BundleOptions:
 
 def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> BundleSpec:
     """The functions, parameter vector and identity of ``model``'s bundle."""
+    if not isinstance(model, RobotModel):         # soft bodies (thesis ch. 3, 12)
+        from .bundle_soft import soft_bundle_spec
+        return soft_bundle_spec(model, options)
     options.check()
     dyn = RigidDynamics(model, route=options.route)
     n = model.dof
