@@ -95,8 +95,9 @@ def _cached_spec(text: str, path, options, model: SoftModel) -> BundleSpec:
         "physical": list(model.uncertain),
         "physical_nominal": [float(model.nominal[k]) for k in model.uncertain],
     }
+    from .bundle import model_source     # bundle.py imports this module: import at call
     extra = {
-        "dof": n, "model_file": f"models/{model.name}.toml",
+        "dof": n, **model_source(model),
         "options": dict(options.__dict__), "route": dyn.route,
         "full_parameter_count": dyn.base.full_rank,
         "soft": {

@@ -136,7 +136,7 @@ def test_pendulum_theorem10_adaptive_from_zero_estimates(specs):
 
 @pytest.mark.compiler
 def test_compiled_library_equals_casadi_function_at_singular_points(need_compiler, specs):
-    from softgen.runtime.library import load_bundle
+    from softgen.bundle import load_bundle
     rng = np.random.default_rng(22)
     for name, spec in specs.items():
         b = load_bundle(name, backend="c")

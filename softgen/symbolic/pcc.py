@@ -736,7 +736,7 @@ class LinearRoute:
     Tested against the formed Y of :attr:`SoftDynamics.base`.
     """
 
-    def __init__(self, dyn: "SoftDynamics"):
+    def __init__(self, dyn: SoftDynamics):
         self.dyn = dyn
         model = dyn.model
         nom = dyn.nominal
