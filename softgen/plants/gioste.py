@@ -74,13 +74,15 @@ Sample time
     The plant (q, q̇ and the 2n muscle pressures) is integrated by RK4 with
     ``substeps`` steps per sample. Halving T is checked by the experiments.
 
-The runner (:func:`run_loop`) steps, per sample k: sense (encoder, velocity filter,
-σ map of the previous voltages) → controller step → voltages (inverse eq. 10.10,
-clip) → delay line → plant over one sample. The whole sample, delay line included,
-is one generated function repeated ``chunk`` times in C (``mapaccum``,
-:meth:`GiosteEmulation.loop_fun`); Python only checks each chunk for the emergency
-stop. A Python loop over the separate functions gave the same metrics to the last
-digit in twice the wall time (full one-link run).
+The closed loop (:func:`loop_diagram`) is a :class:`~softgen.blocks.ClosedLoop` of
+library blocks, per sample k: the reference block; the encoders and the dirty
+derivative (:func:`~softgen.plants.hardware.encoder_block`); the identified stiffness
+map of the voltages commanded at k − 1 (:meth:`GiosteEmulation.stiffness_sensor_block`);
+the controller (:func:`~softgen.control.pneumatic_loop.controller_block`); the valve
+interface (:meth:`GiosteEmulation.valve_block`: inverse eq. 10.10, clip); the transport
+delay (:func:`~softgen.plants.hardware.delay_line_block`); the arm over one sample
+(:meth:`GiosteEmulation.plant_block`). The emergency stop is a ``stop=`` condition of
+:func:`softgen.runtime.simulate` (:func:`~softgen.plants.hardware.tracking_stop`).
 
 Diagnostic variant: ``GiosteEmulation(arm, hw, actuator="model")`` keeps the valves,
 encoders and friction but makes the muscles the controller's own model (τ = KΦ(q)p,
@@ -97,20 +99,20 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
-from ..codegen.generate import signature
+from ..blocks import Block, ClosedLoop
 from ..control.feasibility import PressureViolation, PressureWarning, check_pressures
 from ..control.pneumatic import PneumaticArm
+from ..control.pneumatic_loop import controller_block
+from ..control.references import SmoothSteps, stiffness_reference_block
 from ..model import RobotModel
-from ..runtime.library import BundleFunction
 from ..symbolic.actuated import rk4_steps
 from ..symbolic.rigid import FUNCTION_OPTS
-from .estimation_common import load_functions
+from .hardware import delay_line_block, encoder_block, tracking_stop
 
 BAR = 1e5          # Pa per bar: eq. 10.10 is in bar
 V_MAX = 6.0        # ITV-2050 command range [0, 6] V (section 10.3.1)
@@ -492,24 +494,6 @@ class GiosteEmulation:
         return ca.Function(self.fname("valves"), [p], [V, tgt, raw], ["p_cmd"],
                            ["V", "p_target", "V_raw"], FUNCTION_OPTS)
 
-    def sense_fun(self) -> ca.Function:
-        """``<model>_gioste_sense``: encoder, dirty derivative, σ map of the last voltages.
-
-        (q, q_m,prev, v_prev, V_prev, T) → (q_m, v, σ_m): q_m the angle rounded to one
-        count, v = a v_prev + (1 − a)(q_m − q_m,prev)/T with a = exp(−T/τ_f), σ_m the
-        identified map at (q_m, V_prev) (what the thesis's controller used).
-        """
-        n, step = self.n, self.encoder_step
-        q, qm_prev, v_prev = (ca.SX.sym(s, n) for s in ("q", "qm_prev", "v_prev"))
-        V, T = ca.SX.sym("V_prev", 2 * n), ca.SX.sym("T")
-        qm = ca.floor(q / step + 0.5) * step
-        a = ca.exp(-T / self.hw.velocity_filter)
-        v = a * v_prev + (1 - a) * (qm - qm_prev) / T
-        _, _, sig = self._maps(qm, V)
-        return ca.Function(self.fname("sense"), [q, qm_prev, v_prev, V, T],
-                           [qm, v, sig], ["q", "qm_prev", "v_prev", "V_prev", "T"],
-                           ["q_m", "v", "sigma_m"], FUNCTION_OPTS)
-
     def truth_fun(self) -> ca.Function:
         """``<model>_gioste_truth``: (q, p actual) → (τ, σ physical, σ map at V_eq)."""
         q, p = ca.SX.sym("q", self.n), ca.SX.sym("p", 2 * self.n)
@@ -524,83 +508,82 @@ class GiosteEmulation:
                            ["q", "V"], ["tau", "sigma_physical", "sigma_identified"],
                            FUNCTION_OPTS)
 
-    def loop_fun(self, kind: str, delay_samples: int, chunk: int) -> ca.Function:
-        """``<model>_<tag>_<kind>_loop_d<d>``: ``chunk`` samples of controller + hardware.
 
-        One sample k, all in generated code (DESIGN: whole loops in C where it pays):
-        sense (encoder rounding, dirty derivative, σ map of the voltages commanded at
-        k − 1), controller step ``kind``, voltages (inverse eq. 10.10, clipped) and the
-        valves' targets, a delay line of ``delay_samples`` targets, the plant over one
-        sample with the target issued ``delay_samples`` samples ago.
+    # blocks -----------------------------------------------------------------------------
+    def valve_block(self, *, name: str = "valves") -> Block:
+        """Valve interface (eq. 10.10 inverted): commanded pressures ``p_cmd`` → voltages.
 
-        State S = (x (4n), delay line (d·2n, oldest first), q_m, v, V_prev, z). Inputs
-        ``S0``, ``ref`` (6n × chunk) and the gains (one column, used every sample),
-        ``dt``. Outputs ``S`` (state after each sample) and ``rec`` (per sample, before
-        it: x, q_m, v, σ_m, p_cmd, V, V_raw, ν, z).
+        Emits ``V`` (clipped to [0, 6] V, what the valves get), ``V_raw`` (before
+        clipping) and ``p_target`` = max(f(V), 0), the pressure each valve settles to (no
+        vacuum below V₀). Static: it takes the diagram's sample time.
         """
-        n, d = self.n, int(delay_samples)
-        ctrl = self.arm.step_fun(kind)
-        nz = ctrl.size1_in(0)
-        plant, valves, sense = self.plant_fun(), self.interface_fun(), self.sense_fun()
-        ns = 4 * n + 2 * n * d + n + n + 2 * n + nz
-        S, ref = ca.SX.sym("S", ns), ca.SX.sym("ref", 6 * n)
-        g = {name: ca.SX.sym(name, ctrl.size1_in(i)) for i, name in enumerate(ctrl.name_in())
-             if name not in ("z", "q", "qd", "sigma", "ref")}
-        dt = g["dt"]
-        o = 0
-        x = S[o:o + 4 * n]; o += 4 * n                                   # noqa: E702
-        ring = S[o:o + 2 * n * d]; o += 2 * n * d                        # noqa: E702
-        qm_prev = S[o:o + n]; o += n                                     # noqa: E702
-        v_prev = S[o:o + n]; o += n                                      # noqa: E702
-        V_prev = S[o:o + 2 * n]; o += 2 * n                              # noqa: E702
-        z = S[o:o + nz]
-        qm, v, sig = sense(x[:n], qm_prev, v_prev, V_prev, dt)
-        args = {"z": z, "q": qm, "qd": v, "sigma": sig, "ref": ref, **g}
-        res = ctrl.call({name: args[name] for name in ctrl.name_in()})
-        V, tgt, raw = valves(res["p"])
-        if d:
-            p_del = ring[:2 * n]
-            ring_next = ca.vertcat(ring[2 * n:], tgt)
-        else:
-            p_del, ring_next = tgt, ring
-        x_next = plant(x, p_del, dt)
-        S_next = ca.vertcat(x_next, ring_next, qm, v, V, res["z_next"])
-        rec = ca.vertcat(x, qm, v, sig, res["p"], V, raw, res["nu"], z)
-        gnames = [name for name in ctrl.name_in() if name in g]
-        one = ca.Function("one_sample", [S, ref, *[g[k] for k in gnames]], [S_next, rec],
-                          ["S", "ref", *gnames], ["S_next", "rec"], FUNCTION_OPTS)
-        loop = one.mapaccum("loop", chunk, [0], [0])
-        S0 = ca.MX.sym("S0", ns)
-        R = ca.MX.sym("ref", 6 * n, chunk)
-        G = [ca.MX.sym(k, g[k].numel()) for k in gnames]
-        Sk, rec = loop(S0, R, *G)
-        return ca.Function(self.fname(f"{kind}_loop_d{d}"), [S0, R, *G], [Sk, rec],
-                           ["S0", "ref", *gnames], ["S", "rec"])
+        f, m = self.interface_fun(), 2 * self.n
 
-    def functions(self, kinds, delays=(), chunk: int = 1000) -> list[tuple[ca.Function, str]]:
-        """Hardware functions, controller steps ``kinds`` and their closed loops.
+        def body(x, u, p):
+            V, tgt, raw = f(u["p_cmd"])
+            return {}, {"V": V, "p_target": tgt, "V_raw": raw}
 
-        One loop per kind and delay (in samples) in ``delays``: the delay line is part
-        of the loop's state, so its length is fixed when the code is generated.
+        return Block.define(name, dt=None, inputs=[("p_cmd", m, "Pa")],
+                            outputs=[("V", m, "V"), ("p_target", m, "Pa"), ("V_raw", m, "V")],
+                            body=body, doc="GioSte valve interface, inverse eq. 10.10, clipped")
+
+    def plant_block(self, dt: float, *, name: str = "plant") -> Block:
+        """The emulated arm over one sample (:meth:`plant_fun`), valve targets held.
+
+        State (q, q̇, p) with p the 2n actual muscle pressures; outputs them at the sample
+        and the truth there: torque ``tau``, ``sigma_physical`` (−∂τ/∂q) and
+        ``sigma_identified`` (the eq. 10.11 map) at the voltages equivalent to p.
         """
-        fs = [
-            (self.plant_fun(), "emulated GioSte: links + identified torque map at the actual "
-                               "pressures (eq. 10.11), first-order valves, RK4"),
-            (self.interface_fun(), "pressure command -> valve voltage (inverse eq. 10.10, "
-                                   "clipped to [0, 6] V) and the valve's target pressure"),
-            (self.sense_fun(), "encoder rounding, dirty derivative, identified stiffness "
-                               "map of the commanded voltages (eq. 10.11)"),
-            (self.truth_fun(), "torque, physical and identified stiffness at the actual "
-                               "pressures"),
-        ]
-        for k in kinds:
-            fs.append((self.arm.step_fun(k), f"controller step {k} (chapter 10)"))
-        for k in kinds:
-            for d in sorted(set(int(x) for x in delays)):
-                fs.append((self.loop_fun(k, d, chunk),
-                           f"{chunk} samples of controller {k} on the emulated hardware, "
-                           f"valve delay {d} samples"))
-        return fs
+        n, f, truth = self.n, self.plant_fun(), self.truth_fun()
+
+        def body(x, u, p):
+            xn = f(ca.vertcat(x["q"], x["qd"], x["p"]), u["p_target"], dt)
+            tau, sp, si = truth(x["q"], x["p"])
+            return ({"q": xn[:n], "qd": xn[n:2 * n], "p": xn[2 * n:]},
+                    {"q": x["q"], "qd": x["qd"], "p": x["p"], "tau": tau,
+                     "sigma_physical": sp, "sigma_identified": si})
+
+        st = [("q", n, "rad"), ("qd", n, "rad/s"), ("p", 2 * n, "Pa")]
+        return Block.define(name, dt=dt, state=st, inputs=[("p_target", 2 * n, "Pa")],
+                            outputs=st + [("tau", n, "N m"), ("sigma_physical", n, "N m/rad"),
+                                          ("sigma_identified", n, "N m/rad")],
+                            body=body, doc=f"emulated GioSte ({self.actuator} muscles)",
+                            meta={"model": self.name})
+
+    def stiffness_sensor_block(self, dt: float, *, name: str = "stiff") -> Block:
+        """The stiffness the thesis's controller "measured": σ_m = S(q_m, V_{k−1}).
+
+        There was no stiffness sensor on GioSte: σ is the identified map (eq. 10.11) at the
+        encoder reading ``q_m`` and the voltages ``V`` commanded the sample before (state
+        ``V_prev``).
+        """
+        n = self.n
+        maps = self.maps_fun()
+
+        def body(x, u, p):
+            return {"V_prev": u["V"]}, {"sigma": maps(u["q_m"], x["V_prev"])[2]}
+
+        return Block.define(name, dt=dt, state=[("V_prev", 2 * n, "V")],
+                            inputs=[("q_m", n, "rad"), ("V", 2 * n, "V")],
+                            outputs=[("sigma", n, "N m/rad")], body=body,
+                            doc="identified stiffness map of the last voltages (eq. 10.11)")
+
+    def encoder_block(self, dt: float) -> Block:
+        """HEDS-5500 encoders and the dirty-derivative velocity (:func:`encoder_block`)."""
+        return encoder_block(self.n, dt, counts_per_rev=self.hw.counts_per_rev,
+                             velocity_filter=self.hw.velocity_filter)
+
+    # static solves on prebuilt functions -----------------------------------------------
+    def residual_fun(self) -> ca.Function:
+        """``(q, p) -> (r, dr/dq)``: τ(q, V_eq(p)) − G(q), the net torque at rest, and its
+        Jacobian."""
+        if not hasattr(self, "_residual"):
+            q, p = ca.SX.sym("q", self.n), ca.SX.sym("p", 2 * self.n)
+            r = self.truth_fun()(q, p)[0] - self.arm.dyn.gravity_fun()(q)
+            object.__setattr__(self, "_residual", ca.Function(
+                "gioste_rest_residual", [q, p], [r, ca.jacobian(r, q)], ["q", "p"],
+                ["r", "J"]))
+        return self._residual
 
 
 def delay_samples(hw: HardwareConfig, dt: float) -> int:
@@ -608,273 +591,138 @@ def delay_samples(hw: HardwareConfig, dt: float) -> int:
     return int(round(hw.valve_delay / dt))
 
 
-def build(emu: GiosteEmulation, kinds, out: Path | None, config: dict, *, dts=(),
-          chunk: int = 1000, compile: bool = True) -> dict[str, BundleFunction]:
-    """Compiled (``compile``) or directly evaluated hardware, controller and loop functions.
-
-    ``dts``: the sample times the loops will run at (one loop per distinct delay).
-    """
-    fs = emu.functions(kinds, [delay_samples(emu.hw, dt) for dt in dts], chunk)
-    if compile and out is not None:
-        return load_functions(emu.name, fs, out, {**config, "_chunk": chunk,
-                                                  "_tag": emu.tag})
-    return {f.name(): BundleFunction(f, signature(f)) for f, _ in fs}
-
-
-# -- references --------------------------------------------------------------------------
-
-def reference_array(channels_q, channels_sigma, t) -> np.ndarray:
-    """(6n, K) reference of the controllers: q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d per joint.
-
-    ``channels_*`` are callables (one per joint) returning (4, K) value + derivatives,
-    e.g. :class:`~softgen.control.references.SmoothSteps`.
-    """
+def reference_array(channels_q: list[SmoothSteps], channels_sigma: list[SmoothSteps],
+                    t) -> np.ndarray:
+    """(K, 6n) reference rows: q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d per joint at times ``t``."""
     Q = np.stack([c(t) for c in channels_q], axis=1)       # (4, n, K)
     S = np.stack([c(t) for c in channels_sigma], axis=1)
-    return np.concatenate([Q[0], Q[1], Q[2], Q[3], S[0], S[1]], axis=0)
+    return np.concatenate([Q[0], Q[1], Q[2], Q[3], S[0], S[1]], axis=0).T
 
 
-# -- the closed loop ---------------------------------------------------------------------
-
-@dataclass
-class Gains:
-    """Controller gains as vectors (diagonal matrices of chapter 10)."""
-
-    lam: np.ndarray
-    kd: np.ndarray
-    kpi: np.ndarray
-    ksigma: np.ndarray
-    kinv: np.ndarray
+def reference_input_block(n: int, *, name: str = "ref") -> Block:
+    """Passes an external reference ``u`` (6n: q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d) on as
+    ``ref`` and emits ``q_d`` and ``sigma_d`` alone (for stops, metrics, figures)."""
+    return Block.define(name, dt=None, inputs=[("u", 6 * n)],
+                        outputs=[("ref", 6 * n), ("q_d", n, "rad"), ("sigma_d", n, "N m/rad")],
+                        body=lambda x, u, p: ({}, {"ref": u["u"], "q_d": u["u"][:n],
+                                                   "sigma_d": u["u"][4 * n:5 * n]}),
+                        doc="external reference of the chapter-10 controllers")
 
 
-@dataclass
-class Trace:
-    """One closed-loop run: time, truth, measurements, commands, controller state."""
+def loop_diagram(emu: GiosteEmulation, kind: str, dt: float, *,
+                 reference: list | None = None) -> ClosedLoop:
+    """Controller ``kind`` on the emulated GioSte, one sample per ``dt``.
 
-    kind: str
-    t: np.ndarray            # (K,)
-    ref: np.ndarray          # (K, 6n)
-    q: np.ndarray            # (K, n) true angle
-    qd: np.ndarray           # (K, n)
-    p: np.ndarray            # (K, 2n) actual muscle pressures
-    q_m: np.ndarray          # (K, n) encoder reading
-    v: np.ndarray            # (K, n) filtered velocity
-    sigma_m: np.ndarray      # (K, n) the controller's stiffness "measurement"
-    p_cmd: np.ndarray        # (K, 2n) controller output
-    V: np.ndarray            # (K, 2n) clipped valve voltages
-    V_raw: np.ndarray        # (K, 2n) before clipping
-    nu: np.ndarray           # (K, n)
-    Pi_hat: np.ndarray       # (K, κ)
-    diverged_at: float | None = None
-    truth: dict = field(default_factory=dict)   # tau, sigma_physical, sigma_identified
-
-    @property
-    def n(self) -> int:
-        return self.q.shape[1]
-
-    def sl(self, block: int) -> np.ndarray:
-        """Reference block (0 q_d, 1 q̇_d, 2 q̈_d, 3 q⃛_d, 4 σ_d, 5 σ̇_d), (K, n)."""
-        return self.ref[:, block * self.n:(block + 1) * self.n]
-
-    @property
-    def q_d(self) -> np.ndarray:
-        return self.sl(0)
-
-    @property
-    def sigma_d(self) -> np.ndarray:
-        return self.sl(4)
-
-    @property
-    def valid(self) -> np.ndarray:
-        return np.isfinite(self.q[:, 0])
-
-    def position_error(self, bound: float) -> np.ndarray:
-        """q − q_d (K, n); after an emergency stop counted as ``bound`` (the stop threshold).
-
-        A run that trips the stop has failed; its error afterwards is at least the
-        threshold, and counting it so keeps every index finite and ordered by badness.
-        """
-        e = self.q - self.q_d
-        e[~self.valid] = bound
-        return e
-
-    def stiffness_error(self, which: str = "sigma_m") -> np.ndarray:
-        """σ − σ_d (K, n) for the measured (``sigma_m``) or a ``truth`` stiffness.
-
-        After an emergency stop the valves are vented (0 V), so the identified map
-        gives σ = 0 and the error is −σ_d.
-        """
-        s = self.sigma_m if which == "sigma_m" else self.truth[which]
-        e = s - self.sigma_d
-        e[~self.valid] = -self.sigma_d[~self.valid]
-        return e
-
-    def arrays(self, prefix: str) -> dict[str, np.ndarray]:
-        out = {f"{prefix}{k}": getattr(self, k) for k in
-               ("t", "ref", "q", "qd", "p", "q_m", "v", "sigma_m", "p_cmd", "V", "V_raw",
-                "nu", "Pi_hat")}
-        out.update({f"{prefix}{k}": v for k, v in self.truth.items()})
-        return out
+    ref → encoders + dirty derivative → σ map of the last voltages → controller → valve
+    interface → delay line → arm. ``reference``: (q channels, σ channels) of
+    :class:`SmoothSteps` for a reference block; without it the reference is the
+    external input ``ref`` (6n per sample, :func:`reference_array`), so one compiled
+    loop serves every schedule.
+    """
+    n = emu.n
+    ref = (stiffness_reference_block("ref", *reference) if reference is not None
+           else reference_input_block(n))
+    blocks = [ref, emu.encoder_block(dt), emu.stiffness_sensor_block(dt),
+              controller_block(emu.arm, kind, dt), emu.valve_block(),
+              delay_line_block(2 * n, delay_samples(emu.hw, dt), dt), emu.plant_block(dt)]
+    wires = [("enc.q_m", "ctrl.q"), ("enc.v", "ctrl.qd"), ("ref.ref", "ctrl.ref"),
+             ("ctrl.p", "valves.p_cmd"), ("valves.p_target", "delay.u"),
+             ("delay.y", "plant.p_target")]
+    if reference is None:
+        wires.append(("ext.ref", "ref.u"))
+    tag = f"{emu.name}_{emu.tag}_{kind}_dt{dt:.3e}".replace(".", "p").replace("-", "m")
+    return ClosedLoop(tag.replace("+", ""), blocks, wires,
+                      externals={"ref": 6 * n} if reference is None else None)
 
 
-def equilibrium(emu: GiosteEmulation, fns: dict, p: np.ndarray, q0: np.ndarray) -> np.ndarray:
+def emergency_stop(bound: float):
+    """GioSte's emergency stop as a ``stop=`` condition: |q − q_d| > ``bound`` on a joint,
+    or the arm's state or the controller's command not finite."""
+    return tracking_stop(bound, "plant.q", "ref.q_d",
+                         finite=("plant.qd", "plant.p", "ctrl.p"))
+
+
+#: What :func:`emergency_stop` reads: record at least these.
+STOP_SIGNALS = ("plant.q", "plant.qd", "plant.p", "ref.q_d", "ctrl.p")
+
+
+def initial_state(emu: GiosteEmulation, kind: str, ref0: np.ndarray, *, lam, kd, kinv,
+                  Pi_hat0: np.ndarray, dt: float) -> dict:
+    """``x0`` of :func:`loop_diagram`: the arm at rest under the first command.
+
+    The controller's first command is computed at q = q_d(0) with ν from the open-loop
+    stiffness law (its model stiffness equals σ_d(0)); the muscles are at those pressures
+    (inflated beforehand, as in section 10.2), the delay line full of them, and the arm
+    rests where they hold it (:func:`equilibrium`). Π̂(0) = ``Pi_hat0``.
+    """
+    n = emu.n
+    q0, zero = ref0[:n].copy(), np.zeros(n)
+    ol = emu.arm.step_fun("open_loop")
+    _, p0, _, nu0 = (np.array(v).ravel() for v in ol(
+        Pi_hat0, q0, zero, ref0, lam, kd, np.zeros(emu.arm.n_params), kinv, dt))
+    V0, tgt0, _ = (np.array(v).ravel() for v in emu.interface_fun()(p0))
+    q_start = equilibrium(emu, tgt0, q0)
+    d = delay_samples(emu.hw, dt)
+    x0 = {"plant.q": q_start, "plant.qd": zero, "plant.p": tgt0, "stiff.V_prev": V0,
+          "enc.q_prev": np.floor(q_start / emu.encoder_step + 0.5) * emu.encoder_step,
+          "enc.v_prev": zero, "ctrl.Pi_hat": Pi_hat0}
+    if d:
+        x0["delay.line"] = np.tile(tgt0, d)
+    if kind in ("theorem5", "corollary2"):
+        x0["ctrl.nu"] = nu0
+    return x0
+
+
+def equilibrium(emu: GiosteEmulation, p: np.ndarray, q0: np.ndarray, *,
+                tol: float = 1e-12, max_iter: int = 30) -> np.ndarray:
     """Angle where the emulated arm rests under constant muscle pressures ``p``.
 
-    Newton on τ(q, V_eq(p)) − G(q) = 0 with a finite-difference Jacobian, from q0.
+    Newton on τ(q, V_eq(p)) − G(q) = 0 from ``q0``, residual and Jacobian from one
+    prebuilt function (:meth:`GiosteEmulation.residual_fun`).
     """
-    truth = fns[emu.fname("truth")]
+    f = emu.residual_fun()
     q = np.array(q0, dtype=float)
-
-    def resid(q):
-        tau = truth(q, p)[0]
-        return tau - emu.arm.dyn.gravity(q)
-
-    for _ in range(30):
-        r = resid(q)
-        J = np.empty((emu.n, emu.n))
-        for j in range(emu.n):
-            e = np.zeros(emu.n)
-            e[j] = 1e-6
-            J[:, j] = (resid(q + e) - r) / 1e-6
-        dq = np.linalg.solve(J, -r)
+    for _ in range(max_iter):
+        r, J = (np.array(v) for v in f(q, p))
+        dq = np.linalg.solve(J, -r.ravel())
         q = q + dq
-        if np.max(np.abs(dq)) < 1e-12:
+        if np.max(np.abs(dq)) < tol:
             break
     return q
 
 
-def run_loop(emu: GiosteEmulation, fns: dict, kind: str, ref: np.ndarray, gains: Gains,
-             dt: float, *, Pi_hat0: np.ndarray, divergence: float = 0.5) -> Trace:
-    """Run controller ``kind`` on the emulated arm along ``ref`` (6n, K) at sample ``dt``.
-
-    Start: the controller's first command is computed at q = q_d(0) with ν from the
-    open-loop stiffness law (its model stiffness equals σ_d(0)), the muscles are at
-    those pressures (inflated beforehand, as in section 10.2) and the arm rests where
-    they hold it (:func:`equilibrium`). Π̂(0) = ``Pi_hat0``.
-
-    The loop runs in generated chunks (:meth:`GiosteEmulation.loop_fun`). Emergency
-    stop: at the first sample where |q − q_d| exceeds ``divergence`` rad on a joint or
-    the controller's command is not finite, ``diverged_at`` records the time and that
-    sample and all later ones are NaN.
-    """
-    n, K = emu.n, ref.shape[1]
-    d = delay_samples(emu.hw, dt)
-    loop = fns[emu.fname(f"{kind}_loop_d{d}")]
-    valves = fns[emu.fname("valves")]
-    ol = fns[f"{emu.arm.model.name}_open_loop_stiffness"]
-    kappa = emu.arm.n_params
-    chunk = loop.in_shapes[1][1]
-    t = np.arange(K) * dt
-
-    q0 = ref[:n, 0].copy()
-    zero = np.zeros(n)
-    _, p0, _, nu0 = ol(Pi_hat0, q0, zero, ref[:, 0], gains.lam, gains.kd, np.zeros(kappa),
-                       gains.kinv, dt)
-    V0, tgt0, _ = valves(p0)
-    q_start = equilibrium(emu, fns, tgt0, q0)
-    z0 = Pi_hat0.copy() if kind in ("open_loop", "prop11") else np.concatenate([nu0, Pi_hat0])
-    qm0 = np.floor(q_start / emu.encoder_step + 0.5) * emu.encoder_step
-    S = np.concatenate([q_start, zero, tgt0, np.tile(tgt0, d), qm0, zero, V0, z0])
-
-    nz = len(z0)
-    widths = (("x", 4 * n), ("q_m", n), ("v", n), ("sigma_m", n), ("p_cmd", 2 * n),
-              ("V", 2 * n), ("V_raw", 2 * n), ("nu", n), ("z", nz))
-    chunks = -(-K // chunk)
-    R = np.zeros((6 * n, chunks * chunk))
-    R[:, :K] = ref
-    R[:, K:] = ref[:, -1:]                  # padding past the end, dropped afterwards
-    ins = loop.inputs
-    gain = {"lam": gains.lam, "kd": gains.kd, "kpi": gains.kpi, "ksigma": gains.ksigma,
-            "kinv": gains.kinv, "dt": dt}
-    for j, name in enumerate(loop.in_names[2:], 2):
-        ins[j][...] = np.reshape(gain[name], ins[j].shape)
-    rec = np.full((chunks * chunk, loop.out_shapes[1][0]), np.nan)
-    diverged_at = None
-    for c in range(chunks):
-        sl = slice(c * chunk, (c + 1) * chunk)
-        ins[0][:] = S
-        ins[1][...] = R[:, sl]
-        loop.call()
-        block = loop.outputs[1].T
-        q, qd_ref = block[:, :n], R[:n, sl].T
-        bad = (~np.all(np.isfinite(block[:, :4 * n]), axis=1)
-               | np.any(np.abs(q - qd_ref) > divergence, axis=1)
-               | ~np.all(np.isfinite(block[:, 7 * n:9 * n]), axis=1))
-        if bad.any():
-            j = int(np.argmax(bad))
-            rec[c * chunk:c * chunk + j] = block[:j]
-            if c * chunk + j < K:
-                diverged_at = float(t[c * chunk + j])
-            break
-        rec[sl] = block
-        S = loop.outputs[0][:, -1].copy()
-    rec = rec[:K]
-    cols, o = {}, 0
-    for name, w in widths:
-        cols[name] = rec[:, o:o + w]
-        o += w
-    x, z = cols["x"], cols["z"]
-    tr = Trace(kind, t, ref.T.copy(), x[:, :n], x[:, n:2 * n], x[:, 2 * n:], cols["q_m"],
-               cols["v"], cols["sigma_m"], cols["p_cmd"], cols["V"], cols["V_raw"],
-               cols["nu"], z[:, nz - kappa:], diverged_at=diverged_at)
-    ok = tr.valid
-    truth = fns[emu.fname("truth")].function
-    res = truth.map(int(ok.sum()))(tr.q[ok].T, tr.p[ok].T) if ok.any() else None
-    for i, key in enumerate(("tau", "sigma_physical", "sigma_identified")):
-        arr = np.full((K, n), np.nan)
-        if res is not None:
-            arr[ok] = np.array(res[i]).T
-        tr.truth[key] = arr
-    return tr
-
-
-def static_net_stiffness(emu: GiosteEmulation, fns: dict, kind: str, ref0: np.ndarray,
-                         gains: Gains, Pi_hat0: np.ndarray, *, h: float = 1e-4) -> np.ndarray:
+def static_net_stiffness(emu: GiosteEmulation, kind: str, ref0: np.ndarray, *, lam, kd,
+                         ksigma, kinv, Pi_hat0: np.ndarray, dt: float = 1e-3,
+                         h: float = 1e-4) -> np.ndarray:
     """−∂(τ − G)/∂q of the arm under the controller's first command law, state frozen.
 
     The controller's pressures at (q, q̇ = 0) with ν and Π̂ held at their initial
-    values are applied as steady pressures; the emulated arm's torque minus gravity is
-    differentiated in q by central differences. In the controller's own model this is
-    −∂(K Φ p − G)/∂q with K Φ p = τ_*: the null-space pressures cancel the muscles'
-    stiffness exactly. A negative value means the arm falls away from the start
-    faster than the (weak) feedback can act: the mismatch is statically unstable.
+    values (K_π = 0) are applied as steady pressures; the emulated arm's torque minus
+    gravity is differentiated in q by central differences of step ``h``. In the
+    controller's own model this is −∂(K Φ p − G)/∂q with K Φ p = τ_*: the null-space
+    pressures cancel the muscles' stiffness exactly. A negative value means the arm
+    falls away from the start faster than the (weak) feedback can act.
     """
-    n = emu.n
-    name = emu.arm.model.name
-    ol = fns[f"{name}_open_loop_stiffness"]
-    ctrl = fns[f"{name}_{_suffix(kind)}"]
-    truth = fns[emu.fname("truth")]
-    valves = fns[emu.fname("valves")]
-    q0 = ref0[:n]
+    n, kappa = emu.n, emu.arm.n_params
     zero = np.zeros(n)
-    _, _, _, nu0 = ol(Pi_hat0, q0, zero, ref0, gains.lam, gains.kd, np.zeros(len(Pi_hat0)),
-                      gains.kinv, 1e-3)
-    z0 = np.concatenate([nu0, Pi_hat0])
+    _, _, _, nu0 = emu.arm.step_fun("open_loop")(Pi_hat0, ref0[:n], zero, ref0, lam, kd,
+                                                 np.zeros(kappa), kinv, dt)
+    ctrl = emu.arm.step_fun(kind)
+    args = {"z": np.concatenate([np.array(nu0).ravel(), Pi_hat0]), "qd": zero,
+            "sigma": ref0[4 * n:5 * n], "ref": ref0, "lam": lam, "kd": kd,
+            "kpi": np.zeros(kappa), "ksigma": ksigma, "kinv": kinv, "dt": dt}
+    q = ca.SX.sym("q", n)
+    p = ctrl.call({**{k: args[k] for k in ctrl.name_in() if k != "q"}, "q": q})["p"]
+    net = ca.Function("net", [q], [emu.residual_fun()(q, emu.interface_fun()(p)[1])[0]])
     out = np.empty(n)
     for j in range(n):
-        f = []
-        for sgn in (1.0, -1.0):
-            q = q0.copy()
-            q[j] += sgn * h
-            args = {"z": z0, "q": q, "qd": zero, "sigma": ref0[4 * n:5 * n], "ref": ref0,
-                    "lam": gains.lam, "kd": gains.kd, "kpi": np.zeros(len(Pi_hat0)),
-                    "ksigma": gains.ksigma, "kinv": gains.kinv, "dt": 1e-3}
-            p = ctrl(*[args[k] for k in ctrl.in_names])[1]
-            tgt = valves(p)[1]
-            tau = truth(q, tgt)[0]
-            f.append(tau[j] - emu.arm.dyn.gravity(q)[j])
-        out[j] = -(f[0] - f[1]) / (2 * h)
+        e = np.zeros(n)
+        e[j] = h
+        out[j] = -(float(net(ref0[:n] + e)[j]) - float(net(ref0[:n] - e)[j])) / (2 * h)
     return out
 
 
-def _suffix(kind: str) -> str:
-    from ..control.pneumatic import KINDS
-    return KINDS[kind]
-
-
-# -- feasibility -------------------------------------------------------------------------
-
-def feasibility(emu: GiosteEmulation, tr: Trace, label: str, *, warn: bool = True
+def feasibility(emu: GiosteEmulation, t, p_cmd, V_raw, label: str, *, warn: bool = True
                 ) -> tuple[list[PressureViolation], float]:
     """Pressure episodes outside [0, p(6 V)] and the fraction of samples with a clipped volt.
 
@@ -882,14 +730,12 @@ def feasibility(emu: GiosteEmulation, tr: Trace, label: str, *, warn: bool = Tru
     unreachable; :func:`~softgen.control.feasibility.check_pressures` finds each
     episode with joint, muscle and time. With ``warn``, one
     :class:`~softgen.control.feasibility.PressureWarning` per run names the first
-    episode (joint, muscle, time span) and counts the others: an oscillating run can
-    have thousands. The bound per joint is the lower of its two valves' 6 V pressures.
+    episode and counts the others. The bound per joint is the lower of its two valves'
+    6 V pressures.
     """
-    ok = tr.valid
-    viol = check_pressures(tr.t[ok], tr.p_cmd[ok], emu.p_max, label=label, warn=False)
+    viol = check_pressures(t, p_cmd, emu.p_max, label=label, warn=False)
     if warn and viol:
         more = f" (and {len(viol) - 1} more episodes)" if len(viol) > 1 else ""
         warnings.warn(viol[0].message(label) + more, PressureWarning, stacklevel=2)
-    raw = tr.V_raw[ok]
-    clipped = np.any((raw < 0.0) | (raw > V_MAX) | ~np.isfinite(raw), axis=1)
+    clipped = np.any((V_raw < 0.0) | (V_raw > V_MAX) | ~np.isfinite(V_raw), axis=1)
     return viol, float(clipped.mean()) if clipped.size else 0.0
