@@ -100,9 +100,12 @@ import dataclasses
 import math
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
+
+from matplotlib.figure import Figure
 
 from ..blocks import Block, ClosedLoop
 from ..control.feasibility import PressureViolation, PressureWarning, check_pressures
@@ -111,6 +114,7 @@ from ..control.pneumatic_loop import controller_block
 from ..control.references import SmoothSteps, stiffness_reference_block
 from ..model import RobotModel
 from ..symbolic.actuated import rk4_steps
+from ..runtime.simulate import simulate
 from ..symbolic.rigid import FUNCTION_OPTS
 from .hardware import delay_line_block, encoder_block, tracking_stop
 
@@ -364,6 +368,7 @@ class GiosteEmulation:
         self.actuator = actuator
         # Function names <model>_<tag>_<quantity>: both variants can share a bundle dir.
         self.tag = "gioste" if actuator == "identified" else "matched"
+        self.diagrams: dict = {}            # (kind, dt) -> loop_diagram, built once
         self.joints = joint_maps(self.n)
         self.valves = (VALVE_A, VALVE_B)
 
@@ -599,6 +604,16 @@ def reference_array(channels_q: list[SmoothSteps], channels_sigma: list[SmoothSt
     return np.concatenate([Q[0], Q[1], Q[2], Q[3], S[0], S[1]], axis=0).T
 
 
+def step_reference(q: list, sigma: list, duration: float, dt: float) -> np.ndarray:
+    """(K × 6n) reference over [0, ``duration``] (K = duration/dt + 1 samples) from one
+    :class:`SmoothSteps` or constant per joint for the angles ``q`` and stiffnesses
+    ``sigma``."""
+    steps = lambda x: (x if isinstance(x, SmoothSteps)  # noqa: E731
+                       else SmoothSteps((0.0,), (float(x),), 1.0)).check()
+    return reference_array([steps(x) for x in q], [steps(x) for x in sigma],
+                           np.arange(int(round(duration / dt)) + 1) * dt)
+
+
 def reference_input_block(n: int, *, name: str = "ref") -> Block:
     """Passes an external reference ``u`` (6n: q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d) on as
     ``ref`` and emits ``q_d`` and ``sigma_d`` alone (for stops, metrics, figures)."""
@@ -739,3 +754,182 @@ def feasibility(emu: GiosteEmulation, t, p_cmd, V_raw, label: str, *, warn: bool
         warnings.warn(viol[0].message(label) + more, PressureWarning, stacklevel=2)
     clipped = np.any((V_raw < 0.0) | (V_raw > V_MAX) | ~np.isfinite(V_raw), axis=1)
     return viol, float(clipped.mean()) if clipped.size else 0.0
+
+
+# -- runs ------------------------------------------------------------------------------------
+
+#: Signals :func:`run` records by default: the stop's, and what metrics and figures read.
+RECORD = (*STOP_SIGNALS, "ref.sigma_d", "stiff.sigma", "plant.sigma_physical", "ctrl.nu",
+          "ctrl.Pi_hat", "valves.V", "valves.V_raw")
+
+
+def controller_gains(emu: GiosteEmulation, kd, lam, kpi: float, sigma_range, *,
+                     stiffness_rate: float, per_g2: bool = True) -> dict:
+    """Parameters of :func:`~softgen.control.pneumatic_loop.controller_block` on GioSte:
+    K_d, Λ per joint, K_π by :func:`kpi_vector`, and K̂ calibrated over ``sigma_range``
+    (:meth:`GiosteEmulation.calibrated_gain`) with K_σ = ``stiffness_rate``/K̂."""
+    khat = emu.calibrated_gain(sigma_range)
+    vec = lambda v: np.broadcast_to(np.asarray(v, dtype=float), (emu.n,)).copy()  # noqa: E731
+    return {"lam": vec(lam), "kd": vec(kd), "ksigma": stiffness_rate / khat,
+            "kpi": kpi_vector(emu.arm, kpi, per_g2=per_g2), "kinv": 1 / khat}
+
+
+@dataclass
+class Run:
+    """One run over its reference's K samples; every signal NaN after an emergency stop."""
+
+    t: np.ndarray
+    ref: np.ndarray            # (K, 6n) the references given
+    s: dict                    # signal -> (K, size)
+    diverged_at: float | None
+    n: int
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.s[name]
+
+    @property
+    def valid(self) -> np.ndarray:
+        return np.isfinite(self["plant.q"][:, 0])
+
+    @property
+    def q_d(self) -> np.ndarray:
+        return self.ref[:, :self.n]
+
+    @property
+    def sigma_d(self) -> np.ndarray:
+        return self.ref[:, 4 * self.n:5 * self.n]
+
+    @property
+    def stop(self) -> float:
+        """The emergency stop's time, or the run's last sample when it never tripped."""
+        return float(self.diverged_at if self.diverged_at is not None else self.t[-1])
+
+    def position_error(self, bound: float) -> np.ndarray:
+        """q − q_d; after a stop counted as ``bound`` (a stopped run has failed, and its
+        error is at least the threshold: every index stays finite and ordered)."""
+        e = self["plant.q"] - self.q_d
+        e[~self.valid] = bound
+        return e
+
+    def stiffness_error(self, which: str = "stiff.sigma") -> np.ndarray:
+        """σ − σ_d; after a stop −σ_d (the valves vented, the map gives σ = 0)."""
+        e = self[which] - self.sigma_d
+        e[~self.valid] = -self.sigma_d[~self.valid]
+        return e
+
+    def oscillation(self, window: float, bound: float) -> float:
+        """Half peak-to-peak of q − q_d over the last ``window`` s, linear trend removed
+        (a slow convergence or a drift is not an oscillation); the worst joint."""
+        m = self.t >= self.t[-1] - window
+        e, tt = self.position_error(bound)[m], self.t[m] - self.t[m].mean()
+        A = np.column_stack([np.ones_like(tt), tt])
+        e = e - A @ np.linalg.lstsq(A, e, rcond=None)[0]
+        return float(np.max((e.max(axis=0) - e.min(axis=0)) / 2))
+
+    @classmethod
+    def concatenate(cls, runs: list[Run], gap: float) -> Run:
+        """Runs laid end to end, run k shifted by k·``gap`` in time."""
+        return cls(np.concatenate([r.t + k * gap for k, r in enumerate(runs)]),
+                   np.concatenate([r.ref for r in runs]),
+                   {k: np.concatenate([r[k] for r in runs]) for k in runs[0].s}, None, runs[0].n)
+
+
+def run(emu: GiosteEmulation, kind: str, ref: np.ndarray, gains: dict, *, dt: float,
+        divergence: float, Pi_hat0: np.ndarray, chunk: int = 5000,
+        record=RECORD) -> Run:
+    """Controller ``kind`` on the emulated arm along ``ref`` (K × 6n, row k at t = k dt).
+
+    From :func:`initial_state`, through :func:`loop_diagram` (one compiled loop per
+    controller and ``dt``) and :func:`softgen.runtime.simulate` with
+    :func:`emergency_stop` at ``divergence`` rad; a non-finite value stops the run too.
+    """
+    if (kind, dt) not in emu.diagrams:
+        emu.diagrams[kind, dt] = loop_diagram(emu, kind, dt)
+    d = emu.diagrams[kind, dt]
+    x0 = initial_state(emu, kind, ref[0], lam=gains["lam"], kd=gains["kd"],
+                       kinv=gains["kinv"], Pi_hat0=Pi_hat0, dt=dt)
+    K = ref.shape[0]
+    tr = simulate(d, steps=K, x0=x0, externals={"ref": ref}, chunk=chunk,
+                  params={f"ctrl.{k}": v for k, v in gains.items() if f"ctrl.{k}" in d.params},
+                  stop=[emergency_stop(divergence)], on_nonfinite="stop", record=record)
+    s = {}
+    for name in record:
+        s[name] = np.full((K, tr[name].shape[1]), np.nan)
+        s[name][:tr.t.size] = tr[name]
+    return Run(np.arange(K) * dt, ref, s, tr.stopped_at, emu.n)
+
+
+def save_runs(path: Path, runs: dict[str, Run], every: int = 20) -> None:
+    """``runs`` to one ``.npz``: each run's signals up to its stop, every ``every``-th
+    sample, as float32 (``<run>_t``, ``<run>_ref``, ``<run>_<block>_<signal>``)."""
+    arrays = {}
+    for name, r in runs.items():
+        ok = slice(0, int(r.valid.sum()), every)
+        arrays[f"{name}_t"] = r.t[ok].astype(np.float32)
+        arrays[f"{name}_ref"] = r.ref[ok].astype(np.float32)
+        arrays.update({f"{name}_{k.replace('.', '_')}": v[ok].astype(np.float32)
+                       for k, v in r.s.items()})
+    np.savez_compressed(path, **arrays)
+
+
+def feasibility_summary(emu: GiosteEmulation, runs: dict[str, Run]) -> dict:
+    """Over ``{label: run}``: ``pressure_violations`` (episodes of commanded pressure
+    outside [0, p(6 V)], :func:`feasibility`, warned once per run) and
+    ``voltage_clipped_fraction`` (samples before the stops with a clipped voltage)."""
+    episodes, clipped, samples = 0, 0.0, 0
+    for label, r in runs.items():
+        ok = r.valid
+        viol, frac = feasibility(emu, r.t[ok], r["ctrl.p"][ok], r["valves.V_raw"][ok], label)
+        episodes += len(viol)
+        clipped += frac * int(ok.sum())
+        samples += int(ok.sum())
+    return {"pressure_violations": float(episodes),
+            "voltage_clipped_fraction": float(clipped / max(samples, 1))}
+
+
+#: Panels of :func:`runs_figure`: signal, y label.
+PANELS = {"q": "q [rad]", "sigma": "σ [N m/rad]", "nu": "ν", "Pi_hat": "Π̂", "V": "V [V]"}
+
+
+def runs_figure(columns: list, parameter_names, titles: list[str], *, labels=None,
+                panels=tuple(PANELS)) -> Figure:
+    """One column per entry of ``columns`` (a :class:`Run`, or runs overlaid and named by
+    ``labels``), one row per panel: q and σ (the map the controller reads, and −∂τ/∂q)
+    against their references, ν, Π̂ and the valve voltages, as the thesis plots them
+    (Fig. 10.6-10.13). Time axes end at the runs' emergency stops, marked and named."""
+    fig = Figure(figsize=(5.5 * len(columns), 2.4 * len(panels)))
+    ax = fig.subplots(len(panels), len(columns), squeeze=False)
+    for j, col in enumerate(columns):
+        col = list(col) if isinstance(col, (list, tuple)) else [col]
+        for r, lab in zip(col, labels or [""] * len(col)):
+            pre = f"{lab} " if lab else ""
+            lines = {"q": [(r["plant.q"], "-", "q")], "nu": [(r["ctrl.nu"], "-", "ν")],
+                     "sigma": [(r["stiff.sigma"], "-", "σ (map)")] + (
+                         [(r["plant.sigma_physical"], ":", "σ (−∂τ/∂q)")] if not lab else []),
+                     "Pi_hat": [(r["ctrl.Pi_hat"], "-", "")], "V": [(r["valves.V"], "-", "V")]}
+            for a, panel in zip(ax[:, j], panels):
+                for y, style, name in lines[panel]:
+                    names = (list(parameter_names) if panel == "Pi_hat" else
+                             [f"{name}{m // 2 + 1}{'ab'[m % 2]}" for m in range(y.shape[1])]
+                             if panel == "V" else [f"{name}{i + 1}" for i in range(y.shape[1])])
+                    a.plot(r.t, y, style, lw=0.9, label=[pre + x for x in names])
+        for a, panel in zip(ax[:, j], panels):
+            if panel in ("q", "sigma"):
+                a.plot(col[0].t, col[0].q_d if panel == "q" else col[0].sigma_d, "k--", lw=0.7)
+            a.set_ylabel(PANELS[panel])
+            a.legend(fontsize=6)
+            mark_stop(a, col)
+        stops = [f"{lab or 'run'} stopped at {r.diverged_at:.4g} s" for r, lab in
+                 zip(col, labels or [""] * len(col)) if r.diverged_at is not None]
+        ax[0, j].set_title(titles[j] + (f" ({'; '.join(stops)})" if stops else ""), fontsize=9)
+        ax[-1, j].set_xlabel("t [s]")
+    fig.tight_layout()
+    return fig
+
+
+def mark_stop(ax, runs: list[Run]) -> None:
+    """Clip a time axis to the simulated span of ``runs`` and mark their emergency stops."""
+    ax.set_xlim(0.0, max(r.stop for r in runs))
+    for r in runs:
+        if r.diverged_at is not None:
+            ax.axvline(r.diverged_at, color="r", lw=0.8, ls=":")
