@@ -177,8 +177,7 @@ def test_matched_arm_has_only_the_feedback_stiffness():
     emu = gc.GiosteEmulation(arm, actuator="model")
     g = _gains(emu, arm, 10.0)
     ref0 = np.array([0.1, 0, 0, 0, 10.0, 0])
-    net = gc.static_net_stiffness(emu, "theorem5", ref0, Pi_hat0=arm.Pi_nominal,
-                                  **{k: g[k] for k in ("lam", "kd", "ksigma", "kinv")})
+    net = gc.static_net_stiffness(emu, "theorem5", ref0, g, Pi_hat0=arm.Pi_nominal)
     assert net[0] == pytest.approx(12.0 * 1.8 * arm.K1, rel=1e-4)
 
 

@@ -166,3 +166,17 @@ def test_equilibrium_is_a_root_and_matches_finite_differences(emu):
     h = 1e-6
     J = np.array(res(q, p)[1]).item()
     assert J == pytest.approx((r(q + h) - r(q - h)) / (2 * h), rel=1e-6)
+
+
+def test_trace_store_keeps_runs_decimated_up_to_their_stop(tmp_path):
+    K, n = 100, 1
+    s = {"plant.q": np.arange(K, dtype=float).reshape(K, 1), "ctrl.p": np.ones((K, 2))}
+    s["plant.q"][60:] = np.nan                                # stopped at sample 60
+    run = G.Run(np.arange(K) * DT, np.zeros((K, 6 * n)), s, 60 * DT, n)
+    store = G.TraceStore(every=7)
+    store["a"] = run
+    np.testing.assert_array_equal(store["a"]["plant_q"][:, 0], np.arange(0, 60, 7))
+    assert store["a"]["ctrl_p"].dtype == np.float32
+    store.save(tmp_path / "t.npz")
+    with np.load(tmp_path / "t.npz") as z:
+        assert sorted(z.files) == ["a_ctrl_p", "a_plant_q", "a_ref", "a_t"]

@@ -109,10 +109,10 @@ from matplotlib.figure import Figure
 
 from ..blocks import Block, ClosedLoop
 from ..control.feasibility import PressureViolation, PressureWarning, check_pressures
-from ..control.pneumatic import PneumaticArm
+from ..control.pneumatic import PneumaticArm, pneumatic_arm
 from ..control.pneumatic_loop import controller_block
 from ..control.references import SmoothSteps, stiffness_reference_block
-from ..model import RobotModel
+from ..model import RobotModel, load_model
 from ..symbolic.actuated import rk4_steps
 from ..runtime.simulate import simulate
 from ..symbolic.rigid import FUNCTION_OPTS
@@ -706,9 +706,8 @@ def equilibrium(emu: GiosteEmulation, p: np.ndarray, q0: np.ndarray, *,
     return q
 
 
-def static_net_stiffness(emu: GiosteEmulation, kind: str, ref0: np.ndarray, *, lam, kd,
-                         ksigma, kinv, Pi_hat0: np.ndarray, dt: float = 1e-3,
-                         h: float = 1e-4) -> np.ndarray:
+def static_net_stiffness(emu: GiosteEmulation, kind: str, ref0: np.ndarray, gains: dict, *,
+                         Pi_hat0: np.ndarray, dt: float = 1e-3, h: float = 1e-4) -> np.ndarray:
     """−∂(τ − G)/∂q of the arm under the controller's first command law, state frozen.
 
     The controller's pressures at (q, q̇ = 0) with ν and Π̂ held at their initial
@@ -719,7 +718,7 @@ def static_net_stiffness(emu: GiosteEmulation, kind: str, ref0: np.ndarray, *, l
     falls away from the start faster than the (weak) feedback can act.
     """
     n, kappa = emu.n, emu.arm.n_params
-    zero = np.zeros(n)
+    zero, (lam, kd, ksigma, kinv) = np.zeros(n), (gains[k] for k in ("lam", "kd", "ksigma", "kinv"))
     _, _, _, nu0 = emu.arm.step_fun("open_loop")(Pi_hat0, ref0[:n], zero, ref0, lam, kd,
                                                  np.zeros(kappa), kinv, dt)
     ctrl = emu.arm.step_fun(kind)
@@ -859,17 +858,67 @@ def run(emu: GiosteEmulation, kind: str, ref: np.ndarray, gains: dict, *, dt: fl
     return Run(np.arange(K) * dt, ref, s, tr.stopped_at, emu.n)
 
 
-def save_runs(path: Path, runs: dict[str, Run], every: int = 20) -> None:
-    """``runs`` to one ``.npz``: each run's signals up to its stop, every ``every``-th
-    sample, as float32 (``<run>_t``, ``<run>_ref``, ``<run>_<block>_<signal>``)."""
-    arrays = {}
-    for name, r in runs.items():
-        ok = slice(0, int(r.valid.sum()), every)
-        arrays[f"{name}_t"] = r.t[ok].astype(np.float32)
-        arrays[f"{name}_ref"] = r.ref[ok].astype(np.float32)
-        arrays.update({f"{name}_{k.replace('.', '_')}": v[ok].astype(np.float32)
-                       for k, v in r.s.items()})
-    np.savez_compressed(path, **arrays)
+class Bench:
+    """A controller model on its emulated GioSte, with the settings its runs share.
+
+    ``muscles``: "fitted" identifies the controller's McKibben pairs from the maps
+    (:func:`fitted_model`), "table10.1" keeps the model file's; ``actuator`` as in
+    :class:`GiosteEmulation`. ``config`` is kept for the caller (e.g. an experiment's).
+    """
+
+    def __init__(self, model: str | RobotModel, hw: HardwareConfig = HardwareConfig(), *,
+                 muscles: str = "fitted", actuator: str = "identified", dt: float = 1e-3,
+                 divergence: float = 0.5, stiffness_rate: float = 1.0, per_g2: bool = True,
+                 chunk: int = 5000, config=None):
+        if muscles not in ("fitted", "table10.1"):
+            raise ValueError(f"muscles: expected 'fitted' or 'table10.1', got {muscles!r}")
+        base = load_model(model) if isinstance(model, str) else model
+        self.arm = pneumatic_arm(fitted_model(base, origin=hw.map_origin)
+                                 if muscles == "fitted" else base)
+        self.emu = GiosteEmulation(self.arm, hw, actuator=actuator)
+        self.dt, self.divergence, self.chunk, self.c = dt, divergence, chunk, config
+        self.stiffness_rate, self.per_g2 = stiffness_rate, per_g2
+
+    def gains(self, kd, lam, kpi, sigma_range, *, per_g2: bool | None = None) -> dict:
+        """:func:`controller_gains` with the bench's K_σ rate and K_π reading."""
+        return controller_gains(self.emu, kd, lam, kpi, sigma_range,
+                                stiffness_rate=self.stiffness_rate,
+                                per_g2=self.per_g2 if per_g2 is None else per_g2)
+
+    def run(self, kind: str, ref: np.ndarray, gains: dict, dt: float | None = None) -> Run:
+        """:func:`run` from Π̂(0) = Π of the controller's model."""
+        return run(self.emu, kind, ref, gains, dt=dt or self.dt, divergence=self.divergence,
+                   Pi_hat0=self.arm.Pi_nominal, chunk=self.chunk)
+
+    def net_stiffness(self, ref0: np.ndarray, gains: dict) -> np.ndarray:
+        """:func:`static_net_stiffness` of Theorem 5's first command at ``ref0``."""
+        return static_net_stiffness(self.emu, "theorem5", ref0, gains,
+                                    Pi_hat0=self.arm.Pi_nominal)
+
+
+class TraceStore(dict):
+    """Runs kept compactly as they finish: ``store[name] = run`` keeps its signals up to its
+    stop, every ``every``-th sample, as float32 (the full run can then be freed);
+    :meth:`save` writes them to one ``.npz`` (``<name>_t``, ``<name>_ref``,
+    ``<name>_<block>_<signal>``)."""
+
+    def __init__(self, every: int = 20):
+        super().__init__()
+        self.every = int(every)
+
+    def __setitem__(self, name: str, r: Run) -> None:
+        ok = slice(0, int(r.valid.sum()), self.every)
+        arrays = {"t": r.t[ok], "ref": r.ref[ok],
+                  **{k.replace(".", "_"): v[ok] for k, v in r.s.items()}}
+        super().__setitem__(name, {k: np.asarray(v, np.float32) for k, v in arrays.items()})
+
+    def update(self, other=(), **kw) -> None:
+        for k, v in dict(other, **kw).items():
+            self[k] = v
+
+    def save(self, path: Path) -> None:
+        np.savez_compressed(path, **{f"{n}_{k}": v for n, a in self.items()
+                                     for k, v in a.items()})
 
 
 def feasibility_summary(emu: GiosteEmulation, runs: dict[str, Run]) -> dict:
@@ -891,14 +940,16 @@ def feasibility_summary(emu: GiosteEmulation, runs: dict[str, Run]) -> dict:
 PANELS = {"q": "q [rad]", "sigma": "σ [N m/rad]", "nu": "ν", "Pi_hat": "Π̂", "V": "V [V]"}
 
 
-def runs_figure(columns: list, parameter_names, titles: list[str], *, labels=None,
-                panels=tuple(PANELS)) -> Figure:
+def runs_figure(columns: list, parameter_names, titles: list[str] | None = None, *,
+                labels=None, panels=tuple(PANELS)) -> Figure:
     """One column per entry of ``columns`` (a :class:`Run`, or runs overlaid and named by
     ``labels``), one row per panel: q and σ (the map the controller reads, and −∂τ/∂q)
     against their references, ν, Π̂ and the valve voltages, as the thesis plots them
     (Fig. 10.6-10.13). Time axes end at the runs' emergency stops, marked and named."""
     fig = Figure(figsize=(5.5 * len(columns), 2.4 * len(panels)))
     ax = fig.subplots(len(panels), len(columns), squeeze=False)
+    titles = titles or ([f"run {j + 1}" for j in range(len(columns))] if len(columns) > 1
+                        else ["run"])
     for j, col in enumerate(columns):
         col = list(col) if isinstance(col, (list, tuple)) else [col]
         for r, lab in zip(col, labels or [""] * len(col)):
@@ -917,7 +968,7 @@ def runs_figure(columns: list, parameter_names, titles: list[str], *, labels=Non
             if panel in ("q", "sigma"):
                 a.plot(col[0].t, col[0].q_d if panel == "q" else col[0].sigma_d, "k--", lw=0.7)
             a.set_ylabel(PANELS[panel])
-            a.legend(fontsize=6)
+            a.legend(fontsize=6, loc="upper left")
             mark_stop(a, col)
         stops = [f"{lab or 'run'} stopped at {r.diverged_at:.4g} s" for r, lab in
                  zip(col, labels or [""] * len(col)) if r.diverged_at is not None]
@@ -933,3 +984,18 @@ def mark_stop(ax, runs: list[Run]) -> None:
     for r in runs:
         if r.diverged_at is not None:
             ax.axvline(r.diverged_at, color="r", lw=0.8, ls=":")
+
+
+def coupling_index(t, dev, windows, name: str, *, baseline: float, stop: float) -> dict:
+    """``{name}_joint{i}``: the worst window's max |deviation − its mean over ``baseline`` s
+    before the window| per unit of the step, over ``windows`` ``(t0, t1, step)`` (intervals in
+    which only the *other* references move) that end before ``stop``. NaN when none does:
+    a stopped run has no coupling to measure. Subtracting the baseline keeps a steady offset
+    from counting as coupling."""
+    res = np.full(dev.shape[1], np.nan)
+    for t0, t1, step in (w for w in windows if w[1] <= stop):
+        pre, win = (t >= t0 - baseline) & (t < t0), (t >= t0) & (t < t1)
+        d = np.abs(dev - (dev[pre].mean(axis=0) if pre.any() else 0.0))
+        v = d[win].max(axis=0) / step if win.any() and step > 0 else np.zeros(dev.shape[1])
+        res = np.where(np.isnan(res), v, np.maximum(res, v))
+    return {f"{name}_joint{i + 1}": float(x) for i, x in enumerate(res)}
