@@ -107,14 +107,14 @@ import numpy as np
 
 from matplotlib.figure import Figure
 
-from ..blocks import Block, ClosedLoop
+from ..blocks import Block, ClosedLoop, Layout
 from ..control.feasibility import PressureViolation, PressureWarning, check_pressures
-from ..control.pneumatic import PneumaticArm, pneumatic_arm
+from ..control.pneumatic import REFERENCE_BLOCKS, PneumaticArm, pneumatic_arm
 from ..control.pneumatic_loop import controller_block
 from ..control.references import SmoothSteps, stiffness_reference_block
 from ..model import RobotModel, load_model
-from ..symbolic.actuated import rk4_steps
 from ..runtime.simulate import simulate
+from ..symbolic.actuated import rk4_steps
 from ..symbolic.rigid import FUNCTION_OPTS
 from .hardware import delay_line_block, encoder_block, tracking_stop
 
@@ -375,6 +375,11 @@ class GiosteEmulation:
     def fname(self, quantity: str) -> str:
         return f"{self.name}_{self.tag}_{quantity}"
 
+    @property
+    def state_layout(self) -> Layout:
+        """The arm's state (q, q̇, p): angles, velocities, the 2n muscle pressures."""
+        return Layout([("q", self.n, "rad"), ("qd", self.n, "rad/s"), ("p", 2 * self.n, "Pa")])
+
     # numeric helpers ------------------------------------------------------------------
     @property
     def encoder_step(self) -> float:
@@ -476,15 +481,15 @@ class GiosteEmulation:
         τ(q, V_eq(p)) (eq. 10.11 at the voltage equivalent of the actual pressures),
         ṗ = (p_target − p)/τ_v; ``substeps`` RK4 steps over h.
         """
-        n, dyn = self.n, self.arm.dyn
-        xs, us = ca.SX.sym("xs", 4 * n), ca.SX.sym("us", 2 * n)
-        q, qd, p = xs[:n], xs[n:2 * n], xs[2 * n:]
+        n, dyn, lay = self.n, self.arm.dyn, self.state_layout
+        xs, us = ca.SX.sym("xs", lay.size), ca.SX.sym("us", 2 * n)
+        q, qd, p = (lay.split(xs)[k] for k in ("q", "qd", "p"))
         tau, _, _ = self._maps(q, self._veq(p))
         m = dyn.nominal
         qdd = ca.substitute(dyn.forward_dynamics_expr(tau - self.hw.friction * qd),
                             ca.vertcat(m.q, m.qd), ca.vertcat(q, qd))
         rhs = ca.Function("rhs", [xs, us], [ca.vertcat(qd, qdd, (us - p) / self.hw.valve_tau)])
-        x, u, h = ca.SX.sym("x", 4 * n), ca.SX.sym("p_target", 2 * n), ca.SX.sym("h")
+        x, u, h = ca.SX.sym("x", lay.size), ca.SX.sym("p_target", 2 * n), ca.SX.sym("h")
         z = rk4_steps(rhs, x, u, h, self.hw.substeps)
         return ca.Function(self.fname("plant"), [x, u, h], [z],
                            ["x", "p_target", "h"], ["x_next"], FUNCTION_OPTS)
@@ -539,18 +544,16 @@ class GiosteEmulation:
         and the truth there: torque ``tau``, ``sigma_physical`` (−∂τ/∂q) and
         ``sigma_identified`` (the eq. 10.11 map) at the voltages equivalent to p.
         """
-        n, f, truth = self.n, self.plant_fun(), self.truth_fun()
+        n, f, truth, lay = self.n, self.plant_fun(), self.truth_fun(), self.state_layout
 
         def body(x, u, p):
-            xn = f(ca.vertcat(x["q"], x["qd"], x["p"]), u["p_target"], dt)
+            xn = f(lay.join(x), u["p_target"], dt)
             tau, sp, si = truth(x["q"], x["p"])
-            return ({"q": xn[:n], "qd": xn[n:2 * n], "p": xn[2 * n:]},
-                    {"q": x["q"], "qd": x["qd"], "p": x["p"], "tau": tau,
-                     "sigma_physical": sp, "sigma_identified": si})
+            return (lay.split(xn), {**x, "tau": tau, "sigma_physical": sp,
+                                    "sigma_identified": si})
 
-        st = [("q", n, "rad"), ("qd", n, "rad/s"), ("p", 2 * n, "Pa")]
-        return Block.define(name, dt=dt, state=st, inputs=[("p_target", 2 * n, "Pa")],
-                            outputs=st + [("tau", n, "N m"), ("sigma_physical", n, "N m/rad"),
+        return Block.define(name, dt=dt, state=lay, inputs=[("p_target", 2 * n, "Pa")],
+                            outputs=list(lay) + [("tau", n, "N m"), ("sigma_physical", n, "N m/rad"),
                                           ("sigma_identified", n, "N m/rad")],
                             body=body, doc=f"emulated GioSte ({self.actuator} muscles)",
                             meta={"model": self.name})
@@ -604,6 +607,12 @@ def reference_array(channels_q: list[SmoothSteps], channels_sigma: list[SmoothSt
     return np.concatenate([Q[0], Q[1], Q[2], Q[3], S[0], S[1]], axis=0).T
 
 
+def reference_layout(n: int) -> Layout:
+    """The controllers' reference vector (:data:`~softgen.control.pneumatic.REFERENCE_BLOCKS`:
+    q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d, n entries each)."""
+    return Layout([(b, n) for b in REFERENCE_BLOCKS])
+
+
 def step_reference(q: list, sigma: list, duration: float, dt: float) -> np.ndarray:
     """(K × 6n) reference over [0, ``duration``] (K = duration/dt + 1 samples) from one
     :class:`SmoothSteps` or constant per joint for the angles ``q`` and stiffnesses
@@ -619,8 +628,8 @@ def reference_input_block(n: int, *, name: str = "ref") -> Block:
     ``ref`` and emits ``q_d`` and ``sigma_d`` alone (for stops, metrics, figures)."""
     return Block.define(name, dt=None, inputs=[("u", 6 * n)],
                         outputs=[("ref", 6 * n), ("q_d", n, "rad"), ("sigma_d", n, "N m/rad")],
-                        body=lambda x, u, p: ({}, {"ref": u["u"], "q_d": u["u"][:n],
-                                                   "sigma_d": u["u"][4 * n:5 * n]}),
+                        body=lambda x, u, p: ({}, {"ref": u["u"], **{
+                            k: reference_layout(n).split(u["u"])[k] for k in ("q_d", "sigma_d")}}),
                         doc="external reference of the chapter-10 controllers")
 
 
@@ -671,7 +680,7 @@ def initial_state(emu: GiosteEmulation, kind: str, ref0: np.ndarray, *, lam, kd,
     rests where they hold it (:func:`equilibrium`). Π̂(0) = ``Pi_hat0``.
     """
     n = emu.n
-    q0, zero = ref0[:n].copy(), np.zeros(n)
+    q0, zero = ref0[reference_layout(n).slice("q_d")].copy(), np.zeros(n)
     ol = emu.arm.step_fun("open_loop")
     _, p0, _, nu0 = (np.array(v).ravel() for v in ol(
         Pi_hat0, q0, zero, ref0, lam, kd, np.zeros(emu.arm.n_params), kinv, dt))
@@ -719,11 +728,12 @@ def static_net_stiffness(emu: GiosteEmulation, kind: str, ref0: np.ndarray, gain
     """
     n, kappa = emu.n, emu.arm.n_params
     zero, (lam, kd, ksigma, kinv) = np.zeros(n), (gains[k] for k in ("lam", "kd", "ksigma", "kinv"))
-    _, _, _, nu0 = emu.arm.step_fun("open_loop")(Pi_hat0, ref0[:n], zero, ref0, lam, kd,
+    r0 = reference_layout(n).split(ref0)
+    _, _, _, nu0 = emu.arm.step_fun("open_loop")(Pi_hat0, r0["q_d"], zero, ref0, lam, kd,
                                                  np.zeros(kappa), kinv, dt)
     ctrl = emu.arm.step_fun(kind)
     args = {"z": np.concatenate([np.array(nu0).ravel(), Pi_hat0]), "qd": zero,
-            "sigma": ref0[4 * n:5 * n], "ref": ref0, "lam": lam, "kd": kd,
+            "sigma": r0["sigma_d"], "ref": ref0, "lam": lam, "kd": kd,
             "kpi": np.zeros(kappa), "ksigma": ksigma, "kinv": kinv, "dt": dt}
     q = ca.SX.sym("q", n)
     p = ctrl.call({**{k: args[k] for k in ctrl.name_in() if k != "q"}, "q": q})["p"]
@@ -732,7 +742,7 @@ def static_net_stiffness(emu: GiosteEmulation, kind: str, ref0: np.ndarray, gain
     for j in range(n):
         e = np.zeros(n)
         e[j] = h
-        out[j] = -(float(net(ref0[:n] + e)[j]) - float(net(ref0[:n] - e)[j])) / (2 * h)
+        out[j] = -(float(net(r0["q_d"] + e)[j]) - float(net(r0["q_d"] - e)[j])) / (2 * h)
     return out
 
 
@@ -792,11 +802,11 @@ class Run:
 
     @property
     def q_d(self) -> np.ndarray:
-        return self.ref[:, :self.n]
+        return self.ref[:, reference_layout(self.n).slice("q_d")]
 
     @property
     def sigma_d(self) -> np.ndarray:
-        return self.ref[:, 4 * self.n:5 * self.n]
+        return self.ref[:, reference_layout(self.n).slice("sigma_d")]
 
     @property
     def stop(self) -> float:
