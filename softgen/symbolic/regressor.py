@@ -230,3 +230,93 @@ def _term(c: float, mon: str) -> str:
     coef = "" if mag == 1.0 else f"{Fraction(mag).limit_denominator(1000)}*" \
         if abs(float(Fraction(mag).limit_denominator(1000)) - mag) < 1e-12 else f"{mag:.12g}*"
     return f"{sign} {coef}{mon}"
+
+
+@dataclass
+class NumericBase:
+    """Result of :func:`numeric_base_parameters`: the base set and its map from δ.
+
+    ``A`` (n_δ × r, constant) writes every base column of the regressor through the
+    columns of the δ-regressor: ``Y_b = Y_δ A``. Hence ``Y_b π̂ = Y_δ (A π̂)`` (the
+    dynamics evaluated at δ̂ = A π̂) and ``Y_bᵀ s = Aᵀ (Y_δᵀ s)``, neither forming Y.
+    ``a0`` is δ at p = 0 (the known part: ``Y_δ a0`` multiplies no uncertain parameter).
+    """
+
+    A: np.ndarray
+    a0: np.ndarray
+    pi: ca.SX
+    names: list[str]
+    expressions: list[str]
+    full_rank: int
+
+
+def numeric_base_parameters(delta_of_p: ca.SX, params: ca.SX, names: tuple[str, ...],
+                            y_delta: ca.Function, n_inputs: list[tuple[int, int]], *,
+                            seed: int = 0, n_samples: int = 40, tol: float = 1e-8
+                            ) -> NumericBase:
+    """Base parameters by numerical identifiability (Gautier 1990), no symbolic Y.
+
+    For dynamics linear in per-link parameters δ whose entries are polynomials in the
+    physical parameters p (``delta_of_p``; masses, first moments m c, inertias about
+    the joint, damping, stiffness), the regressor column of a monomial p^α is
+    ``Y_δ A_α`` with ``A`` the exact coefficients of δ(p) (small expressions, factored
+    symbolically). ``y_delta`` evaluates Y_δ numerically; it is stacked over seeded
+    random samples, the monomial columns are formed numerically, ordered as in
+    :func:`base_parameters` (degree, then the model's parameter order), and the
+    diagonal of the R factor of the QR decomposition of the column-normalised matrix
+    says which raise the rank (|R_jj| is the distance of column j from the span of
+    the earlier ones). Only the kept columns are regrouped, exactly
+    (:func:`_exact`), into π(p). The result has the same columns, names and
+    regrouping as the symbolic route on the same model.
+    """
+    fact = factor_polynomial(delta_of_p, params, [])
+    if not fact.columns:
+        raise ModelError("the dynamics depend on none of the uncertain parameters")
+    A_all = np.array(ca.evalf(ca.horzcat(*fact.columns)))
+    a0 = (np.array(ca.evalf(fact.constant)).ravel() if fact.constant is not None
+          else np.zeros(delta_of_p.shape[0]))
+    rng = np.random.default_rng(seed)
+    Wd = np.vstack([np.array(y_delta(*[rng.uniform(-np.pi, np.pi, s) for s in n_inputs]))
+                    for _ in range(n_samples)])
+    W_all = Wd @ A_all
+    scale = max(1.0, float(np.max(np.abs(W_all), initial=0.0)))
+    live = [j for j in range(W_all.shape[1]) if np.max(np.abs(W_all[:, j])) > 1e-11 * scale]
+    if not live:
+        raise ModelError("the dynamics depend on none of the uncertain parameters")
+    order = sorted(live, key=lambda i: (fact.monomials[i].degree(),
+                                        tuple(-e for e in fact.monomials[i].exponents)))
+    W = W_all[:, order]
+    mons = [fact.monomials[i] for i in order]
+    A = A_all[:, order]
+    Wn = W / np.linalg.norm(W, axis=0)
+    R = np.linalg.qr(Wn, mode="r")
+    kept = [j for j in range(W.shape[1]) if abs(R[j, j]) > tol] if W.shape[0] >= W.shape[1] \
+        else None
+    if kept is None:
+        raise ModelError("internal: too few samples for the base-parameter QR")
+    dropped = [j for j in range(W.shape[1]) if j not in kept]
+    if dropped:
+        Kmat, *_ = np.linalg.lstsq(W[:, kept], W[:, dropped], rcond=None)
+        Kmat = np.vectorize(_exact)(Kmat)
+        resid = W[:, kept] @ Kmat - W[:, dropped]
+        if np.max(np.abs(resid)) > 1e-8 * scale:
+            raise ModelError("internal: base-parameter reduction left a residual "
+                             f"{np.max(np.abs(resid)):.3e}; the regressor columns are not "
+                             "exactly dependent")
+    else:
+        Kmat = np.zeros((len(kept), 0))
+    psyms = [params[j] for j in range(params.shape[0])]
+    pi, pnames, pexprs = [], [], []
+    for a, j in enumerate(kept):
+        expr = mons[j].evaluate(psyms)
+        text = [mons[j].name(names)]
+        for b, d in enumerate(dropped):
+            c = Kmat[a, b]
+            if c != 0.0:
+                expr = expr + c * mons[d].evaluate(psyms)
+                text.append(_term(c, mons[d].name(names)))
+        pi.append(expr)
+        pnames.append(mons[j].name(names))
+        pexprs.append(" ".join(text))
+    return NumericBase(A=A[:, kept], a0=a0, pi=ca.vertcat(*pi), names=pnames,
+                       expressions=pexprs, full_rank=len(mons))
