@@ -61,9 +61,11 @@ def describe(model) -> str:
             xyz, rot = R0 @ xyz, R0 @ rot
         com = [res(v) for v in link.com]
         inertia = [res(v) for v in link.inertia]
-        vals = ([0 if link.joint == "revolute" else 1] + list(link.axis) + list(xyz)
-                + list(rot.ravel()) + [res(link.mass)] + com + inertia)
-        lines.append(" ".join(repr(float(v)) for v in vals))
+        vals = (list(link.axis) + list(xyz) + list(rot.ravel()) + [res(link.mass)] + com
+                + inertia)
+        # The joint type is read as an integer: write it as one.
+        lines.append(f"{0 if link.joint == 'revolute' else 1} "
+                     + " ".join(repr(float(v)) for v in vals))
     return "\n".join(lines) + "\n"
 
 

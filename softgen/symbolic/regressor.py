@@ -232,6 +232,38 @@ def _term(c: float, mon: str) -> str:
     return f"{sign} {coef}{mon}"
 
 
+def _factor_entries(expr: ca.SX, params: ca.SX) -> PolynomialFactorisation:
+    """:func:`factor_polynomial` of a column whose entries each involve a few parameters.
+
+    Each entry of δ(p) depends on one link's parameters only; factoring entry by entry
+    over just those keeps the recursion of :func:`factor_polynomial` short (it would
+    otherwise descend through every parameter of the chain for every entry).
+    """
+    n_rows, n_p = expr.shape[0], params.shape[0]
+    index = {params[j].name(): j for j in range(n_p)}
+    columns: dict[tuple[int, ...], list] = {}
+    constant = [0.0] * n_rows
+    for k in range(n_rows):
+        e = expr[k]
+        deps = [v for v in ca.symvar(e) if v.name() in index]
+        if not deps:
+            constant[k] = e
+            continue
+        sub = factor_polynomial(e, ca.vertcat(*deps), [])
+        if sub.constant is not None:
+            constant[k] = sub.constant
+        for col, mon in zip(sub.columns, sub.monomials):
+            full = [0] * n_p
+            for v, ex in zip(deps, mon.exponents):
+                full[index[v.name()]] = ex
+            columns.setdefault(tuple(full), [0.0] * n_rows)[k] = col
+    mons = list(columns)
+    return PolynomialFactorisation(
+        columns=[ca.vertcat(*[ca.SX(c) for c in columns[m]]) for m in mons],
+        monomials=[Monomial(m) for m in mons],
+        constant=ca.vertcat(*[ca.SX(c) for c in constant]))
+
+
 @dataclass
 class NumericBase:
     """Result of :func:`numeric_base_parameters`: the base set and its map from δ.
@@ -269,7 +301,7 @@ def numeric_base_parameters(delta_of_p: ca.SX, params: ca.SX, names: tuple[str, 
     (:func:`_exact`), into π(p). The result has the same columns, names and
     regrouping as the symbolic route on the same model.
     """
-    fact = factor_polynomial(delta_of_p, params, [])
+    fact = _factor_entries(delta_of_p, params)
     if not fact.columns:
         raise ModelError("the dynamics depend on none of the uncertain parameters")
     A_all = np.array(ca.evalf(ca.horzcat(*fact.columns)))

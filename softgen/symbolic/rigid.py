@@ -3,7 +3,9 @@
 Paired API (adam convention, DESIGN.md section 3 item 1): ``inertia_fun()``
 returns the named ``casadi.Function``; ``inertia(q)`` evaluates it. Function
 names are ``<model>_<quantity>``; outputs are dense so that a compiled library
-writes every entry (no sparsity bookkeeping in the runtime).
+writes every entry (no sparsity bookkeeping in the runtime). Each ``x_fun()`` is
+built once per instance and cached, so ``x(...)`` costs one call of the Function
+plus the conversion to numpy (issue 10 item 6).
 """
 from __future__ import annotations
 
@@ -64,13 +66,17 @@ class RigidDynamics:
     model
         The validated model.
     route
-        ``"explicit"``, ``"matrix-free"`` or ``"auto"`` (default: explicit up to
-        ``"recursive"`` or ``"auto"`` (default): how B q̈_r + C q̇_r + G is built (see
+        ``"explicit"``, ``"matrix-free"``, ``"recursive"`` or ``"auto"`` (default): how B q̈_r + C q̇_r + G is built (see
         :mod:`softgen.symbolic.mechanics` and :mod:`softgen.symbolic.recursive`; all
         give the Christoffel C). ``"auto"`` builds each candidate for this model and
         keeps the one with the fewest CasADi instructions; likewise it chooses, per
         function, between forming Y and the recursive products Y π̂ and Yᵀ s. The
-        choices and counts are in :attr:`route_detail`.
+        choices and counts are in :attr:`route_detail` (and the bundle manifest).
+        Every route yields the C of Christoffel symbols (Ḃ − 2C skew), so the
+        Slotine–Li law (Prop. 10), Theorem 5, Corollary 2 and Theorem 10 may use
+        any of them; :meth:`coriolis_fun` always forms that C explicitly.
+    base_method
+        ``"auto"`` (default), ``"numeric"`` or ``"symbolic"``: see below.
 
     Base parameters come from numerical identifiability (Gautier's QR, seconds even
     for 40 links; :func:`~softgen.symbolic.regressor.numeric_base_parameters`)
