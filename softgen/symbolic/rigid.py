@@ -410,13 +410,13 @@ class RigidDynamics:
 
     # -- evaluation (the other half of the paired API) ------------------------------
     def inertia(self, q) -> np.ndarray:
-        return np.array(self.inertia_fun()(q))
+        return self.inertia_fun()(q).full()
 
     def coriolis(self, q, qd) -> np.ndarray:
-        return np.array(self.coriolis_fun()(q, qd))
+        return self.coriolis_fun()(q, qd).full()
 
     def gravity(self, q) -> np.ndarray:
-        return np.array(self.gravity_fun()(q)).ravel()
+        return self.gravity_fun()(q).full().ravel()
 
     def regressor(self, q, qd, qd_r, qdd_r) -> np.ndarray:
-        return np.array(self.regressor_fun()(q, qd, qd_r, qdd_r))
+        return self.regressor_fun()(q, qd, qd_r, qdd_r).full()
