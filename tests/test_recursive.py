@@ -97,7 +97,6 @@ def test_recursive_equals_matrix_free_spatial_12(tmp_path):
     _routes_agree(_spatial_chain(tmp_path, 12, 8), ("recursive", "matrix-free"))
 
 
-@pytest.mark.slow
 def test_recursive_equals_explicit_spatial_12(tmp_path):
     _routes_agree(_spatial_chain(tmp_path, 12, 8), ("recursive", "explicit"), trials=3)
 

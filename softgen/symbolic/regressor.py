@@ -61,12 +61,6 @@ class PolynomialFactorisation:
     constant: ca.SX | None             # tau_0(x), terms multiplying no parameter
 
 
-def _numerically_zero(expr: ca.SX, inputs: list[ca.SX], samples: list[list[np.ndarray]],
-                      scale: float) -> bool:
-    f = ca.Function("z", inputs, [expr])
-    return all(np.max(np.abs(np.array(f(*s)))) <= 1e-11 * scale for s in samples)
-
-
 def factor_polynomial(tau: ca.SX, params: ca.SX, inputs: list[ca.SX], *, seed: int = 0,
                       n_samples: int = 3) -> PolynomialFactorisation:
     """Split ``tau(x, p)`` into monomials of ``p`` with exact symbolic coefficients.
@@ -98,29 +92,47 @@ def factor_polynomial(tau: ca.SX, params: ca.SX, inputs: list[ca.SX], *, seed: i
     constant: list[ca.SX] = []
 
     def split(expr: ca.SX, j: int, exps: tuple[int, ...]) -> None:
+        # Parameters the expression does not contain have exponent 0: skip them all at
+        # once (one dependency sweep) instead of asking depends_on for each of them.
+        present = ca.which_depends(ca.vec(expr), params, 1, False) if j < len(syms) else []
+        while j < len(syms) and not present[j]:
+            exps += (0,)
+            j += 1
         if j == len(syms):
-            if _numerically_zero(expr, all_inputs, samples, scale):
+            leaves.append((expr, exps))   # tested for zero all at once, below
+            return
+        s = syms[j]
+        cur = expr
+        for k in range(MAX_DEGREE + 1):
+            if k > 0 and not ca.depends_on(cur, s):
+                # Coefficient of s^k is cur itself; all higher ones vanish exactly.
+                split(cur / math.factorial(k), j + 1, exps + (k,))
                 return
+            coeff = ca.substitute(cur, s, 0)
+            split(coeff / math.factorial(k) if k > 1 else coeff, j + 1, exps + (k,))
+            cur = ca.jacobian(cur, s)
+        raise ModelError(f"parameter {s.name()!r} does not enter the dynamics polynomially "
+                         f"(degree > {MAX_DEGREE}); it cannot be an uncertain parameter")
+
+    leaves: list[tuple[ca.SX, tuple[int, ...]]] = []
+    split(tau, 0, ())
+    # One Function for every leaf: building a Function per leaf dominated long chains.
+    if leaves:
+        f_leaves = ca.Function("leaves", all_inputs, [e for e, _ in leaves])
+        worst = np.zeros(len(leaves))
+        for smp in samples:
+            vals = f_leaves(*smp)
+            vals = [vals] if len(leaves) == 1 else vals
+            worst = np.maximum(worst, [float(np.max(np.abs(np.array(v)), initial=0.0))
+                                       for v in vals])
+        for (expr, exps), w in zip(leaves, worst):
+            if w <= 1e-11 * scale:
+                continue
             if sum(exps) == 0:
                 constant.append(expr)
             else:
                 columns.append(expr)
                 monomials.append(Monomial(exps))
-            return
-        s = syms[j]
-        cur = expr
-        for k in range(MAX_DEGREE + 1):
-            if not ca.depends_on(cur, s):
-                # Coefficient of s^k is cur itself; all higher ones vanish exactly.
-                split(cur / math.factorial(k), j + 1, exps + (k,))
-                return
-            coeff = ca.substitute(cur, s, 0) / math.factorial(k)
-            split(coeff, j + 1, exps + (k,))
-            cur = ca.jacobian(cur, s)
-        raise ModelError(f"parameter {s.name()!r} does not enter the dynamics polynomially "
-                         f"(degree > {MAX_DEGREE}); it cannot be an uncertain parameter")
-
-    split(tau, 0, ())
     return PolynomialFactorisation(columns, monomials, constant[0] if constant else None)
 
 
@@ -151,6 +163,21 @@ class BaseParameters:
     constant: ca.SX | None
 
 
+def _independent_columns(Wn: np.ndarray, tol: float = 1e-8) -> list[int]:
+    """Columns of the column-normalised ``Wn`` that raise the rank, scanned in order.
+
+    Gautier's method: in the QR decomposition of ``Wn`` (no pivoting, so the order
+    of preference is kept), |R_jj| is the distance of column j from the span of the
+    columns before it; exactly dependent columns give round-off (~1e-15), genuine
+    ones O(1e-3) or more. One QR replaces a rank test per column.
+    """
+    if Wn.shape[0] < Wn.shape[1]:
+        raise ModelError("internal: too few samples for the base-parameter QR "
+                         f"({Wn.shape[0]} rows, {Wn.shape[1]} columns)")
+    R = np.linalg.qr(Wn, mode="r")
+    return [j for j in range(Wn.shape[1]) if abs(R[j, j]) > tol]
+
+
 def _exact(x: float) -> float:
     """Snap a dependency coefficient to a nearby simple fraction, else 12 digits.
 
@@ -158,6 +185,12 @@ def _exact(x: float) -> float:
     fractions; snapping makes the generated code independent of LAPACK round-off,
     so two machines write byte-identical C.
     """
+    # Fast path for the common cases (most coefficients are 0 or integers). Any other
+    # fraction p/q with q <= 1000 lies at least 1e-3 away, so the nearest one is the
+    # integer itself: the same answer as below, without building Fractions.
+    r = round(x)
+    if abs(r - x) <= 1e-9 * max(1.0, abs(x)):
+        return float(r)
     fr = Fraction(x).limit_denominator(1000)
     if abs(float(fr) - x) <= 1e-9 * max(1.0, abs(x)):
         return float(fr)
@@ -166,12 +199,13 @@ def _exact(x: float) -> float:
 
 def base_parameters(fact: PolynomialFactorisation, params: ca.SX, names: tuple[str, ...],
                     inputs: list[ca.SX], *, seed: int = 0, n_samples: int = 40,
-                    tol: float = 1e-9) -> BaseParameters:
+                    tol: float = 1e-8) -> BaseParameters:
     """Reduce the monomial columns to a base (identifiable) parameter set.
 
     Columns are scanned in order of increasing monomial degree (ties in the order
     of the model's parameters) and kept when they raise the numerical rank of the
-    sampled regressor; each dropped column is written exactly in terms of the kept
+    sampled regressor (one QR decomposition, :func:`_independent_columns`); each
+    dropped column is written exactly in terms of the kept
     ones by least squares, snapped to a simple fraction (see :func:`_exact`).
     """
     if not fact.columns:
@@ -184,17 +218,15 @@ def base_parameters(fact: PolynomialFactorisation, params: ca.SX, names: tuple[s
     mons = [fact.monomials[i] for i in order]
     Yfull = ca.horzcat(*cols)
     f = ca.Function("Yfull", list(inputs), [Yfull])
+    # At least twice as many rows as columns, so the QR can reveal every column.
+    n_out = max(1, Yfull.shape[0])
+    n_samples = max(n_samples, -(-2 * Yfull.shape[1] // n_out))
     W = np.vstack([np.array(f(*[rng.uniform(-np.pi, np.pi, i.shape) for i in inputs]))
                    for _ in range(n_samples)])
     norms = np.linalg.norm(W, axis=0)
     Wn = W / np.where(norms > 0, norms, 1.0)
 
-    kept: list[int] = []
-    for j in range(Wn.shape[1]):
-        trial = Wn[:, kept + [j]]
-        s = np.linalg.svd(trial, compute_uv=False)
-        if s[-1] > tol * s[0] * np.sqrt(trial.shape[0]):
-            kept.append(j)
+    kept = _independent_columns(Wn, tol)
     dropped = [j for j in range(Wn.shape[1]) if j not in kept]
     Kmat, *_ = np.linalg.lstsq(W[:, kept], W[:, dropped], rcond=None) if dropped else (
         np.zeros((len(kept), 0)),)
@@ -320,12 +352,7 @@ def numeric_base_parameters(delta_of_p: ca.SX, params: ca.SX, names: tuple[str, 
     W = W_all[:, order]
     mons = [fact.monomials[i] for i in order]
     A = A_all[:, order]
-    Wn = W / np.linalg.norm(W, axis=0)
-    R = np.linalg.qr(Wn, mode="r")
-    kept = [j for j in range(W.shape[1]) if abs(R[j, j]) > tol] if W.shape[0] >= W.shape[1] \
-        else None
-    if kept is None:
-        raise ModelError("internal: too few samples for the base-parameter QR")
+    kept = _independent_columns(W / np.linalg.norm(W, axis=0), tol)
     dropped = [j for j in range(W.shape[1]) if j not in kept]
     if dropped:
         Kmat, *_ = np.linalg.lstsq(W[:, kept], W[:, dropped], rcond=None)
