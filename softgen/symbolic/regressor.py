@@ -14,7 +14,14 @@ them with the exact coefficients, giving ``tau = Y_b(x) π_b(p)`` where
 ``π_b(p) = π_indep(p) + K π_dep(p)`` is the map from physical to base parameters.
 
 Column independence is decided numerically on random seeded samples of ``x``
-(the method of Gautier and Khalil); the regressor itself stays symbolic.
+(the method of Gautier and Khalil: one QR decomposition of the stacked samples);
+the regressor itself stays symbolic.
+
+:func:`numeric_base_parameters` reaches the same base set without factoring the
+dynamics at all, when they are linear in per-link inertial parameters δ(p) (no
+uncertain parameter moves a joint): only the small polynomials δ(p) are factored,
+the regressor columns are formed numerically from Y_δ, and only the identified
+columns are regrouped symbolically.
 """
 from __future__ import annotations
 
@@ -118,13 +125,16 @@ def factor_polynomial(tau: ca.SX, params: ca.SX, inputs: list[ca.SX], *, seed: i
     split(tau, 0, ())
     # One Function for every leaf: building a Function per leaf dominated long chains.
     if leaves:
-        f_leaves = ca.Function("leaves", all_inputs, [e for e, _ in leaves])
+        # A single stacked output (CasADi warns about Functions with many outputs).
+        sizes = [e.numel() for e, _ in leaves]
+        f_leaves = ca.Function("leaves", all_inputs,
+                               [ca.vertcat(*[ca.vec(ca.densify(e)) for e, _ in leaves])])
+        ends = np.cumsum(sizes)
         worst = np.zeros(len(leaves))
         for smp in samples:
-            vals = f_leaves(*smp)
-            vals = [vals] if len(leaves) == 1 else vals
-            worst = np.maximum(worst, [float(np.max(np.abs(np.array(v)), initial=0.0))
-                                       for v in vals])
+            vals = np.abs(np.array(f_leaves(*smp)).ravel())
+            worst = np.maximum(worst, [vals[b - k:b].max(initial=0.0)
+                                       for k, b in zip(sizes, ends)])
         for (expr, exps), w in zip(leaves, worst):
             if w <= 1e-11 * scale:
                 continue
