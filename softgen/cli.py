@@ -121,7 +121,7 @@ def _cmd_estimate(args) -> int:
 
     from .estimation.csvlog import read_log, step_tolerance, write_estimates
     from .estimation.estimators import EstimatorConfig, StiffnessEstimator
-    from .estimation.offline import run_offline
+    from .estimation.offline import estimation_result, offline_diagram, split_measurements
     from .model import load_model
     t0 = time.perf_counter()
     model = load_model(args.model)
@@ -157,7 +157,9 @@ def _cmd_estimate(args) -> int:
                            f"step {dt:.9g} s of {log}; drop --dt or resample the log")
     if args.dt is None:
         est = StiffnessEstimator(model, replace(config, dt=dt))
-    result = run_offline(est, Y)
+    from .runtime.simulate import simulate
+    trace = simulate(offline_diagram(est), steps=len(Y), externals=split_measurements(est, Y))
+    result = estimation_result(est, trace)
     write_estimates(out, t, result, est)
     label = method if method == args.method else f"{method} ({args.method})"
     print(f"estimate: {len(t)} samples, dt {est.config.dt:.9g} s, method {label}, "

@@ -4,7 +4,8 @@ The two-link arm of Table 7.1 with a qbmove VSA per joint (``planar_2link``:
 b = 3e-6 kg m², d = 1e-6 N m s, a/k per joint as NOTES section 2 item 7) under
 open-loop sinusoidal motor torques of 0.15 N m at 0.25, 0.06, 0.17 and 0.08 Hz
 (τ_11, τ_12, τ_21, τ_22), T = 10⁻³ s. One Theorem 2 observer (L = 2) per motor and
-one RLS per motor on (φ, φ³, φ⁵, φ⁷), Π̂(0) = 0, P(0) = 10⁸ I₄.
+one RLS per motor on (φ, φ³, φ⁵, φ⁷), Π̂(0) = 0, P(0) = 10⁸ I₄; plant and estimator
+run in one diagram (:mod:`softgen.plants.qbmove`).
 
 The thesis does not say how long it ran nor over which interval Table 6.1 is
 computed; we run 60 s and compute the indices after the first 10 %. MSREP in
@@ -13,28 +14,30 @@ flexibility torque from the RLS models; stiffness: σ̂_a + σ̂_b.
 """
 from __future__ import annotations
 
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..estimation.offline import run_offline
-from . import electric_common as ec
+from ..estimation.indices import mse, msrep
+from ..model import load_model
 from ..symbolic.actuators import QbmoveSprings
-from .estimation_common import error_metrics, estimation_figures, mse, msrep
-from .registry import Experiment
+from .estimation_common import estimator, figures, qbmove_run, variant_records
+from .registry import Config, Experiment, Metrics, finding, num, times
 
-CONFIG = {
-    "model": "planar_2link",
-    "duration": 60.0,
-    "dt": 1e-3,
-    "substeps": 10,                 # RK4 at 0.1 ms: the motor-spring modes reach ~600 rad/s
-    "torque_amplitude": 0.15,       # N m
-    "torque_frequency": [0.25, 0.06, 0.17, 0.08],   # Hz: tau_11, tau_12, tau_21, tau_22
-    "powers": [1, 3, 5, 7],
-    "p0": 1e8,
-    "delay": 2,
-    "metric_window": None,
-}
+
+@dataclass(frozen=True)
+class ElectricInvasiveConfig(Config):
+    model: str = "planar_2link"
+    duration: float = 60.0
+    dt: float = 1e-3
+    substeps: int = 10              # RK4 at 0.1 ms: the motor-spring modes reach ~600 rad/s
+    torque_amplitude: float = 0.15  # N m
+    torque_frequency: tuple[float, ...] = (0.25, 0.06, 0.17, 0.08)  # Hz: τ_11, τ_12, τ_21, τ_22
+    powers: tuple[int, ...] = (1, 3, 5, 7)
+    p0: float = 1e8
+    delay: int = 2
+    metric_window: tuple[float, float] | None = None
+
 
 THESIS = {"stiffness_mse_joint1": 1.84e-7, "stiffness_mse_joint2": 1.92e-7,
           "stiffness_msrep_joint1": 3.34e-7, "stiffness_msrep_joint2": 3.38e-7,
@@ -42,67 +45,65 @@ THESIS = {"stiffness_mse_joint1": 1.84e-7, "stiffness_mse_joint2": 1.92e-7,
           "torque_msrep_joint1": 2.85e-9, "torque_msrep_joint2": 2.84e-9}
 
 
-def run(config: dict, out: Path) -> dict:
-    model, est, fns, t = ec.setup("electric", config, out, servo=False)
-    n, dt, K = model.dof, config["dt"], len(t)
-    # Motor order in the plant input: (tau_a of each joint, tau_b of each joint);
-    # the thesis's tau_ij is joint i, motor j.
-    f = np.array(config["torque_frequency"]).reshape(n, 2)
-    freqs = np.concatenate([f[:, 0], f[:, 1]])
-    U = config["torque_amplitude"] * np.sin(2 * np.pi * np.outer(t, freqs))
-    tr = ec.simulate(model, fns, dt=dt, K=K, x0=np.zeros(6 * n), inputs=U,
-                     spring_scale=np.ones(2 * n), servo=False)
-    Y = ec.measure(tr, "electric", n, {}, None)
-    res = run_offline(est, Y, step=fns[est.step_fun().name()])
-    metrics, interval = error_metrics(t, tr.sigma, tr.tau_e, res, config["metric_window"])
-    mask = (t >= interval[0]) & (t <= interval[1])
-    for i in range(n):
-        metrics[f"observer_torque_mse_joint{i + 1}"] = mse(tr.tau_e[mask, i],
-                                                          res.tau_uio[mask, i])
-    phi = np.hstack([tr.x[:, :n] - tr.x[:, 2 * n:3 * n], tr.x[:, :n] - tr.x[:, 4 * n:5 * n]])
-    metrics["max_abs_deflection"] = float(np.abs(phi).max())
-    metrics.update(_diagnostics(model, fns, tr, phi, mask, config, dt))
-    metrics["estimator_seconds_per_step"] = res.seconds_per_step
-    metrics["metric_window_start"], metrics["metric_window_end"] = interval
-    np.savez_compressed(out / "traces.npz", t=t, x=tr.x, tau_motor=tr.tau_motor,
-                        tau_e=tr.tau_e, sigma=tr.sigma, sigma_hat=res.sigma_hat,
-                        tau_hat=res.tau_hat, tau_uio=res.tau_uio,
-                        **{f"theta_{r}": v for r, v in res.theta.items()})
-    estimation_figures(out, t, tr.sigma, tr.tau_e, res, title="electric, invasive",
-                       names={r: est.parameter_names(r) for r in est.rls_names})
-    return metrics
-
-
-def _diagnostics(model, fns, tr, phi, mask, config, dt) -> dict:
-    """Two measured limits on the achievable accuracy.
-
-    ``polynomial_fit_stiffness_msrep_joint{i}``: the best the RLS's model class can
-    do — the least-squares fit of the odd polynomial to the *true* spring torques
-    over the deflections of the metric window, differentiated. ``motor_mode_max_rad_s``:
-    the fastest motor-against-spring mode sqrt(σ_j/b_j) met in the run, beside the
-    Nyquist rate π/T: the observer's Euler model is a finite difference, accurate
-    only for ωT ≪ 1.
-    """
+def run(c: ElectricInvasiveConfig, out) -> Metrics:
+    model = load_model(c.model)
     n = model.dof
-    f = fns[f"{model.name}_qbmove_torque"].function
-    q, qa, qb = tr.x[:, :n], tr.x[:, 2 * n:3 * n], tr.x[:, 4 * n:5 * n]
-    ta, tb, _, sa, sb, _ = (np.array(v).T for v in f.map(len(q))(q.T, qa.T, qb.T))
-    pw = np.array(config["powers"])
-    out = {}
-    fit_sigma = np.zeros((mask.sum(), n))
-    for tau_s, side in ((ta, 0), (tb, 1)):
-        for i in range(n):
-            x = phi[mask, side * n + i]
-            V = x[:, None] ** pw
-            c, *_ = np.linalg.lstsq(V, tau_s[mask, i], rcond=None)
-            fit_sigma[:, i] += (pw * x[:, None] ** np.maximum(pw - 1, 0)) @ c
+    est = estimator(model, "electric", c)
+    K = int(round(c.duration / c.dt)) + 1
+    t = np.arange(K) * c.dt
+    # Plant input order: τ_a of each joint, then τ_b; the thesis's τ_ij is joint i, motor j.
+    f = np.array(c.torque_frequency).reshape(n, 2)
+    U = c.torque_amplitude * np.sin(2 * np.pi * np.outer(t, np.concatenate([f[:, 0], f[:, 1]])))
+    tr, truth = qbmove_run("ch6_electric_invasive", model, c, {"est": est.block("est")}, K=K,
+                           inputs={"tau_motor": U}, x0={}, servo=False)
+    m, res, mask = variant_records(tr, truth, est, "est", c.metric_window,
+                                   np.zeros(K, dtype=int), torque=truth.tau_e)
+    m.records = [r for r in m.records if r.phase is None and r.quantity in (
+        "stiffness_mse", "stiffness_msrep", "torque_mse", "torque_msrep",
+        "estimator_seconds_per_step")]
     for i in range(n):
-        out[f"polynomial_fit_stiffness_msrep_joint{i + 1}"] = msrep(tr.sigma[mask, i],
-                                                                     fit_sigma[:, i])
-    b = np.concatenate([QbmoveSprings(model).b_a, QbmoveSprings(model).b_b])
-    out["motor_mode_max_rad_s"] = float(np.sqrt(np.hstack([sa, sb]) / b).max())
-    out["nyquist_rad_s"] = float(np.pi / dt)
-    return out
+        m.add("observer_torque_mse", mse(truth.tau_e[mask, i], res.tau_uio[mask, i]),
+              "(N m)^2", joint=i + 1)
+    phi = np.hstack([tr["plant.q"] - tr["plant.qa"], tr["plant.q"] - tr["plant.qb"]])
+    m.add("max_abs_deflection", np.abs(phi).max(), "rad")
+    # Two measured limits on the accuracy: the least-squares fit of the odd polynomial
+    # to the *true* spring torques (the RLS model class), and the fastest
+    # motor-against-spring mode sqrt(σ_j/b_j) met, beside the Nyquist rate π/T.
+    pw = np.array(c.powers)
+    fit = np.zeros((mask.sum(), n))
+    for j in range(2 * n):
+        x = phi[mask, j]
+        coef, *_ = np.linalg.lstsq(x[:, None] ** pw, truth.spring_torque[mask, j], rcond=None)
+        fit[:, j % n] += (pw * x[:, None] ** np.maximum(pw - 1, 0)) @ coef
+    for i in range(n):
+        m.add("polynomial_fit_stiffness_msrep", msrep(truth.sigma[mask, i], fit[:, i]), "%",
+              joint=i + 1)
+    sp = QbmoveSprings(model)
+    m.add("motor_mode_max_rad_s", np.sqrt(truth.spring_stiffness / np.concatenate(
+        [sp.b_a, sp.b_b])).max(), "rad/s")
+    m.add("nyquist_rad_s", np.pi / c.dt, "rad/s")
+    m.add("metric_window_start", t[mask][0], "s")
+    m.add("metric_window_end", t[mask][-1], "s")
+    np.savez_compressed(out / "traces.npz", t=t, tau_motor=U, tau_e=truth.tau_e,
+                        sigma=truth.sigma, sigma_hat=res.sigma_hat, tau_hat=res.tau_hat,
+                        tau_uio=res.tau_uio, **{f"x_{s}": tr[f"plant.{s}"] for s in
+                                                ("q", "qd", "qa", "qad", "qb", "qbd")},
+                        **{f"theta_{r}": v for r, v in res.theta.items()})
+    figures(out, "", tr, truth.sigma, truth.tau_e, res, est, "electric, invasive")
+    return m
+
+
+def findings(m: dict) -> list[dict]:
+    """Table 6.1: stiffness MSE per joint within 10× of the thesis's."""
+    ok = [m[f"stiffness_mse_joint{j}"] < 10 * THESIS[f"stiffness_mse_joint{j}"] for j in (1, 2)]
+    return [finding(
+        "Table 6.1: stiffness MSE 1.8e-7 / 1.9e-7 (joints 1/2) under open-loop torques",
+        "reproduced" if all(ok) else "partly reproduced" if any(ok) else "not reproduced",
+        f"stiffness MSE {num(m['stiffness_mse_joint1'])} / {num(m['stiffness_mse_joint2'])} "
+        f"({times(m['stiffness_mse_joint1'], 1.84e-7)} / "
+        f"{times(m['stiffness_mse_joint2'], 1.92e-7)} the thesis's; threshold 10×); largest "
+        f"deflection {num(m['max_abs_deflection'])} rad, fastest motor mode "
+        f"{num(m['motor_mode_max_rad_s'])} rad/s against Nyquist {num(m['nyquist_rad_s'])}")]
 
 
 EXPERIMENT = Experiment(
@@ -110,9 +111,10 @@ EXPERIMENT = Experiment(
     title="Invasive stiffness estimation, two-link arm with qbmove VSAs (Theorem 2 + RLS)",
     section="6.2.3, Fig. 6.5-6.6, Table 6.1",
     run=run,
-    config=CONFIG,
+    config=ElectricInvasiveConfig(),
     quick={"duration": 20.0},
     thesis=THESIS,
+    findings=findings,
     discussion="""
 **Reading.** Our errors are orders of magnitude above Table 6.1. Two measurements in
 this run locate the cause. `polynomial_fit_stiffness_msrep_joint*` (the odd

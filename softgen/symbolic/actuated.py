@@ -161,3 +161,69 @@ def valve_plant_fun(dyn: RigidDynamics, act: McKibbenPairs, *, substeps: int) ->
     return ca.Function(f"{dyn.name}_valve_plant", [x, pc, tp, h],
                        [rk4_steps(lambda xx, uu: rhs(xx, uu, tp), x, pc, h, substeps)], ["x", "p_c", "T_p", "h"],
                        ["x_next"], FUNCTION_OPTS)
+
+
+# -- the plants as diagram blocks -------------------------------------------------------------
+
+def _plant_block(f: ca.Function, name: str, dt: float, n: int, parts: list[str], ins: list,
+                 *, extra_out: list | None = None, params: list | None = None,
+                 p0: dict | None = None, doc: str = ""):
+    """A block around one of the plant steps above: state ``parts`` (n each), emitted at
+    the sample; ``ins`` [(input name, size, function input)]; ``params`` likewise."""
+    from ..blocks import Block
+    params = params or []
+    extra_out = extra_out or []
+
+    def body(x, u, p):
+        args = {fi: u[nm] for nm, _, fi in ins}
+        args.update({fi: p[nm] for nm, _, fi in params})
+        res = f.call({"x": ca.vertcat(*[x[s] for s in parts]), "h": dt, **args})
+        xn = res["x_next"]
+        y = {s: x[s] for s in parts}
+        y.update({nm: res[fo] for nm, _, fo in extra_out})
+        return {s: xn[i * n:(i + 1) * n] for i, s in enumerate(parts)}, y
+
+    return Block.define(name, dt=dt, state=[(s, n) for s in parts],
+                        inputs=[(nm, sz) for nm, sz, _ in ins],
+                        outputs=[(s, n) for s in parts] + [(nm, sz) for nm, sz, _ in extra_out],
+                        params=[(nm, sz) for nm, sz, _ in params], p0=p0, body=body,
+                        doc=doc or f.name(), rules={nm: "positive" for nm, *_ in params})
+
+
+QBMOVE_STATE = ["q", "qd", "qa", "qad", "qb", "qbd"]
+
+
+def electric_plant_block(dyn: RigidDynamics, springs: QbmoveSprings, dt: float, *,
+                         substeps: int, name: str = "plant", spring_scale=1.0):
+    """:func:`electric_plant_fun` as a block (eq. 2.6, motor torques held over a sample).
+
+    State and outputs (at the sample): ``q, qd, qa, qad, qb, qbd`` (n each); input
+    ``tau_motor`` (τ_a of every joint, then τ_b); parameter ``spring_scale`` (2n).
+    """
+    n = dyn.model.dof
+    return _plant_block(electric_plant_fun(dyn, springs, substeps=substeps), name, dt, n,
+                        QBMOVE_STATE, [("tau_motor", 2 * n, "u")],
+                        params=[("spring_scale", 2 * n, "spring_scale")],
+                        p0={"spring_scale": spring_scale})
+
+
+def servo_plant_block(dyn: RigidDynamics, springs: QbmoveSprings, dt: float, *,
+                      substeps: int, bandwidth: float, name: str = "plant", spring_scale=1.0):
+    """:func:`servo_plant_fun` as a block: input ``q_ref`` (2n motor position
+    references), outputs the state at the sample and ``tau_motor``, the servo's motor
+    torques at the sample (what a current sensor sampled then reads)."""
+    n = dyn.model.dof
+    return _plant_block(servo_plant_fun(dyn, springs, substeps=substeps, bandwidth=bandwidth),
+                        name, dt, n, QBMOVE_STATE, [("q_ref", 2 * n, "q_ref")],
+                        extra_out=[("tau_motor", 2 * n, "tau_motor")],
+                        params=[("spring_scale", 2 * n, "spring_scale")],
+                        p0={"spring_scale": spring_scale})
+
+
+def pneumatic_plant_block(dyn: RigidDynamics, act: McKibbenPairs, dt: float, *,
+                          substeps: int, integrator: str = "rk4", name: str = "plant"):
+    """:func:`pneumatic_plant_fun` as a block: state and outputs ``q, qd``; input ``p``
+    (2n pressures, Pa, held over the sample)."""
+    n = dyn.model.dof
+    return _plant_block(pneumatic_plant_fun(dyn, act, substeps=substeps, integrator=integrator),
+                        name, dt, n, ["q", "qd"], [("p", 2 * n, "p")])
