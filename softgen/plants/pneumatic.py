@@ -13,8 +13,6 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import casadi as ca
-import numpy as np
-
 from ..blocks import Block, ClosedLoop
 from ..symbolic.actuated import pneumatic_plant_block
 from ..symbolic.actuators import McKibbenPairs
@@ -49,22 +47,26 @@ def allocation_controller_block(dyn: RigidDynamics, act: McKibbenPairs, dt: floa
 def sinusoid_reference_block(name: str, q_d: Sequence[Mapping], sigma_d: Sequence[Mapping]
                              ) -> Block:
     """Reads ``t``; emits ``q_d, qd_d, qdd_d`` (offset + amplitude sin(omega t) and its
-    derivatives per joint) and ``sigma_d`` (likewise, value only)."""
+    derivatives per joint) and ``sigma_d`` (likewise, value only).
+
+    Offsets, amplitudes and frequencies are parameters (``q_offset``, ``q_amplitude``,
+    ``q_omega``, ``sigma_...``), not constants: the products are then evaluated as
+    written, omega · (k T), so the references equal numpy's ``sin(omega * t)`` to the
+    last bit (CasADi would fold constants into (omega T) · k).
+    """
     n = len(q_d)
-    arr = {k: ca.DM(np.array([float(s.get(k, 0.0)) for s in q_d]))
-           for k in ("offset", "amplitude", "omega")}
-    sar = {k: ca.DM(np.array([float(s.get(k, 0.0)) for s in sigma_d]))
-           for k in ("offset", "amplitude", "omega")}
+    p0 = {f"{w}_{k}": [float(s.get(k, 0.0)) for s in spec] for w, spec in
+          (("q", q_d), ("sigma", sigma_d)) for k in ("offset", "amplitude", "omega")}
 
     def body(x, u, p):
         t = u["t"]
-        a, w = arr["amplitude"], arr["omega"]
-        s = ca.sin(w * t)
-        return {}, {"q_d": arr["offset"] + a * s, "qd_d": a * w * ca.cos(w * t),
-                    "qdd_d": -a * w * w * s,
-                    "sigma_d": sar["offset"] + sar["amplitude"] * ca.sin(sar["omega"] * t)}
+        a, w = p["q_amplitude"], p["q_omega"]
+        return {}, {"q_d": p["q_offset"] + a * ca.sin(w * t), "qd_d": a * w * ca.cos(w * t),
+                    "qdd_d": -a * w * w * ca.sin(w * t),
+                    "sigma_d": p["sigma_offset"]
+                    + p["sigma_amplitude"] * ca.sin(p["sigma_omega"] * t)}
 
-    return Block.define(name, dt=None, inputs={"t": 1},
+    return Block.define(name, dt=None, inputs={"t": 1}, params={k: n for k in p0}, p0=p0,
                         outputs=[("q_d", n, "rad"), ("qd_d", n, "rad/s"),
                                  ("qdd_d", n, "rad/s^2"), ("sigma_d", n, "N m/rad")],
                         body=body, doc="sinusoidal position and stiffness references")
