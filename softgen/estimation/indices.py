@@ -123,3 +123,24 @@ def excitation_records(m: Metrics, t, phase, std: np.ndarray, window: float, *,
         m.add("deflection_std_p05", np.percentile(v, 5), "rad", phase=k + 1, prefix=prefix)
         m.add("deflection_std_p95", np.percentile(v, 95), "rad", phase=k + 1, prefix=prefix)
     return m
+
+
+def noise_records(m: Metrics, t, rotatum, res: EstimationResult, phi_measured, phid_true,
+                  window) -> Metrics:
+    """How far the non-invasive estimator's inputs are from the truth: the observer's
+    rotatum (the RLS target; ``rotatum_rms``, ``rotatum_uio_rms_error`` per joint), and
+    the first difference of the measured deflections, the quantisation-limited
+    counterpart of the regressor's φ̇ (``deflection_rate_rms``, ``..._rms_error``)."""
+    mask = window_mask(t, window) & np.all(np.isfinite(res.tau_uio), axis=1)
+    for i in range(rotatum.shape[1]):
+        r = rotatum[mask, i]
+        m.add("rotatum_rms", np.sqrt(np.mean(r ** 2)), "N m/s", joint=i + 1)
+        m.add("rotatum_uio_rms_error", np.sqrt(np.mean((res.tau_uio[mask, i] - r) ** 2)),
+              "N m/s", joint=i + 1)
+    fd = np.vstack([np.full((1, phi_measured.shape[1]), np.nan),
+                    np.diff(phi_measured, axis=0) / (t[1] - t[0])])
+    mask[0] = False
+    m.add("deflection_rate_rms", np.sqrt(np.mean(phid_true[mask] ** 2)), "rad/s")
+    m.add("deflection_rate_rms_error", np.sqrt(np.mean((fd[mask] - phid_true[mask]) ** 2)),
+          "rad/s")
+    return m

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..estimation.indices import mse, msrep
 from ..model import load_model
+from ..plants.qbmove import polynomial_fit_stiffness
 from ..symbolic.actuators import QbmoveSprings
 from .estimation_common import estimator, figures, qbmove_run, variant_records
 from .registry import Config, Experiment, Metrics, finding, num, times
@@ -56,11 +57,7 @@ def run(c: ElectricInvasiveConfig, out) -> Metrics:
     U = c.torque_amplitude * np.sin(2 * np.pi * np.outer(t, np.concatenate([f[:, 0], f[:, 1]])))
     tr, truth = qbmove_run("ch6_electric_invasive", model, c, {"est": est.block("est")}, K=K,
                            inputs={"tau_motor": U}, x0={}, servo=False)
-    m, res, mask = variant_records(tr, truth, est, "est", c.metric_window,
-                                   np.zeros(K, dtype=int), torque=truth.tau_e)
-    m.records = [r for r in m.records if r.phase is None and r.quantity in (
-        "stiffness_mse", "stiffness_msrep", "torque_mse", "torque_msrep",
-        "estimator_seconds_per_step")]
+    m, res, mask = variant_records(tr, truth, est, "est", c.metric_window, truth.tau_e)
     for i in range(n):
         m.add("observer_torque_mse", mse(truth.tau_e[mask, i], res.tau_uio[mask, i]),
               "(N m)^2", joint=i + 1)
@@ -69,12 +66,7 @@ def run(c: ElectricInvasiveConfig, out) -> Metrics:
     # Two measured limits on the accuracy: the least-squares fit of the odd polynomial
     # to the *true* spring torques (the RLS model class), and the fastest
     # motor-against-spring mode sqrt(σ_j/b_j) met, beside the Nyquist rate π/T.
-    pw = np.array(c.powers)
-    fit = np.zeros((mask.sum(), n))
-    for j in range(2 * n):
-        x = phi[mask, j]
-        coef, *_ = np.linalg.lstsq(x[:, None] ** pw, truth.spring_torque[mask, j], rcond=None)
-        fit[:, j % n] += (pw * x[:, None] ** np.maximum(pw - 1, 0)) @ coef
+    fit = polynomial_fit_stiffness(phi[mask], truth.spring_torque[mask], c.powers)
     for i in range(n):
         m.add("polynomial_fit_stiffness_msrep", msrep(truth.sigma[mask, i], fit[:, i]), "%",
               joint=i + 1)

@@ -3,40 +3,29 @@
 The thesis ran this protocol on qbmove hardware; we run it on an emulation of that
 hardware (NOTES section 1, :mod:`softgen.plants.qbmove`): plant, sensors and the
 invasive electric estimator (Theorem 2 observer per motor, L = 2, one RLS per motor on
-(φ, φ³, φ⁵, φ⁷), Π̂(0) = 0, P(0) = 10⁸ I₄ as in section 6.2.3) in one diagram, with
+(φ, φ³, φ⁵, φ⁷), Π̂(0) = 0, P(0) = 10⁸ I₄) in one diagram. T = 5·10⁻³ s; encoders of
+8192 counts/rev; motor torque read with noise of std 10⁻³ N m; springs 20 % stiffer
+than the datasheet model the allocation uses (section 6.2.4.1's RMSRE); motor servos
+of 1000 rad/s (at 300 rad/s the motors missed their references by 0.1 rad rms on
+3 × 40 s runs); plant RK4 with 20 substeps (20 → 40 changed the true stiffness by
+1.4·10⁻⁶ N m/rad).
 
-* T = 5·10⁻³ s; link and motor encoders of 8192 counts/rev (readings rounded to
-  2π/8192 = 7.7·10⁻⁴ rad); motor torque read with Gaussian noise of std 10⁻³ N m;
-* springs 20 % stiffer than the datasheet model (``spring_scale`` = 1.2, the RMSRE of
-  section 6.2.4.1), while the motor references come from the exact-model allocation
-  with the *nominal* springs, so the achieved stiffness is not σ_d;
-* motors under their own position servo of 1000 rad/s (at 300 rad/s, the servo of
-  ``ch7-noninvasive-*``, its position stiffness b ω² = 0.27 N m/rad is ten times below
-  the springs' and the motors miss their references by 0.1 rad rms; measured on
-  3 × 40 s runs); plant RK4 with 20 substeps (10 → 20 changed the true stiffness by
-  at most 2·10⁻⁵ N m/rad, 20 → 40 by 1.4·10⁻⁶).
-
-References (three phases of 200 s): phase 1 q_d = 0.53 + 0.2 sin(πt/4),
-σ_d = 5 + 2.5 sin(πt/8); phase 2 q_d as phase 1, σ_d = 5; phase 3 q_d = 0.53, σ_d as
-phase 1 (continuous at the boundaries). The 2-DoF run (``planar_2link``) gives both
-joints the same references. Runs: 1-DoF (``qbmove_1dof``) without the update stop
+Three phases of 200 s: q_d = 0.53 + 0.2 sin(πt/4) and σ_d = 5 + 2.5 sin(πt/8); then
+σ_d = 5; then q_d = 0.53 (continuous at the boundaries; the 2-DoF ``planar_2link`` run
+gives both joints these references). 1-DoF (``qbmove_1dof``) without the update stop
 (Table 6.2 "with drift", ``dof1_drift_*``) and with it (``dof1_stop_*``) on the same
-measurements, and 2-DoF with it (Table 6.3, unprefixed keys).
+measurements; 2-DoF with it (Table 6.3, unprefixed keys).
 
-**Update stop.** :class:`~softgen.estimation.rls.ExcitationGate`: each motor's RLS
-updates only while the exponentially weighted std of its measured deflection over W
-seconds is at least s_min. W = 2 s separated the phases best on the 1-DoF run
-(phase-1/3 5th percentile over phase-2 95th percentile: 5.8, against 2.5-4.0 for W =
-1, 4, 8 s); s_min = 5·10⁻³ rad is the geometric mean of the phase-2 95th percentile
-and the phase-1 minimum, 16 times the quantisation noise of a measured deflection.
-Every run reports the statistic for its W (``*deflection_std*_phase{k}``).
+**Update stop**: :class:`~softgen.estimation.rls.ExcitationGate` on each motor's
+measured deflection, W = 2 s (it separated the phases best among 1, 2, 4, 8 s: phase-1/3
+5th percentile over phase-2 95th percentile 5.8 against 2.5-4.0), s_min = 5·10⁻³ rad
+(geometric mean of the phase-2 95th percentile and the phase-1 minimum, 16 times the
+quantisation noise of a measured deflection); ``*deflection_std*_phase{k}`` report it.
 
-Indices over t ≥ 10 % of the run; MSREP in percent (NOTES section 2 item 9); truth
-from the plant's (scaled) springs, and against the datasheet springs as the thesis
-did (``*vs_nominal_*``). Tables 6.2-6.3's stiffness MSE/MSREP ratios (28, 26, 24, 33)
-are about σ² at σ ≈ 5, so their MSREP is a plain fraction; their torque ratios imply
-one spring's torque, so we also report per-spring indices (``*spring_torque_*``).
-The thesis's numbers are from hardware and comparable only in kind.
+Indices over t ≥ 10 % of the run, MSREP in percent; truth from the plant's springs and,
+as the thesis did, from the datasheet's (``*vs_nominal_*``). Tables 6.2-6.3's
+stiffness MSE/MSREP ratios (≈ σ² at σ ≈ 5) make their MSREP a plain fraction, and
+their torque ratios imply one spring's torque: hence ``*spring_torque_*`` per spring.
 """
 from __future__ import annotations
 
@@ -48,9 +37,9 @@ from ..estimation.indices import excitation_records, mse, msrep
 from ..estimation.rls import excitation_std
 from ..model import load_model
 from ..plants.qbmove import (motor_references, phase_index, phased_references,
-                             servo_initial_state)
+                             protocol_figure, servo_initial_state)
 from .estimation_common import (achieved_records, estimator, figures, measured_deflections,
-                                protocol_figure, qbmove_run, variant_records)
+                                qbmove_run, variant_records)
 from .registry import Config, Experiment, Metrics, finding, num
 
 
@@ -111,12 +100,12 @@ def run(c: ElectricProtocolConfig, out) -> Metrics:
             spring_scale=c.spring_scale, counts=c.encoder_counts, torque_noise=c.torque_noise,
             seed=c.seed)
         phi = measured_deflections(tr)
-        excitation_records(m, t, phase, excitation_std(phi, c.dt / c.gate_window),
-                           c.gate_window, prefix=pre)
+        std = excitation_std(phi, c.dt / c.gate_window)
+        excitation_records(m, t, phase, std, c.gate_window, prefix=pre)
         achieved_records(m, truth, sigma_d, prefix=pre)
         for tag, est in ests.items():
-            mv, res, mask = variant_records(tr, truth, est, tag, c.metric_window, phase,
-                                            torque=truth.tau_e)
+            mv, res, mask = variant_records(tr, truth, est, tag, c.metric_window,
+                                            truth.tau_e, phase)
             # Per spring: each motor's RLS model Σ_p π̂_p φ_j^p at the measured
             # deflection against the plant's spring torque, pooled over the two sides.
             for i in range(n):
@@ -135,8 +124,10 @@ def run(c: ElectricProtocolConfig, out) -> Metrics:
                     f"{dof}-DoF, {'no update stop' if tag == 'drift' else 'stop'}")
         traces.update({f"dof{dof}_q": tr["plant.q"], f"dof{dof}_sigma": truth.sigma,
                        f"dof{dof}_sigma_nominal": truth.sigma_nominal})
-        protocol_figure(out / f"dof{dof}_protocol.png", tr, truth, q_d, sigma_d, phi, c,
-                        {k: traces[f"dof{dof}_{k}_updating"] for k in ests})
+        protocol_figure(out / f"dof{dof}_protocol.png", t, tr["plant.q"], q_d, truth.sigma,
+                        sigma_d, phi, std, threshold=c.gate_threshold, window=c.gate_window,
+                        boundaries=np.arange(1, len(c.phases)) * c.phase_duration,
+                        updating={k: traces[f"dof{dof}_{k}_updating"] for k in ests})
     m.add("metric_window_start", t[mask][0], "s")
     m.add("metric_window_end", t[mask][-1], "s")
     np.savez_compressed(out / "traces.npz", t=t, **traces)

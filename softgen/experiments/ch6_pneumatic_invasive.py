@@ -113,15 +113,15 @@ def _run(c: PneumaticInvasiveConfig, out, *, figures: bool) -> Metrics:
                           names={"joint1": est.parameter_names("joint1")})
         fig = Figure(figsize=(7, 7))
         ax = fig.subplots(3, 1, sharex=True)
-        ax[0].plot(t, tr["ref.q_d"], "k", t, q, "--")
-        ax[0].legend(["q_d", "q"])
-        ax[0].set_ylabel("q [rad]")
-        ax[1].plot(t, tr["ref.sigma_d"], "k", t, sigma, "--")
-        ax[1].legend(["sigma_d", "sigma"])
-        ax[1].set_ylabel("sigma [N m/rad]")
-        ax[2].plot(t, p / 1e5)
-        ax[2].legend(["p_a", "p_b"])
-        ax[2].set_ylabel("pressure [bar]")
+        for a, ys, labels, unit in ((ax[0], (tr["ref.q_d"], q), ("q_d", "q"), "q [rad]"),
+                                    (ax[1], (tr["ref.sigma_d"], sigma), ("sigma_d", "sigma"),
+                                     "sigma [N m/rad]"),
+                                    (ax[2], (p[:, :1] / 1e5, p[:, 1:] / 1e5), ("p_a", "p_b"),
+                                     "pressure [bar]")):
+            for y, lab in zip(ys, labels):
+                a.plot(t, y, label=lab)
+            a.set_ylabel(unit)
+            a.legend()
         ax[2].set_xlabel("t [s]")
         fig.tight_layout()
         fig.savefig(out / "tracking.png", dpi=100)

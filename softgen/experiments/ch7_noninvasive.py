@@ -66,11 +66,7 @@ def run(c: NoninvasiveConfig, out) -> Metrics:
     tr, truth = qbmove_run(f"ch7_noninvasive_{model.name}", model, c, {"est": est.block("est")},
                            K=K, inputs={"q_ref": refs}, x0=servo_initial_state(q_d, qd_d, refs),
                            servo=True)
-    m, res, mask = variant_records(tr, truth, est, "est", c.metric_window,
-                                   np.zeros(K, dtype=int), torque=truth.rotatum)
-    m.records = [r for r in m.records if r.phase is None and r.quantity in (
-        "stiffness_mse", "stiffness_msrep", "torque_mse", "torque_msrep",
-        "estimator_seconds_per_step")]
+    m, res, mask = variant_records(tr, truth, est, "est", c.metric_window, truth.rotatum)
     for i in range(model.dof):
         m.add("position_rms_error", np.sqrt(np.mean((tr["plant.q"][mask, i] - q_d[i, mask])
                                                     ** 2)), "rad", joint=i + 1)

@@ -26,13 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..estimation.indices import excitation_records, window_mask
+from ..estimation.indices import excitation_records, noise_records, window_mask
 from ..estimation.rls import excitation_std
 from ..model import load_model
 from ..plants.qbmove import (Sinusoids, motor_references, phase_index, phased_references,
-                             servo_initial_state)
+                             protocol_figure, servo_initial_state)
 from .estimation_common import (achieved_records, estimator, figures, measured_deflections,
-                                protocol_figure, qbmove_run, variant_records)
+                                qbmove_run, variant_records)
 from .registry import Config, Experiment, Metrics, finding, num, times
 
 
@@ -62,30 +62,15 @@ class NoninvasiveProtocolConfig(Config):
     diagnostics: bool = True      # also the 1-DoF estimator on unquantised encoders
 
 
+#: What the ideal-sensor variant reports (it separates the encoders from the estimator).
+IDEAL = {"stiffness_mse", "stiffness_msrep", "update_fraction", "rotatum_rms",
+         "rotatum_uio_rms_error", "deflection_rate_rms", "deflection_rate_rms_error"}
+
 THESIS = {
     "stiffness_mse_joint1": 3.8e-5, "stiffness_msrep_joint1": 0.0012,
     "dof2_stiffness_mse_joint1": 1.9e-4, "dof2_stiffness_msrep_joint1": 6.3e-4,
     "dof2_stiffness_mse_joint2": 3.8e-4, "dof2_stiffness_msrep_joint2": 0.002,
 }
-
-
-def noise_records(m: Metrics, tr, truth, res, window, *, ideal: bool) -> None:
-    """Errors of the RLS target (observer rotatum) and of the first difference of the
-    measured deflection (the quantisation-limited counterpart of the regressor's φ̇)."""
-    t, n = tr.t, truth.sigma.shape[1]
-    mask = window_mask(t, window) & np.all(np.isfinite(res.tau_uio), axis=1)
-    for i in range(n):
-        r = truth.rotatum[mask, i]
-        m.add("rotatum_rms", np.sqrt(np.mean(r ** 2)), "N m/s", joint=i + 1)
-        m.add("rotatum_uio_rms_error", np.sqrt(np.mean((res.tau_uio[mask, i] - r) ** 2)),
-              "N m/s", joint=i + 1)
-    x = {s: tr[f"plant.{s}"] for s in ("qd", "qad", "qbd")}
-    phid = np.hstack([x["qd"] - x["qad"], x["qd"] - x["qbd"]])
-    fd = np.vstack([np.full((1, 2 * n), np.nan),
-                    np.diff(measured_deflections(tr, ideal), axis=0) / (t[1] - t[0])])
-    mask[0] = False
-    m.add("deflection_rate_rms", np.sqrt(np.mean(phid[mask] ** 2)), "rad/s")
-    m.add("deflection_rate_rms_error", np.sqrt(np.mean((fd[mask] - phid[mask]) ** 2)), "rad/s")
 
 
 def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
@@ -116,27 +101,29 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
             x0=servo_initial_state(q_d, qd_d, refs), servo=True, ideal=("ideal",),
             spring_scale=c.spring_scale, counts=c.encoder_counts)
         phi = measured_deflections(tr)
-        mh = Metrics()
-        excitation_records(mh, t, phase, excitation_std(phi, c.dt / c.gate_window),
-                           c.gate_window)
+        std = excitation_std(phi, c.dt / c.gate_window)
+        mh = excitation_records(Metrics(), t, phase, std, c.gate_window)
         achieved_records(mh, truth, sigma_d)
         updating = {}
         for tag, (est, _) in variants.items():
-            mv, res, _ = variant_records(tr, truth, est, tag, c.metric_window, phase,
-                                         torque=truth.rotatum)
+            mv, res, _ = variant_records(tr, truth, est, tag, c.metric_window,
+                                         truth.rotatum, phase)
             updating[tag] = res.updating
             if tag in ("gate", "ideal"):
-                noise_records(mv, tr, truth, res, c.metric_window, ideal=tag == "ideal")
+                noise_records(mv, tr.t, truth.rotatum, res, measured_deflections(
+                    tr, tag == "ideal"), truth.deflection_rate, c.metric_window)
             if tag == "ideal":
-                m.extend(mv, prefix="ideal_sensors_", keep=lambda r: r.quantity.startswith(
-                    ("stiffness_m", "rotatum", "deflection_rate", "update_fraction")))
+                m.extend(mv, prefix="ideal_sensors_", keep=lambda r: r.quantity in IDEAL)
                 continue
             (mh if tag == "gate" else m).extend(mv, prefix="" if tag == "gate" else f"{tag}_")
             figures(out, f"{pre or 'gate_' if tag == 'gate' else tag + '_'}", tr, truth.sigma,
                     truth.rotatum, res, est, f"{dof}-DoF non-invasive, {tag}",
                     torque_label="rotatum [N m/s]")
         m.extend(mh, prefix=pre)
-        protocol_figure(out / f"{pre}protocol.png", tr, truth, q_d, sigma_d, phi, c, updating)
+        protocol_figure(out / f"{pre}protocol.png", t, tr["plant.q"], q_d, truth.sigma,
+                        sigma_d, phi, std, threshold=c.gate_threshold, window=c.gate_window,
+                        boundaries=np.arange(1, len(c.phases)) * c.phase_duration,
+                        updating=updating)
     mask = window_mask(t, c.metric_window, res)
     m.add("metric_window_start", t[mask][0], "s")
     m.add("metric_window_end", t[mask][-1], "s")

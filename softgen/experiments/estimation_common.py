@@ -12,13 +12,12 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
-from matplotlib.figure import Figure
 
 from ..estimation.estimators import EstimatorBase, EstimatorConfig, StiffnessEstimator
 from ..estimation.indices import (error_records, estimation_figure, mse, msrep,
                                   phase_records, update_fraction_records, window_mask)
 from ..estimation.offline import EstimationResult, estimation_result, recorded
-from ..estimation.rls import ExcitationGate, excitation_std
+from ..estimation.rls import ExcitationGate
 from ..metrics import Metrics
 from ..plants.qbmove import QbmoveTruth, hardware_diagram, qbmove_truth
 from ..runtime.simulate import Trace, simulate
@@ -67,20 +66,22 @@ def measured_deflections(tr: Trace, ideal: bool = False) -> np.ndarray:
 
 
 def variant_records(tr: Trace, truth: QbmoveTruth, est: EstimatorBase, name: str, window,
-                    phase, *, torque) -> tuple[Metrics, EstimationResult, np.ndarray]:
-    """Indices of one estimator block of a protocol run: MSE/MSREP, against the
-    datasheet springs (``vs_nominal_*``), update fractions and MSE per phase."""
+                    torque, phase=None) -> tuple[Metrics, EstimationResult, np.ndarray]:
+    """Indices of one estimator block of a run: MSE/MSREP; with ``phase`` (a protocol
+    run) also against the datasheet springs (``vs_nominal_*``), update fractions and
+    stiffness MSE per phase."""
     res = estimation_result(est, tr, name)
     mask = window_mask(tr.t, window, res)
     m = error_records(Metrics(), truth.sigma, torque, res, mask)
-    for i in range(truth.sigma.shape[1]):
-        a, b = truth.sigma_nominal[mask, i], res.sigma_hat[mask, i]
-        m.add("vs_nominal_stiffness_mse", mse(a, b), "(N m/rad)^2", joint=i + 1)
-        m.add("vs_nominal_stiffness_msrep", msrep(a, b), "%", joint=i + 1)
-    update_fraction_records(m, res, phase)
-    phase_records(m, "stiffness_mse", {i + 1: (truth.sigma[:, i], res.sigma_hat[:, i])
-                                       for i in range(truth.sigma.shape[1])},
-                  mask, phase, mse, "(N m/rad)^2")
+    if phase is not None:
+        for i in range(truth.sigma.shape[1]):
+            a, b = truth.sigma_nominal[mask, i], res.sigma_hat[mask, i]
+            m.add("vs_nominal_stiffness_mse", mse(a, b), "(N m/rad)^2", joint=i + 1)
+            m.add("vs_nominal_stiffness_msrep", msrep(a, b), "%", joint=i + 1)
+        update_fraction_records(m, res, phase)
+        phase_records(m, "stiffness_mse", {i + 1: (truth.sigma[:, i], res.sigma_hat[:, i])
+                                           for i in range(truth.sigma.shape[1])},
+                      mask, phase, mse, "(N m/rad)^2")
     m.add("estimator_seconds_per_step", tr.wall_seconds / tr.t.size, "s")
     return m, res, mask
 
@@ -97,36 +98,6 @@ def figures(out: Path, prefix: str, tr: Trace, truth_sigma, truth_tau, res, est,
     estimation_figure(out / f"{prefix}estimation.png", tr.t, truth_sigma, truth_tau, res,
                       title=title, names={r: est.parameter_names(r) for r in est.rls_names},
                       torque_label=torque_label)
-
-
-def protocol_figure(path: Path, tr: Trace, truth: QbmoveTruth, q_d, sigma_d, phi, c,
-                    updating: dict) -> None:
-    """References, achieved stiffness, measured deflections, gate statistic, updates."""
-    t, n = tr.t, q_d.shape[0]
-    std = excitation_std(phi, c.dt / c.gate_window)
-    fig = Figure(figsize=(9, 11))
-    ax = fig.subplots(5, 1, sharex=True)
-    for i in range(n):
-        ax[0].plot(t, tr["plant.q"][:, i], lw=0.8, label=f"q{i + 1}")
-        ax[0].plot(t, q_d[i], "k--", lw=0.6, label=f"q{i + 1}_d")
-        ax[1].plot(t, truth.sigma[:, i], lw=0.8, label=f"sigma{i + 1} (plant)")
-        ax[1].plot(t, sigma_d[i], "k--", lw=0.6, label=f"sigma{i + 1}_d")
-    for j in range(phi.shape[1]):
-        lab = f"phi{j % n + 1}{'ab'[j // n]}"
-        ax[2].plot(t, phi[:, j], lw=0.8, label=lab)
-        ax[3].semilogy(t, std[:, j], lw=0.8, label=lab)
-    ax[3].axhline(c.gate_threshold, color="k", ls="--", lw=0.8, label="threshold")
-    for k, (tag, u) in enumerate(updating.items()):
-        ax[4].plot(t, u.mean(axis=1) + 1.2 * k, lw=0.8, label=tag)
-    for a, lab in zip(ax, ("q [rad]", "sigma [N m/rad]", "measured deflection [rad]",
-                           f"EW std, W = {c.gate_window:g} s [rad]", "RLS updating")):
-        a.set_ylabel(lab)
-        for b in range(1, len(c.phases)):
-            a.axvline(b * c.phase_duration, color="0.6", lw=0.6)
-        a.legend(fontsize=7, ncol=2)
-    ax[4].set_xlabel("t [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
 
 
 def load_functions(name: str, functions: list[tuple[ca.Function, str]], out: Path,

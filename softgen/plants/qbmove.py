@@ -131,6 +131,7 @@ class QbmoveTruth:
     sigma_nominal: np.ndarray  # (K, n) stiffness of the nominal springs at the same state
     spring_torque: np.ndarray  # (K, 2n) each spring's torque, agonists then antagonists
     spring_stiffness: np.ndarray  # (K, 2n) each nominal spring's stiffness (unscaled)
+    deflection_rate: np.ndarray   # (K, 2n) φ̇_a, φ̇_b
 
 
 def qbmove_truth(model: RobotModel, x: Mapping[str, np.ndarray], spring_scale) -> QbmoveTruth:
@@ -144,4 +145,49 @@ def qbmove_truth(model: RobotModel, x: Mapping[str, np.ndarray], spring_scale) -
     sca, scb = scale[:n], scale[n:]
     return QbmoveTruth(sca * ta + scb * tb, sca * sa + scb * sb,
                        sca * sa * (qd - qad) + scb * sb * (qd - qbd), sa + sb,
-                       np.hstack([ta, tb]) * scale, np.hstack([sa, sb]))
+                       np.hstack([ta, tb]) * scale, np.hstack([sa, sb]),
+                       np.hstack([qd - qad, qd - qbd]))
+
+
+def polynomial_fit_stiffness(phi: np.ndarray, spring_torque: np.ndarray, powers) -> np.ndarray:
+    """(K, n) joint stiffness of the best fit of Σ_p c_p φ^p (the RLS model class of the
+    invasive electric estimator) to each *true* spring torque, by least squares over
+    the given samples: how well the model class can do at all."""
+    n, pw = phi.shape[1] // 2, np.asarray(powers)
+    fit = np.zeros((phi.shape[0], n))
+    for j in range(2 * n):
+        x = phi[:, j]
+        coef, *_ = np.linalg.lstsq(x[:, None] ** pw, spring_torque[:, j], rcond=None)
+        fit[:, j % n] += (pw * x[:, None] ** np.maximum(pw - 1, 0)) @ coef
+    return fit
+
+
+def protocol_figure(path, t, q, q_d, sigma, sigma_d, phi, std, *, threshold: float,
+                    window: float, boundaries: Sequence[float], updating: Mapping) -> None:
+    """References and achieved stiffness, measured deflections, the gate statistic
+    ``std`` (one column per deflection, threshold ``threshold``) and RLS updates."""
+    from matplotlib.figure import Figure
+    n = q_d.shape[0]
+    fig = Figure(figsize=(9, 11))
+    ax = fig.subplots(5, 1, sharex=True)
+    for i in range(n):
+        ax[0].plot(t, q[:, i], lw=0.8, label=f"q{i + 1}")
+        ax[0].plot(t, q_d[i], "k--", lw=0.6, label=f"q{i + 1}_d")
+        ax[1].plot(t, sigma[:, i], lw=0.8, label=f"sigma{i + 1} (plant)")
+        ax[1].plot(t, sigma_d[i], "k--", lw=0.6, label=f"sigma{i + 1}_d")
+    for j in range(phi.shape[1]):
+        lab = f"phi{j % n + 1}{'ab'[j // n]}"
+        ax[2].plot(t, phi[:, j], lw=0.8, label=lab)
+        ax[3].semilogy(t, std[:, j], lw=0.8, label=lab)
+    ax[3].axhline(threshold, color="k", ls="--", lw=0.8, label="threshold")
+    for k, (tag, u) in enumerate(updating.items()):
+        ax[4].plot(t, u.mean(axis=1) + 1.2 * k, lw=0.8, label=tag)
+    for a, lab in zip(ax, ("q [rad]", "sigma [N m/rad]", "measured deflection [rad]",
+                           f"EW std, W = {window:g} s [rad]", "RLS updating")):
+        a.set_ylabel(lab)
+        for b in boundaries:
+            a.axvline(b, color="0.6", lw=0.6)
+        a.legend(fontsize=7, ncol=2)
+    ax[4].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
