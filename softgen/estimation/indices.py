@@ -54,8 +54,14 @@ def error_records(m: Metrics, truth_sigma, truth_tau, res: EstimationResult, mas
 def estimation_figure(path, t, truth_sigma, truth_tau, res: EstimationResult, *,
                       title: str, names: dict[str, list[str]],
                       torque_label: str = "tau_e [N m]") -> None:
-    """Estimate against truth, relative error, and RLS parameters over time."""
+    """Estimate against truth, relative error, and RLS parameters over time (long runs
+    are drawn every few samples: at most ~20 000 points per line)."""
     n = truth_sigma.shape[1]
+    d = slice(None, None, max(1, len(t) // 20000))
+    t, truth_sigma, truth_tau = t[d], truth_sigma[d], truth_tau[d]
+    res = EstimationResult(res.sigma_hat[d], res.tau_hat[d], res.tau_uio[d], res.updating[d],
+                           {r: v[d] for r, v in res.theta.items()}, res.delay,
+                           res.wall_seconds)
     fig = Figure(figsize=(5.5 * n, 9))
     ax = fig.subplots(4, n, sharex=True, squeeze=False)
     for i in range(n):
@@ -81,7 +87,7 @@ def estimation_figure(path, t, truth_sigma, truth_tau, res: EstimationResult, *,
         ax[3, i].set_yscale("symlog", linthresh=1e-3)
         ax[3, i].set_xlabel("t [s]")
         for a in ax[:, i]:
-            a.legend(fontsize=6, ncol=2)
+            a.legend(fontsize=6, ncol=2, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
 

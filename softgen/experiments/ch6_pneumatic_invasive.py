@@ -121,7 +121,7 @@ def _run(c: PneumaticInvasiveConfig, out, *, figures: bool) -> Metrics:
             for y, lab in zip(ys, labels):
                 a.plot(t, y, label=lab)
             a.set_ylabel(unit)
-            a.legend()
+            a.legend(loc="upper left")
         ax[2].set_xlabel("t [s]")
         fig.tight_layout()
         fig.savefig(out / "tracking.png", dpi=100)

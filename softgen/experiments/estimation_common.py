@@ -40,13 +40,14 @@ def estimator(model, method: str, c, *, gated: bool = True, name: str | None = N
 
 def qbmove_run(label: str, model, c, estimators: dict, *, K: int, inputs: dict, x0: dict,
                servo: bool, ideal=(), spring_scale: float = 1.0, counts=None,
-               torque_noise: float = 0.0, seed: int = 0) -> tuple[Trace, QbmoveTruth]:
+               torque_noise: float = 0.0, seed: int = 0, link_damping=None
+               ) -> tuple[Trace, QbmoveTruth]:
     """One emulated run: plant (servo-driven or open loop), sensors and the estimator
     blocks ``estimators`` (block name -> Block) in one diagram for K samples."""
     dyn, springs, n = RigidDynamics(model), QbmoveSprings(model), model.dof
     kw = dict(substeps=c.substeps, spring_scale=spring_scale)
     plant = servo_plant_block(dyn, springs, c.dt, bandwidth=c.servo_bandwidth, **kw) \
-        if servo else electric_plant_block(dyn, springs, c.dt, **kw)
+        if servo else electric_plant_block(dyn, springs, c.dt, link_damping=link_damping, **kw)
     d = hardware_diagram(label, plant, counts_per_rev=counts, torque_noise=torque_noise,
                          estimators=list(estimators.values()), ideal=ideal)
     ext = dict(inputs)

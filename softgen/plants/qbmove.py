@@ -167,7 +167,10 @@ def protocol_figure(path, t, q, q_d, sigma, sigma_d, phi, std, *, threshold: flo
     """References and achieved stiffness, measured deflections, the gate statistic
     ``std`` (one column per deflection, threshold ``threshold``) and RLS updates."""
     from matplotlib.figure import Figure
-    n = q_d.shape[0]
+    n, d = q_d.shape[0], slice(None, None, max(1, len(t) // 20000))
+    t, q, q_d, sigma, sigma_d, phi, std = (t[d], q[d], q_d[:, d], sigma[d], sigma_d[:, d],
+                                          phi[d], std[d])
+    updating = {k: v[d] for k, v in updating.items()}
     fig = Figure(figsize=(9, 11))
     ax = fig.subplots(5, 1, sharex=True)
     for i in range(n):
@@ -187,7 +190,28 @@ def protocol_figure(path, t, q, q_d, sigma, sigma_d, phi, std, *, threshold: flo
         a.set_ylabel(lab)
         for b in boundaries:
             a.axvline(b, color="0.6", lw=0.6)
-        a.legend(fontsize=7, ncol=2)
+        a.legend(fontsize=7, ncol=2, loc="upper left")
     ax[4].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+def run_figure(path, t, tau_motor, phi, q, *, title: str = "") -> None:
+    """Motor torques, spring deflections and link angles of a run (as Fig. 6.5)."""
+    from matplotlib.figure import Figure
+    n, d = q.shape[1], slice(None, None, max(1, len(t) // 20000))
+    t, tau_motor, phi, q = t[d], tau_motor[d], phi[d], q[d]
+    fig = Figure(figsize=(8, 8))
+    ax = fig.subplots(3, 1, sharex=True)
+    for a, v, unit, names in ((ax[0], tau_motor, "motor torque [N m]", "tau"),
+                              (ax[1], phi, "deflection [rad]", "phi"),
+                              (ax[2], q, "link angle [rad]", "q")):
+        for j in range(v.shape[1]):
+            side = "" if names == "q" else "ab"[j // n]
+            a.plot(t, v[:, j], lw=0.8, label=f"{names}{j % n + 1}{side}")
+        a.set_ylabel(unit)
+        a.legend(fontsize=7, ncol=2, loc="upper left")
+    ax[0].set_title(title)
+    ax[2].set_xlabel("t [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=100)

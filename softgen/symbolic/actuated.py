@@ -62,12 +62,14 @@ def pneumatic_plant_fun(dyn: RigidDynamics, act: McKibbenPairs, *, substeps: int
                        FUNCTION_OPTS)
 
 
-def electric_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: int
-                       ) -> ca.Function:
+def electric_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: int,
+                       link_damping: bool = False) -> ca.Function:
     """``<model>_electric_plant``: one sample of eq. 2.6, motor torques held.
 
     Inputs: x (6n: q, q̇, q_a, q̇_a, q_b, q̇_b), u (2n: τ_a, τ_b), spring_scale (2n:
     factor on k of each agonist then antagonist spring; 1 = nominal), h (sample time).
+    With ``link_damping`` an input ``link_damping`` (n, N m s/rad) adds a viscous
+    torque −β q̇ on each link, beyond the model's own D q̇ (an emulated arm's bearings).
     """
     n = dyn.model.dof
     m = dyn.nominal
@@ -75,21 +77,26 @@ def electric_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: 
     scale = ca.SX.sym("spring_scale", 2 * n)
 
     xs, us, sc = ca.SX.sym("xs", 6 * n), ca.SX.sym("us", 2 * n), ca.SX.sym("sc", 2 * n)
+    beta = ca.SX.sym("link_damping", n)
     q, qd, qa, qad, qb, qbd = (xs[i * n:(i + 1) * n] for i in range(6))
     ta = springs.spring_torque(q - qa, "a", sc[:n])
     tb = springs.spring_torque(q - qb, "b", sc[n:])
-    qdd = ca.substitute(dyn.forward_dynamics_expr(-(ta + tb)), ca.vertcat(m.q, m.qd),
+    tau = -(ta + tb) - beta * qd if link_damping else -(ta + tb)
+    qdd = ca.substitute(dyn.forward_dynamics_expr(tau), ca.vertcat(m.q, m.qd),
                         ca.vertcat(q, qd))
     qadd = (us[:n] + ta - springs.d_a * qad) / springs.b_a
     qbdd = (us[n:] + tb - springs.d_b * qbd) / springs.b_b
-    rhs = ca.Function("rhs", [xs, us, sc], [ca.vertcat(qd, qdd, qad, qadd, qbd, qbdd)])
+    extra = [beta] if link_damping else []
+    rhs = ca.Function("rhs", [xs, us, sc, *extra],
+                      [ca.vertcat(qd, qdd, qad, qadd, qbd, qbdd)])
+    ins, names = [x, u, scale, *extra, h], ["x", "u", "spring_scale"] + ["link_damping"] * \
+        link_damping + ["h"]
 
     def f(xx, uu):
-        return rhs(xx, uu, scale)
+        return rhs(xx, uu, scale, *extra)
 
-    return ca.Function(f"{dyn.name}_electric_plant", [x, u, scale, h],
-                       [rk4_steps(f, x, u, h, substeps)], ["x", "u", "spring_scale", "h"],
-                       ["x_next"], FUNCTION_OPTS)
+    return ca.Function(f"{dyn.name}_electric_plant", ins, [rk4_steps(f, x, u, h, substeps)],
+                       names, ["x_next"], FUNCTION_OPTS)
 
 
 def servo_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: int,
@@ -187,24 +194,31 @@ def _plant_block(f: ca.Function, name: str, dt: float, n: int, parts: list[str],
                         inputs=[(nm, sz) for nm, sz, _ in ins],
                         outputs=[(s, n) for s in parts] + [(nm, sz) for nm, sz, _ in extra_out],
                         params=[(nm, sz) for nm, sz, _ in params], p0=p0, body=body,
-                        doc=doc or f.name(), rules={nm: "positive" for nm, *_ in params})
+                        doc=doc or f.name(), rules={nm: "nonnegative" for nm, *_ in params})
 
 
 QBMOVE_STATE = ["q", "qd", "qa", "qad", "qb", "qbd"]
 
 
 def electric_plant_block(dyn: RigidDynamics, springs: QbmoveSprings, dt: float, *,
-                         substeps: int, name: str = "plant", spring_scale=1.0):
+                         substeps: int, name: str = "plant", spring_scale=1.0,
+                         link_damping=None):
     """:func:`electric_plant_fun` as a block (eq. 2.6, motor torques held over a sample).
 
     State and outputs (at the sample): ``q, qd, qa, qad, qb, qbd`` (n each); input
-    ``tau_motor`` (τ_a of every joint, then τ_b); parameter ``spring_scale`` (2n).
+    ``tau_motor`` (τ_a of every joint, then τ_b); parameter ``spring_scale`` (2n) and,
+    if ``link_damping`` is given (N m s/rad), parameter ``link_damping`` (n).
     """
-    n = dyn.model.dof
-    return _plant_block(electric_plant_fun(dyn, springs, substeps=substeps), name, dt, n,
-                        QBMOVE_STATE, [("tau_motor", 2 * n, "u")],
-                        params=[("spring_scale", 2 * n, "spring_scale")],
-                        p0={"spring_scale": spring_scale})
+    n, damped = dyn.model.dof, link_damping is not None
+    params = [("spring_scale", 2 * n, "spring_scale")]
+    p0 = {"spring_scale": spring_scale}
+    if damped:
+        params.append(("link_damping", n, "link_damping"))
+        p0["link_damping"] = link_damping
+    b = _plant_block(electric_plant_fun(dyn, springs, substeps=substeps, link_damping=damped),
+                     name, dt, n, QBMOVE_STATE, [("tau_motor", 2 * n, "u")], params=params,
+                     p0=p0)
+    return b
 
 
 def servo_plant_block(dyn: RigidDynamics, springs: QbmoveSprings, dt: float, *,
