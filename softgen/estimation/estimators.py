@@ -97,8 +97,10 @@ class EstimatorConfig:
         deadbeat, the thesis's F̂1 = 0). It only slows the initial transient; it does
         **not** low-pass: for these models every output sequence is a trajectory for
         some unknown input, so the delayed observer reproduces noisy outputs exactly
-        (measured on ch7-noninvasive-protocol: poles 0.9, 0.98, 0.995 give the same
-        stiffness MSE as the deadbeat design). Use ``lowpass`` to filter.
+        (measured on the 1-DoF run of ch7-noninvasive-protocol, 8192-count encoders:
+        with poles 0, 0.9, 0.98, 0.995 the observer's rotatum error is 11.9 N m/s rms
+        in all four, to 1e-14, and the stiffness MSE 1.29e4 to 1.28e4, differing only
+        by the later start of the RLS). Use ``lowpass`` to filter.
     lowpass
         Cutoff [Hz] of an identical low-pass on the RLS target and every regressor
         entry (default None: none), generated inside the step: ``lowpass_order``
