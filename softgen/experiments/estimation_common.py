@@ -26,8 +26,8 @@ from ..symbolic.actuators import QbmoveSprings
 from ..symbolic.rigid import RigidDynamics
 
 
-def estimator(model, method: str, c, *, gated: bool = True, name: str | None = None
-              ) -> EstimatorBase:
+def estimator(model, method: str, c, *, gated: bool = True, name: str | None = None,
+              lowpass: float | None = None) -> EstimatorBase:
     """The estimator of ``method`` with the settings of config ``c`` (dt, delay, powers,
     p0 and, if ``gated``, the excitation gate ``gate_window``/``gate_threshold``)."""
     W = getattr(c, "gate_window", None)
@@ -35,7 +35,7 @@ def estimator(model, method: str, c, *, gated: bool = True, name: str | None = N
     p0 = c.p0 if isinstance(c.p0, float) else tuple(c.p0)
     return StiffnessEstimator(model, EstimatorConfig(
         method, dt=c.dt, delay=c.delay, powers=c.powers, p0=p0, gate=gate,
-        pole=getattr(c, "observer_pole", None)), name=name)
+        lowpass=lowpass), name=name)
 
 
 def qbmove_run(label: str, model, c, estimators: dict, *, K: int, inputs: dict, x0: dict,
