@@ -10,30 +10,38 @@ in one diagram with the plant.
 
 1-DoF (``qbmove_1dof``): q_d = 0.4 + 0.2 sin(πt/4), σ_d = 2 + sin(πt/6) for t < 400 s,
 then q_d = 0.4 and the same σ_d to 800 s. Indices on t ∈ [200, 800] s as the thesis;
-MSREP in percent. Variants: the ExcitationGate of ``ch6-electric-protocol`` (unprefixed),
-none (``nostop_*``), RLS frozen at ``freeze_time`` = 200 s by zeroing the covariance
-(``freeze_*``, the thesis's stop "after the parameters converge"), and the gated
-estimator on unquantised encoders (``ideal_sensors_*``). 2-DoF (``planar_2link``,
-``dof2_*``, gated): P₁, P₂ per joint as printed; both joints get the 1-DoF position
-reference, σ_1d = 5 + sin(πt/6), σ_2d = 4 + sin(πt/6) (σ_d = 2 + sin is infeasible on
-joint 1; these are the levels the thesis's own MSE/MSREP pairs imply). Torque entries
-are for the rotatum τ̇_e; ``rotatum_uio_*`` say how far the observer's rotatum, the RLS
-target, is from the truth, ``deflection_rate_*`` the same for the regressor's rates.
+MSREP in percent. 2-DoF (``planar_2link``, ``dof2_*``): P₁, P₂ per joint as printed;
+both joints get the 1-DoF position reference, σ_1d = 5 + sin(πt/6), σ_2d = 4 + sin(πt/6)
+(σ_d = 2 + sin is infeasible on joint 1; these are the levels the thesis's own
+MSE/MSREP pairs imply).
+
+Variants (issue 13), all gated by the ExcitationGate of ``ch6-electric-protocol``
+unless named: the headline names hold the estimator with an identical 4th-order
+state-variable low-pass (``lowpass`` = 0.5 Hz) of RLS target and regressor, generated
+in its step (:class:`~softgen.estimation.estimators.EstimatorConfig`), against the
+datasheet springs as the thesis compares; ``plant_*`` the same estimates against the
+plant's springs (20 % stiffer: ``datasheet_vs_plant_stiffness_mse_*`` is that mismatch
+alone). Unfiltered (Theorem 4 as printed): ``unfiltered_*`` (gated), ``nostop_*``
+(none), ``freeze_*`` (RLS frozen at ``freeze_time`` = 200 s by zeroing the covariance,
+the thesis's stop "after the parameters converge"), ``ideal_sensors_*`` (gated, on
+unquantised encoders). Torque entries are for the rotatum τ̇_e; ``rotatum_uio_*`` say
+how far the observer's rotatum, the RLS target, is from the truth,
+``deflection_rate_*`` the same for the first difference of the measured deflections.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..estimation.indices import excitation_records, noise_records, window_mask
+from ..estimation.indices import excitation_records, mse, noise_records, window_mask
 from ..estimation.rls import excitation_std
 from ..model import load_model
 from ..plants.qbmove import (Sinusoids, motor_references, phase_index, phased_references,
                              protocol_figure, servo_initial_state)
 from .estimation_common import (achieved_records, estimator, figures, measured_deflections,
                                 qbmove_run, variant_records)
-from .registry import Config, Experiment, Metrics, finding, num, times
+from .registry import Config, Experiment, Metrics, finding, num
 
 
 @dataclass(frozen=True)
@@ -60,11 +68,17 @@ class NoninvasiveProtocolConfig(Config):
     freeze_time: float = 200.0
     metric_window: tuple[float, float] = (200.0, 800.0)
     diagnostics: bool = True      # also the 1-DoF estimator on unquantised encoders
+    lowpass: float = 0.5          # Hz: identical low-pass of target and regressor (issue 13)
 
 
 #: What the ideal-sensor variant reports (it separates the encoders from the estimator).
 IDEAL = {"stiffness_mse", "stiffness_msrep", "update_fraction", "rotatum_rms",
          "rotatum_uio_rms_error", "deflection_rate_rms", "deflection_rate_rms_error"}
+
+STIFFNESS = {"stiffness_mse", "stiffness_msrep"}
+NOMINAL = {"vs_nominal_stiffness_mse", "vs_nominal_stiffness_msrep"}
+#: Metric prefix of each estimator variant (the filtered one holds the headline names).
+PREFIX = {"filt": "", "gate": "unfiltered_", "nostop": "nostop_", "freeze": "freeze_"}
 
 THESIS = {
     "stiffness_mse_joint1": 3.8e-5, "stiffness_msrep_joint1": 0.0012,
@@ -88,7 +102,9 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
         gated, free = estimator(model, "noninvasive", c), \
             estimator(model, "noninvasive", c, gated=False)
         p0 = None if dof == 1 else c.p0_dof2
-        variants = {"gate": (gated, gated.block("gate", p0=p0))}
+        filt = estimator(model, "noninvasive", c, lowpass=c.lowpass)
+        variants = {"filt": (filt, filt.block("filt", p0=p0)),
+                    "gate": (gated, gated.block("gate", p0=p0))}
         if dof == 1:
             variants.update(nostop=(free, free.block("nostop")),
                             freeze=(free, free.block("freeze", hold=True)))
@@ -106,49 +122,74 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
         achieved_records(mh, truth, sigma_d)
         updating = {}
         for tag, (est, _) in variants.items():
-            mv, res, _ = variant_records(tr, truth, est, tag, c.metric_window,
-                                         truth.rotatum, phase)
+            # The thesis compares with the datasheet (model) springs: so does the headline.
+            ref = replace(truth, sigma=truth.sigma_nominal) if tag == "filt" else truth
+            mv, res, _ = variant_records(tr, ref, est, tag, c.metric_window, truth.rotatum,
+                                         phase)
             updating[tag] = res.updating
-            if tag in ("gate", "ideal"):
+            if tag in ("filt", "ideal"):
                 noise_records(mv, tr.t, truth.rotatum, res, measured_deflections(
                     tr, tag == "ideal"), truth.deflection_rate, c.metric_window)
             if tag == "ideal":
                 m.extend(mv, prefix="ideal_sensors_", keep=lambda r: r.quantity in IDEAL)
                 continue
-            (mh if tag == "gate" else m).extend(mv, prefix="" if tag == "gate" else f"{tag}_")
-            figures(out, f"{pre or 'gate_' if tag == 'gate' else tag + '_'}", tr, truth.sigma,
-                    truth.rotatum, res, est, f"{dof}-DoF non-invasive, {tag}",
-                    torque_label="rotatum [N m/s]")
+            if tag == "filt":
+                mh.extend(mv, keep=lambda r: r.quantity not in NOMINAL)
+                mv = variant_records(tr, truth, est, tag, c.metric_window, truth.rotatum)[0]
+                mh.extend(mv, prefix="plant_", keep=lambda r: r.quantity in STIFFNESS)
+            else:
+                (mh if tag == "gate" else m).extend(mv, prefix=PREFIX[tag])
+            figures(out, f"{pre}{PREFIX[tag]}", tr, ref.sigma, truth.rotatum, res, est,
+                    f"{dof}-DoF non-invasive, {tag}", torque_label="rotatum [N m/s]")
+        w = window_mask(t, c.metric_window, res)      # the emulated model error itself:
+        for i in range(n):
+            mh.add("datasheet_vs_plant_stiffness_mse", mse(truth.sigma_nominal[w, i],
+                                                           truth.sigma[w, i]), "", joint=i + 1)
         m.extend(mh, prefix=pre)
         protocol_figure(out / f"{pre}protocol.png", t, tr["plant.q"], q_d, truth.sigma,
                         sigma_d, phi, std, threshold=c.gate_threshold, window=c.gate_window,
                         boundaries=np.arange(1, len(c.phases)) * c.phase_duration,
                         updating=updating)
     mask = window_mask(t, c.metric_window, res)
+    m.add("lowpass_hz", c.lowpass, "Hz")
     m.add("metric_window_start", t[mask][0], "s")
     m.add("metric_window_end", t[mask][-1], "s")
     return m
 
 
 def findings(m: dict) -> list[dict]:
-    """Section 7.4: stiffness MSE 3.8e-5 on hardware; here the encoders decide."""
-    ok = m["stiffness_mse_joint1"] < 100 * 3.8e-5
-    out = [finding(
-        "Section 7.4 (Fig. 7.5): the non-invasive estimate reaches stiffness MSE 3.8e-5 "
-        "with the hardware's encoders", "reproduced" if ok else "not reproduced",
-        f"MSE {num(m['stiffness_mse_joint1'])} ({times(m['stiffness_mse_joint1'], 3.8e-5)} "
-        f"the thesis's; threshold 100×); without the gate {num(m['nostop_stiffness_mse_joint1'])}"
-        f", frozen at t_freeze {num(m['freeze_stiffness_mse_joint1'])}; observer rotatum "
-        f"error {num(m['rotatum_uio_rms_error_joint1'])} N m/s rms against a rotatum of "
-        f"{num(m['rotatum_rms_joint1'])}")]
+    """Section 7.4: stiffness MSE 3.8e-5 (1-DoF) and 1.9e-4 / 3.8e-4 (2-DoF) on hardware."""
+    out = []
+    for pre, joints, thesis in (("", (1,), (3.8e-5,)), ("dof2_", (1, 2), (1.9e-4, 3.8e-4))):
+        if f"{pre}stiffness_mse_joint1" not in m:
+            continue
+        g = {k: [m[f"{pre}{k}_joint{j}"] for j in joints] for k in (
+            "stiffness_mse", "plant_stiffness_mse", "datasheet_vs_plant_stiffness_mse",
+            "unfiltered_stiffness_mse")}
+        ok = [[v < 100 * t for v, t in zip(g[k], thesis)] for k in
+              ("stiffness_mse", "plant_stiffness_mse")]
+        f = lambda k: " / ".join(num(v) for v in g[k])   # noqa: E731
+        out.append(finding(
+            f"Section 7.4 ({'1' if not pre else '2'}-DoF): stiffness MSE "
+            + " / ".join(num(t) for t in thesis) + " on hardware with encoders",
+            "reproduced" if all(ok[0]) else "partly reproduced" if all(ok[1])
+            else "not reproduced",
+            f"filtered estimator ({num(m['lowpass_hz'])} Hz, target and regressor alike): "
+            f"MSE {f('stiffness_mse')} against the datasheet springs as the thesis, of which "
+            f"the emulated 20 % spring mismatch alone is {f('datasheet_vs_plant_stiffness_mse')}"
+            f"; against the plant's springs {f('plant_stiffness_mse')} (threshold 100× the "
+            f"thesis's); unfiltered {f('unfiltered_stiffness_mse')}"))
     if "ideal_sensors_stiffness_mse_joint1" in m:
         out.append(finding(
-            "The estimator itself works on this plant: the failure is the encoders' "
-            "quantisation, differenced three times over T³",
+            "Diagnosis: without the filter the estimate fails because of the encoders' "
+            "quantisation, differenced three times over T³, not the estimator",
             "reproduced" if m["ideal_sensors_stiffness_mse_joint1"] < 1e-2 else "not reproduced",
-            f"the same run read by unquantised encoders: MSE "
-            f"{num(m['ideal_sensors_stiffness_mse_joint1'])}, rotatum error "
-            f"{num(m['ideal_sensors_rotatum_uio_rms_error_joint1'])} N m/s rms"))
+            f"observer rotatum error {num(m['rotatum_uio_rms_error_joint1'])} N m/s rms "
+            f"against a rotatum of {num(m['rotatum_rms_joint1'])}; the same run read by "
+            f"unquantised encoders: MSE {num(m['ideal_sensors_stiffness_mse_joint1'])}, "
+            f"rotatum error {num(m['ideal_sensors_rotatum_uio_rms_error_joint1'])}; without "
+            f"the gate {num(m['nostop_stiffness_mse_joint1'])}, frozen "
+            f"{num(m['freeze_stiffness_mse_joint1'])}: neither stop helps"))
     return out
 
 
@@ -162,4 +203,18 @@ EXPERIMENT = Experiment(
     quick={"phase_duration": 40.0, "metric_window": (20.0, 80.0), "freeze_time": 20.0},
     thesis=THESIS,
     findings=findings,
+    discussion="""
+**Reading.** Unfiltered, the estimate fails (`unfiltered_stiffness_mse_joint1`): the
+RLS target is a third difference of 8192-count encoder readings over T³, whose noise
+(`rotatum_uio_rms_error_joint1`) is about a hundred times the rotatum itself
+(`rotatum_rms_joint1`), and the same link-encoder error enters the regressor's φ̇, so
+least squares is biased, not just noisy; neither stop helps (`nostop_*`, `freeze_*`),
+while unquantised encoders do (`ideal_sensors_*`). The observer's pole cannot fix it
+(measured: the rotatum error is the same to 1e-14 for poles 0 to 0.995; see
+`EstimatorConfig.pole`). Filtering target and regressor identically removes that
+noise from both while keeping f = φᵀΠ: `plant_stiffness_mse_*` is then of the order
+of the ideal-sensor run. Against the datasheet springs (headline, as the thesis) the
+error is the emulation's 20 % spring mismatch (`datasheet_vs_plant_stiffness_mse_*`),
+not the estimator's.
+""",
 )
