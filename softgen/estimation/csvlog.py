@@ -178,7 +178,7 @@ def estimate_columns(est: StiffnessEstimator) -> list[str]:
 
 def write_estimates(path: str | Path, t: np.ndarray, result: EstimationResult,
                     est: StiffnessEstimator) -> Path:
-    """Write the estimates of :func:`~softgen.estimation.offline.estimation_result` as CSV.
+    """Write the estimates of :func:`~softgen.estimation.offline.run_offline` as CSV.
 
     One row per input sample, columns :func:`estimate_columns`. Samples without an
     estimate (the last L, the observer's delay) have empty cells, not ``nan``.
