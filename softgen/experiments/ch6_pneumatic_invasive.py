@@ -19,13 +19,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from ..estimation.estimators import EstimatorConfig, StiffnessEstimator
 from ..estimation.indices import error_records, estimation_figure, mse, msrep, window_mask
 from ..estimation.offline import estimation_result, recorded
 from ..model import load_model
-from ..plants.pneumatic import pendulum_diagram, sinusoid_reference_block
+from ..plants.pneumatic import pendulum_diagram, sinusoid_reference_block, tracking_figure
 from ..runtime.simulate import simulate
 from ..symbolic.actuators import McKibbenPairs
 from ..symbolic.rigid import RigidDynamics
@@ -123,20 +122,7 @@ def _run(c: PneumaticInvasiveConfig, out, *, figures: bool) -> Metrics:
         estimation_figure(out / "estimation.png", t, sigma, tau, res,
                           title="pneumatic, invasive",
                           names={"joint1": est.parameter_names("joint1")})
-        fig = Figure(figsize=(7, 7))
-        ax = fig.subplots(3, 1, sharex=True)
-        for a, ys, labels, unit in ((ax[0], (tr["ref.q_d"], q), ("q_d", "q"), "q [rad]"),
-                                    (ax[1], (tr["ref.sigma_d"], sigma), ("sigma_d", "sigma"),
-                                     "sigma [N m/rad]"),
-                                    (ax[2], (p[:, :1] / 1e5, p[:, 1:] / 1e5), ("p_a", "p_b"),
-                                     "pressure [bar]")):
-            for y, lab in zip(ys, labels):
-                a.plot(t, y, label=lab)
-            a.set_ylabel(unit)
-            a.legend(loc="upper left")
-        ax[2].set_xlabel("t [s]")
-        fig.tight_layout()
-        fig.savefig(out / "tracking.png", dpi=100)
+        tracking_figure(out / "tracking.png", t, q, tr["ref.q_d"], sigma, tr["ref.sigma_d"], p)
     return m
 
 

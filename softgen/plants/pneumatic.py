@@ -82,3 +82,22 @@ def pendulum_diagram(name: str, dyn: RigidDynamics, act: McKibbenPairs, dt: floa
     return ClosedLoop(name, [ref, ctrl, plant, estimator],
                       [("plant.q", "ctrl.q"), ("plant.qd", "ctrl.qd"), ("ctrl.p", "plant.p"),
                        ("plant.q", f"{estimator.name}.q"), ("ctrl.p", f"{estimator.name}.p")])
+
+
+def tracking_figure(path, t, q, q_d, sigma, sigma_d, p) -> None:
+    """Position and stiffness against their references, and the pressures (bar)."""
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(7, 7))
+    ax = fig.subplots(3, 1, sharex=True)
+    for a, ys, labels, unit in ((ax[0], (q_d, q), ("q_d", "q"), "q [rad]"),
+                                (ax[1], (sigma_d, sigma), ("sigma_d", "sigma"),
+                                 "sigma [N m/rad]"),
+                                (ax[2], (p[:, :1] / 1e5, p[:, 1:] / 1e5), ("p_a", "p_b"),
+                                 "pressure [bar]")):
+        for y, lab in zip(ys, labels):
+            a.plot(t, y, label=lab)
+        a.set_ylabel(unit)
+        a.legend(loc="upper left")
+    ax[2].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
