@@ -24,7 +24,7 @@ import numpy as np
 import pinocchio as pin
 
 from softgen.model import load_model
-from softgen.runtime.library import load_bundle
+from softgen.bundle import load_bundle
 
 
 def pinocchio_model(model):

@@ -27,7 +27,7 @@ from .control.references import SmoothSteps, Sinusoid, sinusoid_block, stiffness
 from .control.slotine_li import controller_block, plant_block
 from .symbolic.rigid import RigidDynamics
 from .model import list_models, load_model
-from .runtime.library import load_bundle
+from .bundle import load_bundle
 from .runtime.simulate import simulate
 
 

@@ -1,7 +1,10 @@
 """The ``softgen`` command line: a thin argparse layer over the library.
 
 Exit status 0 on success; on bad input one line ``softgen: error: ...`` on stderr
-and status 2 (DESIGN.md section 2).
+and status 2 (DESIGN.md section 2). A result that is not finite (``estimate`` on a
+log that makes the estimator diverge) gives one such line and status 1; an
+interrupted ``reproduce`` (SIGINT, SIGTERM) status 130, after writing
+``report.md`` marked incomplete.
 """
 from __future__ import annotations
 
@@ -17,37 +20,82 @@ from .errors import SoftgenError
 def _cmd_list(args) -> int:
     from .experiments.registry import experiment_ids, get
     from .model import list_models, load_model
+    models = [load_model(name) for name in list_models()]
+    w = max((len(m.name) for m in models), default=0)
+    k = max((len(m.kind) for m in models), default=0)
     print("models:")
-    for name in list_models():
-        m = load_model(name)
-        print(f"  {name:<20} {m.kind:<8} {m.dof} dof  {m.description}")
+    for m in models:
+        print(f"  {m.name:<{w}}  {m.kind:<{k}}  {m.dof:>2} dof  {m.description}")
+    ids = experiment_ids()
+    w = max((len(i) for i in ids), default=0)
     print("experiments:")
-    for exp_id in experiment_ids():
+    for exp_id in ids:
         e = get(exp_id)
-        print(f"  {exp_id:<24} {e.title}  [{e.section}]")
+        print(f"  {exp_id:<{w}}  {e.title}  [{e.section}]")
     return 0
 
 
+def _output_dir(path: str, flag: str) -> Path:
+    """``path`` as a directory that can be written (or created), checked before any work.
+
+    Nothing is created here: a run that fails later leaves no empty directory behind.
+    """
+    import os
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise SoftgenError(f"{flag} {p}: exists and is not a directory; give a directory")
+    base = p
+    while not base.exists():
+        base = base.parent
+    if not base.is_dir():
+        raise SoftgenError(f"{flag} {p}: {base} is not a directory")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise SoftgenError(f"{flag} {p}: {base} is not writable")
+    return p
+
+
+def _generate_one(name: str, out: Path, build: bool) -> str:
+    """Generate (and compile) one bundle; the line ``generate`` prints for it."""
+    from .bundle import generate
+    from .codegen.build import ensure_library
+    t0 = time.perf_counter()
+    bundle = generate(name, out)
+    msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
+    if build:
+        lib, secs, repaired = ensure_library(bundle)
+        msg += (f", {'rebuilt' if repaired else 'built' if secs else 'cached'} {lib.name}"
+                + (f" in {secs:.2f} s" if secs else "")
+                + (f" (cached library rejected: {repaired})" if repaired else ""))
+    return msg
+
+
 def _cmd_generate(args) -> int:
-    from .bundle import GENERATED_DIR, generate
-    from .codegen.build import build, find_compiler
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    from .bundle import GENERATED_DIR
+    from .codegen.build import find_compiler
     from .model import list_models
     if args.all == bool(args.models):
         raise SoftgenError("generate: give MODEL names or --all (not both)")
+    if args.jobs is not None and args.jobs < 1:
+        raise SoftgenError(f"generate: --jobs: expected a positive integer, got {args.jobs}")
     names = list_models() if args.all else args.models
-    out = Path(args.out) if args.out else GENERATED_DIR
-    compiler = None if args.no_build else find_compiler()
-    if not args.no_build and compiler is None:
+    out = _output_dir(args.out, "--out") if args.out else GENERATED_DIR
+    build = not args.no_build and find_compiler() is not None
+    if not args.no_build and not build:
         print("softgen: warning: no C compiler found; wrote sources only", file=sys.stderr)
-    for name in names:
-        t0 = time.perf_counter()
-        bundle = generate(name, out)
-        msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
-        if compiler is not None:
-            lib, secs = build(bundle)
-            msg += f", {'built' if secs else 'cached'} {lib.name}" + (f" in {secs:.2f} s"
-                                                                     if secs else "")
-        print(msg)
+    jobs = min(args.jobs or os.cpu_count() or 1, len(names))
+    if jobs <= 1:
+        for name in names:
+            print(_generate_one(name, out, build), flush=True)
+        return 0
+    # Bundles are independent: derive and compile them side by side. Errors surface in
+    # model order, as in a sequential run.
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(_generate_one, name, out, build) for name in names]
+        for fut in futures:
+            print(fut.result(), flush=True)
     return 0
 
 
@@ -97,7 +145,12 @@ def _cmd_info(args) -> int:
 
 def _cmd_reproduce(args) -> int:
     from .experiments.runner import reproduce
-    results = reproduce(args.ids, Path(args.out), quick=args.quick, jobs=args.jobs)
+    if args.jobs is not None and args.jobs < 1:
+        raise SoftgenError(f"reproduce: --jobs: expected a positive integer, got {args.jobs}")
+    out = _output_dir(args.out, "--out")
+    results = reproduce(args.ids, out, quick=args.quick, jobs=args.jobs,
+                        resume=args.resume, show_progress=True if args.progress else None,
+                        full_traces=args.full_traces)
     failed = [r["experiment"] for r in results if "error" in r]
     if failed:
         for r in results:
@@ -119,7 +172,8 @@ def _cmd_estimate(args) -> int:
     import math
     from dataclasses import replace
 
-    from .estimation.csvlog import read_log, step_tolerance, write_estimates
+    from .errors import NonFiniteError
+    from .estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
     from .estimation.estimators import EstimatorConfig, StiffnessEstimator
     from .estimation.offline import estimation_result, offline_diagram, split_measurements
     from .model import load_model
@@ -149,6 +203,15 @@ def _cmd_estimate(args) -> int:
     out = Path(args.out) if args.out else log.with_name(f"{log.stem}_estimate.csv")
     if out.resolve() == log.resolve():
         raise SoftgenError(f"estimate: --out {out} is the log itself; choose another file")
+    if out.is_dir():
+        raise SoftgenError(f"estimate: --out {out} is a directory; give a file name")
+    if out.exists() and not args.force:
+        raise SoftgenError(f"estimate: --out {out} exists; add --force to overwrite it")
+    if not out.parent.is_dir():
+        raise SoftgenError(f"estimate: --out {out}: no directory {out.parent}")
+    import os
+    if not os.access(out.parent, os.W_OK):
+        raise SoftgenError(f"estimate: --out {out}: directory {out.parent} is not writable")
     config = EstimatorConfig(method, dt=args.dt, powers=powers, p0=args.p0)
     est = StiffnessEstimator(model, config)      # checks the settings before reading the log
     t, Y, dt = read_log(log, est.measurements, min_rows=est.config.delay + 2)
@@ -158,9 +221,17 @@ def _cmd_estimate(args) -> int:
     if args.dt is None:
         est = StiffnessEstimator(model, replace(config, dt=dt))
     from .runtime.simulate import simulate
-    trace = simulate(offline_diagram(est), steps=len(Y), externals=split_measurements(est, Y))
-    result = estimation_result(est, trace)
+    # A diverged estimator stays non-finite: stop there, the rest is NaN.
+    trace = simulate(offline_diagram(est), steps=len(Y), externals=split_measurements(est, Y),
+                     on_nonfinite="stop")
+    result = estimation_result(est, trace, samples=len(Y))
     write_estimates(out, t, result, est)
+    bad = first_non_finite(t, result, est)
+    if bad is not None:
+        k, column, value = bad
+        raise NonFiniteError(f"estimate: diverged: {column} is {value!r} at t = {float(t[k])!r} s "
+                             f"(sample {k} of {log}); estimates written to {out} ('nan'/'inf' "
+                             f"where diverged, empty only where there is no estimate yet)")
     label = method if method == args.method else f"{method} ({args.method})"
     print(f"estimate: {len(t)} samples, dt {est.config.dt:.9g} s, method {label}, "
           f"delay {est.config.delay}, {time.perf_counter() - t0:.2f} s wall -> {out}")
@@ -178,6 +249,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--all", action="store_true", help="every model in models/")
     s.add_argument("--out", help="output root (default: generated/)")
     s.add_argument("--no-build", action="store_true", help="write sources only")
+    s.add_argument("--jobs", type=int, default=None,
+                   help="bundles generated side by side (default: the number of CPUs)")
     s.set_defaults(func=_cmd_generate)
     s = sub.add_parser("info", help="functions, shapes, parameters, sizes of a model")
     s.add_argument("model", metavar="MODEL")
@@ -187,7 +260,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("ids", nargs="*", metavar="ID")
     s.add_argument("--out", default="results", help="output directory (default: results/)")
     s.add_argument("--quick", action="store_true", help="shortened runs")
-    s.add_argument("--jobs", type=int, default=None, help="worker processes")
+    s.add_argument("--jobs", type=int, default=None,
+                   help="worker processes (default: the number of CPUs)")
+    s.add_argument("--progress", action="store_true",
+                   help="progress lines on stderr even when it is not a terminal")
+    s.add_argument("--full-traces", action="store_true",
+                   help="keep every sample of the traces in float64 (large; default: "
+                        "float32, decimated for figures)")
+    s.add_argument("--resume", action="store_true",
+                   help="skip experiments whose metrics.json matches the current code and "
+                        "config")
     s.set_defaults(func=_cmd_reproduce)
     s = sub.add_parser("bench", help="latency, sizes, build time, closed-loop speed")
     s.add_argument("models", nargs="*", metavar="MODEL")
@@ -211,6 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="sample time; must agree with the log's median time step")
     s.add_argument("--powers", metavar="1,3,5,7", help="RLS regressor exponents")
     s.add_argument("--p0", type=float, help="initial RLS covariance (times I)")
+    s.add_argument("--force", action="store_true", help="overwrite an existing --out file")
     s.set_defaults(func=_cmd_estimate)
     return p
 
@@ -219,10 +302,13 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
+    except KeyboardInterrupt:
+        print("softgen: error: interrupted", file=sys.stderr)
+        return 130
     except (SoftgenError, ValueError, FileNotFoundError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"softgen: error: {msg}", file=sys.stderr)
-        return 2
+        return getattr(exc, "exit_status", 2)
 
 
 if __name__ == "__main__":

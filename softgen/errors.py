@@ -31,3 +31,18 @@ class BundleError(SoftgenError, RuntimeError):
 
 class ExperimentError(SoftgenError, ValueError):
     """Unknown experiment id or an experiment configuration that does not check."""
+
+
+class NonFiniteError(SoftgenError, ArithmeticError):
+    """A computation produced NaN or infinity; names the first signal and time.
+
+    Not bad input but a failed result: the command line exits with status 1.
+    """
+
+    exit_status = 1
+
+
+class Interrupted(SoftgenError, RuntimeError):
+    """A run stopped by SIGINT or SIGTERM after saving what had finished (status 130)."""
+
+    exit_status = 130

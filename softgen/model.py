@@ -21,6 +21,14 @@ Two kinds of chain are accepted:
     previous link frame) and a unit ``axis``; each link a 3-vector ``com`` and
     a 3x3 ``inertia``.
 
+Physical checks (issue 16), each failing with one line naming the key: every
+number is finite with magnitude at most :data:`MAX_MAGNITUDE` (SI units; larger
+values overflow the products of the dynamics), a prismatic joint moves a
+positive mass, a 3x3 inertia is positive definite and its principal moments
+satisfy the triangle inequality, and model names are C identifiers of at most
+:data:`MAX_NAME` characters. B(q) positive definite at seeded configurations is
+checked before generation (``softgen.bundle.generate``), where B is available.
+
 Every scalar of the model has a canonical parameter name (``m1``, ``l1``,
 ``c1``, ``I1``, ``d1``, ``k1``, ``g``, ...), so the symbolic layer can make any
 of them a CasADi symbol, and the regressor can factor the dynamics in them.
@@ -40,7 +48,16 @@ from .errors import ModelError
 #: A scalar of the model: either a number (fixed) or the name of a parameter.
 Scalar = float | str
 
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+from .paths import MODELS_DIR  # noqa: E402  (checkout models/ or the wheel's package data)
+
+#: Largest magnitude of any number in a model file (SI units). Masses, lengths and
+#: inertias enter the dynamics as products of up to four factors; 1e9 keeps them
+#: far from overflow (1e300 masses gave NaN dynamics, 1e308 an "Infinity" manifest).
+MAX_MAGNITUDE = 1e9
+
+#: Longest model name: it becomes file names (``build/lib<name>_<hash>.so``) and the
+#: prefix of every C symbol.
+MAX_NAME = 64
 
 _GROUPS = {
     "mass": "m",
@@ -192,16 +209,28 @@ class RobotModel:
 
 
 def model_path(name_or_path: str | Path) -> Path:
-    """The file of a model given by name (``planar_2link``) or by path."""
+    """The file of a model given by name (``planar_2link``) or by path.
+
+    A bare name (no directory, no suffix) is a shipped model first: a stray file
+    of that name in the current directory does not shadow it. Give ``./name`` or
+    a path with a suffix to read such a file.
+    """
+    text = str(name_or_path)
     p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
+    if "/" in text or "\\" in text or p.suffix:
         return p
-    candidate = MODELS_DIR / f"{name_or_path}.toml"
-    if not candidate.exists():
-        known = ", ".join(list_models()) or "(none)"
-        raise ModelError(f"unknown model {str(name_or_path)!r}: expected one of {known} "
-                         f"or a path to a .toml file")
-    return candidate
+    valid = 0 < len(text) <= MAX_NAME and text.isascii() and text.isidentifier()
+    if valid and (MODELS_DIR / f"{text}.toml").is_file():
+        return MODELS_DIR / f"{text}.toml"
+    if len(text) <= 255 and p.is_file():
+        return p
+    if not valid:
+        raise ModelError(f"model name {text[:40]!r}{'...' if len(text) > 40 else ''}: "
+                         f"expected a C identifier of at most {MAX_NAME} characters or a "
+                         "path to a .toml file")
+    known = ", ".join(list_models()) or "(none)"
+    raise ModelError(f"unknown model {text!r}: expected one of {known} "
+                     f"or a path to a .toml file")
 
 
 def list_models() -> list[str]:
@@ -255,8 +284,9 @@ class _Parser:
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise self.fail(key, f"expected a number, got {v!r}")
         x = float(v)
-        if not math.isfinite(x):
-            raise self.fail(key, f"expected a finite number, got {v!r}")
+        if not math.isfinite(x) or abs(x) > MAX_MAGNITUDE:
+            raise self.fail(key, f"expected a finite number of magnitude at most "
+                            f"{MAX_MAGNITUDE:g}, got {v!r}")
         if positive and not x > 0:
             raise self.fail(key, f"expected a positive number, got {v!r}")
         if nonneg and x < 0:
@@ -279,8 +309,10 @@ class _Parser:
         meta = self.keys(data["model"], "model", _MODEL_KEYS, {"name", "kind"})
         name = meta["name"]
         # The name prefixes every generated C symbol: ASCII identifiers only.
-        if not isinstance(name, str) or not name.isascii() or not name.isidentifier():
-            raise self.fail("model.name", f"expected a C identifier, got {name!r}")
+        if not isinstance(name, str) or not name.isascii() or not name.isidentifier() \
+                or len(name) > MAX_NAME:
+            raise self.fail("model.name", f"expected a C identifier of at most {MAX_NAME} "
+                            f"characters, got {str(name)[:40]!r}")
         kind = self.choice(meta["kind"], "model.kind", ("planar", "spatial"))
         links_raw = data["links"]
         if not isinstance(links_raw, list) or not links_raw:
@@ -301,11 +333,22 @@ class _Parser:
         gdir, gmag = self.gravity(data.get("gravity", {}), kind)
         nominal["g"] = gmag
         uncertain = self.uncertain(data.get("parameters", {}), nominal)
+        self.moving_mass(links, nominal)
         actuators = self.actuators(data.get("actuators", []), links)
         return RobotModel(name=name, kind=kind, description=str(meta.get("description", "")),
                           source=str(meta.get("source", "")), links=tuple(links),
                           gravity_direction=gdir, base_rpy=base_rpy, nominal=nominal,
                           uncertain=uncertain, path=self.path, actuators=actuators)
+
+    def moving_mass(self, links: list[Link], nominal: dict) -> None:
+        """A prismatic joint carries the mass of every link after it: it must be positive
+        (a massless prismatic tip gave forward_dynamics = inf)."""
+        for i, link in enumerate(links):
+            if link.joint == "prismatic" and \
+                    not sum(nominal[f"m{j + 1}"] for j in range(i, len(links))) > 0:
+                raise self.fail(f"links[{i}].mass", "expected a positive mass: prismatic joint "
+                                f"{link.name!r} moves no mass (links {i}..{len(links) - 1} "
+                                "have zero mass)")
 
     def actuators(self, raw: Any, links: list[Link]) -> tuple[Actuator, ...]:
         """``[[actuators]]``: one antagonistic actuator per revolute joint, all one type."""
@@ -465,9 +508,13 @@ class _Parser:
         else:
             raise self.fail(key, "expected a 3x3 matrix or [ixx, iyy, izz, ixy, ixz, iyz], "
                             f"got {v!r}")
-        if np.linalg.eigvalsh(m).min() <= 0:
+        lam = np.linalg.eigvalsh(m)     # ascending
+        if lam.min() <= 0:
             raise self.fail(key, f"inertia not positive definite (eigenvalues "
-                            f"{np.round(np.linalg.eigvalsh(m), 12).tolist()})")
+                            f"{np.round(lam, 12).tolist()})")
+        if lam[0] + lam[1] < lam[2] * (1 - 1e-9):
+            raise self.fail(key, f"principal moments {np.round(lam, 12).tolist()} violate the "
+                            "triangle inequality (each at most the sum of the other two)")
         return (m[0, 0], m[1, 1], m[2, 2], m[0, 1], m[0, 2], m[1, 2])
 
     def uncertain(self, table: Any, nominal: dict) -> tuple[str, ...]:

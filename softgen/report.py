@@ -1,6 +1,7 @@
 """Metrics of a ``softgen reproduce`` run -> ``report.md`` beside the thesis's numbers."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 
@@ -37,18 +38,22 @@ def _claims(findings: list[dict]) -> list[str]:
               for f in findings), ""]
 
 
-def write_report(results: list[dict], path: Path) -> None:
+def write_report(results: list[dict], path: Path, *, incomplete: str | None = None) -> None:
     """One table per experiment: metric | ours | thesis | ours/thesis.
 
     Every metric we computed gets a row; a thesis number we have no metric for
     gets a row too (so a missing comparison is visible, not hidden). Experiments
     with ``findings`` get a claim | verdict | evidence table before it, and all
-    verdicts are summed up at the top.
+    verdicts are summed up at the top. ``incomplete`` (why the run stopped, what
+    did not finish) marks the report as incomplete at its top.
     """
     lines = ["# softgen: reproduction report", "",
              "Numbers under *ours* are computed by the run that wrote this report; "
              "*thesis* repeats what the thesis prints for the same quantity (— where it "
              "reports none).", ""]
+    if incomplete:
+        lines += [f"**Incomplete run**: {_cell(incomplete)}. Only the experiments below "
+                  "finished in this run.", ""]
     lines += _summary(results)
     for res in results:
         exp = res["experiment"]
@@ -64,13 +69,18 @@ def write_report(results: list[dict], path: Path) -> None:
                          + (", quick run" if cfg.get("quick") else "") + ".")
             lines.append("")
         lines += _claims(res.get("findings", []))
-        lines += ["| metric | ours | thesis | ours / thesis |", "|---|---|---|---|"]
+        lines += ["| metric | unit | ours | thesis | ours / thesis |", "|---|---|---|---|---|"]
         ours, thesis = res["metrics"], res.get("thesis", {})
+        units = res.get("units", {})
         for key in list(ours) + [k for k in thesis if k not in ours]:
             o, t = ours.get(key), thesis.get(key)
             ratio = (o / t) if isinstance(o, (int, float)) and isinstance(t, (int, float)) \
                 and t != 0 else None
-            lines.append(f"| {key} | {_fmt(o)} | {_fmt(t)} | {_fmt(ratio)} |")
+            lines.append(f"| {key} | {_cell(units.get(key, ''))} | {_fmt(o)} | {_fmt(t)} | "
+                         f"{_fmt(ratio)} |")
+        if res.get("warnings"):
+            lines += ["", "Warnings raised during the run:", ""]
+            lines += [f"- {_cell(w)}" for w in res["warnings"]]
         if res.get("discussion"):
             lines += ["", res["discussion"].strip()]
         figs = sorted(p.name for p in (path.parent / exp).glob("*.png"))
@@ -78,4 +88,10 @@ def write_report(results: list[dict], path: Path) -> None:
             lines.append("")
             lines += [f"![{f}]({exp}/{f})" for f in figs]
         lines.append("")
-    path.write_text("\n".join(lines))
+    # Write and rename: an interrupted write never leaves half a report.
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text("\n".join(lines))
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)

@@ -16,7 +16,7 @@ from softgen.codegen.generate import library_name, render
 from softgen.errors import BuildError, BundleError
 from softgen.model import list_models, load_model
 from softgen.runtime import library
-from softgen.runtime.library import load_bundle
+from softgen.bundle import load_bundle
 
 
 @pytest.fixture(scope="module")
@@ -193,6 +193,9 @@ def test_compiler_failure_carries_stderr(need_compiler, bundle_copy):
     c.write_text("this is not C\n")
     m = json.loads((bundle_copy / "manifest.json").read_text())
     m["source_sha256"] = hashlib.sha256(c.read_bytes()).hexdigest()
+    # A consistent manifest names the library after its source (issue 16).
+    from softgen.codegen.generate import library_name
+    m["library"] = library_name("planar_2link", c.read_bytes())
     (bundle_copy / "manifest.json").write_text(json.dumps(m))
     with pytest.raises(BuildError, match="failed") as err:
         build(bundle_copy)

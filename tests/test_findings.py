@@ -318,11 +318,11 @@ def test_report_renders_summary_and_per_experiment_claims(tmp_path):
     # Per experiment: the claims table comes before the metric table.
     a = text.split("## exp-a")[1].split("## exp-b")[0]
     assert a.index("**Claims checked**") < a.index("| claim | verdict | evidence |") \
-        < a.index("| metric | ours | thesis | ours / thesis |")
+        < a.index("| metric | unit | ours | thesis | ours / thesis |")
     assert r"| A holds \| both ways | reproduced | a = 1.5 see table |" in a
     assert "| B holds | partly reproduced | b = 3 |" in a
     b = text.split("## exp-b")[1].split("## exp-c")[0]
-    assert "Claims checked" not in b and "| a_metric | 1.5 |" in b
+    assert "Claims checked" not in b and "| a_metric |  | 1.5 |" in b
     assert "**failed**: `RuntimeError: boom`" in text
     assert text.count("| claim | verdict | evidence |") == 2
 

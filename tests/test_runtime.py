@@ -13,7 +13,7 @@ from softgen.control.slotine_li import controller_block, plant_block
 from softgen.model import load_model
 from softgen.symbolic.rigid import RigidDynamics
 from softgen.errors import ShapeError
-from softgen.runtime.library import load_bundle
+from softgen.bundle import load_bundle
 from softgen.runtime.simulate import simulate
 
 

@@ -1,10 +1,28 @@
 """Compile a generated bundle into a shared library, cached by content hash.
 
-The library's file name carries the manifest hash (acados ``hash_class_instance``
-convention), and the C source's sha256 is checked against the manifest before
-building, so a stale library is never loaded and a hand-edited source is caught.
-Compilers run through ``subprocess.run`` and failures raise :class:`BuildError`
-with the compiler's stderr (DESIGN.md section 3 item 5).
+The library's file name carries the hash of the C source it is built from
+(acados ``hash_class_instance`` convention), and the C source's sha256 is checked
+against the manifest before building, so a stale library is never loaded and a
+hand-edited source is caught. Compilers run through ``subprocess.run`` and
+failures raise :class:`BuildError` with the compiler's stderr (DESIGN.md section
+3 item 5).
+
+The compiled library is verified before it is used (issue 16). A file name is
+not proof of content: a truncated library (a full disk, a killed copy) makes the
+process die with SIGBUS when it is called, and a library compiled by hand from
+another source under the expected name returns wrong numbers. So every build
+writes a *record* beside the library, ``build/lib<model>_<hash>.so.json``, with
+the library's own sha256 and size and the source it was built from, and
+:func:`verify_library` compares the library with it before anything loads it.
+The record lives in ``build/`` (never committed) rather than in
+``manifest.json``: the library's bytes depend on the local compiler and its
+version, while ``generated/`` must be byte-identical on every machine. The chain
+of trust is manifest -> ``source_sha256`` -> library name (hash of the C source
+and flags) -> record -> library bytes.
+
+Builds write to a temporary file whose name carries the builder's process id
+and rename it into place; temporaries of builders that no longer run (a SIGKILL
+during a compile) are removed by the next build.
 """
 from __future__ import annotations
 
@@ -18,6 +36,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from ..paths import cache_dir, writable
 from ..errors import BuildError, BundleError
 
 #: -O3 is worth ~10-30 % on the regressors; -fno-math-errno lets gcc inline sqrt.
@@ -73,14 +92,26 @@ def compile_shared(c_file: Path, out: Path, *, cc: str | None = None,
     return time.perf_counter() - t0
 
 
-def read_manifest(bundle: Path) -> dict:
+def _no_constant(name: str):
+    raise ValueError(f"non-finite number {name} (not strict JSON)")
+
+
+def read_manifest(bundle: Path, *, validate: bool = True) -> dict:
+    """``bundle/manifest.json``, parsed as strict JSON and checked against
+    :func:`~softgen.codegen.manifest.validate_manifest` (one :class:`BundleError`
+    naming the key otherwise)."""
     path = Path(bundle) / "manifest.json"
     if not path.exists():
         raise BundleError(f"{bundle}: no manifest.json; run `softgen generate` for this model")
     try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise BundleError(f"{path}: not valid JSON ({exc})") from None
+        manifest = json.loads(path.read_text(), parse_constant=_no_constant)
+    except (json.JSONDecodeError, ValueError, UnicodeDecodeError) as exc:
+        raise BundleError(f"{path}: not valid JSON ({str(exc).splitlines()[0]}); "
+                          "regenerate the bundle") from None
+    if validate:
+        from .manifest import validate_manifest
+        validate_manifest(manifest, path)
+    return manifest
 
 
 def check_source(bundle: Path, manifest: dict) -> Path:
@@ -88,15 +119,128 @@ def check_source(bundle: Path, manifest: dict) -> Path:
     c_file = Path(bundle) / f"{manifest['model']}.c"
     if not c_file.exists():
         raise BundleError(f"{c_file}: missing; run `softgen generate {manifest['model']}`")
-    digest = hashlib.sha256(c_file.read_bytes()).hexdigest()
+    c_src = c_file.read_bytes()
+    digest = hashlib.sha256(c_src).hexdigest()
     if digest != manifest.get("source_sha256"):
         raise BundleError(f"{c_file}: does not match manifest.json (stale or edited); "
+                          f"run `softgen generate {manifest['model']}`")
+    from .generate import library_name
+    expected = library_name(manifest["model"], c_src)
+    if manifest.get("library") != expected:
+        raise BundleError(f"{Path(bundle) / 'manifest.json'}: library: expected {expected!r} "
+                          f"(the name the C source gives), got {manifest.get('library')!r}; "
                           f"run `softgen generate {manifest['model']}`")
     return c_file
 
 
 def library_path(bundle: Path, manifest: dict) -> Path:
-    return Path(bundle) / manifest["library"]
+    """Where the bundle's compiled library lives: ``<bundle>/build/…``, or, when the
+    bundle directory is read-only (an installed package), the same name under the
+    user cache (``softgen.paths.cache_dir``)."""
+    local = Path(bundle) / manifest["library"]
+    if local.exists() or writable(local.parent):
+        return local
+    return cache_dir() / "bundles" / manifest["model"] / manifest["library"]
+
+
+def record_path(lib: Path) -> Path:
+    """The record of a compiled library: its sha256, size and source (see module doc)."""
+    return lib.with_name(lib.name + ".json")
+
+
+def _sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def verify_library(lib: Path, manifest: dict) -> str | None:
+    """Why ``lib`` may not be loaded, or None when it matches its record.
+
+    Checks, in order: the library exists; its name is the one the manifest's C
+    source gives (see :func:`~softgen.codegen.generate.library_name`); a record
+    exists and was written for this source; the library's size and sha256 equal
+    the record's.
+    """
+    lib = Path(lib)
+    if not lib.is_file():
+        return "missing"
+    rec_path = record_path(lib)
+    try:
+        rec = json.loads(rec_path.read_text())
+        size, digest, source = int(rec["size"]), str(rec["sha256"]), str(rec["source_sha256"])
+    except FileNotFoundError:
+        return f"no build record {rec_path.name} (built by another tool or an older softgen)"
+    except (OSError, ValueError, KeyError, TypeError):
+        return f"unreadable build record {rec_path.name}"
+    if source != manifest.get("source_sha256"):
+        return "built from another C source than the manifest's source_sha256"
+    actual = lib.stat().st_size
+    if actual != size:
+        return f"size {actual} bytes, recorded {size} (truncated or replaced)"
+    if _sha256_file(lib) != digest:
+        return "content differs from its build record (replaced or corrupt)"
+    return None
+
+
+def _write_record(lib: Path, manifest: dict) -> None:
+    data = json.dumps({"library": lib.name, "size": lib.stat().st_size,
+                       "sha256": _sha256_file(lib),
+                       "source_sha256": manifest["source_sha256"],
+                       "cflags": list(CFLAGS + LDLIBS)}, indent=1) + "\n"
+    fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.{os.getpid()}.",
+                               suffix=".json.tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(data)
+        os.replace(tmp, record_path(lib))
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+#: A temporary without a readable process id is removed once it is this old [s].
+ORPHAN_AGE = 3600.0
+
+
+def clean_orphans(build_dir: Path, prefixes: tuple[str, ...] = (".lib",)) -> list[Path]:
+    """Remove temporaries (``<prefix>*.<pid>.*``) of writers whose process is gone.
+
+    A SIGKILL between ``mkstemp`` and ``os.replace`` leaves one behind; the
+    process id in its name tells a running concurrent build from a dead one.
+    Library temporaries without a process id (older softgen) go once they are
+    :data:`ORPHAN_AGE` seconds old.
+    """
+    removed = []
+    build_dir = Path(build_dir)
+    if not build_dir.is_dir():
+        return removed
+    now = time.time()
+    for tmp in build_dir.iterdir():
+        if not tmp.name.startswith(prefixes) or not tmp.is_file():
+            continue
+        parts = tmp.name.split(".")
+        pid = next((int(p) for p in parts[3:] if p.isdigit()), None)
+        try:
+            dead = (not _pid_alive(pid)) if pid is not None else \
+                tmp.name.startswith(".lib") and now - tmp.stat().st_mtime > ORPHAN_AGE
+            if dead:
+                tmp.unlink()
+                removed.append(tmp)
+        except OSError:
+            pass
+    return removed
 
 
 def build(bundle: Path, *, cc: str | None = None, force: bool = False) -> tuple[Path, float]:
@@ -114,24 +258,47 @@ def build(bundle: Path, *, cc: str | None = None, force: bool = False) -> tuple[
     BundleError
         Manifest or source missing or stale.
     """
+    lib, seconds, _ = ensure_library(bundle, cc=cc, force=force)
+    return lib, seconds
+
+
+def ensure_library(bundle: Path, *, cc: str | None = None,
+                   force: bool = False) -> tuple[Path, float, str | None]:
+    """:func:`build`, also saying why a cached library was rebuilt.
+
+    Returns
+    -------
+    (path, seconds, repaired)
+        ``repaired`` is None unless a library was present under the right name but
+        failed :func:`verify_library`; then it is the reason, and the library has
+        been rebuilt.
+    """
     bundle = Path(bundle)
     manifest = read_manifest(bundle)
     c_file = check_source(bundle, manifest)
     lib = library_path(bundle, manifest)
-    if lib.exists() and not force:
-        return lib, 0.0
+    clean_orphans(lib.parent)
+    problem = verify_library(lib, manifest)
+    if problem is None and not force:
+        return lib, 0.0, None
     require_compiler(cc)   # before creating anything
     lib.parent.mkdir(parents=True, exist_ok=True)
-    # Build to a temporary name and rename: concurrent builds never expose half a library.
-    fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.", suffix=".so")
+    # Build to a temporary name and rename: concurrent builds never expose half a
+    # library. The process id in the name lets a later build remove an orphan.
+    fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.{os.getpid()}.",
+                               suffix=".so")
     os.close(fd)
     try:
         seconds = compile_shared(c_file, Path(tmp), cc=cc)
+        # Replace, never overwrite in place: a process that has the old file mapped
+        # keeps its (unlinked) copy instead of seeing its pages change under it.
         os.replace(tmp, lib)
     finally:
         Path(tmp).unlink(missing_ok=True)
+    _write_record(lib, manifest)
     # Old libraries of this bundle are stale by construction (other hash): remove them.
     for old in lib.parent.glob(f"lib{manifest['model']}_*.so"):
         if old != lib:
             old.unlink(missing_ok=True)
-    return lib, seconds
+            record_path(old).unlink(missing_ok=True)
+    return lib, seconds, (problem if problem not in (None, "missing") else None)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from .build import CFLAGS, LDLIBS
+from .build import CFLAGS, LDLIBS, clean_orphans
 
 #: Bumped whenever the generated code for the same model would change.
 CODEGEN_VERSION = "1"
@@ -87,7 +87,8 @@ def _can_fail(f: ca.Function) -> bool:
 def _write_atomic(path: Path, data: bytes) -> None:
     """Write via a temporary file and rename, so a reader never sees half a file."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    # The process id in the name lets a later write remove an orphan (a SIGKILL here).
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.")
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -130,7 +131,14 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         },
         **spec.extra,
     }
-    text = json.dumps(manifest, indent=2, sort_keys=False) + "\n"
+    try:   # strict JSON: a non-finite number is an error here, never "Infinity" on disk
+        text = json.dumps(manifest, indent=2, sort_keys=False, allow_nan=False) + "\n"
+    except ValueError:
+        from .manifest import validate_manifest   # names the offending key
+        validate_manifest(manifest, f"{spec.name}/manifest.json (not written)")
+        raise
+    from .manifest import validate_manifest   # what the loader will check, checked first
+    validate_manifest(manifest, f"{spec.name}/manifest.json (not written)")
     return {f"{spec.name}.c": c_src, f"{spec.name}.h": h_src, "manifest.json": text.encode()}
 
 
@@ -141,7 +149,9 @@ def write_bundle(spec: BundleSpec, out_root: Path) -> Path:
     build system watching them) stay quiet.
     """
     bundle = Path(out_root) / spec.name
-    for fname, data in render(spec).items():
+    files = render(spec)
+    clean_orphans(bundle, tuple(f".{fname}." for fname in files))
+    for fname, data in files.items():
         path = bundle / fname
         if path.exists() and path.read_bytes() == data:
             continue

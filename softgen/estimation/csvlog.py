@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import math
+from array import array
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -76,19 +77,32 @@ def read_log(path: str | Path, names: Sequence[str], *,
     path = Path(path)
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:
-            rows = list(_numbered_rows(path, fh))
+            return _read_rows(path, _numbered_rows(path, fh), names, min_rows)
     except FileNotFoundError:
         raise LogError(f"{path}: no such log file") from None
     except UnicodeDecodeError:
         raise LogError(f"{path}: not a text (UTF-8) CSV file") from None
+    except IsADirectoryError:
+        raise LogError(f"{path}: is a directory, not a log file") from None
     except OSError as exc:
         raise LogError(f"{path}: cannot read log ({exc.strerror or exc})") from None
-    if not rows:
+
+
+def _read_rows(path: Path, rows, names: Sequence[str],
+               min_rows: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`read_log` on an iterator of numbered rows, checked as they stream in.
+
+    Each row is checked when it is read, so the first bad row of a huge file is
+    reported at once, and only the wanted columns are kept, as floats (issue 16:
+    a bad cell in row 2 of a 1e6-row log took 28 s and 650 MB). Only the
+    sampling-regularity check needs every row (the median step).
+    """
+    first = next(rows, None)
+    if first is None:
         raise LogError(f"{path}: empty file; expected a header row "
                        f"'t,{','.join(names)}' and data rows")
-    _, header = rows[0]
+    _, header = first
     header = [h.strip() for h in header]
-    data = rows[1:]
 
     time_col = [c for c in TIME_COLUMNS if c in header]
     if len(time_col) > 1:
@@ -103,28 +117,30 @@ def read_log(path: str | Path, names: Sequence[str], *,
             where = [str(i + 1) for i, h in enumerate(header) if h == n]
             raise LogError(f"{path}: column {n!r} appears {len(where)} times "
                            f"(columns {', '.join(where)})")
-    if len(data) < min_rows:
-        raise LogError(f"{path}: {len(data)} data row(s); the estimator needs at least "
-                       f"{min_rows} (observer delay + 2)")
 
     index = [header.index(n) for n in wanted]
-    out = np.empty((len(data), len(wanted)))
-    for k, (line, row) in enumerate(data):
+    values = array("d")
+    lines = array("q")
+    prev_t, prev_line = -math.inf, 0
+    for line, row in rows:
         if len(row) != len(header):
             raise LogError(f"{path}: row {line}: {len(row)} cells, the header has "
                            f"{len(header)}")
-        for j, (name, i) in enumerate(zip(wanted, index)):
-            out[k, j] = _number(path, line, name, row[i])
+        cells = [_number(path, line, name, row[i]) for name, i in zip(wanted, index)]
+        if not cells[0] > prev_t:
+            raise LogError(f"{path}: row {line}: time {cells[0]!r} s is not after "
+                           f"{prev_t!r} s of row {prev_line}; the time column must "
+                           f"strictly increase")
+        prev_t, prev_line = cells[0], line
+        values.extend(cells)
+        lines.append(line)
+    if len(lines) < min_rows:
+        raise LogError(f"{path}: {len(lines)} data row(s); the estimator needs at least "
+                       f"{min_rows} (observer delay + 2)")
+    out = np.frombuffer(values, dtype=float).reshape(len(lines), len(wanted)).copy()
     t, Y = out[:, 0], out[:, 1:]
-    lines = [line for line, _ in data]
 
     steps = np.diff(t)
-    bad = np.flatnonzero(steps <= 0)
-    if bad.size:
-        k = int(bad[0]) + 1
-        raise LogError(f"{path}: row {lines[k]}: time {float(t[k])!r} s is not after "
-                       f"{float(t[k - 1])!r} s of row {lines[k - 1]}; the time column must "
-                       f"strictly increase")
     dt = float(np.median(steps))
     tol = step_tolerance(dt)
     bad = np.flatnonzero(np.abs(steps - dt) > tol)
@@ -181,7 +197,9 @@ def write_estimates(path: str | Path, t: np.ndarray, result: EstimationResult,
     """Write the estimates of :func:`~softgen.estimation.offline.run_offline` as CSV.
 
     One row per input sample, columns :func:`estimate_columns`. Samples without an
-    estimate (the last L, the observer's delay) have empty cells, not ``nan``.
+    estimate *yet* (the last L, the observer's delay) have empty cells; an estimate
+    that exists but is not finite (a diverged estimator) is written as ``nan`` or
+    ``inf``, never as an empty cell (see :func:`first_non_finite`).
 
     Parameters
     ----------
@@ -212,8 +230,26 @@ def write_estimates(path: str | Path, t: np.ndarray, result: EstimationResult,
         with path.open("w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(estimate_columns(est))
-            for row in table:
-                w.writerow(["" if math.isnan(v) else repr(float(v)) for v in row])
+            ready = K - result.delay
+            for k, row in enumerate(table):
+                w.writerow([repr(float(row[0]))] + [
+                    "" if k >= ready else repr(float(v)) for v in row[1:]])
     except OSError as exc:
         raise LogError(f"{path}: cannot write estimates ({exc.strerror or exc})") from None
     return path
+
+
+def first_non_finite(t: np.ndarray, result: EstimationResult,
+                     est: StiffnessEstimator) -> tuple[int, str, float] | None:
+    """(sample, column, value) of the first diverged estimate, or None.
+
+    Only samples that have an estimate are looked at: the last L (the observer's
+    delay) have none *yet*, which is not an error.
+    """
+    ready = np.asarray(t).shape[0] - result.delay
+    table = np.hstack([result.sigma_hat, result.tau_hat, result.tau_uio])[:max(ready, 0)]
+    bad = np.argwhere(~np.isfinite(table))
+    if not bad.size:
+        return None
+    k, j = (int(v) for v in bad[0])
+    return k, estimate_columns(est)[1 + j], float(table[k, j])

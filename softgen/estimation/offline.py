@@ -73,18 +73,25 @@ def split_measurements(est: EstimatorBase, Y: np.ndarray, *,
     return out
 
 
-def estimation_result(est: EstimatorBase, trace, name: str = "est") -> EstimationResult:
+def estimation_result(est: EstimatorBase, trace, name: str = "est", *,
+                      samples: int | None = None) -> EstimationResult:
     """The outputs of estimator block ``name`` in ``trace`` filed under their sample.
 
     ``trace[f"{name}.sigma_hat"]`` etc. are the block's outputs per sample k (estimates
     for k − L); row j of the result is sample j (NaN, or 0 for ``updating``, in the
-    last L rows).
+    last L rows). ``samples``: the length of the log, when the run stopped early at a
+    non-finite value (``simulate(..., on_nonfinite="stop")``): the rows from there
+    on are NaN, as a diverged estimator's would be.
     """
     L = est.config.delay
 
     def shift(v, fill):
         v = np.asarray(v, dtype=float)
-        return np.vstack([v[L:], np.full((min(L, v.shape[0]), v.shape[1]), fill)])
+        K = v.shape[0] if samples is None else samples
+        out = np.full((K, v.shape[1]), fill)
+        n = max(min(v.shape[0], K) - L, 0)
+        out[:n] = v[L:L + n]
+        return out
 
     th = shift(trace[f"{name}.theta"], np.nan)
     n_par = est.n_parameters

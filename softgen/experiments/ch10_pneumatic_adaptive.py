@@ -32,7 +32,7 @@ from matplotlib.figure import Figure
 from ..blocks import ClosedLoop
 from ..control.feasibility import check_pressures
 from ..control.pneumatic import pneumatic_arm
-from ..control.pneumatic_loop import controller_block, plant_block
+from ..control.pneumatic_loop import controller_block, decoupling_windows, plant_block
 from ..control.references import SmoothSteps, stiffness_reference_block
 from ..model import load_model
 from ..runtime.simulate import Trace, simulate
@@ -80,27 +80,21 @@ class Ch10AdaptiveConfig(Config):
                              f"{self.controller!r}")
 
 
+def _steps(keys, rise: float) -> list[SmoothSteps]:
+    return [SmoothSteps(*SCHEDULE[k], rise) for k in keys]
+
+
 def _windows(kind: str, rise: float, settle: float) -> list[tuple[float, float, float]]:
     """Intervals in which only ``kind`` ("q" or "s") references move, with step sizes."""
-    own, other = (("q1", "q2"), ("s1", "s2")) if kind == "q" else (("s1", "s2"), ("q1", "q2"))
-    other_times = sorted({t for k in other for t in SCHEDULE[k][0][1:]})
-    changes = sorted({t for k in own + other for t in SCHEDULE[k][0][1:]})
-    out = []
-    for key in own:
-        times_, values = SCHEDULE[key]
-        for t0, a, b in zip(times_[1:], values[:-1], values[1:]):
-            if t0 < settle or any(abs(t0 - u) < rise for u in other_times):
-                continue
-            t1 = min([c for c in changes if c > t0] + [PHASES[-1][1]])
-            out.append((float(t0), float(t1), abs(b - a)))
-    return out
+    q, s = _steps(("q1", "q2"), rise), _steps(("s1", "s2"), rise)
+    own, other = (q, s) if kind == "q" else (s, q)
+    return decoupling_windows(own, other, settle=settle, end=PHASES[-1][1])
 
 
 def diagram(arm, kind: str, c: Ch10AdaptiveConfig, dt: float) -> ClosedLoop:
     """Smoothed-step references -> controller ``kind`` -> McKibben arm (ideal pressures)."""
-    ref = stiffness_reference_block(
-        "ref", [SmoothSteps(*SCHEDULE[k], c.rise) for k in ("q1", "q2")],
-        [SmoothSteps(*SCHEDULE[k], c.rise) for k in ("s1", "s2")])
+    ref = stiffness_reference_block("ref", _steps(("q1", "q2"), c.rise),
+                                    _steps(("s1", "s2"), c.rise))
     return ClosedLoop(f"ch10_{arm.name}_{kind}_{'_'.join(f'{dt:g}'.split('.'))}".replace("-", "m"),
                       [ref, controller_block(arm, kind, dt), plant_block(arm, dt)],
                       [("ctrl.p", "plant.p_cmd")])
@@ -135,7 +129,7 @@ def run_case(arm, kind: str, c: Ch10AdaptiveConfig, dt: float) -> Trace:
     n_run = int(round(c.duration / dt / chunk)) * chunk
     ctrl = {f"ctrl.{k}": v for k, v in gains.items()}
     pre = simulate(d, steps=n_pre, k0=-n_pre, x0=x0, params=ctrl, chunk=chunk,
-                   record=["plant.q"], label=f"ch10 {kind} preset")
+                   record=RECORD, label=f"ch10 {kind} preset")
     tr = simulate(d, steps=n_run, k0=0, x0=pre.final_state, params={**ctrl, "ctrl.kpi": c.kpi},
                   chunk=chunk, record=RECORD, label=f"ch10 {kind}")
     tr.wall_seconds += pre.wall_seconds
@@ -173,9 +167,7 @@ def run(c: Ch10AdaptiveConfig, out) -> Metrics:
           (c.preset + c.duration) / tr.wall_seconds, "s/s")
     m.add("pressure_min_pa", tr["ctrl.p"].min(), "Pa")
     m.add("pressure_max_pa", tr["ctrl.p"].max(), "Pa")
-    np.savez_compressed(out / "traces.npz", t=tr.t.astype(np.float32),
-                        **{k.replace(".", "_"): v[::10].astype(np.float32)
-                           for k, v in tr.signals.items()})
+    tr.save(out / "traces.npz")
     if c.compare_open_loop:
         ol = run_case(arm, "open_loop", c, c.dt)
         m.extend(_metrics(ol, arm.Pi_nominal, c), prefix="open_loop_",

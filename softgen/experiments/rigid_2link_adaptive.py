@@ -72,11 +72,7 @@ def run(c: RigidAdaptiveConfig, out: Path) -> Metrics:
     for j, r in enumerate(rel):
         m.add(f"parameter_relative_error_pi{j + 1}", r, "")
     m.add("simulated_seconds_per_wall_second", t[-1] / tr.wall_seconds, "s/s")
-    np.savez_compressed(out / "traces.npz", t=t.astype(np.float32),
-                        q=tr["plant.q"].astype(np.float32), q_d=tr["ref.q_d"].astype(np.float32),
-                        pi_hat=tr["ctrl.pi_hat"].astype(np.float32),
-                        tau=tr["ctrl.tau"].astype(np.float32),
-                        parameter_names=np.array(names), parameter_nominal=nominal)
+    tr.save(out / "traces.npz", parameter_names=np.array(names), parameter_nominal=nominal)
     _figures(out, t, err, tr["ctrl.pi_hat"], names, nominal)
     return m
 

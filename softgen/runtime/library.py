@@ -10,20 +10,56 @@ Two ways to call:
     (column vectors as 1-D arrays).
 ``f.inputs[i][...] = ...; f.call(); f.outputs[j]``
     Fast path for loops: no checks, no allocation (overhead measured by
-    ``softgen bench``).
+    ``softgen bench``). Bind ``ins, call, outs = f.inputs, f.call, f.outputs``
+    once before the loop. Each thread gets its own buffers (issue 16: two threads
+    used to read each other's results); ``inputs`` and ``outputs`` are tuples,
+    so rebinding a buffer (``f.inputs[0] = x``) raises instead of being ignored.
+
+Before loading, the manifest is checked against its schema
+(:mod:`softgen.codegen.manifest`), the C source and the model file against the
+manifest, the compiled library against its build record
+(:func:`softgen.codegen.build.verify_library`; rebuilt when it does not match),
+and the parameter vector against the library (``Y @ nominal ==
+inverse_dynamics`` at a seeded state).
 
 Every C return code is checked. Without a C compiler the bundle falls back to
 CasADi's own evaluation of the same functions, with a warning.
 """
 from __future__ import annotations
 
+import threading
 import warnings
 from pathlib import Path
+
 import casadi as ca
 import numpy as np
 
-from ..codegen.build import build, check_source, find_compiler, library_path, read_manifest
+from ..codegen.build import (check_source, ensure_library, find_compiler, library_path,
+                             read_manifest, verify_library)
 from ..errors import BundleError, ShapeError
+
+_get_ident = threading.get_ident
+
+class _Buffers(tuple):
+    """The fixed buffers of a function: fill them in place, never rebind them.
+
+    ``f.inputs[0] = q`` on a list would replace the list entry and leave the
+    buffer the library reads untouched (a silent no-op, issue 16); here it raises.
+    """
+
+    __slots__ = ()
+
+    def __setitem__(self, key, value):
+        raise TypeError("bundle buffers are fixed: copy into them with "
+                        "f.inputs[i][:] = value (or [...] for matrices), do not rebind them")
+
+
+class _ThreadState:
+    """One thread's input and output buffers and the evaluator bound to them."""
+
+    __slots__ = ("inputs", "outputs", "flat_in", "flat_out", "bound", "in_mv", "buf", "eval",
+                 "call")
+
 
 class BundleFunction:
     """One function of a bundle with preallocated buffers, evaluated by CasADi.
@@ -36,6 +72,12 @@ class BundleFunction:
 
     Column-vector inputs and outputs are 1-D arrays; matrices are 2-D,
     column-major views of the same memory.
+
+    Threads: the buffers belong to a thread. ``inputs``, ``outputs`` and ``call``
+    give the calling thread's own set (created on its first use), so two threads
+    calling the same function, either way, never see each other's results. A
+    thread that binds ``ins = f.inputs`` must use them with that thread's
+    ``f.call``; ``inputs`` and ``outputs`` are tuples that cannot be rebound.
     """
 
     def __init__(self, function, sig: dict):
@@ -50,82 +92,150 @@ class BundleFunction:
                 raise BundleError(f"{self.name}: input {self.in_names[k]!r} has shape "
                                   f"{function.size_in(k)} in the library but {shape} in "
                                   "manifest.json; regenerate the bundle")
+        for k, shape in enumerate(self.out_shapes):
+            if function.size_out(k) != shape:
+                raise BundleError(f"{self.name}: output {self.out_names[k]!r} has shape "
+                                  f"{function.size_out(k)} in the library but {shape} in "
+                                  "manifest.json; regenerate the bundle")
+        self._expect = [(r,) if c == 1 else (r, c) for r, c in self.in_shapes]
+        self.can_fail = bool(sig.get("can_fail", True))
+        self._owner = threading.get_ident()
+        self._local = threading.local()
+        self._main = self._new_state()
+        self._main.call()     # probe once: a broken library fails here, not in a loop
+
+    def _new_state(self) -> _ThreadState:
+        st = _ThreadState()
         flat_in = [np.zeros(r * c) for r, c in self.in_shapes]
         flat_out = [np.zeros(r * c) for r, c in self.out_shapes]
-        self.inputs = [_view(f, s) for f, s in zip(flat_in, self.in_shapes)]
-        self.outputs = [_view(f, s) for f, s in zip(flat_out, self.out_shapes)]
-        self._flat_in = flat_in
-        self._flat_out = flat_out
-        self._bound: dict[int, np.ndarray] = {}
-        self._expect = [(r,) if c == 1 else (r, c) for r, c in self.in_shapes]
+        st.inputs = _Buffers(_view(f, s) for f, s in zip(flat_in, self.in_shapes))
+        st.outputs = _Buffers(_view(f, s) for f, s in zip(flat_out, self.out_shapes))
+        st.flat_in = flat_in
+        st.flat_out = flat_out
+        st.bound = {}
         # Assigning into a memoryview copies and checks shape and dtype in one C-level
         # step (~0.1 µs against ~0.5 µs for numpy's check + setitem); it only takes
         # 1-D targets, so functions with matrix inputs use the numpy path.
-        self._in_mv = ([memoryview(f) for f in flat_in]
-                       if all(c == 1 for _, c in self.in_shapes) else None)
-        buf, self._eval = function.buffer()
+        st.in_mv = ([memoryview(f) for f in flat_in]
+                    if all(c == 1 for _, c in self.in_shapes) else None)
+        buf, st.eval = self.function.buffer()
         for i, b in enumerate(flat_in):
             buf.set_arg(i, memoryview(b))
         for i, b in enumerate(flat_out):
             buf.set_res(i, memoryview(b))
-        self._buf = buf        # the evaluator points into it: keep it alive
-        self.can_fail = bool(sig.get("can_fail", True))
+        st.buf = buf        # the evaluator points into it: keep it alive
         # Reading the return code through SWIG costs 1.4 µs, six times a small call.
         # It is read on every call of a function whose C can return non-zero
         # (manifest "can_fail"); the others are straight-line SX code whose only
         # exit is `return 0`, so there is nothing to read.
-        self.call = self.checked_call if self.can_fail else self._eval
-        self.checked_call()     # probe once: a broken library fails here, not in a loop
+        if self.can_fail:
+            name, ev = self.name, st.eval
+
+            def checked() -> None:
+                ev()
+                ret = buf.ret()
+                if ret != 0:
+                    raise BundleError(f"{name} returned error code {ret}")
+            st.call = checked
+        else:
+            st.call = st.eval
+        return st
+
+    def _state(self) -> _ThreadState:
+        if _get_ident() == self._owner:
+            return self._main
+        st = getattr(self._local, "state", None)
+        if st is None:
+            st = self._local.state = self._new_state()
+        return st
+
+    @property
+    def inputs(self) -> tuple:
+        """The calling thread's input buffers (fill in place: ``f.inputs[i][:] = x``)."""
+        if _get_ident() == self._owner:     # the common case, kept short
+            return self._main.inputs
+        return self._state().inputs
+
+    @inputs.setter
+    def inputs(self, value) -> None:
+        raise AttributeError(f"{self.name}: inputs cannot be rebound; copy into the "
+                             "buffers with f.inputs[i][:] = value")
+
+    @property
+    def outputs(self) -> tuple:
+        """The calling thread's output buffers (overwritten by every call)."""
+        if _get_ident() == self._owner:     # the common case, kept short
+            return self._main.outputs
+        return self._state().outputs
+
+    @outputs.setter
+    def outputs(self, value) -> None:
+        raise AttributeError(f"{self.name}: outputs cannot be rebound")
+
+    @property
+    def call(self):
+        """Evaluate the calling thread's input buffers into its output buffers."""
+        if _get_ident() == self._owner:     # the common case, kept short
+            return self._main.call
+        return self._state().call
 
     def bind_output(self, k: int, array: np.ndarray) -> None:
-        """Make the next calls write output ``k`` into ``array`` (no copy afterwards).
+        """Make the calling thread's next calls write output ``k`` into ``array``.
 
-        ``array`` must be C-contiguous float64 with exactly as many entries as the
-        output: a block of rows of a (samples × signals) array is the (signals ×
-        samples) column-major layout the C writes. It stays bound until bound again.
+        No copy afterwards: ``array`` must be C-contiguous float64 with exactly as many
+        entries as the output (a block of rows of a (samples × signals) array is the
+        (signals × samples) column-major layout the C writes). It stays bound until
+        bound again; ``outputs[k]`` is then not written.
         """
+        st = self._state()
         if not (isinstance(array, np.ndarray) and array.dtype == np.float64
-                and array.flags.c_contiguous and array.size == self._flat_out[k].size):
+                and array.flags.c_contiguous and array.size == st.flat_out[k].size):
             raise ShapeError(f"{self.name}: output {self.out_names[k]!r} needs a C-contiguous "
-                             f"float64 array of {self._flat_out[k].size} entries")
-        self._buf.set_res(k, memoryview(array.reshape(-1)))
-        self._bound[k] = array          # the evaluator points into it: keep it alive
+                             f"float64 array of {st.flat_out[k].size} entries")
+        st.buf.set_res(k, memoryview(array.reshape(-1)))
+        st.bound[k] = array          # the evaluator points into it: keep it alive
 
-    def call(self) -> None:  # replaced per instance (see __init__)
-        """Evaluate on the current input buffers into the output buffers."""
+    def release_output(self, k: int) -> None:
+        """Write output ``k`` into ``outputs[k]`` again (and let a bound array go)."""
+        st = self._state()
+        st.buf.set_res(k, memoryview(st.flat_out[k]))
+        st.bound.pop(k, None)
 
     def checked_call(self) -> None:
         """:meth:`call`, then raise if the C function returned non-zero."""
-        self._eval()
-        ret = self._buf.ret()
+        st = self._state()
+        st.eval()
+        ret = st.buf.ret()
         if ret != 0:
             raise BundleError(f"{self.name} returned error code {ret}")
 
     def __call__(self, *args):
         """Evaluate on ``args`` (shapes checked); returns fresh arrays."""
-        if len(args) != len(self.inputs):
-            raise ShapeError(f"{self.name}: expected {len(self.inputs)} inputs "
+        st = self._state()
+        if len(args) != len(st.inputs):
+            raise ShapeError(f"{self.name}: expected {len(st.inputs)} inputs "
                              f"({', '.join(self.in_names)}), got {len(args)}")
-        if not self._load_fast(args):
+        if not self._load_fast(st, args):
             for k, a in enumerate(args):   # lists, columns, ints, matrices; or the error
-                self._load_slow(k, a)
-        self.call()
-        if len(self.outputs) == 1:
-            return self.outputs[0].copy()
-        return tuple(o.copy() for o in self.outputs)
+                self._load_slow(st, k, a)
+        st.call()
+        if len(st.outputs) == 1:
+            return st.outputs[0].copy()
+        return tuple(o.copy() for o in st.outputs)
 
-    def _load_fast(self, args: tuple) -> bool:
+    @staticmethod
+    def _load_fast(st: _ThreadState, args: tuple) -> bool:
         """Copy float64 1-D arrays of the right lengths in; False if any is not one."""
-        if self._in_mv is None:
+        if st.in_mv is None:
             return False
         try:
-            for mv, a in zip(self._in_mv, args):
+            for mv, a in zip(st.in_mv, args):
                 mv[:] = a     # checks length and dtype in C: ValueError/TypeError otherwise
         except (ValueError, TypeError):
             return False
         return True
 
-    def _load_slow(self, k: int, a) -> None:
+    def _load_slow(self, st: _ThreadState, k: int, a) -> None:
         try:
             a = np.asarray(a, dtype=float)
         except (TypeError, ValueError):
@@ -133,7 +243,7 @@ class BundleFunction:
                              f"of shape {self._expect[k]}, got {type(a).__name__}") from None
         r, c = self.in_shapes[k]
         if a.shape == (r, c) or (c == 1 and a.size == r and a.ndim <= 1):
-            self.inputs[k][...] = a.reshape(self.inputs[k].shape, order="F")
+            st.inputs[k][...] = a.reshape(st.inputs[k].shape, order="F")
         else:
             raise ShapeError(f"{self.name}: input {self.in_names[k]!r} expected shape "
                              f"{self._expect[k]}, got {a.shape}")
@@ -162,39 +272,91 @@ class Bundle:
     """
 
     def __init__(self, path: Path, *, build_missing: bool = True, backend: str = "auto",
-                 cc: str | None = None):
+                 cc: str | None = None, model_check=None, fallback=None):
         if backend not in ("auto", "c", "casadi"):
             raise ValueError(f"backend: expected 'auto', 'c' or 'casadi', got {backend!r}")
         self.path = Path(path)
         if not self.path.is_dir():
             raise BundleError(f"{self.path}: no such bundle directory; run "
                               f"`softgen generate {self.path.name}`")
-        self.manifest = read_manifest(self.path)
+        self.manifest = read_manifest(self.path)      # schema-checked (codegen/manifest.py)
         self.name = self.manifest["model"]
         check_source(self.path, self.manifest)
-        _check_model_unchanged(self.manifest)
+        # The model-aware parts are given by the caller (softgen.bundle.load_bundle): the
+        # runtime knows nothing of model files or the symbolic layer.
+        if model_check is not None:
+            model_check(self.manifest, self.path)
+        self._fallback = fallback
         self.parameter_names = list(self.manifest["parameters"]["names"])
         self.parameter_nominal = np.array(self.manifest["parameters"]["nominal"], dtype=float)
         self.build_seconds = 0.0
         if backend == "casadi":
             self.backend = "casadi"
         else:
-            lib = library_path(self.path, self.manifest)
-            if not lib.exists() and (not build_missing or find_compiler(cc) is None):
-                if backend == "c" or not build_missing:
-                    raise BundleError(f"{lib}: compiled library missing" + (
-                        "" if build_missing else " (build_missing=False)")
-                        + "; run `softgen generate " + self.name + "` with a C compiler")
-                warnings.warn(f"{self.name}: no C compiler found (install gcc or set CC); "
-                              "evaluating with CasADi instead, slower", RuntimeWarning,
-                              stacklevel=2)
-                self.backend = "casadi"
-            else:
-                if not lib.exists():
-                    lib, self.build_seconds = build(self.path, cc=cc)
-                self.backend = "c"
-                self.library = lib
+            self.backend = self._library(backend, build_missing, cc)
         self.functions = self._load()
+        self._check_parameters()
+
+    def _library(self, backend: str, build_missing: bool, cc: str | None) -> str:
+        """Verify (or build) the compiled library; the backend to use."""
+        lib = library_path(self.path, self.manifest)
+        problem = verify_library(lib, self.manifest)
+        if problem is None:
+            self.library = lib
+            return "c"
+        can_build = build_missing and find_compiler(cc) is not None
+        if not can_build:
+            if backend == "c" or not build_missing:
+                raise BundleError(f"{lib}: compiled library {problem}" + (
+                    "" if build_missing else " (build_missing=False)")
+                    + "; run `softgen generate " + self.name + "` with a C compiler")
+            warnings.warn(f"{self.name}: compiled library {problem} and no C compiler found "
+                          "(install gcc or set CC); evaluating with CasADi instead, slower",
+                          RuntimeWarning, stacklevel=3)
+            return "casadi"
+        lib, self.build_seconds, repaired = ensure_library(self.path, cc=cc)
+        if repaired:
+            warnings.warn(f"{lib}: cached library {repaired}; rebuilt", RuntimeWarning,
+                          stacklevel=3)
+        problem = verify_library(lib, self.manifest)
+        if problem is not None:   # e.g. another process replaced it again in between
+            raise BundleError(f"{lib}: compiled library {problem} after rebuilding; "
+                              f"run `softgen generate {self.name}`")
+        self.library = lib
+        return "c"
+
+    def _check_parameters(self, rtol: float = 1e-8) -> None:
+        """``Y @ parameters.nominal (+ known torque) == inverse_dynamics`` at a seeded state.
+
+        The parameter vector is data in the manifest, the dynamics are compiled
+        code: an edited number would make every adaptive law start from a wrong
+        π without a word (issue 16).
+        """
+        m = self.name
+        Y_f = self.functions.get(f"{m}_regressor")
+        tau_f = self.functions.get(f"{m}_inverse_dynamics")
+        if Y_f is None or tau_f is None or Y_f.in_shapes != tau_f.in_shapes:
+            return
+        rng = np.random.default_rng(16)
+        args = [rng.uniform(-1.0, 1.0, r if c == 1 else (r, c)) for r, c in Y_f.in_shapes]
+        Y = np.atleast_2d(Y_f(*args))
+        if Y.shape[1] != self.parameter_nominal.size:
+            raise BundleError(f"{self.path / 'manifest.json'}: parameters.nominal: expected "
+                              f"{Y.shape[1]} values (columns of {m}_regressor), got "
+                              f"{self.parameter_nominal.size}; regenerate the bundle")
+        tau = np.ravel(tau_f(*args))
+        pred = Y @ self.parameter_nominal
+        known = self.functions.get(f"{m}_known_torque")
+        if known is not None and known.in_shapes == Y_f.in_shapes:
+            pred = pred + np.ravel(known(*args))
+        scale = np.abs(Y) @ np.abs(self.parameter_nominal) + np.abs(tau) + 1e-12
+        err = np.abs(pred - tau)
+        if not np.all(err <= rtol * scale):
+            j = int(np.argmax(err / scale))
+            raise BundleError(f"{self.path / 'manifest.json'}: parameters.nominal: Y @ nominal "
+                              f"differs from {m}_inverse_dynamics (component {j + 1}: "
+                              f"{pred[j]:.6g} vs {tau[j]:.6g}) at a seeded state; the manifest "
+                              f"was edited or is stale, run `softgen generate {m}`")
 
     def _load(self) -> dict[str, BundleFunction]:
         sigs = self.manifest["functions"]
@@ -208,8 +370,10 @@ class Bundle:
                                       f"({str(exc).splitlines()[-1]}); regenerate the "
                                       "bundle") from None
         else:
-            from ..bundle import casadi_functions  # the symbolic layer, only for the fallback
-            fns = casadi_functions(self.manifest)
+            if self._fallback is None:
+                raise BundleError(f"{self.name}: no compiled library and no way to rebuild the "
+                                  "functions here; load it with softgen.bundle.load_bundle")
+            fns = self._fallback(self.manifest)
         return {name: BundleFunction(fns[name], sig) for name, sig in sigs.items()}
 
     def __getitem__(self, name: str):
@@ -228,24 +392,3 @@ class Bundle:
 
     def __repr__(self) -> str:
         return f"Bundle({self.name!r}, backend={self.backend!r}, functions={list(self.functions)})"
-
-
-def _check_model_unchanged(manifest: dict) -> None:
-    """Refuse a bundle generated from an older version of its model file."""
-    from ..bundle import identity_hash
-    current = identity_hash(manifest)
-    if current is not None and current != manifest["hash"]:
-        raise BundleError(f"generated/{manifest['model']} is stale: {manifest['model_file']} "
-                          f"changed since it was generated; run `softgen generate "
-                          f"{manifest['model']}`")
-
-
-def load_bundle(name_or_path: str | Path, *, generated_root: Path | None = None,
-                **kwargs) -> Bundle:
-    """Load ``generated/<model>`` (or a bundle directory path)."""
-    from ..bundle import GENERATED_DIR
-    p = Path(name_or_path)
-    if not p.is_dir():
-        p = Path(generated_root or GENERATED_DIR) / str(name_or_path)
-    return Bundle(p, **kwargs)
-

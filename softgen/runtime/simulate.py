@@ -20,6 +20,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -74,6 +75,25 @@ class Trace:
             return False
         return True
 
+    def save(self, path, *, signals=None, every: int | None = None,
+             full: bool | None = None, **extra) -> None:
+        """Write the trace as a compressed ``.npz``: compact by default.
+
+        Compact (the default of ``softgen reproduce``): float32, decimated to at most
+        ~20,000 samples (``every``), enough for figures. ``full=True`` (or
+        :func:`set_full_traces`) keeps every sample in float64. ``extra`` arrays are
+        stored as given. Signal names ``block.sig`` become ``block_sig``.
+        """
+        full = _TRACES["full"] if full is None else full
+        names = list(self.signals) if signals is None else list(signals)
+        step = 1 if full else (every or max(1, self.t.size // 20000))
+        dtype = np.float64 if full else np.float32
+        arrays = {"t": self.t[::step].astype(dtype)}
+        arrays.update({n.replace(".", "_"): self[n][::step].astype(dtype) for n in names})
+        if self.stopped_at is not None:
+            arrays["stopped_at"] = np.array(self.stopped_at)
+        np.savez_compressed(path, **arrays, **extra)
+
     @property
     def simulated_seconds(self) -> float:
         return float(self.t.size * self.meta.get("dt", 0.0))
@@ -85,6 +105,33 @@ class Trace:
 
 
 Predicate = Callable[[Trace], np.ndarray]
+
+#: Progress lines: True, False, or None (when stderr is a terminal); and a label prefix.
+_PROGRESS: dict = {"show": None, "prefix": ""}
+
+
+_TRACES = {"full": False}
+
+
+def set_full_traces(full: bool) -> None:
+    """Whether :meth:`Trace.save` keeps every sample in float64 (``reproduce --full-traces``)."""
+    _TRACES["full"] = bool(full)
+
+
+def set_progress(show: bool | None) -> None:
+    """Default of :func:`simulate`'s ``progress`` for this process (None: on a terminal)."""
+    _PROGRESS["show"] = show
+
+
+@contextmanager
+def progress_context(prefix: str):
+    """Prefix progress lines (e.g. with the experiment id) within the ``with`` block."""
+    old = _PROGRESS["prefix"]
+    _PROGRESS["prefix"] = prefix
+    try:
+        yield
+    finally:
+        _PROGRESS["prefix"] = old
 
 
 def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int | None = None,
@@ -144,7 +191,11 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
     # is copied and no memory is touched twice.
     n_chunks = -(-steps // chunk)
     Y = np.empty((n_chunks * chunk, rows.size))
+    if progress is None:
+        progress = _PROGRESS["show"]
     show = sys.stderr.isatty() if progress is None else progress
+    if _PROGRESS["prefix"]:
+        label = f"{_PROGRESS['prefix']}: {label}"
     t_wall = time.perf_counter()
     last_print = t_wall
     n_done, stopped_at, reason = 0, None, None
@@ -190,6 +241,7 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
                   f"{n_done / steps * 100:.0f} %, ETA {el * (steps - n_done) / n_done:.0f} s",
                   file=sys.stderr, flush=True)
     wall = time.perf_counter() - t_wall
+    loop.release_output(1)      # the cached loop must not keep this trace alive
     Y = Y[:n_done]
     signals = {r.name: Y[:, rows.slice(r.name)] for r in rows}
     t = signals.pop(TIME)[:, 0].copy()
