@@ -11,9 +11,10 @@ Link damping (issue 13): the model has none, and the open-loop torques on joint 
 to about 0.30 N m while gravity holds at most m₂c₂g ≈ 0.115 N m, so undamped links
 spin freely (``undamped_*``: ``undamped_max_link_speed_joint*``). The headline run
 gives each link β = 0.5 N m s/rad (``link_damping``): chosen so that the net
-open-loop torque (≤ 0.3 N m) can drive a link at most ≈ 0.6 rad/s, i.e. the links
-swing instead of spinning, as in Fig. 6.5; the thesis's motor parameters are kept. A
-link faster than ``runaway_speed`` is reported as a runaway (finding).
+open-loop torque (≤ 0.3 N m) balances the damping at ≈ 0.3/β = 0.6 rad/s, so the
+links swing instead of spinning, as in Fig. 6.5 (``max_link_speed_joint*`` reports
+the speeds reached); the thesis's motor parameters are kept. A link faster than
+``runaway_speed`` is reported as a runaway (finding).
 
 The thesis does not say how long it ran nor over which interval Table 6.1 is
 computed; we run 60 s and compute the indices after the first 10 %. MSREP in
