@@ -6,11 +6,8 @@ machinery itself is in :mod:`softgen.plants.qbmove` and :mod:`softgen.estimation
 """
 from __future__ import annotations
 
-import json
-import warnings
 from pathlib import Path
 
-import casadi as ca
 import numpy as np
 
 from ..estimation.estimators import EstimatorBase, EstimatorConfig, StiffnessEstimator
@@ -99,20 +96,3 @@ def figures(out: Path, prefix: str, tr: Trace, truth_sigma, truth_tau, res, est,
     estimation_figure(out / f"{prefix}estimation.png", tr.t, truth_sigma, truth_tau, res,
                       title=title, names={r: est.parameter_names(r) for r in est.rls_names},
                       torque_label=torque_label)
-
-
-def load_functions(name: str, functions: list[tuple[ca.Function, str]], out: Path,
-                   config: dict) -> dict:
-    """Legacy build of ``functions`` as bundle ``out/bundle/<name>`` (chapter-10
-    experiments not yet on the driver; see ``softgen.runtime.compiled``)."""
-    from ..codegen.build import find_compiler
-    from ..codegen.generate import BundleSpec, Generated, signature, write_bundle
-    from ..runtime.library import Bundle, BundleFunction
-    if find_compiler() is None:
-        warnings.warn(f"{name}: no C compiler found; evaluating with CasADi (slower)",
-                      RuntimeWarning, stacklevel=2)
-        return {f.name(): BundleFunction(f, signature(f)) for f, _ in functions}
-    identity = json.dumps(config, sort_keys=True, default=str).encode()
-    spec = BundleSpec(name=name, functions=[Generated(f, doc) for f, doc in functions],
-                      identity=identity, extra={"experiment_config": json.loads(identity)})
-    return Bundle(write_bundle(spec, Path(out) / "bundle")).functions
