@@ -120,7 +120,7 @@ def run(c: ElectricProtocolConfig, out) -> Metrics:
             m.extend(mv, prefix=f"{pre}{tag}_" if dof == 1 else "")
             traces.update({f"dof{dof}_{tag}_sigma_hat": res.sigma_hat,
                            f"dof{dof}_{tag}_updating": res.updating})
-            figures(out, f"dof{dof}_{tag}_", tr, truth.sigma, truth.tau_e, res, est,
+            figures(out, f"{pre}{tag}_" if dof == 1 else "dof2_", tr, truth.sigma, truth.tau_e, res, est,
                     f"{dof}-DoF, {'no update stop' if tag == 'drift' else 'stop'}")
         traces.update({f"dof{dof}_q": tr["plant.q"], f"dof{dof}_sigma": truth.sigma,
                        f"dof{dof}_sigma_nominal": truth.sigma_nominal})
