@@ -143,6 +143,15 @@ def library_path(bundle: Path, manifest: dict) -> Path:
     return cache_dir() / "bundles" / manifest["model"] / manifest["library"]
 
 
+def recorded_build_seconds(lib: Path) -> float | None:
+    """The compile time written in a library's record when it was built (None if absent)."""
+    try:
+        v = json.loads(record_path(lib).read_text()).get("build_seconds")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return float(v) if isinstance(v, (int, float)) else None
+
+
 def record_path(lib: Path) -> Path:
     """The record of a compiled library: its sha256, size and source (see module doc)."""
     return lib.with_name(lib.name + ".json")
@@ -185,11 +194,12 @@ def verify_library(lib: Path, manifest: dict) -> str | None:
     return None
 
 
-def _write_record(lib: Path, manifest: dict) -> None:
+def _write_record(lib: Path, manifest: dict, seconds: float | None = None) -> None:
     data = json.dumps({"library": lib.name, "size": lib.stat().st_size,
                        "sha256": _sha256_file(lib),
                        "source_sha256": manifest["source_sha256"],
-                       "cflags": list(CFLAGS + LDLIBS)}, indent=1) + "\n"
+                       "cflags": list(CFLAGS + LDLIBS),
+                       "build_seconds": seconds}, indent=1) + "\n"
     fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.{os.getpid()}.",
                                suffix=".json.tmp")
     try:
@@ -295,7 +305,7 @@ def ensure_library(bundle: Path, *, cc: str | None = None,
         os.replace(tmp, lib)
     finally:
         Path(tmp).unlink(missing_ok=True)
-    _write_record(lib, manifest)
+    _write_record(lib, manifest, seconds)
     # Old libraries of this bundle are stale by construction (other hash): remove them.
     for old in lib.parent.glob(f"lib{manifest['model']}_*.so"):
         if old != lib:
