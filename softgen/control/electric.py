@@ -138,6 +138,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
+from ..blocks import Block
 from ..errors import ModelError
 from ..model import RobotModel
 from ..symbolic.actuated import electric_plant_fun
@@ -217,7 +218,7 @@ class ElectricArm:
 
     def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None,
                  springs: QbmoveSprings | None = None, derivatives: str = "model",
-                 acceleration: str = "model"):
+                 acceleration: str = "model", projection: bool = False):
         if model.actuator_type != "qbmove":
             got = model.actuator_type or "no [[actuators]]"
             raise ModelError(f"{model.name}: the chapter-11 controllers need qbmove "
@@ -229,6 +230,7 @@ class ElectricArm:
                              f"(\"measured\" with derivatives=\"model\" only), "
                              f"got {acceleration!r}")
         self.acceleration = acceleration
+        self.projection = bool(projection)
         self.model = model
         self.dyn = dyn or RigidDynamics(model)
         self.springs = springs or QbmoveSprings(model)
@@ -304,6 +306,8 @@ class ElectricArm:
         lay += [("ksigma", n), ("delta", n)]
         if _is_integral(variant):
             lay.append(("ki", n))
+        if self.projection and _is_adaptive(variant):
+            lay.append(("b_min", 2 * n))                # lower bound of b̂ (projection)
         if self.derivatives == "filter":
             lay.append(("omega_f", 1))
         return lay
@@ -312,6 +316,8 @@ class ElectricArm:
         suffix = "_filter" if self.derivatives == "filter" else ""
         if self.acceleration == "measured":
             suffix += "_measured_acceleration"
+        if self.projection and _is_adaptive(variant):
+            suffix += "_projected"
         return f"{self.name}_electric_cascade_{variant}{suffix}"
 
     # -- symbolic pieces ------------------------------------------------------------------
@@ -502,7 +508,12 @@ class ElectricArm:
         z_next = []
         for name, _ in self.state_layout(variant):
             if name in rates:
-                z_next.append(Z[name] + dt * rates[name])
+                nxt = Z[name] + dt * rates[name]
+                if name == "pi_m_hat" and self.projection:
+                    # Projection onto b̂ ≥ b_min (class docstring): a convex set holding
+                    # the true b, so V̇ ≤ 0 of Theorem 8 is kept (Ioannou & Sun).
+                    nxt = ca.vertcat(ca.fmax(nxt[:2 * n], G["b_min"]), nxt[2 * n:])
+                z_next.append(nxt)
             elif name == "qd_prev":
                 z_next.append(qd)
         z_next = ca.vertcat(*z_next, *filt_next) if (z_next or filt_next) else ca.SX(0, 1)
@@ -733,9 +744,10 @@ def bundle_functions(model: RobotModel, *, dyn: RigidDynamics | None = None,
 
 
 def electric_arm(model: RobotModel, *, derivatives: str = "model",
-                 acceleration: str = "model") -> ElectricArm:
+                 acceleration: str = "model", projection: bool = False) -> ElectricArm:
     """:class:`ElectricArm` of ``model`` (one clear error if it has no qbmove actuators)."""
-    return ElectricArm(model, derivatives=derivatives, acceleration=acceleration)
+    return ElectricArm(model, derivatives=derivatives, acceleration=acceleration,
+                       projection=projection)
 
 
 def _spring_pair_torques(arm: ElectricArm, tau, sigma) -> tuple[np.ndarray, np.ndarray]:
@@ -853,3 +865,101 @@ def run_closed_loop(arm: ElectricArm, variant: str, loop, *, x0, z0, ref, gains:
     tr["z"] = np.concatenate(Z, axis=1)[:, :K].T
     tr["t"] = dt * np.arange(K)
     return tr
+
+
+# -- blocks (issue 10's architecture) ----------------------------------------------------------
+
+def cascade_block(arm: ElectricArm, variant: str, dt: float, *, gains: dict | None = None,
+                  name: str = "ctrl") -> Block:
+    """The cascade ``variant`` of ``arm`` (its derivative route) as a diagram block.
+
+    Inputs ``x`` (6n measured plant state q, q̇, q_a, q̇_a, q_b, q̇_b) and ``ref`` (9n,
+    :data:`REFERENCE_BLOCKS`); outputs :data:`OUTPUTS` but ``z_next`` (``tau_m`` is the
+    plant's input), and the state parts of :meth:`ElectricArm.state_layout` (``xi``,
+    ``pi_hat``, ``pi_m_hat``, …) at the sample. The gains of
+    :meth:`ElectricArm.gain_layout` are parameters; ``gains`` (checked by
+    :func:`check_gains`: one ValueError naming a gain that is not positive definite)
+    become their defaults, and every value given to the driver later is checked again
+    (rule "positive").
+    """
+    f = arm.step_fun(variant)
+    layout = arm.gain_layout(variant)
+    names = [g for g, _ in layout]
+    p0 = dict(zip(names, check_gains(layout, gains, dt=dt))) if gains is not None else None
+    return Block.wrap(name, f, dt=dt, state={"z": "z_next"},
+                      state_parts={"z": arm.state_layout(variant)}, params=names,
+                      constants={"dt": dt}, p0=p0, rules={g: "positive" for g in names},
+                      doc=f"chapter-11 cascade {variant}: {VARIANTS[variant]}",
+                      meta={"model": arm.name, "variant": variant})
+
+
+def plant_block(arm: ElectricArm, dt: float, *, substeps: int = 1, name: str = "plant"
+                ) -> Block:
+    """The arm with its electric VSAs (eq. 11.1a-d) over one sample, motor torques held.
+
+    :func:`~softgen.symbolic.actuated.electric_plant_fun` (``substeps`` RK4 steps per
+    sample). State ``q, qd, qa, qad, qb, qbd`` (n each); input ``tau_m`` (2n: τ_a of
+    every joint, then τ_b); parameter ``spring_scale`` (2n, factor on each spring's k;
+    1 = the model's). Outputs, at the sample: the state, ``x`` (the same six stacked,
+    the cascade's measurement), ``sigma`` (n, the plant's stiffness, eq. 11.1b's σ with
+    the scaled springs) and ``tau_e`` (2n, the spring torques τ^e_a, τ^e_b). No link
+    damping: section 11.2 prints none and the closed loop needs none (NOTES item 16
+    concerns the open-loop torques of section 6.2.3).
+    """
+    n = arm.n
+    f = electric_plant_fun(arm.dyn, arm.springs, substeps=substeps)
+    parts = ("q", "qd", "qa", "qad", "qb", "qbd")
+    s = arm.springs
+
+    def body(x, u, p):
+        xv = ca.vertcat(*[x[k] for k in parts])
+        xn = f(xv, u["tau_m"], p["spring_scale"], dt)
+        sc_a, sc_b = p["spring_scale"][:n], p["spring_scale"][n:]
+        ta = s.spring_torque(x["q"] - x["qa"], "a", sc_a)
+        tb = s.spring_torque(x["q"] - x["qb"], "b", sc_b)
+        sig = s.stiffness(x["q"], x["qa"], x["qb"], sc_a, sc_b)
+        y = {k: x[k] for k in parts}
+        y.update(x=xv, sigma=sig, tau_e=ca.vertcat(ta, tb))
+        return {k: xn[i * n:(i + 1) * n] for i, k in enumerate(parts)}, y
+
+    units = ("rad", "rad/s", "rad", "rad/s", "rad", "rad/s")
+    return Block.define(name, dt=dt, state=[(k, n, u) for k, u in zip(parts, units)],
+                        inputs=[("tau_m", 2 * n, "N m")],
+                        outputs=[(k, n, u) for k, u in zip(parts, units)]
+                        + [("x", 6 * n, ""), ("sigma", n, "N m/rad"), ("tau_e", 2 * n, "N m")],
+                        params=[("spring_scale", 2 * n, "")], p0={"spring_scale": 1.0},
+                        rules={"spring_scale": "positive"}, body=body,
+                        doc="two-link arm with electric VSAs (eq. 11.1), RK4, torques held",
+                        meta={"model": arm.name})
+
+
+def reference_block(q_spec=None, sigma_spec=None, *, name: str = "ref") -> Block:
+    """Section 11.2's references as a block reading ``t``, with exact derivatives.
+
+    q_{d,i} = o + A sin(ωt) and σ_{d,i} likewise, one (offset, amplitude, ω) per joint
+    (defaults: q_d = 1 + 0.5 sin(πt/10) on both joints, σ_1d = 8 + 3 sin(πt/8),
+    σ_2d = 4 + sin(πt/8)). Outputs ``ref`` (9n, :data:`REFERENCE_BLOCKS`: q_d and four
+    derivatives, σ_d and three), and ``q_d``, ``sigma_d`` alone.
+    """
+    from .electric_refs import THESIS_Q, THESIS_SIGMA
+    q_spec = THESIS_Q if q_spec is None else q_spec
+    sigma_spec = THESIS_SIGMA if sigma_spec is None else sigma_spec
+    n = len(q_spec)
+    if len(sigma_spec) != n:
+        raise ValueError(f"sigma_spec: expected {n} joints like q_spec, got {len(sigma_spec)}")
+
+    def derivs(t, spec, order):
+        o, a, w = (ca.DM([float(s[i]) for s in spec]) for i in range(3))
+        out = [o + a * ca.sin(w * t)]
+        for k in range(1, order + 1):        # A ω^k sin(ωt + kπ/2)
+            out.append(a * w ** k * ca.sin(w * t + k * np.pi / 2))
+        return out
+
+    def body(x, u, p):
+        rows = derivs(u["t"], q_spec, 4) + derivs(u["t"], sigma_spec, 3)
+        return {}, {"ref": ca.vertcat(*rows), "q_d": rows[0], "sigma_d": rows[5]}
+
+    return Block.define(name, dt=None, inputs={"t": 1},
+                        outputs=[("ref", 9 * n, ""), ("q_d", n, "rad"),
+                                 ("sigma_d", n, "N m/rad")],
+                        body=body, doc="section 11.2 sinusoidal references")
