@@ -22,7 +22,7 @@ from .model import MAX_NAME, MODELS_DIR, RobotModel, list_models, load_model
 from .runtime.library import Bundle
 from .symbolic.rigid import RigidDynamics
 
-GENERATED_DIR = MODELS_DIR.parent / "generated"
+from .paths import GENERATED_DIR  # noqa: E402
 
 
 @dataclass(frozen=True)

@@ -54,27 +54,48 @@ def _output_dir(path: str, flag: str) -> Path:
     return p
 
 
+def _generate_one(name: str, out: Path, build: bool) -> str:
+    """Generate (and compile) one bundle; the line ``generate`` prints for it."""
+    from .bundle import generate
+    from .codegen.build import ensure_library
+    t0 = time.perf_counter()
+    bundle = generate(name, out)
+    msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
+    if build:
+        lib, secs, repaired = ensure_library(bundle)
+        msg += (f", {'rebuilt' if repaired else 'built' if secs else 'cached'} {lib.name}"
+                + (f" in {secs:.2f} s" if secs else "")
+                + (f" (cached library rejected: {repaired})" if repaired else ""))
+    return msg
+
+
 def _cmd_generate(args) -> int:
-    from .bundle import GENERATED_DIR, generate
-    from .codegen.build import ensure_library, find_compiler
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    from .bundle import GENERATED_DIR
+    from .codegen.build import find_compiler
     from .model import list_models
     if args.all == bool(args.models):
         raise SoftgenError("generate: give MODEL names or --all (not both)")
+    if args.jobs is not None and args.jobs < 1:
+        raise SoftgenError(f"generate: --jobs: expected a positive integer, got {args.jobs}")
     names = list_models() if args.all else args.models
     out = _output_dir(args.out, "--out") if args.out else GENERATED_DIR
-    compiler = None if args.no_build else find_compiler()
-    if not args.no_build and compiler is None:
+    build = not args.no_build and find_compiler() is not None
+    if not args.no_build and not build:
         print("softgen: warning: no C compiler found; wrote sources only", file=sys.stderr)
-    for name in names:
-        t0 = time.perf_counter()
-        bundle = generate(name, out)
-        msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
-        if compiler is not None:
-            lib, secs, repaired = ensure_library(bundle)
-            msg += (f", {'rebuilt' if repaired else 'built' if secs else 'cached'} {lib.name}"
-                    + (f" in {secs:.2f} s" if secs else "")
-                    + (f" (cached library rejected: {repaired})" if repaired else ""))
-        print(msg)
+    jobs = min(args.jobs or os.cpu_count() or 1, len(names))
+    if jobs <= 1:
+        for name in names:
+            print(_generate_one(name, out, build), flush=True)
+        return 0
+    # Bundles are independent: derive and compile them side by side. Errors surface in
+    # model order, as in a sequential run.
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(_generate_one, name, out, build) for name in names]
+        for fut in futures:
+            print(fut.result(), flush=True)
     return 0
 
 
@@ -224,6 +245,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--all", action="store_true", help="every model in models/")
     s.add_argument("--out", help="output root (default: generated/)")
     s.add_argument("--no-build", action="store_true", help="write sources only")
+    s.add_argument("--jobs", type=int, default=None,
+                   help="bundles generated side by side (default: the number of CPUs)")
     s.set_defaults(func=_cmd_generate)
     s = sub.add_parser("info", help="functions, shapes, parameters, sizes of a model")
     s.add_argument("model", metavar="MODEL")

@@ -48,7 +48,7 @@ from .errors import ModelError
 #: A scalar of the model: either a number (fixed) or the name of a parameter.
 Scalar = float | str
 
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+from .paths import MODELS_DIR  # noqa: E402  (checkout models/ or the wheel's package data)
 
 #: Largest magnitude of any number in a model file (SI units). Masses, lengths and
 #: inertias enter the dynamics as products of up to four factors; 1e9 keeps them

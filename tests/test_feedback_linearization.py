@@ -12,10 +12,13 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
+from softgen.blocks import Block, ClosedLoop
 from softgen.control.feedback_linearization import feedback_linearization, hurwitz_gains
+from softgen.control.pneumatic_loop import stage_reference_block
 from softgen.control.references import Sinusoid
 from softgen.errors import ModelError
 from softgen.model import load_model
+from softgen.runtime.simulate import simulate
 from softgen.symbolic.actuated import valve_plant_fun
 
 MODELS = ("arm_2link_pneumatic", "pendulum_1link")
@@ -155,35 +158,37 @@ def _companion_error(poles, e0: np.ndarray, t: np.ndarray) -> np.ndarray:
     return out
 
 
-def _sigma_fun(fl):
-    n = fl.n
-    q, p = ca.SX.sym("q", n), ca.SX.sym("p", 2 * n)
-    return ca.Function("s", [q, p], [fl.act.stiffness(q, p)])
+def _sinusoid_references(sq: Sinusoid, ss: Sinusoid) -> Block:
+    """A reference block (reads t, emits ref = (q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d))."""
+    def wave(r: Sinusoid, t):
+        a, ph, off = (ca.DM(np.array(v, dtype=float)) for v in (r.amplitude, r.phase, r.offset))
+        w = ca.DM(2 * np.pi * np.array(r.frequency))
+        arg = w * t + ph
+        return off + a * ca.sin(arg), a * w * ca.cos(arg), -a * w ** 2 * ca.sin(arg), \
+            -a * w ** 3 * ca.cos(arg)
+
+    def body(x, u, p):
+        q, s = wave(sq, u["t"]), wave(ss, u["t"])
+        return {}, {"ref": ca.vertcat(*q, s[0], s[1])}
+
+    return Block.define("ref", dt=None, inputs={"t": 1}, outputs={"ref": 12}, body=body)
 
 
 def _closed_loop_errors(fl, pi, poles_q, pole_s, T=4.0, dt=1e-3):
     """Continuous-time FL on the valve plant, from a state with errors in q, q̇, q̈, σ.
 
-    Returns (e_q, predicted e_q, e_σ, predicted e_σ, p_cmd);
+    Returns (e_q, predicted e_q, e_σ, predicted e_σ, p_cmd), one row per sample;
     the predictions solve the linear error dynamics of eq. 10.16 from the initial
     errors, with ë(0) from the true plant at x0 (not from the controller's model).
     """
     n = fl.n
     steps = int(round(T / dt))
-    loop = fl.closed_loop_fun(steps=steps, mode="continuous")
     g = hurwitz_gains(n, poles_q, pole_s)
     sq = Sinusoid((0.1, 0.05), (0.2, 0.3), (0.0, 1.0), (0.2, 0.1)).check()
     ss = Sinusoid((1.0, 0.5), (0.1, 0.15), (0.5, 0.0), (6.0, 3.0)).check()
-    w_q = 2 * np.pi * np.array(sq.frequency)[:, None]
-
-    def refs(t):
-        qd, dq, ddq = sq(t)
-        s, ds, _ = ss(t)
-        return np.vstack([qd, dq, ddq, -w_q ** 2 * dq, s, ds])
-
-    t = np.arange(steps) * dt
-    R3 = np.vstack([refs(t), refs(t + dt / 2), refs(t + dt)])
-    r0 = refs(np.array([0.0]))[:, 0]
+    refs = _sinusoid_references(sq, ss)
+    d = ClosedLoop("fl_errors", [stage_reference_block(refs, dt), fl.continuous_block(dt)])
+    r0 = refs.eval(u=[0.0])[1]
     q0 = r0[:n] + np.array([0.04, -0.03])
     qd0 = r0[n:2 * n] + np.array([-0.03, 0.02])
     qs, ts, sg = ca.SX.sym("q", n), ca.SX.sym("t", n), ca.SX.sym("s", n)
@@ -193,21 +198,19 @@ def _closed_loop_errors(fl, pi, poles_q, pole_s, T=4.0, dt=1e-3):
     # (a few % of gravity: the elbow's small inertia turns torque into large q̈)
     tau0 = np.array(grav(q0)).ravel() + np.array([0.01, -0.001])
     p0 = np.array(alloc(q0, tau0, r0[4 * n:5 * n] + np.array([0.5, -0.3]))).ravel()
-    x0 = np.concatenate([q0, qd0, p0])
     tp = np.full(2 * n, 0.05)
-    X, P = (np.array(v) for v in loop(x0, R3, pi, fl.act.K, tp, g["kq0"], g["kq1"], g["kq2"],
-                                      g["ks0"], dt))
-    te = t + dt
-    R = refs(te)
-    qdd0 = np.array(_plant_reference(fl)(x0, p0, tp)[2]).ravel()
+    tr = simulate(d, steps=steps, x0={"loop.q": q0, "loop.qd": qd0, "loop.p": p0},
+                  params={"loop.pi": pi, "loop.T_p": tp, **{f"loop.{k}": v for k, v in g.items()}},
+                  chunk=500, backend="casadi")
+    R = tr["ref.ref"].T
+    qdd0 = np.array(_plant_reference(fl)(np.concatenate([q0, qd0, p0]), p0, tp)[2]).ravel()
     e0 = [np.array([r0[i] - q0[i], r0[n + i] - qd0[i], r0[2 * n + i] - qdd0[i]])
           for i in range(n)]
-    pred_q = np.array([_companion_error(poles_q, e0[i], te) for i in range(n)])
-    sigma = _sigma_fun(fl)
-    e_s = R[4 * n:5 * n] - np.array(sigma.map(steps)(X[:n], X[2 * n:]))
-    es0 = r0[4 * n:5 * n] - np.array(sigma(q0, p0)).ravel()
-    pred_s = es0[:, None] * np.exp(pole_s * te)[None, :]
-    return R[:n] - X[:n], pred_q, e_s, pred_s, P
+    pred_q = np.array([_companion_error(poles_q, e0[i], tr.t) for i in range(n)])
+    e_s = R[4 * n:5 * n] - tr["loop.sigma"].T
+    es0 = e_s[:, 0]
+    pred_s = es0[:, None] * np.exp(pole_s * tr.t)[None, :]
+    return R[:n] - tr["loop.q"].T, pred_q, e_s, pred_s, tr["loop.p_cmd"].T
 
 
 def test_closed_loop_obeys_linear_error_dynamics():
@@ -251,11 +254,6 @@ def test_bad_inputs_raise_clear_errors(extra_models):
         hurwitz_gains(2, pole_sigma=0.0)
     with pytest.raises(ValueError, match="conjugate"):
         hurwitz_gains(2, (-1.0, -1 + 1j, -1 + 2j))
-    fl = feedback_linearization(load_model("pendulum_1link"))
-    with pytest.raises(ValueError, match="mode"):
-        fl.closed_loop_fun(steps=2, mode="euler")
-    with pytest.raises(ValueError, match="hold_compensation"):
-        fl.closed_loop_fun(steps=2, mode="continuous", hold_compensation=True)
 
 
 def test_default_gains_put_every_pole_at_minus_one():

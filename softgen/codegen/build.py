@@ -36,6 +36,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from ..paths import cache_dir, writable
 from ..errors import BuildError, BundleError
 
 #: -O3 is worth ~10-30 % on the regressors; -fno-math-errno lets gcc inline sqrt.
@@ -133,7 +134,13 @@ def check_source(bundle: Path, manifest: dict) -> Path:
 
 
 def library_path(bundle: Path, manifest: dict) -> Path:
-    return Path(bundle) / manifest["library"]
+    """Where the bundle's compiled library lives: ``<bundle>/build/…``, or, when the
+    bundle directory is read-only (an installed package), the same name under the
+    user cache (``softgen.paths.cache_dir``)."""
+    local = Path(bundle) / manifest["library"]
+    if local.exists() or writable(local.parent):
+        return local
+    return cache_dir() / "bundles" / manifest["model"] / manifest["library"]
 
 
 def record_path(lib: Path) -> Path:

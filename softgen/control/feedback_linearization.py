@@ -52,11 +52,13 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
+from ..blocks import Block, ClosedLoop
 from ..errors import ModelError
 from ..model import RobotModel
-from ..symbolic.actuated import valve_plant_fun
 from ..symbolic.rigid import FUNCTION_OPTS
-from .pneumatic import McKibbenRobot
+from .pneumatic import McKibbenRobot, PneumaticArm
+from .pneumatic_loop import (controller_block, plant_block, preset_nu, rk4_stage_step,
+                             stage_reference_block, theorem5_continuous_block, valve_rhs_fun)
 
 #: Reference layout, the same as the adaptive steps of :mod:`softgen.control.pneumatic`.
 REFERENCE_BLOCKS = ("q_d", "qd_d", "qdd_d", "qddd_d", "sigma_d", "sigmad_d")
@@ -210,77 +212,119 @@ class FeedbackLinearization(McKibbenRobot):
                            ["L", "E", "y_rate"], FUNCTION_OPTS)
 
     def valve_rhs_fun(self) -> ca.Function:
-        """(x, p_c, T_p) -> ẋ of the true plant (eq. 10.12, nominal π and K), p_c clipped.
+        """(x, p_c, T_p) -> ẋ of the true plant (eq. 10.12, nominal π and K), p_c clipped
+        (:func:`softgen.control.pneumatic_loop.valve_rhs_fun`)."""
+        return valve_rhs_fun(self)
 
-        The same model as :func:`valve_plant_fun`, as a right-hand side, so that a
-        controller can be evaluated inside every Runge-Kutta stage.
-        """
-        n, dyn, act = self.n, self.dyn, self.act
-        m = dyn.nominal
-        x, pc, tp = ca.SX.sym("x", 4 * n), ca.SX.sym("p_c", 2 * n), ca.SX.sym("T_p", 2 * n)
-        q, qd, p = x[:n], x[n:2 * n], x[2 * n:]
-        qdd = ca.substitute(dyn.forward_dynamics_expr(act.torque(m.q, p)),
-                            ca.vertcat(m.q, m.qd), ca.vertcat(q, qd))
-        sat = ca.fmax(pc, 0)
-        if np.all(np.isfinite(act.pressure_max)):
-            sat = ca.fmin(sat, ca.DM(np.repeat(act.pressure_max, 2)))
-        return ca.Function(f"{self.name}_valve_rhs", [x, pc, tp],
-                           [ca.vertcat(qd, qdd, (sat - p) / tp)], ["x", "p_c", "T_p"],
-                           ["x_dot"], FUNCTION_OPTS)
+    # -- blocks ---------------------------------------------------------------------------
+    @cached_property
+    def _step(self) -> ca.Function:
+        return self.step_fun()
 
-    def closed_loop_fun(self, *, steps: int, mode: str = "continuous", substeps: int = 1,
-                        hold_compensation: bool = False) -> ca.Function:
-        """``<model>_feedback_linearization_loop_<mode>[_hc]``: ``steps`` samples of FL + plant.
+    def _law(self, x, ref, p) -> tuple[ca.SX, ca.SX]:
+        """(p_c, v) of eq. 10.15-10.16 at state x, with the block parameters ``p``."""
+        out = self._step(x, ref, p["pi"], p["K"], p["T_p"], *(p[g] for g in GAIN_NAMES))
+        return out[0], out[3]
 
-        ``mode="continuous"``
-            The law of eq. 10.15 is part of the closed-loop ODE, evaluated at every
-            stage of one RK4 step per sample (a continuous-time controller, as in a
-            Simulink model). ``ref`` is 18n × steps: per step the references at t_k,
-            t_k + dt/2 and t_k + dt (the RK4 stage times), stacked.
-        ``mode="sampled"``
-            A digital controller: the command computed at t_k is held over the
-            sample and the plant (:func:`valve_plant_fun`) is integrated with
-            ``substeps`` RK4 steps. ``ref`` is 6n × steps. With ``hold_compensation``
-            the pressure channel is corrected for the hold: p_c = p + β (p_c,FL − p),
-            β = (dt/T_p)/(1 − e^{−dt/T_p}), so that the valve's mean ṗ over the sample
-            is the one eq. 10.15 asked for (without it the held command falls short by
-            about dt/(2 T_p)).
-
-        Inputs ``x0`` (4n), ``ref``, ``pi``, ``K`` (the controller's), ``T_p`` (plant and
-        controller), the gains, ``dt``. Outputs, one column per sample: ``x`` (state
-        after the sample) and ``p_cmd`` (the command at t_k, before clipping).
-        """
-        if mode not in ("continuous", "sampled"):
-            raise ValueError(f"mode: expected 'continuous' or 'sampled', got {mode!r}")
-        if hold_compensation and mode != "sampled":
-            raise ValueError("hold_compensation: only meaningful with mode='sampled'")
+    def _params(self):
         n = self.n
-        step = self.step_fun()
-        x, ref = ca.SX.sym("x", 4 * n), ca.SX.sym("ref", 6 * n)
-        pi, K, tp = ca.SX.sym("pi", self.n_params), ca.SX.sym("K", n), ca.SX.sym("T_p", 2 * n)
-        gains = [ca.SX.sym(g, n) for g in GAIN_NAMES]
-        params, names = [pi, K, tp, *gains], ["pi", "K", "T_p", *GAIN_NAMES]
-        pc = step(x, ref, pi, K, tp, *gains)[0]
-        name = f"{self.name}_feedback_linearization_loop_{mode}" \
-            + ("_hc" if hold_compensation else "")
-        if mode == "continuous":
-            rhs = ca.Function("rhs", [x, ref, *params], [self.valve_rhs_fun()(x, pc, tp)])
-            out = ca.Function("out", [x, ref, *params], [pc])
-            return rk4_closed_loop_fun(name, rhs, out, steps=steps, names=["x", *names],
-                                       out_names=["x", "p_cmd"])
-        dt = ca.SX.sym("dt")
-        if hold_compensation:
-            beta = (dt / tp) / (1 - ca.exp(-dt / tp))
-            pc = x[2 * n:] + beta * (pc - x[2 * n:])
-        plant = valve_plant_fun(self.dyn, self.act, substeps=substeps)
-        one = ca.Function("one_sample", [x, ref, *params, dt], [plant(x, pc, tp, dt), pc],
-                          FUNCTION_OPTS)
-        loop = one.mapaccum("loop", steps, [0], [0])
-        X0, R = ca.MX.sym("x0", 4 * n), ca.MX.sym("ref", 6 * n, steps)
-        syms = [ca.MX.sym(nm, v.numel()) for nm, v in zip(names, params)] + [ca.MX.sym("dt")]
-        X, P = loop(X0, R, *syms)
-        return ca.Function(name, [X0, R, *syms], [X, P], ["x0", "ref", *names, "dt"],
-                           ["x", "p_cmd"])
+        return dict(params=[("pi", self.n_params), ("K", n), ("T_p", 2 * n, "s"),
+                            *((g, n) for g in GAIN_NAMES)],
+                    p0={"pi": self.parameter_nominal, "K": self.act.K, "T_p": 0.05,
+                        **hurwitz_gains(n)},
+                    rules={"T_p": "positive", **{g: "positive" for g in GAIN_NAMES}},
+                    meta={"model": self.name})
+
+    def controller_block(self, dt: float, *, hold_compensation: bool = False,
+                         name: str = "ctrl") -> Block:
+        """Eq. 10.15-10.16 as a digital controller: ``p_cmd`` computed at t_k, held.
+
+        Reads the state (``q``, ``qd``, ``p``) and ``ref`` (6n) at the sample; emits
+        ``p_cmd`` (unsaturated) and ``v`` (eq. 10.16). Parameters: the controller's
+        ``pi`` and ``K`` (a 1 % error is ``pi = 0.99 π``), ``T_p`` and the gains
+        (default: nominal model, T_p = 0.05 s, every pole at −1). With
+        ``hold_compensation`` the command is corrected for the hold,
+        p_c = p + β (p_c,FL − p) with β = (dt/T_p)/(1 − e^{−dt/T_p}), so that the
+        valve's mean ṗ over the sample is the one eq. 10.15 asks for (a held command
+        falls short by about dt/(2 T_p)).
+        """
+        n = self.n
+
+        def body(x, u, p):
+            pc, v = self._law(ca.vertcat(u["q"], u["qd"], u["p"]), u["ref"], p)
+            if hold_compensation:
+                beta = (dt / p["T_p"]) / (1 - ca.exp(-dt / p["T_p"]))
+                pc = u["p"] + beta * (pc - u["p"])
+            return {}, {"p_cmd": pc, "v": v}
+
+        return Block.define(name, dt=dt, inputs=[("q", n, "rad"), ("qd", n, "rad/s"),
+                                                 ("p", 2 * n, "Pa"), ("ref", 6 * n)],
+                            outputs=[("p_cmd", 2 * n, "Pa"), ("v", 2 * n)], body=body,
+                            doc="feedback linearisation, sampled (eq. 10.15-10.16)"
+                            + (", hold-compensated" if hold_compensation else ""),
+                            **self._params())
+
+    def continuous_block(self, dt: float, *, name: str = "loop") -> Block:
+        """Eq. 10.15-10.16 as a continuous-time law on the valve plant, RK4 per sample.
+
+        The law is part of the closed-loop ODE ẋ = f(x) + g p_c(x, ref(t)) of eq. 10.12
+        and is evaluated at every stage of one classical RK4 step per sample
+        (:func:`~softgen.control.pneumatic_loop.rk4_stage_step`): the block is
+        controller and plant at once, as a Simulink model of both would be. Reads
+        ``ref_stages`` (18n, :func:`~softgen.control.pneumatic_loop.stage_reference_block`);
+        parameters as :meth:`controller_block`. State and outputs ``q``, ``qd``, ``p``
+        (at the sample), ``sigma`` (σ of the plant, true K), ``p_cmd`` (at t_k,
+        unsaturated) and ``v``.
+        """
+        n, rhs = self.n, self.valve_rhs_fun()
+        state = [("q", n, "rad"), ("qd", n, "rad/s"), ("p", 2 * n, "Pa")]
+
+        def body(x, u, p):
+            xv = ca.vertcat(x["q"], x["qd"], x["p"])
+            xn = rk4_stage_step(lambda s, r: rhs(s, self._law(s, r, p)[0], p["T_p"]), xv,
+                                u["ref_stages"], dt)
+            pc, v = self._law(xv, u["ref_stages"][:6 * n], p)
+            return ({"q": xn[:n], "qd": xn[n:2 * n], "p": xn[2 * n:]},
+                    {**x, "sigma": self.act.stiffness(x["q"], x["p"]), "p_cmd": pc, "v": v})
+
+        return Block.define(name, dt=dt, state=state, inputs=[("ref_stages", 18 * n)],
+                            outputs=[*state, ("sigma", n, "N m/rad"), ("p_cmd", 2 * n, "Pa"),
+                                     ("v", 2 * n)], body=body,
+                            doc="feedback linearisation and valve plant, continuous time, "
+                                "RK4 per sample", **self._params())
+
+    # -- statics ----------------------------------------------------------------------------
+    @cached_property
+    def _statics(self) -> tuple[ca.Function, ca.Function]:
+        n, m = self.n, self.dyn.nominal
+        q, sig = ca.SX.sym("q", n), ca.SX.sym("sigma", n)
+        G = ca.substitute(m.gravity(), m.q, q)
+        B = ca.substitute(m.inertia(), m.q, q)
+        return (ca.Function("rest", [q, sig], [self.act.allocation(q, G, sig)]),
+                ca.Function("minv_g", [q], [ca.solve(B, G)]))
+
+    def rest_pressures(self, q, sigma) -> np.ndarray:
+        """The pressures (2n) that hold the true plant at rest at ``q`` with stiffness σ."""
+        return np.array(self._statics[0](q, sigma)).ravel()
+
+    def predicted_offset(self, q_d, gains: dict, delta: float) -> np.ndarray:
+        """q_d − q at the FL equilibrium with the controller's π̂ = (1 − δ)π.
+
+        At rest with p = p_c, L_f³h + E p_c = 0 for any π (the Coriolis terms are
+        quadratic in q̇), so eq. 10.16 gives k0 (q_d − q) = k2 q̈̂, and the model
+        acceleration is q̈̂ = M̂⁻¹(G − Ĝ) = δ/(1 − δ) M(q)⁻¹G(q). Solves
+        e = (k2/k0) δ/(1 − δ) M(q_d − e)⁻¹ G(q_d − e) with scipy's hybrid Powell
+        method (plain fixed-point iteration is not a contraction here).
+        """
+        from scipy.optimize import root
+
+        minv_g = self._statics[1]
+        scale = gains["kq2"] / gains["kq0"] * delta / (1 - delta)
+        sol = root(lambda e: e - scale * np.array(minv_g(q_d - e)).ravel(),
+                   scale * np.array(minv_g(q_d)).ravel(), tol=1e-13)
+        if not sol.success:
+            raise FloatingPointError(f"predicted_offset: {sol.message}")
+        return sol.x
 
     def functions(self) -> list[tuple[ca.Function, str]]:
         """The section-10.4 functions of this model, with one-line docs."""
@@ -292,7 +336,7 @@ class FeedbackLinearization(McKibbenRobot):
         ]
 
 
-def feedback_linearization(model: RobotModel) -> FeedbackLinearization:
+def feedback_linearization(model: RobotModel, **shared) -> FeedbackLinearization:
     """:class:`FeedbackLinearization` of ``model``, or one clear error if it cannot apply.
 
     Raises
@@ -300,38 +344,92 @@ def feedback_linearization(model: RobotModel) -> FeedbackLinearization:
     ModelError
         If the model has no McKibben pairs (the outputs σ = −KΦ_q p and the pressure
         dynamics of eq. 10.12 need them).
+
+    ``shared``: ``dyn`` and ``act`` already derived (e.g. a :class:`PneumaticArm`'s).
     """
     if model.actuator_type != "mckibben":
         got = model.actuator_type or "no [[actuators]]"
         raise ModelError(f"{model.name}: feedback linearisation (section 10.4) needs McKibben "
                          f"pairs (type = \"mckibben\") on every joint, got {got}")
-    return FeedbackLinearization(model)
+    return FeedbackLinearization(model, **shared)
 
 
-def rk4_closed_loop_fun(name: str, rhs: ca.Function, out: ca.Function, *, steps: int,
-                        names: list[str], out_names: list[str]) -> ca.Function:
-    """``steps`` classical RK4 steps of a closed loop whose controller is continuous in time.
+# -- the closed loops of section 10.4 (Fig. 10.14) ---------------------------------------------
 
-    ``rhs(s, ref, *params) -> ṡ`` and ``out(s, ref, *params) -> y`` (recorded at the
-    start of each step). The returned function takes ``s0``, ``ref`` (3·n_ref × steps:
-    per step the references at t_k, t_k + dt/2, t_k + dt) and ``*params`` and ``dt``;
-    it returns the state after every step and ``y``, one column per step. ``names``
-    names s and the params (the state's name gets a trailing ``0``).
+#: Controllers of the section-10.4 comparison.
+LAWS = ("fl", "theorem5")
+
+
+def valve_loop(fl: FeedbackLinearization, arm: PneumaticArm, ref: Block, law: str, dt: float,
+               *, mode: str = "continuous", hold_compensation: bool = False, substeps: int = 1,
+               name: str | None = None) -> ClosedLoop:
+    """References ``ref`` → ``law`` (FL or Theorem 5) → the valve plant (section 10.4).
+
+    ``ref``: a stateless block reading ``t`` and emitting ``ref`` (6n), ``q_d`` and
+    ``sigma_d`` (e.g. :func:`~softgen.control.references.stiffness_reference_block`).
+    ``mode="continuous"``: one block ``loop`` integrates law and plant over each sample
+    (:meth:`FeedbackLinearization.continuous_block`,
+    :func:`~softgen.control.pneumatic_loop.theorem5_continuous_block`), ``ref`` read at
+    the RK4 stage times too. ``mode="sampled"``: ``ctrl`` → ``plant``
+    (:func:`~softgen.control.pneumatic_loop.plant_block`, ``substeps`` RK4 steps), the
+    command held over the sample; FL may compensate the hold. :func:`valve_loop_start`
+    gives initial state and parameters, :func:`valve_loop_signals` the signal names.
     """
-    ns, nr = rhs.size1_in(0), rhs.size1_in(1)
-    s, r3, dt = ca.SX.sym("s", ns), ca.SX.sym("r3", 3 * nr), ca.SX.sym("dt")
-    params = [ca.SX.sym(f"p{i}", rhs.sparsity_in(i)) for i in range(2, rhs.n_in())]
-    r0, rh, r1 = r3[:nr], r3[nr:2 * nr], r3[2 * nr:]
-    k1 = rhs(s, r0, *params)
-    k2 = rhs(s + dt / 2 * k1, rh, *params)
-    k3 = rhs(s + dt / 2 * k2, rh, *params)
-    k4 = rhs(s + dt * k3, r1, *params)
-    s_next = s + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    one = ca.Function("one_step", [s, r3, *params, dt], [s_next, out(s, r0, *params)],
-                      FUNCTION_OPTS)
-    loop = one.mapaccum("loop", steps, [0], [0])
-    S0, R = ca.MX.sym("s0", ns), ca.MX.sym("ref", 3 * nr, steps)
-    syms = [ca.MX.sym(nm, p.sparsity()) for nm, p in zip(names[1:], params)] + [ca.MX.sym("dt")]
-    S, Y = loop(S0, R, *syms)
-    return ca.Function(name, [S0, R, *syms], [S, Y], [f"{names[0]}0", "ref", *names[1:], "dt"],
-                       out_names)
+    if law not in LAWS or mode not in ("continuous", "sampled"):
+        raise ValueError(f"law, mode: expected one of {LAWS} and 'continuous' or 'sampled', "
+                         f"got {law!r}, {mode!r}")
+    if hold_compensation and (law, mode) != ("fl", "sampled"):
+        raise ValueError("hold_compensation: only for law='fl', mode='sampled'")
+    if mode == "continuous":
+        blocks = [stage_reference_block(ref, dt), fl.continuous_block(dt) if law == "fl"
+                  else theorem5_continuous_block(arm, dt)]
+    else:
+        blocks = [ref, fl.controller_block(dt, hold_compensation=hold_compensation)
+                  if law == "fl" else controller_block(arm, "theorem5", dt),
+                  plant_block(arm, dt, plant="valve", substeps=substeps)]
+    tag = f"{law}_{mode}{'_hc' if hold_compensation else ''}_{dt:g}"
+    return ClosedLoop(name or f"{fl.name}_{tag}".replace(".", "_").replace("-", "m"), blocks,
+                      [("ctrl.p", "plant.p_cmd")] if (law, mode) == ("theorem5", "sampled")
+                      else [])
+
+
+def valve_loop_signals(d: ClosedLoop) -> dict[str, str]:
+    """Signal names of a :func:`valve_loop` diagram: ``q``, ``sigma`` (plant, at the
+    sample), ``q_d``, ``sigma_d``, ``p_cmd`` (the command issued), and for Theorem 5
+    ``nu``, ``Pi_hat``."""
+    sig = {k: f"{b.name}.{k}" for b in d.blocks.values()
+           for k in ("q", "sigma", "q_d", "sigma_d", "nu", "Pi_hat") if k in b.outputs}
+    sig["p_cmd"] = "ctrl.p" if "ctrl.p" in d.signals else \
+        "loop.p_cmd" if "loop" in d.blocks else "ctrl.p_cmd"
+    return sig
+
+
+def valve_loop_start(d: ClosedLoop, fl: FeedbackLinearization, arm: PneumaticArm, *,
+                     gains: dict, ratio: float = 1.0, T_p: float = 0.05) -> tuple[dict, dict]:
+    """``(x0, params)`` of a :func:`valve_loop` diagram, for :func:`simulate`.
+
+    At rest at q_d(0) with the pressures that hold σ_d(0) (true model). ``gains``: FL's
+    ``kq0 … ks0`` (:func:`hurwitz_gains`) or Theorem 5's ``lam, kd, kpi, ksigma, kinv``.
+    ``ratio`` scales the controller's belief: FL's π = ratio·π, Theorem 5's
+    Π̂(0) = ratio·Π, from the ν of the open-loop stiffness preset
+    (:func:`~softgen.control.pneumatic_loop.preset_nu`, section 10.2). ``T_p`` is the
+    valves' time constant, known to FL.
+    """
+    n = fl.n
+    ref0 = d.blocks["ref"].eval(u=[0.0])[1][d.blocks["ref"].outputs.slice("ref")]
+    x0 = {"q": ref0[:n], "p": fl.rest_pressures(ref0[:n], ref0[4 * n:5 * n])}
+    par = {"T_p": T_p, **gains}
+    if any("pi" in b.params for b in d.blocks.values()):          # FL
+        par["pi"] = ratio * fl.parameter_nominal
+    else:
+        Pi0 = ratio * arm.Pi_nominal
+        x0.update(Pi_hat=Pi0, nu=preset_nu(arm, Pi0, ref0[:n], ref0, lam=gains["lam"],
+                                           kd=gains["kd"], dt=d.dt))
+    # Short names to every block that has them (T_p: the FL controller's and the plant's).
+    out = tuple({f"{b.name}.{k}": v for k, v in vals.items() for b in d.blocks.values()
+                 if k in getattr(b, lay)} for vals, lay in ((x0, "state"), (par, "params")))
+    placed = {key.partition(".")[2] for part in out for key in part}
+    if lost := sorted((set(x0) | set(par)) - placed):
+        raise ValueError(f"gains: {', '.join(lost)}: not a parameter of diagram {d.name} "
+                         f"(expected some of {', '.join(d.params.names)})")
+    return out

@@ -32,7 +32,7 @@ from matplotlib.figure import Figure
 from ..blocks import ClosedLoop
 from ..control.feasibility import check_pressures
 from ..control.pneumatic import pneumatic_arm
-from ..control.pneumatic_loop import controller_block, plant_block
+from ..control.pneumatic_loop import controller_block, decoupling_windows, plant_block
 from ..control.references import SmoothSteps, stiffness_reference_block
 from ..model import load_model
 from ..runtime.simulate import Trace, simulate
@@ -80,27 +80,21 @@ class Ch10AdaptiveConfig(Config):
                              f"{self.controller!r}")
 
 
+def _steps(keys, rise: float) -> list[SmoothSteps]:
+    return [SmoothSteps(*SCHEDULE[k], rise) for k in keys]
+
+
 def _windows(kind: str, rise: float, settle: float) -> list[tuple[float, float, float]]:
     """Intervals in which only ``kind`` ("q" or "s") references move, with step sizes."""
-    own, other = (("q1", "q2"), ("s1", "s2")) if kind == "q" else (("s1", "s2"), ("q1", "q2"))
-    other_times = sorted({t for k in other for t in SCHEDULE[k][0][1:]})
-    changes = sorted({t for k in own + other for t in SCHEDULE[k][0][1:]})
-    out = []
-    for key in own:
-        times_, values = SCHEDULE[key]
-        for t0, a, b in zip(times_[1:], values[:-1], values[1:]):
-            if t0 < settle or any(abs(t0 - u) < rise for u in other_times):
-                continue
-            t1 = min([c for c in changes if c > t0] + [PHASES[-1][1]])
-            out.append((float(t0), float(t1), abs(b - a)))
-    return out
+    q, s = _steps(("q1", "q2"), rise), _steps(("s1", "s2"), rise)
+    own, other = (q, s) if kind == "q" else (s, q)
+    return decoupling_windows(own, other, settle=settle, end=PHASES[-1][1])
 
 
 def diagram(arm, kind: str, c: Ch10AdaptiveConfig, dt: float) -> ClosedLoop:
     """Smoothed-step references -> controller ``kind`` -> McKibben arm (ideal pressures)."""
-    ref = stiffness_reference_block(
-        "ref", [SmoothSteps(*SCHEDULE[k], c.rise) for k in ("q1", "q2")],
-        [SmoothSteps(*SCHEDULE[k], c.rise) for k in ("s1", "s2")])
+    ref = stiffness_reference_block("ref", _steps(("q1", "q2"), c.rise),
+                                    _steps(("s1", "s2"), c.rise))
     return ClosedLoop(f"ch10_{arm.name}_{kind}_{'_'.join(f'{dt:g}'.split('.'))}".replace("-", "m"),
                       [ref, controller_block(arm, kind, dt), plant_block(arm, dt)],
                       [("ctrl.p", "plant.p_cmd")])

@@ -15,26 +15,16 @@ warning per process.
 from __future__ import annotations
 
 import hashlib
-import os
 import warnings
-from pathlib import Path
 
 import casadi as ca
 
 from ..codegen.build import find_compiler
 from ..codegen.generate import BundleSpec, Generated, render, signature, write_bundle
+from ..paths import cache_dir
 from .library import Bundle, BundleFunction
 
 _warned = False
-
-
-def cache_dir() -> Path:
-    """Where compiled run-time functions live (see the module docstring)."""
-    env = os.environ.get("SOFTGEN_CACHE_DIR")
-    if env:
-        return Path(env).expanduser()
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    return (Path(xdg) if xdg else Path.home() / ".cache") / "softgen"
 
 
 def compile_functions(name: str, functions: list[ca.Function], *,

@@ -1,0 +1,54 @@
+"""A built wheel works outside the checkout: models and bundles ship as package data."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import sysconfig
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _run(cmd, cwd, env, timeout=300):
+    r = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+    assert r.returncode == 0, f"{cmd}: exit {r.returncode}\n{r.stdout}\n{r.stderr}"
+    return r.stdout
+
+
+@pytest.mark.compiler
+def test_wheel_installs_and_runs_from_another_directory(tmp_path, need_compiler):
+    wheels = tmp_path / "wheels"
+    _run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation",
+          str(ROOT), "-w", str(wheels)], tmp_path, os.environ.copy())
+    wheel = next(wheels.glob("softgen-*.whl"))
+    venv = tmp_path / "venv"
+    _run([sys.executable, "-m", "venv", str(venv)], tmp_path, os.environ.copy())
+    py = venv / "bin" / "python"
+    site = Path(_run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                     tmp_path, os.environ.copy()).strip())
+    # The dependencies (casadi, numpy, ...) come from this interpreter's site-packages; a
+    # path added by a .pth file does not run that directory's own .pth files, so the
+    # checkout's editable install stays out of the fresh venv.
+    (site / "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    _run([str(py), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)],
+         tmp_path, os.environ.copy())
+    work = tmp_path / "elsewhere"
+    work.mkdir()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("SOFTGEN_")}
+    env["SOFTGEN_CACHE_DIR"] = str(tmp_path / "cache")
+    softgen = str(venv / "bin" / "softgen")
+    where = _run([str(py), "-c", "import softgen.paths as p; print(p.MODELS_DIR)"], work, env)
+    assert str(venv) in where and str(ROOT) not in where      # the wheel's copy, not ours
+    listing = _run([softgen, "list"], work, env)
+    assert "planar_2link" in listing and "rigid-2link-adaptive" in listing
+    assert "base parameters" in _run([softgen, "info", "planar_2link"], work, env)
+    _run([str(py), "-c", "from softgen.bundle import load_bundle; import numpy as np; "
+          "a = load_bundle('planar_2link'); z = np.zeros(2); "
+          "assert abs(a.regressor(z, z, z, z) @ a.parameter_nominal "
+          "- a.inverse_dynamics(z, z, z, z)).max() < 1e-12"], work, env)
+    _run([softgen, "reproduce", "rigid-2link-adaptive", "--quick", "--out", "res"], work, env)
+    assert (work / "res" / "rigid-2link-adaptive" / "metrics.json").is_file()
+    assert (work / "res" / "report.md").is_file()
