@@ -144,3 +144,59 @@ def test_experiment_configs_are_checked():
         Ch11Config(family="pid").check()
     with pytest.raises(ValueError, match="b_min"):
         Ch11Config(b_min=0.0).check()
+
+
+def test_fed_back_sigma_equal_to_the_model_gives_the_same_step(arm):
+    """sigma_input: with σ_fb = σ of the spring model the step is the ordinary one; with
+    another σ_fb only the stiffness row (and what follows from it) changes."""
+    fb = ElectricArm(arm.model, dyn=arm.dyn, springs=arm.springs, acceleration="measured",
+                     projection=True, sigma_input=True)
+    rng = np.random.default_rng(13)
+    v = "adaptive_integral"
+    f, ffb = arm.step_fun(v), fb.step_fun(v)
+    assert ffb.name_in(3) == "sigma_fb"
+    for _ in range(3):
+        x, z, ref, g = _case(rng, arm, v)
+        gv = arm.gain_vectors(v, g, dt=DT)
+        want = [_np(o) for o in f(z, x, ref, *gv, DT)]
+        sig = want[OUTPUTS.index("sigma")]
+        got = [_np(o) for o in ffb(z, x, ref, sig, *gv, DT)]
+        for w, o in zip(want, got):
+            assert np.allclose(o, w, rtol=1e-11, atol=1e-13)
+        other = [_np(o) for o in ffb(z, x, ref, sig + 0.5, *gv, DT)]
+        assert np.allclose(other[OUTPUTS.index("sigma")], sig + 0.5)
+        assert not np.allclose(other[OUTPUTS.index("tau_e_ref")],
+                               want[OUTPUTS.index("tau_e_ref")])
+
+
+def test_encoder_estimator_and_selector_blocks():
+    from softgen.control.electric import encoder_block, estimator_block, sigma_feedback_block
+    from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
+    enc = encoder_block(N, 8192)
+    res = 2 * np.pi / 8192
+    rng = np.random.default_rng(17)
+    u = rng.uniform(-2, 2, 3 * N)
+    y = enc.eval(u=u, p=[1.0])[1]
+    assert np.allclose(y, np.round(u / res) * res, rtol=0, atol=1e-15)
+    assert np.array_equal(enc.eval(u=u, p=[0.0])[1], u)
+    est = StiffnessEstimator(load_model("arm_2link_electric"),
+                             EstimatorConfig("electric", dt=DT))
+    blk = estimator_block(est, DT, name="inv")
+    f = est.step_fun()
+    s, prev = est.initial_state(), np.zeros(N)
+    x = np.concatenate([s, prev])
+    for _ in range(8):                   # the output is the step's estimate, one sample late
+        yk = rng.uniform(-0.5, 0.5, 5 * N)
+        xn, out = blk.eval(x=x, u=yk)
+        s_next, sig = (_np(o) for o in f(x[:s.size], yk)[:2])
+        assert np.array_equal(out[:N], x[s.size:])
+        assert np.allclose(xn, np.concatenate([s_next, sig]), rtol=1e-14, atol=0)
+        x = xn
+    sw = sigma_feedback_block(N, 2)
+    line = np.arange(2 * N, dtype=float)
+    u = np.concatenate([[5.0], [10.0, 11.0], [20.0, 21.0], [30.0, 31.0]])
+    for src, t_on, want in ((0, 1.0, [10, 11]), (1, 1.0, [20, 21]), (2, 1.0, [30, 31]),
+                            (3, 1.0, [0, 1]), (1, 9.0, [10, 11])):
+        xn, y = sw.eval(x=line, u=u, p=[src, t_on])
+        assert np.array_equal(y, want)
+        assert np.array_equal(xn, [2, 3, 10, 11])

@@ -218,7 +218,8 @@ class ElectricArm:
 
     def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None,
                  springs: QbmoveSprings | None = None, derivatives: str = "model",
-                 acceleration: str = "model", projection: bool = False):
+                 acceleration: str = "model", projection: bool = False,
+                 sigma_input: bool = False):
         if model.actuator_type != "qbmove":
             got = model.actuator_type or "no [[actuators]]"
             raise ModelError(f"{model.name}: the chapter-11 controllers need qbmove "
@@ -231,6 +232,7 @@ class ElectricArm:
                              f"got {acceleration!r}")
         self.acceleration = acceleration
         self.projection = bool(projection)
+        self.sigma_input = bool(sigma_input)
         self.model = model
         self.dyn = dyn or RigidDynamics(model)
         self.springs = springs or QbmoveSprings(model)
@@ -318,6 +320,8 @@ class ElectricArm:
             suffix += "_measured_acceleration"
         if self.projection and _is_adaptive(variant):
             suffix += "_projected"
+        if self.sigma_input:
+            suffix += "_sigma_input"
         return f"{self.name}_electric_cascade_{variant}{suffix}"
 
     # -- symbolic pieces ------------------------------------------------------------------
@@ -372,11 +376,13 @@ class ElectricArm:
         A = M.T @ M + ACC_REGULARIZATION * ca.DM.eye(self.n)
         return ca.solve(A, M.T @ (tau_link - bias))
 
-    def outer(self, variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G):
-        """Outer loop: commanded (τ^e_a, τ^e_b), det, σ, rates of (ξ, π̂), q̈ of the model."""
+    def outer(self, variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G, sigma_offset=0):
+        """Outer loop: commanded (τ^e_a, τ^e_b), det, σ, rates of (ξ, π̂), q̈ of the model.
+
+        ``sigma_offset`` is added to the spring model's σ (a fed-back σ, see step_fun)."""
         e, ed = q - R["q_d"], qd - R["qd_d"]
         ta, tb = self.spring_torques(q, qa, qb)
-        sigma = self.springs.stiffness(q, qa, qb)
+        sigma = self.springs.stiffness(q, qa, qb) + sigma_offset
         e_sigma = sigma - R["sigma_d"]
         rates = {}
         if _is_adaptive(variant):
@@ -427,8 +433,11 @@ class ElectricArm:
         dt = ca.SX.sym("dt")
 
         xi, pi_hat = Z.get("xi"), Z.get("pi_hat")
+        # A fed-back σ (sigma_input): σ_fb = σ_model(x) + o with o held over the Lie
+        # derivatives (σ_fb's own rate is the spring model's), o = σ_fb − σ_model(x).
+        offset = ca.SX.sym("sigma_offset", n) if self.sigma_input else 0
         tau_a, tau_b, det, sigma, rates, qdd_model = self.outer(
-            variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G)
+            variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G, offset)
         h = ca.vertcat(*self.motor_references(q, tau_a, tau_b))      # eq. 11.3
 
         qm, qmd = ca.vertcat(qa, qb), ca.vertcat(qad, qbd)
@@ -520,6 +529,12 @@ class ElectricArm:
         ins = [z, x, ref, *gsyms, dt]
         names = ["z", "x", "ref", *G.keys(), "dt"]
         outs = [z_next, tau_m, q_ref, qd_ref, qdd_ref, ca.vertcat(tau_a, tau_b), sigma, det]
+        if self.sigma_input:
+            sigma_fb = ca.SX.sym("sigma_fb", n)
+            outs = ca.substitute(outs, [offset],
+                                 [sigma_fb - self.springs.stiffness(q, qa, qb)])
+            ins.insert(3, sigma_fb)
+            names.insert(3, "sigma_fb")
         return ca.Function(self.step_name(variant), ins, [ca.densify(o) for o in outs], names,
                            list(OUTPUTS), FUNCTION_OPTS)
 
@@ -744,10 +759,11 @@ def bundle_functions(model: RobotModel, *, dyn: RigidDynamics | None = None,
 
 
 def electric_arm(model: RobotModel, *, derivatives: str = "model",
-                 acceleration: str = "model", projection: bool = False) -> ElectricArm:
+                 acceleration: str = "model", projection: bool = False,
+                 sigma_input: bool = False) -> ElectricArm:
     """:class:`ElectricArm` of ``model`` (one clear error if it has no qbmove actuators)."""
     return ElectricArm(model, derivatives=derivatives, acceleration=acceleration,
-                       projection=projection)
+                       projection=projection, sigma_input=sigma_input)
 
 
 def _spring_pair_torques(arm: ElectricArm, tau, sigma) -> tuple[np.ndarray, np.ndarray]:
@@ -963,3 +979,85 @@ def reference_block(q_spec=None, sigma_spec=None, *, name: str = "ref") -> Block
                         outputs=[("ref", 9 * n, ""), ("q_d", n, "rad"),
                                  ("sigma_d", n, "N m/rad")],
                         body=body, doc="section 11.2 sinusoidal references")
+
+
+# -- closing the stiffness loop with an estimator (issue 12, item 3) ---------------------------
+
+def encoder_block(n: int, counts_per_rev: int, *, name: str = "enc") -> Block:
+    """Incremental encoders on the link and both motors of ``n`` joints.
+
+    Reads ``q, qa, qb``; emits ``q_m, qa_m, qb_m``, each rounded to one count of
+    2π/``counts_per_rev`` (halves upwards) when the parameter ``quantise`` is 1, exact
+    when it is 0 (a variant run with ideal sensors in the same generated loop). A
+    minimal quantiser: the shared sensor blocks are not on this branch yet.
+    """
+    res = 2 * np.pi / int(counts_per_rev)
+
+    def body(x, u, p):
+        y = {}
+        for k in ("q", "qa", "qb"):
+            qq = ca.floor(u[k] / res + 0.5) * res
+            y[f"{k}_m"] = u[k] + p["quantise"] * (qq - u[k])
+        return {}, y
+
+    return Block.define(name, dt=None, inputs=[(k, n, "rad") for k in ("q", "qa", "qb")],
+                        outputs=[(f"{k}_m", n, "rad") for k in ("q", "qa", "qb")],
+                        params=[("quantise", 1, "")], p0={"quantise": 1.0}, body=body,
+                        doc=f"encoders, {counts_per_rev} counts/rev",
+                        meta={"resolution": res})
+
+
+def estimator_block(est, dt: float, *, name: str) -> Block:
+    """A stiffness estimator (:class:`softgen.estimation.estimators.StiffnessEstimator`,
+    electric or non-invasive, chapters 6-7) as a block, its output held one sample.
+
+    Reads ``q, qa, qb`` (and ``tau_m``, the motor torques, for the invasive electric
+    estimator: y = (q, q_a, q_b, τ_a, τ_b)); emits ``sigma_hat``, the estimate for
+    sample k − L − 1: the step's estimate for k − L (its observer delay L), held one
+    sample so that a controller reading it at sample k has no algebraic loop with the
+    torque it computes then. Also ``updating`` (RLS updates of the last step).
+    """
+    f, n = est.step_fun(), est.n
+    invasive = est.config.method == "electric"
+    n_state = f.size1_in(0)
+
+    def body(x, u, p):
+        y = ca.vertcat(u["q"], u["qa"], u["qb"], *([u["tau_m"]] if invasive else []))
+        res = f.call({"state": x["state"], "y": y})
+        return ({"state": res["state_next"], "sigma_prev": res["sigma_hat"]},
+                {"sigma_hat": x["sigma_prev"], "updating": res["updating"]})
+
+    ins = [(k, n, "rad") for k in ("q", "qa", "qb")] + ([("tau_m", 2 * n, "N m")]
+                                                        if invasive else [])
+    return Block.define(name, dt=dt, state=[("state", n_state), ("sigma_prev", n)],
+                        inputs=ins, outputs=[("sigma_hat", n, "N m/rad"),
+                                             ("updating", f.size1_out(4), "")],
+                        x0={"state": est.initial_state()}, body=body,
+                        doc=f"{est.config.method} stiffness estimator, one-sample hold",
+                        meta={"delay": est.config.delay + 1})
+
+
+def sigma_feedback_block(n: int, delay: int, *, name: str = "sw") -> Block:
+    """The σ a cascade with ``sigma_input`` feeds back (a selector, parameters only).
+
+    Inputs ``sigma`` (the plant's), ``sigma_inv``, ``sigma_non`` (two estimates); output
+    ``sigma_fb``: the plant's σ before ``t_on`` or while ``source`` = 0; after ``t_on``
+    the invasive (``source`` = 1) or non-invasive (2) estimate, or the plant's σ delayed
+    by ``delay`` samples (3: what the estimators' delay alone costs). ``t`` is read.
+    """
+    d = int(delay)
+
+    def body(x, u, p):
+        line = x["line"]
+        late = line[:n]
+        src, on = p["source"], u["t"] >= p["t_on"]
+        est = ca.if_else(src == 1, u["sigma_inv"], ca.if_else(src == 2, u["sigma_non"], late))
+        out = ca.if_else(ca.logic_and(on, src > 0), est, u["sigma"])
+        return {"line": ca.vertcat(line[n:], u["sigma"])}, {"sigma_fb": out}
+
+    return Block.define(name, dt=None, state=[("line", d * n)],
+                        inputs=[("t", 1, "s"), ("sigma", n, "N m/rad"),
+                                ("sigma_inv", n, "N m/rad"), ("sigma_non", n, "N m/rad")],
+                        outputs=[("sigma_fb", n, "N m/rad")],
+                        params=[("source", 1, ""), ("t_on", 1, "s")], body=body,
+                        doc="fed-back stiffness selector")

@@ -34,6 +34,7 @@ _MODULES = {
     "ch10-gioste-2dof": ".ch10_gioste:EXPERIMENT_2DOF",
     "ch11-electric-pd": ".ch11_electric:EXPERIMENT_PD",
     "ch11-electric-adaptive": ".ch11_electric:EXPERIMENT_ADAPTIVE",
+    "ext-estimated-stiffness-feedback": ".ext_estimated_stiffness",
 }
 
 
