@@ -101,13 +101,27 @@ commanded away in one sample, a transient the cascade does not survive (measured
 :func:`initial_plant_state` with ``ksigma``/``delta`` starts at that quasi-steady
 stiffness; the integral variants start at σ_d with ξ(0) from :func:`integral_start`.
 
-**Known limits** (measured on section 11.2's runs, dt = 1 ms; see the report of
-issue 12): the adaptive cascades track from nominal estimates with the thesis's gains
-(``"measured"`` acceleration), but not from π̂_m(0) = 0: with b̂ = 0 the adapted motor
-model has no inertia and the motor-acceleration loop degenerates (diverges within
-0.3 s; from 10 % of the nominal b̂ it runs, with a link π̂(0) = 0 it learns slowly,
-joint-2 rms 0.09-0.14 rad). Remark 11's k_π = 7 diverges at dt = 1 ms whatever the
-start (forward-Euler adaptation too fast for the sample); k_π = 0.2 works.
+**Adaptive start and projection** (measured on section 11.2's runs, dt = 1 ms, with
+the diagram blocks below; ``ch11-electric-adaptive`` repeats each run). From π̂_m(0) = 0
+(the thesis's start) Theorem 8's law drives b̂ below zero at once (b̂_1a = −7.6e-4 kg m²
+after the first sample with the printed Λ_m = 0.1): an adapted motor of negative
+inertia, and the cascade diverges (0.33 s with Λ_m = 0.1, 6 ms with Λ_m = 10).
+``projection=True`` adds the gain ``b_min`` (2n) and keeps b̂ ≥ b_min after every
+update: the projection of adaptive control (Ioannou & Sun, Robust Adaptive Control),
+which keeps V̇ ≤ 0 of Theorem 8 because the set b̂ ≥ b_min contains the true b. With
+b_min = 0.1 b the antagonist motors' b̂ sit on the bound for the whole run (the law
+keeps pushing them down) and the cascades track. The printed inner Λ_m = 0.1 leaves a
+motor pole at ≈ 0.1 rad/s (b s² + k s + kΛ, b = 1e-3, k = 0.1): joint-2 position rms
+0.14 rad over the second half of 40 s, the same at dt = 0.1 ms; Λ_m = 10 gives 1e-3 rad.
+Remark 11's k_π = 7 diverges at 0.122 s at dt = 1 ms and at 0.129 s at dt = 0.1 ms (not
+the Euler step: the link adaptation outruns the inner loop that must realise its
+torques); k_π = 0.2 (Theorem 9's) works.
+
+**Fed-back stiffness** (``sigma_input=True``, suffix ``_sigma_input``): the step takes
+an input ``sigma_fb`` (n) after ``ref`` and uses it for e_σ instead of the spring model's
+σ; in the Lie derivatives of the motor references σ_fb moves as the model's σ (the
+difference σ_fb − σ_model is held over the sample). This closes the stiffness loop on an
+estimator (:func:`estimator_block`; experiment ``ext-estimated-stiffness-feedback``).
 
 **Layouts** (all vectors; motors ordered a-side joints 1..n, then b-side):
 
@@ -214,6 +228,12 @@ class ElectricArm:
         Already derived dynamics and springs (a bundle derives them once).
     derivatives
         ``"model"`` or ``"filter"`` (see :data:`DERIVATIVES`).
+    acceleration
+        ``"model"`` or ``"measured"`` (see :data:`ACCELERATIONS`).
+    projection
+        Adaptive variants: keep b̂ ≥ ``b_min`` (an extra gain; module docstring).
+    sigma_input
+        Feed back the input ``sigma_fb`` instead of the spring model's σ.
     """
 
     def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None,
