@@ -104,7 +104,7 @@ stiffness; the integral variants start at σ_d with ξ(0) from :func:`integral_s
 **Adaptive start and projection** (measured on section 11.2's runs, dt = 1 ms, with
 the diagram blocks below; ``ch11-electric-adaptive`` repeats each run). From π̂_m(0) = 0
 (the thesis's start) Theorem 8's law drives b̂ below zero at once (b̂_1a = −7.6e-4 kg m²
-after the first sample with the printed Λ_m = 0.1): an adapted motor of negative
+at 13 ms with the printed Λ_m = 0.1): an adapted motor of negative
 inertia, and the cascade diverges (0.33 s with Λ_m = 0.1, 6 ms with Λ_m = 10).
 ``projection=True`` adds the gain ``b_min`` (2n) and keeps b̂ ≥ b_min after every
 update: the projection of adaptive control (Ioannou & Sun, Robust Adaptive Control),

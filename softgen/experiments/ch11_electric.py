@@ -12,12 +12,12 @@ motor-reference derivatives through the model (NOTES item 15; the adaptive casca
 take q̈ from the measured velocity difference), the start on the references at the
 quasi-steady stiffness (without integral) or with the integral holding the Δ offset.
 
-Adaptive cascades (issue 12, item 3; every number below is a run of this module).
+Adaptive cascades (issue 12, item 3; measured with this module's diagrams).
 The thesis starts every estimate at 0, the motor inertia b̂ included. From b̂ = 0 the
 first samples drive b̂ below 0, an adapted motor of negative inertia, and the loop
 diverges (``unprojected_*``: at 6 ms and 49 ms; with the printed Λ_m = 0.1, b̂_1a =
-−7.6e-4 after one sample and divergence at 0.33 s). Fix: the projection b̂ ≥ ``b_min``
-of adaptive control (Ioannou & Sun, Robust Adaptive Control), a prior bound that holds
+−7.6e-4 kg m² at 13 ms and divergence at 0.33 s, a run not repeated here). Fix: the
+projection b̂ ≥ ``b_min`` (Ioannou & Sun, Robust Adaptive Control), a bound that holds
 the true b, so Theorem 8's V̇ ≤ 0 is kept. Two printed gains fail even so
 (``printed_gains_*``): the inner Λ_m = 0.1 puts a motor pole at ≈ 0.1 rad/s (b s² + k s
 + kΛ with b = 1e-3, k = 0.1), the motors lag their references for seconds and joint 2
