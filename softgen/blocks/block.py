@@ -233,19 +233,7 @@ def _defaults(layout: Layout, given: Mapping | np.ndarray | None, where: str,
         if v.size != layout.size:
             raise ValueError(f"{where}: expected {layout.size} values, got {v.size}")
         return v
-    out = np.zeros(layout.size) if base is None else np.array(base, dtype=float)
-    for k, v in given.items():
-        if k not in layout:
-            raise ValueError(f"{where}: unknown signal {k!r}: expected one of "
-                             f"{', '.join(layout.names) or '(none)'}")
-        sl = layout.slice(k)
-        a = np.asarray(v, dtype=float).ravel()
-        if a.size == 1:
-            a = np.full(sl.stop - sl.start, a[0])
-        if a.size != sl.stop - sl.start:
-            raise ValueError(f"{where}: {k}: expected {sl.stop - sl.start} values, got {a.size}")
-        out[sl] = a
-    return out
+    return layout.override(np.zeros(layout.size) if base is None else base, given, where)
 
 
 RULES = {"positive": (lambda a: np.all(a > 0), "positive"),

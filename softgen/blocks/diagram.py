@@ -292,20 +292,7 @@ class ClosedLoop:
         return v
 
     def _override(self, layout: Layout, v: np.ndarray, given: Mapping | None, what: str):
-        v = np.array(v, dtype=float)
-        for key, val in _flatten(given or {}).items():
-            if key not in layout:
-                raise ValueError(f"{what}: unknown signal {key!r}: expected one of "
-                                 f"{', '.join(layout.names) or '(none)'}")
-            sl = layout.slice(key)
-            a = np.asarray(val, dtype=float).ravel()
-            if a.size == 1:
-                a = np.full(sl.stop - sl.start, a[0])
-            if a.size != sl.stop - sl.start:
-                raise ValueError(f"{what}: {key}: expected {sl.stop - sl.start} values, "
-                                 f"got {a.size}")
-            v[sl] = a
-        return v
+        return layout.override(v, _flatten(given or {}), what)
 
     def describe(self) -> str:
         """The wiring, one line per input (what a reader checks against a figure)."""

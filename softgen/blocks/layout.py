@@ -141,6 +141,27 @@ class Layout:
             return ca.vertcat(*cols) if cols else ca.SX(0, 1)
         return np.concatenate(cols) if cols else np.zeros(0)
 
+    def override(self, base: np.ndarray, given: Mapping, where: str) -> np.ndarray:
+        """A copy of the flat vector ``base`` with ``{name: value}`` written in.
+
+        A scalar fills the whole signal; a wrong name or size raises ``ValueError``
+        naming ``where`` and the signal.
+        """
+        out = np.array(base, dtype=float)
+        for key, val in given.items():
+            if key not in self._slices:
+                raise ValueError(f"{where}: unknown signal {key!r}: expected one of "
+                                 f"{', '.join(self.names) or '(none)'}")
+            sl = self._slices[key]
+            a = np.asarray(val, dtype=float).ravel()
+            if a.size == 1:
+                a = np.full(sl.stop - sl.start, a[0])
+            if a.size != sl.stop - sl.start:
+                raise ValueError(f"{where}: {key}: expected {sl.stop - sl.start} values, "
+                                 f"got {a.size}")
+            out[sl] = a
+        return out
+
     def prefixed(self, prefix: str) -> Layout:
         """The same signals named ``prefix.name`` (a diagram's flat namespace)."""
         return Layout(Signal(f"{prefix}.{s.name}", s.size, s.unit) for s in self.signals)
