@@ -123,6 +123,9 @@ def case_metrics(tr: Trace, c: ExtConfig, source: str, delays: dict) -> Metrics:
             L = delays[k]
             err = tr[f"{k}.sigma_hat"][L:] - tr["plant.sigma"][:-L]
             m.add("estimate_rms_error", _rms(err[win[L:]]), "N m/rad", suffix=name)
+            for j in range(err.shape[1]):       # a bias, or noise about the truth?
+                m.add("estimate_mean_error", err[win[L:], j].mean(), "N m/rad", joint=j + 1,
+                      suffix=name)
         fb = tr["sw.sigma_fb"][win] - tr["plant.sigma"][win]
         m.add("feedback_minus_true_rms", _rms(fb), "N m/rad", suffix=source)
     return m
@@ -241,7 +244,9 @@ EXPERIMENT = Experiment(
         "runs on the true σ; `ideal_encoders_*` repeats the runs with exact angles; "
         "`delayed_true_feedback` feeds the true σ delayed as the non-invasive estimate is "
         "(L + 1 = 4 samples); `early_switch_*` closes the loop on the invasive estimate at "
-        "`t_on_early`, before its RLS has converged. The non-invasive estimator differentiates the quantised link "
+        "`t_on_early`, before its RLS has converged. `estimate_mean_error_*` (per joint, "
+        "signed) tells a bias of the fit from noise about the truth: quantised deflections "
+        "in the RLS regressor are errors in the variables. The non-invasive estimator differentiates the quantised link "
         "angle three times (its rotatum observer); ch7-noninvasive-protocol's filtering is "
         "the remedy it needs."),
 )
