@@ -46,6 +46,9 @@ class BundleOptions:
 
 def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> BundleSpec:
     """The functions, parameter vector and identity of ``model``'s bundle."""
+    if not isinstance(model, RobotModel):         # soft bodies (thesis ch. 3, 12)
+        from .bundle_soft import soft_bundle_spec
+        return soft_bundle_spec(model, options)
     options.check()
     dyn = RigidDynamics(model, route=options.route)
     n = model.dof
@@ -262,12 +265,21 @@ def check_inertia_positive_definite(model: RobotModel, inertia_fun, *,
     naming the file and the first configuration that fails.
     """
     rng = np.random.default_rng(seed)
-    scale = max([abs(v) for k, v in model.nominal.items() if k[:1] in "lp"] + [1.0])
-    prismatic = np.array([link.joint == "prismatic" for link in model.links])
+    links = getattr(model, "links", None)
     where = model.path or model.name
+    if links is None:
+        # Soft bodies: curvatures and (3D) elongations within half a unit of straight.
+        draw = lambda: rng.uniform(-0.5, 0.5, model.dof)   # noqa: E731
+    else:
+        scale = max([abs(v) for k, v in model.nominal.items() if k[:1] in "lp"] + [1.0])
+        prismatic = np.array([link.joint == "prismatic" for link in links], dtype=bool)
+
+        def draw():
+            q = rng.uniform(-np.pi, np.pi, model.dof)
+            q[prismatic] = rng.uniform(-scale, scale, int(prismatic.sum()))
+            return q
     for _ in range(samples):
-        q = rng.uniform(-np.pi, np.pi, model.dof)
-        q[prismatic] = rng.uniform(-scale, scale, int(prismatic.sum()))
+        q = draw()
         B = np.array(inertia_fun(q), dtype=float)
         if not np.all(np.isfinite(B)):
             raise ModelError(f"{where}: B(q) has non-finite entries at q = "
@@ -276,9 +288,11 @@ def check_inertia_positive_definite(model: RobotModel, inertia_fun, *,
         lam = np.linalg.eigvalsh(0.5 * (B + B.T))
         if not lam.min() > 1e-12 * max(abs(lam).max(), 1e-300):
             j = int(np.argmin(np.abs(np.diag(B))))
+            what = f"joint {j + 1} ({links[j].name})" if links is not None else \
+                f"configuration variable {j + 1}"
             raise ModelError(f"{where}: B(q) is not positive definite at q = "
                              f"{np.round(q, 4).tolist()} (smallest eigenvalue {lam.min():.3g}); "
-                             f"joint {j + 1} ({model.links[j].name}) moves no mass or inertia")
+                             f"{what} moves no mass or inertia")
 
 
 def generate(name_or_path: str | Path, out_root: Path = GENERATED_DIR,

@@ -256,6 +256,9 @@ def load_model(name_or_path: str | Path) -> RobotModel:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ModelError(f"{path}: not valid TOML ({exc})") from None
+    from .soft_model import is_soft, parse_soft_model   # soft bodies (thesis ch. 3, 12)
+    if is_soft(data):
+        return parse_soft_model(path, data)
     return _Parser(path).parse(data)
 
 

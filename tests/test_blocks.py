@@ -172,3 +172,11 @@ def test_bad_externals_and_params_are_named():
         simulate(d, steps=10, externals={"noise": np.zeros(3)})
     with pytest.raises(ValueError, match="params: unknown signal 'ctrl.kx'"):
         simulate(d, steps=10, externals={"noise": np.zeros((10, 1))}, params={"ctrl.kx": 1})
+
+
+def test_stop_condition_records_the_signals_it_reads():
+    d = loop()
+    N = 500
+    tr = simulate(d, steps=N, externals={"noise": np.zeros((N, 1))}, record=["ctrl.tau"],
+                  stop=[("q above 0.5", lambda c: c["plant.q"][:, 0] > 0.5, ["plant.q"])])
+    assert tr.stop_reason == "q above 0.5" and "plant.q" in tr.signals

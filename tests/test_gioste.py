@@ -10,7 +10,8 @@ import pytest
 from softgen.control.feasibility import PressureWarning
 from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.references import SmoothSteps
-from softgen.experiments import gioste_common as gc
+from softgen.plants import gioste as gc
+from softgen.runtime.simulate import simulate
 from softgen.model import load_model
 
 
@@ -20,17 +21,20 @@ def one_link():
     return arm, gc.GiosteEmulation(arm)
 
 
-@pytest.fixture(scope="module")
-def one_link_fns(one_link):
-    arm, emu = one_link
-    return gc.build(emu, ("theorem5", "open_loop"), None, {}, dts=(1e-3,), chunk=250,
-                    compile=False)
-
-
 def _gains(emu, arm, sigma):
     k = emu.calibrated_gain([sigma])
-    return gc.Gains(lam=np.array([1.8]), kd=np.array([12.0]), kpi=gc.kpi_vector(arm, 45.0),
-                    ksigma=1.0 / k, kinv=1.0 / k)
+    return {"lam": np.array([1.8]), "kd": np.array([12.0]), "kpi": gc.kpi_vector(arm, 45.0),
+            "ksigma": 1.0 / k, "kinv": 1.0 / k}
+
+
+def _run(emu, kind, ref, g, divergence=0.5):
+    """A run of the library's GioSte loop (what the experiments run)."""
+    d = gc.loop_diagram(emu, kind, 1e-3)
+    x0 = gc.initial_state(emu, kind, ref[0], lam=g["lam"], kd=g["kd"], kinv=g["kinv"],
+                          Pi_hat0=emu.arm.Pi_nominal, dt=1e-3)
+    return d, x0, simulate(d, steps=ref.shape[0], x0=x0, externals={"ref": ref},
+                           params={f"ctrl.{k}": v for k, v in g.items() if f"ctrl.{k}" in d.params},
+                           stop=[gc.emergency_stop(divergence)], on_nonfinite="stop", chunk=100)
 
 
 # -- valves (eq. 10.10) ----------------------------------------------------------------------
@@ -94,9 +98,9 @@ def test_encoder_quantisation_step(one_link):
     _, emu = one_link
     step = 2 * math.pi / (500 * 4)                           # HEDS-5500 A12, quadrature
     assert emu.encoder_step == pytest.approx(step)
-    f = emu.sense_fun()
+    enc = emu.encoder_block(1e-3)
     q = np.random.default_rng(1).uniform(-1, 1, 200)
-    qm = np.array([float(f(x, 0.0, 0.0, np.array([2.0, 2.0]), 1e-3)[0]) for x in q])
+    qm = np.array([enc.eval(np.zeros(2), [x])[1][0] for x in q])
     np.testing.assert_allclose(np.round(qm / step), qm / step, atol=1e-9)
     assert np.max(np.abs(qm - q)) <= step / 2 + 1e-12
     assert len(np.unique(np.round(qm / step))) > 100          # not stuck on a few levels
@@ -104,13 +108,10 @@ def test_encoder_quantisation_step(one_link):
 
 def test_dirty_derivative_reads_a_ramp(one_link):
     _, emu = one_link
-    f = emu.sense_fun()
     T, w = 1e-3, 0.5
-    qm, v, vs = 0.0, 0.0, []
-    for k in range(1, 600):
-        qm, v, _ = (np.array(x).ravel() for x in f(w * k * T, qm, v, np.zeros(2), T))
-        vs.append(float(v[0]))
-    vs = np.array(vs[200:])                                   # 10 filter time constants on
+    loop = emu.encoder_block(T).loop_fun(599)
+    _, Y = loop(np.zeros(2), w * np.arange(1, 600)[None, :] * T, [])
+    vs = np.array(Y)[1, 200:]                                 # 10 filter time constants on
     a = math.exp(-T / emu.hw.velocity_filter)
     kick = emu.encoder_step / T * (1 - a)                     # one count through the filter
     # The quantised ramp is a staircase of mean slope w: filtered, its mean is w and it
@@ -174,61 +175,62 @@ def test_matched_arm_has_only_the_feedback_stiffness():
     # −∂(τ − G)/∂q is the feedback K_d Λ K_1 (section 10.3.3, ∂τ_*/∂q = cos q Π̂_2 − K_d Λ).
     arm = pneumatic_arm(load_model("gioste_1link"))
     emu = gc.GiosteEmulation(arm, actuator="model")
-    fns = gc.build(emu, ("theorem5", "open_loop"), None, {}, compile=False)
     g = _gains(emu, arm, 10.0)
     ref0 = np.array([0.1, 0, 0, 0, 10.0, 0])
-    net = gc.static_net_stiffness(emu, fns, "theorem5", ref0, g, arm.Pi_nominal)
+    net = gc.static_net_stiffness(emu, "theorem5", ref0, g, Pi_hat0=arm.Pi_nominal)
     assert net[0] == pytest.approx(12.0 * 1.8 * arm.K1, rel=1e-4)
 
 
-def test_loop_is_the_composition_of_its_parts(one_link, one_link_fns):
-    """One generated chunk equals sensing, controller, valves, delay line, plant by hand."""
+def test_loop_is_the_composition_of_its_parts(one_link):
+    """The generated loop equals sensing, controller, valves, delay line, plant by hand."""
     arm, emu = one_link
-    fns = one_link_fns
     d = gc.delay_samples(emu.hw, 1e-3)
     assert d == 10
     g = _gains(emu, arm, 7.0)
     t = np.arange(250) * 1e-3
     ref = gc.reference_array([SmoothSteps((0.0, 0.0), (0.0, 0.2), 1.0)],
                              [SmoothSteps((0.0,), (7.0,), 1.0)], t)
-    tr = gc.run_loop(emu, fns, "open_loop", ref, g, 1e-3, Pi_hat0=arm.Pi_nominal)
-    assert tr.diverged_at is None
-    sense = emu.sense_fun()
+    _, x0, tr = _run(emu, "open_loop", ref, g)
+    assert tr.stopped_at is None
     ctrl = arm.step_fun("open_loop")
-    valves, plant = emu.interface_fun(), emu.plant_fun()
-    x = np.concatenate([tr.q[0], tr.qd[0], tr.p[0]])
+    valves, plant, maps = emu.interface_fun(), emu.plant_fun(), emu.maps_fun()
+    x = np.concatenate([tr["plant.q"][0], tr["plant.qd"][0], tr["plant.p"][0]])
     # The loop starts from the open-loop law's command at q_d(0), already in the
     # muscles, in the delay line and in the voltages the stiffness map reads.
-    p0 = arm.step_fun("open_loop")(arm.Pi_nominal, ref[:1, 0], 0.0, ref[:, 0], g.lam, g.kd,
-                                   np.zeros(2), g.kinv, 1e-3)[1]
+    p0 = ctrl(arm.Pi_nominal, ref[0, :1], 0.0, ref[0], g["lam"], g["kd"], np.zeros(2),
+              g["kinv"], 1e-3)[1]
     V = np.array(valves(p0)[0]).ravel()
-    np.testing.assert_allclose(np.array(valves(p0)[1]).ravel(), tr.p[0])
-    qm, v = tr.q_m[0], np.zeros(1)
-    ring = [tr.p[0]] * d
-    z = tr.Pi_hat[0]
+    np.testing.assert_allclose(np.array(valves(p0)[1]).ravel(), tr["plant.p"][0])
+    qm, v, a = x0["enc.q_prev"], np.zeros(1), math.exp(-1e-3 / emu.hw.velocity_filter)
+    ring = [tr["plant.p"][0]] * d
+    z = tr["ctrl.Pi_hat"][0]
     for k in range(60):
-        qm, v, sig = (np.array(a).ravel() for a in sense(x[:1], qm, v, V, 1e-3))
-        assert qm == pytest.approx(tr.q_m[k], abs=1e-12)
-        assert sig == pytest.approx(tr.sigma_m[k], rel=1e-12)
-        out = ctrl(z, qm, v, ref[:, k], g.lam, g.kd, g.kpi, g.kinv, 1e-3)
+        qm_new = np.floor(x[:1] / emu.encoder_step + 0.5) * emu.encoder_step
+        v = a * v + (1 - a) * (qm_new - qm) / 1e-3
+        qm = qm_new
+        sig = np.array(maps(qm, V)[2]).ravel()
+        assert qm == pytest.approx(tr["enc.q_m"][k], abs=1e-12)
+        assert sig == pytest.approx(tr["stiff.sigma"][k], rel=1e-12)
+        out = ctrl(z, qm, v, ref[k], g["lam"], g["kd"], g["kpi"], g["kinv"], 1e-3)
         z, p = np.array(out[0]).ravel(), np.array(out[1]).ravel()
-        np.testing.assert_allclose(p, tr.p_cmd[k], rtol=1e-10)
-        V, tgt, _ = (np.array(a).ravel() for a in valves(p))
+        np.testing.assert_allclose(p, tr["ctrl.p"][k], rtol=1e-10)
+        V, tgt, _ = (np.array(a_).ravel() for a_ in valves(p))
         ring.append(tgt)
         x = np.array(plant(x, ring.pop(0), 1e-3)).ravel()
-        np.testing.assert_allclose(x[:1], tr.q[k + 1], rtol=1e-10, atol=1e-13)
+        np.testing.assert_allclose(x[:1], tr["plant.q"][k + 1], rtol=1e-10, atol=1e-13)
 
 
-def test_feasibility_warning_names_joint_and_time(one_link, one_link_fns):
+def test_feasibility_warning_names_joint_and_time(one_link):
     arm, emu = one_link
     g = _gains(emu, arm, 60.0)
     t = np.arange(300) * 1e-3
     # 60 N m/rad needs more than 6 V on both muscles: unreachable from the start.
     ref = gc.reference_array([SmoothSteps((0.0,), (0.1,), 1.0)],
                              [SmoothSteps((0.0,), (60.0,), 1.0)], t)
-    tr = gc.run_loop(emu, one_link_fns, "theorem5", ref, g, 1e-3, Pi_hat0=arm.Pi_nominal)
+    tr = _run(emu, "theorem5", ref, g)[2]
     with pytest.warns(PressureWarning) as rec:
-        viol, clipped = gc.feasibility(emu, tr, "unreachable")
+        viol, clipped = gc.feasibility(emu, tr.t, tr["ctrl.p"], tr["valves.V_raw"],
+                                       "unreachable")
     msg = str(rec[0].message)
     assert viol and clipped > 0.9
     assert "unreachable: joint 1 muscle" in msg
@@ -236,26 +238,23 @@ def test_feasibility_warning_names_joint_and_time(one_link, one_link_fns):
     # A reachable reference raises nothing.
     ok = gc.reference_array([SmoothSteps((0.0,), (0.1,), 1.0)],
                             [SmoothSteps((0.0,), (8.0,), 1.0)], t)
-    tr = gc.run_loop(emu, one_link_fns, "theorem5", ok, _gains(emu, arm, 8.0), 1e-3,
-                     Pi_hat0=arm.Pi_nominal)
-    viol, clipped = gc.feasibility(emu, tr, "reachable", warn=False)
+    tr = _run(emu, "theorem5", ok, _gains(emu, arm, 8.0))[2]
+    viol, clipped = gc.feasibility(emu, tr.t, tr["ctrl.p"], tr["valves.V_raw"], "reachable",
+                                   warn=False)
     assert not viol and clipped == 0.0
 
 
-def test_emergency_stop_fills_errors(one_link, one_link_fns):
+def test_emergency_stop_ends_the_run(one_link):
     arm, emu = one_link
     t = np.arange(500) * 1e-3
     ref = gc.reference_array([SmoothSteps((0.0,), (0.1,), 1.0)],
                              [SmoothSteps((0.0,), (8.0,), 1.0)], t)
-    tr = gc.run_loop(emu, one_link_fns, "theorem5", ref, _gains(emu, arm, 8.0), 1e-3,
-                     Pi_hat0=arm.Pi_nominal, divergence=0.05)
+    tr = _run(emu, "theorem5", ref, _gains(emu, arm, 8.0), divergence=0.05)[2]
     # The arm drifts off the reference by more than 0.05 rad (a residual error of the
     # muscle model against a feedback stiffness K_d Λ K_1 of about 0.2 N m/rad).
-    assert tr.diverged_at is not None
-    k = int(round(tr.diverged_at / 1e-3))
-    assert np.all(np.isfinite(tr.q[:k])) and np.all(np.isnan(tr.q[k:]))
-    assert np.all(tr.position_error(0.05)[k:] == 0.05)
-    np.testing.assert_allclose(tr.stiffness_error()[k:], -8.0)
+    assert tr.stopped_at is not None
+    k = int(round(tr.stopped_at / 1e-3))
+    assert tr.t.size == k and np.all(np.abs(tr["plant.q"] - ref[:k, :1]) <= 0.05)
 
 
 # -- the experiments ---------------------------------------------------------------------------
@@ -283,7 +282,7 @@ def test_quick_experiments(tmp_path):
     for exp, names in expected:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", PressureWarning)
-            m = exp.run({**exp.config, **exp.quick}, tmp_path / exp.id)
+            m = exp.run(exp.config.replace(**exp.quick), tmp_path / exp.id).flat()
         for name in names:
             assert name in m, (exp.id, name)
         for name, v in m.items():
@@ -298,7 +297,5 @@ def test_quick_experiments(tmp_path):
 
 
 def _duration(exp) -> float:
-    c = {**exp.config, **exp.quick}
-    if "phase_duration" in c:
-        return 3 * c["phase_duration"]
-    return c["tracking"]["duration"]
+    c = exp.config.replace(**exp.quick)
+    return 3 * c.phase_duration if hasattr(c, "phase_duration") else c.track_duration

@@ -153,8 +153,10 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
     chunk
         Samples per generated call (the loop is compiled for this many).
     stop
-        ``(reason, predicate)``: ``predicate(chunk_trace)`` returns a boolean per sample;
-        the run ends before the first sample where it is true (``Trace.stopped_at``).
+        ``(reason, predicate)`` or ``(reason, predicate, signals)``:
+        ``predicate(chunk_trace)`` returns a boolean per sample; the run ends before the
+        first sample where it is true (``Trace.stopped_at``). A predicate sees the
+        recorded signals only; the ``signals`` it names are added to ``record``.
     on_nonfinite
         ``"raise"`` (:class:`DivergenceError`) or ``"stop"`` (end the run there).
     record
@@ -175,6 +177,13 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
                          f"{duration if duration is not None else steps}")
     chunk = max(1, min(int(chunk), steps))
     label = label or diagram.name
+    stop = [tuple(s_) for s_ in stop]
+    for s_ in stop:
+        if len(s_) not in (2, 3) or not callable(s_[1]):
+            raise ValueError(f"stop: expected (reason, predicate[, signals]), got {s_!r}")
+    if record is not None:
+        extra = [n for s_ in stop if len(s_) == 3 for n in s_[2] if n not in record]
+        record = [*record, *dict.fromkeys(extra)]
     X = diagram.initial_state(x0)
     P = diagram.parameters(params)
     E = _externals(diagram, externals or {}, steps)
@@ -224,7 +233,7 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
             cut, reason = j + after, f"non-finite {name}"
         if stop:
             view = _chunk_trace(rows, k0 + n_done, Yc[:, :cut], dt)
-            for why, pred in stop:
+            for why, pred, *_ in stop:
                 hit = np.flatnonzero(np.asarray(pred(view), dtype=bool)[:cut])
                 if hit.size and hit[0] < cut:
                     cut, reason = int(hit[0]), why
