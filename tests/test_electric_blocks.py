@@ -169,16 +169,10 @@ def test_fed_back_sigma_equal_to_the_model_gives_the_same_step(arm):
                                want[OUTPUTS.index("tau_e_ref")])
 
 
-def test_encoder_estimator_and_selector_blocks():
-    from softgen.control.electric import encoder_block, estimator_block, sigma_feedback_block
+def test_estimator_and_selector_blocks():
+    from softgen.control.electric import estimator_block, sigma_feedback_block
     from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
-    enc = encoder_block(N, 8192)
-    res = 2 * np.pi / 8192
     rng = np.random.default_rng(17)
-    u = rng.uniform(-2, 2, 3 * N)
-    y = enc.eval(u=u, p=[1.0])[1]
-    assert np.allclose(y, np.round(u / res) * res, rtol=0, atol=1e-15)
-    assert np.array_equal(enc.eval(u=u, p=[0.0])[1], u)
     est = StiffnessEstimator(load_model("arm_2link_electric"),
                              EstimatorConfig("electric", dt=DT))
     blk = estimator_block(est, DT, name="inv")

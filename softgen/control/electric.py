@@ -1003,30 +1003,6 @@ def reference_block(q_spec=None, sigma_spec=None, *, name: str = "ref") -> Block
 
 # -- closing the stiffness loop with an estimator (issue 12, item 3) ---------------------------
 
-def encoder_block(n: int, counts_per_rev: int, *, name: str = "enc") -> Block:
-    """Incremental encoders on the link and both motors of ``n`` joints.
-
-    Reads ``q, qa, qb``; emits ``q_m, qa_m, qb_m``, each rounded to one count of
-    2π/``counts_per_rev`` (halves upwards) when the parameter ``quantise`` is 1, exact
-    when it is 0 (a variant run with ideal sensors in the same generated loop). A
-    minimal quantiser: the shared sensor blocks are not on this branch yet.
-    """
-    res = 2 * np.pi / int(counts_per_rev)
-
-    def body(x, u, p):
-        y = {}
-        for k in ("q", "qa", "qb"):
-            qq = ca.floor(u[k] / res + 0.5) * res
-            y[f"{k}_m"] = u[k] + p["quantise"] * (qq - u[k])
-        return {}, y
-
-    return Block.define(name, dt=None, inputs=[(k, n, "rad") for k in ("q", "qa", "qb")],
-                        outputs=[(f"{k}_m", n, "rad") for k in ("q", "qa", "qb")],
-                        params=[("quantise", 1, "")], p0={"quantise": 1.0}, body=body,
-                        doc=f"encoders, {counts_per_rev} counts/rev",
-                        meta={"resolution": res})
-
-
 def estimator_block(est, dt: float, *, name: str) -> Block:
     """A stiffness estimator (:class:`softgen.estimation.estimators.StiffnessEstimator`,
     electric or non-invasive, chapters 6-7) as a block, its output held one sample.

@@ -7,7 +7,8 @@ loop feeds back comes from an online stiffness estimator running in the same gen
 loop: the invasive electric one (ch. 6, Theorem 2: per-motor UIO + RLS on odd powers
 of φ) or the non-invasive one (ch. 7, Theorem 4: rotatum UIO + RLS on even powers),
 against the plant's true σ. The estimators read encoders quantised to
-``counts_per_rev`` (8192, as the protocol experiments); the cascade reads the plant
+``counts_per_rev`` (8192, as the protocol experiments;
+:func:`softgen.plants.hardware.encoder_block`); the cascade reads the plant
 state exactly but σ. Every estimator runs in every run; the selector
 (:func:`~softgen.control.electric.sigma_feedback_block`) picks the fed-back σ, so the
 runs differ only in parameters of one diagram.
@@ -30,12 +31,13 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..blocks import ClosedLoop
-from ..control.electric import (cascade_block, electric_arm, encoder_block, estimator_block,
+from ..control.electric import (cascade_block, electric_arm, estimator_block,
                                 initial_plant_state, integral_start, plant_block,
                                 reference_block, sigma_feedback_block)
 from ..control.electric_refs import THESIS_GAINS, sinusoid_references
 from ..estimation.estimators import EstimatorConfig, StiffnessEstimator
 from ..model import load_model
+from ..plants.hardware import encoder_block
 from ..runtime.simulate import Trace, simulate
 from .registry import Config, Experiment, Metrics, absent, finding, graded, not_checked, num
 
@@ -70,7 +72,8 @@ class ExtConfig(Config):
                              f"{self.t_on}, {self.settle}, {self.duration}")
 
 
-def diagram(c: ExtConfig):
+def diagram(c: ExtConfig, *, ideal: bool = False):
+    """The loop; ``ideal``: the estimators read the plant's angles instead of encoders."""
     model = load_model(c.model)
     arm = electric_arm(model, acceleration="measured", projection=True, sigma_input=True)
     v = "adaptive_integral"
@@ -82,13 +85,20 @@ def diagram(c: ExtConfig):
             method, dt=c.dt, powers=powers, p0=c.p0), name=f"{model.name}_{name}_feedback")
     delay = ests["non"].config.delay + 1
     blocks = [reference_block(), cascade_block(arm, v, c.dt, gains=g), plant_block(arm, c.dt),
-              encoder_block(arm.n, c.counts_per_rev),
               *(estimator_block(e, c.dt, name=k) for k, e in ests.items()),
               sigma_feedback_block(arm.n, delay)]
-    wires = [(f"enc.{s}_m", f"{e}.{s}") for e in ests for s in ("q", "qa", "qb")]
-    wires += [("inv.sigma_hat", "sw.sigma_inv"), ("non.sigma_hat", "sw.sigma_non"),
-              ("plant.sigma", "sw.sigma")]
-    d = ClosedLoop("ext_estimated_stiffness_feedback", blocks, wires)
+    wires = [("inv.sigma_hat", "sw.sigma_inv"), ("non.sigma_hat", "sw.sigma_non"),
+             ("plant.sigma", "sw.sigma")]
+    for s in ("q", "qa", "qb"):     # encoders (their dirty-derivative velocities unused)
+        src = f"plant.{s}"
+        if not ideal:
+            blocks.append(encoder_block(arm.n, c.dt, counts_per_rev=c.counts_per_rev,
+                                        velocity_filter=0.01, name=f"enc_{s}"))
+            wires.append((src, f"enc_{s}.q"))
+            src = f"enc_{s}.q_m"
+        wires += [(src, f"{e}.{s}") for e in ests]
+    d = ClosedLoop("ext_estimated_stiffness_feedback" + ("_ideal" if ideal else ""), blocks,
+                   wires)
     x0 = initial_plant_state(arm, lambda t: sinusoid_references(t)[:, 0])
     z0 = arm.initial_state(v, x0, xi0=integral_start(arm, x0, g["delta"], g["ki"]))
     init = {f"plant.{k}": x0[i * arm.n:(i + 1) * arm.n] for i, k in enumerate(STATE)}
@@ -96,10 +106,9 @@ def diagram(c: ExtConfig):
     return d, init, {k: e.config.delay + 1 for k, e in ests.items()}
 
 
-def run_case(d, init, c: ExtConfig, source: str, quantise: bool = True) -> Trace:
+def run_case(d, init, c: ExtConfig, source: str) -> Trace:
     return simulate(d, c.duration, x0=init, chunk=c.chunk, record=RECORD,
-                    params={"sw.source": SOURCES[source], "sw.t_on": c.t_on,
-                            "enc.quantise": float(quantise)},
+                    params={"sw.source": SOURCES[source], "sw.t_on": c.t_on},
                     on_nonfinite="stop", label=f"ext {source}")
 
 
@@ -142,10 +151,11 @@ def run(c: ExtConfig, out: Path) -> Metrics:
     if c.variants:
         m.extend(case_metrics(run_case(d, init, c, "delayed_true_feedback"), c,
                               "delayed_true_feedback", delays))
+        di, init_i, _ = diagram(c, ideal=True)
         for source in ("true_feedback", "estimated_feedback_invasive",
                        "estimated_feedback_noninvasive"):
-            m.extend(case_metrics(run_case(d, init, c, source, quantise=False), c, source,
-                                  delays), prefix="ideal_encoders_")
+            m.extend(case_metrics(run_case(di, init_i, c, source), c, source, delays),
+                     prefix="ideal_encoders_")
         early = c.replace(t_on=c.t_on_early)       # before the RLS has converged
         m.extend(case_metrics(run_case(d, init, early, "estimated_feedback_invasive"), early,
                               "estimated_feedback_invasive", delays), prefix="early_switch_")
