@@ -6,7 +6,9 @@ every generated function in a plain C loop and through the Python runtime (fast
 buffer path and checked ``f(...)`` path), and closed-loop speed (simulated
 seconds per wall second) of the Slotine–Li loop, both as one generated
 ``mapaccum`` loop and stepped from Python. ``--chains`` adds the expression-size
-study on planar chains up to 40 links (:mod:`softgen.chains`).
+study on planar chains up to 40 links (:mod:`softgen.chains`), each route compiled
+once. For models with a hand-written C reference under ``benchmarks/``
+(:data:`HAND_WRITTEN`), the ratio generated ÷ hand-written of the regressor.
 """
 from __future__ import annotations
 
@@ -30,6 +32,14 @@ from .model import list_models, load_model
 from .bundle import load_bundle
 from .runtime.simulate import simulate
 from .control.electric import CASCADE_MODELS
+
+
+#: Hand-written C references kept under benchmarks/: model -> (function, source).
+#: ``softgen bench`` reports generated ÷ hand-written time for the model's regressor.
+HAND_WRITTEN = {
+    "planar_2link": ("hand_planar_2link_regressor",
+                     Path(__file__).resolve().parent.parent / "benchmarks" / "hand_planar_2link.c"),
+}
 
 
 def _python_latency(f, rng, repeats: int = 5, number: int = 20000) -> tuple[float, float]:
@@ -149,13 +159,23 @@ def bench_model(name: str, *, calls: int = 200_000) -> dict:
         return out
     with tempfile.TemporaryDirectory() as tmp:
         bundle_dir = write_bundle(spec, Path(tmp))
-        _, out["build_seconds"] = build(bundle_dir, force=True)
+        lib, out["build_seconds"] = build(bundle_dir, force=True)
         loop = f"{name}_slotine_li_loop"
         names = [g.function.name() for g in spec.functions if g.function.name() != loop]
-        per_call = time_in_c(bundle_dir / f"{name}.c", names, calls=calls)
+        hand = HAND_WRITTEN.get(name)
+        extra = [hand[1]] if hand is not None and hand[1].is_file() else []
+        # The harness links to the library just built (one compile per bundle), and
+        # times a hand-written reference, if any, interleaved with the generated code.
+        per_call = time_in_c(bundle_dir / f"{name}.c", names + [hand[0]] * bool(extra),
+                             calls=calls, extra_sources=extra, library=lib)
+        if extra:
+            ref = per_call.pop(hand[0])
+            out["hand_written"] = {"function": f"{name}_regressor", "reference": str(hand[1]),
+                                   "hand_ns": ref, "generated_ns": per_call[f"{name}_regressor"],
+                                   "ratio": per_call[f"{name}_regressor"] / ref}
         # The closed-loop function runs `loop_steps` samples per call: fewer calls.
         per_call.update(time_in_c(bundle_dir / f"{name}.c", [loop],
-                                  calls=max(calls // 2000, 20)))
+                                  calls=max(calls // 2000, 20), library=lib))
     bundle = load_bundle(name)
     rng = np.random.default_rng(0)
     for fname, entry in out["functions"].items():
@@ -181,6 +201,11 @@ def format_model(r: dict) -> str:
             return f"{v:11.1f}" if isinstance(v, float) else f"{'-':>11}"
         lines.append(f"  {name:<42} {f['instructions']:>7} {fmt(f.get('c_loop_ns'))} "
                      f"{fmt(f.get('python_fast_ns'))} {fmt(f.get('python_call_ns')):>13}")
+    if "hand_written" in r:
+        h = r["hand_written"]
+        lines.append(f"  {h['function']} vs hand-written C ({Path(h['reference']).name}): "
+                     f"{h['generated_ns']:.1f} ns vs {h['hand_ns']:.1f} ns, ratio "
+                     f"{h['ratio']:.2f} (timed interleaved in one harness)")
     if "generated_loop_sim_s_per_wall_s" in r:
         lines.append(f"  Slotine-Li closed loop (RK4 1 ms, driver): generated diagram "
                      f"{r['generated_loop_sim_s_per_wall_s']:.0f}x real time, stepped from "

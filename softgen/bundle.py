@@ -34,9 +34,9 @@ class BundleOptions:
     loop_substeps: int = 1          # RK4 steps per controller sample in that loop
 
     def check(self) -> BundleOptions:
-        if self.route not in ("auto", "matrix-free", "explicit"):
-            raise ValueError(f"route: expected 'auto', 'matrix-free' or 'explicit', "
-                             f"got {self.route!r}")
+        if self.route not in ("auto", "recursive", "matrix-free", "explicit"):
+            raise ValueError(f"route: expected 'auto', 'recursive', 'matrix-free' or "
+                             f"'explicit', got {self.route!r}")
         for name in ("loop_steps", "loop_substeps"):
             v = getattr(self, name)
             if not isinstance(v, int) or v < 1:
@@ -92,7 +92,9 @@ def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> 
     identity = identity_bytes(model.source_text(), options)
     extra = {"dof": n, **model_source(model),
              "options": dict(options.__dict__), "route": dyn.route,
-             "full_parameter_count": dyn.base.full_rank}
+             "full_parameter_count": dyn.base.full_rank,
+             # Which route built each product, and the instruction counts it chose by.
+             "route_detail": dyn.route_detail}
     if model.actuator_type is not None:
         extra["actuator"] = model.actuator_type
         extra["estimators"] = {e.step_fun().name(): e.describe() for e in estimators}

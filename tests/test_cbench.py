@@ -96,3 +96,61 @@ def test_measure_route_without_compiling():
     assert row["instructions"] > 0 and row["c_bytes"] > 0
     assert row["compile_seconds"] is None and row["ns_per_call"] is None
     assert "matrix-free" in format_table([row])
+
+
+HAND = Path(__file__).resolve().parent.parent / "benchmarks" / "hand_planar_2link.c"
+
+
+@pytest.mark.compiler
+def test_hand_written_reference_equals_generated_regressor(tmp_path):
+    """benchmarks/hand_planar_2link.c computes the same Y as softgen's planar_2link_regressor."""
+    import ctypes
+    import subprocess
+
+    import numpy as np
+
+    from softgen.model import load_model
+    from softgen.symbolic.rigid import RigidDynamics
+    if not _have_compiler():
+        pytest.skip("no C compiler found")
+    lib = tmp_path / "libhand.so"
+    subprocess.run([require_compiler(), "-O2", "-fPIC", "-shared", "-o", str(lib), str(HAND),
+                    "-lm"], check=True, capture_output=True)
+    hand = ctypes.CDLL(str(lib)).hand_planar_2link_regressor
+    dbl = ctypes.POINTER(ctypes.c_double)
+    hand.argtypes = [ctypes.POINTER(dbl), ctypes.POINTER(dbl), ctypes.c_void_p,
+                     ctypes.c_void_p, ctypes.c_int]
+    Y = RigidDynamics(load_model("planar_2link")).regressor_fun()
+    rng = np.random.default_rng(31)
+    for _ in range(10):
+        x = [np.ascontiguousarray(rng.uniform(-3, 3, 2)) for _ in range(4)]
+        out = np.zeros(10)
+        args = (dbl * 4)(*[a.ctypes.data_as(dbl) for a in x])
+        res = (dbl * 1)(out.ctypes.data_as(dbl))
+        assert hand(args, res, None, None, 0) == 0
+        assert np.allclose(out.reshape(5, 2).T, np.array(Y(*x)), rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.compiler
+def test_time_in_c_with_extra_source_and_prebuilt_library(tmp_path):
+    from softgen.codegen.build import compile_shared
+    if not _have_compiler():
+        pytest.skip("no C compiler found")
+    c_file = _tiny_c(tmp_path)
+    lib = tmp_path / "libtiny.so"
+    compile_shared(c_file, lib)
+    out = time_in_c(c_file, ["tiny", "hand_planar_2link_regressor"], calls=1000, repeats=3,
+                    extra_sources=[HAND], library=lib)
+    assert set(out) == {"tiny", "hand_planar_2link_regressor"}
+    assert all(math.isfinite(v) and v > 0 for v in out.values())
+
+
+def test_missing_extra_source_is_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match="extra_sources"):
+        time_in_c(_tiny_c(tmp_path), ["tiny"], calls=10, extra_sources=[tmp_path / "no.c"])
+
+
+@pytest.mark.parametrize("route", ["recursive", "base-yt-s", "base-y-pi"])
+def test_measure_new_routes_without_compiling(route):
+    row = measure_route(3, route, compile=False, time_c=False)
+    assert row["instructions"] > 0 and row["c_bytes"] > 0

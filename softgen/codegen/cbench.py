@@ -24,7 +24,7 @@ _HEAD = r"""/* Benchmark harness written by softgen.codegen.cbench; safe to dele
 #include <stdio.h>
 #include <stdlib.h>
 #include <time.h>
-#include "{header}"
+{includes}
 
 static unsigned long long lcg_state;
 
@@ -74,67 +74,74 @@ static volatile double sink;
 """
 
 _BENCH = r"""
-static void bench_{name}(void) {{
-  casadi_int sz_arg, sz_res, sz_iw, sz_w, n_in, n_out, i, k;
+static struct {{
   const casadi_real **arg;
   casadi_real **res, *w;
-  casadi_int *iw;
+  casadi_int *iw, n_in, n_out;
+  int mem, out_k;
   double t[REPEATS];
-  int r, mem, out_k = -1;
-  long long c;
+}} b_{name};
 
+static void setup_{name}(void) {{
+  casadi_int sz_arg, sz_res, sz_iw, sz_w, i, k;
+  long long c;
+  b_{name}.out_k = -1;
   {name}_incref();
   if ({name}_work(&sz_arg, &sz_res, &sz_iw, &sz_w) != 0) {{
     fprintf(stderr, "{name}_work failed\n"); exit(1);
   }}
-  n_in = {name}_n_in();
-  n_out = {name}_n_out();
+  b_{name}.n_in = {name}_n_in();
+  b_{name}.n_out = {name}_n_out();
   /* arg/res are sz_arg/sz_res long: CasADi may use the tail as scratch. */
-  arg = xmalloc(sizeof(*arg) * (size_t)(sz_arg > n_in ? sz_arg : n_in));
-  res = xmalloc(sizeof(*res) * (size_t)(sz_res > n_out ? sz_res : n_out));
-  iw = xmalloc(sizeof(*iw) * (size_t)sz_iw);
-  w = xmalloc(sizeof(*w) * (size_t)sz_w);
-  for (k = 0; k < sz_arg; ++k) arg[k] = 0;
-  for (k = 0; k < sz_res; ++k) res[k] = 0;
+  b_{name}.arg = xmalloc(sizeof(*b_{name}.arg) * (size_t)(sz_arg > b_{name}.n_in ? sz_arg : b_{name}.n_in));
+  b_{name}.res = xmalloc(sizeof(*b_{name}.res) * (size_t)(sz_res > b_{name}.n_out ? sz_res : b_{name}.n_out));
+  b_{name}.iw = xmalloc(sizeof(*b_{name}.iw) * (size_t)sz_iw);
+  b_{name}.w = xmalloc(sizeof(*b_{name}.w) * (size_t)sz_w);
+  for (k = 0; k < sz_arg; ++k) b_{name}.arg[k] = 0;
+  for (k = 0; k < sz_res; ++k) b_{name}.res[k] = 0;
   lcg_state = SEED;
-  for (k = 0; k < n_in; ++k) {{
+  for (k = 0; k < b_{name}.n_in; ++k) {{
     casadi_int nnz = nnz_of({name}_sparsity_in(k));
     casadi_real *a = xmalloc(sizeof(casadi_real) * (size_t)nnz);
     for (i = 0; i < nnz; ++i) a[i] = lcg_uniform();
-    arg[k] = a;
+    b_{name}.arg[k] = a;
   }}
-  for (k = 0; k < n_out; ++k) {{
+  for (k = 0; k < b_{name}.n_out; ++k) {{
     casadi_int nnz = nnz_of({name}_sparsity_out(k));
-    res[k] = xmalloc(sizeof(casadi_real) * (size_t)nnz);
-    if (out_k < 0 && nnz > 0) out_k = (int)k;
+    b_{name}.res[k] = xmalloc(sizeof(casadi_real) * (size_t)nnz);
+    if (b_{name}.out_k < 0 && nnz > 0) b_{name}.out_k = (int)k;
   }}
-  mem = {name}_checkout();
-  if (mem < 0) {{ fprintf(stderr, "{name}_checkout failed\n"); exit(1); }}
-
+  b_{name}.mem = {name}_checkout();
+  if (b_{name}.mem < 0) {{ fprintf(stderr, "{name}_checkout failed\n"); exit(1); }}
   /* Warm-up: caches, branch predictors and CPU frequency settle before timing. */
   for (c = 0; c < CALLS / 10 + 1; ++c) {{
-    if ({name}(arg, res, iw, w, mem) != 0) {{
+    if ({name}(b_{name}.arg, b_{name}.res, b_{name}.iw, b_{name}.w, b_{name}.mem) != 0) {{
       fprintf(stderr, "{name} returned non-zero\n"); exit(1);
     }}
   }}
-  for (r = 0; r < REPEATS; ++r) {{
-    int bad = 0;
-    double acc = 0.0, t0 = now_ns();
-    for (c = 0; c < CALLS; ++c) {{
-      bad |= {name}(arg, res, iw, w, mem);
-      if (out_k >= 0) acc += res[out_k][0];
-    }}
-    t[r] = (now_ns() - t0) / (double)CALLS;
-    if (bad) {{ fprintf(stderr, "{name} returned non-zero\n"); exit(1); }}
-    sink += acc;
-  }}
-  printf("{name} %.6f\n", median(t, REPEATS));
+}}
 
-  {name}_release(mem);
+static void repeat_{name}(int r) {{
+  int bad = 0, out_k = b_{name}.out_k;
+  long long c;
+  double acc = 0.0, t0 = now_ns();
+  for (c = 0; c < CALLS; ++c) {{
+    bad |= {name}(b_{name}.arg, b_{name}.res, b_{name}.iw, b_{name}.w, b_{name}.mem);
+    if (out_k >= 0) acc += b_{name}.res[out_k][0];
+  }}
+  b_{name}.t[r] = (now_ns() - t0) / (double)CALLS;
+  if (bad) {{ fprintf(stderr, "{name} returned non-zero\n"); exit(1); }}
+  sink += acc;
+}}
+
+static void finish_{name}(void) {{
+  casadi_int k;
+  printf("{name} %.6f\n", median(b_{name}.t, REPEATS));
+  {name}_release(b_{name}.mem);
   {name}_decref();
-  for (k = 0; k < n_in; ++k) free((void *)arg[k]);
-  for (k = 0; k < n_out; ++k) free(res[k]);
-  free(arg); free(res); free(iw); free(w);
+  for (k = 0; k < b_{name}.n_in; ++k) free((void *)b_{name}.arg[k]);
+  for (k = 0; k < b_{name}.n_out; ++k) free(b_{name}.res[k]);
+  free(b_{name}.arg); free(b_{name}.res); free(b_{name}.iw); free(b_{name}.w);
 }}
 """
 
@@ -144,18 +151,25 @@ def _c_string(text: str) -> str:
     return text.replace("\\", "\\\\").replace('"', '\\"')
 
 
-def _harness(header: Path, names: list[str], calls: int, repeats: int, seed: int) -> str:
-    parts = [_HEAD.format(header=_c_string(str(header)), calls=calls, repeats=repeats,
-                          seed=seed % 2**64)]
+def _harness(headers: list[Path], names: list[str], calls: int, repeats: int,
+             seed: int) -> str:
+    includes = "\n".join(f'#include "{_c_string(str(h))}"' for h in headers)
+    parts = [_HEAD.format(includes=includes, calls=calls, repeats=repeats, seed=seed % 2**64)]
     parts += [_BENCH.format(name=n) for n in names]
-    parts.append("\nint main(void) {\n")
-    parts += [f"  bench_{n}();\n" for n in names]
+    parts.append("\nint main(void) {\n  int r;\n")
+    parts += [f"  setup_{n}();\n" for n in names]
+    # Repeats interleave the functions, so a slow spell of the machine hits all alike.
+    parts.append("  for (r = 0; r < REPEATS; ++r) {\n")
+    parts += [f"    repeat_{n}(r);\n" for n in names]
+    parts.append("  }\n")
+    parts += [f"  finish_{n}();\n" for n in names]
     parts.append("  return 0;\n}\n")
     return "".join(parts)
 
 
 def time_in_c(c_file: Path, names: list[str], *, calls: int = 200_000, repeats: int = 5,
-              cc: str | None = None, seed: int = 0, opt: str = "-O3") -> dict[str, float]:
+              cc: str | None = None, seed: int = 0, opt: str = "-O3",
+              extra_sources: list[Path] = (), library: Path | None = None) -> dict[str, float]:
     """Median nanoseconds per call of each named function, timed in a plain C loop.
 
     Parameters
@@ -173,6 +187,13 @@ def time_in_c(c_file: Path, names: list[str], *, calls: int = 200_000, repeats: 
         Seed of the pseudo-random inputs in [-1, 1].
     opt
         Optimisation flag passed to the compiler.
+    extra_sources
+        More C files (each with its header beside it, same calling convention) compiled
+        into the same harness, e.g. a hand-written reference; their functions may be
+        named in ``names``. Repeats are interleaved across all functions.
+    library
+        A shared library already compiled from ``c_file``: the harness links to it
+        instead of compiling ``c_file`` again (so a study compiles each function once).
 
     Returns
     -------
@@ -188,6 +209,7 @@ def time_in_c(c_file: Path, names: list[str], *, calls: int = 200_000, repeats: 
     """
     c_file = Path(c_file).resolve()
     header = c_file.with_suffix(".h")
+    extra = [Path(x).resolve() for x in extra_sources]
     names = list(dict.fromkeys(names))   # a repeated name would define bench_NAME twice
     for n in names:
         # Names are pasted into C source: anything but an identifier would be injection.
@@ -199,13 +221,21 @@ def time_in_c(c_file: Path, names: list[str], *, calls: int = 200_000, repeats: 
         raise FileNotFoundError(f"{c_file}: no such C file")
     if not header.is_file():
         raise FileNotFoundError(f"{header}: missing; generate with {{'with_header': True}}")
+    for x in extra:
+        if not x.is_file() or not x.with_suffix(".h").is_file():
+            raise FileNotFoundError(f"extra_sources: {x} or its header is missing")
     compiler = require_compiler(cc)
     with tempfile.TemporaryDirectory(prefix="softgen-cbench-") as tmp:
         harness = Path(tmp) / "harness.c"
         exe = Path(tmp) / "harness"
-        harness.write_text(_harness(header, names, calls, repeats, seed))
+        harness.write_text(_harness([header] + [x.with_suffix(".h") for x in extra], names,
+                                    calls, repeats, seed))
         try:
-            subprocess.run([compiler, opt, "-o", str(exe), str(harness), str(c_file), "-lm"],
+            code = ([str(Path(library).resolve()),
+                     f"-Wl,-rpath,{Path(library).resolve().parent}"] if library is not None
+                    else [str(c_file)])
+            subprocess.run([compiler, opt, "-o", str(exe), str(harness), *code,
+                            *map(str, extra), "-lm"],
                            check=True, capture_output=True, text=True)
         except subprocess.CalledProcessError as exc:
             raise BuildError("compiling the benchmark harness failed", exc.stderr) from None

@@ -11,7 +11,8 @@ them
 * ``G(q) = ∂U/∂q``;
 * the Slotine–Li left-hand side ``B q̈_r + C q̇_r + G + D q̇ + K q``.
 
-Two routes are offered for ``C``:
+Two Lagrangian routes are offered for ``C`` (a third, ``recursive``, lives in
+:mod:`softgen.symbolic.recursive`; all three give the Christoffel C):
 
 ``explicit``
     ``C = ½ (Ḃ + J − Jᵀ)`` with ``J = ∂(B q̇)/∂q``. This is the Christoffel
@@ -96,16 +97,18 @@ def forward_kinematics(model: RobotModel, q: ca.SX, qd: ca.SX, values: Values) -
         placement = _simplify_const(_rpy(*link.origin_rpy))
         offset = ca.vertcat(*[model.resolve(x, values) for x in link.origin_xyz])
         o_new = o + ca.mtimes(R, offset)
-        v_new = v + ca.cross(omega, o_new - o)
         R_joint = ca.mtimes(R, placement)
         axis_world = ca.mtimes(R_joint, ca.DM(link.axis))
         if link.joint == "revolute":
             R_new = ca.mtimes(R_joint, _axis_rotation(link.axis, q[i]))
+            v_new = v + ca.cross(omega, o_new - o)
             omega_new = omega + axis_world * qd[i]
         else:
             R_new = R_joint
             o_new = o_new + axis_world * q[i]
-            v_new = v_new + axis_world * qd[i]
+            # The slide axis turns with the parent link: the whole lever o_new - o,
+            # the joint displacement included, moves with ω.
+            v_new = v + ca.cross(omega, o_new - o) + axis_world * qd[i]
             omega_new = omega
         c_local = ca.vertcat(*[model.resolve(x, values) for x in link.com])
         c_world = ca.mtimes(R_new, c_local)
@@ -187,6 +190,7 @@ class Mechanics:
         self.model = model
         self.values = dict(values)
         inertials = physical_inertials(model, values) if inertials is None else inertials
+        self.inertials = inertials
         n = model.dof
         self.n = n
         self.q = ca.SX.sym("q", n)
@@ -241,13 +245,23 @@ class Mechanics:
                       - ca.gradient(ca.dot(v, Bqd), self.q))
 
     def slotine_li(self, route: str = "matrix-free") -> ca.SX:
-        """B q̈_r + C q̇_r + G + K q + D q̇ (thesis eq. 9.1, Slotine–Li form of Prop. 10)."""
+        """B q̈_r + C q̇_r + G + K q + D q̇ (thesis eq. 9.1, Slotine–Li form of Prop. 10).
+
+        ``route`` is ``"explicit"``, ``"matrix-free"`` (module docstring) or
+        ``"recursive"`` (:mod:`softgen.symbolic.recursive`); all three give the C of
+        Christoffel symbols, so any of them may feed the adaptive laws.
+        """
+        if route == "recursive":
+            from .recursive import slotine_li
+            return slotine_li(self.model, self.values, self.q, self.qd, self.qd_r, self.qdd_r,
+                              self.inertials)
         if route == "matrix-free":
             tau = self.momentum(self.qdd_r) + self.coriolis_times(self.qd_r)
         elif route == "explicit":
             tau = ca.mtimes(self.inertia(), self.qdd_r) + ca.mtimes(self.coriolis(), self.qd_r)
         else:
-            raise ValueError(f"route: expected 'matrix-free' or 'explicit', got {route!r}")
+            raise ValueError(f"route: expected 'matrix-free', 'explicit' or 'recursive', "
+                             f"got {route!r}")
         return tau + self.gravity() + self.spring() + self.damping()
 
     # -- kinematics ----------------------------------------------------------------

@@ -3,22 +3,29 @@
 Paired API (adam convention, DESIGN.md section 3 item 1): ``inertia_fun()``
 returns the named ``casadi.Function``; ``inertia(q)`` evaluates it. Function
 names are ``<model>_<quantity>``; outputs are dense so that a compiled library
-writes every entry (no sparsity bookkeeping in the runtime).
+writes every entry (no sparsity bookkeeping in the runtime). Each ``x_fun()`` is
+built once per instance and cached, so ``x(...)`` costs one call of the Function
+plus the conversion to numpy (issue 10 item 6).
 """
 from __future__ import annotations
 
-from functools import cached_property
+from functools import cached_property, wraps
 
 import casadi as ca
 import numpy as np
 
 from ..model import RobotModel
-from .mechanics import Mechanics, symbolic_values
-from .regressor import BaseParameters, base_parameters, factor_polynomial
+from .mechanics import Inertial, Mechanics, physical_inertials, symbolic_values
+from .recursive import inertial_fields, regressor_transpose_times
+from .recursive import slotine_li as recursive_slotine_li
+from .regressor import (BaseParameters, NumericBase, base_parameters, factor_polynomial,
+                        numeric_base_parameters)
 
-#: Largest chain for which route="auto" forms B and C explicitly. Measured with
-#: `softgen bench --chains` (tau per call in C): explicit 271 ns vs matrix-free
-#: 435 ns at 5 links, 1483 ns vs 720 ns at 10 links.
+#: Routes for τ = B q̈_r + C q̇_r + G, in the order preferred on equal counts.
+ROUTES = ("recursive", "matrix-free", "explicit")
+
+#: Kept for callers that imported it; route="auto" no longer uses a joint count but
+#: the measured instruction counts of every route (:meth:`RigidDynamics.route_detail`).
 AUTO_EXPLICIT_MAX_DOF = 6
 
 #: CasADi options for every generated function: common-subexpression elimination
@@ -32,6 +39,25 @@ def _fun(name: str, ins: list[ca.SX], in_names: list[str], outs: list[ca.SX],
                        FUNCTION_OPTS)
 
 
+def _cached_fun(method):
+    """Build the named Function once per :class:`RigidDynamics` and return it thereafter.
+
+    The evaluating half of the paired API (``gravity(q)``, ``regressor(...)``) calls the
+    ``*_fun()`` half; building a ``casadi.Function`` costs ~10x its evaluation (issue 10
+    item 6), so every ``*_fun()`` is memoised per instance. The object returned is the
+    same on every call, so callers may also hold on to it.
+    """
+    key = method.__name__
+
+    @wraps(method)
+    def wrapper(self):
+        cache = self.__dict__.setdefault("_fun_cache", {})
+        if key not in cache:
+            cache[key] = method(self)
+        return cache[key]
+    return wrapper
+
+
 class RigidDynamics:
     """Symbolic dynamics, regressor and kinematics of one :class:`RobotModel`.
 
@@ -40,21 +66,67 @@ class RigidDynamics:
     model
         The validated model.
     route
-        ``"explicit"``, ``"matrix-free"`` or ``"auto"`` (default: explicit up to
-        :data:`AUTO_EXPLICIT_MAX_DOF` joints, where it gives the smaller code, then
-        matrix-free): how C q̇_r is built in the Slotine–Li expression (see
-        :mod:`softgen.symbolic.mechanics`).
+        ``"explicit"``, ``"matrix-free"``, ``"recursive"`` or ``"auto"`` (default): how B q̈_r + C q̇_r + G is built (see
+        :mod:`softgen.symbolic.mechanics` and :mod:`softgen.symbolic.recursive`; all
+        give the Christoffel C). ``"auto"`` builds each candidate for this model and
+        keeps the one with the fewest CasADi instructions; likewise it chooses, per
+        function, between forming Y and the recursive products Y π̂ and Yᵀ s. The
+        choices and counts are in :attr:`route_detail` (and the bundle manifest).
+        Every route yields the C of Christoffel symbols (Ḃ − 2C skew), so the
+        Slotine–Li law (Prop. 10), Theorem 5, Corollary 2 and Theorem 10 may use
+        any of them; :meth:`coriolis_fun` always forms that C explicitly.
+    base_method
+        ``"auto"`` (default), ``"numeric"`` or ``"symbolic"``: see below.
+
+    Base parameters come from numerical identifiability (Gautier's QR, seconds even
+    for 40 links; :func:`~softgen.symbolic.regressor.numeric_base_parameters`)
+    whenever the dynamics are linear in per-link inertial parameters whose entries
+    are polynomials of the uncertain ones, i.e. no uncertain parameter moves a joint
+    (lengths that place the next joint, offsets, g); otherwise from the exact
+    symbolic factorisation (:func:`~softgen.symbolic.regressor.factor_polynomial`).
+    Both give the same base columns and names; ``base_method`` (``"auto"``,
+    ``"numeric"``, ``"symbolic"``) forces one.
     """
 
-    def __init__(self, model: RobotModel, *, route: str = "auto"):
-        if route not in ("auto", "explicit", "matrix-free"):
-            raise ValueError(f"route: expected 'auto', 'explicit' or 'matrix-free', "
-                             f"got {route!r}")
+    def __init__(self, model: RobotModel, *, route: str = "auto", base_method: str = "auto"):
+        if route not in ("auto",) + ROUTES:
+            raise ValueError(f"route: expected 'auto', 'recursive', 'matrix-free' or "
+                             f"'explicit', got {route!r}")
+        if base_method not in ("auto", "numeric", "symbolic"):
+            raise ValueError(f"base_method: expected 'auto', 'numeric' or 'symbolic', "
+                             f"got {base_method!r}")
         self.model = model
-        if route == "auto":
-            route = "explicit" if model.dof <= AUTO_EXPLICIT_MAX_DOF else "matrix-free"
-        self.route = route
+        self.base_method = base_method
         self.nominal = Mechanics(model, model.nominal)
+        #: How each product was built and why (recorded in the bundle manifest).
+        self.route_detail: dict = {"requested": route}
+        if route == "auto":
+            route = self._choose_route()
+        self.route = route
+        self.route_detail["tau"] = route
+
+    def _tau_instructions(self, route: str) -> int:
+        m = self.nominal
+        f = ca.Function("tau", [m.q, m.qd, m.qd_r, m.qdd_r], [m.slotine_li(route)],
+                        FUNCTION_OPTS)
+        return int(f.n_instructions())
+
+    def _choose_route(self) -> str:
+        """The route whose τ has the fewest CasADi instructions (after cse), measured.
+
+        The explicit route is measured only when forming B alone is not already
+        larger than the best count so far: its cost grows ~n^3.7, so building it for
+        a long chain just to reject it would dominate generation time.
+        """
+        counts: dict[str, int] = {}
+        for route in ("recursive", "matrix-free"):
+            counts[route] = self._tau_instructions(route)
+        m = self.nominal
+        fB = ca.Function("B", [m.q], [m.inertia()], FUNCTION_OPTS)
+        if fB.n_instructions() < min(counts.values()):
+            counts["explicit"] = self._tau_instructions("explicit")
+        self.route_detail["tau_instructions"] = counts
+        return min(ROUTES, key=lambda r: (counts.get(r, float("inf")), ROUTES.index(r)))
 
     @property
     def name(self) -> str:
@@ -67,8 +139,100 @@ class RigidDynamics:
         return Mechanics(self.model, values), p
 
     @cached_property
+    def _linear(self) -> dict | None:
+        """The dynamics as τ = Y_δ(x) δ(p), or None when an uncertain parameter moves a joint.
+
+        δ holds each link's inertial parameters about its joint origin (those that act:
+        4 per planar link, 10 per spatial one) and the declared joint damping and
+        stiffness. τ is linear in δ whenever the kinematics are known; δ(p) are small
+        polynomials of the uncertain parameters p (e.g. m c, I_c + m c²).
+        """
+        model = self.model
+        moving = {x for link in model.links for x in link.origin_xyz if isinstance(x, str)}
+        if (moving | {"g"}) & set(model.uncertain):
+            return None
+        mech_p, _ = self._symbolic
+        fields = inertial_fields(model)
+        phys = physical_inertials(model, mech_p.values)
+        values = dict(model.nominal)
+        syms, of_p, inertials = [], [], []
+        for i, (link, ph) in enumerate(zip(model.links, phys), start=1):
+            z = ca.SX(0)
+            sy = {f: ca.SX.sym(f"{f}{i}") for f in fields}
+            h = ca.vertcat(sy["hx"], sy["hy"], sy.get("hz", z))
+            I = ca.vertcat(ca.horzcat(sy.get("Ixx", z), sy.get("Ixy", z), sy.get("Ixz", z)),
+                           ca.horzcat(sy.get("Ixy", z), sy.get("Iyy", z), sy.get("Iyz", z)),
+                           ca.horzcat(sy.get("Ixz", z), sy.get("Iyz", z), sy["Izz"]))
+            inertials.append(Inertial(m=sy["m"], h=h, I=I))
+            entry = {"m": ph.m, "hx": ph.h[0], "hy": ph.h[1], "hz": ph.h[2], "Ixx": ph.I[0, 0],
+                     "Iyy": ph.I[1, 1], "Izz": ph.I[2, 2], "Ixy": ph.I[0, 1],
+                     "Ixz": ph.I[0, 2], "Iyz": ph.I[1, 2]}
+            syms += [sy[f] for f in fields]
+            of_p += [entry[f] for f in fields]
+            for attr in ("damping", "stiffness"):
+                name = getattr(link, attr)
+                if name is not None:
+                    sym = ca.SX.sym(name)
+                    values[name] = sym
+                    syms.append(sym)
+                    of_p.append(model.resolve(name, mech_p.values))
+        m = self.nominal
+        delta = ca.vertcat(*syms)
+        tau = recursive_slotine_li(model, values, m.q, m.qd, m.qd_r, m.qdd_r, inertials)
+        return {"delta": delta, "of_p": ca.vertcat(*of_p), "values": values,
+                "inertials": inertials, "tau": tau, "fields": fields}
+
+    @cached_property
+    def _numeric_base(self) -> NumericBase | None:
+        lin = self._linear if self.base_method != "symbolic" else None
+        if lin is None:
+            if self.base_method == "numeric":
+                raise ValueError("base_method: 'numeric' needs dynamics linear in the link "
+                                 "inertials; an uncertain parameter moves a joint")
+            return None
+        m = self.nominal
+        _, p = self._symbolic
+        ins = [m.q, m.qd, m.qd_r, m.qdd_r]
+        y_delta = ca.Function("Y_delta", ins, [ca.jacobian(lin["tau"], lin["delta"])],
+                              FUNCTION_OPTS)
+        return numeric_base_parameters(lin["of_p"], p, self.model.uncertain, y_delta,
+                                       [(self.model.dof, 1)] * 4)
+
+    def _tau_delta(self, route: str) -> ca.SX:
+        """τ(x, δ) by ``route``, in the nominal symbols x."""
+        lin = self._linear
+        if route == "recursive":
+            return lin["tau"]
+        mech = Mechanics(self.model, lin["values"], lin["inertials"])
+        m = self.nominal
+        return ca.substitute([mech.slotine_li(route)], [mech.q, mech.qd, mech.qd_r, mech.qdd_r],
+                             [m.q, m.qd, m.qd_r, m.qdd_r])[0]
+
+    @cached_property
+    def _A(self) -> ca.DM:
+        """Y_b = Y_δ A, as a sparse constant (zeros stay structural: no code for them)."""
+        A = self._numeric_base.A
+        r, c = np.nonzero(A)
+        return ca.DM.triplet(r.tolist(), c.tolist(), A[r, c].tolist(), A.shape[0], A.shape[1])
+
+    @cached_property
     def base(self) -> BaseParameters:
         """Base regressor ``Y`` and base parameters ``π(p)`` (thesis eq. 9.1, 10.9)."""
+        nb = self._numeric_base
+        if nb is not None:
+            self.route_detail["base_parameters"] = "numeric (Gautier QR)"
+            lin = self._linear
+            tau = self._tau_delta(self.route)
+            Y = ca.mtimes(ca.jacobian(tau, lin["delta"]), self._A)
+            constant = None
+            if np.any(nb.a0 != 0):
+                # Known parts of δ (a mass that is not uncertain, a known damping).
+                constant = ca.substitute(tau, lin["delta"], ca.DM(nb.a0))
+                if self._numerically_zero(constant):
+                    constant = None
+            return BaseParameters(Y=Y, pi=nb.pi, names=nb.names, expressions=nb.expressions,
+                                  full_rank=nb.full_rank, constant=constant)
+        self.route_detail["base_parameters"] = "symbolic"
         mech, p = self._symbolic
         tau = mech.slotine_li(self.route)
         inputs = [mech.q, mech.qd, mech.qd_r, mech.qdd_r]
@@ -81,6 +245,17 @@ class RigidDynamics:
         if base.constant is not None:
             base.constant = ca.substitute([base.constant], subs_from, subs_to)[0]
         return base
+
+    def _x(self) -> list[ca.SX]:
+        m = self.nominal
+        return [m.q, m.qd, m.qd_r, m.qdd_r]
+
+    def _numerically_zero(self, expr: ca.SX) -> bool:
+        f = ca.Function("z", self._x(), [expr])
+        rng = np.random.default_rng(0)
+        return all(float(np.max(np.abs(np.array(
+            f(*[rng.uniform(-np.pi, np.pi, self.model.dof) for _ in range(4)]))))) <= 1e-14
+            for _ in range(3))
 
     @property
     def parameter_names(self) -> list[str]:
@@ -98,37 +273,104 @@ class RigidDynamics:
         return np.array(self.physical_to_base_fun(p0)).ravel()
 
     # -- named functions -----------------------------------------------------------
+    @_cached_fun
     def inertia_fun(self) -> ca.Function:
         m = self.nominal
         return _fun(f"{self.name}_inertia", [m.q], ["q"], [m.inertia()], ["B"])
 
+    @_cached_fun
     def coriolis_fun(self) -> ca.Function:
         m = self.nominal
         return _fun(f"{self.name}_coriolis", [m.q, m.qd], ["q", "qd"], [m.coriolis()], ["C"])
 
+    @_cached_fun
     def gravity_fun(self) -> ca.Function:
         m = self.nominal
         return _fun(f"{self.name}_gravity", [m.q], ["q"], [m.gravity()], ["G"])
 
+    @_cached_fun
     def regressor_fun(self) -> ca.Function:
         m = self.nominal
         return _fun(f"{self.name}_regressor", [m.q, m.qd, m.qd_r, m.qdd_r],
                     ["q", "qd", "qd_r", "qdd_r"], [self.base.Y], ["Y"])
 
+    def _pick(self, key: str, candidates: dict[str, ca.Function]) -> ca.Function:
+        """The candidate with the fewest instructions; the counts go to route_detail."""
+        counts = {k: int(f.n_instructions()) for k, f in candidates.items()}
+        best = min(candidates, key=lambda k: (counts[k], list(candidates).index(k)))
+        self.route_detail[key] = best
+        self.route_detail[f"{key}_instructions"] = counts
+        return candidates[best]
+
+    def _recursive_products(self) -> bool:
+        """Whether Y π̂ and Yᵀ s may be built without Y (and are worth measuring)."""
+        return (self._numeric_base is not None
+                and self.route_detail["requested"] in ("auto", "recursive"))
+
+    @_cached_fun
     def regressor_times_fun(self) -> ca.Function:
-        """(q, q̇, q̇_r, q̈_r, π) -> Y π  (the adaptive law's feed-forward)."""
+        """(q, q̇, q̇_r, q̈_r, π) -> Y π  (the adaptive law's feed-forward).
+
+        Either Y formed times π, or, without Y, the recursive dynamics at δ̂ = A π̂
+        (:class:`~softgen.symbolic.regressor.NumericBase`); ``auto`` keeps the smaller.
+        """
         m = self.nominal
+        name = f"{self.name}_regressor_times"
         pi = ca.SX.sym("pi", len(self.base.names))
-        return _fun(f"{self.name}_regressor_times", [m.q, m.qd, m.qd_r, m.qdd_r, pi],
-                    ["q", "qd", "qd_r", "qdd_r", "pi"], [ca.mtimes(self.base.Y, pi)], ["tau"])
+        args = ([m.q, m.qd, m.qd_r, m.qdd_r, pi], ["q", "qd", "qd_r", "qdd_r", "pi"])
+        cands = {"formed": lambda: _fun(name, *args, [ca.mtimes(self.base.Y, pi)], ["tau"])}
+        if self._recursive_products():
+            lin = self._linear
+            cands["recursive"] = lambda: _fun(
+                name, *args, [ca.substitute(lin["tau"], lin["delta"],
+                                                 ca.densify(ca.mtimes(self._A, pi)))],
+                ["tau"])
+        if self.route_detail["requested"] == "recursive" and "recursive" in cands:
+            cands = {"recursive": cands["recursive"]}
+        return self._pick("regressor_times", {k: c() for k, c in cands.items()})
 
+    @_cached_fun
     def regressor_transpose_times_fun(self) -> ca.Function:
-        """(q, q̇, q̇_r, q̈_r, s) -> Yᵀ s  (the adaptive law's update direction)."""
-        m = self.nominal
-        s = ca.SX.sym("s", self.model.dof)
-        return _fun(f"{self.name}_regressor_transpose_times", [m.q, m.qd, m.qd_r, m.qdd_r, s],
-                    ["q", "qd", "qd_r", "qdd_r", "s"], [ca.mtimes(self.base.Y.T, s)], ["Yts"])
+        """(q, q̇, q̇_r, q̈_r, s) -> Yᵀ s  (the adaptive law's update direction).
 
+        Candidates: Yᵀ formed times s; Aᵀ ∂(sᵀ τ)/∂δ by reverse-mode ``gradient`` over
+        the recursive τ ("reverse"); Aᵀ times the per-link blocks of the forward
+        sweep of :func:`~softgen.symbolic.recursive.regressor_transpose_times`
+        ("forward-sweep"). ``auto`` keeps the one with the fewest instructions.
+        """
+        m = self.nominal
+        name = f"{self.name}_regressor_transpose_times"
+        s = ca.SX.sym("s", self.model.dof)
+        args = ([m.q, m.qd, m.qd_r, m.qdd_r, s], ["q", "qd", "qd_r", "qdd_r", "s"])
+        cands = {"formed": lambda: _fun(name, *args, [ca.mtimes(self.base.Y.T, s)], ["Yts"])}
+        if self._recursive_products():
+            lin = self._linear
+            At = self._A.T
+
+            def reverse():
+                g = ca.gradient(ca.dot(s, lin["tau"]), lin["delta"])
+                g = ca.substitute(g, lin["delta"], ca.DM.zeros(lin["delta"].shape))
+                return _fun(name, *args, [ca.mtimes(At, g)], ["Yts"])
+
+            def forward():
+                blocks = regressor_transpose_times(self.model, lin["values"], m.q, m.qd,
+                                                   m.qd_r, m.qdd_r, s, lin["inertials"])
+                parts = []
+                for i, link in enumerate(self.model.links):
+                    parts.append(blocks[i])
+                    if link.damping is not None:
+                        parts.append(s[i] * m.qd[i])
+                    if link.stiffness is not None:
+                        parts.append(s[i] * m.q[i])
+                return _fun(name, *args, [ca.mtimes(At, ca.vertcat(*parts))], ["Yts"])
+
+            cands["reverse"] = reverse
+            cands["forward-sweep"] = forward
+            if self.route_detail["requested"] == "recursive":
+                del cands["formed"]
+        return self._pick("regressor_transpose_times", {k: c() for k, c in cands.items()})
+
+    @_cached_fun
     def inverse_dynamics_fun(self) -> ca.Function:
         """Nominal B q̈_r + C q̇_r + G + K q + D q̇ (direct, not through Y)."""
         m = self.nominal
@@ -144,17 +386,20 @@ class RigidDynamics:
                              ca.vertcat(m.qd, ca.DM.zeros(m.n)))
         return ca.solve(m.inertia(), tau - bias)
 
+    @_cached_fun
     def forward_dynamics_fun(self) -> ca.Function:
         m = self.nominal
         tau = ca.SX.sym("tau", self.model.dof)
         return _fun(f"{self.name}_forward_dynamics", [m.q, m.qd, tau], ["q", "qd", "tau"],
                     [self.forward_dynamics_expr(tau)], ["qdd"])
 
+    @_cached_fun
     def tip_fun(self) -> ca.Function:
         m = self.nominal
         p, J = m.tip()
         return _fun(f"{self.name}_tip", [m.q], ["q"], [p, J], ["p", "J"])
 
+    @_cached_fun
     def known_torque_fun(self) -> ca.Function | None:
         """Terms of the dynamics multiplying no uncertain parameter, if any."""
         if self.base.constant is None:
@@ -165,13 +410,13 @@ class RigidDynamics:
 
     # -- evaluation (the other half of the paired API) ------------------------------
     def inertia(self, q) -> np.ndarray:
-        return np.array(self.inertia_fun()(q))
+        return self.inertia_fun()(q).full()
 
     def coriolis(self, q, qd) -> np.ndarray:
-        return np.array(self.coriolis_fun()(q, qd))
+        return self.coriolis_fun()(q, qd).full()
 
     def gravity(self, q) -> np.ndarray:
-        return np.array(self.gravity_fun()(q)).ravel()
+        return self.gravity_fun()(q).full().ravel()
 
     def regressor(self, q, qd, qd_r, qdd_r) -> np.ndarray:
-        return np.array(self.regressor_fun()(q, qd, qd_r, qdd_r))
+        return self.regressor_fun()(q, qd, qd_r, qdd_r).full()
