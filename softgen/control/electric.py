@@ -103,9 +103,11 @@ stiffness; the integral variants start at σ_d with ξ(0) from :func:`integral_s
 
 **Adaptive start and projection** (measured on section 11.2's runs, dt = 1 ms, with
 the diagram blocks below; ``ch11-electric-adaptive`` repeats each run). From π̂_m(0) = 0
-(the thesis's start) Theorem 8's law drives b̂ below zero at once (b̂_1a = −7.6e-4 kg m²
-at 13 ms with the printed Λ_m = 0.1): an adapted motor of negative
-inertia, and the cascade diverges (0.33 s with Λ_m = 0.1, 6 ms with Λ_m = 10).
+(the thesis's start) Theorem 8's law drives b̂ below zero at once (b̂_1a = −1.2e-3 kg m²
+at 9 ms with the printed Λ_m = 0.1): an adapted motor of negative inertia, and the
+cascade diverges (0.24 s with Λ_m = 0.1, 6 ms with Λ_m = 10). Divergence times move with
+floating-point rounding (a change of the symbolic dynamics route moved the first from
+0.33 s to 0.24 s); the divergence does not.
 ``projection=True`` adds the gain ``b_min`` (2n) and keeps b̂ ≥ b_min after every
 update: the projection of adaptive control (Ioannou & Sun, Robust Adaptive Control),
 which keeps V̇ ≤ 0 of Theorem 8 because the set b̂ ≥ b_min contains the true b. With
@@ -113,7 +115,7 @@ b_min = 0.1 b the antagonist motors' b̂ sit on the bound for the whole run (the
 keeps pushing them down) and the cascades track. The printed inner Λ_m = 0.1 leaves a
 motor pole at ≈ 0.1 rad/s (b s² + k s + kΛ, b = 1e-3, k = 0.1): joint-2 position rms
 0.14 rad over the second half of 40 s, the same at dt = 0.1 ms; Λ_m = 10 gives 1e-3 rad.
-Remark 11's k_π = 7 diverges at 0.122 s at dt = 1 ms and at 0.129 s at dt = 0.1 ms (not
+Remark 11's k_π = 7 diverges at 0.114 s at dt = 1 ms and at 0.129 s at dt = 0.1 ms (not
 the Euler step: the link adaptation outruns the inner loop that must realise its
 torques); k_π = 0.2 (Theorem 9's) works.
 

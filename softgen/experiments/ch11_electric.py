@@ -15,14 +15,14 @@ quasi-steady stiffness (without integral) or with the integral holding the Δ of
 Adaptive cascades (issue 12, item 3; measured with this module's diagrams).
 The thesis starts every estimate at 0, the motor inertia b̂ included. From b̂ = 0 the
 first samples drive b̂ below 0, an adapted motor of negative inertia, and the loop
-diverges (``unprojected_*``: at 6 ms and 49 ms; with the printed Λ_m = 0.1, b̂_1a =
-−7.6e-4 kg m² at 13 ms and divergence at 0.33 s, a run not repeated here). Fix: the
+diverges (``unprojected_*``: at 6 ms and 0.1 s; with the printed Λ_m = 0.1, b̂_1a =
+−1.2e-3 kg m² at 9 ms and divergence at 0.24 s, a run not repeated here). Fix: the
 projection b̂ ≥ ``b_min`` (Ioannou & Sun, Robust Adaptive Control), a bound that holds
 the true b, so Theorem 8's V̇ ≤ 0 is kept. Two printed gains fail even so
 (``printed_gains_*``): the inner Λ_m = 0.1 puts a motor pole at ≈ 0.1 rad/s (b s² + k s
 + kΛ with b = 1e-3, k = 0.1), the motors lag their references for seconds and joint 2
 misses by ~0.1 rad; Λ_m = ``lam_m`` = 10 tracks. Remark 11's k_π = 7 diverges at
-0.12 s, and at 0.13 s with dt = 0.1 ms (``printed_gains_dt_1e-4_*``), so it is not the
+0.11 s, and at 0.13 s with dt = 0.1 ms (``printed_gains_dt_1e-4_*``), so it is not the
 Euler step; the link adaptation is then faster than the inner loop that must realise its
 torques. k_π = ``kpi_integral`` = 0.2, Theorem 9's value, tracks.
 """
