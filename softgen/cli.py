@@ -175,7 +175,7 @@ def _cmd_estimate(args) -> int:
     from .errors import NonFiniteError
     from .estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
     from .estimation.estimators import EstimatorConfig, StiffnessEstimator
-    from .estimation.offline import run_offline
+    from .estimation.offline import estimation_result, offline_diagram, split_measurements
     from .model import load_model
     t0 = time.perf_counter()
     model = load_model(args.model)
@@ -220,7 +220,11 @@ def _cmd_estimate(args) -> int:
                            f"step {dt:.9g} s of {log}; drop --dt or resample the log")
     if args.dt is None:
         est = StiffnessEstimator(model, replace(config, dt=dt))
-    result = run_offline(est, Y)
+    from .runtime.simulate import simulate
+    # A diverged estimator stays non-finite: stop there, the rest is NaN.
+    trace = simulate(offline_diagram(est), steps=len(Y), externals=split_measurements(est, Y),
+                     on_nonfinite="stop")
+    result = estimation_result(est, trace, samples=len(Y))
     write_estimates(out, t, result, est)
     bad = first_non_finite(t, result, est)
     if bad is not None:

@@ -7,9 +7,18 @@ import pytest
 
 from softgen.errors import ModelError
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
-from softgen.estimation.offline import run_offline
+from softgen.estimation.offline import (estimation_result, offline_diagram,
+                                        split_measurements)
 from softgen.estimation.rls import RLS, ExcitationGate, excitation_step, rls_step
 from softgen.model import load_model
+from softgen.runtime.simulate import simulate
+
+
+def run_offline(est, Y, freeze_at=None):
+    """The estimator block over recorded measurements, through the one driver."""
+    d = offline_diagram(est, hold=freeze_at is not None)
+    tr = simulate(d, steps=len(Y), externals=split_measurements(est, Y, freeze_at=freeze_at))
+    return estimation_result(est, tr)
 
 
 def test_rls_recovers_exact_parameters():

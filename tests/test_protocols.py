@@ -7,18 +7,20 @@ the 2-DoF runs rely on.
 """
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
-from softgen.estimation.offline import run_offline
-from softgen.estimation.rls import ExcitationGate
+from softgen.estimation.offline import (estimation_result, offline_diagram,
+                                        split_measurements)
+from softgen.estimation.indices import excitation_records
+from softgen.estimation.rls import ExcitationGate, excitation_std
 from softgen.experiments import ch6_electric_protocol as ch6
 from softgen.experiments import ch7_noninvasive_protocol as ch7
-from softgen.experiments import electric_common as ec
+from softgen.metrics import Metrics
 from softgen.model import load_model
+from softgen.plants.qbmove import motor_references, phased_references
+from softgen.runtime.simulate import simulate
 from softgen.symbolic.actuators import QbmoveSprings
 from softgen.symbolic.rigid import RigidDynamics
 
@@ -26,6 +28,13 @@ from softgen.symbolic.rigid import RigidDynamics
 
 DT = 5e-3
 SWITCH = 10.0          # s: deflections sweep before, stay constant after
+
+
+def run_offline(est, Y, freeze_at=None):
+    """The estimator block over recorded measurements, through the one driver."""
+    d = offline_diagram(est, hold=freeze_at is not None)
+    tr = simulate(d, steps=len(Y), externals=split_measurements(est, Y, freeze_at=freeze_at))
+    return estimation_result(est, tr)
 
 
 def synthetic(model, duration=25.0):
@@ -74,7 +83,9 @@ def test_gate_stops_in_constant_phase_and_runs_in_varying_one(qbmove):
 def test_deflection_statistic_separates_the_phases(qbmove):
     t, Y = synthetic(qbmove)
     phase = (t >= SWITCH).astype(int)
-    stats = ch6.deflection_stats(t, phase, ch6.measured_deflections(Y, 1), DT, 1.0, "x_")
+    phi = np.column_stack([Y[:, 0] - Y[:, 1], Y[:, 0] - Y[:, 2]])
+    stats = excitation_records(Metrics(), t, phase, excitation_std(phi, DT / 1.0), 1.0,
+                               prefix="x_").flat()
     # phase 2 still remembers the sweep for a few 2W after its start: median, not p95
     assert stats["x_deflection_std_p05_phase1"] > 5e-3 > stats["x_deflection_std_phase2"]
 
@@ -97,12 +108,12 @@ def test_freeze_zeroes_the_covariance_and_holds_the_parameters(qbmove):
 def test_allocation_realises_sigma_d_for_two_joints():
     model = load_model("planar_2link")
     dyn = RigidDynamics(model)
-    fns = {f"{model.name}_inverse_dynamics": SimpleNamespace(
-        function=dyn.inverse_dynamics_fun())}
     t = np.linspace(0.0, 8.0, 41)
-    c = {**ch6.CONFIG, "phase_duration": 4.0}
-    q_d, qd_d, qdd_d, s_d = ch6.phased_references(t, c, 2)
-    refs = ec.motor_references(model, fns, q_d, qd_d, qdd_d, s_d)
+    c = ch6.EXPERIMENT.config
+    q_d, qd_d, qdd_d, s_d = phased_references(t, (c.q_d,) * 2,
+                                              (c.sigma_d,) * 2,
+                                              phase_duration=4.0, phases=c.phases)
+    refs = motor_references(model, q_d, qd_d, qdd_d, s_d)
     sp = QbmoveSprings(model)
     phi_a, phi_b = q_d.T - refs[:, :2], q_d.T - refs[:, 2:]
     sigma = sp.a_a * sp.k_a * np.cosh(sp.a_a * phi_a) + sp.a_b * sp.k_b * np.cosh(sp.a_b * phi_b)
@@ -114,7 +125,9 @@ def test_allocation_realises_sigma_d_for_two_joints():
 
 def test_phased_references_follow_the_protocol():
     t = np.array([1.0, 201.0, 401.0])
-    q, qd, qdd, s = ch6.phased_references(t, ch6.CONFIG, 1)
+    c = ch6.EXPERIMENT.config
+    q, qd, qdd, s = phased_references(t, (c.q_d,), (c.sigma_d,),
+                                      phase_duration=c.phase_duration, phases=c.phases)
     w_q, w_s = np.pi / 4, np.pi / 8
     np.testing.assert_allclose(q[0], [0.53 + 0.2 * np.sin(w_q), 0.53 + 0.2 * np.sin(201 * w_q),
                                       0.53])
@@ -133,8 +146,8 @@ def _check(metrics: dict, thesis: dict, required: list[str]):
 
 @pytest.mark.slow
 def test_ch6_protocol_smoke(tmp_path):
-    cfg = {**ch6.CONFIG, "phase_duration": 2.0, "gate": {"window": 0.5, "threshold": 5e-3}}
-    metrics = ch6.run(cfg, tmp_path)
+    cfg = ch6.EXPERIMENT.config.replace(phase_duration=2.0, gate_window=0.5)
+    metrics = ch6.run(cfg, tmp_path).flat()
     req = [f"{p}{m}_joint1" for p in ("dof1_drift_", "dof1_stop_", "")
            for m in ("stiffness_mse", "stiffness_msrep", "torque_mse", "torque_msrep",
                      "vs_nominal_stiffness_msrep")]
@@ -149,14 +162,13 @@ def test_ch6_protocol_smoke(tmp_path):
 
 @pytest.mark.slow
 def test_ch7_protocol_smoke(tmp_path):
-    cfg = {**ch7.CONFIG, "phase_duration": 2.0, "metric_window": [1.0, 4.0],
-           "freeze_time": 1.0, "gate": {"window": 0.5, "threshold": 5e-3}}
-    metrics = ch7.run(cfg, tmp_path)
+    cfg = ch7.EXPERIMENT.config.replace(phase_duration=2.0, metric_window=(1.0, 4.0),
+                                        freeze_time=1.0, gate_window=0.5)
+    metrics = ch7.run(cfg, tmp_path).flat()
     req = [f"{p}stiffness_{m}_joint1" for p in ("", "nostop_", "freeze_", "dof2_",
                                                  "ideal_sensors_") for m in ("mse", "msrep")]
     req += ["dof2_stiffness_mse_joint2", "rotatum_uio_rms_error_joint1",
             "update_fraction_phase1", "deflection_std_phase2"]
     _check(metrics, ch7.THESIS, req)
     assert metrics["metric_window_start"] == 1.0
-    assert (tmp_path / "traces.npz").exists()
     assert (tmp_path / "protocol.png").exists()

@@ -1,18 +1,27 @@
-"""Run an estimator's step over recorded measurements (``softgen estimate``, experiments).
+"""Estimators over recorded measurements: a diagram to run, estimates aligned to samples.
+
+Estimation builds the blocks; the caller runs them through the one driver
+(:func:`softgen.runtime.simulate.simulate`), so this package imports neither the
+runtime nor the code generator::
+
+    d = offline_diagram(est)
+    tr = simulate(d, steps=len(Y), externals=split_measurements(est, Y))
+    res = estimation_result(est, tr)
 
 The step returns, at sample k, the estimates for sample k − L (the observer's
-delay); :func:`run_offline` files them under the sample they refer to, so the
-last L samples have none (NaN).
+delay); :func:`estimation_result` files them under the sample they refer to, so the
+last L samples have none (NaN). The same applies to an estimator block running in a
+diagram with its plant and sensors.
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..blocks import ClosedLoop
 from ..errors import ShapeError
-from .estimators import StiffnessEstimator
+from .estimators import EstimatorBase
 
 
 @dataclass
@@ -32,21 +41,22 @@ class EstimationResult:
         return self.wall_seconds / max(1, self.sigma_hat.shape[0])
 
 
-def run_offline(est: StiffnessEstimator, Y: np.ndarray, *, step=None,
-                state0: np.ndarray | None = None,
-                freeze_at: int | None = None) -> EstimationResult:
-    """Run ``est`` over measurements ``Y`` (K × len(est.measurements)).
+def offline_diagram(est: EstimatorBase, *, hold: bool = False, p0=None,
+                    name: str = "est") -> ClosedLoop:
+    """The estimator block alone, fed by external inputs named as its input groups
+    (``q``, ``qa``, ... and ``hold`` with ``hold=True``)."""
+    b = est.block(name, hold=hold, p0=p0)
+    return ClosedLoop(f"{est.name}_offline{'_hold' if hold else ''}", [b],
+                      externals={s.name: s.size for s in b.inputs})
 
-    ``step`` is a loaded function with buffers (a compiled bundle's
-    ``<model>_<method>_estimator_step``); by default the casadi.Function is wrapped.
-    ``state0`` replaces the initial state (e.g. a P(0) per joint, section 7.4).
-    ``freeze_at`` stops every RLS update from that sample on, as the thesis does once
-    the parameters have converged (section 7.4): each covariance is set to zero, so
-    the gain of eq. 5.5 is zero and Π̂ and P stay as they are.
+
+def split_measurements(est: EstimatorBase, Y: np.ndarray, *,
+                       freeze_at: int | None = None) -> dict[str, np.ndarray]:
+    """Measurements ``Y`` (K × len(est.measurements)) as the diagram's externals.
+
+    ``freeze_at`` (for a diagram built with ``hold=True``) stops every RLS update from
+    that sample on (:meth:`EstimatorBase.block`).
     """
-    from ..codegen.generate import signature
-    from ..runtime.library import BundleFunction
-
     Y = np.asarray(Y, dtype=float)
     if Y.ndim != 2 or Y.shape[1] != est.n_meas:
         raise ShapeError(f"measurements: expected shape (K, {est.n_meas}) with columns "
@@ -54,37 +64,49 @@ def run_offline(est: StiffnessEstimator, Y: np.ndarray, *, step=None,
     if not np.all(np.isfinite(Y)):
         bad = int(np.argwhere(~np.isfinite(Y))[0, 0])
         raise ValueError(f"measurements: non-finite value in sample {bad}")
-    if step is None:
-        f = est.step_fun()
-        step = BundleFunction(f, signature(f))
-    K, n, L = Y.shape[0], est.n_out, est.config.delay
-    n_rls = len(est.rls_names)
-    sigma = np.full((K, n), np.nan)
-    tau = np.full((K, n), np.nan)
-    tau_u = np.full((K, n), np.nan)
-    upd = np.zeros((K, n_rls))
-    states = np.empty((K, est.n_state))
-    s_in, y_in = step.inputs
-    s_next, o_sigma, o_tau, o_tau_u, o_upd = step.outputs
-    s_in[:] = est.initial_state() if state0 is None else state0
-    call = step.call
-    p_slices = [est.layout[f"P_{r}"] for r in est.rls_names]
-    t0 = time.perf_counter()
-    for k in range(K):
-        if k == freeze_at:
-            for sl in p_slices:
-                s_in[sl] = 0.0
-        y_in[:] = Y[k]
-        call()
-        s_in[:] = s_next
-        states[k] = s_next
-        j = k - L
-        if j >= 0:
-            sigma[j], tau[j], tau_u[j], upd[j] = o_sigma, o_tau, o_tau_u, o_upd
-    wall = time.perf_counter() - t0
-    # The parameters after the step that estimated sample j were produced at k = j + L.
-    theta = {r: np.vstack([v[L:], np.full((L, v.shape[1]), np.nan)])
-             for r, v in est.theta(states).items()}
+    out, o = {}, 0
+    for g, size in est.groups:
+        out[g] = Y[:, o:o + size]
+        o += size
     if freeze_at is not None:
-        upd[max(0, freeze_at - L):] = 0.0     # the step's flag does not see P = 0
-    return EstimationResult(sigma, tau, tau_u, upd, theta, L, wall)
+        out["hold"] = (np.arange(Y.shape[0]) >= freeze_at).astype(float)[:, None]
+    return out
+
+
+def estimation_result(est: EstimatorBase, trace, name: str = "est", *,
+                      samples: int | None = None) -> EstimationResult:
+    """The outputs of estimator block ``name`` in ``trace`` filed under their sample.
+
+    ``trace[f"{name}.sigma_hat"]`` etc. are the block's outputs per sample k (estimates
+    for k − L); row j of the result is sample j (NaN, or 0 for ``updating``, in the
+    last L rows). ``samples``: the length of the log, when the run stopped early at a
+    non-finite value (``simulate(..., on_nonfinite="stop")``): the rows from there
+    on are NaN, as a diverged estimator's would be.
+    """
+    L = est.config.delay
+
+    def shift(v, fill):
+        v = np.asarray(v, dtype=float)
+        K = v.shape[0] if samples is None else samples
+        out = np.full((K, v.shape[1]), fill)
+        n = max(min(v.shape[0], K) - L, 0)
+        out[:n] = v[L:L + n]
+        return out
+
+    th = shift(trace[f"{name}.theta"], np.nan)
+    n_par = est.n_parameters
+    theta = {r: th[:, i * n_par:(i + 1) * n_par] for i, r in enumerate(est.rls_names)}
+    return EstimationResult(shift(trace[f"{name}.sigma_hat"], np.nan),
+                            shift(trace[f"{name}.tau_hat"], np.nan),
+                            shift(trace[f"{name}.tau_uio"], np.nan),
+                            shift(trace[f"{name}.updating"], 0.0), theta, L,
+                            float(getattr(trace, "wall_seconds", 0.0)))
+
+
+#: What a run of an estimator block records.
+OUTPUTS = ("sigma_hat", "tau_hat", "tau_uio", "updating", "theta")
+
+
+def recorded(name: str = "est") -> list[str]:
+    """The signals :func:`estimation_result` reads, for ``simulate(record=...)``."""
+    return [f"{name}.{o}" for o in OUTPUTS]

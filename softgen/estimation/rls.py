@@ -97,3 +97,20 @@ class RLS:
         self.theta, self.P = rls_step(self.theta, self.P, np.asarray(phi, float), float(f),
                                       forgetting=self.forgetting)
         return self.theta
+
+
+def excitation_std(s: np.ndarray, alpha: float) -> np.ndarray:
+    """The gate's statistic along a recorded signal, vectorised: sqrt(v_k) per column.
+
+    The recursion of :func:`excitation_step` from m_0 = s_0, v = 0 (the state after
+    sample k, as the gate sees it), as two first-order linear filters: m by
+    lfilter, then v driven by α (s_k − m_{k−1})².
+    """
+    from scipy.signal import lfilter
+    s = np.asarray(s, dtype=float)
+    # m_k = (1 − α) m_{k−1} + α s_k, started at m_{-1} = s_0.
+    m, _ = lfilter([alpha], [1.0, alpha - 1.0], s, axis=0, zi=(1 - alpha) * s[:1])
+    prev = np.vstack([s[:1], m[:-1]])
+    d2 = alpha * (s - prev) ** 2
+    v = lfilter([1 - alpha], [1.0, alpha - 1.0], d2, axis=0)
+    return np.sqrt(v)

@@ -11,45 +11,41 @@ springs a1/k1 and a2/k2 of eq. 7.14), even powers (0, 2, 4) per side as in 7.3.
 
 Section 7.3 gives neither references, sample time, P(0) nor run length: we track
 sinusoidal position and stiffness references through the motors' servos (the
-exact-model allocation of :mod:`electric_common`), T = 10⁻³ s, P(0) = 10⁸ I, 60 s,
-indices after the first 10 %. The thesis reports no numbers for these runs
+exact-model allocation of :mod:`softgen.plants.qbmove`), T = 10⁻³ s, P(0) = 10⁸ I,
+60 s, indices after the first 10 %. The thesis reports no numbers for these runs
 (figures only), so ``thesis`` is empty. Torque entries are for the rotatum τ̇_e.
 """
 from __future__ import annotations
 
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..estimation.offline import run_offline
-from . import electric_common as ec
-from .estimation_common import error_metrics, estimation_figures
-from .registry import Experiment
+from ..model import load_model
+from ..plants.qbmove import (Sinusoids, motor_references, phased_references,
+                             servo_initial_state)
+from .estimation_common import estimator, figures, qbmove_run, variant_records
+from .registry import Config, Experiment, Metrics, finding, num
 
-CONFIG_1DOF = {
-    "model": "pendulum_qbmove",
-    "duration": 60.0,
-    "dt": 1e-3,
-    "substeps": 10,
-    "servo_bandwidth": 300.0,           # rad/s, the motors' own position loop
-    "q_d": [{"offset": 0.0, "amplitude": 0.3, "omega": np.pi / 4}],
-    "sigma_d": [{"offset": 5.0, "amplitude": 2.0, "omega": np.pi / 6}],
-    "powers": [0, 2, 4],
-    "p0": 1e8,
-    "delay": 3,
-    "metric_window": None,
-}
 
-CONFIG_2DOF = {
-    **CONFIG_1DOF,
-    "model": "planar_2link",
-    "q_d": [{"offset": 0.3, "amplitude": 0.2, "omega": np.pi / 4},
-            {"offset": 0.2, "amplitude": 0.2, "omega": np.pi / 5}],
-    "sigma_d": [{"offset": 5.0, "amplitude": 2.0, "omega": np.pi / 6},
-                {"offset": 3.0, "amplitude": 1.0, "omega": np.pi / 7}],
-    "powers": [0, 1, 2, 3, 4],
-}
+@dataclass(frozen=True)
+class NoninvasiveConfig(Config):
+    model: str = "pendulum_qbmove"
+    duration: float = 60.0
+    dt: float = 1e-3
+    substeps: int = 10
+    servo_bandwidth: float = 300.0           # rad/s, the motors' own position loop
+    q_d: Sinusoids = ((0.0, 0.3, np.pi / 4),)
+    sigma_d: Sinusoids = ((5.0, 2.0, np.pi / 6),)
+    powers: tuple[int, ...] = (0, 2, 4)
+    p0: float = 1e8
+    delay: int = 3
+    metric_window: tuple[float, float] | None = None
 
+
+CONFIG_2DOF = NoninvasiveConfig(
+    model="planar_2link", q_d=((0.3, 0.2, np.pi / 4), (0.2, 0.2, np.pi / 5)),
+    sigma_d=((5.0, 2.0, np.pi / 6), (3.0, 1.0, np.pi / 7)), powers=(0, 1, 2, 3, 4))
 
 DISCUSSION = """
 **Reading.** The thesis prints figures, no numbers, for these simulations. The
@@ -60,50 +56,52 @@ are the informative ones. The rotatum carries a lightly damped link oscillation
 """
 
 
-def references(t, c):
-    q = np.array([ec.sinusoid(t, **r) for r in c["q_d"]])           # (n, 3, K)
-    s = np.array([ec.sinusoid(t, **r)[0] for r in c["sigma_d"]])    # (n, K)
-    return q[:, 0], q[:, 1], q[:, 2], s
-
-
-def run(config: dict, out: Path) -> dict:
-    model, est, fns, t = ec.setup("noninvasive", config, out, servo=True)
-    n, dt, K = model.dof, config["dt"], len(t)
-    q_d, qd_d, qdd_d, sigma_d = references(t, config)
-    refs = ec.motor_references(model, fns, q_d, qd_d, qdd_d, sigma_d)
-    x0 = np.concatenate([q_d[:, 0], qd_d[:, 0], refs[0, :n], qd_d[:, 0], refs[0, n:],
-                         qd_d[:, 0]])
-    tr = ec.simulate(model, fns, dt=dt, K=K, x0=x0, inputs=refs,
-                     spring_scale=np.ones(2 * n), servo=True)
-    Y = ec.measure(tr, "noninvasive", n, config.get("sensors", {}), np.random.default_rng(0))
-    res = run_offline(est, Y, step=fns[est.step_fun().name()])
-    metrics, interval = error_metrics(t, tr.sigma, tr.rotatum, res, config["metric_window"])
-    mask = (t >= interval[0]) & (t <= interval[1])
-    for i in range(n):
-        metrics[f"position_rms_error_joint{i + 1}"] = float(
-            np.sqrt(np.mean((tr.x[mask, i] - q_d[i, mask]) ** 2)))
-    metrics["estimator_seconds_per_step"] = res.seconds_per_step
-    metrics["metric_window_start"], metrics["metric_window_end"] = interval
-    np.savez_compressed(out / "traces.npz", t=t, x=tr.x, sigma=tr.sigma, rotatum=tr.rotatum,
-                        sigma_hat=res.sigma_hat, rotatum_hat=res.tau_hat,
+def run(c: NoninvasiveConfig, out) -> Metrics:
+    model = load_model(c.model)
+    est = estimator(model, "noninvasive", c)
+    K = int(round(c.duration / c.dt)) + 1
+    t = np.arange(K) * c.dt
+    q_d, qd_d, qdd_d, sigma_d = phased_references(t, c.q_d, c.sigma_d)
+    refs = motor_references(model, q_d, qd_d, qdd_d, sigma_d)
+    tr, truth = qbmove_run(f"ch7_noninvasive_{model.name}", model, c, {"est": est.block("est")},
+                           K=K, inputs={"q_ref": refs}, x0=servo_initial_state(q_d, qd_d, refs),
+                           servo=True)
+    m, res, mask = variant_records(tr, truth, est, "est", c.metric_window, truth.rotatum)
+    for i in range(model.dof):
+        m.add("position_rms_error", np.sqrt(np.mean((tr["plant.q"][mask, i] - q_d[i, mask])
+                                                    ** 2)), "rad", joint=i + 1)
+    m.add("metric_window_start", t[mask][0], "s")
+    m.add("metric_window_end", t[mask][-1], "s")
+    np.savez_compressed(out / "traces.npz", t=t, q=tr["plant.q"], sigma=truth.sigma,
+                        rotatum=truth.rotatum, sigma_hat=res.sigma_hat, rotatum_hat=res.tau_hat,
                         rotatum_uio=res.tau_uio, q_d=q_d, sigma_d=sigma_d,
                         **{f"theta_{r}": v for r, v in res.theta.items()})
-    estimation_figures(out, t, tr.sigma, tr.rotatum, res, title="non-invasive",
-                       torque_label="rotatum [N m/s]",
-                       names={r: est.parameter_names(r) for r in est.rls_names})
-    return metrics
+    figures(out, "", tr, truth.sigma, truth.rotatum, res, est, "non-invasive",
+            torque_label="rotatum [N m/s]")
+    return m
+
+
+def findings(m: dict) -> list[dict]:
+    """Fig. 7.2-7.3 show the estimate on the true stiffness: MSREP below 1 %."""
+    js = [k[-1] for k in m if k.startswith("stiffness_msrep_joint")]
+    ok = [m[f"stiffness_msrep_joint{j}"] < 1.0 for j in js]
+    return [finding("Fig. 7.2-7.3: the non-invasive estimate follows the true stiffness",
+                    "reproduced" if all(ok) else "partly reproduced" if any(ok)
+                    else "not reproduced",
+                    "stiffness MSREP " + ", ".join(
+                        f"joint {j}: {num(m[f'stiffness_msrep_joint{j}'])} %" for j in js)
+                    + " (threshold 1 %); MSE " + ", ".join(
+                        num(m[f"stiffness_mse_joint{j}"]) for j in js))]
 
 
 EXPERIMENT_1DOF = Experiment(
     id="ch7-noninvasive-1dof",
     title="Non-invasive stiffness estimation, one-link qbmove robot (Theorem 3/4 + RLS)",
-    section="7.3, Fig. 7.2",
-    run=run, config=CONFIG_1DOF, quick={"duration": 20.0}, thesis={}, discussion=DISCUSSION,
-)
+    section="7.3, Fig. 7.2", run=run, config=NoninvasiveConfig(), quick={"duration": 20.0},
+    thesis={}, discussion=DISCUSSION, findings=findings)
 
 EXPERIMENT_2DOF = Experiment(
     id="ch7-noninvasive-2dof",
     title="Non-invasive stiffness estimation, two-link arm with qbmove VSAs (Theorem 4 + RLS)",
-    section="7.3, Fig. 7.3",
-    run=run, config=CONFIG_2DOF, quick={"duration": 20.0}, thesis={}, discussion=DISCUSSION,
-)
+    section="7.3, Fig. 7.3", run=run, config=CONFIG_2DOF, quick={"duration": 20.0},
+    thesis={}, discussion=DISCUSSION, findings=findings)

@@ -1,119 +1,84 @@
 """``ch7-noninvasive-protocol``: section 7.4, Fig. 7.5-7.7.
 
 The non-invasive estimator (Theorem 4: link observer on q⁽³⁾ = U with L = 3, rotatum
-from eq. 7.9 on the symbolic model, deflection rates from a second observer on the
-measured deflections; one RLS per joint on (φ̇_a φ_a^j, φ̇_b φ_b^j), j = 0, 2, 4, 6,
-Π̂(0) = 0, P(0) = diag(1, 10³, 10⁵, 10⁵, 1, 10³, 10⁵, 10⁵)) on the emulated qbmove
-hardware of :mod:`ch6_electric_protocol` (same choices and measurements behind
-them): T = 5·10⁻³ s, encoders of 8192 counts/rev on link and motors (no further
-noise; the estimator reads no torque), springs 20 % stiffer than the nominal model
-the allocation uses, motor servos of 1000 rad/s, plant RK4 with 20 substeps.
+from eq. 7.9, deflection rates from a second observer on the measured deflections; one
+RLS per joint on (φ̇_a φ_a^j, φ̇_b φ_b^j), j = 0, 2, 4, 6, Π̂(0) = 0,
+P(0) = diag(1, 10³, 10⁵, 10⁵, 1, 10³, 10⁵, 10⁵)) on the emulated qbmove hardware of
+``ch6-electric-protocol`` (T = 5·10⁻³ s, 8192-count encoders, no torque sensor, springs
+20 % stiffer than the model the allocation uses, servos of 1000 rad/s), all variants
+in one diagram with the plant.
 
-1-DoF (``qbmove_1dof``): q_d = 0.4 + 0.2 sin(πt/4), σ_d = 2 + sin(πt/6) for
-t < 400 s, then q_d = 0.4 and the same σ_d to 800 s (continuous: sin(100π) = 0).
-Indices on t ∈ [200, 800] s as the thesis (config ``metric_window``; the quick run
-scales protocol and window by 1/10). MSREP in percent: the thesis's pair (MSE
-3.8·10⁻⁵, MSREP 0.0012 %) is consistent with that reading, 100 · MSE / mean σ² ≈
-0.0008 % at σ ≈ 2.
+1-DoF (``qbmove_1dof``): q_d = 0.4 + 0.2 sin(πt/4), σ_d = 2 + sin(πt/6) for t < 400 s,
+then q_d = 0.4 and the same σ_d to 800 s. Indices on t ∈ [200, 800] s as the thesis;
+MSREP in percent. 2-DoF (``planar_2link``, ``dof2_*``): P₁, P₂ per joint as printed;
+both joints get the 1-DoF position reference, σ_1d = 5 + sin(πt/6), σ_2d = 4 + sin(πt/6)
+(σ_d = 2 + sin is infeasible on joint 1; these are the levels the thesis's own
+MSE/MSREP pairs imply).
 
-**Update stop.** The thesis stops the update "after the parameters converge"
-without a rule. We run the ExcitationGate of ``ch6-electric-protocol`` (W = 2 s,
-s_min = 5·10⁻³ rad on the joint's two measured deflections; unprefixed keys) and
-the estimator without it (``nostop_*``). Both phases vary σ, so the deflections
-sweep a range in both and the gate seldom closes (``update_fraction_phase{k}``,
-``deflection_std_phase{k}`` report it); a stop "after convergence" is not an
-excitation rule, so it is emulated as a third variant ``freeze_*``: the update is
-stopped at ``freeze_time`` (200 s, the start of the thesis's index window; Fig. 7.5
-shows the parameters settled by then) by zeroing the RLS covariance.
-
-2-DoF (``planar_2link``, ``dof2_*``, run with the gate): P₁ = diag(1, 10², 10⁴, 10⁵,
-…), P₂ = diag(1, 10, 10⁵, 10⁷, …) as printed. The thesis gives no references for it.
-Both joints get the 1-DoF position reference; σ_d = 2 + sin is infeasible on joint 1
-(it carries both links' gravity torque, up to 0.30 N m, and (σ/(a k))² − (τ/k)² ≥ 4
-fails), so σ_1d = 5 + sin(πt/6), σ_2d = 4 + sin(πt/6) — the levels the thesis's own
-MSE/MSREP pairs imply (100 · MSE/MSREP = 30 and 19 N²m²/rad², i.e. σ ≈ 5.5 and 4.4).
-The thesis's P₁, P₂ per joint are set in the initial state (EstimatorConfig has one
-P(0) for every RLS).
-
-The thesis's numbers are from hardware and comparable only in kind. Torque entries
-are for the rotatum τ̇_e (as ``ch7-noninvasive-*``); ``rotatum_uio_*`` report how
-far the observer's rotatum, the RLS target, is from the truth (see "Noise" below).
-
-**Findings: the estimates fail, because of the encoders** (full run, 53 s). With
-8192-count encoders the 1-DoF stiffness estimate settles at σ̂ ≈ −111 N m/rad
-(truth 1.1-3.3): MSE 1.3·10⁴, with or without the stop or the freeze. The same
-plant run read by unquantised encoders (``ideal_sensors_*``) gives MSE 1.4·10⁻³
-(σ̂ mean 2.21 against 2.24). Why, measured:
-
-* the RLS target is the rotatum from the link observer, which reconstructs q⁽³⁾
-  from four samples: encoder quantisation (steps of 2π/8192 = 7.7·10⁻⁴ rad, std
-  2.2·10⁻⁴ rad) enters as a third difference over T³ = 1.25·10⁻⁷ s³, ≈ 7.9·10³
-  rad/s³ for white quantisation noise, times B = 2.6·10⁻³ kg m² ≈ 21 N m/s. Measured
-  ``rotatum_uio_rms_error_joint1`` 11.9 N m/s (18 in [200, 400) s, 6.8 in phase 2,
-  where the link stands still) against a true rotatum of 0.125 N m/s rms: a
-  signal-to-noise ratio of about 1/100;
-* the regressor's deflection rates come from first differences over T of the same
-  encoders (first difference of the measured deflection: error 0.093 rad/s rms
-  against 0.054 rad/s of signal);
-* both noises contain the *link* encoder's quantisation error ε (in the target as
-  −B ε⃛, in the regressor as ε̇), and a third and a first difference of ε are
-  correlated (measured correlation 0.60 on this run), so least squares does not
-  average the noise out: errors-in-variables bias towards a slope of order
-  −B/T² = −105 N m/rad per side, which is where σ̂ sits (2-DoF joint 1,
-  B₁₁ ≈ 9·10⁻³ kg m²: σ̂ ≈ −430).
-
-The 2-DoF run fails the same way. No choice of P(0), gate or freeze helps; the
-estimator needs derivative estimates filtered far below 1/T (or much finer
-encoders), which Theorem 4 does not include, so the thesis's hardware numbers are
-not reproduced here. Rotatum ("torque") indices compare with the rotatum at the
-sample instants, which the discrete observers cannot see even with ideal sensors:
-the motors step to each held reference within ≈ 3 ms (their velocity at the sample
-instants is 0.014 rad/s rms against a mean rate of 0.079 rad/s), so
-``ideal_sensors_rotatum_uio_rms_error_joint1`` (0.13 N m/s) is as large as the
-rotatum itself while the stiffness, a static function of φ, is still estimated.
+Variants (issue 13), all gated by the ExcitationGate of ``ch6-electric-protocol``
+unless named: the headline names hold the estimator with an identical 4th-order
+state-variable low-pass (``lowpass`` = 0.5 Hz) of RLS target and regressor, generated
+in its step (:class:`~softgen.estimation.estimators.EstimatorConfig`), against the
+datasheet springs as the thesis compares; ``plant_*`` the same estimates against the
+plant's springs (20 % stiffer: ``datasheet_vs_plant_stiffness_mse_*`` is that mismatch
+alone). Unfiltered (Theorem 4 as printed): ``unfiltered_*`` (gated), ``nostop_*``
+(none), ``freeze_*`` (RLS frozen at ``freeze_time`` = 200 s by zeroing the covariance,
+the thesis's stop "after the parameters converge"), ``ideal_sensors_*`` (gated, on
+unquantised encoders). Torque entries are for the rotatum τ̇_e; ``rotatum_uio_*`` say
+how far the observer's rotatum, the RLS target, is from the truth,
+``deflection_rate_*`` the same for the first difference of the measured deflections.
 """
 from __future__ import annotations
 
-from pathlib import Path
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..estimation.estimators import StiffnessEstimator
-from ..estimation.offline import EstimationResult, run_offline
+from ..estimation.indices import excitation_records, mse, noise_records, window_mask
+from ..estimation.rls import excitation_std
 from ..model import load_model
-from . import ch6_electric_protocol as hwp
-from . import electric_common as ec
-from .estimation_common import error_metrics, estimation_figures, window_mask
-from .registry import Experiment
+from ..plants.qbmove import (Sinusoids, motor_references, phase_index, phased_references,
+                             protocol_figure, servo_initial_state)
+from .estimation_common import (achieved_records, estimator, figures, measured_deflections,
+                                qbmove_run, variant_records)
+from .registry import Config, Experiment, Metrics, finding, num
 
-CONFIG = {
-    "models": {"dof1": "qbmove_1dof", "dof2": "planar_2link"},
-    "two_dof": True,
-    "dt": 5e-3,
-    "phase_duration": 400.0,
-    "phases": [{"q": True, "sigma": True}, {"q": False, "sigma": True}],
-    "q_d": {"offset": 0.4, "amplitude": 0.2, "omega": np.pi / 4},
-    "sigma_d": {"offset": 2.0, "amplitude": 1.0, "omega": np.pi / 6},
-    "sigma_d_dof2": [{"offset": 5.0, "amplitude": 1.0, "omega": np.pi / 6},
-                     {"offset": 4.0, "amplitude": 1.0, "omega": np.pi / 6}],
-    "substeps": 20,
-    "servo_bandwidth": 1000.0,
-    "spring_scale": 1.2,
-    "sensors": {"encoder_counts": 8192, "position_noise": 0.0},
-    "seed": 0,
-    "powers": [0, 2, 4, 6],
-    "p0": [1.0, 1e3, 1e5, 1e5, 1.0, 1e3, 1e5, 1e5],
-    "p0_dof2": [[1.0, 1e2, 1e4, 1e5, 1.0, 1e2, 1e4, 1e5],
-                [1.0, 10.0, 1e5, 1e7, 1.0, 10.0, 1e5, 1e7]],
-    "delay": 3,
-    "gate": {"window": 2.0, "threshold": 5e-3},
-    "freeze_time": 200.0,
-    "metric_window": [200.0, 800.0],
-    "msrep_unit": "percent",      # NOTES section 2 item 9
-    "diagnostics": True,      # also run the 1-DoF estimator on unquantised encoders
-}
 
-QUICK = {"phase_duration": 40.0, "metric_window": [20.0, 80.0], "freeze_time": 20.0}
+@dataclass(frozen=True)
+class NoninvasiveProtocolConfig(Config):
+    models: tuple[str, str] = ("qbmove_1dof", "planar_2link")
+    two_dof: bool = True
+    dt: float = 5e-3
+    phase_duration: float = 400.0
+    phases: tuple[tuple[bool, bool], ...] = ((True, True), (False, True))
+    q_d: tuple[float, float, float] = (0.4, 0.2, np.pi / 4)
+    sigma_d: tuple[float, float, float] = (2.0, 1.0, np.pi / 6)
+    sigma_d_dof2: Sinusoids = ((5.0, 1.0, np.pi / 6), (4.0, 1.0, np.pi / 6))
+    substeps: int = 20
+    servo_bandwidth: float = 1000.0
+    spring_scale: float = 1.2
+    encoder_counts: int = 8192
+    powers: tuple[int, ...] = (0, 2, 4, 6)
+    p0: tuple[float, ...] = (1.0, 1e3, 1e5, 1e5, 1.0, 1e3, 1e5, 1e5)
+    p0_dof2: tuple[tuple[float, ...], ...] = ((1.0, 1e2, 1e4, 1e5, 1.0, 1e2, 1e4, 1e5),
+                                              (1.0, 10.0, 1e5, 1e7, 1.0, 10.0, 1e5, 1e7))
+    delay: int = 3
+    gate_window: float = 2.0
+    gate_threshold: float = 5e-3
+    freeze_time: float = 200.0
+    metric_window: tuple[float, float] = (200.0, 800.0)
+    diagnostics: bool = True      # also the 1-DoF estimator on unquantised encoders
+    lowpass: float = 0.5          # Hz: identical low-pass of target and regressor (issue 13)
+
+
+#: What the ideal-sensor variant reports (it separates the encoders from the estimator).
+IDEAL = {"stiffness_mse", "stiffness_msrep", "update_fraction", "rotatum_rms",
+         "rotatum_uio_rms_error", "deflection_rate_rms", "deflection_rate_rms_error"}
+
+STIFFNESS = {"stiffness_mse", "stiffness_msrep"}
+NOMINAL = {"vs_nominal_stiffness_mse", "vs_nominal_stiffness_msrep"}
+#: Metric prefix of each estimator variant (the filtered one holds the headline names).
+PREFIX = {"filt": "", "gate": "unfiltered_", "nostop": "nostop_", "freeze": "freeze_"}
 
 THESIS = {
     "stiffness_mse_joint1": 3.8e-5, "stiffness_msrep_joint1": 0.0012,
@@ -122,121 +87,110 @@ THESIS = {
 }
 
 
-def _estimator(model, c, p0, gated: bool) -> StiffnessEstimator:
-    """The non-invasive estimator with or without the gate (one bundle: distinct names)."""
-    return StiffnessEstimator(model, ec.estimator_config(
-        "noninvasive", {**c, "p0": p0, "gate": c["gate"] if gated else None}),
-        name=f"{model.name}_noninvasive_{'gated' if gated else 'free'}_estimator")
+def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
+    m = Metrics()
+    K = int(round(len(c.phases) * c.phase_duration / c.dt)) + 1
+    t = np.arange(K) * c.dt
+    phase = phase_index(t, c.phase_duration, len(c.phases))
+    for dof, name in enumerate(c.models[:1 + c.two_dof], start=1):
+        model = load_model(name)
+        n, pre = model.dof, "" if dof == 1 else "dof2_"
+        q_d, qd_d, qdd_d, sigma_d = phased_references(
+            t, (c.q_d,) * n, (c.sigma_d,) if dof == 1 else c.sigma_d_dof2,
+            phase_duration=c.phase_duration, phases=c.phases)
+        refs = motor_references(model, q_d, qd_d, qdd_d, sigma_d)
+        gated, free = estimator(model, "noninvasive", c), \
+            estimator(model, "noninvasive", c, gated=False)
+        p0 = None if dof == 1 else c.p0_dof2
+        filt = estimator(model, "noninvasive", c, lowpass=c.lowpass)
+        variants = {"filt": (filt, filt.block("filt", p0=p0)),
+                    "gate": (gated, gated.block("gate", p0=p0))}
+        if dof == 1:
+            variants.update(nostop=(free, free.block("nostop")),
+                            freeze=(free, free.block("freeze", hold=True)))
+            if c.diagnostics:
+                variants["ideal"] = (gated, gated.block("ideal"))
+        hold = (t >= c.freeze_time).astype(float)[:, None]
+        tr, truth = qbmove_run(
+            f"ch7_protocol_{model.name}", model, c, {k: b for k, (_, b) in variants.items()},
+            K=K, inputs={"q_ref": refs, **({"hold": hold} if dof == 1 else {})},
+            x0=servo_initial_state(q_d, qd_d, refs), servo=True, ideal=("ideal",),
+            spring_scale=c.spring_scale, counts=c.encoder_counts)
+        phi = measured_deflections(tr)
+        std = excitation_std(phi, c.dt / c.gate_window)
+        mh = excitation_records(Metrics(), t, phase, std, c.gate_window)
+        achieved_records(mh, truth, sigma_d)
+        updating = {}
+        for tag, (est, _) in variants.items():
+            # The thesis compares with the datasheet (model) springs: so does the headline.
+            ref = replace(truth, sigma=truth.sigma_nominal) if tag == "filt" else truth
+            mv, res, _ = variant_records(tr, ref, est, tag, c.metric_window, truth.rotatum,
+                                         phase)
+            updating[tag] = res.updating
+            if tag in ("filt", "ideal"):
+                noise_records(mv, tr.t, truth.rotatum, res, measured_deflections(
+                    tr, tag == "ideal"), truth.deflection_rate, c.metric_window)
+            if tag == "ideal":
+                m.extend(mv, prefix="ideal_sensors_", keep=lambda r: r.quantity in IDEAL)
+                continue
+            if tag == "filt":
+                mh.extend(mv, keep=lambda r: r.quantity not in NOMINAL)
+                mv = variant_records(tr, truth, est, tag, c.metric_window, truth.rotatum)[0]
+                mh.extend(mv, prefix="plant_", keep=lambda r: r.quantity in STIFFNESS)
+            else:
+                (mh if tag == "gate" else m).extend(mv, prefix=PREFIX[tag])
+            figures(out, f"{pre}{PREFIX[tag]}", tr, ref.sigma, truth.rotatum, res, est,
+                    f"{dof}-DoF non-invasive, {tag}", torque_label="rotatum [N m/s]")
+        w = window_mask(t, c.metric_window, res)      # the emulated model error itself:
+        for i in range(n):
+            mh.add("datasheet_vs_plant_stiffness_mse", mse(truth.sigma_nominal[w, i],
+                                                           truth.sigma[w, i]), "", joint=i + 1)
+        m.extend(mh, prefix=pre)
+        protocol_figure(out / f"{pre}protocol.png", t, tr["plant.q"], q_d, truth.sigma,
+                        sigma_d, phi, std, threshold=c.gate_threshold, window=c.gate_window,
+                        boundaries=np.arange(1, len(c.phases)) * c.phase_duration,
+                        updating=updating)
+    mask = window_mask(t, c.metric_window, res)
+    m.add("lowpass_hz", c.lowpass, "Hz")
+    m.add("metric_window_start", t[mask][0], "s")
+    m.add("metric_window_end", t[mask][-1], "s")
+    return m
 
 
-def _noise_metrics(t, hw: hwp.Hardware, res: EstimationResult, window) -> dict:
-    """How far the RLS target (observer rotatum) and regressor (φ̇) are from the truth."""
-    n = hw.tr.sigma.shape[1]
-    valid = np.all(np.isfinite(res.tau_uio), axis=1)
-    mask = window_mask(t, window, valid)
-    out = {}
-    for i in range(n):
-        err = res.tau_uio[mask, i] - hw.tr.rotatum[mask, i]
-        out[f"rotatum_rms_joint{i + 1}"] = float(np.sqrt(np.mean(hw.tr.rotatum[mask, i] ** 2)))
-        out[f"rotatum_uio_rms_error_joint{i + 1}"] = float(np.sqrt(np.mean(err ** 2)))
-    x = hw.tr.x
-    phid = np.hstack([x[:, n:2 * n] - x[:, 3 * n:4 * n], x[:, n:2 * n] - x[:, 5 * n:6 * n]])
-    # the estimator's φ̇ is not an output; the first difference of the measured
-    # deflection, its quantisation-limited counterpart, shows the noise level
-    phi_m = hwp.measured_deflections(hw.Y, n)
-    fd = np.vstack([np.full((1, 2 * n), np.nan), np.diff(phi_m, axis=0) / (t[1] - t[0])])
-    m = mask.copy()
-    m[0] = False
-    out["deflection_rate_rms"] = float(np.sqrt(np.mean(phid[m] ** 2)))
-    out["deflection_rate_rms_error"] = float(np.sqrt(np.mean((fd[m] - phid[m]) ** 2)))
+def findings(m: dict) -> list[dict]:
+    """Section 7.4: stiffness MSE 3.8e-5 (1-DoF) and 1.9e-4 / 3.8e-4 (2-DoF) on hardware."""
+    out = []
+    for pre, joints, thesis in (("", (1,), (3.8e-5,)), ("dof2_", (1, 2), (1.9e-4, 3.8e-4))):
+        if f"{pre}stiffness_mse_joint1" not in m:
+            continue
+        g = {k: [m[f"{pre}{k}_joint{j}"] for j in joints] for k in (
+            "stiffness_mse", "plant_stiffness_mse", "datasheet_vs_plant_stiffness_mse",
+            "unfiltered_stiffness_mse")}
+        ok = [[v < 100 * t for v, t in zip(g[k], thesis)] for k in
+              ("stiffness_mse", "plant_stiffness_mse")]
+        f = lambda k: " / ".join(num(v) for v in g[k])   # noqa: E731
+        out.append(finding(
+            f"Section 7.4 ({'1' if not pre else '2'}-DoF): stiffness MSE "
+            + " / ".join(num(t) for t in thesis) + " on hardware with encoders",
+            "reproduced" if all(ok[0]) else "partly reproduced" if all(ok[1])
+            else "not reproduced",
+            f"filtered estimator ({num(m['lowpass_hz'])} Hz, target and regressor alike): "
+            f"MSE {f('stiffness_mse')} against the datasheet springs as the thesis, of which "
+            f"the emulated 20 % spring mismatch alone is {f('datasheet_vs_plant_stiffness_mse')}"
+            f"; against the plant's springs {f('plant_stiffness_mse')} (threshold 100× the "
+            f"thesis's); unfiltered {f('unfiltered_stiffness_mse')}"))
+    if "ideal_sensors_stiffness_mse_joint1" in m:
+        out.append(finding(
+            "Diagnosis: without the filter the estimate fails because of the encoders' "
+            "quantisation, differenced three times over T³, not the estimator",
+            "reproduced" if m["ideal_sensors_stiffness_mse_joint1"] < 1e-2 else "not reproduced",
+            f"observer rotatum error {num(m['rotatum_uio_rms_error_joint1'])} N m/s rms "
+            f"against a rotatum of {num(m['rotatum_rms_joint1'])}; the same run read by "
+            f"unquantised encoders: MSE {num(m['ideal_sensors_stiffness_mse_joint1'])}, "
+            f"rotatum error {num(m['ideal_sensors_rotatum_uio_rms_error_joint1'])}; without "
+            f"the gate {num(m['nostop_stiffness_mse_joint1'])}, frozen "
+            f"{num(m['freeze_stiffness_mse_joint1'])}: neither stop helps"))
     return out
-
-
-def _run_variant(est, hw, step, window, phase, *, state0=None, freeze_at=None):
-    res = run_offline(est, hw.Y, step=step, state0=state0, freeze_at=freeze_at)
-    m, interval = error_metrics(hw.t, hw.tr.sigma, hw.tr.rotatum, res, window)
-    m.update(hwp.nominal_metrics(hw.t, hw.tr, res, window))
-    m.update(hwp.update_fractions(res, phase))
-    m.update(hwp.phase_metrics(hw.t, phase, hw.tr, res, window))
-    m["estimator_seconds_per_step"] = res.seconds_per_step
-    return res, m, interval
-
-
-def run(config: dict, out: Path) -> dict:
-    c = config
-    out = Path(out)
-    K = int(round(len(c["phases"]) * c["phase_duration"] / c["dt"])) + 1
-    metrics: dict = {}
-    traces: dict = {}
-    window = c["metric_window"]
-
-    model = load_model(c["models"]["dof1"])
-    gated = _estimator(model, c, c["p0"], True)
-    free = _estimator(model, c, c["p0"], False)
-    hw = hwp.emulate(model, c, [gated, free], out, method="noninvasive", K=K)
-    t, phase = hw.t, hwp.phase_index(hw.t, c)
-    phi = hwp.measured_deflections(hw.Y, model.dof)
-    metrics.update(hwp.deflection_stats(t, phase, phi, c["dt"], c["gate"]["window"], ""))
-    metrics.update(hwp.achieved_stiffness(hw.tr, hw.sigma_d, phase))
-    k_freeze = int(round(c["freeze_time"] / c["dt"]))
-    interval = None
-    updating = {}
-    for tag, step, freeze in (("", gated.step_fun().name(), None),
-                              ("nostop_", free.step_fun().name(), None),
-                              ("freeze_", free.step_fun().name(), k_freeze)):
-        res, m, interval = _run_variant(gated, hw, hw.fns[step], window, phase,
-                                        freeze_at=freeze)
-        if tag == "":
-            m.update(_noise_metrics(t, hw, res, window))
-        metrics.update(hwp.prefixed(m, tag))
-        updating[tag or "gate"] = res.updating
-        traces.update({f"{tag}sigma_hat": res.sigma_hat, f"{tag}rotatum_hat": res.tau_hat,
-                       f"{tag}rotatum_uio": res.tau_uio, f"{tag}updating": res.updating,
-                       **{f"{tag}theta_{r}": v for r, v in res.theta.items()}})
-        estimation_figures(out, t, hw.tr.sigma, hw.tr.rotatum, res, prefix=tag or "gate_",
-                           title=f"1-DoF non-invasive, {tag.rstrip('_') or 'gate'}",
-                           torque_label="rotatum [N m/s]",
-                           names={r: gated.parameter_names(r) for r in gated.rls_names})
-    if c.get("diagnostics", True):
-        # The same plant run read by ideal sensors (no quantisation): separates what
-        # the encoders cost from what the estimator does at this T and plant.
-        Y_ideal = ec.measure(hw.tr, "noninvasive", model.dof, {}, None)
-        ideal = hwp.Hardware(t, hw.q_d, hw.sigma_d, hw.refs, hw.tr, Y_ideal, hw.fns)
-        res, m, _ = _run_variant(gated, ideal, hw.fns[gated.step_fun().name()], window,
-                                 phase)
-        m.update(_noise_metrics(t, ideal, res, window))
-        keep = ("stiffness_m", "rotatum", "deflection_rate", "update_fraction")
-        metrics.update(hwp.prefixed({k: v for k, v in m.items() if k.startswith(keep)},
-                                    "ideal_sensors_"))
-        traces["ideal_sensors_sigma_hat"] = res.sigma_hat
-    traces.update(t=t, x=hw.tr.x, sigma=hw.tr.sigma, rotatum=hw.tr.rotatum,
-                  sigma_nominal=hw.tr.sigma_nominal, Y=hw.Y, q_d=hw.q_d, sigma_d=hw.sigma_d)
-    hwp.protocol_figure(out / "protocol.png", t, hw, phi, c, updating)
-
-    if c.get("two_dof", True):
-        c2 = {**c, "sigma_d": c["sigma_d_dof2"]}
-        model2 = load_model(c["models"]["dof2"])
-        est2 = _estimator(model2, c2, c["p0_dof2"][0], True)
-        hw2 = hwp.emulate(model2, c2, [est2], out, method="noninvasive", K=K)
-        res2, m, interval = _run_variant(est2, hw2, hw2.fns[est2.step_fun().name()], window,
-                                         phase, state0=est2.initial_state(c["p0_dof2"]))
-        m.update(_noise_metrics(t, hw2, res2, window))
-        phi2 = hwp.measured_deflections(hw2.Y, model2.dof)
-        m.update(hwp.deflection_stats(t, phase, phi2, c["dt"], c["gate"]["window"], ""))
-        m.update(hwp.achieved_stiffness(hw2.tr, hw2.sigma_d, phase))
-        metrics.update(hwp.prefixed(m, "dof2_"))
-        traces.update(dof2_x=hw2.tr.x, dof2_sigma=hw2.tr.sigma, dof2_rotatum=hw2.tr.rotatum,
-                      dof2_sigma_hat=res2.sigma_hat, dof2_rotatum_hat=res2.tau_hat,
-                      dof2_updating=res2.updating,
-                      **{f"dof2_theta_{r}": v for r, v in res2.theta.items()})
-        estimation_figures(out, t, hw2.tr.sigma, hw2.tr.rotatum, res2, prefix="dof2_",
-                           title="2-DoF non-invasive, gate", torque_label="rotatum [N m/s]",
-                           names={r: est2.parameter_names(r) for r in est2.rls_names})
-        hwp.protocol_figure(out / "dof2_protocol.png", t, hw2, phi2, c2,
-                            {"gate": res2.updating})
-    metrics["metric_window_start"], metrics["metric_window_end"] = interval
-    np.savez_compressed(out / "traces.npz", **traces)
-    return metrics
 
 
 EXPERIMENT = Experiment(
@@ -245,7 +199,22 @@ EXPERIMENT = Experiment(
           "co-contraction only",
     section="7.4, Fig. 7.5-7.7",
     run=run,
-    config=CONFIG,
-    quick=QUICK,
+    config=NoninvasiveProtocolConfig(),
+    quick={"phase_duration": 40.0, "metric_window": (20.0, 80.0), "freeze_time": 20.0},
     thesis=THESIS,
+    findings=findings,
+    discussion="""
+**Reading.** Unfiltered, the estimate fails (`unfiltered_stiffness_mse_joint1`): the
+RLS target is a third difference of 8192-count encoder readings over T³, whose noise
+(`rotatum_uio_rms_error_joint1`) is about a hundred times the rotatum itself
+(`rotatum_rms_joint1`), and the same link-encoder error enters the regressor's φ̇, so
+least squares is biased, not just noisy; neither stop helps (`nostop_*`, `freeze_*`),
+while unquantised encoders do (`ideal_sensors_*`). The observer's pole cannot fix it
+(measured: the rotatum error is the same to 1e-14 for poles 0 to 0.995; see
+`EstimatorConfig.pole`). Filtering target and regressor identically removes that
+noise from both while keeping f = φᵀΠ: `plant_stiffness_mse_*` is then of the order
+of the ideal-sensor run. Against the datasheet springs (headline, as the thesis) the
+error is the emulation's 20 % spring mismatch (`datasheet_vs_plant_stiffness_mse_*`),
+not the estimator's.
+""",
 )

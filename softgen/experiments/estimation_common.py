@@ -1,134 +1,98 @@
 """Shared pieces of the stiffness-estimation experiments (thesis chapters 6 and 7).
 
-Compiling an experiment's functions, the sensor model of the hardware emulations,
-the thesis's error indices and the figures they share.
+The emulated qbmove run (plant, sensors and estimators in one diagram, truth after
+it), the per-variant indices of the protocol experiments and their figure. The
+machinery itself is in :mod:`softgen.plants.qbmove` and :mod:`softgen.estimation`.
 """
 from __future__ import annotations
 
-import json
-import warnings
 from pathlib import Path
 
-import casadi as ca
 import numpy as np
 
-from ..codegen.build import find_compiler
-from ..codegen.generate import BundleSpec, Generated, signature, write_bundle
-from ..estimation.estimators import rls_joint
-from ..estimation.offline import EstimationResult
-from ..runtime.library import Bundle, BundleFunction
+from ..estimation.estimators import EstimatorBase, EstimatorConfig, StiffnessEstimator
+from ..estimation.indices import (error_records, estimation_figure, mse, msrep,
+                                  phase_records, update_fraction_records, window_mask)
+from ..estimation.offline import EstimationResult, estimation_result, recorded
+from ..estimation.rls import ExcitationGate
+from ..metrics import Metrics
+from ..plants.qbmove import QbmoveTruth, hardware_diagram, qbmove_truth
+from ..runtime.simulate import Trace, simulate
+from ..symbolic.actuated import QBMOVE_STATE, electric_plant_block, servo_plant_block
+from ..symbolic.actuators import QbmoveSprings
+from ..symbolic.rigid import RigidDynamics
 
 
-def load_functions(name: str, functions: list[tuple[ca.Function, str]], out: Path,
-                   config: dict) -> dict[str, BundleFunction]:
-    """Generate, compile and load ``functions`` as bundle ``out/bundle/<name>``.
-
-    Without a C compiler the casadi.Functions are evaluated directly (a warning says so).
-    """
-    if find_compiler() is None:
-        warnings.warn(f"{name}: no C compiler found; evaluating with CasADi (slower)",
-                      RuntimeWarning, stacklevel=2)
-        return {f.name(): BundleFunction(f, signature(f)) for f, _ in functions}
-    identity = json.dumps(config, sort_keys=True, default=str).encode()
-    spec = BundleSpec(name=name, functions=[Generated(f, doc) for f, doc in functions],
-                      identity=identity, extra={"experiment_config": json.loads(identity)})
-    path = write_bundle(spec, Path(out) / "bundle")
-    return Bundle(path).functions
+def estimator(model, method: str, c, *, gated: bool = True, name: str | None = None,
+              lowpass: float | None = None) -> EstimatorBase:
+    """The estimator of ``method`` with the settings of config ``c`` (dt, delay, powers,
+    p0 and, if ``gated``, the excitation gate ``gate_window``/``gate_threshold``)."""
+    W = getattr(c, "gate_window", None)
+    gate = ExcitationGate(W, c.gate_threshold) if gated and W else None
+    p0 = c.p0 if isinstance(c.p0, float) else tuple(c.p0)
+    return StiffnessEstimator(model, EstimatorConfig(
+        method, dt=c.dt, delay=c.delay, powers=c.powers, p0=p0, gate=gate,
+        lowpass=lowpass), name=name)
 
 
-# -- sensors ---------------------------------------------------------------------------
-
-def quantize(x: np.ndarray, counts_per_rev: int | None) -> np.ndarray:
-    """An incremental encoder's reading: the angle rounded to 2π/counts."""
-    if not counts_per_rev:
-        return x
-    step = 2 * np.pi / counts_per_rev
-    return np.round(x / step) * step
-
-
-def noisy(x: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
-    return x + std * rng.standard_normal(x.shape) if std else x
-
-
-# -- error indices (section 6.1.3) ----------------------------------------------------------
-
-def mse(true: np.ndarray, est: np.ndarray) -> float:
-    """Mean square error (section 6.1.3)."""
-    return float(np.mean((true - est) ** 2))
-
-
-def msrep(true: np.ndarray, est: np.ndarray) -> float:
-    """Mean square relative error, in percent: 100 · mean(((χ − χ̂)/χ)²) (section 6.1.3).
-
-    Samples where the true value is exactly zero are left out (the ratio is undefined).
-    """
-    ok = true != 0
-    return float(100.0 * np.mean(((true[ok] - est[ok]) / true[ok]) ** 2))
+def qbmove_run(label: str, model, c, estimators: dict, *, K: int, inputs: dict, x0: dict,
+               servo: bool, ideal=(), spring_scale: float = 1.0, counts=None,
+               torque_noise: float = 0.0, seed: int = 0, link_damping=None
+               ) -> tuple[Trace, QbmoveTruth]:
+    """One emulated run: plant (servo-driven or open loop), sensors and the estimator
+    blocks ``estimators`` (block name -> Block) in one diagram for K samples."""
+    dyn, springs, n = RigidDynamics(model), QbmoveSprings(model), model.dof
+    kw = dict(substeps=c.substeps, spring_scale=spring_scale)
+    plant = servo_plant_block(dyn, springs, c.dt, bandwidth=c.servo_bandwidth, **kw) \
+        if servo else electric_plant_block(dyn, springs, c.dt, link_damping=link_damping, **kw)
+    d = hardware_diagram(label, plant, counts_per_rev=counts, torque_noise=torque_noise,
+                         estimators=list(estimators.values()), ideal=ideal)
+    ext = dict(inputs)
+    if "tau_motor_noise" in d.externals:
+        ext["tau_motor_noise"] = np.random.default_rng(seed).standard_normal((K, 2 * n))
+    rec = [f"plant.{s}" for s in QBMOVE_STATE] + [f"enc.{s}_m" for s in ("q", "qa", "qb")]
+    rec += ["plant.tau_motor"] * servo + [r for e in estimators for r in recorded(e)]
+    tr = simulate(d, steps=K, x0={f"plant.{k}": v for k, v in x0.items()}, externals=ext,
+                  record=rec, label=label)
+    return tr, qbmove_truth(model, {s: tr[f"plant.{s}"] for s in QBMOVE_STATE}, spring_scale)
 
 
-def window_mask(t: np.ndarray, window: list[float] | None, valid: np.ndarray) -> np.ndarray:
-    """Samples in ``window`` = [t0, t1] (default: after the first 10 % of the run)."""
-    t0, t1 = (0.1 * t[-1], t[-1]) if window is None else window
-    return (t >= t0) & (t <= t1) & valid
+def measured_deflections(tr: Trace, ideal: bool = False) -> np.ndarray:
+    """(K, 2n) φ_a, φ_b as the encoders read them (exact with ``ideal``)."""
+    q, qa, qb = (tr[f"plant.{s}"] if ideal else tr[f"enc.{s}_m"] for s in ("q", "qa", "qb"))
+    return np.hstack([q - qa, q - qb])
 
 
-def error_metrics(t, truth_sigma, truth_tau, res: EstimationResult, window,
-                  *, torque: str = "tau_hat") -> tuple[dict, list[float]]:
-    """Per joint stiffness and torque MSE / MSREP over the metric window."""
-    est_tau = getattr(res, torque)
-    valid = np.all(np.isfinite(res.sigma_hat), axis=1)
-    mask = window_mask(t, window, valid)
-    out = {}
-    for i in range(truth_sigma.shape[1]):
-        j = i + 1
-        out[f"stiffness_mse_joint{j}"] = mse(truth_sigma[mask, i], res.sigma_hat[mask, i])
-        out[f"stiffness_msrep_joint{j}"] = msrep(truth_sigma[mask, i], res.sigma_hat[mask, i])
-        out[f"torque_mse_joint{j}"] = mse(truth_tau[mask, i], est_tau[mask, i])
-        out[f"torque_msrep_joint{j}"] = msrep(truth_tau[mask, i], est_tau[mask, i])
-    tw = t[mask]
-    return out, [float(tw[0]), float(tw[-1])]
+def variant_records(tr: Trace, truth: QbmoveTruth, est: EstimatorBase, name: str, window,
+                    torque, phase=None) -> tuple[Metrics, EstimationResult, np.ndarray]:
+    """Indices of one estimator block of a run: MSE/MSREP; with ``phase`` (a protocol
+    run) also against the datasheet springs (``vs_nominal_*``), update fractions and
+    stiffness MSE per phase."""
+    res = estimation_result(est, tr, name)
+    mask = window_mask(tr.t, window, res)
+    m = error_records(Metrics(), truth.sigma, torque, res, mask)
+    if phase is not None:
+        for i in range(truth.sigma.shape[1]):
+            a, b = truth.sigma_nominal[mask, i], res.sigma_hat[mask, i]
+            m.add("vs_nominal_stiffness_mse", mse(a, b), "(N m/rad)^2", joint=i + 1)
+            m.add("vs_nominal_stiffness_msrep", msrep(a, b), "%", joint=i + 1)
+        update_fraction_records(m, res, phase)
+        phase_records(m, "stiffness_mse", {i + 1: (truth.sigma[:, i], res.sigma_hat[:, i])
+                                           for i in range(truth.sigma.shape[1])},
+                      mask, phase, mse, "(N m/rad)^2")
+    m.add("estimator_seconds_per_step", tr.wall_seconds / tr.t.size, "s")
+    return m, res, mask
 
 
-# -- figures ------------------------------------------------------------------------------------
+def achieved_records(m: Metrics, truth: QbmoveTruth, sigma_d, *, prefix: str = "") -> None:
+    """Per joint: mean ratio of the achieved stiffness to σ_d (model mismatch + servo)."""
+    for i in range(truth.sigma.shape[1]):
+        m.add("achieved_over_desired_stiffness", np.mean(truth.sigma[:, i] / sigma_d[i]),
+              "", joint=i + 1, prefix=prefix)
 
-def estimation_figures(out: Path, t, truth_sigma, truth_tau, res: EstimationResult, *,
-                       title: str, torque_label: str = "tau_e [N m]", prefix: str = "",
-                       names: dict | None = None) -> None:
-    """Estimate against truth, relative error, and RLS parameters over time."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    n = truth_sigma.shape[1]
-    fig, ax = plt.subplots(4, n, figsize=(5.5 * n, 9), sharex=True, squeeze=False)
-    for i in range(n):
-        ax[0, i].plot(t, truth_tau[:, i], "k", lw=1.2, label="true")
-        ax[0, i].plot(t, res.tau_hat[:, i], "--", lw=1, label="RLS model")
-        ax[0, i].plot(t, res.tau_uio[:, i], ":", lw=0.8, label="observer")
-        ax[0, i].set_ylabel(torque_label)
-        ax[0, i].set_title(f"{title}, joint {i + 1}")
-        ax[0, i].legend(fontsize=7)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rel_tau = 100 * (res.tau_hat[:, i] - truth_tau[:, i]) / truth_tau[:, i]
-            rel_sig = 100 * (res.sigma_hat[:, i] - truth_sigma[:, i]) / truth_sigma[:, i]
-        ax[1, i].plot(t, truth_sigma[:, i], "k", lw=1.2, label="true")
-        ax[1, i].plot(t, res.sigma_hat[:, i], "--", lw=1, label="estimate")
-        ax[1, i].set_ylabel("sigma [N m/rad]")
-        ax[1, i].legend(fontsize=7)
-        ax[2, i].semilogy(t, np.abs(rel_sig), lw=0.8, label="stiffness")
-        ax[2, i].semilogy(t, np.abs(rel_tau), lw=0.8, label="torque")
-        ax[2, i].set_ylabel("|relative error| [%]")
-        ax[2, i].legend(fontsize=7)
-        for r, th in res.theta.items():
-            if rls_joint(r) == i:
-                for j in range(th.shape[1]):
-                    label = (names or {}).get(r, [f"pi{jj}" for jj in range(th.shape[1])])[j]
-                    ax[3, i].plot(t, th[:, j], lw=0.8, label=f"{r} {label}")
-        ax[3, i].set_ylabel("RLS parameters")
-        ax[3, i].set_yscale("symlog", linthresh=1e-3)
-        ax[3, i].legend(fontsize=6, ncol=2)
-        ax[3, i].set_xlabel("t [s]")
-    fig.tight_layout()
-    fig.savefig(Path(out) / f"{prefix}estimation.png", dpi=100)
-    plt.close(fig)
-
+def figures(out: Path, prefix: str, tr: Trace, truth_sigma, truth_tau, res, est, title: str,
+            torque_label: str = "tau_e [N m]") -> None:
+    estimation_figure(out / f"{prefix}estimation.png", tr.t, truth_sigma, truth_tau, res,
+                      title=title, names={r: est.parameter_names(r) for r in est.rls_names},
+                      torque_label=torque_label)

@@ -62,12 +62,14 @@ def pneumatic_plant_fun(dyn: RigidDynamics, act: McKibbenPairs, *, substeps: int
                        FUNCTION_OPTS)
 
 
-def electric_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: int
-                       ) -> ca.Function:
+def electric_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: int,
+                       link_damping: bool = False) -> ca.Function:
     """``<model>_electric_plant``: one sample of eq. 2.6, motor torques held.
 
     Inputs: x (6n: q, q̇, q_a, q̇_a, q_b, q̇_b), u (2n: τ_a, τ_b), spring_scale (2n:
     factor on k of each agonist then antagonist spring; 1 = nominal), h (sample time).
+    With ``link_damping`` an input ``link_damping`` (n, N m s/rad) adds a viscous
+    torque −β q̇ on each link, beyond the model's own D q̇ (an emulated arm's bearings).
     """
     n = dyn.model.dof
     m = dyn.nominal
@@ -75,21 +77,26 @@ def electric_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: 
     scale = ca.SX.sym("spring_scale", 2 * n)
 
     xs, us, sc = ca.SX.sym("xs", 6 * n), ca.SX.sym("us", 2 * n), ca.SX.sym("sc", 2 * n)
+    beta = ca.SX.sym("link_damping", n)
     q, qd, qa, qad, qb, qbd = (xs[i * n:(i + 1) * n] for i in range(6))
     ta = springs.spring_torque(q - qa, "a", sc[:n])
     tb = springs.spring_torque(q - qb, "b", sc[n:])
-    qdd = ca.substitute(dyn.forward_dynamics_expr(-(ta + tb)), ca.vertcat(m.q, m.qd),
+    tau = -(ta + tb) - beta * qd if link_damping else -(ta + tb)
+    qdd = ca.substitute(dyn.forward_dynamics_expr(tau), ca.vertcat(m.q, m.qd),
                         ca.vertcat(q, qd))
     qadd = (us[:n] + ta - springs.d_a * qad) / springs.b_a
     qbdd = (us[n:] + tb - springs.d_b * qbd) / springs.b_b
-    rhs = ca.Function("rhs", [xs, us, sc], [ca.vertcat(qd, qdd, qad, qadd, qbd, qbdd)])
+    extra = [beta] if link_damping else []
+    rhs = ca.Function("rhs", [xs, us, sc, *extra],
+                      [ca.vertcat(qd, qdd, qad, qadd, qbd, qbdd)])
+    ins, names = [x, u, scale, *extra, h], ["x", "u", "spring_scale"] + ["link_damping"] * \
+        link_damping + ["h"]
 
     def f(xx, uu):
-        return rhs(xx, uu, scale)
+        return rhs(xx, uu, scale, *extra)
 
-    return ca.Function(f"{dyn.name}_electric_plant", [x, u, scale, h],
-                       [rk4_steps(f, x, u, h, substeps)], ["x", "u", "spring_scale", "h"],
-                       ["x_next"], FUNCTION_OPTS)
+    return ca.Function(f"{dyn.name}_electric_plant", ins, [rk4_steps(f, x, u, h, substeps)],
+                       names, ["x_next"], FUNCTION_OPTS)
 
 
 def servo_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: int,
@@ -161,3 +168,76 @@ def valve_plant_fun(dyn: RigidDynamics, act: McKibbenPairs, *, substeps: int) ->
     return ca.Function(f"{dyn.name}_valve_plant", [x, pc, tp, h],
                        [rk4_steps(lambda xx, uu: rhs(xx, uu, tp), x, pc, h, substeps)], ["x", "p_c", "T_p", "h"],
                        ["x_next"], FUNCTION_OPTS)
+
+
+# -- the plants as diagram blocks -------------------------------------------------------------
+
+def _plant_block(f: ca.Function, name: str, dt: float, n: int, parts: list[str], ins: list,
+                 *, extra_out: list | None = None, params: list | None = None,
+                 p0: dict | None = None, doc: str = ""):
+    """A block around one of the plant steps above: state ``parts`` (n each), emitted at
+    the sample; ``ins`` [(input name, size, function input)]; ``params`` likewise."""
+    from ..blocks import Block
+    params = params or []
+    extra_out = extra_out or []
+
+    def body(x, u, p):
+        args = {fi: u[nm] for nm, _, fi in ins}
+        args.update({fi: p[nm] for nm, _, fi in params})
+        res = f.call({"x": ca.vertcat(*[x[s] for s in parts]), "h": dt, **args})
+        xn = res["x_next"]
+        y = {s: x[s] for s in parts}
+        y.update({nm: res[fo] for nm, _, fo in extra_out})
+        return {s: xn[i * n:(i + 1) * n] for i, s in enumerate(parts)}, y
+
+    return Block.define(name, dt=dt, state=[(s, n) for s in parts],
+                        inputs=[(nm, sz) for nm, sz, _ in ins],
+                        outputs=[(s, n) for s in parts] + [(nm, sz) for nm, sz, _ in extra_out],
+                        params=[(nm, sz) for nm, sz, _ in params], p0=p0, body=body,
+                        doc=doc or f.name(), rules={nm: "nonnegative" for nm, *_ in params})
+
+
+QBMOVE_STATE = ["q", "qd", "qa", "qad", "qb", "qbd"]
+
+
+def electric_plant_block(dyn: RigidDynamics, springs: QbmoveSprings, dt: float, *,
+                         substeps: int, name: str = "plant", spring_scale=1.0,
+                         link_damping=None):
+    """:func:`electric_plant_fun` as a block (eq. 2.6, motor torques held over a sample).
+
+    State and outputs (at the sample): ``q, qd, qa, qad, qb, qbd`` (n each); input
+    ``tau_motor`` (τ_a of every joint, then τ_b); parameter ``spring_scale`` (2n) and,
+    if ``link_damping`` is given (N m s/rad), parameter ``link_damping`` (n).
+    """
+    n, damped = dyn.model.dof, link_damping is not None
+    params = [("spring_scale", 2 * n, "spring_scale")]
+    p0 = {"spring_scale": spring_scale}
+    if damped:
+        params.append(("link_damping", n, "link_damping"))
+        p0["link_damping"] = link_damping
+    b = _plant_block(electric_plant_fun(dyn, springs, substeps=substeps, link_damping=damped),
+                     name, dt, n, QBMOVE_STATE, [("tau_motor", 2 * n, "u")], params=params,
+                     p0=p0)
+    return b
+
+
+def servo_plant_block(dyn: RigidDynamics, springs: QbmoveSprings, dt: float, *,
+                      substeps: int, bandwidth: float, name: str = "plant", spring_scale=1.0):
+    """:func:`servo_plant_fun` as a block: input ``q_ref`` (2n motor position
+    references), outputs the state at the sample and ``tau_motor``, the servo's motor
+    torques at the sample (what a current sensor sampled then reads)."""
+    n = dyn.model.dof
+    return _plant_block(servo_plant_fun(dyn, springs, substeps=substeps, bandwidth=bandwidth),
+                        name, dt, n, QBMOVE_STATE, [("q_ref", 2 * n, "q_ref")],
+                        extra_out=[("tau_motor", 2 * n, "tau_motor")],
+                        params=[("spring_scale", 2 * n, "spring_scale")],
+                        p0={"spring_scale": spring_scale})
+
+
+def pneumatic_plant_block(dyn: RigidDynamics, act: McKibbenPairs, dt: float, *,
+                          substeps: int, integrator: str = "rk4", name: str = "plant"):
+    """:func:`pneumatic_plant_fun` as a block: state and outputs ``q, qd``; input ``p``
+    (2n pressures, Pa, held over the sample)."""
+    n = dyn.model.dof
+    return _plant_block(pneumatic_plant_fun(dyn, act, substeps=substeps, integrator=integrator),
+                        name, dt, n, ["q", "qd"], [("p", 2 * n, "p")])

@@ -1,0 +1,217 @@
+"""Emulated qbmove hardware (thesis sections 6.2.3, 6.2.4.2, 7.3, 7.4) as one diagram.
+
+A qbmove robot is driven either by open-loop motor torques (section 6.2.3,
+:func:`~softgen.symbolic.actuated.electric_plant_block`) or by motor position
+references tracked by the motors' own servo (sections 6.2.4.2, 7.3, 7.4,
+:func:`~softgen.symbolic.actuated.servo_plant_block`). The references come from an
+exact-model allocation (:func:`motor_references`): each joint's two deflections
+realising the link torque of the reference motion and σ_d with the *nominal* springs
+(:meth:`QbmoveSprings.preset`), motor references q_j = q_d − φ_j.
+
+:func:`hardware_diagram` puts plant, encoders (quantised to counts), a noisy motor
+torque sensor and any number of stiffness estimators into one diagram: one generated
+loop runs the whole emulation. :func:`qbmove_truth` gives, after the run, the true
+spring torques, stiffness and rotatum Σ_j σ_j φ̇_j of the plant's springs (nominal ×
+``spring_scale``), vectorised with the model's own casadi Function.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..blocks import Block, ClosedLoop
+from ..blocks.sensors import encoder_block, noise_block
+from ..model import RobotModel
+from ..symbolic.actuators import QbmoveSprings
+from ..symbolic.rigid import RigidDynamics
+
+
+def sinusoid(t, offset: float, amplitude: float, omega: float):
+    """Value, rate and acceleration of offset + amplitude sin(omega t)."""
+    s, c = np.sin(omega * t), np.cos(omega * t)
+    return (offset + amplitude * s, amplitude * omega * c, -amplitude * omega ** 2 * s)
+
+
+def phase_index(t: np.ndarray, phase_duration: float, n_phases: int) -> np.ndarray:
+    """Phase of each sample: phase k covers [k D, (k + 1) D); the last runs to the end."""
+    return np.minimum((t // phase_duration).astype(int), n_phases - 1)
+
+
+#: One (offset, amplitude, omega) sinusoid per joint.
+Sinusoids = tuple[tuple[float, float, float], ...]
+
+
+def phased_references(t: np.ndarray, q_d: Sinusoids, sigma_d: Sinusoids, *,
+                      phase_duration: float = np.inf,
+                      phases: Sequence[tuple[bool, bool]] = ((True, True),)):
+    """(q_d, q̇_d, q̈_d, σ_d), each (n, K): one sinusoid (offset, amplitude, omega)
+    per joint for position and stiffness; in phase k, (position on, stiffness on) =
+    ``phases[k]`` says which are the sinusoid and which stay at their offsets."""
+    phase = phase_index(t, phase_duration, len(phases)) if np.isfinite(phase_duration) \
+        else np.zeros(t.shape, dtype=int)
+    q_on = np.array([p[0] for p in phases])[phase]
+    s_on = np.array([p[1] for p in phases])[phase]
+    q, qd, qdd, s = [], [], [], []
+    for qs, ss in zip(q_d, sigma_d):
+        v, vd, vdd = sinusoid(t, *qs)
+        q.append(np.where(q_on, v, qs[0]))
+        qd.append(np.where(q_on, vd, 0.0))
+        qdd.append(np.where(q_on, vdd, 0.0))
+        s.append(np.where(s_on, sinusoid(t, *ss)[0], ss[0]))
+    return np.array(q), np.array(qd), np.array(qdd), np.array(s)
+
+
+def motor_references(model: RobotModel, q_d, qd_d, qdd_d, sigma_d) -> np.ndarray:
+    """(K, 2n) motor position references for link references (n, K) and σ_d (n, K)."""
+    springs = QbmoveSprings(model)
+    h = RigidDynamics(model).inverse_dynamics_fun()
+    K = q_d.shape[1]
+    tau_link = np.array(h.map(K)(q_d, qd_d, qd_d, qdd_d))     # B q̈ + C q̇ + G (+ D q̇)
+    phi_a, phi_b = springs.preset(-tau_link.T, np.asarray(sigma_d).T)   # (K, n) each
+    return np.hstack([q_d.T - phi_a, q_d.T - phi_b])
+
+
+def servo_initial_state(q_d, qd_d, refs) -> dict:
+    """Plant state at rest on the references: link at q_d(0), motors at their refs."""
+    n = q_d.shape[0]
+    return {"q": q_d[:, 0], "qd": qd_d[:, 0], "qa": refs[0, :n], "qad": qd_d[:, 0],
+            "qb": refs[0, n:], "qbd": qd_d[:, 0]}
+
+
+def hardware_diagram(name: str, plant: Block, *, counts_per_rev: int | None = None,
+                     torque_noise: float = 0.0, estimators: Sequence[Block] = (),
+                     ideal: Sequence[str] = ()) -> ClosedLoop:
+    """Plant -> encoders (link and both motors) / torque sensor -> estimators.
+
+    ``plant`` emits ``q, qa, qb`` (and ``tau_motor`` for a servo plant; an open-loop
+    plant's ``tau_motor`` is the external input of that name, a servo plant's motor
+    references ``q_ref`` likewise). The encoder block
+    ``enc`` quantises to ``counts_per_rev``; the torque sensor ``tsens`` adds
+    ``torque_noise`` times external ``tau_motor_noise`` (standard normal samples).
+    Each estimator reads ``q, qa, qb`` from the encoders, or exactly from the plant
+    if its name is in ``ideal``, and ``tau_motor`` (if it has that input) from the
+    torque sensor.
+    """
+    n = plant.outputs.signal("q").size
+    blocks = [plant, encoder_block("enc", {"q": n, "qa": n, "qb": n}, counts_per_rev)]
+    wires = [(f"plant.{s}", f"enc.{s}") for s in ("q", "qa", "qb")]
+    ext = {}
+    servo = "tau_motor" in plant.outputs
+    if "q_ref" in plant.inputs:
+        ext["q_ref"] = plant.inputs.signal("q_ref").size
+    if not servo:
+        ext["tau_motor"] = 2 * n
+        wires.append(("ext.tau_motor", "plant.tau_motor"))
+    tau_src = "plant.tau_motor" if servo else "ext.tau_motor"
+    if torque_noise and any("tau_motor" in e.inputs for e in estimators):
+        blocks.append(noise_block("tsens", {"tau_motor": 2 * n}, torque_noise))
+        ext["tau_motor_noise"] = 2 * n
+        wires.append((tau_src, "tsens.tau_motor"))
+        tau_src = "tsens.tau_motor_m"
+    if any("hold" in e.inputs for e in estimators):
+        ext["hold"] = 1            # 1 from the sample on where RLS updates stop
+    for e in estimators:
+        blocks.append(e)
+        for s in ("q", "qa", "qb"):
+            wires.append((f"plant.{s}" if e.name in ideal else f"enc.{s}_m", f"{e.name}.{s}"))
+        if "tau_motor" in e.inputs:
+            wires.append((tau_src, f"{e.name}.tau_motor"))
+    return ClosedLoop(name, blocks, wires, externals=ext)
+
+
+@dataclass
+class QbmoveTruth:
+    """What the plant's springs do along a run (rows = samples)."""
+
+    tau_e: np.ndarray          # (K, n) total spring torque
+    sigma: np.ndarray          # (K, n) joint stiffness
+    rotatum: np.ndarray        # (K, n) τ̇_e = Σ σ_j φ̇_j
+    sigma_nominal: np.ndarray  # (K, n) stiffness of the nominal springs at the same state
+    spring_torque: np.ndarray  # (K, 2n) each spring's torque, agonists then antagonists
+    spring_stiffness: np.ndarray  # (K, 2n) each nominal spring's stiffness (unscaled)
+    deflection_rate: np.ndarray   # (K, 2n) φ̇_a, φ̇_b
+
+
+def qbmove_truth(model: RobotModel, x: Mapping[str, np.ndarray], spring_scale) -> QbmoveTruth:
+    """Truth from the plant signals ``x`` (``q, qd, qa, qad, qb, qbd``, each (K, n))."""
+    n = model.dof
+    f = QbmoveSprings(model).functions()[0][0]
+    q, qd, qa, qad, qb, qbd = (np.asarray(x[s]) for s in
+                               ("q", "qd", "qa", "qad", "qb", "qbd"))
+    ta, tb, _, sa, sb, _ = (np.array(v).T for v in f.map(q.shape[0])(q.T, qa.T, qb.T))
+    scale = np.broadcast_to(np.asarray(spring_scale, dtype=float), (2 * n,))
+    sca, scb = scale[:n], scale[n:]
+    return QbmoveTruth(sca * ta + scb * tb, sca * sa + scb * sb,
+                       sca * sa * (qd - qad) + scb * sb * (qd - qbd), sa + sb,
+                       np.hstack([ta, tb]) * scale, np.hstack([sa, sb]),
+                       np.hstack([qd - qad, qd - qbd]))
+
+
+def polynomial_fit_stiffness(phi: np.ndarray, spring_torque: np.ndarray, powers) -> np.ndarray:
+    """(K, n) joint stiffness of the best fit of Σ_p c_p φ^p (the RLS model class of the
+    invasive electric estimator) to each *true* spring torque, by least squares over
+    the given samples: how well the model class can do at all."""
+    n, pw = phi.shape[1] // 2, np.asarray(powers)
+    fit = np.zeros((phi.shape[0], n))
+    for j in range(2 * n):
+        x = phi[:, j]
+        coef, *_ = np.linalg.lstsq(x[:, None] ** pw, spring_torque[:, j], rcond=None)
+        fit[:, j % n] += (pw * x[:, None] ** np.maximum(pw - 1, 0)) @ coef
+    return fit
+
+
+def protocol_figure(path, t, q, q_d, sigma, sigma_d, phi, std, *, threshold: float,
+                    window: float, boundaries: Sequence[float], updating: Mapping) -> None:
+    """References and achieved stiffness, measured deflections, the gate statistic
+    ``std`` (one column per deflection, threshold ``threshold``) and RLS updates."""
+    from matplotlib.figure import Figure
+    n, d = q_d.shape[0], slice(None, None, max(1, len(t) // 20000))
+    t, q, q_d, sigma, sigma_d, phi, std = (t[d], q[d], q_d[:, d], sigma[d], sigma_d[:, d],
+                                          phi[d], std[d])
+    updating = {k: v[d] for k, v in updating.items()}
+    fig = Figure(figsize=(9, 11))
+    ax = fig.subplots(5, 1, sharex=True)
+    for i in range(n):
+        ax[0].plot(t, q[:, i], lw=0.8, label=f"q{i + 1}")
+        ax[0].plot(t, q_d[i], "k--", lw=0.6, label=f"q{i + 1}_d")
+        ax[1].plot(t, sigma[:, i], lw=0.8, label=f"sigma{i + 1} (plant)")
+        ax[1].plot(t, sigma_d[i], "k--", lw=0.6, label=f"sigma{i + 1}_d")
+    for j in range(phi.shape[1]):
+        lab = f"phi{j % n + 1}{'ab'[j // n]}"
+        ax[2].plot(t, phi[:, j], lw=0.8, label=lab)
+        ax[3].semilogy(t, std[:, j], lw=0.8, label=lab)
+    ax[3].axhline(threshold, color="k", ls="--", lw=0.8, label="threshold")
+    for k, (tag, u) in enumerate(updating.items()):
+        ax[4].plot(t, u.mean(axis=1) + 1.2 * k, lw=0.8, label=tag)
+    for a, lab in zip(ax, ("q [rad]", "sigma [N m/rad]", "measured deflection [rad]",
+                           f"EW std, W = {window:g} s [rad]", "RLS updating")):
+        a.set_ylabel(lab)
+        for b in boundaries:
+            a.axvline(b, color="0.6", lw=0.6)
+        a.legend(fontsize=7, ncol=2, loc="upper left")
+    ax[4].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+def run_figure(path, t, tau_motor, phi, q, *, title: str = "") -> None:
+    """Motor torques, spring deflections and link angles of a run (as Fig. 6.5)."""
+    from matplotlib.figure import Figure
+    n, d = q.shape[1], slice(None, None, max(1, len(t) // 20000))
+    t, tau_motor, phi, q = t[d], tau_motor[d], phi[d], q[d]
+    fig = Figure(figsize=(8, 8))
+    ax = fig.subplots(3, 1, sharex=True)
+    for a, v, unit, names in ((ax[0], tau_motor, "motor torque [N m]", "tau"),
+                              (ax[1], phi, "deflection [rad]", "phi"),
+                              (ax[2], q, "link angle [rad]", "q")):
+        for j in range(v.shape[1]):
+            side = "" if names == "q" else "ab"[j // n]
+            a.plot(t, v[:, j], lw=0.8, label=f"{names}{j % n + 1}{side}")
+        a.set_ylabel(unit)
+        a.legend(fontsize=7, ncol=2, loc="upper left")
+    ax[0].set_title(title)
+    ax[2].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
