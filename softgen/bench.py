@@ -111,10 +111,10 @@ def _cascade_loop_speed(model, seconds: float = 20.0) -> dict:
     """Chapter-11 loops at 1 ms (simulated s per wall s): the PD cascade with the motor
     dynamics, alone and with the invasive stiffness estimator on quantised encoders in
     the loop (computing σ̂ while the selector feeds the plant's σ back)."""
+    from .blocks.sensors import encoder_block
     from .control import electric as el
     from .control.electric_refs import THESIS_GAINS, sinusoid_references
     from .estimation.estimators import EstimatorConfig, StiffnessEstimator
-    from .plants.hardware import encoder_block
     dt, n, g, out = 1e-3, model.dof, THESIS_GAINS["pd"], {}
     arm, fb = el.electric_arm(model), el.electric_arm(model, sigma_input=True)
     est = StiffnessEstimator(model, EstimatorConfig("electric", dt=dt))
@@ -125,14 +125,12 @@ def _cascade_loop_speed(model, seconds: float = 20.0) -> dict:
     for key, blocks, wires in (
             ("cascade_loop", [el.cascade_block(arm, "pd", dt, gains=g)], []),
             ("cascade_estimator_loop",
-             [el.cascade_block(fb, "pd", dt, gains=g), el.estimator_block(est, dt, name="inv"),
-              el.sigma_feedback_block(n, 1)] + [encoder_block(
-                  n, dt, counts_per_rev=8192, velocity_filter=0.01, name=f"enc_{s}")
-                  for s in ("q", "qa", "qb")],
+             [el.cascade_block(fb, "pd", dt, gains=g), est.block("inv"),
+              el.sigma_feedback_block(n, 1), encoder_block("enc", {"q": n, "qa": n, "qb": n},
+                                                           8192)],
              [("inv.sigma_hat", "sw.sigma_inv"), ("inv.sigma_hat", "sw.sigma_non"),
-              ("plant.sigma", "sw.sigma")] + [w for s in ("q", "qa", "qb") for w in
-                                              ((f"plant.{s}", f"enc_{s}.q"),
-                                               (f"enc_{s}.q_m", f"inv.{s}"))])):
+              ("plant.sigma", "sw.sigma"), ("ctrl.tau_m", "inv.tau_motor")]
+             + [(f"enc.{s}_m", f"inv.{s}") for s in ("q", "qa", "qb")])):
         d = ClosedLoop(f"bench_{model.name}_{key}",
                        [el.reference_block(), el.plant_block(arm, dt), *blocks], wires)
         simulate(d, steps=1000, x0=x0)                  # compile (cached), warm up

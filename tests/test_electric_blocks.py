@@ -169,28 +169,14 @@ def test_fed_back_sigma_equal_to_the_model_gives_the_same_step(arm):
                                want[OUTPUTS.index("tau_e_ref")])
 
 
-def test_estimator_and_selector_blocks():
-    from softgen.control.electric import estimator_block, sigma_feedback_block
-    from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
-    rng = np.random.default_rng(17)
-    est = StiffnessEstimator(load_model("arm_2link_electric"),
-                             EstimatorConfig("electric", dt=DT))
-    blk = estimator_block(est, DT, name="inv")
-    f = est.step_fun()
-    s, prev = est.initial_state(), np.zeros(N)
-    x = np.concatenate([s, prev])
-    for _ in range(8):                   # the output is the step's estimate, one sample late
-        yk = rng.uniform(-0.5, 0.5, 5 * N)
-        xn, out = blk.eval(x=x, u=yk)
-        s_next, sig = (_np(o) for o in f(x[:s.size], yk)[:2])
-        assert np.array_equal(out[:N], x[s.size:])
-        assert np.allclose(xn, np.concatenate([s_next, sig]), rtol=1e-14, atol=0)
-        x = xn
+def test_selector_block_holds_the_estimates_one_sample():
+    from softgen.control.electric import sigma_feedback_block
     sw = sigma_feedback_block(N, 2)
-    line = np.arange(2 * N, dtype=float)
+    x = np.concatenate([np.arange(2 * N, dtype=float), [40.0, 41.0, 50.0, 51.0]])
     u = np.concatenate([[5.0], [10.0, 11.0], [20.0, 21.0], [30.0, 31.0]])
-    for src, t_on, want in ((0, 1.0, [10, 11]), (1, 1.0, [20, 21]), (2, 1.0, [30, 31]),
+    for src, t_on, want in ((0, 1.0, [10, 11]), (1, 1.0, [40, 41]), (2, 1.0, [50, 51]),
                             (3, 1.0, [0, 1]), (1, 9.0, [10, 11])):
-        xn, y = sw.eval(x=line, u=u, p=[src, t_on])
+        xn, y = sw.eval(x=x, u=u, p=[src, t_on])
         assert np.array_equal(y, want)
-        assert np.array_equal(xn, [2, 3, 10, 11])
+        assert np.array_equal(xn, [2, 3, 10, 11, 20, 21, 30, 31])
+    assert not sw.depends["sigma_fb"] & {"sigma_inv", "sigma_non"}

@@ -123,7 +123,7 @@ torques); k_π = 0.2 (Theorem 9's) works.
 an input ``sigma_fb`` (n) after ``ref`` and uses it for e_σ instead of the spring model's
 σ; in the Lie derivatives of the motor references σ_fb moves as the model's σ (the
 difference σ_fb − σ_model is held over the sample). This closes the stiffness loop on an
-estimator (:func:`estimator_block`; experiment ``ext-estimated-stiffness-feedback``).
+estimator (:func:`sigma_feedback_block`; experiment ``ext-estimated-stiffness-feedback``).
 
 **Layouts** (all vectors; motors ordered a-side joints 1..n, then b-side):
 
@@ -1005,55 +1005,30 @@ def reference_block(q_spec=None, sigma_spec=None, *, name: str = "ref") -> Block
 
 # -- closing the stiffness loop with an estimator (issue 12, item 3) ---------------------------
 
-def estimator_block(est, dt: float, *, name: str) -> Block:
-    """A stiffness estimator (:class:`softgen.estimation.estimators.StiffnessEstimator`,
-    electric or non-invasive, chapters 6-7) as a block, its output held one sample.
-
-    Reads ``q, qa, qb`` (and ``tau_m``, the motor torques, for the invasive electric
-    estimator: y = (q, q_a, q_b, τ_a, τ_b)); emits ``sigma_hat``, the estimate for
-    sample k − L − 1: the step's estimate for k − L (its observer delay L), held one
-    sample so that a controller reading it at sample k has no algebraic loop with the
-    torque it computes then. Also ``updating`` (RLS updates of the last step).
-    """
-    f, n = est.step_fun(), est.n
-    invasive = est.config.method == "electric"
-    n_state = f.size1_in(0)
-
-    def body(x, u, p):
-        y = ca.vertcat(u["q"], u["qa"], u["qb"], *([u["tau_m"]] if invasive else []))
-        res = f.call({"state": x["state"], "y": y})
-        return ({"state": res["state_next"], "sigma_prev": res["sigma_hat"]},
-                {"sigma_hat": x["sigma_prev"], "updating": res["updating"]})
-
-    ins = [(k, n, "rad") for k in ("q", "qa", "qb")] + ([("tau_m", 2 * n, "N m")]
-                                                        if invasive else [])
-    return Block.define(name, dt=dt, state=[("state", n_state), ("sigma_prev", n)],
-                        inputs=ins, outputs=[("sigma_hat", n, "N m/rad"),
-                                             ("updating", f.size1_out(4), "")],
-                        x0={"state": est.initial_state()}, body=body,
-                        doc=f"{est.config.method} stiffness estimator, one-sample hold",
-                        meta={"delay": est.config.delay + 1})
-
-
 def sigma_feedback_block(n: int, delay: int, *, name: str = "sw") -> Block:
     """The σ a cascade with ``sigma_input`` feeds back (a selector, parameters only).
 
-    Inputs ``sigma`` (the plant's), ``sigma_inv``, ``sigma_non`` (two estimates); output
+    Inputs ``sigma`` (the plant's), ``sigma_inv``, ``sigma_non`` (two estimates, e.g.
+    ``sigma_hat`` of :meth:`softgen.estimation.estimators.EstimatorBase.block`); output
     ``sigma_fb``: the plant's σ before ``t_on`` or while ``source`` = 0; after ``t_on``
     the invasive (``source`` = 1) or non-invasive (2) estimate, or the plant's σ delayed
-    by ``delay`` samples (3: what the estimators' delay alone costs). ``t`` is read.
+    by ``delay`` samples (3: what an estimator's delay alone costs). ``t`` is read. The
+    estimates are held one sample (state ``held``): an estimator whose input is the
+    motor torque the cascade computes from ``sigma_fb`` would otherwise close an
+    algebraic loop. An estimate for sample k − L thus reaches the cascade at k + 1.
     """
     d = int(delay)
 
     def body(x, u, p):
-        line = x["line"]
-        late = line[:n]
+        late = x["line"][:n]
+        held_inv, held_non = x["held"][:n], x["held"][n:]
         src, on = p["source"], u["t"] >= p["t_on"]
-        est = ca.if_else(src == 1, u["sigma_inv"], ca.if_else(src == 2, u["sigma_non"], late))
+        est = ca.if_else(src == 1, held_inv, ca.if_else(src == 2, held_non, late))
         out = ca.if_else(ca.logic_and(on, src > 0), est, u["sigma"])
-        return {"line": ca.vertcat(line[n:], u["sigma"])}, {"sigma_fb": out}
+        return ({"line": ca.vertcat(x["line"][n:], u["sigma"]),
+                 "held": ca.vertcat(u["sigma_inv"], u["sigma_non"])}, {"sigma_fb": out})
 
-    return Block.define(name, dt=None, state=[("line", d * n)],
+    return Block.define(name, dt=None, state=[("line", d * n), ("held", 2 * n)],
                         inputs=[("t", 1, "s"), ("sigma", n, "N m/rad"),
                                 ("sigma_inv", n, "N m/rad"), ("sigma_non", n, "N m/rad")],
                         outputs=[("sigma_fb", n, "N m/rad")],
