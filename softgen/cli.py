@@ -169,26 +169,7 @@ def _cmd_bench(args) -> int:
 
 def _cmd_estimate(args) -> int:
     """Stiffness from a CSV log: invasive (thesis chapter 6) or non-invasive (chapter 7)."""
-    import math
-    from dataclasses import replace
-
-    from .errors import NonFiniteError
-    from .estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
-    from .estimation.estimators import EstimatorConfig, StiffnessEstimator
-    from .estimation.offline import estimation_result, offline_diagram, split_measurements
-    from .model import load_model
-    t0 = time.perf_counter()
-    model = load_model(args.model)
-    kind = model.actuator_type
-    if args.method == "invasive" and kind in ("mckibben", "qbmove"):
-        method = "pneumatic" if kind == "mckibben" else "electric"
-    elif args.method == "noninvasive" and kind == "qbmove":
-        method = "noninvasive"
-    else:
-        needs = ("McKibben (pneumatic, section 6.1) or qbmove (electric, section 6.2) "
-                 "actuators" if args.method == "invasive" else "qbmove actuators (chapter 7)")
-        raise SoftgenError(f"estimate: model {model.name!r} has actuator type "
-                           f"{kind or 'none'}; --method {args.method} needs {needs}")
+    from .estimate import estimate_log
     powers = None
     if args.powers is not None:
         try:
@@ -196,46 +177,24 @@ def _cmd_estimate(args) -> int:
         except ValueError:
             raise SoftgenError(f"estimate: --powers: expected comma-separated integers "
                                f"such as 1,3,5,7, got {args.powers!r}") from None
-    for flag, v in (("--dt", args.dt), ("--p0", args.p0)):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise SoftgenError(f"estimate: {flag}: expected a positive number, got {v!r}")
-    log = Path(args.log)
-    out = Path(args.out) if args.out else log.with_name(f"{log.stem}_estimate.csv")
-    if out.resolve() == log.resolve():
-        raise SoftgenError(f"estimate: --out {out} is the log itself; choose another file")
-    if out.is_dir():
-        raise SoftgenError(f"estimate: --out {out} is a directory; give a file name")
-    if out.exists() and not args.force:
-        raise SoftgenError(f"estimate: --out {out} exists; add --force to overwrite it")
-    if not out.parent.is_dir():
-        raise SoftgenError(f"estimate: --out {out}: no directory {out.parent}")
-    import os
-    if not os.access(out.parent, os.W_OK):
-        raise SoftgenError(f"estimate: --out {out}: directory {out.parent} is not writable")
-    config = EstimatorConfig(method, dt=args.dt, powers=powers, p0=args.p0)
-    est = StiffnessEstimator(model, config)      # checks the settings before reading the log
-    t, Y, dt = read_log(log, est.measurements, min_rows=est.config.delay + 2)
-    if args.dt is not None and abs(args.dt - dt) > step_tolerance(dt):
-        raise SoftgenError(f"estimate: --dt {args.dt:g} s disagrees with the median time "
-                           f"step {dt:.9g} s of {log}; drop --dt or resample the log")
-    if args.dt is None:
-        est = StiffnessEstimator(model, replace(config, dt=dt))
-    from .runtime.simulate import simulate
-    # A diverged estimator stays non-finite: stop there, the rest is NaN.
-    trace = simulate(offline_diagram(est), steps=len(Y), externals=split_measurements(est, Y),
-                     on_nonfinite="stop")
-    result = estimation_result(est, trace, samples=len(Y))
-    write_estimates(out, t, result, est)
-    bad = first_non_finite(t, result, est)
-    if bad is not None:
-        k, column, value = bad
-        raise NonFiniteError(f"estimate: diverged: {column} is {value!r} at t = {float(t[k])!r} s "
-                             f"(sample {k} of {log}); estimates written to {out} ('nan'/'inf' "
-                             f"where diverged, empty only where there is no estimate yet)")
-    label = method if method == args.method else f"{method} ({args.method})"
-    print(f"estimate: {len(t)} samples, dt {est.config.dt:.9g} s, method {label}, "
-          f"delay {est.config.delay}, {time.perf_counter() - t0:.2f} s wall -> {out}")
+    run = estimate_log(args.model, args.log, method=args.method, out=args.out, dt=args.dt,
+                       powers=powers, p0=args.p0, force=args.force)
+    label = run.method if run.method == args.method else f"{run.method} ({args.method})"
+    print(f"estimate: {run.samples} samples, dt {run.dt:.9g} s, method {label}, "
+          f"delay {run.delay}, {run.wall_seconds:.2f} s wall -> {run.out}")
     return 0
+
+
+def _estimate_epilog() -> str:
+    """The columns each shipped model and method needs (computed, not written by hand)."""
+    from .estimate import log_columns, sample_log
+    lines = ["columns of the log (besides the time column t), by model and method:"]
+    lines += [f"  {model:<22} {method:<12} {', '.join(cols)}"
+              for model, method, cols in log_columns()]
+    lines += ["", f"a sample log ships with softgen: {sample_log()}",
+              "  softgen estimate pendulum_qbmove --log <that file> --method noninvasive "
+              "--out est.csv"]
+    return "\n".join(lines)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -278,8 +237,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--calls", type=int, default=200_000, help="calls per C timing loop")
     s.add_argument("--json", help="also write the figures to this JSON file")
     s.set_defaults(func=_cmd_bench)
+    estimate_help = "--help" in sys.argv or "-h" in sys.argv   # the epilog costs ~0.3 s
     s = sub.add_parser("estimate", help="joint stiffness from a CSV measurement log "
-                       "(thesis chapters 6, 7)")
+                       "(thesis chapters 6, 7)",
+                       epilog=_estimate_epilog() if estimate_help else None,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     s.add_argument("model", metavar="MODEL")
     s.add_argument("--log", required=True, metavar="FILE.csv",
                    help="header row; time column t (or time) and the estimator's "

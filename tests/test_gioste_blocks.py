@@ -11,7 +11,8 @@ from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.references import SmoothSteps
 from softgen.model import load_model
 from softgen.plants import gioste as G
-from softgen.plants.hardware import delay_line_block, encoder_block, quantise, tracking_stop
+from softgen.blocks.sensors import quantized
+from softgen.plants.hardware import delay_line_block, encoder_block, tracking_stop
 from softgen.runtime.simulate import simulate
 from softgen.symbolic.actuated import rk4_steps
 
@@ -30,7 +31,7 @@ def test_encoder_rounds_to_the_count():
     q = rng.uniform(-3, 3, (300, 2))
     _, Y = enc.loop_fun(300)(np.zeros(4), q.T, [])
     qm = np.array(Y)[:2].T
-    np.testing.assert_array_equal(qm, quantise(q, step))           # numpy reference, exact
+    np.testing.assert_array_equal(qm, quantized(q, step))           # numpy reference, exact
     counts = qm / step
     np.testing.assert_allclose(counts, np.round(counts), atol=1e-9)  # whole counts
     assert np.all(np.abs(qm - q) <= step / 2 + 1e-15)             # nearest count

@@ -49,6 +49,12 @@ def test_wheel_installs_and_runs_from_another_directory(tmp_path, need_compiler)
           "a = load_bundle('planar_2link'); z = np.zeros(2); "
           "assert abs(a.regressor(z, z, z, z) @ a.parameter_nominal "
           "- a.inverse_dynamics(z, z, z, z)).max() < 1e-12"], work, env)
+    sample = _run([str(py), "-c", "from softgen.estimate import sample_log; print(sample_log())"],
+                  work, env).strip()
+    assert str(venv) in sample
+    _run([softgen, "estimate", "pendulum_qbmove", "--log", sample, "--method", "noninvasive",
+          "--out", "est.csv"], work, env)
+    assert (work / "est.csv").stat().st_size > 0
     _run([softgen, "reproduce", "rigid-2link-adaptive", "--quick", "--out", "res"], work, env)
     assert (work / "res" / "rigid-2link-adaptive" / "metrics.json").is_file()
     assert (work / "res" / "report.md").is_file()

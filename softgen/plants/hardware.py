@@ -22,12 +22,7 @@ import casadi as ca
 import numpy as np
 
 from ..blocks import Block
-
-
-def quantise(q, step: float, floor=np.floor):
-    """``q`` rounded to the nearest multiple of ``step`` (halves upwards); numpy or CasADi
-    (``floor=ca.floor``)."""
-    return floor(q / step + 0.5) * step
+from ..blocks.sensors import quantized
 
 
 def encoder_block(n: int, dt: float, *, counts_per_rev: int, velocity_filter: float,
@@ -45,7 +40,7 @@ def encoder_block(n: int, dt: float, *, counts_per_rev: int, velocity_filter: fl
     a = ca.exp(-ca.DM(dt) / velocity_filter)
 
     def body(x, u, p):
-        qm = quantise(u["q"], step, ca.floor)
+        qm = quantized(u["q"], step)
         v = a * x["v_prev"] + (1 - a) * (qm - x["q_prev"]) / ca.DM(dt)
         return {"q_prev": qm, "v_prev": v}, {"q_m": qm, "v": v}
 

@@ -1,0 +1,173 @@
+"""Stiffness from a recorded log (``softgen estimate``): method choice, columns, the run.
+
+The command line only parses arguments; this module decides which estimator a model
+and method mean (thesis chapter 6: invasive, pneumatic or electric; chapter 7:
+non-invasive), which columns its log needs, runs the estimator over the log through
+the one loop driver, and writes the estimates. A sample log ships with the package
+(:func:`sample_log`), made by :func:`make_sample_log` from the emulated qbmove
+pendulum, so a first run needs no data of one's own.
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, replace
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .errors import NonFiniteError, SoftgenError
+from .estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
+from .estimation.estimators import EstimatorConfig, StiffnessEstimator
+from .estimation.offline import estimation_result, offline_diagram, split_measurements
+from .model import RobotModel, list_models, load_model
+from .runtime.simulate import simulate
+
+METHODS = ("invasive", "noninvasive")
+
+
+def estimator_method(model: RobotModel, method: str) -> str:
+    """The estimator a model's actuators and ``method`` call for (raises with the reason)."""
+    kind = getattr(model, "actuator_type", None)
+    if method == "invasive" and kind in ("mckibben", "qbmove"):
+        return "pneumatic" if kind == "mckibben" else "electric"
+    if method == "noninvasive" and kind == "qbmove":
+        return "noninvasive"
+    if method not in METHODS:
+        raise SoftgenError(f"estimate: --method: expected one of {', '.join(METHODS)}, "
+                           f"got {method!r}")
+    needs = ("McKibben (pneumatic, section 6.1) or qbmove (electric, section 6.2) actuators"
+             if method == "invasive" else "qbmove actuators (chapter 7)")
+    raise SoftgenError(f"estimate: model {model.name!r} has actuator type {kind or 'none'}; "
+                       f"--method {method} needs {needs}")
+
+
+def log_columns() -> list[tuple[str, str, list[str]]]:
+    """``(model, method, columns)`` for every shipped model that has an estimator."""
+    out = []
+    for name in list_models():
+        model = load_model(name)
+        for method in METHODS:
+            try:
+                est = StiffnessEstimator(model, EstimatorConfig(estimator_method(model, method)))
+            except SoftgenError:
+                continue
+            out.append((name, method, list(est.measurements)))
+    return out
+
+
+@dataclass(frozen=True)
+class EstimateRun:
+    """What :func:`estimate_log` did: samples, sample time, method, delay, output."""
+
+    samples: int
+    dt: float
+    method: str
+    delay: int
+    out: Path
+    wall_seconds: float
+
+
+def check_output(out: Path, log: Path, *, force: bool) -> None:
+    """Refuse an output that is the log, a directory, unwritable, or exists (no ``force``)."""
+    if out.resolve() == log.resolve():
+        raise SoftgenError(f"estimate: --out {out} is the log itself; choose another file")
+    if out.is_dir():
+        raise SoftgenError(f"estimate: --out {out} is a directory; give a file name")
+    if out.exists() and not force:
+        raise SoftgenError(f"estimate: --out {out} exists; add --force to overwrite it")
+    if not out.parent.is_dir():
+        raise SoftgenError(f"estimate: --out {out}: no directory {out.parent}")
+    if not os.access(out.parent, os.W_OK):
+        raise SoftgenError(f"estimate: --out {out}: directory {out.parent} is not writable")
+
+
+def estimate_log(model_name: str, log: str | Path, *, method: str = "invasive",
+                 out: str | Path | None = None, dt: float | None = None,
+                 powers: tuple[int, ...] | None = None, p0: float | None = None,
+                 force: bool = False) -> EstimateRun:
+    """Run the model's estimator over a CSV log and write ``<log>_estimate.csv``.
+
+    Everything is checked before the log is processed (method, settings, output
+    path). A diverged estimate raises :class:`NonFiniteError` naming the first column
+    and time, after the estimates (``nan``/``inf`` where diverged) are written.
+    """
+    t0 = time.perf_counter()
+    model = load_model(model_name)
+    kind = estimator_method(model, method)
+    for flag, v in (("--dt", dt), ("--p0", p0)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise SoftgenError(f"estimate: {flag}: expected a positive number, got {v!r}")
+    log = Path(log)
+    out = Path(out) if out else log.with_name(f"{log.stem}_estimate.csv")
+    check_output(out, log, force=force)
+    config = EstimatorConfig(kind, dt=dt, powers=powers, p0=p0)
+    est = StiffnessEstimator(model, config)      # checks the settings before reading the log
+    t, Y, log_dt = read_log(log, est.measurements, min_rows=est.config.delay + 2)
+    if dt is not None and abs(dt - log_dt) > step_tolerance(log_dt):
+        raise SoftgenError(f"estimate: --dt {dt:g} s disagrees with the median time step "
+                           f"{log_dt:.9g} s of {log}; drop --dt or resample the log")
+    if dt is None:
+        est = StiffnessEstimator(model, replace(config, dt=log_dt))
+    # A diverged estimator stays non-finite: stop there, the rest is NaN.
+    trace = simulate(offline_diagram(est), steps=len(Y), externals=split_measurements(est, Y),
+                     on_nonfinite="stop")
+    result = estimation_result(est, trace, samples=len(Y))
+    write_estimates(out, t, result, est)
+    bad = first_non_finite(t, result, est)
+    if bad is not None:
+        k, column, value = bad
+        raise NonFiniteError(f"estimate: diverged: {column} is {value!r} at t = {float(t[k])!r} s "
+                             f"(sample {k} of {log}); estimates written to {out} ('nan'/'inf' "
+                             f"where diverged, empty only where there is no estimate yet)")
+    return EstimateRun(len(t), est.config.dt, kind, est.config.delay, out,
+                       time.perf_counter() - t0)
+
+
+# -- the shipped sample log ------------------------------------------------------------
+
+#: File name of the shipped sample log (package data, ``softgen/samples/``).
+SAMPLE = "pendulum_qbmove_log.csv"
+
+
+def sample_log() -> Path:
+    """The shipped sample log: the emulated qbmove pendulum (``pendulum_qbmove``), 20 s at
+    5 ms, encoders of 8192 counts, columns ``t, q1, qa1, qb1, tau_a1, tau_b1`` (every
+    method's columns). Made by :func:`make_sample_log`."""
+    return Path(str(resources.files("softgen") / "samples" / SAMPLE))
+
+
+def make_sample_log(path: str | Path, *, duration: float = 20.0, dt: float = 5e-3) -> Path:
+    """Write the sample log: sinusoidal position and stiffness references tracked through the
+    motors' servos on ``pendulum_qbmove``, read by 8192-count encoders and the motors'
+    torque sensing, every column rounded to 9 significant digits."""
+    from .plants.qbmove import (Sinusoids, hardware_diagram, motor_references,
+                                phased_references, servo_initial_state)
+    from .symbolic.actuated import servo_plant_block
+    from .symbolic.actuators import QbmoveSprings
+    from .symbolic.rigid import RigidDynamics
+    model = load_model("pendulum_qbmove")
+    K = int(round(duration / dt))
+    t = np.arange(K) * dt
+    q_spec: Sinusoids = ((0.0, 0.3, np.pi / 4),)      # the references of section 7.3's run
+    s_spec: Sinusoids = ((5.0, 2.0, np.pi / 6),)
+    q_d, qd_d, qdd_d, sigma_d = phased_references(t, q_spec, s_spec)
+    refs = motor_references(model, q_d, qd_d, qdd_d, sigma_d)
+    plant = servo_plant_block(RigidDynamics(model), QbmoveSprings(model), dt, substeps=10,
+                              bandwidth=300.0)
+    d = hardware_diagram("sample_log_pendulum_qbmove", plant, counts_per_rev=8192)
+    x0 = servo_initial_state(q_d, qd_d, refs)
+    tr = simulate(d, steps=K, x0={f"plant.{k}": v for k, v in x0.items()},
+                  externals={"q_ref": refs}, record=["enc.q_m", "enc.qa_m", "enc.qb_m",
+                                                     "plant.tau_motor"])
+    cols = {"t": t, "q1": tr["enc.q_m"][:, 0], "qa1": tr["enc.qa_m"][:, 0],
+            "qb1": tr["enc.qb_m"][:, 0], "tau_a1": tr["plant.tau_motor"][:, 0],
+            "tau_b1": tr["plant.tau_motor"][:, 1]}
+    path = Path(path)
+    with path.open("w") as fh:
+        fh.write(",".join(cols) + "\n")
+        for k in range(K):
+            fh.write(",".join(f"{v[k]:.9g}" for v in cols.values()) + "\n")
+    return path
