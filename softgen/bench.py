@@ -32,6 +32,7 @@ from .symbolic.rigid import RigidDynamics
 from .model import list_models, load_model
 from .bundle import load_bundle
 from .runtime.simulate import simulate
+from .control.electric import CASCADE_MODELS
 
 
 #: Hand-written C references kept under benchmarks/: model -> (function, source).
@@ -107,6 +108,38 @@ def _theorem5_loop_speed(model, seconds: float = 60.0) -> dict:
             "theorem5_loop_q_only_sim_s_per_wall_s": lean.realtime_factor}
 
 
+def _cascade_loop_speed(model, seconds: float = 20.0) -> dict:
+    """Chapter-11 loops at 1 ms (simulated s per wall s): the PD cascade with the motor
+    dynamics, alone and with the invasive stiffness estimator on quantised encoders in
+    the loop (computing σ̂ while the selector feeds the plant's σ back)."""
+    from .blocks.sensors import encoder_block
+    from .control import electric as el
+    from .control.electric_refs import THESIS_GAINS, sinusoid_references
+    from .estimation.estimators import EstimatorConfig, StiffnessEstimator
+    dt, n, g, out = 1e-3, model.dof, THESIS_GAINS["pd"], {}
+    arm, fb = el.electric_arm(model), el.electric_arm(model, sigma_input=True)
+    est = StiffnessEstimator(model, EstimatorConfig("electric", dt=dt))
+    x = el.initial_plant_state(arm, lambda t: sinusoid_references(t)[:, 0],
+                               ksigma=g["ksigma"], delta=g["delta"])
+    x0 = {f"plant.{k}": x[i * n:(i + 1) * n] for i, k in enumerate(("q", "qd", "qa", "qad",
+                                                                     "qb", "qbd"))}
+    for key, blocks, wires in (
+            ("cascade_loop", [el.cascade_block(arm, "pd", dt, gains=g)], []),
+            ("cascade_estimator_loop",
+             [el.cascade_block(fb, "pd", dt, gains=g), est.block("inv"),
+              el.sigma_feedback_block(n, 1), encoder_block("enc", {"q": n, "qa": n, "qb": n},
+                                                           8192)],
+             [("inv.sigma_hat", "sw.sigma_inv"), ("inv.sigma_hat", "sw.sigma_non"),
+              ("plant.sigma", "sw.sigma"), ("ctrl.tau_m", "inv.tau_motor")]
+             + [(f"enc.{s}_m", f"inv.{s}") for s in ("q", "qa", "qb")])):
+        d = ClosedLoop(f"bench_{model.name}_{key}",
+                       [el.reference_block(), el.plant_block(arm, dt), *blocks], wires)
+        simulate(d, steps=1000, x0=x0)                  # compile (cached), warm up
+        out[f"{key}_sim_s_per_wall_s"] = simulate(d, duration=seconds, x0=x0,
+                                                  record=["plant.q"]).realtime_factor
+    return out
+
+
 def bench_model(name: str, *, calls: int = 200_000) -> dict:
     """All figures of one model's bundle."""
     from .codegen.cbench import time_in_c
@@ -161,6 +194,8 @@ def bench_model(name: str, *, calls: int = 200_000) -> dict:
     out.update(_closed_loop_speed(model))
     if model.actuator_type == "mckibben":
         out.update(_theorem5_loop_speed(model))
+    if name in CASCADE_MODELS:
+        out.update(_cascade_loop_speed(model))
     return out
 
 

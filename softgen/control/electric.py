@@ -101,13 +101,29 @@ commanded away in one sample, a transient the cascade does not survive (measured
 :func:`initial_plant_state` with ``ksigma``/``delta`` starts at that quasi-steady
 stiffness; the integral variants start at σ_d with ξ(0) from :func:`integral_start`.
 
-**Known limits** (measured on section 11.2's runs, dt = 1 ms; see the report of
-issue 12): the adaptive cascades track from nominal estimates with the thesis's gains
-(``"measured"`` acceleration), but not from π̂_m(0) = 0: with b̂ = 0 the adapted motor
-model has no inertia and the motor-acceleration loop degenerates (diverges within
-0.3 s; from 10 % of the nominal b̂ it runs, with a link π̂(0) = 0 it learns slowly,
-joint-2 rms 0.09-0.14 rad). Remark 11's k_π = 7 diverges at dt = 1 ms whatever the
-start (forward-Euler adaptation too fast for the sample); k_π = 0.2 works.
+**Adaptive start and projection** (measured on section 11.2's runs, dt = 1 ms, with
+the diagram blocks below; ``ch11-electric-adaptive`` repeats each run). From π̂_m(0) = 0
+(the thesis's start) Theorem 8's law drives b̂ below zero at once (b̂_1a = −1.2e-3 kg m²
+at 9 ms with the printed Λ_m = 0.1): an adapted motor of negative inertia, and the
+cascade diverges (0.24 s with Λ_m = 0.1, 6 ms with Λ_m = 10). Divergence times move with
+floating-point rounding (a change of the symbolic dynamics route moved the first from
+0.33 s to 0.24 s); the divergence does not.
+``projection=True`` adds the gain ``b_min`` (2n) and keeps b̂ ≥ b_min after every
+update: the projection of adaptive control (Ioannou & Sun, Robust Adaptive Control),
+which keeps V̇ ≤ 0 of Theorem 8 because the set b̂ ≥ b_min contains the true b. With
+b_min = 0.1 b the antagonist motors' b̂ sit on the bound for the whole run (the law
+keeps pushing them down) and the cascades track. The printed inner Λ_m = 0.1 leaves a
+motor pole at ≈ 0.1 rad/s (b s² + k s + kΛ, b = 1e-3, k = 0.1): joint-2 position rms
+0.14 rad over the second half of 40 s, the same at dt = 0.1 ms; Λ_m = 10 gives 1e-3 rad.
+Remark 11's k_π = 7 diverges at 0.114 s at dt = 1 ms and at 0.129 s at dt = 0.1 ms (not
+the Euler step: the link adaptation outruns the inner loop that must realise its
+torques); k_π = 0.2 (Theorem 9's) works.
+
+**Fed-back stiffness** (``sigma_input=True``, suffix ``_sigma_input``): the step takes
+an input ``sigma_fb`` (n) after ``ref`` and uses it for e_σ instead of the spring model's
+σ; in the Lie derivatives of the motor references σ_fb moves as the model's σ (the
+difference σ_fb − σ_model is held over the sample). This closes the stiffness loop on an
+estimator (:func:`sigma_feedback_block`; experiment ``ext-estimated-stiffness-feedback``).
 
 **Layouts** (all vectors; motors ordered a-side joints 1..n, then b-side):
 
@@ -138,6 +154,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
+from ..blocks import Block
 from ..errors import ModelError
 from ..model import RobotModel
 from ..symbolic.actuated import electric_plant_fun
@@ -213,11 +230,18 @@ class ElectricArm:
         Already derived dynamics and springs (a bundle derives them once).
     derivatives
         ``"model"`` or ``"filter"`` (see :data:`DERIVATIVES`).
+    acceleration
+        ``"model"`` or ``"measured"`` (see :data:`ACCELERATIONS`).
+    projection
+        Adaptive variants: keep b̂ ≥ ``b_min`` (an extra gain; module docstring).
+    sigma_input
+        Feed back the input ``sigma_fb`` instead of the spring model's σ.
     """
 
     def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None,
                  springs: QbmoveSprings | None = None, derivatives: str = "model",
-                 acceleration: str = "model"):
+                 acceleration: str = "model", projection: bool = False,
+                 sigma_input: bool = False):
         if model.actuator_type != "qbmove":
             got = model.actuator_type or "no [[actuators]]"
             raise ModelError(f"{model.name}: the chapter-11 controllers need qbmove "
@@ -229,6 +253,8 @@ class ElectricArm:
                              f"(\"measured\" with derivatives=\"model\" only), "
                              f"got {acceleration!r}")
         self.acceleration = acceleration
+        self.projection = bool(projection)
+        self.sigma_input = bool(sigma_input)
         self.model = model
         self.dyn = dyn or RigidDynamics(model)
         self.springs = springs or QbmoveSprings(model)
@@ -304,6 +330,8 @@ class ElectricArm:
         lay += [("ksigma", n), ("delta", n)]
         if _is_integral(variant):
             lay.append(("ki", n))
+        if self.projection and _is_adaptive(variant):
+            lay.append(("b_min", 2 * n))                # lower bound of b̂ (projection)
         if self.derivatives == "filter":
             lay.append(("omega_f", 1))
         return lay
@@ -312,6 +340,10 @@ class ElectricArm:
         suffix = "_filter" if self.derivatives == "filter" else ""
         if self.acceleration == "measured":
             suffix += "_measured_acceleration"
+        if self.projection and _is_adaptive(variant):
+            suffix += "_projected"
+        if self.sigma_input:
+            suffix += "_sigma_input"
         return f"{self.name}_electric_cascade_{variant}{suffix}"
 
     # -- symbolic pieces ------------------------------------------------------------------
@@ -366,11 +398,13 @@ class ElectricArm:
         A = M.T @ M + ACC_REGULARIZATION * ca.DM.eye(self.n)
         return ca.solve(A, M.T @ (tau_link - bias))
 
-    def outer(self, variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G):
-        """Outer loop: commanded (τ^e_a, τ^e_b), det, σ, rates of (ξ, π̂), q̈ of the model."""
+    def outer(self, variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G, sigma_offset=0):
+        """Outer loop: commanded (τ^e_a, τ^e_b), det, σ, rates of (ξ, π̂), q̈ of the model.
+
+        ``sigma_offset`` is added to the spring model's σ (a fed-back σ, see step_fun)."""
         e, ed = q - R["q_d"], qd - R["qd_d"]
         ta, tb = self.spring_torques(q, qa, qb)
-        sigma = self.springs.stiffness(q, qa, qb)
+        sigma = self.springs.stiffness(q, qa, qb) + sigma_offset
         e_sigma = sigma - R["sigma_d"]
         rates = {}
         if _is_adaptive(variant):
@@ -421,8 +455,11 @@ class ElectricArm:
         dt = ca.SX.sym("dt")
 
         xi, pi_hat = Z.get("xi"), Z.get("pi_hat")
+        # A fed-back σ (sigma_input): σ_fb = σ_model(x) + o with o held over the Lie
+        # derivatives (σ_fb's own rate is the spring model's), o = σ_fb − σ_model(x).
+        offset = ca.SX.sym("sigma_offset", n) if self.sigma_input else 0
         tau_a, tau_b, det, sigma, rates, qdd_model = self.outer(
-            variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G)
+            variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G, offset)
         h = ca.vertcat(*self.motor_references(q, tau_a, tau_b))      # eq. 11.3
 
         qm, qmd = ca.vertcat(qa, qb), ca.vertcat(qad, qbd)
@@ -502,13 +539,24 @@ class ElectricArm:
         z_next = []
         for name, _ in self.state_layout(variant):
             if name in rates:
-                z_next.append(Z[name] + dt * rates[name])
+                nxt = Z[name] + dt * rates[name]
+                if name == "pi_m_hat" and self.projection:
+                    # Projection onto b̂ ≥ b_min (class docstring): a convex set holding
+                    # the true b, so V̇ ≤ 0 of Theorem 8 is kept (Ioannou & Sun).
+                    nxt = ca.vertcat(ca.fmax(nxt[:2 * n], G["b_min"]), nxt[2 * n:])
+                z_next.append(nxt)
             elif name == "qd_prev":
                 z_next.append(qd)
         z_next = ca.vertcat(*z_next, *filt_next) if (z_next or filt_next) else ca.SX(0, 1)
         ins = [z, x, ref, *gsyms, dt]
         names = ["z", "x", "ref", *G.keys(), "dt"]
         outs = [z_next, tau_m, q_ref, qd_ref, qdd_ref, ca.vertcat(tau_a, tau_b), sigma, det]
+        if self.sigma_input:
+            sigma_fb = ca.SX.sym("sigma_fb", n)
+            outs = ca.substitute(outs, [offset],
+                                 [sigma_fb - self.springs.stiffness(q, qa, qb)])
+            ins.insert(3, sigma_fb)
+            names.insert(3, "sigma_fb")
         return ca.Function(self.step_name(variant), ins, [ca.densify(o) for o in outs], names,
                            list(OUTPUTS), FUNCTION_OPTS)
 
@@ -733,9 +781,11 @@ def bundle_functions(model: RobotModel, *, dyn: RigidDynamics | None = None,
 
 
 def electric_arm(model: RobotModel, *, derivatives: str = "model",
-                 acceleration: str = "model") -> ElectricArm:
+                 acceleration: str = "model", projection: bool = False,
+                 sigma_input: bool = False) -> ElectricArm:
     """:class:`ElectricArm` of ``model`` (one clear error if it has no qbmove actuators)."""
-    return ElectricArm(model, derivatives=derivatives, acceleration=acceleration)
+    return ElectricArm(model, derivatives=derivatives, acceleration=acceleration,
+                       projection=projection, sigma_input=sigma_input)
 
 
 def _spring_pair_torques(arm: ElectricArm, tau, sigma) -> tuple[np.ndarray, np.ndarray]:
@@ -853,3 +903,134 @@ def run_closed_loop(arm: ElectricArm, variant: str, loop, *, x0, z0, ref, gains:
     tr["z"] = np.concatenate(Z, axis=1)[:, :K].T
     tr["t"] = dt * np.arange(K)
     return tr
+
+
+# -- blocks (issue 10's architecture) ----------------------------------------------------------
+
+def cascade_block(arm: ElectricArm, variant: str, dt: float, *, gains: dict | None = None,
+                  name: str = "ctrl") -> Block:
+    """The cascade ``variant`` of ``arm`` (its derivative route) as a diagram block.
+
+    Inputs ``x`` (6n measured plant state q, q̇, q_a, q̇_a, q_b, q̇_b) and ``ref`` (9n,
+    :data:`REFERENCE_BLOCKS`); outputs :data:`OUTPUTS` but ``z_next`` (``tau_m`` is the
+    plant's input), and the state parts of :meth:`ElectricArm.state_layout` (``xi``,
+    ``pi_hat``, ``pi_m_hat``, …) at the sample. The gains of
+    :meth:`ElectricArm.gain_layout` are parameters; ``gains`` (checked by
+    :func:`check_gains`: one ValueError naming a gain that is not positive definite)
+    become their defaults, and every value given to the driver later is checked again
+    (rule "positive").
+    """
+    f = arm.step_fun(variant)
+    layout = arm.gain_layout(variant)
+    names = [g for g, _ in layout]
+    p0 = dict(zip(names, check_gains(layout, gains, dt=dt))) if gains is not None else None
+    return Block.wrap(name, f, dt=dt, state={"z": "z_next"},
+                      state_parts={"z": arm.state_layout(variant)}, params=names,
+                      constants={"dt": dt}, p0=p0, rules={g: "positive" for g in names},
+                      doc=f"chapter-11 cascade {variant}: {VARIANTS[variant]}",
+                      meta={"model": arm.name, "variant": variant})
+
+
+def plant_block(arm: ElectricArm, dt: float, *, substeps: int = 1, name: str = "plant"
+                ) -> Block:
+    """The arm with its electric VSAs (eq. 11.1a-d) over one sample, motor torques held.
+
+    :func:`~softgen.symbolic.actuated.electric_plant_fun` (``substeps`` RK4 steps per
+    sample). State ``q, qd, qa, qad, qb, qbd`` (n each); input ``tau_m`` (2n: τ_a of
+    every joint, then τ_b); parameter ``spring_scale`` (2n, factor on each spring's k;
+    1 = the model's). Outputs, at the sample: the state, ``x`` (the same six stacked,
+    the cascade's measurement), ``sigma`` (n, the plant's stiffness, eq. 11.1b's σ with
+    the scaled springs) and ``tau_e`` (2n, the spring torques τ^e_a, τ^e_b). No link
+    damping: section 11.2 prints none and the closed loop needs none (NOTES item 16
+    concerns the open-loop torques of section 6.2.3).
+    """
+    n = arm.n
+    f = electric_plant_fun(arm.dyn, arm.springs, substeps=substeps)
+    parts = ("q", "qd", "qa", "qad", "qb", "qbd")
+    s = arm.springs
+
+    def body(x, u, p):
+        xv = ca.vertcat(*[x[k] for k in parts])
+        xn = f(xv, u["tau_m"], p["spring_scale"], dt)
+        sc_a, sc_b = p["spring_scale"][:n], p["spring_scale"][n:]
+        ta = s.spring_torque(x["q"] - x["qa"], "a", sc_a)
+        tb = s.spring_torque(x["q"] - x["qb"], "b", sc_b)
+        sig = s.stiffness(x["q"], x["qa"], x["qb"], sc_a, sc_b)
+        y = {k: x[k] for k in parts}
+        y.update(x=xv, sigma=sig, tau_e=ca.vertcat(ta, tb))
+        return {k: xn[i * n:(i + 1) * n] for i, k in enumerate(parts)}, y
+
+    units = ("rad", "rad/s", "rad", "rad/s", "rad", "rad/s")
+    return Block.define(name, dt=dt, state=[(k, n, u) for k, u in zip(parts, units)],
+                        inputs=[("tau_m", 2 * n, "N m")],
+                        outputs=[(k, n, u) for k, u in zip(parts, units)]
+                        + [("x", 6 * n, ""), ("sigma", n, "N m/rad"), ("tau_e", 2 * n, "N m")],
+                        params=[("spring_scale", 2 * n, "")], p0={"spring_scale": 1.0},
+                        rules={"spring_scale": "positive"}, body=body,
+                        doc="two-link arm with electric VSAs (eq. 11.1), RK4, torques held",
+                        meta={"model": arm.name})
+
+
+def reference_block(q_spec=None, sigma_spec=None, *, name: str = "ref") -> Block:
+    """Section 11.2's references as a block reading ``t``, with exact derivatives.
+
+    q_{d,i} = o + A sin(ωt) and σ_{d,i} likewise, one (offset, amplitude, ω) per joint
+    (defaults: q_d = 1 + 0.5 sin(πt/10) on both joints, σ_1d = 8 + 3 sin(πt/8),
+    σ_2d = 4 + sin(πt/8)). Outputs ``ref`` (9n, :data:`REFERENCE_BLOCKS`: q_d and four
+    derivatives, σ_d and three), and ``q_d``, ``sigma_d`` alone.
+    """
+    from .electric_refs import THESIS_Q, THESIS_SIGMA
+    q_spec = THESIS_Q if q_spec is None else q_spec
+    sigma_spec = THESIS_SIGMA if sigma_spec is None else sigma_spec
+    n = len(q_spec)
+    if len(sigma_spec) != n:
+        raise ValueError(f"sigma_spec: expected {n} joints like q_spec, got {len(sigma_spec)}")
+
+    def derivs(t, spec, order):
+        o, a, w = (ca.DM([float(s[i]) for s in spec]) for i in range(3))
+        out = [o + a * ca.sin(w * t)]
+        for k in range(1, order + 1):        # A ω^k sin(ωt + kπ/2)
+            out.append(a * w ** k * ca.sin(w * t + k * np.pi / 2))
+        return out
+
+    def body(x, u, p):
+        rows = derivs(u["t"], q_spec, 4) + derivs(u["t"], sigma_spec, 3)
+        return {}, {"ref": ca.vertcat(*rows), "q_d": rows[0], "sigma_d": rows[5]}
+
+    return Block.define(name, dt=None, inputs={"t": 1},
+                        outputs=[("ref", 9 * n, ""), ("q_d", n, "rad"),
+                                 ("sigma_d", n, "N m/rad")],
+                        body=body, doc="section 11.2 sinusoidal references")
+
+
+# -- closing the stiffness loop with an estimator (issue 12, item 3) ---------------------------
+
+def sigma_feedback_block(n: int, delay: int, *, name: str = "sw") -> Block:
+    """The σ a cascade with ``sigma_input`` feeds back (a selector, parameters only).
+
+    Inputs ``sigma`` (the plant's), ``sigma_inv``, ``sigma_non`` (two estimates, e.g.
+    ``sigma_hat`` of :meth:`softgen.estimation.estimators.EstimatorBase.block`); output
+    ``sigma_fb``: the plant's σ before ``t_on`` or while ``source`` = 0; after ``t_on``
+    the invasive (``source`` = 1) or non-invasive (2) estimate, or the plant's σ delayed
+    by ``delay`` samples (3: what an estimator's delay alone costs). ``t`` is read. The
+    estimates are held one sample (state ``held``): an estimator whose input is the
+    motor torque the cascade computes from ``sigma_fb`` would otherwise close an
+    algebraic loop. An estimate for sample k − L thus reaches the cascade at k + 1.
+    """
+    d = int(delay)
+
+    def body(x, u, p):
+        late = x["line"][:n]
+        held_inv, held_non = x["held"][:n], x["held"][n:]
+        src, on = p["source"], u["t"] >= p["t_on"]
+        est = ca.if_else(src == 1, held_inv, ca.if_else(src == 2, held_non, late))
+        out = ca.if_else(ca.logic_and(on, src > 0), est, u["sigma"])
+        return ({"line": ca.vertcat(x["line"][n:], u["sigma"]),
+                 "held": ca.vertcat(u["sigma_inv"], u["sigma_non"])}, {"sigma_fb": out})
+
+    return Block.define(name, dt=None, state=[("line", d * n), ("held", 2 * n)],
+                        inputs=[("t", 1, "s"), ("sigma", n, "N m/rad"),
+                                ("sigma_inv", n, "N m/rad"), ("sigma_non", n, "N m/rad")],
+                        outputs=[("sigma_fb", n, "N m/rad")],
+                        params=[("source", 1, ""), ("t_on", 1, "s")], body=body,
+                        doc="fed-back stiffness selector")

@@ -111,3 +111,42 @@ def thesis_run(arm, variant: str, *, duration: float = 40.0, dt: float = 1e-3,
         bad = np.flatnonzero(~np.all(np.isfinite(tr["x"]), axis=1))
         out["first_nonfinite_time"] = float(tr["t"][bad[0]])
     return out
+
+
+def cascade_figure(path, tr, title: str) -> None:
+    """Fig. 11.2-11.5's quantities of one run: link angles, stiffness, motor angles with
+    their references and motor torques per joint (``tr``: a trace of the blocks of
+    :mod:`softgen.control.electric` named ``ref``, ``ctrl``, ``plant``); adaptive runs add
+    π̂/π and b̂/b."""
+    from matplotlib.figure import Figure
+    t, n = tr.t, tr["plant.q"].shape[1]
+    adaptive = "ctrl.pi_hat" in tr.signals
+    fig = Figure(figsize=(11, 12 if adaptive else 10))
+    ax = fig.subplots(5 if adaptive else 4, 2, sharex=True)
+    qm = np.hstack([tr["plant.qa"], tr["plant.qb"]])
+    for i in range(n):
+        ax[0, i].plot(t, tr["ref.q_d"][:, i], "k--", lw=1, label="q_d")
+        ax[0, i].plot(t, tr["plant.q"][:, i], lw=1, label="q")
+        ax[0, i].set_ylabel(f"q{i + 1} [rad]")
+        ax[1, i].plot(t, tr["ref.sigma_d"][:, i], "k--", lw=1, label="σ_d")
+        ax[1, i].plot(t, tr["plant.sigma"][:, i], lw=1, label="σ")
+        ax[1, i].set_ylabel(f"σ{i + 1} [N m/rad]")
+        for s, col in (("a", i), ("b", n + i)):
+            ax[2, i].plot(t, tr["ctrl.q_m_ref"][:, col], "k--", lw=0.8)
+            ax[2, i].plot(t, qm[:, col], lw=1, label=f"q{i + 1}{s}")
+            ax[3, i].plot(t, tr["ctrl.tau_m"][:, col], lw=1, label=f"τ{i + 1}{s}")
+        ax[2, i].set_ylabel("motor angle [rad] (-- ref)")
+        ax[3, i].set_ylabel("motor torque [N m]")
+        for a in ax[:4, i]:
+            a.legend(loc="upper right", fontsize=7)
+    if adaptive:
+        pi, pm = tr.meta["parameter_nominal"], tr.meta["motor_parameter_nominal"]
+        ax[4, 0].plot(t, tr["ctrl.pi_hat"] / pi, lw=1)
+        ax[4, 0].set_ylabel("π̂ / π (link)")
+        ax[4, 1].plot(t, tr["ctrl.pi_m_hat"][:, :2 * n] / pm[:2 * n], lw=1)
+        ax[4, 1].set_ylabel("b̂ / b (motors)")
+    for a in ax[-1]:
+        a.set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)

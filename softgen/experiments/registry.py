@@ -32,6 +32,9 @@ _MODULES = {
     "ch10-feedback-linearization": ".ch10_feedback_linearization",
     "ch10-gioste-1dof": ".ch10_gioste:EXPERIMENT_1DOF",
     "ch10-gioste-2dof": ".ch10_gioste:EXPERIMENT_2DOF",
+    "ch11-electric-pd": ".ch11_electric:EXPERIMENT_PD",
+    "ch11-electric-adaptive": ".ch11_electric:EXPERIMENT_ADAPTIVE",
+    "ext-estimated-stiffness-feedback": ".ext_estimated_stiffness",
 }
 
 
