@@ -125,6 +125,16 @@ def test_generated_loop_equals_python_steps():
                                atol=1e-12)
 
 
+@pytest.mark.parametrize("chunk", [1, 7])
+def test_any_chunk_size_gives_the_same_run(chunk):
+    d = loop()
+    N = 40
+    noise = np.random.default_rng(1).standard_normal((N, 1)) * 1e-2
+    ref = simulate(d, steps=N, externals={"noise": noise}, chunk=N)
+    tr = simulate(d, steps=N, externals={"noise": noise}, chunk=chunk)
+    np.testing.assert_allclose(tr["plant.q"], ref["plant.q"], rtol=0, atol=1e-14)
+
+
 def test_continuing_a_run_equals_one_run():
     d = loop()
     N = 300

@@ -195,6 +195,9 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
     loop = next(iter(diagram.compiled[key].values()))
     ins, outs = loop.inputs, loop.outputs
     ins[1][:] = P
+    # One-column buffers are 1-D in the runtime: view them as (rows × chunk), no copy.
+    e_buf = ins[3].reshape(diagram.externals.size, chunk, order="F") if E is not None else None
+    x_buf = outs[0].reshape(diagram.state.size, chunk, order="F")
     # Samples × signals in C order is the generated function's column-major
     # (signals × samples) layout: each chunk writes straight into the trace, so nothing
     # is copied and no memory is touched twice.
@@ -214,13 +217,13 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
         ins[0][:] = X
         ins[2][0] = k0 + n_done
         if E is not None:
-            ins[3][:, :n] = E[:, n_done:n_done + n]
+            e_buf[:, :n] = E[:, n_done:n_done + n]
             if n < chunk:
-                ins[3][:, n:] = E[:, n_done + n - 1:n_done + n]
+                e_buf[:, n:] = E[:, n_done + n - 1:n_done + n]
         block = Y[n_done:n_done + chunk]
         loop.bind_output(1, block)
         loop.call()
-        Xc, Yc = outs[0][:, :n], block[:n].T
+        Xc, Yc = x_buf[:, :n], block[:n].T
         # One reduction finds out whether anything is non-finite (a NaN or an infinity
         # makes the sum non-finite); only then is the chunk searched.
         bad = None if np.isfinite(np.add.reduce(Yc, axis=None) + np.add.reduce(Xc, axis=None)) \
