@@ -174,7 +174,7 @@ def bench_model(name: str, *, calls: int = 200_000) -> dict:
         extra = [hand[1]] if hand is not None and hand[1].is_file() else []
         # The harness links to the library just built (one compile per bundle), and
         # times a hand-written reference, if any, interleaved with the generated code.
-        per_call = time_in_c(bundle_dir / f"{name}.c", names + [hand[0]] * bool(extra),
+        per_call = time_in_c(bundle_dir / f"{name}.c", names + ([hand[0]] if extra else []),
                              calls=calls, extra_sources=extra, library=lib)
         if extra:
             ref = per_call.pop(hand[0])
