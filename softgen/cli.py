@@ -144,7 +144,7 @@ def _cmd_info(args) -> int:
 
 
 def _cmd_reproduce(args) -> int:
-    from .experiments.runner import reproduce
+    from .reproduce import reproduce
     if args.jobs is not None and args.jobs < 1:
         raise SoftgenError(f"reproduce: --jobs: expected a positive integer, got {args.jobs}")
     out = _output_dir(args.out, "--out")

@@ -12,7 +12,7 @@ import re
 import numpy as np
 import pytest
 
-from softgen.experiments import runner
+from softgen import reproduce as runner
 from softgen.experiments.registry import VERDICTS, Experiment, finding, get, num
 from softgen.report import write_report
 

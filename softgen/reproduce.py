@@ -27,15 +27,18 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import TextIO
 
-from ..errors import Interrupted
-from ..report import write_report
-from ..runtime.simulate import progress_context, set_full_traces, set_progress
-from .registry import VERDICTS, Config, Experiment, Metrics, experiment_ids, finding, get
+from .errors import Interrupted
+from .paths import GENERATED_DIR, MODELS_DIR
+from .report import write_report
+from .runtime.simulate import progress_context, set_full_traces, set_progress
+from .config import Config
+from .experiments.registry import Experiment, experiment_ids, get
+from .metrics import VERDICTS, Metrics, finding
 
 #: Seconds to wait for killed workers before giving up on them.
 STOP_GRACE = 10.0
 
-_PACKAGE = Path(__file__).resolve().parent.parent
+_PACKAGE = Path(__file__).resolve().parent
 
 
 def code_hash() -> str:
@@ -43,11 +46,12 @@ def code_hash() -> str:
     import casadi
     import numpy
     h = hashlib.sha256(f"casadi={casadi.__version__} numpy={numpy.__version__}\n".encode())
-    root = _PACKAGE.parent
-    files = sorted(_PACKAGE.rglob("*.py")) + sorted((root / "models").glob("*.toml")) \
-        + sorted((root / "generated").glob("*/manifest.json"))
-    for f in files:
-        h.update(str(f.relative_to(root)).encode() + b"\0")
+    named = [(f"softgen/{f.relative_to(_PACKAGE)}", f) for f in sorted(_PACKAGE.rglob("*.py"))]
+    named += [(f"models/{f.name}", f) for f in sorted(MODELS_DIR.glob("*.toml"))]
+    named += [(f"generated/{f.parent.name}/{f.name}", f)
+              for f in sorted(GENERATED_DIR.glob("*/manifest.json"))]
+    for name, f in named:
+        h.update(name.encode() + b"\0")
         h.update(f.read_bytes() + b"\0")
     return h.hexdigest()
 
