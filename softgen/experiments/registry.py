@@ -32,6 +32,9 @@ _MODULES = {
     "ch10-feedback-linearization": ".ch10_feedback_linearization",
     "ch10-gioste-1dof": ".ch10_gioste:EXPERIMENT_1DOF",
     "ch10-gioste-2dof": ".ch10_gioste:EXPERIMENT_2DOF",
+    "ch12-planar-pcc": ".ch12_soft:EXPERIMENT_PLANAR",
+    "ch12-affine-pendulum": ".ch12_soft:EXPERIMENT_PENDULUM",
+    "ch12-3d-pcc": ".ch12_soft:EXPERIMENT_3D",
 }
 
 
