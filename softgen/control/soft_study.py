@@ -180,7 +180,7 @@ def scenario_figure(t, q_d, q, pi_hat, tau, shapes, *, title: str, unit: str,
         if t_on is not None and t_on < t[-1]:
             a.axvline(t_on, color="0.6", lw=0.8, ls=":")
     for j, P in enumerate(shapes):
-        shade = str(0.8 - 0.8 * j / max(k - 1, 1))
+        shade = f"{max(0.0, 0.8 * (1 - j / max(k - 1, 1))):.3f}"
         if three_d:
             ax_s.plot(P[:, 0], P[:, 1], P[:, 2], color=shade, lw=1.2)
         else:
