@@ -73,6 +73,7 @@ class PlanarConfig(Config):
     convergence_band: float = 0.05       # rad, for convergence_time
     initial_window: float = 5.0          # s, for position_rms_error_initial
     shapes: int = 9
+    shape_window: float = 2 * PI         # s: one period of the references, at the end
 
     def validate(self) -> None:
         if self.duration <= self.metric_window:
@@ -110,6 +111,7 @@ class PendulumConfig(Config):
     convergence_band: float = 0.05
     initial_window: float = 5.0
     shapes: int = 9
+    shape_window: float = 0.0            # the whole run: the way up
 
     def validate(self) -> None:
         if self.duration <= self.metric_window:
@@ -151,6 +153,7 @@ class Soft3DConfig(Config):
     convergence_band: float = 0.02       # m
     initial_window: float = 5.0
     shapes: int = 7
+    shape_window: float = 2 * PI
     full_run_cost: str = ("~4 s derivation, ~40 s C compilation of the diagram on a cold "
                           "cache, ~4-5 s per 100 s scenario (measured on 2 shared cores)")
 
@@ -187,7 +190,9 @@ def _run(loop: SoftLoop, scenarios: list[Scenario], c, out: Path, label: str,
         m.extend(tracking_records(tr.t, q_d, q, pi_hat, tau, unit=unit, window=c.metric_window,
                                   band=c.convergence_band, initial=c.initial_window,
                                   suffix=sc.suffix.lstrip("_")))
-        rows = np.linspace(0, len(tr.t) - 1, c.shapes).astype(int)
+        # Shape trace: ``shapes`` instants over the last ``shape_window`` s (0: the run).
+        t0 = tr.t[-1] - c.shape_window if c.shape_window > 0 else tr.t[0]
+        rows = np.searchsorted(tr.t, np.linspace(max(t0, tr.t[0]), tr.t[-1], c.shapes))
         fig = scenario_figure(tr.t, q_d, q, pi_hat, tau, shape_trace(loop.dyn, q[rows]),
                               title=f"{label}{sc.suffix}: Λ = {sc.lam:g}, K_d = {sc.kd:g}, "
                                     f"K_π = {sc.kpi:g}, noise σ = {sc.noise_std:g}, "
