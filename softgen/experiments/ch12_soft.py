@@ -155,9 +155,9 @@ class Soft3DConfig(Config):
     shapes: int = 7
     shape_window: float = 2 * PI
     full_run_cost: str = (
-        "measured on 2 shared cores: 48.6 s wall for the full run on a cold build cache "
-        "(derivation ~4 s, C compilation of the 56k-instruction diagram, 3 scenarios of "
-        "100 s at 34x real time), beside the other two experiments; --quick 9.5 s")
+        "measured on 2 shared cores: 24.1 s wall for the full run on a cold build cache "
+        "(derivation ~4 s, C compilation of the 47k-instruction diagram, 3 scenarios of "
+        "100 s at 78x real time), beside the other two experiments")
 
     def validate(self) -> None:
         if not self.metric_window < self.t_disturbance < self.duration:
