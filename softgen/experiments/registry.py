@@ -34,6 +34,9 @@ _MODULES = {
     "ch10-gioste-2dof": ".ch10_gioste:EXPERIMENT_2DOF",
     "ch11-electric-pd": ".ch11_electric:EXPERIMENT_PD",
     "ch11-electric-adaptive": ".ch11_electric:EXPERIMENT_ADAPTIVE",
+    "ch12-planar-pcc": ".ch12_soft:EXPERIMENT_PLANAR",
+    "ch12-affine-pendulum": ".ch12_soft:EXPERIMENT_PENDULUM",
+    "ch12-3d-pcc": ".ch12_soft:EXPERIMENT_3D",
     "ext-estimated-stiffness-feedback": ".ext_estimated_stiffness",
 }
 

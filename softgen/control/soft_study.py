@@ -1,0 +1,202 @@
+"""The simulation studies of thesis §12.2 as reusable pieces: loops, scenarios, records, figures.
+
+A :class:`SoftLoop` is a closed-loop diagram of Theorem 10 on a soft robot
+(references → controller → plant, a disturbance-force block, pre-generated
+measurement noise as the external input ``noise``) together with the names of its
+signals, so that every study reads q, π̂ and τ the same way whether the loop is
+the continuous-time block of the stiff lumped-mass models
+(:func:`tracking_loop`) or the sampled controller and plant of the affine
+pendulum (:func:`sampled_loop`). A :class:`Scenario` is one run of §12.2: gains,
+noise, disturbance, initial error. The driver is :func:`softgen.runtime.simulate`;
+this module builds inputs and reads traces, it never steps time itself.
+
+Records (:func:`tracking_records`), with e(t) = q_d(t) − q(t) the configuration
+error (rad, or m for pcc-3d) of the true state:
+
+- ``position_rms_error``: rms of ‖e(t)‖₂ over the last ``window`` seconds;
+- ``position_max_error_final``: max of ‖e(t)‖₂ over the same window;
+- ``parameter_estimate_max_norm``: max over the run of ‖π̂(t)‖₂;
+- ``input_max_abs``: max over the run and the actuators of |τ_i(t)|;
+- ``convergence_time``: the first time after which ‖e‖ stays below ``band``;
+- ``position_rms_error_initial``: rms of ‖e‖ over the first ``initial`` seconds.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from ..blocks import Block, ClosedLoop
+from ..metrics import Metrics
+from ..symbolic.pcc import LinearRoute, SoftDynamics
+from .soft import (backbone_samples, closed_loop_block, controller_block, plant_block,
+                   tip_force_block)
+
+
+@dataclass(frozen=True)
+class SoftLoop:
+    """A §12.2 diagram and where its signals live.
+
+    ``plant`` is the block holding the true ``q``/``qd``, ``ctrl`` the block holding
+    ``pi_hat``, ``tau`` and the gains ``lam``, ``kd``, ``kpi``; the reference block is
+    ``ref`` and the disturbance ``dist``.
+    """
+
+    diagram: ClosedLoop
+    dyn: SoftDynamics
+    plant: str
+    ctrl: str
+    r: int
+
+    @property
+    def record(self) -> tuple[str, ...]:
+        return ("ref.q_d", f"{self.plant}.q", f"{self.ctrl}.tau", f"{self.ctrl}.pi_hat")
+
+    def params(self, sc: Scenario) -> dict:
+        return {f"{self.ctrl}.lam": sc.lam, f"{self.ctrl}.kd": sc.kd,
+                f"{self.ctrl}.kpi": sc.kpi, "dist.force": sc.force, "dist.t_on": sc.t_on}
+
+    def x0(self, q0, qd0) -> dict:
+        return {f"{self.plant}.q": q0, f"{self.plant}.qd": qd0}
+
+
+def tracking_loop(name: str, dyn: SoftDynamics, ref: Block, dt: float,
+                  lin: LinearRoute | None = None) -> SoftLoop:
+    """References ``ref`` → continuous-time Theorem 10 + plant (one ROS2 step per sample),
+    tip forces from ``dist``, noise from ``ext.noise`` (planar and 3D PCC)."""
+    lin = LinearRoute(dyn) if lin is None else lin
+    n = dyn.model.dof
+    d = ClosedLoop(name, [ref, tip_force_block("dist", dyn.model.n_segments),
+                          closed_loop_block(dyn, dt, lin=lin)], externals={"noise": 2 * n})
+    return SoftLoop(d, dyn, "loop", "loop", lin.r)
+
+
+def sampled_loop(name: str, dyn: SoftDynamics, ref: Block, dt: float,
+                 lin: LinearRoute | None = None) -> SoftLoop:
+    """References → sampled Theorem 10 (τ held) → plant (ROS2), the controller reading
+    the noisy measurement ``plant.q_meas``/``qd_meas`` (the affine pendulum)."""
+    lin = LinearRoute(dyn) if lin is None else lin
+    n = dyn.model.dof
+    d = ClosedLoop(name, [ref, tip_force_block("dist", dyn.model.n_segments),
+                          controller_block(dyn, dt, lin=lin), plant_block(dyn, dt)],
+                   [("plant.q_meas", "ctrl.q"), ("plant.qd_meas", "ctrl.qd")],
+                   externals={"noise": 2 * n})
+    return SoftLoop(d, dyn, "plant", "ctrl", lin.r)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One run: name suffix, gains (scalars: Λ = λI, K_d = k_d I, K_π = k_π I), noise
+    standard deviation (0: ideal sensing), tip force (3 per tip) from ``t_on``, and the
+    initial tracking error e(0) = q_d(0) − q(0)."""
+
+    suffix: str
+    lam: float
+    kd: float
+    kpi: float
+    noise_std: float
+    force: tuple[float, ...]
+    t_on: float
+    initial_error: tuple[float, ...]
+
+
+def noise_sequence(steps: int, n: int, std: float, seed: int, *,
+                   on_velocity: bool = True) -> np.ndarray:
+    """Seeded Gaussian measurement noise (steps × 2n) for (q, q̇); zeros where std = 0."""
+    if std == 0:
+        return np.zeros((steps, 2 * n))
+    e = np.random.default_rng(seed).normal(0.0, std, (steps, 2 * n))
+    if not on_velocity:
+        e[:, n:] = 0.0
+    return e
+
+
+def tip_forces(magnitude: float, direction, n_segments: int) -> tuple[float, ...]:
+    """The same force, ``magnitude`` along the unit ``direction``, on every tip."""
+    d = np.asarray(direction, dtype=float)
+    return tuple(np.tile(magnitude * d / np.linalg.norm(d), n_segments).tolist())
+
+
+def convergence_time(t: np.ndarray, err: np.ndarray, band: float) -> float:
+    """First time after which ``err`` stays below ``band`` (inf if it ends above)."""
+    above = np.flatnonzero(err >= band)
+    if not above.size:
+        return float(t[0])
+    if above[-1] == len(t) - 1:
+        return float("inf")
+    return float(t[above[-1] + 1])
+
+
+def tracking_records(t, q_d, q, pi_hat, tau, *, unit: str, window: float, band: float,
+                     initial: float, suffix: str = "") -> Metrics:
+    """The §12.2 records of one scenario (module docstring)."""
+    e = np.linalg.norm(q_d - q, axis=1)
+    last = t >= t[-1] - window
+    first = t <= t[0] + initial
+    m = Metrics()
+    m.add("position_rms_error", np.sqrt(np.mean(e[last] ** 2)), unit, suffix=suffix)
+    m.add("position_max_error_final", e[last].max(), unit, suffix=suffix)
+    m.add("parameter_estimate_max_norm", np.linalg.norm(pi_hat, axis=1).max(), "",
+          suffix=suffix)
+    m.add("input_max_abs", np.abs(tau).max(), "N m, N" if unit == "m" else "N m",
+          suffix=suffix)
+    m.add("convergence_time", convergence_time(t, e, band), "s", suffix=suffix)
+    m.add("position_rms_error_initial", np.sqrt(np.mean(e[first] ** 2)), unit, suffix=suffix)
+    return m
+
+
+def shape_trace(dyn: SoftDynamics, Q: np.ndarray, per_segment: int = 8) -> np.ndarray:
+    """Backbone points (len(Q) × points × 3) of the configurations ``Q`` (rows)."""
+    return backbone_samples(dyn.backbone_fun(), Q, dyn.model.n_segments, per_segment)
+
+
+def scenario_figure(t, q_d, q, pi_hat, tau, shapes, *, title: str, unit: str,
+                    three_d: bool = False, t_on: float | None = None) -> Figure:
+    """Two rows like Fig. 12.2-12.7: configuration and reference (dashed), errors
+    θ̃ = q_d − q, estimates π̂; inputs τ, ‖θ̃‖ (log), shape trace (backbone drawn at
+    several instants, darker = later; 3D axes for pcc-3d)."""
+    k = max(1, len(t) // 4000)           # enough points for a figure
+    t, q_d, q, pi_hat, tau = (a[::k] for a in (t, q_d, q, pi_hat, tau))
+    fig = Figure(figsize=(14, 8))
+    axs = [fig.add_subplot(2, 3, k) for k in range(1, 6)]
+    ax_s = fig.add_subplot(2, 3, 6, projection="3d" if three_d else None)
+    colors = [f"C{i % 10}" for i in range(q.shape[1])]
+    k = len(shapes)
+    for i in range(q.shape[1]):
+        axs[0].plot(t, q[:, i], lw=0.9, color=colors[i])
+        axs[0].plot(t, q_d[:, i], "--", lw=0.8, color=colors[i])
+        axs[1].plot(t, q_d[:, i] - q[:, i], lw=0.8, color=colors[i])
+    axs[0].set_ylabel(f"q, q_d [{unit}]")
+    axs[1].set_ylabel(f"q_d - q [{unit}]")
+    axs[2].plot(t, pi_hat, lw=0.7)
+    axs[2].set_ylabel("pi_hat (base parameters)")
+    axs[3].plot(t, tau, lw=0.7)
+    axs[3].set_ylabel("tau [N m" + (", N]" if unit == "m" else "]"))
+    axs[4].semilogy(t, np.maximum(np.linalg.norm(q_d - q, axis=1), 1e-12), lw=0.8, color="k")
+    axs[4].set_ylabel(f"||q_d - q|| [{unit}]")
+    for a in axs:
+        a.set_xlabel("t [s]")
+        if t_on is not None and t_on < t[-1]:
+            a.axvline(t_on, color="0.6", lw=0.8, ls=":")
+    for j, P in enumerate(shapes):
+        shade = f"{max(0.0, 0.8 * (1 - j / max(k - 1, 1))):.3f}"
+        if three_d:
+            ax_s.plot(P[:, 0], P[:, 1], P[:, 2], color=shade, lw=1.2)
+        else:
+            ax_s.plot(P[:, 0], P[:, 1], color=shade, lw=1.2)
+    ax_s.set_xlabel("x [m]")
+    ax_s.set_ylabel("y [m]")
+    if three_d:
+        ax_s.set_zlabel("z [m]")
+    else:
+        ax_s.set_aspect("equal", adjustable="datalim")
+    ax_s.set_title("shape trace (darker = later)", fontsize=9)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+__all__ = ["SoftLoop", "Scenario", "tracking_loop", "sampled_loop", "noise_sequence",
+           "tip_forces", "convergence_time", "tracking_records", "shape_trace",
+           "scenario_figure"]
