@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..estimation.indices import mse, msrep
+from ..runtime.simulate import save_traces
 from ..model import load_model
 from ..plants.qbmove import polynomial_fit_stiffness, run_figure
 from ..symbolic.actuators import QbmoveSprings
@@ -111,7 +112,7 @@ def _run(c: ElectricInvasiveConfig, out, beta, pre: str) -> Metrics:
     m.add("metric_window_end", t[mask][-1], "s")
     run_figure(out / f"{pre}inputs_deflections_links.png", t, U, phi, tr["plant.q"],
                title=f"open-loop run, link damping {beta or 0:g} N m s/rad (cf. Fig. 6.5)")
-    np.savez_compressed(out / f"{pre}traces.npz", t=t, tau_motor=U, tau_e=truth.tau_e,
+    save_traces(out / f"{pre}traces.npz", t=t, tau_motor=U, tau_e=truth.tau_e,
                         sigma=truth.sigma, sigma_hat=res.sigma_hat, tau_hat=res.tau_hat,
                         tau_uio=res.tau_uio, **{f"x_{s}": tr[f"plant.{s}"] for s in
                                                 ("q", "qd", "qa", "qad", "qb", "qbd")},

@@ -35,6 +35,7 @@ import numpy as np
 
 from ..estimation.indices import excitation_records, mse, msrep
 from ..estimation.rls import excitation_std
+from ..runtime.simulate import save_traces
 from ..model import load_model
 from ..plants.qbmove import (motor_references, phase_index, phased_references,
                              protocol_figure, servo_initial_state)
@@ -130,7 +131,7 @@ def run(c: ElectricProtocolConfig, out) -> Metrics:
                         updating={k: traces[f"dof{dof}_{k}_updating"] for k in ests})
     m.add("metric_window_start", t[mask][0], "s")
     m.add("metric_window_end", t[mask][-1], "s")
-    np.savez_compressed(out / "traces.npz", t=t, **traces)
+    save_traces(out / "traces.npz", t=t, **traces)
     return m
 
 

@@ -25,7 +25,7 @@ from ..estimation.indices import error_records, estimation_figure, mse, msrep, w
 from ..estimation.offline import estimation_result, recorded
 from ..model import load_model
 from ..plants.pneumatic import pendulum_diagram, sinusoid_reference_block, tracking_figure
-from ..runtime.simulate import simulate
+from ..runtime.simulate import simulate, save_traces
 from ..symbolic.actuators import McKibbenPairs
 from ..symbolic.rigid import RigidDynamics
 from .registry import Config, Experiment, Metrics, finding, num, times
@@ -116,7 +116,7 @@ def _run(c: PneumaticInvasiveConfig, out, *, figures: bool) -> Metrics:
     m.add("metric_window_start", t[mask][0], "s")
     m.add("metric_window_end", t[mask][-1], "s")
     if figures:
-        np.savez_compressed(out / "traces.npz", t=t, q=q[:, 0], p=p, tau_true=tau,
+        save_traces(out / "traces.npz", t=t, q=q[:, 0], p=p, tau_true=tau,
                             sigma_true=sigma, sigma_hat=res.sigma_hat, tau_hat=res.tau_hat,
                             tau_uio=res.tau_uio, theta=res.theta["joint1"])
         estimation_figure(out / "estimation.png", t, sigma, tau, res,

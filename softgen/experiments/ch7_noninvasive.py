@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..runtime.simulate import save_traces
 from ..model import load_model
 from ..plants.qbmove import (Sinusoids, motor_references, phased_references,
                              servo_initial_state)
@@ -72,7 +73,7 @@ def run(c: NoninvasiveConfig, out) -> Metrics:
                                                     ** 2)), "rad", joint=i + 1)
     m.add("metric_window_start", t[mask][0], "s")
     m.add("metric_window_end", t[mask][-1], "s")
-    np.savez_compressed(out / "traces.npz", t=t, q=tr["plant.q"], sigma=truth.sigma,
+    save_traces(out / "traces.npz", t=t, q=tr["plant.q"], sigma=truth.sigma,
                         rotatum=truth.rotatum, sigma_hat=res.sigma_hat, rotatum_hat=res.tau_hat,
                         rotatum_uio=res.tau_uio, q_d=q_d, sigma_d=sigma_d,
                         **{f"theta_{r}": v for r, v in res.theta.items()})

@@ -84,15 +84,11 @@ class Trace:
         :func:`set_full_traces`) keeps every sample in float64. ``extra`` arrays are
         stored as given. Signal names ``block.sig`` become ``block_sig``.
         """
-        full = _TRACES["full"] if full is None else full
         names = list(self.signals) if signals is None else list(signals)
-        step = 1 if full else (every or max(1, self.t.size // 20000))
-        dtype = np.float64 if full else np.float32
-        arrays = {"t": self.t[::step].astype(dtype)}
-        arrays.update({n.replace(".", "_"): self[n][::step].astype(dtype) for n in names})
+        arrays = {"t": self.t, **{n.replace(".", "_"): self[n] for n in names}}
         if self.stopped_at is not None:
-            arrays["stopped_at"] = np.array(self.stopped_at)
-        np.savez_compressed(path, **arrays, **extra)
+            extra = {"stopped_at": np.array(self.stopped_at), **extra}
+        save_traces(path, {**arrays, **extra}, every=every, full=full)
 
     @property
     def simulated_seconds(self) -> float:
@@ -111,6 +107,26 @@ _PROGRESS: dict = {"show": None, "prefix": ""}
 
 
 _TRACES = {"full": False}
+
+
+def save_traces(path, arrays: Mapping[str, np.ndarray] | None = None, *,
+                every: int | None = None, full: bool | None = None, **named) -> None:
+    """Write time series compactly (``.npz``): float32 and decimated to at most ~20,000
+    rows unless ``full`` (or :func:`set_full_traces`, ``reproduce --full-traces``).
+
+    Float arrays whose first axis is as long as the longest one are the time series;
+    anything else (names, parameters, scalars) is stored as given.
+    """
+    full = _TRACES["full"] if full is None else full
+    arrays = {**(arrays or {}), **named}
+    rows = max((np.shape(v)[0] for v in arrays.values() if np.ndim(v)), default=0)
+    step = 1 if full else (every or max(1, rows // 20000))
+    out = {}
+    for k, v in arrays.items():
+        v = np.asarray(v)
+        series = v.ndim and v.shape[0] == rows and np.issubdtype(v.dtype, np.floating)
+        out[k] = (v[::step].astype(np.float64 if full else np.float32) if series else v)
+    np.savez_compressed(path, **out)
 
 
 def set_full_traces(full: bool) -> None:
