@@ -262,15 +262,16 @@ def load_model(name_or_path: str | Path) -> RobotModel:
     return _Parser(path).parse(data)
 
 
-class _Parser:
+class FileReader:
+    """Typed readers of a model file's tables: each failure is one :class:`ModelError`
+    naming the file and the key (shared by the rigid and the soft-body parsers)."""
+
     def __init__(self, path: Path):
         self.path = path
-        self._link_names: set[str] = set()
 
     def fail(self, key: str, msg: str) -> ModelError:
         return ModelError(f"{self.path}: {key}: {msg}")
 
-    # -- small typed readers -----------------------------------------------------
     def keys(self, table: Any, where: str, allowed: set[str], required: set[str]) -> dict:
         if not isinstance(table, dict):
             raise self.fail(where, f"expected a table, got {type(table).__name__}")
@@ -306,7 +307,13 @@ class _Parser:
             raise self.fail(key, f"expected one of {', '.join(map(repr, options))}, got {v!r}")
         return v
 
-    # -- the file ----------------------------------------------------------------
+
+
+class _Parser(FileReader):
+    def __init__(self, path: Path):
+        super().__init__(path)
+        self._link_names: set[str] = set()
+
     def parse(self, data: dict) -> RobotModel:
         self.keys(data, "", _TOP_KEYS, {"model", "links"})
         meta = self.keys(data["model"], "model", _MODEL_KEYS, {"name", "kind"})

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import ModelError
+from .model import FileReader
 
 #: Kinds of soft model, and configuration variables per segment.
 SOFT_KINDS = {"pcc-planar": 1, "pcc-3d": 3, "affine-planar": 2}
@@ -133,41 +133,14 @@ def parse_soft_model(path: Path, data: dict) -> SoftModel:
     return _SoftParser(path).parse(data)
 
 
-class _SoftParser:
-    def __init__(self, path: Path):
-        self.path = path
-
-    def fail(self, key: str, msg: str) -> ModelError:
-        return ModelError(f"{self.path}: {key}: {msg}")
+class _SoftParser(FileReader):
+    """Soft-body model files; the typed readers (and their magnitude checks) are the
+    rigid parser's (:class:`softgen.model.FileReader`)."""
 
     def table(self, t: Any, where: str, allowed: set[str], required: set[str]) -> dict:
         if not isinstance(t, dict):
             raise self.fail(where or "(file)", f"expected a table, got {type(t).__name__}")
-        for k in t:
-            if k not in allowed:
-                raise self.fail(f"{where}.{k}" if where else k,
-                                f"unknown key (expected one of: {', '.join(sorted(allowed))})")
-        for k in sorted(required):
-            if k not in t:
-                raise self.fail(f"{where}.{k}" if where else k, "missing required field")
-        return t
-
-    def number(self, v: Any, key: str, *, positive=False, nonneg=False) -> float:
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.fail(key, f"expected a number, got {v!r}")
-        x = float(v)
-        if not math.isfinite(x):
-            raise self.fail(key, f"expected a finite number, got {v!r}")
-        if positive and not x > 0:
-            raise self.fail(key, f"expected a positive number, got {v!r}")
-        if nonneg and x < 0:
-            raise self.fail(key, f"expected a non-negative number, got {v!r}")
-        return x
-
-    def vector(self, v: Any, key: str, n: int) -> tuple[float, ...]:
-        if not isinstance(v, list) or len(v) != n:
-            raise self.fail(key, f"expected a list of {n} numbers, got {v!r}")
-        return tuple(self.number(x, f"{key}[{i}]") for i, x in enumerate(v))
+        return self.keys(t, where, allowed, required)
 
     def parse(self, data: dict) -> SoftModel:
         self.table(data, "", _TOP_KEYS, {"model", "segments"})

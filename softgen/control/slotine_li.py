@@ -17,6 +17,7 @@ import numpy as np
 
 from ..blocks import Block
 from ..symbolic.rigid import FUNCTION_OPTS, RigidDynamics
+from ..symbolic.actuated import rk4_steps
 
 
 def _law(dyn: RigidDynamics, pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd):
@@ -49,14 +50,6 @@ def controller_fun(dyn: RigidDynamics) -> ca.Function:
                        ["pi_hat_next", "tau"], FUNCTION_OPTS)
 
 
-def _rk4(f, x, u, h):
-    k1 = f(x, u)
-    k2 = f(x + h / 2 * k1, u)
-    k3 = f(x + h / 2 * k2, u)
-    k4 = f(x + h * k3, u)
-    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-
-
 def plant_rhs(dyn: RigidDynamics) -> ca.Function:
     """ẋ = (q̇, q̈) of the nominal model with x = (q, q̇)."""
     n = dyn.model.dof
@@ -71,7 +64,8 @@ def plant_step_fun(dyn: RigidDynamics) -> ca.Function:
     """``<model>_plant_rk4``: one classical RK4 step of length ``h`` with τ held."""
     n = dyn.model.dof
     x, tau, h = ca.SX.sym("x", 2 * n), ca.SX.sym("tau", n), ca.SX.sym("h")
-    return ca.Function(f"{dyn.name}_plant_rk4", [x, tau, h], [_rk4(plant_rhs(dyn), x, tau, h)],
+    return ca.Function(f"{dyn.name}_plant_rk4", [x, tau, h],
+                       [rk4_steps(plant_rhs(dyn), x, tau, h, 1)],
                        ["x", "tau", "h"], ["x_next"], FUNCTION_OPTS)
 
 
@@ -96,8 +90,8 @@ def closed_loop_fun(dyn: RigidDynamics, *, steps: int, substeps: int) -> ca.Func
     h = dt / substeps
     xn = x
     for _ in range(substeps):
-        xn = _rk4(rhs, xn, tau, h)
-    acc = ca.vertcat(xn, pi_hat + dt * kpi * yts)
+        xn = rk4_steps(rhs, xn, tau, h, 1)
+    acc = ca.vertcat(xn, pi_hat + dt * kpi * yts, 1)
     one = ca.Function("one_sample", [ca.vertcat(x, pi_hat), ref, lam, kd, kpi, dt], [acc, tau],
                       ["z", "ref", "lam", "kd", "kpi", "dt"], ["z_next", "tau"], FUNCTION_OPTS)
     # Only the state is accumulated; references vary per column, gains are shared.
@@ -137,10 +131,10 @@ def plant_block(dyn: RigidDynamics, dt: float, *, substeps: int = 1,
     def body(x, u, p):
         z = ca.vertcat(x["q"], x["qd"])
         for _ in range(substeps):
-            z = _rk4(rhs, z, u["tau"], dt / substeps)
+            z = rk4_steps(rhs, z, u["tau"], dt / substeps, 1)
         return {"q": z[:n], "qd": z[n:]}, {"q": x["q"], "qd": x["qd"]}
 
-    return Block.define(name, dt=dt, state=[("q", n, "rad"), ("qd", n, "rad/s")],
+    return Block.define(name, dt=dt, state=[("q", n, "rad", 1), ("qd", n, "rad/s")],
                         inputs=[("tau", n, "N m")], outputs=[("q", n, "rad"),
                                                              ("qd", n, "rad/s")],
                         body=body, doc=f"{dyn.name}, RK4 x{substeps}",

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..blocks import Block
 from ..symbolic.pcc import FUNCTION_OPTS, LinearRoute, SoftDynamics
+from ..symbolic.actuated import rk4_steps
 
 #: Inputs of ``<model>_theorem10_step``, in order.
 THEOREM10_INPUTS = ["pi_hat", "q", "qd", "q_d", "qd_d", "qdd_d", "lam", "kd", "kpi", "dt"]
@@ -83,14 +84,6 @@ def theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None) -> ca.Funct
                        [pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd, kpi, dt],
                        [pi_hat + dt * kpi * yt_s, tau, sigma],
                        THEOREM10_INPUTS, THEOREM10_OUTPUTS, FUNCTION_OPTS)
-
-
-def _rk4(f, x, u, h):
-    k1 = f(x, u)
-    k2 = f(x + h / 2 * k1, u)
-    k3 = f(x + h / 2 * k2, u)
-    k4 = f(x + h * k3, u)
-    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
 def plant_rhs(dyn: SoftDynamics) -> ca.Function:
@@ -155,8 +148,8 @@ def plant_fun(dyn: SoftDynamics, *, substeps: int = 1, method: str = "ros2") -> 
     u = ca.vertcat(tau, f_ext)
     xn = x
     for _ in range(substeps):
-        xn = _rk4(rhs, xn, u, dt / substeps) if method == "rk4" else \
-            _ros2_step(dyn, rhs, xn, u, dt / substeps)
+        xn = rk4_steps(rhs, xn, u, dt / substeps, 1) if method == "rk4" else \
+            _ros2_step(dyn, rhs, xn, u, dt / substeps, 1)
     suffix = "plant" if method == "ros2" else "plant_rk4"
     return ca.Function(f"{dyn.name}_{suffix}", [x, tau, f_ext, noise, dt], [xn, xn + noise],
                        PLANT_INPUTS, PLANT_OUTPUTS, FUNCTION_OPTS)
