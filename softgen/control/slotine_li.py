@@ -91,7 +91,7 @@ def closed_loop_fun(dyn: RigidDynamics, *, steps: int, substeps: int) -> ca.Func
     xn = x
     for _ in range(substeps):
         xn = rk4_steps(rhs, xn, tau, h, 1)
-    acc = ca.vertcat(xn, pi_hat + dt * kpi * yts, 1)
+    acc = ca.vertcat(xn, pi_hat + dt * kpi * yts)
     one = ca.Function("one_sample", [ca.vertcat(x, pi_hat), ref, lam, kd, kpi, dt], [acc, tau],
                       ["z", "ref", "lam", "kd", "kpi", "dt"], ["z_next", "tau"], FUNCTION_OPTS)
     # Only the state is accumulated; references vary per column, gains are shared.
@@ -134,7 +134,7 @@ def plant_block(dyn: RigidDynamics, dt: float, *, substeps: int = 1,
             z = rk4_steps(rhs, z, u["tau"], dt / substeps, 1)
         return {"q": z[:n], "qd": z[n:]}, {"q": x["q"], "qd": x["qd"]}
 
-    return Block.define(name, dt=dt, state=[("q", n, "rad", 1), ("qd", n, "rad/s")],
+    return Block.define(name, dt=dt, state=[("q", n, "rad"), ("qd", n, "rad/s")],
                         inputs=[("tau", n, "N m")], outputs=[("q", n, "rad"),
                                                              ("qd", n, "rad/s")],
                         body=body, doc=f"{dyn.name}, RK4 x{substeps}",

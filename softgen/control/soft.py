@@ -149,7 +149,7 @@ def plant_fun(dyn: SoftDynamics, *, substeps: int = 1, method: str = "ros2") -> 
     xn = x
     for _ in range(substeps):
         xn = rk4_steps(rhs, xn, u, dt / substeps, 1) if method == "rk4" else \
-            _ros2_step(dyn, rhs, xn, u, dt / substeps, 1)
+            _ros2_step(dyn, rhs, xn, u, dt / substeps)
     suffix = "plant" if method == "ros2" else "plant_rk4"
     return ca.Function(f"{dyn.name}_{suffix}", [x, tau, f_ext, noise, dt], [xn, xn + noise],
                        PLANT_INPUTS, PLANT_OUTPUTS, FUNCTION_OPTS)
