@@ -18,7 +18,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from .build import CFLAGS, LDLIBS, clean_orphans
+from .build import LDLIBS, cflags, clean_orphans
 
 #: Bumped whenever the generated code for the same model would change.
 CODEGEN_VERSION = "1"
@@ -43,6 +43,7 @@ class BundleSpec:
     parameters: dict = field(default_factory=lambda: {"names": [], "nominal": []})
     identity: bytes = b""          # model file bytes + options: what the hash covers
     extra: dict = field(default_factory=dict)   # extra manifest keys (e.g. "model_file")
+    optimization: str = "-O3"      # compiler level; recorded in the manifest when not -O3
 
 
 def content_hash(identity: bytes) -> str:
@@ -53,13 +54,13 @@ def content_hash(identity: bytes) -> str:
     return h.hexdigest()
 
 
-def library_name(name: str, c_source: bytes) -> str:
+def library_name(name: str, c_source: bytes, optimization: str = "-O3") -> str:
     """Relative path of the compiled library.
 
     Its name carries the hash of exactly what it is built from (the C source and
     the compiler flags), so a library built from anything else is never loaded.
     """
-    h = hashlib.sha256(c_source + " ".join(CFLAGS + LDLIBS).encode()).hexdigest()
+    h = hashlib.sha256(c_source + " ".join(cflags(optimization) + LDLIBS).encode()).hexdigest()
     return f"build/lib{name}_{h[:16]}.so"
 
 
@@ -120,7 +121,7 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         "hash": digest,
         "casadi_version": ca.__version__,
         "softgen_codegen_version": CODEGEN_VERSION,
-        "library": library_name(spec.name, c_src),
+        "library": library_name(spec.name, c_src, spec.optimization),
         "source_sha256": hashlib.sha256(c_src).hexdigest(),
         "parameters": spec.parameters,
         "functions": {
@@ -130,6 +131,8 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
             for g in spec.functions
         },
         **spec.extra,
+        # Only when not the default: model bundles' manifests stay byte-identical.
+        **({"optimization": spec.optimization} if spec.optimization != "-O3" else {}),
     }
     try:   # strict JSON: a non-finite number is an error here, never "Infinity" on disk
         text = json.dumps(manifest, indent=2, sort_keys=False, allow_nan=False) + "\n"

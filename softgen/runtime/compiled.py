@@ -45,7 +45,9 @@ def compile_functions(name: str, functions: list[ca.Function], *,
             _warned = True
         return {f.name(): BundleFunction(f, signature(f)) for f in functions}
     docs = docs or {}
-    spec = BundleSpec(name=name, functions=[Generated(f, docs.get(f.name(), "")) for f in functions])
+    # Compiled on first use, once per machine: -O1 (see codegen.build.OPT_LEVELS).
+    spec = BundleSpec(name=name, functions=[Generated(f, docs.get(f.name(), "")) for f in functions],
+                      optimization="-O1")
     files = render(spec)
     digest = hashlib.sha256(files[f"{name}.c"]).hexdigest()[:16]
     spec.identity = files[f"{name}.c"]
