@@ -80,7 +80,7 @@ class Trace:
         """Write the trace as a compressed ``.npz``: compact by default.
 
         Compact (the default of ``softgen reproduce``): float32, decimated to at most
-        ~20,000 samples (``every``), enough for figures. ``full=True`` (or
+        ~5,000 samples (``every``), enough for figures. ``full=True`` (or
         :func:`set_full_traces`) keeps every sample in float64. ``extra`` arrays are
         stored as given. Signal names ``block.sig`` become ``block_sig``.
         """
@@ -111,7 +111,7 @@ _TRACES = {"full": False}
 
 def save_traces(path, arrays: Mapping[str, np.ndarray] | None = None, *,
                 every: int | None = None, full: bool | None = None, **named) -> None:
-    """Write time series compactly (``.npz``): float32 and decimated to at most ~20,000
+    """Write time series compactly (``.npz``): float32 and decimated to at most ~5,000
     rows unless ``full`` (or :func:`set_full_traces`, ``reproduce --full-traces``).
 
     Float arrays whose first axis is as long as the longest one are the time series;
@@ -120,7 +120,7 @@ def save_traces(path, arrays: Mapping[str, np.ndarray] | None = None, *,
     full = _TRACES["full"] if full is None else full
     arrays = {**(arrays or {}), **named}
     rows = max((np.shape(v)[0] for v in arrays.values() if np.ndim(v)), default=0)
-    step = 1 if full else (every or max(1, rows // 20000))
+    step = 1 if full else (every or max(1, rows // 5000))
     out = {}
     for k, v in arrays.items():
         v = np.asarray(v)
