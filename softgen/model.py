@@ -136,8 +136,32 @@ class Actuator:
         return dict(self.values).get(key, default)
 
 
+class ParameterTable:
+    """What every model (rigid or soft) offers about its parameters and its file.
+    Needs ``nominal`` (name -> value), ``uncertain`` (names) and ``path``."""
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(self.nominal)
+
+    @property
+    def known(self) -> tuple[str, ...]:
+        return tuple(n for n in self.nominal if n not in self.uncertain)
+
+    def resolve(self, value: Scalar | None, values: dict[str, Any]) -> Any:
+        """A scalar as a number, or as ``values[name]`` for a parameter name."""
+        if value is None:
+            return 0.0
+        if isinstance(value, str):
+            return values[value]
+        return value
+
+    def source_text(self) -> str:
+        return self.path.read_text() if self.path is not None else ""
+
+
 @dataclass(frozen=True)
-class RobotModel:
+class RobotModel(ParameterTable):
     """A validated serial-chain robot.
 
     Attributes
@@ -179,30 +203,12 @@ class RobotModel:
     def dof(self) -> int:
         return len(self.links)
 
-    @property
-    def parameter_names(self) -> tuple[str, ...]:
-        return tuple(self.nominal)
-
-    @property
-    def known(self) -> tuple[str, ...]:
-        return tuple(n for n in self.nominal if n not in self.uncertain)
-
     def has_damping(self) -> bool:
         return any(link.damping is not None for link in self.links)
 
     def has_stiffness(self) -> bool:
         return any(link.stiffness is not None for link in self.links)
 
-    def resolve(self, value: Scalar | None, values: dict[str, Any]) -> Any:
-        """A link scalar as a number or as ``values[name]`` for a parameter name."""
-        if value is None:
-            return 0.0
-        if isinstance(value, str):
-            return values[value]
-        return value
-
-    def source_text(self) -> str:
-        return self.path.read_text() if self.path is not None else ""
 
 
 # --------------------------------------------------------------------------- loading

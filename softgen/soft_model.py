@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .model import FileReader
+from .model import FileReader, ParameterTable
 
 #: Kinds of soft model, and configuration variables per segment.
 SOFT_KINDS = {"pcc-planar": 1, "pcc-3d": 3, "affine-planar": 2}
@@ -74,7 +74,7 @@ class Segment:
 
 
 @dataclass(frozen=True)
-class SoftModel:
+class SoftModel(ParameterTable):
     """A validated soft-bodied robot (frozen; see the module docstring for the file)."""
 
     name: str
@@ -102,24 +102,9 @@ class SoftModel:
         return self.n_segments * self.dofs_per_segment
 
     @property
-    def parameter_names(self) -> tuple[str, ...]:
-        return tuple(self.nominal)
-
-    @property
-    def known(self) -> tuple[str, ...]:
-        return tuple(n for n in self.nominal if n not in self.uncertain)
-
-    @property
     def actuator_type(self) -> None:
         return None
 
-    def resolve(self, value: str | float | None, values: dict[str, Any]) -> Any:
-        if value is None:
-            return 0.0
-        return values[value] if isinstance(value, str) else value
-
-    def source_text(self) -> str:
-        return self.path.read_text() if self.path is not None else ""
 
 
 def is_soft(data: Any) -> bool:

@@ -31,7 +31,8 @@ import casadi as ca
 import numpy as np
 
 from ..blocks import Block
-from ..symbolic.pcc import FUNCTION_OPTS, LinearRoute, SoftDynamics
+from ..symbolic.rigid import FUNCTION_OPTS
+from ..symbolic.pcc import LinearRoute, SoftDynamics
 from ..symbolic.actuated import rk4_steps
 
 #: Inputs of ``<model>_theorem10_step``, in order.

@@ -29,7 +29,7 @@ __all__ = ["discretize", "METHODS"]
 METHODS = ("euler", "zoh")
 
 
-def _matrix(name: str, value) -> np.ndarray:
+def as_matrix(name: str, value) -> np.ndarray:
     """``value`` as a finite, real, 2-D float array, or one clear error naming ``name``.
 
     Shared with :mod:`softgen.estimation.uio`. Nothing is reshaped: scalars and
@@ -100,8 +100,8 @@ def discretize(Ac, Bc, dt, *, method: str = "euler") -> tuple[np.ndarray, np.nda
     if not (math.isfinite(dt) and dt > 0):
         raise ValueError(f"dt: expected a finite number > 0, got {dt!r}")
     dt = float(dt)
-    Ac = _matrix("Ac", Ac)
-    Bc = _matrix("Bc", Bc)
+    Ac = as_matrix("Ac", Ac)
+    Bc = as_matrix("Bc", Bc)
     n = Ac.shape[0]
     if Ac.shape != (n, n) or n == 0:
         raise ShapeError(f"Ac: expected a non-empty square matrix (n, n), got shape {Ac.shape}")

@@ -106,7 +106,7 @@ import numpy as np
 from scipy.signal import place_poles
 
 from ..errors import ShapeError
-from .discretize import _matrix
+from .discretize import as_matrix
 
 __all__ = [
     "UIO",
@@ -129,7 +129,7 @@ _RTOL_FACTOR = 100
 
 def _system(A, B, C, D) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Validate the four matrices of eq. 5.1 and return them as float arrays."""
-    A, B, C, D = _matrix("A", A), _matrix("B", B), _matrix("C", C), _matrix("D", D)
+    A, B, C, D = as_matrix("A", A), as_matrix("B", B), as_matrix("C", C), as_matrix("D", D)
     n = A.shape[0]
     if A.shape != (n, n) or n == 0:
         raise ShapeError(f"A: expected a non-empty square matrix (n, n), got shape {A.shape}")
@@ -237,7 +237,7 @@ def observability_matrix(A, C, L: int) -> np.ndarray:
     -------
     numpy.ndarray, shape ((L + 1) p, n)
     """
-    A, C = _matrix("A", A), _matrix("C", C)
+    A, C = as_matrix("A", A), as_matrix("C", C)
     n = A.shape[0]
     if A.shape != (n, n) or n == 0:
         raise ShapeError(f"A: expected a non-empty square matrix (n, n), got shape {A.shape}")

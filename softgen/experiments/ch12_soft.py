@@ -42,7 +42,27 @@ PI = math.pi
 
 
 @dataclass(frozen=True)
-class PlanarConfig(Config):
+class SoftConfig(Config):
+    """What the three chapter-12 experiments share: sensing noise, metric windows, shapes."""
+
+    noise_on_velocity: bool = False
+    noise_reason: str = (
+        "§12.2 puts the noise on 'each configuration variable'; q̇ is read clean. Measured: "
+        "with the same σ on q̇ too, 5 of 6 seeds (1201-1206) of the planar disturbed "
+        "scenario diverged between t = 31 and 44 s, all 6 converged with q only")
+    metric_window: float = 10.0          # s, position_rms_error over the last window
+    convergence_band: float = 0.05       # rad (or m), for convergence_time
+    initial_window: float = 5.0          # s, for position_rms_error_initial
+    shapes: int = 9
+    shape_window: float = 2 * PI         # s: one period of the references, at the end
+
+    def validate(self) -> None:
+        if self.duration <= self.metric_window:
+            raise ValueError(f"duration: expected more than metric_window, got {self.duration}")
+
+
+@dataclass(frozen=True)
+class PlanarConfig(SoftConfig):
     model: str = "pcc_planar_4seg"
     dt: float = 1e-3
     duration: float = 50.0
@@ -58,30 +78,16 @@ class PlanarConfig(Config):
         "K_d = 1) and for Λ = 10 (K_d = 1 or 2, K_π = 1)")
     noise_std: float = 0.032
     noise_seed: int = 1201
-    noise_on_velocity: bool = False
-    noise_reason: str = (
-        "§12.2 puts the noise on 'each configuration variable'; q̇ is read clean. Measured: "
-        "with the same σ on q̇ too, 5 of 6 seeds (1201-1206) of the planar disturbed "
-        "scenario diverged between t = 31 and 44 s, all 6 converged with q only")
     force: float = 0.5                                                   # N per tip
     force_direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
     force_reason: str = ("not printed; +x is horizontal, across gravity (the arm hangs "
                          "along -y): the largest bending moment on the hanging arm")
     t_disturbance: float = 25.0
     initial_error: tuple[float, ...] = (1.0, -1.0, 1.0, -1.0)            # rad
-    metric_window: float = 10.0
-    convergence_band: float = 0.05       # rad, for convergence_time
-    initial_window: float = 5.0          # s, for position_rms_error_initial
-    shapes: int = 9
-    shape_window: float = 2 * PI         # s: one period of the references, at the end
-
-    def validate(self) -> None:
-        if self.duration <= self.metric_window:
-            raise ValueError(f"duration: expected more than metric_window, got {self.duration}")
 
 
 @dataclass(frozen=True)
-class PendulumConfig(Config):
+class PendulumConfig(SoftConfig):
     model: str = "soft_pendulum"
     dt: float = 1e-3
     duration: float = 250.0
@@ -94,11 +100,6 @@ class PendulumConfig(Config):
                             "half is as long as the undisturbed one")
     noise_std: float = 0.032
     noise_seed: int = 1202
-    noise_on_velocity: bool = False
-    noise_reason: str = (
-        "§12.2 puts the noise on 'each configuration variable'; q̇ is read clean. Measured: "
-        "with the same σ on q̇ too, 5 of 6 seeds (1201-1206) of the planar disturbed "
-        "scenario diverged between t = 31 and 44 s, all 6 converged with q only")
     force: float = 5e-3                                                  # N at the tip
     force_direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
     force_reason: str = ("not printed; +x is horizontal: at the upright straight pose a "
@@ -107,19 +108,11 @@ class PendulumConfig(Config):
     # k = 1, Fig. 12.5 gains, noise alone and force alone (suffixes _noise_only and
     # _force_only): which of the two the soft pendulum's _disturbed error comes from.
     separate_causes: bool = True
-    metric_window: float = 10.0
-    convergence_band: float = 0.05
-    initial_window: float = 5.0
-    shapes: int = 9
     shape_window: float = 0.0            # the whole run: the way up
-
-    def validate(self) -> None:
-        if self.duration <= self.metric_window:
-            raise ValueError(f"duration: expected more than metric_window, got {self.duration}")
 
 
 @dataclass(frozen=True)
-class Soft3DConfig(Config):
+class Soft3DConfig(SoftConfig):
     model: str = "pcc_3d_4seg"
     dt: float = 1e-3
     duration: float = 100.0
@@ -136,11 +129,6 @@ class Soft3DConfig(Config):
     gains: tuple[float, float, float] = (7.0, 13.0, 2.0)                 # Λ, K_d, K_π
     noise_std: float = 0.032                                             # m
     noise_seed: int = 1203
-    noise_on_velocity: bool = False
-    noise_reason: str = (
-        "§12.2 puts the noise on 'each configuration variable'; q̇ is read clean. Measured: "
-        "with the same σ on q̇ too, 5 of 6 seeds (1201-1206) of the planar disturbed "
-        "scenario diverged between t = 31 and 44 s, all 6 converged with q only")
     force: float = 5.0                                                   # N per tip
     force_direction: tuple[float, float, float] = (0.0, 0.0, -1.0)
     force_reason: str = (
@@ -149,11 +137,8 @@ class Soft3DConfig(Config):
     lateral_variant: bool = True
     t_disturbance: float = 50.0
     initial_error: tuple[float, ...] = (0.05,) * 6 + (-0.05,) * 6       # m
-    metric_window: float = 10.0
     convergence_band: float = 0.02       # m
-    initial_window: float = 5.0
     shapes: int = 7
-    shape_window: float = 2 * PI
     full_run_cost: str = (
         "measured on 2 shared cores: 24.1 s wall for the full run on a cold build cache "
         "(derivation ~4 s, C compilation of the 47k-instruction diagram, 3 scenarios of "

@@ -39,14 +39,14 @@ from ..model import RobotModel
 Values = Mapping[str, "ca.SX | float"]
 
 
-def _rpy(r: float, p: float, y: float) -> np.ndarray:
+def rpy(r: float, p: float, y: float) -> np.ndarray:
     cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
     return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
                      [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
                      [-sp, cp * sr, cp * cr]])
 
 
-def _axis_rotation(axis: tuple[float, float, float], angle: ca.SX) -> ca.SX:
+def axis_rotation(axis: tuple[float, float, float], angle: ca.SX) -> ca.SX:
     """Rotation by ``angle`` about a constant unit ``axis`` (Rodrigues' formula)."""
     x, y, z = axis
     # Exact structural zeros for the coordinate axes keep expressions small.
@@ -63,7 +63,7 @@ def _axis_rotation(axis: tuple[float, float, float], angle: ca.SX) -> ca.SX:
     return ca.DM.eye(3) + ca.sin(angle) * k + (1 - ca.cos(angle)) * ca.mtimes(k, k)
 
 
-def _simplify_const(m: np.ndarray) -> ca.DM:
+def simplify_const(m: np.ndarray) -> ca.DM:
     """Round a constant rotation so exact 0/±1 entries stay exact (smaller code)."""
     out = np.where(np.abs(m) < 1e-15, 0.0, m)
     out = np.where(np.abs(np.abs(out) - 1.0) < 1e-15, np.sign(out), out)
@@ -88,19 +88,19 @@ def forward_kinematics(model: RobotModel, q: ca.SX, qd: ca.SX, values: Values) -
     Cost is linear in the number of links because each link's expressions reuse
     the previous link's (CasADi's SX graph shares them).
     """
-    R = _simplify_const(_rpy(*model.base_rpy))
+    R = simplify_const(rpy(*model.base_rpy))
     o = ca.SX.zeros(3)
     omega = ca.SX.zeros(3)
     v = ca.SX.zeros(3)
     states = []
     for i, link in enumerate(model.links):
-        placement = _simplify_const(_rpy(*link.origin_rpy))
+        placement = simplify_const(rpy(*link.origin_rpy))
         offset = ca.vertcat(*[model.resolve(x, values) for x in link.origin_xyz])
         o_new = o + ca.mtimes(R, offset)
         R_joint = ca.mtimes(R, placement)
         axis_world = ca.mtimes(R_joint, ca.DM(link.axis))
         if link.joint == "revolute":
-            R_new = ca.mtimes(R_joint, _axis_rotation(link.axis, q[i]))
+            R_new = ca.mtimes(R_joint, axis_rotation(link.axis, q[i]))
             v_new = v + ca.cross(omega, o_new - o)
             omega_new = omega + axis_world * qd[i]
         else:

@@ -77,20 +77,12 @@ import numpy as np
 
 from ..model import Link, RobotModel
 from ..soft_model import SoftModel
-from .mechanics import Mechanics, _rpy, forward_kinematics
+from .mechanics import Mechanics, rpy, forward_kinematics
 from .regressor import BaseParameters, base_parameters, factor_polynomial
+from .rigid import BaseParameterAPI, named_function
 from .smooth import cosc_w, nu_w, sinc_w
 
 Values = Mapping[str, "ca.SX | float"]
-
-#: CasADi options of every generated function (as for rigid bundles).
-FUNCTION_OPTS = {"cse": True}
-
-
-def _fun(name, ins, in_names, outs, out_names) -> ca.Function:
-    return ca.Function(name, ins, [ca.densify(o) for o in outs], in_names, out_names,
-                       FUNCTION_OPTS)
-
 
 # --------------------------------------------------------------------------- quadrature
 
@@ -270,8 +262,8 @@ class SoftBody:
 
     def base_frame(self):
         if self.model.kind == "pcc-3d":
-            R = np.where(np.abs(_rpy(*self.model.base_rpy)) < 1e-15, 0.0,
-                         _rpy(*self.model.base_rpy))
+            R = np.where(np.abs(rpy(*self.model.base_rpy)) < 1e-15, 0.0,
+                         rpy(*self.model.base_rpy))
             return ca.DM(R)
         c, s = math.cos(self.model.base_angle), math.sin(self.model.base_angle)
         R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
@@ -573,7 +565,7 @@ def symbolic_values(model: SoftModel, names=None):
     return values, (ca.vertcat(*syms) if syms else ca.SX(0, 1))
 
 
-class SoftDynamics:
+class SoftDynamics(BaseParameterAPI):
     """Everything derived from a :class:`SoftModel`, as named casadi.Functions.
 
     Named functions (``inertia_fun()``, ...) return casadi.Functions. The generated
@@ -616,19 +608,6 @@ class SoftDynamics:
             base.constant = ca.substitute([base.constant], inputs, to)[0]
         return base
 
-    @property
-    def parameter_names(self) -> list[str]:
-        return list(self.base.names)
-
-    @cached_property
-    def physical_to_base_fun(self) -> ca.Function:
-        _, p = self._symbolic
-        return _fun(f"{self.name}_base_parameters", [p], ["p"], [self.base.pi], ["pi"])
-
-    @cached_property
-    def parameter_nominal(self) -> np.ndarray:
-        p0 = np.array([self.model.nominal[n] for n in self.model.uncertain])
-        return np.array(self.physical_to_base_fun(p0)).ravel()
 
     def Y_at(self, q, qd, qd_r, qdd_r):
         nom = self.nominal
@@ -638,42 +617,42 @@ class SoftDynamics:
     # -- functions ---------------------------------------------------------------
     def inertia_fun(self):
         b = self.nominal
-        return _fun(f"{self.name}_inertia", [b.q], ["q"], [b.inertia_pm()], ["B"])
+        return named_function(f"{self.name}_inertia", [b.q], ["q"], [b.inertia_pm()], ["B"])
 
     def coriolis_fun(self):
         b = self.nominal
-        return _fun(f"{self.name}_coriolis", [b.q, b.qd], ["q", "qd"], [b.coriolis_pm()],
+        return named_function(f"{self.name}_coriolis", [b.q, b.qd], ["q", "qd"], [b.coriolis_pm()],
                     ["C"])
 
     def gravity_fun(self):
         b = self.nominal
-        return _fun(f"{self.name}_gravity", [b.q], ["q"], [b.gravity()], ["G"])
+        return named_function(f"{self.name}_gravity", [b.q], ["q"], [b.gravity()], ["G"])
 
     def elastic_fun(self):
         b = self.nominal
-        return _fun(f"{self.name}_elastic", [b.q, b.qd], ["q", "qd"],
+        return named_function(f"{self.name}_elastic", [b.q, b.qd], ["q", "qd"],
                     [b.spring(), b.damping()], ["Kq", "Dqd"])
 
     def regressor_fun(self):
         b = self.nominal
-        return _fun(f"{self.name}_regressor", [b.q, b.qd, b.qd_r, b.qdd_r],
+        return named_function(f"{self.name}_regressor", [b.q, b.qd, b.qd_r, b.qdd_r],
                     ["q", "qd", "qd_r", "qdd_r"], [self.base.Y], ["Y"])
 
     def regressor_times_fun(self):
         b = self.nominal
         pi = ca.SX.sym("pi", len(self.base.names))
-        return _fun(f"{self.name}_regressor_times", [b.q, b.qd, b.qd_r, b.qdd_r, pi],
+        return named_function(f"{self.name}_regressor_times", [b.q, b.qd, b.qd_r, b.qdd_r, pi],
                     ["q", "qd", "qd_r", "qdd_r", "pi"], [ca.mtimes(self.base.Y, pi)], ["tau"])
 
     def regressor_transpose_times_fun(self):
         b = self.nominal
         s = ca.SX.sym("s", self.model.dof)
-        return _fun(f"{self.name}_regressor_transpose_times", [b.q, b.qd, b.qd_r, b.qdd_r, s],
+        return named_function(f"{self.name}_regressor_transpose_times", [b.q, b.qd, b.qd_r, b.qdd_r, s],
                     ["q", "qd", "qd_r", "qdd_r", "s"], [ca.mtimes(self.base.Y.T, s)], ["Yts"])
 
     def inverse_dynamics_fun(self):
         b = self.nominal
-        return _fun(f"{self.name}_inverse_dynamics", [b.q, b.qd, b.qd_r, b.qdd_r],
+        return named_function(f"{self.name}_inverse_dynamics", [b.q, b.qd, b.qd_r, b.qdd_r],
                     ["q", "qd", "qd_r", "qdd_r"], [b.slotine_li_pm()], ["tau"])
 
     def forward_dynamics_expr(self, tau, f_ext=None):
@@ -688,32 +667,32 @@ class SoftDynamics:
     def forward_dynamics_fun(self):
         b = self.nominal
         tau = ca.SX.sym("tau", b.n_inputs)
-        return _fun(f"{self.name}_forward_dynamics", [b.q, b.qd, tau], ["q", "qd", "tau"],
+        return named_function(f"{self.name}_forward_dynamics", [b.q, b.qd, tau], ["q", "qd", "tau"],
                     [self.forward_dynamics_expr(tau)], ["qdd"])
 
     def actuation_fun(self):
         b = self.nominal
-        return _fun(f"{self.name}_actuation", [b.q], ["q"], [b.actuation()], ["A"])
+        return named_function(f"{self.name}_actuation", [b.q], ["q"], [b.actuation()], ["A"])
 
     def backbone_fun(self):
         b = self.nominal
         s = ca.SX.sym("s")
-        return _fun(f"{self.name}_backbone", [b.q, s], ["q", "s"], [b.backbone(s)], ["p"])
+        return named_function(f"{self.name}_backbone", [b.q, s], ["q", "s"], [b.backbone(s)], ["p"])
 
     def tips_fun(self):
         b = self.nominal
         P = ca.horzcat(*[o for _, o in b.frames])
-        return _fun(f"{self.name}_tips", [b.q], ["q"], [P, ca.vertcat(*b.tip_jacobians())],
+        return named_function(f"{self.name}_tips", [b.q], ["q"], [P, ca.vertcat(*b.tip_jacobians())],
                     ["P", "J"])
 
     def augmented_map_fun(self):
         b = self.nominal
-        return _fun(f"{self.name}_augmented_map", [b.q], ["q"],
+        return named_function(f"{self.name}_augmented_map", [b.q], ["q"],
                     [augmented_map(self.model, b.q, b.values)], ["xi"])
 
     def augmented_jacobian_fun(self):
         b = self.nominal
-        return _fun(f"{self.name}_augmented_jacobian", [b.q], ["q"],
+        return named_function(f"{self.name}_augmented_jacobian", [b.q], ["q"],
                     [augmented_jacobian(self.model, b.q, b.values)], ["J_m"])
 
 

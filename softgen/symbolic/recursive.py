@@ -52,7 +52,7 @@ import casadi as ca
 import numpy as np
 
 from ..model import RobotModel
-from .mechanics import Inertial, Values, _axis_rotation, _rpy, _simplify_const, physical_inertials
+from .mechanics import Inertial, Values, axis_rotation, rpy, simplify_const, physical_inertials
 
 __all__ = ["slotine_li", "regressor_transpose_times", "inertial_fields", "INERTIAL_FIELDS"]
 
@@ -99,12 +99,12 @@ class _Joint:
 def _joints(model: RobotModel, q: ca.SX, values: Values) -> list[_Joint]:
     out = []
     for i, link in enumerate(model.links):
-        P = _simplify_const(_rpy(*link.origin_rpy))
+        P = simplify_const(rpy(*link.origin_rpy))
         offset = ca.vertcat(*[model.resolve(x, values) for x in link.origin_xyz])
         axis = ca.DM(link.axis)
         zero = ca.DM.zeros(3)
         if link.joint == "revolute":
-            E = ca.mtimes(P, _axis_rotation(link.axis, q[i]))
+            E = ca.mtimes(P, axis_rotation(link.axis, q[i]))
             p, S = offset, (axis, zero)
         else:
             # A prismatic joint slides along its axis, fixed in the parent frame.
@@ -135,9 +135,9 @@ def _dot(a, b):
 
 def _gravity_base(model: RobotModel, values: Values) -> ca.SX:
     """Gravity in base-frame coordinates (the base frame is rotated by ``base_rpy``)."""
-    R0 = _rpy(*model.base_rpy)
+    R0 = rpy(*model.base_rpy)
     g = model.resolve("g", values)
-    return g * _simplify_const(R0.T @ np.asarray(model.gravity_direction, dtype=float))
+    return g * simplify_const(R0.T @ np.asarray(model.gravity_direction, dtype=float))
 
 
 def _forward(model, q, qd, qd_r, qdd_r, values, s=None):

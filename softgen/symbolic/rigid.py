@@ -33,8 +33,9 @@ AUTO_EXPLICIT_MAX_DOF = 6
 FUNCTION_OPTS = {"cse": True}
 
 
-def _fun(name: str, ins: list[ca.SX], in_names: list[str], outs: list[ca.SX],
-         out_names: list[str]) -> ca.Function:
+def named_function(name: str, ins: list[ca.SX], in_names: list[str], outs: list[ca.SX],
+                   out_names: list[str]) -> ca.Function:
+    """A generated function: named inputs and outputs, dense outputs, CSE."""
     return ca.Function(name, ins, [ca.densify(o) for o in outs], in_names, out_names,
                        FUNCTION_OPTS)
 
@@ -43,8 +44,8 @@ def _cached_fun(method):
     """Build the named Function once per :class:`RigidDynamics` and return it thereafter.
 
     The evaluating half of the paired API (``gravity(q)``, ``regressor(...)``) calls the
-    ``*_fun()`` half; building a ``casadi.Function`` costs ~10x its evaluation (issue 10
-    item 6), so every ``*_fun()`` is memoised per instance. The object returned is the
+    ``*named_function()`` half; building a ``casadi.Function`` costs ~10x its evaluation (issue 10
+    item 6), so every ``*named_function()`` is memoised per instance. The object returned is the
     same on every call, so callers may also hold on to it.
     """
     key = method.__name__
@@ -58,7 +59,29 @@ def _cached_fun(method):
     return wrapper
 
 
-class RigidDynamics:
+class BaseParameterAPI:
+    """Base parameters π of a derived model (rigid or soft): names, nominal values and
+    the map from the uncertain physical parameters. Needs ``base``
+    (:class:`~softgen.symbolic.regressor.BaseParameters`), ``_symbolic`` (its second
+    entry the physical-parameter symbols), ``name`` and ``model``."""
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return list(self.base.names)
+
+    @cached_property
+    def physical_to_base_fun(self) -> ca.Function:
+        """p_uncertain -> π (the map from physical to base parameters)."""
+        _, p = self._symbolic
+        return named_function(f"{self.name}_base_parameters", [p], ["p"], [self.base.pi], ["pi"])
+
+    @cached_property
+    def parameter_nominal(self) -> np.ndarray:
+        p0 = np.array([self.model.nominal[n] for n in self.model.uncertain])
+        return np.array(self.physical_to_base_fun(p0)).ravel()
+
+
+class RigidDynamics(BaseParameterAPI):
     """Symbolic dynamics, regressor and kinematics of one :class:`RobotModel`.
 
     Parameters
@@ -257,41 +280,27 @@ class RigidDynamics:
             f(*[rng.uniform(-np.pi, np.pi, self.model.dof) for _ in range(4)]))))) <= 1e-14
             for _ in range(3))
 
-    @property
-    def parameter_names(self) -> list[str]:
-        return list(self.base.names)
-
-    @cached_property
-    def physical_to_base_fun(self) -> ca.Function:
-        """p_uncertain -> π (the map from physical to base parameters)."""
-        _, p = self._symbolic
-        return _fun(f"{self.name}_base_parameters", [p], ["p"], [self.base.pi], ["pi"])
-
-    @cached_property
-    def parameter_nominal(self) -> np.ndarray:
-        p0 = np.array([self.model.nominal[n] for n in self.model.uncertain])
-        return np.array(self.physical_to_base_fun(p0)).ravel()
 
     # -- named functions -----------------------------------------------------------
     @_cached_fun
     def inertia_fun(self) -> ca.Function:
         m = self.nominal
-        return _fun(f"{self.name}_inertia", [m.q], ["q"], [m.inertia()], ["B"])
+        return named_function(f"{self.name}_inertia", [m.q], ["q"], [m.inertia()], ["B"])
 
     @_cached_fun
     def coriolis_fun(self) -> ca.Function:
         m = self.nominal
-        return _fun(f"{self.name}_coriolis", [m.q, m.qd], ["q", "qd"], [m.coriolis()], ["C"])
+        return named_function(f"{self.name}_coriolis", [m.q, m.qd], ["q", "qd"], [m.coriolis()], ["C"])
 
     @_cached_fun
     def gravity_fun(self) -> ca.Function:
         m = self.nominal
-        return _fun(f"{self.name}_gravity", [m.q], ["q"], [m.gravity()], ["G"])
+        return named_function(f"{self.name}_gravity", [m.q], ["q"], [m.gravity()], ["G"])
 
     @_cached_fun
     def regressor_fun(self) -> ca.Function:
         m = self.nominal
-        return _fun(f"{self.name}_regressor", [m.q, m.qd, m.qd_r, m.qdd_r],
+        return named_function(f"{self.name}_regressor", [m.q, m.qd, m.qd_r, m.qdd_r],
                     ["q", "qd", "qd_r", "qdd_r"], [self.base.Y], ["Y"])
 
     def _pick(self, key: str, candidates: dict[str, ca.Function]) -> ca.Function:
@@ -318,10 +327,10 @@ class RigidDynamics:
         name = f"{self.name}_regressor_times"
         pi = ca.SX.sym("pi", len(self.base.names))
         args = ([m.q, m.qd, m.qd_r, m.qdd_r, pi], ["q", "qd", "qd_r", "qdd_r", "pi"])
-        cands = {"formed": lambda: _fun(name, *args, [ca.mtimes(self.base.Y, pi)], ["tau"])}
+        cands = {"formed": lambda: named_function(name, *args, [ca.mtimes(self.base.Y, pi)], ["tau"])}
         if self._recursive_products():
             lin = self._linear
-            cands["recursive"] = lambda: _fun(
+            cands["recursive"] = lambda: named_function(
                 name, *args, [ca.substitute(lin["tau"], lin["delta"],
                                                  ca.densify(ca.mtimes(self._A, pi)))],
                 ["tau"])
@@ -342,7 +351,7 @@ class RigidDynamics:
         name = f"{self.name}_regressor_transpose_times"
         s = ca.SX.sym("s", self.model.dof)
         args = ([m.q, m.qd, m.qd_r, m.qdd_r, s], ["q", "qd", "qd_r", "qdd_r", "s"])
-        cands = {"formed": lambda: _fun(name, *args, [ca.mtimes(self.base.Y.T, s)], ["Yts"])}
+        cands = {"formed": lambda: named_function(name, *args, [ca.mtimes(self.base.Y.T, s)], ["Yts"])}
         if self._recursive_products():
             lin = self._linear
             At = self._A.T
@@ -350,7 +359,7 @@ class RigidDynamics:
             def reverse():
                 g = ca.gradient(ca.dot(s, lin["tau"]), lin["delta"])
                 g = ca.substitute(g, lin["delta"], ca.DM.zeros(lin["delta"].shape))
-                return _fun(name, *args, [ca.mtimes(At, g)], ["Yts"])
+                return named_function(name, *args, [ca.mtimes(At, g)], ["Yts"])
 
             def forward():
                 blocks = regressor_transpose_times(self.model, lin["values"], m.q, m.qd,
@@ -362,7 +371,7 @@ class RigidDynamics:
                         parts.append(s[i] * m.qd[i])
                     if link.stiffness is not None:
                         parts.append(s[i] * m.q[i])
-                return _fun(name, *args, [ca.mtimes(At, ca.vertcat(*parts))], ["Yts"])
+                return named_function(name, *args, [ca.mtimes(At, ca.vertcat(*parts))], ["Yts"])
 
             cands["reverse"] = reverse
             cands["forward-sweep"] = forward
@@ -374,7 +383,7 @@ class RigidDynamics:
     def inverse_dynamics_fun(self) -> ca.Function:
         """Nominal B q̈_r + C q̇_r + G + K q + D q̇ (direct, not through Y)."""
         m = self.nominal
-        return _fun(f"{self.name}_inverse_dynamics", [m.q, m.qd, m.qd_r, m.qdd_r],
+        return named_function(f"{self.name}_inverse_dynamics", [m.q, m.qd, m.qd_r, m.qdd_r],
                     ["q", "qd", "qd_r", "qdd_r"], [m.slotine_li(self.route)], ["tau"])
 
     def forward_dynamics_expr(self, tau: ca.SX) -> ca.SX:
@@ -390,14 +399,14 @@ class RigidDynamics:
     def forward_dynamics_fun(self) -> ca.Function:
         m = self.nominal
         tau = ca.SX.sym("tau", self.model.dof)
-        return _fun(f"{self.name}_forward_dynamics", [m.q, m.qd, tau], ["q", "qd", "tau"],
+        return named_function(f"{self.name}_forward_dynamics", [m.q, m.qd, tau], ["q", "qd", "tau"],
                     [self.forward_dynamics_expr(tau)], ["qdd"])
 
     @_cached_fun
     def tip_fun(self) -> ca.Function:
         m = self.nominal
         p, J = m.tip()
-        return _fun(f"{self.name}_tip", [m.q], ["q"], [p, J], ["p", "J"])
+        return named_function(f"{self.name}_tip", [m.q], ["q"], [p, J], ["p", "J"])
 
     @_cached_fun
     def known_torque_fun(self) -> ca.Function | None:
@@ -405,7 +414,7 @@ class RigidDynamics:
         if self.base.constant is None:
             return None
         m = self.nominal
-        return _fun(f"{self.name}_known_torque", [m.q, m.qd, m.qd_r, m.qdd_r],
+        return named_function(f"{self.name}_known_torque", [m.q, m.qd, m.qd_r, m.qdd_r],
                     ["q", "qd", "qd_r", "qdd_r"], [self.base.constant], ["tau0"])
 
     # -- evaluation (the other half of the paired API) ------------------------------
