@@ -257,6 +257,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--p0", type=float, help="initial RLS covariance (times I)")
     s.add_argument("--force", action="store_true", help="overwrite an existing --out file")
     s.set_defaults(func=_cmd_estimate)
+    # Verbs whose arguments live beside their implementation (one module each).
+    from . import export_cli, sweep_cli
+    s = sub.add_parser("export", help="a self-contained C project: generated code, typed "
+                       "wrappers, CMake/Makefile, a fixed-rate example loop")
+    export_cli.add_arguments(s)
+    s.set_defaults(func=export_cli.run)
+    s = sub.add_parser("sweep", help="Monte Carlo and grid studies over an experiment's config "
+                       "(process pool or Dask)")
+    sweep_cli.add_arguments(s)
+    s.set_defaults(func=sweep_cli.run)
     return p
 
 
