@@ -145,6 +145,68 @@ def plant_block(arm: PneumaticArm, dt: float, *, plant: str = "ideal", substeps:
                         meta={"model": arm.name})
 
 
+def uncertain_plant_block(arm: PneumaticArm, dt: float, *, substeps: int = 1,
+                          name: str = "plant") -> Block:
+    """The McKibben arm of :func:`plant_block` (ideal pressures) with its true values as
+    parameters, so that one generated loop serves every sample of a robustness study.
+
+    Parameters: ``pi`` the base inertial parameters π of the plant (the dynamics are
+    Y(q, q̇, q̇, q̈) π plus the known terms, so B(q) = ∂(Yπ)/∂q̈ and the bias is Yπ at
+    q̈ = 0: eq. 10.9's structure, derived, not transcribed); ``R``, ``Kg`` (n) pulley
+    radii and muscle gains; ``ln``, ``lm`` (2n, muscles a, b of each joint in turn)
+    nominal and minimum muscle lengths. At the model's values (``p0``) the block equals
+    :func:`plant_block` (``tests/test_pneumatic_control.py`` checks the trajectories).
+    """
+    n, dyn = arm.n, arm.dyn
+    m = dyn.nominal
+    k = len(dyn.base.names)
+    q, qd, pc = ca.SX.sym("q", n), ca.SX.sym("qd", n), ca.SX.sym("p", 2 * n)
+    pi, R, Kg = ca.SX.sym("pi", k), ca.SX.sym("R", n), ca.SX.sym("Kg", n)
+    ln, lm = ca.SX.sym("ln", 2 * n), ca.SX.sym("lm", 2 * n)
+    qdd = ca.SX.sym("qdd", n)
+    tau_model = dyn.base.Y @ pi
+    if dyn.base.constant is not None:
+        tau_model = tau_model + dyn.base.constant
+    tau_model = ca.substitute(tau_model, ca.vertcat(m.q, m.qd, m.qd_r, m.qdd_r),
+                              ca.vertcat(q, qd, qd, qdd))
+    B = ca.jacobian(tau_model, qdd)
+    bias = ca.substitute(tau_model, qdd, ca.DM.zeros(n))
+    act = arm.act.with_values(R=R, Kg=Kg, ln_a=ln[0::2], ln_b=ln[1::2], lm_a=lm[0::2],
+                              lm_b=lm[1::2])
+    values = [pi, R, Kg, ln, lm]
+    rhs = ca.Function("rhs", [ca.vertcat(q, qd), pc, *values],
+                      [ca.vertcat(qd, ca.solve(B, act.torque(q, pc) - bias))])
+    stiff = ca.Function("stiffness", [q, pc, *values], [act.stiffness(q, pc)])
+    pmax = np.repeat(arm.act.pressure_max, 2)
+
+    def body(x, u, p):
+        vals = [p[nm] for nm in ("pi", "R", "Kg", "ln", "lm")]
+        applied = ca.fmax(u["p_cmd"], 0)
+        if np.all(np.isfinite(pmax)):
+            applied = ca.fmin(applied, ca.DM(pmax))
+        xn = rk4_steps(lambda xx, pp: rhs(xx, pp, *vals), ca.vertcat(x["q"], x["qd"]),
+                       applied, dt, substeps)
+        return ({"q": xn[:n], "qd": xn[n:], "p": applied},
+                {"q": x["q"], "qd": x["qd"], "p": x["p"],
+                 "sigma": stiff(x["q"], x["p"], *vals)})
+
+    a = arm.act
+    p0 = {"pi": dyn.parameter_nominal, "R": a.R, "Kg": a.Kg,
+          "ln": np.ravel(np.column_stack([a.ln_a, a.ln_b])),
+          "lm": np.ravel(np.column_stack([a.lm_a, a.lm_b]))}
+    return Block.define(name, dt=dt, state=[("q", n, "rad"), ("qd", n, "rad/s"),
+                                            ("p", 2 * n, "Pa")],
+                        inputs=[("p_cmd", 2 * n, "Pa")],
+                        outputs=[("q", n, "rad"), ("qd", n, "rad/s"), ("p", 2 * n, "Pa"),
+                                 ("sigma", n, "N m/rad")],
+                        params=[("pi", k), ("R", n, "m"), ("Kg", n), ("ln", 2 * n, "m"),
+                                ("lm", 2 * n, "m")],
+                        p0=p0, body=body, rules={"R": "positive", "Kg": "positive",
+                                                 "ln": "positive", "lm": "positive"},
+                        doc="McKibben arm, ideal pressures, true values as parameters",
+                        meta={"model": arm.name})
+
+
 # -- continuous-time controllers inside the plant's Runge-Kutta step ----------------------------
 
 def valve_rhs_fun(robot) -> ca.Function:

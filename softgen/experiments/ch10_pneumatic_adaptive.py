@@ -32,7 +32,8 @@ from matplotlib.figure import Figure
 from ..blocks import ClosedLoop
 from ..control.feasibility import check_pressures
 from ..control.pneumatic import pneumatic_arm
-from ..control.pneumatic_loop import controller_block, decoupling_windows, plant_block
+from ..control.pneumatic_loop import (controller_block, decoupling_windows, plant_block,
+                                      uncertain_plant_block)
 from ..control.references import SmoothSteps, stiffness_reference_block
 from ..model import load_model
 from ..runtime.simulate import Trace, simulate
@@ -70,11 +71,32 @@ class Ch10AdaptiveConfig(Config):
     compare_open_loop: bool = True
     check_dt_halving: bool = True
     compare_model_acceleration: bool = True
+    # The plant's true values as multiples of the model's (the controller keeps the model's):
+    # the uncertain physical parameters in the model's order (m1, l1, c1, I1, m2, ...), and
+    # per joint (pulley radius R, muscle gain K_g, length of muscle a, of muscle b; a
+    # muscle's nominal and minimum lengths scale together). All ones: the exact plant.
+    plant_inertial_scale: tuple[float, ...] = (1.0,) * 8
+    plant_actuator_scale: tuple[float, ...] = (1.0,) * 8
+
+    @property
+    def exact_plant(self) -> bool:
+        return all(v == 1.0 for v in (*self.plant_inertial_scale, *self.plant_actuator_scale))
 
     def validate(self) -> None:
         for k in ("dt", "preset", "duration", "rise"):
             if getattr(self, k) <= 0:
                 raise ValueError(f"{k}: expected a positive number, got {getattr(self, k)}")
+        for k in ("plant_inertial_scale", "plant_actuator_scale"):
+            if any(not v > 0 for v in getattr(self, k)):
+                raise ValueError(f"{k}: expected positive multipliers, got {getattr(self, k)}")
+        if not self.exact_plant:
+            model = load_model(self.model)
+            sizes = {"plant_inertial_scale": len(model.uncertain),
+                     "plant_actuator_scale": 4 * model.dof}
+            for k, size in sizes.items():
+                if len(getattr(self, k)) != size:
+                    raise ValueError(f"{k}: expected {size} multipliers for {self.model}, got "
+                                     f"{len(getattr(self, k))}")
         if self.controller != "theorem5":
             raise ValueError(f"controller: this experiment runs 'theorem5', got "
                              f"{self.controller!r}")
@@ -92,12 +114,31 @@ def _windows(kind: str, rise: float, settle: float) -> list[tuple[float, float, 
 
 
 def diagram(arm, kind: str, c: Ch10AdaptiveConfig, dt: float) -> ClosedLoop:
-    """Smoothed-step references -> controller ``kind`` -> McKibben arm (ideal pressures)."""
+    """Smoothed-step references -> controller ``kind`` -> McKibben arm (ideal pressures);
+    with plant errors, the arm whose true values are parameters (one loop for all)."""
     ref = stiffness_reference_block("ref", _steps(("q1", "q2"), c.rise),
                                     _steps(("s1", "s2"), c.rise))
-    return ClosedLoop(f"ch10_{arm.name}_{kind}_{'_'.join(f'{dt:g}'.split('.'))}".replace("-", "m"),
-                      [ref, controller_block(arm, kind, dt), plant_block(arm, dt)],
+    plant = plant_block(arm, dt) if c.exact_plant else uncertain_plant_block(arm, dt)
+    tag = "" if c.exact_plant else "_uncertain"
+    return ClosedLoop(f"ch10_{arm.name}_{kind}{tag}_{'_'.join(f'{dt:g}'.split('.'))}"
+                      .replace("-", "m"),
+                      [ref, controller_block(arm, kind, dt), plant],
                       [("ctrl.p", "plant.p_cmd")])
+
+
+def plant_values(arm, c: Ch10AdaptiveConfig) -> dict[str, np.ndarray]:
+    """The uncertain plant's parameters (``plant.pi``, ``plant.R``, ...) for ``c``'s
+    multipliers: π from the scaled physical parameters by the model's own map."""
+    if c.exact_plant:
+        return {}
+    model, a = arm.model, arm.act
+    phys = np.array([model.nominal[k] for k in model.uncertain]) * c.plant_inertial_scale
+    s = np.reshape(c.plant_actuator_scale, (arm.n, 4))
+    length = s[:, 2:].ravel()                       # muscles a, b of each joint in turn
+    return {"plant.pi": np.array(arm.dyn.physical_to_base_fun(phys)).ravel(),
+            "plant.R": a.R * s[:, 0], "plant.Kg": a.Kg * s[:, 1],
+            "plant.ln": np.column_stack([a.ln_a, a.ln_b]).ravel() * length,
+            "plant.lm": np.column_stack([a.lm_a, a.lm_b]).ravel() * length}
 
 
 #: What the metrics and figures read.
@@ -127,7 +168,7 @@ def run_case(arm, kind: str, c: Ch10AdaptiveConfig, dt: float) -> Trace:
     chunk = int(c.chunk)
     n_pre = int(round(c.preset / dt / chunk)) * chunk
     n_run = int(round(c.duration / dt / chunk)) * chunk
-    ctrl = {f"ctrl.{k}": v for k, v in gains.items()}
+    ctrl = {f"ctrl.{k}": v for k, v in gains.items()} | plant_values(arm, c)
     pre = simulate(d, steps=n_pre, k0=-n_pre, x0=x0, params=ctrl, chunk=chunk,
                    record=RECORD, label=f"ch10 {kind} preset")
     tr = simulate(d, steps=n_run, k0=0, x0=pre.final_state, params={**ctrl, "ctrl.kpi": c.kpi},
@@ -152,6 +193,23 @@ def _metrics(tr: Trace, Pi: np.ndarray, c: Ch10AdaptiveConfig, prefix: str = "")
                      "stiffness_to_position_coupling", "rad per N m/rad", prefix)
     m.add("parameter_estimate_max_ratio", parameter_ratio(tr["ctrl.Pi_hat"], Pi), "",
           prefix=prefix)
+    return m
+
+
+def case(c: Ch10AdaptiveConfig) -> Metrics:
+    """Theorem 5 once, metrics only (no files, no comparison runs): one sample of a sweep
+    (``softgen sweep ch10-pneumatic-adaptive``, ``ext-robustness-theorem5``)."""
+    arm = pneumatic_arm(load_model(c.model))
+    tr = run_case(arm, "theorem5", c, c.dt)
+    m = _metrics(tr, arm.Pi_nominal, c)
+    q_err = tr["plant.q"] - tr["ref.q_d"]
+    s_err = tr["plant.sigma"] - tr["ref.sigma_d"]
+    m.add("position_max_abs_error", np.abs(q_err).max(), "rad")
+    m.add("stiffness_max_abs_error", np.abs(s_err).max(), "N m/rad")
+    p, pmax = tr["ctrl.p"], np.repeat(arm.act.pressure_max, 2)
+    # Share of samples with a command the valves clip: where the actuator runs out of range.
+    m.add("pressure_saturated_fraction", float(np.mean(np.any((p < 0) | (p > pmax), axis=1))),
+          "")
     return m
 
 
@@ -308,6 +366,7 @@ EXPERIMENT = Experiment(
     title="Decoupled adaptive position and stiffness control of a two-link McKibben arm",
     section="10.2, Fig. 10.2-10.3",
     run=run,
+    case=case,
     config=Ch10AdaptiveConfig().check(),
     quick={"compare_open_loop": False, "check_dt_halving": False,
            "compare_model_acceleration": False},

@@ -57,6 +57,9 @@ class Experiment:
     # the run. Verdicts follow thresholds written in the function, numbers in the
     # evidence are formatted from the metrics passed in (see :func:`finding`).
     findings: Callable[[dict], list[dict]] | None = None
+    # config -> metrics of one run, no files written: what a sweep evaluates per sample
+    # (``softgen sweep``). Without it a sweep calls ``run`` into a scratch directory.
+    case: Callable[[Config], Metrics | dict] | None = None
 
 
 def experiment_ids() -> list[str]:

@@ -19,6 +19,8 @@ Every derivative is taken by CasADi from the definition; nothing is transcribed.
 """
 from __future__ import annotations
 
+import copy
+
 import casadi as ca
 import numpy as np
 
@@ -37,6 +39,11 @@ def _pair(model: RobotModel, key: str) -> tuple[np.ndarray, np.ndarray]:
     """(side a, side b) arrays of a paired actuator value, one entry per joint."""
     vals = np.array([act[key] for act in model.actuators], dtype=float)
     return vals[:, 0], vals[:, 1]
+
+
+def _column(v) -> ca.SX | ca.DM:
+    """A vector of numbers (as DM) or of symbols (as is)."""
+    return v if isinstance(v, (ca.SX, ca.MX)) else ca.DM(v)
 
 
 def _diag_jacobian(f: ca.SX, x: ca.SX) -> ca.SX:
@@ -58,6 +65,24 @@ class McKibbenPairs:
         self.lm_a, self.lm_b = _pair(model, "min_length")
         self.pressure_max = np.array([act.get("pressure_max", np.inf)
                                       for act in model.actuators])
+
+    def with_values(self, *, R=None, Kg=None, ln_a=None, ln_b=None, lm_a=None,
+                    lm_b=None) -> McKibbenPairs:
+        """A copy with some values replaced, numbers or CasADi symbols (n each).
+
+        A plant whose muscles differ from the controller's model (a robustness study)
+        is the same expressions with other values; symbols make those values
+        parameters of one generated function instead of one build per sample.
+        """
+        out = copy.copy(self)
+        for key, v in (("R", R), ("Kg", Kg), ("ln_a", ln_a), ("ln_b", ln_b), ("lm_a", lm_a),
+                       ("lm_b", lm_b)):
+            if v is not None:
+                if not isinstance(v, (ca.SX, ca.MX)):
+                    v = np.asarray(v, dtype=float).reshape(self.n)
+                setattr(out, key, v)
+        out.K = out.Kg * out.R
+        return out
 
     # -- expressions ---------------------------------------------------------------
     def elongations(self, q: ca.SX) -> tuple[ca.SX, ca.SX]:
@@ -116,11 +141,11 @@ class McKibbenPairs:
 
     def torque(self, q: ca.SX, p: ca.SX) -> ca.SX:
         """τ = K Φ(q) p (eq. 2.2); p = (p_1a, p_1b, …, p_na, p_nb)."""
-        return ca.diag(ca.DM(self.K)) @ self.Phi(q) @ p
+        return ca.diag(_column(self.K)) @ self.Phi(q) @ p
 
     def stiffness(self, q: ca.SX, p: ca.SX) -> ca.SX:
         """σ = −K Φ_q(q) p (eq. 2.3), positive for positive pressures."""
-        return -(ca.diag(ca.DM(self.K)) @ self.Phi_q(q) @ p)
+        return -(ca.diag(_column(self.K)) @ self.Phi_q(q) @ p)
 
     def stiffness_rate(self, q, qd, p, pd) -> ca.SX:
         """σ̇ = −K Φ̇_q p − K Φ_q ṗ (eq. 2.4), by the chain rule."""
