@@ -38,6 +38,7 @@ _MODULES = {
     "ch12-affine-pendulum": ".ch12_soft:EXPERIMENT_PENDULUM",
     "ch12-3d-pcc": ".ch12_soft:EXPERIMENT_3D",
     "ext-estimated-stiffness-feedback": ".ext_estimated_stiffness",
+    "ext-robustness-theorem5": ".ext_robustness",
 }
 
 

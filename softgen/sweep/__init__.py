@@ -104,12 +104,14 @@ def load_rows(out: Path) -> dict[int, dict]:
 
 def _prepare(out: Path, identity: dict, *, resume: bool, force: bool) -> dict[int, dict]:
     meta = out / "sweep.json"
-    if meta.exists() and not force:
-        old = json.loads(meta.read_text())
+    old = json.loads(meta.read_text()) if meta.exists() else None
+    diff = [] if old is None else [k for k in ("spec", "config", "code")
+                                   if old.get(k) != identity[k]]
+    if old is not None and not (force and not (resume and not diff)):
+        # Both flags: resume the same sweep, start over on another (what a pipeline wants).
         if not resume:
             raise SoftgenError(f"sweep: {out} already holds a sweep; --resume to finish it, "
                                "--force to start over, or another --out")
-        diff = [k for k in ("spec", "config", "code") if old.get(k) != identity[k]]
         if diff:
             raise SoftgenError(f"sweep: --resume: {out} holds a sweep with another "
                                f"{' and '.join(diff)}; --force to start over")

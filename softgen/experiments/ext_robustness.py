@@ -1,0 +1,292 @@
+"""ext-robustness-theorem5: Theorem 5 when the plant is not the controller's model.
+
+Beyond the thesis. Section 10.2 runs Theorem 5 with the exact actuator model (Φ and K
+known) and adapts only the inertial parameters Π. This study runs the
+``ch10-pneumatic-adaptive`` scenario (same references, gains, preset, 350 s) as a
+Monte Carlo sweep (:mod:`softgen.sweep`) in which the plant's true values are drawn
+around the model's while the controller keeps the model's:
+
+``all``
+    every uncertain inertial parameter (m, l, c, I of both links) and every actuator
+    value (pulley radius R, muscle gain K_g, the length of each muscle) times an
+    independent U(1 − e, 1 + e), e = ``error`` (0.3), ``samples`` (≥ 200) samples;
+``inertial``, ``gain_radius``, ``lengths``
+    the same errors on one group only (``group_samples`` each): the decomposition that
+    says which group the ``all`` result comes from;
+``lengths_<e>``
+    muscle-length errors of the smaller sizes ``length_errors``: where the tolerance is;
+``length_pairs``
+    the two muscles of joint 1 at lengths (1 + a, 1 + b), a, b in {−p, 0, p} with
+    p = ``pair_error``, a grid: tests the mechanism (below).
+
+Why lengths: at equal pressures the two muscles of a pair pull by K φ_a p_a and
+K φ_b p_b; a length error changes one elongation φ = (l_n − qR)² − l_min² and leaves a
+torque K(Δφ_a p_a − Δφ_b p_b) that grows with the pressures (with the commanded
+stiffness) and that Theorem 5's regressor has no column for. The same error on both
+muscles of a joint changes both elongations alike, so the hypothesis predicts that
+equal pairs track and mismatched pairs do not; ``length_pairs`` runs exactly that.
+
+A muscle's nominal and minimum lengths scale together (the same muscle, longer or
+shorter), so l_n > l_min always holds. "Tracks" uses the tolerances of
+``ch10-pneumatic-adaptive``'s findings: rms errors over the second half of phase 3
+below 1e-3 rad and 1e-2 N m/rad on both joints. "Runaway": a sample that diverged or
+whose link angle left the reference by more than 1 rad.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from ..sweep import SweepSpec, run_sweep
+from .registry import Config, Experiment, Metrics, absent, finding, graded, not_checked, num
+
+TARGET = "ch10-pneumatic-adaptive"
+POS_TOL, STIFF_TOL = 1e-3, 1e-2            # rad, N m/rad: ch10-pneumatic-adaptive's findings
+RUNAWAY = 1.0                              # rad of position error
+METRICS = ("position_rms_error_*_phase3", "stiffness_rms_error_*_phase3",
+           "parameter_estimate_max_ratio", "pressure_saturated_fraction",
+           "position_max_abs_error", "stiffness_max_abs_error")
+#: Indices of plant_actuator_scale: per joint (R, K_g, muscle a length, muscle b length).
+GAIN_RADIUS = (0, 1, 4, 5)
+LENGTHS = (2, 3, 6, 7)
+
+
+@dataclass(frozen=True)
+class RobustnessConfig(Config):
+    error: float = 0.3                  # relative half-width of every U(1 − e, 1 + e)
+    samples: int = 200                  # the "all" study
+    group_samples: int = 40             # each one-group study
+    length_errors: tuple[float, ...] = (0.01, 0.03, 0.1)
+    length_samples: int = 20
+    pair_error: float = 0.1
+    seed: int = 7
+    workers: int = 0                    # 0: one per CPU
+
+    def validate(self) -> None:
+        if not 0 < self.error < 1:
+            raise ValueError(f"error: expected a number in (0, 1), got {self.error}")
+        for k in ("samples", "group_samples", "length_samples"):
+            if getattr(self, k) < 1:
+                raise ValueError(f"{k}: expected a positive integer, got {getattr(self, k)}")
+        if not 0 < self.pair_error < 1:
+            raise ValueError(f"pair_error: expected a number in (0, 1), got {self.pair_error}")
+        if any(not 0 < e < 1 for e in self.length_errors):
+            raise ValueError(f"length_errors: expected numbers in (0, 1), got "
+                             f"{self.length_errors}")
+        if self.workers < 0:
+            raise ValueError(f"workers: expected 0 (one per CPU) or more, got {self.workers}")
+
+
+def _uniform(e: float) -> str:
+    return f"uniform({1 - e!r}, {1 + e!r})"
+
+
+def studies(c: RobustnessConfig) -> dict[str, SweepSpec]:
+    """name -> the sweep of ``ch10-pneumatic-adaptive`` it runs."""
+    u = _uniform(c.error)
+    act = lambda idx, dist: tuple(f"plant_actuator_scale[{i}]={dist}" for i in idx)  # noqa: E731
+    spec = lambda vary, n: SweepSpec(experiment=TARGET, vary=vary, samples=n,  # noqa: E731
+                                     seed=c.seed, metrics=METRICS)
+    out = {
+        "all": spec((f"plant_inertial_scale={u}", f"plant_actuator_scale={u}"), c.samples),
+        "inertial": spec((f"plant_inertial_scale={u}",), c.group_samples),
+        "gain_radius": spec(act(GAIN_RADIUS, u), c.group_samples),
+        "lengths": spec(act(LENGTHS, u), c.group_samples),
+    }
+    for e in c.length_errors:
+        out[f"lengths_{e:g}"] = spec(act(LENGTHS, _uniform(e)), c.length_samples)
+    p = c.pair_error
+    grid = f"grid({1 - p!r}, 1.0, {1 + p!r})"
+    out["length_pairs"] = spec(act((2, 3), grid), 1)
+    return out
+
+
+def _joint_max(rows: list[dict], quantity: str) -> np.ndarray:
+    """Per sample, the larger of the two joints' phase-3 value (NaN if it did not run)."""
+    return np.array([max(r["metrics"].get(f"{quantity}_joint{j}_phase3", np.nan)
+                         for j in (1, 2)) if r["status"] == "ok" else np.nan for r in rows])
+
+
+def classify(rows: list[dict]) -> dict[str, np.ndarray]:
+    pos, sti = _joint_max(rows, "position_rms_error"), _joint_max(rows, "stiffness_rms_error")
+    pmax = np.array([r["metrics"].get("position_max_abs_error", np.nan)
+                     if r["status"] == "ok" else np.inf for r in rows])
+    return {"pos": pos, "sti": sti, "tracks": (pos < POS_TOL) & (sti < STIFF_TOL),
+            "runaway": ~(pmax <= RUNAWAY)}
+
+
+def run(c: RobustnessConfig, out: Path) -> Metrics:
+    from ..experiments.registry import get
+    m = Metrics()
+    # The exact plant: the reference every sample is read against.
+    nominal = get(TARGET).case(get(TARGET).config)
+    flat = nominal.flat()
+    m.add("nominal_position_rms_error", max(flat[f"position_rms_error_joint{j}_phase3"]
+                                            for j in (1, 2)), "rad")
+    m.add("nominal_stiffness_rms_error", max(flat[f"stiffness_rms_error_joint{j}_phase3"]
+                                             for j in (1, 2)), "N m/rad")
+    results = {}
+    wall = 0.0
+    for name, spec in studies(c).items():
+        # Resume a sweep this code already started here, else start over.
+        res = run_sweep(spec, out / "sweeps" / name, workers=c.workers or None,
+                        resume=True, force=True, progress=False)
+        results[name] = res
+        wall += res.wall_seconds
+        cls = classify(res.rows)
+        n = len(res.rows)
+        m.add("samples", n, "", suffix=name)
+        m.add("tracking_fraction", cls["tracks"].mean(), "", suffix=name)
+        m.add("runaway_fraction", cls["runaway"].mean(), "", suffix=name)
+        m.add("diverged_fraction", np.mean([r["status"] == "diverged" for r in res.rows]), "",
+              suffix=name)
+        for key, unit in (("pos", "rad"), ("sti", "N m/rad")):
+            v = cls[key][np.isfinite(cls[key])]
+            label = "position_rms_error" if key == "pos" else "stiffness_rms_error"
+            for q, qn in ((0.5, "median"), (0.95, "q95")):
+                m.add(f"{label}_{qn}", float(np.quantile(v, q)) if v.size else None, unit,
+                      suffix=name)
+    # How far from the length tolerance the all-parameter samples are: each sample's
+    # largest muscle-length error, its smallest over the samples.
+    m.add("largest_length_error_min", min(
+        max(abs(r["inputs"][f"plant_actuator_scale[{i}]"] - 1) for i in LENGTHS)
+        for r in results["all"].rows), "", suffix="all")
+    # The mechanism test: equal against mismatched length errors of one joint's pair.
+    rows = results["length_pairs"].rows
+    tracks = classify(rows)["tracks"]
+    a = np.array([r["inputs"]["plant_actuator_scale[2]"] for r in rows])
+    b = np.array([r["inputs"]["plant_actuator_scale[3]"] for r in rows])
+    equal = (a == b) & (a != 1.0)
+    m.add("tracking_fraction", tracks[equal].mean(), "", suffix="equal_pairs")
+    m.add("tracking_fraction", tracks[a != b].mean(), "", suffix="mismatched_pairs")
+    m.add("sweep_wall_seconds", wall, "s")
+    m.add("samples_per_wall_second", sum(len(r.rows) for r in results.values()) / wall, "1/s")
+    _figures(results, c, out)
+    return m
+
+
+def _figures(results: dict, c: RobustnessConfig, out: Path) -> None:
+    fig = Figure(figsize=(12, 4.2))
+    ax = fig.subplots(1, 3)
+    names = list(results)
+    for k, (key, tol, label) in enumerate((("pos", POS_TOL, "position rms, phase 3 [rad]"),
+                                           ("sti", STIFF_TOL, "stiffness rms, phase 3 [N m/rad]"))):
+        for i, name in enumerate(names):
+            v = classify(results[name].rows)[key]
+            v = v[np.isfinite(v)]
+            jitter = np.random.default_rng(i).uniform(-0.25, 0.25, v.size)
+            ax[k].scatter(i + jitter, np.clip(v, 1e-7, 1e6), s=5, alpha=0.5)
+        ax[k].axhline(tol, color="k", ls="--", lw=0.8, label="ch10 tolerance")
+        ax[k].set_yscale("log")
+        ax[k].set_xticks(range(len(names)), names, rotation=35, fontsize=7, ha="right")
+        ax[k].set_ylabel(label)
+        ax[k].legend(fontsize=7)
+    sizes = [e for e in c.length_errors] + [c.error]
+    frac = [classify(results[f"lengths_{e:g}" if e != c.error else "lengths"].rows)["tracks"].mean()
+            for e in sizes]
+    run = [classify(results[f"lengths_{e:g}" if e != c.error else "lengths"].rows)["runaway"].mean()
+           for e in sizes]
+    ax[2].plot(np.array(sizes) * 100, frac, "o-", label="tracks (ch10 tolerance)")
+    ax[2].plot(np.array(sizes) * 100, run, "s--", label="runaway (> 1 rad)")
+    ax[2].set_xscale("log")
+    ax[2].set_xlabel("muscle length error, ± %")
+    ax[2].set_ylabel("fraction of samples")
+    ax[2].legend(fontsize=7)
+    fig.suptitle(f"Theorem 5 with plant errors (U(1 ± e), {c.samples} samples for 'all')")
+    fig.tight_layout()
+    fig.savefig(out / "robustness.png", dpi=110)
+
+
+def findings(m: dict) -> list[dict]:
+    """Claims about Theorem 5 beyond section 10.2's exact-model assumption.
+
+    Thresholds: "absorbs" means every sample meets ch10-pneumatic-adaptive's tracking
+    tolerances (1e-3 rad, 1e-2 N m/rad rms over the second half of phase 3); "keeps
+    the loop bounded" means no runaway (diverged or more than 1 rad off).
+    """
+    out = []
+    for group, what in (("inertial", "±30 % errors in the inertial parameters (masses, "
+                                      "lengths, centres of mass, inertias)"),
+                        ("gain_radius", "±30 % errors in the pulley radii and muscle gains "
+                                        "(the actuator scale K)")):
+        claim = (f"Theorem 5's adaptation absorbs {what}: tracking stays within the "
+                 "section-10.2 tolerances.")
+        keys = [f"tracking_fraction_{group}", f"runaway_fraction_{group}",
+                f"position_rms_error_q95_{group}", f"stiffness_rms_error_q95_{group}",
+                f"samples_{group}"]
+        if lost := absent(m, keys):
+            out.append(not_checked(claim, lost))
+            continue
+        t, r = m[keys[0]], m[keys[1]]
+        out.append(finding(claim, graded([t == 1.0, r == 0.0]),
+                           f"{num(100 * t)} % of {m[keys[4]]:.0f} samples track, {num(100 * r)} % "
+                           f"run away; 95 % quantiles of the rms errors {num(m[keys[2]])} rad "
+                           f"and {num(m[keys[3]])} N m/rad (tolerances {POS_TOL:g} rad, "
+                           f"{STIFF_TOL:g} N m/rad)."))
+    claim = ("Theorem 5 keeps tracking under ±30 % errors in all actuator and inertial "
+             "parameters at once.")
+    keys = ["tracking_fraction_all", "runaway_fraction_all", "diverged_fraction_all",
+            "samples_all", "position_rms_error_median_all"]
+    if lost := absent(m, keys):
+        out.append(not_checked(claim, lost))
+    else:
+        out.append(finding(claim, graded([m[keys[0]] == 1.0, m[keys[1]] == 0.0]),
+                           f"{num(100 * m[keys[0]])} % of {m[keys[3]]:.0f} samples track; "
+                           f"{num(100 * m[keys[1]])} % run away ({num(100 * m[keys[2]])} % "
+                           f"diverge to non-finite values); median position rms "
+                           f"{num(m[keys[4]])} rad."))
+    claim = ("The muscle lengths are what Theorem 5 cannot absorb: the length-only study "
+             "fails as the all-parameter study does, while small length errors (±1 %) "
+             "mostly track.")
+    keys = ["tracking_fraction_lengths", "runaway_fraction_lengths",
+            "largest_length_error_min_all"]
+    small = sorted((float(k.split("_")[-1]), v) for k, v in m.items()
+                   if k.startswith("tracking_fraction_lengths_") and v is not None)
+    if lost := absent(m, keys):
+        out.append(not_checked(claim, lost))
+    else:
+        sizes = ", ".join(f"±{num(100 * e)} %: {num(100 * v)} %" for e, v in small)
+        ok_small = bool(small) and small[0][1] >= 0.5
+        out.append(finding(claim, graded([m[keys[0]] == 0.0, ok_small]),
+                           f"Lengths alone at ±30 %: {num(100 * m[keys[0]])} % track, "
+                           f"{num(100 * m[keys[1]])} % run away. Share that tracks by length "
+                           f"error: {sizes or 'not run'} (threshold for 'mostly': 50 % at the "
+                           f"smallest). Every all-parameter sample has a muscle off by at "
+                           f"least {num(100 * m[keys[2]])} %."))
+    claim = ("Mechanism: a length error common to both muscles of a joint is absorbed, a "
+             "mismatch between the two is not (the pressure-proportional torque imbalance "
+             "has no column in Theorem 5's regressor).")
+    keys = ["tracking_fraction_equal_pairs", "tracking_fraction_mismatched_pairs"]
+    if lost := absent(m, keys):
+        out.append(not_checked(claim, lost))
+    else:
+        eq, mis = m[keys[0]], m[keys[1]]
+        out.append(finding(claim, graded([eq == 1.0, mis < eq]),
+                           f"Joint-1 muscle pairs on a ±p grid: {num(100 * eq)} % of the equal "
+                           f"pairs track, {num(100 * mis)} % of the mismatched pairs."))
+    return out
+
+
+EXPERIMENT = Experiment(
+    id="ext-robustness-theorem5",
+    title="Theorem 5 under ±30 % actuator and inertial errors (Monte Carlo)",
+    section="softgen (beyond 10.2)",
+    run=run,
+    config=RobustnessConfig().check(),
+    quick={"samples": 24, "group_samples": 8, "length_errors": (0.01, 0.1),
+           "length_samples": 8},
+    findings=findings,
+    discussion=(
+        "Section 10.2 assumes the actuator model exact. Each study is a `softgen sweep` of "
+        "`ch10-pneumatic-adaptive` (tables in `sweeps/<study>/samples.csv`, quantiles in "
+        "`summary.csv`); `tracking_fraction_<study>` uses that experiment's tolerances, "
+        "`runaway_fraction_<study>` counts samples that diverged or left the reference by "
+        "more than 1 rad. The one-group studies decompose the all-parameter result; the "
+        "`lengths_<e>` studies locate the length tolerance and `length_pairs` tests the "
+        "mechanism (module docstring): equal against mismatched errors of one joint's "
+        "muscles. `largest_length_error_min_all` says how far every all-parameter sample "
+        "is from that tolerance."),
+)
