@@ -24,6 +24,7 @@ The same run with the open-loop stiffness controller of Tonietti and Bicchi (K_�
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -113,13 +114,15 @@ def _windows(kind: str, rise: float, settle: float) -> list[tuple[float, float, 
     return decoupling_windows(own, other, settle=settle, end=PHASES[-1][1])
 
 
-def diagram(arm, kind: str, c: Ch10AdaptiveConfig, dt: float) -> ClosedLoop:
+def diagram(arm, kind: str, c: Ch10AdaptiveConfig, dt: float, *,
+            exact_plant: bool | None = None) -> ClosedLoop:
     """Smoothed-step references -> controller ``kind`` -> McKibben arm (ideal pressures);
     with plant errors, the arm whose true values are parameters (one loop for all)."""
     ref = stiffness_reference_block("ref", _steps(("q1", "q2"), c.rise),
                                     _steps(("s1", "s2"), c.rise))
-    plant = plant_block(arm, dt) if c.exact_plant else uncertain_plant_block(arm, dt)
-    tag = "" if c.exact_plant else "_uncertain"
+    exact = c.exact_plant if exact_plant is None else exact_plant
+    plant = plant_block(arm, dt) if exact else uncertain_plant_block(arm, dt)
+    tag = "" if exact else "_uncertain"
     return ClosedLoop(f"ch10_{arm.name}_{kind}{tag}_{'_'.join(f'{dt:g}'.split('.'))}"
                       .replace("-", "m"),
                       [ref, controller_block(arm, kind, dt), plant],
@@ -145,10 +148,12 @@ def plant_values(arm, c: Ch10AdaptiveConfig) -> dict[str, np.ndarray]:
 RECORD = ("ref.q_d", "ref.sigma_d", "plant.q", "plant.sigma", "ctrl.p", "ctrl.nu", "ctrl.Pi_hat")
 
 
-def run_case(arm, kind: str, c: Ch10AdaptiveConfig, dt: float) -> Trace:
-    """Preset (K_π = 0, t < 0), then the three phases: one diagram, two driver calls."""
+def run_case(arm, kind: str, c: Ch10AdaptiveConfig, dt: float, *,
+             d: ClosedLoop | None = None) -> Trace:
+    """Preset (K_π = 0, t < 0), then the three phases: one diagram, two driver calls.
+    ``d``: the diagram of ``(arm, kind, c, dt)`` if already built (sweeps reuse it)."""
     n, K1 = arm.n, arm.K1
-    d = diagram(arm, kind, c, dt)
+    d = d or diagram(arm, kind, c, dt)
     Pi = arm.Pi_nominal
     gains = {"lam": c.lam, "kd": c.kd, "kpi": 0.0}
     for name, value in (("ksigma", c.stiffness_rate / K1), ("kinv", 1 / arm.act.K)):
@@ -196,11 +201,20 @@ def _metrics(tr: Trace, Pi: np.ndarray, c: Ch10AdaptiveConfig, prefix: str = "")
     return m
 
 
+@functools.lru_cache(maxsize=8)
+def _case_setup(model: str, rise: float, dt: float, exact_plant: bool):
+    """(arm, diagram) of :func:`case`, built once per process: a sweep's samples differ in
+    parameters only, and rebuilding the diagram costs as much as simulating it."""
+    arm = pneumatic_arm(load_model(model))
+    c = Ch10AdaptiveConfig(model=model, rise=rise, dt=dt)
+    return arm, diagram(arm, "theorem5", c, dt, exact_plant=exact_plant)
+
+
 def case(c: Ch10AdaptiveConfig) -> Metrics:
     """Theorem 5 once, metrics only (no files, no comparison runs): one sample of a sweep
     (``softgen sweep ch10-pneumatic-adaptive``, ``ext-robustness-theorem5``)."""
-    arm = pneumatic_arm(load_model(c.model))
-    tr = run_case(arm, "theorem5", c, c.dt)
+    arm, d = _case_setup(c.model, c.rise, c.dt, c.exact_plant)
+    tr = run_case(arm, "theorem5", c, c.dt, d=d)
     m = _metrics(tr, arm.Pi_nominal, c)
     q_err = tr["plant.q"] - tr["ref.q_d"]
     s_err = tr["plant.sigma"] - tr["ref.sigma_d"]
