@@ -86,8 +86,8 @@ static inline int softgen_rt_dense(const casadi_int *sp, casadi_int rows, casadi
 /* The checks and the memory of <f>_init. The capacities are the lengths of the struct's
    arg, res, iw and w arrays. */
 static inline int softgen_rt_init(const softgen_rt_desc *d, int *mem, int *ready,
-                           casadi_int cap_arg, casadi_int cap_res, casadi_int cap_iw,
-                           casadi_int cap_w) {
+                                  casadi_int cap_arg, casadi_int cap_res, casadi_int cap_iw,
+                                  casadi_int cap_w) {
   casadi_int sz_arg = 0, sz_res = 0, sz_iw = 0, sz_w = 0, i;
   int m;
   *ready = 0;
