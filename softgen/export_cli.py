@@ -1,13 +1,24 @@
 """``softgen export``: arguments and entry point (the work is in :mod:`softgen.export`)."""
 from __future__ import annotations
 
-from .errors import SoftgenError
-
 
 def add_arguments(p) -> None:
-    p.add_argument("model", metavar="MODEL")
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("model", metavar="MODEL",
+                   help="a shipped model's name (its bundle is generated first if missing or "
+                        "stale) or a model file")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="directory of the C project (new or empty unless --force)")
+    p.add_argument("--force", action="store_true",
+                   help="write into a non-empty DIR, overwriting the exported files")
+    p.add_argument("--build", action="store_true",
+                   help="also build the project (make, with the C compiler of --cc or $CC)")
+    p.add_argument("--cc", metavar="CC", help="C compiler for --build (default $CC, cc, gcc, "
+                   "clang)")
 
 
 def run(args) -> int:
-    raise SoftgenError("export: not implemented yet")
+    from .export import export, summary
+    res = export(args.model, args.out, force=args.force, build=args.build, cc=args.cc)
+    for line in summary(res):
+        print(line)
+    return 0
