@@ -295,10 +295,13 @@ class _Urdf(_Reader):
             raise self.fail(f"{where} <mass> value", f"expected a non-negative number, got {mass}")
         lam = np.linalg.eigvalsh(inertia)
         scale = max(abs(lam).max(), 1e-300)
-        if lam[0] < -1e-12 * scale or lam[0] + lam[1] < lam[2] * (1 - 1e-9):
+        if lam[0] < -1e-12 * scale:
+            raise self.fail(f"{where} <inertia>", "inertia not positive semi-definite "
+                            f"(eigenvalues {np.round(lam, 12).tolist()})")
+        if lam[0] + lam[1] < lam[2] * (1 - 1e-9):
             raise self.fail(f"{where} <inertia>", f"principal moments {np.round(lam, 12).tolist()}"
-                            " are not those of a body (each non-negative and at most the sum "
-                            "of the other two)")
+                            " violate the triangle inequality (each at most the sum of the "
+                            "other two)")
         Rb = R @ Ro
         return _Inertial(mass, p + R @ po, Rb @ inertia @ Rb.T)
 

@@ -382,8 +382,10 @@ REFUSALS = [
      "link 'l2' <inertial> <inertia>: principal moments"),
     ("bad-leaf", _urdf(_LEAF.format(j="tool", t="fixed", p="l2", c="gripper").replace(
         'izz="1e-4"', 'izz="1e-3"')), "link 'gripper' <inertial> <inertia>: principal moments"),
-    ("flat-body", _swap('izz="0.015"', 'izz="1e-5"'),
+    ("flat-body", _swap('ixx="0.01"', 'ixx="0.001"'),
      "link 'l1' <inertial> <inertia>: principal moments"),
+    ("indefinite", _swap('izz="0.015"', 'izz="-0.015"'),
+     "link 'l1' <inertial> <inertia>: inertia not positive semi-definite"),
     ("no-inertial", _swap('<inertial><origin xyz="0.05 0.01 0"/><mass value="0.5"/>\n      '
                           '<inertia ixx="0.002" ixy="0" ixz="0.0001" iyy="0.003" iyz="0" '
                           'izz="0.004"/></inertial>', ""),
