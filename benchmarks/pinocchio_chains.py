@@ -43,7 +43,8 @@ from softgen.symbolic.mechanics import rpy
 from softgen.symbolic.rigid import RigidDynamics
 
 def describe(model) -> str:
-    """One line per joint: type axis(3) xyz(3) rpy(3) mass com(3) inertia-about-com(6)."""
+    """One line per joint: type axis(3) xyz(3) rot(9) mass com(3) inertia-about-com(6)
+    damping (viscous; Pinocchio's ``rnea`` leaves it out, the harness adds D v)."""
     p = model.nominal
     res = lambda v: float(model.resolve(v, p))  # noqa: E731
     R0 = rpy(*model.base_rpy)
@@ -58,8 +59,9 @@ def describe(model) -> str:
             xyz, rot = R0 @ xyz, R0 @ rot
         com = [res(v) for v in link.com]
         inertia = [res(v) for v in link.inertia]
+        damping = res(link.damping) if link.damping is not None else 0.0
         vals = (list(link.axis) + list(xyz) + list(rot.ravel()) + [res(link.mass)] + com
-                + inertia)
+                + inertia + [damping])
         # The joint type is read as an integer: write it as one.
         lines.append(f"{0 if link.joint == 'revolute' else 1} "
                      + " ".join(repr(float(v)) for v in vals))
@@ -95,12 +97,14 @@ static Model build(const char *path) {
   Model m;
   m.gravity.linear() << g[0], g[1], g[2];
   JointIndex parent = 0;
+  std::vector<double> damping(n);
   for (int i = 0; i < n; ++i) {
     int type; double a[3], x[3], r[9], mass, c[3], I[6];
     in >> type >> a[0] >> a[1] >> a[2] >> x[0] >> x[1] >> x[2];
     for (int k = 0; k < 9; ++k) in >> r[k];
     in >> mass >> c[0] >> c[1] >> c[2];
     for (int k = 0; k < 6; ++k) in >> I[k];
+    in >> damping[i];
     Eigen::Matrix3d R; R << r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8];
     SE3 placement(R, Eigen::Vector3d(x[0], x[1], x[2]));
     Eigen::Vector3d axis(a[0], a[1], a[2]);
@@ -117,6 +121,7 @@ static Model build(const char *path) {
     m.appendBodyToJoint(j, Inertia(mass, Eigen::Vector3d(c[0], c[1], c[2]), Ic), SE3::Identity());
     parent = j;
   }
+  m.damping = Eigen::Map<Eigen::VectorXd>(damping.data(), n);
   return m;
 }
 
@@ -159,7 +164,8 @@ static void bench(const char *tag, const char *desc, casadi_fn tau, work_fn tau_
   CFun fypi(ypi, ypi_w, {q.data(), v.data(), v.data(), a.data(), pi.data()}, outy.data());
   ftau();
   rnea(m, d, q, v, a);
-  double err = (d.tau - out).cwiseAbs().maxCoeff() / std::max(1.0, d.tau.cwiseAbs().maxCoeff());
+  Eigen::VectorXd tau = d.tau + m.damping.cwiseProduct(v);
+  double err = (tau - out).cwiseAbs().maxCoeff() / std::max(1.0, tau.cwiseAbs().maxCoeff());
   std::vector<double> t_rnea, t_tau, t_reg, t_yts, t_ypi;
   long rc = std::max(1L, calls / (n > 20 ? 4 : 1));
   for (int r = 0; r < repeats + 1; ++r) {     // the first round warms up and is dropped
