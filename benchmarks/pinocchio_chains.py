@@ -164,8 +164,8 @@ static void bench(const char *tag, const char *desc, casadi_fn tau, work_fn tau_
   CFun fypi(ypi, ypi_w, {q.data(), v.data(), v.data(), a.data(), pi.data()}, outy.data());
   ftau();
   rnea(m, d, q, v, a);
-  Eigen::VectorXd tau = d.tau + m.damping.cwiseProduct(v);
-  double err = (tau - out).cwiseAbs().maxCoeff() / std::max(1.0, tau.cwiseAbs().maxCoeff());
+  Eigen::VectorXd tau_d = d.tau + m.damping.cwiseProduct(v);
+  double err = (tau_d - out).cwiseAbs().maxCoeff() / std::max(1.0, tau_d.cwiseAbs().maxCoeff());
   std::vector<double> t_rnea, t_tau, t_reg, t_yts, t_ypi;
   long rc = std::max(1L, calls / (n > 20 ? 4 : 1));
   for (int r = 0; r < repeats + 1; ++r) {     // the first round warms up and is dropped
