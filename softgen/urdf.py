@@ -9,10 +9,11 @@ unchanged; an error names the URDF element it comes from, e.g.
 
 The XML is read with the standard library's :mod:`xml.etree.ElementTree`: no
 dependency, and a URDF is a small, flat document (links and joints, a few
-attributes each) for which a URDF library would add nothing but an install
-(urdfdom needs C++, the Python parsers pull ROS or trimesh). Xacro macros are not
-expanded: a file with ``xacro:`` elements or ``${...}`` is refused with one line
-asking to run ``xacro`` first.
+attributes each) for which a URDF library would add an install and its own
+dependencies (yourdfpy, for one, pulls lxml and trimesh) and still leave the
+merging and the checks to do here. Xacro macros are not expanded: a file with
+``xacro:`` elements or ``${...}`` is refused with one line asking to run
+``xacro`` first.
 
 What is read
     ``<robot name>`` is the model name. It prefixes every generated C symbol, so
