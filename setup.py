@@ -18,7 +18,8 @@ class BuildPyWithData(build_py):
     def run(self):
         super().run()
         data = Path(self.build_lib) / "softgen" / "_data"
-        for src in sorted((ROOT / "models").glob("*.toml")):
+        models = ROOT / "models"
+        for src in sorted([*models.glob("*.toml"), *models.glob("*.urdf")]):
             self._copy(src, data / "models" / src.name)
         for bundle in sorted(p for p in (ROOT / "generated").iterdir() if p.is_dir()):
             for src in sorted(bundle.iterdir()):

@@ -10,8 +10,8 @@ and point this script at its headers and libraries (the ``cmeel.prefix`` directo
         --pin-prefix /tmp/pinvenv/lib/python3.11/site-packages/cmeel.prefix \\
         --n 2 5 10 20 40 80 --arm
 
-For every chain (softgen.chains.chain_model(n); with ``--arm`` also the 7-joint
-spatial arm ``benchmarks/arm7.toml``), it writes one C file with softgen's
+For every chain (softgen.chains.chain_model(n); with ``--arm`` also the shipped
+7-DoF Panda, ``models/panda.urdf``), it writes one C file with softgen's
 functions as ``softgen generate`` builds them (``RigidDynamics(model)`` with
 route="auto": τ = inverse_dynamics, Yᵀ s and Y π̂ over the base parameters), a text
 description of the chain (joint type, axis, placement, mass, centre of mass,
@@ -39,30 +39,29 @@ import numpy as np
 
 from softgen.chains import chain_model
 from softgen.model import load_model
-from softgen.symbolic.mechanics import _rpy
+from softgen.symbolic.mechanics import rpy
 from softgen.symbolic.rigid import RigidDynamics
 
-HERE = Path(__file__).resolve().parent
-
-
 def describe(model) -> str:
-    """One line per joint: type axis(3) xyz(3) rpy(3) mass com(3) inertia-about-com(6)."""
+    """One line per joint: type axis(3) xyz(3) rot(9) mass com(3) inertia-about-com(6)
+    damping (viscous; Pinocchio's ``rnea`` leaves it out, the harness adds D v)."""
     p = model.nominal
     res = lambda v: float(model.resolve(v, p))  # noqa: E731
-    R0 = _rpy(*model.base_rpy)
+    R0 = rpy(*model.base_rpy)
     g = p["g"] * np.asarray(model.gravity_direction)
     lines = [f"{model.dof} " + " ".join(repr(float(x)) for x in g)]
     for i, link in enumerate(model.links):
         if link.inertia_about != "com":
             raise SystemExit(f"{model.name}: lumped inertia has no Pinocchio equivalent")
         xyz = np.array([res(v) for v in link.origin_xyz])
-        rot = _rpy(*link.origin_rpy)
+        rot = rpy(*link.origin_rpy)
         if i == 0:              # the base frame's rotation folds into the first placement
             xyz, rot = R0 @ xyz, R0 @ rot
         com = [res(v) for v in link.com]
         inertia = [res(v) for v in link.inertia]
+        damping = res(link.damping) if link.damping is not None else 0.0
         vals = (list(link.axis) + list(xyz) + list(rot.ravel()) + [res(link.mass)] + com
-                + inertia)
+                + inertia + [damping])
         # The joint type is read as an integer: write it as one.
         lines.append(f"{0 if link.joint == 'revolute' else 1} "
                      + " ".join(repr(float(v)) for v in vals))
@@ -98,12 +97,14 @@ static Model build(const char *path) {
   Model m;
   m.gravity.linear() << g[0], g[1], g[2];
   JointIndex parent = 0;
+  std::vector<double> damping(n);
   for (int i = 0; i < n; ++i) {
     int type; double a[3], x[3], r[9], mass, c[3], I[6];
     in >> type >> a[0] >> a[1] >> a[2] >> x[0] >> x[1] >> x[2];
     for (int k = 0; k < 9; ++k) in >> r[k];
     in >> mass >> c[0] >> c[1] >> c[2];
     for (int k = 0; k < 6; ++k) in >> I[k];
+    in >> damping[i];
     Eigen::Matrix3d R; R << r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8];
     SE3 placement(R, Eigen::Vector3d(x[0], x[1], x[2]));
     Eigen::Vector3d axis(a[0], a[1], a[2]);
@@ -120,6 +121,7 @@ static Model build(const char *path) {
     m.appendBodyToJoint(j, Inertia(mass, Eigen::Vector3d(c[0], c[1], c[2]), Ic), SE3::Identity());
     parent = j;
   }
+  m.damping = Eigen::Map<Eigen::VectorXd>(damping.data(), n);
   return m;
 }
 
@@ -162,7 +164,8 @@ static void bench(const char *tag, const char *desc, casadi_fn tau, work_fn tau_
   CFun fypi(ypi, ypi_w, {q.data(), v.data(), v.data(), a.data(), pi.data()}, outy.data());
   ftau();
   rnea(m, d, q, v, a);
-  double err = (d.tau - out).cwiseAbs().maxCoeff() / std::max(1.0, d.tau.cwiseAbs().maxCoeff());
+  Eigen::VectorXd tau_d = d.tau + m.damping.cwiseProduct(v);
+  double err = (tau_d - out).cwiseAbs().maxCoeff() / std::max(1.0, tau_d.cwiseAbs().maxCoeff());
   std::vector<double> t_rnea, t_tau, t_reg, t_yts, t_ypi;
   long rc = std::max(1L, calls / (n > 20 ? 4 : 1));
   for (int r = 0; r < repeats + 1; ++r) {     // the first round warms up and is dropped
@@ -182,20 +185,14 @@ static void bench(const char *tag, const char *desc, casadi_fn tau, work_fn tau_
 """
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pin-prefix", required=True, type=Path,
-                    help="cmeel.prefix directory of a scratch `pip install pin cmeel-eigen`")
-    ap.add_argument("--n", type=int, nargs="+", default=[2, 5, 10, 20, 40, 80])
-    ap.add_argument("--arm", action="store_true", help="also the 7-joint spatial arm")
-    ap.add_argument("--calls", type=int, default=20000)
-    ap.add_argument("--repeats", type=int, default=7)
-    args = ap.parse_args(argv)
-    prefix = args.pin_prefix.resolve()
+def harness(models, prefix: Path, calls: int, repeats: int) -> list[str]:
+    """Compile and run the C++ harness on ``models`` ((tag, RobotModel) pairs).
 
-    models = [(f"chain{n}", chain_model(n)) for n in args.n]
-    if args.arm:
-        models.append(("arm7", load_model(HERE / "arm7.toml")))
+    One table row per model: Pinocchio ``rnea`` / ``computeJointTorqueRegressor``
+    against softgen's τ, Yᵀ s and Y π̂, median ns per call (also used by
+    ``urdf_pinocchio.py``). ``prefix`` is the ``cmeel.prefix`` of ``pip install pin``.
+    """
+    prefix = prefix.resolve()
     with tempfile.TemporaryDirectory(prefix="softgen-pin-") as tmp:
         tmp = Path(tmp)
         gen = ca.CodeGenerator("softgen_fns.c", {"with_header": True})
@@ -217,7 +214,7 @@ def main(argv=None) -> int:
             calls_cpp.append(
                 f'  bench("{tag}", "{tmp / (tag + ".txt")}", tau_{tag}, tau_{tag}_work, '
                 f"yts_{tag}, yts_{tag}_work, ypi_{tag}, ypi_{tag}_work, "
-                f"{len(dyn.parameter_names)}, {args.calls}, {args.repeats});")
+                f"{len(dyn.parameter_names)}, {calls}, {repeats});")
         gen.generate(str(tmp) + "/")
         cpp = tmp / "harness.cpp"
         cpp.write_text(_CPP_HEAD + "\nint main() {\n" + "\n".join(calls_cpp)
@@ -242,12 +239,30 @@ def main(argv=None) -> int:
                               text=True)
     head = (f"{'model':<8} {'n':>3} {'|tau-rnea|':>10} {'rnea ns':>9} {'tau ns':>8} "
             f"{'ratio':>6} {'regr ns':>9} {'Yts ns':>8} {'ratio':>6} {'Ypi ns':>8} {'ratio':>6}")
-    print(head)
+    rows = [head]
     for line in proc.stdout.splitlines():
         tag, n, err, rn, ta, rg, yt, yp = line.split()
         rn, ta, rg, yt, yp = map(float, (rn, ta, rg, yt, yp))
-        print(f"{tag:<8} {n:>3} {float(err):10.1e} {rn:9.1f} {ta:8.1f} {rn / ta:6.2f} "
-              f"{rg:9.1f} {yt:8.1f} {rg / yt:6.2f} {yp:8.1f} {rg / yp:6.2f}")
+        rows.append(f"{tag:<8} {n:>3} {float(err):10.1e} {rn:9.1f} {ta:8.1f} {rn / ta:6.2f} "
+                    f"{rg:9.1f} {yt:8.1f} {rg / yt:6.2f} {yp:8.1f} {rg / yp:6.2f}")
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pin-prefix", required=True, type=Path,
+                    help="cmeel.prefix directory of a scratch `pip install pin cmeel-eigen`")
+    ap.add_argument("--n", type=int, nargs="+", default=[2, 5, 10, 20, 40, 80])
+    ap.add_argument("--arm", action="store_true",
+                    help="also the shipped 7-DoF Panda (models/panda.urdf)")
+    ap.add_argument("--calls", type=int, default=20000)
+    ap.add_argument("--repeats", type=int, default=7)
+    args = ap.parse_args(argv)
+
+    models = [(f"chain{n}", chain_model(n)) for n in args.n]
+    if args.arm:
+        models.append(("panda", load_model("panda")))
+    print("\n".join(harness(models, args.pin_prefix, args.calls, args.repeats)))
     return 0
 
 

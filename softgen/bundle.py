@@ -18,7 +18,8 @@ import numpy as np
 from .codegen.generate import BundleSpec, Generated, content_hash, write_bundle
 from .control.slotine_li import closed_loop_fun, controller_fun, plant_step_fun
 from .errors import BundleError, ModelError
-from .model import MAX_NAME, MODELS_DIR, RobotModel, list_models, load_model
+from .model import (MAX_NAME, MODELS_DIR, RobotModel, list_models, load_model,
+                    shipped_model_file)
 from .runtime.library import Bundle
 from .symbolic.rigid import RigidDynamics
 
@@ -307,12 +308,12 @@ def generate(name_or_path: str | Path, out_root: Path = GENERATED_DIR,
     """
     model = load_model(name_or_path)
     out_root = Path(out_root)
-    shipped = MODELS_DIR / f"{model.name}.toml"
-    if (model.path is not None and shipped.is_file()
+    shipped = shipped_model_file(model.name)
+    if (model.path is not None and shipped is not None
             and Path(model.path).resolve() != shipped.resolve()
             and out_root.resolve() == GENERATED_DIR.resolve()):
         raise ModelError(f"{model.path}: model.name: {model.name!r} is the name of a shipped "
-                         f"model (models/{model.name}.toml); rename the model or generate it "
+                         f"model (models/{shipped.name}); rename the model or generate it "
                          "elsewhere (--out DIR)")
     spec = bundle_spec(model, options)
     inertia = next((g.function for g in spec.functions

@@ -1,4 +1,6 @@
-"""Robot models declared in TOML files (``models/<name>.toml``).
+"""Robot models declared in TOML files (``models/<name>.toml``) or URDF files
+(``models/<name>.urdf``, serial chains; :mod:`softgen.urdf` turns them into the
+same tables a spatial TOML file gives, so the same checks apply).
 
 A model file is data: a serial chain of revolute or prismatic joints with the
 inertial and geometric values of each link, gravity, optional viscous damping and
@@ -37,6 +39,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -214,6 +217,18 @@ class RobotModel(ParameterTable):
 # --------------------------------------------------------------------------- loading
 
 
+#: Suffixes of model files, in the order a bare name looks them up in ``models/``.
+MODEL_SUFFIXES = (".toml", ".urdf")
+
+
+def shipped_model_file(name: str) -> Path | None:
+    """``models/<name>.toml`` or ``models/<name>.urdf``, whichever exists (TOML first)."""
+    for suffix in MODEL_SUFFIXES:
+        if (MODELS_DIR / f"{name}{suffix}").is_file():
+            return MODELS_DIR / f"{name}{suffix}"
+    return None
+
+
 def model_path(name_or_path: str | Path) -> Path:
     """The file of a model given by name (``planar_2link``) or by path.
 
@@ -226,22 +241,23 @@ def model_path(name_or_path: str | Path) -> Path:
     if "/" in text or "\\" in text or p.suffix:
         return p
     valid = 0 < len(text) <= MAX_NAME and text.isascii() and text.isidentifier()
-    if valid and (MODELS_DIR / f"{text}.toml").is_file():
-        return MODELS_DIR / f"{text}.toml"
+    shipped = shipped_model_file(text) if valid else None
+    if shipped is not None:
+        return shipped
     if len(text) <= 255 and p.is_file():
         return p
     if not valid:
         raise ModelError(f"model name {text[:40]!r}{'...' if len(text) > 40 else ''}: "
                          f"expected a C identifier of at most {MAX_NAME} characters or a "
-                         "path to a .toml file")
+                         "path to a .toml or .urdf file")
     known = ", ".join(list_models()) or "(none)"
     raise ModelError(f"unknown model {text!r}: expected one of {known} "
-                     f"or a path to a .toml file")
+                     f"or a path to a .toml or .urdf file")
 
 
 def list_models() -> list[str]:
-    """Names of the models shipped in ``models/``."""
-    return sorted(p.stem for p in MODELS_DIR.glob("*.toml"))
+    """Names of the models shipped in ``models/`` (TOML and URDF files)."""
+    return sorted({p.stem for suffix in MODEL_SUFFIXES for p in MODELS_DIR.glob(f"*{suffix}")})
 
 
 def load_model(name_or_path: str | Path) -> RobotModel:
@@ -258,6 +274,9 @@ def load_model(name_or_path: str | Path) -> RobotModel:
         text = path.read_text()
     except OSError as exc:
         raise ModelError(f"{path}: cannot read model file ({exc.strerror})") from None
+    if path.suffix.lower() == ".urdf":
+        from .urdf import parse_urdf        # serial chains from URDF (issue 17)
+        return parse_urdf(path, text)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -315,10 +334,25 @@ class FileReader:
 
 
 
+def parse_rigid(path: Path, data: dict,
+                key_name: Callable[[str], str] | None = None) -> RobotModel:
+    """Validate the tables of a rigid model file (what ``tomllib`` gives for one).
+
+    ``key_name`` maps a key of ``data`` (``links[2].inertia``) to the name of what
+    the user wrote, so that a file translated into these tables (a URDF file,
+    :mod:`softgen.urdf`) gets errors naming its own elements.
+    """
+    return _Parser(path, key_name).parse(data)
+
+
 class _Parser(FileReader):
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, key_name: Callable[[str], str] | None = None):
         super().__init__(path)
         self._link_names: set[str] = set()
+        self._key_name = key_name
+
+    def fail(self, key: str, msg: str) -> ModelError:
+        return super().fail(self._key_name(key) if self._key_name else key, msg)
 
     def parse(self, data: dict) -> RobotModel:
         self.keys(data, "", _TOP_KEYS, {"model", "links"})

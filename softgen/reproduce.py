@@ -47,7 +47,8 @@ def code_hash() -> str:
     import numpy
     h = hashlib.sha256(f"casadi={casadi.__version__} numpy={numpy.__version__}\n".encode())
     named = [(f"softgen/{f.relative_to(_PACKAGE)}", f) for f in sorted(_PACKAGE.rglob("*.py"))]
-    named += [(f"models/{f.name}", f) for f in sorted(MODELS_DIR.glob("*.toml"))]
+    named += [(f"models/{f.name}", f)
+              for f in sorted([*MODELS_DIR.glob("*.toml"), *MODELS_DIR.glob("*.urdf")])]
     named += [(f"generated/{f.parent.name}/{f.name}", f)
               for f in sorted(GENERATED_DIR.glob("*/manifest.json"))]
     for name, f in named:

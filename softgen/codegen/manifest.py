@@ -156,8 +156,8 @@ def validate_manifest(manifest: Any, path: Path | str = "manifest.json") -> dict
             raise c.fail(f"{key}.can_fail", f"expected true or false, got {_short(f['can_fail'])}")
 
     if is_model_bundle(m):
-        c.string(c.get(m, "model_file", ""), "model_file", re.compile(r".+\.toml$"),
-                 "the path of a .toml model file")
+        c.string(c.get(m, "model_file", ""), "model_file", re.compile(r".+\.(toml|urdf)$"),
+                 "the path of a .toml or .urdf model file")
         c.string(c.get(m, "model_sha256", ""), "model_sha256", _HEX64, "64 hexadecimal digits")
         c.integer(c.get(m, "dof", ""), "dof", 1)
         if "options" in m:
