@@ -63,7 +63,8 @@ def test_study_specs_parse_and_cover_every_group():
     c = RobustnessConfig()
     s = studies(c)
     assert s["all"].samples >= 200
-    assert {"all", "inertial", "gain_radius", "lengths", "length_pairs"} <= set(s)
+    assert {"all", "inertial", "gain_radius", "lengths", "length_pairs", "radius_pairs",
+            "radius_rate"} <= set(s)
     for spec in s.values():
         assert spec.experiment == "ch10-pneumatic-adaptive"
         for v in spec.vary:
@@ -79,7 +80,10 @@ def _metrics(**kw):
                       ("position_rms_error_q95", 1e-4), ("stiffness_rms_error_q95", 1e-3),
                       ("position_rms_error_median", 1e-4))}
     m.update({"largest_length_error_min_all": 0.1, "tracking_fraction_lengths_0.01": 0.9,
-              "tracking_fraction_equal_pairs": 1.0, "tracking_fraction_mismatched_pairs": 0.0})
+              "tracking_fraction_equal_pairs": 1.0, "tracking_fraction_mismatched_pairs": 0.0,
+              "joint1_stiffness_error_range_over_own_radius": 0.03,
+              "joint1_stiffness_error_range_over_other_radius": 0.0,
+              "radius_stiffness_error_rate_slope": -0.8})
     m.update(kw)
     return m
 
@@ -87,7 +91,7 @@ def _metrics(**kw):
 def test_findings_follow_the_metrics():
     verdicts = lambda m: [f["verdict"] for f in EXPERIMENT.findings(m)]  # noqa: E731
     v = verdicts(_metrics(tracking_fraction_lengths=0.0))
-    assert v == ["reproduced"] * 5
+    assert v == ["reproduced"] * 6
     v = verdicts(_metrics(tracking_fraction_inertial=0.5, tracking_fraction_all=0.0,
                           runaway_fraction_all=0.6, tracking_fraction_lengths=0.0))
     assert v[0] == "partly reproduced" and v[2] == "not reproduced"
@@ -97,3 +101,5 @@ def test_findings_follow_the_metrics():
     m = _metrics()
     del m["tracking_fraction_equal_pairs"]
     assert verdicts(m)[4] == "not checked"
+    v = verdicts(_metrics(radius_stiffness_error_rate_slope=0.1, tracking_fraction_lengths=0.0))
+    assert v[5] == "partly reproduced"
