@@ -240,7 +240,8 @@ def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
                 results[exp_id] = _safe_run(exp_id, out_root, quick, code)
                 _report_line(results[exp_id], k, len(todo), t0, progress)
         else:
-            _run_pool(todo, out_root, quick, code, jobs, results, t0, progress,
+            costly_first = sorted(todo, key=lambda i: -get(i).cost)   # stable: else id order
+            _run_pool(costly_first, out_root, quick, code, jobs, results, t0, progress,
                       (show_progress, full_traces))
     except _Stop as stop:
         stopped = stop.signum
