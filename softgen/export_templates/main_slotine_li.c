@@ -41,23 +41,6 @@ static void reference(double t, double *q_d, double *qd_d, double *qdd_d) {
   }
 }
 
-static int fail(const char *what, int rc) {
-  fprintf(stderr, "error: %s: %s\n", what, softgen_rt_strerror(rc));
-  return rc;
-}
-
-/* --check: every function's wrapper initialises (buffers and shapes agree) and releases. */
-static int check_wrappers(void) {
-  const char *name = "";
-  int n = 0, rc = @MODEL@_api_check_all(&name, &n);
-  if (rc) {
-    fail(name, rc);
-    return 1;
-  }
-  printf("check: all %d function wrappers of @MODEL@ initialised and released\n", n);
-  return 0;
-}
-
 static int step(void *ctx, long k, double *row, long long *ctrl_ns) {
   loop_t *l = (loop_t *)ctx;
   const double t = (double)k * EX_DT;
@@ -67,7 +50,7 @@ static int step(void *ctx, long k, double *row, long long *ctrl_ns) {
   memcpy(l->ctrl.in.pi_hat, l->pi_hat, sizeof l->pi_hat);
   memcpy(l->ctrl.in.q, l->x, EX_N * sizeof(double));
   memcpy(l->ctrl.in.qd, l->x + EX_N, EX_N * sizeof(double));
-  if ((rc = @MODEL@_slotine_li_eval(&l->ctrl))) return fail("@MODEL@_slotine_li", rc);
+  if ((rc = @MODEL@_slotine_li_eval(&l->ctrl))) return sg_fail("@MODEL@_slotine_li", rc);
   *ctrl_ns = sg_now() - t0;
 
   row[c++] = (double)k;
@@ -80,7 +63,7 @@ static int step(void *ctx, long k, double *row, long long *ctrl_ns) {
 
   memcpy(l->plant.in.x, l->x, sizeof l->x);
   memcpy(l->plant.in.tau, l->ctrl.out.tau, EX_N * sizeof(double));
-  if ((rc = @MODEL@_plant_rk4_eval(&l->plant))) return fail("@MODEL@_plant_rk4", rc);
+  if ((rc = @MODEL@_plant_rk4_eval(&l->plant))) return sg_fail("@MODEL@_plant_rk4", rc);
   memcpy(l->x, l->plant.out.x_next, sizeof l->x);
   memcpy(l->pi_hat, l->ctrl.out.pi_hat_next, sizeof l->pi_hat);
   return 0;
@@ -89,11 +72,11 @@ static int step(void *ctx, long k, double *row, long long *ctrl_ns) {
 int main(int argc, char **argv) {
   sg_opts o;
   sg_run r;
-  int rc, i;
+  int rc;
   if ((rc = sg_parse(argc, argv, EX_DEFAULT_STEPS, EX_DT, &o))) return rc == 1 ? 0 : 2;
-  if (o.check) return check_wrappers();
-  if ((rc = @MODEL@_slotine_li_init(&L.ctrl))) return fail("@MODEL@_slotine_li_init", rc);
-  if ((rc = @MODEL@_plant_rk4_init(&L.plant))) return fail("@MODEL@_plant_rk4_init", rc);
+  if (o.check) return sg_check_wrappers(@MODEL@_api_check_all, "@MODEL@");
+  if ((rc = @MODEL@_slotine_li_init(&L.ctrl))) return sg_fail("@MODEL@_slotine_li_init", rc);
+  if ((rc = @MODEL@_plant_rk4_init(&L.plant))) return sg_fail("@MODEL@_plant_rk4_init", rc);
   /* Inputs that stay constant: set once (eval never writes its inputs). */
   memcpy(L.ctrl.in.lam, EX_LAM, sizeof EX_LAM);
   memcpy(L.ctrl.in.kd, EX_KD, sizeof EX_KD);
@@ -103,24 +86,11 @@ int main(int argc, char **argv) {
   memcpy(L.x, EX_X0, sizeof EX_X0);
   memcpy(L.pi_hat, EX_PI_HAT0, sizeof EX_PI_HAT0);
 
-  if (o.rt) sg_try_realtime();
-  if (sg_run_alloc(&r, o.steps, EX_NCOL, o.csv != NULL)) {
-    fprintf(stderr, "error: out of memory for %ld steps\n", o.steps);
+  if (sg_run_example(&r, &o, EX_DT, EX_NCOL, "@MODEL@: Slotine-Li (Prop. 10) on @MODEL@_plant_rk4",
+                     step, &L))
     return 1;
-  }
-  printf("@MODEL@: Slotine-Li (Prop. 10) on @MODEL@_plant_rk4, %ld steps at %g Hz, %s\n",
-         o.steps, 1.0 / EX_DT, o.fast ? "fast (no sleeping)" : "real time");
-  if ((rc = sg_run_loop(&r, &o, EX_DT, step, &L))) {
-    sg_run_free(&r);
-    return 1;
-  }
-  printf("tracking error q - q_d over %ld samples [rad]:\n", o.steps);
-  for (i = 0; i < EX_N; ++i)
-    printf("  joint %d: rms %.6e, max %.6e\n", i + 1, sg_err_rms(&L.err[i]), L.err[i].maxabs);
-  sg_report_timing(&r, &o, EX_DT);
-  rc = o.csv ? sg_write_csv(o.csv, EX_COLUMNS, &r) : 0;
-  if (!rc && o.csv) printf("trajectory: %s (%ld rows)\n", o.csv, o.steps);
-  sg_run_free(&r);
+  sg_print_errors("tracking error q - q_d", "rad", L.err, EX_N, o.steps);
+  rc = sg_finish_example(&r, &o, EX_DT, EX_COLUMNS);
   @MODEL@_slotine_li_free(&L.ctrl);
   @MODEL@_plant_rk4_free(&L.plant);
   return rc;

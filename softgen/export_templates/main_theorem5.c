@@ -60,23 +60,6 @@ static void reference(double t, double *ref) {
 
 static double clip(double v, double hi) { return fmin(fmax(v, 0.0), hi); }
 
-static int fail(const char *what, int rc) {
-  fprintf(stderr, "error: %s: %s\n", what, softgen_rt_strerror(rc));
-  return rc;
-}
-
-/* --check: every function's wrapper initialises (buffers and shapes agree) and releases. */
-static int check_wrappers(void) {
-  const char *name = "";
-  int n = 0, rc = @MODEL@_api_check_all(&name, &n);
-  if (rc) {
-    fail(name, rc);
-    return 1;
-  }
-  printf("check: all %d function wrappers of @MODEL@ initialised and released\n", n);
-  return 0;
-}
-
 static int step(void *ctx, long k, double *row, long long *ctrl_ns) {
   loop_t *l = (loop_t *)ctx;
   const double t = (double)k * EX_DT;
@@ -87,12 +70,12 @@ static int step(void *ctx, long k, double *row, long long *ctrl_ns) {
   memcpy(l->stiffness.in.q, l->x, EX_N * sizeof(double));
   memcpy(l->stiffness.in.p, l->p, sizeof l->p);
   if ((rc = @MODEL@_mckibben_torque_eval(&l->stiffness)))
-    return fail("@MODEL@_mckibben_torque", rc);
+    return sg_fail("@MODEL@_mckibben_torque", rc);
   memcpy(l->ctrl.in.z, l->z, sizeof l->z);
   memcpy(l->ctrl.in.q, l->x, EX_N * sizeof(double));
   memcpy(l->ctrl.in.qd, l->x + EX_N, EX_N * sizeof(double));
   memcpy(l->ctrl.in.sigma, l->stiffness.out.sigma, EX_N * sizeof(double));
-  if ((rc = @MODEL@_theorem5_eval(&l->ctrl))) return fail("@MODEL@_theorem5", rc);
+  if ((rc = @MODEL@_theorem5_eval(&l->ctrl))) return sg_fail("@MODEL@_theorem5", rc);
   *ctrl_ns = sg_now() - t0;
 
   row[c++] = (double)k;
@@ -114,7 +97,7 @@ static int step(void *ctx, long k, double *row, long long *ctrl_ns) {
   }
   memcpy(l->plant.in.x, l->x, sizeof l->x);
   memcpy(l->plant.in.p, l->p, sizeof l->p);
-  if ((rc = @MODEL@_pneumatic_plant_eval(&l->plant))) return fail("@MODEL@_pneumatic_plant", rc);
+  if ((rc = @MODEL@_pneumatic_plant_eval(&l->plant))) return sg_fail("@MODEL@_pneumatic_plant", rc);
   memcpy(l->x, l->plant.out.x_next, sizeof l->x);
   memcpy(l->z, l->ctrl.out.z_next, sizeof l->z);
   return 0;
@@ -124,7 +107,7 @@ static int step(void *ctx, long k, double *row, long long *ctrl_ns) {
 static int preset(void) {
   static @MODEL@_open_loop_stiffness_t ol;
   int rc, i;
-  if ((rc = @MODEL@_open_loop_stiffness_init(&ol))) return fail("@MODEL@_open_loop_stiffness_init", rc);
+  if ((rc = @MODEL@_open_loop_stiffness_init(&ol))) return sg_fail("@MODEL@_open_loop_stiffness_init", rc);
   memcpy(ol.in.z, EX_PI_HAT0, sizeof EX_PI_HAT0);
   memcpy(ol.in.q, EX_X0, EX_N * sizeof(double));
   memcpy(ol.in.qd, EX_X0 + EX_N, EX_N * sizeof(double));
@@ -133,7 +116,7 @@ static int preset(void) {
   memcpy(ol.in.kd, EX_KD, sizeof EX_KD);
   memcpy(ol.in.kinv, EX_KINV, sizeof EX_KINV);   /* kpi stays 0 (init zeroes inputs) */
   ol.in.dt[0] = EX_DT;
-  if ((rc = @MODEL@_open_loop_stiffness_eval(&ol))) return fail("@MODEL@_open_loop_stiffness", rc);
+  if ((rc = @MODEL@_open_loop_stiffness_eval(&ol))) return sg_fail("@MODEL@_open_loop_stiffness", rc);
   memcpy(L.z, ol.out.nu, EX_N * sizeof(double));
   memcpy(L.z + EX_N, EX_PI_HAT0, sizeof EX_PI_HAT0);
   for (i = 0; i < 2 * EX_N; ++i) L.p[i] = clip(ol.out.p[i], EX_P_MAX[i]);
@@ -144,13 +127,13 @@ static int preset(void) {
 int main(int argc, char **argv) {
   sg_opts o;
   sg_run r;
-  int rc, i;
+  int rc;
   if ((rc = sg_parse(argc, argv, EX_DEFAULT_STEPS, EX_DT, &o))) return rc == 1 ? 0 : 2;
-  if (o.check) return check_wrappers();
-  if ((rc = @MODEL@_theorem5_init(&L.ctrl))) return fail("@MODEL@_theorem5_init", rc);
+  if (o.check) return sg_check_wrappers(@MODEL@_api_check_all, "@MODEL@");
+  if ((rc = @MODEL@_theorem5_init(&L.ctrl))) return sg_fail("@MODEL@_theorem5_init", rc);
   if ((rc = @MODEL@_mckibben_torque_init(&L.stiffness)))
-    return fail("@MODEL@_mckibben_torque_init", rc);
-  if ((rc = @MODEL@_pneumatic_plant_init(&L.plant))) return fail("@MODEL@_pneumatic_plant_init", rc);
+    return sg_fail("@MODEL@_mckibben_torque_init", rc);
+  if ((rc = @MODEL@_pneumatic_plant_init(&L.plant))) return sg_fail("@MODEL@_pneumatic_plant_init", rc);
   /* Inputs that stay constant: set once (eval never writes its inputs). */
   memcpy(L.ctrl.in.lam, EX_LAM, sizeof EX_LAM);
   memcpy(L.ctrl.in.kd, EX_KD, sizeof EX_KD);
@@ -162,28 +145,13 @@ int main(int argc, char **argv) {
   memcpy(L.x, EX_X0, sizeof EX_X0);
   if ((rc = preset())) return 1;
 
-  if (o.rt) sg_try_realtime();
-  if (sg_run_alloc(&r, o.steps, EX_NCOL, o.csv != NULL)) {
-    fprintf(stderr, "error: out of memory for %ld steps\n", o.steps);
+  if (sg_run_example(&r, &o, EX_DT, EX_NCOL, "@MODEL@: Theorem 5 on @MODEL@_pneumatic_plant",
+                     step, &L))
     return 1;
-  }
-  printf("@MODEL@: Theorem 5 on @MODEL@_pneumatic_plant, %ld steps at %g Hz, %s\n", o.steps,
-         1.0 / EX_DT, o.fast ? "fast (no sleeping)" : "real time");
-  if ((rc = sg_run_loop(&r, &o, EX_DT, step, &L))) {
-    sg_run_free(&r);
-    return 1;
-  }
-  printf("tracking error q - q_d over %ld samples [rad]:\n", o.steps);
-  for (i = 0; i < EX_N; ++i)
-    printf("  joint %d: rms %.6e, max %.6e\n", i + 1, sg_err_rms(&L.err[i]), L.err[i].maxabs);
-  printf("stiffness error sigma - sigma_d over %ld samples [N m/rad]:\n", o.steps);
-  for (i = 0; i < EX_N; ++i)
-    printf("  joint %d: rms %.6e, max %.6e\n", i + 1, sg_err_rms(&L.serr[i]), L.serr[i].maxabs);
+  sg_print_errors("tracking error q - q_d", "rad", L.err, EX_N, o.steps);
+  sg_print_errors("stiffness error sigma - sigma_d", "N m/rad", L.serr, EX_N, o.steps);
   printf("pressure commands clipped to [0, p_max]: %ld of %ld\n", L.clipped, 2 * EX_N * o.steps);
-  sg_report_timing(&r, &o, EX_DT);
-  rc = o.csv ? sg_write_csv(o.csv, EX_COLUMNS, &r) : 0;
-  if (!rc && o.csv) printf("trajectory: %s (%ld rows)\n", o.csv, o.steps);
-  sg_run_free(&r);
+  rc = sg_finish_example(&r, &o, EX_DT, EX_COLUMNS);
   @MODEL@_theorem5_free(&L.ctrl);
   @MODEL@_mckibben_torque_free(&L.stiffness);
   @MODEL@_pneumatic_plant_free(&L.plant);

@@ -23,6 +23,8 @@
 #include <sys/mman.h>
 #include <time.h>
 
+#include "softgen_rt.h"
+
 /* Command-line options of the example. */
 typedef struct {
   long steps;        /* samples to run */
@@ -339,6 +341,63 @@ static int sg_write_csv(const char *path, const char *const *names, const sg_run
     return 1;
   }
   return 0;
+}
+
+/* One line for a failed call of a wrapper, with the runtime's message; returns rc. */
+static int sg_fail(const char *what, int rc) {
+  fprintf(stderr, "error: %s: %s\n", what, softgen_rt_strerror(rc));
+  return rc;
+}
+
+/* --check: every function wrapper of the bundle initialises (buffers and shapes agree)
+ * and releases; check_all is the bundle's <model>_api_check_all. */
+static int sg_check_wrappers(int (*check_all)(const char **name, int *n), const char *model) {
+  const char *name = "";
+  int n = 0, rc = check_all(&name, &n);
+  if (rc) {
+    sg_fail(name, rc);
+    return 1;
+  }
+  printf("check: all %d function wrappers of %s initialised and released\n", n, model);
+  return 0;
+}
+
+/* Per-joint rms and max of an error over the run. */
+static void sg_print_errors(const char *what, const char *unit, const sg_err *e, int n,
+                            long steps) {
+  int i;
+  printf("%s over %ld samples [%s]:\n", what, steps, unit);
+  for (i = 0; i < n; ++i)
+    printf("  joint %d: rms %.6e, max %.6e\n", i + 1, sg_err_rms(&e[i]), e[i].maxabs);
+}
+
+/* Allocate the run's buffers (before the loop: it allocates nothing), say what runs, run
+ * the loop. 0, or 1 after a message. */
+static int sg_run_example(sg_run *r, const sg_opts *o, double dt, int ncol, const char *title,
+                          sg_step_fn step, void *ctx) {
+  if (o->rt) sg_try_realtime();
+  if (sg_run_alloc(r, o->steps, ncol, o->csv != NULL)) {
+    fprintf(stderr, "error: out of memory for %ld steps\n", o->steps);
+    return 1;
+  }
+  printf("%s, %ld steps at %g Hz, %s\n", title, o->steps, 1.0 / dt,
+         o->fast ? "fast (no sleeping)" : "real time");
+  if (sg_run_loop(r, o, dt, step, ctx)) {
+    sg_run_free(r);
+    return 1;
+  }
+  return 0;
+}
+
+/* Timing report, the trajectory CSV if asked, buffers released. 0 or 1. */
+static int sg_finish_example(sg_run *r, const sg_opts *o, double dt,
+                             const char *const *columns) {
+  int rc;
+  sg_report_timing(r, o, dt);
+  rc = o->csv ? sg_write_csv(o->csv, columns, r) : 0;
+  if (!rc && o->csv) printf("trajectory: %s (%ld rows)\n", o->csv, o->steps);
+  sg_run_free(r);
+  return rc;
 }
 
 #endif /* SOFTGEN_LOOP_H */
