@@ -226,7 +226,7 @@ def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo) or 1))
     set_progress(show_progress)
     set_full_traces(full_traces)
-    t0 = time.perf_counter()
+    t0, started = time.perf_counter(), time.time()
     print(f"reproducing {len(todo)} experiment(s) with {jobs} worker(s) -> {out_root}",
           file=progress, flush=True)
     main_thread = threading.current_thread() is threading.main_thread()
@@ -245,6 +245,15 @@ def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
                       (show_progress, full_traces))
     except _Stop as stop:
         stopped = stop.signum
+        # An experiment that wrote its metrics.json during this run finished, even if its
+        # result was still on its way from the worker when the signal came.
+        for i in todo:
+            if i not in results:
+                saved = _resumable(i, out_root, run_hash(i, _config_dict(get(i), quick), quick,
+                                                         code))
+                if saved is not None and \
+                        (out_root / i / "metrics.json").stat().st_mtime >= started:
+                    results[i] = saved
     finally:
         for s, h in old.items():
             signal.signal(s, h)
