@@ -103,3 +103,20 @@ def test_findings_follow_the_metrics():
     assert verdicts(m)[4] == "not checked"
     v = verdicts(_metrics(radius_stiffness_error_rate_slope=0.1, tracking_fraction_lengths=0.0))
     assert v[5] == "partly reproduced"
+
+
+def test_runaways_are_stopped_and_counted():
+    """A sample whose link leaves the reference by more than stop_error ends there and is
+    counted as a runaway (a ±30 % mismatch of joint 1's muscle lengths runs away)."""
+    from softgen.experiments.ext_robustness import classify
+    c = ch10.Ch10AdaptiveConfig(plant_actuator_scale=(1, 1, 1.3, 0.7, 1, 1, 1, 1), stop_error=1.0)
+    m = ch10.case(c).flat()
+    assert m["stopped_at"] is not None and 0 < m["stopped_at"] < 350
+    assert "position_rms_error_joint1_phase3" not in m
+    row = {"status": "ok", "metrics": m}
+    cls = classify([row])
+    assert cls["runaway"][0] and not cls["tracks"][0]
+    ok = ch10.case(ch10.Ch10AdaptiveConfig(stop_error=1.0)).flat()
+    assert ok["stopped_at"] is None or not np.isfinite(ok["stopped_at"])
+    assert not classify([{"status": "ok", "metrics": {k: (np.nan if v is None else v)
+                                                    for k, v in ok.items()}}])["runaway"][0]

@@ -132,8 +132,11 @@ def classify(rows: list[dict]) -> dict[str, np.ndarray]:
     pos, sti = _joint_max(rows, "position_rms_error"), _joint_max(rows, "stiffness_rms_error")
     pmax = np.array([r["metrics"].get("position_max_abs_error", np.nan)
                      if r["status"] == "ok" else np.inf for r in rows])
+    # A run ended by stop_error (= RUNAWAY) stopped just before the sample that left the
+    # band: its recorded maximum is below the band, its stop time says what happened.
+    stopped = np.array([np.isfinite(r["metrics"].get("stopped_at", np.nan)) for r in rows])
     return {"pos": pos, "sti": sti, "tracks": (pos < POS_TOL) & (sti < STIFF_TOL),
-            "runaway": ~(pmax <= RUNAWAY)}
+            "runaway": stopped | ~(pmax <= RUNAWAY)}
 
 
 def run(c: RobustnessConfig, out: Path) -> Metrics:
