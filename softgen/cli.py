@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from .errors import SoftgenError
+from .paths import output_dir
 
 
 def _cmd_list(args) -> int:
@@ -33,25 +34,6 @@ def _cmd_list(args) -> int:
         e = get(exp_id)
         print(f"  {exp_id:<{w}}  {e.title}  [{e.section}]")
     return 0
-
-
-def _output_dir(path: str, flag: str) -> Path:
-    """``path`` as a directory that can be written (or created), checked before any work.
-
-    Nothing is created here: a run that fails later leaves no empty directory behind.
-    """
-    import os
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise SoftgenError(f"{flag} {p}: exists and is not a directory; give a directory")
-    base = p
-    while not base.exists():
-        base = base.parent
-    if not base.is_dir():
-        raise SoftgenError(f"{flag} {p}: {base} is not a directory")
-    if not os.access(base, os.W_OK | os.X_OK):
-        raise SoftgenError(f"{flag} {p}: {base} is not writable")
-    return p
 
 
 def _generate_one(name: str, out: Path, build: bool) -> str:
@@ -81,7 +63,7 @@ def _cmd_generate(args) -> int:
     if args.jobs is not None and args.jobs < 1:
         raise SoftgenError(f"generate: --jobs: expected a positive integer, got {args.jobs}")
     names = list_models() if args.all else args.models
-    out = _output_dir(args.out, "--out") if args.out else GENERATED_DIR
+    out = output_dir(args.out, "--out") if args.out else GENERATED_DIR
     build = not args.no_build and find_compiler() is not None
     if not args.no_build and not build:
         print("softgen: warning: no C compiler found; wrote sources only", file=sys.stderr)
@@ -147,7 +129,7 @@ def _cmd_reproduce(args) -> int:
     from .reproduce import reproduce
     if args.jobs is not None and args.jobs < 1:
         raise SoftgenError(f"reproduce: --jobs: expected a positive integer, got {args.jobs}")
-    out = _output_dir(args.out, "--out")
+    out = output_dir(args.out, "--out")
     results = reproduce(args.ids, out, quick=args.quick, jobs=args.jobs,
                         resume=args.resume, show_progress=True if args.progress else None,
                         full_traces=args.full_traces)

@@ -22,6 +22,8 @@ import os
 from importlib import resources
 from pathlib import Path
 
+from .errors import SoftgenError
+
 #: The repository root when running from a checkout.
 _CHECKOUT = Path(__file__).resolve().parent.parent
 
@@ -57,3 +59,21 @@ def writable(directory: Path) -> bool:
     while not d.exists():
         d = d.parent
     return d.is_dir() and os.access(d, os.W_OK | os.X_OK)
+
+
+def output_dir(path: str, flag: str) -> Path:
+    """``path`` as a directory that can be written (or created), checked before any work.
+
+    Nothing is created here: a run that fails later leaves no empty directory behind.
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise SoftgenError(f"{flag} {p}: exists and is not a directory; give a directory")
+    base = p
+    while not base.exists():
+        base = base.parent
+    if not base.is_dir():
+        raise SoftgenError(f"{flag} {p}: {base} is not a directory")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise SoftgenError(f"{flag} {p}: {base} is not writable")
+    return p

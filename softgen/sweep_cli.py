@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from .errors import SoftgenError
+from .paths import output_dir
 
 EPILOG = """\
 distributions (KEY=DIST, repeatable; KEY[i]=DIST for one element of a tuple field):
@@ -54,7 +55,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from .cli import _output_dir
     from .experiments.registry import experiment_ids
     from .sweep import SweepSpec, run_sweep
     from .sweep.spec import parse_vary
@@ -68,7 +68,7 @@ def run(args) -> int:
         raise SoftgenError(f"sweep: --samples: expected a positive integer, got {n}")
     if not varies:
         raise SoftgenError("sweep: nothing to vary: give --vary KEY=DIST (see softgen sweep -h)")
-    out = _output_dir(args.out or f"sweeps/{args.experiment}", "--out")
+    out = output_dir(args.out or f"sweeps/{args.experiment}", "--out")
     spec = SweepSpec(experiment=args.experiment, vary=tuple(args.vary), samples=n,
                      seed=args.seed, quick=args.quick,
                      metrics=tuple(m.strip() for m in args.metrics.split(",") if m.strip()))

@@ -218,7 +218,7 @@ def _figures(results: dict, c: RobustnessConfig, out: Path) -> None:
         ax[k].axhline(tol, color="k", ls="--", lw=0.8, label="ch10 tolerance")
         ax[k].set_yscale("log")
         ax[k].set_xticks(range(len(names)), names, rotation=35, fontsize=7, ha="right")
-        ax[k].set_ylabel(label)
+        ax[k].set_ylabel(label + " (bounded samples)", fontsize=8)
         ax[k].legend(fontsize=7)
     sizes = [e for e in c.length_errors] + [c.error]
     frac = [classify(results[f"lengths_{e:g}" if e != c.error else "lengths"].rows)["tracks"].mean()
