@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import BuildError, BundleError, SoftgenError
+from .paths import output_dir
 from .export_api import api_header, api_source
 from .export_example import (ExampleConfig, config_header, example_config, example_kind,
                              example_text, no_example, run_python_loop)
@@ -113,11 +114,6 @@ def python_loop(model: str, steps: int = 1000, *,
             raise SoftgenError(f"{manifest['model']}: no example loop ({no_example(manifest)})")
         functions = casadi_functions(manifest)
     return cfg.columns, run_python_loop(cfg, functions, steps)
-
-
-def _no_example(manifest: dict) -> str:
-    m = manifest["model"]
-    return f"the bundle has neither {m}_theorem5 nor {m}_slotine_li with {m}_plant_rk4"
 
 
 # -- rendering ---------------------------------------------------------------------------
@@ -201,17 +197,10 @@ class ExportResult:
 
 
 def _check_out_dir(out: Path, force: bool) -> None:
-    import os
-    if out.exists() and not out.is_dir():
-        raise SoftgenError(f"--out {out}: exists and is not a directory; give a directory")
+    output_dir(out, "--out")
     if out.is_dir() and any(out.iterdir()) and not force:
         raise SoftgenError(f"--out {out}: exists and is not empty; give a new or empty "
                            "directory, or --force to overwrite the exported files")
-    base = out
-    while not base.exists():
-        base = base.parent
-    if not os.access(base, os.W_OK | os.X_OK):
-        raise SoftgenError(f"--out {out}: {base} is not writable")
 
 
 def export(model: str, out: Path | str, *, force: bool = False, build: bool = False,

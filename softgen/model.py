@@ -327,6 +327,21 @@ class FileReader:
             raise self.fail(key, f"expected a list of {n} numbers, got {v!r}")
         return tuple(self.number(x, f"{key}[{i}]") for i, x in enumerate(v))
 
+    def physical_inertia(self, m: np.ndarray, key: str, *, point_mass_ok: bool = False) -> None:
+        """A 3x3 inertia tensor a body can have: positive definite (semi-definite with
+        ``point_mass_ok``) and principal moments satisfying the triangle inequality."""
+        lam = np.linalg.eigvalsh(m)     # ascending
+        if point_mass_ok:
+            if lam[0] < -1e-12 * max(abs(lam).max(), 1e-300):
+                raise self.fail(key, "inertia not positive semi-definite (eigenvalues "
+                                f"{np.round(lam, 12).tolist()})")
+        elif lam.min() <= 0:
+            raise self.fail(key, f"inertia not positive definite (eigenvalues "
+                            f"{np.round(lam, 12).tolist()})")
+        if lam[0] + lam[1] < lam[2] * (1 - 1e-9):
+            raise self.fail(key, f"principal moments {np.round(lam, 12).tolist()} violate the "
+                            "triangle inequality (each at most the sum of the other two)")
+
     def choice(self, v: Any, key: str, options: tuple[str, ...]) -> str:
         if v not in options:
             raise self.fail(key, f"expected one of {', '.join(map(repr, options))}, got {v!r}")
@@ -558,13 +573,7 @@ class _Parser(FileReader):
         else:
             raise self.fail(key, "expected a 3x3 matrix or [ixx, iyy, izz, ixy, ixz, iyz], "
                             f"got {v!r}")
-        lam = np.linalg.eigvalsh(m)     # ascending
-        if lam.min() <= 0:
-            raise self.fail(key, f"inertia not positive definite (eigenvalues "
-                            f"{np.round(lam, 12).tolist()})")
-        if lam[0] + lam[1] < lam[2] * (1 - 1e-9):
-            raise self.fail(key, f"principal moments {np.round(lam, 12).tolist()} violate the "
-                            "triangle inequality (each at most the sum of the other two)")
+        self.physical_inertia(m, key)
         return (m[0, 0], m[1, 1], m[2, 2], m[0, 1], m[0, 2], m[1, 2])
 
     def uncertain(self, table: Any, nominal: dict) -> tuple[str, ...]:

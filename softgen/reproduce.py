@@ -29,6 +29,7 @@ from typing import TextIO
 
 from .errors import Interrupted
 from .paths import GENERATED_DIR, MODELS_DIR
+from .model import MODEL_SUFFIXES
 from .report import write_report
 from .runtime.simulate import progress_context, set_full_traces, set_progress
 from .config import Config
@@ -48,7 +49,7 @@ def code_hash() -> str:
     h = hashlib.sha256(f"casadi={casadi.__version__} numpy={numpy.__version__}\n".encode())
     named = [(f"softgen/{f.relative_to(_PACKAGE)}", f) for f in sorted(_PACKAGE.rglob("*.py"))]
     named += [(f"models/{f.name}", f)
-              for f in sorted([*MODELS_DIR.glob("*.toml"), *MODELS_DIR.glob("*.urdf")])]
+              for f in sorted(f for s in MODEL_SUFFIXES for f in MODELS_DIR.glob(f"*{s}"))]
     named += [(f"generated/{f.parent.name}/{f.name}", f)
               for f in sorted(GENERATED_DIR.glob("*/manifest.json"))]
     for name, f in named:
@@ -240,8 +241,7 @@ def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
                 results[exp_id] = _safe_run(exp_id, out_root, quick, code)
                 _report_line(results[exp_id], k, len(todo), t0, progress)
         else:
-            costly_first = sorted(todo, key=lambda i: -get(i).cost)   # stable: else id order
-            _run_pool(costly_first, out_root, quick, code, jobs, results, t0, progress,
+            _run_pool(todo, out_root, quick, code, jobs, results, t0, progress,
                       (show_progress, full_traces))
     except _Stop as stop:
         stopped = stop.signum

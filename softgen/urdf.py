@@ -61,8 +61,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ModelError
-from .model import MAX_MAGNITUDE, RobotModel, parse_rigid
+from .model import MAX_MAGNITUDE, FileReader, RobotModel, parse_rigid
 from .symbolic.mechanics import rpy as rpy_matrix
 
 #: A decimal number as URDF writes it (no ``nan``, ``inf`` or ``1_000``, which
@@ -97,14 +96,8 @@ class _Body:
     merged: list[str] = field(default_factory=list)       # fixed links merged into it
 
 
-class _Reader:
-    """Attributes of URDF elements as numbers; each failure one :class:`ModelError`."""
-
-    def __init__(self, path: Path):
-        self.path = path
-
-    def fail(self, where: str, msg: str) -> ModelError:
-        return ModelError(f"{self.path}: {where}: {msg}")
+class _Reader(FileReader):
+    """Attributes of URDF elements as numbers; each failure one :class:`~softgen.errors.ModelError`."""
 
     def attr(self, el: ET.Element, name: str, where: str) -> str:
         v = el.get(name)
@@ -294,15 +287,7 @@ class _Urdf(_Reader):
         # semi-definite with the triangle inequality. The body it joins is checked again.
         if mass < 0:
             raise self.fail(f"{where} <mass> value", f"expected a non-negative number, got {mass}")
-        lam = np.linalg.eigvalsh(inertia)
-        scale = max(abs(lam).max(), 1e-300)
-        if lam[0] < -1e-12 * scale:
-            raise self.fail(f"{where} <inertia>", "inertia not positive semi-definite "
-                            f"(eigenvalues {np.round(lam, 12).tolist()})")
-        if lam[0] + lam[1] < lam[2] * (1 - 1e-9):
-            raise self.fail(f"{where} <inertia>", f"principal moments {np.round(lam, 12).tolist()}"
-                            " violate the triangle inequality (each at most the sum of the "
-                            "other two)")
+        self.physical_inertia(inertia, f"{where} <inertia>", point_mass_ok=True)
         Rb = R @ Ro
         return _Inertial(mass, p + R @ po, Rb @ inertia @ Rb.T)
 

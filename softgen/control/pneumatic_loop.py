@@ -26,14 +26,19 @@ from .pneumatic import KINDS, PneumaticArm
 PLANTS = ("ideal", "valve")
 
 
+def applied_pressures(act, p_cmd):
+    """What the regulators deliver of a command: clipped to [0, p_max] (no upper clip
+    for muscles without a ``pressure_max``)."""
+    p = ca.fmax(p_cmd, 0)
+    pmax = np.repeat(act.pressure_max, 2)
+    return ca.fmin(p, ca.DM(pmax)) if np.all(np.isfinite(pmax)) else p
+
+
 def _ideal_plant(arm: PneumaticArm, substeps: int) -> ca.Function:
     n, dyn, act = arm.n, arm.dyn, arm.act
     m = dyn.nominal
     x, pc, h = ca.SX.sym("x", 4 * n), ca.SX.sym("p_c", 2 * n), ca.SX.sym("h")
-    pmax = np.repeat(act.pressure_max, 2)
-    p = ca.fmax(pc, 0)
-    if np.all(np.isfinite(pmax)):
-        p = ca.fmin(p, ca.DM(pmax))
+    p = applied_pressures(act, pc)
     xs, ps = ca.SX.sym("xs", 2 * n), ca.SX.sym("ps", 2 * n)
     qdd = ca.substitute(dyn.forward_dynamics_expr(act.torque(m.q, ps)),
                         ca.vertcat(m.q, m.qd), xs)
@@ -177,13 +182,10 @@ def uncertain_plant_block(arm: PneumaticArm, dt: float, *, substeps: int = 1,
     rhs = ca.Function("rhs", [ca.vertcat(q, qd), pc, *values],
                       [ca.vertcat(qd, ca.solve(B, act.torque(q, pc) - bias))])
     stiff = ca.Function("stiffness", [q, pc, *values], [act.stiffness(q, pc)])
-    pmax = np.repeat(arm.act.pressure_max, 2)
 
     def body(x, u, p):
         vals = [p[nm] for nm in ("pi", "R", "Kg", "ln", "lm")]
-        applied = ca.fmax(u["p_cmd"], 0)
-        if np.all(np.isfinite(pmax)):
-            applied = ca.fmin(applied, ca.DM(pmax))
+        applied = applied_pressures(arm.act, u["p_cmd"])
         xn = rk4_steps(lambda xx, pp: rhs(xx, pp, *vals), ca.vertcat(x["q"], x["qd"]),
                        applied, dt, substeps)
         return ({"q": xn[:n], "qd": xn[n:], "p": applied},
@@ -222,9 +224,7 @@ def valve_rhs_fun(robot) -> ca.Function:
     q, qd, p = x[:n], x[n:2 * n], x[2 * n:]
     qdd = ca.substitute(dyn.forward_dynamics_expr(act.torque(m.q, p)),
                         ca.vertcat(m.q, m.qd), ca.vertcat(q, qd))
-    sat = ca.fmax(pc, 0)
-    if np.all(np.isfinite(act.pressure_max)):
-        sat = ca.fmin(sat, ca.DM(np.repeat(act.pressure_max, 2)))
+    sat = applied_pressures(act, pc)
     return ca.Function(f"{robot.name}_valve_rhs", [x, pc, tp],
                        [ca.vertcat(qd, qdd, (sat - p) / tp)], ["x", "p_c", "T_p"],
                        ["x_dot"], FUNCTION_OPTS)

@@ -47,7 +47,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..sweep import SweepSpec, run_sweep
-from .registry import Config, Experiment, Metrics, absent, finding, graded, not_checked, num
+from .registry import (Config, Experiment, Metrics, absent, finding, get, graded, not_checked,
+                       num)
 
 TARGET = "ch10-pneumatic-adaptive"
 POS_TOL, STIFF_TOL = 1e-3, 1e-2            # rad, N m/rad: ch10-pneumatic-adaptive's findings
@@ -140,7 +141,6 @@ def classify(rows: list[dict]) -> dict[str, np.ndarray]:
 
 
 def run(c: RobustnessConfig, out: Path) -> Metrics:
-    from ..experiments.registry import get
     m = Metrics()
     # The exact plant: the reference every sample is read against.
     nominal = get(TARGET).case(get(TARGET).config)
@@ -329,7 +329,6 @@ EXPERIMENT = Experiment(
     quick={"samples": 24, "group_samples": 8, "length_errors": (0.01, 0.1),
            "length_samples": 8},
     findings=findings,
-    cost=6.0,        # ~400 closed-loop runs of 355 s: ~90 s on 2 CPUs, 6x a typical experiment
     discussion=(
         "Section 10.2 assumes the actuator model exact. Each study is a `softgen sweep` of "
         "`ch10-pneumatic-adaptive` (tables in `sweeps/<study>/samples.csv`, quantiles in "

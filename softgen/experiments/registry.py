@@ -61,9 +61,6 @@ class Experiment:
     # config -> metrics of one run, no files written: what a sweep evaluates per sample
     # (``softgen sweep``). Without it a sweep calls ``run`` into a scratch directory.
     case: Callable[[Config], Metrics | dict] | None = None
-    # Rough run time relative to a typical experiment: ``reproduce`` starts the costliest
-    # first (longest processing time first), so a long study does not run alone at the end.
-    cost: float = 1.0
 
 
 def experiment_ids() -> list[str]:
