@@ -66,6 +66,8 @@ def run(args) -> int:
     n = args.samples if args.samples is not None else (100 if random else 1)
     if n < 1:
         raise SoftgenError(f"sweep: --samples: expected a positive integer, got {n}")
+    if args.workers is not None and args.workers < 1:
+        raise SoftgenError(f"sweep: --workers: expected a positive integer, got {args.workers}")
     if not varies:
         raise SoftgenError("sweep: nothing to vary: give --vary KEY=DIST (see softgen sweep -h)")
     out = output_dir(args.out or f"sweeps/{args.experiment}", "--out")

@@ -226,3 +226,14 @@ def test_process_pool_and_dask_give_identical_per_sample_metrics(tmp_path):
     dask = run_sweep(_real_spec(), tmp_path / "dask", workers=2, scheduler="local",
                      progress=False)
     assert [key(r) for r in dask.rows] == [key(r) for r in serial.rows]
+
+
+def test_cli_refuses_bad_flags_in_one_line(capsys):
+    from softgen.cli import main
+    for argv, words in ((["sweep", "nope", "--vary", "kd=1"], "unknown experiment 'nope'"),
+                        (["sweep", "ch10-pneumatic-adaptive"], "nothing to vary"),
+                        (["sweep", "ch10-pneumatic-adaptive", "--vary", "kd=grid(10)",
+                          "--workers", "0"], "--workers: expected a positive integer")):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert words in err and len(err.splitlines()) == 1
