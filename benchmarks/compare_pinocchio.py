@@ -23,8 +23,8 @@ import timeit
 import numpy as np
 import pinocchio as pin
 
-from softgen.model import load_model
-from softgen.bundle import load_bundle
+from softgen.modelfile.model import load_model
+from softgen.bundles.bundle import load_bundle
 
 
 def pinocchio_model(model):

@@ -10,7 +10,7 @@ and point this script at its headers and libraries (the ``cmeel.prefix`` directo
         --pin-prefix /tmp/pinvenv/lib/python3.11/site-packages/cmeel.prefix \\
         --n 2 5 10 20 40 80 --arm
 
-For every chain (softgen.chains.chain_model(n); with ``--arm`` also the shipped
+For every chain (softgen.app.chains.chain_model(n); with ``--arm`` also the shipped
 7-DoF Panda, ``models/panda.urdf``), it writes one C file with softgen's
 functions as ``softgen generate`` builds them (``RigidDynamics(model)`` with
 route="auto": τ = inverse_dynamics, Yᵀ s and Y π̂ over the base parameters), a text
@@ -37,8 +37,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from softgen.chains import chain_model
-from softgen.model import load_model
+from softgen.app.chains import chain_model
+from softgen.modelfile.model import load_model
 from softgen.symbolic.mechanics import rpy
 from softgen.symbolic.rigid import RigidDynamics
 

@@ -44,8 +44,8 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from softgen.bundle import generate, load_bundle
-from softgen.model import MODELS_DIR, load_model
+from softgen.bundles.bundle import generate, load_bundle
+from softgen.modelfile.model import MODELS_DIR, load_model
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT = [ROOT / "tests" / "data" / "arm3.urdf", ROOT / "models" / "panda.urdf"]

@@ -5,8 +5,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softgen.errors import ModelError
-from softgen.model import load_model
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import load_model
 from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
 
 RNG = np.random.default_rng(7)

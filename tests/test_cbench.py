@@ -7,10 +7,10 @@ from pathlib import Path
 import casadi as ca
 import pytest
 
-from softgen.chains import chain_model, format_table, measure_route
+from softgen.app.chains import chain_model, format_table, measure_route
 from softgen.codegen.build import require_compiler
 from softgen.codegen.cbench import time_in_c
-from softgen.errors import BuildError
+from softgen.core.errors import BuildError
 
 
 def _have_compiler() -> bool:
@@ -109,7 +109,7 @@ def test_hand_written_reference_equals_generated_regressor(tmp_path):
 
     import numpy as np
 
-    from softgen.model import load_model
+    from softgen.modelfile.model import load_model
     from softgen.symbolic.rigid import RigidDynamics
     if not _have_compiler():
         pytest.skip("no C compiler found")

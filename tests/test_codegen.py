@@ -10,13 +10,13 @@ import textwrap
 import numpy as np
 import pytest
 
-from softgen.bundle import GENERATED_DIR, BundleOptions, bundle_spec, generate
+from softgen.bundles.bundle import GENERATED_DIR, BundleOptions, bundle_spec, generate
 from softgen.codegen.build import build, find_compiler
 from softgen.codegen.generate import library_name, render
-from softgen.errors import BuildError, BundleError
-from softgen.model import list_models, load_model
+from softgen.core.errors import BuildError, BundleError
+from softgen.modelfile.model import list_models, load_model
 from softgen.runtime import library
-from softgen.bundle import load_bundle
+from softgen.bundles.bundle import load_bundle
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from softgen.control.electric import (OUTPUTS, ElectricArm, cascade_block,
                                       initial_plant_state, integral_start, plant_block,
                                       reference_block)
 from softgen.control.electric_refs import THESIS_GAINS, sinusoid_references
-from softgen.model import load_model
+from softgen.modelfile.model import load_model
 from softgen.symbolic.actuated import electric_plant_fun
 
 N, DT = 2, 1e-3

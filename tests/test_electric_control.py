@@ -17,8 +17,8 @@ from softgen.control.electric import (OUTPUTS, VARIANTS, ElectricArm, check_gain
                                       poles_from_pd_gains, quasi_steady_stiffness,
                                       remark9_delta, run_closed_loop)
 from softgen.control.electric_refs import sinusoid_references
-from softgen.errors import ModelError
-from softgen.model import load_model
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import load_model
 from softgen.symbolic.actuated import electric_plant_fun
 
 N = 2

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from softgen.cli import main
-from softgen.errors import SoftgenError
+from softgen.core.errors import SoftgenError
 from softgen.estimation.csvlog import LogError, read_log
 
 # model, --method, estimator method, sample time, delay L, torque column prefix

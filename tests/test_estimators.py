@@ -5,12 +5,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softgen.errors import ModelError
+from softgen.core.errors import ModelError
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
 from softgen.estimation.offline import (estimation_result, offline_diagram,
                                         split_measurements)
 from softgen.estimation.rls import RLS, ExcitationGate, excitation_step, rls_step
-from softgen.model import load_model
+from softgen.modelfile.model import load_model
 from softgen.runtime.simulate import simulate
 
 

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from softgen.bundle import casadi_functions
+from softgen.bundles.bundle import casadi_functions
 from softgen.cli import main
-from softgen.errors import SoftgenError
-from softgen.export import RECORD, bundle_files, export, python_loop, summary
-from softgen.paths import GENERATED_DIR
+from softgen.core.errors import SoftgenError
+from softgen.export.project import RECORD, bundle_files, export, python_loop, summary
+from softgen.core.paths import GENERATED_DIR
 
 MODELS = ("planar_2link", "planar_2link_mckibben")
 STATE = {"planar_2link": ("pi_hat",), "planar_2link_mckibben": ("nu", "Pi_hat")}
@@ -83,7 +83,7 @@ def test_exported_loop_equals_python_casadi_loop(built, model, tmp_path):
 def test_clipped_pressures_agree_too(built, tmp_path):
     """A lower supply pressure (a model file given by path) makes Theorem 5's commands
     clip at p_max: C and Python clip the same samples and still agree to 1e-12."""
-    from softgen.model import MODELS_DIR
+    from softgen.modelfile.model import MODELS_DIR
     text = (MODELS_DIR / "planar_2link_mckibben.toml").read_text()
     path = tmp_path / "low_supply.toml"
     path.write_text(text.replace("pressure_max = 8e5", "pressure_max = 4.5e4"))

@@ -16,8 +16,8 @@ from softgen.blocks import Block, ClosedLoop
 from softgen.control.feedback_linearization import feedback_linearization, hurwitz_gains
 from softgen.control.pneumatic_loop import stage_reference_block
 from softgen.control.references import Sinusoid
-from softgen.errors import ModelError
-from softgen.model import load_model
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import load_model
 from softgen.runtime.simulate import simulate
 from softgen.symbolic.actuated import valve_plant_fun
 

@@ -12,9 +12,9 @@ import re
 import numpy as np
 import pytest
 
-from softgen import reproduce as runner
+from softgen.app import reproduce as runner
 from softgen.experiments.registry import VERDICTS, Experiment, finding, get, num
-from softgen.report import write_report
+from softgen.app.report import write_report
 
 PNEUMATIC = get("ch10-pneumatic-adaptive")
 FL = get("ch10-feedback-linearization")

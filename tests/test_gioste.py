@@ -12,7 +12,7 @@ from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.references import SmoothSteps
 from softgen.plants import gioste as gc
 from softgen.runtime.simulate import simulate
-from softgen.model import load_model
+from softgen.modelfile.model import load_model
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ import pytest
 from softgen.blocks import ClosedLoop
 from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.references import SmoothSteps
-from softgen.model import load_model
+from softgen.modelfile.model import load_model
 from softgen.plants import gioste as G
 from softgen.blocks.sensors import quantized
 from softgen.plants.hardware import delay_line_block, encoder_block, tracking_stop

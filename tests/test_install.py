@@ -40,16 +40,16 @@ def test_wheel_installs_and_runs_from_another_directory(tmp_path, need_compiler)
     env = {k: v for k, v in os.environ.items() if not k.startswith("SOFTGEN_")}
     env["SOFTGEN_CACHE_DIR"] = str(tmp_path / "cache")
     softgen = str(venv / "bin" / "softgen")
-    where = _run([str(py), "-c", "import softgen.paths as p; print(p.MODELS_DIR)"], work, env)
+    where = _run([str(py), "-c", "import softgen.core.paths as p; print(p.MODELS_DIR)"], work, env)
     assert str(venv) in where and str(ROOT) not in where      # the wheel's copy, not ours
     listing = _run([softgen, "list"], work, env)
     assert "planar_2link" in listing and "rigid-2link-adaptive" in listing
     assert "base parameters" in _run([softgen, "info", "planar_2link"], work, env)
-    _run([str(py), "-c", "from softgen.bundle import load_bundle; import numpy as np; "
+    _run([str(py), "-c", "from softgen.bundles.bundle import load_bundle; import numpy as np; "
           "a = load_bundle('planar_2link'); z = np.zeros(2); "
           "assert abs(a.regressor(z, z, z, z) @ a.parameter_nominal "
           "- a.inverse_dynamics(z, z, z, z)).max() < 1e-12"], work, env)
-    sample = _run([str(py), "-c", "from softgen.estimate import sample_log; print(sample_log())"],
+    sample = _run([str(py), "-c", "from softgen.app.estimate import sample_log; print(sample_log())"],
                   work, env).strip()
     assert str(venv) in sample
     _run([softgen, "estimate", "pendulum_qbmove", "--log", sample, "--method", "noninvasive",

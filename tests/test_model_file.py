@@ -1,4 +1,4 @@
-"""Tests of the model-file loader ``softgen.model`` (fast, no compiler, no CasADi)."""
+"""Tests of the model-file loader ``softgen.modelfile.model`` (fast, no compiler, no CasADi)."""
 from __future__ import annotations
 
 import math
@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from softgen.errors import ModelError
-from softgen.model import load_model
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import load_model
 
 # --------------------------------------------------------------------------- texts
 
@@ -140,7 +140,7 @@ def test_pendulum_1link_nominal_values():
 
 
 def test_load_by_path_equals_load_by_name():
-    from softgen.model import MODELS_DIR
+    from softgen.modelfile.model import MODELS_DIR
 
     by_name = load_model("planar_2link")
     by_path = load_model(MODELS_DIR / "planar_2link.toml")

@@ -7,7 +7,7 @@ import os
 import pytest
 
 from softgen.cli import main
-from softgen.reproduce import reproduce
+from softgen.app.reproduce import reproduce
 
 from test_estimate_cli import _write_log
 

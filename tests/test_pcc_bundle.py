@@ -6,8 +6,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softgen.bundle import bundle_spec
-from softgen.model import load_model
+from softgen.bundles.bundle import bundle_spec
+from softgen.modelfile.model import load_model
 
 MODELS = ("soft_pendulum", "pcc_planar_4seg", "pcc_3d_4seg")
 EPS = (1e-12, 1e-8, 1e-6, 1e-3)
@@ -136,7 +136,7 @@ def test_pendulum_theorem10_adaptive_from_zero_estimates(specs):
 
 @pytest.mark.compiler
 def test_compiled_library_equals_casadi_function_at_singular_points(need_compiler, specs):
-    from softgen.bundle import load_bundle
+    from softgen.bundles.bundle import load_bundle
     rng = np.random.default_rng(22)
     for name, spec in specs.items():
         b = load_bundle(name, backend="c")

@@ -11,8 +11,8 @@ from softgen.control.feasibility import PressureWarning, check_pressures
 from softgen.control.pneumatic import KINDS, pneumatic_arm
 from softgen.control.pneumatic_loop import closed_loop_fun
 from softgen.control.references import SmoothSteps
-from softgen.errors import ModelError
-from softgen.model import load_model
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import load_model
 
 SPECIAL = (0.0, 1e-12, 1e-6, 1e-3)
 

@@ -13,8 +13,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softgen.chains import chain_model
-from softgen.model import list_models, load_model
+from softgen.app.chains import chain_model
+from softgen.modelfile.model import list_models, load_model
 from softgen.symbolic import recursive
 from softgen.symbolic.mechanics import Mechanics
 from softgen.symbolic.rigid import ROUTES, RigidDynamics
@@ -257,7 +257,7 @@ def test_auto_route_is_the_smallest_and_recorded():
 def test_manifest_records_route():
     """The committed manifests (equal to `softgen generate --all`, see test_codegen)."""
     import json
-    from softgen.bundle import GENERATED_DIR
+    from softgen.bundles.bundle import GENERATED_DIR
     for name in RIGID:
         extra = json.loads((GENERATED_DIR / name / "manifest.json").read_text())
         assert extra["route"] in ROUTES

@@ -8,8 +8,8 @@ from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.pneumatic_loop import plant_block, uncertain_plant_block
 from softgen.experiments import ch10_pneumatic_adaptive as ch10
 from softgen.experiments.ext_robustness import EXPERIMENT, RobustnessConfig, studies
-from softgen.model import load_model
-from softgen.sweep.spec import parse_vary
+from softgen.modelfile.model import load_model
+from softgen.app.sweep.spec import parse_vary
 
 
 @pytest.fixture(scope="module")

@@ -10,10 +10,10 @@ import casadi as ca
 from softgen.blocks import Block, ClosedLoop
 from softgen.control.references import sinusoid_block
 from softgen.control.slotine_li import controller_block, plant_block
-from softgen.model import load_model
+from softgen.modelfile.model import load_model
 from softgen.symbolic.rigid import RigidDynamics
-from softgen.errors import ShapeError
-from softgen.bundle import load_bundle
+from softgen.core.errors import ShapeError
+from softgen.bundles.bundle import load_bundle
 from softgen.runtime.simulate import simulate
 
 

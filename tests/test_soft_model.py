@@ -5,9 +5,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softgen.errors import ModelError
-from softgen.model import list_models, load_model
-from softgen.soft_model import SoftModel
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import list_models, load_model
+from softgen.modelfile.soft import SoftModel
 from softgen.symbolic.pcc import SoftBody, gauss_legendre
 
 SHIPPED = ("pcc_planar_4seg", "soft_pendulum", "pcc_3d_4seg")

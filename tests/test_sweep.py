@@ -8,13 +8,13 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from softgen.config import Config
-from softgen.errors import SoftgenError
+from softgen.core.config import Config
+from softgen.core.errors import SoftgenError
 from softgen.experiments import registry
-from softgen.metrics import Metrics
+from softgen.core.metrics import Metrics
 from softgen.runtime.simulate import DivergenceError
-from softgen.sweep import SweepSpec, dask_available, load_rows, run_sweep
-from softgen.sweep.spec import parse_vary, plan
+from softgen.app.sweep import SweepSpec, dask_available, load_rows, run_sweep
+from softgen.app.sweep.spec import parse_vary, plan
 
 
 @dataclass(frozen=True)
@@ -197,7 +197,7 @@ def test_bad_values_fail_before_running(toy, tmp_path):
 
 
 def test_scheduler_without_dask_is_one_clear_line(toy, tmp_path, monkeypatch):
-    import softgen.sweep as sw
+    import softgen.app.sweep as sw
     monkeypatch.setattr(sw, "dask_available", lambda: False)
     with pytest.raises(SoftgenError) as e:
         run_sweep(_spec(), tmp_path / "d", scheduler="local", progress=False)

@@ -19,14 +19,14 @@ import warnings
 import numpy as np
 import pytest
 
-from softgen.bundle import GENERATED_DIR, check_inertia_positive_definite, generate
+from softgen.bundles.bundle import GENERATED_DIR, check_inertia_positive_definite, generate
 from softgen.cli import main
 from softgen.codegen.build import (clean_orphans, ensure_library, library_path, read_manifest,
                                    record_path, verify_library)
 from softgen.codegen.manifest import validate_manifest
-from softgen.errors import BundleError, ModelError
-from softgen.model import MODELS_DIR, load_model
-from softgen.bundle import load_bundle
+from softgen.core.errors import BundleError, ModelError
+from softgen.modelfile.model import MODELS_DIR, load_model
+from softgen.bundles.bundle import load_bundle
 
 PENDULUM = (MODELS_DIR / "pendulum_1link.toml").read_text()
 

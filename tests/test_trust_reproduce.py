@@ -17,7 +17,7 @@ import pytest
 
 from softgen.cli import main
 from softgen.experiments import registry
-from softgen.reproduce import reproduce
+from softgen.app.reproduce import reproduce
 
 FAKES = '''\
 import os, time

@@ -11,7 +11,7 @@ import pytest
 import scipy.linalg
 import scipy.signal
 
-from softgen.errors import ShapeError
+from softgen.core.errors import ShapeError
 from softgen.estimation import (
     UIO,
     design_uio,

@@ -1,4 +1,4 @@
-"""URDF import (softgen.urdf): dynamics equal an independent Newton–Euler on the unmerged
+"""URDF import (softgen.modelfile.urdf): dynamics equal an independent Newton–Euler on the unmerged
 tree, fixed joints merge without losing mass or moving the centre of mass, bad files give
 one line naming the element, and the CLI takes a .urdf path as it takes a .toml one."""
 from __future__ import annotations
@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from softgen.bundle import check_model_unchanged
+from softgen.bundles.bundle import check_model_unchanged
 from softgen.cli import main
-from softgen.errors import BundleError, ModelError
-from softgen.model import list_models, load_model
+from softgen.core.errors import BundleError, ModelError
+from softgen.modelfile.model import list_models, load_model
 from softgen.symbolic.rigid import RigidDynamics
-from softgen.urdf import matrix_to_rpy, sanitise_name
+from softgen.modelfile.urdf import matrix_to_rpy, sanitise_name
 
 ARM3 = Path(__file__).resolve().parent / "data" / "arm3.urdf"
 G = np.array([0.0, 0.0, -9.81])
@@ -402,7 +402,7 @@ REFUSALS = [
      "'ixx'"),
     ("no-axis-xyz", _swap('<axis xyz="0 0 1"/>', "<axis/>"), "joint 'j1' <axis>: <axis> has no "
      "'xyz'"),
-    # Checks of softgen.model's parser, reported with the URDF element.
+    # Checks of softgen.modelfile.model's parser, reported with the URDF element.
     ("zero-axis", _swap('<axis xyz="0 0 1"/>', '<axis xyz="0 0 0"/>'),
      "joint 'j1' <axis>: expected a non-zero vector"),
     ("negative-mass", _swap('<mass value="1.5"/>', '<mass value="-1.5"/>'),
@@ -437,7 +437,7 @@ def test_bad_urdf_gives_one_line_naming_the_element(tmp_path, text, match):
 
 def test_merged_link_names_the_fixed_links_in_its_error(tmp_path):
     # l2 itself massless, its fixed child a zero inertial: the merged body is refused by
-    # softgen.model's check and the message names both links.
+    # softgen.modelfile.model's check and the message names both links.
     text = _swap('<inertial><origin xyz="0.05 0.01 0"/><mass value="0.5"/>\n      '
                  '<inertia ixx="0.002" ixy="0" ixz="0.0001" iyy="0.003" iyz="0" '
                  'izz="0.004"/></inertial>', "").replace(
@@ -467,7 +467,7 @@ def test_cli_info_and_generate_on_a_urdf_path(tmp_path, capsys):
 
 
 def test_bundle_of_a_changed_urdf_is_stale(tmp_path):
-    from softgen.bundle import generate
+    from softgen.bundles.bundle import generate
     path = tmp_path / "arm.urdf"
     path.write_bytes(ARM3.read_bytes())
     manifest = json.loads((generate(path, tmp_path / "gen") / "manifest.json").read_text())

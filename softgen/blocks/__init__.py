@@ -4,8 +4,8 @@
 layouts. ``ClosedLoop``: blocks wired by signal name, checked, generated as one
 N-step function. The driver that runs a diagram is :func:`softgen.runtime.simulate`.
 """
-from .block import Block
-from .diagram import ClosedLoop
-from .layout import Layout, Signal
+from softgen.blocks.block import Block
+from softgen.blocks.diagram import ClosedLoop
+from softgen.blocks.layout import Layout, Signal
 
 __all__ = ["Block", "ClosedLoop", "Layout", "Signal"]

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import casadi as ca
 import numpy as np
 
-from .layout import Layout
+from softgen.blocks.layout import Layout
 
 #: Options of every generated step: common subexpressions shared across outputs.
 STEP_OPTS = {"cse": True}

@@ -23,8 +23,8 @@ from collections.abc import Iterable, Mapping
 import casadi as ca
 import numpy as np
 
-from .block import STEP_OPTS, Block, check_dt, check_params
-from .layout import Layout, Signal
+from softgen.blocks.block import STEP_OPTS, Block, check_dt, check_params
+from softgen.blocks.layout import Layout, Signal
 
 #: Pseudo-block of the external inputs.
 EXT = "ext"

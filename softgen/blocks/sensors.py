@@ -15,7 +15,7 @@ from collections.abc import Mapping
 import casadi as ca
 import numpy as np
 
-from .block import Block
+from softgen.blocks.block import Block
 
 
 def _channels(channels: Mapping[str, int], what: str) -> dict[str, int]:

@@ -36,8 +36,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from ..paths import cache_dir, writable
-from ..errors import BuildError, BundleError
+from softgen.core.paths import cache_dir, writable
+from softgen.core.errors import BuildError, BundleError
 
 #: -O3 is worth ~10-30 % on the regressors; -fno-math-errno lets gcc inline sqrt.
 CFLAGS = ("-O3", "-fPIC", "-shared", "-fno-math-errno")
@@ -123,7 +123,7 @@ def read_manifest(bundle: Path, *, validate: bool = True) -> dict:
         raise BundleError(f"{path}: not valid JSON ({str(exc).splitlines()[0]}); "
                           "regenerate the bundle") from None
     if validate:
-        from .manifest import validate_manifest
+        from softgen.codegen.manifest import validate_manifest
         validate_manifest(manifest, path)
     return manifest
 
@@ -138,7 +138,7 @@ def check_source(bundle: Path, manifest: dict) -> Path:
     if digest != manifest.get("source_sha256"):
         raise BundleError(f"{c_file}: does not match manifest.json (stale or edited); "
                           f"run `softgen generate {manifest['model']}`")
-    from .generate import library_name
+    from softgen.codegen.generate import library_name
     expected = library_name(manifest["model"], c_src, manifest.get("optimization", "-O3"))
     if manifest.get("library") != expected:
         raise BundleError(f"{Path(bundle) / 'manifest.json'}: library: expected {expected!r} "
@@ -150,7 +150,7 @@ def check_source(bundle: Path, manifest: dict) -> Path:
 def library_path(bundle: Path, manifest: dict) -> Path:
     """Where the bundle's compiled library lives: ``<bundle>/build/…``, or, when the
     bundle directory is read-only (an installed package), the same name under the
-    user cache (``softgen.paths.cache_dir``)."""
+    user cache (``softgen.core.paths.cache_dir``)."""
     local = Path(bundle) / manifest["library"]
     if local.exists() or writable(local.parent):
         return local

@@ -13,8 +13,8 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from ..errors import BuildError
-from .build import require_compiler
+from softgen.core.errors import BuildError
+from softgen.codegen.build import require_compiler
 
 __all__ = ["time_in_c"]
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from .build import LDLIBS, cflags, clean_orphans
+from softgen.codegen.build import LDLIBS, cflags, clean_orphans
 
 #: Bumped whenever the generated code for the same model would change.
 CODEGEN_VERSION = "1"
@@ -137,10 +137,10 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
     try:   # strict JSON: a non-finite number is an error here, never "Infinity" on disk
         text = json.dumps(manifest, indent=2, sort_keys=False, allow_nan=False) + "\n"
     except ValueError:
-        from .manifest import validate_manifest   # names the offending key
+        from softgen.codegen.manifest import validate_manifest   # names the offending key
         validate_manifest(manifest, f"{spec.name}/manifest.json (not written)")
         raise
-    from .manifest import validate_manifest   # what the loader will check, checked first
+    from softgen.codegen.manifest import validate_manifest   # what the loader will check, checked first
     validate_manifest(manifest, f"{spec.name}/manifest.json (not written)")
     return {f"{spec.name}.c": c_src, f"{spec.name}.h": h_src, "manifest.json": text.encode()}
 

@@ -5,7 +5,7 @@ them used to fail with a raw ``KeyError`` (or compute with a silently edited
 number) when a key was missing or wrong (issue 16). :func:`validate_manifest`
 checks every key the code relies on, its type and shape, and that every number
 anywhere in the manifest is finite; the first problem raises one
-:class:`~softgen.errors.BundleError` naming the file and the key.
+:class:`~softgen.core.errors.BundleError` naming the file and the key.
 
 The schema is the contract of DESIGN.md section 2 plus softgen's extensions
 (``source_sha256``, ``instructions``, ``can_fail``, ``parameters.expressions``,
@@ -22,7 +22,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from ..errors import BundleError
+from softgen.core.errors import BundleError
 
 _HEX64 = re.compile(r"^[0-9a-f]{64}$")
 _LIBRARY = re.compile(r"^build/lib[A-Za-z_][A-Za-z0-9_]*_[0-9a-f]{16}\.so$")

@@ -154,12 +154,12 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from ..blocks import Block
-from ..errors import ModelError
-from ..model import RobotModel
-from ..symbolic.actuated import electric_plant_fun
-from ..symbolic.actuators import QbmoveSprings
-from ..symbolic.rigid import FUNCTION_OPTS, RigidDynamics
+from softgen.blocks import Block
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import RobotModel
+from softgen.symbolic.actuated import electric_plant_fun
+from softgen.symbolic.actuators import QbmoveSprings
+from softgen.symbolic.rigid import FUNCTION_OPTS, RigidDynamics
 
 #: Controller variants and the thesis results they implement (outer loop, inner loop).
 VARIANTS = {
@@ -979,7 +979,7 @@ def reference_block(q_spec=None, sigma_spec=None, *, name: str = "ref") -> Block
     σ_2d = 4 + sin(πt/8)). Outputs ``ref`` (9n, :data:`REFERENCE_BLOCKS`: q_d and four
     derivatives, σ_d and three), and ``q_d``, ``sigma_d`` alone.
     """
-    from .electric_refs import THESIS_Q, THESIS_SIGMA
+    from softgen.control.electric_refs import THESIS_Q, THESIS_SIGMA
     q_spec = THESIS_Q if q_spec is None else q_spec
     sigma_spec = THESIS_SIGMA if sigma_spec is None else sigma_spec
     n = len(q_spec)

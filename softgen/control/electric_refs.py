@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .electric import REFERENCE_BLOCKS
+from softgen.control.electric import REFERENCE_BLOCKS
 
 #: Section 11.2: q_d = 1 + 0.5 sin(πt/10) on both joints; σ_1d = 8 + 3 sin(πt/8),
 #: σ_2d = 4 + sin(πt/8). Per block: (offset, amplitude, ω) per joint.
@@ -69,7 +69,7 @@ def thesis_run(arm, variant: str, *, duration: float = 40.0, dt: float = 1e-3,
     half: position, stiffness and motor rms errors, signed mean stiffness error, and
     the largest |motor torque| over the run; ``None`` when the run did not stay finite.
     """
-    from .electric import (electric_closed_loop_fun, initial_plant_state, integral_start,
+    from softgen.control.electric import (electric_closed_loop_fun, initial_plant_state, integral_start,
                            near_singular_events, run_closed_loop)
     import time
 

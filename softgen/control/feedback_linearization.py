@@ -52,12 +52,12 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from ..blocks import Block, ClosedLoop
-from ..errors import ModelError
-from ..model import RobotModel
-from ..symbolic.rigid import FUNCTION_OPTS
-from .pneumatic import McKibbenRobot, PneumaticArm
-from .pneumatic_loop import (controller_block, plant_block, preset_nu, rk4_stage_step,
+from softgen.blocks import Block, ClosedLoop
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import RobotModel
+from softgen.symbolic.rigid import FUNCTION_OPTS
+from softgen.control.pneumatic import McKibbenRobot, PneumaticArm
+from softgen.control.pneumatic_loop import (controller_block, plant_block, preset_nu, rk4_stage_step,
                              stage_reference_block, theorem5_continuous_block, valve_rhs_fun)
 
 #: Reference layout, the same as the adaptive steps of :mod:`softgen.control.pneumatic`.

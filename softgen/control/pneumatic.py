@@ -43,10 +43,10 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from ..errors import ModelError
-from ..model import RobotModel
-from ..symbolic.actuators import McKibbenPairs
-from ..symbolic.rigid import FUNCTION_OPTS, RigidDynamics
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import RobotModel
+from softgen.symbolic.actuators import McKibbenPairs
+from softgen.symbolic.rigid import FUNCTION_OPTS, RigidDynamics
 
 #: Reference layout of every step: q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d (n each).
 REFERENCE_BLOCKS = ("q_d", "qd_d", "qdd_d", "qddd_d", "sigma_d", "sigmad_d")

@@ -18,10 +18,10 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..blocks import Block
-from ..symbolic.actuated import rk4_steps, valve_plant_fun
-from ..symbolic.rigid import FUNCTION_OPTS
-from .pneumatic import KINDS, PneumaticArm
+from softgen.blocks import Block
+from softgen.symbolic.actuated import rk4_steps, valve_plant_fun
+from softgen.symbolic.rigid import FUNCTION_OPTS
+from softgen.control.pneumatic import KINDS, PneumaticArm
 
 PLANTS = ("ideal", "valve")
 

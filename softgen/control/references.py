@@ -117,7 +117,7 @@ def sinusoid_block(name: str, ref: Sinusoid):
     """:class:`Sinusoid` as a block: reads ``t``, emits ``q_d``, ``qd_d``, ``qdd_d``."""
     import casadi as ca
 
-    from ..blocks import Block
+    from softgen.blocks import Block
     ref.check()
     n = len(ref.amplitude)
     a = np.array(ref.amplitude, dtype=float)
@@ -145,7 +145,7 @@ def stiffness_reference_block(name: str, q: list[SmoothSteps], sigma: list[Smoot
     """
     import casadi as ca
 
-    from ..blocks import Block
+    from softgen.blocks import Block
     n = len(q)
     if len(sigma) != n:
         raise ValueError(f"sigma: expected {n} channels (one per joint), got {len(sigma)}")

@@ -15,9 +15,9 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..blocks import Block
-from ..symbolic.rigid import FUNCTION_OPTS, RigidDynamics
-from ..symbolic.actuated import rk4_steps
+from softgen.blocks import Block
+from softgen.symbolic.rigid import FUNCTION_OPTS, RigidDynamics
+from softgen.symbolic.actuated import rk4_steps
 
 
 def _law(dyn: RigidDynamics, pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd):

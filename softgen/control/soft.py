@@ -30,10 +30,10 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..blocks import Block
-from ..symbolic.rigid import FUNCTION_OPTS
-from ..symbolic.pcc import LinearRoute, SoftDynamics
-from ..symbolic.actuated import rk4_steps
+from softgen.blocks import Block
+from softgen.symbolic.rigid import FUNCTION_OPTS
+from softgen.symbolic.pcc import LinearRoute, SoftDynamics
+from softgen.symbolic.actuated import rk4_steps
 
 #: Inputs of ``<model>_theorem10_step``, in order.
 THEOREM10_INPUTS = ["pi_hat", "q", "qd", "q_d", "qd_d", "qdd_d", "lam", "kd", "kpi", "dt"]

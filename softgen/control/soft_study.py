@@ -27,10 +27,10 @@ from dataclasses import dataclass
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..blocks import Block, ClosedLoop
-from ..metrics import Metrics
-from ..symbolic.pcc import LinearRoute, SoftDynamics
-from .soft import (backbone_samples, closed_loop_block, controller_block, plant_block,
+from softgen.blocks import Block, ClosedLoop
+from softgen.core.metrics import Metrics
+from softgen.symbolic.pcc import LinearRoute, SoftDynamics
+from softgen.control.soft import (backbone_samples, closed_loop_block, controller_block, plant_block,
                    tip_force_block)
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import importlib
 
-from .discretize import discretize
+from softgen.estimation.discretize import discretize
 
 _EXPORTS = {
     "design_uio": "uio",

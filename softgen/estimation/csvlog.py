@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ShapeError, SoftgenError
-from .estimators import StiffnessEstimator
-from .offline import EstimationResult
+from softgen.core.errors import ShapeError, SoftgenError
+from softgen.estimation.estimators import StiffnessEstimator
+from softgen.estimation.offline import EstimationResult
 
 #: Accepted names of the time column, in order of preference.
 TIME_COLUMNS = ("t", "time")

@@ -21,7 +21,7 @@ import math
 import numpy as np
 import scipy.linalg
 
-from ..errors import ShapeError
+from softgen.core.errors import ShapeError
 
 __all__ = ["discretize", "METHODS"]
 

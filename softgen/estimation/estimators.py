@@ -48,14 +48,14 @@ from dataclasses import dataclass, field, replace
 import casadi as ca
 import numpy as np
 
-from ..blocks import Block
-from ..errors import ModelError
-from ..model import RobotModel
-from ..symbolic.actuators import McKibbenPairs, QbmoveSprings
-from ..symbolic.rigid import FUNCTION_OPTS, RigidDynamics
-from .discretize import discretize
-from .rls import ExcitationGate, excitation_step, rls_step
-from .uio import UIO, design_uio
+from softgen.blocks import Block
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import RobotModel
+from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
+from softgen.symbolic.rigid import FUNCTION_OPTS, RigidDynamics
+from softgen.estimation.discretize import discretize
+from softgen.estimation.rls import ExcitationGate, excitation_step, rls_step
+from softgen.estimation.uio import UIO, design_uio
 
 METHODS = ("pneumatic", "electric", "noninvasive")
 

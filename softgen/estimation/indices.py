@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..metrics import Metrics
-from .offline import EstimationResult
+from softgen.core.metrics import Metrics
+from softgen.estimation.offline import EstimationResult
 
 
 def mse(true: np.ndarray, est: np.ndarray) -> float:

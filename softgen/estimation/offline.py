@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..blocks import ClosedLoop
-from ..errors import ShapeError
-from .estimators import EstimatorBase
+from softgen.blocks import ClosedLoop
+from softgen.core.errors import ShapeError
+from softgen.estimation.estimators import EstimatorBase
 
 
 @dataclass

@@ -105,8 +105,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import place_poles
 
-from ..errors import ShapeError
-from .discretize import as_matrix
+from softgen.core.errors import ShapeError
+from softgen.estimation.discretize import as_matrix
 
 __all__ = [
     "UIO",

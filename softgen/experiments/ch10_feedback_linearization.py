@@ -28,16 +28,16 @@ from dataclasses import dataclass
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..control.feasibility import check_pressures
-from ..control.feedback_linearization import (feedback_linearization, hurwitz_gains, valve_loop,
+from softgen.control.feasibility import check_pressures
+from softgen.control.feedback_linearization import (feedback_linearization, hurwitz_gains, valve_loop,
                                               valve_loop_signals, valve_loop_start)
-from ..control.pneumatic import pneumatic_arm
-from ..control.pneumatic_loop import decoupling_index, decoupling_windows
-from ..control.references import SmoothSteps, stiffness_reference_block
-from ..model import load_model
-from ..runtime.simulate import simulate
-from .pneumatic_common import parameter_ratio, phase_rms_records
-from .registry import Config, Experiment, Metrics, finding, graded, not_checked, num, times
+from softgen.control.pneumatic import pneumatic_arm
+from softgen.control.pneumatic_loop import decoupling_index, decoupling_windows
+from softgen.control.references import SmoothSteps, stiffness_reference_block
+from softgen.modelfile.model import load_model
+from softgen.runtime.simulate import simulate
+from softgen.experiments.pneumatic_common import parameter_ratio, phase_rms_records
+from softgen.experiments.registry import Config, Experiment, Metrics, finding, graded, not_checked, num, times
 
 #: (start, end) of: positions only, stiffnesses only, both, constant hold (s).
 PHASES = ((0.0, 25.0), (25.0, 45.0), (45.0, 67.0), (67.0, 100.0))
@@ -251,7 +251,7 @@ def _figures(traces: dict, arm, out) -> None:
     fig.savefig(out / "fig10_14_errors.png", dpi=100)
 
 
-def findings(m: dict) -> list[dict]:
+def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """The claims of section 10.4 (Fig. 10.14) checked against the metrics ``m``.
 
     Thresholds (repeated in each evidence): tracking is a final-hold error below 1e-3 rad

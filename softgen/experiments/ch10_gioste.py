@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import Config
-from ..control.references import SmoothSteps
-from ..plants import gioste as G
-from .pneumatic_common import parameter_ratio, phase_rms
-from .registry import Experiment, Metric, Metrics, finding, num
+from softgen.core.config import Config
+from softgen.control.references import SmoothSteps
+from softgen.plants import gioste as G
+from softgen.experiments.pneumatic_common import parameter_ratio, phase_rms
+from softgen.experiments.registry import Experiment, Metric, Metrics, finding, num
 
 
 @dataclass(frozen=True)
@@ -429,7 +429,7 @@ def _common_claims(m: dict, n: int, phases, sigma_min: float, track: str, decoup
             + [_decoupling_claim(m, p, n, c) for p, c in [("", decouple), *same]])
 
 
-def findings_1dof(m: dict) -> list[dict]:
+def findings_1dof(m: Metrics, c: Config | None = None) -> list[dict]:
     """Section 10.3.3-10.3.4's claims against a ``ch10-gioste-1dof`` run."""
     out = _common_claims(
         m, 1, ["_phase1", "_phase2", "_phase3"], 7.0,
@@ -496,7 +496,7 @@ def _study_claim(m: dict) -> list[dict]:
               if tuned else ""))] if ev else []
 
 
-def findings_2dof(m: dict) -> list[dict]:
+def findings_2dof(m: Metrics, c: Config | None = None) -> list[dict]:
     """Section 10.3.5's claims against a ``ch10-gioste-2dof`` run."""
     out = _common_claims(
         m, 2, [""], 12.0, "Fig. 10.12: with K_d = diag(15, 2), Λ = 8, K_π = 45 both joints "

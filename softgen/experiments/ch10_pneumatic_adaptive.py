@@ -30,16 +30,16 @@ from dataclasses import dataclass
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..blocks import ClosedLoop
-from ..control.feasibility import check_pressures
-from ..control.pneumatic import pneumatic_arm
-from ..control.pneumatic_loop import (controller_block, decoupling_windows, plant_block,
+from softgen.blocks import ClosedLoop
+from softgen.control.feasibility import check_pressures
+from softgen.control.pneumatic import pneumatic_arm
+from softgen.control.pneumatic_loop import (controller_block, decoupling_windows, plant_block,
                                       uncertain_plant_block)
-from ..control.references import SmoothSteps, stiffness_reference_block
-from ..model import load_model
-from ..runtime.simulate import Trace, simulate
-from .pneumatic_common import coupling_records, parameter_ratio, phase_rms_records
-from .registry import (Config, Experiment, Metrics, absent, finding, graded, not_checked, num,
+from softgen.control.references import SmoothSteps, stiffness_reference_block
+from softgen.modelfile.model import load_model
+from softgen.runtime.simulate import Trace, simulate
+from softgen.experiments.pneumatic_common import coupling_records, parameter_ratio, phase_rms_records
+from softgen.experiments.registry import (Config, Experiment, Metrics, absent, finding, graded, not_checked, num,
                        times)
 
 PHASES = ((0.0, 190.0), (190.0, 250.0), (250.0, 350.0))
@@ -311,7 +311,7 @@ def _figures(tr: Trace, arm, out) -> None:
     fig.savefig(out / "fig10_3_parameters.png", dpi=110)
 
 
-def findings(m: dict) -> list[dict]:
+def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """The claims of section 10.2 (Fig. 10.2-10.3) checked against the metrics ``m``.
 
     Thresholds, stated again in each evidence text: rms errors (second half of each

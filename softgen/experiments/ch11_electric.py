@@ -33,14 +33,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..blocks import ClosedLoop
-from ..control.electric import (cascade_block, electric_arm, initial_plant_state,
+from softgen.blocks import ClosedLoop
+from softgen.control.electric import (cascade_block, electric_arm, initial_plant_state,
                                 integral_start, near_singular_events, plant_block,
                                 reference_block)
-from ..control.electric_refs import THESIS_GAINS, cascade_figure, sinusoid_references
-from ..model import load_model
-from ..runtime.simulate import Trace, simulate
-from .registry import (Config, Experiment, Metrics, absent, finding, graded, not_checked,
+from softgen.control.electric_refs import THESIS_GAINS, cascade_figure, sinusoid_references
+from softgen.modelfile.model import load_model
+from softgen.runtime.simulate import Trace, simulate
+from softgen.experiments.registry import (Config, Experiment, Metrics, absent, finding, graded, not_checked,
                        num)
 
 FAMILIES = {"pd": ("pd", "pd_integral"), "adaptive": ("adaptive", "adaptive_integral")}
@@ -192,7 +192,7 @@ def _findings(family: str):
         else:
             out.append(finding(claim, *judge()))
 
-    def findings(m: dict) -> list[dict]:
+    def findings(m: Metrics, c: Config | None = None) -> list[dict]:
         """Section 11.2's claims against the metrics (thresholds in each evidence text)."""
         out = []
         for v in both:

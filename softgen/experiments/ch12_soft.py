@@ -29,14 +29,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..control.soft import reference_block
-from ..control.soft_study import (Scenario, SoftLoop, noise_sequence, sampled_loop,
+from softgen.control.soft import reference_block
+from softgen.control.soft_study import (Scenario, SoftLoop, noise_sequence, sampled_loop,
                                   scenario_figure, shape_trace, tip_forces, tracking_loop,
                                   tracking_records)
-from ..model import load_model
-from ..runtime.simulate import simulate
-from ..symbolic.pcc import SoftDynamics
-from .registry import Config, Experiment, Metrics, absent, finding, graded, not_checked, num
+from softgen.modelfile.model import load_model
+from softgen.runtime.simulate import simulate
+from softgen.symbolic.pcc import SoftDynamics
+from softgen.experiments.registry import Config, Experiment, Metrics, absent, finding, graded, not_checked, num
 
 PI = math.pi
 
@@ -278,7 +278,7 @@ def _bounded(m, claim, suffixes) -> dict:
                    f"threshold < {BOUNDED:g}.")
 
 
-def findings_planar(m: dict) -> list[dict]:
+def findings_planar(m: Metrics, c: Config | None = None) -> list[dict]:
     """Fig. 12.2-12.3 claims; thresholds in CONVERGED, ROBUST, BOUNDED."""
     out = [_converges(m, "Fig. 12.2: Theorem 10 makes the planar PCC arm track the "
                          "sinusoidal references with all parameters unknown.",
@@ -305,7 +305,7 @@ def findings_planar(m: dict) -> list[dict]:
     return out
 
 
-def findings_pendulum(m: dict) -> list[dict]:
+def findings_pendulum(m: Metrics, c: Config | None = None) -> list[dict]:
     """Fig. 12.4-12.5 claims; thresholds in CONVERGED, ROBUST, BOUNDED."""
     out = [
         _converges(m, "Fig. 12.4: the controller stabilises the soft inverted pendulum "
@@ -327,7 +327,7 @@ def findings_pendulum(m: dict) -> list[dict]:
     return out
 
 
-def findings_3d(m: dict) -> list[dict]:
+def findings_3d(m: Metrics, c: Config | None = None) -> list[dict]:
     """Fig. 12.6-12.7 claims; thresholds in CONVERGED, ROBUST, BOUNDED."""
     out = [
         _converges(m, "Fig. 12.6: Theorem 10 (Λ = 7, K_d = 13, K_π = 2) makes the 3D PCC arm "

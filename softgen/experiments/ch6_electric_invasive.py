@@ -27,13 +27,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..estimation.indices import mse, msrep
-from ..runtime.simulate import save_traces
-from ..model import load_model
-from ..plants.qbmove import polynomial_fit_stiffness, run_figure
-from ..symbolic.actuators import QbmoveSprings
-from .estimation_common import estimator, figures, qbmove_run, variant_records
-from .registry import Config, Experiment, Metrics, finding, num, times
+from softgen.estimation.indices import mse, msrep
+from softgen.runtime.simulate import save_traces
+from softgen.modelfile.model import load_model
+from softgen.plants.qbmove import polynomial_fit_stiffness, run_figure
+from softgen.symbolic.actuators import QbmoveSprings
+from softgen.experiments.estimation_common import estimator, figures, qbmove_run, variant_records
+from softgen.experiments.registry import Config, Experiment, Metrics, finding, num, times
 
 
 @dataclass(frozen=True)
@@ -121,7 +121,7 @@ def _run(c: ElectricInvasiveConfig, out, beta, pre: str) -> Metrics:
     return m
 
 
-def findings(m: dict) -> list[dict]:
+def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Table 6.1 within 10× (damped run); runaway links reported (both runs)."""
     ok = [m[f"stiffness_mse_joint{j}"] < 10 * THESIS[f"stiffness_mse_joint{j}"] for j in (1, 2)]
     out = [finding(

@@ -33,15 +33,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..estimation.indices import excitation_records, mse, msrep
-from ..estimation.rls import excitation_std
-from ..runtime.simulate import save_traces
-from ..model import load_model
-from ..plants.qbmove import (motor_references, phase_index, phased_references,
+from softgen.estimation.indices import excitation_records, mse, msrep
+from softgen.estimation.rls import excitation_std
+from softgen.runtime.simulate import save_traces
+from softgen.modelfile.model import load_model
+from softgen.plants.qbmove import (motor_references, phase_index, phased_references,
                              protocol_figure, servo_initial_state)
-from .estimation_common import (achieved_records, estimator, figures, measured_deflections,
+from softgen.experiments.estimation_common import (achieved_records, estimator, figures, measured_deflections,
                                 qbmove_run, variant_records)
-from .registry import Config, Experiment, Metrics, finding, num
+from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
 
 
 @dataclass(frozen=True)
@@ -135,7 +135,7 @@ def run(c: ElectricProtocolConfig, out) -> Metrics:
     return m
 
 
-def findings(m: dict) -> list[dict]:
+def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Table 6.2: the update stop removes a drift. The emulation has none to remove."""
     d = [m[f"dof1_drift_stiffness_mse_joint1_phase{k}"] for k in (1, 2, 3)]
     s = [m[f"dof1_stop_stiffness_mse_joint1_phase{k}"] for k in (1, 2, 3)]

@@ -20,15 +20,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..estimation.estimators import EstimatorConfig, StiffnessEstimator
-from ..estimation.indices import error_records, estimation_figure, mse, msrep, window_mask
-from ..estimation.offline import estimation_result, recorded
-from ..model import load_model
-from ..plants.pneumatic import pendulum_diagram, sinusoid_reference_block, tracking_figure
-from ..runtime.simulate import simulate, save_traces
-from ..symbolic.actuators import McKibbenPairs
-from ..symbolic.rigid import RigidDynamics
-from .registry import Config, Experiment, Metrics, finding, num, times
+from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
+from softgen.estimation.indices import error_records, estimation_figure, mse, msrep, window_mask
+from softgen.estimation.offline import estimation_result, recorded
+from softgen.modelfile.model import load_model
+from softgen.plants.pneumatic import pendulum_diagram, sinusoid_reference_block, tracking_figure
+from softgen.runtime.simulate import simulate, save_traces
+from softgen.symbolic.actuators import McKibbenPairs
+from softgen.symbolic.rigid import RigidDynamics
+from softgen.experiments.registry import Config, Experiment, Metrics, finding, num, times
 
 
 @dataclass(frozen=True)
@@ -126,7 +126,7 @@ def _run(c: PneumaticInvasiveConfig, out, *, figures: bool) -> Metrics:
     return m
 
 
-def findings(m: dict) -> list[dict]:
+def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Fig. 6.2-6.3: the estimate converges; the printed MSEs need the Euler plant."""
     out = [finding("Fig. 6.2-6.3: stiffness estimated with MSREP of the thesis's order "
                    "(0.45 %)", "reproduced" if m["stiffness_msrep_joint1"] < 4.5 else

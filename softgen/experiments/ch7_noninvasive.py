@@ -21,12 +21,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..runtime.simulate import save_traces
-from ..model import load_model
-from ..plants.qbmove import (Sinusoids, motor_references, phased_references,
+from softgen.runtime.simulate import save_traces
+from softgen.modelfile.model import load_model
+from softgen.plants.qbmove import (Sinusoids, motor_references, phased_references,
                              servo_initial_state)
-from .estimation_common import estimator, figures, qbmove_run, variant_records
-from .registry import Config, Experiment, Metrics, finding, num
+from softgen.experiments.estimation_common import estimator, figures, qbmove_run, variant_records
+from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
 
 
 @dataclass(frozen=True)
@@ -82,7 +82,7 @@ def run(c: NoninvasiveConfig, out) -> Metrics:
     return m
 
 
-def findings(m: dict) -> list[dict]:
+def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Fig. 7.2-7.3 show the estimate on the true stiffness: MSREP below 1 %."""
     js = [k[-1] for k in m if k.startswith("stiffness_msrep_joint")]
     ok = [m[f"stiffness_msrep_joint{j}"] < 1.0 for j in js]

@@ -34,14 +34,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..estimation.indices import excitation_records, mse, noise_records, window_mask
-from ..estimation.rls import excitation_std
-from ..model import load_model
-from ..plants.qbmove import (Sinusoids, motor_references, phase_index, phased_references,
+from softgen.estimation.indices import excitation_records, mse, noise_records, window_mask
+from softgen.estimation.rls import excitation_std
+from softgen.modelfile.model import load_model
+from softgen.plants.qbmove import (Sinusoids, motor_references, phase_index, phased_references,
                              protocol_figure, servo_initial_state)
-from .estimation_common import (achieved_records, estimator, figures, measured_deflections,
+from softgen.experiments.estimation_common import (achieved_records, estimator, figures, measured_deflections,
                                 qbmove_run, variant_records)
-from .registry import Config, Experiment, Metrics, finding, num
+from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
 
 
 @dataclass(frozen=True)
@@ -157,7 +157,7 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
     return m
 
 
-def findings(m: dict) -> list[dict]:
+def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Section 7.4: stiffness MSE 3.8e-5 (1-DoF) and 1.9e-4 / 3.8e-4 (2-DoF) on hardware."""
     out = []
     for pre, joints, thesis in (("", (1,), (3.8e-5,)), ("dof2_", (1, 2), (1.9e-4, 3.8e-4))):

@@ -10,17 +10,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ..estimation.estimators import EstimatorBase, EstimatorConfig, StiffnessEstimator
-from ..estimation.indices import (error_records, estimation_figure, mse, msrep,
+from softgen.estimation.estimators import EstimatorBase, EstimatorConfig, StiffnessEstimator
+from softgen.estimation.indices import (error_records, estimation_figure, mse, msrep,
                                   phase_records, update_fraction_records, window_mask)
-from ..estimation.offline import EstimationResult, estimation_result, recorded
-from ..estimation.rls import ExcitationGate
-from ..metrics import Metrics
-from ..plants.qbmove import QbmoveTruth, hardware_diagram, qbmove_truth
-from ..runtime.simulate import Trace, simulate
-from ..symbolic.actuated import QBMOVE_STATE, electric_plant_block, servo_plant_block
-from ..symbolic.actuators import QbmoveSprings
-from ..symbolic.rigid import RigidDynamics
+from softgen.estimation.offline import EstimationResult, estimation_result, recorded
+from softgen.estimation.rls import ExcitationGate
+from softgen.core.metrics import Metrics
+from softgen.plants.qbmove import QbmoveTruth, hardware_diagram, qbmove_truth
+from softgen.runtime.simulate import Trace, simulate
+from softgen.symbolic.actuated import QBMOVE_STATE, electric_plant_block, servo_plant_block
+from softgen.symbolic.actuators import QbmoveSprings
+from softgen.symbolic.rigid import RigidDynamics
 
 
 def estimator(model, method: str, c, *, gated: bool = True, name: str | None = None,

@@ -36,16 +36,16 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..blocks import ClosedLoop
-from ..blocks.sensors import encoder_block
-from ..control.electric import (cascade_block, electric_arm, initial_plant_state,
+from softgen.blocks import ClosedLoop
+from softgen.blocks.sensors import encoder_block
+from softgen.control.electric import (cascade_block, electric_arm, initial_plant_state,
                                 integral_start, plant_block, reference_block,
                                 sigma_feedback_block)
-from ..control.electric_refs import THESIS_GAINS, sinusoid_references
-from ..estimation.estimators import EstimatorConfig, StiffnessEstimator
-from ..model import load_model
-from ..runtime.simulate import Trace, simulate
-from .registry import Config, Experiment, Metrics, absent, finding, graded, not_checked, num
+from softgen.control.electric_refs import THESIS_GAINS, sinusoid_references
+from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
+from softgen.modelfile.model import load_model
+from softgen.runtime.simulate import Trace, simulate
+from softgen.experiments.registry import Config, Experiment, Metrics, absent, finding, graded, not_checked, num
 
 STATE = ("q", "qd", "qa", "qad", "qb", "qbd")
 SOURCES = {"true_feedback": 0, "estimated_feedback_invasive": 1,
@@ -195,7 +195,7 @@ def _figure(traces: dict, c: ExtConfig, out: Path) -> None:
 RATIO = 3.0          # issue 12: the better estimator within 3× of true-σ feedback
 
 
-def findings(m: dict) -> list[dict]:
+def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """The extension's claims (thresholds in each evidence text)."""
     out = []
     claim = ("Beyond the thesis: the stiffness loop closed on an online estimate (the better "

@@ -3,7 +3,7 @@
 Beyond the thesis. Section 10.2 runs Theorem 5 with the exact actuator model (Φ and K
 known) and adapts only the inertial parameters Π. This study runs the
 ``ch10-pneumatic-adaptive`` scenario (same references, gains, preset, 350 s) as a
-Monte Carlo sweep (:mod:`softgen.sweep`) in which the plant's true values are drawn
+Monte Carlo sweep (:mod:`softgen.app.sweep`) in which the plant's true values are drawn
 around the model's while the controller keeps the model's:
 
 ``all``
@@ -46,8 +46,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..sweep import SweepSpec, run_sweep
-from .registry import (Config, Experiment, Metrics, absent, finding, get, graded, not_checked,
+from softgen.app.sweep import SweepSpec, run_sweep
+from softgen.experiments.registry import (Config, Experiment, Metrics, absent, finding, get, graded, not_checked,
                        num)
 
 TARGET = "ch10-pneumatic-adaptive"
@@ -236,7 +236,7 @@ def _figures(results: dict, c: RobustnessConfig, out: Path) -> None:
     fig.savefig(out / "robustness.png", dpi=110)
 
 
-def findings(m: dict) -> list[dict]:
+def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Claims about Theorem 5 beyond section 10.2's exact-model assumption.
 
     Thresholds: "absorbs" means every sample meets ch10-pneumatic-adaptive's tracking

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .registry import Metrics
+from softgen.experiments.registry import Metrics
 
 
 def phase_rms_records(m: Metrics, t, err, phases, quantity: str, unit: str,

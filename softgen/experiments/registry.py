@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from collections.abc import Callable
 
-from ..config import Config
-from ..errors import ExperimentError
-from ..metrics import (VERDICTS, Metric, Metrics, absent, finding, graded,  # noqa: F401
+from softgen.core.config import Config
+from softgen.core.errors import ExperimentError
+from softgen.core.metrics import (VERDICTS, Metric, Metrics, absent, finding, graded,  # noqa: F401
                        not_checked, num, times)
 
 #: id -> module (relative to this package); order is the order of ``softgen list``.
@@ -57,7 +57,7 @@ class Experiment:
     # metrics -> [{"claim", "verdict", "evidence"}]: the thesis's claims checked against
     # the run. Verdicts follow thresholds written in the function, numbers in the
     # evidence are formatted from the metrics passed in (see :func:`finding`).
-    findings: Callable[[dict], list[dict]] | None = None
+    findings: Callable[[Metrics, Config], list[dict]] | None = None
     # config -> metrics of one run, no files written: what a sweep evaluates per sample
     # (``softgen sweep``). Without it a sweep calls ``run`` into a scratch directory.
     case: Callable[[Config], Metrics | dict] | None = None

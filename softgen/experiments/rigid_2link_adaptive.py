@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..blocks import ClosedLoop
-from ..control.references import Sinusoid, sinusoid_block
-from ..control.slotine_li import controller_block, plant_block
-from ..model import load_model
-from ..runtime.simulate import simulate
-from ..symbolic.rigid import RigidDynamics
-from .registry import Config, Experiment, Metrics, finding, graded, not_checked, absent, num
+from softgen.blocks import ClosedLoop
+from softgen.control.references import Sinusoid, sinusoid_block
+from softgen.control.slotine_li import controller_block, plant_block
+from softgen.modelfile.model import load_model
+from softgen.runtime.simulate import simulate
+from softgen.symbolic.rigid import RigidDynamics
+from softgen.experiments.registry import Config, Experiment, Metrics, finding, graded, not_checked, absent, num
 
 
 @dataclass(frozen=True)
@@ -104,7 +104,7 @@ def _figures(out: Path, t, err, P, names, nominal) -> None:
     fig.savefig(out / "parameter_estimates.png", dpi=110)
 
 
-def findings(m: dict) -> list[dict]:
+def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Prop. 10 / Remark 6 checked on this run.
 
     Thresholds: tracking converges when the rms position error over the last window is

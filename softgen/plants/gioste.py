@@ -107,16 +107,16 @@ import numpy as np
 
 from matplotlib.figure import Figure
 
-from ..blocks import Block, ClosedLoop, Layout
-from ..control.feasibility import PressureViolation, PressureWarning, check_pressures
-from ..control.pneumatic import REFERENCE_BLOCKS, PneumaticArm, pneumatic_arm
-from ..control.pneumatic_loop import controller_block
-from ..control.references import SmoothSteps, stiffness_reference_block
-from ..model import RobotModel, load_model
-from ..runtime.simulate import simulate
-from ..symbolic.actuated import rk4_steps
-from ..symbolic.rigid import FUNCTION_OPTS
-from .hardware import delay_line_block, encoder_block, tracking_stop
+from softgen.blocks import Block, ClosedLoop, Layout
+from softgen.control.feasibility import PressureViolation, PressureWarning, check_pressures
+from softgen.control.pneumatic import REFERENCE_BLOCKS, PneumaticArm, pneumatic_arm
+from softgen.control.pneumatic_loop import controller_block
+from softgen.control.references import SmoothSteps, stiffness_reference_block
+from softgen.modelfile.model import RobotModel, load_model
+from softgen.runtime.simulate import simulate
+from softgen.symbolic.actuated import rk4_steps
+from softgen.symbolic.rigid import FUNCTION_OPTS
+from softgen.plants.hardware import delay_line_block, encoder_block, tracking_stop
 
 BAR = 1e5          # Pa per bar: eq. 10.10 is in bar
 V_MAX = 6.0        # ITV-2050 command range [0, 6] V (section 10.3.1)

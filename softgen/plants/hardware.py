@@ -21,8 +21,8 @@ from collections.abc import Sequence
 import casadi as ca
 import numpy as np
 
-from ..blocks import Block
-from ..blocks.sensors import quantized
+from softgen.blocks import Block
+from softgen.blocks.sensors import quantized
 
 
 def encoder_block(n: int, dt: float, *, counts_per_rev: int, velocity_filter: float,

@@ -13,10 +13,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import casadi as ca
-from ..blocks import Block, ClosedLoop
-from ..symbolic.actuated import pneumatic_plant_block
-from ..symbolic.actuators import McKibbenPairs
-from ..symbolic.rigid import FUNCTION_OPTS, RigidDynamics
+from softgen.blocks import Block, ClosedLoop
+from softgen.symbolic.actuated import pneumatic_plant_block
+from softgen.symbolic.actuators import McKibbenPairs
+from softgen.symbolic.rigid import FUNCTION_OPTS, RigidDynamics
 
 
 def allocation_control_fun(dyn: RigidDynamics, act: McKibbenPairs) -> ca.Function:

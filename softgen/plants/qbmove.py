@@ -21,11 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..blocks import Block, ClosedLoop
-from ..blocks.sensors import encoder_block, noise_block
-from ..model import RobotModel
-from ..symbolic.actuators import QbmoveSprings
-from ..symbolic.rigid import RigidDynamics
+from softgen.blocks import Block, ClosedLoop
+from softgen.blocks.sensors import encoder_block, noise_block
+from softgen.modelfile.model import RobotModel
+from softgen.symbolic.actuators import QbmoveSprings
+from softgen.symbolic.rigid import RigidDynamics
 
 
 def sinusoid(t, offset: float, amplitude: float, omega: float):

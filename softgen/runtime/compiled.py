@@ -19,10 +19,10 @@ import warnings
 
 import casadi as ca
 
-from ..codegen.build import find_compiler
-from ..codegen.generate import BundleSpec, Generated, render, signature, write_bundle
-from ..paths import cache_dir
-from .library import Bundle, BundleFunction
+from softgen.codegen.build import find_compiler
+from softgen.codegen.generate import BundleSpec, Generated, render, signature, write_bundle
+from softgen.core.paths import cache_dir
+from softgen.runtime.library import Bundle, BundleFunction
 
 _warned = False
 

@@ -34,9 +34,9 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from ..codegen.build import (check_source, ensure_library, find_compiler, library_path,
+from softgen.codegen.build import (check_source, ensure_library, find_compiler, library_path,
                              read_manifest, verify_library)
-from ..errors import BundleError, ShapeError
+from softgen.core.errors import BundleError, ShapeError
 
 _get_ident = threading.get_ident
 
@@ -282,7 +282,7 @@ class Bundle:
         self.manifest = read_manifest(self.path)      # schema-checked (codegen/manifest.py)
         self.name = self.manifest["model"]
         check_source(self.path, self.manifest)
-        # The model-aware parts are given by the caller (softgen.bundle.load_bundle): the
+        # The model-aware parts are given by the caller (softgen.bundles.bundle.load_bundle): the
         # runtime knows nothing of model files or the symbolic layer.
         if model_check is not None:
             model_check(self.manifest, self.path)
@@ -372,7 +372,7 @@ class Bundle:
         else:
             if self._fallback is None:
                 raise BundleError(f"{self.name}: no compiled library and no way to rebuild the "
-                                  "functions here; load it with softgen.bundle.load_bundle")
+                                  "functions here; load it with softgen.bundles.bundle.load_bundle")
             fns = self._fallback(self.manifest)
         return {name: BundleFunction(fns[name], sig) for name, sig in sigs.items()}
 

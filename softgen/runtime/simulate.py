@@ -25,9 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..blocks.diagram import EXT, TIME, ClosedLoop
-from ..errors import SoftgenError
-from .compiled import compile_functions
+from softgen.blocks.diagram import EXT, TIME, ClosedLoop
+from softgen.core.errors import SoftgenError
+from softgen.runtime.compiled import compile_functions
 
 
 class DivergenceError(SoftgenError, FloatingPointError):
@@ -89,6 +89,28 @@ class Trace:
         if self.stopped_at is not None:
             extra = {"stopped_at": np.array(self.stopped_at), **extra}
         save_traces(path, {**arrays, **extra}, every=every, full=full)
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Per sample: every recorded signal finite and the run not yet stopped."""
+        ok = np.ones(self.t.size, dtype=bool)
+        for v in self.signals.values():
+            ok &= np.all(np.isfinite(v.reshape(v.shape[0], -1)), axis=1)
+        if self.stopped_at is not None:
+            ok &= self.t < self.stopped_at
+        return ok
+
+    def error(self, reference: str, actual: str) -> np.ndarray:
+        """``trace[reference] - trace[actual]`` (samples × size)."""
+        return self[reference] - self[actual]
+
+    def rms(self, reference: str, actual: str, *, last: float | None = None) -> np.ndarray:
+        """Root-mean-square of :meth:`error` per component over the valid samples,
+        or over the last ``last`` seconds of them."""
+        e, keep = self.error(reference, actual), self.valid
+        if last is not None:
+            keep = keep & (self.t >= self.t[keep][-1] - last) if keep.any() else keep
+        return np.sqrt(np.mean(e[keep] ** 2, axis=0))
 
     @property
     def simulated_seconds(self) -> float:

@@ -17,8 +17,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .actuators import McKibbenPairs, QbmoveSprings
-from .rigid import FUNCTION_OPTS, RigidDynamics
+from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
+from softgen.symbolic.rigid import FUNCTION_OPTS, RigidDynamics
 
 
 def rk4_steps(rhs, x, u, h, substeps: int):
@@ -177,7 +177,7 @@ def _plant_block(f: ca.Function, name: str, dt: float, n: int, parts: list[str],
                  p0: dict | None = None, doc: str = ""):
     """A block around one of the plant steps above: state ``parts`` (n each), emitted at
     the sample; ``ins`` [(input name, size, function input)]; ``params`` likewise."""
-    from ..blocks import Block
+    from softgen.blocks import Block
     params = params or []
     extra_out = extra_out or []
 

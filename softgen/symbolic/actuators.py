@@ -1,6 +1,6 @@
 """Antagonistic variable-stiffness actuators, symbolic (thesis chapter 2).
 
-Two families, each built from a :class:`~softgen.model.RobotModel` whose
+Two families, each built from a :class:`~softgen.modelfile.model.RobotModel` whose
 ``[[actuators]]`` declare one actuator per joint:
 
 :class:`McKibbenPairs` (section 2.1)
@@ -24,8 +24,8 @@ import copy
 import casadi as ca
 import numpy as np
 
-from ..errors import ModelError
-from ..model import RobotModel
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import RobotModel
 
 
 def _require(model: RobotModel, kind: str) -> None:

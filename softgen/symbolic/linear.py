@@ -22,9 +22,9 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from ..model import RobotModel
-from .mechanics import Inertial, Mechanics, physical_inertials
-from .rigid import FUNCTION_OPTS
+from softgen.modelfile.model import RobotModel
+from softgen.symbolic.mechanics import Inertial, Mechanics, physical_inertials
+from softgen.symbolic.rigid import FUNCTION_OPTS
 
 _PLANAR = ("m", "hx", "hy", "Izz")
 _SPATIAL = ("m", "hx", "hy", "hz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")

@@ -34,7 +34,7 @@ from collections.abc import Mapping
 import casadi as ca
 import numpy as np
 
-from ..model import RobotModel
+from softgen.modelfile.model import RobotModel
 
 Values = Mapping[str, "ca.SX | float"]
 
@@ -252,7 +252,7 @@ class Mechanics:
         Christoffel symbols, so any of them may feed the adaptive laws.
         """
         if route == "recursive":
-            from .recursive import slotine_li
+            from softgen.symbolic.recursive import slotine_li
             return slotine_li(self.model, self.values, self.q, self.qd, self.qd_r, self.qdd_r,
                               self.inertials)
         if route == "matrix-free":

@@ -75,12 +75,12 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from ..model import Link, RobotModel
-from ..soft_model import SoftModel
-from .mechanics import Mechanics, rpy, forward_kinematics
-from .regressor import BaseParameters, base_parameters, factor_polynomial
-from .rigid import BaseParameterAPI, named_function
-from .smooth import cosc_w, nu_w, sinc_w
+from softgen.modelfile.model import Link, RobotModel
+from softgen.modelfile.soft import SoftModel
+from softgen.symbolic.mechanics import Mechanics, rpy, forward_kinematics
+from softgen.symbolic.regressor import BaseParameters, base_parameters, factor_polynomial
+from softgen.symbolic.rigid import BaseParameterAPI, named_function
+from softgen.symbolic.smooth import cosc_w, nu_w, sinc_w
 
 Values = Mapping[str, "ca.SX | float"]
 
@@ -726,7 +726,7 @@ class LinearRoute:
         self.sigma = ca.SX.sym("sigma", model.dof)
         unc = model.uncertain
         index = {name: k for k, name in enumerate(base.names)}
-        from .regressor import Monomial
+        from softgen.symbolic.regressor import Monomial
 
         def mu(factors):
             exps = [0] * len(unc)

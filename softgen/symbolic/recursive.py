@@ -51,8 +51,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ..model import RobotModel
-from .mechanics import Inertial, Values, axis_rotation, rpy, simplify_const, physical_inertials
+from softgen.modelfile.model import RobotModel
+from softgen.symbolic.mechanics import Inertial, Values, axis_rotation, rpy, simplify_const, physical_inertials
 
 __all__ = ["slotine_li", "regressor_transpose_times", "inertial_fields", "INERTIAL_FIELDS"]
 

@@ -32,7 +32,7 @@ from fractions import Fraction
 import casadi as ca
 import numpy as np
 
-from ..errors import ModelError
+from softgen.core.errors import ModelError
 
 MAX_DEGREE = 8
 

@@ -14,11 +14,11 @@ from functools import cached_property, wraps
 import casadi as ca
 import numpy as np
 
-from ..model import RobotModel
-from .mechanics import Inertial, Mechanics, physical_inertials, symbolic_values
-from .recursive import inertial_fields, regressor_transpose_times
-from .recursive import slotine_li as recursive_slotine_li
-from .regressor import (BaseParameters, NumericBase, base_parameters, factor_polynomial,
+from softgen.modelfile.model import RobotModel
+from softgen.symbolic.mechanics import Inertial, Mechanics, physical_inertials, symbolic_values
+from softgen.symbolic.recursive import inertial_fields, regressor_transpose_times
+from softgen.symbolic.recursive import slotine_li as recursive_slotine_li
+from softgen.symbolic.regressor import (BaseParameters, NumericBase, base_parameters, factor_polynomial,
                         numeric_base_parameters)
 
 #: Routes for τ = B q̈_r + C q̇_r + G, in the order preferred on equal counts.

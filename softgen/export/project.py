@@ -21,8 +21,8 @@ deadline) and reports tracking error, compute time and period jitter:
 C trajectory can be checked against CasADi's own evaluation (the test does, to
 1e-12). The export is deterministic: the same model gives the same bytes.
 
-Parts: :mod:`softgen.export_example` (the example's configuration and its Python/CasADi
-twin), :mod:`softgen.export_api` (the typed wrappers), ``export_templates/`` (the
+Parts: :mod:`softgen.export.example` (the example's configuration and its Python/CasADi
+twin), :mod:`softgen.export.api` (the typed wrappers), ``templates/`` (the
 hand-written C, build files and README, filled in by :func:`render`).
 """
 from __future__ import annotations
@@ -41,16 +41,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import BuildError, BundleError, SoftgenError
-from .paths import output_dir
-from .export_api import api_header, api_source
-from .export_example import (ExampleConfig, config_header, example_config, example_kind,
+from softgen.core.errors import BuildError, BundleError, SoftgenError
+from softgen.core.paths import output_dir
+from softgen.export.api import api_header, api_source
+from softgen.export.example import (ExampleConfig, config_header, example_config, example_kind,
                              example_text, no_example, run_python_loop)
 
 __all__ = ["ExampleConfig", "ExportResult", "bundle_files", "build_project", "example_config",
            "export", "python_loop", "render", "run_python_loop", "summary"]
 
-TEMPLATES = Path(__file__).parent / "export_templates"
+TEMPLATES = Path(__file__).parent / "templates"
 
 #: Bumped whenever the exported files for the same bundle would change.
 EXPORT_VERSION = "1"
@@ -68,10 +68,10 @@ def bundle_files(model: str, generated_root: Path | None = None):
     given by path is always generated in a temporary directory. ``note`` says which
     (empty when the bundle was current).
     """
-    from .bundle import check_model_unchanged, generate
-    from .codegen.build import check_source, read_manifest
-    from .model import MODELS_DIR, load_model, model_path
-    from .paths import GENERATED_DIR, writable
+    from softgen.bundles.bundle import check_model_unchanged, generate
+    from softgen.codegen.build import check_source, read_manifest
+    from softgen.modelfile.model import MODELS_DIR, load_model, model_path
+    from softgen.core.paths import GENERATED_DIR, writable
 
     path = model_path(model)            # one ModelError line for an unknown name
     root = Path(generated_root or GENERATED_DIR)
@@ -103,11 +103,11 @@ def python_loop(model: str, steps: int = 1000, *,
                 generated_root: Path | None = None) -> tuple[list[str], np.ndarray]:
     """The example loop of ``softgen export MODEL`` run with CasADi in Python.
 
-    Same functions (rebuilt from the model file, :func:`softgen.bundle.casadi_functions`),
+    Same functions (rebuilt from the model file, :func:`softgen.bundles.bundle.casadi_functions`),
     same configuration and same order of operations as the exported ``main.c``; returns
     ``(columns, rows)``, one row per sample as its ``--csv`` writes them.
     """
-    from .bundle import casadi_functions
+    from softgen.bundles.bundle import casadi_functions
     with bundle_files(model, generated_root) as (_, manifest, _):
         cfg = example_config(manifest)
         if cfg is None:
@@ -213,7 +213,7 @@ def export(model: str, out: Path | str, *, force: bool = False, build: bool = Fa
     project with the Makefile (``make CC=<compiler>``; without make, the same commands
     directly) and fails with one line if there is no C compiler.
     """
-    from .codegen.build import find_compiler
+    from softgen.codegen.build import find_compiler
     out = Path(out)
     _check_out_dir(out, force)
     compiler = None

@@ -26,12 +26,12 @@ from typing import Any
 
 import casadi as ca
 
-from .codegen.build import compile_shared
-from .codegen.cbench import time_in_c
-from .errors import BuildError
-from .model import RobotModel, load_model
-from .symbolic.linear import LinearParameters
-from .symbolic.mechanics import Mechanics
+from softgen.codegen.build import compile_shared
+from softgen.codegen.cbench import time_in_c
+from softgen.core.errors import BuildError
+from softgen.modelfile.model import RobotModel, load_model
+from softgen.symbolic.linear import LinearParameters
+from softgen.symbolic.mechanics import Mechanics
 
 __all__ = ["chain_model", "measure_route", "scaling_table", "format_table"]
 
@@ -57,7 +57,7 @@ def chain_model(n: int) -> RobotModel:
 
     Each link has m = 0.1 kg, l = 0.1 m, centre of mass mid-link and
     I = 1e-4 kg m² about it. The model is written to a temporary TOML file and
-    loaded with :func:`softgen.model.load_model`, so it passes the same checks
+    loaded with :func:`softgen.modelfile.model.load_model`, so it passes the same checks
     as a shipped model; the file is removed afterwards and ``path`` is None.
 
     Raises
@@ -69,7 +69,7 @@ def chain_model(n: int) -> RobotModel:
         raise ValueError(f"n: expected a positive integer, got {n!r}")
     text = (f'[model]\nname = "planar_chain{n}"\nkind = "planar"\n'
             f'description = "Planar chain of {n} identical revolute links"\n'
-            'source = "softgen.chains"\n\n[gravity]\ng = 9.81\n'
+            'source = "softgen.app.chains"\n\n[gravity]\ng = 9.81\n'
             + "".join(_LINK.format(i=i) for i in range(1, n + 1)))
     with tempfile.TemporaryDirectory(prefix="softgen-chain-") as tmp:
         path = Path(tmp) / f"planar_chain{n}.toml"
@@ -100,7 +100,7 @@ QUADRATIC = ("explicit", "y-formed")
 
 def _route_function(model: RobotModel, route: str, name: str) -> ca.Function:
     if route in ("base-y-pi", "base-yt-s"):
-        from .symbolic.rigid import RigidDynamics
+        from softgen.symbolic.rigid import RigidDynamics
         dyn = RigidDynamics(model)
         f = (dyn.regressor_times_fun() if route == "base-y-pi"
              else dyn.regressor_transpose_times_fun())

@@ -1,7 +1,7 @@
 """Serial-chain robots from URDF files (``softgen generate robot.urdf``).
 
 A URDF file is translated into the tables a ``kind = "spatial"`` TOML model file
-gives (:mod:`softgen.model`) and validated by the same parser, so every physical
+gives (:mod:`softgen.modelfile.model`) and validated by the same parser, so every physical
 check (finite magnitudes, positive-definite inertias with the triangle
 inequality, a prismatic joint moving mass, B(q) positive definite) applies
 unchanged; an error names the URDF element it comes from, e.g.
@@ -61,8 +61,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .model import MAX_MAGNITUDE, FileReader, RobotModel, parse_rigid
-from .symbolic.mechanics import rpy as rpy_matrix
+from softgen.modelfile.model import MAX_MAGNITUDE, FileReader, RobotModel, parse_rigid
+from softgen.symbolic.mechanics import rpy as rpy_matrix
 
 #: A decimal number as URDF writes it (no ``nan``, ``inf`` or ``1_000``, which
 #: Python's ``float`` would accept).
@@ -97,7 +97,7 @@ class _Body:
 
 
 class _Reader(FileReader):
-    """Attributes of URDF elements as numbers; each failure one :class:`~softgen.errors.ModelError`."""
+    """Attributes of URDF elements as numbers; each failure one :class:`~softgen.core.errors.ModelError`."""
 
     def attr(self, el: ET.Element, name: str, where: str) -> str:
         v = el.get(name)
@@ -403,7 +403,7 @@ def urdf_tables(path: Path, text: str) -> tuple[dict, dict[str, str]]:
 
 
 def parse_urdf(path: Path, text: str) -> RobotModel:
-    """A validated :class:`~softgen.model.RobotModel` from the URDF document ``text``."""
+    """A validated :class:`~softgen.modelfile.model.RobotModel` from the URDF document ``text``."""
     data, names = urdf_tables(path, text)
 
     def key_name(key: str) -> str:

@@ -1,14 +1,14 @@
 """Monte Carlo and grid studies over an experiment's typed config (issue 17).
 
->>> from softgen.sweep import SweepSpec, run_sweep
+>>> from softgen.app.sweep import SweepSpec, run_sweep
 >>> spec = SweepSpec(experiment="ch10-pneumatic-adaptive", samples=200, seed=1,
 ...                  vary=("plant_inertial_scale=uniform(0.7, 1.3)",),
 ...                  metrics=("position_rms_error_*",))
 >>> result = run_sweep(spec, Path("sweep-out"), workers=2)           # doctest: +SKIP
 
-What is varied and how samples are drawn: :mod:`softgen.sweep.spec`; one sample:
-:mod:`softgen.sweep.evaluate`; where samples run (this process, a process pool, Dask):
-:mod:`softgen.sweep.backends`; what is written: :mod:`softgen.sweep.results`.
+What is varied and how samples are drawn: :mod:`softgen.app.sweep.spec`; one sample:
+:mod:`softgen.app.sweep.evaluate`; where samples run (this process, a process pool, Dask):
+:mod:`softgen.app.sweep.backends`; what is written: :mod:`softgen.app.sweep.results`.
 
 The output directory holds ``sweep.json`` (the spec, the base config, the code hash),
 ``samples.jsonl`` (the journal: one line per finished sample, appended as samples
@@ -25,12 +25,12 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..config import Config
-from ..errors import SoftgenError
-from .backends import DASK_HINT, dask_available, default_workers, run_tasks  # noqa: F401
-from .evaluate import base_config
-from .results import plot, summarise, write_summary, write_table
-from .spec import Vary, flat_inputs, input_columns, parse_vary, plan
+from softgen.core.config import Config
+from softgen.core.errors import SoftgenError
+from softgen.app.sweep.backends import DASK_HINT, dask_available, default_workers, run_tasks  # noqa: F401
+from softgen.app.sweep.evaluate import base_config
+from softgen.app.sweep.results import plot, summarise, write_summary, write_table
+from softgen.app.sweep.spec import Vary, flat_inputs, input_columns, parse_vary, plan
 
 __all__ = ["SweepSpec", "SweepResult", "run_sweep", "load_rows", "DASK_HINT",
            "dask_available"]
@@ -40,7 +40,7 @@ __all__ = ["SweepSpec", "SweepResult", "run_sweep", "load_rows", "DASK_HINT",
 class SweepSpec(Config):
     """What a sweep runs: experiment, varied fields, samples per grid point, seed, metrics.
 
-    ``vary`` entries are ``KEY=DIST`` texts (:mod:`softgen.sweep.spec`); a plain value
+    ``vary`` entries are ``KEY=DIST`` texts (:mod:`softgen.app.sweep.spec`); a plain value
     fixes a field for every sample. ``metrics`` are shell-style patterns of the metric
     names to keep (all when empty). ``quick`` starts from the experiment's quick config.
     """
@@ -82,7 +82,7 @@ class SweepResult:
 
 
 def _identity(spec: SweepSpec, config: Config) -> dict:
-    from ..reproduce import code_hash
+    from softgen.app.reproduce import code_hash
     # Through JSON once, so that it compares equal to what sweep.json reads back.
     return json.loads(json.dumps({"spec": spec.to_dict(), "config": config.to_dict(),
                                   "code": code_hash()}))

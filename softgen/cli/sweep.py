@@ -1,12 +1,14 @@
-"""``softgen sweep``: arguments and entry point (the work is in :mod:`softgen.sweep`)."""
+"""``softgen sweep``: arguments and entry point (the work is in :mod:`softgen.app.sweep`)."""
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
 
-from .errors import SoftgenError
-from .paths import output_dir
+from softgen.core.errors import SoftgenError
+from softgen.core.paths import output_dir
+
+HELP = "Monte Carlo and grid studies over an experiment's config (process pool or Dask)"
 
 EPILOG = """\
 distributions (KEY=DIST, repeatable; KEY[i]=DIST for one element of a tuple field):
@@ -55,9 +57,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from .experiments.registry import experiment_ids
-    from .sweep import SweepSpec, run_sweep
-    from .sweep.spec import parse_vary
+    from softgen.app.sweep import SweepSpec, run_sweep
+    from softgen.app.sweep.spec import parse_vary
+    from softgen.experiments.registry import experiment_ids
     if args.experiment not in experiment_ids():
         raise SoftgenError(f"sweep: unknown experiment {args.experiment!r}: expected one of "
                            f"{', '.join(experiment_ids())}")

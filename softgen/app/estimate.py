@@ -18,12 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import NonFiniteError, SoftgenError
-from .estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
-from .estimation.estimators import EstimatorConfig, StiffnessEstimator
-from .estimation.offline import estimation_result, offline_diagram, split_measurements
-from .model import RobotModel, list_models, load_model
-from .runtime.simulate import simulate
+from softgen.core.errors import NonFiniteError, SoftgenError
+from softgen.estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
+from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
+from softgen.estimation.offline import estimation_result, offline_diagram, split_measurements
+from softgen.modelfile.model import RobotModel, list_models, load_model
+from softgen.runtime.simulate import simulate
 
 METHODS = ("invasive", "noninvasive")
 
@@ -143,11 +143,11 @@ def make_sample_log(path: str | Path, *, duration: float = 20.0, dt: float = 5e-
     """Write the sample log: sinusoidal position and stiffness references tracked through the
     motors' servos on ``pendulum_qbmove``, read by 8192-count encoders and the motors'
     torque sensing, every column rounded to 9 significant digits."""
-    from .plants.qbmove import (Sinusoids, hardware_diagram, motor_references,
+    from softgen.plants.qbmove import (Sinusoids, hardware_diagram, motor_references,
                                 phased_references, servo_initial_state)
-    from .symbolic.actuated import servo_plant_block
-    from .symbolic.actuators import QbmoveSprings
-    from .symbolic.rigid import RigidDynamics
+    from softgen.symbolic.actuated import servo_plant_block
+    from softgen.symbolic.actuators import QbmoveSprings
+    from softgen.symbolic.rigid import RigidDynamics
     model = load_model("pendulum_qbmove")
     K = int(round(duration / dt))
     t = np.arange(K) * dt

@@ -70,14 +70,64 @@ class Metrics:
     def units(self) -> dict[str, str]:
         return {r.key: r.unit for r in self.records if r.unit}
 
+    @classmethod
+    def from_flat(cls, flat: dict, units: dict | None = None) -> Metrics:
+        """Records read back from ``metrics.json`` names (quantity = the whole name)."""
+        units = units or {}
+        return cls(Metric(k, v, units.get(k, "")) for k, v in flat.items())
+
+    # -- typed reads: what findings use ------------------------------------------------
+
+    def find(self, quantity: str, *, joint: int | None = None, phase: int | None = None,
+             prefix: str = "", suffix: str = "") -> Metric | None:
+        """The record of ``quantity`` at (joint, phase, variant), or None."""
+        for r in self.records:
+            if (r.quantity, r.joint, r.phase, r.prefix, r.suffix) == (
+                    quantity, joint, phase, prefix, suffix):
+                return r
+        return None
+
+    def value(self, quantity: str, **where) -> float | None:
+        """The value of :meth:`find`; ``KeyError`` naming the record when it is absent."""
+        r = self.find(quantity, **where)
+        if r is None:
+            raise KeyError(_describe(quantity, where))
+        return r.value
+
+    def per_joint(self, quantity: str, *, phase: int | None = None, prefix: str = "",
+                  suffix: str = "") -> dict[int, float | None]:
+        """``{joint: value}`` of ``quantity`` over every joint it was recorded for."""
+        return {r.joint: r.value for r in self.records
+                if r.quantity == quantity and r.joint is not None and r.phase == phase
+                and r.prefix == prefix and r.suffix == suffix}
+
+    # -- read-only mapping over the flat names (metrics.json) --------------------------
+
     def __getitem__(self, key: str) -> float | None:
         return self.flat()[key]
+
+    def __contains__(self, key: object) -> bool:
+        return any(r.key == key for r in self.records)
+
+    def keys(self):
+        return self.flat().keys()
+
+    def items(self):
+        return self.flat().items()
+
+    def get(self, key: str, default=None):
+        return self.flat().get(key, default)
 
     def __iter__(self):
         return iter(self.records)
 
     def __len__(self) -> int:
         return len(self.records)
+
+
+def _describe(quantity: str, where: dict) -> str:
+    parts = [f"{k}={v}" for k, v in where.items() if v not in (None, "")]
+    return f"metric {quantity}" + (f" ({', '.join(parts)})" if parts else "") + " not recorded"
 
 
 

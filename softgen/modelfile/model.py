@@ -1,5 +1,5 @@
 """Robot models declared in TOML files (``models/<name>.toml``) or URDF files
-(``models/<name>.urdf``, serial chains; :mod:`softgen.urdf` turns them into the
+(``models/<name>.urdf``, serial chains; :mod:`softgen.modelfile.urdf` turns them into the
 same tables a spatial TOML file gives, so the same checks apply).
 
 A model file is data: a serial chain of revolute or prismatic joints with the
@@ -29,7 +29,7 @@ values overflow the products of the dynamics), a prismatic joint moves a
 positive mass, a 3x3 inertia is positive definite and its principal moments
 satisfy the triangle inequality, and model names are C identifiers of at most
 :data:`MAX_NAME` characters. B(q) positive definite at seeded configurations is
-checked before generation (``softgen.bundle.generate``), where B is available.
+checked before generation (``softgen.bundles.bundle.generate``), where B is available.
 
 Every scalar of the model has a canonical parameter name (``m1``, ``l1``,
 ``c1``, ``I1``, ``d1``, ``k1``, ``g``, ...), so the symbolic layer can make any
@@ -46,12 +46,12 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ModelError
+from softgen.core.errors import ModelError
 
 #: A scalar of the model: either a number (fixed) or the name of a parameter.
 Scalar = float | str
 
-from .paths import MODELS_DIR  # noqa: E402  (checkout models/ or the wheel's package data)
+from softgen.core.paths import MODELS_DIR  # noqa: E402  (checkout models/ or the wheel's package data)
 
 #: Largest magnitude of any number in a model file (SI units). Masses, lengths and
 #: inertias enter the dynamics as products of up to four factors; 1e9 keeps them
@@ -275,13 +275,13 @@ def load_model(name_or_path: str | Path) -> RobotModel:
     except OSError as exc:
         raise ModelError(f"{path}: cannot read model file ({exc.strerror})") from None
     if path.suffix.lower() == ".urdf":
-        from .urdf import parse_urdf        # serial chains from URDF (issue 17)
+        from softgen.modelfile.urdf import parse_urdf        # serial chains from URDF (issue 17)
         return parse_urdf(path, text)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ModelError(f"{path}: not valid TOML ({exc})") from None
-    from .soft_model import is_soft, parse_soft_model   # soft bodies (thesis ch. 3, 12)
+    from softgen.modelfile.soft import is_soft, parse_soft_model   # soft bodies (thesis ch. 3, 12)
     if is_soft(data):
         return parse_soft_model(path, data)
     return _Parser(path).parse(data)
@@ -355,7 +355,7 @@ def parse_rigid(path: Path, data: dict,
 
     ``key_name`` maps a key of ``data`` (``links[2].inertia``) to the name of what
     the user wrote, so that a file translated into these tables (a URDF file,
-    :mod:`softgen.urdf`) gets errors naming its own elements.
+    :mod:`softgen.modelfile.urdf`) gets errors naming its own elements.
     """
     return _Parser(path, key_name).parse(data)
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import re
 
-from .errors import BundleError
-from .export_example import c_comment
+from softgen.core.errors import BundleError
+from softgen.export.example import c_comment
 
 _C_KEYWORDS = frozenset(
     "auto break case char const continue default do double else enum extern float for goto if "

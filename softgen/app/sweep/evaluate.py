@@ -13,9 +13,9 @@ import time
 import warnings
 from pathlib import Path
 
-from ..config import Config
-from ..errors import SoftgenError
-from ..metrics import Metrics
+from softgen.core.config import Config
+from softgen.core.errors import SoftgenError
+from softgen.core.metrics import Metrics
 
 #: Status of a sample: it ran; the closed loop produced a non-finite value; it failed.
 STATUSES = ("ok", "diverged", "error")
@@ -23,7 +23,7 @@ STATUSES = ("ok", "diverged", "error")
 
 def base_config(experiment_id: str, quick: bool, fixed: dict | None = None) -> Config:
     """The experiment's typed config with its quick overrides and ``fixed`` values."""
-    from ..experiments.registry import get
+    from softgen.experiments.registry import get
     exp = get(experiment_id)
     if not isinstance(exp.config, Config):
         raise SoftgenError(f"sweep: {experiment_id} has no typed config to vary")
@@ -49,8 +49,8 @@ def evaluate(experiment_id: str, quick: bool, fixed: dict, overrides: dict,
     study wants to see which samples fail and why. The experiment's ``case`` (metrics
     only) is used when it has one, else ``run`` into a scratch directory.
     """
-    from ..experiments.registry import get
-    from ..runtime.simulate import DivergenceError
+    from softgen.experiments.registry import get
+    from softgen.runtime.simulate import DivergenceError
     exp = get(experiment_id)
     t0 = time.perf_counter()
     status, error, metrics = "ok", "", {}

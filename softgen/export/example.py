@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import BundleError, SoftgenError
+from softgen.core.errors import BundleError, SoftgenError
 
 #: Seconds of the example's default run (at the bundle's sample time).
 DEFAULT_SECONDS = 10.0
@@ -108,7 +108,7 @@ def example_config(manifest: dict) -> ExampleConfig | None:
         return None
     m, n = manifest["model"], int(manifest["dof"])
     if kind == "slotine_li":
-        from .experiments.rigid_2link_adaptive import RigidAdaptiveConfig
+        from softgen.experiments.rigid_2link_adaptive import RigidAdaptiveConfig
         c = RigidAdaptiveConfig()
         p = len(manifest["parameters"]["names"])
         cfg = ExampleConfig(
@@ -122,10 +122,10 @@ def example_config(manifest: dict) -> ExampleConfig | None:
             source="gains, pi_hat(0) = 0 and sinusoids of the rigid-2link-adaptive experiment "
                    "(softgen/experiments/rigid_2link_adaptive.py), cycled over the joints")
     else:
-        from .bundle import model_file_path
-        from .experiments.ch10_pneumatic_adaptive import Ch10AdaptiveConfig
-        from .model import load_model
-        from .symbolic.actuators import McKibbenPairs
+        from softgen.bundles.bundle import model_file_path
+        from softgen.experiments.ch10_pneumatic_adaptive import Ch10AdaptiveConfig
+        from softgen.modelfile.model import load_model
+        from softgen.symbolic.actuators import McKibbenPairs
         c = Ch10AdaptiveConfig()
         ctl = manifest["controllers"]
         Pi, K1 = [float(v) for v in ctl["Pi_nominal"]], float(ctl["K1"])

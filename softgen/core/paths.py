@@ -22,10 +22,10 @@ import os
 from importlib import resources
 from pathlib import Path
 
-from .errors import SoftgenError
+from softgen.core.errors import SoftgenError
 
 #: The repository root when running from a checkout.
-_CHECKOUT = Path(__file__).resolve().parent.parent
+_CHECKOUT = Path(__file__).resolve().parents[2]
 
 
 def _data_root() -> Path:

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .model import FileReader, ParameterTable
+from softgen.modelfile.model import FileReader, ParameterTable
 
 #: Kinds of soft model, and configuration variables per segment.
 SOFT_KINDS = {"pcc-planar": 1, "pcc-3d": 3, "affine-planar": 2}
@@ -120,7 +120,7 @@ def parse_soft_model(path: Path, data: dict) -> SoftModel:
 
 class _SoftParser(FileReader):
     """Soft-body model files; the typed readers (and their magnitude checks) are the
-    rigid parser's (:class:`softgen.model.FileReader`)."""
+    rigid parser's (:class:`softgen.modelfile.model.FileReader`)."""
 
     def table(self, t: Any, where: str, allowed: set[str], required: set[str]) -> dict:
         if not isinstance(t, dict):

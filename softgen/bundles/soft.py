@@ -12,12 +12,12 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from .codegen.generate import BundleSpec, Generated
-from .control.soft import (CLOSED_LOOP_INPUTS, CLOSED_LOOP_OUTPUTS, PLANT_INPUTS,
+from softgen.codegen.generate import BundleSpec, Generated
+from softgen.control.soft import (CLOSED_LOOP_INPUTS, CLOSED_LOOP_OUTPUTS, PLANT_INPUTS,
                            PLANT_OUTPUTS, THEOREM10_INPUTS, THEOREM10_OUTPUTS,
                            closed_loop_fun, plant_fun, theorem10_fun)
-from .soft_model import SoftModel
-from .symbolic.pcc import LinearRoute, SoftDynamics
+from softgen.modelfile.soft import SoftModel
+from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 
 
 def soft_bundle_spec(model: SoftModel, options) -> BundleSpec:
@@ -32,7 +32,7 @@ def soft_bundle_spec(model: SoftModel, options) -> BundleSpec:
 
 @lru_cache(maxsize=8)
 def _cached_spec(text: str, path, options, model: SoftModel) -> BundleSpec:
-    from .bundle import identity_bytes
+    from softgen.bundles.bundle import identity_bytes
 
     del text, path       # the cache key; ``model`` was parsed from them
     dyn = SoftDynamics(model, route=options.route)
@@ -95,7 +95,7 @@ def _cached_spec(text: str, path, options, model: SoftModel) -> BundleSpec:
         "physical": list(model.uncertain),
         "physical_nominal": [float(model.nominal[k]) for k in model.uncertain],
     }
-    from .bundle import model_source     # bundle.py imports this module: import at call
+    from softgen.bundles.bundle import model_source     # bundle.py imports this module: import at call
     extra = {
         "dof": n, **model_source(model),
         "options": dict(options.__dict__), "route": dyn.route,

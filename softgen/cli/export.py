@@ -1,5 +1,8 @@
-"""``softgen export``: arguments and entry point (the work is in :mod:`softgen.export`)."""
+"""``softgen export``: arguments and entry point (the work is in :mod:`softgen.export.project`)."""
 from __future__ import annotations
+
+HELP = ("a self-contained C project: generated code, typed wrappers, CMake/Makefile, "
+        "a fixed-rate example loop")
 
 
 def add_arguments(p) -> None:
@@ -17,7 +20,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from .export import export, summary
+    from softgen.export.project import export, summary
     res = export(args.model, args.out, force=args.force, build=args.build, cc=args.cc)
     for line in summary(res):
         print(line)

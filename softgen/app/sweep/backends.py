@@ -1,6 +1,6 @@
 """Where the samples run: this process, a local process pool, or a Dask cluster.
 
-Every backend maps :func:`softgen.sweep.evaluate.evaluate` over the samples and yields
+Every backend maps :func:`softgen.app.sweep.evaluate.evaluate` over the samples and yields
 ``(index, result)`` as samples finish, in any order; the sweep writes each result to
 its journal as it arrives, so an interrupted sweep loses only the samples in flight.
 
@@ -15,8 +15,8 @@ import os
 from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
-from ..errors import SoftgenError
-from .evaluate import evaluate
+from softgen.core.errors import SoftgenError
+from softgen.app.sweep.evaluate import evaluate
 
 DASK_HINT = "pip install 'softgen[dask]' (dask.distributed)"
 

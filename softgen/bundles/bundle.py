@@ -15,15 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .codegen.generate import BundleSpec, Generated, content_hash, write_bundle
-from .control.slotine_li import closed_loop_fun, controller_fun, plant_step_fun
-from .errors import BundleError, ModelError
-from .model import (MAX_NAME, MODELS_DIR, RobotModel, list_models, load_model,
+from softgen.codegen.generate import BundleSpec, Generated, content_hash, write_bundle
+from softgen.control.slotine_li import closed_loop_fun, controller_fun, plant_step_fun
+from softgen.core.errors import BundleError, ModelError
+from softgen.modelfile.model import (MAX_NAME, MODELS_DIR, RobotModel, list_models, load_model,
                     shipped_model_file)
-from .runtime.library import Bundle
-from .symbolic.rigid import RigidDynamics
+from softgen.runtime.library import Bundle
+from softgen.symbolic.rigid import RigidDynamics
 
-from .paths import GENERATED_DIR  # noqa: E402
+from softgen.core.paths import GENERATED_DIR  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ class BundleOptions:
 def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> BundleSpec:
     """The functions, parameter vector and identity of ``model``'s bundle."""
     if not isinstance(model, RobotModel):         # soft bodies (thesis ch. 3, 12)
-        from .bundle_soft import soft_bundle_spec
+        from softgen.bundles.soft import soft_bundle_spec
         return soft_bundle_spec(model, options)
     options.check()
     dyn = RigidDynamics(model, route=options.route)
@@ -100,8 +100,8 @@ def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> 
         extra["actuator"] = model.actuator_type
         extra["estimators"] = {e.step_fun().name(): e.describe() for e in estimators}
     if model.actuator_type == "mckibben":
-        from .control.feedback_linearization import GAIN_NAMES as FL_GAIN_NAMES
-        from .control.pneumatic import KINDS, REFERENCE_BLOCKS, PneumaticArm
+        from softgen.control.feedback_linearization import GAIN_NAMES as FL_GAIN_NAMES
+        from softgen.control.pneumatic import KINDS, REFERENCE_BLOCKS, PneumaticArm
         arm = PneumaticArm(model, dyn=dyn)
         extra["controllers"] = {
             "steps": {k: f"{model.name}_{v}" for k, v in KINDS.items()},
@@ -126,11 +126,11 @@ def bundle_spec(model: RobotModel, options: BundleOptions = BundleOptions()) -> 
 def _actuator_functions(model: RobotModel, dyn: RigidDynamics, fns: list) -> list:
     """Actuator model, actuated plants, estimators (thesis defaults) and, for McKibben
     pairs, the chapter-10 controllers of ``model``."""
-    from .estimation.estimators import EstimatorConfig, StiffnessEstimator
-    from .control.feedback_linearization import FeedbackLinearization
-    from .control.pneumatic import PneumaticArm
-    from .symbolic.actuated import electric_plant_fun, pneumatic_plant_fun, valve_plant_fun
-    from .symbolic.actuators import McKibbenPairs, QbmoveSprings
+    from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
+    from softgen.control.feedback_linearization import FeedbackLinearization
+    from softgen.control.pneumatic import PneumaticArm
+    from softgen.symbolic.actuated import electric_plant_fun, pneumatic_plant_fun, valve_plant_fun
+    from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
 
     if model.actuator_type is None:
         return []
@@ -153,7 +153,7 @@ def _actuator_functions(model: RobotModel, dyn: RigidDynamics, fns: list) -> lis
         fns.append(Generated(electric_plant_fun(dyn, springs, substeps=PLANT_SUBSTEPS),
                              f"{PLANT_SUBSTEPS} RK4 steps of the electric VSA robot (eq. 2.6) "
                              "over one sample, motor torques held"))
-        from .control.electric import CASCADE_MODELS, bundle_functions
+        from softgen.control.electric import CASCADE_MODELS, bundle_functions
         if model.name in CASCADE_MODELS:        # chapter-11 cascades (Theorems 6-9)
             fns += [Generated(f, doc) for f, doc in
                     bundle_functions(model, dyn=dyn, springs=springs)]

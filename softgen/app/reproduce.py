@@ -27,19 +27,19 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import TextIO
 
-from .errors import Interrupted
-from .paths import GENERATED_DIR, MODELS_DIR
-from .model import MODEL_SUFFIXES
-from .report import write_report
-from .runtime.simulate import progress_context, set_full_traces, set_progress
-from .config import Config
-from .experiments.registry import Experiment, experiment_ids, get
-from .metrics import VERDICTS, Metrics, finding
+from softgen.core.errors import Interrupted
+from softgen.core.paths import GENERATED_DIR, MODELS_DIR
+from softgen.modelfile.model import MODEL_SUFFIXES
+from softgen.app.report import write_report
+from softgen.runtime.simulate import progress_context, set_full_traces, set_progress
+from softgen.core.config import Config
+from softgen.experiments.registry import Experiment, experiment_ids, get
+from softgen.core.metrics import VERDICTS, Metrics, finding
 
 #: Seconds to wait for killed workers before giving up on them.
 STOP_GRACE = 10.0
 
-_PACKAGE = Path(__file__).resolve().parent
+_PACKAGE = Path(__file__).resolve().parents[1]
 
 
 def code_hash() -> str:
@@ -104,10 +104,10 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None) -
     with warnings.catch_warnings(record=True) as caught, progress_context(exp_id):
         warnings.simplefilter("always")
         metrics = exp.run(config, out)
-    units = {}
-    if isinstance(metrics, Metrics):
-        units, metrics = metrics.units(), metrics.flat()
-    findings = check_findings(exp, metrics) if exp.findings is not None else None
+    if not isinstance(metrics, Metrics):
+        metrics = Metrics.from_flat(metrics)
+    findings = check_findings(exp, metrics, config) if exp.findings is not None else None
+    units, metrics = metrics.units(), metrics.flat()
     # JSON has no NaN or infinity: a metric the run could not define (e.g. a coupling
     # index with no complete window) is written as null.
     metrics = {k: (v if not isinstance(v, float) or math.isfinite(v) else None)
@@ -130,14 +130,14 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None) -
     return result
 
 
-def check_findings(exp: Experiment, metrics: dict) -> list[dict]:
-    """``exp.findings(metrics)``, validated; a failure becomes one "not checked" finding.
+def check_findings(exp: Experiment, metrics: Metrics, config) -> list[dict]:
+    """``exp.findings(metrics, config)``, validated; a failure becomes one "not checked" finding.
 
     The metrics cost a simulation, the findings are a reading of them: a bug in the
     reading must not lose the run.
     """
     try:
-        out = list(exp.findings(metrics))
+        out = list(exp.findings(metrics, config))
         for f in out:
             if not (isinstance(f, dict) and set(f) == {"claim", "verdict", "evidence"}
                     and all(isinstance(v, str) for v in f.values())

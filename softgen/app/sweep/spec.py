@@ -1,6 +1,6 @@
 """What a sweep varies, and the samples it draws (``softgen sweep``, issue 17).
 
-A sweep is a set of runs of one experiment whose typed config (:mod:`softgen.config`)
+A sweep is a set of runs of one experiment whose typed config (:mod:`softgen.core.config`)
 differs from run to run. Each varied field is given as ``key=DIST``:
 
 ``uniform(lo, hi)``, ``normal(mean, std)``, ``loguniform(lo, hi)``, ``choice(a, b, ...)``
@@ -36,8 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..config import Config
-from ..errors import SoftgenError
+from softgen.core.config import Config
+from softgen.core.errors import SoftgenError
 
 #: Distribution -> number of arguments (None: one or more values).
 KINDS = {"uniform": 2, "normal": 2, "loguniform": 2, "choice": None, "grid": None,

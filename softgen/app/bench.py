@@ -6,7 +6,7 @@ every generated function in a plain C loop and through the Python runtime (fast
 buffer path and checked ``f(...)`` path), and closed-loop speed (simulated
 seconds per wall second) of the Slotine–Li loop, both as one generated
 ``mapaccum`` loop and stepped from Python. ``--chains`` adds the expression-size
-study on planar chains up to 40 links (:mod:`softgen.chains`), each route compiled
+study on planar chains up to 40 links (:mod:`softgen.app.chains`), each route compiled
 once. For models with a hand-written C reference under ``benchmarks/``
 (:data:`HAND_WRITTEN`), the ratio generated ÷ hand-written of the regressor.
 """
@@ -21,26 +21,26 @@ from pathlib import Path
 
 import numpy as np
 
-from .bundle import BundleOptions, bundle_spec
-from .codegen.build import build, ensure_library, find_compiler, recorded_build_seconds
-from .paths import GENERATED_DIR
-from .codegen.generate import render, write_bundle
-from .blocks import ClosedLoop
-from .control.references import SmoothSteps, Sinusoid, sinusoid_block, stiffness_reference_block
-from .control.slotine_li import controller_block, plant_block
-from .symbolic.rigid import RigidDynamics
-from .model import list_models, load_model
-from .soft_model import SoftModel
-from .bundle import load_bundle
-from .runtime.simulate import simulate
-from .control.electric import CASCADE_MODELS
+from softgen.bundles.bundle import BundleOptions, bundle_spec
+from softgen.codegen.build import build, ensure_library, find_compiler, recorded_build_seconds
+from softgen.core.paths import GENERATED_DIR
+from softgen.codegen.generate import render, write_bundle
+from softgen.blocks import ClosedLoop
+from softgen.control.references import SmoothSteps, Sinusoid, sinusoid_block, stiffness_reference_block
+from softgen.control.slotine_li import controller_block, plant_block
+from softgen.symbolic.rigid import RigidDynamics
+from softgen.modelfile.model import list_models, load_model
+from softgen.modelfile.soft import SoftModel
+from softgen.bundles.bundle import load_bundle
+from softgen.runtime.simulate import simulate
+from softgen.control.electric import CASCADE_MODELS
 
 
 #: Hand-written C references kept under benchmarks/: model -> (function, source).
 #: ``softgen bench`` reports generated ÷ hand-written time for the model's regressor.
 HAND_WRITTEN = {
     "planar_2link": ("hand_planar_2link_regressor",
-                     Path(__file__).resolve().parent.parent / "benchmarks" / "hand_planar_2link.c"),
+                     Path(__file__).resolve().parents[2] / "benchmarks" / "hand_planar_2link.c"),
 }
 
 
@@ -85,9 +85,9 @@ def _closed_loop_speed(model, seconds: float = 60.0) -> dict:
 def _theorem10_loop_speed(model, seconds: float = 20.0) -> dict:
     """Theorem 10 in continuous time with the soft plant (one ROS2 step per 1 ms sample)
     and sinusoidal references, run by the driver: simulated seconds per wall second."""
-    from .control.soft import reference_block
-    from .control.soft_study import tracking_loop
-    from .symbolic.pcc import SoftDynamics
+    from softgen.control.soft import reference_block
+    from softgen.control.soft_study import tracking_loop
+    from softgen.symbolic.pcc import SoftDynamics
 
     dyn, n = SoftDynamics(model), model.dof
     ref = reference_block("ref", 1e-3, (0.2,) * n, 1.0, np.linspace(0, 3, n))
@@ -104,9 +104,9 @@ def _theorem10_loop_speed(model, seconds: float = 20.0) -> dict:
 def _theorem5_loop_speed(model, seconds: float = 60.0) -> dict:
     """Theorem 5 closed loop (smoothed-step references, controller, ideal-pressure arm),
     the diagram of ``ch10-pneumatic-adaptive``, at 1 ms: simulated s per wall s."""
-    from .control.pneumatic import pneumatic_arm
-    from .control.pneumatic_loop import controller_block as t5_block
-    from .control.pneumatic_loop import plant_block as mck_plant
+    from softgen.control.pneumatic import pneumatic_arm
+    from softgen.control.pneumatic_loop import controller_block as t5_block
+    from softgen.control.pneumatic_loop import plant_block as mck_plant
 
     arm = pneumatic_arm(model)
     n, dt = arm.n, 1e-3
@@ -132,10 +132,10 @@ def _cascade_loop_speed(model, seconds: float = 20.0) -> dict:
     """Chapter-11 loops at 1 ms (simulated s per wall s): the PD cascade with the motor
     dynamics, alone and with the invasive stiffness estimator on quantised encoders in
     the loop (computing σ̂ while the selector feeds the plant's σ back)."""
-    from .blocks.sensors import encoder_block
-    from .control import electric as el
-    from .control.electric_refs import THESIS_GAINS, sinusoid_references
-    from .estimation.estimators import EstimatorConfig, StiffnessEstimator
+    from softgen.blocks.sensors import encoder_block
+    from softgen.control import electric as el
+    from softgen.control.electric_refs import THESIS_GAINS, sinusoid_references
+    from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
     dt, n, g, out = 1e-3, model.dof, THESIS_GAINS["pd"], {}
     arm, fb = el.electric_arm(model), el.electric_arm(model, sigma_input=True)
     est = StiffnessEstimator(model, EstimatorConfig("electric", dt=dt))
@@ -162,7 +162,7 @@ def _cascade_loop_speed(model, seconds: float = 20.0) -> dict:
 
 def bench_model(name: str, *, calls: int = 200_000) -> dict:
     """All figures of one model's bundle."""
-    from .codegen.cbench import time_in_c
+    from softgen.codegen.cbench import time_in_c
 
     model = load_model(name)
     t0 = time.perf_counter()
@@ -268,7 +268,7 @@ def run_bench(*, models: list[str] | None = None, chains: bool = False, calls: i
         result["models"].append(r)
         print(format_model(r), file=stream, flush=True)
     if chains:
-        from .chains import ROUTES, format_table, scaling_table
+        from softgen.app.chains import ROUTES, format_table, scaling_table
         rows = scaling_table(routes=tuple(ROUTES), max_explicit_n=20, calls=20000)
         result["chains"] = rows
         print("== expression size on planar chains", file=stream)

@@ -1,0 +1,54 @@
+"""The ``softgen`` command line: a thin argparse layer over the application layer.
+
+One module per verb (``softgen/cli/<verb>.py``), each with ``HELP``,
+``add_arguments(parser)`` and ``run(args) -> int`` (and optionally
+``parser_options()`` for an epilog). The verbs only parse and print; the work is in
+:mod:`softgen.app`, :mod:`softgen.bundles` and :mod:`softgen.export`.
+
+Exit status 0 on success; on bad input one line ``softgen: error: ...`` on stderr
+and status 2 (DESIGN.md section 2). A result that is not finite (``estimate`` on a
+log that makes the estimator diverge) gives one such line and status 1; an
+interrupted ``reproduce`` (SIGINT, SIGTERM) status 130, after writing
+``report.md`` marked incomplete.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from softgen.core.errors import SoftgenError
+
+#: Verb -> module under softgen.cli, in the order ``softgen --help`` lists them.
+VERBS = {"list": "list", "generate": "generate", "info": "info", "reproduce": "reproduce",
+         "bench": "bench", "estimate": "estimate", "export": "export", "sweep": "sweep"}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="softgen", description="Soft-robot models, regressors, "
+                                "generated C and adaptive loops (thesis: Trumić 2021).")
+    sub = p.add_subparsers(dest="command", required=True)
+    for verb, module in VERBS.items():
+        mod = importlib.import_module(f"softgen.cli.{module}")
+        options = mod.parser_options() if hasattr(mod, "parser_options") else {}
+        s = sub.add_parser(verb, help=mod.HELP, **options)
+        mod.add_arguments(s)
+        s.set_defaults(func=mod.run)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("softgen: error: interrupted", file=sys.stderr)
+        return 130
+    except (SoftgenError, ValueError, FileNotFoundError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"softgen: error: {msg}", file=sys.stderr)
+        return getattr(exc, "exit_status", 2)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,67 @@
+"""``softgen estimate``: joint stiffness from a CSV measurement log (thesis chapters 6, 7)"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from softgen.core.errors import SoftgenError
+
+HELP = "joint stiffness from a CSV measurement log (thesis chapters 6, 7)"
+
+
+def parser_options() -> dict:
+    """The epilog lists each model's log columns; it costs ~0.3 s, so only for --help."""
+    if "--help" in sys.argv or "-h" in sys.argv:
+        return {"epilog": _estimate_epilog(),
+                "formatter_class": argparse.RawDescriptionHelpFormatter}
+    return {}
+
+
+def run(args) -> int:
+    """Stiffness from a CSV log: invasive (thesis chapter 6) or non-invasive (chapter 7)."""
+    from softgen.app.estimate import estimate_log
+    powers = None
+    if args.powers is not None:
+        try:
+            powers = tuple(int(p) for p in args.powers.split(","))
+        except ValueError:
+            raise SoftgenError(f"estimate: --powers: expected comma-separated integers "
+                               f"such as 1,3,5,7, got {args.powers!r}") from None
+    res = estimate_log(args.model, args.log, method=args.method, out=args.out, dt=args.dt,
+                       powers=powers, p0=args.p0, force=args.force)
+    label = res.method if res.method == args.method else f"{res.method} ({args.method})"
+    print(f"estimate: {res.samples} samples, dt {res.dt:.9g} s, method {label}, "
+          f"delay {res.delay}, {res.wall_seconds:.2f} s wall -> {res.out}")
+    return 0
+
+
+def _estimate_epilog() -> str:
+    """The columns each shipped model and method needs (computed, not written by hand)."""
+    from softgen.app.estimate import log_columns, sample_log
+    lines = ["columns of the log (besides the time column t), by model and method:"]
+    lines += [f"  {model:<22} {method:<12} {', '.join(cols)}"
+              for model, method, cols in log_columns()]
+    lines += ["", f"a sample log ships with softgen: {sample_log()}",
+              "  softgen estimate pendulum_qbmove --log <that file> --method noninvasive "
+              "--out est.csv"]
+    return "\n".join(lines)
+
+
+
+
+
+def add_arguments(p) -> None:
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--log", required=True, metavar="FILE.csv",
+                   help="header row; time column t (or time) and the estimator's "
+                        "measurement columns; uniform sampling")
+    p.add_argument("--method", choices=("invasive", "noninvasive"), default="invasive",
+                   help="invasive: pneumatic (McKibben) or electric (qbmove), chapter 6; "
+                        "noninvasive: qbmove, chapter 7 (default: invasive)")
+    p.add_argument("--out", metavar="OUT.csv",
+                   help="estimates (default: <log stem>_estimate.csv beside the log)")
+    p.add_argument("--dt", type=float, metavar="SECONDS",
+                   help="sample time; must agree with the log's median time step")
+    p.add_argument("--powers", metavar="1,3,5,7", help="RLS regressor exponents")
+    p.add_argument("--p0", type=float, help="initial RLS covariance (times I)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --out file")

@@ -1,0 +1,65 @@
+"""``softgen generate``: write generated/<model>/ and compile it"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+from softgen.core.errors import SoftgenError
+from softgen.core.paths import output_dir
+
+HELP = "write generated/<model>/ and compile it"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("models", nargs="*", metavar="MODEL")
+    p.add_argument("--all", action="store_true", help="every model in models/")
+    p.add_argument("--out", help="output root (default: generated/)")
+    p.add_argument("--no-build", action="store_true", help="write sources only")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="bundles generated side by side (default: the number of CPUs)")
+
+
+def _generate_one(name: str, out: Path, build: bool) -> str:
+    """Generate (and compile) one bundle; the line ``generate`` prints for it."""
+    from softgen.bundles.bundle import generate
+    from softgen.codegen.build import ensure_library
+    t0 = time.perf_counter()
+    bundle = generate(name, out)
+    msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
+    if build:
+        lib, secs, repaired = ensure_library(bundle)
+        msg += (f", {'rebuilt' if repaired else 'built' if secs else 'cached'} {lib.name}"
+                + (f" in {secs:.2f} s" if secs else "")
+                + (f" (cached library rejected: {repaired})" if repaired else ""))
+    return msg
+
+
+def run(args) -> int:
+    from concurrent.futures import ProcessPoolExecutor
+
+    from softgen.bundles.bundle import GENERATED_DIR
+    from softgen.codegen.build import find_compiler
+    from softgen.modelfile.model import list_models
+    if args.all == bool(args.models):
+        raise SoftgenError("generate: give MODEL names or --all (not both)")
+    if args.jobs is not None and args.jobs < 1:
+        raise SoftgenError(f"generate: --jobs: expected a positive integer, got {args.jobs}")
+    names = list_models() if args.all else args.models
+    out = output_dir(args.out, "--out") if args.out else GENERATED_DIR
+    build = not args.no_build and find_compiler() is not None
+    if not args.no_build and not build:
+        print("softgen: warning: no C compiler found; wrote sources only", file=sys.stderr)
+    jobs = min(args.jobs or os.cpu_count() or 1, len(names))
+    if jobs <= 1:
+        for name in names:
+            print(_generate_one(name, out, build), flush=True)
+        return 0
+    # Bundles are independent: derive and compile them side by side. Errors surface in
+    # model order, as in a sequential run.
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(_generate_one, name, out, build) for name in names]
+        for fut in futures:
+            print(fut.result(), flush=True)
+    return 0

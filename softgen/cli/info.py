@@ -1,0 +1,55 @@
+"""``softgen info``: functions, shapes, parameters and sizes of a model"""
+from __future__ import annotations
+
+import json
+
+HELP = "functions, shapes, parameters, sizes of a model"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--json", action="store_true")
+
+
+def run(args) -> int:
+    from softgen.bundles.bundle import GENERATED_DIR, BundleOptions, bundle_spec
+    from softgen.modelfile.model import load_model
+    model = load_model(args.model)
+    spec = bundle_spec(model, BundleOptions())
+    manifest_path = GENERATED_DIR / model.name / "manifest.json"
+    c_path = GENERATED_DIR / model.name / f"{model.name}.c"
+    info = {
+        "model": model.name, "kind": model.kind, "dof": model.dof,
+        "description": model.description, "file": str(model.path),
+        "uncertain": list(model.uncertain),
+        "parameters": spec.parameters,
+        "functions": {g.function.name(): {
+            "inputs": {g.function.name_in(i): list(g.function.size_in(i))
+                       for i in range(g.function.n_in())},
+            "outputs": {g.function.name_out(i): list(g.function.size_out(i))
+                        for i in range(g.function.n_out())},
+            "instructions": int(g.function.n_instructions()), "doc": g.doc}
+            for g in spec.functions},
+        "c_bytes": c_path.stat().st_size if c_path.exists() else None,
+        "generated": manifest_path.exists(),
+    }
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    print(f"{model.name}: {model.description} ({model.kind}, {model.dof} dof)  [{model.path}]")
+    print(f"uncertain physical parameters: {', '.join(model.uncertain)}")
+    print(f"base parameters pi ({len(spec.parameters['names'])} of "
+          f"{spec.extra['full_parameter_count']} monomials):")
+    for n, v, e in zip(spec.parameters["names"], spec.parameters["nominal"],
+                       spec.parameters["expressions"]):
+        print(f"  {n:<14} = {v:<12.6g} {e}")
+    print("functions:")
+    for name, f in info["functions"].items():
+        ins = ", ".join(f"{k}{tuple(v)}" for k, v in f["inputs"].items())
+        outs = ", ".join(f"{k}{tuple(v)}" for k, v in f["outputs"].items())
+        print(f"  {name:<40} ({ins}) -> ({outs})  {f['instructions']} instructions")
+    if info["c_bytes"] is not None:
+        print(f"C source: {c_path} ({info['c_bytes']} bytes)")
+    else:
+        print(f"C source: not generated yet (softgen generate {model.name})")
+    return 0
