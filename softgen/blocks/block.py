@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -26,7 +27,7 @@ from softgen.blocks.layout import Layout
 STEP_OPTS = {"cse": True}
 
 
-def check_dt(dt, where: str) -> float | None:
+def check_dt(dt: Any, where: str) -> float | None:
     """A sample time: a positive finite float, or None for a block that has none."""
     if dt is None:
         return None
@@ -70,16 +71,16 @@ class Block:
     step: ca.Function
     x0: np.ndarray
     p0: np.ndarray
-    depends: Mapping[str, frozenset]
+    depends: Mapping[str, frozenset[str]]
     doc: str = ""
-    meta: Mapping = field(default_factory=dict)   # free-form facts (e.g. the model name)
+    meta: Mapping[str, Any] = field(default_factory=dict)   # free-form facts (e.g. the model name)
     #: ``{param: "positive" | "nonnegative"}``, checked whenever values are given.
     rules: Mapping[str, str] = field(default_factory=dict)
 
     @classmethod
-    def define(cls, name: str, *, dt, outputs, body: Callable, state=None, inputs=None,
-               params=None, x0: Mapping | None = None, p0: Mapping | None = None,
-               doc: str = "", meta: Mapping | None = None,
+    def define(cls, name: str, *, dt: float | None, outputs: Any, body: Callable[..., Any],
+               state: Any = None, inputs: Any = None, params: Any = None, x0: Mapping[str, Any] | None = None, p0: Mapping[str, Any] | None = None,
+               doc: str = "", meta: Mapping[str, Any] | None = None,
                rules: Mapping[str, str] | None = None) -> Block:
         """Build a block from ``body(x, u, p) -> (x_next, y)`` over named SX symbols.
 
@@ -119,11 +120,11 @@ class Block:
                    rules=_check_rules(dict(rules or {}), lay["params"], name))
 
     @classmethod
-    def wrap(cls, name: str, f: ca.Function, *, dt, state: Mapping[str, str] | None = None,
-             state_parts: Mapping[str, list] | None = None, params=(),
-             constants: Mapping | None = None, outputs=None, show_state: bool = True,
-             x0: Mapping | None = None, p0: Mapping | None = None, doc: str = "",
-             meta: Mapping | None = None, rules: Mapping[str, str] | None = None) -> Block:
+    def wrap(cls, name: str, f: ca.Function, *, dt: float | None, state: Mapping[str, str] | None = None,
+             state_parts: Mapping[str, list[Any]] | None = None, params: Any = (),
+             constants: Mapping[str, Any] | None = None, outputs: Any = None, show_state: bool = True,
+             x0: Mapping[str, Any] | None = None, p0: Mapping[str, Any] | None = None, doc: str = "",
+             meta: Mapping[str, Any] | None = None, rules: Mapping[str, str] | None = None) -> Block:
         """A block around an existing generated step ``f`` with named inputs and outputs.
 
         ``state`` maps a state input of ``f`` to the output that updates it
@@ -158,7 +159,7 @@ class Block:
         if show_state:
             out_layout += [p_ for p_ in st_layout if p_[0] not in outs]
 
-        def body(x, u, p):
+        def body(x: Any, u: Any, p: Any) -> Any:
             args = {**u, **p, **{k: ca.DM(np.reshape(v, (-1, 1))) for k, v in constants.items()}}
             for s_in in state:
                 parts = state_parts.get(s_in, [(s_in, None)])
@@ -170,7 +171,7 @@ class Block:
                 v, o = ca.vec(res[s_out]), 0
                 for pn, *rest in state_parts.get(s_in, [(s_in, v.numel())]):
                     size = rest[0] if rest else v.numel()
-                    x_next[pn] = v[o:o + size]
+                    x_next[pn] = v[o:o + size]   # type: ignore[index]  # casadi stubs: SX slicing
                     o += size
             y = {nm: ca.vec(res[nm]) for nm in outs}
             if show_state:
@@ -194,7 +195,7 @@ class Block:
             raise ValueError(f"block name: expected an identifier, got {name!r}")
         return replace(self, name=name)
 
-    def with_defaults(self, *, x0: Mapping | None = None, p0: Mapping | None = None) -> Block:
+    def with_defaults(self, *, x0: Mapping[str, Any] | None = None, p0: Mapping[str, Any] | None = None) -> Block:
         """The same block with other default initial state or parameters (by name)."""
         return replace(
             self,
@@ -203,7 +204,7 @@ class Block:
             p0=self.p0 if p0 is None else _defaults(self.params, p0, f"block {self.name}: p0",
                                                      base=self.p0))
 
-    def eval(self, x=None, u=None, p=None) -> tuple[np.ndarray, np.ndarray]:
+    def eval(self, x: Any = None, u: Any = None, p: Any = None) -> tuple[np.ndarray, np.ndarray]:
         """One step from Python (slow; for tests and checks): ``(x_next, y)``."""
         x = self.x0 if x is None else x
         p = self.p0 if p is None else p
@@ -217,13 +218,14 @@ class Block:
         ``(x0, U (nu × steps), p) -> (X (nx × steps, state after each sample),
         Y (ny × steps))``.
         """
-        one = ca.Function("one", [self.step.sx_in(0), self.step.sx_in(1), self.step.sx_in(2)],
+        one = ca.Function(  # type: ignore[call-overload]  # casadi stubs: a call returns a list
+            "one", [self.step.sx_in(0), self.step.sx_in(1), self.step.sx_in(2)],
                           self.step(self.step.sx_in(0), self.step.sx_in(1),
                                     self.step.sx_in(2)))
         return one.mapaccum(f"{self.name}_loop", int(steps), [0], [0])
 
 
-def _defaults(layout: Layout, given: Mapping | np.ndarray | None, where: str,
+def _defaults(layout: Layout, given: Mapping[str, Any] | np.ndarray | None, where: str,
               base: np.ndarray | None = None) -> np.ndarray:
     """A flat vector for ``layout`` from ``{name: value}`` (others from ``base`` or 0)."""
     if given is None:
@@ -236,11 +238,11 @@ def _defaults(layout: Layout, given: Mapping | np.ndarray | None, where: str,
     return layout.override(np.zeros(layout.size) if base is None else base, given, where)
 
 
-RULES = {"positive": (lambda a: np.all(a > 0), "positive"),
+RULES: dict[str, tuple[Callable[[np.ndarray], Any], str]] = {"positive": (lambda a: np.all(a > 0), "positive"),
          "nonnegative": (lambda a: np.all(a >= 0), "non-negative")}
 
 
-def _check_rules(rules: dict, params: Layout, name: str) -> dict:
+def _check_rules(rules: dict[str, Any], params: Layout, name: str) -> dict[str, Any]:
     for k, r in rules.items():
         if k not in params or r not in RULES:
             raise ValueError(f"block {name}: rules: {k!r}: {r!r}: expected a parameter "

@@ -18,7 +18,8 @@ whole loop, references included, is one generated function
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -50,7 +51,7 @@ class ClosedLoop:
         Layout of the external inputs, ``{name: size}``.
     """
 
-    def __init__(self, name: str, blocks: Iterable[Block], wires: Iterable[tuple] = (),
+    def __init__(self, name: str, blocks: Iterable[Block], wires: Iterable[tuple[Any, ...]] = (),
                  *, externals: Mapping[str, int] | Layout | None = None):
         if not isinstance(name, str) or not name.isidentifier():
             raise ValueError(f"diagram name: expected an identifier, got {name!r}")
@@ -74,10 +75,10 @@ class ClosedLoop:
         self.signals = Layout([Signal(TIME, 1, "s")]
                               + [s for bn in self.order for s in self.blocks[bn].outputs
                                  .prefixed(bn)])
-        self._step = None
-        self._loops: dict = {}
+        self._step: ca.Function | None = None
+        self._loops: dict[tuple[int, tuple[str, ...] | None], ca.Function] = {}
         #: Compiled loops of this diagram, filled by the driver (one build per process).
-        self.compiled: dict = {}
+        self.compiled: dict[str, Any] = {}
 
     # -- checks ----------------------------------------------------------------------
 
@@ -91,7 +92,9 @@ class ClosedLoop:
             if not np.isclose(dt, first, rtol=1e-12, atol=0.0):
                 raise ValueError(f"diagram {self.name}: dt: blocks sample at different times: "
                                  f"{first_name} every {first:g} s, {bn} every {dt:g} s")
-        return check_dt(first, f"diagram {self.name}")
+        common = check_dt(first, f"diagram {self.name}")
+        assert common is not None   # dts holds only the blocks that set a sample time
+        return common
 
     def _output(self, ref: str) -> Signal:
         """The signal a source name refers to ("t", "ext.x" or "block.output")."""
@@ -111,7 +114,7 @@ class ClosedLoop:
                              f"expected one of {_names(self.blocks[bn].outputs, bn)}")
         return self.blocks[bn].outputs.signal(sig)
 
-    def _wire(self, wires: list) -> dict[str, str]:
+    def _wire(self, wires: list[Any]) -> dict[str, str]:
         sources: dict[str, str] = {}
         for w in wires:
             if not (isinstance(w, tuple) and len(w) == 2 and all(isinstance(s, str) for s in w)):
@@ -145,7 +148,7 @@ class ClosedLoop:
                 self._connect(sources, cands[0], dst)
         return sources
 
-    def _connect(self, sources: dict, src: str, dst: str) -> None:
+    def _connect(self, sources: dict[str, Any], src: str, dst: str) -> None:
         s = self._output(src)
         bn, _, sig = dst.partition(".")
         want = self.blocks[bn].inputs.signal(sig).size
@@ -190,7 +193,7 @@ class ClosedLoop:
         values: dict[str, ca.SX] = {TIME: k * self.dt}
         values.update({f"{EXT}.{n}": v for n, v in self.externals.split(E).items()})
 
-        def block_args(b: Block, *, partial: bool):
+        def block_args(b: Block, *, partial: bool) -> tuple[Any, Any, Any]:
             x = b.state.join({s.name: xs[f"{b.name}.{s.name}"] for s in b.state}) \
                 if b.state.size else ca.SX(0, 1)
             p = b.params.join({s.name: ps[f"{b.name}.{s.name}"] for s in b.params}) \
@@ -221,7 +224,7 @@ class ClosedLoop:
                                  ["x", "p", "k", "e"], ["x_next", "y"], STEP_OPTS)
         return self._step
 
-    def recorded(self, record=None) -> Layout:
+    def recorded(self, record: Sequence[str] | None = None) -> Layout:
         """The layout of the signals a loop records: ``t`` and ``record`` (default all)."""
         if record is None:
             return self.signals
@@ -232,14 +235,14 @@ class ClosedLoop:
         want = {TIME, *record}
         return Layout([s for s in self.signals if s.name in want])
 
-    def loop_name(self, record=None) -> str:
+    def loop_name(self, record: Sequence[str] | None = None) -> str:
         """Name stem of the loop that records ``record`` (its own compiled library)."""
         if record is None:
             return self.name
         digest = hashlib.sha256(",".join(self.recorded(record).names).encode()).hexdigest()
         return f"{self.name}_rec{digest[:8]}"
 
-    def loop_fun(self, steps: int, record=None) -> ca.Function:
+    def loop_fun(self, steps: int, record: Sequence[str] | None = None) -> ca.Function:
         """``<name>_loop``: ``steps`` samples of the whole diagram in one function.
 
         ``(x0, p, k0, E (ne × steps)) -> (X (nx × steps), Y (ny × steps))``: column j
@@ -272,14 +275,14 @@ class ClosedLoop:
 
     # -- values ----------------------------------------------------------------------
 
-    def initial_state(self, x0: Mapping | None = None) -> np.ndarray:
+    def initial_state(self, x0: Mapping[str, Any] | None = None) -> np.ndarray:
         """The blocks' default states, overridden by ``{"block.state": value}`` or
         ``{"block": {"state": value}}``."""
         v = np.concatenate([b.x0 for b in self.blocks.values()]) if self.state.size \
             else np.zeros(0)
         return self._override(self.state, v, x0, "x0")
 
-    def parameters(self, p: Mapping | None = None) -> np.ndarray:
+    def parameters(self, p: Mapping[str, Any] | None = None) -> np.ndarray:
         """The blocks' default parameters, overridden like :meth:`initial_state`."""
         v = np.concatenate([b.p0 for b in self.blocks.values()]) if self.params.size \
             else np.zeros(0)
@@ -291,7 +294,7 @@ class ClosedLoop:
                                                   self.params.slice(s.name).stop)]])
         return v
 
-    def _override(self, layout: Layout, v: np.ndarray, given: Mapping | None, what: str):
+    def _override(self, layout: Layout, v: np.ndarray, given: Mapping[str, Any] | None, what: str) -> np.ndarray:
         return layout.override(v, _flatten(given or {}), what)
 
     def describe(self) -> str:
@@ -306,7 +309,7 @@ def _names(layout: Layout, prefix: str) -> str:
     return ", ".join(f"{prefix}.{n}" for n in layout.names) or "(none)"
 
 
-def _flatten(d: Mapping) -> dict:
+def _flatten(d: Mapping[str, Any]) -> dict[str, Any]:
     out = {}
     for k, v in d.items():
         if isinstance(v, Mapping):

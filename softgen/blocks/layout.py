@@ -7,11 +7,13 @@ expression (while building a step) and a numpy trace (after a run).
 """
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as ca
 import numpy as np
+
 
 @dataclass(frozen=True)
 class Signal:
@@ -32,14 +34,19 @@ class Signal:
         return self
 
 
+#: A signal spec: a Signal, or (name, size[, unit]).
+SignalSpec = Signal | tuple[Any, ...]
+
+
 class Layout:
     """An ordered set of :class:`Signal` s laid end to end in one column vector."""
 
     __slots__ = ("signals", "_slices", "size")
 
-    def __init__(self, signals: Iterable[Signal | tuple] = ()):
+    def __init__(self, signals: Iterable[SignalSpec] = ()):
         sigs = tuple(s if isinstance(s, Signal) else Signal(*s) for s in signals)
-        slices, o = {}, 0
+        slices: dict[str, slice] = {}
+        o = 0
         for s in sigs:
             s.check()
             if s.name in slices:
@@ -51,7 +58,7 @@ class Layout:
         self.size = o
 
     @classmethod
-    def of(cls, spec: Layout | Mapping[str, int] | Iterable | None) -> Layout:
+    def of(cls, spec: Layout | Mapping[str, int] | Iterable[SignalSpec] | None) -> Layout:
         """A layout from a layout, ``{name: size}``, or ``[(name, size[, unit]), ...]``."""
         if spec is None:
             return cls()
@@ -65,16 +72,16 @@ class Layout:
     def names(self) -> tuple[str, ...]:
         return tuple(s.name for s in self.signals)
 
-    def __contains__(self, name: str) -> bool:
+    def __contains__(self, name: object) -> bool:
         return name in self._slices
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Signal]:
         return iter(self.signals)
 
     def __len__(self) -> int:
         return len(self.signals)
 
-    def __eq__(self, other) -> bool:
+    def __eq__(self, other: object) -> bool:
         return isinstance(other, Layout) and self.signals == other.signals
 
     def __repr__(self) -> str:
@@ -92,19 +99,19 @@ class Layout:
         if name not in self._slices:
             raise KeyError(f"no signal {name!r}: expected one of {', '.join(self.names) or '(none)'}")
 
-    def split(self, v) -> dict:
+    def split(self, v: Any) -> dict[str, Any]:
         """``{name: v[slice]}`` for a CasADi column or a numpy array (last axis sliced)."""
         if isinstance(v, (ca.SX, ca.MX, ca.DM)):
             return {s.name: v[self._slices[s.name]] for s in self.signals}
         v = np.asarray(v)
         return {s.name: v[..., self._slices[s.name]] for s in self.signals}
 
-    def symbols(self, prefix: str = "", kind=ca.SX) -> tuple[ca.SX, dict]:
+    def symbols(self, prefix: str = "", kind: Any = ca.SX) -> tuple[Any, dict[str, Any]]:
         """A column of fresh symbols and its split, e.g. for building a step."""
         v = kind.sym(prefix or "v", self.size)
         return v, self.split(v)
 
-    def join(self, parts: Mapping, *, default=None):
+    def join(self, parts: Mapping[str, Any], *, default: float | None = None) -> Any:
         """The column ``vertcat`` of ``parts[name]`` in layout order.
 
         CasADi values give a CasADi column, anything else a float numpy vector.
@@ -115,7 +122,7 @@ class Layout:
             raise KeyError(f"unknown signal(s) {', '.join(sorted(unknown))}: expected "
                            f"{', '.join(self.names) or '(none)'}")
         symbolic = any(isinstance(v, (ca.SX, ca.MX)) for v in parts.values())
-        cols = []
+        cols: list[Any] = []
         for s in self.signals:
             if s.name in parts:
                 v = parts[s.name]
@@ -141,7 +148,7 @@ class Layout:
             return ca.vertcat(*cols) if cols else ca.SX(0, 1)
         return np.concatenate(cols) if cols else np.zeros(0)
 
-    def override(self, base: np.ndarray, given: Mapping, where: str) -> np.ndarray:
+    def override(self, base: np.ndarray, given: Mapping[str, Any], where: str) -> np.ndarray:
         """A copy of the flat vector ``base`` with ``{name: value}`` written in.
 
         A scalar fills the whole signal; a wrong name or size raises ``ValueError``

@@ -11,6 +11,7 @@ readings never share a name with the plant signals they measure.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -25,7 +26,7 @@ def _channels(channels: Mapping[str, int], what: str) -> dict[str, int]:
     return ch
 
 
-def quantized(x, resolution: float):
+def quantized(x: Any, resolution: float) -> Any:
     """``x`` rounded to a multiple of ``resolution`` (halves round up; numpy or CasADi)."""
     if isinstance(x, (ca.SX, ca.MX, ca.DM)):
         return ca.floor(x / resolution + 0.5) * resolution
@@ -49,7 +50,7 @@ def encoder_block(name: str, channels: Mapping[str, int], counts_per_rev: int | 
     if noise_std:
         ins.update({f"{k}_noise": v for k, v in ch.items()})
 
-    def body(x, u, p):
+    def body(x: Any, u: Any, p: Any) -> Any:
         y = {}
         for k in ch:
             v = u[k] + noise_std * u[f"{k}_noise"] if noise_std else u[k]
@@ -72,7 +73,7 @@ def noise_block(name: str, channels: Mapping[str, int], std: float | Mapping[str
     stds = {k: float(std[k] if isinstance(std, Mapping) else std) for k in ch}
     ins = {**ch, **{f"{k}_noise": v for k, v in ch.items()}}
 
-    def body(x, u, p):
+    def body(x: Any, u: Any, p: Any) -> Any:
         return {}, {f"{k}{suffix}": u[k] + stds[k] * u[f"{k}_noise"] for k in ch}
 
     return Block.define(name, dt=None, inputs=ins,
@@ -80,7 +81,7 @@ def noise_block(name: str, channels: Mapping[str, int], std: float | Mapping[str
                         doc="additive noise from external sequences")
 
 
-def delay_block(name: str, channels: Mapping[str, int], delay: int, *, dt=None,
+def delay_block(name: str, channels: Mapping[str, int], delay: int, *, dt: float | None = None,
                 suffix: str = "_d") -> Block:
     """A delay line: output ``<k><suffix>`` at sample k is input ``<k>`` of sample k − d
     (zeros, or the block's initial state, before the first d samples)."""
@@ -90,7 +91,7 @@ def delay_block(name: str, channels: Mapping[str, int], delay: int, *, dt=None,
         raise ValueError(f"delay {name}: delay: expected a positive number of samples, got {delay}")
     state = [(f"{k}_line", v * d) for k, v in ch.items()]
 
-    def body(x, u, p):
+    def body(x: Any, u: Any, p: Any) -> Any:
         xn, y = {}, {}
         for k, v in ch.items():
             line = x[f"{k}_line"]            # oldest first: u_{k-d}, ..., u_{k-1}

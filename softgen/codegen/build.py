@@ -57,6 +57,16 @@ def cflags(optimization: str = "-O3") -> tuple[str, ...]:
 LDLIBS = ("-lm",)   # gcc merges sin and cos into sincos: the library must link libm
 
 
+
+def library_name(name: str, c_source: bytes, optimization: str = "-O3") -> str:
+    """Relative path of the compiled library.
+
+    Its name carries the hash of exactly what it is built from (the C source and
+    the compiler flags), so a library built from anything else is never loaded.
+    """
+    h = hashlib.sha256(c_source + " ".join(cflags(optimization) + LDLIBS).encode()).hexdigest()
+    return f"build/lib{name}_{h[:16]}.so"
+
 def find_compiler(cc: str | None = None) -> str | None:
     """The C compiler to use, or None if there is none.
 
@@ -138,7 +148,6 @@ def check_source(bundle: Path, manifest: dict) -> Path:
     if digest != manifest.get("source_sha256"):
         raise BundleError(f"{c_file}: does not match manifest.json (stale or edited); "
                           f"run `softgen generate {manifest['model']}`")
-    from softgen.codegen.generate import library_name
     expected = library_name(manifest["model"], c_src, manifest.get("optimization", "-O3"))
     if manifest.get("library") != expected:
         raise BundleError(f"{Path(bundle) / 'manifest.json'}: library: expected {expected!r} "
@@ -183,7 +192,7 @@ def verify_library(lib: Path, manifest: dict) -> str | None:
     """Why ``lib`` may not be loaded, or None when it matches its record.
 
     Checks, in order: the library exists; its name is the one the manifest's C
-    source gives (see :func:`~softgen.codegen.generate.library_name`); a record
+    source gives (see :func:`library_name`); a record
     exists and was written for this source; the library's size and sha256 equal
     the record's.
     """

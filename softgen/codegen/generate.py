@@ -18,7 +18,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from softgen.codegen.build import LDLIBS, cflags, clean_orphans
+from softgen.codegen.build import clean_orphans, library_name
 
 #: Bumped whenever the generated code for the same model would change.
 CODEGEN_VERSION = "1"
@@ -52,16 +52,6 @@ def content_hash(identity: bytes) -> str:
     h.update(identity)
     h.update(f"\ncasadi={ca.__version__}\ncodegen={CODEGEN_VERSION}\n".encode())
     return h.hexdigest()
-
-
-def library_name(name: str, c_source: bytes, optimization: str = "-O3") -> str:
-    """Relative path of the compiled library.
-
-    Its name carries the hash of exactly what it is built from (the C source and
-    the compiler flags), so a library built from anything else is never loaded.
-    """
-    h = hashlib.sha256(c_source + " ".join(cflags(optimization) + LDLIBS).encode()).hexdigest()
-    return f"build/lib{name}_{h[:16]}.so"
 
 
 def signature(f: ca.Function) -> dict:

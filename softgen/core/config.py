@@ -10,7 +10,9 @@ import dataclasses
 import math
 import types
 import typing
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -23,7 +25,7 @@ class Config:
     their own rules (DESIGN.md section 3 item 2).
     """
 
-    def replace(self, **changes) -> Config:
+    def replace(self, **changes: Any) -> Config:
         bad = [k for k in changes if k not in self._fields()]
         if bad:
             raise ValueError(f"{type(self).__name__}: unknown key(s) {', '.join(bad)}: expected "
@@ -31,7 +33,7 @@ class Config:
         return dataclasses.replace(self, **changes).check()
 
     @classmethod
-    def from_dict(cls, d: dict) -> Config:
+    def from_dict(cls, d: Mapping[str, Any]) -> Config:
         bad = [k for k in d if k not in cls._fields()]
         if bad:
             raise ValueError(f"{cls.__name__}: unknown key(s) {', '.join(bad)}: expected some "
@@ -42,7 +44,7 @@ class Config:
     def _fields(cls) -> tuple[str, ...]:
         return tuple(f.name for f in dataclasses.fields(cls))
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
     def check(self) -> Config:
@@ -56,7 +58,7 @@ class Config:
         """Rules across fields; raise ``ValueError`` naming the key."""
 
 
-def _check_value(owner: str, key: str, v, hint) -> None:
+def _check_value(owner: str, key: str, v: Any, hint: Any) -> None:
     origin, args = typing.get_origin(hint), typing.get_args(hint)
     where = f"{owner}.{key}"
     if origin in (typing.Union, types.UnionType):
@@ -92,7 +94,7 @@ def _check_value(owner: str, key: str, v, hint) -> None:
             for i, (x, a) in enumerate(zip(v, args)):
                 _check_value(owner, f"{key}[{i}]", x, a)
         return
-    if dataclasses.is_dataclass(hint) and isinstance(v, hint):
+    if isinstance(hint, type) and dataclasses.is_dataclass(hint) and isinstance(v, hint):
         if isinstance(v, Config):
             v.check()
         return

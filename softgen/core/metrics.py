@@ -9,7 +9,8 @@ formatted from the numbers.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, ItemsView, Iterable, Iterator, KeysView, Mapping
+from typing import Any
 from dataclasses import dataclass
 
 
@@ -45,7 +46,7 @@ class Metrics:
     def __init__(self, records: Iterable[Metric] = ()):
         self.records: list[Metric] = list(records)
 
-    def add(self, quantity: str, value, unit: str = "", **kw) -> Metrics:
+    def add(self, quantity: str, value: float | None, unit: str = "", **kw: Any) -> Metrics:
         self.records.append(Metric(quantity, None if value is None else float(value), unit, **kw))
         return self
 
@@ -71,10 +72,11 @@ class Metrics:
         return {r.key: r.unit for r in self.records if r.unit}
 
     @classmethod
-    def from_flat(cls, flat: dict, units: dict | None = None) -> Metrics:
+    def from_flat(cls, flat: Mapping[str, float | None],
+                  units: Mapping[str, str] | None = None) -> Metrics:
         """Records read back from ``metrics.json`` names (quantity = the whole name)."""
-        units = units or {}
-        return cls(Metric(k, v, units.get(k, "")) for k, v in flat.items())
+        given = units or {}
+        return cls(Metric(k, v, given.get(k, "")) for k, v in flat.items())
 
     # -- typed reads: what findings use ------------------------------------------------
 
@@ -87,7 +89,7 @@ class Metrics:
                 return r
         return None
 
-    def value(self, quantity: str, **where) -> float | None:
+    def value(self, quantity: str, **where: Any) -> float | None:
         """The value of :meth:`find`; ``KeyError`` naming the record when it is absent."""
         r = self.find(quantity, **where)
         if r is None:
@@ -109,23 +111,23 @@ class Metrics:
     def __contains__(self, key: object) -> bool:
         return any(r.key == key for r in self.records)
 
-    def keys(self):
+    def keys(self) -> KeysView[str]:
         return self.flat().keys()
 
-    def items(self):
+    def items(self) -> ItemsView[str, float | None]:
         return self.flat().items()
 
-    def get(self, key: str, default=None):
+    def get(self, key: str, default: float | None = None) -> float | None:
         return self.flat().get(key, default)
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Metric]:
         return iter(self.records)
 
     def __len__(self) -> int:
         return len(self.records)
 
 
-def _describe(quantity: str, where: dict) -> str:
+def _describe(quantity: str, where: dict[str, Any]) -> str:
     parts = [f"{k}={v}" for k, v in where.items() if v not in (None, "")]
     return f"metric {quantity}" + (f" ({', '.join(parts)})" if parts else "") + " not recorded"
 
@@ -135,19 +137,19 @@ def _describe(quantity: str, where: dict) -> str:
 VERDICTS = ("reproduced", "partly reproduced", "not reproduced", "not checked")
 
 
-def finding(claim: str, verdict: str, evidence: str) -> dict:
+def finding(claim: str, verdict: str, evidence: str) -> dict[str, str]:
     """One checked claim: the thesis's claim, our verdict, the run's numbers behind it."""
     if verdict not in VERDICTS:
         raise ValueError(f"verdict {verdict!r}: expected one of {', '.join(VERDICTS)}")
     return {"claim": claim, "verdict": verdict, "evidence": evidence}
 
 
-def absent(m: dict, keys: Iterable[str]) -> list[str]:
+def absent(m: Mapping[str, Any] | Metrics, keys: Iterable[str]) -> list[str]:
     """The ``keys`` that ``m`` lacks (e.g. metrics only a full run computes)."""
     return [k for k in keys if k not in m]
 
 
-def not_checked(claim: str, missing: list[str]) -> dict:
+def not_checked(claim: str, missing: list[str]) -> dict[str, str]:
     """The finding for a claim whose metrics this run did not compute."""
     shown = ", ".join(f"`{k}`" for k in missing[:4]) + (" ..." if len(missing) > 4 else "")
     return finding(claim, "not checked", f"metrics absent from this run (e.g. a quick run): "
@@ -156,10 +158,10 @@ def not_checked(claim: str, missing: list[str]) -> dict:
 
 def graded(passed: Iterable[bool]) -> str:
     """"reproduced" if every part of a claim passed, "not reproduced" if none did."""
-    passed = list(passed)
-    if all(passed):
+    parts = list(passed)
+    if all(parts):
         return "reproduced"
-    return "partly reproduced" if any(passed) else "not reproduced"
+    return "partly reproduced" if any(parts) else "not reproduced"
 
 
 def num(x: float) -> str:

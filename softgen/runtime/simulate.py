@@ -123,6 +123,8 @@ class Trace:
 
 
 Predicate = Callable[[Trace], np.ndarray]
+#: ``(reason, predicate)`` or ``(reason, predicate, signals the predicate reads)``.
+StopRule = tuple[str, Predicate] | tuple[str, Predicate, Sequence[str]]
 
 #: Progress lines: True, False, or None (when stderr is a terminal); and a label prefix.
 _PROGRESS: dict = {"show": None, "prefix": ""}
@@ -175,7 +177,7 @@ def progress_context(prefix: str):
 def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int | None = None,
              x0: Mapping | None = None, params: Mapping | None = None,
              externals: Mapping[str, np.ndarray] | None = None, k0: int = 0,
-             chunk: int = 1000, stop: Sequence[tuple[str, Predicate]] = (),
+             chunk: int = 1000, stop: Sequence[StopRule] = (),
              on_nonfinite: str = "raise", record: Sequence[str] | None = None,
              progress: bool | None = None, label: str | None = None,
              backend: str = "auto") -> Trace:

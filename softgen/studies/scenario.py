@@ -18,10 +18,8 @@ import numpy as np
 
 from softgen.blocks.diagram import ClosedLoop
 from softgen.core.errors import SoftgenError
-from softgen.runtime.simulate import Predicate, Trace, simulate
+from softgen.runtime.simulate import StopRule, Trace, simulate
 
-#: ``(reason, predicate)`` or ``(reason, predicate, signals the predicate reads)``.
-StopRule = tuple[str, Predicate] | tuple[str, Predicate, Sequence[str]]
 
 
 @dataclass(frozen=True)
@@ -82,6 +80,7 @@ class Scenario:
         """Samples of the run."""
         if self.steps is not None:
             return int(self.steps)
+        assert self.duration is not None   # __post_init__: one of them is given
         return int(round(float(self.duration) / self.loop.dt))
 
     def initial_state(self) -> np.ndarray:
@@ -92,7 +91,7 @@ class Scenario:
         """The diagram's parameter vector (defaults plus ``params``, rules checked)."""
         return self.loop.parameters(self.params)
 
-    def with_(self, **changes) -> Scenario:
+    def with_(self, **changes: Any) -> Scenario:
         """A copy with some fields changed; ``params``/``x0`` are merged, not replaced."""
         for key in ("params", "x0", "externals"):
             if key in changes:
@@ -119,7 +118,8 @@ def _flat_keys(given: Mapping[str, Any]) -> list[str]:
     return keys
 
 
-def _check_names(scenario: str, what: str, given: Mapping[str, Any], known) -> None:
+def _check_names(scenario: str, what: str, given: Mapping[str, Any],
+                 known: Sequence[str]) -> None:
     unknown = [k for k in _flat_keys(given) if k not in set(known)]
     if unknown:
         raise SoftgenError(f"scenario {scenario}: {what}: the diagram has no signal "
