@@ -418,7 +418,8 @@ REFUSALS = [
     ("no-inertial", _swap('<inertial><origin xyz="0.05 0.01 0"/><mass value="0.5"/>\n      '
                           '<inertia ixx="0.002" ixy="0" ixz="0.0001" iyy="0.003" iyz="0" '
                           'izz="0.004"/></inertial>', ""),
-     "link 'l2': has no <inertial>; a link moved by joint 'j2' needs mass and inertia"),
+     # a massless link is accepted (issue 24) unless the chain then moves no mass:
+     "link 'l2' <inertial> <mass>: expected a positive mass: prismatic joint 'l2' moves no mass"),
     ("long-name", _swap('<robot name="two">', f'<robot name="{"r" * 65}">'),
      "<robot name>: expected a C identifier of at most 64"),
 ]
@@ -436,8 +437,9 @@ def test_bad_urdf_gives_one_line_naming_the_element(tmp_path, text, match):
 
 
 def test_merged_link_names_the_fixed_links_in_its_error(tmp_path):
-    # l2 itself massless, its fixed child a zero inertial: the merged body is refused by
-    # softgen.modelfile.model's check and the message names both links.
+    # l2 itself massless, its fixed child a zero inertial: the merged body moves no mass
+    # along the prismatic joint, refused by softgen.modelfile.model's check; the message
+    # names both links.
     text = _swap('<inertial><origin xyz="0.05 0.01 0"/><mass value="0.5"/>\n      '
                  '<inertia ixx="0.002" ixy="0" ixz="0.0001" iyy="0.003" iyz="0" '
                  'izz="0.004"/></inertial>', "").replace(
@@ -446,8 +448,8 @@ def test_merged_link_names_the_fixed_links_in_its_error(tmp_path):
     path = tmp_path / "m.urdf"
     path.write_text(text)
     with pytest.raises(ModelError, match=r"link 'l2' <inertial> \(merged with fixed link "
-                                         r"'gripper'\) <inertia>: inertia not positive "
-                                         "definite") as exc:
+                                         r"'gripper'\) <mass>: expected a positive mass: "
+                                         "prismatic joint 'l2' moves no mass") as exc:
         load_model(path)
     assert "\n" not in str(exc.value)
 

@@ -37,6 +37,7 @@ of them a CasADi symbol, and the regressor can factor the dynamics in them.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
 from collections.abc import Callable
@@ -160,7 +161,11 @@ class ParameterTable:
         return value
 
     def source_text(self) -> str:
-        return self.path.read_text() if self.path is not None else ""
+        """What the model was read from: its file, and whatever else it names (a URDF a
+        TOML model references, the chain's root and tip links). Bundle hashes cover it."""
+        text = self.path.read_text() if self.path is not None else ""
+        extra = getattr(self, "source_extra", "")
+        return text + ("\n" + extra if extra else "")
 
 
 @dataclass(frozen=True)
@@ -196,6 +201,8 @@ class RobotModel(ParameterTable):
     uncertain: tuple[str, ...]
     path: Path | None = None
     actuators: tuple[Actuator, ...] = ()
+    #: Besides the file at ``path``, what the model was read from (see ``source_text``).
+    source_extra: str = field(default="", repr=False)
 
     @property
     def actuator_type(self) -> str | None:
@@ -260,8 +267,13 @@ def list_models() -> list[str]:
     return sorted({p.stem for suffix in MODEL_SUFFIXES for p in MODELS_DIR.glob(f"*{suffix}")})
 
 
-def load_model(name_or_path: str | Path) -> RobotModel:
+def load_model(name_or_path: str | Path, *, root: str | None = None,
+               tip: str | None = None) -> RobotModel:
     """Load and validate a model file.
+
+    ``root`` and ``tip`` choose the serial chain between two links of a URDF file
+    (joints off it are ignored, fixed links on it merged); a TOML model gives them in
+    its ``[urdf]`` table instead.
 
     Raises
     ------
@@ -276,15 +288,51 @@ def load_model(name_or_path: str | Path) -> RobotModel:
         raise ModelError(f"{path}: cannot read model file ({exc.strerror})") from None
     if path.suffix.lower() == ".urdf":
         from softgen.modelfile.urdf import parse_urdf        # serial chains from URDF (issue 17)
-        return parse_urdf(path, text)
+        model = parse_urdf(path, text, root=root, tip=tip)
+        if root is None and tip is None:
+            return model
+        return dataclasses.replace(model, source_extra=f"[chain] root={root} tip={tip}")
+    if root is not None or tip is not None:
+        raise ModelError(f"{path}: root/tip choose a chain of a URDF file; for a TOML model "
+                         "give them in its [urdf] table")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ModelError(f"{path}: not valid TOML ({exc})") from None
+    if isinstance(data, dict) and "urdf" in data:
+        return _urdf_reference(path, data)
     from softgen.modelfile.soft import is_soft, parse_soft_model   # soft bodies (thesis ch. 3, 12)
     if is_soft(data):
         return parse_soft_model(path, data)
     return _Parser(path).parse(data)
+
+
+def _urdf_reference(path: Path, data: dict) -> RobotModel:
+    """A TOML model that is a URDF file's chain: ``[urdf] file, root, tip`` and an
+    optional ``[model] name, description``."""
+    from softgen.modelfile.urdf import parse_urdf        # serial chains from URDF (issue 17)
+    r = FileReader(path)
+    r.keys(data, "", {"model", "urdf"}, {"urdf"})
+    model = r.keys(data.get("model", {}), "model", {"name", "description"}, set())
+    table = r.keys(data["urdf"], "urdf", {"file", "root", "tip"}, {"file"})
+    for k, v in [*table.items(), *model.items()]:
+        if not isinstance(v, str) or not v:
+            raise r.fail(f"urdf.{k}" if k in table else f"model.{k}",
+                         f"expected a non-empty string, got {v!r}")
+    urdf = (path.parent / table["file"]).resolve()
+    try:
+        text = urdf.read_text()
+    except OSError as exc:
+        raise r.fail("urdf.file", f"cannot read {urdf} ({exc.strerror})") from None
+    name = model.get("name")
+    if name is not None and not (name.isascii() and name.isidentifier()
+                                 and len(name) <= MAX_NAME):
+        raise r.fail("model.name", f"expected a C identifier of at most {MAX_NAME} "
+                     f"characters, got {name!r}")
+    m = parse_urdf(urdf, text, root=table.get("root"), tip=table.get("tip"), name=name,
+                   description=model.get("description"))
+    return dataclasses.replace(m, path=path, source=str(path.name),
+                               source_extra=f"[urdf file] {urdf.name}\n{text}")
 
 
 class FileReader:
@@ -573,7 +621,10 @@ class _Parser(FileReader):
         else:
             raise self.fail(key, "expected a 3x3 matrix or [ixx, iyy, izz, ixy, ixz, iyz], "
                             f"got {v!r}")
-        self.physical_inertia(m, key)
+        # A zero tensor (a point mass, or a massless frame link of a URDF) is a body too;
+        # a chain it leaves without inertia is refused by the B(q) check before generation.
+        # Any other tensor must be positive definite.
+        self.physical_inertia(m, key, point_mass_ok=not m.any())
         return (m[0, 0], m[1, 1], m[2, 2], m[0, 1], m[0, 2], m[1, 2])
 
     def uncertain(self, table: Any, nominal: dict) -> tuple[str, ...]:

@@ -12,8 +12,19 @@ dependency, and a URDF is a small, flat document (links and joints, a few
 attributes each) for which a URDF library would add an install and its own
 dependencies (yourdfpy, for one, pulls lxml and trimesh) and still leave the
 merging and the checks to do here. Xacro macros are not expanded: a file with
-``xacro:`` elements or ``${...}`` is refused with one line asking to run
-``xacro`` first.
+``<xacro:...>`` elements or ``${...}``/``$(...)`` in attribute values is refused with
+one line asking to run ``xacro`` first. Xacro's *output* loads: it keeps the
+``xmlns:xacro`` declaration and often comments quoting macros, and neither is a macro.
+
+Which chain
+    Without a tip link the file must be one serial chain (fixed side branches
+    allowed). ``root`` and ``tip`` links (``load_model(path, root=, tip=)``, or the
+    ``[urdf]`` table of a TOML model: ``file``, ``root``, ``tip``) cut a serial chain
+    out of a tree, as users cut a gripper off an arm or an arm off a humanoid: the root
+    link is the fixed base (links above it are not modelled), the joints from root to
+    tip are the chain, fixed branches hanging from it are merged, and moving joints
+    off it (fingers, mimic joints, other limbs) are ignored with everything below
+    them; the model's description names them.
 
 What is read
     ``<robot name>`` is the model name. It prefixes every generated C symbol, so
@@ -22,7 +33,8 @@ What is read
     (``my-arm`` becomes ``my_arm``); longer than 64 characters is refused.
     ``<joint type>`` ``revolute``, ``continuous`` (a revolute joint without
     limits) and ``prismatic`` are joints of the chain; ``fixed`` joints are
-    merged (below); ``floating``, ``planar`` and ``<mimic>`` are refused. Each
+    merged (below); ``floating``, ``planar`` and ``<mimic>`` joints are refused on
+    the chain and ignored off it. Each
     joint's ``<origin xyz rpy>`` (default zeros; rpy = fixed-axis roll, pitch,
     yaw, R = Rz Ry Rx, as in :func:`softgen.symbolic.mechanics.rpy`) places it
     in its parent link's frame and ``<axis xyz>`` (default ``1 0 0`` as the URDF
@@ -30,7 +42,9 @@ What is read
     ``<inertial>`` with ``<origin xyz rpy>``, ``<mass value>`` and the full
     ``<inertia ixx ixy ixz iyy iyz izz>`` about the centre of mass in the
     inertial frame: the tensor is rotated into the link frame and the centre of
-    mass is the inertial origin. ``<dynamics damping>`` is the joint's viscous
+    mass is the inertial origin. A link without ``<inertial>`` is massless (vendor
+    files have such frame links); the chain is accepted when B(q) stays positive
+    definite, which is checked before anything is generated. ``<dynamics damping>`` is the joint's viscous
     damping (0, the specification's default, adds no term).
 What is ignored
     ``<limit>``, ``<safety_controller>``, ``<calibration>``, ``<dynamics
@@ -45,7 +59,7 @@ Fixed joints
     fixed joints only (sensor, flange or hand frames) are merged the same way;
     fixed links before the first movable joint belong to the fixed base.
 What is refused (one line naming the element)
-    Several movable branches from one link (a tree, not a serial chain), a link
+    Several movable branches from one link without a tip link to choose one, a link
     that is the child of two joints (a closed loop) or unreachable from the
     root, several root links, no movable joint, missing required attributes,
     anything that is not a decimal number where a number is expected.
@@ -61,14 +75,16 @@ from pathlib import Path
 
 import numpy as np
 
+from softgen.core.errors import ModelError
+from softgen.modelfile.geometry import rpy as rpy_matrix
 from softgen.modelfile.model import MAX_MAGNITUDE, FileReader, RobotModel, parse_rigid
-from softgen.symbolic.mechanics import rpy as rpy_matrix
 
 #: A decimal number as URDF writes it (no ``nan``, ``inf`` or ``1_000``, which
 #: Python's ``float`` would accept).
 _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
 
 _MOVABLE = {"revolute": "revolute", "continuous": "revolute", "prismatic": "prismatic"}
+_XACRO_NS = "{http://www.ros.org/wiki/xacro}"
 _REFUSED_TYPES = {"floating": "a floating joint (6 DoF)", "planar": "a planar joint (3 DoF)"}
 
 
@@ -174,13 +190,13 @@ class _Urdf(_Reader):
 
     def __init__(self, path: Path, text: str):
         super().__init__(path)
-        if re.search(r"<\s*xacro:|xmlns:xacro|\$\{", text):
-            raise self.fail("xacro", "this file uses xacro macros; expand them first "
-                            "(`xacro robot.urdf.xacro > robot.urdf`) and load the result")
         try:
             self.root = ET.fromstring(text)
         except ET.ParseError as exc:
+            if "unbound prefix" in str(exc) and re.search(r"<\s*xacro:", text):
+                raise self._unexpanded("<xacro:...> elements") from None
             raise self.fail("XML", f"not well-formed ({exc})") from None
+        self._refuse_unexpanded_xacro()
         if self.root.tag != "robot":
             raise self.fail(f"<{self.root.tag}>", "expected a URDF document (root <robot>)")
         self.name = sanitise_name(self.attr(self.root, "name", "<robot>"))
@@ -196,22 +212,34 @@ class _Urdf(_Reader):
         for el in self.root.findall("joint"):
             self.add_joint(el)
 
+    def _unexpanded(self, what: str) -> ModelError:
+        return self.fail("xacro", f"unexpanded xacro ({what}); expand it first "
+                         "(`xacro robot.urdf.xacro > robot.urdf`) and load the result")
+
+    def _refuse_unexpanded_xacro(self) -> None:
+        """Refuse what only xacro can read: elements in its namespace and ``${...}`` or
+        ``$(...)`` in attribute values or text. xacro's *output* keeps the namespace
+        declaration on ``<robot>`` and often comments quoting macros; both are harmless
+        (comments are not in the parsed tree), so neither is refused."""
+        for el in self.root.iter():
+            tag = el.tag if isinstance(el.tag, str) else ""
+            if tag.startswith(_XACRO_NS) or tag.startswith("xacro:"):
+                raise self._unexpanded(f"<xacro:{tag.rpartition('}')[2]}> element")
+            for k, v in el.attrib.items():
+                if "${" in v or "$(" in v:
+                    raise self._unexpanded(f"{k}={v!r} in <{tag}>")
+            if el.text and ("${" in el.text or "$(" in el.text):
+                raise self._unexpanded(f"{el.text.strip()[:40]!r} in <{tag}>")
+
     def add_joint(self, el: ET.Element) -> None:
         name = self.attr(el, "name", "<joint>")
         where = f"joint {name!r}"
         if name in self.joints:
             raise self.fail(where, "defined twice")
         kind = self.attr(el, "type", where)
-        if kind in _REFUSED_TYPES:
-            raise self.fail(f"{where} type", f"{_REFUSED_TYPES[kind]} is not part of a "
-                            "fixed-base serial chain; expected revolute, continuous, "
-                            "prismatic or fixed")
-        if kind not in _MOVABLE and kind != "fixed":
+        if kind not in _MOVABLE and kind != "fixed" and kind not in _REFUSED_TYPES:
             raise self.fail(f"{where} type", "expected revolute, continuous, prismatic or "
                             f"fixed, got {kind!r}")
-        if el.find("mimic") is not None:
-            raise self.fail(f"{where} <mimic>", "mimic joints (one joint driven by another) "
-                            "are not supported; make it an independent joint or fixed")
         ends = {}
         for end in ("parent", "child"):
             tag = el.find(end)
@@ -256,12 +284,48 @@ class _Urdf(_Reader):
         return self.joints[joint].find("child").get("link").strip()
 
     def is_movable(self, joint: str) -> bool:
-        return self.joints[joint].get("type").strip() in _MOVABLE
+        """Whether ``joint`` is not fixed (floating, planar and mimic joints included: they
+        move, and are refused if the chain needs them)."""
+        return self.joints[joint].get("type").strip() != "fixed"
+
+    def check_chain_joint(self, joint: str) -> None:
+        """A joint the chain moves through: one degree of freedom of its own."""
+        el, where = self.joints[joint], f"joint {joint!r}"
+        kind = el.get("type").strip()
+        if kind in _REFUSED_TYPES:
+            raise self.fail(f"{where} type", f"{_REFUSED_TYPES[kind]} is not part of a "
+                            "fixed-base serial chain; expected revolute, continuous, "
+                            "prismatic or fixed (choose the chain with root and tip links)")
+        if el.find("mimic") is not None:
+            raise self.fail(f"{where} <mimic>", "mimic joints (one joint driven by another) "
+                            "are not supported on the chain; choose a tip link above it")
+
+    def joints_between(self, root: str, tip: str) -> list[str]:
+        """The joints from link ``root`` down to link ``tip``."""
+        for end, name in (("root", root), ("tip", tip)):
+            if name not in self.links:
+                raise self.fail(f"{end} link {name!r}", "not a link of this file; expected one "
+                                f"of {', '.join(sorted(self.links)[:12])}"
+                                + (" ..." if len(self.links) > 12 else ""))
+        joints, link = [], tip
+        while link != root:
+            if link not in self.parent_joint:
+                raise self.fail(f"tip link {tip!r}", f"is not below the root link {root!r} "
+                                "(no chain of joints leads from the root to it)")
+            j = self.parent_joint[link]
+            joints.append(j)
+            link = self.joints[j].find("parent").get("link").strip()
+        return joints[::-1]
 
     def has_movable(self, joint: str) -> bool:
         """Whether ``joint`` or any joint below it moves."""
-        return self.is_movable(joint) or any(self.has_movable(j)
-                                             for j in self.children[self.child(joint)])
+        stack = [joint]
+        while stack:                     # iterative: vendor files chain 1,000s of fixed joints
+            j = stack.pop()
+            if self.is_movable(j):
+                return True
+            stack += self.children[self.child(j)]
+        return False
 
     def inertial(self, link: str, R: np.ndarray, p: np.ndarray) -> _Inertial | None:
         """The ``<inertial>`` of ``link`` in a body frame where the link frame is (R, p)."""
@@ -303,26 +367,50 @@ class _Urdf(_Reader):
 
     def merge_fixed_branch(self, body: _Body | None, joint: str, R: np.ndarray,
                            p: np.ndarray) -> None:
-        """A branch of fixed joints only, hanging from a link at (R, p) in the body frame."""
-        Rj, pj, _ = self.origin(self.joints[joint], f"joint {joint!r}")
-        R2, p2 = R @ Rj, p + R @ pj
-        link = self.child(joint)
-        self.merge_link(body, link, R2, p2, fixed=True)
-        for j in self.children[link]:
-            self.merge_fixed_branch(body, j, R2, p2)
+        """The links rigidly attached below ``joint`` (a link at (R, p) in the body frame):
+        fixed joints are followed and merged; a moving joint off the chain (a finger, a
+        mimic joint, another limb) ends the branch and what hangs from it is ignored."""
+        stack = [(joint, R, p)]
+        while stack:
+            j, R0, p0 = stack.pop()
+            if self.is_movable(j):
+                self.ignored.append(j)
+                continue
+            Rj, pj, _ = self.origin(self.joints[j], f"joint {j!r}")
+            R2, p2 = R0 @ Rj, p0 + R0 @ pj
+            link = self.child(j)
+            self.merge_link(body, link, R2, p2, fixed=True)
+            stack += [(c, R2, p2) for c in reversed(self.children[link])]
 
-    def chain(self) -> list[_Body]:
-        """Walk from the root along the one branch that moves, merging the rest."""
-        link, body = self.root_link(), None
+    def chain(self, root: str | None = None, tip: str | None = None) -> list[_Body]:
+        """Walk from the root along the chain, merging fixed branches into its bodies.
+
+        Without ``tip`` the chain is the one branch that moves (a tree is refused, naming
+        the branches); with it, the joints from ``root`` (default: the file's root link)
+        to ``tip``. Links above ``root`` are not part of the fixed base model; moving
+        joints off the chain are ignored with everything below them (:attr:`ignored`).
+        """
+        tree_root = self.root_link()
+        link, body = root or tree_root, None
+        wanted = None if tip is None else self.joints_between(link, tip)
+        if root is not None and root not in self.links:
+            self.joints_between(root, root)          # names the unknown link
         R, p = np.eye(3), np.zeros(3)               # link frame in the body frame
         identity = True                             # R is exactly the identity
         bodies: list[_Body] = []
+        self.ignored = []
         while True:
-            movable = [j for j in self.children[link] if self.has_movable(j)]
-            if len(movable) > 1:
-                raise self.fail(f"link {link!r}", "branches into movable joints on "
-                                f"{len(movable)} branches ({', '.join(map(repr, movable))}): "
-                                "a tree, expected a serial chain")
+            if wanted is not None:
+                movable = wanted[:1]
+                wanted = wanted[1:]
+            else:
+                movable = [j for j in self.children[link] if self.has_movable(j)]
+                if len(movable) > 1:
+                    raise self.fail(
+                        f"link {link!r}", "branches into movable joints on "
+                        f"{len(movable)} branches ({', '.join(map(repr, movable))}): a tree; "
+                        "choose the serial chain with a tip link (--tip LINK, or tip in "
+                        "the [urdf] table of a TOML model)")
             for j in self.children[link]:
                 if j not in movable:
                     self.merge_fixed_branch(body, j, R, p)
@@ -333,6 +421,8 @@ class _Urdf(_Reader):
             Rj, pj, rpy = self.origin(el, f"joint {j!r}")
             R2, p2 = R @ Rj, p + R @ pj
             link = self.child(j)
+            if self.is_movable(j):
+                self.check_chain_joint(j)
             if not self.is_movable(j):               # fixed joint on the way to the next one
                 R, p, identity = R2, p2, identity and rpy == (0.0, 0.0, 0.0)
                 self.merge_link(body, link, R, p, fixed=True)
@@ -360,18 +450,19 @@ class _Urdf(_Reader):
         return bodies
 
 
-def urdf_tables(path: Path, text: str) -> tuple[dict, dict[str, str]]:
-    """The spatial model tables of a URDF document, and the URDF name of each key."""
+def urdf_tables(path: Path, text: str, *, root: str | None = None,
+                tip: str | None = None) -> tuple[dict, dict[str, str]]:
+    """The spatial model tables of a URDF document (the chain from ``root`` to ``tip``
+    when given), and the URDF name of each key."""
     urdf = _Urdf(path, text)
-    bodies = urdf.chain()
+    bodies = urdf.chain(root, tip)
     links, names = [], {"model.name": "<robot name>"}
     for i, b in enumerate(bodies):
-        if not b.parts:
-            merged = f" (nor has any fixed link merged into it: {', '.join(map(repr, b.merged))})" \
-                if b.merged else ""
-            raise urdf.fail(f"link {b.child!r}", f"has no <inertial>{merged}; a link moved by "
-                            f"joint {b.joint!r} needs mass and inertia")
-        body = combine(b.parts)
+        # A link without <inertial> (an intermediate frame of a vendor file) is massless:
+        # accepted, because B(q) is checked positive definite before anything is
+        # generated (softgen.bundles.bundle.check_inertia_positive_definite), which
+        # refuses a chain where it leaves a joint moving nothing.
+        body = combine(b.parts) if b.parts else _Inertial(0.0, np.zeros(3), np.zeros((3, 3)))
         I = body.inertia
         table = {"name": b.child, "joint": b.kind, "axis": list(b.axis),
                  "origin_xyz": list(b.xyz), "origin_rpy": list(b.rpy),
@@ -395,16 +486,28 @@ def urdf_tables(path: Path, text: str) -> tuple[dict, dict[str, str]]:
                       f"links[{i}].mass": f"{link} <mass>",
                       f"links[{i}].com": f"{link} <origin>",
                       f"links[{i}].inertia": f"{link} <inertia>"})
+    chain = f" from {root or urdf.root_link()!r} to {tip!r}" if tip else ""
+    ignored = f"; ignored: joint{'s' if len(urdf.ignored) > 1 else ''} " \
+        f"{', '.join(urdf.ignored[:6])}{' ...' if len(urdf.ignored) > 6 else ''}" \
+        if urdf.ignored else ""
     data = {"model": {"name": urdf.name, "kind": "spatial",
-                      "description": f"serial chain from {path.name}", "source": str(path.name)},
+                      "description": f"serial chain{chain} from {path.name}{ignored}",
+                      "source": str(path.name)},
             "gravity": {"vector": [0.0, 0.0, -9.81]},
             "links": links}
     return data, names
 
 
-def parse_urdf(path: Path, text: str) -> RobotModel:
-    """A validated :class:`~softgen.modelfile.model.RobotModel` from the URDF document ``text``."""
-    data, names = urdf_tables(path, text)
+def parse_urdf(path: Path, text: str, *, root: str | None = None, tip: str | None = None,
+               name: str | None = None, description: str | None = None) -> RobotModel:
+    """A validated :class:`~softgen.modelfile.model.RobotModel` from the URDF document
+    ``text``: its serial chain, or the chain from link ``root`` to link ``tip``.
+    ``name``/``description`` replace the file's (a TOML model that references it)."""
+    data, names = urdf_tables(path, text, root=root, tip=tip)
+    if name is not None:
+        data["model"]["name"] = name
+    if description is not None:
+        data["model"]["description"] = description
 
     def key_name(key: str) -> str:
         # "links[2].inertia[1]" -> the element of "links[2].inertia".
