@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from softgen.core.errors import SoftgenError
+from softgen.core.errors import ImplausibleError, SoftgenError
 
 HELP = "joint stiffness from a CSV measurement log (thesis chapters 6, 7)"
 
@@ -28,10 +28,17 @@ def run(args) -> int:
             raise SoftgenError(f"estimate: --powers: expected comma-separated integers "
                                f"such as 1,3,5,7, got {args.powers!r}") from None
     res = estimate_log(args.model, args.log, method=args.method, out=args.out, dt=args.dt,
-                       powers=powers, p0=args.p0, force=args.force)
+                       powers=powers, p0=args.p0, lowpass=args.lowpass, force=args.force)
     label = res.method if res.method == args.method else f"{res.method} ({args.method})"
+    filt = f"low-pass {res.lowpass:.3g} Hz" if res.lowpass else "unfiltered"
     print(f"estimate: {res.samples} samples, dt {res.dt:.9g} s, method {label}, "
-          f"delay {res.delay}, {res.wall_seconds:.2f} s wall -> {res.out}")
+          f"delay {res.delay}, {filt}, {res.wall_seconds:.2f} s wall -> {res.out}"
+          + (f"; {len(res.warnings)} warning(s)" if res.warnings else "; plausible"))
+    for w in res.warnings:
+        print(f"softgen: warning: estimate: {w}", file=sys.stderr)
+    if res.warnings and args.strict:
+        raise ImplausibleError(f"estimate: --strict: {len(res.warnings)} plausibility "
+                               f"warning(s); the first: {res.warnings[0]}")
     return 0
 
 
@@ -64,4 +71,11 @@ def add_arguments(p) -> None:
                    help="sample time; must agree with the log's median time step")
     p.add_argument("--powers", metavar="1,3,5,7", help="RLS regressor exponents")
     p.add_argument("--p0", type=float, help="initial RLS covariance (times I)")
+    p.add_argument("--lowpass", type=float, metavar="HZ",
+                   help="cutoff of the identical low-pass of RLS target and regressor; 0 "
+                        "for none (default: from the log's sample time and encoder "
+                        "resolution for --method noninvasive, none for invasive)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit with status 3 when the estimate is implausible (negative "
+                        "stiffness, RLS not converged, too little excitation)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")

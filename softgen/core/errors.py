@@ -46,3 +46,10 @@ class Interrupted(SoftgenError, RuntimeError):
     """A run stopped by SIGINT or SIGTERM after saving what had finished (status 130)."""
 
     exit_status = 130
+
+
+class ImplausibleError(SoftgenError):
+    """A result that ran but fails its plausibility check, refused on request
+    (``estimate --strict``): exit status 3."""
+
+    exit_status = 3
