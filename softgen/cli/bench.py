@@ -12,9 +12,21 @@ def add_arguments(p) -> None:
                    help="also the expression-size study on planar chains up to 40 links")
     p.add_argument("--calls", type=int, default=200_000, help="calls per C timing loop")
     p.add_argument("--json", help="also write the figures to this JSON file")
+    p.add_argument("--peers", action="store_true",
+                   help="only the comparison with Pinocchio (C++) and adam on planar chains "
+                        "and the Panda, CPU clocks, interleaved (optional peers: pip install "
+                        "'softgen[peers]')")
+    p.add_argument("--peer-chains", type=int, nargs="+", metavar="N", default=[2, 5, 10, 20],
+                   help="chain lengths for --peers (default 2 5 10 20)")
 
 
 def run(args) -> int:
+    if args.peers:
+        # The peers compile Pinocchio's headers: nothing of it is imported otherwise.
+        from softgen.app.peers import PeerSet, run_peers
+        print("\n".join(run_peers(PeerSet(chains=tuple(args.peer_chains),
+                                           urdf_models=tuple(args.models) or ("panda",)))))
+        return 0
     from softgen.app.bench import run_bench
     run_bench(models=args.models or None, chains=args.chains, calls=args.calls,
               json_out=Path(args.json) if args.json else None)
