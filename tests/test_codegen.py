@@ -1,11 +1,13 @@
 """Generated bundles: reproducible bytes, manifest contract, compiled == casadi.Function."""
 from __future__ import annotations
 
+import ast
 import hashlib
 import json
 import shutil
 import subprocess
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -207,3 +209,35 @@ def test_bundle_options_are_checked():
         BundleOptions(route="lagrange").check()
     with pytest.raises(ValueError, match="loop_steps"):
         BundleOptions(loop_steps=0).check()
+    for bad in (0.0, -1e-3, float("nan"), "1e-3", True):
+        with pytest.raises(ValueError, match="loop_dt"):
+            BundleOptions(loop_dt=bad).check()
+
+
+def test_bundle_modules_import_no_cycle():
+    """softgen/bundles/*: the import graph among its modules has no cycle (bundle.py
+    imports the builders; they share bundles/common.py, not bundle.py)."""
+    pkg = Path(__file__).resolve().parents[1] / "softgen" / "bundles"
+    graph = {}
+    for f in pkg.glob("*.py"):
+        mods = set()
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                mods.add(node.module)
+            elif isinstance(node, ast.Import):
+                mods.update(a.name for a in node.names)
+        graph[f.stem] = {m.rsplit(".", 1)[1] for m in mods if m.startswith("softgen.bundles.")}
+    seen, stack = set(), []
+
+    def visit(n):
+        assert n not in stack, f"import cycle: {' -> '.join(stack + [n])}"
+        if n in seen:
+            return
+        stack.append(n)
+        for m in graph.get(n, ()):
+            visit(m)
+        stack.pop()
+        seen.add(n)
+    for n in graph:
+        visit(n)
+    assert "bundle" not in graph["soft"] and "bundle" not in graph["rigid"]

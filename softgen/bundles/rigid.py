@@ -15,6 +15,7 @@ from softgen.control.electric import bundle_functions as cascade_functions
 from softgen.control.feedback_linearization import GAIN_NAMES as FL_GAIN_NAMES
 from softgen.control.feedback_linearization import FeedbackLinearization
 from softgen.control.pneumatic import KINDS, REFERENCE_BLOCKS, PneumaticArm
+from softgen.control.pneumatic_loop import closed_loop as pneumatic_closed_loop
 from softgen.control.pneumatic_loop import controller_block as pneumatic_controller_block
 from softgen.control.slotine_li import controller_block, controller_fun, plant_block, \
     plant_step_fun
@@ -71,10 +72,10 @@ def slotine_li_diagram(dyn, options) -> ClosedLoop:
     ``<model>_slotine_li_step`` and ``<model>_slotine_li_loop``.
     """
     n, dt = dyn.model.dof, options.loop_dt
-    return ClosedLoop(f"{dyn.name}_slotine_li",
-                      [controller_block(dyn, dt), plant_block(dyn, dt,
-                                                              substeps=options.loop_substeps)],
-                      externals={"q_d": n, "qd_d": n, "qdd_d": n})
+    plant = plant_block(dyn, dt, substeps=options.loop_substeps)
+    uq, uv = plant.outputs.signal("q").unit, plant.outputs.signal("qd").unit
+    return ClosedLoop(f"{dyn.name}_slotine_li", [controller_block(dyn, dt), plant],
+                      externals=[("q_d", n, uq), ("qd_d", n, uv), ("qdd_d", n, f"{uv}/s")])
 
 
 @REGISTRY.capability("slotine_li", layer="control", needs=(RIGID, HAS_REGRESSOR),
@@ -124,6 +125,22 @@ def pneumatic_control(ctx: Context) -> Part:
     }})
 
 
+@REGISTRY.capability("theorem5_loop", layer="control", needs=(RIGID, MCKIBBEN),
+                     doc="Theorem 5 on the McKibben arm (ideal pressures, clipped to "
+                         "[0, p_max]) as a closed-loop diagram")
+def theorem5_loop(ctx: Context) -> Part:
+    """The blocks of :func:`softgen.control.pneumatic_loop.closed_loop`: Theorem 5 reading
+    the plant's q, q̇, σ and the external references, the arm integrated with
+    :data:`PLANT_SUBSTEPS` RK4 steps per sample like the bundle's ``_pneumatic_plant``.
+    Named ``<model>_theorem5_closed``: ``_theorem5_closed_step`` / ``_theorem5_closed_loop``."""
+    arm = PneumaticArm(ctx.model, dyn=ctx.dyn, act=ctx.mckibben)
+    d = pneumatic_closed_loop(arm, "theorem5", ctx.options.loop_dt, plant="ideal",
+                              substeps=PLANT_SUBSTEPS, name=f"{ctx.name}_theorem5_closed")
+    steps = ctx.options.loop_steps
+    return Part(diagram_functions(d, steps, "Theorem 5 closed-loop"),
+                {"closed_loops": {"theorem5": diagram_manifest(d, steps)}})
+
+
 @REGISTRY.capability("feedback_linearization", layer="control", needs=(RIGID, MCKIBBEN),
                      doc="feedback linearisation of the pneumatic robot with valves "
                          "(sec. 10.4)")
@@ -132,11 +149,13 @@ def feedback_linearization(ctx: Context) -> Part:
     fns = [Generated(f, doc) for f, doc in fl.functions()]
     step = next(g.function for g in fns if g.function.name().endswith("_feedback_linearization"))
     lie = next(g.function for g in fns if g.function.name().endswith("_fl_lie"))
+    # The plant state the step reads as x: the controller block's measured inputs, in
+    # the order the block stacks them into x.
+    block = fl.controller_block(ctx.options.loop_dt)
     return Part(fns, {"controllers": {"feedback_linearization": {
         "step": step.name(), "lie_derivatives": lie.name(),
-        # The plant state the step reads, x = (q, qd, p), as its x input is laid out.
-        "state_layout": ["q", "qd", "p"],
-        "gains": list(FL_GAIN_NAMES),
+        "state_layout": [nm for nm in block.inputs.names if nm != "ref"],
+        "gains": [nm for nm in step.name_in() if nm in FL_GAIN_NAMES],
     }}})
 
 

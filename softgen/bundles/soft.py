@@ -89,8 +89,8 @@ def theorem10_diagram(dyn: SoftDynamics, lin: LinearRoute, options) -> ClosedLoo
     n, ns = dyn.model.dof, dyn.model.n_segments
     return ClosedLoop(f"{dyn.name}_theorem10_closed",
                       [closed_loop_block(dyn, options.loop_dt, lin=lin)],
-                      externals={"ref0": 3 * n, "ref1": 3 * n, "f_ext": 3 * ns,
-                                 "noise": 2 * n})
+                      externals=[("ref0", 3 * n), ("ref1", 3 * n), ("f_ext", 3 * ns, "N"),
+                                 ("noise", 2 * n)])
 
 
 @REGISTRY.capability("theorem10", layer="control", needs=(SOFT, HAS_REGRESSOR),
