@@ -30,12 +30,19 @@ def test_info(capsys):
     out = capsys.readouterr().out
     assert "planar_2link_regressor" in out and "instructions" in out
     assert "base parameters pi (5 of" in out
+    # Capabilities from the registry: qbmove on every joint gives the chapter-11 cascade;
+    # what the model does not get comes with the failed condition.
+    assert "\n  + electric_cascade " in out
+    assert "- theorem10" in out and "not a soft body" in out
 
 
 def test_info_json(capsys):
     assert main(["info", "pendulum_1link", "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["functions"]["pendulum_1link_regressor"]["outputs"]["Y"] == [1, 3]
+    caps = {c["name"]: c for c in info["capabilities"]}
+    assert caps["pneumatic_stiffness_estimator"]["gets"]
+    assert "needs 'qbmove'" in caps["electric_cascade"]["why_not"]
 
 
 @pytest.mark.parametrize("argv,match", [

@@ -1,11 +1,13 @@
 """Generated bundles: reproducible bytes, manifest contract, compiled == casadi.Function."""
 from __future__ import annotations
 
+import ast
 import hashlib
 import json
 import shutil
 import subprocess
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -79,11 +81,20 @@ def test_compiled_library_equals_casadi_function(need_compiler, specs):
     for name, spec in specs.items():
         b = load_bundle(name, backend="c")
         rng = np.random.default_rng(12)
+        # Closed-loop diagrams (x, p, k, e): near their default state, with small positive
+        # changes of their default parameters, so that 1000 samples stay finite.
+        diagrams = {d[role]: d for d in spec.extra.get("closed_loops", {}).values()
+                    for role in ("step", "loop")}
         for g in spec.functions:
             f = g.function
             cf = b[f.name()]
             for _ in range(3):
                 args = [rng.uniform(-1, 1, f.size_in(i)) for i in range(f.n_in())]
+                if f.name() in diagrams:
+                    d = diagrams[f.name()]
+                    args = [np.array(d["x0"]).reshape(-1, 1) + 0.01 * args[0],
+                            np.array(d["p0"]).reshape(-1, 1) + 0.1 * np.abs(args[1]),
+                            np.abs(args[2]) * 100, 0.1 * args[3]]
                 # Sample times, step lengths and gains must be positive (a random
                 # negative gain makes the 1000-sample closed loop diverge to NaN).
                 # A random pi_hat0 may hold negative inertias: start the loop from 0.
@@ -207,3 +218,35 @@ def test_bundle_options_are_checked():
         BundleOptions(route="lagrange").check()
     with pytest.raises(ValueError, match="loop_steps"):
         BundleOptions(loop_steps=0).check()
+    for bad in (0.0, -1e-3, float("nan"), "1e-3", True):
+        with pytest.raises(ValueError, match="loop_dt"):
+            BundleOptions(loop_dt=bad).check()
+
+
+def test_bundle_modules_import_no_cycle():
+    """softgen/bundles/*: the import graph among its modules has no cycle (bundle.py
+    imports the builders; they share bundles/common.py, not bundle.py)."""
+    pkg = Path(__file__).resolve().parents[1] / "softgen" / "bundles"
+    graph = {}
+    for f in pkg.glob("*.py"):
+        mods = set()
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                mods.add(node.module)
+            elif isinstance(node, ast.Import):
+                mods.update(a.name for a in node.names)
+        graph[f.stem] = {m.rsplit(".", 1)[1] for m in mods if m.startswith("softgen.bundles.")}
+    seen, stack = set(), []
+
+    def visit(n):
+        assert n not in stack, f"import cycle: {' -> '.join(stack + [n])}"
+        if n in seen:
+            return
+        stack.append(n)
+        for m in graph.get(n, ()):
+            visit(m)
+        stack.pop()
+        seen.add(n)
+    for n in graph:
+        visit(n)
+    assert "bundle" not in graph["soft"] and "bundle" not in graph["rigid"]

@@ -28,7 +28,7 @@ def _inputs(f, rng):
         v = rng.uniform(-1, 1, shape)
         if name in ("dt",):
             v = np.full(shape, 1e-3)
-        elif name in ("lam", "kd", "kpi"):
+        elif name in ("lam", "kd", "kpi", "p"):      # gains (p: a diagram's parameters)
             v = np.abs(v) + 0.1
         elif name == "s":
             v = np.full(shape, 0.7)
@@ -223,7 +223,7 @@ def test_plant_tip_forces_enter_through_the_tip_jacobians(specs, name):
 def _closed_loop(specs, name, *, lam, kd, kpi, seconds, exact, amplitude, phase):
     spec = specs[name]
     fns = {g.function.name(): g.function for g in spec.functions}
-    F = fns[f"{name}_theorem10_closed_loop"]
+    F = fns[f"{name}_theorem10_closed_step"]    # the diagram's step: (x, p, k, e)
     n = spec.extra["dof"]
     r = len(spec.parameters["names"])
     ns = spec.extra["soft"]["n_segments"]
@@ -237,9 +237,12 @@ def _closed_loop(specs, name, *, lam, kd, kpi, seconds, exact, amplitude, phase)
     R0 = np.column_stack([ref(k * dt) for k in range(steps)])
     R1 = np.column_stack([ref((k + 1) * dt) for k in range(steps)])
     pi0 = np.array(spec.parameters["nominal"]) if exact else np.zeros(r)
-    Z, _, _ = F.mapaccum("loop", steps, [0], [0])(
-        np.concatenate([np.zeros(2 * n), pi0]), R0, R1, np.full(n, lam), np.full(n, kd),
-        np.full(r, kpi), np.zeros(3 * ns), np.zeros(2 * n), dt)
+    # State (q, qd, pi_hat), parameters (lam, kd, kpi), externals (ref0, ref1, f_ext,
+    # noise): the layouts of closed_loops.theorem10.
+    E = np.vstack([R0, R1, np.zeros((3 * ns, steps)), np.zeros((2 * n, steps))])
+    Z, _ = F.mapaccum("loop", steps, [0], [0])(
+        np.concatenate([np.zeros(2 * n), pi0]),
+        np.concatenate([np.full(n, lam), np.full(n, kd), np.full(r, kpi)]), 0, E)
     Z = np.array(Z)
     assert np.all(np.isfinite(Z))
     return np.abs(R1[:n] - Z[:n]).max(axis=0), Z[2 * n:]

@@ -9,7 +9,7 @@ import pytest
 
 from softgen.control.feasibility import PressureWarning, check_pressures
 from softgen.control.pneumatic import KINDS, pneumatic_arm
-from softgen.control.pneumatic_loop import closed_loop_fun
+from softgen.control.pneumatic_loop import closed_loop
 from softgen.control.references import SmoothSteps
 from softgen.core.errors import ModelError
 from softgen.modelfile.model import load_model
@@ -213,14 +213,16 @@ def test_one_link_regressor_is_the_thesis_one(arm1):
 
 
 def test_closed_loop_tracks_and_keeps_stiffness(arm):
-    """Exact Π̂: q follows a smoothed step and σ stays at σ_d (ideal plant, 3 s)."""
+    """Exact Π̂: q follows a smoothed step and σ stays at σ_d (ideal plant, 3 s), the
+    loop being the generated C of the diagram of library blocks (one call)."""
     steps, dt = 3000, 1e-3
-    f = closed_loop_fun(arm, "theorem5", plant="ideal", steps=steps)
+    d = closed_loop(arm, "theorem5", dt, plant="ideal")
+    f = d.loop_fun(steps)
     t = np.arange(steps) * dt
     r = SmoothSteps((0, 0.2), (0.0, 0.1), 1.5).check()(t)
     ref = np.zeros((12, steps))
-    for d in range(4):
-        ref[2 * d] = r[d]
+    for k in range(4):
+        ref[2 * k] = r[k]
     ref[8:10] = 2.5
     ol = arm.step_fun("open_loop")
     n = 2
@@ -228,13 +230,14 @@ def test_closed_loop_tracks_and_keeps_stiffness(arm):
     kinv = 1 / arm.act.K
     out = ol(arm.Pi_nominal, np.zeros(n), np.zeros(n), ref[:, 0], lam, kd, np.zeros(5), kinv, dt)
     p0, nu0 = np.array(out[1]).ravel(), np.array(out[3]).ravel()
-    X, Z, P, S = (np.array(o) for o in f(np.r_[np.zeros(4), p0], np.r_[nu0, arm.Pi_nominal],
-                                        ref, lam, kd, np.full(5, 35.0),
-                                        np.full(n, 2 / arm.K1), kinv, np.ones(4), dt))
+    x0 = d.initial_state({"ctrl.nu": nu0, "ctrl.Pi_hat": arm.Pi_nominal, "plant.p": p0})
+    p = d.parameters({"ctrl.lam": lam, "ctrl.kd": kd, "ctrl.kpi": 35.0,
+                      "ctrl.ksigma": 2 / arm.K1, "ctrl.kinv": kinv})
+    X, Y = (np.array(o) for o in f(x0, p, 0, ref))
     assert np.all(np.isfinite(X))
-    assert abs(X[0, -1] - 0.1) < 1e-3
-    assert np.max(np.abs(S - 2.5)) < 0.05
-    assert np.all(P > 0)
+    assert abs(X[d.state.slice("plant.q"), -1][0] - 0.1) < 1e-3
+    assert np.max(np.abs(Y[d.signals.slice("plant.sigma")] - 2.5)) < 0.05
+    assert np.all(Y[d.signals.slice("ctrl.p")] > 0)
 
 
 def test_bad_inputs_are_clear_errors(arm):
@@ -245,7 +248,7 @@ def test_bad_inputs_are_clear_errors(arm):
     with pytest.raises(ValueError, match="acceleration: expected"):
         pneumatic_arm(arm.model, acceleration="measured")
     with pytest.raises(ValueError, match="plant: expected"):
-        closed_loop_fun(arm, "theorem5", plant="magic", steps=2)
+        closed_loop(arm, "theorem5", 1e-3, plant="magic")
 
 
 def test_infeasible_pressure_warns_with_joint_and_time():

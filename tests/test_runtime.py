@@ -13,7 +13,8 @@ from softgen.control.slotine_li import controller_block, plant_block
 from softgen.modelfile.model import load_model
 from softgen.symbolic.rigid import RigidDynamics
 from softgen.core.errors import ShapeError
-from softgen.bundles.bundle import load_bundle
+from softgen.bundles.bundle import BundleOptions, load_bundle
+from softgen.bundles.rigid import slotine_li_diagram
 from softgen.runtime.simulate import simulate
 
 
@@ -90,19 +91,24 @@ def test_free_fall_conserves_energy(arm, dyn):
 
 
 def test_diagram_loop_equals_bundle_loop(arm, dyn):
-    """The driver's diagram (blocks) == the bundle's <model>_slotine_li_loop (mapaccum)."""
-    dt, steps = 1e-3, arm.slotine_li_loop.in_shapes[2][1]
+    """The driver's diagram (reference block + blocks) == the bundle's compiled
+    <model>_slotine_li_loop (the same blocks, references as external inputs)."""
+    dt = 1e-3
+    steps = arm.slotine_li_loop.in_shapes[3][1]
     ref, d = _loop(dyn, dt)
     gains = {"ctrl.lam": 10.0, "ctrl.kd": 0.2, "ctrl.kpi": 0.05}
     r = simulate(d, steps=steps, x0={"plant.q": [0, 0.3]}, params=gains)
     t = np.arange(steps) * dt
-    R = np.vstack(ref(t))
-    X, P, U = arm.slotine_li_loop([0, 0.3, 0, 0], np.zeros(5), R, [10, 10], [0.2, 0.2],
-                                  [0.05] * 5, dt)
-    # The bundle's loop returns the state after each sample, the trace the one at it.
-    assert np.allclose(X.T[:-1, :2], r["plant.q"][1:], rtol=1e-12, atol=1e-14)
-    assert np.allclose(U.T, r["ctrl.tau"], rtol=1e-12, atol=1e-14)
-    assert np.allclose(P[:, -1], r.final_state["ctrl.pi_hat"], rtol=1e-12, atol=1e-16)
+    E = np.vstack(ref(t))                       # q_d, qd_d, qdd_d per column
+    b = slotine_li_diagram(dyn, BundleOptions())   # the bundle's diagram: its layouts
+    X, Y = arm.slotine_li_loop(b.initial_state({"plant.q": [0, 0.3]}), b.parameters(gains),
+                               0, E)
+    # The loop returns the state after each sample, the trace the one at it.
+    q, tau, pi_hat = b.state.slice("plant.q"), b.signals.slice("ctrl.tau"), \
+        b.state.slice("ctrl.pi_hat")
+    assert np.allclose(X.T[:-1, q], r["plant.q"][1:], rtol=1e-12, atol=1e-14)
+    assert np.allclose(Y.T[:, tau], r["ctrl.tau"], rtol=1e-12, atol=1e-14)
+    assert np.allclose(X[pi_hat, -1], r.final_state["ctrl.pi_hat"], rtol=1e-12, atol=1e-16)
 
 
 def test_adaptive_control_with_true_parameters_tracks_from_the_start(dyn):

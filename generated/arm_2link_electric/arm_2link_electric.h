@@ -233,6 +233,24 @@ int arm_2link_electric_slotine_li_work_bytes(casadi_int *sz_arg, casadi_int* sz_
 #define arm_2link_electric_slotine_li_SZ_RES 2
 #define arm_2link_electric_slotine_li_SZ_IW 0
 #define arm_2link_electric_slotine_li_SZ_W 0
+int arm_2link_electric_slotine_li_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int arm_2link_electric_slotine_li_step_checkout(void);
+void arm_2link_electric_slotine_li_step_release(int mem);
+void arm_2link_electric_slotine_li_step_incref(void);
+void arm_2link_electric_slotine_li_step_decref(void);
+casadi_int arm_2link_electric_slotine_li_step_n_in(void);
+casadi_int arm_2link_electric_slotine_li_step_n_out(void);
+casadi_real arm_2link_electric_slotine_li_step_default_in(casadi_int i);
+const char* arm_2link_electric_slotine_li_step_name_in(casadi_int i);
+const char* arm_2link_electric_slotine_li_step_name_out(casadi_int i);
+const casadi_int* arm_2link_electric_slotine_li_step_sparsity_in(casadi_int i);
+const casadi_int* arm_2link_electric_slotine_li_step_sparsity_out(casadi_int i);
+int arm_2link_electric_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int arm_2link_electric_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define arm_2link_electric_slotine_li_step_SZ_ARG 4
+#define arm_2link_electric_slotine_li_step_SZ_RES 2
+#define arm_2link_electric_slotine_li_step_SZ_IW 0
+#define arm_2link_electric_slotine_li_step_SZ_W 0
 int arm_2link_electric_slotine_li_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int arm_2link_electric_slotine_li_loop_checkout(void);
 void arm_2link_electric_slotine_li_loop_release(int mem);
@@ -247,10 +265,10 @@ const casadi_int* arm_2link_electric_slotine_li_loop_sparsity_in(casadi_int i);
 const casadi_int* arm_2link_electric_slotine_li_loop_sparsity_out(casadi_int i);
 int arm_2link_electric_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int arm_2link_electric_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define arm_2link_electric_slotine_li_loop_SZ_ARG 31
-#define arm_2link_electric_slotine_li_loop_SZ_RES 11
+#define arm_2link_electric_slotine_li_loop_SZ_ARG 16
+#define arm_2link_electric_slotine_li_loop_SZ_RES 10
 #define arm_2link_electric_slotine_li_loop_SZ_IW 0
-#define arm_2link_electric_slotine_li_loop_SZ_W 30097
+#define arm_2link_electric_slotine_li_loop_SZ_W 47182
 int arm_2link_electric_qbmove_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int arm_2link_electric_qbmove_torque_checkout(void);
 void arm_2link_electric_qbmove_torque_release(int mem);

@@ -55,6 +55,13 @@ extern "C" {
 #define casadi_f29 CASADI_PREFIX(f29)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f30 CASADI_PREFIX(f30)
+#define casadi_f31 CASADI_PREFIX(f31)
+#define casadi_f32 CASADI_PREFIX(f32)
+#define casadi_f33 CASADI_PREFIX(f33)
+#define casadi_f34 CASADI_PREFIX(f34)
+#define casadi_f35 CASADI_PREFIX(f35)
+#define casadi_f36 CASADI_PREFIX(f36)
+#define casadi_f37 CASADI_PREFIX(f37)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
@@ -67,6 +74,9 @@ extern "C" {
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s10 CASADI_PREFIX(s10)
 #define casadi_s11 CASADI_PREFIX(s11)
+#define casadi_s12 CASADI_PREFIX(s12)
+#define casadi_s13 CASADI_PREFIX(s13)
+#define casadi_s14 CASADI_PREFIX(s14)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
@@ -138,16 +148,18 @@ static const casadi_int casadi_s1[3] = {1, 2, 1};
 static const casadi_int casadi_s2[3] = {2, 1, 1};
 static const casadi_int casadi_s3[3] = {3, 1, 1};
 static const casadi_int casadi_s4[3] = {6, 1, 1};
-static const casadi_int casadi_s5[1000] = 
-  {0};
+static const casadi_int casadi_s5[3] = {4, 1, 1};
 static const casadi_int casadi_s6[3] = {3, 1000, 1};
-static const casadi_int casadi_s7[3] = {2, 1000, 1};
-static const casadi_int casadi_s8[3] = {1, 1000, 1};
-static const casadi_int casadi_s9[3] = {4, 1, 1};
-static const casadi_int casadi_s10[3] = {2, 2, 1};
-static const casadi_int casadi_s11[3] = {53, 1, 1};
+static const casadi_int casadi_s7[3] = {4, 1000, 1};
+static const casadi_int casadi_s8[3] = {6, 1000, 1};
+static const casadi_int casadi_s9[3] = {7, 1, 1};
+static const casadi_int casadi_s10[3] = {12, 1, 1};
+static const casadi_int casadi_s11[3] = {7, 1000, 1};
+static const casadi_int casadi_s12[3] = {12, 1000, 1};
+static const casadi_int casadi_s13[3] = {2, 2, 1};
+static const casadi_int casadi_s14[3] = {53, 1, 1};
 
-static const casadi_real casadi_zeros[3000] = 
+static const casadi_real casadi_zeros[6000] = 
   {0.};
 
 /* gioste_1link_inertia:(q)->(B) */
@@ -1312,945 +1324,841 @@ CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_work_bytes(casadi_int *sz_arg, 
   return 0;
 }
 
-/* one_sample:(z[4],ref[3],lam,kd,kpi[2],dt)->(z_next[4],tau) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17, a18;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=arg[5]? arg[5][0] : 0;
-  a02=6.;
-  a02=(a01/a02);
-  a03=arg[0]? arg[0][1] : 0;
-  a04=2.;
-  a04=(a01/a04);
-  a05=arg[1]? arg[1][2] : 0;
-  a06=arg[2]? arg[2][0] : 0;
-  a07=arg[1]? arg[1][1] : 0;
-  a08=(a07-a03);
-  a08=(a06*a08);
-  a05=(a05+a08);
-  a08=arg[0]? arg[0][2] : 0;
-  a09=(a05*a08);
-  a10=-9.8100000000000005e+00;
-  a11=sin(a00);
-  a10=(a10*a11);
-  a12=arg[0]? arg[0][3] : 0;
-  a13=(a10*a12);
-  a09=(a09-a13);
-  a13=arg[3]? arg[3][0] : 0;
-  a14=arg[1]? arg[1][0] : 0;
-  a14=(a14-a00);
-  a06=(a06*a14);
-  a07=(a07+a06);
-  a07=(a07-a03);
-  a13=(a13*a07);
-  a09=(a09+a13);
-  a13=-7.1220600000000001e-01;
-  a11=(a13*a11);
-  a11=(a09+a11);
-  a06=1.5979000000000000e-02;
-  a11=(a11/a06);
-  a14=(a04*a11);
-  a14=(a03+a14);
-  a15=(2.*a14);
-  a15=(a03+a15);
-  a16=(a04*a03);
-  a16=(a00+a16);
-  a16=sin(a16);
-  a16=(a13*a16);
-  a16=(a09+a16);
-  a16=(a16/a06);
-  a17=(a04*a16);
-  a17=(a03+a17);
-  a18=(2.*a17);
-  a15=(a15+a18);
-  a04=(a04*a14);
-  a04=(a00+a04);
-  a04=sin(a04);
-  a04=(a13*a04);
-  a04=(a09+a04);
-  a04=(a04/a06);
-  a14=(a01*a04);
-  a14=(a03+a14);
-  a15=(a15+a14);
-  a15=(a02*a15);
-  a15=(a00+a15);
-  if (res[0]!=0) res[0][0]=a15;
-  a16=(2.*a16);
-  a11=(a11+a16);
-  a04=(2.*a04);
-  a11=(a11+a04);
-  a17=(a01*a17);
-  a00=(a00+a17);
-  a00=sin(a00);
-  a13=(a13*a00);
-  a13=(a09+a13);
-  a13=(a13/a06);
-  a11=(a11+a13);
-  a02=(a02*a11);
-  a03=(a03+a02);
-  if (res[0]!=0) res[0][1]=a03;
-  a03=arg[4]? arg[4][0] : 0;
-  a03=(a01*a03);
-  a05=(a05*a07);
-  a03=(a03*a05);
-  a08=(a08+a03);
-  if (res[0]!=0) res[0][2]=a08;
-  a08=arg[4]? arg[4][1] : 0;
-  a01=(a01*a08);
-  a10=(a10*a07);
-  a01=(a01*a10);
-  a12=(a12-a01);
-  if (res[0]!=0) res[0][3]=a12;
-  if (res[1]!=0) res[1][0]=a09;
-  return 0;
-}
-
-/* one_sample_acc10:(z[4],ref[3x10],lam[1x10],kd[1x10],kpi[2x10],dt[1x10])->(z_next[4x10],tau[1x10]) */
-static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+19, *w01=w+23, w02, w03, *w04=w+26, w05, *w06=w+28, w07, w08, w09, w10;
-  casadi_real w11, w12, w13, w14, w15, w16;
-  const casadi_real **arg1=arg+6;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 3, w01);
-  /* #2: @2 = input[2][0] */
-  w02 = arg[2] ? arg[2][0] : 0;
-  /* #3: @3 = input[3][0] */
-  w03 = arg[3] ? arg[3][0] : 0;
-  /* #4: @4 = input[4][0] */
-  casadi_copy(arg[4], 2, w04);
-  /* #5: @5 = input[5][0] */
-  w05 = arg[5] ? arg[5][0] : 0;
-  /* #6: {@6, @7} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w07);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #7: output[0][0] = @6 */
-  casadi_copy(w06, 4, res[0]);
-  /* #8: @1 = input[1][1] */
-  casadi_copy(arg[1] ? arg[1]+3 : 0, 3, w01);
-  /* #9: @2 = input[2][1] */
-  w02 = arg[2] ? arg[2][1] : 0;
-  /* #10: @3 = input[3][1] */
-  w03 = arg[3] ? arg[3][1] : 0;
-  /* #11: @4 = input[4][1] */
-  casadi_copy(arg[4] ? arg[4]+2 : 0, 2, w04);
-  /* #12: @5 = input[5][1] */
-  w05 = arg[5] ? arg[5][1] : 0;
-  /* #13: {@0, @8} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w08);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 4, res[0]+4);
-  /* #15: @1 = input[1][2] */
-  casadi_copy(arg[1] ? arg[1]+6 : 0, 3, w01);
-  /* #16: @2 = input[2][2] */
-  w02 = arg[2] ? arg[2][2] : 0;
-  /* #17: @3 = input[3][2] */
-  w03 = arg[3] ? arg[3][2] : 0;
-  /* #18: @4 = input[4][2] */
-  casadi_copy(arg[4] ? arg[4]+4 : 0, 2, w04);
-  /* #19: @5 = input[5][2] */
-  w05 = arg[5] ? arg[5][2] : 0;
-  /* #20: {@6, @9} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w09);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #21: output[0][2] = @6 */
-  if (res[0]) casadi_copy(w06, 4, res[0]+8);
-  /* #22: @1 = input[1][3] */
-  casadi_copy(arg[1] ? arg[1]+9 : 0, 3, w01);
-  /* #23: @2 = input[2][3] */
-  w02 = arg[2] ? arg[2][3] : 0;
-  /* #24: @3 = input[3][3] */
-  w03 = arg[3] ? arg[3][3] : 0;
-  /* #25: @4 = input[4][3] */
-  casadi_copy(arg[4] ? arg[4]+6 : 0, 2, w04);
-  /* #26: @5 = input[5][3] */
-  w05 = arg[5] ? arg[5][3] : 0;
-  /* #27: {@0, @10} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w10);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 4, res[0]+12);
-  /* #29: @1 = input[1][4] */
-  casadi_copy(arg[1] ? arg[1]+12 : 0, 3, w01);
-  /* #30: @2 = input[2][4] */
-  w02 = arg[2] ? arg[2][4] : 0;
-  /* #31: @3 = input[3][4] */
-  w03 = arg[3] ? arg[3][4] : 0;
-  /* #32: @4 = input[4][4] */
-  casadi_copy(arg[4] ? arg[4]+8 : 0, 2, w04);
-  /* #33: @5 = input[5][4] */
-  w05 = arg[5] ? arg[5][4] : 0;
-  /* #34: {@6, @11} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w11);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #35: output[0][4] = @6 */
-  if (res[0]) casadi_copy(w06, 4, res[0]+16);
-  /* #36: @1 = input[1][5] */
-  casadi_copy(arg[1] ? arg[1]+15 : 0, 3, w01);
-  /* #37: @2 = input[2][5] */
-  w02 = arg[2] ? arg[2][5] : 0;
-  /* #38: @3 = input[3][5] */
-  w03 = arg[3] ? arg[3][5] : 0;
-  /* #39: @4 = input[4][5] */
-  casadi_copy(arg[4] ? arg[4]+10 : 0, 2, w04);
-  /* #40: @5 = input[5][5] */
-  w05 = arg[5] ? arg[5][5] : 0;
-  /* #41: {@0, @12} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w12);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #42: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 4, res[0]+20);
-  /* #43: @1 = input[1][6] */
-  casadi_copy(arg[1] ? arg[1]+18 : 0, 3, w01);
-  /* #44: @2 = input[2][6] */
-  w02 = arg[2] ? arg[2][6] : 0;
-  /* #45: @3 = input[3][6] */
-  w03 = arg[3] ? arg[3][6] : 0;
-  /* #46: @4 = input[4][6] */
-  casadi_copy(arg[4] ? arg[4]+12 : 0, 2, w04);
-  /* #47: @5 = input[5][6] */
-  w05 = arg[5] ? arg[5][6] : 0;
-  /* #48: {@6, @13} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w13);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][6] = @6 */
-  if (res[0]) casadi_copy(w06, 4, res[0]+24);
-  /* #50: @1 = input[1][7] */
-  casadi_copy(arg[1] ? arg[1]+21 : 0, 3, w01);
-  /* #51: @2 = input[2][7] */
-  w02 = arg[2] ? arg[2][7] : 0;
-  /* #52: @3 = input[3][7] */
-  w03 = arg[3] ? arg[3][7] : 0;
-  /* #53: @4 = input[4][7] */
-  casadi_copy(arg[4] ? arg[4]+14 : 0, 2, w04);
-  /* #54: @5 = input[5][7] */
-  w05 = arg[5] ? arg[5][7] : 0;
-  /* #55: {@0, @14} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w14);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #56: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 4, res[0]+28);
-  /* #57: @1 = input[1][8] */
-  casadi_copy(arg[1] ? arg[1]+24 : 0, 3, w01);
-  /* #58: @2 = input[2][8] */
-  w02 = arg[2] ? arg[2][8] : 0;
-  /* #59: @3 = input[3][8] */
-  w03 = arg[3] ? arg[3][8] : 0;
-  /* #60: @4 = input[4][8] */
-  casadi_copy(arg[4] ? arg[4]+16 : 0, 2, w04);
-  /* #61: @5 = input[5][8] */
-  w05 = arg[5] ? arg[5][8] : 0;
-  /* #62: {@6, @15} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w15);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #63: output[0][8] = @6 */
-  if (res[0]) casadi_copy(w06, 4, res[0]+32);
-  /* #64: @1 = input[1][9] */
-  casadi_copy(arg[1] ? arg[1]+27 : 0, 3, w01);
-  /* #65: @2 = input[2][9] */
-  w02 = arg[2] ? arg[2][9] : 0;
-  /* #66: @3 = input[3][9] */
-  w03 = arg[3] ? arg[3][9] : 0;
-  /* #67: @4 = input[4][9] */
-  casadi_copy(arg[4] ? arg[4]+18 : 0, 2, w04);
-  /* #68: @5 = input[5][9] */
-  w05 = arg[5] ? arg[5][9] : 0;
-  /* #69: {@0, @16} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w16);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #70: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 4, res[0]+36);
-  /* #71: output[1][0] = @7 */
-  if (res[1]) res[1][0] = w07;
-  /* #72: output[1][1] = @8 */
-  if (res[1]) res[1][1] = w08;
-  /* #73: output[1][2] = @9 */
-  if (res[1]) res[1][2] = w09;
-  /* #74: output[1][3] = @10 */
-  if (res[1]) res[1][3] = w10;
-  /* #75: output[1][4] = @11 */
-  if (res[1]) res[1][4] = w11;
-  /* #76: output[1][5] = @12 */
-  if (res[1]) res[1][5] = w12;
-  /* #77: output[1][6] = @13 */
-  if (res[1]) res[1][6] = w13;
-  /* #78: output[1][7] = @14 */
-  if (res[1]) res[1][7] = w14;
-  /* #79: output[1][8] = @15 */
-  if (res[1]) res[1][8] = w15;
-  /* #80: output[1][9] = @16 */
-  if (res[1]) res[1][9] = w16;
-  return 0;
-}
-
-/* one_sample_acc10_acc10:(z[4],ref[3x100],lam[1x100],kd[1x100],kpi[2x100],dt[1x100])->(z_next[4x100],tau[1x100]) */
-static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+45, *w06=w+49, *w07=w+89, *w08=w+99, *w09=w+109, *w10=w+119, *w11=w+129, *w12=w+139, *w13=w+149, *w14=w+159, *w15=w+169;
-  casadi_real *w16=w+179;
-  const casadi_real **arg1=arg+6, *wr01, *wr02, *wr03, *wr04, *wr05;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w00);
-  /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: @3 = input[3][0] */
-  wr03 = arg[3] ? arg[3] : casadi_zeros;
-  /* #4: @4 = input[4][0] */
-  wr04 = arg[4] ? arg[4] : casadi_zeros;
-  /* #5: @5 = input[5][0] */
-  wr05 = arg[5] ? arg[5] : casadi_zeros;
-  /* #6: {@6, @7} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w07;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #7: output[0][0] = @6 */
-  casadi_copy(w06, 40, res[0]);
-  /* #8: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+36, 4, w00);
-  /* #9: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+30 : casadi_zeros;
-  /* #10: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+10 : casadi_zeros;
-  /* #11: @3 = input[3][1] */
-  wr03 = arg[3] ? arg[3]+10 : casadi_zeros;
-  /* #12: @4 = input[4][1] */
-  wr04 = arg[4] ? arg[4]+20 : casadi_zeros;
-  /* #13: @5 = input[5][1] */
-  wr05 = arg[5] ? arg[5]+10 : casadi_zeros;
-  /* #14: {@6, @8} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w08;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #15: output[0][1] = @6 */
-  if (res[0]) casadi_copy(w06, 40, res[0]+40);
-  /* #16: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+36, 4, w00);
-  /* #17: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+60 : casadi_zeros;
-  /* #18: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+20 : casadi_zeros;
-  /* #19: @3 = input[3][2] */
-  wr03 = arg[3] ? arg[3]+20 : casadi_zeros;
-  /* #20: @4 = input[4][2] */
-  wr04 = arg[4] ? arg[4]+40 : casadi_zeros;
-  /* #21: @5 = input[5][2] */
-  wr05 = arg[5] ? arg[5]+20 : casadi_zeros;
-  /* #22: {@6, @9} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w09;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #23: output[0][2] = @6 */
-  if (res[0]) casadi_copy(w06, 40, res[0]+80);
-  /* #24: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+36, 4, w00);
-  /* #25: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+90 : casadi_zeros;
-  /* #26: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+30 : casadi_zeros;
-  /* #27: @3 = input[3][3] */
-  wr03 = arg[3] ? arg[3]+30 : casadi_zeros;
-  /* #28: @4 = input[4][3] */
-  wr04 = arg[4] ? arg[4]+60 : casadi_zeros;
-  /* #29: @5 = input[5][3] */
-  wr05 = arg[5] ? arg[5]+30 : casadi_zeros;
-  /* #30: {@6, @10} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w10;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #31: output[0][3] = @6 */
-  if (res[0]) casadi_copy(w06, 40, res[0]+120);
-  /* #32: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+36, 4, w00);
-  /* #33: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+120 : casadi_zeros;
-  /* #34: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+40 : casadi_zeros;
-  /* #35: @3 = input[3][4] */
-  wr03 = arg[3] ? arg[3]+40 : casadi_zeros;
-  /* #36: @4 = input[4][4] */
-  wr04 = arg[4] ? arg[4]+80 : casadi_zeros;
-  /* #37: @5 = input[5][4] */
-  wr05 = arg[5] ? arg[5]+40 : casadi_zeros;
-  /* #38: {@6, @11} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w11;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][4] = @6 */
-  if (res[0]) casadi_copy(w06, 40, res[0]+160);
-  /* #40: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+36, 4, w00);
-  /* #41: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+150 : casadi_zeros;
-  /* #42: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+50 : casadi_zeros;
-  /* #43: @3 = input[3][5] */
-  wr03 = arg[3] ? arg[3]+50 : casadi_zeros;
-  /* #44: @4 = input[4][5] */
-  wr04 = arg[4] ? arg[4]+100 : casadi_zeros;
-  /* #45: @5 = input[5][5] */
-  wr05 = arg[5] ? arg[5]+50 : casadi_zeros;
-  /* #46: {@6, @12} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w12;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #47: output[0][5] = @6 */
-  if (res[0]) casadi_copy(w06, 40, res[0]+200);
-  /* #48: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+36, 4, w00);
-  /* #49: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+180 : casadi_zeros;
-  /* #50: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
-  /* #51: @3 = input[3][6] */
-  wr03 = arg[3] ? arg[3]+60 : casadi_zeros;
-  /* #52: @4 = input[4][6] */
-  wr04 = arg[4] ? arg[4]+120 : casadi_zeros;
-  /* #53: @5 = input[5][6] */
-  wr05 = arg[5] ? arg[5]+60 : casadi_zeros;
-  /* #54: {@6, @13} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w13;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #55: output[0][6] = @6 */
-  if (res[0]) casadi_copy(w06, 40, res[0]+240);
-  /* #56: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+36, 4, w00);
-  /* #57: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+210 : casadi_zeros;
-  /* #58: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+70 : casadi_zeros;
-  /* #59: @3 = input[3][7] */
-  wr03 = arg[3] ? arg[3]+70 : casadi_zeros;
-  /* #60: @4 = input[4][7] */
-  wr04 = arg[4] ? arg[4]+140 : casadi_zeros;
-  /* #61: @5 = input[5][7] */
-  wr05 = arg[5] ? arg[5]+70 : casadi_zeros;
-  /* #62: {@6, @14} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w14;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #63: output[0][7] = @6 */
-  if (res[0]) casadi_copy(w06, 40, res[0]+280);
-  /* #64: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+36, 4, w00);
-  /* #65: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+240 : casadi_zeros;
-  /* #66: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+80 : casadi_zeros;
-  /* #67: @3 = input[3][8] */
-  wr03 = arg[3] ? arg[3]+80 : casadi_zeros;
-  /* #68: @4 = input[4][8] */
-  wr04 = arg[4] ? arg[4]+160 : casadi_zeros;
-  /* #69: @5 = input[5][8] */
-  wr05 = arg[5] ? arg[5]+80 : casadi_zeros;
-  /* #70: {@6, @15} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w15;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #71: output[0][8] = @6 */
-  if (res[0]) casadi_copy(w06, 40, res[0]+320);
-  /* #72: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+36, 4, w00);
-  /* #73: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+270 : casadi_zeros;
-  /* #74: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+90 : casadi_zeros;
-  /* #75: @3 = input[3][9] */
-  wr03 = arg[3] ? arg[3]+90 : casadi_zeros;
-  /* #76: @4 = input[4][9] */
-  wr04 = arg[4] ? arg[4]+180 : casadi_zeros;
-  /* #77: @5 = input[5][9] */
-  wr05 = arg[5] ? arg[5]+90 : casadi_zeros;
-  /* #78: {@6, @16} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w16;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #79: output[0][9] = @6 */
-  if (res[0]) casadi_copy(w06, 40, res[0]+360);
-  /* #80: output[1][0] = @7 */
-  casadi_copy(w07, 10, res[1]);
-  /* #81: output[1][1] = @8 */
-  if (res[1]) casadi_copy(w08, 10, res[1]+10);
-  /* #82: output[1][2] = @9 */
-  if (res[1]) casadi_copy(w09, 10, res[1]+20);
-  /* #83: output[1][3] = @10 */
-  if (res[1]) casadi_copy(w10, 10, res[1]+30);
-  /* #84: output[1][4] = @11 */
-  if (res[1]) casadi_copy(w11, 10, res[1]+40);
-  /* #85: output[1][5] = @12 */
-  if (res[1]) casadi_copy(w12, 10, res[1]+50);
-  /* #86: output[1][6] = @13 */
-  if (res[1]) casadi_copy(w13, 10, res[1]+60);
-  /* #87: output[1][7] = @14 */
-  if (res[1]) casadi_copy(w14, 10, res[1]+70);
-  /* #88: output[1][8] = @15 */
-  if (res[1]) casadi_copy(w15, 10, res[1]+80);
-  /* #89: output[1][9] = @16 */
-  if (res[1]) casadi_copy(w16, 10, res[1]+90);
-  return 0;
-}
-
-/* one_sample_acc10_acc10_acc10:(z[4],ref[3x1000],lam[1x1000],kd[1x1000],kpi[2x1000],dt[1x1000])->(z_next[4x1000],tau[1x1000]) */
-static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+269, *w06=w+273, *w07=w+673, *w08=w+773, *w09=w+873, *w10=w+973, *w11=w+1073, *w12=w+1173, *w13=w+1273, *w14=w+1373, *w15=w+1473;
-  casadi_real *w16=w+1573;
-  const casadi_real **arg1=arg+6, *wr01, *wr02, *wr03, *wr04, *wr05;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 4, w00);
-  /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: @3 = input[3][0] */
-  wr03 = arg[3] ? arg[3] : casadi_zeros;
-  /* #4: @4 = input[4][0] */
-  wr04 = arg[4] ? arg[4] : casadi_zeros;
-  /* #5: @5 = input[5][0] */
-  wr05 = arg[5] ? arg[5] : casadi_zeros;
-  /* #6: {@6, @7} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w07;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #7: output[0][0] = @6 */
-  casadi_copy(w06, 400, res[0]);
-  /* #8: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+396, 4, w00);
-  /* #9: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+300 : casadi_zeros;
-  /* #10: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+100 : casadi_zeros;
-  /* #11: @3 = input[3][1] */
-  wr03 = arg[3] ? arg[3]+100 : casadi_zeros;
-  /* #12: @4 = input[4][1] */
-  wr04 = arg[4] ? arg[4]+200 : casadi_zeros;
-  /* #13: @5 = input[5][1] */
-  wr05 = arg[5] ? arg[5]+100 : casadi_zeros;
-  /* #14: {@6, @8} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w08;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #15: output[0][1] = @6 */
-  if (res[0]) casadi_copy(w06, 400, res[0]+400);
-  /* #16: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+396, 4, w00);
-  /* #17: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+600 : casadi_zeros;
-  /* #18: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+200 : casadi_zeros;
-  /* #19: @3 = input[3][2] */
-  wr03 = arg[3] ? arg[3]+200 : casadi_zeros;
-  /* #20: @4 = input[4][2] */
-  wr04 = arg[4] ? arg[4]+400 : casadi_zeros;
-  /* #21: @5 = input[5][2] */
-  wr05 = arg[5] ? arg[5]+200 : casadi_zeros;
-  /* #22: {@6, @9} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w09;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #23: output[0][2] = @6 */
-  if (res[0]) casadi_copy(w06, 400, res[0]+800);
-  /* #24: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+396, 4, w00);
-  /* #25: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+900 : casadi_zeros;
-  /* #26: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
-  /* #27: @3 = input[3][3] */
-  wr03 = arg[3] ? arg[3]+300 : casadi_zeros;
-  /* #28: @4 = input[4][3] */
-  wr04 = arg[4] ? arg[4]+600 : casadi_zeros;
-  /* #29: @5 = input[5][3] */
-  wr05 = arg[5] ? arg[5]+300 : casadi_zeros;
-  /* #30: {@6, @10} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w10;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #31: output[0][3] = @6 */
-  if (res[0]) casadi_copy(w06, 400, res[0]+1200);
-  /* #32: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+396, 4, w00);
-  /* #33: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+1200 : casadi_zeros;
-  /* #34: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+400 : casadi_zeros;
-  /* #35: @3 = input[3][4] */
-  wr03 = arg[3] ? arg[3]+400 : casadi_zeros;
-  /* #36: @4 = input[4][4] */
-  wr04 = arg[4] ? arg[4]+800 : casadi_zeros;
-  /* #37: @5 = input[5][4] */
-  wr05 = arg[5] ? arg[5]+400 : casadi_zeros;
-  /* #38: {@6, @11} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w11;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][4] = @6 */
-  if (res[0]) casadi_copy(w06, 400, res[0]+1600);
-  /* #40: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+396, 4, w00);
-  /* #41: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+1500 : casadi_zeros;
-  /* #42: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+500 : casadi_zeros;
-  /* #43: @3 = input[3][5] */
-  wr03 = arg[3] ? arg[3]+500 : casadi_zeros;
-  /* #44: @4 = input[4][5] */
-  wr04 = arg[4] ? arg[4]+1000 : casadi_zeros;
-  /* #45: @5 = input[5][5] */
-  wr05 = arg[5] ? arg[5]+500 : casadi_zeros;
-  /* #46: {@6, @12} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w12;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #47: output[0][5] = @6 */
-  if (res[0]) casadi_copy(w06, 400, res[0]+2000);
-  /* #48: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+396, 4, w00);
-  /* #49: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+1800 : casadi_zeros;
-  /* #50: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
-  /* #51: @3 = input[3][6] */
-  wr03 = arg[3] ? arg[3]+600 : casadi_zeros;
-  /* #52: @4 = input[4][6] */
-  wr04 = arg[4] ? arg[4]+1200 : casadi_zeros;
-  /* #53: @5 = input[5][6] */
-  wr05 = arg[5] ? arg[5]+600 : casadi_zeros;
-  /* #54: {@6, @13} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w13;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #55: output[0][6] = @6 */
-  if (res[0]) casadi_copy(w06, 400, res[0]+2400);
-  /* #56: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+396, 4, w00);
-  /* #57: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+2100 : casadi_zeros;
-  /* #58: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+700 : casadi_zeros;
-  /* #59: @3 = input[3][7] */
-  wr03 = arg[3] ? arg[3]+700 : casadi_zeros;
-  /* #60: @4 = input[4][7] */
-  wr04 = arg[4] ? arg[4]+1400 : casadi_zeros;
-  /* #61: @5 = input[5][7] */
-  wr05 = arg[5] ? arg[5]+700 : casadi_zeros;
-  /* #62: {@6, @14} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w14;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #63: output[0][7] = @6 */
-  if (res[0]) casadi_copy(w06, 400, res[0]+2800);
-  /* #64: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+396, 4, w00);
-  /* #65: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+2400 : casadi_zeros;
-  /* #66: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+800 : casadi_zeros;
-  /* #67: @3 = input[3][8] */
-  wr03 = arg[3] ? arg[3]+800 : casadi_zeros;
-  /* #68: @4 = input[4][8] */
-  wr04 = arg[4] ? arg[4]+1600 : casadi_zeros;
-  /* #69: @5 = input[5][8] */
-  wr05 = arg[5] ? arg[5]+800 : casadi_zeros;
-  /* #70: {@6, @15} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w15;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #71: output[0][8] = @6 */
-  if (res[0]) casadi_copy(w06, 400, res[0]+3200);
-  /* #72: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+396, 4, w00);
-  /* #73: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+2700 : casadi_zeros;
-  /* #74: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+900 : casadi_zeros;
-  /* #75: @3 = input[3][9] */
-  wr03 = arg[3] ? arg[3]+900 : casadi_zeros;
-  /* #76: @4 = input[4][9] */
-  wr04 = arg[4] ? arg[4]+1800 : casadi_zeros;
-  /* #77: @5 = input[5][9] */
-  wr05 = arg[5] ? arg[5]+900 : casadi_zeros;
-  /* #78: {@6, @16} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w16;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #79: output[0][9] = @6 */
-  if (res[0]) casadi_copy(w06, 400, res[0]+3600);
-  /* #80: output[1][0] = @7 */
-  casadi_copy(w07, 100, res[1]);
-  /* #81: output[1][1] = @8 */
-  if (res[1]) casadi_copy(w08, 100, res[1]+100);
-  /* #82: output[1][2] = @9 */
-  if (res[1]) casadi_copy(w09, 100, res[1]+200);
-  /* #83: output[1][3] = @10 */
-  if (res[1]) casadi_copy(w10, 100, res[1]+300);
-  /* #84: output[1][4] = @11 */
-  if (res[1]) casadi_copy(w11, 100, res[1]+400);
-  /* #85: output[1][5] = @12 */
-  if (res[1]) casadi_copy(w12, 100, res[1]+500);
-  /* #86: output[1][6] = @13 */
-  if (res[1]) casadi_copy(w13, 100, res[1]+600);
-  /* #87: output[1][7] = @14 */
-  if (res[1]) casadi_copy(w14, 100, res[1]+700);
-  /* #88: output[1][8] = @15 */
-  if (res[1]) casadi_copy(w15, 100, res[1]+800);
-  /* #89: output[1][9] = @16 */
-  if (res[1]) casadi_copy(w16, 100, res[1]+900);
-  return 0;
-}
-
-/* gioste_1link_slotine_li_loop:(x0[2],pi_hat0[2],ref[3x1000],lam,kd,kpi[2],dt)->(x[2x1000],pi_hat[2x1000],tau[1x1000]) */
+/* gioste_1link_slotine_li_step:(x[4],p[4],k,e[3])->(x_next[4],y[6]) */
 static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+3, *rr, *w00=w+2473, *w01=w+2475, *w02=w+2477, w04, *w05=w+2481, *w06=w+3481, *w07=w+4481, *w08=w+6481, *w09=w+7481, *w10=w+11481;
-  const casadi_int *cii;
-  const casadi_real **arg1=arg+7, *cs, *ct, *wr03;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 2, w01);
-  /* #2: @2 = vertcat(@0, @1) */
-  rr=w02;
-  for (i=0, cs=w00; i<2; ++i) *rr++ = *cs++;
-  for (i=0, cs=w01; i<2; ++i) *rr++ = *cs++;
-  /* #3: @3 = input[2][0] */
-  wr03 = arg[2] ? arg[2] : casadi_zeros;
-  /* #4: @4 = input[3][0] */
-  w04 = arg[3] ? arg[3][0] : 0;
-  /* #5: @5 = @4[0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0] */
-  for (cii=casadi_s5, rr=w05, cs=(&w04); cii!=casadi_s5+1000; ++cii) *rr++ = cs[*cii];
-  /* #6: @4 = input[4][0] */
-  w04 = arg[4] ? arg[4][0] : 0;
-  /* #7: @6 = @4[0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0] */
-  for (cii=casadi_s5, rr=w06, cs=(&w04); cii!=casadi_s5+1000; ++cii) *rr++ = cs[*cii];
-  /* #8: @0 = input[5][0] */
-  casadi_copy(arg[5], 2, w00);
-  /* #9: @7 = repmat(@0, 1000) */
-  for (i=0;i<1000;++i) {
-    casadi_copy(w00, 2, w07+ i*2);
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.0000000000000000e-03;
+  a02=arg[1]? arg[1][2] : 0;
+  a02=(a01*a02);
+  a03=arg[3]? arg[3][2] : 0;
+  a04=arg[1]? arg[1][0] : 0;
+  a05=arg[3]? arg[3][1] : 0;
+  a06=arg[0]? arg[0][3] : 0;
+  a07=(a05-a06);
+  a07=(a04*a07);
+  a03=(a03+a07);
+  a07=arg[3]? arg[3][0] : 0;
+  a08=arg[0]? arg[0][2] : 0;
+  a07=(a07-a08);
+  a04=(a04*a07);
+  a05=(a05+a04);
+  a05=(a05-a06);
+  a04=(a03*a05);
+  a02=(a02*a04);
+  a02=(a00+a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a02=arg[0]? arg[0][1] : 0;
+  a04=arg[1]? arg[1][3] : 0;
+  a04=(a01*a04);
+  a07=-9.8100000000000005e+00;
+  a09=sin(a08);
+  a07=(a07*a09);
+  a10=(a07*a05);
+  a04=(a04*a10);
+  a04=(a02-a04);
+  if (res[0]!=0) res[0][1]=a04;
+  a04=1.6666666666666666e-04;
+  a10=5.0000000000000001e-04;
+  a03=(a03*a00);
+  a07=(a07*a02);
+  a03=(a03-a07);
+  a07=arg[1]? arg[1][1] : 0;
+  a07=(a07*a05);
+  a03=(a03+a07);
+  a07=-7.1220600000000001e-01;
+  a09=(a07*a09);
+  a09=(a03+a09);
+  a05=1.5979000000000000e-02;
+  a09=(a09/a05);
+  a11=(a10*a09);
+  a11=(a06+a11);
+  a12=(2.*a11);
+  a12=(a06+a12);
+  a13=(a10*a06);
+  a13=(a08+a13);
+  a13=sin(a13);
+  a13=(a07*a13);
+  a13=(a03+a13);
+  a13=(a13/a05);
+  a14=(a10*a13);
+  a14=(a06+a14);
+  a15=(2.*a14);
+  a12=(a12+a15);
+  a10=(a10*a11);
+  a10=(a08+a10);
+  a10=sin(a10);
+  a10=(a07*a10);
+  a10=(a03+a10);
+  a10=(a10/a05);
+  a11=(a01*a10);
+  a11=(a06+a11);
+  a12=(a12+a11);
+  a12=(a04*a12);
+  a12=(a08+a12);
+  if (res[0]!=0) res[0][2]=a12;
+  a13=(2.*a13);
+  a09=(a09+a13);
+  a10=(2.*a10);
+  a09=(a09+a10);
+  a14=(a01*a14);
+  a14=(a08+a14);
+  a14=sin(a14);
+  a07=(a07*a14);
+  a07=(a03+a07);
+  a07=(a07/a05);
+  a09=(a09+a07);
+  a04=(a04*a09);
+  a04=(a06+a04);
+  if (res[0]!=0) res[0][3]=a04;
+  a04=arg[2]? arg[2][0] : 0;
+  a01=(a01*a04);
+  if (res[1]!=0) res[1][0]=a01;
+  if (res[1]!=0) res[1][1]=a08;
+  if (res[1]!=0) res[1][2]=a06;
+  if (res[1]!=0) res[1][3]=a03;
+  if (res[1]!=0) res[1][4]=a00;
+  if (res[1]!=0) res[1][5]=a02;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f12(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_step_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void gioste_1link_slotine_li_step_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void gioste_1link_slotine_li_step_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void gioste_1link_slotine_li_step_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int gioste_1link_slotine_li_step_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int gioste_1link_slotine_li_step_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real gioste_1link_slotine_li_step_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
   }
-  /* #10: @4 = input[6][0] */
-  w04 = arg[6] ? arg[6][0] : 0;
-  /* #11: @8 = @4[0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0] */
-  for (cii=casadi_s5, rr=w08, cs=(&w04); cii!=casadi_s5+1000; ++cii) *rr++ = cs[*cii];
-  /* #12: {@9, @10} = one_sample_acc10_acc10_acc10(@2, @3, @5, @6, @7, @8) */
-  arg1[0]=w02;
-  arg1[1]=wr03;
-  arg1[2]=w05;
-  arg1[3]=w06;
-  arg1[4]=w07;
-  arg1[5]=w08;
-  res1[0]=w09;
+}
+
+CASADI_SYMBOL_EXPORT const char* gioste_1link_slotine_li_step_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "p";
+    case 2: return "k";
+    case 3: return "e";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* gioste_1link_slotine_li_step_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_next";
+    case 1: return "y";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_slotine_li_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    case 1: return casadi_s5;
+    case 2: return casadi_s0;
+    case 3: return casadi_s3;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_slotine_li_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    case 1: return casadi_s4;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 2;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* one_sample:(xa[5],p[4],e[3])->(xa_next[5],y[6]) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.0000000000000000e-03;
+  a02=arg[1]? arg[1][2] : 0;
+  a02=(a01*a02);
+  a03=arg[2]? arg[2][2] : 0;
+  a04=arg[1]? arg[1][0] : 0;
+  a05=arg[2]? arg[2][1] : 0;
+  a06=arg[0]? arg[0][3] : 0;
+  a07=(a05-a06);
+  a07=(a04*a07);
+  a03=(a03+a07);
+  a07=arg[2]? arg[2][0] : 0;
+  a08=arg[0]? arg[0][2] : 0;
+  a07=(a07-a08);
+  a04=(a04*a07);
+  a05=(a05+a04);
+  a05=(a05-a06);
+  a04=(a03*a05);
+  a02=(a02*a04);
+  a02=(a00+a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a02=arg[0]? arg[0][1] : 0;
+  a04=arg[1]? arg[1][3] : 0;
+  a04=(a01*a04);
+  a07=-9.8100000000000005e+00;
+  a09=sin(a08);
+  a07=(a07*a09);
+  a10=(a07*a05);
+  a04=(a04*a10);
+  a04=(a02-a04);
+  if (res[0]!=0) res[0][1]=a04;
+  a04=1.6666666666666666e-04;
+  a10=5.0000000000000001e-04;
+  a03=(a03*a00);
+  a07=(a07*a02);
+  a03=(a03-a07);
+  a07=arg[1]? arg[1][1] : 0;
+  a07=(a07*a05);
+  a03=(a03+a07);
+  a07=-7.1220600000000001e-01;
+  a09=(a07*a09);
+  a09=(a03+a09);
+  a05=1.5979000000000000e-02;
+  a09=(a09/a05);
+  a11=(a10*a09);
+  a11=(a06+a11);
+  a12=(2.*a11);
+  a12=(a06+a12);
+  a13=(a10*a06);
+  a13=(a08+a13);
+  a13=sin(a13);
+  a13=(a07*a13);
+  a13=(a03+a13);
+  a13=(a13/a05);
+  a14=(a10*a13);
+  a14=(a06+a14);
+  a15=(2.*a14);
+  a12=(a12+a15);
+  a10=(a10*a11);
+  a10=(a08+a10);
+  a10=sin(a10);
+  a10=(a07*a10);
+  a10=(a03+a10);
+  a10=(a10/a05);
+  a11=(a01*a10);
+  a11=(a06+a11);
+  a12=(a12+a11);
+  a12=(a04*a12);
+  a12=(a08+a12);
+  if (res[0]!=0) res[0][2]=a12;
+  a13=(2.*a13);
+  a09=(a09+a13);
+  a10=(2.*a10);
+  a09=(a09+a10);
+  a14=(a01*a14);
+  a14=(a08+a14);
+  a14=sin(a14);
+  a07=(a07*a14);
+  a07=(a03+a07);
+  a07=(a07/a05);
+  a09=(a09+a07);
+  a04=(a04*a09);
+  a04=(a06+a04);
+  if (res[0]!=0) res[0][3]=a04;
+  a04=arg[0]? arg[0][4] : 0;
+  a09=1.;
+  a09=(a04+a09);
+  if (res[0]!=0) res[0][4]=a09;
+  a01=(a01*a04);
+  if (res[1]!=0) res[1][0]=a01;
+  if (res[1]!=0) res[1][1]=a08;
+  if (res[1]!=0) res[1][2]=a06;
+  if (res[1]!=0) res[1][3]=a03;
+  if (res[1]!=0) res[1][4]=a00;
+  if (res[1]!=0) res[1][5]=a02;
+  return 0;
+}
+
+/* one_sample_acc10:(xa[5],p[4x10],e[3x10])->(xa_next[5x10],y[6x10]) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+16, *w01=w+21, *w02=w+25, *w03=w+28, *w04=w+33, *w05=w+39, *w06=w+45, *w07=w+51, *w08=w+57, *w09=w+63, *w10=w+69;
+  casadi_real *w11=w+75, *w12=w+81, *w13=w+87;
+  const casadi_real **arg1=arg+3;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w00);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 4, w01);
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 3, w02);
+  /* #3: {@3, @4} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 5, res[0]);
+  /* #5: @1 = input[1][1] */
+  casadi_copy(arg[1] ? arg[1]+4 : 0, 4, w01);
+  /* #6: @2 = input[2][1] */
+  casadi_copy(arg[2] ? arg[2]+3 : 0, 3, w02);
+  /* #7: {@0, @5} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w05;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #8: output[0][1] = @0 */
+  if (res[0]) casadi_copy(w00, 5, res[0]+5);
+  /* #9: @1 = input[1][2] */
+  casadi_copy(arg[1] ? arg[1]+8 : 0, 4, w01);
+  /* #10: @2 = input[2][2] */
+  casadi_copy(arg[2] ? arg[2]+6 : 0, 3, w02);
+  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #12: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 5, res[0]+10);
+  /* #13: @1 = input[1][3] */
+  casadi_copy(arg[1] ? arg[1]+12 : 0, 4, w01);
+  /* #14: @2 = input[2][3] */
+  casadi_copy(arg[2] ? arg[2]+9 : 0, 3, w02);
+  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w07;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #16: output[0][3] = @0 */
+  if (res[0]) casadi_copy(w00, 5, res[0]+15);
+  /* #17: @1 = input[1][4] */
+  casadi_copy(arg[1] ? arg[1]+16 : 0, 4, w01);
+  /* #18: @2 = input[2][4] */
+  casadi_copy(arg[2] ? arg[2]+12 : 0, 3, w02);
+  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #20: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 5, res[0]+20);
+  /* #21: @1 = input[1][5] */
+  casadi_copy(arg[1] ? arg[1]+20 : 0, 4, w01);
+  /* #22: @2 = input[2][5] */
+  casadi_copy(arg[2] ? arg[2]+15 : 0, 3, w02);
+  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w09;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][5] = @0 */
+  if (res[0]) casadi_copy(w00, 5, res[0]+25);
+  /* #25: @1 = input[1][6] */
+  casadi_copy(arg[1] ? arg[1]+24 : 0, 4, w01);
+  /* #26: @2 = input[2][6] */
+  casadi_copy(arg[2] ? arg[2]+18 : 0, 3, w02);
+  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
   res1[1]=w10;
-  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #13: @7 = @9[:4000:4;:2] */
-  for (rr=w07, cs=w09+0; cs!=w09+4000; cs+=4) for (ct=cs+0; ct!=cs+2; ct+=1) *rr++ = *ct;
-  /* #14: output[0][0] = @7 */
-  casadi_copy(w07, 2000, res[0]);
-  /* #15: @7 = @9[:4000:4;2:4] */
-  for (rr=w07, cs=w09+0; cs!=w09+4000; cs+=4) for (ct=cs+2; ct!=cs+4; ct+=1) *rr++ = *ct;
-  /* #16: output[1][0] = @7 */
-  casadi_copy(w07, 2000, res[1]);
-  /* #17: output[2][0] = @10 */
-  casadi_copy(w10, 1000, res[2]);
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #28: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 5, res[0]+30);
+  /* #29: @1 = input[1][7] */
+  casadi_copy(arg[1] ? arg[1]+28 : 0, 4, w01);
+  /* #30: @2 = input[2][7] */
+  casadi_copy(arg[2] ? arg[2]+21 : 0, 3, w02);
+  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w11;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #32: output[0][7] = @0 */
+  if (res[0]) casadi_copy(w00, 5, res[0]+35);
+  /* #33: @1 = input[1][8] */
+  casadi_copy(arg[1] ? arg[1]+32 : 0, 4, w01);
+  /* #34: @2 = input[2][8] */
+  casadi_copy(arg[2] ? arg[2]+24 : 0, 3, w02);
+  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #36: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 5, res[0]+40);
+  /* #37: @1 = input[1][9] */
+  casadi_copy(arg[1] ? arg[1]+36 : 0, 4, w01);
+  /* #38: @2 = input[2][9] */
+  casadi_copy(arg[2] ? arg[2]+27 : 0, 3, w02);
+  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w13;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #40: output[0][9] = @0 */
+  if (res[0]) casadi_copy(w00, 5, res[0]+45);
+  /* #41: output[1][0] = @4 */
+  casadi_copy(w04, 6, res[1]);
+  /* #42: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 6, res[1]+6);
+  /* #43: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 6, res[1]+12);
+  /* #44: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 6, res[1]+18);
+  /* #45: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 6, res[1]+24);
+  /* #46: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 6, res[1]+30);
+  /* #47: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 6, res[1]+36);
+  /* #48: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 6, res[1]+42);
+  /* #49: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 6, res[1]+48);
+  /* #50: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 6, res[1]+54);
+  return 0;
+}
+
+/* one_sample_acc10_acc10:(xa[5],p[4x100],e[3x100])->(xa_next[5x100],y[6x100]) */
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+93, *w03=w+98, *w04=w+148, *w05=w+208, *w06=w+268, *w07=w+328, *w08=w+388, *w09=w+448, *w10=w+508, *w11=w+568, *w12=w+628;
+  casadi_real *w13=w+688;
+  const casadi_real **arg1=arg+3, *wr01, *wr02;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w00);
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 50, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+45, 5, w00);
+  /* #6: @1 = input[1][1] */
+  wr01 = arg[1] ? arg[1]+40 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr02 = arg[2] ? arg[2]+30 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w05;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w03, 50, res[0]+50);
+  /* #10: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+45, 5, w00);
+  /* #11: @1 = input[1][2] */
+  wr01 = arg[1] ? arg[1]+80 : casadi_zeros;
+  /* #12: @2 = input[2][2] */
+  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
+  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 50, res[0]+100);
+  /* #15: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+45, 5, w00);
+  /* #16: @1 = input[1][3] */
+  wr01 = arg[1] ? arg[1]+120 : casadi_zeros;
+  /* #17: @2 = input[2][3] */
+  wr02 = arg[2] ? arg[2]+90 : casadi_zeros;
+  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w07;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @3 */
+  if (res[0]) casadi_copy(w03, 50, res[0]+150);
+  /* #20: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+45, 5, w00);
+  /* #21: @1 = input[1][4] */
+  wr01 = arg[1] ? arg[1]+160 : casadi_zeros;
+  /* #22: @2 = input[2][4] */
+  wr02 = arg[2] ? arg[2]+120 : casadi_zeros;
+  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 50, res[0]+200);
+  /* #25: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+45, 5, w00);
+  /* #26: @1 = input[1][5] */
+  wr01 = arg[1] ? arg[1]+200 : casadi_zeros;
+  /* #27: @2 = input[2][5] */
+  wr02 = arg[2] ? arg[2]+150 : casadi_zeros;
+  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w09;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @3 */
+  if (res[0]) casadi_copy(w03, 50, res[0]+250);
+  /* #30: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+45, 5, w00);
+  /* #31: @1 = input[1][6] */
+  wr01 = arg[1] ? arg[1]+240 : casadi_zeros;
+  /* #32: @2 = input[2][6] */
+  wr02 = arg[2] ? arg[2]+180 : casadi_zeros;
+  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #34: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 50, res[0]+300);
+  /* #35: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+45, 5, w00);
+  /* #36: @1 = input[1][7] */
+  wr01 = arg[1] ? arg[1]+280 : casadi_zeros;
+  /* #37: @2 = input[2][7] */
+  wr02 = arg[2] ? arg[2]+210 : casadi_zeros;
+  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w11;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #39: output[0][7] = @3 */
+  if (res[0]) casadi_copy(w03, 50, res[0]+350);
+  /* #40: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+45, 5, w00);
+  /* #41: @1 = input[1][8] */
+  wr01 = arg[1] ? arg[1]+320 : casadi_zeros;
+  /* #42: @2 = input[2][8] */
+  wr02 = arg[2] ? arg[2]+240 : casadi_zeros;
+  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #44: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 50, res[0]+400);
+  /* #45: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+45, 5, w00);
+  /* #46: @1 = input[1][9] */
+  wr01 = arg[1] ? arg[1]+360 : casadi_zeros;
+  /* #47: @2 = input[2][9] */
+  wr02 = arg[2] ? arg[2]+270 : casadi_zeros;
+  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w13;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #49: output[0][9] = @3 */
+  if (res[0]) casadi_copy(w03, 50, res[0]+450);
+  /* #50: output[1][0] = @4 */
+  casadi_copy(w04, 60, res[1]);
+  /* #51: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 60, res[1]+60);
+  /* #52: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 60, res[1]+120);
+  /* #53: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 60, res[1]+180);
+  /* #54: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 60, res[1]+240);
+  /* #55: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 60, res[1]+300);
+  /* #56: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 60, res[1]+360);
+  /* #57: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 60, res[1]+420);
+  /* #58: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 60, res[1]+480);
+  /* #59: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 60, res[1]+540);
+  return 0;
+}
+
+/* one_sample_acc10_acc10_acc10:(xa[5],p[4x1000],e[3x1000])->(xa_next[5x1000],y[6x1000]) */
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+818, *w03=w+823, *w04=w+1323, *w05=w+1923, *w06=w+2523, *w07=w+3123, *w08=w+3723, *w09=w+4323, *w10=w+4923, *w11=w+5523, *w12=w+6123;
+  casadi_real *w13=w+6723;
+  const casadi_real **arg1=arg+3, *wr01, *wr02;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w00);
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 500, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+495, 5, w00);
+  /* #6: @1 = input[1][1] */
+  wr01 = arg[1] ? arg[1]+400 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w05;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w03, 500, res[0]+500);
+  /* #10: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+495, 5, w00);
+  /* #11: @1 = input[1][2] */
+  wr01 = arg[1] ? arg[1]+800 : casadi_zeros;
+  /* #12: @2 = input[2][2] */
+  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
+  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 500, res[0]+1000);
+  /* #15: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+495, 5, w00);
+  /* #16: @1 = input[1][3] */
+  wr01 = arg[1] ? arg[1]+1200 : casadi_zeros;
+  /* #17: @2 = input[2][3] */
+  wr02 = arg[2] ? arg[2]+900 : casadi_zeros;
+  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w07;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @3 */
+  if (res[0]) casadi_copy(w03, 500, res[0]+1500);
+  /* #20: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+495, 5, w00);
+  /* #21: @1 = input[1][4] */
+  wr01 = arg[1] ? arg[1]+1600 : casadi_zeros;
+  /* #22: @2 = input[2][4] */
+  wr02 = arg[2] ? arg[2]+1200 : casadi_zeros;
+  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 500, res[0]+2000);
+  /* #25: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+495, 5, w00);
+  /* #26: @1 = input[1][5] */
+  wr01 = arg[1] ? arg[1]+2000 : casadi_zeros;
+  /* #27: @2 = input[2][5] */
+  wr02 = arg[2] ? arg[2]+1500 : casadi_zeros;
+  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w09;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @3 */
+  if (res[0]) casadi_copy(w03, 500, res[0]+2500);
+  /* #30: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+495, 5, w00);
+  /* #31: @1 = input[1][6] */
+  wr01 = arg[1] ? arg[1]+2400 : casadi_zeros;
+  /* #32: @2 = input[2][6] */
+  wr02 = arg[2] ? arg[2]+1800 : casadi_zeros;
+  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #34: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 500, res[0]+3000);
+  /* #35: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+495, 5, w00);
+  /* #36: @1 = input[1][7] */
+  wr01 = arg[1] ? arg[1]+2800 : casadi_zeros;
+  /* #37: @2 = input[2][7] */
+  wr02 = arg[2] ? arg[2]+2100 : casadi_zeros;
+  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w11;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #39: output[0][7] = @3 */
+  if (res[0]) casadi_copy(w03, 500, res[0]+3500);
+  /* #40: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+495, 5, w00);
+  /* #41: @1 = input[1][8] */
+  wr01 = arg[1] ? arg[1]+3200 : casadi_zeros;
+  /* #42: @2 = input[2][8] */
+  wr02 = arg[2] ? arg[2]+2400 : casadi_zeros;
+  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #44: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 500, res[0]+4000);
+  /* #45: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+495, 5, w00);
+  /* #46: @1 = input[1][9] */
+  wr01 = arg[1] ? arg[1]+3600 : casadi_zeros;
+  /* #47: @2 = input[2][9] */
+  wr02 = arg[2] ? arg[2]+2700 : casadi_zeros;
+  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w13;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #49: output[0][9] = @3 */
+  if (res[0]) casadi_copy(w03, 500, res[0]+4500);
+  /* #50: output[1][0] = @4 */
+  casadi_copy(w04, 600, res[1]);
+  /* #51: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 600, res[1]+600);
+  /* #52: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 600, res[1]+1200);
+  /* #53: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 600, res[1]+1800);
+  /* #54: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 600, res[1]+2400);
+  /* #55: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 600, res[1]+3000);
+  /* #56: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 600, res[1]+3600);
+  /* #57: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 600, res[1]+4200);
+  /* #58: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 600, res[1]+4800);
+  /* #59: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 600, res[1]+5400);
+  return 0;
+}
+
+/* gioste_1link_slotine_li_loop:(x0[4],p[4],k0,e[3x1000])->(x[4x1000],y[6x1000]) */
+static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+2, *rr, *w0=w+8023, w1, *w2=w+8027, *w3=w+8032, *w5=w+12032, *w6=w+17032;
+  const casadi_real **arg1=arg+4, *cs, *ct, *wr4;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 4, w0);
+  /* #1: @1 = input[2][0] */
+  w1 = arg[2] ? arg[2][0] : 0;
+  /* #2: @2 = vertcat(@0, @1) */
+  rr=w2;
+  for (i=0, cs=w0; i<4; ++i) *rr++ = *cs++;
+  *rr++ = w1;
+  /* #3: @0 = input[1][0] */
+  casadi_copy(arg[1], 4, w0);
+  /* #4: @3 = repmat(@0, 1000) */
+  for (i=0;i<1000;++i) {
+    casadi_copy(w0, 4, w3+ i*4);
+  }
+  /* #5: @4 = input[3][0] */
+  wr4 = arg[3] ? arg[3] : casadi_zeros;
+  /* #6: {@5, @6} = one_sample_acc10_acc10_acc10(@2, @3, @4) */
+  arg1[0]=w2;
+  arg1[1]=w3;
+  arg1[2]=wr4;
+  res1[0]=w5;
+  res1[1]=w6;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #7: @3 = @5[:5000:5;:4] */
+  for (rr=w3, cs=w5+0; cs!=w5+5000; cs+=5) for (ct=cs+0; ct!=cs+4; ct+=1) *rr++ = *ct;
+  /* #8: output[0][0] = @3 */
+  casadi_copy(w3, 4000, res[0]);
+  /* #9: output[1][0] = @6 */
+  casadi_copy(w6, 6000, res[1]);
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f12(arg, res, iw, w, mem);
+  return casadi_f13(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_loop_checkout(void) {
@@ -2266,9 +2174,9 @@ CASADI_SYMBOL_EXPORT void gioste_1link_slotine_li_loop_incref(void) {
 CASADI_SYMBOL_EXPORT void gioste_1link_slotine_li_loop_decref(void) {
 }
 
-CASADI_SYMBOL_EXPORT casadi_int gioste_1link_slotine_li_loop_n_in(void) { return 7;}
+CASADI_SYMBOL_EXPORT casadi_int gioste_1link_slotine_li_loop_n_in(void) { return 4;}
 
-CASADI_SYMBOL_EXPORT casadi_int gioste_1link_slotine_li_loop_n_out(void) { return 3;}
+CASADI_SYMBOL_EXPORT casadi_int gioste_1link_slotine_li_loop_n_out(void) { return 2;}
 
 CASADI_SYMBOL_EXPORT casadi_real gioste_1link_slotine_li_loop_default_in(casadi_int i) {
   switch (i) {
@@ -2279,12 +2187,9 @@ CASADI_SYMBOL_EXPORT casadi_real gioste_1link_slotine_li_loop_default_in(casadi_
 CASADI_SYMBOL_EXPORT const char* gioste_1link_slotine_li_loop_name_in(casadi_int i) {
   switch (i) {
     case 0: return "x0";
-    case 1: return "pi_hat0";
-    case 2: return "ref";
-    case 3: return "lam";
-    case 4: return "kd";
-    case 5: return "kpi";
-    case 6: return "dt";
+    case 1: return "p";
+    case 2: return "k0";
+    case 3: return "e";
     default: return 0;
   }
 }
@@ -2292,21 +2197,17 @@ CASADI_SYMBOL_EXPORT const char* gioste_1link_slotine_li_loop_name_in(casadi_int
 CASADI_SYMBOL_EXPORT const char* gioste_1link_slotine_li_loop_name_out(casadi_int i) {
   switch (i) {
     case 0: return "x";
-    case 1: return "pi_hat";
-    case 2: return "tau";
+    case 1: return "y";
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_slotine_li_loop_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s2;
-    case 1: return casadi_s2;
-    case 2: return casadi_s6;
-    case 3: return casadi_s0;
-    case 4: return casadi_s0;
-    case 5: return casadi_s2;
-    case 6: return casadi_s0;
+    case 0: return casadi_s5;
+    case 1: return casadi_s5;
+    case 2: return casadi_s0;
+    case 3: return casadi_s6;
     default: return 0;
   }
 }
@@ -2314,30 +2215,29 @@ CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_slotine_li_loop_sparsity_in(
 CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_slotine_li_loop_sparsity_out(casadi_int i) {
   switch (i) {
     case 0: return casadi_s7;
-    case 1: return casadi_s7;
-    case 2: return casadi_s8;
+    case 1: return casadi_s8;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31;
-  if (sz_res) *sz_res = 11;
+  if (sz_arg) *sz_arg = 16;
+  if (sz_res) *sz_res = 10;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 12481;
+  if (sz_w) *sz_w = 23032;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 16*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 10*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 12481*sizeof(casadi_real);
+  if (sz_w) *sz_w = 23032*sizeof(casadi_real);
   return 0;
 }
 
 /* gioste_1link_mckibben_torque:(q,p[2])->(tau,sigma) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6;
   a0=4.7999999999999996e-03;
   a1=1.7000000000000001e-01;
@@ -2372,7 +2272,7 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f17(arg, res, iw, w, mem);
+  return casadi_f18(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_torque_checkout(void) {
@@ -2447,7 +2347,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_torque_work_bytes(casadi_int *sz_
 }
 
 /* gioste_1link_mckibben_phi:(q)->(Phi[1x2],Phi_q[1x2]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4;
   a0=1.7000000000000001e-01;
   a1=2.9999999999999999e-02;
@@ -2474,7 +2374,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_phi(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f18(arg, res, iw, w, mem);
+  return casadi_f19(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_phi_checkout(void) {
@@ -2547,7 +2447,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_phi_work_bytes(casadi_int *sz_arg
 }
 
 /* gioste_1link_mckibben_stiffness_rate:(q,qd,p[2],pd[2])->(sigma_dot) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=-2.8799999999999995e-04;
   a1=1.7000000000000001e-01;
@@ -2581,7 +2481,7 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_stiffness_rate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f19(arg, res, iw, w, mem);
+  return casadi_f20(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_stiffness_rate_checkout(void) {
@@ -2658,7 +2558,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_stiffness_rate_work_bytes(casadi_
 }
 
 /* gioste_1link_mckibben_allocation:(q,tau,sigma)->(p[2]) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6;
   a0=2.8799999999999995e-04;
   a1=1.7000000000000001e-01;
@@ -2699,7 +2599,7 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_allocation(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f20(arg, res, iw, w, mem);
+  return casadi_f21(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_allocation_checkout(void) {
@@ -2774,7 +2674,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_mckibben_allocation_work_bytes(casadi_int 
 }
 
 /* gioste_1link_pneumatic_plant:(x[2],p[2],h)->(x_next[2]) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19;
   a00=arg[0]? arg[0][0] : 0;
@@ -3700,7 +3600,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_pneumatic_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f22(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_pneumatic_plant_checkout(void) {
@@ -3775,7 +3675,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_pneumatic_plant_work_bytes(casadi_int *sz_
 }
 
 /* gioste_1link_valve_plant:(x[4],p_c[2],T_p[2],h)->(x_next[4]) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29;
@@ -5134,7 +5034,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_valve_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f23(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_valve_plant_checkout(void) {
@@ -5179,7 +5079,7 @@ CASADI_SYMBOL_EXPORT const char* gioste_1link_valve_plant_name_out(casadi_int i)
 
 CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_valve_plant_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s9;
+    case 0: return casadi_s5;
     case 1: return casadi_s2;
     case 2: return casadi_s2;
     case 3: return casadi_s0;
@@ -5189,7 +5089,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_valve_plant_sparsity_in(casa
 
 CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_valve_plant_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s9;
+    case 0: return casadi_s5;
     default: return 0;
   }
 }
@@ -5211,7 +5111,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_valve_plant_work_bytes(casadi_int *sz_arg,
 }
 
 /* gioste_1link_null_space:(q,qd)->(Phi_pinv[2],Phi_perp[2],Phi_q_Phi_perp,Phi_pinv_dot[2],Phi_perp_dot[2],Phi_q_dot[1x2]) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
   a0=1.7000000000000001e-01;
   a1=2.9999999999999999e-02;
@@ -5280,7 +5180,7 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_null_space(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f23(arg, res, iw, w, mem);
+  return casadi_f24(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_null_space_checkout(void) {
@@ -5363,7 +5263,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_null_space_work_bytes(casadi_int *sz_arg, 
 }
 
 /* gioste_1link_pneumatic_slotine_li:(z[2],q,qd,ref[6],lam,kd,kpi[2],dt)->(z_next[2],p[2],tau_star,nu) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
   a0=arg[0]? arg[0][0] : 0;
   a1=arg[7]? arg[7][0] : 0;
@@ -5429,7 +5329,7 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_pneumatic_slotine_li(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f24(arg, res, iw, w, mem);
+  return casadi_f25(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_pneumatic_slotine_li_checkout(void) {
@@ -5520,7 +5420,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_pneumatic_slotine_li_work_bytes(casadi_int
 }
 
 /* gioste_1link_open_loop_stiffness:(z[2],q,qd,ref[6],lam,kd,kpi[2],kinv,dt)->(z_next[2],p[2],tau_star,nu) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10;
   a00=arg[0]? arg[0][0] : 0;
   a01=arg[8]? arg[8][0] : 0;
@@ -5605,7 +5505,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_open_loop_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f26(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_open_loop_stiffness_checkout(void) {
@@ -5698,7 +5598,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_open_loop_stiffness_work_bytes(casadi_int 
 }
 
 /* gioste_1link_theorem5:(z[3],q,qd,sigma,ref[6],lam,kd,kpi[2],ksigma,kinv,dt)->(z_next[3],p[2],tau_star,nu) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22;
   a00=arg[0]? arg[0][0] : 0;
@@ -5848,7 +5748,7 @@ static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_theorem5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f26(arg, res, iw, w, mem);
+  return casadi_f27(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_theorem5_checkout(void) {
@@ -5945,7 +5845,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_theorem5_work_bytes(casadi_int *sz_arg, ca
 }
 
 /* gioste_1link_corollary2:(z[3],q,qd,sigma,ref[6],lam,kd,kpi[2],ksigma,dt)->(z_next[3],p[2],tau_star,nu) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22;
   a00=arg[0]? arg[0][0] : 0;
@@ -6091,7 +5991,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_corollary2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f27(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_corollary2_checkout(void) {
@@ -6185,8 +6085,2878 @@ CASADI_SYMBOL_EXPORT int gioste_1link_corollary2_work_bytes(casadi_int *sz_arg, 
   return 0;
 }
 
+/* gioste_1link_theorem5_closed_step:(x[7],p[6],k,e[6])->(x_next[7],y[12]) */
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.0000000000000000e-03;
+  a02=arg[1]? arg[1][4] : 0;
+  a03=-2.8799999999999995e-04;
+  a04=1.7000000000000001e-01;
+  a05=2.9999999999999999e-02;
+  a06=arg[0]? arg[0][3] : 0;
+  a07=(a05*a06);
+  a08=(a04-a07);
+  a03=(a03*a08);
+  a09=arg[0]? arg[0][5] : 0;
+  a03=(a03*a09);
+  a10=2.8799999999999995e-04;
+  a07=(a04+a07);
+  a10=(a10*a07);
+  a11=arg[0]? arg[0][6] : 0;
+  a10=(a10*a11);
+  a03=(a03-a10);
+  a10=arg[3]? arg[3][4] : 0;
+  a10=(a03+a10);
+  a02=(a02*a10);
+  a10=-5.9999999999999998e-02;
+  a10=(a10*a08);
+  a12=casadi_sq(a08);
+  a13=1.9600000000000003e-02;
+  a12=(a12-a13);
+  a14=casadi_sq(a12);
+  a15=casadi_sq(a07);
+  a15=(a15-a13);
+  a16=casadi_sq(a15);
+  a14=(a14+a16);
+  a16=(a12/a14);
+  a17=arg[0]? arg[0][1] : 0;
+  a18=arg[3]? arg[3][3] : 0;
+  a19=arg[1]? arg[1][0] : 0;
+  a20=arg[3]? arg[3][2] : 0;
+  a21=(a19*a20);
+  a18=(a18+a21);
+  a18=(a17*a18);
+  a21=arg[3]? arg[3][1] : 0;
+  a22=arg[0]? arg[0][4] : 0;
+  a23=(a21-a22);
+  a23=(a19*a23);
+  a20=(a20+a23);
+  a23=arg[1]? arg[1][2] : 0;
+  a24=arg[3]? arg[3][0] : 0;
+  a24=(a24-a06);
+  a19=(a19*a24);
+  a21=(a21+a19);
+  a21=(a21-a22);
+  a19=(a20*a21);
+  a23=(a23*a19);
+  a19=(a20*a23);
+  a18=(a18+a19);
+  a19=arg[0]? arg[0][2] : 0;
+  a24=-9.8100000000000005e+00;
+  a25=cos(a06);
+  a25=(a25*a22);
+  a25=(a24*a25);
+  a25=(a19*a25);
+  a26=sin(a06);
+  a24=(a24*a26);
+  a27=arg[1]? arg[1][3] : 0;
+  a28=(a24*a21);
+  a27=(a27*a28);
+  a28=(a24*a27);
+  a25=(a25-a28);
+  a18=(a18-a25);
+  a25=arg[1]? arg[1][1] : 0;
+  a28=(a25*a20);
+  a18=(a18+a28);
+  a28=(a16*a18);
+  a20=(a20*a17);
+  a24=(a24*a19);
+  a20=(a20-a24);
+  a25=(a25*a21);
+  a20=(a20+a25);
+  a08=(2.*a08);
+  a25=(a05*a22);
+  a08=(a08*a25);
+  a21=(a08/a14);
+  a24=(a16/a14);
+  a29=(2.*a15);
+  a30=(2.*a07);
+  a30=(a30*a25);
+  a29=(a29*a30);
+  a25=(2.*a12);
+  a25=(a25*a08);
+  a29=(a29-a25);
+  a24=(a24*a29);
+  a21=(a21+a24);
+  a21=(a20*a21);
+  a28=(a28-a21);
+  a28=(a10*a28);
+  a21=5.9999999999999998e-02;
+  a21=(a21*a07);
+  a07=(a30/a14);
+  a24=(a15/a14);
+  a14=(a24/a14);
+  a14=(a14*a29);
+  a07=(a07-a14);
+  a07=(a20*a07);
+  a18=(a24*a18);
+  a07=(a07+a18);
+  a07=(a21*a07);
+  a28=(a28+a07);
+  a02=(a02+a28);
+  a28=1.8000000000000000e-03;
+  a28=(a28*a22);
+  a24=(a24*a20);
+  a07=(a28*a24);
+  a18=-1.8000000000000000e-03;
+  a18=(a18*a22);
+  a16=(a16*a20);
+  a14=(a18*a16);
+  a07=(a07-a14);
+  a02=(a02+a07);
+  a30=(a10*a30);
+  a08=(a21*a08);
+  a30=(a30+a08);
+  a18=(a18*a15);
+  a28=(a28*a12);
+  a18=(a18+a28);
+  a30=(a30-a18);
+  a30=(a30*a00);
+  a02=(a02+a30);
+  a30=arg[1]? arg[1][5] : 0;
+  a18=arg[3]? arg[3][5] : 0;
+  a30=(a30*a18);
+  a02=(a02+a30);
+  a10=(a10*a15);
+  a21=(a21*a12);
+  a10=(a10-a21);
+  a02=(a02/a10);
+  a02=(a01*a02);
+  a02=(a00-a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a23=(a01*a23);
+  a23=(a17+a23);
+  if (res[0]!=0) res[0][1]=a23;
+  a27=(a01*a27);
+  a27=(a19-a27);
+  if (res[0]!=0) res[0][2]=a27;
+  a27=1.6666666666666667e-05;
+  a23=5.0000000000000002e-05;
+  a02=4.7999999999999996e-03;
+  a10=(a02*a12);
+  a21=(a15*a00);
+  a16=(a16+a21);
+  a21=0.;
+  a30=casadi_fmax(a16,a21);
+  a18=800000.;
+  a30=casadi_fmin(a30,a18);
+  a10=(a10*a30);
+  a15=(a02*a15);
+  a12=(a12*a00);
+  a12=(a12-a24);
+  a21=casadi_fmax(a12,a21);
+  a21=casadi_fmin(a21,a18);
+  a15=(a15*a21);
+  a10=(a10-a15);
+  a15=-7.1220600000000001e-01;
+  a26=(a15*a26);
+  a10=(a10+a26);
+  a26=1.5979000000000000e-02;
+  a10=(a10/a26);
+  a18=(a23*a10);
+  a18=(a22+a18);
+  a24=(2.*a18);
+  a24=(a22+a24);
+  a28=(a23*a22);
+  a28=(a06+a28);
+  a08=(a05*a28);
+  a07=(a04-a08);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a08=(a04+a08);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a02*a08);
+  a08=(a08*a21);
+  a07=(a07-a08);
+  a28=sin(a28);
+  a28=(a15*a28);
+  a07=(a07+a28);
+  a07=(a07/a26);
+  a28=(a23*a07);
+  a28=(a22+a28);
+  a08=(2.*a28);
+  a24=(a24+a08);
+  a08=1.0000000000000000e-04;
+  a18=(a23*a18);
+  a18=(a06+a18);
+  a14=(a05*a18);
+  a29=(a04-a14);
+  a29=casadi_sq(a29);
+  a29=(a29-a13);
+  a29=(a02*a29);
+  a29=(a29*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a29=(a29-a14);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a29=(a29+a18);
+  a29=(a29/a26);
+  a18=(a08*a29);
+  a18=(a22+a18);
+  a24=(a24+a18);
+  a24=(a27*a24);
+  a24=(a06+a24);
+  a07=(2.*a07);
+  a10=(a10+a07);
+  a29=(2.*a29);
+  a10=(a10+a29);
+  a28=(a08*a28);
+  a28=(a06+a28);
+  a29=(a05*a28);
+  a07=(a04-a29);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a29=(a04+a29);
+  a29=casadi_sq(a29);
+  a29=(a29-a13);
+  a29=(a02*a29);
+  a29=(a29*a21);
+  a07=(a07-a29);
+  a28=sin(a28);
+  a28=(a15*a28);
+  a07=(a07+a28);
+  a07=(a07/a26);
+  a10=(a10+a07);
+  a10=(a27*a10);
+  a10=(a22+a10);
+  a07=(a05*a24);
+  a28=(a04-a07);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a28=(a28-a07);
+  a07=sin(a24);
+  a07=(a15*a07);
+  a28=(a28+a07);
+  a28=(a28/a26);
+  a07=(a23*a28);
+  a07=(a10+a07);
+  a29=(2.*a07);
+  a29=(a10+a29);
+  a18=(a23*a10);
+  a18=(a24+a18);
+  a14=(a05*a18);
+  a25=(a04-a14);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a25=(a25-a14);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a25=(a25+a18);
+  a25=(a25/a26);
+  a18=(a23*a25);
+  a18=(a10+a18);
+  a14=(2.*a18);
+  a29=(a29+a14);
+  a07=(a23*a07);
+  a07=(a24+a07);
+  a14=(a05*a07);
+  a31=(a04-a14);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a31=(a31-a14);
+  a07=sin(a07);
+  a07=(a15*a07);
+  a31=(a31+a07);
+  a31=(a31/a26);
+  a07=(a08*a31);
+  a07=(a10+a07);
+  a29=(a29+a07);
+  a29=(a27*a29);
+  a29=(a24+a29);
+  a25=(2.*a25);
+  a28=(a28+a25);
+  a31=(2.*a31);
+  a28=(a28+a31);
+  a18=(a08*a18);
+  a24=(a24+a18);
+  a18=(a05*a24);
+  a31=(a04-a18);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a31=(a31-a18);
+  a24=sin(a24);
+  a24=(a15*a24);
+  a31=(a31+a24);
+  a31=(a31/a26);
+  a28=(a28+a31);
+  a28=(a27*a28);
+  a10=(a10+a28);
+  a28=(a05*a29);
+  a31=(a04-a28);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a28=(a04+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a21);
+  a31=(a31-a28);
+  a28=sin(a29);
+  a28=(a15*a28);
+  a31=(a31+a28);
+  a31=(a31/a26);
+  a28=(a23*a31);
+  a28=(a10+a28);
+  a24=(2.*a28);
+  a24=(a10+a24);
+  a18=(a23*a10);
+  a18=(a29+a18);
+  a25=(a05*a18);
+  a07=(a04-a25);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a21);
+  a07=(a07-a25);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a07=(a07+a18);
+  a07=(a07/a26);
+  a18=(a23*a07);
+  a18=(a10+a18);
+  a25=(2.*a18);
+  a24=(a24+a25);
+  a28=(a23*a28);
+  a28=(a29+a28);
+  a25=(a05*a28);
+  a14=(a04-a25);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a21);
+  a14=(a14-a25);
+  a28=sin(a28);
+  a28=(a15*a28);
+  a14=(a14+a28);
+  a14=(a14/a26);
+  a28=(a08*a14);
+  a28=(a10+a28);
+  a24=(a24+a28);
+  a24=(a27*a24);
+  a24=(a29+a24);
+  a07=(2.*a07);
+  a31=(a31+a07);
+  a14=(2.*a14);
+  a31=(a31+a14);
+  a18=(a08*a18);
+  a29=(a29+a18);
+  a18=(a05*a29);
+  a14=(a04-a18);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a14=(a14-a18);
+  a29=sin(a29);
+  a29=(a15*a29);
+  a14=(a14+a29);
+  a14=(a14/a26);
+  a31=(a31+a14);
+  a31=(a27*a31);
+  a10=(a10+a31);
+  a31=(a05*a24);
+  a14=(a04-a31);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a31=(a04+a31);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a21);
+  a14=(a14-a31);
+  a31=sin(a24);
+  a31=(a15*a31);
+  a14=(a14+a31);
+  a14=(a14/a26);
+  a31=(a23*a14);
+  a31=(a10+a31);
+  a29=(2.*a31);
+  a29=(a10+a29);
+  a18=(a23*a10);
+  a18=(a24+a18);
+  a07=(a05*a18);
+  a28=(a04-a07);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a28=(a28-a07);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a28=(a28+a18);
+  a28=(a28/a26);
+  a18=(a23*a28);
+  a18=(a10+a18);
+  a07=(2.*a18);
+  a29=(a29+a07);
+  a31=(a23*a31);
+  a31=(a24+a31);
+  a07=(a05*a31);
+  a25=(a04-a07);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a25=(a25-a07);
+  a31=sin(a31);
+  a31=(a15*a31);
+  a25=(a25+a31);
+  a25=(a25/a26);
+  a31=(a08*a25);
+  a31=(a10+a31);
+  a29=(a29+a31);
+  a29=(a27*a29);
+  a29=(a24+a29);
+  a28=(2.*a28);
+  a14=(a14+a28);
+  a25=(2.*a25);
+  a14=(a14+a25);
+  a18=(a08*a18);
+  a24=(a24+a18);
+  a18=(a05*a24);
+  a25=(a04-a18);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a25=(a25-a18);
+  a24=sin(a24);
+  a24=(a15*a24);
+  a25=(a25+a24);
+  a25=(a25/a26);
+  a14=(a14+a25);
+  a14=(a27*a14);
+  a10=(a10+a14);
+  a14=(a05*a29);
+  a25=(a04-a14);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a25=(a25-a14);
+  a14=sin(a29);
+  a14=(a15*a14);
+  a25=(a25+a14);
+  a25=(a25/a26);
+  a14=(a23*a25);
+  a14=(a10+a14);
+  a24=(2.*a14);
+  a24=(a10+a24);
+  a18=(a23*a10);
+  a18=(a29+a18);
+  a28=(a05*a18);
+  a31=(a04-a28);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a28=(a04+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a21);
+  a31=(a31-a28);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a31=(a31+a18);
+  a31=(a31/a26);
+  a18=(a23*a31);
+  a18=(a10+a18);
+  a28=(2.*a18);
+  a24=(a24+a28);
+  a14=(a23*a14);
+  a14=(a29+a14);
+  a28=(a05*a14);
+  a07=(a04-a28);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a28=(a04+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a21);
+  a07=(a07-a28);
+  a14=sin(a14);
+  a14=(a15*a14);
+  a07=(a07+a14);
+  a07=(a07/a26);
+  a14=(a08*a07);
+  a14=(a10+a14);
+  a24=(a24+a14);
+  a24=(a27*a24);
+  a24=(a29+a24);
+  a31=(2.*a31);
+  a25=(a25+a31);
+  a07=(2.*a07);
+  a25=(a25+a07);
+  a18=(a08*a18);
+  a29=(a29+a18);
+  a18=(a05*a29);
+  a07=(a04-a18);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a07=(a07-a18);
+  a29=sin(a29);
+  a29=(a15*a29);
+  a07=(a07+a29);
+  a07=(a07/a26);
+  a25=(a25+a07);
+  a25=(a27*a25);
+  a10=(a10+a25);
+  a25=(a05*a24);
+  a07=(a04-a25);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a21);
+  a07=(a07-a25);
+  a25=sin(a24);
+  a25=(a15*a25);
+  a07=(a07+a25);
+  a07=(a07/a26);
+  a25=(a23*a07);
+  a25=(a10+a25);
+  a29=(2.*a25);
+  a29=(a10+a29);
+  a18=(a23*a10);
+  a18=(a24+a18);
+  a31=(a05*a18);
+  a14=(a04-a31);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a31=(a04+a31);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a21);
+  a14=(a14-a31);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a14=(a14+a18);
+  a14=(a14/a26);
+  a18=(a23*a14);
+  a18=(a10+a18);
+  a31=(2.*a18);
+  a29=(a29+a31);
+  a25=(a23*a25);
+  a25=(a24+a25);
+  a31=(a05*a25);
+  a28=(a04-a31);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a31=(a04+a31);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a21);
+  a28=(a28-a31);
+  a25=sin(a25);
+  a25=(a15*a25);
+  a28=(a28+a25);
+  a28=(a28/a26);
+  a25=(a08*a28);
+  a25=(a10+a25);
+  a29=(a29+a25);
+  a29=(a27*a29);
+  a29=(a24+a29);
+  a14=(2.*a14);
+  a07=(a07+a14);
+  a28=(2.*a28);
+  a07=(a07+a28);
+  a18=(a08*a18);
+  a24=(a24+a18);
+  a18=(a05*a24);
+  a28=(a04-a18);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a28=(a28-a18);
+  a24=sin(a24);
+  a24=(a15*a24);
+  a28=(a28+a24);
+  a28=(a28/a26);
+  a07=(a07+a28);
+  a07=(a27*a07);
+  a10=(a10+a07);
+  a07=(a05*a29);
+  a28=(a04-a07);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a28=(a28-a07);
+  a07=sin(a29);
+  a07=(a15*a07);
+  a28=(a28+a07);
+  a28=(a28/a26);
+  a07=(a23*a28);
+  a07=(a10+a07);
+  a24=(2.*a07);
+  a24=(a10+a24);
+  a18=(a23*a10);
+  a18=(a29+a18);
+  a14=(a05*a18);
+  a25=(a04-a14);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a25=(a25-a14);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a25=(a25+a18);
+  a25=(a25/a26);
+  a18=(a23*a25);
+  a18=(a10+a18);
+  a14=(2.*a18);
+  a24=(a24+a14);
+  a07=(a23*a07);
+  a07=(a29+a07);
+  a14=(a05*a07);
+  a31=(a04-a14);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a31=(a31-a14);
+  a07=sin(a07);
+  a07=(a15*a07);
+  a31=(a31+a07);
+  a31=(a31/a26);
+  a07=(a08*a31);
+  a07=(a10+a07);
+  a24=(a24+a07);
+  a24=(a27*a24);
+  a24=(a29+a24);
+  a25=(2.*a25);
+  a28=(a28+a25);
+  a31=(2.*a31);
+  a28=(a28+a31);
+  a18=(a08*a18);
+  a29=(a29+a18);
+  a18=(a05*a29);
+  a31=(a04-a18);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a31=(a31-a18);
+  a29=sin(a29);
+  a29=(a15*a29);
+  a31=(a31+a29);
+  a31=(a31/a26);
+  a28=(a28+a31);
+  a28=(a27*a28);
+  a10=(a10+a28);
+  a28=(a05*a24);
+  a31=(a04-a28);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a28=(a04+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a21);
+  a31=(a31-a28);
+  a28=sin(a24);
+  a28=(a15*a28);
+  a31=(a31+a28);
+  a31=(a31/a26);
+  a28=(a23*a31);
+  a28=(a10+a28);
+  a29=(2.*a28);
+  a29=(a10+a29);
+  a18=(a23*a10);
+  a18=(a24+a18);
+  a25=(a05*a18);
+  a07=(a04-a25);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a21);
+  a07=(a07-a25);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a07=(a07+a18);
+  a07=(a07/a26);
+  a18=(a23*a07);
+  a18=(a10+a18);
+  a25=(2.*a18);
+  a29=(a29+a25);
+  a28=(a23*a28);
+  a28=(a24+a28);
+  a25=(a05*a28);
+  a14=(a04-a25);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a21);
+  a14=(a14-a25);
+  a28=sin(a28);
+  a28=(a15*a28);
+  a14=(a14+a28);
+  a14=(a14/a26);
+  a28=(a08*a14);
+  a28=(a10+a28);
+  a29=(a29+a28);
+  a29=(a27*a29);
+  a29=(a24+a29);
+  a07=(2.*a07);
+  a31=(a31+a07);
+  a14=(2.*a14);
+  a31=(a31+a14);
+  a18=(a08*a18);
+  a24=(a24+a18);
+  a18=(a05*a24);
+  a14=(a04-a18);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a14=(a14-a18);
+  a24=sin(a24);
+  a24=(a15*a24);
+  a14=(a14+a24);
+  a14=(a14/a26);
+  a31=(a31+a14);
+  a31=(a27*a31);
+  a10=(a10+a31);
+  a31=(a05*a29);
+  a14=(a04-a31);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a31=(a04+a31);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a21);
+  a14=(a14-a31);
+  a31=sin(a29);
+  a31=(a15*a31);
+  a14=(a14+a31);
+  a14=(a14/a26);
+  a31=(a23*a14);
+  a31=(a10+a31);
+  a24=(2.*a31);
+  a24=(a10+a24);
+  a18=(a23*a10);
+  a18=(a29+a18);
+  a07=(a05*a18);
+  a28=(a04-a07);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a28=(a28-a07);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a28=(a28+a18);
+  a28=(a28/a26);
+  a18=(a23*a28);
+  a18=(a10+a18);
+  a07=(2.*a18);
+  a24=(a24+a07);
+  a31=(a23*a31);
+  a31=(a29+a31);
+  a07=(a05*a31);
+  a25=(a04-a07);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a25=(a25-a07);
+  a31=sin(a31);
+  a31=(a15*a31);
+  a25=(a25+a31);
+  a25=(a25/a26);
+  a31=(a08*a25);
+  a31=(a10+a31);
+  a24=(a24+a31);
+  a24=(a27*a24);
+  a24=(a29+a24);
+  a28=(2.*a28);
+  a14=(a14+a28);
+  a25=(2.*a25);
+  a14=(a14+a25);
+  a18=(a08*a18);
+  a29=(a29+a18);
+  a18=(a05*a29);
+  a25=(a04-a18);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a25=(a25-a18);
+  a29=sin(a29);
+  a29=(a15*a29);
+  a25=(a25+a29);
+  a25=(a25/a26);
+  a14=(a14+a25);
+  a14=(a27*a14);
+  a10=(a10+a14);
+  a14=(a05*a24);
+  a25=(a04-a14);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a25=(a25-a14);
+  a14=sin(a24);
+  a14=(a15*a14);
+  a25=(a25+a14);
+  a25=(a25/a26);
+  a14=(a23*a25);
+  a14=(a10+a14);
+  a29=(2.*a14);
+  a29=(a10+a29);
+  a18=(a23*a10);
+  a18=(a24+a18);
+  a28=(a05*a18);
+  a31=(a04-a28);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a28=(a04+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a21);
+  a31=(a31-a28);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a31=(a31+a18);
+  a31=(a31/a26);
+  a18=(a23*a31);
+  a18=(a10+a18);
+  a28=(2.*a18);
+  a29=(a29+a28);
+  a23=(a23*a14);
+  a23=(a24+a23);
+  a14=(a05*a23);
+  a28=(a04-a14);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a28=(a28-a14);
+  a23=sin(a23);
+  a23=(a15*a23);
+  a28=(a28+a23);
+  a28=(a28/a26);
+  a23=(a08*a28);
+  a23=(a10+a23);
+  a29=(a29+a23);
+  a29=(a27*a29);
+  a29=(a24+a29);
+  if (res[0]!=0) res[0][3]=a29;
+  a31=(2.*a31);
+  a25=(a25+a31);
+  a28=(2.*a28);
+  a25=(a25+a28);
+  a08=(a08*a18);
+  a24=(a24+a08);
+  a05=(a05*a24);
+  a08=(a04-a05);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a02*a08);
+  a08=(a08*a30);
+  a04=(a04+a05);
+  a04=casadi_sq(a04);
+  a04=(a04-a13);
+  a02=(a02*a04);
+  a02=(a02*a21);
+  a08=(a08-a02);
+  a24=sin(a24);
+  a15=(a15*a24);
+  a08=(a08+a15);
+  a08=(a08/a26);
+  a25=(a25+a08);
+  a27=(a27*a25);
+  a10=(a10+a27);
+  if (res[0]!=0) res[0][4]=a10;
+  if (res[0]!=0) res[0][5]=a30;
+  if (res[0]!=0) res[0][6]=a21;
+  a21=arg[2]? arg[2][0] : 0;
+  a01=(a01*a21);
+  if (res[1]!=0) res[1][0]=a01;
+  if (res[1]!=0) res[1][1]=a06;
+  if (res[1]!=0) res[1][2]=a22;
+  if (res[1]!=0) res[1][3]=a09;
+  if (res[1]!=0) res[1][4]=a11;
+  a03=(-a03);
+  if (res[1]!=0) res[1][5]=a03;
+  if (res[1]!=0) res[1][6]=a16;
+  if (res[1]!=0) res[1][7]=a12;
+  if (res[1]!=0) res[1][8]=a20;
+  if (res[1]!=0) res[1][9]=a00;
+  if (res[1]!=0) res[1][10]=a17;
+  if (res[1]!=0) res[1][11]=a19;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_theorem5_closed_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f29(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_theorem5_closed_step_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void gioste_1link_theorem5_closed_step_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void gioste_1link_theorem5_closed_step_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void gioste_1link_theorem5_closed_step_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int gioste_1link_theorem5_closed_step_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int gioste_1link_theorem5_closed_step_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real gioste_1link_theorem5_closed_step_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* gioste_1link_theorem5_closed_step_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "p";
+    case 2: return "k";
+    case 3: return "e";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* gioste_1link_theorem5_closed_step_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_next";
+    case 1: return "y";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_theorem5_closed_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s9;
+    case 1: return casadi_s4;
+    case 2: return casadi_s0;
+    case 3: return casadi_s4;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_theorem5_closed_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s9;
+    case 1: return casadi_s10;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_theorem5_closed_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 2;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_theorem5_closed_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* one_sample:(xa[8],p[6],e[6])->(xa_next[8],y[12]) */
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.0000000000000000e-03;
+  a02=arg[1]? arg[1][4] : 0;
+  a03=-2.8799999999999995e-04;
+  a04=1.7000000000000001e-01;
+  a05=2.9999999999999999e-02;
+  a06=arg[0]? arg[0][3] : 0;
+  a07=(a05*a06);
+  a08=(a04-a07);
+  a03=(a03*a08);
+  a09=arg[0]? arg[0][5] : 0;
+  a03=(a03*a09);
+  a10=2.8799999999999995e-04;
+  a07=(a04+a07);
+  a10=(a10*a07);
+  a11=arg[0]? arg[0][6] : 0;
+  a10=(a10*a11);
+  a03=(a03-a10);
+  a10=arg[2]? arg[2][4] : 0;
+  a10=(a03+a10);
+  a02=(a02*a10);
+  a10=-5.9999999999999998e-02;
+  a10=(a10*a08);
+  a12=casadi_sq(a08);
+  a13=1.9600000000000003e-02;
+  a12=(a12-a13);
+  a14=casadi_sq(a12);
+  a15=casadi_sq(a07);
+  a15=(a15-a13);
+  a16=casadi_sq(a15);
+  a14=(a14+a16);
+  a16=(a12/a14);
+  a17=arg[0]? arg[0][1] : 0;
+  a18=arg[2]? arg[2][3] : 0;
+  a19=arg[1]? arg[1][0] : 0;
+  a20=arg[2]? arg[2][2] : 0;
+  a21=(a19*a20);
+  a18=(a18+a21);
+  a18=(a17*a18);
+  a21=arg[2]? arg[2][1] : 0;
+  a22=arg[0]? arg[0][4] : 0;
+  a23=(a21-a22);
+  a23=(a19*a23);
+  a20=(a20+a23);
+  a23=arg[1]? arg[1][2] : 0;
+  a24=arg[2]? arg[2][0] : 0;
+  a24=(a24-a06);
+  a19=(a19*a24);
+  a21=(a21+a19);
+  a21=(a21-a22);
+  a19=(a20*a21);
+  a23=(a23*a19);
+  a19=(a20*a23);
+  a18=(a18+a19);
+  a19=arg[0]? arg[0][2] : 0;
+  a24=-9.8100000000000005e+00;
+  a25=cos(a06);
+  a25=(a25*a22);
+  a25=(a24*a25);
+  a25=(a19*a25);
+  a26=sin(a06);
+  a24=(a24*a26);
+  a27=arg[1]? arg[1][3] : 0;
+  a28=(a24*a21);
+  a27=(a27*a28);
+  a28=(a24*a27);
+  a25=(a25-a28);
+  a18=(a18-a25);
+  a25=arg[1]? arg[1][1] : 0;
+  a28=(a25*a20);
+  a18=(a18+a28);
+  a28=(a16*a18);
+  a20=(a20*a17);
+  a24=(a24*a19);
+  a20=(a20-a24);
+  a25=(a25*a21);
+  a20=(a20+a25);
+  a08=(2.*a08);
+  a25=(a05*a22);
+  a08=(a08*a25);
+  a21=(a08/a14);
+  a24=(a16/a14);
+  a29=(2.*a15);
+  a30=(2.*a07);
+  a30=(a30*a25);
+  a29=(a29*a30);
+  a25=(2.*a12);
+  a25=(a25*a08);
+  a29=(a29-a25);
+  a24=(a24*a29);
+  a21=(a21+a24);
+  a21=(a20*a21);
+  a28=(a28-a21);
+  a28=(a10*a28);
+  a21=5.9999999999999998e-02;
+  a21=(a21*a07);
+  a07=(a30/a14);
+  a24=(a15/a14);
+  a14=(a24/a14);
+  a14=(a14*a29);
+  a07=(a07-a14);
+  a07=(a20*a07);
+  a18=(a24*a18);
+  a07=(a07+a18);
+  a07=(a21*a07);
+  a28=(a28+a07);
+  a02=(a02+a28);
+  a28=1.8000000000000000e-03;
+  a28=(a28*a22);
+  a24=(a24*a20);
+  a07=(a28*a24);
+  a18=-1.8000000000000000e-03;
+  a18=(a18*a22);
+  a16=(a16*a20);
+  a14=(a18*a16);
+  a07=(a07-a14);
+  a02=(a02+a07);
+  a30=(a10*a30);
+  a08=(a21*a08);
+  a30=(a30+a08);
+  a18=(a18*a15);
+  a28=(a28*a12);
+  a18=(a18+a28);
+  a30=(a30-a18);
+  a30=(a30*a00);
+  a02=(a02+a30);
+  a30=arg[1]? arg[1][5] : 0;
+  a18=arg[2]? arg[2][5] : 0;
+  a30=(a30*a18);
+  a02=(a02+a30);
+  a10=(a10*a15);
+  a21=(a21*a12);
+  a10=(a10-a21);
+  a02=(a02/a10);
+  a02=(a01*a02);
+  a02=(a00-a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a23=(a01*a23);
+  a23=(a17+a23);
+  if (res[0]!=0) res[0][1]=a23;
+  a27=(a01*a27);
+  a27=(a19-a27);
+  if (res[0]!=0) res[0][2]=a27;
+  a27=1.6666666666666667e-05;
+  a23=5.0000000000000002e-05;
+  a02=4.7999999999999996e-03;
+  a10=(a02*a12);
+  a21=(a15*a00);
+  a16=(a16+a21);
+  a21=0.;
+  a30=casadi_fmax(a16,a21);
+  a18=800000.;
+  a30=casadi_fmin(a30,a18);
+  a10=(a10*a30);
+  a15=(a02*a15);
+  a12=(a12*a00);
+  a12=(a12-a24);
+  a21=casadi_fmax(a12,a21);
+  a21=casadi_fmin(a21,a18);
+  a15=(a15*a21);
+  a10=(a10-a15);
+  a15=-7.1220600000000001e-01;
+  a26=(a15*a26);
+  a10=(a10+a26);
+  a26=1.5979000000000000e-02;
+  a10=(a10/a26);
+  a18=(a23*a10);
+  a18=(a22+a18);
+  a24=(2.*a18);
+  a24=(a22+a24);
+  a28=(a23*a22);
+  a28=(a06+a28);
+  a08=(a05*a28);
+  a07=(a04-a08);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a08=(a04+a08);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a02*a08);
+  a08=(a08*a21);
+  a07=(a07-a08);
+  a28=sin(a28);
+  a28=(a15*a28);
+  a07=(a07+a28);
+  a07=(a07/a26);
+  a28=(a23*a07);
+  a28=(a22+a28);
+  a08=(2.*a28);
+  a24=(a24+a08);
+  a08=1.0000000000000000e-04;
+  a18=(a23*a18);
+  a18=(a06+a18);
+  a14=(a05*a18);
+  a29=(a04-a14);
+  a29=casadi_sq(a29);
+  a29=(a29-a13);
+  a29=(a02*a29);
+  a29=(a29*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a29=(a29-a14);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a29=(a29+a18);
+  a29=(a29/a26);
+  a18=(a08*a29);
+  a18=(a22+a18);
+  a24=(a24+a18);
+  a24=(a27*a24);
+  a24=(a06+a24);
+  a07=(2.*a07);
+  a10=(a10+a07);
+  a29=(2.*a29);
+  a10=(a10+a29);
+  a28=(a08*a28);
+  a28=(a06+a28);
+  a29=(a05*a28);
+  a07=(a04-a29);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a29=(a04+a29);
+  a29=casadi_sq(a29);
+  a29=(a29-a13);
+  a29=(a02*a29);
+  a29=(a29*a21);
+  a07=(a07-a29);
+  a28=sin(a28);
+  a28=(a15*a28);
+  a07=(a07+a28);
+  a07=(a07/a26);
+  a10=(a10+a07);
+  a10=(a27*a10);
+  a10=(a22+a10);
+  a07=(a05*a24);
+  a28=(a04-a07);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a28=(a28-a07);
+  a07=sin(a24);
+  a07=(a15*a07);
+  a28=(a28+a07);
+  a28=(a28/a26);
+  a07=(a23*a28);
+  a07=(a10+a07);
+  a29=(2.*a07);
+  a29=(a10+a29);
+  a18=(a23*a10);
+  a18=(a24+a18);
+  a14=(a05*a18);
+  a25=(a04-a14);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a25=(a25-a14);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a25=(a25+a18);
+  a25=(a25/a26);
+  a18=(a23*a25);
+  a18=(a10+a18);
+  a14=(2.*a18);
+  a29=(a29+a14);
+  a07=(a23*a07);
+  a07=(a24+a07);
+  a14=(a05*a07);
+  a31=(a04-a14);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a31=(a31-a14);
+  a07=sin(a07);
+  a07=(a15*a07);
+  a31=(a31+a07);
+  a31=(a31/a26);
+  a07=(a08*a31);
+  a07=(a10+a07);
+  a29=(a29+a07);
+  a29=(a27*a29);
+  a29=(a24+a29);
+  a25=(2.*a25);
+  a28=(a28+a25);
+  a31=(2.*a31);
+  a28=(a28+a31);
+  a18=(a08*a18);
+  a24=(a24+a18);
+  a18=(a05*a24);
+  a31=(a04-a18);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a31=(a31-a18);
+  a24=sin(a24);
+  a24=(a15*a24);
+  a31=(a31+a24);
+  a31=(a31/a26);
+  a28=(a28+a31);
+  a28=(a27*a28);
+  a10=(a10+a28);
+  a28=(a05*a29);
+  a31=(a04-a28);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a28=(a04+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a21);
+  a31=(a31-a28);
+  a28=sin(a29);
+  a28=(a15*a28);
+  a31=(a31+a28);
+  a31=(a31/a26);
+  a28=(a23*a31);
+  a28=(a10+a28);
+  a24=(2.*a28);
+  a24=(a10+a24);
+  a18=(a23*a10);
+  a18=(a29+a18);
+  a25=(a05*a18);
+  a07=(a04-a25);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a21);
+  a07=(a07-a25);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a07=(a07+a18);
+  a07=(a07/a26);
+  a18=(a23*a07);
+  a18=(a10+a18);
+  a25=(2.*a18);
+  a24=(a24+a25);
+  a28=(a23*a28);
+  a28=(a29+a28);
+  a25=(a05*a28);
+  a14=(a04-a25);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a21);
+  a14=(a14-a25);
+  a28=sin(a28);
+  a28=(a15*a28);
+  a14=(a14+a28);
+  a14=(a14/a26);
+  a28=(a08*a14);
+  a28=(a10+a28);
+  a24=(a24+a28);
+  a24=(a27*a24);
+  a24=(a29+a24);
+  a07=(2.*a07);
+  a31=(a31+a07);
+  a14=(2.*a14);
+  a31=(a31+a14);
+  a18=(a08*a18);
+  a29=(a29+a18);
+  a18=(a05*a29);
+  a14=(a04-a18);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a14=(a14-a18);
+  a29=sin(a29);
+  a29=(a15*a29);
+  a14=(a14+a29);
+  a14=(a14/a26);
+  a31=(a31+a14);
+  a31=(a27*a31);
+  a10=(a10+a31);
+  a31=(a05*a24);
+  a14=(a04-a31);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a31=(a04+a31);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a21);
+  a14=(a14-a31);
+  a31=sin(a24);
+  a31=(a15*a31);
+  a14=(a14+a31);
+  a14=(a14/a26);
+  a31=(a23*a14);
+  a31=(a10+a31);
+  a29=(2.*a31);
+  a29=(a10+a29);
+  a18=(a23*a10);
+  a18=(a24+a18);
+  a07=(a05*a18);
+  a28=(a04-a07);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a28=(a28-a07);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a28=(a28+a18);
+  a28=(a28/a26);
+  a18=(a23*a28);
+  a18=(a10+a18);
+  a07=(2.*a18);
+  a29=(a29+a07);
+  a31=(a23*a31);
+  a31=(a24+a31);
+  a07=(a05*a31);
+  a25=(a04-a07);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a25=(a25-a07);
+  a31=sin(a31);
+  a31=(a15*a31);
+  a25=(a25+a31);
+  a25=(a25/a26);
+  a31=(a08*a25);
+  a31=(a10+a31);
+  a29=(a29+a31);
+  a29=(a27*a29);
+  a29=(a24+a29);
+  a28=(2.*a28);
+  a14=(a14+a28);
+  a25=(2.*a25);
+  a14=(a14+a25);
+  a18=(a08*a18);
+  a24=(a24+a18);
+  a18=(a05*a24);
+  a25=(a04-a18);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a25=(a25-a18);
+  a24=sin(a24);
+  a24=(a15*a24);
+  a25=(a25+a24);
+  a25=(a25/a26);
+  a14=(a14+a25);
+  a14=(a27*a14);
+  a10=(a10+a14);
+  a14=(a05*a29);
+  a25=(a04-a14);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a25=(a25-a14);
+  a14=sin(a29);
+  a14=(a15*a14);
+  a25=(a25+a14);
+  a25=(a25/a26);
+  a14=(a23*a25);
+  a14=(a10+a14);
+  a24=(2.*a14);
+  a24=(a10+a24);
+  a18=(a23*a10);
+  a18=(a29+a18);
+  a28=(a05*a18);
+  a31=(a04-a28);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a28=(a04+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a21);
+  a31=(a31-a28);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a31=(a31+a18);
+  a31=(a31/a26);
+  a18=(a23*a31);
+  a18=(a10+a18);
+  a28=(2.*a18);
+  a24=(a24+a28);
+  a14=(a23*a14);
+  a14=(a29+a14);
+  a28=(a05*a14);
+  a07=(a04-a28);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a28=(a04+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a21);
+  a07=(a07-a28);
+  a14=sin(a14);
+  a14=(a15*a14);
+  a07=(a07+a14);
+  a07=(a07/a26);
+  a14=(a08*a07);
+  a14=(a10+a14);
+  a24=(a24+a14);
+  a24=(a27*a24);
+  a24=(a29+a24);
+  a31=(2.*a31);
+  a25=(a25+a31);
+  a07=(2.*a07);
+  a25=(a25+a07);
+  a18=(a08*a18);
+  a29=(a29+a18);
+  a18=(a05*a29);
+  a07=(a04-a18);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a07=(a07-a18);
+  a29=sin(a29);
+  a29=(a15*a29);
+  a07=(a07+a29);
+  a07=(a07/a26);
+  a25=(a25+a07);
+  a25=(a27*a25);
+  a10=(a10+a25);
+  a25=(a05*a24);
+  a07=(a04-a25);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a21);
+  a07=(a07-a25);
+  a25=sin(a24);
+  a25=(a15*a25);
+  a07=(a07+a25);
+  a07=(a07/a26);
+  a25=(a23*a07);
+  a25=(a10+a25);
+  a29=(2.*a25);
+  a29=(a10+a29);
+  a18=(a23*a10);
+  a18=(a24+a18);
+  a31=(a05*a18);
+  a14=(a04-a31);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a31=(a04+a31);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a21);
+  a14=(a14-a31);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a14=(a14+a18);
+  a14=(a14/a26);
+  a18=(a23*a14);
+  a18=(a10+a18);
+  a31=(2.*a18);
+  a29=(a29+a31);
+  a25=(a23*a25);
+  a25=(a24+a25);
+  a31=(a05*a25);
+  a28=(a04-a31);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a31=(a04+a31);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a21);
+  a28=(a28-a31);
+  a25=sin(a25);
+  a25=(a15*a25);
+  a28=(a28+a25);
+  a28=(a28/a26);
+  a25=(a08*a28);
+  a25=(a10+a25);
+  a29=(a29+a25);
+  a29=(a27*a29);
+  a29=(a24+a29);
+  a14=(2.*a14);
+  a07=(a07+a14);
+  a28=(2.*a28);
+  a07=(a07+a28);
+  a18=(a08*a18);
+  a24=(a24+a18);
+  a18=(a05*a24);
+  a28=(a04-a18);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a28=(a28-a18);
+  a24=sin(a24);
+  a24=(a15*a24);
+  a28=(a28+a24);
+  a28=(a28/a26);
+  a07=(a07+a28);
+  a07=(a27*a07);
+  a10=(a10+a07);
+  a07=(a05*a29);
+  a28=(a04-a07);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a28=(a28-a07);
+  a07=sin(a29);
+  a07=(a15*a07);
+  a28=(a28+a07);
+  a28=(a28/a26);
+  a07=(a23*a28);
+  a07=(a10+a07);
+  a24=(2.*a07);
+  a24=(a10+a24);
+  a18=(a23*a10);
+  a18=(a29+a18);
+  a14=(a05*a18);
+  a25=(a04-a14);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a25=(a25-a14);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a25=(a25+a18);
+  a25=(a25/a26);
+  a18=(a23*a25);
+  a18=(a10+a18);
+  a14=(2.*a18);
+  a24=(a24+a14);
+  a07=(a23*a07);
+  a07=(a29+a07);
+  a14=(a05*a07);
+  a31=(a04-a14);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a31=(a31-a14);
+  a07=sin(a07);
+  a07=(a15*a07);
+  a31=(a31+a07);
+  a31=(a31/a26);
+  a07=(a08*a31);
+  a07=(a10+a07);
+  a24=(a24+a07);
+  a24=(a27*a24);
+  a24=(a29+a24);
+  a25=(2.*a25);
+  a28=(a28+a25);
+  a31=(2.*a31);
+  a28=(a28+a31);
+  a18=(a08*a18);
+  a29=(a29+a18);
+  a18=(a05*a29);
+  a31=(a04-a18);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a31=(a31-a18);
+  a29=sin(a29);
+  a29=(a15*a29);
+  a31=(a31+a29);
+  a31=(a31/a26);
+  a28=(a28+a31);
+  a28=(a27*a28);
+  a10=(a10+a28);
+  a28=(a05*a24);
+  a31=(a04-a28);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a28=(a04+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a21);
+  a31=(a31-a28);
+  a28=sin(a24);
+  a28=(a15*a28);
+  a31=(a31+a28);
+  a31=(a31/a26);
+  a28=(a23*a31);
+  a28=(a10+a28);
+  a29=(2.*a28);
+  a29=(a10+a29);
+  a18=(a23*a10);
+  a18=(a24+a18);
+  a25=(a05*a18);
+  a07=(a04-a25);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a30);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a21);
+  a07=(a07-a25);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a07=(a07+a18);
+  a07=(a07/a26);
+  a18=(a23*a07);
+  a18=(a10+a18);
+  a25=(2.*a18);
+  a29=(a29+a25);
+  a28=(a23*a28);
+  a28=(a24+a28);
+  a25=(a05*a28);
+  a14=(a04-a25);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a21);
+  a14=(a14-a25);
+  a28=sin(a28);
+  a28=(a15*a28);
+  a14=(a14+a28);
+  a14=(a14/a26);
+  a28=(a08*a14);
+  a28=(a10+a28);
+  a29=(a29+a28);
+  a29=(a27*a29);
+  a29=(a24+a29);
+  a07=(2.*a07);
+  a31=(a31+a07);
+  a14=(2.*a14);
+  a31=(a31+a14);
+  a18=(a08*a18);
+  a24=(a24+a18);
+  a18=(a05*a24);
+  a14=(a04-a18);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a14=(a14-a18);
+  a24=sin(a24);
+  a24=(a15*a24);
+  a14=(a14+a24);
+  a14=(a14/a26);
+  a31=(a31+a14);
+  a31=(a27*a31);
+  a10=(a10+a31);
+  a31=(a05*a29);
+  a14=(a04-a31);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a30);
+  a31=(a04+a31);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a21);
+  a14=(a14-a31);
+  a31=sin(a29);
+  a31=(a15*a31);
+  a14=(a14+a31);
+  a14=(a14/a26);
+  a31=(a23*a14);
+  a31=(a10+a31);
+  a24=(2.*a31);
+  a24=(a10+a24);
+  a18=(a23*a10);
+  a18=(a29+a18);
+  a07=(a05*a18);
+  a28=(a04-a07);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a28=(a28-a07);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a28=(a28+a18);
+  a28=(a28/a26);
+  a18=(a23*a28);
+  a18=(a10+a18);
+  a07=(2.*a18);
+  a24=(a24+a07);
+  a31=(a23*a31);
+  a31=(a29+a31);
+  a07=(a05*a31);
+  a25=(a04-a07);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a02*a07);
+  a07=(a07*a21);
+  a25=(a25-a07);
+  a31=sin(a31);
+  a31=(a15*a31);
+  a25=(a25+a31);
+  a25=(a25/a26);
+  a31=(a08*a25);
+  a31=(a10+a31);
+  a24=(a24+a31);
+  a24=(a27*a24);
+  a24=(a29+a24);
+  a28=(2.*a28);
+  a14=(a14+a28);
+  a25=(2.*a25);
+  a14=(a14+a25);
+  a18=(a08*a18);
+  a29=(a29+a18);
+  a18=(a05*a29);
+  a25=(a04-a18);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a18=(a04+a18);
+  a18=casadi_sq(a18);
+  a18=(a18-a13);
+  a18=(a02*a18);
+  a18=(a18*a21);
+  a25=(a25-a18);
+  a29=sin(a29);
+  a29=(a15*a29);
+  a25=(a25+a29);
+  a25=(a25/a26);
+  a14=(a14+a25);
+  a14=(a27*a14);
+  a10=(a10+a14);
+  a14=(a05*a24);
+  a25=(a04-a14);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a02*a25);
+  a25=(a25*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a25=(a25-a14);
+  a14=sin(a24);
+  a14=(a15*a14);
+  a25=(a25+a14);
+  a25=(a25/a26);
+  a14=(a23*a25);
+  a14=(a10+a14);
+  a29=(2.*a14);
+  a29=(a10+a29);
+  a18=(a23*a10);
+  a18=(a24+a18);
+  a28=(a05*a18);
+  a31=(a04-a28);
+  a31=casadi_sq(a31);
+  a31=(a31-a13);
+  a31=(a02*a31);
+  a31=(a31*a30);
+  a28=(a04+a28);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a21);
+  a31=(a31-a28);
+  a18=sin(a18);
+  a18=(a15*a18);
+  a31=(a31+a18);
+  a31=(a31/a26);
+  a18=(a23*a31);
+  a18=(a10+a18);
+  a28=(2.*a18);
+  a29=(a29+a28);
+  a23=(a23*a14);
+  a23=(a24+a23);
+  a14=(a05*a23);
+  a28=(a04-a14);
+  a28=casadi_sq(a28);
+  a28=(a28-a13);
+  a28=(a02*a28);
+  a28=(a28*a30);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a02*a14);
+  a14=(a14*a21);
+  a28=(a28-a14);
+  a23=sin(a23);
+  a23=(a15*a23);
+  a28=(a28+a23);
+  a28=(a28/a26);
+  a23=(a08*a28);
+  a23=(a10+a23);
+  a29=(a29+a23);
+  a29=(a27*a29);
+  a29=(a24+a29);
+  if (res[0]!=0) res[0][3]=a29;
+  a31=(2.*a31);
+  a25=(a25+a31);
+  a28=(2.*a28);
+  a25=(a25+a28);
+  a08=(a08*a18);
+  a24=(a24+a08);
+  a05=(a05*a24);
+  a08=(a04-a05);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a02*a08);
+  a08=(a08*a30);
+  a04=(a04+a05);
+  a04=casadi_sq(a04);
+  a04=(a04-a13);
+  a02=(a02*a04);
+  a02=(a02*a21);
+  a08=(a08-a02);
+  a24=sin(a24);
+  a15=(a15*a24);
+  a08=(a08+a15);
+  a08=(a08/a26);
+  a25=(a25+a08);
+  a27=(a27*a25);
+  a10=(a10+a27);
+  if (res[0]!=0) res[0][4]=a10;
+  if (res[0]!=0) res[0][5]=a30;
+  if (res[0]!=0) res[0][6]=a21;
+  a21=arg[0]? arg[0][7] : 0;
+  a30=1.;
+  a30=(a21+a30);
+  if (res[0]!=0) res[0][7]=a30;
+  a01=(a01*a21);
+  if (res[1]!=0) res[1][0]=a01;
+  if (res[1]!=0) res[1][1]=a06;
+  if (res[1]!=0) res[1][2]=a22;
+  if (res[1]!=0) res[1][3]=a09;
+  if (res[1]!=0) res[1][4]=a11;
+  a03=(-a03);
+  if (res[1]!=0) res[1][5]=a03;
+  if (res[1]!=0) res[1][6]=a16;
+  if (res[1]!=0) res[1][7]=a12;
+  if (res[1]!=0) res[1][8]=a20;
+  if (res[1]!=0) res[1][9]=a00;
+  if (res[1]!=0) res[1][10]=a17;
+  if (res[1]!=0) res[1][11]=a19;
+  return 0;
+}
+
+/* one_sample_acc10:(xa[8],p[6x10],e[6x10])->(xa_next[8x10],y[12x10]) */
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+32, *w01=w+40, *w02=w+46, *w03=w+52, *w04=w+60, *w05=w+72, *w06=w+84, *w07=w+96, *w08=w+108, *w09=w+120, *w10=w+132;
+  casadi_real *w11=w+144, *w12=w+156, *w13=w+168;
+  const casadi_real **arg1=arg+3, *wr00;
+  /* #0: @0 = input[0][0] */
+  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 6, w01);
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 6, w02);
+  /* #3: {@3, @4} = one_sample(@0, @1, @2) */
+  arg1[0]=wr00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 8, res[0]);
+  /* #5: @1 = input[1][1] */
+  casadi_copy(arg[1] ? arg[1]+6 : 0, 6, w01);
+  /* #6: @2 = input[2][1] */
+  casadi_copy(arg[2] ? arg[2]+6 : 0, 6, w02);
+  /* #7: {@0, @5} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w05;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #8: output[0][1] = @0 */
+  if (res[0]) casadi_copy(w00, 8, res[0]+8);
+  /* #9: @1 = input[1][2] */
+  casadi_copy(arg[1] ? arg[1]+12 : 0, 6, w01);
+  /* #10: @2 = input[2][2] */
+  casadi_copy(arg[2] ? arg[2]+12 : 0, 6, w02);
+  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #12: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 8, res[0]+16);
+  /* #13: @1 = input[1][3] */
+  casadi_copy(arg[1] ? arg[1]+18 : 0, 6, w01);
+  /* #14: @2 = input[2][3] */
+  casadi_copy(arg[2] ? arg[2]+18 : 0, 6, w02);
+  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w07;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #16: output[0][3] = @0 */
+  if (res[0]) casadi_copy(w00, 8, res[0]+24);
+  /* #17: @1 = input[1][4] */
+  casadi_copy(arg[1] ? arg[1]+24 : 0, 6, w01);
+  /* #18: @2 = input[2][4] */
+  casadi_copy(arg[2] ? arg[2]+24 : 0, 6, w02);
+  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #20: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 8, res[0]+32);
+  /* #21: @1 = input[1][5] */
+  casadi_copy(arg[1] ? arg[1]+30 : 0, 6, w01);
+  /* #22: @2 = input[2][5] */
+  casadi_copy(arg[2] ? arg[2]+30 : 0, 6, w02);
+  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w09;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][5] = @0 */
+  if (res[0]) casadi_copy(w00, 8, res[0]+40);
+  /* #25: @1 = input[1][6] */
+  casadi_copy(arg[1] ? arg[1]+36 : 0, 6, w01);
+  /* #26: @2 = input[2][6] */
+  casadi_copy(arg[2] ? arg[2]+36 : 0, 6, w02);
+  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #28: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 8, res[0]+48);
+  /* #29: @1 = input[1][7] */
+  casadi_copy(arg[1] ? arg[1]+42 : 0, 6, w01);
+  /* #30: @2 = input[2][7] */
+  casadi_copy(arg[2] ? arg[2]+42 : 0, 6, w02);
+  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w11;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #32: output[0][7] = @0 */
+  if (res[0]) casadi_copy(w00, 8, res[0]+56);
+  /* #33: @1 = input[1][8] */
+  casadi_copy(arg[1] ? arg[1]+48 : 0, 6, w01);
+  /* #34: @2 = input[2][8] */
+  casadi_copy(arg[2] ? arg[2]+48 : 0, 6, w02);
+  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #36: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 8, res[0]+64);
+  /* #37: @1 = input[1][9] */
+  casadi_copy(arg[1] ? arg[1]+54 : 0, 6, w01);
+  /* #38: @2 = input[2][9] */
+  casadi_copy(arg[2] ? arg[2]+54 : 0, 6, w02);
+  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w13;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #40: output[0][9] = @0 */
+  if (res[0]) casadi_copy(w00, 8, res[0]+72);
+  /* #41: output[1][0] = @4 */
+  casadi_copy(w04, 12, res[1]);
+  /* #42: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 12, res[1]+12);
+  /* #43: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 12, res[1]+24);
+  /* #44: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 12, res[1]+36);
+  /* #45: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 12, res[1]+48);
+  /* #46: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 12, res[1]+60);
+  /* #47: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 12, res[1]+72);
+  /* #48: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 12, res[1]+84);
+  /* #49: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 12, res[1]+96);
+  /* #50: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 12, res[1]+108);
+  return 0;
+}
+
+/* one_sample_acc10_acc10:(xa[8],p[6x100],e[6x100])->(xa_next[8x100],y[12x100]) */
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+180, *w03=w+188, *w04=w+268, *w05=w+388, *w06=w+508, *w07=w+628, *w08=w+748, *w09=w+868, *w10=w+988, *w11=w+1108, *w12=w+1228;
+  casadi_real *w13=w+1348;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  /* #0: @0 = input[0][0] */
+  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=wr00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 80, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+72, 8, w00);
+  /* #6: @1 = input[1][1] */
+  wr01 = arg[1] ? arg[1]+60 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w05;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w03, 80, res[0]+80);
+  /* #10: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+72, 8, w00);
+  /* #11: @1 = input[1][2] */
+  wr01 = arg[1] ? arg[1]+120 : casadi_zeros;
+  /* #12: @2 = input[2][2] */
+  wr02 = arg[2] ? arg[2]+120 : casadi_zeros;
+  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 80, res[0]+160);
+  /* #15: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+72, 8, w00);
+  /* #16: @1 = input[1][3] */
+  wr01 = arg[1] ? arg[1]+180 : casadi_zeros;
+  /* #17: @2 = input[2][3] */
+  wr02 = arg[2] ? arg[2]+180 : casadi_zeros;
+  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w07;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @3 */
+  if (res[0]) casadi_copy(w03, 80, res[0]+240);
+  /* #20: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+72, 8, w00);
+  /* #21: @1 = input[1][4] */
+  wr01 = arg[1] ? arg[1]+240 : casadi_zeros;
+  /* #22: @2 = input[2][4] */
+  wr02 = arg[2] ? arg[2]+240 : casadi_zeros;
+  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 80, res[0]+320);
+  /* #25: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+72, 8, w00);
+  /* #26: @1 = input[1][5] */
+  wr01 = arg[1] ? arg[1]+300 : casadi_zeros;
+  /* #27: @2 = input[2][5] */
+  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
+  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w09;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @3 */
+  if (res[0]) casadi_copy(w03, 80, res[0]+400);
+  /* #30: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+72, 8, w00);
+  /* #31: @1 = input[1][6] */
+  wr01 = arg[1] ? arg[1]+360 : casadi_zeros;
+  /* #32: @2 = input[2][6] */
+  wr02 = arg[2] ? arg[2]+360 : casadi_zeros;
+  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #34: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 80, res[0]+480);
+  /* #35: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+72, 8, w00);
+  /* #36: @1 = input[1][7] */
+  wr01 = arg[1] ? arg[1]+420 : casadi_zeros;
+  /* #37: @2 = input[2][7] */
+  wr02 = arg[2] ? arg[2]+420 : casadi_zeros;
+  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w11;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #39: output[0][7] = @3 */
+  if (res[0]) casadi_copy(w03, 80, res[0]+560);
+  /* #40: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+72, 8, w00);
+  /* #41: @1 = input[1][8] */
+  wr01 = arg[1] ? arg[1]+480 : casadi_zeros;
+  /* #42: @2 = input[2][8] */
+  wr02 = arg[2] ? arg[2]+480 : casadi_zeros;
+  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #44: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 80, res[0]+640);
+  /* #45: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+72, 8, w00);
+  /* #46: @1 = input[1][9] */
+  wr01 = arg[1] ? arg[1]+540 : casadi_zeros;
+  /* #47: @2 = input[2][9] */
+  wr02 = arg[2] ? arg[2]+540 : casadi_zeros;
+  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w13;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #49: output[0][9] = @3 */
+  if (res[0]) casadi_copy(w03, 80, res[0]+720);
+  /* #50: output[1][0] = @4 */
+  casadi_copy(w04, 120, res[1]);
+  /* #51: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 120, res[1]+120);
+  /* #52: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 120, res[1]+240);
+  /* #53: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 120, res[1]+360);
+  /* #54: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 120, res[1]+480);
+  /* #55: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 120, res[1]+600);
+  /* #56: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 120, res[1]+720);
+  /* #57: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 120, res[1]+840);
+  /* #58: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 120, res[1]+960);
+  /* #59: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 120, res[1]+1080);
+  return 0;
+}
+
+/* one_sample_acc10_acc10_acc10:(xa[8],p[6x1000],e[6x1000])->(xa_next[8x1000],y[12x1000]) */
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+1588, *w03=w+1596, *w04=w+2396, *w05=w+3596, *w06=w+4796, *w07=w+5996, *w08=w+7196, *w09=w+8396, *w10=w+9596, *w11=w+10796, *w12=w+11996;
+  casadi_real *w13=w+13196;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  /* #0: @0 = input[0][0] */
+  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=wr00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 800, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+792, 8, w00);
+  /* #6: @1 = input[1][1] */
+  wr01 = arg[1] ? arg[1]+600 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w05;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w03, 800, res[0]+800);
+  /* #10: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+792, 8, w00);
+  /* #11: @1 = input[1][2] */
+  wr01 = arg[1] ? arg[1]+1200 : casadi_zeros;
+  /* #12: @2 = input[2][2] */
+  wr02 = arg[2] ? arg[2]+1200 : casadi_zeros;
+  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 800, res[0]+1600);
+  /* #15: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+792, 8, w00);
+  /* #16: @1 = input[1][3] */
+  wr01 = arg[1] ? arg[1]+1800 : casadi_zeros;
+  /* #17: @2 = input[2][3] */
+  wr02 = arg[2] ? arg[2]+1800 : casadi_zeros;
+  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w07;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @3 */
+  if (res[0]) casadi_copy(w03, 800, res[0]+2400);
+  /* #20: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+792, 8, w00);
+  /* #21: @1 = input[1][4] */
+  wr01 = arg[1] ? arg[1]+2400 : casadi_zeros;
+  /* #22: @2 = input[2][4] */
+  wr02 = arg[2] ? arg[2]+2400 : casadi_zeros;
+  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 800, res[0]+3200);
+  /* #25: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+792, 8, w00);
+  /* #26: @1 = input[1][5] */
+  wr01 = arg[1] ? arg[1]+3000 : casadi_zeros;
+  /* #27: @2 = input[2][5] */
+  wr02 = arg[2] ? arg[2]+3000 : casadi_zeros;
+  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w09;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @3 */
+  if (res[0]) casadi_copy(w03, 800, res[0]+4000);
+  /* #30: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+792, 8, w00);
+  /* #31: @1 = input[1][6] */
+  wr01 = arg[1] ? arg[1]+3600 : casadi_zeros;
+  /* #32: @2 = input[2][6] */
+  wr02 = arg[2] ? arg[2]+3600 : casadi_zeros;
+  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #34: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 800, res[0]+4800);
+  /* #35: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+792, 8, w00);
+  /* #36: @1 = input[1][7] */
+  wr01 = arg[1] ? arg[1]+4200 : casadi_zeros;
+  /* #37: @2 = input[2][7] */
+  wr02 = arg[2] ? arg[2]+4200 : casadi_zeros;
+  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w11;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #39: output[0][7] = @3 */
+  if (res[0]) casadi_copy(w03, 800, res[0]+5600);
+  /* #40: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+792, 8, w00);
+  /* #41: @1 = input[1][8] */
+  wr01 = arg[1] ? arg[1]+4800 : casadi_zeros;
+  /* #42: @2 = input[2][8] */
+  wr02 = arg[2] ? arg[2]+4800 : casadi_zeros;
+  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #44: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 800, res[0]+6400);
+  /* #45: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+792, 8, w00);
+  /* #46: @1 = input[1][9] */
+  wr01 = arg[1] ? arg[1]+5400 : casadi_zeros;
+  /* #47: @2 = input[2][9] */
+  wr02 = arg[2] ? arg[2]+5400 : casadi_zeros;
+  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w13;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #49: output[0][9] = @3 */
+  if (res[0]) casadi_copy(w03, 800, res[0]+7200);
+  /* #50: output[1][0] = @4 */
+  casadi_copy(w04, 1200, res[1]);
+  /* #51: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 1200, res[1]+1200);
+  /* #52: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 1200, res[1]+2400);
+  /* #53: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 1200, res[1]+3600);
+  /* #54: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 1200, res[1]+4800);
+  /* #55: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 1200, res[1]+6000);
+  /* #56: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 1200, res[1]+7200);
+  /* #57: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 1200, res[1]+8400);
+  /* #58: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 1200, res[1]+9600);
+  /* #59: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 1200, res[1]+10800);
+  return 0;
+}
+
+/* gioste_1link_theorem5_closed_loop:(x0[7],p[6],k0,e[6x1000])->(x[7x1000],y[12x1000]) */
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+2, *rr, *w0=w+15596, w1, *w2=w+15603, *w3=w+15611, *w4=w+15617, *w6=w+21617, *w7=w+29617, *w8=w+41617;
+  const casadi_real **arg1=arg+4, *cs, *ct, *wr5;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 7, w0);
+  /* #1: @1 = input[2][0] */
+  w1 = arg[2] ? arg[2][0] : 0;
+  /* #2: @2 = vertcat(@0, @1) */
+  rr=w2;
+  for (i=0, cs=w0; i<7; ++i) *rr++ = *cs++;
+  *rr++ = w1;
+  /* #3: @3 = input[1][0] */
+  casadi_copy(arg[1], 6, w3);
+  /* #4: @4 = repmat(@3, 1000) */
+  for (i=0;i<1000;++i) {
+    casadi_copy(w3, 6, w4+ i*6);
+  }
+  /* #5: @5 = input[3][0] */
+  wr5 = arg[3] ? arg[3] : casadi_zeros;
+  /* #6: {@6, @7} = one_sample_acc10_acc10_acc10(@2, @4, @5) */
+  arg1[0]=w2;
+  arg1[1]=w4;
+  arg1[2]=wr5;
+  res1[0]=w6;
+  res1[1]=w7;
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  /* #7: @8 = @6[:8000:8;:7] */
+  for (rr=w8, cs=w6+0; cs!=w6+8000; cs+=8) for (ct=cs+0; ct!=cs+7; ct+=1) *rr++ = *ct;
+  /* #8: output[0][0] = @8 */
+  casadi_copy(w8, 7000, res[0]);
+  /* #9: output[1][0] = @7 */
+  casadi_copy(w7, 12000, res[1]);
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_theorem5_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f30(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_theorem5_closed_loop_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void gioste_1link_theorem5_closed_loop_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void gioste_1link_theorem5_closed_loop_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void gioste_1link_theorem5_closed_loop_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int gioste_1link_theorem5_closed_loop_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int gioste_1link_theorem5_closed_loop_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real gioste_1link_theorem5_closed_loop_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* gioste_1link_theorem5_closed_loop_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x0";
+    case 1: return "p";
+    case 2: return "k0";
+    case 3: return "e";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* gioste_1link_theorem5_closed_loop_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "y";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_theorem5_closed_loop_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s9;
+    case 1: return casadi_s4;
+    case 2: return casadi_s0;
+    case 3: return casadi_s8;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_theorem5_closed_loop_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s11;
+    case 1: return casadi_s12;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_theorem5_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 16;
+  if (sz_res) *sz_res = 10;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 48617;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int gioste_1link_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 16*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 10*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 48617*sizeof(casadi_real);
+  return 0;
+}
+
 /* gioste_1link_feedback_linearization:(x[4],ref[6],pi[2],K,T_p[2],kq0,kq1,kq2,ks0)->(p_c[2],qdd,sigma,v[2],L[2],E[2x2]) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26;
@@ -6327,7 +9097,7 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f28(arg, res, iw, w, mem);
+  return casadi_f35(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_feedback_linearization_checkout(void) {
@@ -6382,7 +9152,7 @@ CASADI_SYMBOL_EXPORT const char* gioste_1link_feedback_linearization_name_out(ca
 
 CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_feedback_linearization_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s9;
+    case 0: return casadi_s5;
     case 1: return casadi_s4;
     case 2: return casadi_s2;
     case 3: return casadi_s0;
@@ -6402,7 +9172,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_feedback_linearization_spars
     case 2: return casadi_s0;
     case 3: return casadi_s2;
     case 4: return casadi_s2;
-    case 5: return casadi_s10;
+    case 5: return casadi_s13;
     default: return 0;
   }
 }
@@ -6424,7 +9194,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_feedback_linearization_work_bytes(casadi_i
 }
 
 /* gioste_1link_fl_lie:(x[4],p_c[2],pi[2],K,T_p[2])->(L[2],E[2x2],y_rate[2]) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15;
   a00=arg[2]? arg[2][1] : 0;
@@ -6520,7 +9290,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_fl_lie(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f36(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_fl_lie_checkout(void) {
@@ -6568,7 +9338,7 @@ CASADI_SYMBOL_EXPORT const char* gioste_1link_fl_lie_name_out(casadi_int i) {
 
 CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_fl_lie_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s9;
+    case 0: return casadi_s5;
     case 1: return casadi_s2;
     case 2: return casadi_s2;
     case 3: return casadi_s0;
@@ -6580,7 +9350,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_fl_lie_sparsity_in(casadi_in
 CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_fl_lie_sparsity_out(casadi_int i) {
   switch (i) {
     case 0: return casadi_s2;
-    case 1: return casadi_s10;
+    case 1: return casadi_s13;
     case 2: return casadi_s2;
     default: return 0;
   }
@@ -6603,7 +9373,7 @@ CASADI_SYMBOL_EXPORT int gioste_1link_fl_lie_work_bytes(casadi_int *sz_arg, casa
 }
 
 /* gioste_1link_pneumatic_estimator_step:(state[53],y[3])->(state_next[53],sigma_hat,tau_hat,tau_uio,updating) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -8002,7 +10772,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f30(arg, res, iw, w, mem);
+  return casadi_f37(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_pneumatic_estimator_step_checkout(void) {
@@ -8049,7 +10819,7 @@ CASADI_SYMBOL_EXPORT const char* gioste_1link_pneumatic_estimator_step_name_out(
 
 CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_pneumatic_estimator_step_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s11;
+    case 0: return casadi_s14;
     case 1: return casadi_s3;
     default: return 0;
   }
@@ -8057,7 +10827,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_pneumatic_estimator_step_spa
 
 CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_pneumatic_estimator_step_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s11;
+    case 0: return casadi_s14;
     case 1: return casadi_s0;
     case 2: return casadi_s0;
     case 3: return casadi_s0;

@@ -233,6 +233,24 @@ int gioste_2link_slotine_li_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, c
 #define gioste_2link_slotine_li_SZ_RES 2
 #define gioste_2link_slotine_li_SZ_IW 0
 #define gioste_2link_slotine_li_SZ_W 0
+int gioste_2link_slotine_li_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int gioste_2link_slotine_li_step_checkout(void);
+void gioste_2link_slotine_li_step_release(int mem);
+void gioste_2link_slotine_li_step_incref(void);
+void gioste_2link_slotine_li_step_decref(void);
+casadi_int gioste_2link_slotine_li_step_n_in(void);
+casadi_int gioste_2link_slotine_li_step_n_out(void);
+casadi_real gioste_2link_slotine_li_step_default_in(casadi_int i);
+const char* gioste_2link_slotine_li_step_name_in(casadi_int i);
+const char* gioste_2link_slotine_li_step_name_out(casadi_int i);
+const casadi_int* gioste_2link_slotine_li_step_sparsity_in(casadi_int i);
+const casadi_int* gioste_2link_slotine_li_step_sparsity_out(casadi_int i);
+int gioste_2link_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int gioste_2link_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define gioste_2link_slotine_li_step_SZ_ARG 4
+#define gioste_2link_slotine_li_step_SZ_RES 2
+#define gioste_2link_slotine_li_step_SZ_IW 0
+#define gioste_2link_slotine_li_step_SZ_W 0
 int gioste_2link_slotine_li_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int gioste_2link_slotine_li_loop_checkout(void);
 void gioste_2link_slotine_li_loop_release(int mem);
@@ -247,10 +265,10 @@ const casadi_int* gioste_2link_slotine_li_loop_sparsity_in(casadi_int i);
 const casadi_int* gioste_2link_slotine_li_loop_sparsity_out(casadi_int i);
 int gioste_2link_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int gioste_2link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define gioste_2link_slotine_li_loop_SZ_ARG 31
-#define gioste_2link_slotine_li_loop_SZ_RES 11
+#define gioste_2link_slotine_li_loop_SZ_ARG 16
+#define gioste_2link_slotine_li_loop_SZ_RES 10
 #define gioste_2link_slotine_li_loop_SZ_IW 0
-#define gioste_2link_slotine_li_loop_SZ_W 30097
+#define gioste_2link_slotine_li_loop_SZ_W 47182
 int gioste_2link_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int gioste_2link_mckibben_torque_checkout(void);
 void gioste_2link_mckibben_torque_release(int mem);
@@ -449,6 +467,42 @@ int gioste_2link_corollary2_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, c
 #define gioste_2link_corollary2_SZ_RES 4
 #define gioste_2link_corollary2_SZ_IW 0
 #define gioste_2link_corollary2_SZ_W 0
+int gioste_2link_theorem5_closed_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int gioste_2link_theorem5_closed_step_checkout(void);
+void gioste_2link_theorem5_closed_step_release(int mem);
+void gioste_2link_theorem5_closed_step_incref(void);
+void gioste_2link_theorem5_closed_step_decref(void);
+casadi_int gioste_2link_theorem5_closed_step_n_in(void);
+casadi_int gioste_2link_theorem5_closed_step_n_out(void);
+casadi_real gioste_2link_theorem5_closed_step_default_in(casadi_int i);
+const char* gioste_2link_theorem5_closed_step_name_in(casadi_int i);
+const char* gioste_2link_theorem5_closed_step_name_out(casadi_int i);
+const casadi_int* gioste_2link_theorem5_closed_step_sparsity_in(casadi_int i);
+const casadi_int* gioste_2link_theorem5_closed_step_sparsity_out(casadi_int i);
+int gioste_2link_theorem5_closed_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int gioste_2link_theorem5_closed_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define gioste_2link_theorem5_closed_step_SZ_ARG 4
+#define gioste_2link_theorem5_closed_step_SZ_RES 2
+#define gioste_2link_theorem5_closed_step_SZ_IW 0
+#define gioste_2link_theorem5_closed_step_SZ_W 0
+int gioste_2link_theorem5_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int gioste_2link_theorem5_closed_loop_checkout(void);
+void gioste_2link_theorem5_closed_loop_release(int mem);
+void gioste_2link_theorem5_closed_loop_incref(void);
+void gioste_2link_theorem5_closed_loop_decref(void);
+casadi_int gioste_2link_theorem5_closed_loop_n_in(void);
+casadi_int gioste_2link_theorem5_closed_loop_n_out(void);
+casadi_real gioste_2link_theorem5_closed_loop_default_in(casadi_int i);
+const char* gioste_2link_theorem5_closed_loop_name_in(casadi_int i);
+const char* gioste_2link_theorem5_closed_loop_name_out(casadi_int i);
+const casadi_int* gioste_2link_theorem5_closed_loop_sparsity_in(casadi_int i);
+const casadi_int* gioste_2link_theorem5_closed_loop_sparsity_out(casadi_int i);
+int gioste_2link_theorem5_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int gioste_2link_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define gioste_2link_theorem5_closed_loop_SZ_ARG 16
+#define gioste_2link_theorem5_closed_loop_SZ_RES 10
+#define gioste_2link_theorem5_closed_loop_SZ_IW 0
+#define gioste_2link_theorem5_closed_loop_SZ_W 99330
 int gioste_2link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int gioste_2link_feedback_linearization_checkout(void);
 void gioste_2link_feedback_linearization_release(int mem);

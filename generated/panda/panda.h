@@ -233,6 +233,24 @@ int panda_slotine_li_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_i
 #define panda_slotine_li_SZ_RES 2
 #define panda_slotine_li_SZ_IW 0
 #define panda_slotine_li_SZ_W 0
+int panda_slotine_li_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int panda_slotine_li_step_checkout(void);
+void panda_slotine_li_step_release(int mem);
+void panda_slotine_li_step_incref(void);
+void panda_slotine_li_step_decref(void);
+casadi_int panda_slotine_li_step_n_in(void);
+casadi_int panda_slotine_li_step_n_out(void);
+casadi_real panda_slotine_li_step_default_in(casadi_int i);
+const char* panda_slotine_li_step_name_in(casadi_int i);
+const char* panda_slotine_li_step_name_out(casadi_int i);
+const casadi_int* panda_slotine_li_step_sparsity_in(casadi_int i);
+const casadi_int* panda_slotine_li_step_sparsity_out(casadi_int i);
+int panda_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int panda_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define panda_slotine_li_step_SZ_ARG 4
+#define panda_slotine_li_step_SZ_RES 2
+#define panda_slotine_li_step_SZ_IW 0
+#define panda_slotine_li_step_SZ_W 0
 int panda_slotine_li_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int panda_slotine_li_loop_checkout(void);
 void panda_slotine_li_loop_release(int mem);
@@ -247,10 +265,10 @@ const casadi_int* panda_slotine_li_loop_sparsity_in(casadi_int i);
 const casadi_int* panda_slotine_li_loop_sparsity_out(casadi_int i);
 int panda_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int panda_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define panda_slotine_li_loop_SZ_ARG 31
-#define panda_slotine_li_loop_SZ_RES 11
+#define panda_slotine_li_loop_SZ_ARG 16
+#define panda_slotine_li_loop_SZ_RES 10
 #define panda_slotine_li_loop_SZ_IW 0
-#define panda_slotine_li_loop_SZ_W 159678
+#define panda_slotine_li_loop_SZ_W 268077
 void panda_casadi_version(int* major, int* minor, int* patch);
 int panda_casadi_int_size(void);
 int panda_casadi_real_size(void);

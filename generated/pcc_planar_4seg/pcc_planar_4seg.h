@@ -269,6 +269,24 @@ int pcc_planar_4seg_theorem10_step_work_bytes(casadi_int *sz_arg, casadi_int* sz
 #define pcc_planar_4seg_theorem10_step_SZ_RES 3
 #define pcc_planar_4seg_theorem10_step_SZ_IW 0
 #define pcc_planar_4seg_theorem10_step_SZ_W 0
+int pcc_planar_4seg_theorem10_closed_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pcc_planar_4seg_theorem10_closed_step_checkout(void);
+void pcc_planar_4seg_theorem10_closed_step_release(int mem);
+void pcc_planar_4seg_theorem10_closed_step_incref(void);
+void pcc_planar_4seg_theorem10_closed_step_decref(void);
+casadi_int pcc_planar_4seg_theorem10_closed_step_n_in(void);
+casadi_int pcc_planar_4seg_theorem10_closed_step_n_out(void);
+casadi_real pcc_planar_4seg_theorem10_closed_step_default_in(casadi_int i);
+const char* pcc_planar_4seg_theorem10_closed_step_name_in(casadi_int i);
+const char* pcc_planar_4seg_theorem10_closed_step_name_out(casadi_int i);
+const casadi_int* pcc_planar_4seg_theorem10_closed_step_sparsity_in(casadi_int i);
+const casadi_int* pcc_planar_4seg_theorem10_closed_step_sparsity_out(casadi_int i);
+int pcc_planar_4seg_theorem10_closed_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pcc_planar_4seg_theorem10_closed_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pcc_planar_4seg_theorem10_closed_step_SZ_ARG 4
+#define pcc_planar_4seg_theorem10_closed_step_SZ_RES 2
+#define pcc_planar_4seg_theorem10_closed_step_SZ_IW 0
+#define pcc_planar_4seg_theorem10_closed_step_SZ_W 0
 int pcc_planar_4seg_theorem10_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_theorem10_closed_loop_checkout(void);
 void pcc_planar_4seg_theorem10_closed_loop_release(int mem);
@@ -283,10 +301,10 @@ const casadi_int* pcc_planar_4seg_theorem10_closed_loop_sparsity_in(casadi_int i
 const casadi_int* pcc_planar_4seg_theorem10_closed_loop_sparsity_out(casadi_int i);
 int pcc_planar_4seg_theorem10_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int pcc_planar_4seg_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pcc_planar_4seg_theorem10_closed_loop_SZ_ARG 19
-#define pcc_planar_4seg_theorem10_closed_loop_SZ_RES 6
+#define pcc_planar_4seg_theorem10_closed_loop_SZ_ARG 16
+#define pcc_planar_4seg_theorem10_closed_loop_SZ_RES 10
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_IW 0
-#define pcc_planar_4seg_theorem10_closed_loop_SZ_W 553
+#define pcc_planar_4seg_theorem10_closed_loop_SZ_W 194651
 int pcc_planar_4seg_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_plant_checkout(void);
 void pcc_planar_4seg_plant_release(int mem);

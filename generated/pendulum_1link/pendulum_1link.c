@@ -55,6 +55,13 @@ extern "C" {
 #define casadi_f29 CASADI_PREFIX(f29)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f30 CASADI_PREFIX(f30)
+#define casadi_f31 CASADI_PREFIX(f31)
+#define casadi_f32 CASADI_PREFIX(f32)
+#define casadi_f33 CASADI_PREFIX(f33)
+#define casadi_f34 CASADI_PREFIX(f34)
+#define casadi_f35 CASADI_PREFIX(f35)
+#define casadi_f36 CASADI_PREFIX(f36)
+#define casadi_f37 CASADI_PREFIX(f37)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
@@ -68,6 +75,12 @@ extern "C" {
 #define casadi_s10 CASADI_PREFIX(s10)
 #define casadi_s11 CASADI_PREFIX(s11)
 #define casadi_s12 CASADI_PREFIX(s12)
+#define casadi_s13 CASADI_PREFIX(s13)
+#define casadi_s14 CASADI_PREFIX(s14)
+#define casadi_s15 CASADI_PREFIX(s15)
+#define casadi_s16 CASADI_PREFIX(s16)
+#define casadi_s17 CASADI_PREFIX(s17)
+#define casadi_s18 CASADI_PREFIX(s18)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
@@ -140,16 +153,21 @@ static const casadi_int casadi_s2[3] = {3, 1, 1};
 static const casadi_int casadi_s3[3] = {4, 1, 1};
 static const casadi_int casadi_s4[3] = {6, 1, 1};
 static const casadi_int casadi_s5[3] = {2, 1, 1};
-static const casadi_int casadi_s6[1000] = 
-  {0};
-static const casadi_int casadi_s7[3] = {3, 1000, 1};
-static const casadi_int casadi_s8[3] = {2, 1000, 1};
-static const casadi_int casadi_s9[3] = {1, 1000, 1};
-static const casadi_int casadi_s10[3] = {1, 2, 1};
-static const casadi_int casadi_s11[3] = {2, 2, 1};
-static const casadi_int casadi_s12[3] = {53, 1, 1};
+static const casadi_int casadi_s6[3] = {5, 1, 1};
+static const casadi_int casadi_s7[3] = {7, 1, 1};
+static const casadi_int casadi_s8[3] = {3, 1000, 1};
+static const casadi_int casadi_s9[3] = {5, 1000, 1};
+static const casadi_int casadi_s10[3] = {7, 1000, 1};
+static const casadi_int casadi_s11[3] = {1, 2, 1};
+static const casadi_int casadi_s12[3] = {8, 1, 1};
+static const casadi_int casadi_s13[3] = {13, 1, 1};
+static const casadi_int casadi_s14[3] = {6, 1000, 1};
+static const casadi_int casadi_s15[3] = {8, 1000, 1};
+static const casadi_int casadi_s16[3] = {13, 1000, 1};
+static const casadi_int casadi_s17[3] = {2, 2, 1};
+static const casadi_int casadi_s18[3] = {53, 1, 1};
 
-static const casadi_real casadi_zeros[3000] = 
+static const casadi_real casadi_zeros[6000] = 
   {0.};
 
 /* pendulum_1link_inertia:(q)->(B) */
@@ -1348,964 +1366,879 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_slotine_li_work_bytes(casadi_int *sz_arg
   return 0;
 }
 
-/* one_sample:(z[5],ref[3],lam,kd,kpi[3],dt)->(z_next[5],tau) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+/* pendulum_1link_slotine_li_step:(x[5],p[5],k,e[3])->(x_next[5],y[7]) */
+static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20;
+  casadi_real a12, a13, a14, a15, a16, a17;
   a00=arg[0]? arg[0][0] : 0;
-  a01=arg[5]? arg[5][0] : 0;
-  a02=6.;
-  a02=(a01/a02);
-  a03=arg[0]? arg[0][1] : 0;
-  a04=2.;
-  a04=(a01/a04);
-  a05=arg[0]? arg[0][2] : 0;
-  a06=(a03*a05);
-  a07=arg[1]? arg[1][2] : 0;
-  a08=arg[2]? arg[2][0] : 0;
-  a09=arg[1]? arg[1][1] : 0;
-  a10=(a09-a03);
-  a10=(a08*a10);
-  a07=(a07+a10);
-  a10=arg[0]? arg[0][3] : 0;
-  a11=(a07*a10);
-  a06=(a06+a11);
-  a11=-9.8100000000000005e+00;
-  a12=sin(a00);
-  a11=(a11*a12);
-  a13=arg[0]? arg[0][4] : 0;
-  a14=(a11*a13);
-  a06=(a06-a14);
-  a14=arg[3]? arg[3][0] : 0;
-  a15=arg[1]? arg[1][0] : 0;
-  a15=(a15-a00);
-  a08=(a08*a15);
-  a09=(a09+a08);
-  a09=(a09-a03);
-  a14=(a14*a09);
-  a06=(a06+a14);
-  a14=1.0000000000000001e-05;
-  a08=(a14*a03);
-  a15=-1.1772000000000000e+00;
-  a12=(a15*a12);
-  a08=(a08-a12);
-  a08=(a06-a08);
-  a12=1.4999999999999999e-02;
-  a08=(a08/a12);
-  a16=(a04*a08);
+  a01=1.0000000000000000e-03;
+  a02=arg[1]? arg[1][2] : 0;
+  a02=(a01*a02);
+  a03=arg[0]? arg[0][4] : 0;
+  a04=arg[3]? arg[3][1] : 0;
+  a05=arg[1]? arg[1][0] : 0;
+  a06=arg[3]? arg[3][0] : 0;
+  a07=arg[0]? arg[0][3] : 0;
+  a06=(a06-a07);
+  a06=(a05*a06);
+  a06=(a04+a06);
+  a06=(a06-a03);
+  a08=(a03*a06);
+  a02=(a02*a08);
+  a02=(a00+a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a02=arg[0]? arg[0][1] : 0;
+  a08=arg[1]? arg[1][3] : 0;
+  a08=(a01*a08);
+  a09=arg[3]? arg[3][2] : 0;
+  a04=(a04-a03);
+  a05=(a05*a04);
+  a09=(a09+a05);
+  a05=(a09*a06);
+  a08=(a08*a05);
+  a08=(a02+a08);
+  if (res[0]!=0) res[0][1]=a08;
+  a08=arg[0]? arg[0][2] : 0;
+  a05=arg[1]? arg[1][4] : 0;
+  a05=(a01*a05);
+  a04=-9.8100000000000005e+00;
+  a10=sin(a07);
+  a04=(a04*a10);
+  a11=(a04*a06);
+  a05=(a05*a11);
+  a05=(a08-a05);
+  if (res[0]!=0) res[0][2]=a05;
+  a05=1.6666666666666666e-04;
+  a11=5.0000000000000001e-04;
+  a12=(a03*a00);
+  a09=(a09*a02);
+  a12=(a12+a09);
+  a04=(a04*a08);
+  a12=(a12-a04);
+  a04=arg[1]? arg[1][1] : 0;
+  a04=(a04*a06);
+  a12=(a12+a04);
+  a04=1.0000000000000001e-05;
+  a06=(a04*a03);
+  a09=-1.1772000000000000e+00;
+  a10=(a09*a10);
+  a06=(a06-a10);
+  a06=(a12-a06);
+  a10=1.4999999999999999e-02;
+  a06=(a06/a10);
+  a13=(a11*a06);
+  a13=(a03+a13);
+  a14=(2.*a13);
+  a14=(a03+a14);
+  a15=(a04*a13);
+  a16=(a11*a03);
+  a16=(a07+a16);
+  a16=sin(a16);
+  a16=(a09*a16);
+  a15=(a15-a16);
+  a15=(a12-a15);
+  a15=(a15/a10);
+  a16=(a11*a15);
   a16=(a03+a16);
   a17=(2.*a16);
-  a17=(a03+a17);
-  a18=(a14*a16);
-  a19=(a04*a03);
-  a19=(a00+a19);
-  a19=sin(a19);
-  a19=(a15*a19);
-  a18=(a18-a19);
-  a18=(a06-a18);
-  a18=(a18/a12);
-  a19=(a04*a18);
-  a19=(a03+a19);
-  a20=(2.*a19);
-  a17=(a17+a20);
-  a20=(a14*a19);
-  a04=(a04*a16);
-  a04=(a00+a04);
-  a04=sin(a04);
-  a04=(a15*a04);
-  a20=(a20-a04);
-  a20=(a06-a20);
-  a20=(a20/a12);
-  a04=(a01*a20);
-  a04=(a03+a04);
-  a17=(a17+a04);
-  a17=(a02*a17);
-  a17=(a00+a17);
-  if (res[0]!=0) res[0][0]=a17;
-  a18=(2.*a18);
-  a08=(a08+a18);
-  a20=(2.*a20);
-  a08=(a08+a20);
-  a14=(a14*a04);
-  a19=(a01*a19);
-  a00=(a00+a19);
-  a00=sin(a00);
-  a15=(a15*a00);
-  a14=(a14-a15);
-  a14=(a06-a14);
-  a14=(a14/a12);
-  a08=(a08+a14);
-  a02=(a02*a08);
-  a02=(a03+a02);
-  if (res[0]!=0) res[0][1]=a02;
-  a02=arg[4]? arg[4][0] : 0;
-  a02=(a01*a02);
-  a03=(a03*a09);
-  a02=(a02*a03);
-  a05=(a05+a02);
-  if (res[0]!=0) res[0][2]=a05;
-  a05=arg[4]? arg[4][1] : 0;
-  a05=(a01*a05);
-  a07=(a07*a09);
-  a05=(a05*a07);
-  a10=(a10+a05);
-  if (res[0]!=0) res[0][3]=a10;
-  a10=arg[4]? arg[4][2] : 0;
-  a01=(a01*a10);
-  a11=(a11*a09);
-  a01=(a01*a11);
-  a13=(a13-a01);
-  if (res[0]!=0) res[0][4]=a13;
-  if (res[1]!=0) res[1][0]=a06;
+  a14=(a14+a17);
+  a17=(a04*a16);
+  a11=(a11*a13);
+  a11=(a07+a11);
+  a11=sin(a11);
+  a11=(a09*a11);
+  a17=(a17-a11);
+  a17=(a12-a17);
+  a17=(a17/a10);
+  a11=(a01*a17);
+  a11=(a03+a11);
+  a14=(a14+a11);
+  a14=(a05*a14);
+  a14=(a07+a14);
+  if (res[0]!=0) res[0][3]=a14;
+  a15=(2.*a15);
+  a06=(a06+a15);
+  a17=(2.*a17);
+  a06=(a06+a17);
+  a04=(a04*a11);
+  a16=(a01*a16);
+  a16=(a07+a16);
+  a16=sin(a16);
+  a09=(a09*a16);
+  a04=(a04-a09);
+  a04=(a12-a04);
+  a04=(a04/a10);
+  a06=(a06+a04);
+  a05=(a05*a06);
+  a05=(a03+a05);
+  if (res[0]!=0) res[0][4]=a05;
+  a05=arg[2]? arg[2][0] : 0;
+  a01=(a01*a05);
+  if (res[1]!=0) res[1][0]=a01;
+  if (res[1]!=0) res[1][1]=a07;
+  if (res[1]!=0) res[1][2]=a03;
+  if (res[1]!=0) res[1][3]=a12;
+  if (res[1]!=0) res[1][4]=a00;
+  if (res[1]!=0) res[1][5]=a02;
+  if (res[1]!=0) res[1][6]=a08;
   return 0;
 }
 
-/* one_sample_acc10:(z[5],ref[3x10],lam[1x10],kd[1x10],kpi[3x10],dt[1x10])->(z_next[5x10],tau[1x10]) */
-static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+21, *w01=w+26, w02, w03, *w04=w+29, w05, *w06=w+32, w07, w08, w09, w10;
-  casadi_real w11, w12, w13, w14, w15, w16;
-  const casadi_real **arg1=arg+6;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 5, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 3, w01);
-  /* #2: @2 = input[2][0] */
-  w02 = arg[2] ? arg[2][0] : 0;
-  /* #3: @3 = input[3][0] */
-  w03 = arg[3] ? arg[3][0] : 0;
-  /* #4: @4 = input[4][0] */
-  casadi_copy(arg[4], 3, w04);
-  /* #5: @5 = input[5][0] */
-  w05 = arg[5] ? arg[5][0] : 0;
-  /* #6: {@6, @7} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w07);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #7: output[0][0] = @6 */
-  casadi_copy(w06, 5, res[0]);
-  /* #8: @1 = input[1][1] */
-  casadi_copy(arg[1] ? arg[1]+3 : 0, 3, w01);
-  /* #9: @2 = input[2][1] */
-  w02 = arg[2] ? arg[2][1] : 0;
-  /* #10: @3 = input[3][1] */
-  w03 = arg[3] ? arg[3][1] : 0;
-  /* #11: @4 = input[4][1] */
-  casadi_copy(arg[4] ? arg[4]+3 : 0, 3, w04);
-  /* #12: @5 = input[5][1] */
-  w05 = arg[5] ? arg[5][1] : 0;
-  /* #13: {@0, @8} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w08);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+5);
-  /* #15: @1 = input[1][2] */
-  casadi_copy(arg[1] ? arg[1]+6 : 0, 3, w01);
-  /* #16: @2 = input[2][2] */
-  w02 = arg[2] ? arg[2][2] : 0;
-  /* #17: @3 = input[3][2] */
-  w03 = arg[3] ? arg[3][2] : 0;
-  /* #18: @4 = input[4][2] */
-  casadi_copy(arg[4] ? arg[4]+6 : 0, 3, w04);
-  /* #19: @5 = input[5][2] */
-  w05 = arg[5] ? arg[5][2] : 0;
-  /* #20: {@6, @9} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w09);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #21: output[0][2] = @6 */
-  if (res[0]) casadi_copy(w06, 5, res[0]+10);
-  /* #22: @1 = input[1][3] */
-  casadi_copy(arg[1] ? arg[1]+9 : 0, 3, w01);
-  /* #23: @2 = input[2][3] */
-  w02 = arg[2] ? arg[2][3] : 0;
-  /* #24: @3 = input[3][3] */
-  w03 = arg[3] ? arg[3][3] : 0;
-  /* #25: @4 = input[4][3] */
-  casadi_copy(arg[4] ? arg[4]+9 : 0, 3, w04);
-  /* #26: @5 = input[5][3] */
-  w05 = arg[5] ? arg[5][3] : 0;
-  /* #27: {@0, @10} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w10);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+15);
-  /* #29: @1 = input[1][4] */
-  casadi_copy(arg[1] ? arg[1]+12 : 0, 3, w01);
-  /* #30: @2 = input[2][4] */
-  w02 = arg[2] ? arg[2][4] : 0;
-  /* #31: @3 = input[3][4] */
-  w03 = arg[3] ? arg[3][4] : 0;
-  /* #32: @4 = input[4][4] */
-  casadi_copy(arg[4] ? arg[4]+12 : 0, 3, w04);
-  /* #33: @5 = input[5][4] */
-  w05 = arg[5] ? arg[5][4] : 0;
-  /* #34: {@6, @11} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w11);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #35: output[0][4] = @6 */
-  if (res[0]) casadi_copy(w06, 5, res[0]+20);
-  /* #36: @1 = input[1][5] */
-  casadi_copy(arg[1] ? arg[1]+15 : 0, 3, w01);
-  /* #37: @2 = input[2][5] */
-  w02 = arg[2] ? arg[2][5] : 0;
-  /* #38: @3 = input[3][5] */
-  w03 = arg[3] ? arg[3][5] : 0;
-  /* #39: @4 = input[4][5] */
-  casadi_copy(arg[4] ? arg[4]+15 : 0, 3, w04);
-  /* #40: @5 = input[5][5] */
-  w05 = arg[5] ? arg[5][5] : 0;
-  /* #41: {@0, @12} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w12);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #42: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+25);
-  /* #43: @1 = input[1][6] */
-  casadi_copy(arg[1] ? arg[1]+18 : 0, 3, w01);
-  /* #44: @2 = input[2][6] */
-  w02 = arg[2] ? arg[2][6] : 0;
-  /* #45: @3 = input[3][6] */
-  w03 = arg[3] ? arg[3][6] : 0;
-  /* #46: @4 = input[4][6] */
-  casadi_copy(arg[4] ? arg[4]+18 : 0, 3, w04);
-  /* #47: @5 = input[5][6] */
-  w05 = arg[5] ? arg[5][6] : 0;
-  /* #48: {@6, @13} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w13);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][6] = @6 */
-  if (res[0]) casadi_copy(w06, 5, res[0]+30);
-  /* #50: @1 = input[1][7] */
-  casadi_copy(arg[1] ? arg[1]+21 : 0, 3, w01);
-  /* #51: @2 = input[2][7] */
-  w02 = arg[2] ? arg[2][7] : 0;
-  /* #52: @3 = input[3][7] */
-  w03 = arg[3] ? arg[3][7] : 0;
-  /* #53: @4 = input[4][7] */
-  casadi_copy(arg[4] ? arg[4]+21 : 0, 3, w04);
-  /* #54: @5 = input[5][7] */
-  w05 = arg[5] ? arg[5][7] : 0;
-  /* #55: {@0, @14} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w14);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #56: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+35);
-  /* #57: @1 = input[1][8] */
-  casadi_copy(arg[1] ? arg[1]+24 : 0, 3, w01);
-  /* #58: @2 = input[2][8] */
-  w02 = arg[2] ? arg[2][8] : 0;
-  /* #59: @3 = input[3][8] */
-  w03 = arg[3] ? arg[3][8] : 0;
-  /* #60: @4 = input[4][8] */
-  casadi_copy(arg[4] ? arg[4]+24 : 0, 3, w04);
-  /* #61: @5 = input[5][8] */
-  w05 = arg[5] ? arg[5][8] : 0;
-  /* #62: {@6, @15} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w15);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #63: output[0][8] = @6 */
-  if (res[0]) casadi_copy(w06, 5, res[0]+40);
-  /* #64: @1 = input[1][9] */
-  casadi_copy(arg[1] ? arg[1]+27 : 0, 3, w01);
-  /* #65: @2 = input[2][9] */
-  w02 = arg[2] ? arg[2][9] : 0;
-  /* #66: @3 = input[3][9] */
-  w03 = arg[3] ? arg[3][9] : 0;
-  /* #67: @4 = input[4][9] */
-  casadi_copy(arg[4] ? arg[4]+27 : 0, 3, w04);
-  /* #68: @5 = input[5][9] */
-  w05 = arg[5] ? arg[5][9] : 0;
-  /* #69: {@0, @16} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w16);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #70: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+45);
-  /* #71: output[1][0] = @7 */
-  if (res[1]) res[1][0] = w07;
-  /* #72: output[1][1] = @8 */
-  if (res[1]) res[1][1] = w08;
-  /* #73: output[1][2] = @9 */
-  if (res[1]) res[1][2] = w09;
-  /* #74: output[1][3] = @10 */
-  if (res[1]) res[1][3] = w10;
-  /* #75: output[1][4] = @11 */
-  if (res[1]) res[1][4] = w11;
-  /* #76: output[1][5] = @12 */
-  if (res[1]) res[1][5] = w12;
-  /* #77: output[1][6] = @13 */
-  if (res[1]) res[1][6] = w13;
-  /* #78: output[1][7] = @14 */
-  if (res[1]) res[1][7] = w14;
-  /* #79: output[1][8] = @15 */
-  if (res[1]) res[1][8] = w15;
-  /* #80: output[1][9] = @16 */
-  if (res[1]) res[1][9] = w16;
+CASADI_SYMBOL_EXPORT int pendulum_1link_slotine_li_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f12(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_slotine_li_step_checkout(void) {
   return 0;
 }
 
-/* one_sample_acc10_acc10:(z[5],ref[3x100],lam[1x100],kd[1x100],kpi[3x100],dt[1x100])->(z_next[5x100],tau[1x100]) */
-static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+50, *w06=w+55, *w07=w+105, *w08=w+115, *w09=w+125, *w10=w+135, *w11=w+145, *w12=w+155, *w13=w+165, *w14=w+175, *w15=w+185;
-  casadi_real *w16=w+195;
-  const casadi_real **arg1=arg+6, *wr01, *wr02, *wr03, *wr04, *wr05;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 5, w00);
-  /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: @3 = input[3][0] */
-  wr03 = arg[3] ? arg[3] : casadi_zeros;
-  /* #4: @4 = input[4][0] */
-  wr04 = arg[4] ? arg[4] : casadi_zeros;
-  /* #5: @5 = input[5][0] */
-  wr05 = arg[5] ? arg[5] : casadi_zeros;
-  /* #6: {@6, @7} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w07;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #7: output[0][0] = @6 */
-  casadi_copy(w06, 50, res[0]);
-  /* #8: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #9: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+30 : casadi_zeros;
-  /* #10: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+10 : casadi_zeros;
-  /* #11: @3 = input[3][1] */
-  wr03 = arg[3] ? arg[3]+10 : casadi_zeros;
-  /* #12: @4 = input[4][1] */
-  wr04 = arg[4] ? arg[4]+30 : casadi_zeros;
-  /* #13: @5 = input[5][1] */
-  wr05 = arg[5] ? arg[5]+10 : casadi_zeros;
-  /* #14: {@6, @8} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w08;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #15: output[0][1] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+50);
-  /* #16: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #17: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+60 : casadi_zeros;
-  /* #18: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+20 : casadi_zeros;
-  /* #19: @3 = input[3][2] */
-  wr03 = arg[3] ? arg[3]+20 : casadi_zeros;
-  /* #20: @4 = input[4][2] */
-  wr04 = arg[4] ? arg[4]+60 : casadi_zeros;
-  /* #21: @5 = input[5][2] */
-  wr05 = arg[5] ? arg[5]+20 : casadi_zeros;
-  /* #22: {@6, @9} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w09;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #23: output[0][2] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+100);
-  /* #24: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #25: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+90 : casadi_zeros;
-  /* #26: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+30 : casadi_zeros;
-  /* #27: @3 = input[3][3] */
-  wr03 = arg[3] ? arg[3]+30 : casadi_zeros;
-  /* #28: @4 = input[4][3] */
-  wr04 = arg[4] ? arg[4]+90 : casadi_zeros;
-  /* #29: @5 = input[5][3] */
-  wr05 = arg[5] ? arg[5]+30 : casadi_zeros;
-  /* #30: {@6, @10} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w10;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #31: output[0][3] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+150);
-  /* #32: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #33: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+120 : casadi_zeros;
-  /* #34: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+40 : casadi_zeros;
-  /* #35: @3 = input[3][4] */
-  wr03 = arg[3] ? arg[3]+40 : casadi_zeros;
-  /* #36: @4 = input[4][4] */
-  wr04 = arg[4] ? arg[4]+120 : casadi_zeros;
-  /* #37: @5 = input[5][4] */
-  wr05 = arg[5] ? arg[5]+40 : casadi_zeros;
-  /* #38: {@6, @11} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w11;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][4] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+200);
-  /* #40: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #41: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+150 : casadi_zeros;
-  /* #42: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+50 : casadi_zeros;
-  /* #43: @3 = input[3][5] */
-  wr03 = arg[3] ? arg[3]+50 : casadi_zeros;
-  /* #44: @4 = input[4][5] */
-  wr04 = arg[4] ? arg[4]+150 : casadi_zeros;
-  /* #45: @5 = input[5][5] */
-  wr05 = arg[5] ? arg[5]+50 : casadi_zeros;
-  /* #46: {@6, @12} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w12;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #47: output[0][5] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+250);
-  /* #48: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #49: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+180 : casadi_zeros;
-  /* #50: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
-  /* #51: @3 = input[3][6] */
-  wr03 = arg[3] ? arg[3]+60 : casadi_zeros;
-  /* #52: @4 = input[4][6] */
-  wr04 = arg[4] ? arg[4]+180 : casadi_zeros;
-  /* #53: @5 = input[5][6] */
-  wr05 = arg[5] ? arg[5]+60 : casadi_zeros;
-  /* #54: {@6, @13} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w13;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #55: output[0][6] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+300);
-  /* #56: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #57: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+210 : casadi_zeros;
-  /* #58: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+70 : casadi_zeros;
-  /* #59: @3 = input[3][7] */
-  wr03 = arg[3] ? arg[3]+70 : casadi_zeros;
-  /* #60: @4 = input[4][7] */
-  wr04 = arg[4] ? arg[4]+210 : casadi_zeros;
-  /* #61: @5 = input[5][7] */
-  wr05 = arg[5] ? arg[5]+70 : casadi_zeros;
-  /* #62: {@6, @14} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w14;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #63: output[0][7] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+350);
-  /* #64: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #65: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+240 : casadi_zeros;
-  /* #66: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+80 : casadi_zeros;
-  /* #67: @3 = input[3][8] */
-  wr03 = arg[3] ? arg[3]+80 : casadi_zeros;
-  /* #68: @4 = input[4][8] */
-  wr04 = arg[4] ? arg[4]+240 : casadi_zeros;
-  /* #69: @5 = input[5][8] */
-  wr05 = arg[5] ? arg[5]+80 : casadi_zeros;
-  /* #70: {@6, @15} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w15;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #71: output[0][8] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+400);
-  /* #72: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #73: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+270 : casadi_zeros;
-  /* #74: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+90 : casadi_zeros;
-  /* #75: @3 = input[3][9] */
-  wr03 = arg[3] ? arg[3]+90 : casadi_zeros;
-  /* #76: @4 = input[4][9] */
-  wr04 = arg[4] ? arg[4]+270 : casadi_zeros;
-  /* #77: @5 = input[5][9] */
-  wr05 = arg[5] ? arg[5]+90 : casadi_zeros;
-  /* #78: {@6, @16} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w16;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #79: output[0][9] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+450);
-  /* #80: output[1][0] = @7 */
-  casadi_copy(w07, 10, res[1]);
-  /* #81: output[1][1] = @8 */
-  if (res[1]) casadi_copy(w08, 10, res[1]+10);
-  /* #82: output[1][2] = @9 */
-  if (res[1]) casadi_copy(w09, 10, res[1]+20);
-  /* #83: output[1][3] = @10 */
-  if (res[1]) casadi_copy(w10, 10, res[1]+30);
-  /* #84: output[1][4] = @11 */
-  if (res[1]) casadi_copy(w11, 10, res[1]+40);
-  /* #85: output[1][5] = @12 */
-  if (res[1]) casadi_copy(w12, 10, res[1]+50);
-  /* #86: output[1][6] = @13 */
-  if (res[1]) casadi_copy(w13, 10, res[1]+60);
-  /* #87: output[1][7] = @14 */
-  if (res[1]) casadi_copy(w14, 10, res[1]+70);
-  /* #88: output[1][8] = @15 */
-  if (res[1]) casadi_copy(w15, 10, res[1]+80);
-  /* #89: output[1][9] = @16 */
-  if (res[1]) casadi_copy(w16, 10, res[1]+90);
-  return 0;
+CASADI_SYMBOL_EXPORT void pendulum_1link_slotine_li_step_release(int mem) {
 }
 
-/* one_sample_acc10_acc10_acc10:(z[5],ref[3x1000],lam[1x1000],kd[1x1000],kpi[3x1000],dt[1x1000])->(z_next[5x1000],tau[1x1000]) */
-static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+295, *w06=w+300, *w07=w+800, *w08=w+900, *w09=w+1000, *w10=w+1100, *w11=w+1200, *w12=w+1300, *w13=w+1400, *w14=w+1500, *w15=w+1600;
-  casadi_real *w16=w+1700;
-  const casadi_real **arg1=arg+6, *wr01, *wr02, *wr03, *wr04, *wr05;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 5, w00);
-  /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: @3 = input[3][0] */
-  wr03 = arg[3] ? arg[3] : casadi_zeros;
-  /* #4: @4 = input[4][0] */
-  wr04 = arg[4] ? arg[4] : casadi_zeros;
-  /* #5: @5 = input[5][0] */
-  wr05 = arg[5] ? arg[5] : casadi_zeros;
-  /* #6: {@6, @7} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w07;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #7: output[0][0] = @6 */
-  casadi_copy(w06, 500, res[0]);
-  /* #8: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #9: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+300 : casadi_zeros;
-  /* #10: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+100 : casadi_zeros;
-  /* #11: @3 = input[3][1] */
-  wr03 = arg[3] ? arg[3]+100 : casadi_zeros;
-  /* #12: @4 = input[4][1] */
-  wr04 = arg[4] ? arg[4]+300 : casadi_zeros;
-  /* #13: @5 = input[5][1] */
-  wr05 = arg[5] ? arg[5]+100 : casadi_zeros;
-  /* #14: {@6, @8} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w08;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #15: output[0][1] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+500);
-  /* #16: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #17: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+600 : casadi_zeros;
-  /* #18: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+200 : casadi_zeros;
-  /* #19: @3 = input[3][2] */
-  wr03 = arg[3] ? arg[3]+200 : casadi_zeros;
-  /* #20: @4 = input[4][2] */
-  wr04 = arg[4] ? arg[4]+600 : casadi_zeros;
-  /* #21: @5 = input[5][2] */
-  wr05 = arg[5] ? arg[5]+200 : casadi_zeros;
-  /* #22: {@6, @9} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w09;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #23: output[0][2] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+1000);
-  /* #24: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #25: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+900 : casadi_zeros;
-  /* #26: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
-  /* #27: @3 = input[3][3] */
-  wr03 = arg[3] ? arg[3]+300 : casadi_zeros;
-  /* #28: @4 = input[4][3] */
-  wr04 = arg[4] ? arg[4]+900 : casadi_zeros;
-  /* #29: @5 = input[5][3] */
-  wr05 = arg[5] ? arg[5]+300 : casadi_zeros;
-  /* #30: {@6, @10} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w10;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #31: output[0][3] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+1500);
-  /* #32: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #33: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+1200 : casadi_zeros;
-  /* #34: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+400 : casadi_zeros;
-  /* #35: @3 = input[3][4] */
-  wr03 = arg[3] ? arg[3]+400 : casadi_zeros;
-  /* #36: @4 = input[4][4] */
-  wr04 = arg[4] ? arg[4]+1200 : casadi_zeros;
-  /* #37: @5 = input[5][4] */
-  wr05 = arg[5] ? arg[5]+400 : casadi_zeros;
-  /* #38: {@6, @11} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w11;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][4] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+2000);
-  /* #40: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #41: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+1500 : casadi_zeros;
-  /* #42: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+500 : casadi_zeros;
-  /* #43: @3 = input[3][5] */
-  wr03 = arg[3] ? arg[3]+500 : casadi_zeros;
-  /* #44: @4 = input[4][5] */
-  wr04 = arg[4] ? arg[4]+1500 : casadi_zeros;
-  /* #45: @5 = input[5][5] */
-  wr05 = arg[5] ? arg[5]+500 : casadi_zeros;
-  /* #46: {@6, @12} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w12;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #47: output[0][5] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+2500);
-  /* #48: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #49: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+1800 : casadi_zeros;
-  /* #50: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
-  /* #51: @3 = input[3][6] */
-  wr03 = arg[3] ? arg[3]+600 : casadi_zeros;
-  /* #52: @4 = input[4][6] */
-  wr04 = arg[4] ? arg[4]+1800 : casadi_zeros;
-  /* #53: @5 = input[5][6] */
-  wr05 = arg[5] ? arg[5]+600 : casadi_zeros;
-  /* #54: {@6, @13} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w13;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #55: output[0][6] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+3000);
-  /* #56: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #57: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+2100 : casadi_zeros;
-  /* #58: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+700 : casadi_zeros;
-  /* #59: @3 = input[3][7] */
-  wr03 = arg[3] ? arg[3]+700 : casadi_zeros;
-  /* #60: @4 = input[4][7] */
-  wr04 = arg[4] ? arg[4]+2100 : casadi_zeros;
-  /* #61: @5 = input[5][7] */
-  wr05 = arg[5] ? arg[5]+700 : casadi_zeros;
-  /* #62: {@6, @14} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w14;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #63: output[0][7] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+3500);
-  /* #64: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #65: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+2400 : casadi_zeros;
-  /* #66: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+800 : casadi_zeros;
-  /* #67: @3 = input[3][8] */
-  wr03 = arg[3] ? arg[3]+800 : casadi_zeros;
-  /* #68: @4 = input[4][8] */
-  wr04 = arg[4] ? arg[4]+2400 : casadi_zeros;
-  /* #69: @5 = input[5][8] */
-  wr05 = arg[5] ? arg[5]+800 : casadi_zeros;
-  /* #70: {@6, @15} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w15;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #71: output[0][8] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+4000);
-  /* #72: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #73: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+2700 : casadi_zeros;
-  /* #74: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+900 : casadi_zeros;
-  /* #75: @3 = input[3][9] */
-  wr03 = arg[3] ? arg[3]+900 : casadi_zeros;
-  /* #76: @4 = input[4][9] */
-  wr04 = arg[4] ? arg[4]+2700 : casadi_zeros;
-  /* #77: @5 = input[5][9] */
-  wr05 = arg[5] ? arg[5]+900 : casadi_zeros;
-  /* #78: {@6, @16} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w16;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #79: output[0][9] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+4500);
-  /* #80: output[1][0] = @7 */
-  casadi_copy(w07, 100, res[1]);
-  /* #81: output[1][1] = @8 */
-  if (res[1]) casadi_copy(w08, 100, res[1]+100);
-  /* #82: output[1][2] = @9 */
-  if (res[1]) casadi_copy(w09, 100, res[1]+200);
-  /* #83: output[1][3] = @10 */
-  if (res[1]) casadi_copy(w10, 100, res[1]+300);
-  /* #84: output[1][4] = @11 */
-  if (res[1]) casadi_copy(w11, 100, res[1]+400);
-  /* #85: output[1][5] = @12 */
-  if (res[1]) casadi_copy(w12, 100, res[1]+500);
-  /* #86: output[1][6] = @13 */
-  if (res[1]) casadi_copy(w13, 100, res[1]+600);
-  /* #87: output[1][7] = @14 */
-  if (res[1]) casadi_copy(w14, 100, res[1]+700);
-  /* #88: output[1][8] = @15 */
-  if (res[1]) casadi_copy(w15, 100, res[1]+800);
-  /* #89: output[1][9] = @16 */
-  if (res[1]) casadi_copy(w16, 100, res[1]+900);
-  return 0;
+CASADI_SYMBOL_EXPORT void pendulum_1link_slotine_li_step_incref(void) {
 }
 
-/* pendulum_1link_slotine_li_loop:(x0[2],pi_hat0[3],ref[3x1000],lam,kd,kpi[3],dt)->(x[2x1000],pi_hat[3x1000],tau[1x1000]) */
-static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+3, *rr, *w00=w+2700, *w01=w+2702, *w02=w+2705, *w03=w+2710, w04, *w05=w+5710, *w06=w+6710, *w07=w+7710, *w08=w+10710, *w09=w+11710;
-  casadi_real *w10=w+16710, *w11=w+17710;
-  const casadi_int *cii;
-  const casadi_real **arg1=arg+7, *cs, *ct, *wr03;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 3, w01);
-  /* #2: @2 = vertcat(@0, @1) */
-  rr=w02;
-  for (i=0, cs=w00; i<2; ++i) *rr++ = *cs++;
-  for (i=0, cs=w01; i<3; ++i) *rr++ = *cs++;
-  /* #3: @3 = input[2][0] */
-  wr03 = arg[2] ? arg[2] : casadi_zeros;
-  /* #4: @4 = input[3][0] */
-  w04 = arg[3] ? arg[3][0] : 0;
-  /* #5: @5 = @4[0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0] */
-  for (cii=casadi_s6, rr=w05, cs=(&w04); cii!=casadi_s6+1000; ++cii) *rr++ = cs[*cii];
-  /* #6: @4 = input[4][0] */
-  w04 = arg[4] ? arg[4][0] : 0;
-  /* #7: @6 = @4[0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0] */
-  for (cii=casadi_s6, rr=w06, cs=(&w04); cii!=casadi_s6+1000; ++cii) *rr++ = cs[*cii];
-  /* #8: @1 = input[5][0] */
-  casadi_copy(arg[5], 3, w01);
-  /* #9: @7 = repmat(@1, 1000) */
-  for (i=0;i<1000;++i) {
-    casadi_copy(w01, 3, w07+ i*3);
+CASADI_SYMBOL_EXPORT void pendulum_1link_slotine_li_step_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_slotine_li_step_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_slotine_li_step_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_slotine_li_step_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
   }
-  /* #10: @4 = input[6][0] */
-  w04 = arg[6] ? arg[6][0] : 0;
-  /* #11: @8 = @4[0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0] */
-  for (cii=casadi_s6, rr=w08, cs=(&w04); cii!=casadi_s6+1000; ++cii) *rr++ = cs[*cii];
-  /* #12: {@9, @10} = one_sample_acc10_acc10_acc10(@2, @3, @5, @6, @7, @8) */
-  arg1[0]=w02;
-  arg1[1]=wr03;
-  arg1[2]=w05;
-  arg1[3]=w06;
-  arg1[4]=w07;
-  arg1[5]=w08;
-  res1[0]=w09;
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_slotine_li_step_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "p";
+    case 2: return "k";
+    case 3: return "e";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_slotine_li_step_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_next";
+    case 1: return "y";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_slotine_li_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s6;
+    case 1: return casadi_s6;
+    case 2: return casadi_s0;
+    case 3: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_slotine_li_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s6;
+    case 1: return casadi_s7;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 2;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* one_sample:(xa[6],p[5],e[3])->(xa_next[6],y[7]) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.0000000000000000e-03;
+  a02=arg[1]? arg[1][2] : 0;
+  a02=(a01*a02);
+  a03=arg[0]? arg[0][4] : 0;
+  a04=arg[2]? arg[2][1] : 0;
+  a05=arg[1]? arg[1][0] : 0;
+  a06=arg[2]? arg[2][0] : 0;
+  a07=arg[0]? arg[0][3] : 0;
+  a06=(a06-a07);
+  a06=(a05*a06);
+  a06=(a04+a06);
+  a06=(a06-a03);
+  a08=(a03*a06);
+  a02=(a02*a08);
+  a02=(a00+a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a02=arg[0]? arg[0][1] : 0;
+  a08=arg[1]? arg[1][3] : 0;
+  a08=(a01*a08);
+  a09=arg[2]? arg[2][2] : 0;
+  a04=(a04-a03);
+  a05=(a05*a04);
+  a09=(a09+a05);
+  a05=(a09*a06);
+  a08=(a08*a05);
+  a08=(a02+a08);
+  if (res[0]!=0) res[0][1]=a08;
+  a08=arg[0]? arg[0][2] : 0;
+  a05=arg[1]? arg[1][4] : 0;
+  a05=(a01*a05);
+  a04=-9.8100000000000005e+00;
+  a10=sin(a07);
+  a04=(a04*a10);
+  a11=(a04*a06);
+  a05=(a05*a11);
+  a05=(a08-a05);
+  if (res[0]!=0) res[0][2]=a05;
+  a05=1.6666666666666666e-04;
+  a11=5.0000000000000001e-04;
+  a12=(a03*a00);
+  a09=(a09*a02);
+  a12=(a12+a09);
+  a04=(a04*a08);
+  a12=(a12-a04);
+  a04=arg[1]? arg[1][1] : 0;
+  a04=(a04*a06);
+  a12=(a12+a04);
+  a04=1.0000000000000001e-05;
+  a06=(a04*a03);
+  a09=-1.1772000000000000e+00;
+  a10=(a09*a10);
+  a06=(a06-a10);
+  a06=(a12-a06);
+  a10=1.4999999999999999e-02;
+  a06=(a06/a10);
+  a13=(a11*a06);
+  a13=(a03+a13);
+  a14=(2.*a13);
+  a14=(a03+a14);
+  a15=(a04*a13);
+  a16=(a11*a03);
+  a16=(a07+a16);
+  a16=sin(a16);
+  a16=(a09*a16);
+  a15=(a15-a16);
+  a15=(a12-a15);
+  a15=(a15/a10);
+  a16=(a11*a15);
+  a16=(a03+a16);
+  a17=(2.*a16);
+  a14=(a14+a17);
+  a17=(a04*a16);
+  a11=(a11*a13);
+  a11=(a07+a11);
+  a11=sin(a11);
+  a11=(a09*a11);
+  a17=(a17-a11);
+  a17=(a12-a17);
+  a17=(a17/a10);
+  a11=(a01*a17);
+  a11=(a03+a11);
+  a14=(a14+a11);
+  a14=(a05*a14);
+  a14=(a07+a14);
+  if (res[0]!=0) res[0][3]=a14;
+  a15=(2.*a15);
+  a06=(a06+a15);
+  a17=(2.*a17);
+  a06=(a06+a17);
+  a04=(a04*a11);
+  a16=(a01*a16);
+  a16=(a07+a16);
+  a16=sin(a16);
+  a09=(a09*a16);
+  a04=(a04-a09);
+  a04=(a12-a04);
+  a04=(a04/a10);
+  a06=(a06+a04);
+  a05=(a05*a06);
+  a05=(a03+a05);
+  if (res[0]!=0) res[0][4]=a05;
+  a05=arg[0]? arg[0][5] : 0;
+  a06=1.;
+  a06=(a05+a06);
+  if (res[0]!=0) res[0][5]=a06;
+  a01=(a01*a05);
+  if (res[1]!=0) res[1][0]=a01;
+  if (res[1]!=0) res[1][1]=a07;
+  if (res[1]!=0) res[1][2]=a03;
+  if (res[1]!=0) res[1][3]=a12;
+  if (res[1]!=0) res[1][4]=a00;
+  if (res[1]!=0) res[1][5]=a02;
+  if (res[1]!=0) res[1][6]=a08;
+  return 0;
+}
+
+/* one_sample_acc10:(xa[6],p[5x10],e[3x10])->(xa_next[6x10],y[7x10]) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+18, *w01=w+24, *w02=w+29, *w03=w+32, *w04=w+38, *w05=w+45, *w06=w+52, *w07=w+59, *w08=w+66, *w09=w+73, *w10=w+80;
+  casadi_real *w11=w+87, *w12=w+94, *w13=w+101;
+  const casadi_real **arg1=arg+3;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w00);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 5, w01);
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 3, w02);
+  /* #3: {@3, @4} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 6, res[0]);
+  /* #5: @1 = input[1][1] */
+  casadi_copy(arg[1] ? arg[1]+5 : 0, 5, w01);
+  /* #6: @2 = input[2][1] */
+  casadi_copy(arg[2] ? arg[2]+3 : 0, 3, w02);
+  /* #7: {@0, @5} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w05;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #8: output[0][1] = @0 */
+  if (res[0]) casadi_copy(w00, 6, res[0]+6);
+  /* #9: @1 = input[1][2] */
+  casadi_copy(arg[1] ? arg[1]+10 : 0, 5, w01);
+  /* #10: @2 = input[2][2] */
+  casadi_copy(arg[2] ? arg[2]+6 : 0, 3, w02);
+  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #12: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 6, res[0]+12);
+  /* #13: @1 = input[1][3] */
+  casadi_copy(arg[1] ? arg[1]+15 : 0, 5, w01);
+  /* #14: @2 = input[2][3] */
+  casadi_copy(arg[2] ? arg[2]+9 : 0, 3, w02);
+  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w07;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #16: output[0][3] = @0 */
+  if (res[0]) casadi_copy(w00, 6, res[0]+18);
+  /* #17: @1 = input[1][4] */
+  casadi_copy(arg[1] ? arg[1]+20 : 0, 5, w01);
+  /* #18: @2 = input[2][4] */
+  casadi_copy(arg[2] ? arg[2]+12 : 0, 3, w02);
+  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #20: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 6, res[0]+24);
+  /* #21: @1 = input[1][5] */
+  casadi_copy(arg[1] ? arg[1]+25 : 0, 5, w01);
+  /* #22: @2 = input[2][5] */
+  casadi_copy(arg[2] ? arg[2]+15 : 0, 3, w02);
+  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w09;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][5] = @0 */
+  if (res[0]) casadi_copy(w00, 6, res[0]+30);
+  /* #25: @1 = input[1][6] */
+  casadi_copy(arg[1] ? arg[1]+30 : 0, 5, w01);
+  /* #26: @2 = input[2][6] */
+  casadi_copy(arg[2] ? arg[2]+18 : 0, 3, w02);
+  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
   res1[1]=w10;
-  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #13: @11 = @9[:5000:5;:2] */
-  for (rr=w11, cs=w09+0; cs!=w09+5000; cs+=5) for (ct=cs+0; ct!=cs+2; ct+=1) *rr++ = *ct;
-  /* #14: output[0][0] = @11 */
-  casadi_copy(w11, 2000, res[0]);
-  /* #15: @3 = @9[:5000:5;2:5] */
-  for (rr=w03, cs=w09+0; cs!=w09+5000; cs+=5) for (ct=cs+2; ct!=cs+5; ct+=1) *rr++ = *ct;
-  /* #16: output[1][0] = @3 */
-  casadi_copy(w03, 3000, res[1]);
-  /* #17: output[2][0] = @10 */
-  casadi_copy(w10, 1000, res[2]);
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #28: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 6, res[0]+36);
+  /* #29: @1 = input[1][7] */
+  casadi_copy(arg[1] ? arg[1]+35 : 0, 5, w01);
+  /* #30: @2 = input[2][7] */
+  casadi_copy(arg[2] ? arg[2]+21 : 0, 3, w02);
+  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w11;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #32: output[0][7] = @0 */
+  if (res[0]) casadi_copy(w00, 6, res[0]+42);
+  /* #33: @1 = input[1][8] */
+  casadi_copy(arg[1] ? arg[1]+40 : 0, 5, w01);
+  /* #34: @2 = input[2][8] */
+  casadi_copy(arg[2] ? arg[2]+24 : 0, 3, w02);
+  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #36: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 6, res[0]+48);
+  /* #37: @1 = input[1][9] */
+  casadi_copy(arg[1] ? arg[1]+45 : 0, 5, w01);
+  /* #38: @2 = input[2][9] */
+  casadi_copy(arg[2] ? arg[2]+27 : 0, 3, w02);
+  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w13;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #40: output[0][9] = @0 */
+  if (res[0]) casadi_copy(w00, 6, res[0]+54);
+  /* #41: output[1][0] = @4 */
+  casadi_copy(w04, 7, res[1]);
+  /* #42: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 7, res[1]+7);
+  /* #43: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 7, res[1]+14);
+  /* #44: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 7, res[1]+21);
+  /* #45: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 7, res[1]+28);
+  /* #46: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 7, res[1]+35);
+  /* #47: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 7, res[1]+42);
+  /* #48: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 7, res[1]+49);
+  /* #49: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 7, res[1]+56);
+  /* #50: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 7, res[1]+63);
+  return 0;
+}
+
+/* one_sample_acc10_acc10:(xa[6],p[5x100],e[3x100])->(xa_next[6x100],y[7x100]) */
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+108, *w03=w+114, *w04=w+174, *w05=w+244, *w06=w+314, *w07=w+384, *w08=w+454, *w09=w+524, *w10=w+594, *w11=w+664, *w12=w+734;
+  casadi_real *w13=w+804;
+  const casadi_real **arg1=arg+3, *wr01, *wr02;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w00);
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 60, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #6: @1 = input[1][1] */
+  wr01 = arg[1] ? arg[1]+50 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr02 = arg[2] ? arg[2]+30 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w05;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+60);
+  /* #10: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #11: @1 = input[1][2] */
+  wr01 = arg[1] ? arg[1]+100 : casadi_zeros;
+  /* #12: @2 = input[2][2] */
+  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
+  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+120);
+  /* #15: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #16: @1 = input[1][3] */
+  wr01 = arg[1] ? arg[1]+150 : casadi_zeros;
+  /* #17: @2 = input[2][3] */
+  wr02 = arg[2] ? arg[2]+90 : casadi_zeros;
+  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w07;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+180);
+  /* #20: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #21: @1 = input[1][4] */
+  wr01 = arg[1] ? arg[1]+200 : casadi_zeros;
+  /* #22: @2 = input[2][4] */
+  wr02 = arg[2] ? arg[2]+120 : casadi_zeros;
+  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+240);
+  /* #25: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #26: @1 = input[1][5] */
+  wr01 = arg[1] ? arg[1]+250 : casadi_zeros;
+  /* #27: @2 = input[2][5] */
+  wr02 = arg[2] ? arg[2]+150 : casadi_zeros;
+  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w09;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+300);
+  /* #30: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #31: @1 = input[1][6] */
+  wr01 = arg[1] ? arg[1]+300 : casadi_zeros;
+  /* #32: @2 = input[2][6] */
+  wr02 = arg[2] ? arg[2]+180 : casadi_zeros;
+  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #34: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+360);
+  /* #35: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #36: @1 = input[1][7] */
+  wr01 = arg[1] ? arg[1]+350 : casadi_zeros;
+  /* #37: @2 = input[2][7] */
+  wr02 = arg[2] ? arg[2]+210 : casadi_zeros;
+  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w11;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #39: output[0][7] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+420);
+  /* #40: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #41: @1 = input[1][8] */
+  wr01 = arg[1] ? arg[1]+400 : casadi_zeros;
+  /* #42: @2 = input[2][8] */
+  wr02 = arg[2] ? arg[2]+240 : casadi_zeros;
+  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #44: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+480);
+  /* #45: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #46: @1 = input[1][9] */
+  wr01 = arg[1] ? arg[1]+450 : casadi_zeros;
+  /* #47: @2 = input[2][9] */
+  wr02 = arg[2] ? arg[2]+270 : casadi_zeros;
+  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w13;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #49: output[0][9] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+540);
+  /* #50: output[1][0] = @4 */
+  casadi_copy(w04, 70, res[1]);
+  /* #51: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 70, res[1]+70);
+  /* #52: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 70, res[1]+140);
+  /* #53: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 70, res[1]+210);
+  /* #54: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 70, res[1]+280);
+  /* #55: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 70, res[1]+350);
+  /* #56: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 70, res[1]+420);
+  /* #57: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 70, res[1]+490);
+  /* #58: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 70, res[1]+560);
+  /* #59: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 70, res[1]+630);
+  return 0;
+}
+
+/* one_sample_acc10_acc10_acc10:(xa[6],p[5x1000],e[3x1000])->(xa_next[6x1000],y[7x1000]) */
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+954, *w03=w+960, *w04=w+1560, *w05=w+2260, *w06=w+2960, *w07=w+3660, *w08=w+4360, *w09=w+5060, *w10=w+5760, *w11=w+6460, *w12=w+7160;
+  casadi_real *w13=w+7860;
+  const casadi_real **arg1=arg+3, *wr01, *wr02;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w00);
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 600, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #6: @1 = input[1][1] */
+  wr01 = arg[1] ? arg[1]+500 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w05;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+600);
+  /* #10: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #11: @1 = input[1][2] */
+  wr01 = arg[1] ? arg[1]+1000 : casadi_zeros;
+  /* #12: @2 = input[2][2] */
+  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
+  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+1200);
+  /* #15: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #16: @1 = input[1][3] */
+  wr01 = arg[1] ? arg[1]+1500 : casadi_zeros;
+  /* #17: @2 = input[2][3] */
+  wr02 = arg[2] ? arg[2]+900 : casadi_zeros;
+  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w07;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+1800);
+  /* #20: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #21: @1 = input[1][4] */
+  wr01 = arg[1] ? arg[1]+2000 : casadi_zeros;
+  /* #22: @2 = input[2][4] */
+  wr02 = arg[2] ? arg[2]+1200 : casadi_zeros;
+  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+2400);
+  /* #25: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #26: @1 = input[1][5] */
+  wr01 = arg[1] ? arg[1]+2500 : casadi_zeros;
+  /* #27: @2 = input[2][5] */
+  wr02 = arg[2] ? arg[2]+1500 : casadi_zeros;
+  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w09;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+3000);
+  /* #30: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #31: @1 = input[1][6] */
+  wr01 = arg[1] ? arg[1]+3000 : casadi_zeros;
+  /* #32: @2 = input[2][6] */
+  wr02 = arg[2] ? arg[2]+1800 : casadi_zeros;
+  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #34: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+3600);
+  /* #35: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #36: @1 = input[1][7] */
+  wr01 = arg[1] ? arg[1]+3500 : casadi_zeros;
+  /* #37: @2 = input[2][7] */
+  wr02 = arg[2] ? arg[2]+2100 : casadi_zeros;
+  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w11;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #39: output[0][7] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+4200);
+  /* #40: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #41: @1 = input[1][8] */
+  wr01 = arg[1] ? arg[1]+4000 : casadi_zeros;
+  /* #42: @2 = input[2][8] */
+  wr02 = arg[2] ? arg[2]+2400 : casadi_zeros;
+  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #44: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+4800);
+  /* #45: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #46: @1 = input[1][9] */
+  wr01 = arg[1] ? arg[1]+4500 : casadi_zeros;
+  /* #47: @2 = input[2][9] */
+  wr02 = arg[2] ? arg[2]+2700 : casadi_zeros;
+  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w13;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #49: output[0][9] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+5400);
+  /* #50: output[1][0] = @4 */
+  casadi_copy(w04, 700, res[1]);
+  /* #51: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 700, res[1]+700);
+  /* #52: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 700, res[1]+1400);
+  /* #53: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 700, res[1]+2100);
+  /* #54: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 700, res[1]+2800);
+  /* #55: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 700, res[1]+3500);
+  /* #56: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 700, res[1]+4200);
+  /* #57: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 700, res[1]+4900);
+  /* #58: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 700, res[1]+5600);
+  /* #59: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 700, res[1]+6300);
+  return 0;
+}
+
+/* pendulum_1link_slotine_li_loop:(x0[5],p[5],k0,e[3x1000])->(x[5x1000],y[7x1000]) */
+static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+2, *rr, *w0=w+9360, w1, *w2=w+9365, *w3=w+9371, *w5=w+14371, *w6=w+20371;
+  const casadi_real **arg1=arg+4, *cs, *ct, *wr4;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w0);
+  /* #1: @1 = input[2][0] */
+  w1 = arg[2] ? arg[2][0] : 0;
+  /* #2: @2 = vertcat(@0, @1) */
+  rr=w2;
+  for (i=0, cs=w0; i<5; ++i) *rr++ = *cs++;
+  *rr++ = w1;
+  /* #3: @0 = input[1][0] */
+  casadi_copy(arg[1], 5, w0);
+  /* #4: @3 = repmat(@0, 1000) */
+  for (i=0;i<1000;++i) {
+    casadi_copy(w0, 5, w3+ i*5);
+  }
+  /* #5: @4 = input[3][0] */
+  wr4 = arg[3] ? arg[3] : casadi_zeros;
+  /* #6: {@5, @6} = one_sample_acc10_acc10_acc10(@2, @3, @4) */
+  arg1[0]=w2;
+  arg1[1]=w3;
+  arg1[2]=wr4;
+  res1[0]=w5;
+  res1[1]=w6;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #7: @3 = @5[:6000:6;:5] */
+  for (rr=w3, cs=w5+0; cs!=w5+6000; cs+=6) for (ct=cs+0; ct!=cs+5; ct+=1) *rr++ = *ct;
+  /* #8: output[0][0] = @3 */
+  casadi_copy(w3, 5000, res[0]);
+  /* #9: output[1][0] = @6 */
+  casadi_copy(w6, 7000, res[1]);
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_slotine_li_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f12(arg, res, iw, w, mem);
+  return casadi_f13(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_slotine_li_loop_checkout(void) {
@@ -2321,9 +2254,9 @@ CASADI_SYMBOL_EXPORT void pendulum_1link_slotine_li_loop_incref(void) {
 CASADI_SYMBOL_EXPORT void pendulum_1link_slotine_li_loop_decref(void) {
 }
 
-CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_slotine_li_loop_n_in(void) { return 7;}
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_slotine_li_loop_n_in(void) { return 4;}
 
-CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_slotine_li_loop_n_out(void) { return 3;}
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_slotine_li_loop_n_out(void) { return 2;}
 
 CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_slotine_li_loop_default_in(casadi_int i) {
   switch (i) {
@@ -2334,12 +2267,9 @@ CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_slotine_li_loop_default_in(casad
 CASADI_SYMBOL_EXPORT const char* pendulum_1link_slotine_li_loop_name_in(casadi_int i) {
   switch (i) {
     case 0: return "x0";
-    case 1: return "pi_hat0";
-    case 2: return "ref";
-    case 3: return "lam";
-    case 4: return "kd";
-    case 5: return "kpi";
-    case 6: return "dt";
+    case 1: return "p";
+    case 2: return "k0";
+    case 3: return "e";
     default: return 0;
   }
 }
@@ -2347,52 +2277,47 @@ CASADI_SYMBOL_EXPORT const char* pendulum_1link_slotine_li_loop_name_in(casadi_i
 CASADI_SYMBOL_EXPORT const char* pendulum_1link_slotine_li_loop_name_out(casadi_int i) {
   switch (i) {
     case 0: return "x";
-    case 1: return "pi_hat";
-    case 2: return "tau";
+    case 1: return "y";
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_slotine_li_loop_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s5;
-    case 1: return casadi_s2;
-    case 2: return casadi_s7;
-    case 3: return casadi_s0;
-    case 4: return casadi_s0;
-    case 5: return casadi_s2;
-    case 6: return casadi_s0;
+    case 0: return casadi_s6;
+    case 1: return casadi_s6;
+    case 2: return casadi_s0;
+    case 3: return casadi_s8;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_slotine_li_loop_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s8;
-    case 1: return casadi_s7;
-    case 2: return casadi_s9;
+    case 0: return casadi_s9;
+    case 1: return casadi_s10;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31;
-  if (sz_res) *sz_res = 11;
+  if (sz_arg) *sz_arg = 16;
+  if (sz_res) *sz_res = 10;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 19710;
+  if (sz_w) *sz_w = 27371;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 16*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 10*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 19710*sizeof(casadi_real);
+  if (sz_w) *sz_w = 27371*sizeof(casadi_real);
   return 0;
 }
 
 /* pendulum_1link_mckibben_torque:(q,p[2])->(tau,sigma) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6;
   a0=2.2400000000000002e-03;
   a1=3.5999999999999999e-01;
@@ -2427,7 +2352,7 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f17(arg, res, iw, w, mem);
+  return casadi_f18(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_torque_checkout(void) {
@@ -2502,7 +2427,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_torque_work_bytes(casadi_int *s
 }
 
 /* pendulum_1link_mckibben_phi:(q)->(Phi[1x2],Phi_q[1x2]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4;
   a0=3.5999999999999999e-01;
   a1=1.6000000000000000e-02;
@@ -2529,7 +2454,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_phi(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f18(arg, res, iw, w, mem);
+  return casadi_f19(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_phi_checkout(void) {
@@ -2579,8 +2504,8 @@ CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_mckibben_phi_sparsity_in(c
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_mckibben_phi_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s10;
-    case 1: return casadi_s10;
+    case 0: return casadi_s11;
+    case 1: return casadi_s11;
     default: return 0;
   }
 }
@@ -2602,7 +2527,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_phi_work_bytes(casadi_int *sz_a
 }
 
 /* pendulum_1link_mckibben_stiffness_rate:(q,qd,p[2],pd[2])->(sigma_dot) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=-7.1680000000000005e-05;
   a1=3.5999999999999999e-01;
@@ -2636,7 +2561,7 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_stiffness_rate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f19(arg, res, iw, w, mem);
+  return casadi_f20(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_stiffness_rate_checkout(void) {
@@ -2713,7 +2638,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_stiffness_rate_work_bytes(casad
 }
 
 /* pendulum_1link_mckibben_allocation:(q,tau,sigma)->(p[2]) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6;
   a0=7.1680000000000005e-05;
   a1=3.5999999999999999e-01;
@@ -2754,7 +2679,7 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_allocation(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f20(arg, res, iw, w, mem);
+  return casadi_f21(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_allocation_checkout(void) {
@@ -2829,7 +2754,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_mckibben_allocation_work_bytes(casadi_in
 }
 
 /* pendulum_1link_pneumatic_plant:(x[2],p[2],h)->(x_next[2]) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20;
   a00=arg[0]? arg[0][0] : 0;
@@ -3836,7 +3761,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f22(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_plant_checkout(void) {
@@ -3911,7 +3836,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_plant_work_bytes(casadi_int *s
 }
 
 /* pendulum_1link_valve_plant:(x[4],p_c[2],T_p[2],h)->(x_next[4]) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30;
@@ -5348,7 +5273,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_valve_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f23(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_valve_plant_checkout(void) {
@@ -5425,7 +5350,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_valve_plant_work_bytes(casadi_int *sz_ar
 }
 
 /* pendulum_1link_null_space:(q,qd)->(Phi_pinv[2],Phi_perp[2],Phi_q_Phi_perp,Phi_pinv_dot[2],Phi_perp_dot[2],Phi_q_dot[1x2]) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
   a0=3.5999999999999999e-01;
   a1=1.6000000000000000e-02;
@@ -5494,7 +5419,7 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_null_space(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f23(arg, res, iw, w, mem);
+  return casadi_f24(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_null_space_checkout(void) {
@@ -5555,7 +5480,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_null_space_sparsity_out(ca
     case 2: return casadi_s0;
     case 3: return casadi_s5;
     case 4: return casadi_s5;
-    case 5: return casadi_s10;
+    case 5: return casadi_s11;
     default: return 0;
   }
 }
@@ -5577,7 +5502,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_null_space_work_bytes(casadi_int *sz_arg
 }
 
 /* pendulum_1link_pneumatic_slotine_li:(z[3],q,qd,ref[6],lam,kd,kpi[3],dt)->(z_next[3],p[2],tau_star,nu) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   a00=arg[0]? arg[0][0] : 0;
   a01=arg[7]? arg[7][0] : 0;
@@ -5652,7 +5577,7 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_slotine_li(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f24(arg, res, iw, w, mem);
+  return casadi_f25(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_slotine_li_checkout(void) {
@@ -5743,7 +5668,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_slotine_li_work_bytes(casadi_i
 }
 
 /* pendulum_1link_open_loop_stiffness:(z[3],q,qd,ref[6],lam,kd,kpi[3],kinv,dt)->(z_next[3],p[2],tau_star,nu) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12;
   a00=arg[0]? arg[0][0] : 0;
@@ -5838,7 +5763,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_open_loop_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f26(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_open_loop_stiffness_checkout(void) {
@@ -5931,7 +5856,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_open_loop_stiffness_work_bytes(casadi_in
 }
 
 /* pendulum_1link_theorem5:(z[4],q,qd,sigma,ref[6],lam,kd,kpi[3],ksigma,kinv,dt)->(z_next[4],p[2],tau_star,nu) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24;
@@ -6093,7 +6018,7 @@ static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f26(arg, res, iw, w, mem);
+  return casadi_f27(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_checkout(void) {
@@ -6190,7 +6115,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_work_bytes(casadi_int *sz_arg, 
 }
 
 /* pendulum_1link_corollary2:(z[4],q,qd,sigma,ref[6],lam,kd,kpi[3],ksigma,dt)->(z_next[4],p[2],tau_star,nu) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24;
@@ -6348,7 +6273,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_corollary2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f27(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_corollary2_checkout(void) {
@@ -6442,8 +6367,3058 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_corollary2_work_bytes(casadi_int *sz_arg
   return 0;
 }
 
+/* pendulum_1link_theorem5_closed_step:(x[8],p[7],k,e[6])->(x_next[8],y[13]) */
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.0000000000000000e-03;
+  a02=arg[1]? arg[1][5] : 0;
+  a03=-7.1680000000000005e-05;
+  a04=3.5999999999999999e-01;
+  a05=1.6000000000000000e-02;
+  a06=arg[0]? arg[0][4] : 0;
+  a07=(a05*a06);
+  a08=(a04-a07);
+  a03=(a03*a08);
+  a09=arg[0]? arg[0][6] : 0;
+  a03=(a03*a09);
+  a10=7.1680000000000005e-05;
+  a07=(a04+a07);
+  a10=(a10*a07);
+  a11=arg[0]? arg[0][7] : 0;
+  a10=(a10*a11);
+  a03=(a03-a10);
+  a10=arg[3]? arg[3][4] : 0;
+  a10=(a03+a10);
+  a02=(a02*a10);
+  a10=-3.2000000000000001e-02;
+  a10=(a10*a08);
+  a12=casadi_sq(a08);
+  a13=6.2500000000000000e-02;
+  a12=(a12-a13);
+  a14=casadi_sq(a12);
+  a15=casadi_sq(a07);
+  a15=(a15-a13);
+  a16=casadi_sq(a15);
+  a14=(a14+a16);
+  a16=(a12/a14);
+  a17=arg[0]? arg[0][5] : 0;
+  a18=arg[1]? arg[1][2] : 0;
+  a19=arg[3]? arg[3][1] : 0;
+  a20=arg[1]? arg[1][0] : 0;
+  a21=arg[3]? arg[3][0] : 0;
+  a21=(a21-a06);
+  a21=(a20*a21);
+  a21=(a19+a21);
+  a21=(a21-a17);
+  a22=(a17*a21);
+  a18=(a18*a22);
+  a22=(a17*a18);
+  a23=arg[0]? arg[0][2] : 0;
+  a24=arg[3]? arg[3][3] : 0;
+  a25=arg[3]? arg[3][2] : 0;
+  a26=(a20*a25);
+  a24=(a24+a26);
+  a24=(a23*a24);
+  a19=(a19-a17);
+  a20=(a20*a19);
+  a25=(a25+a20);
+  a20=arg[1]? arg[1][3] : 0;
+  a19=(a25*a21);
+  a20=(a20*a19);
+  a19=(a25*a20);
+  a24=(a24+a19);
+  a22=(a22+a24);
+  a24=arg[0]? arg[0][3] : 0;
+  a19=-9.8100000000000005e+00;
+  a26=cos(a06);
+  a26=(a26*a17);
+  a26=(a19*a26);
+  a26=(a24*a26);
+  a27=sin(a06);
+  a19=(a19*a27);
+  a28=arg[1]? arg[1][4] : 0;
+  a29=(a19*a21);
+  a28=(a28*a29);
+  a29=(a19*a28);
+  a26=(a26-a29);
+  a22=(a22-a26);
+  a26=arg[1]? arg[1][1] : 0;
+  a29=(a26*a25);
+  a22=(a22+a29);
+  a29=(a16*a22);
+  a30=arg[0]? arg[0][1] : 0;
+  a31=(a17*a30);
+  a25=(a25*a23);
+  a31=(a31+a25);
+  a19=(a19*a24);
+  a31=(a31-a19);
+  a26=(a26*a21);
+  a31=(a31+a26);
+  a08=(2.*a08);
+  a26=(a05*a17);
+  a08=(a08*a26);
+  a21=(a08/a14);
+  a19=(a16/a14);
+  a25=(2.*a15);
+  a32=(2.*a07);
+  a32=(a32*a26);
+  a25=(a25*a32);
+  a26=(2.*a12);
+  a26=(a26*a08);
+  a25=(a25-a26);
+  a19=(a19*a25);
+  a21=(a21+a19);
+  a21=(a31*a21);
+  a29=(a29-a21);
+  a29=(a10*a29);
+  a21=3.2000000000000001e-02;
+  a21=(a21*a07);
+  a07=(a32/a14);
+  a19=(a15/a14);
+  a14=(a19/a14);
+  a14=(a14*a25);
+  a07=(a07-a14);
+  a07=(a31*a07);
+  a22=(a19*a22);
+  a07=(a07+a22);
+  a07=(a21*a07);
+  a29=(a29+a07);
+  a02=(a02+a29);
+  a29=5.1199999999999998e-04;
+  a29=(a29*a17);
+  a19=(a19*a31);
+  a07=(a29*a19);
+  a22=-5.1199999999999998e-04;
+  a22=(a22*a17);
+  a16=(a16*a31);
+  a14=(a22*a16);
+  a07=(a07-a14);
+  a02=(a02+a07);
+  a32=(a10*a32);
+  a08=(a21*a08);
+  a32=(a32+a08);
+  a22=(a22*a15);
+  a29=(a29*a12);
+  a22=(a22+a29);
+  a32=(a32-a22);
+  a32=(a32*a00);
+  a02=(a02+a32);
+  a32=arg[1]? arg[1][6] : 0;
+  a22=arg[3]? arg[3][5] : 0;
+  a32=(a32*a22);
+  a02=(a02+a32);
+  a10=(a10*a15);
+  a21=(a21*a12);
+  a10=(a10-a21);
+  a02=(a02/a10);
+  a02=(a01*a02);
+  a02=(a00-a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a18=(a01*a18);
+  a18=(a30+a18);
+  if (res[0]!=0) res[0][1]=a18;
+  a20=(a01*a20);
+  a20=(a23+a20);
+  if (res[0]!=0) res[0][2]=a20;
+  a28=(a01*a28);
+  a28=(a24-a28);
+  if (res[0]!=0) res[0][3]=a28;
+  a28=1.6666666666666667e-05;
+  a20=5.0000000000000002e-05;
+  a18=2.2400000000000002e-03;
+  a02=(a18*a12);
+  a10=(a15*a00);
+  a16=(a16+a10);
+  a10=0.;
+  a21=casadi_fmax(a16,a10);
+  a02=(a02*a21);
+  a15=(a18*a15);
+  a12=(a12*a00);
+  a12=(a12-a19);
+  a10=casadi_fmax(a12,a10);
+  a15=(a15*a10);
+  a02=(a02-a15);
+  a15=1.0000000000000001e-05;
+  a19=(a15*a17);
+  a32=-1.1772000000000000e+00;
+  a27=(a32*a27);
+  a19=(a19-a27);
+  a02=(a02-a19);
+  a19=1.4999999999999999e-02;
+  a02=(a02/a19);
+  a27=(a20*a02);
+  a27=(a17+a27);
+  a22=(2.*a27);
+  a22=(a17+a22);
+  a29=(a20*a17);
+  a29=(a06+a29);
+  a08=(a05*a29);
+  a07=(a04-a08);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a08=(a04+a08);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a18*a08);
+  a08=(a08*a10);
+  a07=(a07-a08);
+  a08=(a15*a27);
+  a29=sin(a29);
+  a29=(a32*a29);
+  a08=(a08-a29);
+  a07=(a07-a08);
+  a07=(a07/a19);
+  a08=(a20*a07);
+  a08=(a17+a08);
+  a29=(2.*a08);
+  a22=(a22+a29);
+  a29=1.0000000000000000e-04;
+  a27=(a20*a27);
+  a27=(a06+a27);
+  a14=(a05*a27);
+  a25=(a04-a14);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a18*a25);
+  a25=(a25*a21);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a10);
+  a25=(a25-a14);
+  a14=(a15*a08);
+  a27=sin(a27);
+  a27=(a32*a27);
+  a14=(a14-a27);
+  a25=(a25-a14);
+  a25=(a25/a19);
+  a14=(a29*a25);
+  a14=(a17+a14);
+  a22=(a22+a14);
+  a22=(a28*a22);
+  a22=(a06+a22);
+  a07=(2.*a07);
+  a02=(a02+a07);
+  a25=(2.*a25);
+  a02=(a02+a25);
+  a08=(a29*a08);
+  a08=(a06+a08);
+  a25=(a05*a08);
+  a07=(a04-a25);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a18*a25);
+  a25=(a25*a10);
+  a07=(a07-a25);
+  a14=(a15*a14);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a14=(a14-a08);
+  a07=(a07-a14);
+  a07=(a07/a19);
+  a02=(a02+a07);
+  a02=(a28*a02);
+  a02=(a17+a02);
+  a07=(a05*a22);
+  a14=(a04-a07);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a10);
+  a14=(a14-a07);
+  a07=(a15*a02);
+  a08=sin(a22);
+  a08=(a32*a08);
+  a07=(a07-a08);
+  a14=(a14-a07);
+  a14=(a14/a19);
+  a07=(a20*a14);
+  a07=(a02+a07);
+  a08=(2.*a07);
+  a08=(a02+a08);
+  a25=(a20*a02);
+  a25=(a22+a25);
+  a27=(a05*a25);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a07);
+  a25=sin(a25);
+  a25=(a32*a25);
+  a27=(a27-a25);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a25=(2.*a27);
+  a08=(a08+a25);
+  a07=(a20*a07);
+  a07=(a22+a07);
+  a25=(a05*a07);
+  a33=(a04-a25);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a18*a25);
+  a25=(a25*a10);
+  a33=(a33-a25);
+  a25=(a15*a27);
+  a07=sin(a07);
+  a07=(a32*a07);
+  a25=(a25-a07);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a25=(a29*a33);
+  a25=(a02+a25);
+  a08=(a08+a25);
+  a08=(a28*a08);
+  a08=(a22+a08);
+  a26=(2.*a26);
+  a14=(a14+a26);
+  a33=(2.*a33);
+  a14=(a14+a33);
+  a27=(a29*a27);
+  a22=(a22+a27);
+  a27=(a05*a22);
+  a33=(a04-a27);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a33=(a33-a27);
+  a25=(a15*a25);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a25=(a25-a22);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a14=(a14+a33);
+  a14=(a28*a14);
+  a02=(a02+a14);
+  a14=(a05*a08);
+  a33=(a04-a14);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a10);
+  a33=(a33-a14);
+  a14=(a15*a02);
+  a25=sin(a08);
+  a25=(a32*a25);
+  a14=(a14-a25);
+  a33=(a33-a14);
+  a33=(a33/a19);
+  a14=(a20*a33);
+  a14=(a02+a14);
+  a25=(2.*a14);
+  a25=(a02+a25);
+  a22=(a20*a02);
+  a22=(a08+a22);
+  a27=(a05*a22);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a14);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a27=(a27-a22);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a22=(2.*a27);
+  a25=(a25+a22);
+  a14=(a20*a14);
+  a14=(a08+a14);
+  a22=(a05*a14);
+  a07=(a04-a22);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a22=(a04+a22);
+  a22=casadi_sq(a22);
+  a22=(a22-a13);
+  a22=(a18*a22);
+  a22=(a22*a10);
+  a07=(a07-a22);
+  a22=(a15*a27);
+  a14=sin(a14);
+  a14=(a32*a14);
+  a22=(a22-a14);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a22=(a29*a07);
+  a22=(a02+a22);
+  a25=(a25+a22);
+  a25=(a28*a25);
+  a25=(a08+a25);
+  a26=(2.*a26);
+  a33=(a33+a26);
+  a07=(2.*a07);
+  a33=(a33+a07);
+  a27=(a29*a27);
+  a08=(a08+a27);
+  a27=(a05*a08);
+  a07=(a04-a27);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a07=(a07-a27);
+  a22=(a15*a22);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a22=(a22-a08);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a33=(a33+a07);
+  a33=(a28*a33);
+  a02=(a02+a33);
+  a33=(a05*a25);
+  a07=(a04-a33);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a33=(a04+a33);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a10);
+  a07=(a07-a33);
+  a33=(a15*a02);
+  a22=sin(a25);
+  a22=(a32*a22);
+  a33=(a33-a22);
+  a07=(a07-a33);
+  a07=(a07/a19);
+  a33=(a20*a07);
+  a33=(a02+a33);
+  a22=(2.*a33);
+  a22=(a02+a22);
+  a08=(a20*a02);
+  a08=(a25+a08);
+  a27=(a05*a08);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a33);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a27=(a27-a08);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a08=(2.*a27);
+  a22=(a22+a08);
+  a33=(a20*a33);
+  a33=(a25+a33);
+  a08=(a05*a33);
+  a14=(a04-a08);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a08=(a04+a08);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a18*a08);
+  a08=(a08*a10);
+  a14=(a14-a08);
+  a08=(a15*a27);
+  a33=sin(a33);
+  a33=(a32*a33);
+  a08=(a08-a33);
+  a14=(a14-a08);
+  a14=(a14/a19);
+  a08=(a29*a14);
+  a08=(a02+a08);
+  a22=(a22+a08);
+  a22=(a28*a22);
+  a22=(a25+a22);
+  a26=(2.*a26);
+  a07=(a07+a26);
+  a14=(2.*a14);
+  a07=(a07+a14);
+  a27=(a29*a27);
+  a25=(a25+a27);
+  a27=(a05*a25);
+  a14=(a04-a27);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a14=(a14-a27);
+  a08=(a15*a08);
+  a25=sin(a25);
+  a25=(a32*a25);
+  a08=(a08-a25);
+  a14=(a14-a08);
+  a14=(a14/a19);
+  a07=(a07+a14);
+  a07=(a28*a07);
+  a02=(a02+a07);
+  a07=(a05*a22);
+  a14=(a04-a07);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a10);
+  a14=(a14-a07);
+  a07=(a15*a02);
+  a08=sin(a22);
+  a08=(a32*a08);
+  a07=(a07-a08);
+  a14=(a14-a07);
+  a14=(a14/a19);
+  a07=(a20*a14);
+  a07=(a02+a07);
+  a08=(2.*a07);
+  a08=(a02+a08);
+  a25=(a20*a02);
+  a25=(a22+a25);
+  a27=(a05*a25);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a07);
+  a25=sin(a25);
+  a25=(a32*a25);
+  a27=(a27-a25);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a25=(2.*a27);
+  a08=(a08+a25);
+  a07=(a20*a07);
+  a07=(a22+a07);
+  a25=(a05*a07);
+  a33=(a04-a25);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a18*a25);
+  a25=(a25*a10);
+  a33=(a33-a25);
+  a25=(a15*a27);
+  a07=sin(a07);
+  a07=(a32*a07);
+  a25=(a25-a07);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a25=(a29*a33);
+  a25=(a02+a25);
+  a08=(a08+a25);
+  a08=(a28*a08);
+  a08=(a22+a08);
+  a26=(2.*a26);
+  a14=(a14+a26);
+  a33=(2.*a33);
+  a14=(a14+a33);
+  a27=(a29*a27);
+  a22=(a22+a27);
+  a27=(a05*a22);
+  a33=(a04-a27);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a33=(a33-a27);
+  a25=(a15*a25);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a25=(a25-a22);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a14=(a14+a33);
+  a14=(a28*a14);
+  a02=(a02+a14);
+  a14=(a05*a08);
+  a33=(a04-a14);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a10);
+  a33=(a33-a14);
+  a14=(a15*a02);
+  a25=sin(a08);
+  a25=(a32*a25);
+  a14=(a14-a25);
+  a33=(a33-a14);
+  a33=(a33/a19);
+  a14=(a20*a33);
+  a14=(a02+a14);
+  a25=(2.*a14);
+  a25=(a02+a25);
+  a22=(a20*a02);
+  a22=(a08+a22);
+  a27=(a05*a22);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a14);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a27=(a27-a22);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a22=(2.*a27);
+  a25=(a25+a22);
+  a14=(a20*a14);
+  a14=(a08+a14);
+  a22=(a05*a14);
+  a07=(a04-a22);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a22=(a04+a22);
+  a22=casadi_sq(a22);
+  a22=(a22-a13);
+  a22=(a18*a22);
+  a22=(a22*a10);
+  a07=(a07-a22);
+  a22=(a15*a27);
+  a14=sin(a14);
+  a14=(a32*a14);
+  a22=(a22-a14);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a22=(a29*a07);
+  a22=(a02+a22);
+  a25=(a25+a22);
+  a25=(a28*a25);
+  a25=(a08+a25);
+  a26=(2.*a26);
+  a33=(a33+a26);
+  a07=(2.*a07);
+  a33=(a33+a07);
+  a27=(a29*a27);
+  a08=(a08+a27);
+  a27=(a05*a08);
+  a07=(a04-a27);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a07=(a07-a27);
+  a22=(a15*a22);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a22=(a22-a08);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a33=(a33+a07);
+  a33=(a28*a33);
+  a02=(a02+a33);
+  a33=(a05*a25);
+  a07=(a04-a33);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a33=(a04+a33);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a10);
+  a07=(a07-a33);
+  a33=(a15*a02);
+  a22=sin(a25);
+  a22=(a32*a22);
+  a33=(a33-a22);
+  a07=(a07-a33);
+  a07=(a07/a19);
+  a33=(a20*a07);
+  a33=(a02+a33);
+  a22=(2.*a33);
+  a22=(a02+a22);
+  a08=(a20*a02);
+  a08=(a25+a08);
+  a27=(a05*a08);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a33);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a27=(a27-a08);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a08=(2.*a27);
+  a22=(a22+a08);
+  a33=(a20*a33);
+  a33=(a25+a33);
+  a08=(a05*a33);
+  a14=(a04-a08);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a08=(a04+a08);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a18*a08);
+  a08=(a08*a10);
+  a14=(a14-a08);
+  a08=(a15*a27);
+  a33=sin(a33);
+  a33=(a32*a33);
+  a08=(a08-a33);
+  a14=(a14-a08);
+  a14=(a14/a19);
+  a08=(a29*a14);
+  a08=(a02+a08);
+  a22=(a22+a08);
+  a22=(a28*a22);
+  a22=(a25+a22);
+  a26=(2.*a26);
+  a07=(a07+a26);
+  a14=(2.*a14);
+  a07=(a07+a14);
+  a27=(a29*a27);
+  a25=(a25+a27);
+  a27=(a05*a25);
+  a14=(a04-a27);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a14=(a14-a27);
+  a08=(a15*a08);
+  a25=sin(a25);
+  a25=(a32*a25);
+  a08=(a08-a25);
+  a14=(a14-a08);
+  a14=(a14/a19);
+  a07=(a07+a14);
+  a07=(a28*a07);
+  a02=(a02+a07);
+  a07=(a05*a22);
+  a14=(a04-a07);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a10);
+  a14=(a14-a07);
+  a07=(a15*a02);
+  a08=sin(a22);
+  a08=(a32*a08);
+  a07=(a07-a08);
+  a14=(a14-a07);
+  a14=(a14/a19);
+  a07=(a20*a14);
+  a07=(a02+a07);
+  a08=(2.*a07);
+  a08=(a02+a08);
+  a25=(a20*a02);
+  a25=(a22+a25);
+  a27=(a05*a25);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a07);
+  a25=sin(a25);
+  a25=(a32*a25);
+  a27=(a27-a25);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a25=(2.*a27);
+  a08=(a08+a25);
+  a07=(a20*a07);
+  a07=(a22+a07);
+  a25=(a05*a07);
+  a33=(a04-a25);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a18*a25);
+  a25=(a25*a10);
+  a33=(a33-a25);
+  a25=(a15*a27);
+  a07=sin(a07);
+  a07=(a32*a07);
+  a25=(a25-a07);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a25=(a29*a33);
+  a25=(a02+a25);
+  a08=(a08+a25);
+  a08=(a28*a08);
+  a08=(a22+a08);
+  a26=(2.*a26);
+  a14=(a14+a26);
+  a33=(2.*a33);
+  a14=(a14+a33);
+  a27=(a29*a27);
+  a22=(a22+a27);
+  a27=(a05*a22);
+  a33=(a04-a27);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a33=(a33-a27);
+  a25=(a15*a25);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a25=(a25-a22);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a14=(a14+a33);
+  a14=(a28*a14);
+  a02=(a02+a14);
+  a14=(a05*a08);
+  a33=(a04-a14);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a10);
+  a33=(a33-a14);
+  a14=(a15*a02);
+  a25=sin(a08);
+  a25=(a32*a25);
+  a14=(a14-a25);
+  a33=(a33-a14);
+  a33=(a33/a19);
+  a14=(a20*a33);
+  a14=(a02+a14);
+  a25=(2.*a14);
+  a25=(a02+a25);
+  a22=(a20*a02);
+  a22=(a08+a22);
+  a27=(a05*a22);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a14);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a27=(a27-a22);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a22=(2.*a27);
+  a25=(a25+a22);
+  a14=(a20*a14);
+  a14=(a08+a14);
+  a22=(a05*a14);
+  a07=(a04-a22);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a22=(a04+a22);
+  a22=casadi_sq(a22);
+  a22=(a22-a13);
+  a22=(a18*a22);
+  a22=(a22*a10);
+  a07=(a07-a22);
+  a22=(a15*a27);
+  a14=sin(a14);
+  a14=(a32*a14);
+  a22=(a22-a14);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a22=(a29*a07);
+  a22=(a02+a22);
+  a25=(a25+a22);
+  a25=(a28*a25);
+  a25=(a08+a25);
+  a26=(2.*a26);
+  a33=(a33+a26);
+  a07=(2.*a07);
+  a33=(a33+a07);
+  a27=(a29*a27);
+  a08=(a08+a27);
+  a27=(a05*a08);
+  a07=(a04-a27);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a07=(a07-a27);
+  a22=(a15*a22);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a22=(a22-a08);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a33=(a33+a07);
+  a33=(a28*a33);
+  a02=(a02+a33);
+  a33=(a05*a25);
+  a07=(a04-a33);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a33=(a04+a33);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a10);
+  a07=(a07-a33);
+  a33=(a15*a02);
+  a22=sin(a25);
+  a22=(a32*a22);
+  a33=(a33-a22);
+  a07=(a07-a33);
+  a07=(a07/a19);
+  a33=(a20*a07);
+  a33=(a02+a33);
+  a22=(2.*a33);
+  a22=(a02+a22);
+  a08=(a20*a02);
+  a08=(a25+a08);
+  a27=(a05*a08);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a33);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a27=(a27-a08);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a08=(2.*a27);
+  a22=(a22+a08);
+  a20=(a20*a33);
+  a20=(a25+a20);
+  a33=(a05*a20);
+  a08=(a04-a33);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a18*a08);
+  a08=(a08*a21);
+  a33=(a04+a33);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a10);
+  a08=(a08-a33);
+  a33=(a15*a27);
+  a20=sin(a20);
+  a20=(a32*a20);
+  a33=(a33-a20);
+  a08=(a08-a33);
+  a08=(a08/a19);
+  a33=(a29*a08);
+  a33=(a02+a33);
+  a22=(a22+a33);
+  a22=(a28*a22);
+  a22=(a25+a22);
+  if (res[0]!=0) res[0][4]=a22;
+  a26=(2.*a26);
+  a07=(a07+a26);
+  a08=(2.*a08);
+  a07=(a07+a08);
+  a29=(a29*a27);
+  a25=(a25+a29);
+  a05=(a05*a25);
+  a29=(a04-a05);
+  a29=casadi_sq(a29);
+  a29=(a29-a13);
+  a29=(a18*a29);
+  a29=(a29*a21);
+  a04=(a04+a05);
+  a04=casadi_sq(a04);
+  a04=(a04-a13);
+  a18=(a18*a04);
+  a18=(a18*a10);
+  a29=(a29-a18);
+  a15=(a15*a33);
+  a25=sin(a25);
+  a32=(a32*a25);
+  a15=(a15-a32);
+  a29=(a29-a15);
+  a29=(a29/a19);
+  a07=(a07+a29);
+  a28=(a28*a07);
+  a02=(a02+a28);
+  if (res[0]!=0) res[0][5]=a02;
+  if (res[0]!=0) res[0][6]=a21;
+  if (res[0]!=0) res[0][7]=a10;
+  a10=arg[2]? arg[2][0] : 0;
+  a01=(a01*a10);
+  if (res[1]!=0) res[1][0]=a01;
+  if (res[1]!=0) res[1][1]=a06;
+  if (res[1]!=0) res[1][2]=a17;
+  if (res[1]!=0) res[1][3]=a09;
+  if (res[1]!=0) res[1][4]=a11;
+  a03=(-a03);
+  if (res[1]!=0) res[1][5]=a03;
+  if (res[1]!=0) res[1][6]=a16;
+  if (res[1]!=0) res[1][7]=a12;
+  if (res[1]!=0) res[1][8]=a31;
+  if (res[1]!=0) res[1][9]=a00;
+  if (res[1]!=0) res[1][10]=a30;
+  if (res[1]!=0) res[1][11]=a23;
+  if (res[1]!=0) res[1][12]=a24;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_closed_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f29(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_closed_step_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_theorem5_closed_step_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_theorem5_closed_step_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_theorem5_closed_step_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_theorem5_closed_step_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_theorem5_closed_step_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_theorem5_closed_step_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_theorem5_closed_step_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "p";
+    case 2: return "k";
+    case 3: return "e";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_theorem5_closed_step_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_next";
+    case 1: return "y";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_theorem5_closed_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s12;
+    case 1: return casadi_s7;
+    case 2: return casadi_s0;
+    case 3: return casadi_s4;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_theorem5_closed_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s12;
+    case 1: return casadi_s13;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_closed_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 2;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_closed_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* one_sample:(xa[9],p[7],e[6])->(xa_next[9],y[13]) */
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.0000000000000000e-03;
+  a02=arg[1]? arg[1][5] : 0;
+  a03=-7.1680000000000005e-05;
+  a04=3.5999999999999999e-01;
+  a05=1.6000000000000000e-02;
+  a06=arg[0]? arg[0][4] : 0;
+  a07=(a05*a06);
+  a08=(a04-a07);
+  a03=(a03*a08);
+  a09=arg[0]? arg[0][6] : 0;
+  a03=(a03*a09);
+  a10=7.1680000000000005e-05;
+  a07=(a04+a07);
+  a10=(a10*a07);
+  a11=arg[0]? arg[0][7] : 0;
+  a10=(a10*a11);
+  a03=(a03-a10);
+  a10=arg[2]? arg[2][4] : 0;
+  a10=(a03+a10);
+  a02=(a02*a10);
+  a10=-3.2000000000000001e-02;
+  a10=(a10*a08);
+  a12=casadi_sq(a08);
+  a13=6.2500000000000000e-02;
+  a12=(a12-a13);
+  a14=casadi_sq(a12);
+  a15=casadi_sq(a07);
+  a15=(a15-a13);
+  a16=casadi_sq(a15);
+  a14=(a14+a16);
+  a16=(a12/a14);
+  a17=arg[0]? arg[0][5] : 0;
+  a18=arg[1]? arg[1][2] : 0;
+  a19=arg[2]? arg[2][1] : 0;
+  a20=arg[1]? arg[1][0] : 0;
+  a21=arg[2]? arg[2][0] : 0;
+  a21=(a21-a06);
+  a21=(a20*a21);
+  a21=(a19+a21);
+  a21=(a21-a17);
+  a22=(a17*a21);
+  a18=(a18*a22);
+  a22=(a17*a18);
+  a23=arg[0]? arg[0][2] : 0;
+  a24=arg[2]? arg[2][3] : 0;
+  a25=arg[2]? arg[2][2] : 0;
+  a26=(a20*a25);
+  a24=(a24+a26);
+  a24=(a23*a24);
+  a19=(a19-a17);
+  a20=(a20*a19);
+  a25=(a25+a20);
+  a20=arg[1]? arg[1][3] : 0;
+  a19=(a25*a21);
+  a20=(a20*a19);
+  a19=(a25*a20);
+  a24=(a24+a19);
+  a22=(a22+a24);
+  a24=arg[0]? arg[0][3] : 0;
+  a19=-9.8100000000000005e+00;
+  a26=cos(a06);
+  a26=(a26*a17);
+  a26=(a19*a26);
+  a26=(a24*a26);
+  a27=sin(a06);
+  a19=(a19*a27);
+  a28=arg[1]? arg[1][4] : 0;
+  a29=(a19*a21);
+  a28=(a28*a29);
+  a29=(a19*a28);
+  a26=(a26-a29);
+  a22=(a22-a26);
+  a26=arg[1]? arg[1][1] : 0;
+  a29=(a26*a25);
+  a22=(a22+a29);
+  a29=(a16*a22);
+  a30=arg[0]? arg[0][1] : 0;
+  a31=(a17*a30);
+  a25=(a25*a23);
+  a31=(a31+a25);
+  a19=(a19*a24);
+  a31=(a31-a19);
+  a26=(a26*a21);
+  a31=(a31+a26);
+  a08=(2.*a08);
+  a26=(a05*a17);
+  a08=(a08*a26);
+  a21=(a08/a14);
+  a19=(a16/a14);
+  a25=(2.*a15);
+  a32=(2.*a07);
+  a32=(a32*a26);
+  a25=(a25*a32);
+  a26=(2.*a12);
+  a26=(a26*a08);
+  a25=(a25-a26);
+  a19=(a19*a25);
+  a21=(a21+a19);
+  a21=(a31*a21);
+  a29=(a29-a21);
+  a29=(a10*a29);
+  a21=3.2000000000000001e-02;
+  a21=(a21*a07);
+  a07=(a32/a14);
+  a19=(a15/a14);
+  a14=(a19/a14);
+  a14=(a14*a25);
+  a07=(a07-a14);
+  a07=(a31*a07);
+  a22=(a19*a22);
+  a07=(a07+a22);
+  a07=(a21*a07);
+  a29=(a29+a07);
+  a02=(a02+a29);
+  a29=5.1199999999999998e-04;
+  a29=(a29*a17);
+  a19=(a19*a31);
+  a07=(a29*a19);
+  a22=-5.1199999999999998e-04;
+  a22=(a22*a17);
+  a16=(a16*a31);
+  a14=(a22*a16);
+  a07=(a07-a14);
+  a02=(a02+a07);
+  a32=(a10*a32);
+  a08=(a21*a08);
+  a32=(a32+a08);
+  a22=(a22*a15);
+  a29=(a29*a12);
+  a22=(a22+a29);
+  a32=(a32-a22);
+  a32=(a32*a00);
+  a02=(a02+a32);
+  a32=arg[1]? arg[1][6] : 0;
+  a22=arg[2]? arg[2][5] : 0;
+  a32=(a32*a22);
+  a02=(a02+a32);
+  a10=(a10*a15);
+  a21=(a21*a12);
+  a10=(a10-a21);
+  a02=(a02/a10);
+  a02=(a01*a02);
+  a02=(a00-a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a18=(a01*a18);
+  a18=(a30+a18);
+  if (res[0]!=0) res[0][1]=a18;
+  a20=(a01*a20);
+  a20=(a23+a20);
+  if (res[0]!=0) res[0][2]=a20;
+  a28=(a01*a28);
+  a28=(a24-a28);
+  if (res[0]!=0) res[0][3]=a28;
+  a28=1.6666666666666667e-05;
+  a20=5.0000000000000002e-05;
+  a18=2.2400000000000002e-03;
+  a02=(a18*a12);
+  a10=(a15*a00);
+  a16=(a16+a10);
+  a10=0.;
+  a21=casadi_fmax(a16,a10);
+  a02=(a02*a21);
+  a15=(a18*a15);
+  a12=(a12*a00);
+  a12=(a12-a19);
+  a10=casadi_fmax(a12,a10);
+  a15=(a15*a10);
+  a02=(a02-a15);
+  a15=1.0000000000000001e-05;
+  a19=(a15*a17);
+  a32=-1.1772000000000000e+00;
+  a27=(a32*a27);
+  a19=(a19-a27);
+  a02=(a02-a19);
+  a19=1.4999999999999999e-02;
+  a02=(a02/a19);
+  a27=(a20*a02);
+  a27=(a17+a27);
+  a22=(2.*a27);
+  a22=(a17+a22);
+  a29=(a20*a17);
+  a29=(a06+a29);
+  a08=(a05*a29);
+  a07=(a04-a08);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a08=(a04+a08);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a18*a08);
+  a08=(a08*a10);
+  a07=(a07-a08);
+  a08=(a15*a27);
+  a29=sin(a29);
+  a29=(a32*a29);
+  a08=(a08-a29);
+  a07=(a07-a08);
+  a07=(a07/a19);
+  a08=(a20*a07);
+  a08=(a17+a08);
+  a29=(2.*a08);
+  a22=(a22+a29);
+  a29=1.0000000000000000e-04;
+  a27=(a20*a27);
+  a27=(a06+a27);
+  a14=(a05*a27);
+  a25=(a04-a14);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a18*a25);
+  a25=(a25*a21);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a10);
+  a25=(a25-a14);
+  a14=(a15*a08);
+  a27=sin(a27);
+  a27=(a32*a27);
+  a14=(a14-a27);
+  a25=(a25-a14);
+  a25=(a25/a19);
+  a14=(a29*a25);
+  a14=(a17+a14);
+  a22=(a22+a14);
+  a22=(a28*a22);
+  a22=(a06+a22);
+  a07=(2.*a07);
+  a02=(a02+a07);
+  a25=(2.*a25);
+  a02=(a02+a25);
+  a08=(a29*a08);
+  a08=(a06+a08);
+  a25=(a05*a08);
+  a07=(a04-a25);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a18*a25);
+  a25=(a25*a10);
+  a07=(a07-a25);
+  a14=(a15*a14);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a14=(a14-a08);
+  a07=(a07-a14);
+  a07=(a07/a19);
+  a02=(a02+a07);
+  a02=(a28*a02);
+  a02=(a17+a02);
+  a07=(a05*a22);
+  a14=(a04-a07);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a10);
+  a14=(a14-a07);
+  a07=(a15*a02);
+  a08=sin(a22);
+  a08=(a32*a08);
+  a07=(a07-a08);
+  a14=(a14-a07);
+  a14=(a14/a19);
+  a07=(a20*a14);
+  a07=(a02+a07);
+  a08=(2.*a07);
+  a08=(a02+a08);
+  a25=(a20*a02);
+  a25=(a22+a25);
+  a27=(a05*a25);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a07);
+  a25=sin(a25);
+  a25=(a32*a25);
+  a27=(a27-a25);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a25=(2.*a27);
+  a08=(a08+a25);
+  a07=(a20*a07);
+  a07=(a22+a07);
+  a25=(a05*a07);
+  a33=(a04-a25);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a18*a25);
+  a25=(a25*a10);
+  a33=(a33-a25);
+  a25=(a15*a27);
+  a07=sin(a07);
+  a07=(a32*a07);
+  a25=(a25-a07);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a25=(a29*a33);
+  a25=(a02+a25);
+  a08=(a08+a25);
+  a08=(a28*a08);
+  a08=(a22+a08);
+  a26=(2.*a26);
+  a14=(a14+a26);
+  a33=(2.*a33);
+  a14=(a14+a33);
+  a27=(a29*a27);
+  a22=(a22+a27);
+  a27=(a05*a22);
+  a33=(a04-a27);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a33=(a33-a27);
+  a25=(a15*a25);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a25=(a25-a22);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a14=(a14+a33);
+  a14=(a28*a14);
+  a02=(a02+a14);
+  a14=(a05*a08);
+  a33=(a04-a14);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a10);
+  a33=(a33-a14);
+  a14=(a15*a02);
+  a25=sin(a08);
+  a25=(a32*a25);
+  a14=(a14-a25);
+  a33=(a33-a14);
+  a33=(a33/a19);
+  a14=(a20*a33);
+  a14=(a02+a14);
+  a25=(2.*a14);
+  a25=(a02+a25);
+  a22=(a20*a02);
+  a22=(a08+a22);
+  a27=(a05*a22);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a14);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a27=(a27-a22);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a22=(2.*a27);
+  a25=(a25+a22);
+  a14=(a20*a14);
+  a14=(a08+a14);
+  a22=(a05*a14);
+  a07=(a04-a22);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a22=(a04+a22);
+  a22=casadi_sq(a22);
+  a22=(a22-a13);
+  a22=(a18*a22);
+  a22=(a22*a10);
+  a07=(a07-a22);
+  a22=(a15*a27);
+  a14=sin(a14);
+  a14=(a32*a14);
+  a22=(a22-a14);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a22=(a29*a07);
+  a22=(a02+a22);
+  a25=(a25+a22);
+  a25=(a28*a25);
+  a25=(a08+a25);
+  a26=(2.*a26);
+  a33=(a33+a26);
+  a07=(2.*a07);
+  a33=(a33+a07);
+  a27=(a29*a27);
+  a08=(a08+a27);
+  a27=(a05*a08);
+  a07=(a04-a27);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a07=(a07-a27);
+  a22=(a15*a22);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a22=(a22-a08);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a33=(a33+a07);
+  a33=(a28*a33);
+  a02=(a02+a33);
+  a33=(a05*a25);
+  a07=(a04-a33);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a33=(a04+a33);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a10);
+  a07=(a07-a33);
+  a33=(a15*a02);
+  a22=sin(a25);
+  a22=(a32*a22);
+  a33=(a33-a22);
+  a07=(a07-a33);
+  a07=(a07/a19);
+  a33=(a20*a07);
+  a33=(a02+a33);
+  a22=(2.*a33);
+  a22=(a02+a22);
+  a08=(a20*a02);
+  a08=(a25+a08);
+  a27=(a05*a08);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a33);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a27=(a27-a08);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a08=(2.*a27);
+  a22=(a22+a08);
+  a33=(a20*a33);
+  a33=(a25+a33);
+  a08=(a05*a33);
+  a14=(a04-a08);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a08=(a04+a08);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a18*a08);
+  a08=(a08*a10);
+  a14=(a14-a08);
+  a08=(a15*a27);
+  a33=sin(a33);
+  a33=(a32*a33);
+  a08=(a08-a33);
+  a14=(a14-a08);
+  a14=(a14/a19);
+  a08=(a29*a14);
+  a08=(a02+a08);
+  a22=(a22+a08);
+  a22=(a28*a22);
+  a22=(a25+a22);
+  a26=(2.*a26);
+  a07=(a07+a26);
+  a14=(2.*a14);
+  a07=(a07+a14);
+  a27=(a29*a27);
+  a25=(a25+a27);
+  a27=(a05*a25);
+  a14=(a04-a27);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a14=(a14-a27);
+  a08=(a15*a08);
+  a25=sin(a25);
+  a25=(a32*a25);
+  a08=(a08-a25);
+  a14=(a14-a08);
+  a14=(a14/a19);
+  a07=(a07+a14);
+  a07=(a28*a07);
+  a02=(a02+a07);
+  a07=(a05*a22);
+  a14=(a04-a07);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a10);
+  a14=(a14-a07);
+  a07=(a15*a02);
+  a08=sin(a22);
+  a08=(a32*a08);
+  a07=(a07-a08);
+  a14=(a14-a07);
+  a14=(a14/a19);
+  a07=(a20*a14);
+  a07=(a02+a07);
+  a08=(2.*a07);
+  a08=(a02+a08);
+  a25=(a20*a02);
+  a25=(a22+a25);
+  a27=(a05*a25);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a07);
+  a25=sin(a25);
+  a25=(a32*a25);
+  a27=(a27-a25);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a25=(2.*a27);
+  a08=(a08+a25);
+  a07=(a20*a07);
+  a07=(a22+a07);
+  a25=(a05*a07);
+  a33=(a04-a25);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a18*a25);
+  a25=(a25*a10);
+  a33=(a33-a25);
+  a25=(a15*a27);
+  a07=sin(a07);
+  a07=(a32*a07);
+  a25=(a25-a07);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a25=(a29*a33);
+  a25=(a02+a25);
+  a08=(a08+a25);
+  a08=(a28*a08);
+  a08=(a22+a08);
+  a26=(2.*a26);
+  a14=(a14+a26);
+  a33=(2.*a33);
+  a14=(a14+a33);
+  a27=(a29*a27);
+  a22=(a22+a27);
+  a27=(a05*a22);
+  a33=(a04-a27);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a33=(a33-a27);
+  a25=(a15*a25);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a25=(a25-a22);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a14=(a14+a33);
+  a14=(a28*a14);
+  a02=(a02+a14);
+  a14=(a05*a08);
+  a33=(a04-a14);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a10);
+  a33=(a33-a14);
+  a14=(a15*a02);
+  a25=sin(a08);
+  a25=(a32*a25);
+  a14=(a14-a25);
+  a33=(a33-a14);
+  a33=(a33/a19);
+  a14=(a20*a33);
+  a14=(a02+a14);
+  a25=(2.*a14);
+  a25=(a02+a25);
+  a22=(a20*a02);
+  a22=(a08+a22);
+  a27=(a05*a22);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a14);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a27=(a27-a22);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a22=(2.*a27);
+  a25=(a25+a22);
+  a14=(a20*a14);
+  a14=(a08+a14);
+  a22=(a05*a14);
+  a07=(a04-a22);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a22=(a04+a22);
+  a22=casadi_sq(a22);
+  a22=(a22-a13);
+  a22=(a18*a22);
+  a22=(a22*a10);
+  a07=(a07-a22);
+  a22=(a15*a27);
+  a14=sin(a14);
+  a14=(a32*a14);
+  a22=(a22-a14);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a22=(a29*a07);
+  a22=(a02+a22);
+  a25=(a25+a22);
+  a25=(a28*a25);
+  a25=(a08+a25);
+  a26=(2.*a26);
+  a33=(a33+a26);
+  a07=(2.*a07);
+  a33=(a33+a07);
+  a27=(a29*a27);
+  a08=(a08+a27);
+  a27=(a05*a08);
+  a07=(a04-a27);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a07=(a07-a27);
+  a22=(a15*a22);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a22=(a22-a08);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a33=(a33+a07);
+  a33=(a28*a33);
+  a02=(a02+a33);
+  a33=(a05*a25);
+  a07=(a04-a33);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a33=(a04+a33);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a10);
+  a07=(a07-a33);
+  a33=(a15*a02);
+  a22=sin(a25);
+  a22=(a32*a22);
+  a33=(a33-a22);
+  a07=(a07-a33);
+  a07=(a07/a19);
+  a33=(a20*a07);
+  a33=(a02+a33);
+  a22=(2.*a33);
+  a22=(a02+a22);
+  a08=(a20*a02);
+  a08=(a25+a08);
+  a27=(a05*a08);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a33);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a27=(a27-a08);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a08=(2.*a27);
+  a22=(a22+a08);
+  a33=(a20*a33);
+  a33=(a25+a33);
+  a08=(a05*a33);
+  a14=(a04-a08);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a08=(a04+a08);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a18*a08);
+  a08=(a08*a10);
+  a14=(a14-a08);
+  a08=(a15*a27);
+  a33=sin(a33);
+  a33=(a32*a33);
+  a08=(a08-a33);
+  a14=(a14-a08);
+  a14=(a14/a19);
+  a08=(a29*a14);
+  a08=(a02+a08);
+  a22=(a22+a08);
+  a22=(a28*a22);
+  a22=(a25+a22);
+  a26=(2.*a26);
+  a07=(a07+a26);
+  a14=(2.*a14);
+  a07=(a07+a14);
+  a27=(a29*a27);
+  a25=(a25+a27);
+  a27=(a05*a25);
+  a14=(a04-a27);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a14=(a14-a27);
+  a08=(a15*a08);
+  a25=sin(a25);
+  a25=(a32*a25);
+  a08=(a08-a25);
+  a14=(a14-a08);
+  a14=(a14/a19);
+  a07=(a07+a14);
+  a07=(a28*a07);
+  a02=(a02+a07);
+  a07=(a05*a22);
+  a14=(a04-a07);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a21);
+  a07=(a04+a07);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a10);
+  a14=(a14-a07);
+  a07=(a15*a02);
+  a08=sin(a22);
+  a08=(a32*a08);
+  a07=(a07-a08);
+  a14=(a14-a07);
+  a14=(a14/a19);
+  a07=(a20*a14);
+  a07=(a02+a07);
+  a08=(2.*a07);
+  a08=(a02+a08);
+  a25=(a20*a02);
+  a25=(a22+a25);
+  a27=(a05*a25);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a07);
+  a25=sin(a25);
+  a25=(a32*a25);
+  a27=(a27-a25);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a25=(2.*a27);
+  a08=(a08+a25);
+  a07=(a20*a07);
+  a07=(a22+a07);
+  a25=(a05*a07);
+  a33=(a04-a25);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a25=(a04+a25);
+  a25=casadi_sq(a25);
+  a25=(a25-a13);
+  a25=(a18*a25);
+  a25=(a25*a10);
+  a33=(a33-a25);
+  a25=(a15*a27);
+  a07=sin(a07);
+  a07=(a32*a07);
+  a25=(a25-a07);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a25=(a29*a33);
+  a25=(a02+a25);
+  a08=(a08+a25);
+  a08=(a28*a08);
+  a08=(a22+a08);
+  a26=(2.*a26);
+  a14=(a14+a26);
+  a33=(2.*a33);
+  a14=(a14+a33);
+  a27=(a29*a27);
+  a22=(a22+a27);
+  a27=(a05*a22);
+  a33=(a04-a27);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a33=(a33-a27);
+  a25=(a15*a25);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a25=(a25-a22);
+  a33=(a33-a25);
+  a33=(a33/a19);
+  a14=(a14+a33);
+  a14=(a28*a14);
+  a02=(a02+a14);
+  a14=(a05*a08);
+  a33=(a04-a14);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a21);
+  a14=(a04+a14);
+  a14=casadi_sq(a14);
+  a14=(a14-a13);
+  a14=(a18*a14);
+  a14=(a14*a10);
+  a33=(a33-a14);
+  a14=(a15*a02);
+  a25=sin(a08);
+  a25=(a32*a25);
+  a14=(a14-a25);
+  a33=(a33-a14);
+  a33=(a33/a19);
+  a14=(a20*a33);
+  a14=(a02+a14);
+  a25=(2.*a14);
+  a25=(a02+a25);
+  a22=(a20*a02);
+  a22=(a08+a22);
+  a27=(a05*a22);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a14);
+  a22=sin(a22);
+  a22=(a32*a22);
+  a27=(a27-a22);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a22=(2.*a27);
+  a25=(a25+a22);
+  a14=(a20*a14);
+  a14=(a08+a14);
+  a22=(a05*a14);
+  a07=(a04-a22);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a22=(a04+a22);
+  a22=casadi_sq(a22);
+  a22=(a22-a13);
+  a22=(a18*a22);
+  a22=(a22*a10);
+  a07=(a07-a22);
+  a22=(a15*a27);
+  a14=sin(a14);
+  a14=(a32*a14);
+  a22=(a22-a14);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a22=(a29*a07);
+  a22=(a02+a22);
+  a25=(a25+a22);
+  a25=(a28*a25);
+  a25=(a08+a25);
+  a26=(2.*a26);
+  a33=(a33+a26);
+  a07=(2.*a07);
+  a33=(a33+a07);
+  a27=(a29*a27);
+  a08=(a08+a27);
+  a27=(a05*a08);
+  a07=(a04-a27);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a07=(a07-a27);
+  a22=(a15*a22);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a22=(a22-a08);
+  a07=(a07-a22);
+  a07=(a07/a19);
+  a33=(a33+a07);
+  a33=(a28*a33);
+  a02=(a02+a33);
+  a33=(a05*a25);
+  a07=(a04-a33);
+  a07=casadi_sq(a07);
+  a07=(a07-a13);
+  a07=(a18*a07);
+  a07=(a07*a21);
+  a33=(a04+a33);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a10);
+  a07=(a07-a33);
+  a33=(a15*a02);
+  a22=sin(a25);
+  a22=(a32*a22);
+  a33=(a33-a22);
+  a07=(a07-a33);
+  a07=(a07/a19);
+  a33=(a20*a07);
+  a33=(a02+a33);
+  a22=(2.*a33);
+  a22=(a02+a22);
+  a08=(a20*a02);
+  a08=(a25+a08);
+  a27=(a05*a08);
+  a26=(a04-a27);
+  a26=casadi_sq(a26);
+  a26=(a26-a13);
+  a26=(a18*a26);
+  a26=(a26*a21);
+  a27=(a04+a27);
+  a27=casadi_sq(a27);
+  a27=(a27-a13);
+  a27=(a18*a27);
+  a27=(a27*a10);
+  a26=(a26-a27);
+  a27=(a15*a33);
+  a08=sin(a08);
+  a08=(a32*a08);
+  a27=(a27-a08);
+  a26=(a26-a27);
+  a26=(a26/a19);
+  a27=(a20*a26);
+  a27=(a02+a27);
+  a08=(2.*a27);
+  a22=(a22+a08);
+  a20=(a20*a33);
+  a20=(a25+a20);
+  a33=(a05*a20);
+  a08=(a04-a33);
+  a08=casadi_sq(a08);
+  a08=(a08-a13);
+  a08=(a18*a08);
+  a08=(a08*a21);
+  a33=(a04+a33);
+  a33=casadi_sq(a33);
+  a33=(a33-a13);
+  a33=(a18*a33);
+  a33=(a33*a10);
+  a08=(a08-a33);
+  a33=(a15*a27);
+  a20=sin(a20);
+  a20=(a32*a20);
+  a33=(a33-a20);
+  a08=(a08-a33);
+  a08=(a08/a19);
+  a33=(a29*a08);
+  a33=(a02+a33);
+  a22=(a22+a33);
+  a22=(a28*a22);
+  a22=(a25+a22);
+  if (res[0]!=0) res[0][4]=a22;
+  a26=(2.*a26);
+  a07=(a07+a26);
+  a08=(2.*a08);
+  a07=(a07+a08);
+  a29=(a29*a27);
+  a25=(a25+a29);
+  a05=(a05*a25);
+  a29=(a04-a05);
+  a29=casadi_sq(a29);
+  a29=(a29-a13);
+  a29=(a18*a29);
+  a29=(a29*a21);
+  a04=(a04+a05);
+  a04=casadi_sq(a04);
+  a04=(a04-a13);
+  a18=(a18*a04);
+  a18=(a18*a10);
+  a29=(a29-a18);
+  a15=(a15*a33);
+  a25=sin(a25);
+  a32=(a32*a25);
+  a15=(a15-a32);
+  a29=(a29-a15);
+  a29=(a29/a19);
+  a07=(a07+a29);
+  a28=(a28*a07);
+  a02=(a02+a28);
+  if (res[0]!=0) res[0][5]=a02;
+  if (res[0]!=0) res[0][6]=a21;
+  if (res[0]!=0) res[0][7]=a10;
+  a10=arg[0]? arg[0][8] : 0;
+  a21=1.;
+  a21=(a10+a21);
+  if (res[0]!=0) res[0][8]=a21;
+  a01=(a01*a10);
+  if (res[1]!=0) res[1][0]=a01;
+  if (res[1]!=0) res[1][1]=a06;
+  if (res[1]!=0) res[1][2]=a17;
+  if (res[1]!=0) res[1][3]=a09;
+  if (res[1]!=0) res[1][4]=a11;
+  a03=(-a03);
+  if (res[1]!=0) res[1][5]=a03;
+  if (res[1]!=0) res[1][6]=a16;
+  if (res[1]!=0) res[1][7]=a12;
+  if (res[1]!=0) res[1][8]=a31;
+  if (res[1]!=0) res[1][9]=a00;
+  if (res[1]!=0) res[1][10]=a30;
+  if (res[1]!=0) res[1][11]=a23;
+  if (res[1]!=0) res[1][12]=a24;
+  return 0;
+}
+
+/* one_sample_acc10:(xa[9],p[7x10],e[6x10])->(xa_next[9x10],y[13x10]) */
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+34, *w01=w+43, *w02=w+50, *w03=w+56, *w04=w+65, *w05=w+78, *w06=w+91, *w07=w+104, *w08=w+117, *w09=w+130, *w10=w+143;
+  casadi_real *w11=w+156, *w12=w+169, *w13=w+182;
+  const casadi_real **arg1=arg+3, *wr00;
+  /* #0: @0 = input[0][0] */
+  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 7, w01);
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 6, w02);
+  /* #3: {@3, @4} = one_sample(@0, @1, @2) */
+  arg1[0]=wr00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 9, res[0]);
+  /* #5: @1 = input[1][1] */
+  casadi_copy(arg[1] ? arg[1]+7 : 0, 7, w01);
+  /* #6: @2 = input[2][1] */
+  casadi_copy(arg[2] ? arg[2]+6 : 0, 6, w02);
+  /* #7: {@0, @5} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w05;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #8: output[0][1] = @0 */
+  if (res[0]) casadi_copy(w00, 9, res[0]+9);
+  /* #9: @1 = input[1][2] */
+  casadi_copy(arg[1] ? arg[1]+14 : 0, 7, w01);
+  /* #10: @2 = input[2][2] */
+  casadi_copy(arg[2] ? arg[2]+12 : 0, 6, w02);
+  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #12: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 9, res[0]+18);
+  /* #13: @1 = input[1][3] */
+  casadi_copy(arg[1] ? arg[1]+21 : 0, 7, w01);
+  /* #14: @2 = input[2][3] */
+  casadi_copy(arg[2] ? arg[2]+18 : 0, 6, w02);
+  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w07;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #16: output[0][3] = @0 */
+  if (res[0]) casadi_copy(w00, 9, res[0]+27);
+  /* #17: @1 = input[1][4] */
+  casadi_copy(arg[1] ? arg[1]+28 : 0, 7, w01);
+  /* #18: @2 = input[2][4] */
+  casadi_copy(arg[2] ? arg[2]+24 : 0, 6, w02);
+  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #20: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 9, res[0]+36);
+  /* #21: @1 = input[1][5] */
+  casadi_copy(arg[1] ? arg[1]+35 : 0, 7, w01);
+  /* #22: @2 = input[2][5] */
+  casadi_copy(arg[2] ? arg[2]+30 : 0, 6, w02);
+  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w09;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][5] = @0 */
+  if (res[0]) casadi_copy(w00, 9, res[0]+45);
+  /* #25: @1 = input[1][6] */
+  casadi_copy(arg[1] ? arg[1]+42 : 0, 7, w01);
+  /* #26: @2 = input[2][6] */
+  casadi_copy(arg[2] ? arg[2]+36 : 0, 6, w02);
+  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #28: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 9, res[0]+54);
+  /* #29: @1 = input[1][7] */
+  casadi_copy(arg[1] ? arg[1]+49 : 0, 7, w01);
+  /* #30: @2 = input[2][7] */
+  casadi_copy(arg[2] ? arg[2]+42 : 0, 6, w02);
+  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w11;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #32: output[0][7] = @0 */
+  if (res[0]) casadi_copy(w00, 9, res[0]+63);
+  /* #33: @1 = input[1][8] */
+  casadi_copy(arg[1] ? arg[1]+56 : 0, 7, w01);
+  /* #34: @2 = input[2][8] */
+  casadi_copy(arg[2] ? arg[2]+48 : 0, 6, w02);
+  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #36: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 9, res[0]+72);
+  /* #37: @1 = input[1][9] */
+  casadi_copy(arg[1] ? arg[1]+63 : 0, 7, w01);
+  /* #38: @2 = input[2][9] */
+  casadi_copy(arg[2] ? arg[2]+54 : 0, 6, w02);
+  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w13;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #40: output[0][9] = @0 */
+  if (res[0]) casadi_copy(w00, 9, res[0]+81);
+  /* #41: output[1][0] = @4 */
+  casadi_copy(w04, 13, res[1]);
+  /* #42: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 13, res[1]+13);
+  /* #43: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 13, res[1]+26);
+  /* #44: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 13, res[1]+39);
+  /* #45: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 13, res[1]+52);
+  /* #46: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 13, res[1]+65);
+  /* #47: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 13, res[1]+78);
+  /* #48: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 13, res[1]+91);
+  /* #49: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 13, res[1]+104);
+  /* #50: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 13, res[1]+117);
+  return 0;
+}
+
+/* one_sample_acc10_acc10:(xa[9],p[7x100],e[6x100])->(xa_next[9x100],y[13x100]) */
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+195, *w03=w+204, *w04=w+294, *w05=w+424, *w06=w+554, *w07=w+684, *w08=w+814, *w09=w+944, *w10=w+1074, *w11=w+1204, *w12=w+1334;
+  casadi_real *w13=w+1464;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  /* #0: @0 = input[0][0] */
+  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=wr00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 90, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+81, 9, w00);
+  /* #6: @1 = input[1][1] */
+  wr01 = arg[1] ? arg[1]+70 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w05;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w03, 90, res[0]+90);
+  /* #10: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+81, 9, w00);
+  /* #11: @1 = input[1][2] */
+  wr01 = arg[1] ? arg[1]+140 : casadi_zeros;
+  /* #12: @2 = input[2][2] */
+  wr02 = arg[2] ? arg[2]+120 : casadi_zeros;
+  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 90, res[0]+180);
+  /* #15: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+81, 9, w00);
+  /* #16: @1 = input[1][3] */
+  wr01 = arg[1] ? arg[1]+210 : casadi_zeros;
+  /* #17: @2 = input[2][3] */
+  wr02 = arg[2] ? arg[2]+180 : casadi_zeros;
+  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w07;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @3 */
+  if (res[0]) casadi_copy(w03, 90, res[0]+270);
+  /* #20: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+81, 9, w00);
+  /* #21: @1 = input[1][4] */
+  wr01 = arg[1] ? arg[1]+280 : casadi_zeros;
+  /* #22: @2 = input[2][4] */
+  wr02 = arg[2] ? arg[2]+240 : casadi_zeros;
+  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 90, res[0]+360);
+  /* #25: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+81, 9, w00);
+  /* #26: @1 = input[1][5] */
+  wr01 = arg[1] ? arg[1]+350 : casadi_zeros;
+  /* #27: @2 = input[2][5] */
+  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
+  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w09;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @3 */
+  if (res[0]) casadi_copy(w03, 90, res[0]+450);
+  /* #30: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+81, 9, w00);
+  /* #31: @1 = input[1][6] */
+  wr01 = arg[1] ? arg[1]+420 : casadi_zeros;
+  /* #32: @2 = input[2][6] */
+  wr02 = arg[2] ? arg[2]+360 : casadi_zeros;
+  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #34: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 90, res[0]+540);
+  /* #35: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+81, 9, w00);
+  /* #36: @1 = input[1][7] */
+  wr01 = arg[1] ? arg[1]+490 : casadi_zeros;
+  /* #37: @2 = input[2][7] */
+  wr02 = arg[2] ? arg[2]+420 : casadi_zeros;
+  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w11;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #39: output[0][7] = @3 */
+  if (res[0]) casadi_copy(w03, 90, res[0]+630);
+  /* #40: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+81, 9, w00);
+  /* #41: @1 = input[1][8] */
+  wr01 = arg[1] ? arg[1]+560 : casadi_zeros;
+  /* #42: @2 = input[2][8] */
+  wr02 = arg[2] ? arg[2]+480 : casadi_zeros;
+  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #44: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 90, res[0]+720);
+  /* #45: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+81, 9, w00);
+  /* #46: @1 = input[1][9] */
+  wr01 = arg[1] ? arg[1]+630 : casadi_zeros;
+  /* #47: @2 = input[2][9] */
+  wr02 = arg[2] ? arg[2]+540 : casadi_zeros;
+  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w13;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #49: output[0][9] = @3 */
+  if (res[0]) casadi_copy(w03, 90, res[0]+810);
+  /* #50: output[1][0] = @4 */
+  casadi_copy(w04, 130, res[1]);
+  /* #51: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 130, res[1]+130);
+  /* #52: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 130, res[1]+260);
+  /* #53: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 130, res[1]+390);
+  /* #54: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 130, res[1]+520);
+  /* #55: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 130, res[1]+650);
+  /* #56: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 130, res[1]+780);
+  /* #57: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 130, res[1]+910);
+  /* #58: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 130, res[1]+1040);
+  /* #59: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 130, res[1]+1170);
+  return 0;
+}
+
+/* one_sample_acc10_acc10_acc10:(xa[9],p[7x1000],e[6x1000])->(xa_next[9x1000],y[13x1000]) */
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+1724, *w03=w+1733, *w04=w+2633, *w05=w+3933, *w06=w+5233, *w07=w+6533, *w08=w+7833, *w09=w+9133, *w10=w+10433, *w11=w+11733, *w12=w+13033;
+  casadi_real *w13=w+14333;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  /* #0: @0 = input[0][0] */
+  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=wr00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 900, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+891, 9, w00);
+  /* #6: @1 = input[1][1] */
+  wr01 = arg[1] ? arg[1]+700 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w05;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w03, 900, res[0]+900);
+  /* #10: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+891, 9, w00);
+  /* #11: @1 = input[1][2] */
+  wr01 = arg[1] ? arg[1]+1400 : casadi_zeros;
+  /* #12: @2 = input[2][2] */
+  wr02 = arg[2] ? arg[2]+1200 : casadi_zeros;
+  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 900, res[0]+1800);
+  /* #15: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+891, 9, w00);
+  /* #16: @1 = input[1][3] */
+  wr01 = arg[1] ? arg[1]+2100 : casadi_zeros;
+  /* #17: @2 = input[2][3] */
+  wr02 = arg[2] ? arg[2]+1800 : casadi_zeros;
+  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w07;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @3 */
+  if (res[0]) casadi_copy(w03, 900, res[0]+2700);
+  /* #20: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+891, 9, w00);
+  /* #21: @1 = input[1][4] */
+  wr01 = arg[1] ? arg[1]+2800 : casadi_zeros;
+  /* #22: @2 = input[2][4] */
+  wr02 = arg[2] ? arg[2]+2400 : casadi_zeros;
+  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 900, res[0]+3600);
+  /* #25: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+891, 9, w00);
+  /* #26: @1 = input[1][5] */
+  wr01 = arg[1] ? arg[1]+3500 : casadi_zeros;
+  /* #27: @2 = input[2][5] */
+  wr02 = arg[2] ? arg[2]+3000 : casadi_zeros;
+  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w09;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @3 */
+  if (res[0]) casadi_copy(w03, 900, res[0]+4500);
+  /* #30: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+891, 9, w00);
+  /* #31: @1 = input[1][6] */
+  wr01 = arg[1] ? arg[1]+4200 : casadi_zeros;
+  /* #32: @2 = input[2][6] */
+  wr02 = arg[2] ? arg[2]+3600 : casadi_zeros;
+  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #34: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 900, res[0]+5400);
+  /* #35: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+891, 9, w00);
+  /* #36: @1 = input[1][7] */
+  wr01 = arg[1] ? arg[1]+4900 : casadi_zeros;
+  /* #37: @2 = input[2][7] */
+  wr02 = arg[2] ? arg[2]+4200 : casadi_zeros;
+  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w11;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #39: output[0][7] = @3 */
+  if (res[0]) casadi_copy(w03, 900, res[0]+6300);
+  /* #40: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+891, 9, w00);
+  /* #41: @1 = input[1][8] */
+  wr01 = arg[1] ? arg[1]+5600 : casadi_zeros;
+  /* #42: @2 = input[2][8] */
+  wr02 = arg[2] ? arg[2]+4800 : casadi_zeros;
+  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #44: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 900, res[0]+7200);
+  /* #45: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+891, 9, w00);
+  /* #46: @1 = input[1][9] */
+  wr01 = arg[1] ? arg[1]+6300 : casadi_zeros;
+  /* #47: @2 = input[2][9] */
+  wr02 = arg[2] ? arg[2]+5400 : casadi_zeros;
+  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w13;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #49: output[0][9] = @3 */
+  if (res[0]) casadi_copy(w03, 900, res[0]+8100);
+  /* #50: output[1][0] = @4 */
+  casadi_copy(w04, 1300, res[1]);
+  /* #51: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 1300, res[1]+1300);
+  /* #52: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 1300, res[1]+2600);
+  /* #53: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 1300, res[1]+3900);
+  /* #54: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 1300, res[1]+5200);
+  /* #55: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 1300, res[1]+6500);
+  /* #56: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 1300, res[1]+7800);
+  /* #57: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 1300, res[1]+9100);
+  /* #58: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 1300, res[1]+10400);
+  /* #59: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 1300, res[1]+11700);
+  return 0;
+}
+
+/* pendulum_1link_theorem5_closed_loop:(x0[8],p[7],k0,e[6x1000])->(x[8x1000],y[13x1000]) */
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+2, *rr, w1, *w2=w+16933, *w3=w+16942, *w4=w+16949, *w6=w+23949, *w7=w+32949, *w8=w+45949;
+  const casadi_real **arg1=arg+4, *cs, *ct, *wr0, *wr5;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[2][0] */
+  w1 = arg[2] ? arg[2][0] : 0;
+  /* #2: @2 = vertcat(@0, @1) */
+  rr=w2;
+  for (i=0, cs=wr0; i<8; ++i) *rr++ = *cs++;
+  *rr++ = w1;
+  /* #3: @3 = input[1][0] */
+  casadi_copy(arg[1], 7, w3);
+  /* #4: @4 = repmat(@3, 1000) */
+  for (i=0;i<1000;++i) {
+    casadi_copy(w3, 7, w4+ i*7);
+  }
+  /* #5: @5 = input[3][0] */
+  wr5 = arg[3] ? arg[3] : casadi_zeros;
+  /* #6: {@6, @7} = one_sample_acc10_acc10_acc10(@2, @4, @5) */
+  arg1[0]=w2;
+  arg1[1]=w4;
+  arg1[2]=wr5;
+  res1[0]=w6;
+  res1[1]=w7;
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  /* #7: @8 = @6[:9000:9;:8] */
+  for (rr=w8, cs=w6+0; cs!=w6+9000; cs+=9) for (ct=cs+0; ct!=cs+8; ct+=1) *rr++ = *ct;
+  /* #8: output[0][0] = @8 */
+  casadi_copy(w8, 8000, res[0]);
+  /* #9: output[1][0] = @7 */
+  casadi_copy(w7, 13000, res[1]);
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f30(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_closed_loop_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_theorem5_closed_loop_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_theorem5_closed_loop_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_1link_theorem5_closed_loop_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_theorem5_closed_loop_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_1link_theorem5_closed_loop_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_1link_theorem5_closed_loop_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_theorem5_closed_loop_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x0";
+    case 1: return "p";
+    case 2: return "k0";
+    case 3: return "e";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_1link_theorem5_closed_loop_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "y";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_theorem5_closed_loop_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s12;
+    case 1: return casadi_s7;
+    case 2: return casadi_s0;
+    case 3: return casadi_s14;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_theorem5_closed_loop_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s15;
+    case 1: return casadi_s16;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 16;
+  if (sz_res) *sz_res = 10;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 53949;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_1link_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 16*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 10*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 53949*sizeof(casadi_real);
+  return 0;
+}
+
 /* pendulum_1link_feedback_linearization:(x[4],ref[6],pi[3],K,T_p[2],kq0,kq1,kq2,ks0)->(p_c[2],qdd,sigma,v[2],L[2],E[2x2]) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29;
@@ -6590,7 +9565,7 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f28(arg, res, iw, w, mem);
+  return casadi_f35(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_feedback_linearization_checkout(void) {
@@ -6665,7 +9640,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_feedback_linearization_spa
     case 2: return casadi_s0;
     case 3: return casadi_s5;
     case 4: return casadi_s5;
-    case 5: return casadi_s11;
+    case 5: return casadi_s17;
     default: return 0;
   }
 }
@@ -6687,7 +9662,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_feedback_linearization_work_bytes(casadi
 }
 
 /* pendulum_1link_fl_lie:(x[4],p_c[2],pi[3],K,T_p[2])->(L[2],E[2x2],y_rate[2]) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19;
   a00=arg[0]? arg[0][2] : 0;
@@ -6797,7 +9772,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_fl_lie(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f36(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_fl_lie_checkout(void) {
@@ -6857,7 +9832,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_fl_lie_sparsity_in(casadi_
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_fl_lie_sparsity_out(casadi_int i) {
   switch (i) {
     case 0: return casadi_s5;
-    case 1: return casadi_s11;
+    case 1: return casadi_s17;
     case 2: return casadi_s5;
     default: return 0;
   }
@@ -6880,7 +9855,7 @@ CASADI_SYMBOL_EXPORT int pendulum_1link_fl_lie_work_bytes(casadi_int *sz_arg, ca
 }
 
 /* pendulum_1link_pneumatic_estimator_step:(state[53],y[3])->(state_next[53],sigma_hat,tau_hat,tau_uio,updating) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -8286,7 +11261,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f30(arg, res, iw, w, mem);
+  return casadi_f37(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_1link_pneumatic_estimator_step_checkout(void) {
@@ -8333,7 +11308,7 @@ CASADI_SYMBOL_EXPORT const char* pendulum_1link_pneumatic_estimator_step_name_ou
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_estimator_step_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s12;
+    case 0: return casadi_s18;
     case 1: return casadi_s2;
     default: return 0;
   }
@@ -8341,7 +11316,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_estimator_step_s
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_1link_pneumatic_estimator_step_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s12;
+    case 0: return casadi_s18;
     case 1: return casadi_s0;
     case 2: return casadi_s0;
     case 3: return casadi_s0;

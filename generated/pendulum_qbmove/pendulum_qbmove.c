@@ -46,7 +46,20 @@ extern "C" {
 #define casadi_f20 CASADI_PREFIX(f20)
 #define casadi_f21 CASADI_PREFIX(f21)
 #define casadi_f22 CASADI_PREFIX(f22)
+#define casadi_f23 CASADI_PREFIX(f23)
+#define casadi_f24 CASADI_PREFIX(f24)
+#define casadi_f25 CASADI_PREFIX(f25)
+#define casadi_f26 CASADI_PREFIX(f26)
+#define casadi_f27 CASADI_PREFIX(f27)
+#define casadi_f28 CASADI_PREFIX(f28)
+#define casadi_f29 CASADI_PREFIX(f29)
 #define casadi_f3 CASADI_PREFIX(f3)
+#define casadi_f30 CASADI_PREFIX(f30)
+#define casadi_f31 CASADI_PREFIX(f31)
+#define casadi_f32 CASADI_PREFIX(f32)
+#define casadi_f33 CASADI_PREFIX(f33)
+#define casadi_f34 CASADI_PREFIX(f34)
+#define casadi_f35 CASADI_PREFIX(f35)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
@@ -59,6 +72,11 @@ extern "C" {
 #define casadi_s10 CASADI_PREFIX(s10)
 #define casadi_s11 CASADI_PREFIX(s11)
 #define casadi_s12 CASADI_PREFIX(s12)
+#define casadi_s13 CASADI_PREFIX(s13)
+#define casadi_s14 CASADI_PREFIX(s14)
+#define casadi_s15 CASADI_PREFIX(s15)
+#define casadi_s16 CASADI_PREFIX(s16)
+#define casadi_s17 CASADI_PREFIX(s17)
 #define casadi_s2 CASADI_PREFIX(s2)
 #define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_s4 CASADI_PREFIX(s4)
@@ -96,6 +114,8 @@ void casadi_copy(const casadi_real* x, casadi_int n, casadi_real* y) {
   }
 }
 
+casadi_real casadi_sq(casadi_real x) { return x*x;}
+
 casadi_real casadi_fmin(casadi_real x, casadi_real y) {
 /* Pre-c99 compatibility */
 #if __STDC_VERSION__ < 199901L
@@ -104,8 +124,6 @@ casadi_real casadi_fmin(casadi_real x, casadi_real y) {
   return fmin(x, y);
 #endif
 }
-
-casadi_real casadi_sq(casadi_real x) { return x*x;}
 
 /* Configuration this file was compiled with */
 CASADI_SYMBOL_EXPORT void pendulum_qbmove_casadi_version(int* major, int* minor, int* patch) {
@@ -122,14 +140,18 @@ static const casadi_int casadi_s2[3] = {3, 1, 1};
 static const casadi_int casadi_s3[3] = {4, 1, 1};
 static const casadi_int casadi_s4[3] = {6, 1, 1};
 static const casadi_int casadi_s5[3] = {2, 1, 1};
-static const casadi_int casadi_s6[1000] = 
-  {0};
-static const casadi_int casadi_s7[3] = {3, 1000, 1};
-static const casadi_int casadi_s8[3] = {2, 1000, 1};
-static const casadi_int casadi_s9[3] = {1, 1000, 1};
-static const casadi_int casadi_s10[3] = {59, 1, 1};
-static const casadi_int casadi_s11[3] = {5, 1, 1};
-static const casadi_int casadi_s12[3] = {65, 1, 1};
+static const casadi_int casadi_s6[3] = {5, 1, 1};
+static const casadi_int casadi_s7[3] = {7, 1, 1};
+static const casadi_int casadi_s8[3] = {3, 1000, 1};
+static const casadi_int casadi_s9[3] = {5, 1000, 1};
+static const casadi_int casadi_s10[3] = {7, 1000, 1};
+static const casadi_int casadi_s11[3] = {0, 1, 1};
+static const casadi_int casadi_s12[3] = {9, 1, 1};
+static const casadi_int casadi_s13[3] = {8, 1, 1};
+static const casadi_int casadi_s14[3] = {11, 1, 1};
+static const casadi_int casadi_s15[3] = {12, 1, 1};
+static const casadi_int casadi_s16[3] = {59, 1, 1};
+static const casadi_int casadi_s17[3] = {65, 1, 1};
 
 static const casadi_real casadi_zeros[3000] = 
   {0.};
@@ -1330,964 +1352,879 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_work_bytes(casadi_int *sz_ar
   return 0;
 }
 
-/* one_sample:(z[5],ref[3],lam,kd,kpi[3],dt)->(z_next[5],tau) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+/* pendulum_qbmove_slotine_li_step:(x[5],p[5],k,e[3])->(x_next[5],y[7]) */
+static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20;
+  casadi_real a12, a13, a14, a15, a16, a17;
   a00=arg[0]? arg[0][0] : 0;
-  a01=arg[5]? arg[5][0] : 0;
-  a02=6.;
-  a02=(a01/a02);
-  a03=arg[0]? arg[0][1] : 0;
-  a04=2.;
-  a04=(a01/a04);
-  a05=arg[0]? arg[0][2] : 0;
-  a06=(a03*a05);
-  a07=arg[1]? arg[1][2] : 0;
-  a08=arg[2]? arg[2][0] : 0;
-  a09=arg[1]? arg[1][1] : 0;
-  a10=(a09-a03);
-  a10=(a08*a10);
-  a07=(a07+a10);
-  a10=arg[0]? arg[0][3] : 0;
-  a11=(a07*a10);
-  a06=(a06+a11);
-  a11=-9.8100000000000005e+00;
-  a12=sin(a00);
-  a11=(a11*a12);
-  a13=arg[0]? arg[0][4] : 0;
-  a14=(a11*a13);
-  a06=(a06-a14);
-  a14=arg[3]? arg[3][0] : 0;
-  a15=arg[1]? arg[1][0] : 0;
-  a15=(a15-a00);
-  a08=(a08*a15);
-  a09=(a09+a08);
-  a09=(a09-a03);
-  a14=(a14*a09);
-  a06=(a06+a14);
-  a14=9.9999999999999995e-08;
-  a08=(a14*a03);
-  a15=-1.1772000000000000e+00;
-  a12=(a15*a12);
-  a08=(a08-a12);
-  a08=(a06-a08);
-  a12=1.4999999999999999e-02;
-  a08=(a08/a12);
-  a16=(a04*a08);
+  a01=1.0000000000000000e-03;
+  a02=arg[1]? arg[1][2] : 0;
+  a02=(a01*a02);
+  a03=arg[0]? arg[0][4] : 0;
+  a04=arg[3]? arg[3][1] : 0;
+  a05=arg[1]? arg[1][0] : 0;
+  a06=arg[3]? arg[3][0] : 0;
+  a07=arg[0]? arg[0][3] : 0;
+  a06=(a06-a07);
+  a06=(a05*a06);
+  a06=(a04+a06);
+  a06=(a06-a03);
+  a08=(a03*a06);
+  a02=(a02*a08);
+  a02=(a00+a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a02=arg[0]? arg[0][1] : 0;
+  a08=arg[1]? arg[1][3] : 0;
+  a08=(a01*a08);
+  a09=arg[3]? arg[3][2] : 0;
+  a04=(a04-a03);
+  a05=(a05*a04);
+  a09=(a09+a05);
+  a05=(a09*a06);
+  a08=(a08*a05);
+  a08=(a02+a08);
+  if (res[0]!=0) res[0][1]=a08;
+  a08=arg[0]? arg[0][2] : 0;
+  a05=arg[1]? arg[1][4] : 0;
+  a05=(a01*a05);
+  a04=-9.8100000000000005e+00;
+  a10=sin(a07);
+  a04=(a04*a10);
+  a11=(a04*a06);
+  a05=(a05*a11);
+  a05=(a08-a05);
+  if (res[0]!=0) res[0][2]=a05;
+  a05=1.6666666666666666e-04;
+  a11=5.0000000000000001e-04;
+  a12=(a03*a00);
+  a09=(a09*a02);
+  a12=(a12+a09);
+  a04=(a04*a08);
+  a12=(a12-a04);
+  a04=arg[1]? arg[1][1] : 0;
+  a04=(a04*a06);
+  a12=(a12+a04);
+  a04=9.9999999999999995e-08;
+  a06=(a04*a03);
+  a09=-1.1772000000000000e+00;
+  a10=(a09*a10);
+  a06=(a06-a10);
+  a06=(a12-a06);
+  a10=1.4999999999999999e-02;
+  a06=(a06/a10);
+  a13=(a11*a06);
+  a13=(a03+a13);
+  a14=(2.*a13);
+  a14=(a03+a14);
+  a15=(a04*a13);
+  a16=(a11*a03);
+  a16=(a07+a16);
+  a16=sin(a16);
+  a16=(a09*a16);
+  a15=(a15-a16);
+  a15=(a12-a15);
+  a15=(a15/a10);
+  a16=(a11*a15);
   a16=(a03+a16);
   a17=(2.*a16);
-  a17=(a03+a17);
-  a18=(a14*a16);
-  a19=(a04*a03);
-  a19=(a00+a19);
-  a19=sin(a19);
-  a19=(a15*a19);
-  a18=(a18-a19);
-  a18=(a06-a18);
-  a18=(a18/a12);
-  a19=(a04*a18);
-  a19=(a03+a19);
-  a20=(2.*a19);
-  a17=(a17+a20);
-  a20=(a14*a19);
-  a04=(a04*a16);
-  a04=(a00+a04);
-  a04=sin(a04);
-  a04=(a15*a04);
-  a20=(a20-a04);
-  a20=(a06-a20);
-  a20=(a20/a12);
-  a04=(a01*a20);
-  a04=(a03+a04);
-  a17=(a17+a04);
-  a17=(a02*a17);
-  a17=(a00+a17);
-  if (res[0]!=0) res[0][0]=a17;
-  a18=(2.*a18);
-  a08=(a08+a18);
-  a20=(2.*a20);
-  a08=(a08+a20);
-  a14=(a14*a04);
-  a19=(a01*a19);
-  a00=(a00+a19);
-  a00=sin(a00);
-  a15=(a15*a00);
-  a14=(a14-a15);
-  a14=(a06-a14);
-  a14=(a14/a12);
-  a08=(a08+a14);
-  a02=(a02*a08);
-  a02=(a03+a02);
-  if (res[0]!=0) res[0][1]=a02;
-  a02=arg[4]? arg[4][0] : 0;
-  a02=(a01*a02);
-  a03=(a03*a09);
-  a02=(a02*a03);
-  a05=(a05+a02);
-  if (res[0]!=0) res[0][2]=a05;
-  a05=arg[4]? arg[4][1] : 0;
-  a05=(a01*a05);
-  a07=(a07*a09);
-  a05=(a05*a07);
-  a10=(a10+a05);
-  if (res[0]!=0) res[0][3]=a10;
-  a10=arg[4]? arg[4][2] : 0;
-  a01=(a01*a10);
-  a11=(a11*a09);
-  a01=(a01*a11);
-  a13=(a13-a01);
-  if (res[0]!=0) res[0][4]=a13;
-  if (res[1]!=0) res[1][0]=a06;
+  a14=(a14+a17);
+  a17=(a04*a16);
+  a11=(a11*a13);
+  a11=(a07+a11);
+  a11=sin(a11);
+  a11=(a09*a11);
+  a17=(a17-a11);
+  a17=(a12-a17);
+  a17=(a17/a10);
+  a11=(a01*a17);
+  a11=(a03+a11);
+  a14=(a14+a11);
+  a14=(a05*a14);
+  a14=(a07+a14);
+  if (res[0]!=0) res[0][3]=a14;
+  a15=(2.*a15);
+  a06=(a06+a15);
+  a17=(2.*a17);
+  a06=(a06+a17);
+  a04=(a04*a11);
+  a16=(a01*a16);
+  a16=(a07+a16);
+  a16=sin(a16);
+  a09=(a09*a16);
+  a04=(a04-a09);
+  a04=(a12-a04);
+  a04=(a04/a10);
+  a06=(a06+a04);
+  a05=(a05*a06);
+  a05=(a03+a05);
+  if (res[0]!=0) res[0][4]=a05;
+  a05=arg[2]? arg[2][0] : 0;
+  a01=(a01*a05);
+  if (res[1]!=0) res[1][0]=a01;
+  if (res[1]!=0) res[1][1]=a07;
+  if (res[1]!=0) res[1][2]=a03;
+  if (res[1]!=0) res[1][3]=a12;
+  if (res[1]!=0) res[1][4]=a00;
+  if (res[1]!=0) res[1][5]=a02;
+  if (res[1]!=0) res[1][6]=a08;
   return 0;
 }
 
-/* one_sample_acc10:(z[5],ref[3x10],lam[1x10],kd[1x10],kpi[3x10],dt[1x10])->(z_next[5x10],tau[1x10]) */
-static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+21, *w01=w+26, w02, w03, *w04=w+29, w05, *w06=w+32, w07, w08, w09, w10;
-  casadi_real w11, w12, w13, w14, w15, w16;
-  const casadi_real **arg1=arg+6;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 5, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 3, w01);
-  /* #2: @2 = input[2][0] */
-  w02 = arg[2] ? arg[2][0] : 0;
-  /* #3: @3 = input[3][0] */
-  w03 = arg[3] ? arg[3][0] : 0;
-  /* #4: @4 = input[4][0] */
-  casadi_copy(arg[4], 3, w04);
-  /* #5: @5 = input[5][0] */
-  w05 = arg[5] ? arg[5][0] : 0;
-  /* #6: {@6, @7} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w07);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #7: output[0][0] = @6 */
-  casadi_copy(w06, 5, res[0]);
-  /* #8: @1 = input[1][1] */
-  casadi_copy(arg[1] ? arg[1]+3 : 0, 3, w01);
-  /* #9: @2 = input[2][1] */
-  w02 = arg[2] ? arg[2][1] : 0;
-  /* #10: @3 = input[3][1] */
-  w03 = arg[3] ? arg[3][1] : 0;
-  /* #11: @4 = input[4][1] */
-  casadi_copy(arg[4] ? arg[4]+3 : 0, 3, w04);
-  /* #12: @5 = input[5][1] */
-  w05 = arg[5] ? arg[5][1] : 0;
-  /* #13: {@0, @8} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w08);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+5);
-  /* #15: @1 = input[1][2] */
-  casadi_copy(arg[1] ? arg[1]+6 : 0, 3, w01);
-  /* #16: @2 = input[2][2] */
-  w02 = arg[2] ? arg[2][2] : 0;
-  /* #17: @3 = input[3][2] */
-  w03 = arg[3] ? arg[3][2] : 0;
-  /* #18: @4 = input[4][2] */
-  casadi_copy(arg[4] ? arg[4]+6 : 0, 3, w04);
-  /* #19: @5 = input[5][2] */
-  w05 = arg[5] ? arg[5][2] : 0;
-  /* #20: {@6, @9} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w09);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #21: output[0][2] = @6 */
-  if (res[0]) casadi_copy(w06, 5, res[0]+10);
-  /* #22: @1 = input[1][3] */
-  casadi_copy(arg[1] ? arg[1]+9 : 0, 3, w01);
-  /* #23: @2 = input[2][3] */
-  w02 = arg[2] ? arg[2][3] : 0;
-  /* #24: @3 = input[3][3] */
-  w03 = arg[3] ? arg[3][3] : 0;
-  /* #25: @4 = input[4][3] */
-  casadi_copy(arg[4] ? arg[4]+9 : 0, 3, w04);
-  /* #26: @5 = input[5][3] */
-  w05 = arg[5] ? arg[5][3] : 0;
-  /* #27: {@0, @10} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w10);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+15);
-  /* #29: @1 = input[1][4] */
-  casadi_copy(arg[1] ? arg[1]+12 : 0, 3, w01);
-  /* #30: @2 = input[2][4] */
-  w02 = arg[2] ? arg[2][4] : 0;
-  /* #31: @3 = input[3][4] */
-  w03 = arg[3] ? arg[3][4] : 0;
-  /* #32: @4 = input[4][4] */
-  casadi_copy(arg[4] ? arg[4]+12 : 0, 3, w04);
-  /* #33: @5 = input[5][4] */
-  w05 = arg[5] ? arg[5][4] : 0;
-  /* #34: {@6, @11} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w11);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #35: output[0][4] = @6 */
-  if (res[0]) casadi_copy(w06, 5, res[0]+20);
-  /* #36: @1 = input[1][5] */
-  casadi_copy(arg[1] ? arg[1]+15 : 0, 3, w01);
-  /* #37: @2 = input[2][5] */
-  w02 = arg[2] ? arg[2][5] : 0;
-  /* #38: @3 = input[3][5] */
-  w03 = arg[3] ? arg[3][5] : 0;
-  /* #39: @4 = input[4][5] */
-  casadi_copy(arg[4] ? arg[4]+15 : 0, 3, w04);
-  /* #40: @5 = input[5][5] */
-  w05 = arg[5] ? arg[5][5] : 0;
-  /* #41: {@0, @12} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w12);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #42: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+25);
-  /* #43: @1 = input[1][6] */
-  casadi_copy(arg[1] ? arg[1]+18 : 0, 3, w01);
-  /* #44: @2 = input[2][6] */
-  w02 = arg[2] ? arg[2][6] : 0;
-  /* #45: @3 = input[3][6] */
-  w03 = arg[3] ? arg[3][6] : 0;
-  /* #46: @4 = input[4][6] */
-  casadi_copy(arg[4] ? arg[4]+18 : 0, 3, w04);
-  /* #47: @5 = input[5][6] */
-  w05 = arg[5] ? arg[5][6] : 0;
-  /* #48: {@6, @13} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w13);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][6] = @6 */
-  if (res[0]) casadi_copy(w06, 5, res[0]+30);
-  /* #50: @1 = input[1][7] */
-  casadi_copy(arg[1] ? arg[1]+21 : 0, 3, w01);
-  /* #51: @2 = input[2][7] */
-  w02 = arg[2] ? arg[2][7] : 0;
-  /* #52: @3 = input[3][7] */
-  w03 = arg[3] ? arg[3][7] : 0;
-  /* #53: @4 = input[4][7] */
-  casadi_copy(arg[4] ? arg[4]+21 : 0, 3, w04);
-  /* #54: @5 = input[5][7] */
-  w05 = arg[5] ? arg[5][7] : 0;
-  /* #55: {@0, @14} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w14);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #56: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+35);
-  /* #57: @1 = input[1][8] */
-  casadi_copy(arg[1] ? arg[1]+24 : 0, 3, w01);
-  /* #58: @2 = input[2][8] */
-  w02 = arg[2] ? arg[2][8] : 0;
-  /* #59: @3 = input[3][8] */
-  w03 = arg[3] ? arg[3][8] : 0;
-  /* #60: @4 = input[4][8] */
-  casadi_copy(arg[4] ? arg[4]+24 : 0, 3, w04);
-  /* #61: @5 = input[5][8] */
-  w05 = arg[5] ? arg[5][8] : 0;
-  /* #62: {@6, @15} = one_sample(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w06;
-  res1[1]=(&w15);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #63: output[0][8] = @6 */
-  if (res[0]) casadi_copy(w06, 5, res[0]+40);
-  /* #64: @1 = input[1][9] */
-  casadi_copy(arg[1] ? arg[1]+27 : 0, 3, w01);
-  /* #65: @2 = input[2][9] */
-  w02 = arg[2] ? arg[2][9] : 0;
-  /* #66: @3 = input[3][9] */
-  w03 = arg[3] ? arg[3][9] : 0;
-  /* #67: @4 = input[4][9] */
-  casadi_copy(arg[4] ? arg[4]+27 : 0, 3, w04);
-  /* #68: @5 = input[5][9] */
-  w05 = arg[5] ? arg[5][9] : 0;
-  /* #69: {@0, @16} = one_sample(@6, @1, @2, @3, @4, @5) */
-  arg1[0]=w06;
-  arg1[1]=w01;
-  arg1[2]=(&w02);
-  arg1[3]=(&w03);
-  arg1[4]=w04;
-  arg1[5]=(&w05);
-  res1[0]=w00;
-  res1[1]=(&w16);
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #70: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+45);
-  /* #71: output[1][0] = @7 */
-  if (res[1]) res[1][0] = w07;
-  /* #72: output[1][1] = @8 */
-  if (res[1]) res[1][1] = w08;
-  /* #73: output[1][2] = @9 */
-  if (res[1]) res[1][2] = w09;
-  /* #74: output[1][3] = @10 */
-  if (res[1]) res[1][3] = w10;
-  /* #75: output[1][4] = @11 */
-  if (res[1]) res[1][4] = w11;
-  /* #76: output[1][5] = @12 */
-  if (res[1]) res[1][5] = w12;
-  /* #77: output[1][6] = @13 */
-  if (res[1]) res[1][6] = w13;
-  /* #78: output[1][7] = @14 */
-  if (res[1]) res[1][7] = w14;
-  /* #79: output[1][8] = @15 */
-  if (res[1]) res[1][8] = w15;
-  /* #80: output[1][9] = @16 */
-  if (res[1]) res[1][9] = w16;
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f12(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_step_checkout(void) {
   return 0;
 }
 
-/* one_sample_acc10_acc10:(z[5],ref[3x100],lam[1x100],kd[1x100],kpi[3x100],dt[1x100])->(z_next[5x100],tau[1x100]) */
-static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+50, *w06=w+55, *w07=w+105, *w08=w+115, *w09=w+125, *w10=w+135, *w11=w+145, *w12=w+155, *w13=w+165, *w14=w+175, *w15=w+185;
-  casadi_real *w16=w+195;
-  const casadi_real **arg1=arg+6, *wr01, *wr02, *wr03, *wr04, *wr05;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 5, w00);
-  /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: @3 = input[3][0] */
-  wr03 = arg[3] ? arg[3] : casadi_zeros;
-  /* #4: @4 = input[4][0] */
-  wr04 = arg[4] ? arg[4] : casadi_zeros;
-  /* #5: @5 = input[5][0] */
-  wr05 = arg[5] ? arg[5] : casadi_zeros;
-  /* #6: {@6, @7} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w07;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #7: output[0][0] = @6 */
-  casadi_copy(w06, 50, res[0]);
-  /* #8: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #9: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+30 : casadi_zeros;
-  /* #10: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+10 : casadi_zeros;
-  /* #11: @3 = input[3][1] */
-  wr03 = arg[3] ? arg[3]+10 : casadi_zeros;
-  /* #12: @4 = input[4][1] */
-  wr04 = arg[4] ? arg[4]+30 : casadi_zeros;
-  /* #13: @5 = input[5][1] */
-  wr05 = arg[5] ? arg[5]+10 : casadi_zeros;
-  /* #14: {@6, @8} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w08;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #15: output[0][1] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+50);
-  /* #16: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #17: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+60 : casadi_zeros;
-  /* #18: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+20 : casadi_zeros;
-  /* #19: @3 = input[3][2] */
-  wr03 = arg[3] ? arg[3]+20 : casadi_zeros;
-  /* #20: @4 = input[4][2] */
-  wr04 = arg[4] ? arg[4]+60 : casadi_zeros;
-  /* #21: @5 = input[5][2] */
-  wr05 = arg[5] ? arg[5]+20 : casadi_zeros;
-  /* #22: {@6, @9} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w09;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #23: output[0][2] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+100);
-  /* #24: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #25: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+90 : casadi_zeros;
-  /* #26: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+30 : casadi_zeros;
-  /* #27: @3 = input[3][3] */
-  wr03 = arg[3] ? arg[3]+30 : casadi_zeros;
-  /* #28: @4 = input[4][3] */
-  wr04 = arg[4] ? arg[4]+90 : casadi_zeros;
-  /* #29: @5 = input[5][3] */
-  wr05 = arg[5] ? arg[5]+30 : casadi_zeros;
-  /* #30: {@6, @10} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w10;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #31: output[0][3] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+150);
-  /* #32: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #33: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+120 : casadi_zeros;
-  /* #34: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+40 : casadi_zeros;
-  /* #35: @3 = input[3][4] */
-  wr03 = arg[3] ? arg[3]+40 : casadi_zeros;
-  /* #36: @4 = input[4][4] */
-  wr04 = arg[4] ? arg[4]+120 : casadi_zeros;
-  /* #37: @5 = input[5][4] */
-  wr05 = arg[5] ? arg[5]+40 : casadi_zeros;
-  /* #38: {@6, @11} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w11;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][4] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+200);
-  /* #40: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #41: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+150 : casadi_zeros;
-  /* #42: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+50 : casadi_zeros;
-  /* #43: @3 = input[3][5] */
-  wr03 = arg[3] ? arg[3]+50 : casadi_zeros;
-  /* #44: @4 = input[4][5] */
-  wr04 = arg[4] ? arg[4]+150 : casadi_zeros;
-  /* #45: @5 = input[5][5] */
-  wr05 = arg[5] ? arg[5]+50 : casadi_zeros;
-  /* #46: {@6, @12} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w12;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #47: output[0][5] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+250);
-  /* #48: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #49: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+180 : casadi_zeros;
-  /* #50: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
-  /* #51: @3 = input[3][6] */
-  wr03 = arg[3] ? arg[3]+60 : casadi_zeros;
-  /* #52: @4 = input[4][6] */
-  wr04 = arg[4] ? arg[4]+180 : casadi_zeros;
-  /* #53: @5 = input[5][6] */
-  wr05 = arg[5] ? arg[5]+60 : casadi_zeros;
-  /* #54: {@6, @13} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w13;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #55: output[0][6] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+300);
-  /* #56: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #57: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+210 : casadi_zeros;
-  /* #58: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+70 : casadi_zeros;
-  /* #59: @3 = input[3][7] */
-  wr03 = arg[3] ? arg[3]+70 : casadi_zeros;
-  /* #60: @4 = input[4][7] */
-  wr04 = arg[4] ? arg[4]+210 : casadi_zeros;
-  /* #61: @5 = input[5][7] */
-  wr05 = arg[5] ? arg[5]+70 : casadi_zeros;
-  /* #62: {@6, @14} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w14;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #63: output[0][7] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+350);
-  /* #64: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #65: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+240 : casadi_zeros;
-  /* #66: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+80 : casadi_zeros;
-  /* #67: @3 = input[3][8] */
-  wr03 = arg[3] ? arg[3]+80 : casadi_zeros;
-  /* #68: @4 = input[4][8] */
-  wr04 = arg[4] ? arg[4]+240 : casadi_zeros;
-  /* #69: @5 = input[5][8] */
-  wr05 = arg[5] ? arg[5]+80 : casadi_zeros;
-  /* #70: {@6, @15} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w15;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #71: output[0][8] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+400);
-  /* #72: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+45, 5, w00);
-  /* #73: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+270 : casadi_zeros;
-  /* #74: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+90 : casadi_zeros;
-  /* #75: @3 = input[3][9] */
-  wr03 = arg[3] ? arg[3]+90 : casadi_zeros;
-  /* #76: @4 = input[4][9] */
-  wr04 = arg[4] ? arg[4]+270 : casadi_zeros;
-  /* #77: @5 = input[5][9] */
-  wr05 = arg[5] ? arg[5]+90 : casadi_zeros;
-  /* #78: {@6, @16} = one_sample_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w16;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #79: output[0][9] = @6 */
-  if (res[0]) casadi_copy(w06, 50, res[0]+450);
-  /* #80: output[1][0] = @7 */
-  casadi_copy(w07, 10, res[1]);
-  /* #81: output[1][1] = @8 */
-  if (res[1]) casadi_copy(w08, 10, res[1]+10);
-  /* #82: output[1][2] = @9 */
-  if (res[1]) casadi_copy(w09, 10, res[1]+20);
-  /* #83: output[1][3] = @10 */
-  if (res[1]) casadi_copy(w10, 10, res[1]+30);
-  /* #84: output[1][4] = @11 */
-  if (res[1]) casadi_copy(w11, 10, res[1]+40);
-  /* #85: output[1][5] = @12 */
-  if (res[1]) casadi_copy(w12, 10, res[1]+50);
-  /* #86: output[1][6] = @13 */
-  if (res[1]) casadi_copy(w13, 10, res[1]+60);
-  /* #87: output[1][7] = @14 */
-  if (res[1]) casadi_copy(w14, 10, res[1]+70);
-  /* #88: output[1][8] = @15 */
-  if (res[1]) casadi_copy(w15, 10, res[1]+80);
-  /* #89: output[1][9] = @16 */
-  if (res[1]) casadi_copy(w16, 10, res[1]+90);
-  return 0;
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_slotine_li_step_release(int mem) {
 }
 
-/* one_sample_acc10_acc10_acc10:(z[5],ref[3x1000],lam[1x1000],kd[1x1000],kpi[3x1000],dt[1x1000])->(z_next[5x1000],tau[1x1000]) */
-static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+295, *w06=w+300, *w07=w+800, *w08=w+900, *w09=w+1000, *w10=w+1100, *w11=w+1200, *w12=w+1300, *w13=w+1400, *w14=w+1500, *w15=w+1600;
-  casadi_real *w16=w+1700;
-  const casadi_real **arg1=arg+6, *wr01, *wr02, *wr03, *wr04, *wr05;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 5, w00);
-  /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: @3 = input[3][0] */
-  wr03 = arg[3] ? arg[3] : casadi_zeros;
-  /* #4: @4 = input[4][0] */
-  wr04 = arg[4] ? arg[4] : casadi_zeros;
-  /* #5: @5 = input[5][0] */
-  wr05 = arg[5] ? arg[5] : casadi_zeros;
-  /* #6: {@6, @7} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w07;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #7: output[0][0] = @6 */
-  casadi_copy(w06, 500, res[0]);
-  /* #8: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #9: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+300 : casadi_zeros;
-  /* #10: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+100 : casadi_zeros;
-  /* #11: @3 = input[3][1] */
-  wr03 = arg[3] ? arg[3]+100 : casadi_zeros;
-  /* #12: @4 = input[4][1] */
-  wr04 = arg[4] ? arg[4]+300 : casadi_zeros;
-  /* #13: @5 = input[5][1] */
-  wr05 = arg[5] ? arg[5]+100 : casadi_zeros;
-  /* #14: {@6, @8} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w08;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #15: output[0][1] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+500);
-  /* #16: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #17: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+600 : casadi_zeros;
-  /* #18: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+200 : casadi_zeros;
-  /* #19: @3 = input[3][2] */
-  wr03 = arg[3] ? arg[3]+200 : casadi_zeros;
-  /* #20: @4 = input[4][2] */
-  wr04 = arg[4] ? arg[4]+600 : casadi_zeros;
-  /* #21: @5 = input[5][2] */
-  wr05 = arg[5] ? arg[5]+200 : casadi_zeros;
-  /* #22: {@6, @9} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w09;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #23: output[0][2] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+1000);
-  /* #24: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #25: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+900 : casadi_zeros;
-  /* #26: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
-  /* #27: @3 = input[3][3] */
-  wr03 = arg[3] ? arg[3]+300 : casadi_zeros;
-  /* #28: @4 = input[4][3] */
-  wr04 = arg[4] ? arg[4]+900 : casadi_zeros;
-  /* #29: @5 = input[5][3] */
-  wr05 = arg[5] ? arg[5]+300 : casadi_zeros;
-  /* #30: {@6, @10} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w10;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #31: output[0][3] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+1500);
-  /* #32: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #33: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+1200 : casadi_zeros;
-  /* #34: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+400 : casadi_zeros;
-  /* #35: @3 = input[3][4] */
-  wr03 = arg[3] ? arg[3]+400 : casadi_zeros;
-  /* #36: @4 = input[4][4] */
-  wr04 = arg[4] ? arg[4]+1200 : casadi_zeros;
-  /* #37: @5 = input[5][4] */
-  wr05 = arg[5] ? arg[5]+400 : casadi_zeros;
-  /* #38: {@6, @11} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w11;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][4] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+2000);
-  /* #40: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #41: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+1500 : casadi_zeros;
-  /* #42: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+500 : casadi_zeros;
-  /* #43: @3 = input[3][5] */
-  wr03 = arg[3] ? arg[3]+500 : casadi_zeros;
-  /* #44: @4 = input[4][5] */
-  wr04 = arg[4] ? arg[4]+1500 : casadi_zeros;
-  /* #45: @5 = input[5][5] */
-  wr05 = arg[5] ? arg[5]+500 : casadi_zeros;
-  /* #46: {@6, @12} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w12;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #47: output[0][5] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+2500);
-  /* #48: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #49: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+1800 : casadi_zeros;
-  /* #50: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
-  /* #51: @3 = input[3][6] */
-  wr03 = arg[3] ? arg[3]+600 : casadi_zeros;
-  /* #52: @4 = input[4][6] */
-  wr04 = arg[4] ? arg[4]+1800 : casadi_zeros;
-  /* #53: @5 = input[5][6] */
-  wr05 = arg[5] ? arg[5]+600 : casadi_zeros;
-  /* #54: {@6, @13} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w13;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #55: output[0][6] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+3000);
-  /* #56: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #57: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+2100 : casadi_zeros;
-  /* #58: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+700 : casadi_zeros;
-  /* #59: @3 = input[3][7] */
-  wr03 = arg[3] ? arg[3]+700 : casadi_zeros;
-  /* #60: @4 = input[4][7] */
-  wr04 = arg[4] ? arg[4]+2100 : casadi_zeros;
-  /* #61: @5 = input[5][7] */
-  wr05 = arg[5] ? arg[5]+700 : casadi_zeros;
-  /* #62: {@6, @14} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w14;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #63: output[0][7] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+3500);
-  /* #64: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #65: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+2400 : casadi_zeros;
-  /* #66: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+800 : casadi_zeros;
-  /* #67: @3 = input[3][8] */
-  wr03 = arg[3] ? arg[3]+800 : casadi_zeros;
-  /* #68: @4 = input[4][8] */
-  wr04 = arg[4] ? arg[4]+2400 : casadi_zeros;
-  /* #69: @5 = input[5][8] */
-  wr05 = arg[5] ? arg[5]+800 : casadi_zeros;
-  /* #70: {@6, @15} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w15;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #71: output[0][8] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+4000);
-  /* #72: {NULL, @0} = horzsplit(@6) */
-  casadi_copy(w06+495, 5, w00);
-  /* #73: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+2700 : casadi_zeros;
-  /* #74: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+900 : casadi_zeros;
-  /* #75: @3 = input[3][9] */
-  wr03 = arg[3] ? arg[3]+900 : casadi_zeros;
-  /* #76: @4 = input[4][9] */
-  wr04 = arg[4] ? arg[4]+2700 : casadi_zeros;
-  /* #77: @5 = input[5][9] */
-  wr05 = arg[5] ? arg[5]+900 : casadi_zeros;
-  /* #78: {@6, @16} = one_sample_acc10_acc10(@0, @1, @2, @3, @4, @5) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  arg1[3]=wr03;
-  arg1[4]=wr04;
-  arg1[5]=wr05;
-  res1[0]=w06;
-  res1[1]=w16;
-  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
-  /* #79: output[0][9] = @6 */
-  if (res[0]) casadi_copy(w06, 500, res[0]+4500);
-  /* #80: output[1][0] = @7 */
-  casadi_copy(w07, 100, res[1]);
-  /* #81: output[1][1] = @8 */
-  if (res[1]) casadi_copy(w08, 100, res[1]+100);
-  /* #82: output[1][2] = @9 */
-  if (res[1]) casadi_copy(w09, 100, res[1]+200);
-  /* #83: output[1][3] = @10 */
-  if (res[1]) casadi_copy(w10, 100, res[1]+300);
-  /* #84: output[1][4] = @11 */
-  if (res[1]) casadi_copy(w11, 100, res[1]+400);
-  /* #85: output[1][5] = @12 */
-  if (res[1]) casadi_copy(w12, 100, res[1]+500);
-  /* #86: output[1][6] = @13 */
-  if (res[1]) casadi_copy(w13, 100, res[1]+600);
-  /* #87: output[1][7] = @14 */
-  if (res[1]) casadi_copy(w14, 100, res[1]+700);
-  /* #88: output[1][8] = @15 */
-  if (res[1]) casadi_copy(w15, 100, res[1]+800);
-  /* #89: output[1][9] = @16 */
-  if (res[1]) casadi_copy(w16, 100, res[1]+900);
-  return 0;
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_slotine_li_step_incref(void) {
 }
 
-/* pendulum_qbmove_slotine_li_loop:(x0[2],pi_hat0[3],ref[3x1000],lam,kd,kpi[3],dt)->(x[2x1000],pi_hat[3x1000],tau[1x1000]) */
-static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_int i;
-  casadi_real **res1=res+3, *rr, *w00=w+2700, *w01=w+2702, *w02=w+2705, *w03=w+2710, w04, *w05=w+5710, *w06=w+6710, *w07=w+7710, *w08=w+10710, *w09=w+11710;
-  casadi_real *w10=w+16710, *w11=w+17710;
-  const casadi_int *cii;
-  const casadi_real **arg1=arg+7, *cs, *ct, *wr03;
-  /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 2, w00);
-  /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 3, w01);
-  /* #2: @2 = vertcat(@0, @1) */
-  rr=w02;
-  for (i=0, cs=w00; i<2; ++i) *rr++ = *cs++;
-  for (i=0, cs=w01; i<3; ++i) *rr++ = *cs++;
-  /* #3: @3 = input[2][0] */
-  wr03 = arg[2] ? arg[2] : casadi_zeros;
-  /* #4: @4 = input[3][0] */
-  w04 = arg[3] ? arg[3][0] : 0;
-  /* #5: @5 = @4[0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0] */
-  for (cii=casadi_s6, rr=w05, cs=(&w04); cii!=casadi_s6+1000; ++cii) *rr++ = cs[*cii];
-  /* #6: @4 = input[4][0] */
-  w04 = arg[4] ? arg[4][0] : 0;
-  /* #7: @6 = @4[0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0] */
-  for (cii=casadi_s6, rr=w06, cs=(&w04); cii!=casadi_s6+1000; ++cii) *rr++ = cs[*cii];
-  /* #8: @1 = input[5][0] */
-  casadi_copy(arg[5], 3, w01);
-  /* #9: @7 = repmat(@1, 1000) */
-  for (i=0;i<1000;++i) {
-    casadi_copy(w01, 3, w07+ i*3);
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_slotine_li_step_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_slotine_li_step_n_in(void) { return 4;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_slotine_li_step_n_out(void) { return 2;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_slotine_li_step_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
   }
-  /* #10: @4 = input[6][0] */
-  w04 = arg[6] ? arg[6][0] : 0;
-  /* #11: @8 = @4[0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0] */
-  for (cii=casadi_s6, rr=w08, cs=(&w04); cii!=casadi_s6+1000; ++cii) *rr++ = cs[*cii];
-  /* #12: {@9, @10} = one_sample_acc10_acc10_acc10(@2, @3, @5, @6, @7, @8) */
-  arg1[0]=w02;
-  arg1[1]=wr03;
-  arg1[2]=w05;
-  arg1[3]=w06;
-  arg1[4]=w07;
-  arg1[5]=w08;
-  res1[0]=w09;
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_slotine_li_step_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "x";
+    case 1: return "p";
+    case 2: return "k";
+    case 3: return "e";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_slotine_li_step_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "x_next";
+    case 1: return "y";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_slotine_li_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s6;
+    case 1: return casadi_s6;
+    case 2: return casadi_s0;
+    case 3: return casadi_s2;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_slotine_li_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s6;
+    case 1: return casadi_s7;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 2;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* one_sample:(xa[6],p[5],e[3])->(xa_next[6],y[7]) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=1.0000000000000000e-03;
+  a02=arg[1]? arg[1][2] : 0;
+  a02=(a01*a02);
+  a03=arg[0]? arg[0][4] : 0;
+  a04=arg[2]? arg[2][1] : 0;
+  a05=arg[1]? arg[1][0] : 0;
+  a06=arg[2]? arg[2][0] : 0;
+  a07=arg[0]? arg[0][3] : 0;
+  a06=(a06-a07);
+  a06=(a05*a06);
+  a06=(a04+a06);
+  a06=(a06-a03);
+  a08=(a03*a06);
+  a02=(a02*a08);
+  a02=(a00+a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a02=arg[0]? arg[0][1] : 0;
+  a08=arg[1]? arg[1][3] : 0;
+  a08=(a01*a08);
+  a09=arg[2]? arg[2][2] : 0;
+  a04=(a04-a03);
+  a05=(a05*a04);
+  a09=(a09+a05);
+  a05=(a09*a06);
+  a08=(a08*a05);
+  a08=(a02+a08);
+  if (res[0]!=0) res[0][1]=a08;
+  a08=arg[0]? arg[0][2] : 0;
+  a05=arg[1]? arg[1][4] : 0;
+  a05=(a01*a05);
+  a04=-9.8100000000000005e+00;
+  a10=sin(a07);
+  a04=(a04*a10);
+  a11=(a04*a06);
+  a05=(a05*a11);
+  a05=(a08-a05);
+  if (res[0]!=0) res[0][2]=a05;
+  a05=1.6666666666666666e-04;
+  a11=5.0000000000000001e-04;
+  a12=(a03*a00);
+  a09=(a09*a02);
+  a12=(a12+a09);
+  a04=(a04*a08);
+  a12=(a12-a04);
+  a04=arg[1]? arg[1][1] : 0;
+  a04=(a04*a06);
+  a12=(a12+a04);
+  a04=9.9999999999999995e-08;
+  a06=(a04*a03);
+  a09=-1.1772000000000000e+00;
+  a10=(a09*a10);
+  a06=(a06-a10);
+  a06=(a12-a06);
+  a10=1.4999999999999999e-02;
+  a06=(a06/a10);
+  a13=(a11*a06);
+  a13=(a03+a13);
+  a14=(2.*a13);
+  a14=(a03+a14);
+  a15=(a04*a13);
+  a16=(a11*a03);
+  a16=(a07+a16);
+  a16=sin(a16);
+  a16=(a09*a16);
+  a15=(a15-a16);
+  a15=(a12-a15);
+  a15=(a15/a10);
+  a16=(a11*a15);
+  a16=(a03+a16);
+  a17=(2.*a16);
+  a14=(a14+a17);
+  a17=(a04*a16);
+  a11=(a11*a13);
+  a11=(a07+a11);
+  a11=sin(a11);
+  a11=(a09*a11);
+  a17=(a17-a11);
+  a17=(a12-a17);
+  a17=(a17/a10);
+  a11=(a01*a17);
+  a11=(a03+a11);
+  a14=(a14+a11);
+  a14=(a05*a14);
+  a14=(a07+a14);
+  if (res[0]!=0) res[0][3]=a14;
+  a15=(2.*a15);
+  a06=(a06+a15);
+  a17=(2.*a17);
+  a06=(a06+a17);
+  a04=(a04*a11);
+  a16=(a01*a16);
+  a16=(a07+a16);
+  a16=sin(a16);
+  a09=(a09*a16);
+  a04=(a04-a09);
+  a04=(a12-a04);
+  a04=(a04/a10);
+  a06=(a06+a04);
+  a05=(a05*a06);
+  a05=(a03+a05);
+  if (res[0]!=0) res[0][4]=a05;
+  a05=arg[0]? arg[0][5] : 0;
+  a06=1.;
+  a06=(a05+a06);
+  if (res[0]!=0) res[0][5]=a06;
+  a01=(a01*a05);
+  if (res[1]!=0) res[1][0]=a01;
+  if (res[1]!=0) res[1][1]=a07;
+  if (res[1]!=0) res[1][2]=a03;
+  if (res[1]!=0) res[1][3]=a12;
+  if (res[1]!=0) res[1][4]=a00;
+  if (res[1]!=0) res[1][5]=a02;
+  if (res[1]!=0) res[1][6]=a08;
+  return 0;
+}
+
+/* one_sample_acc10:(xa[6],p[5x10],e[3x10])->(xa_next[6x10],y[7x10]) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+18, *w01=w+24, *w02=w+29, *w03=w+32, *w04=w+38, *w05=w+45, *w06=w+52, *w07=w+59, *w08=w+66, *w09=w+73, *w10=w+80;
+  casadi_real *w11=w+87, *w12=w+94, *w13=w+101;
+  const casadi_real **arg1=arg+3;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w00);
+  /* #1: @1 = input[1][0] */
+  casadi_copy(arg[1], 5, w01);
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 3, w02);
+  /* #3: {@3, @4} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 6, res[0]);
+  /* #5: @1 = input[1][1] */
+  casadi_copy(arg[1] ? arg[1]+5 : 0, 5, w01);
+  /* #6: @2 = input[2][1] */
+  casadi_copy(arg[2] ? arg[2]+3 : 0, 3, w02);
+  /* #7: {@0, @5} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w05;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #8: output[0][1] = @0 */
+  if (res[0]) casadi_copy(w00, 6, res[0]+6);
+  /* #9: @1 = input[1][2] */
+  casadi_copy(arg[1] ? arg[1]+10 : 0, 5, w01);
+  /* #10: @2 = input[2][2] */
+  casadi_copy(arg[2] ? arg[2]+6 : 0, 3, w02);
+  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #12: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 6, res[0]+12);
+  /* #13: @1 = input[1][3] */
+  casadi_copy(arg[1] ? arg[1]+15 : 0, 5, w01);
+  /* #14: @2 = input[2][3] */
+  casadi_copy(arg[2] ? arg[2]+9 : 0, 3, w02);
+  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w07;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #16: output[0][3] = @0 */
+  if (res[0]) casadi_copy(w00, 6, res[0]+18);
+  /* #17: @1 = input[1][4] */
+  casadi_copy(arg[1] ? arg[1]+20 : 0, 5, w01);
+  /* #18: @2 = input[2][4] */
+  casadi_copy(arg[2] ? arg[2]+12 : 0, 3, w02);
+  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #20: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 6, res[0]+24);
+  /* #21: @1 = input[1][5] */
+  casadi_copy(arg[1] ? arg[1]+25 : 0, 5, w01);
+  /* #22: @2 = input[2][5] */
+  casadi_copy(arg[2] ? arg[2]+15 : 0, 3, w02);
+  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w09;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][5] = @0 */
+  if (res[0]) casadi_copy(w00, 6, res[0]+30);
+  /* #25: @1 = input[1][6] */
+  casadi_copy(arg[1] ? arg[1]+30 : 0, 5, w01);
+  /* #26: @2 = input[2][6] */
+  casadi_copy(arg[2] ? arg[2]+18 : 0, 3, w02);
+  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
   res1[1]=w10;
-  if (casadi_f13(arg1, res1, iw, w, 0)) return 1;
-  /* #13: @11 = @9[:5000:5;:2] */
-  for (rr=w11, cs=w09+0; cs!=w09+5000; cs+=5) for (ct=cs+0; ct!=cs+2; ct+=1) *rr++ = *ct;
-  /* #14: output[0][0] = @11 */
-  casadi_copy(w11, 2000, res[0]);
-  /* #15: @3 = @9[:5000:5;2:5] */
-  for (rr=w03, cs=w09+0; cs!=w09+5000; cs+=5) for (ct=cs+2; ct!=cs+5; ct+=1) *rr++ = *ct;
-  /* #16: output[1][0] = @3 */
-  casadi_copy(w03, 3000, res[1]);
-  /* #17: output[2][0] = @10 */
-  casadi_copy(w10, 1000, res[2]);
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #28: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 6, res[0]+36);
+  /* #29: @1 = input[1][7] */
+  casadi_copy(arg[1] ? arg[1]+35 : 0, 5, w01);
+  /* #30: @2 = input[2][7] */
+  casadi_copy(arg[2] ? arg[2]+21 : 0, 3, w02);
+  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w11;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #32: output[0][7] = @0 */
+  if (res[0]) casadi_copy(w00, 6, res[0]+42);
+  /* #33: @1 = input[1][8] */
+  casadi_copy(arg[1] ? arg[1]+40 : 0, 5, w01);
+  /* #34: @2 = input[2][8] */
+  casadi_copy(arg[2] ? arg[2]+24 : 0, 3, w02);
+  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #36: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 6, res[0]+48);
+  /* #37: @1 = input[1][9] */
+  casadi_copy(arg[1] ? arg[1]+45 : 0, 5, w01);
+  /* #38: @2 = input[2][9] */
+  casadi_copy(arg[2] ? arg[2]+27 : 0, 3, w02);
+  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
+  arg1[0]=w03;
+  arg1[1]=w01;
+  arg1[2]=w02;
+  res1[0]=w00;
+  res1[1]=w13;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #40: output[0][9] = @0 */
+  if (res[0]) casadi_copy(w00, 6, res[0]+54);
+  /* #41: output[1][0] = @4 */
+  casadi_copy(w04, 7, res[1]);
+  /* #42: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 7, res[1]+7);
+  /* #43: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 7, res[1]+14);
+  /* #44: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 7, res[1]+21);
+  /* #45: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 7, res[1]+28);
+  /* #46: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 7, res[1]+35);
+  /* #47: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 7, res[1]+42);
+  /* #48: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 7, res[1]+49);
+  /* #49: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 7, res[1]+56);
+  /* #50: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 7, res[1]+63);
+  return 0;
+}
+
+/* one_sample_acc10_acc10:(xa[6],p[5x100],e[3x100])->(xa_next[6x100],y[7x100]) */
+static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+108, *w03=w+114, *w04=w+174, *w05=w+244, *w06=w+314, *w07=w+384, *w08=w+454, *w09=w+524, *w10=w+594, *w11=w+664, *w12=w+734;
+  casadi_real *w13=w+804;
+  const casadi_real **arg1=arg+3, *wr01, *wr02;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w00);
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 60, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #6: @1 = input[1][1] */
+  wr01 = arg[1] ? arg[1]+50 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr02 = arg[2] ? arg[2]+30 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w05;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+60);
+  /* #10: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #11: @1 = input[1][2] */
+  wr01 = arg[1] ? arg[1]+100 : casadi_zeros;
+  /* #12: @2 = input[2][2] */
+  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
+  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+120);
+  /* #15: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #16: @1 = input[1][3] */
+  wr01 = arg[1] ? arg[1]+150 : casadi_zeros;
+  /* #17: @2 = input[2][3] */
+  wr02 = arg[2] ? arg[2]+90 : casadi_zeros;
+  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w07;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+180);
+  /* #20: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #21: @1 = input[1][4] */
+  wr01 = arg[1] ? arg[1]+200 : casadi_zeros;
+  /* #22: @2 = input[2][4] */
+  wr02 = arg[2] ? arg[2]+120 : casadi_zeros;
+  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+240);
+  /* #25: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #26: @1 = input[1][5] */
+  wr01 = arg[1] ? arg[1]+250 : casadi_zeros;
+  /* #27: @2 = input[2][5] */
+  wr02 = arg[2] ? arg[2]+150 : casadi_zeros;
+  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w09;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+300);
+  /* #30: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #31: @1 = input[1][6] */
+  wr01 = arg[1] ? arg[1]+300 : casadi_zeros;
+  /* #32: @2 = input[2][6] */
+  wr02 = arg[2] ? arg[2]+180 : casadi_zeros;
+  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #34: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+360);
+  /* #35: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #36: @1 = input[1][7] */
+  wr01 = arg[1] ? arg[1]+350 : casadi_zeros;
+  /* #37: @2 = input[2][7] */
+  wr02 = arg[2] ? arg[2]+210 : casadi_zeros;
+  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w11;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #39: output[0][7] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+420);
+  /* #40: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #41: @1 = input[1][8] */
+  wr01 = arg[1] ? arg[1]+400 : casadi_zeros;
+  /* #42: @2 = input[2][8] */
+  wr02 = arg[2] ? arg[2]+240 : casadi_zeros;
+  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #44: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+480);
+  /* #45: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+54, 6, w00);
+  /* #46: @1 = input[1][9] */
+  wr01 = arg[1] ? arg[1]+450 : casadi_zeros;
+  /* #47: @2 = input[2][9] */
+  wr02 = arg[2] ? arg[2]+270 : casadi_zeros;
+  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w13;
+  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
+  /* #49: output[0][9] = @3 */
+  if (res[0]) casadi_copy(w03, 60, res[0]+540);
+  /* #50: output[1][0] = @4 */
+  casadi_copy(w04, 70, res[1]);
+  /* #51: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 70, res[1]+70);
+  /* #52: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 70, res[1]+140);
+  /* #53: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 70, res[1]+210);
+  /* #54: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 70, res[1]+280);
+  /* #55: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 70, res[1]+350);
+  /* #56: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 70, res[1]+420);
+  /* #57: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 70, res[1]+490);
+  /* #58: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 70, res[1]+560);
+  /* #59: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 70, res[1]+630);
+  return 0;
+}
+
+/* one_sample_acc10_acc10_acc10:(xa[6],p[5x1000],e[3x1000])->(xa_next[6x1000],y[7x1000]) */
+static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+954, *w03=w+960, *w04=w+1560, *w05=w+2260, *w06=w+2960, *w07=w+3660, *w08=w+4360, *w09=w+5060, *w10=w+5760, *w11=w+6460, *w12=w+7160;
+  casadi_real *w13=w+7860;
+  const casadi_real **arg1=arg+3, *wr01, *wr02;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w00);
+  /* #1: @1 = input[1][0] */
+  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w04;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w03, 600, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #6: @1 = input[1][1] */
+  wr01 = arg[1] ? arg[1]+500 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w05;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+600);
+  /* #10: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #11: @1 = input[1][2] */
+  wr01 = arg[1] ? arg[1]+1000 : casadi_zeros;
+  /* #12: @2 = input[2][2] */
+  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
+  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w06;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+1200);
+  /* #15: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #16: @1 = input[1][3] */
+  wr01 = arg[1] ? arg[1]+1500 : casadi_zeros;
+  /* #17: @2 = input[2][3] */
+  wr02 = arg[2] ? arg[2]+900 : casadi_zeros;
+  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w07;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+1800);
+  /* #20: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #21: @1 = input[1][4] */
+  wr01 = arg[1] ? arg[1]+2000 : casadi_zeros;
+  /* #22: @2 = input[2][4] */
+  wr02 = arg[2] ? arg[2]+1200 : casadi_zeros;
+  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w08;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+2400);
+  /* #25: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #26: @1 = input[1][5] */
+  wr01 = arg[1] ? arg[1]+2500 : casadi_zeros;
+  /* #27: @2 = input[2][5] */
+  wr02 = arg[2] ? arg[2]+1500 : casadi_zeros;
+  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w09;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+3000);
+  /* #30: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #31: @1 = input[1][6] */
+  wr01 = arg[1] ? arg[1]+3000 : casadi_zeros;
+  /* #32: @2 = input[2][6] */
+  wr02 = arg[2] ? arg[2]+1800 : casadi_zeros;
+  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w10;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #34: output[0][6] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+3600);
+  /* #35: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #36: @1 = input[1][7] */
+  wr01 = arg[1] ? arg[1]+3500 : casadi_zeros;
+  /* #37: @2 = input[2][7] */
+  wr02 = arg[2] ? arg[2]+2100 : casadi_zeros;
+  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w11;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #39: output[0][7] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+4200);
+  /* #40: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #41: @1 = input[1][8] */
+  wr01 = arg[1] ? arg[1]+4000 : casadi_zeros;
+  /* #42: @2 = input[2][8] */
+  wr02 = arg[2] ? arg[2]+2400 : casadi_zeros;
+  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w12;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #44: output[0][8] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+4800);
+  /* #45: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w03+594, 6, w00);
+  /* #46: @1 = input[1][9] */
+  wr01 = arg[1] ? arg[1]+4500 : casadi_zeros;
+  /* #47: @2 = input[2][9] */
+  wr02 = arg[2] ? arg[2]+2700 : casadi_zeros;
+  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[0]=w00;
+  arg1[1]=wr01;
+  arg1[2]=wr02;
+  res1[0]=w03;
+  res1[1]=w13;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #49: output[0][9] = @3 */
+  if (res[0]) casadi_copy(w03, 600, res[0]+5400);
+  /* #50: output[1][0] = @4 */
+  casadi_copy(w04, 700, res[1]);
+  /* #51: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w05, 700, res[1]+700);
+  /* #52: output[1][2] = @6 */
+  if (res[1]) casadi_copy(w06, 700, res[1]+1400);
+  /* #53: output[1][3] = @7 */
+  if (res[1]) casadi_copy(w07, 700, res[1]+2100);
+  /* #54: output[1][4] = @8 */
+  if (res[1]) casadi_copy(w08, 700, res[1]+2800);
+  /* #55: output[1][5] = @9 */
+  if (res[1]) casadi_copy(w09, 700, res[1]+3500);
+  /* #56: output[1][6] = @10 */
+  if (res[1]) casadi_copy(w10, 700, res[1]+4200);
+  /* #57: output[1][7] = @11 */
+  if (res[1]) casadi_copy(w11, 700, res[1]+4900);
+  /* #58: output[1][8] = @12 */
+  if (res[1]) casadi_copy(w12, 700, res[1]+5600);
+  /* #59: output[1][9] = @13 */
+  if (res[1]) casadi_copy(w13, 700, res[1]+6300);
+  return 0;
+}
+
+/* pendulum_qbmove_slotine_li_loop:(x0[5],p[5],k0,e[3x1000])->(x[5x1000],y[7x1000]) */
+static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_int i;
+  casadi_real **res1=res+2, *rr, *w0=w+9360, w1, *w2=w+9365, *w3=w+9371, *w5=w+14371, *w6=w+20371;
+  const casadi_real **arg1=arg+4, *cs, *ct, *wr4;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w0);
+  /* #1: @1 = input[2][0] */
+  w1 = arg[2] ? arg[2][0] : 0;
+  /* #2: @2 = vertcat(@0, @1) */
+  rr=w2;
+  for (i=0, cs=w0; i<5; ++i) *rr++ = *cs++;
+  *rr++ = w1;
+  /* #3: @0 = input[1][0] */
+  casadi_copy(arg[1], 5, w0);
+  /* #4: @3 = repmat(@0, 1000) */
+  for (i=0;i<1000;++i) {
+    casadi_copy(w0, 5, w3+ i*5);
+  }
+  /* #5: @4 = input[3][0] */
+  wr4 = arg[3] ? arg[3] : casadi_zeros;
+  /* #6: {@5, @6} = one_sample_acc10_acc10_acc10(@2, @3, @4) */
+  arg1[0]=w2;
+  arg1[1]=w3;
+  arg1[2]=wr4;
+  res1[0]=w5;
+  res1[1]=w6;
+  if (casadi_f14(arg1, res1, iw, w, 0)) return 1;
+  /* #7: @3 = @5[:6000:6;:5] */
+  for (rr=w3, cs=w5+0; cs!=w5+6000; cs+=6) for (ct=cs+0; ct!=cs+5; ct+=1) *rr++ = *ct;
+  /* #8: output[0][0] = @3 */
+  casadi_copy(w3, 5000, res[0]);
+  /* #9: output[1][0] = @6 */
+  casadi_copy(w6, 7000, res[1]);
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f12(arg, res, iw, w, mem);
+  return casadi_f13(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_loop_checkout(void) {
@@ -2303,9 +2240,9 @@ CASADI_SYMBOL_EXPORT void pendulum_qbmove_slotine_li_loop_incref(void) {
 CASADI_SYMBOL_EXPORT void pendulum_qbmove_slotine_li_loop_decref(void) {
 }
 
-CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_slotine_li_loop_n_in(void) { return 7;}
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_slotine_li_loop_n_in(void) { return 4;}
 
-CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_slotine_li_loop_n_out(void) { return 3;}
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_slotine_li_loop_n_out(void) { return 2;}
 
 CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_slotine_li_loop_default_in(casadi_int i) {
   switch (i) {
@@ -2316,12 +2253,9 @@ CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_slotine_li_loop_default_in(casa
 CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_slotine_li_loop_name_in(casadi_int i) {
   switch (i) {
     case 0: return "x0";
-    case 1: return "pi_hat0";
-    case 2: return "ref";
-    case 3: return "lam";
-    case 4: return "kd";
-    case 5: return "kpi";
-    case 6: return "dt";
+    case 1: return "p";
+    case 2: return "k0";
+    case 3: return "e";
     default: return 0;
   }
 }
@@ -2329,52 +2263,47 @@ CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_slotine_li_loop_name_in(casadi_
 CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_slotine_li_loop_name_out(casadi_int i) {
   switch (i) {
     case 0: return "x";
-    case 1: return "pi_hat";
-    case 2: return "tau";
+    case 1: return "y";
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_slotine_li_loop_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s5;
-    case 1: return casadi_s2;
-    case 2: return casadi_s7;
-    case 3: return casadi_s0;
-    case 4: return casadi_s0;
-    case 5: return casadi_s2;
-    case 6: return casadi_s0;
+    case 0: return casadi_s6;
+    case 1: return casadi_s6;
+    case 2: return casadi_s0;
+    case 3: return casadi_s8;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_slotine_li_loop_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s8;
-    case 1: return casadi_s7;
-    case 2: return casadi_s9;
+    case 0: return casadi_s9;
+    case 1: return casadi_s10;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31;
-  if (sz_res) *sz_res = 11;
+  if (sz_arg) *sz_arg = 16;
+  if (sz_res) *sz_res = 10;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 19710;
+  if (sz_w) *sz_w = 27371;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 11*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 16*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 10*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 19710*sizeof(casadi_real);
+  if (sz_w) *sz_w = 27371*sizeof(casadi_real);
   return 0;
 }
 
 /* pendulum_qbmove_qbmove_torque:(q,qa,qb)->(tau_a,tau_b,tau_e,sigma_a,sigma_b,sigma) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=2.2700000000000001e-02;
   a1=6.7328000000000001e+00;
@@ -2409,7 +2338,7 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f17(arg, res, iw, w, mem);
+  return casadi_f18(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_torque_checkout(void) {
@@ -2494,7 +2423,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_torque_work_bytes(casadi_int *sz
 }
 
 /* pendulum_qbmove_qbmove_stiffness_rate:(q,qa,qb,qd,qad,qbd)->(sigma_dot) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=1.5283456000000001e-01;
   a1=6.7328000000000001e+00;
@@ -2526,7 +2455,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_stiffness_rate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f18(arg, res, iw, w, mem);
+  return casadi_f19(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_stiffness_rate_checkout(void) {
@@ -2607,7 +2536,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_stiffness_rate_work_bytes(casadi
 }
 
 /* pendulum_qbmove_qbmove_deflection:(tau)->(phi_a,phi_b) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2;
   a0=arg[0]? arg[0][0] : 0;
   a1=2.2700000000000001e-02;
@@ -2626,7 +2555,7 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_deflection(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f19(arg, res, iw, w, mem);
+  return casadi_f20(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_deflection_checkout(void) {
@@ -2699,7 +2628,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_deflection_work_bytes(casadi_int
 }
 
 /* pendulum_qbmove_electric_plant:(x[6],u[2],spring_scale[2],h)->(x_next[6]) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -4461,7 +4390,7 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f20(arg, res, iw, w, mem);
+  return casadi_f21(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_plant_checkout(void) {
@@ -4537,8 +4466,6438 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_plant_work_bytes(casadi_int *s
   return 0;
 }
 
+/* pendulum_qbmove_electric_cascade_pd:(z[0],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,dt)->(z_next[0],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62, a63, a64, a65, a66, a67, a68, a69, a70, a71;
+  casadi_real a72, a73, a74, a75, a76, a77, a78, a79, a80, a81, a82, a83;
+  casadi_real a84, a85, a86, a87, a88, a89, a90;
+  a00=9.9999999999999995e-07;
+  a01=arg[1]? arg[1][3] : 0;
+  a02=(a00*a01);
+  a03=2.2700000000000001e-02;
+  a04=6.7328000000000001e+00;
+  a05=arg[1]? arg[1][0] : 0;
+  a06=arg[9]? arg[9][0] : 0;
+  a07=2.;
+  a06=(a06/a07);
+  a07=arg[1]? arg[1][1] : 0;
+  a08=(a06*a07);
+  a08=(a05+a08);
+  a09=arg[1]? arg[1][2] : 0;
+  a10=(a06*a01);
+  a10=(a09+a10);
+  a10=(a08-a10);
+  a10=(a04*a10);
+  a10=sinh(a10);
+  a10=(a03*a10);
+  a02=(a02-a10);
+  a10=3.0000000000000001e-06;
+  a11=1.4852661596958175e-01;
+  a12=4.4052863436123346e+01;
+  a13=arg[7]? arg[7][0] : 0;
+  a14=1.0290045255680000e+00;
+  a15=(a05-a09);
+  a15=(a04*a15);
+  a16=sinh(a15);
+  a14=(a14*a16);
+  a14=(a13*a14);
+  a17=4.5330595840000001e+01;
+  a18=(a07-a01);
+  a19=(a17*a18);
+  a20=arg[8]? arg[8][0] : 0;
+  a19=(a19+a20);
+  a21=4.8444384040000010e+01;
+  a22=arg[1]? arg[1][5] : 0;
+  a23=(a07-a22);
+  a24=(a21*a23);
+  a24=(a24-a20);
+  a20=(a19-a24);
+  a25=(a14/a20);
+  a26=-4.5330595840000001e+01;
+  a27=1.4999999999999999e-02;
+  a28=arg[2]? arg[2][3] : 0;
+  a29=arg[6]? arg[6][0] : 0;
+  a30=(a03*a16);
+  a31=2.1600000000000001e-02;
+  a32=6.9602000000000004e+00;
+  a33=arg[1]? arg[1][4] : 0;
+  a34=(a05-a33);
+  a34=(a32*a34);
+  a35=sinh(a34);
+  a36=(a31*a35);
+  a30=(a30+a36);
+  a36=9.9999999999999995e-08;
+  a37=(a36*a07);
+  a38=-1.1772000000000000e+00;
+  a39=sin(a05);
+  a40=(a38*a39);
+  a41=(a37-a40);
+  a30=(a30+a41);
+  a30=(a30/a27);
+  a41=arg[2]? arg[2][2] : 0;
+  a42=(a30+a41);
+  a43=(a29*a42);
+  a43=(a28+a43);
+  a44=arg[5]? arg[5][0] : 0;
+  a45=arg[2]? arg[2][1] : 0;
+  a45=(a07-a45);
+  a46=(a44*a45);
+  a43=(a43-a46);
+  a43=(a27*a43);
+  a46=cos(a05);
+  a47=(a46*a07);
+  a47=(a38*a47);
+  a43=(a43-a47);
+  a36=(a36*a30);
+  a43=(a43-a36);
+  a48=(a24*a43);
+  a45=(a29*a45);
+  a41=(a41-a45);
+  a45=arg[2]? arg[2][0] : 0;
+  a45=(a05-a45);
+  a45=(a44*a45);
+  a41=(a41-a45);
+  a41=(a27*a41);
+  a41=(a41-a40);
+  a41=(a41+a37);
+  a37=(a21*a30);
+  a40=(a41*a37);
+  a48=(a48-a40);
+  a40=arg[2]? arg[2][7] : 0;
+  a45=1.5283456000000001e-01;
+  a18=(a04*a18);
+  a49=(a16*a18);
+  a49=(a45*a49);
+  a50=1.5034032000000003e-01;
+  a23=(a32*a23);
+  a51=(a35*a23);
+  a51=(a50*a51);
+  a49=(a49+a51);
+  a51=arg[2]? arg[2][6] : 0;
+  a49=(a49-a51);
+  a49=(a13*a49);
+  a49=(a40-a49);
+  a48=(a48+a49);
+  a48=(a48/a20);
+  a52=(a48/a20);
+  a53=(a26*a52);
+  a25=(a25-a53);
+  a53=(a41*a24);
+  a15=cosh(a15);
+  a54=(a45*a15);
+  a34=cosh(a34);
+  a55=(a50*a34);
+  a54=(a54+a55);
+  a55=arg[2]? arg[2][5] : 0;
+  a55=(a54-a55);
+  a55=(a13*a55);
+  a51=(a51-a55);
+  a53=(a53+a51);
+  a53=(a53/a20);
+  a55=(a53/a20);
+  a56=(a17*a30);
+  a57=(a37-a56);
+  a58=(a55*a57);
+  a48=(a48-a58);
+  a58=(a48/a20);
+  a59=(a55/a20);
+  a60=(a59*a57);
+  a58=(a58-a60);
+  a60=(a26*a58);
+  a61=(a26*a55);
+  a61=(a61/a20);
+  a62=(a26*a59);
+  a61=(a61+a62);
+  a61=(a57*a61);
+  a60=(a60-a61);
+  a25=(a25-a60);
+  a25=(a12*a25);
+  a60=1.;
+  a61=(a53/a03);
+  a62=casadi_sq(a61);
+  a62=(a60+a62);
+  a62=sqrt(a62);
+  a25=(a25/a62);
+  a63=(2.*a61);
+  a48=(a12*a48);
+  a64=(a63*a48);
+  a65=(2.*a62);
+  a64=(a64/a65);
+  a66=-1.9969425480176210e+03;
+  a66=(a66*a55);
+  a67=(a66/a62);
+  a68=(a67/a62);
+  a68=(a64*a68);
+  a48=(a48/a62);
+  a69=(a48/a62);
+  a66=(a63*a66);
+  a66=(a66/a65);
+  a66=(a69*a66);
+  a68=(a68+a66);
+  a25=(a25+a68);
+  a25=(a11*a25);
+  a68=1.4367403235539208e-01;
+  a66=4.6296296296296291e+01;
+  a70=1.0463986952640003e+00;
+  a70=(a70*a35);
+  a70=(a13*a70);
+  a71=(a70/a20);
+  a72=(a19*a43);
+  a73=(a41*a56);
+  a72=(a72-a73);
+  a49=(a49+a72);
+  a49=(a49/a20);
+  a72=(a49/a20);
+  a73=(a21*a72);
+  a71=(a71-a73);
+  a73=(a19*a41);
+  a51=(a51+a73);
+  a51=(a51/a20);
+  a73=(a51/a20);
+  a74=(a73*a57);
+  a49=(a49-a74);
+  a74=(a49/a20);
+  a75=(a73/a20);
+  a76=(a75*a57);
+  a74=(a74-a76);
+  a76=(a21*a74);
+  a77=(a21*a73);
+  a77=(a77/a20);
+  a78=(a21*a75);
+  a77=(a77+a78);
+  a77=(a57*a77);
+  a76=(a76-a77);
+  a71=(a71-a76);
+  a71=(a66*a71);
+  a76=(a51/a31);
+  a77=casadi_sq(a76);
+  a77=(a60+a77);
+  a77=sqrt(a77);
+  a71=(a71/a77);
+  a78=(2.*a76);
+  a49=(a66*a49);
+  a79=(a78*a49);
+  a80=(2.*a77);
+  a79=(a79/a80);
+  a81=2.2427955574074076e+03;
+  a81=(a81*a73);
+  a82=(a81/a77);
+  a83=(a82/a77);
+  a83=(a79*a83);
+  a49=(a49/a77);
+  a84=(a49/a77);
+  a81=(a78*a81);
+  a81=(a81/a80);
+  a81=(a84*a81);
+  a83=(a83+a81);
+  a71=(a71+a83);
+  a71=(a68*a71);
+  a83=(a60-a71);
+  a81=arg[4]? arg[4][1] : 0;
+  a82=(a68*a82);
+  a85=(a81*a82);
+  a83=(a83+a85);
+  a60=(a60+a25);
+  a85=arg[4]? arg[4][0] : 0;
+  a67=(a11*a67);
+  a86=(a85*a67);
+  a60=(a60-a86);
+  a86=(a60*a83);
+  a87=9.6888768080000020e+01;
+  a87=(a87*a43);
+  a70=(a70-a87);
+  a70=(a70/a20);
+  a87=(a21*a52);
+  a88=(a21*a41);
+  a88=(a88/a20);
+  a89=(a88/a20);
+  a89=(a57*a89);
+  a87=(a87-a89);
+  a70=(a70-a87);
+  a87=(a21*a58);
+  a89=(a21*a55);
+  a88=(a88+a89);
+  a89=(a88/a20);
+  a21=(a21*a59);
+  a89=(a89+a21);
+  a89=(a57*a89);
+  a87=(a87-a89);
+  a70=(a70-a87);
+  a70=(a12*a70);
+  a70=(a70/a62);
+  a88=(a12*a88);
+  a87=(a88/a62);
+  a89=(a87/a62);
+  a89=(a64*a89);
+  a63=(a63*a88);
+  a63=(a63/a65);
+  a63=(a69*a63);
+  a89=(a89+a63);
+  a70=(a70+a89);
+  a70=(a11*a70);
+  a87=(a11*a87);
+  a89=(a85*a87);
+  a89=(a70-a89);
+  a17=(a17*a41);
+  a17=(a17/a20);
+  a63=(a26*a73);
+  a63=(a17+a63);
+  a65=(a66*a63);
+  a88=(a65/a77);
+  a21=(a68*a88);
+  a59=(a81*a21);
+  a90=9.0661191680000002e+01;
+  a90=(a90*a43);
+  a14=(a14-a90);
+  a14=(a14/a20);
+  a90=(a26*a72);
+  a17=(a17/a20);
+  a17=(a57*a17);
+  a90=(a90-a17);
+  a14=(a14-a90);
+  a90=(a26*a74);
+  a63=(a63/a20);
+  a26=(a26*a75);
+  a63=(a63+a26);
+  a63=(a57*a63);
+  a90=(a90-a63);
+  a14=(a14-a90);
+  a14=(a66*a14);
+  a14=(a14/a77);
+  a88=(a88/a77);
+  a88=(a79*a88);
+  a78=(a78*a65);
+  a78=(a78/a80);
+  a78=(a84*a78);
+  a88=(a88+a78);
+  a14=(a14+a88);
+  a14=(a68*a14);
+  a59=(a59-a14);
+  a88=(a89*a59);
+  a86=(a86-a88);
+  a83=(a83/a86);
+  a88=arg[2]? arg[2][4] : 0;
+  a78=6.6666666666666671e+01;
+  a15=(a15*a18);
+  a03=(a03*a15);
+  a34=(a34*a23);
+  a80=(a31*a34);
+  a03=(a03+a80);
+  a36=(a36+a47);
+  a03=(a03-a36);
+  a78=(a78*a03);
+  a78=(a78+a28);
+  a29=(a29*a78);
+  a88=(a88+a29);
+  a44=(a44*a42);
+  a88=(a88+a44);
+  a27=(a27*a88);
+  a39=(a39*a07);
+  a39=(a07*a39);
+  a46=(a46*a30);
+  a39=(a39+a46);
+  a38=(a38*a39);
+  a27=(a27+a38);
+  a38=6.6666666666666666e-06;
+  a38=(a38*a03);
+  a27=(a27-a38);
+  a24=(a24*a27);
+  a38=(a43*a37);
+  a24=(a24-a38);
+  a37=(a37*a43);
+  a38=3.2296256026666674e+03;
+  a38=(a38*a03);
+  a39=(a41*a38);
+  a37=(a37+a39);
+  a24=(a24-a37);
+  a37=arg[2]? arg[2][8] : 0;
+  a18=(a18*a15);
+  a15=(a04*a30);
+  a16=(a16*a15);
+  a18=(a18-a16);
+  a45=(a45*a18);
+  a23=(a23*a34);
+  a34=(a32*a30);
+  a35=(a35*a34);
+  a23=(a23-a35);
+  a50=(a50*a23);
+  a45=(a45+a50);
+  a45=(a45-a40);
+  a13=(a13*a45);
+  a37=(a37-a13);
+  a24=(a24+a37);
+  a24=(a24/a20);
+  a52=(a52*a57);
+  a24=(a24-a52);
+  a58=(a57*a58);
+  a52=3.0220397226666669e+03;
+  a52=(a52*a03);
+  a38=(a38-a52);
+  a55=(a55*a38);
+  a58=(a58+a55);
+  a24=(a24-a58);
+  a12=(a12*a24);
+  a12=(a12/a62);
+  a69=(a69*a64);
+  a12=(a12-a69);
+  a12=(a11*a12);
+  a12=(a30+a12);
+  a69=arg[3]? arg[3][0] : 0;
+  a61=asinh(a61);
+  a61=(a61/a04);
+  a61=(a05-a61);
+  a09=(a09-a61);
+  a69=(a69*a09);
+  a09=(a12+a69);
+  a11=(a11*a48);
+  a11=(a07-a11);
+  a48=(a01-a11);
+  a48=(a85*a48);
+  a09=(a09+a48);
+  a83=(a83*a09);
+  a89=(a89/a86);
+  a19=(a19*a27);
+  a27=(a43*a56);
+  a19=(a19-a27);
+  a56=(a56*a43);
+  a41=(a41*a52);
+  a56=(a56+a41);
+  a19=(a19-a56);
+  a37=(a37+a19);
+  a37=(a37/a20);
+  a72=(a72*a57);
+  a37=(a37-a72);
+  a57=(a57*a74);
+  a73=(a73*a38);
+  a57=(a57+a73);
+  a37=(a37-a57);
+  a66=(a66*a37);
+  a66=(a66/a77);
+  a84=(a84*a79);
+  a66=(a66-a84);
+  a66=(a68*a66);
+  a66=(a66-a30);
+  a30=arg[3]? arg[3][1] : 0;
+  a76=(-a76);
+  a76=asinh(a76);
+  a76=(a76/a32);
+  a05=(a05-a76);
+  a76=(a33-a05);
+  a30=(a30*a76);
+  a76=(a66-a30);
+  a68=(a68*a49);
+  a07=(a07+a68);
+  a68=(a22-a07);
+  a68=(a81*a68);
+  a76=(a76-a68);
+  a89=(a89*a76);
+  a83=(a83+a89);
+  a25=(a25*a83);
+  a59=(a59/a86);
+  a59=(a59*a09);
+  a60=(a60/a86);
+  a60=(a60*a76);
+  a59=(a59+a60);
+  a70=(a70*a59);
+  a25=(a25-a70);
+  a25=(a25-a12);
+  a69=(a25-a69);
+  a87=(a87*a59);
+  a67=(a67*a83);
+  a87=(a87-a67);
+  a11=(a11+a87);
+  a01=(a01-a11);
+  a85=(a85*a01);
+  a69=(a69-a85);
+  a69=(a10*a69);
+  a02=(a02+a69);
+  if (res[1]!=0) res[1][0]=a02;
+  a00=(a00*a22);
+  a06=(a06*a22);
+  a33=(a33+a06);
+  a08=(a08-a33);
+  a32=(a32*a08);
+  a32=sinh(a32);
+  a31=(a31*a32);
+  a00=(a00-a31);
+  a71=(a71*a59);
+  a14=(a14*a83);
+  a71=(a71-a14);
+  a66=(a66+a71);
+  a30=(a66-a30);
+  a21=(a21*a83);
+  a82=(a82*a59);
+  a21=(a21-a82);
+  a07=(a07+a21);
+  a22=(a22-a07);
+  a81=(a81*a22);
+  a30=(a30-a81);
+  a10=(a10*a30);
+  a00=(a00+a10);
+  if (res[1]!=0) res[1][1]=a00;
+  if (res[2]!=0) res[2][0]=a61;
+  if (res[2]!=0) res[2][1]=a05;
+  if (res[3]!=0) res[3][0]=a11;
+  if (res[3]!=0) res[3][1]=a07;
+  if (res[4]!=0) res[4][0]=a25;
+  if (res[4]!=0) res[4][1]=a66;
+  if (res[5]!=0) res[5][0]=a53;
+  a51=(-a51);
+  if (res[5]!=0) res[5][1]=a51;
+  if (res[6]!=0) res[6][0]=a54;
+  if (res[7]!=0) res[7][0]=a20;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f22(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_n_in(void) { return 10;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_pd_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "kp_m";
+    case 4: return "kd_m";
+    case 5: return "kp";
+    case 6: return "kd";
+    case 7: return "ksigma";
+    case 8: return "delta";
+    case 9: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s11;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s0;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s0;
+    case 9: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s11;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 10;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 10*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_qbmove_electric_cascade_pd_integral:(z,x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,dt)->(z_next,tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62, a63, a64, a65, a66, a67, a68, a69, a70, a71;
+  casadi_real a72, a73, a74, a75, a76, a77, a78, a79, a80, a81, a82, a83;
+  casadi_real a84, a85, a86, a87, a88, a89, a90, a91, a92;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[10]? arg[10][0] : 0;
+  a02=1.5283456000000001e-01;
+  a03=6.7328000000000001e+00;
+  a04=arg[1]? arg[1][0] : 0;
+  a05=arg[1]? arg[1][2] : 0;
+  a06=(a04-a05);
+  a06=(a03*a06);
+  a07=cosh(a06);
+  a08=(a02*a07);
+  a09=1.5034032000000003e-01;
+  a10=6.9602000000000004e+00;
+  a11=arg[1]? arg[1][4] : 0;
+  a12=(a04-a11);
+  a12=(a10*a12);
+  a13=cosh(a12);
+  a14=(a09*a13);
+  a08=(a08+a14);
+  a14=arg[2]? arg[2][5] : 0;
+  a14=(a08-a14);
+  a15=(a01*a14);
+  a15=(a00+a15);
+  if (res[0]!=0) res[0][0]=a15;
+  a15=9.9999999999999995e-07;
+  a16=arg[1]? arg[1][3] : 0;
+  a17=(a15*a16);
+  a18=2.2700000000000001e-02;
+  a19=2.;
+  a01=(a01/a19);
+  a19=arg[1]? arg[1][1] : 0;
+  a20=(a01*a19);
+  a20=(a04+a20);
+  a21=(a01*a16);
+  a21=(a05+a21);
+  a21=(a20-a21);
+  a21=(a03*a21);
+  a21=sinh(a21);
+  a21=(a18*a21);
+  a17=(a17-a21);
+  a21=3.0000000000000001e-06;
+  a22=1.4852661596958175e-01;
+  a23=4.4052863436123346e+01;
+  a24=arg[7]? arg[7][0] : 0;
+  a25=1.0290045255680000e+00;
+  a06=sinh(a06);
+  a25=(a25*a06);
+  a25=(a24*a25);
+  a26=4.5330595840000001e+01;
+  a27=(a19-a16);
+  a28=(a26*a27);
+  a29=arg[8]? arg[8][0] : 0;
+  a28=(a28+a29);
+  a30=4.8444384040000010e+01;
+  a31=arg[1]? arg[1][5] : 0;
+  a32=(a19-a31);
+  a33=(a30*a32);
+  a33=(a33-a29);
+  a29=(a28-a33);
+  a34=(a25/a29);
+  a35=-4.5330595840000001e+01;
+  a36=1.4999999999999999e-02;
+  a37=arg[2]? arg[2][3] : 0;
+  a38=arg[6]? arg[6][0] : 0;
+  a39=(a18*a06);
+  a40=2.1600000000000001e-02;
+  a12=sinh(a12);
+  a41=(a40*a12);
+  a39=(a39+a41);
+  a41=9.9999999999999995e-08;
+  a42=(a41*a19);
+  a43=-1.1772000000000000e+00;
+  a44=sin(a04);
+  a45=(a43*a44);
+  a46=(a42-a45);
+  a39=(a39+a46);
+  a39=(a39/a36);
+  a46=arg[2]? arg[2][2] : 0;
+  a47=(a39+a46);
+  a48=(a38*a47);
+  a48=(a37+a48);
+  a49=arg[5]? arg[5][0] : 0;
+  a50=arg[2]? arg[2][1] : 0;
+  a50=(a19-a50);
+  a51=(a49*a50);
+  a48=(a48-a51);
+  a48=(a36*a48);
+  a51=cos(a04);
+  a52=(a51*a19);
+  a52=(a43*a52);
+  a48=(a48-a52);
+  a41=(a41*a39);
+  a48=(a48-a41);
+  a53=(a33*a48);
+  a50=(a38*a50);
+  a46=(a46-a50);
+  a50=arg[2]? arg[2][0] : 0;
+  a50=(a04-a50);
+  a50=(a49*a50);
+  a46=(a46-a50);
+  a46=(a36*a46);
+  a46=(a46-a45);
+  a46=(a46+a42);
+  a42=(a30*a39);
+  a45=(a46*a42);
+  a53=(a53-a45);
+  a45=arg[2]? arg[2][7] : 0;
+  a27=(a03*a27);
+  a50=(a06*a27);
+  a50=(a02*a50);
+  a32=(a10*a32);
+  a54=(a12*a32);
+  a54=(a09*a54);
+  a50=(a50+a54);
+  a54=arg[2]? arg[2][6] : 0;
+  a50=(a50-a54);
+  a55=(a24*a50);
+  a55=(a45-a55);
+  a56=arg[9]? arg[9][0] : 0;
+  a57=(a56*a14);
+  a55=(a55-a57);
+  a53=(a53+a55);
+  a53=(a53/a29);
+  a57=(a53/a29);
+  a58=(a35*a57);
+  a34=(a34-a58);
+  a58=(a46*a33);
+  a14=(a24*a14);
+  a54=(a54-a14);
+  a00=(a56*a00);
+  a54=(a54-a00);
+  a58=(a58+a54);
+  a58=(a58/a29);
+  a00=(a58/a29);
+  a14=(a26*a39);
+  a59=(a42-a14);
+  a60=(a00*a59);
+  a53=(a53-a60);
+  a60=(a53/a29);
+  a61=(a00/a29);
+  a62=(a61*a59);
+  a60=(a60-a62);
+  a62=(a35*a60);
+  a63=(a35*a00);
+  a63=(a63/a29);
+  a64=(a35*a61);
+  a63=(a63+a64);
+  a63=(a59*a63);
+  a62=(a62-a63);
+  a34=(a34-a62);
+  a34=(a23*a34);
+  a62=1.;
+  a63=(a58/a18);
+  a64=casadi_sq(a63);
+  a64=(a62+a64);
+  a64=sqrt(a64);
+  a34=(a34/a64);
+  a65=(2.*a63);
+  a53=(a23*a53);
+  a66=(a65*a53);
+  a67=(2.*a64);
+  a66=(a66/a67);
+  a68=-1.9969425480176210e+03;
+  a68=(a68*a00);
+  a69=(a68/a64);
+  a70=(a69/a64);
+  a70=(a66*a70);
+  a53=(a53/a64);
+  a71=(a53/a64);
+  a68=(a65*a68);
+  a68=(a68/a67);
+  a68=(a71*a68);
+  a70=(a70+a68);
+  a34=(a34+a70);
+  a34=(a22*a34);
+  a70=1.4367403235539208e-01;
+  a68=4.6296296296296291e+01;
+  a72=1.0463986952640003e+00;
+  a72=(a72*a12);
+  a72=(a24*a72);
+  a73=(a72/a29);
+  a74=(a28*a48);
+  a75=(a46*a14);
+  a74=(a74-a75);
+  a55=(a55+a74);
+  a55=(a55/a29);
+  a74=(a55/a29);
+  a75=(a30*a74);
+  a73=(a73-a75);
+  a75=(a28*a46);
+  a54=(a54+a75);
+  a54=(a54/a29);
+  a75=(a54/a29);
+  a76=(a75*a59);
+  a55=(a55-a76);
+  a76=(a55/a29);
+  a77=(a75/a29);
+  a78=(a77*a59);
+  a76=(a76-a78);
+  a78=(a30*a76);
+  a79=(a30*a75);
+  a79=(a79/a29);
+  a80=(a30*a77);
+  a79=(a79+a80);
+  a79=(a59*a79);
+  a78=(a78-a79);
+  a73=(a73-a78);
+  a73=(a68*a73);
+  a78=(a54/a40);
+  a79=casadi_sq(a78);
+  a79=(a62+a79);
+  a79=sqrt(a79);
+  a73=(a73/a79);
+  a80=(2.*a78);
+  a55=(a68*a55);
+  a81=(a80*a55);
+  a82=(2.*a79);
+  a81=(a81/a82);
+  a83=2.2427955574074076e+03;
+  a83=(a83*a75);
+  a84=(a83/a79);
+  a85=(a84/a79);
+  a85=(a81*a85);
+  a55=(a55/a79);
+  a86=(a55/a79);
+  a83=(a80*a83);
+  a83=(a83/a82);
+  a83=(a86*a83);
+  a85=(a85+a83);
+  a73=(a73+a85);
+  a73=(a70*a73);
+  a85=(a62-a73);
+  a83=arg[4]? arg[4][1] : 0;
+  a84=(a70*a84);
+  a87=(a83*a84);
+  a85=(a85+a87);
+  a62=(a62+a34);
+  a87=arg[4]? arg[4][0] : 0;
+  a69=(a22*a69);
+  a88=(a87*a69);
+  a62=(a62-a88);
+  a88=(a62*a85);
+  a89=9.6888768080000020e+01;
+  a89=(a89*a48);
+  a72=(a72-a89);
+  a72=(a72/a29);
+  a89=(a30*a57);
+  a90=(a30*a46);
+  a90=(a90/a29);
+  a91=(a90/a29);
+  a91=(a59*a91);
+  a89=(a89-a91);
+  a72=(a72-a89);
+  a89=(a30*a60);
+  a91=(a30*a00);
+  a90=(a90+a91);
+  a91=(a90/a29);
+  a30=(a30*a61);
+  a91=(a91+a30);
+  a91=(a59*a91);
+  a89=(a89-a91);
+  a72=(a72-a89);
+  a72=(a23*a72);
+  a72=(a72/a64);
+  a90=(a23*a90);
+  a89=(a90/a64);
+  a91=(a89/a64);
+  a91=(a66*a91);
+  a65=(a65*a90);
+  a65=(a65/a67);
+  a65=(a71*a65);
+  a91=(a91+a65);
+  a72=(a72+a91);
+  a72=(a22*a72);
+  a89=(a22*a89);
+  a91=(a87*a89);
+  a91=(a72-a91);
+  a26=(a26*a46);
+  a26=(a26/a29);
+  a65=(a35*a75);
+  a65=(a26+a65);
+  a67=(a68*a65);
+  a90=(a67/a79);
+  a30=(a70*a90);
+  a61=(a83*a30);
+  a92=9.0661191680000002e+01;
+  a92=(a92*a48);
+  a25=(a25-a92);
+  a25=(a25/a29);
+  a92=(a35*a74);
+  a26=(a26/a29);
+  a26=(a59*a26);
+  a92=(a92-a26);
+  a25=(a25-a92);
+  a92=(a35*a76);
+  a65=(a65/a29);
+  a35=(a35*a77);
+  a65=(a65+a35);
+  a65=(a59*a65);
+  a92=(a92-a65);
+  a25=(a25-a92);
+  a25=(a68*a25);
+  a25=(a25/a79);
+  a90=(a90/a79);
+  a90=(a81*a90);
+  a80=(a80*a67);
+  a80=(a80/a82);
+  a80=(a86*a80);
+  a90=(a90+a80);
+  a25=(a25+a90);
+  a25=(a70*a25);
+  a61=(a61-a25);
+  a90=(a91*a61);
+  a88=(a88-a90);
+  a85=(a85/a88);
+  a90=arg[2]? arg[2][4] : 0;
+  a80=6.6666666666666671e+01;
+  a07=(a07*a27);
+  a18=(a18*a07);
+  a13=(a13*a32);
+  a82=(a40*a13);
+  a18=(a18+a82);
+  a41=(a41+a52);
+  a18=(a18-a41);
+  a80=(a80*a18);
+  a80=(a80+a37);
+  a38=(a38*a80);
+  a90=(a90+a38);
+  a49=(a49*a47);
+  a90=(a90+a49);
+  a36=(a36*a90);
+  a44=(a44*a19);
+  a44=(a19*a44);
+  a51=(a51*a39);
+  a44=(a44+a51);
+  a43=(a43*a44);
+  a36=(a36+a43);
+  a43=6.6666666666666666e-06;
+  a43=(a43*a18);
+  a36=(a36-a43);
+  a33=(a33*a36);
+  a43=(a48*a42);
+  a33=(a33-a43);
+  a42=(a42*a48);
+  a43=3.2296256026666674e+03;
+  a43=(a43*a18);
+  a44=(a46*a43);
+  a42=(a42+a44);
+  a33=(a33-a42);
+  a42=arg[2]? arg[2][8] : 0;
+  a27=(a27*a07);
+  a07=(a03*a39);
+  a06=(a06*a07);
+  a27=(a27-a06);
+  a02=(a02*a27);
+  a32=(a32*a13);
+  a13=(a10*a39);
+  a12=(a12*a13);
+  a32=(a32-a12);
+  a09=(a09*a32);
+  a02=(a02+a09);
+  a02=(a02-a45);
+  a24=(a24*a02);
+  a42=(a42-a24);
+  a56=(a56*a50);
+  a42=(a42-a56);
+  a33=(a33+a42);
+  a33=(a33/a29);
+  a57=(a57*a59);
+  a33=(a33-a57);
+  a60=(a59*a60);
+  a57=3.0220397226666669e+03;
+  a57=(a57*a18);
+  a43=(a43-a57);
+  a00=(a00*a43);
+  a60=(a60+a00);
+  a33=(a33-a60);
+  a23=(a23*a33);
+  a23=(a23/a64);
+  a71=(a71*a66);
+  a23=(a23-a71);
+  a23=(a22*a23);
+  a23=(a39+a23);
+  a71=arg[3]? arg[3][0] : 0;
+  a63=asinh(a63);
+  a63=(a63/a03);
+  a63=(a04-a63);
+  a05=(a05-a63);
+  a71=(a71*a05);
+  a05=(a23+a71);
+  a22=(a22*a53);
+  a22=(a19-a22);
+  a53=(a16-a22);
+  a53=(a87*a53);
+  a05=(a05+a53);
+  a85=(a85*a05);
+  a91=(a91/a88);
+  a28=(a28*a36);
+  a36=(a48*a14);
+  a28=(a28-a36);
+  a14=(a14*a48);
+  a46=(a46*a57);
+  a14=(a14+a46);
+  a28=(a28-a14);
+  a42=(a42+a28);
+  a42=(a42/a29);
+  a74=(a74*a59);
+  a42=(a42-a74);
+  a59=(a59*a76);
+  a75=(a75*a43);
+  a59=(a59+a75);
+  a42=(a42-a59);
+  a68=(a68*a42);
+  a68=(a68/a79);
+  a86=(a86*a81);
+  a68=(a68-a86);
+  a68=(a70*a68);
+  a68=(a68-a39);
+  a39=arg[3]? arg[3][1] : 0;
+  a78=(-a78);
+  a78=asinh(a78);
+  a78=(a78/a10);
+  a04=(a04-a78);
+  a78=(a11-a04);
+  a39=(a39*a78);
+  a78=(a68-a39);
+  a70=(a70*a55);
+  a19=(a19+a70);
+  a70=(a31-a19);
+  a70=(a83*a70);
+  a78=(a78-a70);
+  a91=(a91*a78);
+  a85=(a85+a91);
+  a34=(a34*a85);
+  a61=(a61/a88);
+  a61=(a61*a05);
+  a62=(a62/a88);
+  a62=(a62*a78);
+  a61=(a61+a62);
+  a72=(a72*a61);
+  a34=(a34-a72);
+  a34=(a34-a23);
+  a71=(a34-a71);
+  a89=(a89*a61);
+  a69=(a69*a85);
+  a89=(a89-a69);
+  a22=(a22+a89);
+  a16=(a16-a22);
+  a87=(a87*a16);
+  a71=(a71-a87);
+  a71=(a21*a71);
+  a17=(a17+a71);
+  if (res[1]!=0) res[1][0]=a17;
+  a15=(a15*a31);
+  a01=(a01*a31);
+  a11=(a11+a01);
+  a20=(a20-a11);
+  a10=(a10*a20);
+  a10=sinh(a10);
+  a40=(a40*a10);
+  a15=(a15-a40);
+  a73=(a73*a61);
+  a25=(a25*a85);
+  a73=(a73-a25);
+  a68=(a68+a73);
+  a39=(a68-a39);
+  a30=(a30*a85);
+  a84=(a84*a61);
+  a30=(a30-a84);
+  a19=(a19+a30);
+  a31=(a31-a19);
+  a83=(a83*a31);
+  a39=(a39-a83);
+  a21=(a21*a39);
+  a15=(a15+a21);
+  if (res[1]!=0) res[1][1]=a15;
+  if (res[2]!=0) res[2][0]=a63;
+  if (res[2]!=0) res[2][1]=a04;
+  if (res[3]!=0) res[3][0]=a22;
+  if (res[3]!=0) res[3][1]=a19;
+  if (res[4]!=0) res[4][0]=a34;
+  if (res[4]!=0) res[4][1]=a68;
+  if (res[5]!=0) res[5][0]=a58;
+  a54=(-a54);
+  if (res[5]!=0) res[5][1]=a54;
+  if (res[6]!=0) res[6][0]=a08;
+  if (res[7]!=0) res[7][0]=a29;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f23(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_integral_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_integral_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_integral_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_integral_n_in(void) { return 11;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_integral_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_pd_integral_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_integral_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "kp_m";
+    case 4: return "kd_m";
+    case 5: return "kp";
+    case 6: return "kd";
+    case 7: return "ksigma";
+    case 8: return "delta";
+    case 9: return "ki";
+    case 10: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_integral_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_integral_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s0;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s0;
+    case 9: return casadi_s0;
+    case 10: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_integral_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 11;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 11*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_qbmove_electric_cascade_adaptive:(z[7],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,dt)->(z_next[7],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62, a63, a64, a65, a66, a67, a68, a69;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[11]? arg[11][0] : 0;
+  a02=arg[8]? arg[8][0] : 0;
+  a03=arg[1]? arg[1][1] : 0;
+  a04=arg[2]? arg[2][1] : 0;
+  a05=arg[6]? arg[6][0] : 0;
+  a06=arg[1]? arg[1][0] : 0;
+  a07=arg[2]? arg[2][0] : 0;
+  a07=(a06-a07);
+  a07=(a05*a07);
+  a07=(a04-a07);
+  a07=(a03-a07);
+  a08=(a03*a07);
+  a08=(a02*a08);
+  a09=(a01*a08);
+  a09=(a00-a09);
+  if (res[0]!=0) res[0][0]=a09;
+  a09=arg[0]? arg[0][1] : 0;
+  a10=arg[8]? arg[8][1] : 0;
+  a11=arg[2]? arg[2][2] : 0;
+  a04=(a03-a04);
+  a04=(a05*a04);
+  a04=(a11-a04);
+  a12=(a04*a07);
+  a12=(a10*a12);
+  a13=(a01*a12);
+  a13=(a09-a13);
+  if (res[0]!=0) res[0][1]=a13;
+  a13=arg[0]? arg[0][2] : 0;
+  a14=arg[8]? arg[8][2] : 0;
+  a15=-9.8100000000000005e+00;
+  a16=sin(a06);
+  a17=(a15*a16);
+  a18=(a17*a07);
+  a18=(a14*a18);
+  a19=(a01*a18);
+  a19=(a13+a19);
+  if (res[0]!=0) res[0][2]=a19;
+  a19=arg[0]? arg[0][3] : 0;
+  a20=arg[5]? arg[5][0] : 0;
+  a21=2.2700000000000001e-02;
+  a22=6.7328000000000001e+00;
+  a23=arg[1]? arg[1][2] : 0;
+  a24=(a06-a23);
+  a24=(a22*a24);
+  a25=sinh(a24);
+  a26=(a21*a25);
+  a27=2.1600000000000001e-02;
+  a28=6.9602000000000004e+00;
+  a29=arg[1]? arg[1][4] : 0;
+  a30=(a06-a29);
+  a30=(a28*a30);
+  a31=sinh(a30);
+  a32=(a27*a31);
+  a26=(a26+a32);
+  a32=(a03*a00);
+  a33=(a17*a13);
+  a34=(a32-a33);
+  a26=(a26+a34);
+  a34=(a09*a26);
+  a35=casadi_sq(a09);
+  a36=1.0000000000000000e-10;
+  a35=(a35+a36);
+  a34=(a34/a35);
+  a36=1.4852661596958175e-01;
+  a37=4.4052863436123346e+01;
+  a38=4.8444384040000010e+01;
+  a39=arg[1]? arg[1][5] : 0;
+  a40=(a03-a39);
+  a41=(a38*a40);
+  a42=arg[10]? arg[10][0] : 0;
+  a41=(a41-a42);
+  a43=arg[2]? arg[2][4] : 0;
+  a24=cosh(a24);
+  a44=arg[1]? arg[1][3] : 0;
+  a45=(a03-a44);
+  a46=(a22*a45);
+  a47=(a24*a46);
+  a48=(a21*a47);
+  a30=cosh(a30);
+  a40=(a28*a40);
+  a49=(a30*a40);
+  a50=(a27*a49);
+  a48=(a48+a50);
+  a50=(a00*a34);
+  a51=(a03*a08);
+  a50=(a50+a51);
+  a51=cos(a06);
+  a52=(a51*a03);
+  a52=(a15*a52);
+  a53=(a13*a52);
+  a54=(a17*a18);
+  a53=(a53+a54);
+  a54=(a50+a53);
+  a48=(a48-a54);
+  a48=(a09*a48);
+  a26=(a26*a12);
+  a48=(a48-a26);
+  a48=(a48/a35);
+  a35=(a34/a35);
+  a26=(2.*a09);
+  a26=(a26*a12);
+  a35=(a35*a26);
+  a48=(a48+a35);
+  a35=arg[2]? arg[2][3] : 0;
+  a26=(a48+a35);
+  a26=(a05*a26);
+  a43=(a43+a26);
+  a43=(a09*a43);
+  a11=(a34+a11);
+  a05=(a05*a11);
+  a35=(a35+a05);
+  a05=(a35*a12);
+  a43=(a43-a05);
+  a05=(a12*a35);
+  a11=(a07*a35);
+  a26=(a34+a04);
+  a54=(a04*a26);
+  a11=(a11-a54);
+  a10=(a10*a11);
+  a10=(a04*a10);
+  a05=(a05+a10);
+  a43=(a43-a05);
+  a00=(a00*a48);
+  a05=(a34*a08);
+  a00=(a00-a05);
+  a08=(a08*a34);
+  a05=(a07*a34);
+  a10=(a03*a26);
+  a05=(a05+a10);
+  a02=(a02*a05);
+  a02=(a03*a02);
+  a08=(a08+a02);
+  a00=(a00-a08);
+  a43=(a43-a00);
+  a00=(a52*a18);
+  a16=(a16*a03);
+  a16=(a03*a16);
+  a51=(a51*a34);
+  a16=(a16+a51);
+  a15=(a15*a16);
+  a13=(a13*a15);
+  a00=(a00-a13);
+  a18=(a18*a52);
+  a52=(a07*a52);
+  a13=(a17*a26);
+  a52=(a52-a13);
+  a14=(a14*a52);
+  a17=(a17*a14);
+  a18=(a18+a17);
+  a00=(a00+a18);
+  a43=(a43-a00);
+  a00=arg[7]? arg[7][0] : 0;
+  a18=(a48+a35);
+  a18=(a00*a18);
+  a43=(a43+a18);
+  a18=(a41*a43);
+  a35=(a09*a35);
+  a12=(a04*a12);
+  a35=(a35-a12);
+  a35=(a35-a50);
+  a35=(a35-a53);
+  a26=(a00*a26);
+  a35=(a35+a26);
+  a26=(a38*a34);
+  a53=(a35*a26);
+  a18=(a18-a53);
+  a53=(a26*a35);
+  a04=(a04*a09);
+  a32=(a32+a04);
+  a32=(a32-a33);
+  a00=(a00*a07);
+  a32=(a32-a00);
+  a00=(a38*a48);
+  a07=(a32*a00);
+  a53=(a53+a07);
+  a18=(a18-a53);
+  a53=arg[2]? arg[2][8] : 0;
+  a07=arg[9]? arg[9][0] : 0;
+  a33=1.5283456000000001e-01;
+  a47=(a46*a47);
+  a04=(a22*a34);
+  a04=(a25*a04);
+  a47=(a47-a04);
+  a47=(a33*a47);
+  a04=1.5034032000000003e-01;
+  a49=(a40*a49);
+  a09=(a28*a34);
+  a09=(a31*a09);
+  a49=(a49-a09);
+  a49=(a04*a49);
+  a47=(a47+a49);
+  a49=arg[2]? arg[2][7] : 0;
+  a47=(a47-a49);
+  a47=(a07*a47);
+  a53=(a53-a47);
+  a18=(a18+a53);
+  a47=4.5330595840000001e+01;
+  a45=(a47*a45);
+  a45=(a45+a42);
+  a42=(a45-a41);
+  a18=(a18/a42);
+  a09=(a41*a35);
+  a50=(a32*a26);
+  a09=(a09-a50);
+  a46=(a25*a46);
+  a46=(a33*a46);
+  a40=(a31*a40);
+  a40=(a04*a40);
+  a46=(a46+a40);
+  a40=arg[2]? arg[2][6] : 0;
+  a46=(a46-a40);
+  a46=(a07*a46);
+  a49=(a49-a46);
+  a09=(a09+a49);
+  a09=(a09/a42);
+  a46=(a09/a42);
+  a50=(a47*a34);
+  a26=(a26-a50);
+  a12=(a46*a26);
+  a18=(a18-a12);
+  a41=(a32*a41);
+  a33=(a33*a24);
+  a04=(a04*a30);
+  a33=(a33+a04);
+  a04=arg[2]? arg[2][5] : 0;
+  a04=(a33-a04);
+  a04=(a07*a04);
+  a40=(a40-a04);
+  a41=(a41+a40);
+  a41=(a41/a42);
+  a04=(a41/a42);
+  a30=(a04*a26);
+  a09=(a09-a30);
+  a30=(a09/a42);
+  a24=(a04/a42);
+  a12=(a24*a26);
+  a30=(a30-a12);
+  a12=(a26*a30);
+  a48=(a47*a48);
+  a00=(a00-a48);
+  a17=(a04*a00);
+  a12=(a12+a17);
+  a18=(a18-a12);
+  a18=(a37*a18);
+  a12=1.;
+  a17=(a41/a21);
+  a14=casadi_sq(a17);
+  a14=(a12+a14);
+  a14=sqrt(a14);
+  a18=(a18/a14);
+  a09=(a37*a09);
+  a52=(a09/a14);
+  a13=(a52/a14);
+  a15=(2.*a17);
+  a09=(a15*a09);
+  a16=(2.*a14);
+  a09=(a09/a16);
+  a51=(a13*a09);
+  a18=(a18-a51);
+  a18=(a36*a18);
+  a18=(a34+a18);
+  a51=1.0290045255680000e+00;
+  a51=(a51*a25);
+  a51=(a07*a51);
+  a25=(a51/a42);
+  a08=-4.5330595840000001e+01;
+  a02=(a08*a46);
+  a25=(a25-a02);
+  a02=(a08*a30);
+  a05=(a08*a04);
+  a05=(a05/a42);
+  a10=(a08*a24);
+  a05=(a05+a10);
+  a05=(a26*a05);
+  a02=(a02-a05);
+  a25=(a25-a02);
+  a25=(a37*a25);
+  a25=(a25/a14);
+  a02=-1.9969425480176210e+03;
+  a02=(a02*a04);
+  a05=(a02/a14);
+  a10=(a05/a14);
+  a10=(a09*a10);
+  a02=(a15*a02);
+  a02=(a02/a16);
+  a02=(a13*a02);
+  a10=(a10+a02);
+  a25=(a25+a10);
+  a25=(a36*a25);
+  a10=1.0463986952640003e+00;
+  a10=(a10*a31);
+  a07=(a07*a10);
+  a10=9.6888768080000020e+01;
+  a10=(a10*a35);
+  a10=(a07-a10);
+  a10=(a10/a42);
+  a46=(a38*a46);
+  a31=(a38*a32);
+  a31=(a31/a42);
+  a02=(a31/a42);
+  a02=(a26*a02);
+  a46=(a46-a02);
+  a10=(a10-a46);
+  a30=(a38*a30);
+  a04=(a38*a04);
+  a31=(a31+a04);
+  a04=(a31/a42);
+  a24=(a38*a24);
+  a04=(a04+a24);
+  a04=(a26*a04);
+  a30=(a30-a04);
+  a10=(a10-a30);
+  a10=(a37*a10);
+  a10=(a10/a14);
+  a37=(a37*a31);
+  a31=(a37/a14);
+  a14=(a31/a14);
+  a09=(a09*a14);
+  a15=(a15*a37);
+  a15=(a15/a16);
+  a13=(a13*a15);
+  a09=(a09+a13);
+  a10=(a10+a09);
+  a10=(a36*a10);
+  a09=arg[3]? arg[3][0] : 0;
+  a31=(a36*a31);
+  a13=(a09*a31);
+  a13=(a10-a13);
+  a13=(a19*a13);
+  a15=arg[4]? arg[4][0] : 0;
+  a16=(a15*a31);
+  a13=(a13-a16);
+  a16=casadi_sq(a13);
+  a37=arg[0]? arg[0][4] : 0;
+  a14=1.4367403235539208e-01;
+  a30=4.6296296296296291e+01;
+  a07=(a07/a42);
+  a04=(a45*a35);
+  a24=(a32*a50);
+  a04=(a04-a24);
+  a49=(a49+a04);
+  a49=(a49/a42);
+  a04=(a49/a42);
+  a24=(a38*a04);
+  a07=(a07-a24);
+  a24=(a45*a32);
+  a40=(a40+a24);
+  a40=(a40/a42);
+  a24=(a40/a42);
+  a46=(a24*a26);
+  a49=(a49-a46);
+  a46=(a49/a42);
+  a02=(a24/a42);
+  a11=(a02*a26);
+  a46=(a46-a11);
+  a11=(a38*a46);
+  a54=(a38*a24);
+  a54=(a54/a42);
+  a38=(a38*a02);
+  a54=(a54+a38);
+  a54=(a26*a54);
+  a11=(a11-a54);
+  a07=(a07-a11);
+  a07=(a30*a07);
+  a11=(a40/a27);
+  a54=casadi_sq(a11);
+  a54=(a12+a54);
+  a54=sqrt(a54);
+  a07=(a07/a54);
+  a38=(2.*a11);
+  a49=(a30*a49);
+  a55=(a38*a49);
+  a56=(2.*a54);
+  a55=(a55/a56);
+  a57=2.2427955574074076e+03;
+  a57=(a57*a24);
+  a58=(a57/a54);
+  a59=(a58/a54);
+  a59=(a55*a59);
+  a49=(a49/a54);
+  a60=(a49/a54);
+  a57=(a38*a57);
+  a57=(a57/a56);
+  a57=(a60*a57);
+  a59=(a59+a57);
+  a07=(a07+a59);
+  a07=(a14*a07);
+  a59=(a12-a07);
+  a57=arg[3]? arg[3][1] : 0;
+  a58=(a14*a58);
+  a61=(a57*a58);
+  a59=(a59+a61);
+  a59=(a37*a59);
+  a61=arg[4]? arg[4][1] : 0;
+  a62=(a61*a58);
+  a59=(a59+a62);
+  a62=casadi_sq(a59);
+  a16=(a16+a62);
+  a62=1.0000000000000000e-14;
+  a16=(a16+a62);
+  a12=(a12+a25);
+  a05=(a36*a05);
+  a63=(a09*a05);
+  a12=(a12-a63);
+  a12=(a19*a12);
+  a63=(a15*a05);
+  a12=(a12-a63);
+  a63=casadi_sq(a12);
+  a47=(a47*a32);
+  a47=(a47/a42);
+  a64=(a08*a24);
+  a64=(a47+a64);
+  a65=(a30*a64);
+  a66=(a65/a54);
+  a67=(a14*a66);
+  a68=(a57*a67);
+  a69=9.0661191680000002e+01;
+  a69=(a69*a35);
+  a51=(a51-a69);
+  a51=(a51/a42);
+  a69=(a08*a04);
+  a47=(a47/a42);
+  a47=(a26*a47);
+  a69=(a69-a47);
+  a51=(a51-a69);
+  a69=(a08*a46);
+  a64=(a64/a42);
+  a08=(a08*a02);
+  a64=(a64+a08);
+  a64=(a26*a64);
+  a69=(a69-a64);
+  a51=(a51-a69);
+  a51=(a30*a51);
+  a51=(a51/a54);
+  a66=(a66/a54);
+  a66=(a55*a66);
+  a38=(a38*a65);
+  a38=(a38/a56);
+  a38=(a60*a38);
+  a66=(a66+a38);
+  a51=(a51+a66);
+  a51=(a14*a51);
+  a68=(a68-a51);
+  a68=(a37*a68);
+  a66=(a61*a67);
+  a68=(a68+a66);
+  a66=casadi_sq(a68);
+  a63=(a63+a66);
+  a63=(a63+a62);
+  a62=(a63*a16);
+  a66=(a12*a13);
+  a38=(a68*a59);
+  a66=(a66+a38);
+  a38=(a13*a12);
+  a56=(a59*a68);
+  a38=(a38+a56);
+  a56=(a66*a38);
+  a62=(a62-a56);
+  a16=(a16/a62);
+  a45=(a45*a43);
+  a43=(a35*a50);
+  a45=(a45-a43);
+  a50=(a50*a35);
+  a32=(a32*a48);
+  a50=(a50+a32);
+  a45=(a45-a50);
+  a53=(a53+a45);
+  a53=(a53/a42);
+  a04=(a04*a26);
+  a53=(a53-a04);
+  a26=(a26*a46);
+  a24=(a24*a00);
+  a26=(a26+a24);
+  a53=(a53-a26);
+  a30=(a30*a53);
+  a30=(a30/a54);
+  a60=(a60*a55);
+  a30=(a30-a60);
+  a30=(a14*a30);
+  a30=(a30-a34);
+  a14=(a14*a49);
+  a14=(a03+a14);
+  a49=(a39-a14);
+  a34=(a57*a49);
+  a34=(a30-a34);
+  a34=(a37*a34);
+  a11=(-a11);
+  a11=asinh(a11);
+  a11=(a11/a28);
+  a11=(a06-a11);
+  a60=(a29-a11);
+  a60=(a57*a60);
+  a49=(a49+a60);
+  a49=(a61*a49);
+  a34=(a34-a49);
+  a68=(a68*a34);
+  a36=(a36*a52);
+  a36=(a03-a36);
+  a52=(a44-a36);
+  a49=(a09*a52);
+  a49=(a18+a49);
+  a49=(a19*a49);
+  a17=asinh(a17);
+  a17=(a17/a22);
+  a17=(a06-a17);
+  a55=(a23-a17);
+  a55=(a09*a55);
+  a52=(a52+a55);
+  a52=(a15*a52);
+  a49=(a49+a52);
+  a12=(a12*a49);
+  a68=(a68-a12);
+  a16=(a16*a68);
+  a66=(a66/a62);
+  a59=(a59*a34);
+  a13=(a13*a49);
+  a59=(a59-a13);
+  a66=(a66*a59);
+  a16=(a16-a66);
+  a25=(a25*a16);
+  a63=(a63/a62);
+  a63=(a63*a59);
+  a38=(a38/a62);
+  a38=(a38*a68);
+  a63=(a63-a38);
+  a10=(a10*a63);
+  a25=(a25+a10);
+  a18=(a18+a25);
+  a05=(a05*a16);
+  a31=(a31*a63);
+  a05=(a05+a31);
+  a36=(a36+a05);
+  a05=(a44-a36);
+  a09=(a09*a05);
+  a09=(a18+a09);
+  a20=(a20*a09);
+  a05=(a05+a55);
+  a20=(a20*a05);
+  a20=(a01*a20);
+  a20=(a19+a20);
+  if (res[0]!=0) res[0][3]=a20;
+  a20=arg[5]? arg[5][1] : 0;
+  a51=(a51*a16);
+  a07=(a07*a63);
+  a51=(a51+a07);
+  a30=(a30+a51);
+  a67=(a67*a16);
+  a58=(a58*a63);
+  a67=(a67+a58);
+  a14=(a14-a67);
+  a67=(a39-a14);
+  a57=(a57*a67);
+  a57=(a30-a57);
+  a20=(a20*a57);
+  a67=(a67+a60);
+  a20=(a20*a67);
+  a20=(a01*a20);
+  a20=(a37-a20);
+  if (res[0]!=0) res[0][4]=a20;
+  a20=arg[0]? arg[0][5] : 0;
+  a60=arg[5]? arg[5][2] : 0;
+  a60=(a60*a44);
+  a60=(a60*a05);
+  a60=(a01*a60);
+  a60=(a20-a60);
+  if (res[0]!=0) res[0][5]=a60;
+  a60=arg[0]? arg[0][6] : 0;
+  a58=arg[5]? arg[5][3] : 0;
+  a58=(a58*a39);
+  a58=(a58*a67);
+  a58=(a01*a58);
+  a58=(a60-a58);
+  if (res[0]!=0) res[0][6]=a58;
+  a20=(a44*a20);
+  a09=(a09*a19);
+  a20=(a20-a09);
+  a09=2.;
+  a01=(a01/a09);
+  a03=(a01*a03);
+  a06=(a06+a03);
+  a44=(a01*a44);
+  a23=(a23+a44);
+  a23=(a06-a23);
+  a22=(a22*a23);
+  a22=sinh(a22);
+  a21=(a21*a22);
+  a20=(a20-a21);
+  a15=(a15*a05);
+  a20=(a20-a15);
+  if (res[1]!=0) res[1][0]=a20;
+  a57=(a57*a37);
+  a60=(a39*a60);
+  a57=(a57+a60);
+  a01=(a01*a39);
+  a29=(a29+a01);
+  a06=(a06-a29);
+  a28=(a28*a06);
+  a28=sinh(a28);
+  a27=(a27*a28);
+  a57=(a57-a27);
+  a61=(a61*a67);
+  a57=(a57-a61);
+  if (res[1]!=0) res[1][1]=a57;
+  if (res[2]!=0) res[2][0]=a17;
+  if (res[2]!=0) res[2][1]=a11;
+  if (res[3]!=0) res[3][0]=a36;
+  if (res[3]!=0) res[3][1]=a14;
+  a18=(-a18);
+  if (res[4]!=0) res[4][0]=a18;
+  if (res[4]!=0) res[4][1]=a30;
+  if (res[5]!=0) res[5][0]=a41;
+  a40=(-a40);
+  if (res[5]!=0) res[5][1]=a40;
+  if (res[6]!=0) res[6][0]=a33;
+  if (res[7]!=0) res[7][0]=a42;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f24(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_n_in(void) { return 12;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_adaptive_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "lam_m";
+    case 4: return "k_m";
+    case 5: return "kpi_m";
+    case 6: return "lam";
+    case 7: return "k";
+    case 8: return "kpi";
+    case 9: return "ksigma";
+    case 10: return "delta";
+    case 11: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s7;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s3;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s2;
+    case 9: return casadi_s0;
+    case 10: return casadi_s0;
+    case 11: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s7;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 12;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 12*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_qbmove_electric_cascade_adaptive_integral:(z[8],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,ki,dt)->(z_next[8],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62, a63, a64, a65, a66, a67, a68, a69;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[12]? arg[12][0] : 0;
+  a02=1.5283456000000001e-01;
+  a03=6.7328000000000001e+00;
+  a04=arg[1]? arg[1][0] : 0;
+  a05=arg[1]? arg[1][2] : 0;
+  a06=(a04-a05);
+  a06=(a03*a06);
+  a07=cosh(a06);
+  a08=(a02*a07);
+  a09=1.5034032000000003e-01;
+  a10=6.9602000000000004e+00;
+  a11=arg[1]? arg[1][4] : 0;
+  a12=(a04-a11);
+  a12=(a10*a12);
+  a13=cosh(a12);
+  a14=(a09*a13);
+  a08=(a08+a14);
+  a14=arg[2]? arg[2][5] : 0;
+  a14=(a08-a14);
+  a15=(a01*a14);
+  a15=(a00+a15);
+  if (res[0]!=0) res[0][0]=a15;
+  a15=arg[0]? arg[0][1] : 0;
+  a16=arg[8]? arg[8][0] : 0;
+  a17=arg[1]? arg[1][1] : 0;
+  a18=arg[2]? arg[2][1] : 0;
+  a19=arg[6]? arg[6][0] : 0;
+  a20=arg[2]? arg[2][0] : 0;
+  a20=(a04-a20);
+  a20=(a19*a20);
+  a20=(a18-a20);
+  a20=(a17-a20);
+  a21=(a17*a20);
+  a21=(a16*a21);
+  a22=(a01*a21);
+  a22=(a15-a22);
+  if (res[0]!=0) res[0][1]=a22;
+  a22=arg[0]? arg[0][2] : 0;
+  a23=arg[8]? arg[8][1] : 0;
+  a24=arg[2]? arg[2][2] : 0;
+  a18=(a17-a18);
+  a18=(a19*a18);
+  a18=(a24-a18);
+  a25=(a18*a20);
+  a25=(a23*a25);
+  a26=(a01*a25);
+  a26=(a22-a26);
+  if (res[0]!=0) res[0][2]=a26;
+  a26=arg[0]? arg[0][3] : 0;
+  a27=arg[8]? arg[8][2] : 0;
+  a28=-9.8100000000000005e+00;
+  a29=sin(a04);
+  a30=(a28*a29);
+  a31=(a30*a20);
+  a31=(a27*a31);
+  a32=(a01*a31);
+  a32=(a26+a32);
+  if (res[0]!=0) res[0][3]=a32;
+  a32=arg[0]? arg[0][4] : 0;
+  a33=arg[5]? arg[5][0] : 0;
+  a34=2.2700000000000001e-02;
+  a06=sinh(a06);
+  a35=(a34*a06);
+  a36=2.1600000000000001e-02;
+  a12=sinh(a12);
+  a37=(a36*a12);
+  a35=(a35+a37);
+  a37=(a17*a15);
+  a38=(a30*a26);
+  a39=(a37-a38);
+  a35=(a35+a39);
+  a39=(a22*a35);
+  a40=casadi_sq(a22);
+  a41=1.0000000000000000e-10;
+  a40=(a40+a41);
+  a39=(a39/a40);
+  a41=1.4852661596958175e-01;
+  a42=4.4052863436123346e+01;
+  a43=4.8444384040000010e+01;
+  a44=arg[1]? arg[1][5] : 0;
+  a45=(a17-a44);
+  a46=(a43*a45);
+  a47=arg[10]? arg[10][0] : 0;
+  a46=(a46-a47);
+  a48=arg[2]? arg[2][4] : 0;
+  a49=arg[1]? arg[1][3] : 0;
+  a50=(a17-a49);
+  a51=(a03*a50);
+  a07=(a07*a51);
+  a52=(a34*a07);
+  a45=(a10*a45);
+  a13=(a13*a45);
+  a53=(a36*a13);
+  a52=(a52+a53);
+  a53=(a15*a39);
+  a54=(a17*a21);
+  a53=(a53+a54);
+  a54=cos(a04);
+  a55=(a54*a17);
+  a55=(a28*a55);
+  a56=(a26*a55);
+  a57=(a30*a31);
+  a56=(a56+a57);
+  a57=(a53+a56);
+  a52=(a52-a57);
+  a52=(a22*a52);
+  a35=(a35*a25);
+  a52=(a52-a35);
+  a52=(a52/a40);
+  a40=(a39/a40);
+  a35=(2.*a22);
+  a35=(a35*a25);
+  a40=(a40*a35);
+  a52=(a52+a40);
+  a40=arg[2]? arg[2][3] : 0;
+  a35=(a52+a40);
+  a35=(a19*a35);
+  a48=(a48+a35);
+  a48=(a22*a48);
+  a24=(a39+a24);
+  a19=(a19*a24);
+  a40=(a40+a19);
+  a19=(a40*a25);
+  a48=(a48-a19);
+  a19=(a25*a40);
+  a24=(a20*a40);
+  a35=(a39+a18);
+  a57=(a18*a35);
+  a24=(a24-a57);
+  a23=(a23*a24);
+  a23=(a18*a23);
+  a19=(a19+a23);
+  a48=(a48-a19);
+  a15=(a15*a52);
+  a19=(a39*a21);
+  a15=(a15-a19);
+  a21=(a21*a39);
+  a19=(a20*a39);
+  a23=(a17*a35);
+  a19=(a19+a23);
+  a16=(a16*a19);
+  a16=(a17*a16);
+  a21=(a21+a16);
+  a15=(a15-a21);
+  a48=(a48-a15);
+  a15=(a55*a31);
+  a29=(a29*a17);
+  a29=(a17*a29);
+  a54=(a54*a39);
+  a29=(a29+a54);
+  a28=(a28*a29);
+  a26=(a26*a28);
+  a15=(a15-a26);
+  a31=(a31*a55);
+  a55=(a20*a55);
+  a26=(a30*a35);
+  a55=(a55-a26);
+  a27=(a27*a55);
+  a30=(a30*a27);
+  a31=(a31+a30);
+  a15=(a15+a31);
+  a48=(a48-a15);
+  a15=arg[7]? arg[7][0] : 0;
+  a31=(a52+a40);
+  a31=(a15*a31);
+  a48=(a48+a31);
+  a31=(a46*a48);
+  a40=(a22*a40);
+  a25=(a18*a25);
+  a40=(a40-a25);
+  a40=(a40-a53);
+  a40=(a40-a56);
+  a35=(a15*a35);
+  a40=(a40+a35);
+  a35=(a43*a39);
+  a56=(a40*a35);
+  a31=(a31-a56);
+  a56=(a35*a40);
+  a18=(a18*a22);
+  a37=(a37+a18);
+  a37=(a37-a38);
+  a15=(a15*a20);
+  a37=(a37-a15);
+  a15=(a43*a52);
+  a20=(a37*a15);
+  a56=(a56+a20);
+  a31=(a31-a56);
+  a56=arg[2]? arg[2][8] : 0;
+  a20=arg[9]? arg[9][0] : 0;
+  a07=(a51*a07);
+  a38=(a03*a39);
+  a38=(a06*a38);
+  a07=(a07-a38);
+  a07=(a02*a07);
+  a13=(a45*a13);
+  a38=(a10*a39);
+  a38=(a12*a38);
+  a13=(a13-a38);
+  a13=(a09*a13);
+  a07=(a07+a13);
+  a13=arg[2]? arg[2][7] : 0;
+  a07=(a07-a13);
+  a07=(a20*a07);
+  a56=(a56-a07);
+  a07=arg[11]? arg[11][0] : 0;
+  a51=(a06*a51);
+  a02=(a02*a51);
+  a45=(a12*a45);
+  a09=(a09*a45);
+  a02=(a02+a09);
+  a09=arg[2]? arg[2][6] : 0;
+  a02=(a02-a09);
+  a45=(a07*a02);
+  a56=(a56-a45);
+  a31=(a31+a56);
+  a45=4.5330595840000001e+01;
+  a50=(a45*a50);
+  a50=(a50+a47);
+  a47=(a50-a46);
+  a31=(a31/a47);
+  a51=(a46*a40);
+  a38=(a37*a35);
+  a51=(a51-a38);
+  a02=(a20*a02);
+  a13=(a13-a02);
+  a02=(a07*a14);
+  a13=(a13-a02);
+  a51=(a51+a13);
+  a51=(a51/a47);
+  a02=(a51/a47);
+  a38=(a45*a39);
+  a35=(a35-a38);
+  a18=(a02*a35);
+  a31=(a31-a18);
+  a46=(a37*a46);
+  a14=(a20*a14);
+  a09=(a09-a14);
+  a07=(a07*a00);
+  a09=(a09-a07);
+  a46=(a46+a09);
+  a46=(a46/a47);
+  a07=(a46/a47);
+  a00=(a07*a35);
+  a51=(a51-a00);
+  a00=(a51/a47);
+  a14=(a07/a47);
+  a18=(a14*a35);
+  a00=(a00-a18);
+  a18=(a35*a00);
+  a52=(a45*a52);
+  a15=(a15-a52);
+  a22=(a07*a15);
+  a18=(a18+a22);
+  a31=(a31-a18);
+  a31=(a42*a31);
+  a18=1.;
+  a22=(a46/a34);
+  a53=casadi_sq(a22);
+  a53=(a18+a53);
+  a53=sqrt(a53);
+  a31=(a31/a53);
+  a51=(a42*a51);
+  a25=(a51/a53);
+  a30=(a25/a53);
+  a27=(2.*a22);
+  a51=(a27*a51);
+  a55=(2.*a53);
+  a51=(a51/a55);
+  a26=(a30*a51);
+  a31=(a31-a26);
+  a31=(a41*a31);
+  a31=(a39+a31);
+  a26=1.0290045255680000e+00;
+  a26=(a26*a06);
+  a26=(a20*a26);
+  a06=(a26/a47);
+  a28=-4.5330595840000001e+01;
+  a29=(a28*a02);
+  a06=(a06-a29);
+  a29=(a28*a00);
+  a54=(a28*a07);
+  a54=(a54/a47);
+  a21=(a28*a14);
+  a54=(a54+a21);
+  a54=(a35*a54);
+  a29=(a29-a54);
+  a06=(a06-a29);
+  a06=(a42*a06);
+  a06=(a06/a53);
+  a29=-1.9969425480176210e+03;
+  a29=(a29*a07);
+  a54=(a29/a53);
+  a21=(a54/a53);
+  a21=(a51*a21);
+  a29=(a27*a29);
+  a29=(a29/a55);
+  a29=(a30*a29);
+  a21=(a21+a29);
+  a06=(a06+a21);
+  a06=(a41*a06);
+  a21=1.0463986952640003e+00;
+  a21=(a21*a12);
+  a20=(a20*a21);
+  a21=9.6888768080000020e+01;
+  a21=(a21*a40);
+  a21=(a20-a21);
+  a21=(a21/a47);
+  a02=(a43*a02);
+  a12=(a43*a37);
+  a12=(a12/a47);
+  a29=(a12/a47);
+  a29=(a35*a29);
+  a02=(a02-a29);
+  a21=(a21-a02);
+  a00=(a43*a00);
+  a07=(a43*a07);
+  a12=(a12+a07);
+  a07=(a12/a47);
+  a14=(a43*a14);
+  a07=(a07+a14);
+  a07=(a35*a07);
+  a00=(a00-a07);
+  a21=(a21-a00);
+  a21=(a42*a21);
+  a21=(a21/a53);
+  a42=(a42*a12);
+  a12=(a42/a53);
+  a53=(a12/a53);
+  a51=(a51*a53);
+  a27=(a27*a42);
+  a27=(a27/a55);
+  a30=(a30*a27);
+  a51=(a51+a30);
+  a21=(a21+a51);
+  a21=(a41*a21);
+  a51=arg[3]? arg[3][0] : 0;
+  a12=(a41*a12);
+  a30=(a51*a12);
+  a30=(a21-a30);
+  a30=(a32*a30);
+  a27=arg[4]? arg[4][0] : 0;
+  a55=(a27*a12);
+  a30=(a30-a55);
+  a55=casadi_sq(a30);
+  a42=arg[0]? arg[0][5] : 0;
+  a53=1.4367403235539208e-01;
+  a00=4.6296296296296291e+01;
+  a20=(a20/a47);
+  a07=(a50*a40);
+  a14=(a37*a38);
+  a07=(a07-a14);
+  a13=(a13+a07);
+  a13=(a13/a47);
+  a07=(a13/a47);
+  a14=(a43*a07);
+  a20=(a20-a14);
+  a14=(a50*a37);
+  a09=(a09+a14);
+  a09=(a09/a47);
+  a14=(a09/a47);
+  a02=(a14*a35);
+  a13=(a13-a02);
+  a02=(a13/a47);
+  a29=(a14/a47);
+  a16=(a29*a35);
+  a02=(a02-a16);
+  a16=(a43*a02);
+  a19=(a43*a14);
+  a19=(a19/a47);
+  a43=(a43*a29);
+  a19=(a19+a43);
+  a19=(a35*a19);
+  a16=(a16-a19);
+  a20=(a20-a16);
+  a20=(a00*a20);
+  a16=(a09/a36);
+  a19=casadi_sq(a16);
+  a19=(a18+a19);
+  a19=sqrt(a19);
+  a20=(a20/a19);
+  a43=(2.*a16);
+  a13=(a00*a13);
+  a23=(a43*a13);
+  a24=(2.*a19);
+  a23=(a23/a24);
+  a57=2.2427955574074076e+03;
+  a57=(a57*a14);
+  a58=(a57/a19);
+  a59=(a58/a19);
+  a59=(a23*a59);
+  a13=(a13/a19);
+  a60=(a13/a19);
+  a57=(a43*a57);
+  a57=(a57/a24);
+  a57=(a60*a57);
+  a59=(a59+a57);
+  a20=(a20+a59);
+  a20=(a53*a20);
+  a59=(a18-a20);
+  a57=arg[3]? arg[3][1] : 0;
+  a58=(a53*a58);
+  a61=(a57*a58);
+  a59=(a59+a61);
+  a59=(a42*a59);
+  a61=arg[4]? arg[4][1] : 0;
+  a62=(a61*a58);
+  a59=(a59+a62);
+  a62=casadi_sq(a59);
+  a55=(a55+a62);
+  a62=1.0000000000000000e-14;
+  a55=(a55+a62);
+  a18=(a18+a06);
+  a54=(a41*a54);
+  a63=(a51*a54);
+  a18=(a18-a63);
+  a18=(a32*a18);
+  a63=(a27*a54);
+  a18=(a18-a63);
+  a63=casadi_sq(a18);
+  a45=(a45*a37);
+  a45=(a45/a47);
+  a64=(a28*a14);
+  a64=(a45+a64);
+  a65=(a00*a64);
+  a66=(a65/a19);
+  a67=(a53*a66);
+  a68=(a57*a67);
+  a69=9.0661191680000002e+01;
+  a69=(a69*a40);
+  a26=(a26-a69);
+  a26=(a26/a47);
+  a69=(a28*a07);
+  a45=(a45/a47);
+  a45=(a35*a45);
+  a69=(a69-a45);
+  a26=(a26-a69);
+  a69=(a28*a02);
+  a64=(a64/a47);
+  a28=(a28*a29);
+  a64=(a64+a28);
+  a64=(a35*a64);
+  a69=(a69-a64);
+  a26=(a26-a69);
+  a26=(a00*a26);
+  a26=(a26/a19);
+  a66=(a66/a19);
+  a66=(a23*a66);
+  a43=(a43*a65);
+  a43=(a43/a24);
+  a43=(a60*a43);
+  a66=(a66+a43);
+  a26=(a26+a66);
+  a26=(a53*a26);
+  a68=(a68-a26);
+  a68=(a42*a68);
+  a66=(a61*a67);
+  a68=(a68+a66);
+  a66=casadi_sq(a68);
+  a63=(a63+a66);
+  a63=(a63+a62);
+  a62=(a63*a55);
+  a66=(a18*a30);
+  a43=(a68*a59);
+  a66=(a66+a43);
+  a43=(a30*a18);
+  a24=(a59*a68);
+  a43=(a43+a24);
+  a24=(a66*a43);
+  a62=(a62-a24);
+  a55=(a55/a62);
+  a50=(a50*a48);
+  a48=(a40*a38);
+  a50=(a50-a48);
+  a38=(a38*a40);
+  a37=(a37*a52);
+  a38=(a38+a37);
+  a50=(a50-a38);
+  a56=(a56+a50);
+  a56=(a56/a47);
+  a07=(a07*a35);
+  a56=(a56-a07);
+  a35=(a35*a02);
+  a14=(a14*a15);
+  a35=(a35+a14);
+  a56=(a56-a35);
+  a00=(a00*a56);
+  a00=(a00/a19);
+  a60=(a60*a23);
+  a00=(a00-a60);
+  a00=(a53*a00);
+  a00=(a00-a39);
+  a53=(a53*a13);
+  a53=(a17+a53);
+  a13=(a44-a53);
+  a39=(a57*a13);
+  a39=(a00-a39);
+  a39=(a42*a39);
+  a16=(-a16);
+  a16=asinh(a16);
+  a16=(a16/a10);
+  a16=(a04-a16);
+  a60=(a11-a16);
+  a60=(a57*a60);
+  a13=(a13+a60);
+  a13=(a61*a13);
+  a39=(a39-a13);
+  a68=(a68*a39);
+  a41=(a41*a25);
+  a41=(a17-a41);
+  a25=(a49-a41);
+  a13=(a51*a25);
+  a13=(a31+a13);
+  a13=(a32*a13);
+  a22=asinh(a22);
+  a22=(a22/a03);
+  a22=(a04-a22);
+  a23=(a05-a22);
+  a23=(a51*a23);
+  a25=(a25+a23);
+  a25=(a27*a25);
+  a13=(a13+a25);
+  a18=(a18*a13);
+  a68=(a68-a18);
+  a55=(a55*a68);
+  a66=(a66/a62);
+  a59=(a59*a39);
+  a30=(a30*a13);
+  a59=(a59-a30);
+  a66=(a66*a59);
+  a55=(a55-a66);
+  a06=(a06*a55);
+  a63=(a63/a62);
+  a63=(a63*a59);
+  a43=(a43/a62);
+  a43=(a43*a68);
+  a63=(a63-a43);
+  a21=(a21*a63);
+  a06=(a06+a21);
+  a31=(a31+a06);
+  a54=(a54*a55);
+  a12=(a12*a63);
+  a54=(a54+a12);
+  a41=(a41+a54);
+  a54=(a49-a41);
+  a51=(a51*a54);
+  a51=(a31+a51);
+  a33=(a33*a51);
+  a54=(a54+a23);
+  a33=(a33*a54);
+  a33=(a01*a33);
+  a33=(a32+a33);
+  if (res[0]!=0) res[0][4]=a33;
+  a33=arg[5]? arg[5][1] : 0;
+  a26=(a26*a55);
+  a20=(a20*a63);
+  a26=(a26+a20);
+  a00=(a00+a26);
+  a67=(a67*a55);
+  a58=(a58*a63);
+  a67=(a67+a58);
+  a53=(a53-a67);
+  a67=(a44-a53);
+  a57=(a57*a67);
+  a57=(a00-a57);
+  a33=(a33*a57);
+  a67=(a67+a60);
+  a33=(a33*a67);
+  a33=(a01*a33);
+  a33=(a42-a33);
+  if (res[0]!=0) res[0][5]=a33;
+  a33=arg[0]? arg[0][6] : 0;
+  a60=arg[5]? arg[5][2] : 0;
+  a60=(a60*a49);
+  a60=(a60*a54);
+  a60=(a01*a60);
+  a60=(a33-a60);
+  if (res[0]!=0) res[0][6]=a60;
+  a60=arg[0]? arg[0][7] : 0;
+  a58=arg[5]? arg[5][3] : 0;
+  a58=(a58*a44);
+  a58=(a58*a67);
+  a58=(a01*a58);
+  a58=(a60-a58);
+  if (res[0]!=0) res[0][7]=a58;
+  a33=(a49*a33);
+  a51=(a51*a32);
+  a33=(a33-a51);
+  a51=2.;
+  a01=(a01/a51);
+  a17=(a01*a17);
+  a04=(a04+a17);
+  a49=(a01*a49);
+  a05=(a05+a49);
+  a05=(a04-a05);
+  a03=(a03*a05);
+  a03=sinh(a03);
+  a34=(a34*a03);
+  a33=(a33-a34);
+  a27=(a27*a54);
+  a33=(a33-a27);
+  if (res[1]!=0) res[1][0]=a33;
+  a57=(a57*a42);
+  a60=(a44*a60);
+  a57=(a57+a60);
+  a01=(a01*a44);
+  a11=(a11+a01);
+  a04=(a04-a11);
+  a10=(a10*a04);
+  a10=sinh(a10);
+  a36=(a36*a10);
+  a57=(a57-a36);
+  a61=(a61*a67);
+  a57=(a57-a61);
+  if (res[1]!=0) res[1][1]=a57;
+  if (res[2]!=0) res[2][0]=a22;
+  if (res[2]!=0) res[2][1]=a16;
+  if (res[3]!=0) res[3][0]=a41;
+  if (res[3]!=0) res[3][1]=a53;
+  a31=(-a31);
+  if (res[4]!=0) res[4][0]=a31;
+  if (res[4]!=0) res[4][1]=a00;
+  if (res[5]!=0) res[5][0]=a46;
+  a09=(-a09);
+  if (res[5]!=0) res[5][1]=a09;
+  if (res[6]!=0) res[6][0]=a08;
+  if (res[7]!=0) res[7][0]=a47;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f25(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_integral_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_integral_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_integral_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_integral_n_in(void) { return 13;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_integral_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_adaptive_integral_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_integral_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "lam_m";
+    case 4: return "k_m";
+    case 5: return "kpi_m";
+    case 6: return "lam";
+    case 7: return "k";
+    case 8: return "kpi";
+    case 9: return "ksigma";
+    case 10: return "delta";
+    case 11: return "ki";
+    case 12: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_integral_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_integral_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s13;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s3;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s2;
+    case 9: return casadi_s0;
+    case 10: return casadi_s0;
+    case 11: return casadi_s0;
+    case 12: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_integral_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s13;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 13;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 13*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_qbmove_electric_cascade_pd_measured_acceleration:(z,x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,dt)->(z_next,tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62, a63, a64, a65, a66, a67;
+  a00=arg[1]? arg[1][1] : 0;
+  if (res[0]!=0) res[0][0]=a00;
+  a01=9.9999999999999995e-07;
+  a02=arg[1]? arg[1][3] : 0;
+  a03=(a01*a02);
+  a04=2.2700000000000001e-02;
+  a05=6.7328000000000001e+00;
+  a06=arg[1]? arg[1][0] : 0;
+  a07=arg[9]? arg[9][0] : 0;
+  a08=2.;
+  a08=(a07/a08);
+  a09=(a08*a00);
+  a09=(a06+a09);
+  a10=arg[1]? arg[1][2] : 0;
+  a11=(a08*a02);
+  a11=(a10+a11);
+  a11=(a09-a11);
+  a11=(a05*a11);
+  a11=sinh(a11);
+  a11=(a04*a11);
+  a03=(a03-a11);
+  a11=3.0000000000000001e-06;
+  a12=arg[0]? arg[0][0] : 0;
+  a12=(a00-a12);
+  a12=(a12/a07);
+  a07=1.4852661596958175e-01;
+  a13=4.4052863436123346e+01;
+  a14=1.4999999999999999e-02;
+  a15=arg[2]? arg[2][3] : 0;
+  a16=arg[6]? arg[6][0] : 0;
+  a17=arg[2]? arg[2][2] : 0;
+  a18=(a12-a17);
+  a19=(a16*a18);
+  a19=(a15-a19);
+  a20=arg[5]? arg[5][0] : 0;
+  a21=arg[2]? arg[2][1] : 0;
+  a21=(a00-a21);
+  a22=(a20*a21);
+  a19=(a19-a22);
+  a19=(a14*a19);
+  a22=-1.1772000000000000e+00;
+  a23=cos(a06);
+  a24=(a23*a00);
+  a24=(a22*a24);
+  a19=(a19-a24);
+  a24=9.9999999999999995e-08;
+  a25=(a24*a12);
+  a19=(a19+a25);
+  a25=4.8444384040000010e+01;
+  a26=(a25*a12);
+  a27=(a19*a26);
+  a28=arg[1]? arg[1][5] : 0;
+  a29=(a00-a28);
+  a30=(a25*a29);
+  a31=arg[8]? arg[8][0] : 0;
+  a30=(a30-a31);
+  a32=arg[2]? arg[2][4] : 0;
+  a15=(a16*a15);
+  a32=(a32+a15);
+  a18=(a20*a18);
+  a32=(a32-a18);
+  a32=(a14*a32);
+  a23=(a23*a12);
+  a18=sin(a06);
+  a15=(a18*a00);
+  a15=(a00*a15);
+  a23=(a23-a15);
+  a23=(a22*a23);
+  a32=(a32-a23);
+  a23=(a30*a32);
+  a27=(a27+a23);
+  a23=(a26*a19);
+  a27=(a27+a23);
+  a23=arg[2]? arg[2][8] : 0;
+  a15=arg[7]? arg[7][0] : 0;
+  a33=1.5283456000000001e-01;
+  a34=(a00-a02);
+  a35=(a05*a34);
+  a36=(a06-a10);
+  a36=(a05*a36);
+  a37=cosh(a36);
+  a38=(a37*a35);
+  a38=(a35*a38);
+  a36=sinh(a36);
+  a39=(a05*a12);
+  a39=(a36*a39);
+  a38=(a38+a39);
+  a38=(a33*a38);
+  a39=1.5034032000000003e-01;
+  a40=6.9602000000000004e+00;
+  a29=(a40*a29);
+  a41=arg[1]? arg[1][4] : 0;
+  a42=(a06-a41);
+  a42=(a40*a42);
+  a43=cosh(a42);
+  a44=(a43*a29);
+  a44=(a29*a44);
+  a42=sinh(a42);
+  a45=(a40*a12);
+  a45=(a42*a45);
+  a44=(a44+a45);
+  a44=(a39*a44);
+  a38=(a38+a44);
+  a44=arg[2]? arg[2][7] : 0;
+  a38=(a38-a44);
+  a38=(a15*a38);
+  a23=(a23-a38);
+  a27=(a27+a23);
+  a38=4.5330595840000001e+01;
+  a34=(a38*a34);
+  a34=(a34+a31);
+  a31=(a34-a30);
+  a27=(a27/a31);
+  a45=(a30*a19);
+  a16=(a16*a21);
+  a17=(a17-a16);
+  a16=arg[2]? arg[2][0] : 0;
+  a16=(a06-a16);
+  a20=(a20*a16);
+  a17=(a17-a20);
+  a14=(a14*a17);
+  a22=(a22*a18);
+  a14=(a14-a22);
+  a24=(a24*a00);
+  a14=(a14+a24);
+  a24=(a14*a26);
+  a45=(a45+a24);
+  a35=(a36*a35);
+  a35=(a33*a35);
+  a29=(a42*a29);
+  a29=(a39*a29);
+  a35=(a35+a29);
+  a29=arg[2]? arg[2][6] : 0;
+  a35=(a35-a29);
+  a35=(a15*a35);
+  a44=(a44-a35);
+  a45=(a45+a44);
+  a45=(a45/a31);
+  a35=(a45/a31);
+  a38=(a38*a12);
+  a26=(a38-a26);
+  a24=(a35*a26);
+  a27=(a27-a24);
+  a30=(a14*a30);
+  a33=(a33*a37);
+  a39=(a39*a43);
+  a33=(a33+a39);
+  a39=arg[2]? arg[2][5] : 0;
+  a39=(a33-a39);
+  a39=(a15*a39);
+  a29=(a29-a39);
+  a30=(a30+a29);
+  a30=(a30/a31);
+  a39=(a30/a31);
+  a43=(a39*a26);
+  a45=(a45-a43);
+  a43=(a45/a31);
+  a37=(a39/a31);
+  a24=(a37*a26);
+  a43=(a43-a24);
+  a24=(a26*a43);
+  a27=(a27-a24);
+  a27=(a13*a27);
+  a24=1.;
+  a04=(a30/a04);
+  a22=casadi_sq(a04);
+  a22=(a24+a22);
+  a22=sqrt(a22);
+  a27=(a27/a22);
+  a45=(a13*a45);
+  a18=(a45/a22);
+  a17=(a18/a22);
+  a20=(2.*a04);
+  a45=(a20*a45);
+  a16=(2.*a22);
+  a45=(a45/a16);
+  a21=(a17*a45);
+  a27=(a27-a21);
+  a27=(a07*a27);
+  a27=(a12-a27);
+  a21=-1.9969425480176210e+03;
+  a21=(a21*a39);
+  a46=(a21/a22);
+  a47=(a46/a22);
+  a47=(a45*a47);
+  a21=(a20*a21);
+  a21=(a21/a16);
+  a21=(a17*a21);
+  a47=(a47+a21);
+  a21=-1.0290045255680000e+00;
+  a21=(a21*a36);
+  a21=(a15*a21);
+  a36=(a21/a31);
+  a48=-4.5330595840000001e+01;
+  a49=(a48*a35);
+  a36=(a36+a49);
+  a49=(a48*a43);
+  a50=(a48*a39);
+  a50=(a50/a31);
+  a51=(a48*a37);
+  a50=(a50+a51);
+  a50=(a26*a50);
+  a49=(a49-a50);
+  a36=(a36+a49);
+  a36=(a13*a36);
+  a36=(a36/a22);
+  a47=(a47-a36);
+  a47=(a07*a47);
+  a36=1.4367403235539208e-01;
+  a49=(a34*a14);
+  a29=(a29+a49);
+  a29=(a29/a31);
+  a49=2.1600000000000001e-02;
+  a50=(a29/a49);
+  a51=(2.*a50);
+  a52=4.6296296296296291e+01;
+  a53=(a14*a38);
+  a54=(a34*a19);
+  a53=(a53+a54);
+  a44=(a44+a53);
+  a44=(a44/a31);
+  a53=(a29/a31);
+  a54=(a53*a26);
+  a54=(a44-a54);
+  a55=(a52*a54);
+  a56=(a51*a55);
+  a57=casadi_sq(a50);
+  a57=(a24+a57);
+  a57=sqrt(a57);
+  a58=(2.*a57);
+  a56=(a56/a58);
+  a59=2.2427955574074076e+03;
+  a59=(a59*a53);
+  a60=(a59/a57);
+  a61=(a60/a57);
+  a61=(a56*a61);
+  a55=(a55/a57);
+  a62=(a55/a57);
+  a59=(a51*a59);
+  a59=(a59/a58);
+  a59=(a62*a59);
+  a61=(a61+a59);
+  a59=-1.0463986952640003e+00;
+  a59=(a59*a42);
+  a15=(a15*a59);
+  a59=(a15/a31);
+  a44=(a44/a31);
+  a42=(a25*a44);
+  a59=(a59+a42);
+  a54=(a54/a31);
+  a42=(a53/a31);
+  a63=(a42*a26);
+  a54=(a54-a63);
+  a63=(a25*a54);
+  a64=(a25*a53);
+  a64=(a64/a31);
+  a65=(a25*a42);
+  a64=(a64+a65);
+  a64=(a26*a64);
+  a63=(a63-a64);
+  a59=(a59+a63);
+  a59=(a52*a59);
+  a59=(a59/a57);
+  a61=(a61-a59);
+  a61=(a36*a61);
+  a59=(a24-a61);
+  a63=arg[4]? arg[4][1] : 0;
+  a60=(a36*a60);
+  a64=(a63*a60);
+  a59=(a59+a64);
+  a24=(a24+a47);
+  a64=arg[4]? arg[4][0] : 0;
+  a46=(a07*a46);
+  a65=(a64*a46);
+  a24=(a24-a65);
+  a65=(a24*a59);
+  a66=-9.6888768080000020e+01;
+  a66=(a66*a19);
+  a66=(a66-a15);
+  a66=(a66/a31);
+  a15=-4.8444384040000010e+01;
+  a15=(a15*a14);
+  a15=(a15/a31);
+  a67=(a15/a31);
+  a67=(a26*a67);
+  a35=(a25*a35);
+  a67=(a67+a35);
+  a66=(a66-a67);
+  a43=(a25*a43);
+  a39=(a25*a39);
+  a15=(a15-a39);
+  a39=(a15/a31);
+  a25=(a25*a37);
+  a39=(a39-a25);
+  a39=(a26*a39);
+  a43=(a43+a39);
+  a66=(a66-a43);
+  a66=(a13*a66);
+  a66=(a66/a22);
+  a13=(a13*a15);
+  a15=(a13/a22);
+  a22=(a15/a22);
+  a45=(a45*a22);
+  a20=(a20*a13);
+  a20=(a20/a16);
+  a17=(a17*a20);
+  a45=(a45+a17);
+  a66=(a66-a45);
+  a66=(a07*a66);
+  a15=(a07*a15);
+  a45=(a64*a15);
+  a45=(a66+a45);
+  a17=-9.0661191680000002e+01;
+  a17=(a17*a19);
+  a17=(a17-a21);
+  a17=(a17/a31);
+  a14=(a48*a14);
+  a14=(a14/a31);
+  a21=(a14/a31);
+  a21=(a26*a21);
+  a20=(a48*a44);
+  a21=(a21+a20);
+  a17=(a17-a21);
+  a21=(a48*a54);
+  a53=(a48*a53);
+  a14=(a14-a53);
+  a53=(a14/a31);
+  a48=(a48*a42);
+  a53=(a53-a48);
+  a53=(a26*a53);
+  a21=(a21+a53);
+  a17=(a17-a21);
+  a17=(a52*a17);
+  a17=(a17/a57);
+  a14=(a52*a14);
+  a21=(a14/a57);
+  a53=(a21/a57);
+  a53=(a56*a53);
+  a51=(a51*a14);
+  a51=(a51/a58);
+  a51=(a62*a51);
+  a53=(a53+a51);
+  a17=(a17-a53);
+  a17=(a36*a17);
+  a21=(a36*a21);
+  a53=(a63*a21);
+  a53=(a17+a53);
+  a51=(a45*a53);
+  a65=(a65+a51);
+  a59=(a59/a65);
+  a51=arg[3]? arg[3][0] : 0;
+  a04=asinh(a04);
+  a04=(a04/a05);
+  a04=(a06-a04);
+  a10=(a10-a04);
+  a51=(a51*a10);
+  a10=(a27-a51);
+  a07=(a07*a18);
+  a07=(a00-a07);
+  a18=(a02-a07);
+  a18=(a64*a18);
+  a10=(a10-a18);
+  a59=(a59*a10);
+  a45=(a45/a65);
+  a18=(a38*a19);
+  a19=(a19*a38);
+  a34=(a34*a32);
+  a19=(a19+a34);
+  a18=(a18+a19);
+  a23=(a23+a18);
+  a23=(a23/a31);
+  a44=(a44*a26);
+  a23=(a23-a44);
+  a26=(a26*a54);
+  a23=(a23-a26);
+  a52=(a52*a23);
+  a52=(a52/a57);
+  a62=(a62*a56);
+  a52=(a52-a62);
+  a52=(a36*a52);
+  a12=(a12+a52);
+  a52=arg[3]? arg[3][1] : 0;
+  a50=(-a50);
+  a50=asinh(a50);
+  a50=(a50/a40);
+  a06=(a06-a50);
+  a50=(a41-a06);
+  a52=(a52*a50);
+  a50=(a12-a52);
+  a36=(a36*a55);
+  a00=(a00+a36);
+  a36=(a28-a00);
+  a36=(a63*a36);
+  a50=(a50-a36);
+  a45=(a45*a50);
+  a59=(a59-a45);
+  a47=(a47*a59);
+  a53=(a53/a65);
+  a53=(a53*a10);
+  a24=(a24/a65);
+  a24=(a24*a50);
+  a53=(a53+a24);
+  a66=(a66*a53);
+  a47=(a47+a66);
+  a27=(a27-a47);
+  a51=(a27-a51);
+  a46=(a46*a59);
+  a15=(a15*a53);
+  a46=(a46-a15);
+  a07=(a07+a46);
+  a02=(a02-a07);
+  a64=(a64*a02);
+  a51=(a51-a64);
+  a51=(a11*a51);
+  a03=(a03+a51);
+  if (res[1]!=0) res[1][0]=a03;
+  a01=(a01*a28);
+  a08=(a08*a28);
+  a41=(a41+a08);
+  a09=(a09-a41);
+  a40=(a40*a09);
+  a40=sinh(a40);
+  a49=(a49*a40);
+  a01=(a01-a49);
+  a17=(a17*a59);
+  a61=(a61*a53);
+  a17=(a17+a61);
+  a12=(a12+a17);
+  a52=(a12-a52);
+  a21=(a21*a59);
+  a60=(a60*a53);
+  a21=(a21-a60);
+  a00=(a00+a21);
+  a28=(a28-a00);
+  a63=(a63*a28);
+  a52=(a52-a63);
+  a11=(a11*a52);
+  a01=(a01+a11);
+  if (res[1]!=0) res[1][1]=a01;
+  if (res[2]!=0) res[2][0]=a04;
+  if (res[2]!=0) res[2][1]=a06;
+  if (res[3]!=0) res[3][0]=a07;
+  if (res[3]!=0) res[3][1]=a00;
+  if (res[4]!=0) res[4][0]=a27;
+  if (res[4]!=0) res[4][1]=a12;
+  if (res[5]!=0) res[5][0]=a30;
+  a29=(-a29);
+  if (res[5]!=0) res[5][1]=a29;
+  if (res[6]!=0) res[6][0]=a33;
+  if (res[7]!=0) res[7][0]=a31;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f26(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_measured_acceleration_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_measured_acceleration_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_measured_acceleration_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_measured_acceleration_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_measured_acceleration_n_in(void) { return 10;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_measured_acceleration_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_pd_measured_acceleration_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_measured_acceleration_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "kp_m";
+    case 4: return "kd_m";
+    case 5: return "kp";
+    case 6: return "kd";
+    case 7: return "ksigma";
+    case 8: return "delta";
+    case 9: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_measured_acceleration_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_measured_acceleration_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s0;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s0;
+    case 9: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_measured_acceleration_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s0;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_measured_acceleration_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 10;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_measured_acceleration_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 10*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration:(z[2],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,dt)->(z_next[2],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62, a63, a64, a65, a66, a67;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[10]? arg[10][0] : 0;
+  a02=1.5283456000000001e-01;
+  a03=6.7328000000000001e+00;
+  a04=arg[1]? arg[1][0] : 0;
+  a05=arg[1]? arg[1][2] : 0;
+  a06=(a04-a05);
+  a06=(a03*a06);
+  a07=cosh(a06);
+  a08=(a02*a07);
+  a09=1.5034032000000003e-01;
+  a10=6.9602000000000004e+00;
+  a11=arg[1]? arg[1][4] : 0;
+  a12=(a04-a11);
+  a12=(a10*a12);
+  a13=cosh(a12);
+  a14=(a09*a13);
+  a08=(a08+a14);
+  a14=arg[2]? arg[2][5] : 0;
+  a14=(a08-a14);
+  a15=(a01*a14);
+  a15=(a00+a15);
+  if (res[0]!=0) res[0][0]=a15;
+  a15=arg[1]? arg[1][1] : 0;
+  if (res[0]!=0) res[0][1]=a15;
+  a16=9.9999999999999995e-07;
+  a17=arg[1]? arg[1][3] : 0;
+  a18=(a16*a17);
+  a19=2.2700000000000001e-02;
+  a20=2.;
+  a20=(a01/a20);
+  a21=(a20*a15);
+  a21=(a04+a21);
+  a22=(a20*a17);
+  a22=(a05+a22);
+  a22=(a21-a22);
+  a22=(a03*a22);
+  a22=sinh(a22);
+  a22=(a19*a22);
+  a18=(a18-a22);
+  a22=3.0000000000000001e-06;
+  a23=arg[0]? arg[0][1] : 0;
+  a23=(a15-a23);
+  a23=(a23/a01);
+  a01=1.4852661596958175e-01;
+  a24=4.4052863436123346e+01;
+  a25=1.4999999999999999e-02;
+  a26=arg[2]? arg[2][3] : 0;
+  a27=arg[6]? arg[6][0] : 0;
+  a28=arg[2]? arg[2][2] : 0;
+  a29=(a23-a28);
+  a30=(a27*a29);
+  a30=(a26-a30);
+  a31=arg[5]? arg[5][0] : 0;
+  a32=arg[2]? arg[2][1] : 0;
+  a32=(a15-a32);
+  a33=(a31*a32);
+  a30=(a30-a33);
+  a30=(a25*a30);
+  a33=-1.1772000000000000e+00;
+  a34=cos(a04);
+  a35=(a34*a15);
+  a35=(a33*a35);
+  a30=(a30-a35);
+  a35=9.9999999999999995e-08;
+  a36=(a35*a23);
+  a30=(a30+a36);
+  a36=4.8444384040000010e+01;
+  a37=(a36*a23);
+  a38=(a30*a37);
+  a39=arg[1]? arg[1][5] : 0;
+  a40=(a15-a39);
+  a41=(a36*a40);
+  a42=arg[8]? arg[8][0] : 0;
+  a41=(a41-a42);
+  a43=arg[2]? arg[2][4] : 0;
+  a26=(a27*a26);
+  a43=(a43+a26);
+  a29=(a31*a29);
+  a43=(a43-a29);
+  a43=(a25*a43);
+  a34=(a34*a23);
+  a29=sin(a04);
+  a26=(a29*a15);
+  a26=(a15*a26);
+  a34=(a34-a26);
+  a34=(a33*a34);
+  a43=(a43-a34);
+  a34=(a41*a43);
+  a38=(a38+a34);
+  a34=(a37*a30);
+  a38=(a38+a34);
+  a34=arg[2]? arg[2][8] : 0;
+  a26=arg[7]? arg[7][0] : 0;
+  a44=(a15-a17);
+  a45=(a03*a44);
+  a07=(a07*a45);
+  a07=(a45*a07);
+  a06=sinh(a06);
+  a46=(a03*a23);
+  a46=(a06*a46);
+  a07=(a07+a46);
+  a07=(a02*a07);
+  a40=(a10*a40);
+  a13=(a13*a40);
+  a13=(a40*a13);
+  a12=sinh(a12);
+  a46=(a10*a23);
+  a46=(a12*a46);
+  a13=(a13+a46);
+  a13=(a09*a13);
+  a07=(a07+a13);
+  a13=arg[2]? arg[2][7] : 0;
+  a07=(a07-a13);
+  a07=(a26*a07);
+  a34=(a34-a07);
+  a07=arg[9]? arg[9][0] : 0;
+  a45=(a06*a45);
+  a02=(a02*a45);
+  a40=(a12*a40);
+  a09=(a09*a40);
+  a02=(a02+a09);
+  a09=arg[2]? arg[2][6] : 0;
+  a02=(a02-a09);
+  a40=(a07*a02);
+  a34=(a34-a40);
+  a38=(a38+a34);
+  a40=4.5330595840000001e+01;
+  a44=(a40*a44);
+  a44=(a44+a42);
+  a42=(a44-a41);
+  a38=(a38/a42);
+  a45=(a41*a30);
+  a27=(a27*a32);
+  a28=(a28-a27);
+  a27=arg[2]? arg[2][0] : 0;
+  a27=(a04-a27);
+  a31=(a31*a27);
+  a28=(a28-a31);
+  a25=(a25*a28);
+  a33=(a33*a29);
+  a25=(a25-a33);
+  a35=(a35*a15);
+  a25=(a25+a35);
+  a35=(a25*a37);
+  a45=(a45+a35);
+  a02=(a26*a02);
+  a13=(a13-a02);
+  a02=(a07*a14);
+  a13=(a13-a02);
+  a45=(a45+a13);
+  a45=(a45/a42);
+  a02=(a45/a42);
+  a40=(a40*a23);
+  a37=(a40-a37);
+  a35=(a02*a37);
+  a38=(a38-a35);
+  a41=(a25*a41);
+  a14=(a26*a14);
+  a09=(a09-a14);
+  a07=(a07*a00);
+  a09=(a09-a07);
+  a41=(a41+a09);
+  a41=(a41/a42);
+  a07=(a41/a42);
+  a00=(a07*a37);
+  a45=(a45-a00);
+  a00=(a45/a42);
+  a14=(a07/a42);
+  a35=(a14*a37);
+  a00=(a00-a35);
+  a35=(a37*a00);
+  a38=(a38-a35);
+  a38=(a24*a38);
+  a35=1.;
+  a19=(a41/a19);
+  a33=casadi_sq(a19);
+  a33=(a35+a33);
+  a33=sqrt(a33);
+  a38=(a38/a33);
+  a45=(a24*a45);
+  a29=(a45/a33);
+  a28=(a29/a33);
+  a31=(2.*a19);
+  a45=(a31*a45);
+  a27=(2.*a33);
+  a45=(a45/a27);
+  a32=(a28*a45);
+  a38=(a38-a32);
+  a38=(a01*a38);
+  a38=(a23-a38);
+  a32=-1.9969425480176210e+03;
+  a32=(a32*a07);
+  a46=(a32/a33);
+  a47=(a46/a33);
+  a47=(a45*a47);
+  a32=(a31*a32);
+  a32=(a32/a27);
+  a32=(a28*a32);
+  a47=(a47+a32);
+  a32=-1.0290045255680000e+00;
+  a32=(a32*a06);
+  a32=(a26*a32);
+  a06=(a32/a42);
+  a48=-4.5330595840000001e+01;
+  a49=(a48*a02);
+  a06=(a06+a49);
+  a49=(a48*a00);
+  a50=(a48*a07);
+  a50=(a50/a42);
+  a51=(a48*a14);
+  a50=(a50+a51);
+  a50=(a37*a50);
+  a49=(a49-a50);
+  a06=(a06+a49);
+  a06=(a24*a06);
+  a06=(a06/a33);
+  a47=(a47-a06);
+  a47=(a01*a47);
+  a06=1.4367403235539208e-01;
+  a49=(a44*a25);
+  a09=(a09+a49);
+  a09=(a09/a42);
+  a49=2.1600000000000001e-02;
+  a50=(a09/a49);
+  a51=(2.*a50);
+  a52=4.6296296296296291e+01;
+  a53=(a25*a40);
+  a54=(a44*a30);
+  a53=(a53+a54);
+  a13=(a13+a53);
+  a13=(a13/a42);
+  a53=(a09/a42);
+  a54=(a53*a37);
+  a54=(a13-a54);
+  a55=(a52*a54);
+  a56=(a51*a55);
+  a57=casadi_sq(a50);
+  a57=(a35+a57);
+  a57=sqrt(a57);
+  a58=(2.*a57);
+  a56=(a56/a58);
+  a59=2.2427955574074076e+03;
+  a59=(a59*a53);
+  a60=(a59/a57);
+  a61=(a60/a57);
+  a61=(a56*a61);
+  a55=(a55/a57);
+  a62=(a55/a57);
+  a59=(a51*a59);
+  a59=(a59/a58);
+  a59=(a62*a59);
+  a61=(a61+a59);
+  a59=-1.0463986952640003e+00;
+  a59=(a59*a12);
+  a26=(a26*a59);
+  a59=(a26/a42);
+  a13=(a13/a42);
+  a12=(a36*a13);
+  a59=(a59+a12);
+  a54=(a54/a42);
+  a12=(a53/a42);
+  a63=(a12*a37);
+  a54=(a54-a63);
+  a63=(a36*a54);
+  a64=(a36*a53);
+  a64=(a64/a42);
+  a65=(a36*a12);
+  a64=(a64+a65);
+  a64=(a37*a64);
+  a63=(a63-a64);
+  a59=(a59+a63);
+  a59=(a52*a59);
+  a59=(a59/a57);
+  a61=(a61-a59);
+  a61=(a06*a61);
+  a59=(a35-a61);
+  a63=arg[4]? arg[4][1] : 0;
+  a60=(a06*a60);
+  a64=(a63*a60);
+  a59=(a59+a64);
+  a35=(a35+a47);
+  a64=arg[4]? arg[4][0] : 0;
+  a46=(a01*a46);
+  a65=(a64*a46);
+  a35=(a35-a65);
+  a65=(a35*a59);
+  a66=-9.6888768080000020e+01;
+  a66=(a66*a30);
+  a66=(a66-a26);
+  a66=(a66/a42);
+  a26=-4.8444384040000010e+01;
+  a26=(a26*a25);
+  a26=(a26/a42);
+  a67=(a26/a42);
+  a67=(a37*a67);
+  a02=(a36*a02);
+  a67=(a67+a02);
+  a66=(a66-a67);
+  a00=(a36*a00);
+  a07=(a36*a07);
+  a26=(a26-a07);
+  a07=(a26/a42);
+  a36=(a36*a14);
+  a07=(a07-a36);
+  a07=(a37*a07);
+  a00=(a00+a07);
+  a66=(a66-a00);
+  a66=(a24*a66);
+  a66=(a66/a33);
+  a24=(a24*a26);
+  a26=(a24/a33);
+  a33=(a26/a33);
+  a45=(a45*a33);
+  a31=(a31*a24);
+  a31=(a31/a27);
+  a28=(a28*a31);
+  a45=(a45+a28);
+  a66=(a66-a45);
+  a66=(a01*a66);
+  a26=(a01*a26);
+  a45=(a64*a26);
+  a45=(a66+a45);
+  a28=-9.0661191680000002e+01;
+  a28=(a28*a30);
+  a28=(a28-a32);
+  a28=(a28/a42);
+  a25=(a48*a25);
+  a25=(a25/a42);
+  a32=(a25/a42);
+  a32=(a37*a32);
+  a31=(a48*a13);
+  a32=(a32+a31);
+  a28=(a28-a32);
+  a32=(a48*a54);
+  a53=(a48*a53);
+  a25=(a25-a53);
+  a53=(a25/a42);
+  a48=(a48*a12);
+  a53=(a53-a48);
+  a53=(a37*a53);
+  a32=(a32+a53);
+  a28=(a28-a32);
+  a28=(a52*a28);
+  a28=(a28/a57);
+  a25=(a52*a25);
+  a32=(a25/a57);
+  a53=(a32/a57);
+  a53=(a56*a53);
+  a51=(a51*a25);
+  a51=(a51/a58);
+  a51=(a62*a51);
+  a53=(a53+a51);
+  a28=(a28-a53);
+  a28=(a06*a28);
+  a32=(a06*a32);
+  a53=(a63*a32);
+  a53=(a28+a53);
+  a51=(a45*a53);
+  a65=(a65+a51);
+  a59=(a59/a65);
+  a51=arg[3]? arg[3][0] : 0;
+  a19=asinh(a19);
+  a19=(a19/a03);
+  a19=(a04-a19);
+  a05=(a05-a19);
+  a51=(a51*a05);
+  a05=(a38-a51);
+  a01=(a01*a29);
+  a01=(a15-a01);
+  a29=(a17-a01);
+  a29=(a64*a29);
+  a05=(a05-a29);
+  a59=(a59*a05);
+  a45=(a45/a65);
+  a29=(a40*a30);
+  a30=(a30*a40);
+  a44=(a44*a43);
+  a30=(a30+a44);
+  a29=(a29+a30);
+  a34=(a34+a29);
+  a34=(a34/a42);
+  a13=(a13*a37);
+  a34=(a34-a13);
+  a37=(a37*a54);
+  a34=(a34-a37);
+  a52=(a52*a34);
+  a52=(a52/a57);
+  a62=(a62*a56);
+  a52=(a52-a62);
+  a52=(a06*a52);
+  a23=(a23+a52);
+  a52=arg[3]? arg[3][1] : 0;
+  a50=(-a50);
+  a50=asinh(a50);
+  a50=(a50/a10);
+  a04=(a04-a50);
+  a50=(a11-a04);
+  a52=(a52*a50);
+  a50=(a23-a52);
+  a06=(a06*a55);
+  a15=(a15+a06);
+  a06=(a39-a15);
+  a06=(a63*a06);
+  a50=(a50-a06);
+  a45=(a45*a50);
+  a59=(a59-a45);
+  a47=(a47*a59);
+  a53=(a53/a65);
+  a53=(a53*a05);
+  a35=(a35/a65);
+  a35=(a35*a50);
+  a53=(a53+a35);
+  a66=(a66*a53);
+  a47=(a47+a66);
+  a38=(a38-a47);
+  a51=(a38-a51);
+  a46=(a46*a59);
+  a26=(a26*a53);
+  a46=(a46-a26);
+  a01=(a01+a46);
+  a17=(a17-a01);
+  a64=(a64*a17);
+  a51=(a51-a64);
+  a51=(a22*a51);
+  a18=(a18+a51);
+  if (res[1]!=0) res[1][0]=a18;
+  a16=(a16*a39);
+  a20=(a20*a39);
+  a11=(a11+a20);
+  a21=(a21-a11);
+  a10=(a10*a21);
+  a10=sinh(a10);
+  a49=(a49*a10);
+  a16=(a16-a49);
+  a28=(a28*a59);
+  a61=(a61*a53);
+  a28=(a28+a61);
+  a23=(a23+a28);
+  a52=(a23-a52);
+  a32=(a32*a59);
+  a60=(a60*a53);
+  a32=(a32-a60);
+  a15=(a15+a32);
+  a39=(a39-a15);
+  a63=(a63*a39);
+  a52=(a52-a63);
+  a22=(a22*a52);
+  a16=(a16+a22);
+  if (res[1]!=0) res[1][1]=a16;
+  if (res[2]!=0) res[2][0]=a19;
+  if (res[2]!=0) res[2][1]=a04;
+  if (res[3]!=0) res[3][0]=a01;
+  if (res[3]!=0) res[3][1]=a15;
+  if (res[4]!=0) res[4][0]=a38;
+  if (res[4]!=0) res[4][1]=a23;
+  if (res[5]!=0) res[5][0]=a41;
+  a09=(-a09);
+  if (res[5]!=0) res[5][1]=a09;
+  if (res[6]!=0) res[6][0]=a08;
+  if (res[7]!=0) res[7][0]=a42;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f27(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_n_in(void) { return 11;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "kp_m";
+    case 4: return "kd_m";
+    case 5: return "kp";
+    case 6: return "kd";
+    case 7: return "ksigma";
+    case 8: return "delta";
+    case 9: return "ki";
+    case 10: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s0;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s0;
+    case 9: return casadi_s0;
+    case 10: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s5;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 11;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 11*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_qbmove_electric_cascade_adaptive_measured_acceleration:(z[8],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,dt)->(z_next[8],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[11]? arg[11][0] : 0;
+  a02=arg[8]? arg[8][0] : 0;
+  a03=arg[1]? arg[1][1] : 0;
+  a04=arg[2]? arg[2][1] : 0;
+  a05=arg[6]? arg[6][0] : 0;
+  a06=arg[1]? arg[1][0] : 0;
+  a07=arg[2]? arg[2][0] : 0;
+  a07=(a06-a07);
+  a07=(a05*a07);
+  a07=(a04-a07);
+  a07=(a03-a07);
+  a08=(a03*a07);
+  a08=(a02*a08);
+  a09=(a01*a08);
+  a09=(a00-a09);
+  if (res[0]!=0) res[0][0]=a09;
+  a09=arg[0]? arg[0][1] : 0;
+  a10=arg[8]? arg[8][1] : 0;
+  a11=arg[2]? arg[2][2] : 0;
+  a04=(a03-a04);
+  a04=(a05*a04);
+  a04=(a11-a04);
+  a12=(a04*a07);
+  a12=(a10*a12);
+  a13=(a01*a12);
+  a13=(a09-a13);
+  if (res[0]!=0) res[0][1]=a13;
+  a13=arg[0]? arg[0][2] : 0;
+  a14=arg[8]? arg[8][2] : 0;
+  a15=-9.8100000000000005e+00;
+  a16=sin(a06);
+  a17=(a15*a16);
+  a18=(a17*a07);
+  a18=(a14*a18);
+  a19=(a01*a18);
+  a19=(a13+a19);
+  if (res[0]!=0) res[0][2]=a19;
+  a19=arg[0]? arg[0][3] : 0;
+  a20=arg[5]? arg[5][0] : 0;
+  a21=arg[0]? arg[0][7] : 0;
+  a21=(a03-a21);
+  a21=(a21/a01);
+  a22=1.4852661596958175e-01;
+  a23=4.4052863436123346e+01;
+  a24=(a00*a21);
+  a25=(a03*a08);
+  a24=(a24-a25);
+  a25=arg[2]? arg[2][3] : 0;
+  a11=(a21-a11);
+  a11=(a05*a11);
+  a11=(a25-a11);
+  a26=(a09*a11);
+  a27=(a04*a12);
+  a26=(a26-a27);
+  a24=(a24+a26);
+  a26=cos(a06);
+  a27=(a26*a03);
+  a27=(a15*a27);
+  a28=(a13*a27);
+  a29=(a17*a18);
+  a28=(a28+a29);
+  a24=(a24-a28);
+  a28=arg[7]? arg[7][0] : 0;
+  a29=(a21-a04);
+  a30=(a28*a29);
+  a24=(a24-a30);
+  a30=4.8444384040000010e+01;
+  a31=(a30*a21);
+  a32=(a24*a31);
+  a33=arg[1]? arg[1][5] : 0;
+  a34=(a03-a33);
+  a35=(a30*a34);
+  a36=arg[10]? arg[10][0] : 0;
+  a35=(a35-a36);
+  a37=arg[2]? arg[2][4] : 0;
+  a05=(a05*a25);
+  a37=(a37+a05);
+  a37=(a09*a37);
+  a05=(a11*a12);
+  a37=(a37-a05);
+  a12=(a12*a11);
+  a05=(a07*a11);
+  a25=(a04*a29);
+  a05=(a05+a25);
+  a10=(a10*a05);
+  a10=(a04*a10);
+  a12=(a12+a10);
+  a37=(a37-a12);
+  a12=(a21*a08);
+  a08=(a08*a21);
+  a10=(a07*a21);
+  a05=(a03*a29);
+  a10=(a10+a05);
+  a02=(a02*a10);
+  a02=(a03*a02);
+  a08=(a08+a02);
+  a12=(a12+a08);
+  a37=(a37-a12);
+  a12=(a27*a18);
+  a26=(a26*a21);
+  a16=(a16*a03);
+  a16=(a03*a16);
+  a26=(a26-a16);
+  a15=(a15*a26);
+  a15=(a13*a15);
+  a12=(a12+a15);
+  a18=(a18*a27);
+  a27=(a07*a27);
+  a29=(a17*a29);
+  a27=(a27+a29);
+  a14=(a14*a27);
+  a14=(a17*a14);
+  a18=(a18+a14);
+  a12=(a12+a18);
+  a37=(a37-a12);
+  a11=(a28*a11);
+  a37=(a37+a11);
+  a11=(a35*a37);
+  a32=(a32+a11);
+  a11=(a31*a24);
+  a32=(a32+a11);
+  a11=arg[2]? arg[2][8] : 0;
+  a12=arg[9]? arg[9][0] : 0;
+  a18=1.5283456000000001e-01;
+  a14=6.7328000000000001e+00;
+  a27=arg[1]? arg[1][3] : 0;
+  a29=(a03-a27);
+  a15=(a14*a29);
+  a26=arg[1]? arg[1][2] : 0;
+  a16=(a06-a26);
+  a16=(a14*a16);
+  a08=cosh(a16);
+  a02=(a08*a15);
+  a02=(a15*a02);
+  a16=sinh(a16);
+  a10=(a14*a21);
+  a10=(a16*a10);
+  a02=(a02+a10);
+  a02=(a18*a02);
+  a10=1.5034032000000003e-01;
+  a05=6.9602000000000004e+00;
+  a34=(a05*a34);
+  a25=arg[1]? arg[1][4] : 0;
+  a38=(a06-a25);
+  a38=(a05*a38);
+  a39=cosh(a38);
+  a40=(a39*a34);
+  a40=(a34*a40);
+  a38=sinh(a38);
+  a41=(a05*a21);
+  a41=(a38*a41);
+  a40=(a40+a41);
+  a40=(a10*a40);
+  a02=(a02+a40);
+  a40=arg[2]? arg[2][7] : 0;
+  a02=(a02-a40);
+  a02=(a12*a02);
+  a11=(a11-a02);
+  a32=(a32+a11);
+  a02=4.5330595840000001e+01;
+  a29=(a02*a29);
+  a29=(a29+a36);
+  a36=(a29-a35);
+  a32=(a32/a36);
+  a41=(a35*a24);
+  a00=(a03*a00);
+  a04=(a04*a09);
+  a00=(a00+a04);
+  a17=(a17*a13);
+  a00=(a00-a17);
+  a28=(a28*a07);
+  a00=(a00-a28);
+  a28=(a00*a31);
+  a41=(a41+a28);
+  a15=(a16*a15);
+  a15=(a18*a15);
+  a34=(a38*a34);
+  a34=(a10*a34);
+  a15=(a15+a34);
+  a34=arg[2]? arg[2][6] : 0;
+  a15=(a15-a34);
+  a15=(a12*a15);
+  a40=(a40-a15);
+  a41=(a41+a40);
+  a41=(a41/a36);
+  a15=(a41/a36);
+  a02=(a02*a21);
+  a31=(a02-a31);
+  a28=(a15*a31);
+  a32=(a32-a28);
+  a35=(a00*a35);
+  a18=(a18*a08);
+  a10=(a10*a39);
+  a18=(a18+a10);
+  a10=arg[2]? arg[2][5] : 0;
+  a10=(a18-a10);
+  a10=(a12*a10);
+  a34=(a34-a10);
+  a35=(a35+a34);
+  a35=(a35/a36);
+  a10=(a35/a36);
+  a39=(a10*a31);
+  a41=(a41-a39);
+  a39=(a41/a36);
+  a08=(a10/a36);
+  a28=(a08*a31);
+  a39=(a39-a28);
+  a28=(a31*a39);
+  a32=(a32-a28);
+  a32=(a23*a32);
+  a28=1.;
+  a07=2.2700000000000001e-02;
+  a17=(a35/a07);
+  a13=casadi_sq(a17);
+  a13=(a28+a13);
+  a13=sqrt(a13);
+  a32=(a32/a13);
+  a41=(a23*a41);
+  a04=(a41/a13);
+  a09=(a04/a13);
+  a42=(2.*a17);
+  a41=(a42*a41);
+  a43=(2.*a13);
+  a41=(a41/a43);
+  a44=(a09*a41);
+  a32=(a32-a44);
+  a32=(a22*a32);
+  a32=(a21-a32);
+  a44=-1.9969425480176210e+03;
+  a44=(a44*a10);
+  a45=(a44/a13);
+  a46=(a45/a13);
+  a46=(a41*a46);
+  a44=(a42*a44);
+  a44=(a44/a43);
+  a44=(a09*a44);
+  a46=(a46+a44);
+  a44=-1.0290045255680000e+00;
+  a44=(a44*a16);
+  a44=(a12*a44);
+  a16=(a44/a36);
+  a47=-4.5330595840000001e+01;
+  a48=(a47*a15);
+  a16=(a16+a48);
+  a48=(a47*a39);
+  a49=(a47*a10);
+  a49=(a49/a36);
+  a50=(a47*a08);
+  a49=(a49+a50);
+  a49=(a31*a49);
+  a48=(a48-a49);
+  a16=(a16+a48);
+  a16=(a23*a16);
+  a16=(a16/a13);
+  a46=(a46-a16);
+  a46=(a22*a46);
+  a16=-9.6888768080000020e+01;
+  a16=(a16*a24);
+  a48=-1.0463986952640003e+00;
+  a48=(a48*a38);
+  a12=(a12*a48);
+  a16=(a16-a12);
+  a16=(a16/a36);
+  a48=-4.8444384040000010e+01;
+  a48=(a48*a00);
+  a48=(a48/a36);
+  a38=(a48/a36);
+  a38=(a31*a38);
+  a15=(a30*a15);
+  a38=(a38+a15);
+  a16=(a16-a38);
+  a39=(a30*a39);
+  a10=(a30*a10);
+  a48=(a48-a10);
+  a10=(a48/a36);
+  a08=(a30*a08);
+  a10=(a10-a08);
+  a10=(a31*a10);
+  a39=(a39+a10);
+  a16=(a16-a39);
+  a16=(a23*a16);
+  a16=(a16/a13);
+  a23=(a23*a48);
+  a48=(a23/a13);
+  a13=(a48/a13);
+  a41=(a41*a13);
+  a42=(a42*a23);
+  a42=(a42/a43);
+  a09=(a09*a42);
+  a41=(a41+a09);
+  a16=(a16-a41);
+  a16=(a22*a16);
+  a41=arg[3]? arg[3][0] : 0;
+  a48=(a22*a48);
+  a09=(a41*a48);
+  a09=(a16+a09);
+  a09=(a19*a09);
+  a42=arg[4]? arg[4][0] : 0;
+  a43=(a42*a48);
+  a09=(a09+a43);
+  a43=casadi_sq(a09);
+  a23=arg[0]? arg[0][4] : 0;
+  a13=1.4367403235539208e-01;
+  a39=(a29*a00);
+  a34=(a34+a39);
+  a34=(a34/a36);
+  a39=2.1600000000000001e-02;
+  a10=(a34/a39);
+  a08=(2.*a10);
+  a38=4.6296296296296291e+01;
+  a15=(a00*a02);
+  a49=(a29*a24);
+  a15=(a15+a49);
+  a40=(a40+a15);
+  a40=(a40/a36);
+  a15=(a34/a36);
+  a49=(a15*a31);
+  a49=(a40-a49);
+  a50=(a38*a49);
+  a51=(a08*a50);
+  a52=casadi_sq(a10);
+  a52=(a28+a52);
+  a52=sqrt(a52);
+  a53=(2.*a52);
+  a51=(a51/a53);
+  a54=2.2427955574074076e+03;
+  a54=(a54*a15);
+  a55=(a54/a52);
+  a56=(a55/a52);
+  a56=(a51*a56);
+  a50=(a50/a52);
+  a57=(a50/a52);
+  a54=(a08*a54);
+  a54=(a54/a53);
+  a54=(a57*a54);
+  a56=(a56+a54);
+  a12=(a12/a36);
+  a40=(a40/a36);
+  a54=(a30*a40);
+  a12=(a12+a54);
+  a49=(a49/a36);
+  a54=(a15/a36);
+  a58=(a54*a31);
+  a49=(a49-a58);
+  a58=(a30*a49);
+  a59=(a30*a15);
+  a59=(a59/a36);
+  a30=(a30*a54);
+  a59=(a59+a30);
+  a59=(a31*a59);
+  a58=(a58-a59);
+  a12=(a12+a58);
+  a12=(a38*a12);
+  a12=(a12/a52);
+  a56=(a56-a12);
+  a56=(a13*a56);
+  a12=(a28-a56);
+  a58=arg[3]? arg[3][1] : 0;
+  a55=(a13*a55);
+  a59=(a58*a55);
+  a12=(a12+a59);
+  a12=(a23*a12);
+  a59=arg[4]? arg[4][1] : 0;
+  a30=(a59*a55);
+  a12=(a12+a30);
+  a30=casadi_sq(a12);
+  a43=(a43+a30);
+  a30=1.0000000000000000e-14;
+  a43=(a43+a30);
+  a28=(a28+a46);
+  a45=(a22*a45);
+  a60=(a41*a45);
+  a28=(a28-a60);
+  a28=(a19*a28);
+  a60=(a42*a45);
+  a28=(a28-a60);
+  a60=casadi_sq(a28);
+  a61=-9.0661191680000002e+01;
+  a61=(a61*a24);
+  a61=(a61-a44);
+  a61=(a61/a36);
+  a00=(a47*a00);
+  a00=(a00/a36);
+  a44=(a00/a36);
+  a44=(a31*a44);
+  a62=(a47*a40);
+  a44=(a44+a62);
+  a61=(a61-a44);
+  a44=(a47*a49);
+  a15=(a47*a15);
+  a00=(a00-a15);
+  a15=(a00/a36);
+  a47=(a47*a54);
+  a15=(a15-a47);
+  a15=(a31*a15);
+  a44=(a44+a15);
+  a61=(a61-a44);
+  a61=(a38*a61);
+  a61=(a61/a52);
+  a00=(a38*a00);
+  a44=(a00/a52);
+  a15=(a44/a52);
+  a15=(a51*a15);
+  a08=(a08*a00);
+  a08=(a08/a53);
+  a08=(a57*a08);
+  a15=(a15+a08);
+  a61=(a61-a15);
+  a61=(a13*a61);
+  a44=(a13*a44);
+  a15=(a58*a44);
+  a15=(a61+a15);
+  a15=(a23*a15);
+  a08=(a59*a44);
+  a15=(a15+a08);
+  a08=casadi_sq(a15);
+  a60=(a60+a08);
+  a60=(a60+a30);
+  a30=(a60*a43);
+  a08=(a28*a09);
+  a53=(a15*a12);
+  a08=(a08-a53);
+  a53=(a09*a28);
+  a00=(a12*a15);
+  a53=(a53-a00);
+  a00=(a08*a53);
+  a30=(a30-a00);
+  a43=(a43/a30);
+  a22=(a22*a04);
+  a22=(a03-a22);
+  a04=(a27-a22);
+  a00=(a41*a04);
+  a00=(a32-a00);
+  a00=(a19*a00);
+  a17=asinh(a17);
+  a17=(a17/a14);
+  a17=(a06-a17);
+  a47=(a26-a17);
+  a47=(a41*a47);
+  a04=(a04+a47);
+  a04=(a42*a04);
+  a00=(a00-a04);
+  a28=(a28*a00);
+  a04=(a02*a24);
+  a24=(a24*a02);
+  a29=(a29*a37);
+  a24=(a24+a29);
+  a04=(a04+a24);
+  a11=(a11+a04);
+  a11=(a11/a36);
+  a40=(a40*a31);
+  a11=(a11-a40);
+  a31=(a31*a49);
+  a11=(a11-a31);
+  a38=(a38*a11);
+  a38=(a38/a52);
+  a57=(a57*a51);
+  a38=(a38-a57);
+  a38=(a13*a38);
+  a21=(a21+a38);
+  a13=(a13*a50);
+  a13=(a03+a13);
+  a50=(a33-a13);
+  a38=(a58*a50);
+  a38=(a21-a38);
+  a38=(a23*a38);
+  a10=(-a10);
+  a10=asinh(a10);
+  a10=(a10/a05);
+  a10=(a06-a10);
+  a57=(a25-a10);
+  a57=(a58*a57);
+  a50=(a50+a57);
+  a50=(a59*a50);
+  a38=(a38-a50);
+  a15=(a15*a38);
+  a28=(a28-a15);
+  a43=(a43*a28);
+  a08=(a08/a30);
+  a09=(a09*a00);
+  a12=(a12*a38);
+  a09=(a09+a12);
+  a08=(a08*a09);
+  a43=(a43-a08);
+  a46=(a46*a43);
+  a60=(a60/a30);
+  a60=(a60*a09);
+  a53=(a53/a30);
+  a53=(a53*a28);
+  a60=(a60-a53);
+  a16=(a16*a60);
+  a46=(a46+a16);
+  a32=(a32-a46);
+  a45=(a45*a43);
+  a48=(a48*a60);
+  a45=(a45-a48);
+  a22=(a22+a45);
+  a45=(a27-a22);
+  a41=(a41*a45);
+  a41=(a32-a41);
+  a20=(a20*a41);
+  a45=(a45+a47);
+  a20=(a20*a45);
+  a20=(a01*a20);
+  a20=(a19-a20);
+  if (res[0]!=0) res[0][3]=a20;
+  a20=arg[5]? arg[5][1] : 0;
+  a61=(a61*a43);
+  a56=(a56*a60);
+  a61=(a61+a56);
+  a21=(a21+a61);
+  a44=(a44*a43);
+  a55=(a55*a60);
+  a44=(a44-a55);
+  a13=(a13+a44);
+  a44=(a33-a13);
+  a58=(a58*a44);
+  a58=(a21-a58);
+  a20=(a20*a58);
+  a44=(a44+a57);
+  a20=(a20*a44);
+  a20=(a01*a20);
+  a20=(a23-a20);
+  if (res[0]!=0) res[0][4]=a20;
+  a20=arg[0]? arg[0][5] : 0;
+  a57=arg[5]? arg[5][2] : 0;
+  a57=(a57*a27);
+  a57=(a57*a45);
+  a57=(a01*a57);
+  a57=(a20-a57);
+  if (res[0]!=0) res[0][5]=a57;
+  a57=arg[0]? arg[0][6] : 0;
+  a55=arg[5]? arg[5][3] : 0;
+  a55=(a55*a33);
+  a55=(a55*a44);
+  a55=(a01*a55);
+  a55=(a57-a55);
+  if (res[0]!=0) res[0][6]=a55;
+  if (res[0]!=0) res[0][7]=a03;
+  a41=(a41*a19);
+  a20=(a27*a20);
+  a41=(a41+a20);
+  a20=2.;
+  a01=(a01/a20);
+  a03=(a01*a03);
+  a06=(a06+a03);
+  a27=(a01*a27);
+  a26=(a26+a27);
+  a26=(a06-a26);
+  a14=(a14*a26);
+  a14=sinh(a14);
+  a07=(a07*a14);
+  a41=(a41-a07);
+  a42=(a42*a45);
+  a41=(a41-a42);
+  if (res[1]!=0) res[1][0]=a41;
+  a58=(a58*a23);
+  a57=(a33*a57);
+  a58=(a58+a57);
+  a01=(a01*a33);
+  a25=(a25+a01);
+  a06=(a06-a25);
+  a05=(a05*a06);
+  a05=sinh(a05);
+  a39=(a39*a05);
+  a58=(a58-a39);
+  a59=(a59*a44);
+  a58=(a58-a59);
+  if (res[1]!=0) res[1][1]=a58;
+  if (res[2]!=0) res[2][0]=a17;
+  if (res[2]!=0) res[2][1]=a10;
+  if (res[3]!=0) res[3][0]=a22;
+  if (res[3]!=0) res[3][1]=a13;
+  if (res[4]!=0) res[4][0]=a32;
+  if (res[4]!=0) res[4][1]=a21;
+  if (res[5]!=0) res[5][0]=a35;
+  a34=(-a34);
+  if (res[5]!=0) res[5][1]=a34;
+  if (res[6]!=0) res[6][0]=a18;
+  if (res[7]!=0) res[7][0]=a36;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f28(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_n_in(void) { return 12;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "lam_m";
+    case 4: return "k_m";
+    case 5: return "kpi_m";
+    case 6: return "lam";
+    case 7: return "k";
+    case 8: return "kpi";
+    case 9: return "ksigma";
+    case 10: return "delta";
+    case 11: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s13;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s3;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s2;
+    case 9: return casadi_s0;
+    case 10: return casadi_s0;
+    case 11: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s13;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 12;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 12*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration:(z[9],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,ki,dt)->(z_next[9],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
+  casadi_real a36, a37, a38, a39, a40, a41, a42, a43, a44, a45, a46, a47;
+  casadi_real a48, a49, a50, a51, a52, a53, a54, a55, a56, a57, a58, a59;
+  casadi_real a60, a61, a62;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[12]? arg[12][0] : 0;
+  a02=1.5283456000000001e-01;
+  a03=6.7328000000000001e+00;
+  a04=arg[1]? arg[1][0] : 0;
+  a05=arg[1]? arg[1][2] : 0;
+  a06=(a04-a05);
+  a06=(a03*a06);
+  a07=cosh(a06);
+  a08=(a02*a07);
+  a09=1.5034032000000003e-01;
+  a10=6.9602000000000004e+00;
+  a11=arg[1]? arg[1][4] : 0;
+  a12=(a04-a11);
+  a12=(a10*a12);
+  a13=cosh(a12);
+  a14=(a09*a13);
+  a08=(a08+a14);
+  a14=arg[2]? arg[2][5] : 0;
+  a14=(a08-a14);
+  a15=(a01*a14);
+  a15=(a00+a15);
+  if (res[0]!=0) res[0][0]=a15;
+  a15=arg[0]? arg[0][1] : 0;
+  a16=arg[8]? arg[8][0] : 0;
+  a17=arg[1]? arg[1][1] : 0;
+  a18=arg[2]? arg[2][1] : 0;
+  a19=arg[6]? arg[6][0] : 0;
+  a20=arg[2]? arg[2][0] : 0;
+  a20=(a04-a20);
+  a20=(a19*a20);
+  a20=(a18-a20);
+  a20=(a17-a20);
+  a21=(a17*a20);
+  a21=(a16*a21);
+  a22=(a01*a21);
+  a22=(a15-a22);
+  if (res[0]!=0) res[0][1]=a22;
+  a22=arg[0]? arg[0][2] : 0;
+  a23=arg[8]? arg[8][1] : 0;
+  a24=arg[2]? arg[2][2] : 0;
+  a18=(a17-a18);
+  a18=(a19*a18);
+  a18=(a24-a18);
+  a25=(a18*a20);
+  a25=(a23*a25);
+  a26=(a01*a25);
+  a26=(a22-a26);
+  if (res[0]!=0) res[0][2]=a26;
+  a26=arg[0]? arg[0][3] : 0;
+  a27=arg[8]? arg[8][2] : 0;
+  a28=-9.8100000000000005e+00;
+  a29=sin(a04);
+  a30=(a28*a29);
+  a31=(a30*a20);
+  a31=(a27*a31);
+  a32=(a01*a31);
+  a32=(a26+a32);
+  if (res[0]!=0) res[0][3]=a32;
+  a32=arg[0]? arg[0][4] : 0;
+  a33=arg[5]? arg[5][0] : 0;
+  a34=arg[0]? arg[0][8] : 0;
+  a34=(a17-a34);
+  a34=(a34/a01);
+  a35=1.4852661596958175e-01;
+  a36=4.4052863436123346e+01;
+  a37=(a15*a34);
+  a38=(a17*a21);
+  a37=(a37-a38);
+  a38=arg[2]? arg[2][3] : 0;
+  a24=(a34-a24);
+  a24=(a19*a24);
+  a24=(a38-a24);
+  a39=(a22*a24);
+  a40=(a18*a25);
+  a39=(a39-a40);
+  a37=(a37+a39);
+  a39=cos(a04);
+  a40=(a39*a17);
+  a40=(a28*a40);
+  a41=(a26*a40);
+  a42=(a30*a31);
+  a41=(a41+a42);
+  a37=(a37-a41);
+  a41=arg[7]? arg[7][0] : 0;
+  a42=(a34-a18);
+  a43=(a41*a42);
+  a37=(a37-a43);
+  a43=4.8444384040000010e+01;
+  a44=(a43*a34);
+  a45=(a37*a44);
+  a46=arg[1]? arg[1][5] : 0;
+  a47=(a17-a46);
+  a48=(a43*a47);
+  a49=arg[10]? arg[10][0] : 0;
+  a48=(a48-a49);
+  a50=arg[2]? arg[2][4] : 0;
+  a19=(a19*a38);
+  a50=(a50+a19);
+  a50=(a22*a50);
+  a19=(a24*a25);
+  a50=(a50-a19);
+  a25=(a25*a24);
+  a19=(a20*a24);
+  a38=(a18*a42);
+  a19=(a19+a38);
+  a23=(a23*a19);
+  a23=(a18*a23);
+  a25=(a25+a23);
+  a50=(a50-a25);
+  a25=(a34*a21);
+  a21=(a21*a34);
+  a23=(a20*a34);
+  a19=(a17*a42);
+  a23=(a23+a19);
+  a16=(a16*a23);
+  a16=(a17*a16);
+  a21=(a21+a16);
+  a25=(a25+a21);
+  a50=(a50-a25);
+  a25=(a40*a31);
+  a39=(a39*a34);
+  a29=(a29*a17);
+  a29=(a17*a29);
+  a39=(a39-a29);
+  a28=(a28*a39);
+  a28=(a26*a28);
+  a25=(a25+a28);
+  a31=(a31*a40);
+  a40=(a20*a40);
+  a42=(a30*a42);
+  a40=(a40+a42);
+  a27=(a27*a40);
+  a27=(a30*a27);
+  a31=(a31+a27);
+  a25=(a25+a31);
+  a50=(a50-a25);
+  a24=(a41*a24);
+  a50=(a50+a24);
+  a24=(a48*a50);
+  a45=(a45+a24);
+  a24=(a44*a37);
+  a45=(a45+a24);
+  a24=arg[2]? arg[2][8] : 0;
+  a25=arg[9]? arg[9][0] : 0;
+  a31=arg[1]? arg[1][3] : 0;
+  a27=(a17-a31);
+  a40=(a03*a27);
+  a07=(a07*a40);
+  a07=(a40*a07);
+  a06=sinh(a06);
+  a42=(a03*a34);
+  a42=(a06*a42);
+  a07=(a07+a42);
+  a07=(a02*a07);
+  a47=(a10*a47);
+  a13=(a13*a47);
+  a13=(a47*a13);
+  a12=sinh(a12);
+  a42=(a10*a34);
+  a42=(a12*a42);
+  a13=(a13+a42);
+  a13=(a09*a13);
+  a07=(a07+a13);
+  a13=arg[2]? arg[2][7] : 0;
+  a07=(a07-a13);
+  a07=(a25*a07);
+  a24=(a24-a07);
+  a07=arg[11]? arg[11][0] : 0;
+  a40=(a06*a40);
+  a02=(a02*a40);
+  a47=(a12*a47);
+  a09=(a09*a47);
+  a02=(a02+a09);
+  a09=arg[2]? arg[2][6] : 0;
+  a02=(a02-a09);
+  a47=(a07*a02);
+  a24=(a24-a47);
+  a45=(a45+a24);
+  a47=4.5330595840000001e+01;
+  a27=(a47*a27);
+  a27=(a27+a49);
+  a49=(a27-a48);
+  a45=(a45/a49);
+  a40=(a48*a37);
+  a15=(a17*a15);
+  a18=(a18*a22);
+  a15=(a15+a18);
+  a30=(a30*a26);
+  a15=(a15-a30);
+  a41=(a41*a20);
+  a15=(a15-a41);
+  a41=(a15*a44);
+  a40=(a40+a41);
+  a02=(a25*a02);
+  a13=(a13-a02);
+  a02=(a07*a14);
+  a13=(a13-a02);
+  a40=(a40+a13);
+  a40=(a40/a49);
+  a02=(a40/a49);
+  a47=(a47*a34);
+  a44=(a47-a44);
+  a41=(a02*a44);
+  a45=(a45-a41);
+  a48=(a15*a48);
+  a14=(a25*a14);
+  a09=(a09-a14);
+  a07=(a07*a00);
+  a09=(a09-a07);
+  a48=(a48+a09);
+  a48=(a48/a49);
+  a07=(a48/a49);
+  a00=(a07*a44);
+  a40=(a40-a00);
+  a00=(a40/a49);
+  a14=(a07/a49);
+  a41=(a14*a44);
+  a00=(a00-a41);
+  a41=(a44*a00);
+  a45=(a45-a41);
+  a45=(a36*a45);
+  a41=1.;
+  a20=2.2700000000000001e-02;
+  a30=(a48/a20);
+  a26=casadi_sq(a30);
+  a26=(a41+a26);
+  a26=sqrt(a26);
+  a45=(a45/a26);
+  a40=(a36*a40);
+  a18=(a40/a26);
+  a22=(a18/a26);
+  a42=(2.*a30);
+  a40=(a42*a40);
+  a28=(2.*a26);
+  a40=(a40/a28);
+  a39=(a22*a40);
+  a45=(a45-a39);
+  a45=(a35*a45);
+  a45=(a34-a45);
+  a39=-1.9969425480176210e+03;
+  a39=(a39*a07);
+  a29=(a39/a26);
+  a21=(a29/a26);
+  a21=(a40*a21);
+  a39=(a42*a39);
+  a39=(a39/a28);
+  a39=(a22*a39);
+  a21=(a21+a39);
+  a39=-1.0290045255680000e+00;
+  a39=(a39*a06);
+  a39=(a25*a39);
+  a06=(a39/a49);
+  a16=-4.5330595840000001e+01;
+  a23=(a16*a02);
+  a06=(a06+a23);
+  a23=(a16*a00);
+  a19=(a16*a07);
+  a19=(a19/a49);
+  a38=(a16*a14);
+  a19=(a19+a38);
+  a19=(a44*a19);
+  a23=(a23-a19);
+  a06=(a06+a23);
+  a06=(a36*a06);
+  a06=(a06/a26);
+  a21=(a21-a06);
+  a21=(a35*a21);
+  a06=-9.6888768080000020e+01;
+  a06=(a06*a37);
+  a23=-1.0463986952640003e+00;
+  a23=(a23*a12);
+  a25=(a25*a23);
+  a06=(a06-a25);
+  a06=(a06/a49);
+  a23=-4.8444384040000010e+01;
+  a23=(a23*a15);
+  a23=(a23/a49);
+  a12=(a23/a49);
+  a12=(a44*a12);
+  a02=(a43*a02);
+  a12=(a12+a02);
+  a06=(a06-a12);
+  a00=(a43*a00);
+  a07=(a43*a07);
+  a23=(a23-a07);
+  a07=(a23/a49);
+  a14=(a43*a14);
+  a07=(a07-a14);
+  a07=(a44*a07);
+  a00=(a00+a07);
+  a06=(a06-a00);
+  a06=(a36*a06);
+  a06=(a06/a26);
+  a36=(a36*a23);
+  a23=(a36/a26);
+  a26=(a23/a26);
+  a40=(a40*a26);
+  a42=(a42*a36);
+  a42=(a42/a28);
+  a22=(a22*a42);
+  a40=(a40+a22);
+  a06=(a06-a40);
+  a06=(a35*a06);
+  a40=arg[3]? arg[3][0] : 0;
+  a23=(a35*a23);
+  a22=(a40*a23);
+  a22=(a06+a22);
+  a22=(a32*a22);
+  a42=arg[4]? arg[4][0] : 0;
+  a28=(a42*a23);
+  a22=(a22+a28);
+  a28=casadi_sq(a22);
+  a36=arg[0]? arg[0][5] : 0;
+  a26=1.4367403235539208e-01;
+  a00=(a27*a15);
+  a09=(a09+a00);
+  a09=(a09/a49);
+  a00=2.1600000000000001e-02;
+  a07=(a09/a00);
+  a14=(2.*a07);
+  a12=4.6296296296296291e+01;
+  a02=(a15*a47);
+  a19=(a27*a37);
+  a02=(a02+a19);
+  a13=(a13+a02);
+  a13=(a13/a49);
+  a02=(a09/a49);
+  a19=(a02*a44);
+  a19=(a13-a19);
+  a38=(a12*a19);
+  a51=(a14*a38);
+  a52=casadi_sq(a07);
+  a52=(a41+a52);
+  a52=sqrt(a52);
+  a53=(2.*a52);
+  a51=(a51/a53);
+  a54=2.2427955574074076e+03;
+  a54=(a54*a02);
+  a55=(a54/a52);
+  a56=(a55/a52);
+  a56=(a51*a56);
+  a38=(a38/a52);
+  a57=(a38/a52);
+  a54=(a14*a54);
+  a54=(a54/a53);
+  a54=(a57*a54);
+  a56=(a56+a54);
+  a25=(a25/a49);
+  a13=(a13/a49);
+  a54=(a43*a13);
+  a25=(a25+a54);
+  a19=(a19/a49);
+  a54=(a02/a49);
+  a58=(a54*a44);
+  a19=(a19-a58);
+  a58=(a43*a19);
+  a59=(a43*a02);
+  a59=(a59/a49);
+  a43=(a43*a54);
+  a59=(a59+a43);
+  a59=(a44*a59);
+  a58=(a58-a59);
+  a25=(a25+a58);
+  a25=(a12*a25);
+  a25=(a25/a52);
+  a56=(a56-a25);
+  a56=(a26*a56);
+  a25=(a41-a56);
+  a58=arg[3]? arg[3][1] : 0;
+  a55=(a26*a55);
+  a59=(a58*a55);
+  a25=(a25+a59);
+  a25=(a36*a25);
+  a59=arg[4]? arg[4][1] : 0;
+  a43=(a59*a55);
+  a25=(a25+a43);
+  a43=casadi_sq(a25);
+  a28=(a28+a43);
+  a43=1.0000000000000000e-14;
+  a28=(a28+a43);
+  a41=(a41+a21);
+  a29=(a35*a29);
+  a60=(a40*a29);
+  a41=(a41-a60);
+  a41=(a32*a41);
+  a60=(a42*a29);
+  a41=(a41-a60);
+  a60=casadi_sq(a41);
+  a61=-9.0661191680000002e+01;
+  a61=(a61*a37);
+  a61=(a61-a39);
+  a61=(a61/a49);
+  a15=(a16*a15);
+  a15=(a15/a49);
+  a39=(a15/a49);
+  a39=(a44*a39);
+  a62=(a16*a13);
+  a39=(a39+a62);
+  a61=(a61-a39);
+  a39=(a16*a19);
+  a02=(a16*a02);
+  a15=(a15-a02);
+  a02=(a15/a49);
+  a16=(a16*a54);
+  a02=(a02-a16);
+  a02=(a44*a02);
+  a39=(a39+a02);
+  a61=(a61-a39);
+  a61=(a12*a61);
+  a61=(a61/a52);
+  a15=(a12*a15);
+  a39=(a15/a52);
+  a02=(a39/a52);
+  a02=(a51*a02);
+  a14=(a14*a15);
+  a14=(a14/a53);
+  a14=(a57*a14);
+  a02=(a02+a14);
+  a61=(a61-a02);
+  a61=(a26*a61);
+  a39=(a26*a39);
+  a02=(a58*a39);
+  a02=(a61+a02);
+  a02=(a36*a02);
+  a14=(a59*a39);
+  a02=(a02+a14);
+  a14=casadi_sq(a02);
+  a60=(a60+a14);
+  a60=(a60+a43);
+  a43=(a60*a28);
+  a14=(a41*a22);
+  a53=(a02*a25);
+  a14=(a14-a53);
+  a53=(a22*a41);
+  a15=(a25*a02);
+  a53=(a53-a15);
+  a15=(a14*a53);
+  a43=(a43-a15);
+  a28=(a28/a43);
+  a35=(a35*a18);
+  a35=(a17-a35);
+  a18=(a31-a35);
+  a15=(a40*a18);
+  a15=(a45-a15);
+  a15=(a32*a15);
+  a30=asinh(a30);
+  a30=(a30/a03);
+  a30=(a04-a30);
+  a16=(a05-a30);
+  a16=(a40*a16);
+  a18=(a18+a16);
+  a18=(a42*a18);
+  a15=(a15-a18);
+  a41=(a41*a15);
+  a18=(a47*a37);
+  a37=(a37*a47);
+  a27=(a27*a50);
+  a37=(a37+a27);
+  a18=(a18+a37);
+  a24=(a24+a18);
+  a24=(a24/a49);
+  a13=(a13*a44);
+  a24=(a24-a13);
+  a44=(a44*a19);
+  a24=(a24-a44);
+  a12=(a12*a24);
+  a12=(a12/a52);
+  a57=(a57*a51);
+  a12=(a12-a57);
+  a12=(a26*a12);
+  a34=(a34+a12);
+  a26=(a26*a38);
+  a26=(a17+a26);
+  a38=(a46-a26);
+  a12=(a58*a38);
+  a12=(a34-a12);
+  a12=(a36*a12);
+  a07=(-a07);
+  a07=asinh(a07);
+  a07=(a07/a10);
+  a07=(a04-a07);
+  a57=(a11-a07);
+  a57=(a58*a57);
+  a38=(a38+a57);
+  a38=(a59*a38);
+  a12=(a12-a38);
+  a02=(a02*a12);
+  a41=(a41-a02);
+  a28=(a28*a41);
+  a14=(a14/a43);
+  a22=(a22*a15);
+  a25=(a25*a12);
+  a22=(a22+a25);
+  a14=(a14*a22);
+  a28=(a28-a14);
+  a21=(a21*a28);
+  a60=(a60/a43);
+  a60=(a60*a22);
+  a53=(a53/a43);
+  a53=(a53*a41);
+  a60=(a60-a53);
+  a06=(a06*a60);
+  a21=(a21+a06);
+  a45=(a45-a21);
+  a29=(a29*a28);
+  a23=(a23*a60);
+  a29=(a29-a23);
+  a35=(a35+a29);
+  a29=(a31-a35);
+  a40=(a40*a29);
+  a40=(a45-a40);
+  a33=(a33*a40);
+  a29=(a29+a16);
+  a33=(a33*a29);
+  a33=(a01*a33);
+  a33=(a32-a33);
+  if (res[0]!=0) res[0][4]=a33;
+  a33=arg[5]? arg[5][1] : 0;
+  a61=(a61*a28);
+  a56=(a56*a60);
+  a61=(a61+a56);
+  a34=(a34+a61);
+  a39=(a39*a28);
+  a55=(a55*a60);
+  a39=(a39-a55);
+  a26=(a26+a39);
+  a39=(a46-a26);
+  a58=(a58*a39);
+  a58=(a34-a58);
+  a33=(a33*a58);
+  a39=(a39+a57);
+  a33=(a33*a39);
+  a33=(a01*a33);
+  a33=(a36-a33);
+  if (res[0]!=0) res[0][5]=a33;
+  a33=arg[0]? arg[0][6] : 0;
+  a57=arg[5]? arg[5][2] : 0;
+  a57=(a57*a31);
+  a57=(a57*a29);
+  a57=(a01*a57);
+  a57=(a33-a57);
+  if (res[0]!=0) res[0][6]=a57;
+  a57=arg[0]? arg[0][7] : 0;
+  a55=arg[5]? arg[5][3] : 0;
+  a55=(a55*a46);
+  a55=(a55*a39);
+  a55=(a01*a55);
+  a55=(a57-a55);
+  if (res[0]!=0) res[0][7]=a55;
+  if (res[0]!=0) res[0][8]=a17;
+  a40=(a40*a32);
+  a33=(a31*a33);
+  a40=(a40+a33);
+  a33=2.;
+  a01=(a01/a33);
+  a17=(a01*a17);
+  a04=(a04+a17);
+  a31=(a01*a31);
+  a05=(a05+a31);
+  a05=(a04-a05);
+  a03=(a03*a05);
+  a03=sinh(a03);
+  a20=(a20*a03);
+  a40=(a40-a20);
+  a42=(a42*a29);
+  a40=(a40-a42);
+  if (res[1]!=0) res[1][0]=a40;
+  a58=(a58*a36);
+  a57=(a46*a57);
+  a58=(a58+a57);
+  a01=(a01*a46);
+  a11=(a11+a01);
+  a04=(a04-a11);
+  a10=(a10*a04);
+  a10=sinh(a10);
+  a00=(a00*a10);
+  a58=(a58-a00);
+  a59=(a59*a39);
+  a58=(a58-a59);
+  if (res[1]!=0) res[1][1]=a58;
+  if (res[2]!=0) res[2][0]=a30;
+  if (res[2]!=0) res[2][1]=a07;
+  if (res[3]!=0) res[3][0]=a35;
+  if (res[3]!=0) res[3][1]=a26;
+  if (res[4]!=0) res[4][0]=a45;
+  if (res[4]!=0) res[4][1]=a34;
+  if (res[5]!=0) res[5][0]=a48;
+  a09=(-a09);
+  if (res[5]!=0) res[5][1]=a09;
+  if (res[6]!=0) res[6][0]=a08;
+  if (res[7]!=0) res[7][0]=a49;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f29(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_n_in(void) { return 13;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "lam_m";
+    case 4: return "k_m";
+    case 5: return "kpi_m";
+    case 6: return "lam";
+    case 7: return "k";
+    case 8: return "kpi";
+    case 9: return "ksigma";
+    case 10: return "delta";
+    case 11: return "ki";
+    case 12: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s12;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s3;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s2;
+    case 9: return casadi_s0;
+    case 10: return casadi_s0;
+    case 11: return casadi_s0;
+    case 12: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s12;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 13;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 13*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_qbmove_electric_cascade_pd_filter:(z[4],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,omega_f,dt)->(z_next[4],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[10]? arg[10][0] : 0;
+  a02=arg[0]? arg[0][2] : 0;
+  a03=arg[9]? arg[9][0] : 0;
+  a04=casadi_sq(a03);
+  a05=arg[1]? arg[1][0] : 0;
+  a06=1.4999999999999999e-02;
+  a07=arg[2]? arg[2][2] : 0;
+  a08=arg[6]? arg[6][0] : 0;
+  a09=arg[1]? arg[1][1] : 0;
+  a10=arg[2]? arg[2][1] : 0;
+  a10=(a09-a10);
+  a08=(a08*a10);
+  a07=(a07-a08);
+  a08=arg[5]? arg[5][0] : 0;
+  a10=arg[2]? arg[2][0] : 0;
+  a10=(a05-a10);
+  a08=(a08*a10);
+  a07=(a07-a08);
+  a06=(a06*a07);
+  a07=-1.1772000000000000e+00;
+  a08=sin(a05);
+  a07=(a07*a08);
+  a06=(a06-a07);
+  a07=9.9999999999999995e-08;
+  a07=(a07*a09);
+  a06=(a06+a07);
+  a07=4.8444384040000010e+01;
+  a08=arg[1]? arg[1][5] : 0;
+  a10=(a09-a08);
+  a07=(a07*a10);
+  a10=arg[8]? arg[8][0] : 0;
+  a07=(a07-a10);
+  a11=(a06*a07);
+  a12=arg[2]? arg[2][6] : 0;
+  a13=arg[7]? arg[7][0] : 0;
+  a14=1.5283456000000001e-01;
+  a15=6.7328000000000001e+00;
+  a16=arg[1]? arg[1][2] : 0;
+  a17=(a05-a16);
+  a17=(a15*a17);
+  a17=cosh(a17);
+  a14=(a14*a17);
+  a17=1.5034032000000003e-01;
+  a18=6.9602000000000004e+00;
+  a19=arg[1]? arg[1][4] : 0;
+  a20=(a05-a19);
+  a20=(a18*a20);
+  a20=cosh(a20);
+  a17=(a17*a20);
+  a14=(a14+a17);
+  a17=arg[2]? arg[2][5] : 0;
+  a17=(a14-a17);
+  a13=(a13*a17);
+  a12=(a12-a13);
+  a11=(a11+a12);
+  a13=4.5330595840000001e+01;
+  a17=arg[1]? arg[1][3] : 0;
+  a20=(a09-a17);
+  a13=(a13*a20);
+  a13=(a13+a10);
+  a07=(a13-a07);
+  a11=(a11/a07);
+  a10=2.2700000000000001e-02;
+  a20=(a11/a10);
+  a20=asinh(a20);
+  a20=(a20/a15);
+  a20=(a05-a20);
+  a20=(a20-a00);
+  a20=(a04*a20);
+  a03=(2.*a03);
+  a21=(a03*a02);
+  a20=(a20-a21);
+  a21=(a01*a20);
+  a21=(a02+a21);
+  a22=(a01*a21);
+  a22=(a00+a22);
+  if (res[0]!=0) res[0][0]=a22;
+  a22=arg[0]? arg[0][1] : 0;
+  a23=arg[0]? arg[0][3] : 0;
+  a13=(a13*a06);
+  a12=(a12+a13);
+  a12=(a12/a07);
+  a13=2.1600000000000001e-02;
+  a06=(a12/a13);
+  a06=(-a06);
+  a06=asinh(a06);
+  a06=(a06/a18);
+  a06=(a05-a06);
+  a06=(a06-a22);
+  a04=(a04*a06);
+  a03=(a03*a23);
+  a04=(a04-a03);
+  a03=(a01*a04);
+  a03=(a23+a03);
+  a06=(a01*a03);
+  a06=(a22+a06);
+  if (res[0]!=0) res[0][1]=a06;
+  if (res[0]!=0) res[0][2]=a21;
+  if (res[0]!=0) res[0][3]=a03;
+  a03=9.9999999999999995e-07;
+  a21=(a03*a17);
+  a06=2.;
+  a01=(a01/a06);
+  a09=(a01*a09);
+  a05=(a05+a09);
+  a09=(a01*a17);
+  a09=(a16+a09);
+  a09=(a05-a09);
+  a15=(a15*a09);
+  a15=sinh(a15);
+  a10=(a10*a15);
+  a21=(a21-a10);
+  a10=3.0000000000000001e-06;
+  a15=arg[3]? arg[3][0] : 0;
+  a16=(a16-a00);
+  a15=(a15*a16);
+  a15=(a20-a15);
+  a16=arg[4]? arg[4][0] : 0;
+  a17=(a17-a02);
+  a16=(a16*a17);
+  a15=(a15-a16);
+  a15=(a10*a15);
+  a21=(a21+a15);
+  if (res[1]!=0) res[1][0]=a21;
+  a03=(a03*a08);
+  a01=(a01*a08);
+  a01=(a19+a01);
+  a05=(a05-a01);
+  a18=(a18*a05);
+  a18=sinh(a18);
+  a13=(a13*a18);
+  a03=(a03-a13);
+  a13=arg[3]? arg[3][1] : 0;
+  a19=(a19-a22);
+  a13=(a13*a19);
+  a13=(a04-a13);
+  a19=arg[4]? arg[4][1] : 0;
+  a08=(a08-a23);
+  a19=(a19*a08);
+  a13=(a13-a19);
+  a10=(a10*a13);
+  a03=(a03+a10);
+  if (res[1]!=0) res[1][1]=a03;
+  if (res[2]!=0) res[2][0]=a00;
+  if (res[2]!=0) res[2][1]=a22;
+  if (res[3]!=0) res[3][0]=a02;
+  if (res[3]!=0) res[3][1]=a23;
+  if (res[4]!=0) res[4][0]=a20;
+  if (res[4]!=0) res[4][1]=a04;
+  if (res[5]!=0) res[5][0]=a11;
+  a12=(-a12);
+  if (res[5]!=0) res[5][1]=a12;
+  if (res[6]!=0) res[6][0]=a14;
+  if (res[7]!=0) res[7][0]=a07;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f30(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_filter_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_filter_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_filter_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_filter_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_filter_n_in(void) { return 11;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_filter_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_pd_filter_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_filter_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "kp_m";
+    case 4: return "kd_m";
+    case 5: return "kp";
+    case 6: return "kd";
+    case 7: return "ksigma";
+    case 8: return "delta";
+    case 9: return "omega_f";
+    case 10: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_filter_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_filter_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s0;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s0;
+    case 9: return casadi_s0;
+    case 10: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_filter_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s3;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_filter_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 11;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_filter_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 11*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_qbmove_electric_cascade_pd_integral_filter:(z[5],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,omega_f,dt)->(z_next[5],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[11]? arg[11][0] : 0;
+  a02=1.5283456000000001e-01;
+  a03=6.7328000000000001e+00;
+  a04=arg[1]? arg[1][0] : 0;
+  a05=arg[1]? arg[1][2] : 0;
+  a06=(a04-a05);
+  a06=(a03*a06);
+  a06=cosh(a06);
+  a02=(a02*a06);
+  a06=1.5034032000000003e-01;
+  a07=6.9602000000000004e+00;
+  a08=arg[1]? arg[1][4] : 0;
+  a09=(a04-a08);
+  a09=(a07*a09);
+  a09=cosh(a09);
+  a06=(a06*a09);
+  a02=(a02+a06);
+  a06=arg[2]? arg[2][5] : 0;
+  a06=(a02-a06);
+  a09=(a01*a06);
+  a09=(a00+a09);
+  if (res[0]!=0) res[0][0]=a09;
+  a09=arg[0]? arg[0][1] : 0;
+  a10=arg[0]? arg[0][3] : 0;
+  a11=arg[10]? arg[10][0] : 0;
+  a12=casadi_sq(a11);
+  a13=1.4999999999999999e-02;
+  a14=arg[2]? arg[2][2] : 0;
+  a15=arg[6]? arg[6][0] : 0;
+  a16=arg[1]? arg[1][1] : 0;
+  a17=arg[2]? arg[2][1] : 0;
+  a17=(a16-a17);
+  a15=(a15*a17);
+  a14=(a14-a15);
+  a15=arg[5]? arg[5][0] : 0;
+  a17=arg[2]? arg[2][0] : 0;
+  a17=(a04-a17);
+  a15=(a15*a17);
+  a14=(a14-a15);
+  a13=(a13*a14);
+  a14=-1.1772000000000000e+00;
+  a15=sin(a04);
+  a14=(a14*a15);
+  a13=(a13-a14);
+  a14=9.9999999999999995e-08;
+  a14=(a14*a16);
+  a13=(a13+a14);
+  a14=4.8444384040000010e+01;
+  a15=arg[1]? arg[1][5] : 0;
+  a17=(a16-a15);
+  a14=(a14*a17);
+  a17=arg[8]? arg[8][0] : 0;
+  a14=(a14-a17);
+  a18=(a13*a14);
+  a19=arg[2]? arg[2][6] : 0;
+  a20=arg[7]? arg[7][0] : 0;
+  a20=(a20*a06);
+  a19=(a19-a20);
+  a20=arg[9]? arg[9][0] : 0;
+  a20=(a20*a00);
+  a19=(a19-a20);
+  a18=(a18+a19);
+  a20=4.5330595840000001e+01;
+  a00=arg[1]? arg[1][3] : 0;
+  a06=(a16-a00);
+  a20=(a20*a06);
+  a20=(a20+a17);
+  a14=(a20-a14);
+  a18=(a18/a14);
+  a17=2.2700000000000001e-02;
+  a06=(a18/a17);
+  a06=asinh(a06);
+  a06=(a06/a03);
+  a06=(a04-a06);
+  a06=(a06-a09);
+  a06=(a12*a06);
+  a11=(2.*a11);
+  a21=(a11*a10);
+  a06=(a06-a21);
+  a21=(a01*a06);
+  a21=(a10+a21);
+  a22=(a01*a21);
+  a22=(a09+a22);
+  if (res[0]!=0) res[0][1]=a22;
+  a22=arg[0]? arg[0][2] : 0;
+  a23=arg[0]? arg[0][4] : 0;
+  a20=(a20*a13);
+  a19=(a19+a20);
+  a19=(a19/a14);
+  a20=2.1600000000000001e-02;
+  a13=(a19/a20);
+  a13=(-a13);
+  a13=asinh(a13);
+  a13=(a13/a07);
+  a13=(a04-a13);
+  a13=(a13-a22);
+  a12=(a12*a13);
+  a11=(a11*a23);
+  a12=(a12-a11);
+  a11=(a01*a12);
+  a11=(a23+a11);
+  a13=(a01*a11);
+  a13=(a22+a13);
+  if (res[0]!=0) res[0][2]=a13;
+  if (res[0]!=0) res[0][3]=a21;
+  if (res[0]!=0) res[0][4]=a11;
+  a11=9.9999999999999995e-07;
+  a21=(a11*a00);
+  a13=2.;
+  a01=(a01/a13);
+  a16=(a01*a16);
+  a04=(a04+a16);
+  a16=(a01*a00);
+  a16=(a05+a16);
+  a16=(a04-a16);
+  a03=(a03*a16);
+  a03=sinh(a03);
+  a17=(a17*a03);
+  a21=(a21-a17);
+  a17=3.0000000000000001e-06;
+  a03=arg[3]? arg[3][0] : 0;
+  a05=(a05-a09);
+  a03=(a03*a05);
+  a03=(a06-a03);
+  a05=arg[4]? arg[4][0] : 0;
+  a00=(a00-a10);
+  a05=(a05*a00);
+  a03=(a03-a05);
+  a03=(a17*a03);
+  a21=(a21+a03);
+  if (res[1]!=0) res[1][0]=a21;
+  a11=(a11*a15);
+  a01=(a01*a15);
+  a01=(a08+a01);
+  a04=(a04-a01);
+  a07=(a07*a04);
+  a07=sinh(a07);
+  a20=(a20*a07);
+  a11=(a11-a20);
+  a20=arg[3]? arg[3][1] : 0;
+  a08=(a08-a22);
+  a20=(a20*a08);
+  a20=(a12-a20);
+  a08=arg[4]? arg[4][1] : 0;
+  a15=(a15-a23);
+  a08=(a08*a15);
+  a20=(a20-a08);
+  a17=(a17*a20);
+  a11=(a11+a17);
+  if (res[1]!=0) res[1][1]=a11;
+  if (res[2]!=0) res[2][0]=a09;
+  if (res[2]!=0) res[2][1]=a22;
+  if (res[3]!=0) res[3][0]=a10;
+  if (res[3]!=0) res[3][1]=a23;
+  if (res[4]!=0) res[4][0]=a06;
+  if (res[4]!=0) res[4][1]=a12;
+  if (res[5]!=0) res[5][0]=a18;
+  a19=(-a19);
+  if (res[5]!=0) res[5][1]=a19;
+  if (res[6]!=0) res[6][0]=a02;
+  if (res[7]!=0) res[7][0]=a14;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f31(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_filter_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_integral_filter_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_integral_filter_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_pd_integral_filter_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_integral_filter_n_in(void) { return 12;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_pd_integral_filter_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_pd_integral_filter_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_integral_filter_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "kp_m";
+    case 4: return "kd_m";
+    case 5: return "kp";
+    case 6: return "kd";
+    case 7: return "ksigma";
+    case 8: return "delta";
+    case 9: return "ki";
+    case 10: return "omega_f";
+    case 11: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_pd_integral_filter_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_integral_filter_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s6;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s0;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s0;
+    case 9: return casadi_s0;
+    case 10: return casadi_s0;
+    case 11: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_pd_integral_filter_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s6;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_filter_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 12;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_filter_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 12*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_qbmove_electric_cascade_adaptive_filter:(z[11],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,omega_f,dt)->(z_next[11],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[12]? arg[12][0] : 0;
+  a02=arg[8]? arg[8][0] : 0;
+  a03=arg[1]? arg[1][1] : 0;
+  a04=arg[2]? arg[2][1] : 0;
+  a05=arg[6]? arg[6][0] : 0;
+  a06=arg[1]? arg[1][0] : 0;
+  a07=arg[2]? arg[2][0] : 0;
+  a07=(a06-a07);
+  a07=(a05*a07);
+  a07=(a04-a07);
+  a07=(a03-a07);
+  a08=(a03*a07);
+  a02=(a02*a08);
+  a02=(a01*a02);
+  a02=(a00-a02);
+  if (res[0]!=0) res[0][0]=a02;
+  a02=arg[0]? arg[0][1] : 0;
+  a08=arg[8]? arg[8][1] : 0;
+  a09=arg[2]? arg[2][2] : 0;
+  a04=(a03-a04);
+  a05=(a05*a04);
+  a09=(a09-a05);
+  a05=(a09*a07);
+  a08=(a08*a05);
+  a08=(a01*a08);
+  a08=(a02-a08);
+  if (res[0]!=0) res[0][1]=a08;
+  a08=arg[0]? arg[0][2] : 0;
+  a05=arg[8]? arg[8][2] : 0;
+  a04=-9.8100000000000005e+00;
+  a10=sin(a06);
+  a04=(a04*a10);
+  a10=(a04*a07);
+  a05=(a05*a10);
+  a05=(a01*a05);
+  a05=(a08+a05);
+  if (res[0]!=0) res[0][2]=a05;
+  a05=arg[0]? arg[0][3] : 0;
+  a10=arg[5]? arg[5][0] : 0;
+  a11=arg[11]? arg[11][0] : 0;
+  a12=casadi_sq(a11);
+  a00=(a03*a00);
+  a09=(a09*a02);
+  a00=(a00+a09);
+  a04=(a04*a08);
+  a00=(a00-a04);
+  a04=arg[7]? arg[7][0] : 0;
+  a04=(a04*a07);
+  a00=(a00-a04);
+  a04=4.8444384040000010e+01;
+  a07=arg[1]? arg[1][5] : 0;
+  a08=(a03-a07);
+  a04=(a04*a08);
+  a08=arg[10]? arg[10][0] : 0;
+  a04=(a04-a08);
+  a09=(a00*a04);
+  a02=arg[2]? arg[2][6] : 0;
+  a13=arg[9]? arg[9][0] : 0;
+  a14=1.5283456000000001e-01;
+  a15=6.7328000000000001e+00;
+  a16=arg[1]? arg[1][2] : 0;
+  a17=(a06-a16);
+  a17=(a15*a17);
+  a17=cosh(a17);
+  a14=(a14*a17);
+  a17=1.5034032000000003e-01;
+  a18=6.9602000000000004e+00;
+  a19=arg[1]? arg[1][4] : 0;
+  a20=(a06-a19);
+  a20=(a18*a20);
+  a20=cosh(a20);
+  a17=(a17*a20);
+  a14=(a14+a17);
+  a17=arg[2]? arg[2][5] : 0;
+  a17=(a14-a17);
+  a13=(a13*a17);
+  a02=(a02-a13);
+  a09=(a09+a02);
+  a13=4.5330595840000001e+01;
+  a17=arg[1]? arg[1][3] : 0;
+  a20=(a03-a17);
+  a13=(a13*a20);
+  a13=(a13+a08);
+  a04=(a13-a04);
+  a09=(a09/a04);
+  a08=2.2700000000000001e-02;
+  a20=(a09/a08);
+  a20=asinh(a20);
+  a20=(a20/a15);
+  a20=(a06-a20);
+  a21=arg[0]? arg[0][7] : 0;
+  a20=(a20-a21);
+  a20=(a12*a20);
+  a11=(2.*a11);
+  a22=arg[0]? arg[0][9] : 0;
+  a23=(a11*a22);
+  a20=(a20-a23);
+  a23=arg[3]? arg[3][0] : 0;
+  a24=(a17-a22);
+  a25=(a23*a24);
+  a25=(a20-a25);
+  a10=(a10*a25);
+  a26=(a16-a21);
+  a23=(a23*a26);
+  a24=(a24+a23);
+  a10=(a10*a24);
+  a10=(a01*a10);
+  a10=(a05-a10);
+  if (res[0]!=0) res[0][3]=a10;
+  a10=arg[0]? arg[0][4] : 0;
+  a23=arg[5]? arg[5][1] : 0;
+  a13=(a13*a00);
+  a02=(a02+a13);
+  a02=(a02/a04);
+  a13=2.1600000000000001e-02;
+  a00=(a02/a13);
+  a00=(-a00);
+  a00=asinh(a00);
+  a00=(a00/a18);
+  a00=(a06-a00);
+  a26=arg[0]? arg[0][8] : 0;
+  a00=(a00-a26);
+  a12=(a12*a00);
+  a00=arg[0]? arg[0][10] : 0;
+  a11=(a11*a00);
+  a12=(a12-a11);
+  a11=arg[3]? arg[3][1] : 0;
+  a27=(a07-a00);
+  a28=(a11*a27);
+  a28=(a12-a28);
+  a23=(a23*a28);
+  a29=(a19-a26);
+  a11=(a11*a29);
+  a27=(a27+a11);
+  a23=(a23*a27);
+  a23=(a01*a23);
+  a23=(a10-a23);
+  if (res[0]!=0) res[0][4]=a23;
+  a23=arg[0]? arg[0][5] : 0;
+  a11=arg[5]? arg[5][2] : 0;
+  a11=(a11*a17);
+  a11=(a11*a24);
+  a11=(a01*a11);
+  a11=(a23-a11);
+  if (res[0]!=0) res[0][5]=a11;
+  a11=arg[0]? arg[0][6] : 0;
+  a29=arg[5]? arg[5][3] : 0;
+  a29=(a29*a07);
+  a29=(a29*a27);
+  a29=(a01*a29);
+  a29=(a11-a29);
+  if (res[0]!=0) res[0][6]=a29;
+  a29=(a01*a20);
+  a29=(a22+a29);
+  a30=(a01*a29);
+  a30=(a21+a30);
+  if (res[0]!=0) res[0][7]=a30;
+  a30=(a01*a12);
+  a30=(a00+a30);
+  a31=(a01*a30);
+  a31=(a26+a31);
+  if (res[0]!=0) res[0][8]=a31;
+  if (res[0]!=0) res[0][9]=a29;
+  if (res[0]!=0) res[0][10]=a30;
+  a25=(a25*a05);
+  a23=(a17*a23);
+  a25=(a25+a23);
+  a23=2.;
+  a01=(a01/a23);
+  a03=(a01*a03);
+  a06=(a06+a03);
+  a17=(a01*a17);
+  a16=(a16+a17);
+  a16=(a06-a16);
+  a15=(a15*a16);
+  a15=sinh(a15);
+  a08=(a08*a15);
+  a25=(a25-a08);
+  a08=arg[4]? arg[4][0] : 0;
+  a08=(a08*a24);
+  a25=(a25-a08);
+  if (res[1]!=0) res[1][0]=a25;
+  a28=(a28*a10);
+  a11=(a07*a11);
+  a28=(a28+a11);
+  a01=(a01*a07);
+  a19=(a19+a01);
+  a06=(a06-a19);
+  a18=(a18*a06);
+  a18=sinh(a18);
+  a13=(a13*a18);
+  a28=(a28-a13);
+  a13=arg[4]? arg[4][1] : 0;
+  a13=(a13*a27);
+  a28=(a28-a13);
+  if (res[1]!=0) res[1][1]=a28;
+  if (res[2]!=0) res[2][0]=a21;
+  if (res[2]!=0) res[2][1]=a26;
+  if (res[3]!=0) res[3][0]=a22;
+  if (res[3]!=0) res[3][1]=a00;
+  if (res[4]!=0) res[4][0]=a20;
+  if (res[4]!=0) res[4][1]=a12;
+  if (res[5]!=0) res[5][0]=a09;
+  a02=(-a02);
+  if (res[5]!=0) res[5][1]=a02;
+  if (res[6]!=0) res[6][0]=a14;
+  if (res[7]!=0) res[7][0]=a04;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f32(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_filter_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_filter_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_filter_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_filter_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_filter_n_in(void) { return 13;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_filter_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_adaptive_filter_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_filter_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "lam_m";
+    case 4: return "k_m";
+    case 5: return "kpi_m";
+    case 6: return "lam";
+    case 7: return "k";
+    case 8: return "kpi";
+    case 9: return "ksigma";
+    case 10: return "delta";
+    case 11: return "omega_f";
+    case 12: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_filter_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_filter_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s14;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s3;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s2;
+    case 9: return casadi_s0;
+    case 10: return casadi_s0;
+    case 11: return casadi_s0;
+    case 12: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_filter_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s14;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_filter_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 13;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_filter_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 13*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
+/* pendulum_qbmove_electric_cascade_adaptive_integral_filter:(z[12],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,ki,omega_f,dt)->(z_next[12],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
+  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
+  casadi_real a24, a25, a26, a27, a28, a29, a30, a31;
+  a00=arg[0]? arg[0][0] : 0;
+  a01=arg[13]? arg[13][0] : 0;
+  a02=1.5283456000000001e-01;
+  a03=6.7328000000000001e+00;
+  a04=arg[1]? arg[1][0] : 0;
+  a05=arg[1]? arg[1][2] : 0;
+  a06=(a04-a05);
+  a06=(a03*a06);
+  a06=cosh(a06);
+  a02=(a02*a06);
+  a06=1.5034032000000003e-01;
+  a07=6.9602000000000004e+00;
+  a08=arg[1]? arg[1][4] : 0;
+  a09=(a04-a08);
+  a09=(a07*a09);
+  a09=cosh(a09);
+  a06=(a06*a09);
+  a02=(a02+a06);
+  a06=arg[2]? arg[2][5] : 0;
+  a06=(a02-a06);
+  a09=(a01*a06);
+  a09=(a00+a09);
+  if (res[0]!=0) res[0][0]=a09;
+  a09=arg[0]? arg[0][1] : 0;
+  a10=arg[8]? arg[8][0] : 0;
+  a11=arg[1]? arg[1][1] : 0;
+  a12=arg[2]? arg[2][1] : 0;
+  a13=arg[6]? arg[6][0] : 0;
+  a14=arg[2]? arg[2][0] : 0;
+  a14=(a04-a14);
+  a14=(a13*a14);
+  a14=(a12-a14);
+  a14=(a11-a14);
+  a15=(a11*a14);
+  a10=(a10*a15);
+  a10=(a01*a10);
+  a10=(a09-a10);
+  if (res[0]!=0) res[0][1]=a10;
+  a10=arg[0]? arg[0][2] : 0;
+  a15=arg[8]? arg[8][1] : 0;
+  a16=arg[2]? arg[2][2] : 0;
+  a12=(a11-a12);
+  a13=(a13*a12);
+  a16=(a16-a13);
+  a13=(a16*a14);
+  a15=(a15*a13);
+  a15=(a01*a15);
+  a15=(a10-a15);
+  if (res[0]!=0) res[0][2]=a15;
+  a15=arg[0]? arg[0][3] : 0;
+  a13=arg[8]? arg[8][2] : 0;
+  a12=-9.8100000000000005e+00;
+  a17=sin(a04);
+  a12=(a12*a17);
+  a17=(a12*a14);
+  a13=(a13*a17);
+  a13=(a01*a13);
+  a13=(a15+a13);
+  if (res[0]!=0) res[0][3]=a13;
+  a13=arg[0]? arg[0][4] : 0;
+  a17=arg[5]? arg[5][0] : 0;
+  a18=arg[12]? arg[12][0] : 0;
+  a19=casadi_sq(a18);
+  a09=(a11*a09);
+  a16=(a16*a10);
+  a09=(a09+a16);
+  a12=(a12*a15);
+  a09=(a09-a12);
+  a12=arg[7]? arg[7][0] : 0;
+  a12=(a12*a14);
+  a09=(a09-a12);
+  a12=4.8444384040000010e+01;
+  a14=arg[1]? arg[1][5] : 0;
+  a15=(a11-a14);
+  a12=(a12*a15);
+  a15=arg[10]? arg[10][0] : 0;
+  a12=(a12-a15);
+  a16=(a09*a12);
+  a10=arg[2]? arg[2][6] : 0;
+  a20=arg[9]? arg[9][0] : 0;
+  a20=(a20*a06);
+  a10=(a10-a20);
+  a20=arg[11]? arg[11][0] : 0;
+  a20=(a20*a00);
+  a10=(a10-a20);
+  a16=(a16+a10);
+  a20=4.5330595840000001e+01;
+  a00=arg[1]? arg[1][3] : 0;
+  a06=(a11-a00);
+  a20=(a20*a06);
+  a20=(a20+a15);
+  a12=(a20-a12);
+  a16=(a16/a12);
+  a15=2.2700000000000001e-02;
+  a06=(a16/a15);
+  a06=asinh(a06);
+  a06=(a06/a03);
+  a06=(a04-a06);
+  a21=arg[0]? arg[0][8] : 0;
+  a06=(a06-a21);
+  a06=(a19*a06);
+  a18=(2.*a18);
+  a22=arg[0]? arg[0][10] : 0;
+  a23=(a18*a22);
+  a06=(a06-a23);
+  a23=arg[3]? arg[3][0] : 0;
+  a24=(a00-a22);
+  a25=(a23*a24);
+  a25=(a06-a25);
+  a17=(a17*a25);
+  a26=(a05-a21);
+  a23=(a23*a26);
+  a24=(a24+a23);
+  a17=(a17*a24);
+  a17=(a01*a17);
+  a17=(a13-a17);
+  if (res[0]!=0) res[0][4]=a17;
+  a17=arg[0]? arg[0][5] : 0;
+  a23=arg[5]? arg[5][1] : 0;
+  a20=(a20*a09);
+  a10=(a10+a20);
+  a10=(a10/a12);
+  a20=2.1600000000000001e-02;
+  a09=(a10/a20);
+  a09=(-a09);
+  a09=asinh(a09);
+  a09=(a09/a07);
+  a09=(a04-a09);
+  a26=arg[0]? arg[0][9] : 0;
+  a09=(a09-a26);
+  a19=(a19*a09);
+  a09=arg[0]? arg[0][11] : 0;
+  a18=(a18*a09);
+  a19=(a19-a18);
+  a18=arg[3]? arg[3][1] : 0;
+  a27=(a14-a09);
+  a28=(a18*a27);
+  a28=(a19-a28);
+  a23=(a23*a28);
+  a29=(a08-a26);
+  a18=(a18*a29);
+  a27=(a27+a18);
+  a23=(a23*a27);
+  a23=(a01*a23);
+  a23=(a17-a23);
+  if (res[0]!=0) res[0][5]=a23;
+  a23=arg[0]? arg[0][6] : 0;
+  a18=arg[5]? arg[5][2] : 0;
+  a18=(a18*a00);
+  a18=(a18*a24);
+  a18=(a01*a18);
+  a18=(a23-a18);
+  if (res[0]!=0) res[0][6]=a18;
+  a18=arg[0]? arg[0][7] : 0;
+  a29=arg[5]? arg[5][3] : 0;
+  a29=(a29*a14);
+  a29=(a29*a27);
+  a29=(a01*a29);
+  a29=(a18-a29);
+  if (res[0]!=0) res[0][7]=a29;
+  a29=(a01*a06);
+  a29=(a22+a29);
+  a30=(a01*a29);
+  a30=(a21+a30);
+  if (res[0]!=0) res[0][8]=a30;
+  a30=(a01*a19);
+  a30=(a09+a30);
+  a31=(a01*a30);
+  a31=(a26+a31);
+  if (res[0]!=0) res[0][9]=a31;
+  if (res[0]!=0) res[0][10]=a29;
+  if (res[0]!=0) res[0][11]=a30;
+  a25=(a25*a13);
+  a23=(a00*a23);
+  a25=(a25+a23);
+  a23=2.;
+  a01=(a01/a23);
+  a11=(a01*a11);
+  a04=(a04+a11);
+  a00=(a01*a00);
+  a05=(a05+a00);
+  a05=(a04-a05);
+  a03=(a03*a05);
+  a03=sinh(a03);
+  a15=(a15*a03);
+  a25=(a25-a15);
+  a15=arg[4]? arg[4][0] : 0;
+  a15=(a15*a24);
+  a25=(a25-a15);
+  if (res[1]!=0) res[1][0]=a25;
+  a28=(a28*a17);
+  a18=(a14*a18);
+  a28=(a28+a18);
+  a01=(a01*a14);
+  a08=(a08+a01);
+  a04=(a04-a08);
+  a07=(a07*a04);
+  a07=sinh(a07);
+  a20=(a20*a07);
+  a28=(a28-a20);
+  a20=arg[4]? arg[4][1] : 0;
+  a20=(a20*a27);
+  a28=(a28-a20);
+  if (res[1]!=0) res[1][1]=a28;
+  if (res[2]!=0) res[2][0]=a21;
+  if (res[2]!=0) res[2][1]=a26;
+  if (res[3]!=0) res[3][0]=a22;
+  if (res[3]!=0) res[3][1]=a09;
+  if (res[4]!=0) res[4][0]=a06;
+  if (res[4]!=0) res[4][1]=a19;
+  if (res[5]!=0) res[5][0]=a16;
+  a10=(-a10);
+  if (res[5]!=0) res[5][1]=a10;
+  if (res[6]!=0) res[6][0]=a02;
+  if (res[7]!=0) res[7][0]=a12;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
+  return casadi_f33(arg, res, iw, w, mem);
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_filter_checkout(void) {
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_integral_filter_release(int mem) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_integral_filter_incref(void) {
+}
+
+CASADI_SYMBOL_EXPORT void pendulum_qbmove_electric_cascade_adaptive_integral_filter_decref(void) {
+}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_integral_filter_n_in(void) { return 14;}
+
+CASADI_SYMBOL_EXPORT casadi_int pendulum_qbmove_electric_cascade_adaptive_integral_filter_n_out(void) { return 8;}
+
+CASADI_SYMBOL_EXPORT casadi_real pendulum_qbmove_electric_cascade_adaptive_integral_filter_default_in(casadi_int i) {
+  switch (i) {
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_integral_filter_name_in(casadi_int i) {
+  switch (i) {
+    case 0: return "z";
+    case 1: return "x";
+    case 2: return "ref";
+    case 3: return "lam_m";
+    case 4: return "k_m";
+    case 5: return "kpi_m";
+    case 6: return "lam";
+    case 7: return "k";
+    case 8: return "kpi";
+    case 9: return "ksigma";
+    case 10: return "delta";
+    case 11: return "ki";
+    case 12: return "omega_f";
+    case 13: return "dt";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_cascade_adaptive_integral_filter_name_out(casadi_int i) {
+  switch (i) {
+    case 0: return "z_next";
+    case 1: return "tau_m";
+    case 2: return "q_m_ref";
+    case 3: return "qd_m_ref";
+    case 4: return "qdd_m_ref";
+    case 5: return "tau_e_ref";
+    case 6: return "sigma";
+    case 7: return "det";
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_integral_filter_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s15;
+    case 1: return casadi_s4;
+    case 2: return casadi_s12;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s3;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    case 8: return casadi_s2;
+    case 9: return casadi_s0;
+    case 10: return casadi_s0;
+    case 11: return casadi_s0;
+    case 12: return casadi_s0;
+    case 13: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_cascade_adaptive_integral_filter_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return casadi_s15;
+    case 1: return casadi_s5;
+    case 2: return casadi_s5;
+    case 3: return casadi_s5;
+    case 4: return casadi_s5;
+    case 5: return casadi_s5;
+    case 6: return casadi_s0;
+    case 7: return casadi_s0;
+    default: return 0;
+  }
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_filter_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 14;
+  if (sz_res) *sz_res = 8;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_filter_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
+  if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 8*sizeof(casadi_real*);
+  if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
+  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  return 0;
+}
+
 /* pendulum_qbmove_electric_estimator_step:(state[59],y[5])->(state_next[59],sigma_hat,tau_hat,tau_uio,updating[2]) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -5641,7 +12000,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f34(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_estimator_step_checkout(void) {
@@ -5688,15 +12047,15 @@ CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_electric_estimator_step_name_ou
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_estimator_step_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s10;
-    case 1: return casadi_s11;
+    case 0: return casadi_s16;
+    case 1: return casadi_s6;
     default: return 0;
   }
 }
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_electric_estimator_step_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s10;
+    case 0: return casadi_s16;
     case 1: return casadi_s0;
     case 2: return casadi_s0;
     case 3: return casadi_s0;
@@ -5722,7 +12081,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_estimator_step_work_bytes(casa
 }
 
 /* pendulum_qbmove_noninvasive_estimator_step:(state[65],y[3])->(state_next[65],sigma_hat,tau_hat,tau_uio,updating) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -7191,7 +13550,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_noninvasive_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f35(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_noninvasive_estimator_step_checkout(void) {
@@ -7238,7 +13597,7 @@ CASADI_SYMBOL_EXPORT const char* pendulum_qbmove_noninvasive_estimator_step_name
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_noninvasive_estimator_step_sparsity_in(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s12;
+    case 0: return casadi_s17;
     case 1: return casadi_s2;
     default: return 0;
   }
@@ -7246,7 +13605,7 @@ CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_noninvasive_estimator_ste
 
 CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_noninvasive_estimator_step_sparsity_out(casadi_int i) {
   switch (i) {
-    case 0: return casadi_s12;
+    case 0: return casadi_s17;
     case 1: return casadi_s0;
     case 2: return casadi_s0;
     case 3: return casadi_s0;

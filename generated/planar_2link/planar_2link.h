@@ -233,6 +233,24 @@ int planar_2link_slotine_li_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, c
 #define planar_2link_slotine_li_SZ_RES 2
 #define planar_2link_slotine_li_SZ_IW 0
 #define planar_2link_slotine_li_SZ_W 0
+int planar_2link_slotine_li_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_slotine_li_step_checkout(void);
+void planar_2link_slotine_li_step_release(int mem);
+void planar_2link_slotine_li_step_incref(void);
+void planar_2link_slotine_li_step_decref(void);
+casadi_int planar_2link_slotine_li_step_n_in(void);
+casadi_int planar_2link_slotine_li_step_n_out(void);
+casadi_real planar_2link_slotine_li_step_default_in(casadi_int i);
+const char* planar_2link_slotine_li_step_name_in(casadi_int i);
+const char* planar_2link_slotine_li_step_name_out(casadi_int i);
+const casadi_int* planar_2link_slotine_li_step_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_slotine_li_step_sparsity_out(casadi_int i);
+int planar_2link_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_slotine_li_step_SZ_ARG 4
+#define planar_2link_slotine_li_step_SZ_RES 2
+#define planar_2link_slotine_li_step_SZ_IW 0
+#define planar_2link_slotine_li_step_SZ_W 0
 int planar_2link_slotine_li_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int planar_2link_slotine_li_loop_checkout(void);
 void planar_2link_slotine_li_loop_release(int mem);
@@ -247,10 +265,10 @@ const casadi_int* planar_2link_slotine_li_loop_sparsity_in(casadi_int i);
 const casadi_int* planar_2link_slotine_li_loop_sparsity_out(casadi_int i);
 int planar_2link_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int planar_2link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define planar_2link_slotine_li_loop_SZ_ARG 31
-#define planar_2link_slotine_li_loop_SZ_RES 11
+#define planar_2link_slotine_li_loop_SZ_ARG 16
+#define planar_2link_slotine_li_loop_SZ_RES 10
 #define planar_2link_slotine_li_loop_SZ_IW 0
-#define planar_2link_slotine_li_loop_SZ_W 30097
+#define planar_2link_slotine_li_loop_SZ_W 47182
 int planar_2link_qbmove_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int planar_2link_qbmove_torque_checkout(void);
 void planar_2link_qbmove_torque_release(int mem);
@@ -323,6 +341,222 @@ int planar_2link_electric_plant_work_bytes(casadi_int *sz_arg, casadi_int* sz_re
 #define planar_2link_electric_plant_SZ_RES 1
 #define planar_2link_electric_plant_SZ_IW 0
 #define planar_2link_electric_plant_SZ_W 0
+int planar_2link_electric_cascade_pd(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_pd_checkout(void);
+void planar_2link_electric_cascade_pd_release(int mem);
+void planar_2link_electric_cascade_pd_incref(void);
+void planar_2link_electric_cascade_pd_decref(void);
+casadi_int planar_2link_electric_cascade_pd_n_in(void);
+casadi_int planar_2link_electric_cascade_pd_n_out(void);
+casadi_real planar_2link_electric_cascade_pd_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_pd_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_pd_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_pd_SZ_ARG 10
+#define planar_2link_electric_cascade_pd_SZ_RES 8
+#define planar_2link_electric_cascade_pd_SZ_IW 0
+#define planar_2link_electric_cascade_pd_SZ_W 0
+int planar_2link_electric_cascade_pd_integral(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_pd_integral_checkout(void);
+void planar_2link_electric_cascade_pd_integral_release(int mem);
+void planar_2link_electric_cascade_pd_integral_incref(void);
+void planar_2link_electric_cascade_pd_integral_decref(void);
+casadi_int planar_2link_electric_cascade_pd_integral_n_in(void);
+casadi_int planar_2link_electric_cascade_pd_integral_n_out(void);
+casadi_real planar_2link_electric_cascade_pd_integral_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_integral_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_integral_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_integral_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_integral_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_pd_integral_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_pd_integral_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_pd_integral_SZ_ARG 11
+#define planar_2link_electric_cascade_pd_integral_SZ_RES 8
+#define planar_2link_electric_cascade_pd_integral_SZ_IW 0
+#define planar_2link_electric_cascade_pd_integral_SZ_W 0
+int planar_2link_electric_cascade_adaptive(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_adaptive_checkout(void);
+void planar_2link_electric_cascade_adaptive_release(int mem);
+void planar_2link_electric_cascade_adaptive_incref(void);
+void planar_2link_electric_cascade_adaptive_decref(void);
+casadi_int planar_2link_electric_cascade_adaptive_n_in(void);
+casadi_int planar_2link_electric_cascade_adaptive_n_out(void);
+casadi_real planar_2link_electric_cascade_adaptive_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_adaptive_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_adaptive_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_adaptive_SZ_ARG 12
+#define planar_2link_electric_cascade_adaptive_SZ_RES 8
+#define planar_2link_electric_cascade_adaptive_SZ_IW 0
+#define planar_2link_electric_cascade_adaptive_SZ_W 0
+int planar_2link_electric_cascade_adaptive_integral(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_adaptive_integral_checkout(void);
+void planar_2link_electric_cascade_adaptive_integral_release(int mem);
+void planar_2link_electric_cascade_adaptive_integral_incref(void);
+void planar_2link_electric_cascade_adaptive_integral_decref(void);
+casadi_int planar_2link_electric_cascade_adaptive_integral_n_in(void);
+casadi_int planar_2link_electric_cascade_adaptive_integral_n_out(void);
+casadi_real planar_2link_electric_cascade_adaptive_integral_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_integral_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_integral_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_integral_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_integral_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_adaptive_integral_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_adaptive_integral_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_adaptive_integral_SZ_ARG 13
+#define planar_2link_electric_cascade_adaptive_integral_SZ_RES 8
+#define planar_2link_electric_cascade_adaptive_integral_SZ_IW 0
+#define planar_2link_electric_cascade_adaptive_integral_SZ_W 0
+int planar_2link_electric_cascade_pd_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_pd_measured_acceleration_checkout(void);
+void planar_2link_electric_cascade_pd_measured_acceleration_release(int mem);
+void planar_2link_electric_cascade_pd_measured_acceleration_incref(void);
+void planar_2link_electric_cascade_pd_measured_acceleration_decref(void);
+casadi_int planar_2link_electric_cascade_pd_measured_acceleration_n_in(void);
+casadi_int planar_2link_electric_cascade_pd_measured_acceleration_n_out(void);
+casadi_real planar_2link_electric_cascade_pd_measured_acceleration_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_measured_acceleration_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_measured_acceleration_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_measured_acceleration_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_measured_acceleration_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_pd_measured_acceleration_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_pd_measured_acceleration_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_pd_measured_acceleration_SZ_ARG 10
+#define planar_2link_electric_cascade_pd_measured_acceleration_SZ_RES 8
+#define planar_2link_electric_cascade_pd_measured_acceleration_SZ_IW 0
+#define planar_2link_electric_cascade_pd_measured_acceleration_SZ_W 0
+int planar_2link_electric_cascade_pd_integral_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_pd_integral_measured_acceleration_checkout(void);
+void planar_2link_electric_cascade_pd_integral_measured_acceleration_release(int mem);
+void planar_2link_electric_cascade_pd_integral_measured_acceleration_incref(void);
+void planar_2link_electric_cascade_pd_integral_measured_acceleration_decref(void);
+casadi_int planar_2link_electric_cascade_pd_integral_measured_acceleration_n_in(void);
+casadi_int planar_2link_electric_cascade_pd_integral_measured_acceleration_n_out(void);
+casadi_real planar_2link_electric_cascade_pd_integral_measured_acceleration_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_integral_measured_acceleration_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_integral_measured_acceleration_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_integral_measured_acceleration_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_integral_measured_acceleration_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_pd_integral_measured_acceleration_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_pd_integral_measured_acceleration_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_pd_integral_measured_acceleration_SZ_ARG 11
+#define planar_2link_electric_cascade_pd_integral_measured_acceleration_SZ_RES 8
+#define planar_2link_electric_cascade_pd_integral_measured_acceleration_SZ_IW 0
+#define planar_2link_electric_cascade_pd_integral_measured_acceleration_SZ_W 0
+int planar_2link_electric_cascade_adaptive_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_adaptive_measured_acceleration_checkout(void);
+void planar_2link_electric_cascade_adaptive_measured_acceleration_release(int mem);
+void planar_2link_electric_cascade_adaptive_measured_acceleration_incref(void);
+void planar_2link_electric_cascade_adaptive_measured_acceleration_decref(void);
+casadi_int planar_2link_electric_cascade_adaptive_measured_acceleration_n_in(void);
+casadi_int planar_2link_electric_cascade_adaptive_measured_acceleration_n_out(void);
+casadi_real planar_2link_electric_cascade_adaptive_measured_acceleration_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_measured_acceleration_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_measured_acceleration_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_measured_acceleration_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_measured_acceleration_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_adaptive_measured_acceleration_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_adaptive_measured_acceleration_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_adaptive_measured_acceleration_SZ_ARG 12
+#define planar_2link_electric_cascade_adaptive_measured_acceleration_SZ_RES 8
+#define planar_2link_electric_cascade_adaptive_measured_acceleration_SZ_IW 0
+#define planar_2link_electric_cascade_adaptive_measured_acceleration_SZ_W 0
+int planar_2link_electric_cascade_adaptive_integral_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_adaptive_integral_measured_acceleration_checkout(void);
+void planar_2link_electric_cascade_adaptive_integral_measured_acceleration_release(int mem);
+void planar_2link_electric_cascade_adaptive_integral_measured_acceleration_incref(void);
+void planar_2link_electric_cascade_adaptive_integral_measured_acceleration_decref(void);
+casadi_int planar_2link_electric_cascade_adaptive_integral_measured_acceleration_n_in(void);
+casadi_int planar_2link_electric_cascade_adaptive_integral_measured_acceleration_n_out(void);
+casadi_real planar_2link_electric_cascade_adaptive_integral_measured_acceleration_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_integral_measured_acceleration_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_integral_measured_acceleration_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_integral_measured_acceleration_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_integral_measured_acceleration_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_adaptive_integral_measured_acceleration_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_adaptive_integral_measured_acceleration_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_adaptive_integral_measured_acceleration_SZ_ARG 13
+#define planar_2link_electric_cascade_adaptive_integral_measured_acceleration_SZ_RES 8
+#define planar_2link_electric_cascade_adaptive_integral_measured_acceleration_SZ_IW 0
+#define planar_2link_electric_cascade_adaptive_integral_measured_acceleration_SZ_W 0
+int planar_2link_electric_cascade_pd_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_pd_filter_checkout(void);
+void planar_2link_electric_cascade_pd_filter_release(int mem);
+void planar_2link_electric_cascade_pd_filter_incref(void);
+void planar_2link_electric_cascade_pd_filter_decref(void);
+casadi_int planar_2link_electric_cascade_pd_filter_n_in(void);
+casadi_int planar_2link_electric_cascade_pd_filter_n_out(void);
+casadi_real planar_2link_electric_cascade_pd_filter_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_filter_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_filter_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_filter_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_filter_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_pd_filter_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_pd_filter_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_pd_filter_SZ_ARG 11
+#define planar_2link_electric_cascade_pd_filter_SZ_RES 8
+#define planar_2link_electric_cascade_pd_filter_SZ_IW 0
+#define planar_2link_electric_cascade_pd_filter_SZ_W 0
+int planar_2link_electric_cascade_pd_integral_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_pd_integral_filter_checkout(void);
+void planar_2link_electric_cascade_pd_integral_filter_release(int mem);
+void planar_2link_electric_cascade_pd_integral_filter_incref(void);
+void planar_2link_electric_cascade_pd_integral_filter_decref(void);
+casadi_int planar_2link_electric_cascade_pd_integral_filter_n_in(void);
+casadi_int planar_2link_electric_cascade_pd_integral_filter_n_out(void);
+casadi_real planar_2link_electric_cascade_pd_integral_filter_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_integral_filter_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_pd_integral_filter_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_integral_filter_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_pd_integral_filter_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_pd_integral_filter_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_pd_integral_filter_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_pd_integral_filter_SZ_ARG 12
+#define planar_2link_electric_cascade_pd_integral_filter_SZ_RES 8
+#define planar_2link_electric_cascade_pd_integral_filter_SZ_IW 0
+#define planar_2link_electric_cascade_pd_integral_filter_SZ_W 0
+int planar_2link_electric_cascade_adaptive_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_adaptive_filter_checkout(void);
+void planar_2link_electric_cascade_adaptive_filter_release(int mem);
+void planar_2link_electric_cascade_adaptive_filter_incref(void);
+void planar_2link_electric_cascade_adaptive_filter_decref(void);
+casadi_int planar_2link_electric_cascade_adaptive_filter_n_in(void);
+casadi_int planar_2link_electric_cascade_adaptive_filter_n_out(void);
+casadi_real planar_2link_electric_cascade_adaptive_filter_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_filter_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_filter_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_filter_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_filter_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_adaptive_filter_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_adaptive_filter_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_adaptive_filter_SZ_ARG 13
+#define planar_2link_electric_cascade_adaptive_filter_SZ_RES 8
+#define planar_2link_electric_cascade_adaptive_filter_SZ_IW 0
+#define planar_2link_electric_cascade_adaptive_filter_SZ_W 0
+int planar_2link_electric_cascade_adaptive_integral_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_electric_cascade_adaptive_integral_filter_checkout(void);
+void planar_2link_electric_cascade_adaptive_integral_filter_release(int mem);
+void planar_2link_electric_cascade_adaptive_integral_filter_incref(void);
+void planar_2link_electric_cascade_adaptive_integral_filter_decref(void);
+casadi_int planar_2link_electric_cascade_adaptive_integral_filter_n_in(void);
+casadi_int planar_2link_electric_cascade_adaptive_integral_filter_n_out(void);
+casadi_real planar_2link_electric_cascade_adaptive_integral_filter_default_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_integral_filter_name_in(casadi_int i);
+const char* planar_2link_electric_cascade_adaptive_integral_filter_name_out(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_integral_filter_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_electric_cascade_adaptive_integral_filter_sparsity_out(casadi_int i);
+int planar_2link_electric_cascade_adaptive_integral_filter_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_electric_cascade_adaptive_integral_filter_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_electric_cascade_adaptive_integral_filter_SZ_ARG 14
+#define planar_2link_electric_cascade_adaptive_integral_filter_SZ_RES 8
+#define planar_2link_electric_cascade_adaptive_integral_filter_SZ_IW 0
+#define planar_2link_electric_cascade_adaptive_integral_filter_SZ_W 0
 int planar_2link_electric_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int planar_2link_electric_estimator_step_checkout(void);
 void planar_2link_electric_estimator_step_release(int mem);

@@ -233,6 +233,24 @@ int planar_2link_mckibben_slotine_li_work_bytes(casadi_int *sz_arg, casadi_int* 
 #define planar_2link_mckibben_slotine_li_SZ_RES 2
 #define planar_2link_mckibben_slotine_li_SZ_IW 0
 #define planar_2link_mckibben_slotine_li_SZ_W 0
+int planar_2link_mckibben_slotine_li_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_mckibben_slotine_li_step_checkout(void);
+void planar_2link_mckibben_slotine_li_step_release(int mem);
+void planar_2link_mckibben_slotine_li_step_incref(void);
+void planar_2link_mckibben_slotine_li_step_decref(void);
+casadi_int planar_2link_mckibben_slotine_li_step_n_in(void);
+casadi_int planar_2link_mckibben_slotine_li_step_n_out(void);
+casadi_real planar_2link_mckibben_slotine_li_step_default_in(casadi_int i);
+const char* planar_2link_mckibben_slotine_li_step_name_in(casadi_int i);
+const char* planar_2link_mckibben_slotine_li_step_name_out(casadi_int i);
+const casadi_int* planar_2link_mckibben_slotine_li_step_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_mckibben_slotine_li_step_sparsity_out(casadi_int i);
+int planar_2link_mckibben_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_mckibben_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_mckibben_slotine_li_step_SZ_ARG 4
+#define planar_2link_mckibben_slotine_li_step_SZ_RES 2
+#define planar_2link_mckibben_slotine_li_step_SZ_IW 0
+#define planar_2link_mckibben_slotine_li_step_SZ_W 0
 int planar_2link_mckibben_slotine_li_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int planar_2link_mckibben_slotine_li_loop_checkout(void);
 void planar_2link_mckibben_slotine_li_loop_release(int mem);
@@ -247,10 +265,10 @@ const casadi_int* planar_2link_mckibben_slotine_li_loop_sparsity_in(casadi_int i
 const casadi_int* planar_2link_mckibben_slotine_li_loop_sparsity_out(casadi_int i);
 int planar_2link_mckibben_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int planar_2link_mckibben_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define planar_2link_mckibben_slotine_li_loop_SZ_ARG 31
-#define planar_2link_mckibben_slotine_li_loop_SZ_RES 11
+#define planar_2link_mckibben_slotine_li_loop_SZ_ARG 16
+#define planar_2link_mckibben_slotine_li_loop_SZ_RES 10
 #define planar_2link_mckibben_slotine_li_loop_SZ_IW 0
-#define planar_2link_mckibben_slotine_li_loop_SZ_W 30097
+#define planar_2link_mckibben_slotine_li_loop_SZ_W 47182
 int planar_2link_mckibben_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int planar_2link_mckibben_mckibben_torque_checkout(void);
 void planar_2link_mckibben_mckibben_torque_release(int mem);
@@ -449,6 +467,42 @@ int planar_2link_mckibben_corollary2_work_bytes(casadi_int *sz_arg, casadi_int* 
 #define planar_2link_mckibben_corollary2_SZ_RES 4
 #define planar_2link_mckibben_corollary2_SZ_IW 0
 #define planar_2link_mckibben_corollary2_SZ_W 0
+int planar_2link_mckibben_theorem5_closed_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_mckibben_theorem5_closed_step_checkout(void);
+void planar_2link_mckibben_theorem5_closed_step_release(int mem);
+void planar_2link_mckibben_theorem5_closed_step_incref(void);
+void planar_2link_mckibben_theorem5_closed_step_decref(void);
+casadi_int planar_2link_mckibben_theorem5_closed_step_n_in(void);
+casadi_int planar_2link_mckibben_theorem5_closed_step_n_out(void);
+casadi_real planar_2link_mckibben_theorem5_closed_step_default_in(casadi_int i);
+const char* planar_2link_mckibben_theorem5_closed_step_name_in(casadi_int i);
+const char* planar_2link_mckibben_theorem5_closed_step_name_out(casadi_int i);
+const casadi_int* planar_2link_mckibben_theorem5_closed_step_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_mckibben_theorem5_closed_step_sparsity_out(casadi_int i);
+int planar_2link_mckibben_theorem5_closed_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_mckibben_theorem5_closed_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_mckibben_theorem5_closed_step_SZ_ARG 4
+#define planar_2link_mckibben_theorem5_closed_step_SZ_RES 2
+#define planar_2link_mckibben_theorem5_closed_step_SZ_IW 0
+#define planar_2link_mckibben_theorem5_closed_step_SZ_W 0
+int planar_2link_mckibben_theorem5_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_mckibben_theorem5_closed_loop_checkout(void);
+void planar_2link_mckibben_theorem5_closed_loop_release(int mem);
+void planar_2link_mckibben_theorem5_closed_loop_incref(void);
+void planar_2link_mckibben_theorem5_closed_loop_decref(void);
+casadi_int planar_2link_mckibben_theorem5_closed_loop_n_in(void);
+casadi_int planar_2link_mckibben_theorem5_closed_loop_n_out(void);
+casadi_real planar_2link_mckibben_theorem5_closed_loop_default_in(casadi_int i);
+const char* planar_2link_mckibben_theorem5_closed_loop_name_in(casadi_int i);
+const char* planar_2link_mckibben_theorem5_closed_loop_name_out(casadi_int i);
+const casadi_int* planar_2link_mckibben_theorem5_closed_loop_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_mckibben_theorem5_closed_loop_sparsity_out(casadi_int i);
+int planar_2link_mckibben_theorem5_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_mckibben_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_mckibben_theorem5_closed_loop_SZ_ARG 16
+#define planar_2link_mckibben_theorem5_closed_loop_SZ_RES 10
+#define planar_2link_mckibben_theorem5_closed_loop_SZ_IW 0
+#define planar_2link_mckibben_theorem5_closed_loop_SZ_W 99330
 int planar_2link_mckibben_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int planar_2link_mckibben_feedback_linearization_checkout(void);
 void planar_2link_mckibben_feedback_linearization_release(int mem);

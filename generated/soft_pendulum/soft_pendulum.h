@@ -269,6 +269,24 @@ int soft_pendulum_theorem10_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_r
 #define soft_pendulum_theorem10_step_SZ_RES 3
 #define soft_pendulum_theorem10_step_SZ_IW 0
 #define soft_pendulum_theorem10_step_SZ_W 0
+int soft_pendulum_theorem10_closed_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int soft_pendulum_theorem10_closed_step_checkout(void);
+void soft_pendulum_theorem10_closed_step_release(int mem);
+void soft_pendulum_theorem10_closed_step_incref(void);
+void soft_pendulum_theorem10_closed_step_decref(void);
+casadi_int soft_pendulum_theorem10_closed_step_n_in(void);
+casadi_int soft_pendulum_theorem10_closed_step_n_out(void);
+casadi_real soft_pendulum_theorem10_closed_step_default_in(casadi_int i);
+const char* soft_pendulum_theorem10_closed_step_name_in(casadi_int i);
+const char* soft_pendulum_theorem10_closed_step_name_out(casadi_int i);
+const casadi_int* soft_pendulum_theorem10_closed_step_sparsity_in(casadi_int i);
+const casadi_int* soft_pendulum_theorem10_closed_step_sparsity_out(casadi_int i);
+int soft_pendulum_theorem10_closed_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int soft_pendulum_theorem10_closed_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define soft_pendulum_theorem10_closed_step_SZ_ARG 4
+#define soft_pendulum_theorem10_closed_step_SZ_RES 2
+#define soft_pendulum_theorem10_closed_step_SZ_IW 0
+#define soft_pendulum_theorem10_closed_step_SZ_W 0
 int soft_pendulum_theorem10_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int soft_pendulum_theorem10_closed_loop_checkout(void);
 void soft_pendulum_theorem10_closed_loop_release(int mem);
@@ -283,10 +301,10 @@ const casadi_int* soft_pendulum_theorem10_closed_loop_sparsity_in(casadi_int i);
 const casadi_int* soft_pendulum_theorem10_closed_loop_sparsity_out(casadi_int i);
 int soft_pendulum_theorem10_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int soft_pendulum_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define soft_pendulum_theorem10_closed_loop_SZ_ARG 19
-#define soft_pendulum_theorem10_closed_loop_SZ_RES 6
+#define soft_pendulum_theorem10_closed_loop_SZ_ARG 16
+#define soft_pendulum_theorem10_closed_loop_SZ_RES 10
 #define soft_pendulum_theorem10_closed_loop_SZ_IW 0
-#define soft_pendulum_theorem10_closed_loop_SZ_W 374
+#define soft_pendulum_theorem10_closed_loop_SZ_W 46961
 int soft_pendulum_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int soft_pendulum_plant_checkout(void);
 void soft_pendulum_plant_release(int mem);

@@ -1,44 +1,36 @@
-"""What a soft-bodied model's generated bundle contains (thesis ch. 3 and 12).
+"""Capabilities of soft bodies (thesis ch. 3 and 12), registered in the registry.
 
 The soft-body contract of DESIGN.md section 2: the rigid functions (inertia,
 coriolis, gravity, regressor, regressor_times, regressor_transpose_times,
 inverse_dynamics, forward_dynamics with A(q) τ), ``_actuation``, ``_backbone``,
 for pcc-3d ``_augmented_map`` and ``_augmented_jacobian``, and
 ``_theorem10_step``; besides them the base-parameter map, the tip positions and
-Jacobians, the elastic and damping forces and the plant step with tip forces
-and measurement noise.
+Jacobians, the elastic and damping forces, the plant step with tip forces and
+measurement noise, and Theorem 10's continuous-time closed loop as a diagram
+(``_theorem10_closed_step`` / ``_theorem10_closed_loop``).
 """
 from __future__ import annotations
 
-from functools import lru_cache
+import casadi as ca
 
-from softgen.codegen.generate import BundleSpec, Generated
-from softgen.control.soft import (CLOSED_LOOP_INPUTS, CLOSED_LOOP_OUTPUTS, PLANT_INPUTS,
-                           PLANT_OUTPUTS, THEOREM10_INPUTS, THEOREM10_OUTPUTS,
-                           closed_loop_fun, plant_fun, theorem10_fun)
-from softgen.modelfile.soft import SoftModel
+from softgen.blocks import ClosedLoop
+from softgen.bundles.registry import (HAS_REGRESSOR, REGISTRY, SOFT, SPATIAL, Context, Part,
+                                      diagram_functions, diagram_manifest)
+from softgen.codegen.generate import Generated
+from softgen.control.soft import closed_loop_block, plant_fun, theorem10_fun
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 
 
-def soft_bundle_spec(model: SoftModel, options) -> BundleSpec:
-    """The functions, parameter vector and identity of a soft model's bundle.
-
-    Cached per (model file text, path, options) within a process: the derivation of
-    the 3D bundle takes seconds and several callers (generate, info, tests) ask.
-    """
-    options.check()
-    return _cached_spec(model.source_text(), model.path, options, model)
+def _elastic(model) -> str:
+    return "K q + D qd" if model.kind != "affine-planar" else "k H q + beta H qd"
 
 
-@lru_cache(maxsize=8)
-def _cached_spec(text: str, path, options, model: SoftModel) -> BundleSpec:
-    from softgen.bundles.bundle import identity_bytes
-
-    del text, path       # the cache key; ``model`` was parsed from them
-    dyn = SoftDynamics(model, route=options.route)
-    lin = LinearRoute(dyn)
-    n = model.dof
-    elastic = "K q + D qd" if model.kind != "affine-planar" else "k H q + beta H qd"
+@REGISTRY.capability("soft_dynamics", layer="symbolic", needs=(SOFT,),
+                     doc="B, C, G, elastic forces, regressor products, forward dynamics with "
+                         "A(q) tau, backbone and tips (eq. 3.6, 12.1)")
+def soft_dynamics(ctx: Context) -> Part:
+    model, dyn, lin = ctx.model, ctx.dyn, ctx.lin
+    elastic = _elastic(model)
     fns = [
         Generated(dyn.inertia_fun(), "inertia matrix B(q) = d2T/dqd2 of the segments' point "
                                      "masses (eq. 3.6)"),
@@ -65,62 +57,83 @@ def _cached_spec(text: str, path, options, model: SoftModel) -> BundleSpec:
         Generated(dyn.physical_to_base_fun, "map from the uncertain physical parameters "
                                             f"({', '.join(model.uncertain)}) to pi"),
     ]
-    if model.kind == "pcc-3d":
-        fns += [Generated(dyn.augmented_map_fun(), "augmented map xi = m(q) (eq. 3.2-3.3); "
-                          "phi = 0 at Delta = 0"),
-                Generated(dyn.augmented_jacobian_fun(), "J_m = dm/dq (eq. 3.5); at Delta = 0 "
-                          "the average of its directional limits (only db/ddL = 1/2)")]
-    ctl = theorem10_fun(dyn, lin)
-    fns += [
-        Generated(ctl, "one sample of Theorem 10: tau = A^+ (Y pi_hat + K_d sigma), Euler "
-                       "update of pi_hat"),
-        Generated(closed_loop_fun(dyn, lin, ctl), "one ROS2 step of Theorem 10 in continuous "
-                  "time, z = (q, qd, pi_hat); for the stiff lumped-mass models"),
-        Generated(plant_fun(dyn, substeps=options.loop_substeps),
-                  f"{options.loop_substeps} ROS2 step(s) (L-stable, order 2) of eq. 3.6 over "
-                  "dt, tau and tip forces held; y = x_next + noise"),
-    ]
-    known = None
     if dyn.base.constant is not None:
-        import casadi as ca
         b = dyn.nominal
         known = ca.Function(f"{model.name}_known_torque", [b.q, b.qd, b.qd_r, b.qdd_r],
                             [ca.densify(dyn.base.constant)], ["q", "qd", "qd_r", "qdd_r"],
                             ["tau0"], {"cse": True})
         fns.append(Generated(known, "terms of the dynamics multiplying no uncertain parameter"))
-    params = {
-        "names": dyn.parameter_names,
-        "nominal": [float(v) for v in dyn.parameter_nominal],
-        "expressions": list(dyn.base.expressions),
-        "physical": list(model.uncertain),
-        "physical_nominal": [float(model.nominal[k]) for k in model.uncertain],
-    }
-    from softgen.bundles.bundle import model_source     # bundle.py imports this module: import at call
-    extra = {
-        "dof": n, **model_source(model),
-        "options": dict(options.__dict__), "route": dyn.route,
-        "full_parameter_count": dyn.base.full_rank,
+    return Part(fns, {"soft": {
+        "kind": model.kind, "n_segments": model.n_segments,
+        "dofs_per_segment": model.dofs_per_segment, "n_inputs": dyn.nominal.n_inputs}})
+
+
+@REGISTRY.capability("augmented_map", layer="symbolic", needs=(SOFT, SPATIAL),
+                     doc="augmented map xi = m(q) and its Jacobian J_m (eq. 3.2-3.5)")
+def augmented_map(ctx: Context) -> Part:
+    dyn = ctx.dyn
+    return Part([Generated(dyn.augmented_map_fun(), "augmented map xi = m(q) (eq. 3.2-3.3); "
+                           "phi = 0 at Delta = 0"),
+                 Generated(dyn.augmented_jacobian_fun(), "J_m = dm/dq (eq. 3.5); at Delta = 0 "
+                           "the average of its directional limits (only db/ddL = 1/2)")])
+
+
+def theorem10_diagram(dyn: SoftDynamics, lin: LinearRoute, options) -> ClosedLoop:
+    """Theorem 10 and the soft plant in continuous time (:func:`closed_loop_block`).
+
+    One ROS2 step per sample; the references at both ends of the sample (``ref0``,
+    ``ref1``), the tip forces and the measurement noise are external inputs. Named
+    ``<model>_theorem10_closed``: its functions are ``<model>_theorem10_closed_step``
+    and ``<model>_theorem10_closed_loop``.
+    """
+    n, ns = dyn.model.dof, dyn.model.n_segments
+    return ClosedLoop(f"{dyn.name}_theorem10_closed",
+                      [closed_loop_block(dyn, options.loop_dt, lin=lin)],
+                      externals=[("ref0", 3 * n), ("ref1", 3 * n), ("f_ext", 3 * ns, "N"),
+                                 ("noise", 2 * n)])
+
+
+@REGISTRY.capability("theorem10", layer="control", needs=(SOFT, HAS_REGRESSOR),
+                     doc="Theorem 10 adaptive control: the sampled step, and the "
+                         "continuous-time closed loop with the plant as a diagram")
+def theorem10(ctx: Context) -> Part:
+    ctl = theorem10_fun(ctx.dyn, ctx.lin)
+    d = theorem10_diagram(ctx.dyn, ctx.lin, ctx.options)
+    steps = ctx.options.loop_steps
+    step = d.step_fun()
+    block = d.blocks["loop"]
+    fns = [Generated(ctl, "one sample of Theorem 10: tau = A^+ (Y pi_hat + K_d sigma), Euler "
+                          "update of pi_hat")]
+    fns += diagram_functions(d, steps, "Theorem 10 continuous-time closed-loop")
+    return Part(fns, {
+        "closed_loops": {"theorem10": diagram_manifest(d, steps)},
         "soft": {
-            "kind": model.kind, "n_segments": model.n_segments,
-            "dofs_per_segment": model.dofs_per_segment,
-            "n_inputs": dyn.nominal.n_inputs,
-            "theorem10": {"step": f"{model.name}_theorem10_step", "inputs": THEOREM10_INPUTS,
-                          "outputs": THEOREM10_OUTPUTS, "state_layout": ["pi_hat"]},
-            "closed_loop": {"step": f"{model.name}_theorem10_closed_loop",
-                            "inputs": CLOSED_LOOP_INPUTS, "outputs": CLOSED_LOOP_OUTPUTS,
-                            "state_layout": ["q", "qd", "pi_hat"],
-                            "ref_layout": ["q_d", "qd_d", "qdd_d"]},
-            "plant": {"step": f"{model.name}_plant", "inputs": PLANT_INPUTS,
-                      "outputs": PLANT_OUTPUTS, "state_layout": ["q", "qd"],
-                      "f_ext_layout": "3 per segment tip (world x, y, z), segment 1 first"},
-        },
-    }
-    return BundleSpec(name=model.name, functions=fns, parameters=params,
-                      identity=identity_bytes(model.source_text(), options), extra=extra)
+            "theorem10": {"step": ctl.name(), "inputs": ctl.name_in(),
+                          "outputs": ctl.name_out(),
+                          "state_layout": [nm for nm in ctl.name_in() if nm == "pi_hat"]},
+            # The closed loop is now a diagram (closed_loops.theorem10 has its layouts);
+            # this entry keeps the keys earlier readers used.
+            "closed_loop": {"step": step.name(), "loop": d.loop_fun(steps).name(),
+                            "inputs": step.name_in(), "outputs": step.name_out(),
+                            "state_layout": list(block.state.names),
+                            "ref_layout": [nm for nm in ctl.name_in() if nm.endswith("_d")]},
+        }})
+
+
+@REGISTRY.capability("soft_plant", layer="symbolic", needs=(SOFT,),
+                     doc="the soft plant over one sample (ROS2), tip forces and measurement "
+                         "noise")
+def soft_plant(ctx: Context) -> Part:
+    f = plant_fun(ctx.dyn, substeps=ctx.options.loop_substeps)
+    return Part([Generated(f, f"{ctx.options.loop_substeps} ROS2 step(s) (L-stable, order 2) "
+                              "of eq. 3.6 over dt, tau and tip forces held; y = x_next + noise")],
+                {"soft": {"plant": {
+                    "step": f.name(), "inputs": f.name_in(), "outputs": f.name_out(),
+                    "state_layout": ["q", "qd"],
+                    "f_ext_layout": "3 per segment tip (world x, y, z), segment 1 first"}}})
 
 
 def _renamed(lin: LinearRoute, dyn: SoftDynamics, which: str):
-    import casadi as ca
     b = dyn.nominal
     ins = [b.q, b.qd, b.qd_r, b.qdd_r]
     names = ["q", "qd", "qd_r", "qdd_r"]

@@ -1,9 +1,9 @@
-"""``softgen info``: functions, shapes, parameters and sizes of a model"""
+"""``softgen info``: capabilities, functions, shapes, parameters and sizes of a model"""
 from __future__ import annotations
 
 import json
 
-HELP = "functions, shapes, parameters, sizes of a model"
+HELP = "capabilities (and why not), functions, shapes, parameters, sizes of a model"
 
 
 def add_arguments(p) -> None:
@@ -11,17 +11,31 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true")
 
 
+def capability_table(model) -> list[dict]:
+    """One entry per registered capability: what it is, whether ``model`` gets it, and
+    the conditions (with the first failed one's reason when it does not)."""
+    # softgen.cli imports every verb module to build the parser: the bundle machinery
+    # (CasADi, the symbolic layer) is imported only when this verb runs.
+    from softgen.bundles.bundle import capabilities
+    return [{"name": c.name, "layer": c.layer, "doc": c.doc, "gets": why is None,
+             "needs": [n.text for n in c.needs], "why_not": why}
+            for c, why in capabilities(model)]
+
+
 def run(args) -> int:
+    # Imported here, not at the top: start-up cost of every other verb (see above).
     from softgen.bundles.bundle import GENERATED_DIR, BundleOptions, bundle_spec
     from softgen.modelfile.model import load_model
     model = load_model(args.model)
     spec = bundle_spec(model, BundleOptions())
     manifest_path = GENERATED_DIR / model.name / "manifest.json"
     c_path = GENERATED_DIR / model.name / f"{model.name}.c"
+    caps = capability_table(model)
     info = {
         "model": model.name, "kind": model.kind, "dof": model.dof,
         "description": model.description, "file": str(model.path),
         "uncertain": list(model.uncertain),
+        "capabilities": caps,
         "parameters": spec.parameters,
         "functions": {g.function.name(): {
             "inputs": {g.function.name_in(i): list(g.function.size_in(i))
@@ -38,6 +52,13 @@ def run(args) -> int:
         return 0
     print(f"{model.name}: {model.description} ({model.kind}, {model.dof} dof)  [{model.path}]")
     print(f"uncertain physical parameters: {', '.join(model.uncertain)}")
+    print("capabilities:")
+    for c in caps:
+        if c["gets"]:
+            print(f"  + {c['name']:<34} [{c['layer']}] {c['doc']}")
+    for c in caps:
+        if not c["gets"]:
+            print(f"  - {c['name']:<34} [{c['layer']}] not generated: {c['why_not']}")
     print(f"base parameters pi ({len(spec.parameters['names'])} of "
           f"{spec.extra['full_parameter_count']} monomials):")
     for n, v, e in zip(spec.parameters["names"], spec.parameters["nominal"],

@@ -101,6 +101,39 @@ def _short(v: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+#: A closed-loop diagram's layouts and the step inputs/outputs they lay out.
+_DIAGRAM_LAYOUTS = (("state", "inputs", "x"), ("params", "inputs", "p"),
+                    ("externals", "inputs", "e"), ("signals", "outputs", "y"))
+
+
+def _closed_loops(c: _Checker, loops: Any, fns: dict) -> None:
+    """``closed_loops``: per diagram, its ``step`` and ``loop`` name functions of the
+    bundle, and the ``state``/``params``/``externals``/``signals`` layouts (each entry
+    ``{name, size, unit}``) add up to the step's x, p, e and y."""
+    for name, d in c.table(loops, "closed_loops").items():
+        key = f"closed_loops.{name}"
+        d = c.table(d, key)
+        for role in ("step", "loop"):
+            f = c.string(c.get(d, role, key + "."), f"{key}.{role}")
+            if f not in fns:
+                raise c.fail(f"{key}.{role}", f"names no function of the bundle: {_short(f)}")
+        c.integer(c.get(d, "steps", key + "."), f"{key}.steps", 1)
+        step = fns[d["step"]]
+        for lay, side, sig in _DIAGRAM_LAYOUTS:
+            entries = c.array(c.get(d, lay, key + "."), f"{key}.{lay}")
+            total = 0
+            for i, e in enumerate(entries):
+                k = f"{key}.{lay}[{i}]"
+                e = c.table(e, k)
+                c.string(c.get(e, "name", k + "."), f"{k}.name")
+                total += c.integer(c.get(e, "size", k + "."), f"{k}.size")
+            shape = next((s_["shape"] for s_ in step.get(side, []) if s_.get("name") == sig),
+                         None)
+            if shape is None or shape[0] != total:
+                raise c.fail(f"{key}.{lay}", f"{total} values, but {d['step']} has "
+                             f"{sig} of shape {_short(shape)}")
+
+
 def is_model_bundle(manifest: dict) -> bool:
     """Whether the manifest describes a robot model (it then names its model file)."""
     fns = manifest.get("functions")
@@ -154,6 +187,9 @@ def validate_manifest(manifest: Any, path: Path | str = "manifest.json") -> dict
             c.integer(f["instructions"], f"{key}.instructions")
         if "can_fail" in f and not isinstance(f["can_fail"], bool):
             raise c.fail(f"{key}.can_fail", f"expected true or false, got {_short(f['can_fail'])}")
+
+    if "closed_loops" in m:
+        _closed_loops(c, m["closed_loops"], fns)
 
     if is_model_bundle(m):
         c.string(c.get(m, "model_file", ""), "model_file", re.compile(r".+\.(toml|urdf)$"),

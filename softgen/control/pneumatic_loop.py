@@ -1,10 +1,11 @@
-"""Closed loops of a chapter-10 controller and a McKibben plant, whole in generated C.
+"""Blocks of a chapter-10 controller and a McKibben plant, and their closed loop.
 
 One sample: read q, q̇ and the stiffness σ = −KΦ_q p of the pressures acting now,
 run the controller step (:mod:`softgen.control.pneumatic`), hold its pressure
-command over the sample, integrate the plant. ``mapaccum`` repeats the sample
-``steps`` times inside one generated function, so a chunk of a simulation is one C
-call (DESIGN section 1: "whole loops in C where it pays").
+command over the sample, integrate the plant. :func:`closed_loop` wires the blocks
+into a :class:`~softgen.blocks.ClosedLoop`, whose ``loop_fun(steps)`` repeats the
+sample inside one generated function (DESIGN section 1: "whole loops in C where it
+pays"); the loop is no longer composed by hand here.
 
 Plants:
 ``"ideal"``  pressures equal the command at once (section 10.2's assumption), clipped
@@ -18,7 +19,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from softgen.blocks import Block
+from softgen.blocks import Block, ClosedLoop
 from softgen.symbolic.actuated import rk4_steps, valve_plant_fun
 from softgen.symbolic.rigid import FUNCTION_OPTS
 from softgen.control.pneumatic import KINDS, PneumaticArm
@@ -47,54 +48,22 @@ def _ideal_plant(arm: PneumaticArm, substeps: int) -> ca.Function:
     return ca.Function("ideal_plant", [x, pc, h], [ca.vertcat(xn, p)])
 
 
-def closed_loop_fun(arm: PneumaticArm, kind: str, *, plant: str, steps: int,
-                    substeps: int = 1) -> ca.Function:
-    """``<controller step name>_loop_<plant>``: ``steps`` samples of controller + plant.
+def closed_loop(arm: PneumaticArm, kind: str, dt: float, *, plant: str = "ideal",
+                substeps: int = 1, name: str | None = None) -> ClosedLoop:
+    """Controller ``kind`` on the McKibben arm, as a diagram of the library blocks.
 
-    Inputs: ``x0`` (4n: q, q̇, p), ``z0`` (controller state), ``ref`` (6n × steps),
-    ``lam, kd`` (n), ``kpi`` (κ), ``ksigma, kinv`` (n; ignored by controllers that do
-    not take them), ``T_p`` (2n, valve time constants; ignored by the ideal plant),
-    ``dt``. Outputs, one column per sample: ``x`` (state after the sample), ``z``
-    (controller state after), ``p_cmd`` (the command issued at the sample, before
-    clipping), ``sigma`` (the stiffness the controller read at the sample).
+    :func:`controller_block` reads the plant's q, q̇, σ and the external input ``ref``
+    (6n per sample: q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d); its pressures ``p`` drive
+    :func:`plant_block` (``plant``: ``"ideal"`` or ``"valve"``), which holds them over
+    the sample. ``step_fun()`` / ``loop_fun(steps)`` give the generated C of one sample /
+    ``steps`` samples; :func:`softgen.runtime.simulate` runs it.
     """
     if kind not in KINDS:
         raise ValueError(f"kind: expected one of {', '.join(KINDS)}, got {kind!r}")
-    if plant not in PLANTS:
-        raise ValueError(f"plant: expected one of {', '.join(PLANTS)}, got {plant!r}")
-    n, k = arm.n, arm.n_params
-    ctrl = arm.step_fun(kind)
-    nz = ctrl.size1_in(0)
-    plant_f = valve_plant_fun(arm.dyn, arm.act, substeps=substeps) if plant == "valve" \
-        else _ideal_plant(arm, substeps)
-
-    x, z = ca.SX.sym("x", 4 * n), ca.SX.sym("z", nz)
-    ref = ca.SX.sym("ref", 6 * n)
-    lam, kd, kpi = ca.SX.sym("lam", n), ca.SX.sym("kd", n), ca.SX.sym("kpi", k)
-    ksigma, kinv = ca.SX.sym("ksigma", n), ca.SX.sym("kinv", n)
-    tp, dt = ca.SX.sym("T_p", 2 * n), ca.SX.sym("dt")
-    q, qd, p_now = x[:n], x[n:2 * n], x[2 * n:]
-    sigma = arm.act.stiffness(q, p_now)
-    available = {"z": z, "q": q, "qd": qd, "sigma": sigma, "ref": ref, "lam": lam, "kd": kd,
-                 "kpi": kpi, "ksigma": ksigma, "kinv": kinv, "dt": dt}
-    out = ctrl.call({name: available[name] for name in ctrl.name_in()})
-    p_cmd = out["p"]
-    x_next = plant_f(x, p_cmd, tp, dt) if plant == "valve" else plant_f(x, p_cmd, dt)
-    one = ca.Function("one_sample", [ca.vertcat(x, z), ref, lam, kd, kpi, ksigma, kinv, tp, dt],
-                      [ca.vertcat(x_next, out["z_next"]), p_cmd, sigma],
-                      ["xz", "ref", "lam", "kd", "kpi", "ksigma", "kinv", "T_p", "dt"],
-                      ["xz_next", "p_cmd", "sigma"], FUNCTION_OPTS)
-    loop = one.mapaccum("loop", steps, [0], [0])
-    X0, Z0 = ca.MX.sym("x0", 4 * n), ca.MX.sym("z0", nz)
-    R = ca.MX.sym("ref", 6 * n, steps)
-    syms = [ca.MX.sym(s, size) for s, size in
-            (("lam", n), ("kd", n), ("kpi", k), ("ksigma", n), ("kinv", n), ("T_p", 2 * n),
-             ("dt", 1))]
-    XZ, P, S = loop(ca.vertcat(X0, Z0), R, *syms)
-    return ca.Function(f"{ctrl.name()}_loop_{plant}", [X0, Z0, R, *syms],
-                       [XZ[:4 * n, :], XZ[4 * n:, :], P, S],
-                       ["x0", "z0", "ref", "lam", "kd", "kpi", "ksigma", "kinv", "T_p", "dt"],
-                       ["x", "z", "p_cmd", "sigma"])
+    return ClosedLoop(name or f"{arm.name}_{kind}_{plant}",
+                      [controller_block(arm, kind, dt),
+                       plant_block(arm, dt, plant=plant, substeps=substeps)],
+                      [("ctrl.p", "plant.p_cmd")], externals={"ref": 6 * arm.n})
 
 
 # -- blocks ------------------------------------------------------------------------------

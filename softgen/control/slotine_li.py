@@ -69,43 +69,6 @@ def plant_step_fun(dyn: RigidDynamics) -> ca.Function:
                        ["x", "tau", "h"], ["x_next"], FUNCTION_OPTS)
 
 
-def closed_loop_fun(dyn: RigidDynamics, *, steps: int, substeps: int) -> ca.Function:
-    """``<model>_slotine_li_loop``: ``steps`` controller samples of the closed loop in one call.
-
-    Per sample: measure x = (q, q̇), run :func:`controller_fun`, then integrate the
-    nominal plant over ``dt`` with ``substeps`` RK4 steps (ZOH on τ). Built with
-    CasADi ``mapaccum`` so the whole loop runs in the generated C.
-
-    Inputs: ``x0`` (2n), ``pi_hat0`` (p), ``ref`` (3n × steps: q_d, q̇_d, q̈_d per
-    column), ``lam, kd`` (n), ``kpi`` (p), ``dt``. Outputs: ``x`` (2n × steps, the
-    state after each sample), ``pi_hat`` (p × steps), ``tau`` (n × steps).
-    """
-    n, p = dyn.model.dof, len(dyn.base.names)
-    x, pi_hat = ca.SX.sym("x", 2 * n), ca.SX.sym("pi_hat", p)
-    ref = ca.SX.sym("ref", 3 * n)
-    lam, kd, kpi, dt = ca.SX.sym("lam", n), ca.SX.sym("kd", n), ca.SX.sym("kpi", p), ca.SX.sym("dt")
-    q, qd = x[:n], x[n:]
-    tau, yts = _law(dyn, pi_hat, q, qd, ref[:n], ref[n:2 * n], ref[2 * n:], lam, kd)
-    rhs = plant_rhs(dyn)
-    h = dt / substeps
-    xn = x
-    for _ in range(substeps):
-        xn = rk4_steps(rhs, xn, tau, h, 1)
-    acc = ca.vertcat(xn, pi_hat + dt * kpi * yts)
-    one = ca.Function("one_sample", [ca.vertcat(x, pi_hat), ref, lam, kd, kpi, dt], [acc, tau],
-                      ["z", "ref", "lam", "kd", "kpi", "dt"], ["z_next", "tau"], FUNCTION_OPTS)
-    # Only the state is accumulated; references vary per column, gains are shared.
-    loop = one.mapaccum("loop", steps, [0], [0])
-    x0, pi0 = ca.MX.sym("x0", 2 * n), ca.MX.sym("pi_hat0", p)
-    R = ca.MX.sym("ref", 3 * n, steps)
-    L, Kd, Kpi, DT = ca.MX.sym("lam", n), ca.MX.sym("kd", n), ca.MX.sym("kpi", p), ca.MX.sym("dt")
-    Z, T = loop(ca.vertcat(x0, pi0), R, L, Kd, Kpi, DT)
-    return ca.Function(f"{dyn.name}_slotine_li_loop", [x0, pi0, R, L, Kd, Kpi, DT],
-                       [Z[:2 * n, :], Z[2 * n:, :], T],
-                       ["x0", "pi_hat0", "ref", "lam", "kd", "kpi", "dt"],
-                       ["x", "pi_hat", "tau"])
-
-
 def controller_block(dyn: RigidDynamics, dt: float, *, name: str = "ctrl") -> Block:
     """Prop. 10 as a block: reads q, q̇ and (q_d, q̇_d, q̈_d); emits τ; state π̂.
 

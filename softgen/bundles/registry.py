@@ -1,0 +1,291 @@
+"""The capability registry: what a model's bundle gets, and the condition for each.
+
+A *capability* is one thing a bundle can carry — the rigid dynamics, the McKibben
+actuator model, the Slotine–Li closed loop, the chapter-11 cascades, a stiffness
+estimator — registered with
+
+- ``name`` and ``layer`` (``"symbolic"``, ``"control"`` or ``"estimation"``);
+- ``needs``: :class:`Condition` s on the model (body: rigid or soft; actuator kind;
+  planar or spatial; number of joints; has a regressor; ...), each a predicate that
+  says, when it fails, *why* (one line naming the model file's field);
+- ``build``: a function of a :class:`Context` returning a :class:`Part` — the
+  ``Generated`` functions and the manifest keys they bring.
+
+Bundle assembly (:func:`softgen.bundles.bundle.bundle_spec`) walks the registry in
+registration order and builds every capability whose conditions hold; it knows no
+model name and no controller. ``softgen info`` reports the same evaluation: what the
+model gets and, for what it does not, the first failed condition.
+
+Builders live in :mod:`softgen.bundles.rigid` and :mod:`softgen.bundles.soft`, which
+register them with :meth:`Registry.capability`; this module imports neither (the
+assembler imports them), so the builders can import the registry without a cycle.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from softgen.codegen.generate import Generated
+from softgen.modelfile.model import RobotModel
+from softgen.modelfile.soft import SoftModel
+from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
+from softgen.symbolic.pcc import LinearRoute
+
+LAYERS = ("symbolic", "control", "estimation")
+
+
+# --------------------------------------------------------------------------- conditions
+
+@dataclass(frozen=True)
+class Condition:
+    """A named predicate on a model: ``check(model)`` is None if it holds, else why not.
+
+    ``text`` states the condition positively ("rigid chain", "qbmove actuator on every
+    joint"), for ``softgen info``.
+    """
+
+    text: str
+    check: Callable[[object], str | None]
+
+    def __call__(self, model) -> str | None:
+        return self.check(model)
+
+
+def _where(model) -> str:
+    return str(model.path) if getattr(model, "path", None) is not None else model.name
+
+
+def _rigid(model) -> str | None:
+    if isinstance(model, RobotModel):
+        return None
+    return f"{_where(model)}: a soft body (model.kind = {model.kind!r}), not a rigid chain"
+
+
+def _soft(model) -> str | None:
+    if isinstance(model, SoftModel):
+        return None
+    return f"{_where(model)}: a rigid chain (model.kind = {model.kind!r}), not a soft body"
+
+
+RIGID = Condition("rigid chain (model.kind planar or spatial, or a URDF)", _rigid)
+SOFT = Condition("soft body (PCC or affine curvature)", _soft)
+
+
+def _has_regressor(model) -> str | None:
+    if tuple(getattr(model, "uncertain", ())):
+        return None
+    return (f"{_where(model)}: parameters.uncertain is empty: the dynamics have no "
+            "regressor Y(q, qd, qd_r, qdd_r) pi to adapt")
+
+
+HAS_REGRESSOR = Condition("has a regressor (parameters.uncertain not empty)", _has_regressor)
+
+
+def actuator(kind: str) -> Condition:
+    """Every joint carries an actuator of ``kind`` (``[[actuators]] type``).
+
+    The model-file reader already requires one actuator per joint and one type for the
+    whole robot; the condition still checks every joint, so that a model built in
+    memory is judged the same way.
+    """
+    def check(model) -> str | None:
+        acts = tuple(getattr(model, "actuators", ()) or ())
+        if not acts:
+            return f"{_where(model)}: no [[actuators]] (needs type = {kind!r} on every joint)"
+        kinds = sorted({a.type for a in acts})
+        if kinds != [kind]:
+            return (f"{_where(model)}: actuators.type = {', '.join(map(repr, kinds))} "
+                    f"(needs {kind!r} on every joint)")
+        if len(acts) != model.dof:
+            return (f"{_where(model)}: actuators: {len(acts)} of {model.dof} joints actuated "
+                    f"(needs {kind!r} on every joint)")
+        return None
+    return Condition(f"{kind} actuator on every joint", check)
+
+
+def _motor_dynamics(model) -> str | None:
+    """qbmove springs driven by motors with inertia and damping (eq. 2.6's motor rows)."""
+    for a in tuple(getattr(model, "actuators", ()) or ()):
+        for key in ("motor_inertia", "motor_damping"):
+            values = dict(a.values).get(key)
+            if values is None or not all(v > 0 for v in values):
+                return (f"{_where(model)}: actuators (joint {a.joint + 1}).{key}: needs "
+                        f"positive values, got {values!r}")
+    return None
+
+
+MOTOR_DYNAMICS = Condition("motors with dynamics (actuators.motor_inertia and "
+                           "motor_damping > 0)", _motor_dynamics)
+
+
+def dof(at_most: int | None = None, *, exactly: int | None = None) -> Condition:
+    """A bound on the number of configuration variables."""
+    if exactly is not None:
+        text = f"{exactly} degree(s) of freedom"
+
+        def check(model):
+            return None if model.dof == exactly else \
+                f"{_where(model)}: {model.dof} degrees of freedom (needs exactly {exactly})"
+    else:
+        text = f"at most {at_most} degrees of freedom"
+
+        def check(model):
+            return None if model.dof <= at_most else \
+                f"{_where(model)}: {model.dof} degrees of freedom (needs at most {at_most})"
+    return Condition(text, check)
+
+
+def _spatial(model) -> str | None:
+    if model.kind in ("spatial", "pcc-3d"):
+        return None
+    return f"{_where(model)}: model.kind = {model.kind!r} is planar (needs a spatial model)"
+
+
+SPATIAL = Condition("spatial (model.kind spatial or pcc-3d)", _spatial)
+
+
+# --------------------------------------------------------------------------- building
+
+class Context:
+    """One model's derivations, made once and shared by every capability's builder.
+
+    ``dyn`` is :class:`~softgen.symbolic.rigid.RigidDynamics` or
+    :class:`~softgen.symbolic.pcc.SoftDynamics`; the other attributes are derived on
+    first use (a McKibben model never builds qbmove springs).
+    """
+
+    def __init__(self, model, options, dyn):
+        self.model, self.options, self.dyn = model, options, dyn
+        self.name = model.name
+
+    @cached_property
+    def lin(self):
+        return LinearRoute(self.dyn)
+
+    @cached_property
+    def mckibben(self):
+        return McKibbenPairs(self.model)
+
+    @cached_property
+    def springs(self):
+        return QbmoveSprings(self.model)
+
+
+@dataclass
+class Part:
+    """What one capability adds: functions, and manifest keys (merged recursively)."""
+
+    functions: list[Generated] = field(default_factory=list)
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Capability:
+    """One registered capability; see the module docstring."""
+
+    name: str
+    layer: str
+    doc: str
+    needs: tuple[Condition, ...]
+    build: Callable[[Context], Part]
+
+    def why_not(self, model) -> str | None:
+        """None if every condition holds, else the first failed condition's reason."""
+        for c in self.needs:
+            why = c(model)
+            if why is not None:
+                return why
+        return None
+
+
+class Registry:
+    """Capabilities in registration order (the order of the bundle's functions)."""
+
+    def __init__(self):
+        self._caps: dict[str, Capability] = {}
+
+    def capability(self, name: str, *, layer: str, needs: tuple[Condition, ...], doc: str):
+        """Decorator registering ``build(ctx) -> Part`` under ``name``."""
+        if layer not in LAYERS:
+            raise ValueError(f"capability {name}: layer: expected one of {', '.join(LAYERS)}, "
+                             f"got {layer!r}")
+
+        def register(build: Callable[[Context], Part]):
+            if name in self._caps:
+                raise ValueError(f"capability {name!r} registered twice")
+            self._caps[name] = Capability(name, layer, doc, tuple(needs), build)
+            return build
+        return register
+
+    def __iter__(self) -> Iterator[Capability]:
+        return iter(self._caps.values())
+
+    def __getitem__(self, name: str) -> Capability:
+        return self._caps[name]
+
+    def names(self) -> list[str]:
+        return list(self._caps)
+
+    def evaluate(self, model) -> list[tuple[Capability, str | None]]:
+        """Every capability with None (the model gets it) or why it does not."""
+        return [(c, c.why_not(model)) for c in self]
+
+    def applicable(self, model) -> list[Capability]:
+        return [c for c, why in self.evaluate(model) if why is None]
+
+
+#: The one registry; :mod:`softgen.bundles.rigid` and :mod:`softgen.bundles.soft` fill it.
+REGISTRY = Registry()
+
+
+def merge(into: dict, extra: dict, where: str = "") -> dict:
+    """Merge manifest keys recursively; two capabilities setting one leaf is an error."""
+    for k, v in extra.items():
+        if isinstance(v, dict) and isinstance(into.get(k), dict):
+            merge(into[k], v, f"{where}{k}.")
+        elif k in into:
+            raise ValueError(f"manifest key {where}{k} set by two capabilities")
+        else:
+            into[k] = v
+    return into
+
+
+def diagram_manifest(diagram, steps: int) -> dict:
+    """A closed-loop diagram as the manifest describes it, read from the diagram itself.
+
+    ``step``/``loop`` name the generated functions (``ClosedLoop.step_fun`` and
+    ``loop_fun(steps)``); ``state``, ``params``, ``externals`` and ``signals`` are the
+    layouts of their ``x``, ``p``, ``e`` and ``y`` (each ``{name, size, unit}``, in
+    order); ``x0``/``p0`` the blocks' defaults; ``wiring`` maps each block input to
+    its source.
+    """
+    def layout(lay):
+        return [{"name": s.name, "size": s.size, "unit": s.unit} for s in lay]
+
+    return {
+        "step": diagram.step_fun().name(), "loop": diagram.loop_fun(steps).name(),
+        "steps": int(steps), "dt": float(diagram.dt),
+        "blocks": {bn: b.doc for bn, b in diagram.blocks.items()},
+        "state": layout(diagram.state), "params": layout(diagram.params),
+        "externals": layout(diagram.externals), "signals": layout(diagram.signals),
+        "x0": [float(v) for v in diagram.initial_state()],
+        "p0": [float(v) for v in _defaults(diagram)],
+        "wiring": dict(diagram.sources),
+    }
+
+
+def _defaults(diagram):
+    return np.concatenate([b.p0 for b in diagram.blocks.values()]) if diagram.params.size \
+        else np.zeros(0)
+
+
+def diagram_functions(diagram, steps: int, what: str) -> list[Generated]:
+    """The step and the ``steps``-sample loop of ``diagram`` as bundle functions."""
+    blocks = " + ".join(b.doc or bn for bn, b in diagram.blocks.items())
+    return [Generated(diagram.step_fun(), f"one {diagram.dt:g} s sample of the {what} diagram "
+                                          f"({blocks}): (x, p, k, e) -> (x_next, y)"),
+            Generated(diagram.loop_fun(steps), f"{steps} samples of the {what} diagram in one "
+                                               "call: (x0, p, k0, E) -> (X, Y)")]

@@ -1,0 +1,206 @@
+"""Capabilities of rigid chains (thesis ch. 2, 6, 7, 9-11), registered in the registry.
+
+Each builder composes the symbolic layer (``symbolic/``) with ``control/`` and
+``estimation/`` for one model; which models get it is the condition it is
+registered with (:mod:`softgen.bundles.registry`), never a list of names.
+"""
+from __future__ import annotations
+
+from softgen.blocks import ClosedLoop
+from softgen.bundles.common import PLANT_SUBSTEPS
+from softgen.bundles.registry import (HAS_REGRESSOR, MOTOR_DYNAMICS, REGISTRY, RIGID, Context,
+                                      Part, actuator, diagram_functions, diagram_manifest, dof)
+from softgen.codegen.generate import Generated
+from softgen.control.electric import bundle_functions as cascade_functions
+from softgen.control.feedback_linearization import GAIN_NAMES as FL_GAIN_NAMES
+from softgen.control.feedback_linearization import FeedbackLinearization
+from softgen.control.pneumatic import KINDS, REFERENCE_BLOCKS, PneumaticArm
+from softgen.control.pneumatic_loop import closed_loop as pneumatic_closed_loop
+from softgen.control.pneumatic_loop import controller_block as pneumatic_controller_block
+from softgen.control.slotine_li import controller_block, controller_fun, plant_block, \
+    plant_step_fun
+from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
+from softgen.symbolic.actuated import electric_plant_fun, pneumatic_plant_fun, valve_plant_fun
+
+MCKIBBEN = actuator("mckibben")
+QBMOVE = actuator("qbmove")
+
+
+@REGISTRY.capability("rigid_dynamics", layer="symbolic", needs=(RIGID,),
+                     doc="B, C, G, regressor products, inverse and forward dynamics, "
+                         "parameter map, tip kinematics (ch. 2, eq. 9.1)")
+def rigid_dynamics(ctx: Context) -> Part:
+    model, dyn = ctx.model, ctx.dyn
+    fns = [
+        Generated(dyn.inertia_fun(), "inertia matrix B(q) (eq. 2.1)"),
+        Generated(dyn.coriolis_fun(), "Coriolis matrix C(q, qd) from Christoffel symbols "
+                                      "(Bdot - 2C skew)"),
+        Generated(dyn.gravity_fun(), "gravity vector G(q) = dU/dq"),
+        Generated(dyn.regressor_fun(), "Slotine-Li regressor: Y pi = B qdd_r + C qd_r + G"
+                                       + (" + K q" if model.has_stiffness() else "")
+                                       + (" + D qd" if model.has_damping() else "")
+                                       + " (eq. 9.1)"),
+        Generated(dyn.regressor_times_fun(), "Y(q, qd, qd_r, qdd_r) pi"),
+        Generated(dyn.regressor_transpose_times_fun(), "Y(q, qd, qd_r, qdd_r)^T s"),
+        Generated(dyn.inverse_dynamics_fun(), "nominal B qdd_r + C qd_r + G (+ K q + D qd), "
+                                              "computed directly"),
+        Generated(dyn.forward_dynamics_fun(), "nominal forward dynamics qdd = B^-1 (tau - C qd "
+                                              "- G - K q - D qd)"),
+        Generated(dyn.physical_to_base_fun, "map from the uncertain physical parameters "
+                                            f"({', '.join(model.uncertain)}) to pi"),
+        Generated(dyn.tip_fun(), "tip position and 6xn geometric Jacobian [Jv; Jw]"),
+    ]
+    known = dyn.known_torque_fun()
+    if known is not None:
+        fns.append(Generated(known, "terms of the dynamics multiplying no uncertain parameter"))
+    return Part(fns)
+
+
+@REGISTRY.capability("nominal_plant", layer="symbolic", needs=(RIGID,),
+                     doc="one RK4 step of the nominal rigid robot, tau held")
+def nominal_plant(ctx: Context) -> Part:
+    return Part([Generated(plant_step_fun(ctx.dyn), "one RK4 step of the nominal plant, "
+                                                    "x = (q, qd), tau held")])
+
+
+def slotine_li_diagram(dyn, options) -> ClosedLoop:
+    """Prop. 10 on the nominal plant: the library blocks wired by signal name.
+
+    The controller reads the plant's q, q̇ and the external references q_d, q̇_d, q̈_d
+    (one column per sample); the plant integrates ``loop_substeps`` RK4 steps per
+    sample with τ held. Named ``<model>_slotine_li``: its functions are
+    ``<model>_slotine_li_step`` and ``<model>_slotine_li_loop``.
+    """
+    n, dt = dyn.model.dof, options.loop_dt
+    plant = plant_block(dyn, dt, substeps=options.loop_substeps)
+    uq, uv = plant.outputs.signal("q").unit, plant.outputs.signal("qd").unit
+    return ClosedLoop(f"{dyn.name}_slotine_li", [controller_block(dyn, dt), plant],
+                      externals=[("q_d", n, uq), ("qd_d", n, uv), ("qdd_d", n, f"{uv}/s")])
+
+
+@REGISTRY.capability("slotine_li", layer="control", needs=(RIGID, HAS_REGRESSOR),
+                     doc="Slotine-Li adaptive control (Prop. 10): the controller step and "
+                         "its closed loop with the nominal plant as a diagram")
+def slotine_li(ctx: Context) -> Part:
+    d = slotine_li_diagram(ctx.dyn, ctx.options)
+    steps = ctx.options.loop_steps
+    fns = [Generated(controller_fun(ctx.dyn), "one sample of Slotine-Li adaptive control "
+                                              "(Prop. 10), Euler update of pi_hat")]
+    fns += diagram_functions(d, steps, "Slotine-Li closed-loop")
+    return Part(fns, {"closed_loops": {"slotine_li": diagram_manifest(d, steps)}})
+
+
+@REGISTRY.capability("mckibben_actuators", layer="symbolic", needs=(RIGID, MCKIBBEN),
+                     doc="McKibben pairs (Phi, Phi_q, sigma) and the pneumatic robot "
+                         "(eq. 2.5), ideal and with first-order valves (sec. 10.4)")
+def mckibben_actuators(ctx: Context) -> Part:
+    dyn, act = ctx.dyn, ctx.mckibben
+    fns = [Generated(f, doc) for f, doc in act.functions()]
+    fns.append(Generated(pneumatic_plant_fun(dyn, act, substeps=PLANT_SUBSTEPS),
+                         f"{PLANT_SUBSTEPS} RK4 steps of the pneumatic robot (eq. 2.5) "
+                         "over one sample, pressures held"))
+    fns.append(Generated(valve_plant_fun(dyn, act, substeps=PLANT_SUBSTEPS),
+                         f"{PLANT_SUBSTEPS} RK4 steps of the pneumatic robot with "
+                         "first-order valves (sec. 10.4), commands clipped to [0, p_max]"))
+    return Part(fns, {"actuator": "mckibben", "estimators": {}})
+
+
+@REGISTRY.capability("pneumatic_control", layer="control", needs=(RIGID, MCKIBBEN),
+                     doc="chapter-10 controllers: Prop. 11, open-loop stiffness, "
+                         "Theorem 5, Corollary 2")
+def pneumatic_control(ctx: Context) -> Part:
+    arm = PneumaticArm(ctx.model, dyn=ctx.dyn, act=ctx.mckibben)
+    fns = [Generated(f, doc) for f, doc in arm.functions()]
+    # Controller state layouts as the controller blocks declare them (not re-typed).
+    states = {k: list(pneumatic_controller_block(arm, k, ctx.options.loop_dt).state.names)
+              for k in KINDS}
+    return Part(fns, {"controllers": {
+        "steps": {k: f"{ctx.name}_{v}" for k, v in KINDS.items()},
+        "reference_layout": list(REFERENCE_BLOCKS),
+        "state_layout": states,
+        "Pi_names": arm.parameter_names,
+        "Pi_nominal": [float(v) for v in arm.Pi_nominal],
+        "K1": arm.K1,
+        "pressure_unit": "Pa",
+    }})
+
+
+@REGISTRY.capability("theorem5_loop", layer="control", needs=(RIGID, MCKIBBEN),
+                     doc="Theorem 5 on the McKibben arm (ideal pressures, clipped to "
+                         "[0, p_max]) as a closed-loop diagram")
+def theorem5_loop(ctx: Context) -> Part:
+    """The blocks of :func:`softgen.control.pneumatic_loop.closed_loop`: Theorem 5 reading
+    the plant's q, q̇, σ and the external references, the arm integrated with
+    :data:`PLANT_SUBSTEPS` RK4 steps per sample like the bundle's ``_pneumatic_plant``.
+    Named ``<model>_theorem5_closed``: ``_theorem5_closed_step`` / ``_theorem5_closed_loop``."""
+    arm = PneumaticArm(ctx.model, dyn=ctx.dyn, act=ctx.mckibben)
+    d = pneumatic_closed_loop(arm, "theorem5", ctx.options.loop_dt, plant="ideal",
+                              substeps=PLANT_SUBSTEPS, name=f"{ctx.name}_theorem5_closed")
+    steps = ctx.options.loop_steps
+    return Part(diagram_functions(d, steps, "Theorem 5 closed-loop"),
+                {"closed_loops": {"theorem5": diagram_manifest(d, steps)}})
+
+
+@REGISTRY.capability("feedback_linearization", layer="control", needs=(RIGID, MCKIBBEN),
+                     doc="feedback linearisation of the pneumatic robot with valves "
+                         "(sec. 10.4)")
+def feedback_linearization(ctx: Context) -> Part:
+    fl = FeedbackLinearization(ctx.model, dyn=ctx.dyn, act=ctx.mckibben)
+    fns = [Generated(f, doc) for f, doc in fl.functions()]
+    step = next(g.function for g in fns if g.function.name().endswith("_feedback_linearization"))
+    lie = next(g.function for g in fns if g.function.name().endswith("_fl_lie"))
+    # The plant state the step reads as x: the controller block's measured inputs, in
+    # the order the block stacks them into x.
+    block = fl.controller_block(ctx.options.loop_dt)
+    return Part(fns, {"controllers": {"feedback_linearization": {
+        "step": step.name(), "lie_derivatives": lie.name(),
+        "state_layout": [nm for nm in block.inputs.names if nm != "ref"],
+        "gains": [nm for nm in step.name_in() if nm in FL_GAIN_NAMES],
+    }}})
+
+
+@REGISTRY.capability("qbmove_actuators", layer="symbolic", needs=(RIGID, QBMOVE),
+                     doc="qbmove sinh springs (tau_e, sigma, inverse) and the electric VSA "
+                         "robot (eq. 2.6)")
+def qbmove_actuators(ctx: Context) -> Part:
+    springs = ctx.springs
+    fns = [Generated(f, doc) for f, doc in springs.functions()]
+    fns.append(Generated(electric_plant_fun(ctx.dyn, springs, substeps=PLANT_SUBSTEPS),
+                         f"{PLANT_SUBSTEPS} RK4 steps of the electric VSA robot (eq. 2.6) "
+                         "over one sample, motor torques held"))
+    return Part(fns, {"actuator": "qbmove", "estimators": {}})
+
+
+@REGISTRY.capability("electric_cascade", layer="control",
+                     needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
+                     doc="chapter-11 cascades (Theorems 6-9, Remarks 10-11): motor-level "
+                         "inner loop under a link-level outer loop")
+def electric_cascade(ctx: Context) -> Part:
+    return Part([Generated(f, doc) for f, doc in
+                 cascade_functions(ctx.model, dyn=ctx.dyn, springs=ctx.springs)])
+
+
+def _estimator(method: str):
+    def build(ctx: Context) -> Part:
+        e = StiffnessEstimator(ctx.model, EstimatorConfig(method))
+        c = e.config
+        f = e.step_fun()
+        return Part([Generated(f, f"{c.method} stiffness estimator step, T = {c.dt} s, "
+                                  f"delay {c.delay}: (state, y_k) -> estimates for sample k - "
+                                  f"{c.delay} (chapters 6-7)")],
+                    {"estimators": {f.name(): e.describe()}})
+    return build
+
+
+REGISTRY.capability("pneumatic_stiffness_estimator", layer="estimation",
+                    needs=(RIGID, MCKIBBEN, dof(exactly=1)),
+                    doc="invasive stiffness estimator of one McKibben joint (sec. 6.1, "
+                        "Theorem 1)")(_estimator("pneumatic"))
+REGISTRY.capability("electric_stiffness_estimator", layer="estimation",
+                    needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
+                    doc="invasive stiffness estimator of qbmove joints (sec. 6.2)"
+                    )(_estimator("electric"))
+REGISTRY.capability("noninvasive_stiffness_estimator", layer="estimation",
+                    needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
+                    doc="non-invasive stiffness estimator of qbmove joints (ch. 7)"
+                    )(_estimator("noninvasive"))
