@@ -8,15 +8,18 @@ Which loop a model gets is read from what the model *is*, never from its name:
   step of the plant). The sampled loop (τ held over 1 ms,
   :func:`softgen.control.soft.controller_block` + ``plant_block``) diverges on the
   lumped-mass PCC models, whose light modes have rates of 1e6-1e10 1/s; the
-  integrated block is the one that runs stably at 1 ms, so the example uses it;
+  integrated block is the one that runs stably at 1 ms, so the example uses it
+  (sinusoidal references; affine bodies, the soft inverted pendulum, regulate to
+  upright from an initial error, as in section 12.2.2);
 - a rigid arm with McKibben pairs (actuator type ``mckibben``) runs Theorem 5 (section
   10.2: decoupled adaptive position and stiffness control) against the arm with the
   pressures applied as commanded, clipped to [0, p_max]
   (:mod:`softgen.control.pneumatic_loop`);
 - a rigid arm with qbmove-style electric VSAs (actuator type ``qbmove``) runs the
   chapter-11 PD cascade (eq. 11.4-11.6, :func:`softgen.control.electric.cascade_block`)
-  against the arm with its motors and springs (eq. 11.1);
-- any other rigid chain runs Slotine–Li adaptive control (Prop. 10, eq. 9.2) against
+  against the arm with its motors and springs (eq. 11.1), when the 1 ms sample resolves
+  the motors' spring modes (:func:`motor_mode_resolved`);
+- any other rigid chain (also an electric arm with motors too light for 1 ms) runs Slotine–Li adaptive control (Prop. 10, eq. 9.2) against
   the nominal arm, one RK4 step per sample with τ held.
 
 Every loop is a :class:`~softgen.blocks.ClosedLoop` of library blocks named
@@ -32,7 +35,7 @@ per entry, and no experiment module is imported.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -74,7 +77,7 @@ GAINS = {
     # K^-1 = 1/K (the ch10 adaptive study), Π̂(0) = 0.9 Π.
     "theorem5": dict(lam=15.0, kd=18.0, kpi=35.0, stiffness_rate=2.0, pi_hat0_ratio=0.9),
     # Chapter-11 PD cascade: the gains printed in section 11.2 (NOTES section 1).
-    "electric_pd": "THESIS_GAINS['pd'] of softgen.control.electric_refs",
+    "electric_pd": dict(THESIS_GAINS["pd"]),
     # Theorem 10: the "higher" gains of the section 12.2.1 planar PCC study
     # (Λ = 5, K_d = 1, K_π = 1).
     "theorem10": dict(lam=5.0, kd=1.0, kpi=1.0),
@@ -98,6 +101,9 @@ PNEUMATIC_SUBSTEPS = 10
 SOFT_REFERENCE = dict(amplitude=(math.pi / 8, math.pi / 6, math.pi / 3, math.pi / 2),
                       phase=(0.0, math.pi / 2, math.pi / 3, math.pi), omega=1.0)
 SOFT_REFERENCE_3D = dict(amplitude=(0.2, 0.2, 0.05), phase=(0.0, math.pi / 2, 0.0), omega=1.0)
+#: Affine-curvature bodies (the soft inverted pendulum, section 12.2.2): regulation to
+#: the upright configuration q_d = 0 from an initial error e(0) = q_d(0) − q(0).
+SOFT_REGULATION = dict(amplitude=(0.0,), phase=(0.0,), omega=0.0, initial_error=(0.2, -0.2))
 
 
 @dataclass(frozen=True)
@@ -114,7 +120,6 @@ class Example:
     scenario: Scenario
     errors: tuple[tuple[str, str, str], ...] = ()
     gains_source: str = ""
-    notes: tuple[str, ...] = field(default_factory=tuple)
 
     @property
     def loop(self) -> ClosedLoop:
@@ -236,7 +241,7 @@ def _electric_pd(model: RobotModel, steps: int) -> Example:
     n = arm.n
     q_spec = tuple(THESIS_Q[i % len(THESIS_Q)] for i in range(n))
     s_spec = tuple(THESIS_SIGMA[i % len(THESIS_SIGMA)] for i in range(n))
-    g = dict(THESIS_GAINS["pd"])
+    g = dict(GAINS["electric_pd"])
     d = ClosedLoop(f"{model.name}_loop",
                    [reference_block(q_spec, s_spec), cascade_block(arm, "pd", DT, gains=g),
                     electric_plant_block(arm, DT)])
@@ -262,8 +267,10 @@ def _theorem10(model: SoftModel, steps: int) -> Example:
     dyn = SoftDynamics(model)
     lin = LinearRoute(dyn)
     n, g = model.dof, GAINS["theorem10"]
-    spec = SOFT_REFERENCE_3D if model.kind == "pcc-3d" else SOFT_REFERENCE
+    spec = {"pcc-3d": SOFT_REFERENCE_3D, "affine-planar": SOFT_REGULATION}.get(
+        model.kind, SOFT_REFERENCE)
     amp, phase = _cycle(spec["amplitude"], n), _cycle(spec["phase"], n)
+    error0 = _cycle(spec.get("initial_error", (0.0,)), n)
     unit = "m" if model.kind == "pcc-3d" else "rad"
     ref = soft_reference_block("ref", DT, tuple(amp), spec["omega"], tuple(phase), unit=unit)
     loop = closed_loop_block(dyn, DT, lin=lin).with_defaults(
@@ -275,7 +282,7 @@ def _theorem10(model: SoftModel, steps: int) -> Example:
                    externals={"noise": 2 * n})
     r0 = d.blocks["ref"].eval(u=[0.0])[1]
     sc = Scenario(f"{model.name}_loop", d, steps=steps,
-                  x0={"loop.q": r0[:n], "loop.qd": r0[n:2 * n]},
+                  x0={"loop.q": r0[:n] - error0, "loop.qd": r0[n:2 * n]},
                   externals={"noise": np.zeros((steps, 2 * n))})
     return Example(
         "theorem10", "Theorem 10 on the soft robot",
@@ -283,7 +290,8 @@ def _theorem10(model: SoftModel, steps: int) -> Example:
         "controller acting inside one ROS2 step of the plant per sample (the loop of the "
         "section 12.2 simulations; a sampled controller with τ held over 1 ms diverges on "
         "the lumped-mass PCC models, whose light modes are too fast for it), tracking "
-        "sinusoids q_d,i = M_i sin(ω t + φ_i) from rest on the reference; no measurement "
+        "sinusoids q_d,i = M_i sin(ω t + φ_i) from rest on the reference (affine bodies: "
+        "regulation to upright, q_d = 0, from an initial error); no measurement "
         "noise (the external input `noise` is held at zero), no tip force.",
         sc, (("ref.q_d", "loop.q", unit),),
         "Λ = 5, K_d = 1, K_π = 1: the higher gains of the section 12.2.1 study")
