@@ -151,6 +151,9 @@ def render(manifest: dict, c_src: bytes, h_src: bytes, manifest_bytes: bytes,
         **values, "MODEL_FILE": manifest.get("model_file", m),
         "HASH": manifest["hash"][:16], "CASADI_VERSION": manifest.get("casadi_version", "?"),
         "EXAMPLE_TEXT": example_text(ex), "ORDER": " -> ".join(ex.loop.order),
+        # A shipped model's file is recorded relative to the repository: name it instead.
+        "MODEL_ARG": m if not Path(manifest.get("model_file", m)).is_absolute()
+        else manifest["model_file"],
         "SECONDS": f"{ex.scenario.n_steps * ex.loop.dt:g}",
         "FUNCTIONS": table}).encode()
     record = {"model": m, "bundle_hash": manifest["hash"], "export_version": EXPORT_VERSION,

@@ -89,8 +89,8 @@ RIGID_REFERENCE = dict(amplitude=(0.6, 0.5), frequency=(0.25, 0.4), offset=(0.0,
 #: Theorem 5 references: smoothed steps (septic, C³) of the position (rad) and the
 #: stiffness (N m/rad) of every joint, within the 0-0.3 rad and 2-4 N m/rad of the
 #: section 10.2 phases; (times, values) with a rise of ``PNEUMATIC_RISE`` s.
-PNEUMATIC_Q_STEPS = ((0.0, 2.0, 6.0), (0.0, 0.3, 0.1))
-PNEUMATIC_SIGMA_STEPS = ((0.0, 4.0, 8.0), (3.0, 4.0, 2.5))
+PNEUMATIC_Q_STEPS = ((0.0, 0.2, 5.0), (0.0, 0.3, 0.1))
+PNEUMATIC_SIGMA_STEPS = ((0.0, 2.5, 7.5), (3.0, 4.0, 2.5))
 PNEUMATIC_RISE = 1.0
 #: RK4 steps per sample of the McKibben arm (the stiff muscle forces; as the bundle's
 #: ``<model>_pneumatic_plant``, which the earlier hand-written example ran).
@@ -225,7 +225,7 @@ def _theorem5(model: RobotModel, steps: int) -> Example:
                   x0={"plant.q": q0, "plant.p": p0, "ctrl.nu": nu0, "ctrl.Pi_hat": pi0})
     return Example(
         "theorem5", "Theorem 5 on the McKibben arm",
-        "Decoupled adaptive position and stiffness control (thesis Theorem 5, section "
+        "decoupled adaptive position and stiffness control (thesis Theorem 5, section "
         "10.2) of the McKibben arm, pressures applied as commanded and clipped to "
         "[0, p_max] (10 RK4 steps per sample), the stiffness σ read from the pressures acting at each sample. ν and "
         "the pressures start from the open-loop stiffness step (K_π = 0) at rest, the "
@@ -254,7 +254,7 @@ def _electric_pd(model: RobotModel, steps: int) -> Example:
     sc = Scenario(f"{model.name}_loop", d, steps=steps, x0=init)
     return Example(
         "electric_pd", "the chapter-11 PD cascade on the electric VSA arm",
-        "The chapter-11 PD cascade (thesis eq. 11.4-11.6: link position and stiffness "
+        "the chapter-11 PD cascade (thesis eq. 11.4-11.6: link position and stiffness "
         "loops, motor position loops) of the arm with its qbmove-style electric VSAs "
         "(eq. 11.1, one RK4 step per sample, motor torques held), tracking the section "
         "11.2 sinusoids of position and stiffness from rest on the reference, at the "
@@ -286,7 +286,7 @@ def _theorem10(model: SoftModel, steps: int) -> Example:
                   externals={"noise": np.zeros((steps, 2 * n))})
     return Example(
         "theorem10", "Theorem 10 on the soft robot",
-        "Adaptive control of the soft body (thesis Theorem 10, section 12.1) with the "
+        "adaptive control of the soft body (thesis Theorem 10, section 12.1) with the "
         "controller acting inside one ROS2 step of the plant per sample (the loop of the "
         "section 12.2 simulations; a sampled controller with τ held over 1 ms diverges on "
         "the lumped-mass PCC models, whose light modes are too fast for it), tracking "
