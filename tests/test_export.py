@@ -412,6 +412,13 @@ def test_force_deletes_only_unchanged_files_of_a_sealed_record(tmp_path):
     assert "planar_2link_api.c" in names and third.kept == ["planar_2link_api.c"]
     assert "planar_2link.c" not in names and "planar_2link_loop.c" not in names
     assert {"mine.c", *first.files} <= names
+    # Even a record re-sealed by hand cannot name a file export does not write.
+    record = json.loads((out / RECORD).read_text())
+    record["files"]["mine.c"] = hashlib.sha256(mine.read_bytes()).hexdigest()
+    record["seal"] = project.seal(record)
+    (out / RECORD).write_text(json.dumps(record, indent=2))
+    export("planar_2link", out, force=True)
+    assert mine.is_file() and (out / "pendulum_1link.c").is_file() is False
     assert any("kept planar_2link_api.c" in line for line in summary(third))
 
 

@@ -14,9 +14,9 @@ Python twin is ``scenario.run()``. The export is deterministic: the same model g
 the same bytes. Every file is written atomically (a temporary file in the same
 directory, fsync, rename), and ``softgen_export.json`` records what was written with
 each file's sha256, sealed by a hash of the record itself: ``--force`` removes a file
-of an earlier export only when a valid record lists it *and* the file still has the
-recorded hash, so neither a hand-edited record nor a hand-edited file makes it delete
-a user's file.
+of an earlier export only when a valid record lists it, it is a name an export writes
+(:func:`export_names`) *and* the file still has the recorded hash, so neither a
+hand-edited record nor a hand-edited file makes it delete a user's file.
 """
 from __future__ import annotations
 
@@ -224,20 +224,31 @@ def _sha256(path: Path) -> str | None:
         return None
 
 
+def export_names(model: str) -> set[str]:
+    """Every file name an export of ``model`` writes or once wrote (export versions 1-2)."""
+    return {f"{model}{suffix}" for suffix in (".c", ".h", "_api.c", "_api.h", "_loop.c",
+                                               "_loop.h", "_loop_api.c", "_loop_api.h")} | {
+        "manifest.json", "softgen_rt.h", "softgen_loop.h", "main.c", "scenario.h",
+        "example_config.h", "Makefile", "CMakeLists.txt", "README.md", RECORD}
+
+
 def previous_files(out: Path) -> dict[str, str]:
     """The files a valid earlier record of ``out`` lists, with their sha256.
 
     Empty when there is no record, or it is not valid JSON, or its seal does not match
-    its content (hand-edited), or a name is not a plain file name of ``out``."""
+    its content (hand-edited). Only names an export of the record's model writes
+    (:func:`export_names`) are returned, so that not even a re-sealed record can point
+    at a file of another name."""
     try:
         record = json.loads((out / RECORD).read_text())
-        files = record["files"]
-        if record.get("seal") != seal(record) or not isinstance(files, dict):
+        files, model = record["files"], record["model"]
+        if record.get("seal") != seal(record) or not isinstance(files, dict) \
+                or not isinstance(model, str):
             return {}
     except (OSError, ValueError, UnicodeDecodeError, KeyError, TypeError):
         return {}
-    return {k: v for k, v in files.items() if isinstance(k, str) and isinstance(v, str)
-            and k not in ("", ".", "..") and "/" not in k and "\\" not in k}
+    own = export_names(model) - {RECORD}
+    return {k: v for k, v in files.items() if k in own and isinstance(v, str)}
 
 
 def export(model: str, out: Path | str, *, force: bool = False, build: bool = False,
