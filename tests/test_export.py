@@ -1,11 +1,17 @@
-"""``softgen export``: the C project builds with the system compiler, its example loop
-gives the Python/CasADi loop's trajectory to 1e-12, it needs neither Python nor CasADi,
-it reports its jitter, the export is deterministic, and bad input gets one line."""
+"""``softgen export``: the C project of a scenario's diagram builds with the system
+compiler, its generic example program gives ``scenario.run()``'s trajectory to 1e-12
+(rigid, McKibben, electric, soft, and a user's model file), it needs neither Python nor
+CasADi, it reports its jitter, the scenario is chosen by capability, the export is
+deterministic and atomic, ``--force`` deletes no user file, and bad input gets one line."""
 from __future__ import annotations
 
+import hashlib
+import json
+import os
 import re
 import shutil
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -15,26 +21,70 @@ import pytest
 from softgen.bundles.bundle import casadi_functions
 from softgen.cli import main
 from softgen.core.errors import SoftgenError
-from softgen.export.project import RECORD, bundle_files, export, python_loop, summary
 from softgen.core.paths import GENERATED_DIR
+from softgen.export import project
+from softgen.export.example import python_loop
+from softgen.export.project import RECORD, bundle_files, export, summary
+from softgen.export.scenarios import capability, example_for
+from softgen.modelfile.model import MODELS_DIR, load_model
 
-MODELS = ("planar_2link", "planar_2link_mckibben")
-STATE = {"planar_2link": ("pi_hat",), "planar_2link_mckibben": ("nu", "Pi_hat")}
+#: One model of each capability: rigid, McKibben, electric VSAs, soft (planar PCC).
+MODELS = ("planar_2link", "planar_2link_mckibben", "arm_2link_electric", "pcc_planar_4seg")
+
+#: A user's model file: a planar three-link arm, no actuators (a rigid chain).
+USER_ARM = """\
+[model]
+name = "user_arm3"
+kind = "planar"
+
+[[links]]
+joint = "revolute"
+length = 0.3
+mass = 0.8
+com = 0.15
+inertia = 0.006
+
+[[links]]
+joint = "revolute"
+length = 0.25
+mass = 0.5
+com = 0.12
+inertia = 0.003
+
+[[links]]
+joint = "revolute"
+length = 0.15
+mass = 0.2
+com = 0.07
+inertia = 0.0005
+
+[parameters]
+uncertain = ["mass", "com", "inertia"]
+"""
 
 
 @pytest.fixture(scope="module")
-def built(tmp_path_factory):
+def user_model(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("user") / "user_arm3.toml"
+    path.write_text(USER_ARM)
+    return path
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory, user_model):
     """Each model exported and built once with its Makefile (the system compiler)."""
     from softgen.codegen.build import find_compiler
     if find_compiler() is None or shutil.which("make") is None:
         pytest.skip("no C compiler or make")
     root = tmp_path_factory.mktemp("export")
-    return {m: export(m, root / m, build=True) for m in MODELS}
+    out = {m: export(m, root / m, build=True) for m in MODELS}
+    out["user"] = export(str(user_model), root / "user", build=True)
+    return out
 
 
 def _run(cmd, cwd=None, ok=True) -> subprocess.CompletedProcess:
     r = subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True,
-                       timeout=120)
+                       timeout=300)
     if ok:
         assert r.returncode == 0, f"{cmd}: exit {r.returncode}\n{r.stdout}\n{r.stderr}"
     return r
@@ -45,59 +95,68 @@ def _csv(path: Path) -> tuple[list[str], np.ndarray]:
                                                                    skiprows=1, ndmin=2)
 
 
-def _joint_errors(text: str, header: str) -> np.ndarray:
-    """(rms, max) per joint of the block under ``header`` in the example's report."""
-    block = text.split(header, 1)[1].split(":\n", 1)[1]
-    rows = re.findall(r"^  joint \d+: rms (\S+), max (\S+)$", block, re.M)
-    return np.array(rows[:2], dtype=float)
+def _reported(text: str, header: str) -> np.ndarray:
+    """(rms, max) per component of the error block under ``header`` in the report."""
+    rows = []
+    for line in text.split(header + " over", 1)[1].splitlines()[1:]:
+        m = re.fullmatch(r"  \[\d+\]: rms (\S+), max (\S+)", line)
+        if m is None:
+            break
+        rows.append(m.groups())
+    return np.array(rows, dtype=float)
 
 
 @pytest.mark.compiler
-@pytest.mark.parametrize("model", MODELS)
-def test_exported_loop_equals_python_casadi_loop(built, model, tmp_path):
-    steps = int(np.random.default_rng(17).integers(1000, 1500))
+@pytest.mark.parametrize("model", [*MODELS, "user"])
+def test_exported_program_equals_scenario_run(built, model, user_model, tmp_path):
+    """The C program's --csv is scenario.run()'s trajectory, every column, to 1e-12; the
+    errors it reports are the trace's."""
+    steps = int(np.random.default_rng(17 + [*MODELS, "user"].index(model)).integers(300, 700))
     res = built[model]
+    name = str(user_model) if model == "user" else model
     r = _run([res.binary, "--fast", "--steps", steps, "--csv", tmp_path / "c.csv"])
     names, c_rows = _csv(tmp_path / "c.csv")
-    columns, py_rows = python_loop(model, steps)
+    ex = example_for(name, steps=steps)
+    tr = ex.scenario.run(progress=False)
+    columns, py_rows = python_loop(name, steps)
     assert names == columns and c_rows.shape == py_rows.shape == (steps, len(columns))
-    checked = [j for j, name in enumerate(columns)
-               if re.fullmatch(rf"(q|qd|{'|'.join(STATE[model])})\d+", name)]
-    assert len(checked) == 4 + sum(name.startswith(STATE[model]) for name in columns) > 4
-    np.testing.assert_allclose(c_rows[:, checked], py_rows[:, checked], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(c_rows, py_rows, rtol=0, atol=1e-12)    # and every other column
-    # The errors the C program reports are those of the trajectory.
-    col = {name: j for j, name in enumerate(columns)}
-    e = py_rows[:, [col["q1"], col["q2"]]] - py_rows[:, [col["q_d1"], col["q_d2"]]]
-    want = np.c_[np.sqrt(np.mean(e ** 2, axis=0)), np.abs(e).max(axis=0)]
-    np.testing.assert_allclose(_joint_errors(r.stdout, "tracking error q - q_d"), want, rtol=1e-5)
-    if model == "planar_2link_mckibben":
-        s = py_rows[:, [col["sigma1"], col["sigma2"]]] - py_rows[:, [col["sigma_d1"],
-                                                                     col["sigma_d2"]]]
-        want = np.c_[np.sqrt(np.mean(s ** 2, axis=0)), np.abs(s).max(axis=0)]
-        np.testing.assert_allclose(_joint_errors(r.stdout, "stiffness error"), want, rtol=1e-5)
+    assert columns[:2] == ["k", "t"] and np.all(np.isfinite(py_rows))
+    np.testing.assert_allclose(c_rows, py_rows, rtol=1e-12, atol=1e-12)
+    for ref, act, _ in ex.errors:
+        e = tr.error(ref, act)
+        want = np.c_[tr.rms(ref, act), np.abs(e).max(axis=0)]
+        np.testing.assert_allclose(_reported(r.stdout, f"{act} - {ref}"), want, rtol=1e-5)
     assert re.search(rf"^fast: {steps} steps in \S+ s, \d+ steps/s", r.stdout, re.M)
 
 
-@pytest.mark.compiler
-def test_clipped_pressures_agree_too(built, tmp_path):
-    """A lower supply pressure (a model file given by path) makes Theorem 5's commands
-    clip at p_max: C and Python clip the same samples and still agree to 1e-12."""
-    from softgen.modelfile.model import MODELS_DIR
-    text = (MODELS_DIR / "planar_2link_mckibben.toml").read_text()
-    path = tmp_path / "low_supply.toml"
-    path.write_text(text.replace("pressure_max = 8e5", "pressure_max = 4.5e4"))
-    res = export(str(path), tmp_path / "o", build=True)
-    assert "temporary directory" in res.note
-    steps = 1200
-    r = _run([res.binary, "--fast", "--steps", steps, "--csv", tmp_path / "c.csv"])
-    _, c_rows = _csv(tmp_path / "c.csv")
-    columns, py_rows = python_loop(str(path), steps)
-    np.testing.assert_allclose(c_rows, py_rows, rtol=0, atol=1e-12)
-    p_cmd = py_rows[:, [j for j, name in enumerate(columns) if name.startswith("p_cmd")]]
-    clipped = int(((p_cmd > 4.5e4) | (p_cmd < 0)).sum())
-    assert clipped > 0
-    assert f"clipped to [0, p_max]: {clipped} of {4 * steps}" in r.stdout
+def test_scenario_is_chosen_by_capability(tmp_path):
+    """The loop follows the model's body and actuators, not its name: a renamed copy of
+    a shipped model gets the same loop; an electric arm whose motors are too light for
+    the 1 ms sample is run as a torque-driven rigid chain."""
+    want = {"planar_2link": "slotine_li", "planar_2link_mckibben": "theorem5",
+            "arm_2link_electric": "electric_pd", "pcc_planar_4seg": "theorem10",
+            "pendulum_1link": "theorem5", "pendulum_qbmove": "slotine_li",
+            "pcc_3d_4seg": "theorem10", "soft_pendulum": "theorem10"}
+    for m, kind in want.items():
+        assert capability(load_model(m)) == kind, m
+        src = (MODELS_DIR / f"{m}.toml").read_text()
+        path = tmp_path / f"renamed_{m}.toml"
+        path.write_text(src.replace(f'name = "{m}"', f'name = "zz_{m}"'))
+        assert load_model(path).name == f"zz_{m}"
+        assert capability(load_model(path)) == kind, m
+    heavy = (MODELS_DIR / "planar_2link.toml").read_text().replace(
+        "motor_inertia = 3e-6", "motor_inertia = 1e-3")
+    (tmp_path / "heavy.toml").write_text(heavy)
+    assert capability(load_model(tmp_path / "heavy.toml")) == "electric_pd"
+
+
+def test_export_imports_no_experiment():
+    code = ("import sys, softgen.export.project, softgen.cli.export; "
+            "bad = [m for m in sys.modules if m.startswith('softgen.experiments') "
+            "or m.startswith('matplotlib')]; print(bad); sys.exit(1 if bad else 0)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
 
 
 @pytest.mark.compiler
@@ -118,6 +177,8 @@ def test_cmake_build_gives_the_same_trajectory(built, tmp_path):
 @pytest.mark.compiler
 def test_project_has_no_python_or_casadi_dependency(built):
     for res in built.values():
+        main_c = (res.out / "main.c").read_text()
+        assert res.model not in main_c                     # one generic program
         for path in res.out.iterdir():
             if path.suffix in (".c", ".h") or path.name in ("Makefile", "CMakeLists.txt"):
                 text = path.read_text()
@@ -159,15 +220,25 @@ def test_real_time_run_reports_jitter(built):
 
 @pytest.mark.compiler
 def test_typed_wrappers_equal_casadi_on_random_inputs(built, tmp_path):
-    """Every function's struct, through init/eval/free, gives CasADi's outputs."""
+    """Every function's struct, through init/eval/free, gives CasADi's outputs: the
+    bundle's and the loop's step (on random state, parameters and sample index)."""
     res = built["planar_2link_mckibben"]
     m = res.model
     with bundle_files(m) as (_, manifest, _):
         fns = casadi_functions(manifest)
+    step = example_for(m).loop.step_fun()
+    sigs = dict(manifest["functions"])
+    sigs[step.name()] = {
+        "inputs": [{"name": step.name_in(i), "shape": list(step.size_in(i))}
+                   for i in range(step.n_in())],
+        "outputs": [{"name": step.name_out(i), "shape": list(step.size_out(i))}
+                    for i in range(step.n_out())]}
+    fns[step.name()] = step
     rng = np.random.default_rng(5)
-    code = ["#include <stdio.h>", f'#include "{m}_api.h"', "int main(void) {", "  int rc;"]
+    code = ["#include <stdio.h>", f'#include "{m}_api.h"', f'#include "{m}_loop_api.h"',
+            "int main(void) {", "  int rc;"]
     values, expected = [], []
-    for name, sig in manifest["functions"].items():
+    for name, sig in sigs.items():
         code += ["  {", f"    static {name}_t f;", f"    if ((rc = {name}_init(&f))) return 10;"]
         args = []
         for s in sig["inputs"]:
@@ -178,8 +249,8 @@ def test_typed_wrappers_equal_casadi_on_random_inputs(built, tmp_path):
             code.append(f"    for (int j = 0; j < {r * c}; ++j) "
                         f"if (scanf(\"%lf\", &f.in.{s['name']}[j]) != 1) return 11;")
         code.append("    if (" f"{name}_eval(&f)) return 12;")
-        for s, out in zip(sig["outputs"], fns[name](*args) if len(sig["outputs"]) > 1
-                          else [fns[name](*args)]):
+        outs = fns[name](*args)
+        for s, out in zip(sig["outputs"], outs if len(sig["outputs"]) > 1 else [outs]):
             r, c = s["shape"]
             expected += np.asarray(out, dtype=float).reshape(r, c).ravel(order="F").tolist()
             code.append(f"    for (int j = 0; j < {r * c}; ++j) "
@@ -196,7 +267,9 @@ def test_typed_wrappers_equal_casadi_on_random_inputs(built, tmp_path):
     got = np.array([float(v) for v in r.stdout.split()])
     assert got.shape == (len(expected),)
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
-    assert "all 26 function wrappers" in _run([res.binary, "--check"]).stdout
+    out = _run([res.binary, "--check"]).stdout
+    assert f"all {len(manifest['functions'])} function wrappers of {m} " in out
+    assert f"all 1 function wrappers of {m}_loop " in out
 
 
 @pytest.mark.compiler
@@ -204,11 +277,15 @@ def test_wrappers_refuse_mismatched_buffers_and_shapes(built, tmp_path):
     """init checks the compile-time buffers against _work() and the declared shapes
     against the generated sparsity: a header and a source that disagree give an error."""
     res = built["planar_2link"]
-    f = "planar_2link_slotine_li_loop"
+    f = "planar_2link_loop_step"
+    h = (res.out / "planar_2link_loop.h").read_text()
+    sz_arg = re.search(rf"^#define {f}_SZ_ARG (\d+)$", h, re.M)[1]   # SX steps need no w
     for case, (name, old, new, message) in {
-        "work": ("planar_2link.h", f"#define {f}_SZ_W 30097", f"#define {f}_SZ_W 30000",
+        "work": ("planar_2link_loop.h", f"#define {f}_SZ_ARG {sz_arg}",
+                 f"#define {f}_SZ_ARG {int(sz_arg) - 1}",
                  "work buffers too small for the generated function"),
-        "shape": ("planar_2link_api.c", f"{f}_shape_in[] = {{4, 1,", f"{f}_shape_in[] = {{1, 4,",
+        "shape": ("planar_2link_loop_api.c", f"{f}_shape_in[] = {{9, 1,",
+                  f"{f}_shape_in[] = {{1, 9,",
                   "an input or output is not dense of the expected shape"),
     }.items():
         d = tmp_path / case
@@ -222,6 +299,27 @@ def test_wrappers_refuse_mismatched_buffers_and_shapes(built, tmp_path):
 
 
 @pytest.mark.compiler
+def test_non_finite_state_stops_in_one_line(built, tmp_path):
+    res = built["planar_2link"]
+    d = tmp_path / "nan"
+    shutil.copytree(res.out, d)
+    text = (d / "scenario.h").read_text()
+    # The plant's initial velocity (state plant.qd) made NaN: the first x_next is NaN.
+    state = re.findall(r'\{"([a-z_.]+)", (\d+), (\d+), "[^"]*"\}', text.split("SG_X0")[0]
+                       .split("SG_STATE")[1])
+    off = {nm: int(o) for nm, o, _ in state}["plant.qd"]
+    x0 = re.search(r"SG_X0\[[^\]]*\] = \{\n(.*?)\n\};", text, re.S)
+    items = x0[1].split("\n")
+    items[off] = "  NAN,"
+    (d / "scenario.h").write_text(text.replace(x0[1], "\n".join(items)))
+    _run(["make", "-C", d])
+    r = _run([d / "planar_2link_example", "--fast", "--steps", 50], ok=False)
+    assert r.returncode == 1 and r.stderr.count("\n") == 1
+    assert re.fullmatch(r"error: non-finite \S+ at t = 0\.001 s \(sample 0\); "
+                        r"the loop diverged\n", r.stderr)
+
+
+@pytest.mark.compiler
 def test_example_refuses_bad_flags_in_one_line(built):
     exe = built["planar_2link"].binary
     for args in (["--steps", "0"], ["--steps", "5", "--seconds", "1"], ["--bogus"],
@@ -232,12 +330,13 @@ def test_example_refuses_bad_flags_in_one_line(built):
 
 
 def test_export_is_deterministic(tmp_path):
-    for m in MODELS:
+    for m in ("planar_2link", "planar_2link_mckibben"):
         a, b = export(m, tmp_path / f"{m}_a"), export(m, tmp_path / f"{m}_b")
         assert a.files == b.files and RECORD in a.files and "main.c" in a.files
         for name in a.files:
             assert (a.out / name).read_bytes() == (b.out / name).read_bytes(), name
         assert (a.out / f"{m}.c").read_bytes() == (GENERATED_DIR / m / f"{m}.c").read_bytes()
+        assert not [p for p in a.out.iterdir() if p.name.startswith(".")]   # no temporaries
 
 
 def test_stale_bundle_is_regenerated(tmp_path):
@@ -255,16 +354,72 @@ def test_stale_bundle_is_regenerated(tmp_path):
         assert (res.out / name).read_bytes() == (ref.out / name).read_bytes(), name
 
 
-def test_model_without_controller_gets_library_only(tmp_path, capsys):
-    assert main(["export", "soft_pendulum", "--out", str(tmp_path / "o")]) == 0
-    out = capsys.readouterr().out
-    assert "no example loop for soft_pendulum" in out and "make -C" in out
-    files = {p.name for p in (tmp_path / "o").iterdir()}
-    assert {"soft_pendulum.c", "soft_pendulum_api.h", "Makefile", "CMakeLists.txt"} <= files
-    assert not files & {"main.c", "example_config.h", "softgen_loop.h"}
-    assert "all: $(LIB)" in (tmp_path / "o" / "Makefile").read_text()
-    with pytest.raises(SoftgenError, match="no example loop"):
-        python_loop("soft_pendulum", 10)
+def test_every_file_is_written_atomically(tmp_path, monkeypatch):
+    """Each file goes through a temporary file in the same directory, fsync and rename;
+    a failure while writing leaves the previous file whole and no temporary behind."""
+    seen = []
+    real_replace, real_fsync = os.replace, os.fsync
+    synced = []
+    monkeypatch.setattr(project.os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd)))
+
+    def replace(src, dst):
+        assert Path(src).parent == Path(dst).parent and Path(src).name.startswith(".")
+        seen.append(Path(dst).name)
+        real_replace(src, dst)
+
+    monkeypatch.setattr(project.os, "replace", replace)
+    res = export("pendulum_1link", tmp_path / "o")
+    assert sorted(seen) == sorted(res.files) and seen[-1] == RECORD
+    assert len(synced) >= len(res.files)
+    before = {p.name: p.read_bytes() for p in res.out.iterdir()}
+
+    calls = {"n": 0}
+
+    def failing(src, dst):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise OSError(28, "No space left on device")
+        real_replace(src, dst)
+
+    monkeypatch.setattr(project.os, "replace", failing)
+    monkeypatch.setattr(project, "EXPORT_VERSION", "changed")   # the record would differ
+    with pytest.raises(OSError):
+        export("pendulum_1link", res.out, force=True)
+    after = {p.name: p.read_bytes() for p in res.out.iterdir()}
+    assert set(after) == set(before)                              # no temporary left
+    assert after[RECORD] == before[RECORD]                        # record never half-new
+
+
+def test_force_deletes_only_unchanged_files_of_a_sealed_record(tmp_path):
+    out = tmp_path / "o"
+    first = export("pendulum_1link", out)
+    mine = out / "mine.c"
+    mine.write_text("/* the user's own file */\n")
+    record = json.loads((out / RECORD).read_text())
+    # Hand-edited record: it now claims mine.c (with its true hash) and drops nothing.
+    record["files"]["mine.c"] = hashlib.sha256(mine.read_bytes()).hexdigest()
+    (out / RECORD).write_text(json.dumps(record, indent=2))
+    second = export("planar_2link", out, force=True)
+    assert mine.read_text() == "/* the user's own file */\n"
+    # The record was not valid, so nothing of the first export was removed either.
+    assert (out / "pendulum_1link.c").is_file() and second.kept == []
+    # Now a valid record (the second export's): a file it wrote, edited since, is kept;
+    # one left unchanged is removed when the next export no longer writes it.
+    api = out / "planar_2link_api.c"
+    api.write_text(api.read_text() + "/* edited by hand */\n")
+    third = export("pendulum_1link", out, force=True)
+    names = {p.name for p in out.iterdir()}
+    assert "planar_2link_api.c" in names and third.kept == ["planar_2link_api.c"]
+    assert "planar_2link.c" not in names and "planar_2link_loop.c" not in names
+    assert {"mine.c", *first.files} <= names
+    # Even a record re-sealed by hand cannot name a file export does not write.
+    record = json.loads((out / RECORD).read_text())
+    record["files"]["mine.c"] = hashlib.sha256(mine.read_bytes()).hexdigest()
+    record["seal"] = project.seal(record)
+    (out / RECORD).write_text(json.dumps(record, indent=2))
+    export("planar_2link", out, force=True)
+    assert mine.is_file() and (out / "pendulum_1link.c").is_file() is False
+    assert any("kept planar_2link_api.c" in line for line in summary(third))
 
 
 def test_bad_input_gets_one_line(tmp_path, capsys, monkeypatch):
@@ -276,6 +431,9 @@ def test_bad_input_gets_one_line(tmp_path, capsys, monkeypatch):
 
     assert "unknown model 'no_such_arm'" in error(["export", "no_such_arm", "--out",
                                                    str(tmp_path / "x")])
+    bad = tmp_path / "bad.toml"
+    bad.write_text(USER_ARM.replace("mass = 0.8", "mass = -0.8"))
+    assert "mass" in error(["export", str(bad), "--out", str(tmp_path / "y")])
     full = tmp_path / "full"
     full.mkdir()
     (full / "mine.txt").write_text("keep")
@@ -285,11 +443,8 @@ def test_bad_input_gets_one_line(tmp_path, capsys, monkeypatch):
     assert "no C compiler" in error(["export", "planar_2link", "--out", str(tmp_path / "b"),
                                      "--build"])
     assert not (tmp_path / "b").exists()                   # refused before writing anything
-    # --force overwrites, and removes what the previous export wrote and this one does not.
-    assert main(["export", "planar_2link", "--out", str(full), "--force"]) == 0
-    assert main(["export", "soft_pendulum", "--out", str(full), "--force"]) == 0
-    names = {p.name for p in full.iterdir()}
-    assert "mine.txt" in names and "soft_pendulum.c" in names
-    assert not names & {"planar_2link.c", "main.c", "planar_2link_api.h"}
+    with pytest.raises(SoftgenError, match="steps: expected a positive integer"):
+        python_loop("planar_2link", 0)
     lines = summary(export("planar_2link", full, force=True))
     assert any(line.startswith("run:") for line in lines)
+    assert (full / "mine.txt").read_text() == "keep"

@@ -1,8 +1,8 @@
 """``softgen export``: arguments and entry point (the work is in :mod:`softgen.export.project`)."""
 from __future__ import annotations
 
-HELP = ("a self-contained C project: generated code, typed wrappers, CMake/Makefile, "
-        "a fixed-rate example loop")
+HELP = ("a self-contained C project: generated code, typed wrappers, CMake/Makefile, and "
+        "the C of an example closed loop (chosen by the model's kind) in a fixed-rate driver")
 
 
 def add_arguments(p) -> None:
@@ -12,7 +12,8 @@ def add_arguments(p) -> None:
     p.add_argument("--out", required=True, metavar="DIR",
                    help="directory of the C project (new or empty unless --force)")
     p.add_argument("--force", action="store_true",
-                   help="write into a non-empty DIR, overwriting the exported files")
+                   help="write into a non-empty DIR, overwriting the exported files (files of an "
+                        "earlier export are removed only if unchanged since)")
     p.add_argument("--build", action="store_true",
                    help="also build the project (make, with the C compiler of --cc or $CC)")
     p.add_argument("--cc", metavar="CC", help="C compiler for --build (default $CC, cc, gcc, "
@@ -20,6 +21,8 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    # Imported here: every verb's module is imported to build the parser, and this one
+    # pulls in CasADi and the control library (start-up cost of every other verb).
     from softgen.export.project import export, summary
     res = export(args.model, args.out, force=args.force, build=args.build, cc=args.cc)
     for line in summary(res):

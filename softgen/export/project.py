@@ -1,35 +1,29 @@
-"""``softgen export MODEL --out DIR``: a self-contained C project of a model's bundle.
+"""``softgen export MODEL --out DIR``: a self-contained C project of a model and a loop.
 
-The project holds the generated ``<model>.c``/``.h`` (copied, unchanged), a hand-written
-runtime header (``softgen_rt.h``), typed wrappers emitted from the manifest
-(``<model>_api.h``/``.c``: one struct per function with named, sized inputs and
-outputs, work buffers sized at compile time, ``init``/``eval``/``free``), a
-``Makefile`` and a ``CMakeLists.txt`` (C99, ``-O2``, ``-lm``) and a README. Models with
-a shipped controller also get an example, ``main.c``, that runs it against the
-generated plant step in a fixed-rate 1 kHz loop (``clock_nanosleep`` on an absolute
-deadline) and reports tracking error, compute time and period jitter:
+The project holds the model's generated bundle (``<model>.c``/``.h``, copied unchanged),
+the C of the example scenario's closed-loop diagram (``<model>_loop.c``/``.h``: the one
+function ``<model>_loop_step`` of :meth:`softgen.blocks.ClosedLoop.step_fun`, generated
+by CasADi's CodeGenerator), typed wrappers of both emitted from their manifests
+(``<model>_api.h``/``.c``, ``<model>_loop_api.h``/``.c``), the hand-written runtime
+(``softgen_rt.h``) and fixed-rate loop (``softgen_loop.h``), one generic ``main.c`` and
+the generated ``scenario.h`` it reads (:mod:`softgen.export.example`), a ``Makefile``, a
+``CMakeLists.txt`` (C99, ``-O2``, ``-lm``) and a README.
 
-- Theorem 5 (``<model>_theorem5``) on McKibben bundles, σ from
-  ``<model>_mckibben_torque`` at the pressures acting now, pressures clipped to
-  [0, p_max], plant ``<model>_pneumatic_plant`` (what
-  :func:`softgen.control.pneumatic_loop.closed_loop_fun` composes), gains and preset as
-  :func:`softgen.experiments.ch10_pneumatic_adaptive.run_case`;
-- Slotine–Li (``<model>_slotine_li``, Prop. 10) on the other rigid bundles, plant
-  ``<model>_plant_rk4``, gains of the ``rigid-2link-adaptive`` experiment.
-
-:func:`python_loop` runs the same loop with the bundle's casadi.Functions, so that the
-C trajectory can be checked against CasADi's own evaluation (the test does, to
-1e-12). The export is deterministic: the same model gives the same bytes.
-
-Parts: :mod:`softgen.export.example` (the example's configuration and its Python/CasADi
-twin), :mod:`softgen.export.api` (the typed wrappers), ``templates/`` (the
-hand-written C, build files and README, filled in by :func:`render`).
+The scenario is chosen by what the model is (:mod:`softgen.export.scenarios`), and its
+Python twin is ``scenario.run()``. The export is deterministic: the same model gives
+the same bytes. Every file is written atomically (a temporary file in the same
+directory, fsync, rename), and ``softgen_export.json`` records what was written with
+each file's sha256, sealed by a hash of the record itself: ``--force`` removes a file
+of an earlier export only when a valid record lists it, it is a name an export writes
+(:func:`export_names`) *and* the file still has the recorded hash, so neither a
+hand-edited record nor a hand-edited file makes it delete a user's file.
 """
 from __future__ import annotations
 
 import contextlib
 import hashlib
 import json
+import os
 import re
 import shlex
 import shutil
@@ -39,21 +33,24 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
+from softgen.bundles.bundle import check_model_unchanged, generate
+from softgen.codegen.build import check_source, find_compiler, read_manifest
+from softgen.codegen.generate import BundleSpec, Generated
+from softgen.codegen.generate import render as render_bundle
 from softgen.core.errors import BuildError, BundleError, SoftgenError
-from softgen.core.paths import output_dir
+from softgen.core.paths import GENERATED_DIR, output_dir, writable
 from softgen.export.api import api_header, api_source
-from softgen.export.example import (ExampleConfig, config_header, example_config, example_kind,
-                             example_text, no_example, run_python_loop)
+from softgen.export.example import example_text, python_loop, scenario_header
+from softgen.export.scenarios import DT, Example, example_for
+from softgen.modelfile.model import MODELS_DIR, load_model, model_path
 
-__all__ = ["ExampleConfig", "ExportResult", "bundle_files", "build_project", "example_config",
-           "export", "python_loop", "render", "run_python_loop", "summary"]
+__all__ = ["ExportResult", "bundle_files", "build_project", "export", "python_loop", "render",
+           "summary"]
 
 TEMPLATES = Path(__file__).parent / "templates"
 
 #: Bumped whenever the exported files for the same bundle would change.
-EXPORT_VERSION = "1"
+EXPORT_VERSION = "2"
 
 # -- which bundle ------------------------------------------------------------------------
 
@@ -68,11 +65,6 @@ def bundle_files(model: str, generated_root: Path | None = None):
     given by path is always generated in a temporary directory. ``note`` says which
     (empty when the bundle was current).
     """
-    from softgen.bundles.bundle import check_model_unchanged, generate
-    from softgen.codegen.build import check_source, read_manifest
-    from softgen.modelfile.model import MODELS_DIR, load_model, model_path
-    from softgen.core.paths import GENERATED_DIR, writable
-
     path = model_path(model)            # one ModelError line for an unknown name
     root = Path(generated_root or GENERATED_DIR)
     shipped = path.resolve().parent == MODELS_DIR.resolve()
@@ -99,43 +91,11 @@ def bundle_files(model: str, generated_root: Path | None = None):
         yield bundle, read_manifest(bundle), f"generated {name} in a temporary directory ({why})"
 
 
-def python_loop(model: str, steps: int = 1000, *,
-                generated_root: Path | None = None) -> tuple[list[str], np.ndarray]:
-    """The example loop of ``softgen export MODEL`` run with CasADi in Python.
-
-    Same functions (rebuilt from the model file, :func:`softgen.bundles.bundle.casadi_functions`),
-    same configuration and same order of operations as the exported ``main.c``; returns
-    ``(columns, rows)``, one row per sample as its ``--csv`` writes them.
-    """
-    from softgen.bundles.bundle import casadi_functions
-    with bundle_files(model, generated_root) as (_, manifest, _):
-        cfg = example_config(manifest)
-        if cfg is None:
-            raise SoftgenError(f"{manifest['model']}: no example loop ({no_example(manifest)})")
-        functions = casadi_functions(manifest)
-    return cfg.columns, run_python_loop(cfg, functions, steps)
-
-
 # -- rendering ---------------------------------------------------------------------------
 
-def _template(name: str, values: dict[str, str], example: bool) -> str:
-    """Template ``name`` with ``@KEY@`` replaced and the ``@IF_EXAMPLE@ … @ELSE@ … @END@``
-    line blocks (and ``@IF_EXAMPLE_INLINE@ … @END_INLINE@`` spans) kept or dropped."""
+def _template(name: str, values: dict[str, str]) -> str:
+    """Template ``name`` with every ``@KEY@`` replaced (one left over is a bug: raised)."""
     text = (TEMPLATES / name).read_text()
-    text = re.sub(r"@IF_EXAMPLE_INLINE@(.*?)@END_INLINE@", lambda mt: mt[1] if example else "",
-                  text, flags=re.S)
-    out, keep = [], [True]
-    for line in text.splitlines(keepends=True):
-        tag = line.strip()
-        if tag == "@IF_EXAMPLE@":
-            keep.append(example)
-        elif tag == "@ELSE@":
-            keep[-1] = not keep[-1]
-        elif tag == "@END@":
-            keep.pop()
-        elif all(keep):
-            out.append(line)
-    text = "".join(out)
     for key, value in values.items():
         text = text.replace(f"@{key}@", value)
     left = sorted(set(re.findall(r"@[A-Z_]+@", text)))
@@ -143,36 +103,63 @@ def _template(name: str, values: dict[str, str], example: bool) -> str:
         raise RuntimeError(f"export template {name}: unfilled placeholders {left}")
     return text
 
-def render(manifest: dict, c_src: bytes, h_src: bytes, manifest_bytes: bytes) -> dict[str, bytes]:
-    """The exported project's files (name -> bytes); a function of the bundle only."""
+
+def loop_bundle(ex: Example, model: str) -> tuple[dict, bytes, bytes]:
+    """``(manifest, C, header)`` of ``<model>_loop_step``, the example diagram's one step."""
+    d = ex.loop
+    f = d.step_fun()
+    if f.name() != f"{model}_loop_step":
+        raise SoftgenError(f"scenario {ex.scenario.name}: diagram {d.name}: expected the "
+                           f"name {model}_loop (its step names the generated C)")
+    files = render_bundle(BundleSpec(
+        name=f"{model}_loop", functions=[Generated(f, f"one sample of {d.name}: "
+                                                     + " -> ".join(d.order))],
+        identity=repr((model, d.describe())).encode()))
+    return (json.loads(files["manifest.json"]), files[f"{model}_loop.c"],
+            files[f"{model}_loop.h"])
+
+
+def seal(record: dict) -> str:
+    """sha256 over a record's content (everything but the seal), canonical JSON."""
+    body = {k: v for k, v in record.items() if k != "seal"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
+
+
+def render(manifest: dict, c_src: bytes, h_src: bytes, manifest_bytes: bytes,
+           ex: Example) -> dict[str, bytes]:
+    """The exported project's files (name -> bytes); a function of the bundle and the
+    example scenario only."""
     m = manifest["model"]
-    cfg = example_config(manifest)
-    example = cfg is not None
+    loop_manifest, loop_c, loop_h = loop_bundle(ex, m)
     files = {f"{m}.c": c_src, f"{m}.h": h_src,
              "manifest.json": manifest_bytes,
              "softgen_rt.h": (TEMPLATES / "softgen_rt.h").read_bytes(),
              f"{m}_api.h": api_header(manifest, h_src.decode()).encode(),
-             f"{m}_api.c": api_source(manifest).encode()}
-    title = ("Theorem 5 on the McKibben arm" if cfg and cfg.kind == "theorem5" else
-             "Slotine-Li (Prop. 10) on the rigid arm")
-    values = {"MODEL": m, "EXAMPLE_TITLE": title}
-    if example:
-        files["softgen_loop.h"] = (TEMPLATES / "softgen_loop.h").read_bytes()
-        files["main.c"] = _template(f"main_{cfg.kind}.c", values, example).encode()
-        files["example_config.h"] = config_header(cfg, manifest).encode()
-    files["Makefile"] = _template("Makefile.in", values, example).encode()
-    files["CMakeLists.txt"] = _template("CMakeLists.txt.in", values, example).encode()
-    table = "\n".join(f"- `{f}`: {s.get('doc', '')}" for f, s in manifest["functions"].items())
+             f"{m}_api.c": api_source(manifest).encode(),
+             f"{m}_loop.c": loop_c, f"{m}_loop.h": loop_h,
+             f"{m}_loop_api.h": api_header(loop_manifest, loop_h.decode()).encode(),
+             f"{m}_loop_api.c": api_source(loop_manifest).encode(),
+             "softgen_loop.h": (TEMPLATES / "softgen_loop.h").read_bytes(),
+             "main.c": (TEMPLATES / "main.c").read_bytes(),
+             "scenario.h": scenario_header(ex, m, manifest["hash"]).encode()}
+    values = {"MODEL": m, "EXAMPLE_TITLE": ex.title}
+    files["Makefile"] = _template("Makefile.in", values).encode()
+    files["CMakeLists.txt"] = _template("CMakeLists.txt.in", values).encode()
+    table = "\n".join(f"- `{f}`: {s.get('doc', '')}" for f, s in
+                      {**manifest["functions"], **loop_manifest["functions"]}.items())
     files["README.md"] = _template("README.md.in", {
         **values, "MODEL_FILE": manifest.get("model_file", m),
         "HASH": manifest["hash"][:16], "CASADI_VERSION": manifest.get("casadi_version", "?"),
-        "EXAMPLE_TEXT": example_text(cfg) if example else "",
-        "NO_EXAMPLE_TEXT": f"No example loop exists for {m}: {no_example(manifest)}." if
-        not example else "",
-        "FUNCTIONS": table}, example).encode()
+        "EXAMPLE_TEXT": example_text(ex), "ORDER": " -> ".join(ex.loop.order),
+        # A shipped model's file is recorded relative to the repository: name it instead.
+        "MODEL_ARG": m if not Path(manifest.get("model_file", m)).is_absolute()
+        else manifest["model_file"],
+        "SECONDS": f"{ex.scenario.n_steps * ex.loop.dt:g}",
+        "FUNCTIONS": table}).encode()
     record = {"model": m, "bundle_hash": manifest["hash"], "export_version": EXPORT_VERSION,
-              "example": cfg.kind if example else None,
+              "example": ex.kind,
               "files": {k: hashlib.sha256(v).hexdigest() for k, v in sorted(files.items())}}
+    record["seal"] = seal(record)
     files[RECORD] = (json.dumps(record, indent=2) + "\n").encode()
     return files
 
@@ -190,8 +177,9 @@ class ExportResult:
     out: Path
     model: str
     files: list[str]
-    example: str | None          # "theorem5", "slotine_li" or None
+    example: str                 # "slotine_li", "theorem5", "electric_pd", "theorem10"
     note: str                    # bundle regenerated? ("" if it was current)
+    kept: list[str]              # files of an earlier export left in place (see export)
     build_seconds: float | None = None
     binary: Path | None = None
 
@@ -203,17 +191,77 @@ def _check_out_dir(out: Path, force: bool) -> None:
                            "directory, or --force to overwrite the exported files")
 
 
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same directory, fsync'd
+    and renamed over it, so that no reader (and no crash) ever sees half a file."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o644)    # mkstemp makes 0600; these are ordinary source files
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _fsync_dir(path: Path) -> None:
+    """Make the renames in ``path`` durable (a no-op where directories cannot be opened)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _sha256(path: Path) -> str | None:
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def export_names(model: str) -> set[str]:
+    """Every file name an export of ``model`` writes or once wrote (export versions 1-2)."""
+    return {f"{model}{suffix}" for suffix in (".c", ".h", "_api.c", "_api.h", "_loop.c",
+                                               "_loop.h", "_loop_api.c", "_loop_api.h")} | {
+        "manifest.json", "softgen_rt.h", "softgen_loop.h", "main.c", "scenario.h",
+        "example_config.h", "Makefile", "CMakeLists.txt", "README.md", RECORD}
+
+
+def previous_files(out: Path) -> dict[str, str]:
+    """The files a valid earlier record of ``out`` lists, with their sha256.
+
+    Empty when there is no record, or it is not valid JSON, or its seal does not match
+    its content (hand-edited). Only names an export of the record's model writes
+    (:func:`export_names`) are returned, so that not even a re-sealed record can point
+    at a file of another name."""
+    try:
+        record = json.loads((out / RECORD).read_text())
+        files, model = record["files"], record["model"]
+        if record.get("seal") != seal(record) or not isinstance(files, dict) \
+                or not isinstance(model, str):
+            return {}
+    except (OSError, ValueError, UnicodeDecodeError, KeyError, TypeError):
+        return {}
+    own = export_names(model) - {RECORD}
+    return {k: v for k, v in files.items() if k in own and isinstance(v, str)}
+
+
 def export(model: str, out: Path | str, *, force: bool = False, build: bool = False,
            cc: str | None = None, generated_root: Path | None = None) -> ExportResult:
-    """Write the C project of ``model``'s bundle to ``out`` (see the module docstring).
+    """Write the C project of ``model`` to ``out`` (see the module docstring).
 
-    ``out`` must be new or empty unless ``force`` (then the files of the export are
-    overwritten, and those a previous export listed in ``softgen_export.json`` but this
-    one does not write are removed; nothing else is touched). ``build`` compiles the
-    project with the Makefile (``make CC=<compiler>``; without make, the same commands
-    directly) and fails with one line if there is no C compiler.
+    ``out`` must be new or empty unless ``force``: then the files of this export are
+    written over, and a file an earlier export wrote but this one does not is removed
+    only if the earlier (sealed) record lists it and its content still has the recorded
+    sha256; anything else is left in place (``ExportResult.kept``). ``build`` compiles
+    the project with the Makefile (``make CC=<compiler>``; without make, the same
+    commands directly) and fails with one line if there is no C compiler.
     """
-    from softgen.codegen.build import find_compiler
     out = Path(out)
     _check_out_dir(out, force)
     compiler = None
@@ -222,48 +270,52 @@ def export(model: str, out: Path | str, *, force: bool = False, build: bool = Fa
         if compiler is None:
             raise SoftgenError("--build: no C compiler found" + (f" ({cc or 'CC'} not on PATH)"
                                if cc else "") + "; install gcc or clang, set CC, or drop --build")
+    ex = example_for(model)
     with bundle_files(model, generated_root) as (bundle, manifest, note):
         m = manifest["model"]
         files = render(manifest, *((bundle / f).read_bytes() for f in
-                                   (f"{m}.c", f"{m}.h", "manifest.json")))
+                                   (f"{m}.c", f"{m}.h", "manifest.json")), ex)
     out.mkdir(parents=True, exist_ok=True)
-    old = out / RECORD
-    if force and old.is_file():
-        try:
-            previous = json.loads(old.read_text()).get("files", {})
-        except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
-            previous = {}
-        for name in previous:
-            if name not in files and "/" not in name and (out / name).is_file():
-                (out / name).unlink()
+    kept = []
+    if force:
+        for name, digest in sorted(previous_files(out).items()):
+            path = out / name
+            if name in files or not path.is_file() or path.is_symlink():
+                continue
+            if _sha256(path) == digest:
+                path.unlink()
+            else:
+                kept.append(name)
     for name, data in files.items():
-        (out / name).write_bytes(data)
-    res = ExportResult(out=out, model=m, files=sorted(files), example=example_kind(manifest),
-                       note=note)
+        if name != RECORD:
+            write_atomic(out / name, data)
+    write_atomic(out / RECORD, files[RECORD])    # last: it vouches for the files above
+    _fsync_dir(out)
+    res = ExportResult(out=out, model=m, files=sorted(files), example=ex.kind, note=note,
+                       kept=kept)
     if build:
-        res.build_seconds, res.binary = build_project(out, m, compiler, res.example is not None)
+        res.build_seconds, res.binary = build_project(out, m, compiler)
     return res
 
 
-def build_project(out: Path, model: str, compiler: str, example: bool) -> tuple[float, Path | None]:
-    """Build an exported project with its Makefile; return (seconds, example binary or None)."""
+def build_project(out: Path, model: str, compiler: str) -> tuple[float, Path]:
+    """Build an exported project with its Makefile; return (seconds, example binary)."""
     make = shutil.which("make")
     t0 = time.perf_counter()
     if make:
         cmds = [[make, "-C", str(out), f"CC={compiler}"]]
     else:   # the Makefile's commands, without make
         flags = [compiler, "-std=c99", "-ffp-contract=off", "-O2"]
-        objs = [f"{model}.o", f"{model}_api.o"] + (["main.o"] if example else [])
+        objs = [f"{model}.o", f"{model}_api.o", f"{model}_loop.o", f"{model}_loop_api.o",
+                "main.o"]
         cmds = [[*flags, "-c", "-o", o, o[:-2] + ".c"] for o in objs]
-        if example:
-            cmds.append([*flags, "-o", f"{model}_example", *objs, "-lm"])
+        cmds.append([*flags, "-o", f"{model}_example", *objs, "-lm"])
     for cmd in cmds:
         proc = subprocess.run(cmd, cwd=out, capture_output=True, text=True)
         if proc.returncode != 0:
             raise BuildError(f"building {out} failed ({shlex.join(cmd)})",
                              proc.stderr[-4000:])
-    binary = out / f"{model}_example"
-    return time.perf_counter() - t0, binary if example else None
+    return time.perf_counter() - t0, out / f"{model}_example"
 
 
 def summary(res: ExportResult) -> list[str]:
@@ -271,15 +323,14 @@ def summary(res: ExportResult) -> list[str]:
     o = shlex.quote(str(res.out))
     lines = [f"softgen export: {res.note}"] if res.note else []
     lines.append(f"wrote {len(res.files)} files to {res.out}: {', '.join(res.files)}")
-    if res.example is None:
-        lines.append(f"no example loop for {res.model}: it has neither {res.model}_theorem5 nor "
-                     f"{res.model}_slotine_li; exported the library, wrappers and build files")
+    if res.kept:
+        lines.append(f"kept {', '.join(res.kept)}: listed by the earlier export but changed "
+                     "since, so not removed")
     lines += [f"build: make -C {o}",
               f"   or: cmake -S {o} -B {o}/build && cmake --build {o}/build"]
     if res.build_seconds is not None:
         lines.append(f"built with make in {res.build_seconds:.1f} s")
-    if res.example is not None:
-        what = "Theorem 5" if res.example == "theorem5" else "Slotine-Li (Prop. 10)"
-        lines.append(f"run:   {o}/{res.model}_example [--fast] [--steps N | --seconds S] "
-                     f"[--csv FILE] [--rt]   ({what}, 1 kHz; see {o}/README.md)")
+    lines.append(f"run:   {o}/{res.model}_example [--fast] [--steps N | --seconds S] "
+                 f"[--csv FILE] [--rt] [--check]   ({res.example}, {1 / DT:g} Hz; see "
+                 f"{o}/README.md)")
     return lines

@@ -1,5 +1,5 @@
 /* softgen_loop.h: the fixed-rate loop, its timing statistics and the command line of the
- * example program of an exported softgen bundle (hand-written, the same for every model).
+ * example program of an exported softgen project (hand-written, the same for every model).
  *
  * The loop wakes at absolute deadlines t_0 + (k + 1) T on CLOCK_MONOTONIC
  * (clock_nanosleep with TIMER_ABSTIME), so the sampling grid does not drift with the
@@ -154,9 +154,8 @@ static void sg_err_add(sg_err *e, double v) {
 
 static double sg_err_rms(const sg_err *e) { return e->n ? sqrt(e->sumsq / e->n) : 0.0; }
 
-/* One sample: fill row (the CSV columns), return 0 or an error (already printed);
-   *ctrl_ns is the controller's share of the step's compute time. */
-typedef int (*sg_step_fn)(void *ctx, long k, double *row, long long *ctrl_ns);
+/* One sample: fill row (the CSV columns), return 0 or an error (already printed). */
+typedef int (*sg_step_fn)(void *ctx, long k, double *row);
 
 /* What the loop records, allocated before it starts. */
 typedef struct {
@@ -167,7 +166,6 @@ typedef struct {
   long long *wake;        /* time each sample started, ns */
   long long *latency;     /* wake-up time after the deadline, ns */
   long long *compute;     /* compute time of the sample, ns */
-  long long *ctrl;        /* controller's share of it, ns */
   double *work;           /* for the percentiles */
   long overruns;          /* samples that ended after the next deadline */
   double wall_s;
@@ -179,7 +177,6 @@ static void sg_run_free(sg_run *r) {
   free(r->wake);
   free(r->latency);
   free(r->compute);
-  free(r->ctrl);
   free(r->work);
   memset(r, 0, sizeof *r);
 }
@@ -195,10 +192,8 @@ static int sg_run_alloc(sg_run *r, long steps, int ncol, int record) {
   r->wake = malloc(n * sizeof(long long));
   r->latency = malloc(n * sizeof(long long));
   r->compute = malloc(n * sizeof(long long));
-  r->ctrl = malloc(n * sizeof(long long));
   r->work = malloc(n * sizeof(double));
-  if ((record && !r->rows) || !r->row || !r->wake || !r->latency || !r->compute || !r->ctrl
-      || !r->work) {
+  if ((record && !r->rows) || !r->row || !r->wake || !r->latency || !r->compute || !r->work) {
     sg_run_free(r);
     return 1;
   }
@@ -207,7 +202,6 @@ static int sg_run_alloc(sg_run *r, long steps, int ncol, int record) {
   memset(r->wake, 0, n * sizeof(long long));
   memset(r->latency, 0, n * sizeof(long long));
   memset(r->compute, 0, n * sizeof(long long));
-  memset(r->ctrl, 0, n * sizeof(long long));
   memset(r->work, 0, n * sizeof(double));
   return 0;
 }
@@ -222,7 +216,7 @@ static int sg_run_loop(sg_run *r, const sg_opts *o, double dt, sg_step_fn step, 
   clock_gettime(CLOCK_MONOTONIC, &next);
   start = sg_ns(&next);
   for (k = 0; k < r->steps; ++k) {
-    long long wake, done, ctrl = 0;
+    long long wake, done;
     double *row = r->rows ? r->rows + (size_t)k * (size_t)r->ncol : r->row;
     if (!o->fast) {
       sg_add_ns(&next, period);   /* absolute deadline: the grid never drifts */
@@ -234,12 +228,11 @@ static int sg_run_loop(sg_run *r, const sg_opts *o, double dt, sg_step_fn step, 
       }
     }
     wake = sg_now();
-    rc = step(ctx, k, row, &ctrl);
+    rc = step(ctx, k, row);
     done = sg_now();
     if (rc) return rc;
     r->wake[k] = wake;
     r->compute[k] = done - wake;
-    r->ctrl[k] = ctrl;
     if (!o->fast) {
       const long long deadline = sg_ns(&next);
       r->latency[k] = wake - deadline;
@@ -290,13 +283,6 @@ static void sg_report_timing(const sg_run *r, const sg_opts *o, double dt) {
   s = sg_summarize(v, n, r->work);
   printf("compute per step [us]: mean %.3f, std %.3f, p99 %.3f, max %.3f\n",
          s.mean, s.std, s.p99, s.max);
-  for (k = 0; k < n; ++k) v[k] = (double)r->ctrl[k] * 1e-3;
-  s = sg_summarize(v, n, r->work);
-  printf("  of which controller [us]: mean %.3f, p99 %.3f, max %.3f\n", s.mean, s.p99, s.max);
-  for (k = 0; k < n; ++k) v[k] = (double)(r->compute[k] - r->ctrl[k]) * 1e-3;
-  s = sg_summarize(v, n, r->work);
-  printf("  of which plant and bookkeeping [us]: mean %.3f, p99 %.3f, max %.3f\n",
-         s.mean, s.p99, s.max);
   if (o->fast) {
     printf("fast: %ld steps in %.6f s, %.0f steps/s (no sleeping, no period statistics)\n",
            n, r->wall_s, (double)n / r->wall_s);
@@ -362,13 +348,13 @@ static int sg_check_wrappers(int (*check_all)(const char **name, int *n), const 
   return 0;
 }
 
-/* Per-joint rms and max of an error over the run. */
+/* Per-component rms and max of an error over the run. */
 static void sg_print_errors(const char *what, const char *unit, const sg_err *e, int n,
                             long steps) {
   int i;
   printf("%s over %ld samples [%s]:\n", what, steps, unit);
   for (i = 0; i < n; ++i)
-    printf("  joint %d: rms %.6e, max %.6e\n", i + 1, sg_err_rms(&e[i]), e[i].maxabs);
+    printf("  [%d]: rms %.6e, max %.6e\n", i + 1, sg_err_rms(&e[i]), e[i].maxabs);
 }
 
 /* Allocate the run's buffers (before the loop: it allocates nothing), say what runs, run

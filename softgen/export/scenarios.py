@@ -1,0 +1,301 @@
+"""The scenario ``softgen export`` turns into C: one closed loop per model, by capability.
+
+Which loop a model gets is read from what the model *is*, never from its name:
+
+- a soft body (planar or 3D PCC, affine segments: :class:`~softgen.modelfile.soft.SoftModel`)
+  runs Theorem 10 (thesis section 12.1) with the plant in one block
+  (:func:`softgen.control.soft.closed_loop_block`: the controller acts inside one ROS2
+  step of the plant). The sampled loop (τ held over 1 ms,
+  :func:`softgen.control.soft.controller_block` + ``plant_block``) diverges on the
+  lumped-mass PCC models, whose light modes have rates of 1e6-1e10 1/s; the
+  integrated block is the one that runs stably at 1 ms, so the example uses it
+  (sinusoidal references; affine bodies, the soft inverted pendulum, regulate to
+  upright from an initial error, as in section 12.2.2);
+- a rigid arm with McKibben pairs (actuator type ``mckibben``) runs Theorem 5 (section
+  10.2: decoupled adaptive position and stiffness control) against the arm with the
+  pressures applied as commanded, clipped to [0, p_max]
+  (:mod:`softgen.control.pneumatic_loop`);
+- a rigid arm with qbmove-style electric VSAs (actuator type ``qbmove``) runs the
+  chapter-11 PD cascade (eq. 11.4-11.6, :func:`softgen.control.electric.cascade_block`)
+  against the arm with its motors and springs (eq. 11.1), when the 1 ms sample resolves
+  the motors' spring modes (:func:`motor_mode_resolved`);
+- any other rigid chain (also an electric arm with motors too light for 1 ms) runs Slotine–Li adaptive control (Prop. 10, eq. 9.2) against
+  the nominal arm, one RK4 step per sample with τ held.
+
+Every loop is a :class:`~softgen.blocks.ClosedLoop` of library blocks named
+``<model>_loop`` (its one-step function is ``<model>_loop_step``), wrapped in a
+:class:`~softgen.studies.Scenario` whose block defaults carry the example's gains and
+whose ``x0`` starts the plant on its reference. ``scenario.run()`` is the Python twin
+of the exported C program.
+
+Gains are this module's example values (:data:`GAINS`), written into the blocks as
+their defaults; they are the values the library's studies of the same loops use, cited
+per entry, and no experiment module is imported.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from softgen.blocks import ClosedLoop
+from softgen.control.electric import (cascade_block, electric_arm, initial_plant_state,
+                                      plant_block as electric_plant_block, reference_block)
+from softgen.control.electric_refs import THESIS_GAINS, THESIS_Q, THESIS_SIGMA, \
+    sinusoid_references
+from softgen.control.pneumatic import pneumatic_arm
+from softgen.control.pneumatic_loop import controller_block as pneumatic_controller_block
+from softgen.control.pneumatic_loop import plant_block as pneumatic_plant_block
+from softgen.control.pneumatic_loop import preset_nu
+from softgen.control.references import Sinusoid, SmoothSteps, sinusoid_block, \
+    stiffness_reference_block
+from softgen.control.slotine_li import controller_block as slotine_li_block
+from softgen.control.slotine_li import plant_block as rigid_plant_block
+from softgen.control.soft import closed_loop_block, tip_force_block
+from softgen.control.soft import reference_block as soft_reference_block
+from softgen.core.errors import SoftgenError
+from softgen.modelfile.model import RobotModel, load_model
+from softgen.modelfile.soft import SoftModel
+from softgen.studies import Scenario
+from softgen.symbolic.pcc import LinearRoute, SoftDynamics
+from softgen.symbolic.rigid import RigidDynamics
+
+#: Sample time of every example loop (s) and the default length of a run.
+DT = 1e-3
+DEFAULT_SECONDS = 10.0
+#: Largest ω·DT of a motor mode the electric example integrates (:func:`motor_mode_resolved`).
+MAX_MODE_STEP = 0.5
+
+#: Example gains per loop kind, with where the values come from.
+GAINS = {
+    # Slotine-Li: Λ, K_d (N m s/rad) per joint, K_π per base parameter; those of the
+    # rigid-2link-adaptive study of planar_2link (Table 7.1 arm), cycled over the joints.
+    "slotine_li": dict(lam=10.0, kd=0.2, kpi=0.05),
+    # Theorem 5: Λ = 15, K_d = 18, K_π = 35, K_σ = rate / K_1 with rate 2 1/s and
+    # K^-1 = 1/K (the ch10 adaptive study), Π̂(0) = 0.9 Π.
+    "theorem5": dict(lam=15.0, kd=18.0, kpi=35.0, stiffness_rate=2.0, pi_hat0_ratio=0.9),
+    # Chapter-11 PD cascade: the gains printed in section 11.2 (NOTES section 1).
+    "electric_pd": dict(THESIS_GAINS["pd"]),
+    # Theorem 10: the "higher" gains of the section 12.2.1 planar PCC study
+    # (Λ = 5, K_d = 1, K_π = 1).
+    "theorem10": dict(lam=5.0, kd=1.0, kpi=1.0),
+}
+
+#: Slotine-Li references q_d,i = offset_i + a_i sin(2π f_i t), cycled over the joints.
+RIGID_REFERENCE = dict(amplitude=(0.6, 0.5), frequency=(0.25, 0.4), offset=(0.0, 0.3))
+
+#: Theorem 5 references: smoothed steps (septic, C³) of the position (rad) and the
+#: stiffness (N m/rad) of every joint, within the 0-0.3 rad and 2-4 N m/rad of the
+#: section 10.2 phases; (times, values) with a rise of ``PNEUMATIC_RISE`` s.
+PNEUMATIC_Q_STEPS = ((0.0, 0.2, 5.0), (0.0, 0.3, 0.1))
+PNEUMATIC_SIGMA_STEPS = ((0.0, 2.5, 7.5), (3.0, 4.0, 2.5))
+PNEUMATIC_RISE = 1.0
+#: RK4 steps per sample of the McKibben arm (the stiff muscle forces; as the bundle's
+#: ``<model>_pneumatic_plant``, which the earlier hand-written example ran).
+PNEUMATIC_SUBSTEPS = 10
+
+#: Theorem 10 references q_d,i = M_i sin(ω t + φ_i) (section 12.2.1), cycled over the
+#: configuration variables; for pcc-3d the amplitudes are in m (Δx, Δy, δL).
+SOFT_REFERENCE = dict(amplitude=(math.pi / 8, math.pi / 6, math.pi / 3, math.pi / 2),
+                      phase=(0.0, math.pi / 2, math.pi / 3, math.pi), omega=1.0)
+SOFT_REFERENCE_3D = dict(amplitude=(0.2, 0.2, 0.05), phase=(0.0, math.pi / 2, 0.0), omega=1.0)
+#: Affine-curvature bodies (the soft inverted pendulum, section 12.2.2): regulation to
+#: the upright configuration q_d = 0 from an initial error e(0) = q_d(0) − q(0).
+SOFT_REGULATION = dict(amplitude=(0.0,), phase=(0.0,), omega=0.0, initial_error=(0.2, -0.2))
+
+
+@dataclass(frozen=True)
+class Example:
+    """The scenario of a model's example loop and what the exported README says of it.
+
+    ``errors`` lists ``(reference, actual, unit)`` signal pairs whose rms and max the
+    C program reports (``Trace.rms`` of the same pairs in Python).
+    """
+
+    kind: str
+    title: str
+    text: str
+    scenario: Scenario
+    errors: tuple[tuple[str, str, str], ...] = ()
+    gains_source: str = ""
+
+    @property
+    def loop(self) -> ClosedLoop:
+        return self.scenario.loop
+
+
+def _cycle(values, n: int) -> np.ndarray:
+    return np.array([float(values[i % len(values)]) for i in range(n)])
+
+
+def capability(model: RobotModel | SoftModel) -> str:
+    """The example loop ``model`` supports: its kind of body and of actuator."""
+    if isinstance(model, SoftModel):
+        return "theorem10"
+    kind = model.actuator_type
+    if kind == "mckibben":
+        return "theorem5"
+    if kind == "qbmove":
+        # The cascade commands motor torques: it needs the motors' spring modes resolved
+        # by the 1 ms sample (else the arm is run as a torque-driven rigid chain).
+        return "electric_pd" if motor_mode_resolved(model) else "slotine_li"
+    if kind is None:
+        return "slotine_li"
+    raise SoftgenError(f"{model.name}: actuators: no example loop for actuator type {kind!r}")
+
+
+def motor_mode_resolved(model: RobotModel) -> bool:
+    """Whether the fastest motor mode of the electric VSAs is resolved at :data:`DT`.
+
+    A motor of inertia b held by its spring at the example's largest reference
+    stiffness σ_max (section 11.2: 11 N m/rad; each of the two springs carries σ/2)
+    oscillates at ω = sqrt(σ_max / (2 b)); one RK4 step per sample follows it while
+    ω·DT ≤ :data:`MAX_MODE_STEP` (measured: arm_2link_electric, b = 1e-3 kg m², ω·DT =
+    0.07, tracks to 1e-4 rad; planar_2link, b = 3e-6, ω·DT = 1.35, errs by 0.3 rad).
+    """
+    sigma_max = max(o + a for o, a, _ in THESIS_SIGMA)
+    b = min(float(np.min(model.resolve(a.get("motor_inertia"), model.nominal)))
+            for a in model.actuators)
+    return b > 0 and math.sqrt(sigma_max / (2 * b)) * DT <= MAX_MODE_STEP
+
+
+def example_for(model: str | Path | RobotModel | SoftModel, *,
+                steps: int | None = None) -> Example:
+    """The example of ``model`` (a shipped name, a model file or a loaded model),
+    ``steps`` samples long (default :data:`DEFAULT_SECONDS`)."""
+    if not isinstance(model, (RobotModel, SoftModel)):
+        model = load_model(model)
+    if steps is None:
+        steps = int(round(DEFAULT_SECONDS / DT))
+    if not (isinstance(steps, int) and not isinstance(steps, bool) and steps >= 1):
+        raise SoftgenError(f"steps: expected a positive integer, got {steps!r}")
+    return _BUILDERS[capability(model)](model, steps)
+
+
+# -- the four loops ----------------------------------------------------------------------
+
+def _slotine_li(model: RobotModel, steps: int) -> Example:
+    dyn = RigidDynamics(model)
+    n, p = model.dof, len(dyn.base.names)
+    g = GAINS["slotine_li"]
+    r = RIGID_REFERENCE
+    ref = Sinusoid(tuple(_cycle(r["amplitude"], n)), tuple(_cycle(r["frequency"], n)),
+                   offset=tuple(_cycle(r["offset"], n)))
+    ctrl = slotine_li_block(dyn, DT).with_defaults(
+        p0={"lam": np.full(n, g["lam"]), "kd": np.full(n, g["kd"]), "kpi": np.full(p, g["kpi"])})
+    d = ClosedLoop(f"{model.name}_loop", [sinusoid_block("ref", ref), ctrl, rigid_plant_block(dyn, DT)])
+    sc = Scenario(f"{model.name}_loop", d, steps=steps,
+                  x0={"plant.q": _cycle(r["offset"], n)})    # on the reference at t = 0
+    return Example(
+        "slotine_li", "Slotine-Li (Prop. 10) on the rigid arm",
+        "Slotine–Li adaptive control (thesis Prop. 10, eq. 9.2; every base parameter "
+        "unknown at the start, π̂(0) = 0) of the nominal arm (one RK4 step per sample, "
+        "torque held), tracking sinusoids q_d,i = o_i + a_i sin(2π f_i t) with analytic "
+        "derivatives, from rest on the reference.",
+        sc, (("ref.q_d", "plant.q", "rad"),),
+        "Λ = 10, K_d = 0.2 N m s/rad, K_π = 0.05: the rigid-2link-adaptive study's gains")
+
+
+def _theorem5(model: RobotModel, steps: int) -> Example:
+    arm = pneumatic_arm(model)
+    n, g = arm.n, GAINS["theorem5"]
+    q_steps = [SmoothSteps(*PNEUMATIC_Q_STEPS, PNEUMATIC_RISE)] * n
+    s_steps = [SmoothSteps(*PNEUMATIC_SIGMA_STEPS, PNEUMATIC_RISE)] * n
+    ref = stiffness_reference_block("ref", q_steps, s_steps)
+    lam, kd = np.full(n, g["lam"]), np.full(n, g["kd"])
+    kinv = 1.0 / arm.act.K
+    ctrl = pneumatic_controller_block(arm, "theorem5", DT).with_defaults(p0={
+        "lam": lam, "kd": kd, "kpi": np.full(arm.n_params, g["kpi"]),
+        "ksigma": np.full(n, g["stiffness_rate"] / arm.K1), "kinv": kinv})
+    d = ClosedLoop(f"{model.name}_loop", [ref, ctrl, pneumatic_plant_block(arm, DT, substeps=PNEUMATIC_SUBSTEPS)],
+                   [("ctrl.p", "plant.p_cmd")])
+    # The "initially inflated" preset of section 10.2: ν and the pressures of the
+    # open-loop stiffness step (K_π = 0) at rest on the reference at t = 0.
+    pi0 = g["pi_hat0_ratio"] * arm.Pi_nominal
+    ref0 = d.blocks["ref"].eval(u=[0.0])[1][:6 * n]
+    q0 = ref0[:n]
+    out = arm.step_fun("open_loop")(pi0, q0, np.zeros(n), ref0, lam, kd,
+                                    np.zeros(arm.n_params), kinv, DT)
+    p_max = np.repeat(arm.act.pressure_max, 2)
+    p0 = np.clip(np.array(out[1]).ravel(), 0.0, p_max)
+    nu0 = preset_nu(arm, pi0, q0, ref0, lam=lam, kd=kd, dt=DT)
+    sc = Scenario(f"{model.name}_loop", d, steps=steps,
+                  x0={"plant.q": q0, "plant.p": p0, "ctrl.nu": nu0, "ctrl.Pi_hat": pi0})
+    return Example(
+        "theorem5", "Theorem 5 on the McKibben arm",
+        "decoupled adaptive position and stiffness control (thesis Theorem 5, section "
+        "10.2) of the McKibben arm, pressures applied as commanded and clipped to "
+        "[0, p_max] (10 RK4 steps per sample), the stiffness σ read from the pressures acting at each sample. ν and "
+        "the pressures start from the open-loop stiffness step (K_π = 0) at rest, the "
+        "thesis's \"initially inflated\" preset; Π̂(0) = 0.9 Π. References: smoothed "
+        "steps (C³) of position and stiffness.",
+        sc, (("ref.q_d", "plant.q", "rad"), ("ref.sigma_d", "plant.sigma", "N m/rad")),
+        "Λ = 15, K_d = 18, K_π = 35, K_σ = 2/K_1, K⁻¹ = 1/K: the chapter-10 adaptive "
+        "study's gains")
+
+
+def _electric_pd(model: RobotModel, steps: int) -> Example:
+    arm = electric_arm(model)
+    n = arm.n
+    q_spec = tuple(THESIS_Q[i % len(THESIS_Q)] for i in range(n))
+    s_spec = tuple(THESIS_SIGMA[i % len(THESIS_SIGMA)] for i in range(n))
+    g = dict(GAINS["electric_pd"])
+    d = ClosedLoop(f"{model.name}_loop",
+                   [reference_block(q_spec, s_spec), cascade_block(arm, "pd", DT, gains=g),
+                    electric_plant_block(arm, DT)])
+    x0 = initial_plant_state(arm, lambda t: sinusoid_references(t, q_spec, s_spec)[:, 0],
+                             ksigma=g["ksigma"], delta=g["delta"])
+    z0 = arm.initial_state("pd", x0)
+    init = {f"plant.{k}": x0[i * n:(i + 1) * n]
+            for i, k in enumerate(("q", "qd", "qa", "qad", "qb", "qbd"))}
+    init.update({f"ctrl.{k}": v for k, v in d.blocks["ctrl"].state.split(z0).items()})
+    sc = Scenario(f"{model.name}_loop", d, steps=steps, x0=init)
+    return Example(
+        "electric_pd", "the chapter-11 PD cascade on the electric VSA arm",
+        "the chapter-11 PD cascade (thesis eq. 11.4-11.6: link position and stiffness "
+        "loops, motor position loops) of the arm with its qbmove-style electric VSAs "
+        "(eq. 11.1, one RK4 step per sample, motor torques held), tracking the section "
+        "11.2 sinusoids of position and stiffness from rest on the reference, at the "
+        "quasi-steady stiffness of Remark 10.",
+        sc, (("ref.q_d", "plant.q", "rad"), ("ref.sigma_d", "plant.sigma", "N m/rad")),
+        "the PD gains printed in section 11.2 (THESIS_GAINS['pd'])")
+
+
+def _theorem10(model: SoftModel, steps: int) -> Example:
+    dyn = SoftDynamics(model)
+    lin = LinearRoute(dyn)
+    n, g = model.dof, GAINS["theorem10"]
+    spec = {"pcc-3d": SOFT_REFERENCE_3D, "affine-planar": SOFT_REGULATION}.get(
+        model.kind, SOFT_REFERENCE)
+    amp, phase = _cycle(spec["amplitude"], n), _cycle(spec["phase"], n)
+    error0 = _cycle(spec.get("initial_error", (0.0,)), n)
+    unit = "m" if model.kind == "pcc-3d" else "rad"
+    ref = soft_reference_block("ref", DT, tuple(amp), spec["omega"], tuple(phase), unit=unit)
+    loop = closed_loop_block(dyn, DT, lin=lin).with_defaults(
+        p0={"lam": np.full(n, g["lam"]), "kd": np.full(n, g["kd"]),
+            "kpi": np.full(lin.r, g["kpi"])})
+    # The measurement noise input stays an external input of the diagram (zero here,
+    # in C as in Python); no tip force (the disturbance block's defaults).
+    d = ClosedLoop(f"{model.name}_loop", [ref, tip_force_block("dist", model.n_segments), loop],
+                   externals={"noise": 2 * n})
+    r0 = d.blocks["ref"].eval(u=[0.0])[1]
+    sc = Scenario(f"{model.name}_loop", d, steps=steps,
+                  x0={"loop.q": r0[:n] - error0, "loop.qd": r0[n:2 * n]},
+                  externals={"noise": np.zeros((steps, 2 * n))})
+    return Example(
+        "theorem10", "Theorem 10 on the soft robot",
+        "adaptive control of the soft body (thesis Theorem 10, section 12.1) with the "
+        "controller acting inside one ROS2 step of the plant per sample (the loop of the "
+        "section 12.2 simulations; a sampled controller with τ held over 1 ms diverges on "
+        "the lumped-mass PCC models, whose light modes are too fast for it), tracking "
+        "sinusoids q_d,i = M_i sin(ω t + φ_i) from rest on the reference (affine bodies: "
+        "regulation to upright, q_d = 0, from an initial error); no measurement "
+        "noise (the external input `noise` is held at zero), no tip force.",
+        sc, (("ref.q_d", "loop.q", unit),),
+        "Λ = 5, K_d = 1, K_π = 1: the higher gains of the section 12.2.1 study")
+
+
+_BUILDERS = {"slotine_li": _slotine_li, "theorem5": _theorem5, "electric_pd": _electric_pd,
+             "theorem10": _theorem10}
