@@ -30,13 +30,16 @@ import numpy as np
 
 from softgen.control.feasibility import check_pressures
 from softgen.core.config import Config
-from softgen.core.metrics import Metrics, finding, graded, not_checked, num, times
+from softgen.core.metrics import Metric, Metrics, finding, graded, not_checked, num, times
 from softgen.experiments.registry import Experiment
 from softgen.studies import figures_pneumatic as F
 from softgen.studies.gains import SECTION_10_4
 from softgen.studies.indices import POSITION_TO_STIFFNESS, STIFFNESS_TO_POSITION, parameter_ratio
 from softgen.studies.pneumatic_fl import (LAST_CHANGE, PHASES, SCHEDULE, case_metrics, gains,
                                           models, samples, scenario)
+
+
+JOINTS = (1, 2)           # the two-link arm of section 10.4
 
 
 @dataclass(frozen=True)
@@ -170,13 +173,18 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     small_tol = 0.1 * min(v for k in ("s1", "s2") for v in SCHEDULE[k][1]) / max(steps)
 
     def j(quantity: str, case: str, phase: int | None = None) -> list[float]:
-        vals = m.per_joint(quantity, phase=phase, prefix=f"{case}_")
-        if not vals:
-            raise KeyError(f"{case}_{quantity}")
-        return [vals[i] for i in sorted(vals)]
+        """The quantity of ``case`` on both joints (KeyError naming the first missing)."""
+        recs = [m.find(quantity, joint=i, phase=phase, prefix=f"{case}_") for i in JOINTS]
+        for i, r in zip(JOINTS, recs):
+            if r is None:
+                raise KeyError(Metric(quantity, None, joint=i, phase=phase,
+                                      prefix=f"{case}_").key)
+        return [r.value for r in recs]
 
     def steady(tag: str) -> float:
-        return m.value("steady_position_error", suffix=tag)
+        if (r := m.find("steady_position_error", suffix=tag)) is None:
+            raise KeyError(f"steady_position_error_{tag}")
+        return r.value
 
     def tracking():
         """(a), (c) (section 10.4): with exact parameters both feedback linearisation and the

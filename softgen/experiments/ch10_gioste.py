@@ -15,18 +15,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
 from softgen.core.config import Config
 from softgen.core.metrics import Metrics, finding, num
 from softgen.experiments.registry import Experiment
 from softgen.plants.gioste import HardwareConfig
+from softgen.studies import gioste_claims as C
 from softgen.studies import gioste_protocols as P
 from softgen.studies.gains import GIOSTE_COMPARISON as CMP
 from softgen.studies.gains import GIOSTE_TRACKING as TRACK
 from softgen.studies.gains import GIOSTE_TWO_LINK as TWO
-from softgen.studies.gioste import Bench
-from softgen.studies.indices import POSITION_TO_STIFFNESS, STIFFNESS_TO_POSITION, rms
+from softgen.studies.gioste import Bench, save_traces
 
 
 @dataclass(frozen=True)
@@ -113,37 +112,14 @@ QUICK_2DOF = {**NO_EXTRAS, "rise": 1.0, "phase_duration": 8.0, "q_times": (0.0, 
               "sigma_times": (0.0, 9.0, 12.0, 17.0)}
 
 
-def _save(out: Path, traces: dict) -> None:
-    np.savez_compressed(out / "traces.npz", **{f"{n}_{k}": v for n, a in traces.items()
-                                               for k, v in a.items()})
-
-
 def run_1dof(c: OneLinkConfig, out: Path) -> Metrics:
     out, traces, su = Path(out), {}, c.bench()
     out.mkdir(parents=True, exist_ok=True)
     m, runs, g_track = P.protocol_1dof(su, out, "", "1-DoF ", traces)
-    refs = P.tracking_refs(c, c.dt)
-    m.extend(P.inertial_kpi_study(su, refs, g_track, out))
+    m.extend(P.inertial_kpi_study(su, P.tracking_refs(c, c.dt), g_track, out))
     m.extend(P.tracking_study(su, out, traces))
-    if c.check_dt_halving:
-        # Forward-Euler controllers: the slowest comparison pair and #2 again at T/2.
-        ref, g = P.comparison_ref(c, c.rise_times[0], c.dt / 2), su.gains(*c.cmp_gains,
-                                                                         [c.cmp_sigma_d])
-        err = lambda r: float(rms(P.S.position_error(r, c.divergence)))  # noqa: E731
-        changes = [abs(err(su.run(kind, ref, g, c.dt / 2)) - m.value(
-            "position_rms_error", prefix=f"{tag}_", suffix="rise1"))
-            for kind, tag in (("open_loop", "open_loop"), ("theorem5", "closed_loop"))]
-        r2 = su.run("theorem5", P.tracking_refs(c, c.dt / 2)[1], g_track, c.dt / 2)
-        changes.append(abs(err(r2) - err(runs[1])))
-        m.add("dt_halving_max_position_rms_change", max(changes), "rad")
-        m.add("dt_halving_phase2_diverged_at_change",
-              abs(P.S.stop_time(r2) - P.S.stop_time(runs[1])), "s")
-    if c.table10_1_diagnostic:
-        m.extend(P.table10_1(c, refs[0], c.track_gains, [*c.track_sigma, c.track_sigma_phase1]))
-    if c.matched_diagnostic:     # the controller's own muscles as the arm's (hardware alone)
-        m.extend(P.protocol_1dof(c.bench("table10.1", actuator="model"), out, "matched_",
-                                 "matched 1-DoF ", traces)[0])
-    _save(out, traces)
+    m.extend(P.diagnostics_1dof(su, m, runs, g_track, out, traces))
+    save_traces(out / "traces.npz", traces)
     return m
 
 
@@ -152,69 +128,12 @@ def run_2dof(c: TwoLinkConfig, out: Path) -> Metrics:
     out.mkdir(parents=True, exist_ok=True)
     m, r, g = P.protocol_2dof(su, out, "", "2-DoF ", traces)
     m.extend(P.inertial_kpi_study(su, [P.two_link_ref(c, c.dt)], g, out))
-    if c.check_dt_halving:
-        r2 = su.run("theorem5", P.two_link_ref(c, c.dt / 2), g, c.dt / 2)
-        e1, e2 = (rms(P.S.position_error(x, c.divergence), axis=0) for x in (r, r2))
-        m.add("dt_halving_max_position_rms_change", np.max(np.abs(e2 - e1)), "rad")
-        m.add("dt_halving_diverged_at_change", abs(P.S.stop_time(r2) - P.S.stop_time(r)), "s")
-    if c.table10_1_diagnostic:
-        m.extend(P.table10_1(c, P.two_link_ref(c, c.dt), (c.gains_kd, c.gains_lam, c.gains_kpi),
-                             [v for s in c.sigma_values for v in s]))
-    if c.matched_diagnostic:
-        m.extend(P.protocol_2dof(c.bench("table10.1", actuator="model"), out, "matched_",
-                                 "matched 2-DoF ", traces)[0])
-    _save(out, traces)
+    m.extend(P.diagnostics_2dof(su, r, g, out, traces))
+    save_traces(out / "traces.npz", traces)
     return m
 
 
 # -- claims of section 10.3, checked against a run's metrics -------------------------------
-
-STIFFNESS_FRACTION = 0.01   # stiffness rms over the second half of a phase < 1 % of σ_d
-BOUNDED_RATIO = 10.0        # |Π̂|/|Π| below this: bounded estimates
-DECOUPLED_Q2S = 1.0         # N m/rad of stiffness deviation per rad of position step
-DECOUPLED_S2Q_COUNTS = 2    # encoder counts of position deviation per N m/rad of step
-BETTER = 0.8                # "A better than B": A below 0.8 B
-
-
-def _finite(*xs) -> bool:
-    return all(x is not None and np.isfinite(x) for x in xs)
-
-
-def _tracking_claim(m: Metrics, p: str, n: int, phases, sigma_min: float, claim: str) -> dict:
-    """Completed runs, final error within TRACKED_COUNTS, stiffness within 1 % of σ_d."""
-    res, done = m.value("encoder_resolution_rad"), [m.find("completed", phase=k, prefix=p)
-                                                    for k in phases]
-    if any(d is None for d in done):
-        return finding(claim, "not checked", f"metrics `{p}completed*` absent")
-    final = max(m.value("final_position_error", phase=k, prefix=p) for k in phases)
-    sig = max(v for k in (1, 2, 3) for v in m.per_joint("stiffness_rms_error", phase=k,
-                                                        prefix=p).values())
-    stops = ", ".join(num(m.value("diverged_at", phase=k, prefix=p)) for k in phases)
-    complete = all(d.value == 1.0 for d in done)
-    ok = complete and final <= P.TRACKED_COUNTS * res and sig < STIFFNESS_FRACTION * sigma_min
-    ev = (f"all runs complete; final |q − q_d| up to {num(final)} rad against "
-          f"{P.TRACKED_COUNTS} encoder counts = {num(P.TRACKED_COUNTS * res)} rad; stiffness "
-          f"rms (second half of each phase) up to {num(sig)} N m/rad against 1 % of σ_d "
-          f"= {num(STIFFNESS_FRACTION * sigma_min)}") if complete else (
-        f"runs stopped by the emergency stop at t = {stops} s; largest |Π̂|/|Π| "
-        f"{num(m.value('parameter_estimate_max_ratio', prefix=p))}")
-    return finding(claim, "reproduced" if ok else "not reproduced", ev)
-
-
-def _decoupling_claim(m: Metrics, p: str, claim: str) -> dict:
-    res = m.value("encoder_resolution_rad")
-    q2s = list(m.per_joint(POSITION_TO_STIFFNESS[0], prefix=p).values())
-    s2q = list(m.per_joint(STIFFNESS_TO_POSITION[0], prefix=p).values())
-    if not (q2s and s2q and _finite(*q2s, *s2q)):
-        return finding(claim, "not checked",
-                       "no complete coupling window (the runs stopped) or metrics absent")
-    ok = max(q2s) < DECOUPLED_Q2S and max(s2q) < DECOUPLED_S2Q_COUNTS * res
-    return finding(claim, "reproduced" if ok else "not reproduced",
-                   f"stiffness deviation {num(max(q2s))} N m/rad per rad of position step "
-                   f"(threshold {DECOUPLED_Q2S}); position deviation {num(max(s2q))} rad per "
-                   f"N m/rad of stiffness step (threshold {DECOUPLED_S2Q_COUNTS} counts = "
-                   f"{num(DECOUPLED_S2Q_COUNTS * res)})")
-
 
 def _common_claims(m: Metrics, c: GiosteConfig, n: int, phases, sigma_min: float, track: str,
                    decouple: str, params: str) -> list[dict]:
@@ -222,50 +141,8 @@ def _common_claims(m: Metrics, c: GiosteConfig, n: int, phases, sigma_min: float
     same = [(f"gain_study_inertial_kpi_x{s:g}_", f"The same with K_π of the inertial {params} "
              f"scaled by {s:g} (gain study)") for s in c.inertial_kpi_scales
             if m.find("diverged_at", phase=phases[0], prefix=f"gain_study_inertial_kpi_x{s:g}_")]
-    return ([_tracking_claim(m, p, n, phases, sigma_min, t) for p, t in [("", track), *same]]
-            + [_decoupling_claim(m, p, t) for p, t in [("", decouple), *same]])
-
-
-def _law_claims(m: Metrics, p: str, note: str) -> list[dict]:
-    """Fig. 10.10, section 10.3.4 and Fig. 10.11 on the variant ``p`` of the comparison."""
-    rises = [k for k in range(1, 10) if m.find("unstable", prefix=f"{p}open_loop_",
-                                                suffix=f"rise{k}")]
-    get = lambda q, pre="": [m.value(q, prefix=p + pre, suffix=f"rise{k}")  # noqa: E731
-                             for k in rises]
-    out = []
-    if rises:
-        ol, cl = get("unstable", "open_loop_"), get("unstable", "closed_loop_")
-        ok = ol[-1] == 1.0 and not any(cl)
-        rms_q = {t: ", ".join(num(x) for x in get("position_rms_error", f"{t}_"))
-                 for t in ("open_loop", "closed_loop")}
-        out.append(finding(
-            "Fig. 10.10: as the position rise time shortens, the open-loop stiffness law "
-            "oscillates and loses stability while the closed-loop one stays stable" + note,
-            "reproduced" if ok else ("partly reproduced" if any(ol) else "not reproduced"),
-            f"unstable (stop or oscillation above threshold) per rise time, longest first: "
-            f"open loop {[int(x) for x in ol]}, closed loop {[int(x) for x in cl]}; open-loop "
-            f"oscillation amplitudes "
-            f"{', '.join(num(a) for a in get('oscillation_amplitude', 'open_loop_'))} rad; the "
-            f"two laws' positions differ by at most "
-            f"{num(max(get('open_closed_max_position_difference')))} rad"
-            + (f"; position rms per rise time: open loop {rms_q['open_loop']}, closed loop "
-               f"{rms_q['closed_loop']} rad" if p else "")))
-        so, sc = get("stiffness_rms_error", "open_loop_"), get("stiffness_rms_error", "closed_loop_")
-        out.append(finding(
-            "Section 10.3.4: closing the stiffness loop tracks the stiffness better than the "
-            "open-loop law" + note,
-            "reproduced" if all(b < BETTER * a for a, b in zip(so, sc)) else "not reproduced",
-            f"stiffness rms per rise time: closed loop {', '.join(num(x) for x in sc)} against "
-            f"open loop {', '.join(num(x) for x in so)} N m/rad (better: below {BETTER}×)"))
-    o, c = (m.find(STIFFNESS_TO_POSITION[0], joint=1, prefix=f"{p}{t}_")
-            for t in ("open_loop", "closed_loop"))
-    if o and c and _finite(o.value, c.value):
-        out.append(finding(
-            "Fig. 10.11: stiffness steps disturb the position more under the open-loop law"
-            + note, "reproduced" if c.value < BETTER * o.value else "not reproduced",
-            f"position deviation per N m/rad of stiffness step: open loop {num(o.value)}, "
-            f"closed loop {num(c.value)} rad (reproduced if closed < {BETTER} × open)"))
-    return out
+    return ([C.tracking_claim(m, p, n, phases, sigma_min, t) for p, t in [("", track), *same]]
+            + [C.decoupling_claim(m, p, t) for p, t in [("", decouple), *same]])
 
 
 def _study_claim(m: Metrics, c: OneLinkConfig) -> list[dict]:
@@ -282,8 +159,8 @@ def _study_claim(m: Metrics, c: OneLinkConfig) -> list[dict]:
         "Fig. 10.6-10.8 (issue 13): with Λ = 1.8 and K_π = 45 of section 10.3.4 some K_d makes "
         "the emulated arm track the comparison's position steps within 2 encoder counts",
         "reproduced" if kd else "not reproduced",
-        ev + (f". Tracks (settled within {P.TRACKED_COUNTS} counts = "
-              f"{num(P.TRACKED_COUNTS * res)} rad): K_d = {kd.value:g}, K_π on gravity "
+        ev + (f". Tracks (settled within {C.TRACKED_COUNTS} counts = "
+              f"{num(C.TRACKED_COUNTS * res)} rad): K_d = {kd.value:g}, K_π on gravity "
               f"{'/g²' if m.value('kpi_per_g2', prefix='tuned_') else 'as printed'}; its runs "
               f"are `tuned_*`" if kd else ""))] if ev else []
 
@@ -298,9 +175,9 @@ def findings_1dof(m: Metrics, c: OneLinkConfig | None = None) -> list[dict]:
         "Fig. 10.6-10.7: position steps leave the stiffness unchanged and stiffness steps "
         "the position", "parameter")
     out += _study_claim(m, c)
-    out += _law_claims(m, "", "")
-    out += _law_claims(m, "tuned_", " (on the loop that tracks: issue-13 gain study)")
-    return out + [_feasible(m)]
+    out += C.law_claims(m, "", "")
+    out += C.law_claims(m, "tuned_", " (on the loop that tracks: issue-13 gain study)")
+    return out + [C.feasible(m)]
 
 
 def findings_2dof(m: Metrics, c: TwoLinkConfig | None = None) -> list[dict]:
@@ -311,19 +188,10 @@ def findings_2dof(m: Metrics, c: TwoLinkConfig | None = None) -> list[dict]:
         "significant mutual impact of position and stiffness control", "parameters")
     r, done = m.value("parameter_estimate_max_ratio"), m.value("completed")
     out.append(finding("Fig. 10.13: parameter estimates remain bounded",
-                       "reproduced" if r < BOUNDED_RATIO and done == 1.0 else "not reproduced",
-                       f"largest |Π̂|/|Π| {num(r)} (bounded: below {BOUNDED_RATIO} over a "
+                       "reproduced" if r < C.BOUNDED_RATIO and done == 1.0 else "not reproduced",
+                       f"largest |Π̂|/|Π| {num(r)} (bounded: below {C.BOUNDED_RATIO} over a "
                        f"completed run; completed: {bool(done)})"))
-    return out + [_feasible(m)]
-
-
-def _feasible(m: Metrics) -> dict:
-    v, f = m.value("pressure_violations"), m.value("voltage_clipped_fraction")
-    return finding("Section 10.3.3: the commanded voltages stay within the valves' range",
-                   "reproduced" if v == 0 and f == 0 else "not reproduced",
-                   f"{int(v)} episodes of commanded pressure outside [0, p(6 V)], "
-                   f"{num(100 * f)} % of samples with a clipped voltage (all runs of the "
-                   f"printed gains)")
+    return out + [C.feasible(m)]
 
 
 DISCUSSION = """\

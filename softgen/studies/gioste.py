@@ -179,6 +179,11 @@ def compact(tr: Trace, every: int) -> dict[str, np.ndarray]:
             for k, v in {"t": tr.t, **tr.signals}.items()}
 
 
+def save_traces(path, traces: dict[str, dict[str, np.ndarray]]) -> None:
+    """``{run: compact(trace)}`` to one ``.npz`` (``<run>_t``, ``<run>_<block>_<signal>``)."""
+    np.savez_compressed(path, **{f"{n}_{k}": v for n, a in traces.items() for k, v in a.items()})
+
+
 def feasibility(emu: GiosteEmulation, t, p_cmd, V_raw, label: str, *, warn: bool = True
                 ) -> tuple[list[PressureViolation], float]:
     """Pressure episodes outside [0, p(6 V)] and the fraction of samples with a clipped volt.

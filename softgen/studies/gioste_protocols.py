@@ -232,8 +232,7 @@ def inertial_kpi_study(su: S.Bench, refs: list[np.ndarray], g, out: Path) -> Met
 
 def table10_1(c, ref: np.ndarray, gains, sig_range) -> Metrics:
     """Static net stiffness and stop time within 10 s of ``ref``, Table 10.1 muscles."""
-    su = S.Bench(c.model, c.hardware, muscles="table10.1", dt=c.dt, divergence=c.divergence,
-                 stiffness_rate=c.stiffness_rate, per_g2=c.kpi_per_g2, chunk=c.chunk, config=c)
+    su = c.bench("table10.1")
     g = su.gains(*gains, sig_range)
     r = su.run("theorem5", ref[:min(ref.shape[0], int(round(10.0 / c.dt)) + 1)], g)
     m = Metrics()
@@ -256,3 +255,47 @@ def protocol_2dof(su: S.Bench, out: Path, prefix: str, label: str, traces: dict)
         m.add("static_net_stiffness", v, "N m/rad", joint=i)
     F.gioste_runs(out / f"{prefix}fig10_12-10_13_two_link.png", [r], su.arm.parameter_names)
     return Metrics().extend(m, prefix=prefix), r, g
+
+
+def diagnostics_1dof(su: S.Bench, m: Metrics, runs: list[Trace], g_track, out: Path,
+                     traces: dict) -> Metrics:
+    """What the config asks beyond the protocols: the forward-Euler controllers at T/2
+    (the slowest comparison pair and #2), Table 10.1's muscles, the matched arm."""
+    c, d = su.c, Metrics()
+    if c.check_dt_halving:
+        ref, g = comparison_ref(c, c.rise_times[0], c.dt / 2), su.gains(*c.cmp_gains,
+                                                                       [c.cmp_sigma_d])
+        err = lambda r: float(rms(S.position_error(r, c.divergence)))  # noqa: E731
+        changes = [abs(err(su.run(kind, ref, g, c.dt / 2)) - m.value(
+            "position_rms_error", prefix=f"{tag}_", suffix="rise1"))
+            for kind, tag in (("open_loop", "open_loop"), ("theorem5", "closed_loop"))]
+        r2 = su.run("theorem5", tracking_refs(c, c.dt / 2)[1], g_track, c.dt / 2)
+        changes.append(abs(err(r2) - err(runs[1])))
+        d.add("dt_halving_max_position_rms_change", max(changes), "rad")
+        d.add("dt_halving_phase2_diverged_at_change",
+              abs(S.stop_time(r2) - S.stop_time(runs[1])), "s")
+    if c.table10_1_diagnostic:
+        d.extend(table10_1(c, tracking_refs(c, c.dt)[0], c.track_gains,
+                           [*c.track_sigma, c.track_sigma_phase1]))
+    if c.matched_diagnostic:     # the controller's own muscles as the arm's (hardware alone)
+        d.extend(protocol_1dof(c.bench("table10.1", actuator="model"), out, "matched_",
+                               "matched 1-DoF ", traces)[0])
+    return d
+
+
+def diagnostics_2dof(su: S.Bench, r: Trace, g, out: Path, traces: dict) -> Metrics:
+    """Experiment #7 at T/2, with Table 10.1's muscles, and on the matched arm."""
+    c, d = su.c, Metrics()
+    if c.check_dt_halving:
+        r2 = su.run("theorem5", two_link_ref(c, c.dt / 2), g, c.dt / 2)
+        e1, e2 = (rms(S.position_error(x, c.divergence), axis=0) for x in (r, r2))
+        d.add("dt_halving_max_position_rms_change", np.max(np.abs(e2 - e1)), "rad")
+        d.add("dt_halving_diverged_at_change", abs(S.stop_time(r2) - S.stop_time(r)), "s")
+    if c.table10_1_diagnostic:
+        d.extend(table10_1(c, two_link_ref(c, c.dt), (c.gains_kd, c.gains_lam, c.gains_kpi),
+                           [v for s in c.sigma_values for v in s]))
+    if c.matched_diagnostic:
+        d.extend(protocol_2dof(c.bench("table10.1", actuator="model"), out, "matched_",
+                               "matched 2-DoF ", traces)[0])
+    return d
+
