@@ -115,7 +115,7 @@ def test_findings_follow_the_metrics():
 def test_runaways_are_stopped_and_counted():
     """A sample whose link leaves the reference by more than stop_error ends there and is
     counted as a runaway (a ±30 % mismatch of joint 1's muscle lengths runs away)."""
-    from softgen.experiments.ext_robustness import classify
+    from softgen.studies.pneumatic_robustness import classify
     c = ch10.Ch10AdaptiveConfig(plant_actuator_scale=(1, 1, 1.3, 0.7, 1, 1, 1, 1), stop_error=1.0)
     m = ch10.case(c).flat()
     assert m["stopped_at"] is not None and 0 < m["stopped_at"] < 350

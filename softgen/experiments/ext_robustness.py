@@ -23,20 +23,8 @@ around the model's while the controller keeps the model's:
     against the stiffness-loop rate: what the radius errors that the ``gain_radius``
     study shows do, and what shrinks them.
 
-Why lengths: at equal pressures the two muscles of a pair pull by K φ_a p_a and
-K φ_b p_b; a length error changes one elongation φ = (l_n − qR)² − l_min² and leaves a
-torque K(Δφ_a p_a − Δφ_b p_b) that grows with the pressures (with the commanded
-stiffness) and that Theorem 5's regressor has no column for. The same error on both
-muscles of a joint changes both elongations alike, so the hypothesis predicts that
-equal pairs track and mismatched pairs do not; ``length_pairs`` runs exactly that.
-
-A muscle's nominal and minimum lengths scale together (the same muscle, longer or
-shorter), so l_n > l_min always holds. "Tracks" uses the tolerances of
-``ch10-pneumatic-adaptive``'s findings: rms errors over the second half of phase 3
-below 1e-3 rad and 1e-2 N m/rad on both joints. "Runaway": a sample that diverged or
-whose link angle left the reference by more than 1 rad; such a run is ended there
-(``stop_error``), and the error quantiles (``*_median_<study>``, ``*_q95_<study>``) are
-over the samples that stayed bounded, beside the runaway fraction.
+The mechanism tested and the classification of samples:
+:mod:`softgen.studies.pneumatic_robustness`.
 """
 from __future__ import annotations
 
@@ -49,13 +37,13 @@ import numpy as np
 # lives in the app layer (softgen.app.sweep).
 from softgen.app.sweep import SweepSpec, run_sweep
 from softgen.core.config import Config
-from softgen.core.metrics import Metric, Metrics, finding, graded, not_checked, num
+from softgen.core.metrics import Metrics, finding, graded, not_checked, num
 from softgen.experiments.registry import Experiment, get
 from softgen.studies import figures_pneumatic as F
+from softgen.studies.pneumatic_robustness import (POS_TOL, RUNAWAY, STIFF_TOL, classify,
+                                                  row_key)
 
 TARGET = "ch10-pneumatic-adaptive"
-POS_TOL, STIFF_TOL = 1e-3, 1e-2            # rad, N m/rad: ch10-pneumatic-adaptive's findings
-RUNAWAY = 1.0                              # rad of position error
 METRICS = ("position_rms_error_*_phase3", "stiffness_rms_error_*_phase3",
            "parameter_estimate_max_ratio", "pressure_saturated_fraction",
            "position_max_abs_error", "stiffness_max_abs_error", "stopped_at")
@@ -78,18 +66,14 @@ class RobustnessConfig(Config):
     workers: int = 0                    # 0: one per CPU
 
     def validate(self) -> None:
-        if not 0 < self.error < 1:
-            raise ValueError(f"error: expected a number in (0, 1), got {self.error}")
+        for k in ("error", "radius_error", "pair_error"):
+            if not 0 < getattr(self, k) < 1:
+                raise ValueError(f"{k}: expected a number in (0, 1), got {getattr(self, k)}")
         for k in ("samples", "group_samples", "length_samples"):
             if getattr(self, k) < 1:
                 raise ValueError(f"{k}: expected a positive integer, got {getattr(self, k)}")
-        if not 0 < self.radius_error < 1:
-            raise ValueError(f"radius_error: expected a number in (0, 1), got "
-                             f"{self.radius_error}")
         if len(self.rates) < 2 or any(not r > 0 for r in self.rates):
             raise ValueError(f"rates: expected at least two positive numbers, got {self.rates}")
-        if not 0 < self.pair_error < 1:
-            raise ValueError(f"pair_error: expected a number in (0, 1), got {self.pair_error}")
         if any(not 0 < e < 1 for e in self.length_errors):
             raise ValueError(f"length_errors: expected numbers in (0, 1), got "
                              f"{self.length_errors}")
@@ -124,28 +108,6 @@ def studies(c: RobustnessConfig) -> dict[str, SweepSpec]:
     out["radius_rate"] = spec((f"plant_actuator_scale[0]=grid({1 - r!r}, 1.0)",
                                f"stiffness_rate=grid({', '.join(map(repr, c.rates))})"), 1)
     return out
-
-
-def _key(quantity: str, joint: int | None = None, phase: int | None = None) -> str:
-    """The name a sweep row (metrics.json names) stores the record under."""
-    return Metric(quantity, None, joint=joint, phase=phase).key
-
-
-def _joint_max(rows: list[dict], quantity: str) -> np.ndarray:
-    """Per sample, the larger of the two joints' phase-3 value (NaN if it did not run)."""
-    return np.array([max(r["metrics"].get(_key(quantity, j, 3), np.nan) for j in (1, 2))
-                     if r["status"] == "ok" else np.nan for r in rows])
-
-
-def classify(rows: list[dict]) -> dict[str, np.ndarray]:
-    pos, sti = _joint_max(rows, "position_rms_error"), _joint_max(rows, "stiffness_rms_error")
-    pmax = np.array([r["metrics"].get("position_max_abs_error", np.nan)
-                     if r["status"] == "ok" else np.inf for r in rows])
-    # A run ended by stop_error (= RUNAWAY) stopped just before the sample that left the
-    # band: its recorded maximum is below the band, its stop time says what happened.
-    stopped = np.array([np.isfinite(r["metrics"].get("stopped_at", np.nan)) for r in rows])
-    return {"pos": pos, "sti": sti, "tracks": (pos < POS_TOL) & (sti < STIFF_TOL),
-            "runaway": stopped | ~(pmax <= RUNAWAY)}
 
 
 def run(c: RobustnessConfig, out: Path) -> Metrics:
@@ -192,7 +154,7 @@ def run(c: RobustnessConfig, out: Path) -> Metrics:
     m.add("tracking_fraction", tracks[a != b].mean(), "1", suffix="mismatched_pairs")
     # Radius errors: whose stiffness do they move, and does the stiffness loop gain help?
     rows = results["radius_pairs"].rows
-    s1 = np.array([r["metrics"].get(_key("stiffness_rms_error", 1, 3), np.nan) for r in rows])
+    s1 = np.array([r["metrics"].get(row_key("stiffness_rms_error", 1, 3), np.nan) for r in rows])
     r1 = np.array([r["inputs"]["plant_actuator_scale[0]"] for r in rows])
     r2 = np.array([r["inputs"]["plant_actuator_scale[4]"] for r in rows])
     own = np.mean([np.ptp(s1[r2 == v]) for v in np.unique(r2)])
@@ -202,7 +164,7 @@ def run(c: RobustnessConfig, out: Path) -> Metrics:
     rows = [r for r in results["radius_rate"].rows
             if r["inputs"]["plant_actuator_scale[0]"] != 1.0 and r["status"] == "ok"]
     rate = np.array([r["inputs"]["stiffness_rate"] for r in rows])
-    err = np.array([r["metrics"][_key("stiffness_rms_error", 1, 3)] for r in rows])
+    err = np.array([r["metrics"][row_key("stiffness_rms_error", 1, 3)] for r in rows])
     m.add("radius_stiffness_error_rate_slope",
           np.polyfit(np.log(rate), np.log(err), 1)[0] if len(rows) > 1 else None, "1")
     m.add("sweep_wall_seconds", wall, "s")
