@@ -265,7 +265,8 @@ EXPERIMENT = Experiment(
         "with `fl_1pct_final_position_error_joint{i}` locates the cause in the model q̈ of eq. "
         "10.16, amplified by the slow poles and the light elbow. Theorem 5's estimates need not "
         "converge to Π (`parameter_estimate_max_ratio`). The coupling indices (change of one "
-        "error per unit step of the other reference) test FL's untouched stiffness against "
+        "error from its level before the step, per unit step of the other reference; "
+        "`softgen.studies.indices`) test FL's untouched stiffness against "
         "Theorem 5's transients; `dt_halving_*` checks the RK4 step, `sampled_*` a digital "
         "controller (module docstring)."),
 )
