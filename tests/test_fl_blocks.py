@@ -227,8 +227,8 @@ def test_coupling_windows_open_on_own_steps_away_from_the_others():
     assert windows(q, s, settle=25.0, end=60.0) == [w[1]]
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_coupling_index_charges_only_the_change_since_the_level_before(seed):
+@pytest.mark.parametrize("seed,baseline", [(0, 0.0), (1, 0.0), (2, 2.0), (3, 2.0)])
+def test_coupling_index_charges_only_the_change_since_the_level_before(seed, baseline):
     """Seeded offsets, transients and steps: a constant offset costs nothing, a transient
     inside a window counts per unit step, what happens outside the windows does not, and a
     window ending after the stop does not count (NaN when none is left)."""
@@ -239,7 +239,20 @@ def test_coupling_index_charges_only_the_change_since_the_level_before(seed):
     err = np.tile(off, (t.size, 1))
     err[(t >= 22) & (t < 24)] += bump                    # a transient in the first window
     err[(t >= 31) & (t < 36)] += 10 * bump               # outside every window
-    np.testing.assert_allclose(coupling_index(t, err, w), bump / step, rtol=1e-12)
-    np.testing.assert_allclose(coupling_index(t, err + 7.0, w), bump / step, rtol=1e-9)
-    assert np.all(np.isnan(coupling_index(t, err, w, stop=25.0)))
-    np.testing.assert_allclose(coupling_index(t, err, w, stop=35.0), bump / step, rtol=1e-12)
+    kw = {"baseline": baseline}
+    np.testing.assert_allclose(coupling_index(t, err, w, **kw), bump / step, rtol=1e-12)
+    np.testing.assert_allclose(coupling_index(t, err + 7.0, w, **kw), bump / step, rtol=1e-9)
+    assert np.all(np.isnan(coupling_index(t, err, w, stop=25.0, **kw)))
+    np.testing.assert_allclose(coupling_index(t, err, w, stop=35.0, **kw), bump / step,
+                               rtol=1e-12)
+
+
+def test_coupling_level_is_the_mean_before_or_the_value_at_the_step():
+    """A drift before the window: baseline 0 takes the value at t0, baseline b the mean
+    over [t0 − b, t0); the index differs by exactly the gap between the two levels."""
+    t = np.arange(0, 10, 0.01)
+    err = np.where(t < 5, 0.1 * t, 0.5)[:, None]          # ramps to 0.5 at t0 = 5, then holds
+    w = [(5.0, 10.0, 1.0)]
+    assert coupling_index(t, err, w, baseline=0.0)[0] == pytest.approx(0.0, abs=1e-12)
+    level = err[(t >= 3) & (t < 5), 0].mean()
+    assert coupling_index(t, err, w, baseline=2.0)[0] == pytest.approx(0.5 - level, rel=1e-12)

@@ -20,16 +20,24 @@ index measures that change, per unit of the step:
     c_i = max over windows w = [t₀, t₁) of  max_{t ∈ w} |d_i(t) − d̄_i,w| / Δ_w,
 
 d the deviation (σ − σ_d for position steps, q − q_d for stiffness steps), Δ_w the
-largest step of the moving references in w, and d̄_i,w the mean of d_i over the
-``baseline`` seconds before t₀ (its value at t₀ when that interval holds no sample):
-the level the error held before the step, so a steady offset (an adaptation not yet
-finished, a quantised encoder) is not counted as coupling. Windows (:func:`windows`)
-are intervals in which only the other references move. A window that ends after a
-run's emergency stop does not count; with none left the index is NaN.
+largest step of the moving references in w, and d̄_i,w the level d_i held before the
+step: its mean over the ``baseline`` seconds before t₀, or with ``baseline`` = 0 its
+value at t₀. A steady offset (an adaptation not yet finished, a model error) is then not
+counted as coupling. Windows (:func:`windows`) are intervals in which only the other
+references move. A window that ends after a run's emergency stop does not count; with
+none left the index is NaN.
 
-Until 2026-12 three definitions wrote the same metric names: ``ch10-pneumatic-adaptive``
-took |d| itself (offsets counted), ``ch10-feedback-linearization`` |d(t) − d(t₀)| (one
-sample as the level), the GioSte experiments the baseline mean above, which is kept.
+``baseline`` is the experiment's choice, stated where it is made: GioSte's stiffness is
+read through encoder counts, so its level is averaged (``baseline`` = 2 s of its
+config); the simulated arms of sections 10.2 and 10.4 are noise-free and their schedules
+start a window right where the previous reference change ends (section 10.4: a σ step
+at 48 s with a 2 s rise, then a q step at 50 s), where an average would take in that
+transient: they use the value at t₀ (``baseline`` = 0).
+
+Until 2026-12 three functions wrote the same metric names: ``ch10-pneumatic-adaptive``
+took |d| itself (no level; its deviations before the windows are at the 1e-12 level, so
+its numbers do not move), ``ch10-feedback-linearization`` |d(t) − d(t₀)| and the GioSte
+experiments the baseline mean, both of which this definition is.
 """
 from __future__ import annotations
 
@@ -38,9 +46,6 @@ from matplotlib.figure import Figure
 
 from softgen.core.metrics import Metrics
 from softgen.estimation.offline import EstimationResult
-
-#: Seconds before a window over which the deviation's level is averaged.
-COUPLING_BASELINE = 2.0
 
 #: Metric quantities and units of the two coupling directions.
 POSITION_TO_STIFFNESS = ("position_to_stiffness_coupling", "N m/rad per rad")
@@ -62,11 +67,12 @@ def windows(own, other, *, settle: float, end: float) -> list[tuple[float, float
             if t0 >= settle and all(abs(t0 - u) >= s.rise for u in other_times)]
 
 
-def coupling_index(t, deviation, wins, *, baseline: float = COUPLING_BASELINE,
+def coupling_index(t, deviation, wins, *, baseline: float,
                    stop: float | None = None) -> np.ndarray:
     """Per joint, the coupling index c_i of the module docstring (NaN: no window counts).
 
-    ``deviation``: samples × n; ``wins``: ``(t0, t1, step)``; ``stop``: the run's
+    ``deviation``: samples × n; ``wins``: ``(t0, t1, step)``; ``baseline``: seconds
+    before t0 the level is averaged over (0: the value at t0); ``stop``: the run's
     emergency-stop time (windows ending after it are skipped).
     """
     t, dev = np.asarray(t), np.asarray(deviation)

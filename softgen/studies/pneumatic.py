@@ -110,11 +110,12 @@ def metrics(tr: Trace, Pi: np.ndarray, c, prefix: str = "") -> Metrics:
     phase_rms_records(m, t, eq, PHASES, RMS[0], "rad", prefix=prefix)
     phase_rms_records(m, t, es, PHASES, RMS[1], "N m/rad", prefix=prefix)
     q, s = steps(("q1", "q2"), c.rise), steps(("s1", "s2"), c.rise)
+    # Level = the error at the window's start (noise-free plant): studies.indices.
     end = PHASES[-1][1]
     coupling_records(m, t, es, windows(q, s, settle=c.adaptation_settle, end=end),
-                     POSITION_TO_STIFFNESS, prefix=prefix)
+                     POSITION_TO_STIFFNESS, prefix=prefix, baseline=0.0)
     coupling_records(m, t, eq, windows(s, q, settle=c.adaptation_settle, end=end),
-                     STIFFNESS_TO_POSITION, prefix=prefix)
+                     STIFFNESS_TO_POSITION, prefix=prefix, baseline=0.0)
     m.add("parameter_estimate_max_ratio", parameter_ratio(tr["ctrl.Pi_hat"], Pi), "1",
           prefix=prefix)
     return m

@@ -96,9 +96,11 @@ def case_metrics(tr: dict, c) -> Metrics:
     phase_rms_records(m, t, eq, phases, "position_rms_error", "rad")
     phase_rms_records(m, t, es, phases, "stiffness_rms_error", "N m/rad")
     q, s = steps(c.rise, "q1", "q2"), steps(c.rise, "s1", "s2")
+    # Level = the error at the window's start: the windows open right where the previous
+    # reference change ends (studies.indices).
     end = c.duration
     coupling_records(m, t, es, windows(q, s, settle=c.adaptation_settle, end=end),
-                     POSITION_TO_STIFFNESS)
+                     POSITION_TO_STIFFNESS, baseline=0.0)
     coupling_records(m, t, eq, windows(s, q, settle=c.adaptation_settle, end=end),
-                     STIFFNESS_TO_POSITION)
+                     STIFFNESS_TO_POSITION, baseline=0.0)
     return m
