@@ -1,11 +1,12 @@
 """Computed claims: verdicts follow the stated thresholds, evidence quotes the metrics,
 a failing findings function loses nothing, and the report shows every verdict.
 
-Metric dicts are synthetic (no simulation): a base that passes every claim, then one
-metric moved across its threshold.
+Metrics are synthetic records (no simulation): a base that passes every claim, then one
+record (named by its metrics.json key) moved across its threshold.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 
@@ -13,59 +14,79 @@ import numpy as np
 import pytest
 
 from softgen.app import reproduce as runner
-from softgen.experiments.registry import VERDICTS, Experiment, finding, get, num
 from softgen.app.report import write_report
+from softgen.core.metrics import Metrics
+from softgen.experiments.registry import VERDICTS, Experiment, finding, get, num
 
 PNEUMATIC = get("ch10-pneumatic-adaptive")
 FL = get("ch10-feedback-linearization")
 JOINTS = (1, 2)
+P2S, S2P = "position_to_stiffness_coupling", "stiffness_to_position_coupling"
 
 
-def pneumatic_metrics(open_loop: bool = True) -> dict:
+def pneumatic_metrics(open_loop: bool = True) -> Metrics:
     """Metrics of a run that passes every section-10.2 claim; ``open_loop``: full run."""
-    m = {}
+    m = Metrics()
     for i in JOINTS:
         for k in (1, 2, 3):
-            m[f"position_rms_error_joint{i}_phase{k}"] = 1e-5 * (i + k)
-            m[f"stiffness_rms_error_joint{i}_phase{k}"] = 1e-4 * (i + k)
-        m[f"position_to_stiffness_coupling_joint{i}"] = 0.04 / i
-        m[f"stiffness_to_position_coupling_joint{i}"] = 3e-15 * i
-        if open_loop:
-            m[f"open_loop_position_to_stiffness_coupling_joint{i}"] = 1e-4 / i
-            m[f"open_loop_stiffness_to_position_coupling_joint{i}"] = 3e-15
-    m.update(parameter_estimate_max_ratio=1.003, pressure_violations=0.0,
-             pressure_min_pa=1.2e4, pressure_max_pa=4.9e4)
-    return m
+            m.add("position_rms_error", 1e-5 * (i + k), "rad", joint=i, phase=k)
+            m.add("stiffness_rms_error", 1e-4 * (i + k), "N m/rad", joint=i, phase=k)
+    for prefix, p2s, s2p in [("", 0.04, 3e-15)] + ([("open_loop_", 1e-4, 3e-15)] if open_loop
+                                                  else []):
+        for i in JOINTS:
+            m.add(P2S, p2s / i, "N m/rad per rad", joint=i, prefix=prefix)
+            m.add(S2P, s2p * (i if not prefix else 1), "rad per N m/rad", joint=i,
+                  prefix=prefix)
+    m.add("parameter_estimate_max_ratio", 1.003, "1").add("pressure_violations", 0.0, "1")
+    return m.add("pressure_min_pa", 1.2e4, "Pa").add("pressure_max_pa", 4.9e4, "Pa")
 
 
-def fl_metrics() -> dict:
+def fl_metrics() -> Metrics:
     """Metrics of a run that passes every section-10.4 claim."""
-    m = {"steady_position_error_fl": 0.83, "steady_position_error_adaptive": 4.5e-8,
-         "steady_position_error_fl_exact": 3.3e-11,
-         "steady_position_error_adaptive_exact": 4.9e-9}
+    m = Metrics()
+    for tag, v in (("fl", 0.83), ("adaptive", 4.5e-8), ("fl_exact", 3.3e-11),
+                   ("adaptive_exact", 4.9e-9)):
+        m.add("steady_position_error", v, "rad", suffix=tag)
     for i in JOINTS:
-        m[f"fl_exact_final_stiffness_error_max_joint{i}"] = 3e-13 * i
-        m[f"adaptive_exact_final_stiffness_error_max_joint{i}"] = 4.8e-8 / i
-        m[f"fl_1pct_predicted_steady_error_joint{i}"] = 0.83 / i
-        m[f"fl_1pct_final_position_error_joint{i}"] = 0.83 / i * (1 + 1e-9)
-        m[f"fl_exact_position_to_stiffness_coupling_joint{i}"] = 1e-12 * i
-        m[f"adaptive_exact_position_to_stiffness_coupling_joint{i}"] = 0.86 / i
-        m[f"fl_1pct_stiffness_rms_joint{i}"] = 1.2e-14 * i
-        m[f"adaptive_1pct_stiffness_rms_error_joint{i}_phase4"] = 8.8e-10 * i
-        m[f"fl_exact_stiffness_rms_joint{i}"] = 1.3e-13 * i
-        m[f"adaptive_exact_stiffness_rms_error_joint{i}_phase4"] = 2.3e-10 * i
+        for q, v, unit, kw in (
+                ("final_stiffness_error_max", 3e-13 * i, "N m/rad", dict(prefix="fl_exact_")),
+                ("final_stiffness_error_max", 4.8e-8 / i, "N m/rad",
+                 dict(prefix="adaptive_exact_")),
+                ("predicted_steady_error", 0.83 / i, "rad", dict(prefix="fl_1pct_")),
+                ("final_position_error", 0.83 / i * (1 + 1e-9), "rad", dict(prefix="fl_1pct_")),
+                (P2S, 1e-12 * i, "N m/rad per rad", dict(prefix="fl_exact_")),
+                (P2S, 0.86 / i, "N m/rad per rad", dict(prefix="adaptive_exact_")),
+                ("stiffness_rms", 1.2e-14 * i, "N m/rad", dict(prefix="fl_1pct_")),
+                ("stiffness_rms_error", 8.8e-10 * i, "N m/rad",
+                 dict(prefix="adaptive_1pct_", phase=4)),
+                ("stiffness_rms", 1.3e-13 * i, "N m/rad", dict(prefix="fl_exact_")),
+                ("stiffness_rms_error", 2.3e-10 * i, "N m/rad",
+                 dict(prefix="adaptive_exact_", phase=4))):
+            m.add(q, v, unit, joint=i, **kw)
     return m
 
 
-def verdicts(exp: Experiment, m: dict) -> list[str]:
-    return [f["verdict"] for f in exp.findings(m)]
+def changed(m: Metrics, change: dict) -> Metrics:
+    """``m`` with the records of the given metrics.json keys set to new values."""
+    keys = {r.key for r in m}
+    assert set(change) <= keys, set(change) - keys
+    return Metrics(dataclasses.replace(r, value=change.get(r.key, r.value)) for r in m)
+
+
+def without(m: Metrics, key: str) -> Metrics:
+    assert key in m
+    return Metrics(r for r in m if r.key != key)
+
+
+def verdicts(exp: Experiment, m: Metrics) -> list[str]:
+    return [f["verdict"] for f in exp.findings(m, None)]
 
 
 # -- verdicts -------------------------------------------------------------------------
 
 @pytest.mark.parametrize("exp,base", [(PNEUMATIC, pneumatic_metrics), (FL, fl_metrics)])
 def test_base_metrics_reproduce_every_claim(exp, base):
-    out = exp.findings(base())
+    out = exp.findings(base(), None)
     assert len(out) == 4
     for f in out:
         assert set(f) == {"claim", "verdict", "evidence"}
@@ -119,8 +140,7 @@ FL_FLIPS = [
                          [(PNEUMATIC, pneumatic_metrics, *f) for f in PNEUMATIC_FLIPS]
                          + [(FL, fl_metrics, *f) for f in FL_FLIPS])
 def test_verdict_flips_at_the_stated_threshold(exp, base, k, change, verdict):
-    m = {**base(), **change}
-    got = verdicts(exp, m)
+    got = verdicts(exp, changed(base(), change))
     assert got[k] == verdict
     # The other claims read other metrics and keep their verdict.
     assert all(v == "reproduced" for j, v in enumerate(got) if j != k)
@@ -131,11 +151,12 @@ def test_verdicts_follow_thresholds_for_random_metrics(seed):
     """Random rms errors on a log scale: the tracking claim is the stated conjunction."""
     rng = np.random.default_rng(seed)
     for _ in range(50):
-        m = pneumatic_metrics()
-        for key in [k for k in m if "rms_error" in k]:
-            m[key] = float(10 ** rng.uniform(-6, -1))
-        pos_ok = max(v for k, v in m.items() if k.startswith("position_rms")) < 1e-3
-        stiff_ok = max(v for k, v in m.items() if k.startswith("stiffness_rms")) < 1e-2
+        m = Metrics(dataclasses.replace(r, value=float(10 ** rng.uniform(-6, -1)))
+                    if r.quantity.endswith("rms_error") else r for r in pneumatic_metrics())
+        pos_ok = max(m.per_joint("position_rms_error", phase=k)[i]
+                     for i in JOINTS for k in (1, 2, 3)) < 1e-3
+        stiff_ok = max(m.per_joint("stiffness_rms_error", phase=k)[i]
+                       for i in JOINTS for k in (1, 2, 3)) < 1e-2
         expect = {(True, True): "reproduced", (False, False): "not reproduced"}.get(
             (pos_ok, stiff_ok), "partly reproduced")
         assert verdicts(PNEUMATIC, m)[0] == expect
@@ -144,11 +165,11 @@ def test_verdicts_follow_thresholds_for_random_metrics(seed):
 # -- evidence ---------------------------------------------------------------------------
 
 def test_thresholds_are_stated_in_the_evidence():
-    ev = [f["evidence"] for f in PNEUMATIC.findings(pneumatic_metrics())]
+    ev = [f["evidence"] for f in PNEUMATIC.findings(pneumatic_metrics(), None)]
     assert "< 0.001 rad" in ev[0] and "< 0.01 N m/rad" in ev[0]
     assert "< 0.1 N m/rad per rad" in ev[1] and "< 0.001 rad per N m/rad" in ev[1]
     assert "< 10" in ev[2] and "required: 0" in ev[3]
-    ev = [f["evidence"] for f in FL.findings(fl_metrics())]
+    ev = [f["evidence"] for f in FL.findings(fl_metrics(), None)]
     assert "< 0.001 rad" in ev[0] and "< 0.01 N m/rad" in ev[0]
     assert "FL > 0.001 rad" in ev[1] and "> 100× adaptive" in ev[1]
     assert "FL < 1e-06" in ev[2] and "[1e-06, 1.75)" in ev[2]
@@ -159,30 +180,30 @@ def test_thresholds_are_stated_in_the_evidence():
 def test_evidence_quotes_the_metrics_passed_in(seed):
     """Random values stay on the passing side; the quoted ones appear as formatted."""
     rng = np.random.default_rng(seed)
-    m = pneumatic_metrics()
-    for key in list(m):
-        if "rms_error" in key:
-            m[key] = float(rng.uniform(1e-6, 9e-4))
-    m["position_to_stiffness_coupling_joint1"] = float(rng.uniform(0.01, 0.09))
-    m["parameter_estimate_max_ratio"] = float(rng.uniform(1, 9))
-    m["pressure_max_pa"] = float(rng.uniform(4e4, 8e5))
-    ev = [f["evidence"] for f in PNEUMATIC.findings(m)]
-    worst_q = max(v for k, v in m.items() if k.startswith("position_rms"))
-    worst_s = max(v for k, v in m.items() if k.startswith("stiffness_rms"))
+    m = Metrics(dataclasses.replace(r, value=float(rng.uniform(1e-6, 9e-4)))
+                if r.quantity.endswith("rms_error") else r for r in pneumatic_metrics())
+    m = changed(m, {"position_to_stiffness_coupling_joint1": float(rng.uniform(0.01, 0.09)),
+                    "parameter_estimate_max_ratio": float(rng.uniform(1, 9)),
+                    "pressure_max_pa": float(rng.uniform(4e4, 8e5))})
+    ev = [f["evidence"] for f in PNEUMATIC.findings(m, None)]
+    worst_q = max(r.value for r in m if r.quantity == "position_rms_error")
+    worst_s = max(r.value for r in m if r.quantity == "stiffness_rms_error")
     assert num(worst_q) in ev[0] and num(worst_s) in ev[0]
-    c = m["position_to_stiffness_coupling_joint1"]
-    ol = m["open_loop_position_to_stiffness_coupling_joint1"]
+    c = m.value(P2S, joint=1)
+    ol = m.value(P2S, joint=1, prefix="open_loop_")
     assert num(c) in ev[1] and f"{num(c / ol)}× open loop" in ev[1]
-    assert num(m["parameter_estimate_max_ratio"]) in ev[2]
-    assert num(m["pressure_max_pa"]) in ev[3]
+    assert num(m.value("parameter_estimate_max_ratio")) in ev[2]
+    assert num(m.value("pressure_max_pa")) in ev[3]
 
-    f = fl_metrics()
-    f["steady_position_error_fl"] = fl = float(rng.uniform(0.01, 1))
-    f["steady_position_error_adaptive"] = ad = float(rng.uniform(1e-9, 1e-5))
-    f["fl_1pct_predicted_steady_error_joint2"] = pred = float(rng.uniform(0.1, 0.5))
-    f["adaptive_exact_position_to_stiffness_coupling_joint2"] = cp = float(rng.uniform(0.1, 0.9))
-    f["adaptive_1pct_stiffness_rms_error_joint1_phase4"] = st = float(rng.uniform(1e-3, 9e-3))
-    ev = [x["evidence"] for x in FL.findings(f)]
+    fl, ad = float(rng.uniform(0.01, 1)), float(rng.uniform(1e-9, 1e-5))
+    pred, cp = float(rng.uniform(0.1, 0.5)), float(rng.uniform(0.1, 0.9))
+    st = float(rng.uniform(1e-3, 9e-3))
+    f = changed(fl_metrics(), {"steady_position_error_fl": fl,
+                               "steady_position_error_adaptive": ad,
+                               "fl_1pct_predicted_steady_error_joint2": pred,
+                               "adaptive_exact_position_to_stiffness_coupling_joint2": cp,
+                               "adaptive_1pct_stiffness_rms_error_joint1_phase4": st})
+    ev = [x["evidence"] for x in FL.findings(f, None)]
     assert num(fl) in ev[1] and num(ad) in ev[1] and f"{num(fl / ad)}×" in ev[1]
     assert num(pred) in ev[1]
     assert num(cp) in ev[2] and num(st) in ev[3]
@@ -193,8 +214,9 @@ def test_every_metric_read_moves_the_findings(exp, base):
     """The base dicts hold only metrics the findings read: raising any one of them (above
     every other, so it becomes the quoted worst) changes the evidence or the verdict."""
     m0 = base()
-    f0 = exp.findings(m0)
-    unread = [key for key in m0 if exp.findings({**m0, key: 2 * m0[key] + 1e-3}) == f0]
+    f0 = exp.findings(m0, None)
+    unread = [r.key for r in m0
+              if exp.findings(changed(m0, {r.key: 2 * r.value + 1e-3}), None) == f0]
     assert unread == []
 
 
@@ -207,11 +229,11 @@ def test_evidence_numbers_come_from_metrics_or_thresholds(exp, base):
     """Each number in the evidence is a formatted metric, a ratio or relative difference
     of two, an index or a stated threshold: none is carried over from another run."""
     m = base()
-    vals = list(m.values())
+    vals = [r.value for r in m]
     allowed = STATED | {num(v) for v in vals}
     allowed |= {num(a / b) for a in vals for b in vals if b}
     allowed |= {num(abs(a - b) / max(abs(a), abs(b))) for a in vals for b in vals if a or b}
-    for f in exp.findings(m):
+    for f in exp.findings(m, None):
         for tok in re.findall(r"\d+(?:\.\d+)?(?:e[-+]\d+)?", f["evidence"]):
             assert tok in allowed, (tok, f["evidence"])
 
@@ -219,7 +241,7 @@ def test_evidence_numbers_come_from_metrics_or_thresholds(exp, base):
 # -- metrics a quick run does not compute -------------------------------------------------
 
 def test_quick_run_without_open_loop_reports_only_ours():
-    out = PNEUMATIC.findings(pneumatic_metrics(open_loop=False))
+    out = PNEUMATIC.findings(pneumatic_metrics(open_loop=False), None)
     assert out[1]["verdict"] == "reproduced"
     assert "open loop" not in out[1]["evidence"].replace("open-loop stiffness controller not "
                                                          "run here", "")
@@ -233,9 +255,7 @@ def test_quick_run_without_open_loop_reports_only_ours():
     (FL, fl_metrics, "adaptive_exact_position_to_stiffness_coupling_joint2", 2),
 ])
 def test_absent_metric_gives_not_checked(exp, base, key, k):
-    m = base()
-    del m[key]
-    out = exp.findings(m)
+    out = exp.findings(without(base(), key), None)
     assert out[k]["verdict"] == "not checked" and key in out[k]["evidence"]
     assert all(f["verdict"] == "reproduced" for j, f in enumerate(out) if j != k)
 
@@ -247,24 +267,24 @@ def _experiment(findings) -> Experiment:
                       run=lambda config, out: {"x": 2.0}, findings=findings)
 
 
-def _boom(m):
+def _boom(m, c):
     raise KeyError("no_such_metric")
 
 
 @pytest.mark.parametrize("bad,match", [
     (_boom, "KeyError: 'no_such_metric'"),
-    (lambda m: [{"claim": "c", "verdict": "maybe", "evidence": "e"}], "malformed finding"),
-    (lambda m: [{"claim": "c", "verdict": "reproduced"}], "malformed finding"),
-    (lambda m: None, "TypeError"),
+    (lambda m, c: [{"claim": "c", "verdict": "maybe", "evidence": "e"}], "malformed finding"),
+    (lambda m, c: [{"claim": "c", "verdict": "reproduced"}], "malformed finding"),
+    (lambda m, c: None, "TypeError"),
 ])
 def test_failing_findings_become_one_not_checked(bad, match):
-    out = runner.check_findings(_experiment(bad), {"x": 1.0})
+    out = runner.check_findings(_experiment(bad), Metrics().add("x", 1.0, "1"), {})
     assert len(out) == 1 and out[0]["verdict"] == "not checked"
     assert match in out[0]["evidence"]
 
 
 def test_run_one_stores_findings_beside_the_metrics(tmp_path, monkeypatch):
-    def fine(m):
+    def fine(m, c):
         return [finding("x is two", "reproduced" if m["x"] == 2 else "not reproduced",
                         f"x = {num(m['x'])}")]
 
@@ -341,30 +361,28 @@ GIOSTE2 = get("ch10-gioste-2dof")
 RES = 2 * np.pi / 2000
 
 
-def gioste1_metrics(study: bool = True) -> dict:
+def gioste1_metrics(study: bool = True) -> Metrics:
     """A one-link run that passes every claim (``study``: with the gain study's metrics)."""
-    m = {"encoder_resolution_rad": RES, "parameter_estimate_max_ratio": 1.2,
-         "pressure_violations": 0.0, "voltage_clipped_fraction": 0.0}
-    prefixes = [""] + (["gain_study_inertial_kpi_x0.01_"] if study else [])
-    for p in prefixes:
+    m = Metrics().add("encoder_resolution_rad", RES, "rad")
+    m.add("pressure_violations", 0.0, "1").add("voltage_clipped_fraction", 0.0, "1")
+    for p in [""] + (["gain_study_inertial_kpi_x0.01_"] if study else []):
         for k in (1, 2, 3):
-            m[f"{p}completed_phase{k}"] = 1.0
-            m[f"{p}diverged_at_phase{k}"] = 125.0
-            m[f"{p}final_position_error_phase{k}"] = 0.5 * RES
-            m[f"{p}stiffness_rms_error_joint1_phase{k}"] = 1e-3
-        m[f"{p}parameter_estimate_max_ratio"] = 1.2
-        m[f"{p}position_to_stiffness_coupling_joint1"] = 0.02
-        m[f"{p}stiffness_to_position_coupling_joint1"] = 1e-3
+            m.add("completed", 1.0, "1", phase=k, prefix=p)
+            m.add("diverged_at", 125.0, "s", phase=k, prefix=p)
+            m.add("final_position_error", 0.5 * RES, "rad", phase=k, prefix=p)
+            m.add("stiffness_rms_error", 1e-3, "N m/rad", joint=1, phase=k, prefix=p)
+        m.add("parameter_estimate_max_ratio", 1.2, "1", prefix=p)
+        m.add(P2S, 0.02, "N m/rad per rad", joint=1, prefix=p)
+        m.add(S2P, 1e-3, "rad per N m/rad", joint=1, prefix=p)
     for k in (1, 2, 3, 4):
-        m[f"open_loop_unstable_rise{k}"] = float(k == 4)
-        m[f"closed_loop_unstable_rise{k}"] = 0.0
-        m[f"open_loop_oscillation_amplitude_rise{k}"] = 0.01 * k
-        m[f"open_closed_max_position_difference_rise{k}"] = 0.1
-        m[f"open_loop_stiffness_rms_error_rise{k}"] = 0.07
-        m[f"closed_loop_stiffness_rms_error_rise{k}"] = 0.007
-    m["open_loop_stiffness_to_position_coupling_joint1"] = 0.02
-    m["closed_loop_stiffness_to_position_coupling_joint1"] = 0.01
-    return m
+        for q, v in (("unstable", float(k == 4)), ("oscillation_amplitude", 0.01 * k),
+                     ("stiffness_rms_error", 0.07)):
+            m.add(q, v, "1", prefix="open_loop_", suffix=f"rise{k}")
+        m.add("unstable", 0.0, "1", prefix="closed_loop_", suffix=f"rise{k}")
+        m.add("stiffness_rms_error", 0.007, "N m/rad", prefix="closed_loop_", suffix=f"rise{k}")
+        m.add("open_closed_max_position_difference", 0.1, "rad", suffix=f"rise{k}")
+    m.add(S2P, 0.02, "rad per N m/rad", joint=1, prefix="open_loop_")
+    return m.add(S2P, 0.01, "rad per N m/rad", joint=1, prefix="closed_loop_")
 
 
 @pytest.mark.parametrize("change,k,verdict", [
@@ -383,7 +401,7 @@ def gioste1_metrics(study: bool = True) -> dict:
     ({"voltage_clipped_fraction": 1e-4}, 7, "not reproduced"),
 ])
 def test_gioste_verdicts_flip_at_the_stated_threshold(change, k, verdict):
-    out = GIOSTE1.findings({**gioste1_metrics(), **change})
+    out = GIOSTE1.findings(changed(gioste1_metrics(), change), None)
     # Order: tracking, tracking (study), decoupling, decoupling (study), Fig. 10.10,
     # stiffness loop, Fig. 10.11, feasibility.
     assert len(out) == 8
@@ -392,23 +410,25 @@ def test_gioste_verdicts_flip_at_the_stated_threshold(change, k, verdict):
 
 
 def test_gioste_quick_run_has_no_study_claims_and_two_link_reads_its_own_keys():
-    out = GIOSTE1.findings(gioste1_metrics(study=False))
+    out = GIOSTE1.findings(gioste1_metrics(study=False), None)
     assert len(out) == 6 and not any("gain study" in f["claim"] for f in out)
-    m = {"encoder_resolution_rad": RES, "completed": 1.0, "diverged_at": 180.0,
-         "final_position_error": RES, "parameter_estimate_max_ratio": 2.0,
-         "pressure_violations": 0.0, "voltage_clipped_fraction": 0.0,
-         **{f"stiffness_rms_error_joint{i}_phase{k}": 1e-3 for i in JOINTS for k in (1, 2, 3)},
-         **{f"position_to_stiffness_coupling_joint{i}": 0.1 for i in JOINTS},
-         **{f"stiffness_to_position_coupling_joint{i}": 1e-3 for i in JOINTS}}
-    assert [f["verdict"] for f in GIOSTE2.findings(m)] == ["reproduced"] * 4
-    m["completed"] = 0.0
-    assert [f["verdict"] for f in GIOSTE2.findings(m)][0] == "not reproduced"
+    m = Metrics().add("encoder_resolution_rad", RES, "rad").add("completed", 1.0, "1")
+    m.add("diverged_at", 180.0, "s").add("final_position_error", RES, "rad")
+    m.add("parameter_estimate_max_ratio", 2.0, "1").add("pressure_violations", 0.0, "1")
+    m.add("voltage_clipped_fraction", 0.0, "1")
+    for i in JOINTS:
+        for k in (1, 2, 3):
+            m.add("stiffness_rms_error", 1e-3, "N m/rad", joint=i, phase=k)
+        m.add(P2S, 0.1, "N m/rad per rad", joint=i).add(S2P, 1e-3, "rad per N m/rad", joint=i)
+    assert [f["verdict"] for f in GIOSTE2.findings(m, None)] == ["reproduced"] * 4
+    m = changed(m, {"completed": 0.0})
+    assert [f["verdict"] for f in GIOSTE2.findings(m, None)][0] == "not reproduced"
 
 
 def test_undefined_metrics_are_null_in_strict_json(tmp_path, monkeypatch):
     seen = {}
 
-    def read(m):
+    def read(m, c):
         seen.update(m)                  # findings see the run's own NaN, before JSON
         return []
 

@@ -16,12 +16,13 @@ from softgen.control.feedback_linearization import (GAIN_NAMES, feedback_lineari
                                                     hurwitz_gains, valve_loop, valve_loop_signals,
                                                     valve_loop_start)
 from softgen.control.pneumatic import pneumatic_arm
-from softgen.control.pneumatic_loop import (decoupling_index, decoupling_windows, plant_block,
+from softgen.control.pneumatic_loop import (plant_block,
                                             stage_reference_block, theorem5_continuous_block,
                                             valve_rhs_fun)
 from softgen.control.references import SmoothSteps, stiffness_reference_block
 from softgen.modelfile.model import load_model
 from softgen.runtime.simulate import simulate
+from softgen.studies.indices import coupling_index, windows
 
 DT = 1e-3
 
@@ -218,14 +219,40 @@ def test_valve_loop_start_sets_every_block_and_rejects_bad_arguments(fl, arm):
         valve_loop(fl, arm, ref, "fl", DT, hold_compensation=True)
 
 
-def test_decoupling_index_charges_only_the_change_inside_windows():
+def test_coupling_windows_open_on_own_steps_away_from_the_others():
     q = [SmoothSteps((0, 20, 40), (0.0, 0.2, 0.1), 2.0)]
     s = [SmoothSteps((0, 30), (5.0, 6.0), 2.0)]
-    w = decoupling_windows(q, s, settle=10.0, end=60.0)
+    w = windows(q, s, settle=10.0, end=60.0)
     assert w == [(20.0, 30.0, 0.2), (40.0, 60.0, pytest.approx(0.1))]
-    assert decoupling_windows(q, s, settle=25.0, end=60.0) == [w[1]]
-    t = np.arange(0, 60, 0.5)
-    err = np.full((t.size, 1), 3.0)                      # a constant offset costs nothing
-    err[(t >= 22) & (t < 24), 0] += 0.05                 # a transient in the first window
-    err[t >= 30, 0] += 1.0                               # outside any window of q
-    np.testing.assert_allclose(decoupling_index(t, err, w), [0.05 / 0.2])
+    assert windows(q, s, settle=25.0, end=60.0) == [w[1]]
+
+
+@pytest.mark.parametrize("seed,baseline", [(0, 0.0), (1, 0.0), (2, 2.0), (3, 2.0)])
+def test_coupling_index_charges_only_the_change_since_the_level_before(seed, baseline):
+    """Seeded offsets, transients and steps: a constant offset costs nothing, a transient
+    inside a window counts per unit step, what happens outside the windows does not, and a
+    window ending after the stop does not count (NaN when none is left)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, 60, 0.01)
+    off, bump, step = rng.uniform(-5, 5, 2), rng.uniform(0.01, 1, 2), rng.uniform(0.05, 1)
+    w = [(20.0, 30.0, step), (40.0, 60.0, 2 * step)]
+    err = np.tile(off, (t.size, 1))
+    err[(t >= 22) & (t < 24)] += bump                    # a transient in the first window
+    err[(t >= 31) & (t < 36)] += 10 * bump               # outside every window
+    kw = {"baseline": baseline}
+    np.testing.assert_allclose(coupling_index(t, err, w, **kw), bump / step, rtol=1e-12)
+    np.testing.assert_allclose(coupling_index(t, err + 7.0, w, **kw), bump / step, rtol=1e-9)
+    assert np.all(np.isnan(coupling_index(t, err, w, stop=25.0, **kw)))
+    np.testing.assert_allclose(coupling_index(t, err, w, stop=35.0, **kw), bump / step,
+                               rtol=1e-12)
+
+
+def test_coupling_level_is_the_mean_before_or_the_value_at_the_step():
+    """A drift before the window: baseline 0 takes the value at t0, baseline b the mean
+    over [t0 − b, t0); the index differs by exactly the gap between the two levels."""
+    t = np.arange(0, 10, 0.01)
+    err = np.where(t < 5, 0.1 * t, 0.5)[:, None]          # ramps to 0.5 at t0 = 5, then holds
+    w = [(5.0, 10.0, 1.0)]
+    assert coupling_index(t, err, w, baseline=0.0)[0] == pytest.approx(0.0, abs=1e-12)
+    level = err[(t >= 3) & (t < 5), 0].mean()
+    assert coupling_index(t, err, w, baseline=2.0)[0] == pytest.approx(0.5 - level, rel=1e-12)

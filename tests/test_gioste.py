@@ -10,9 +10,10 @@ import pytest
 from softgen.control.feasibility import PressureWarning
 from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.references import SmoothSteps
-from softgen.plants import gioste as gc
-from softgen.runtime.simulate import simulate
 from softgen.modelfile.model import load_model
+from softgen.plants import gioste as gc
+from softgen.studies import gioste as gs
+from softgen.studies.gains import Theorem5Gains
 
 
 @pytest.fixture(scope="module")
@@ -23,18 +24,15 @@ def one_link():
 
 def _gains(emu, arm, sigma):
     k = emu.calibrated_gain([sigma])
-    return {"lam": np.array([1.8]), "kd": np.array([12.0]), "kpi": gc.kpi_vector(arm, 45.0),
-            "ksigma": 1.0 / k, "kinv": 1.0 / k}
+    return Theorem5Gains.from_stiffness_rate(1.0, k, k, lam=np.array([1.8]),
+                                             kd=np.array([12.0]), kpi=gc.kpi_vector(arm, 45.0))
 
 
 def _run(emu, kind, ref, g, divergence=0.5):
-    """A run of the library's GioSte loop (what the experiments run)."""
-    d = gc.loop_diagram(emu, kind, 1e-3)
-    x0 = gc.initial_state(emu, kind, ref[0], lam=g["lam"], kd=g["kd"], kinv=g["kinv"],
-                          Pi_hat0=emu.arm.Pi_nominal, dt=1e-3)
-    return d, x0, simulate(d, steps=ref.shape[0], x0=x0, externals={"ref": ref},
-                           params={f"ctrl.{k}": v for k, v in g.items() if f"ctrl.{k}" in d.params},
-                           stop=[gc.emergency_stop(divergence)], on_nonfinite="stop", chunk=100)
+    """A run of the GioSte scenario (what the experiments run), unpadded."""
+    sc = gs.scenario(emu, kind, ref, g, dt=1e-3, divergence=divergence,
+                     Pi_hat0=emu.arm.Pi_nominal, chunk=100, record=None)
+    return sc.loop, dict(sc.x0), sc.run()
 
 
 # -- valves (eq. 10.10) ----------------------------------------------------------------------
@@ -98,9 +96,9 @@ def test_encoder_quantisation_step(one_link):
     _, emu = one_link
     step = 2 * math.pi / (500 * 4)                           # HEDS-5500 A12, quadrature
     assert emu.encoder_step == pytest.approx(step)
-    enc = emu.encoder_block(1e-3)
+    enc = emu.sensor_blocks(1e-3)[0]
     q = np.random.default_rng(1).uniform(-1, 1, 200)
-    qm = np.array([enc.eval(np.zeros(2), [x])[1][0] for x in q])
+    qm = np.array([enc.eval([], [x])[1][0] for x in q])
     np.testing.assert_allclose(np.round(qm / step), qm / step, atol=1e-9)
     assert np.max(np.abs(qm - q)) <= step / 2 + 1e-12
     assert len(np.unique(np.round(qm / step))) > 100          # not stuck on a few levels
@@ -109,9 +107,10 @@ def test_encoder_quantisation_step(one_link):
 def test_dirty_derivative_reads_a_ramp(one_link):
     _, emu = one_link
     T, w = 1e-3, 0.5
-    loop = emu.encoder_block(T).loop_fun(599)
-    _, Y = loop(np.zeros(2), w * np.arange(1, 600)[None, :] * T, [])
-    vs = np.array(Y)[1, 200:]                                 # 10 filter time constants on
+    enc, vel = emu.sensor_blocks(T)
+    qm = np.array([enc.eval([], [x])[1][0] for x in w * np.arange(1, 600) * T])
+    _, Y = vel.loop_fun(599)(np.zeros(2), qm[None, :], [])
+    vs = np.array(Y)[0, 200:]                                 # 10 filter time constants on
     a = math.exp(-T / emu.hw.velocity_filter)
     kick = emu.encoder_step / T * (1 - a)                     # one count through the filter
     # The quantised ramp is a staircase of mean slope w: filtered, its mean is w and it
@@ -177,7 +176,7 @@ def test_matched_arm_has_only_the_feedback_stiffness():
     emu = gc.GiosteEmulation(arm, actuator="model")
     g = _gains(emu, arm, 10.0)
     ref0 = np.array([0.1, 0, 0, 0, 10.0, 0])
-    net = gc.static_net_stiffness(emu, "theorem5", ref0, g, Pi_hat0=arm.Pi_nominal)
+    net = gs.static_net_stiffness(emu, "theorem5", ref0, g, Pi_hat0=arm.Pi_nominal)
     assert net[0] == pytest.approx(12.0 * 1.8 * arm.K1, rel=1e-4)
 
 
@@ -197,11 +196,11 @@ def test_loop_is_the_composition_of_its_parts(one_link):
     x = np.concatenate([tr["plant.q"][0], tr["plant.qd"][0], tr["plant.p"][0]])
     # The loop starts from the open-loop law's command at q_d(0), already in the
     # muscles, in the delay line and in the voltages the stiffness map reads.
-    p0 = ctrl(arm.Pi_nominal, ref[0, :1], 0.0, ref[0], g["lam"], g["kd"], np.zeros(2),
-              g["kinv"], 1e-3)[1]
+    p0 = ctrl(arm.Pi_nominal, ref[0, :1], 0.0, ref[0], g.lam, g.kd, np.zeros(2),
+              g.kinv, 1e-3)[1]
     V = np.array(valves(p0)[0]).ravel()
     np.testing.assert_allclose(np.array(valves(p0)[1]).ravel(), tr["plant.p"][0])
-    qm, v, a = x0["enc.q_prev"], np.zeros(1), math.exp(-1e-3 / emu.hw.velocity_filter)
+    qm, v, a = x0["vel.q_prev"], np.zeros(1), math.exp(-1e-3 / emu.hw.velocity_filter)
     ring = [tr["plant.p"][0]] * d
     z = tr["ctrl.Pi_hat"][0]
     for k in range(60):
@@ -211,7 +210,7 @@ def test_loop_is_the_composition_of_its_parts(one_link):
         sig = np.array(maps(qm, V)[2]).ravel()
         assert qm == pytest.approx(tr["enc.q_m"][k], abs=1e-12)
         assert sig == pytest.approx(tr["stiff.sigma"][k], rel=1e-12)
-        out = ctrl(z, qm, v, ref[k], g["lam"], g["kd"], g["kpi"], g["kinv"], 1e-3)
+        out = ctrl(z, qm, v, ref[k], g.lam, g.kd, g.kpi, g.kinv, 1e-3)
         z, p = np.array(out[0]).ravel(), np.array(out[1]).ravel()
         np.testing.assert_allclose(p, tr["ctrl.p"][k], rtol=1e-10)
         V, tgt, _ = (np.array(a_).ravel() for a_ in valves(p))
@@ -229,7 +228,7 @@ def test_feasibility_warning_names_joint_and_time(one_link):
                              [SmoothSteps((0.0,), (60.0,), 1.0)], t)
     tr = _run(emu, "theorem5", ref, g)[2]
     with pytest.warns(PressureWarning) as rec:
-        viol, clipped = gc.feasibility(emu, tr.t, tr["ctrl.p"], tr["valves.V_raw"],
+        viol, clipped = gs.feasibility(emu, tr.t, tr["ctrl.p"], tr["valves.V_raw"],
                                        "unreachable")
     msg = str(rec[0].message)
     assert viol and clipped > 0.9
@@ -239,7 +238,7 @@ def test_feasibility_warning_names_joint_and_time(one_link):
     ok = gc.reference_array([SmoothSteps((0.0,), (0.1,), 1.0)],
                             [SmoothSteps((0.0,), (8.0,), 1.0)], t)
     tr = _run(emu, "theorem5", ok, _gains(emu, arm, 8.0))[2]
-    viol, clipped = gc.feasibility(emu, tr.t, tr["ctrl.p"], tr["valves.V_raw"], "reachable",
+    viol, clipped = gs.feasibility(emu, tr.t, tr["ctrl.p"], tr["valves.V_raw"], "reachable",
                                    warn=False)
     assert not viol and clipped == 0.0
 
@@ -282,7 +281,9 @@ def test_quick_experiments(tmp_path):
     for exp, names in expected:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", PressureWarning)
-            m = exp.run(exp.config.replace(**exp.quick), tmp_path / exp.id).flat()
+            run = exp.run(exp.config.replace(**exp.quick), tmp_path / exp.id)
+        assert all(r.unit for r in run), exp.id                 # every metric has a unit
+        m = run.flat()
         for name in names:
             assert name in m, (exp.id, name)
         for name, v in m.items():

@@ -11,9 +11,11 @@ from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.references import SmoothSteps
 from softgen.modelfile.model import load_model
 from softgen.plants import gioste as G
-from softgen.blocks.sensors import quantized
-from softgen.plants.hardware import delay_line_block, encoder_block, tracking_stop
-from softgen.runtime.simulate import simulate
+from softgen.blocks.sensors import delay_block, encoder_block, quantized
+from softgen.plants.hardware import dirty_derivative_block, tracking_stop
+from softgen.runtime.simulate import Trace, simulate
+from softgen.studies import gioste as S
+from softgen.studies.gains import Theorem5Gains
 from softgen.symbolic.actuated import rk4_steps
 
 DT = 1e-3
@@ -26,11 +28,11 @@ def emu():
 
 def test_encoder_rounds_to_the_count():
     rng = np.random.default_rng(0)
-    enc = encoder_block(2, DT, counts_per_rev=2000, velocity_filter=0.02)
-    step = enc.meta["resolution"]
+    enc = encoder_block("enc", {"q": 2}, 2000)
+    step = 2 * math.pi / 2000
     q = rng.uniform(-3, 3, (300, 2))
-    _, Y = enc.loop_fun(300)(np.zeros(4), q.T, [])
-    qm = np.array(Y)[:2].T
+    _, Y = enc.loop_fun(300)([], q.T, [])
+    qm = np.array(Y).T
     np.testing.assert_array_equal(qm, quantized(q, step))           # numpy reference, exact
     counts = qm / step
     np.testing.assert_allclose(counts, np.round(counts), atol=1e-9)  # whole counts
@@ -38,25 +40,31 @@ def test_encoder_rounds_to_the_count():
 
 
 def test_dirty_derivative_of_a_constant_decays_and_of_a_count_is_one_kick():
-    enc = encoder_block(1, DT, counts_per_rev=2000, velocity_filter=0.02)
-    step, a = enc.meta["resolution"], math.exp(-DT / 0.02)
+    vel = dirty_derivative_block(1, DT, velocity_filter=0.02)
+    step, a = 2 * math.pi / 2000, math.exp(-DT / 0.02)
     # Reading jumps by one count at sample 0, then holds: v = (1 − a) a^k step/T.
-    _, Y = enc.loop_fun(50)(np.zeros(2), np.full((1, 50), step), [])
-    v = np.array(Y)[1]
+    _, Y = vel.loop_fun(50)(np.zeros(2), np.full((1, 50), step), [])
+    v = np.array(Y)[0]
     np.testing.assert_allclose(v, (1 - a) * a ** np.arange(50) * step / DT, rtol=1e-12)
 
 
-@pytest.mark.parametrize("d", [0, 1, 10])
+@pytest.mark.parametrize("d", [1, 10])
 def test_delay_line_delays_by_d_samples(d):
     rng = np.random.default_rng(d)
     u = rng.normal(size=(3, 40))
-    blk = delay_line_block(3, d, DT)
+    blk = delay_block("delay", {"u": 3}, d, dt=DT)
     before = rng.normal(size=3 * d)              # what the line held before t = 0
     _, Y = blk.loop_fun(40)(before, u, [])
     Y = np.array(Y)
     np.testing.assert_array_equal(Y[:, d:], u[:, :40 - d])
-    if d:
-        np.testing.assert_array_equal(Y[:, :d], before.reshape(d, 3).T)
+    np.testing.assert_array_equal(Y[:, :d], before.reshape(d, 3).T)
+
+
+def test_loop_without_transport_delay_wires_the_valves_to_the_arm(emu):
+    import dataclasses
+    hw = dataclasses.replace(emu.hw, valve_delay=0.0)
+    d = G.loop_diagram(G.GiosteEmulation(emu.arm, hw), "open_loop", DT)
+    assert "delay" not in d.blocks
 
 
 def test_valve_interface_inverts_eq_10_10_within_clipping(emu):
@@ -111,13 +119,12 @@ def test_stop_trips_at_the_first_violating_sample(emu):
     ref = G.reference_array([SmoothSteps((0.0,), (0.1,), 1.0)],
                             [SmoothSteps((0.0,), (8.0,), 1.0)], t)
     k = emu.calibrated_gain([8.0])
-    g = {"lam": np.array([1.8]), "kd": np.array([12.0]), "kpi": G.kpi_vector(emu.arm, 45.0),
-         "ksigma": 1.0 / k, "kinv": 1.0 / k}
+    g = Theorem5Gains.from_stiffness_rate(1.0, k, k, lam=np.array([1.8]), kd=np.array([12.0]),
+                                          kpi=G.kpi_vector(emu.arm, 45.0))
     d = G.loop_diagram(emu, "theorem5", DT)
-    x0 = G.initial_state(emu, "theorem5", ref[0], lam=g["lam"], kd=g["kd"], kinv=g["kinv"],
-                         Pi_hat0=emu.arm.Pi_nominal, dt=DT)
+    x0 = S.initial_state(emu, "theorem5", ref[0], g, Pi_hat0=emu.arm.Pi_nominal, dt=DT)
     kw = dict(steps=600, x0=x0, externals={"ref": ref}, chunk=64, on_nonfinite="stop",
-              params={f"ctrl.{n}": v for n, v in g.items() if f"ctrl.{n}" in d.params})
+              params=g.params(d.params.names))
     free = simulate(d, **kw)
     bound = 0.5 * float(np.max(np.abs(free["plant.q"] - free["ref.q_d"])))
     first = int(np.argmax(np.any(np.abs(free["plant.q"] - free["ref.q_d"]) > bound, axis=1)))
@@ -142,8 +149,8 @@ def test_generated_gioste_loop_equals_python_stepped_blocks(emu):
                             [SmoothSteps((0.0,), (7.0,), 1.0)], t)
     d: ClosedLoop = G.loop_diagram(emu, "open_loop", DT)
     k = emu.calibrated_gain([7.0])
-    x0 = G.initial_state(emu, "open_loop", ref[0], lam=[1.8], kd=[12.0], kinv=1 / k,
-                         Pi_hat0=emu.arm.Pi_nominal, dt=DT)
+    g = Theorem5Gains(lam=np.array([1.8]), kd=np.array([12.0]), kpi=0.0, ksigma=0.0, kinv=1 / k)
+    x0 = S.initial_state(emu, "open_loop", ref[0], g, Pi_hat0=emu.arm.Pi_nominal, dt=DT)
     params = {"ctrl.lam": 1.8, "ctrl.kd": 12.0, "ctrl.kpi": G.kpi_vector(emu.arm, 45.0),
               "ctrl.kinv": 1 / k}
     tr = simulate(d, steps=40, x0=x0, params=params, externals={"ref": ref}, chunk=16)
@@ -169,15 +176,14 @@ def test_equilibrium_is_a_root_and_matches_finite_differences(emu):
     assert J == pytest.approx((r(q + h) - r(q - h)) / (2 * h), rel=1e-6)
 
 
-def test_trace_store_keeps_runs_decimated_up_to_their_stop(tmp_path):
-    K, n = 100, 1
+def test_compact_traces_keep_runs_decimated_up_to_their_stop(tmp_path):
+    K = 100
     s = {"plant.q": np.arange(K, dtype=float).reshape(K, 1), "ctrl.p": np.ones((K, 2))}
     s["plant.q"][60:] = np.nan                                # stopped at sample 60
-    run = G.Run(np.arange(K) * DT, np.zeros((K, 6 * n)), s, 60 * DT, n)
-    store = G.TraceStore(every=7)
-    store["a"] = run
-    np.testing.assert_array_equal(store["a"]["plant_q"][:, 0], np.arange(0, 60, 7))
-    assert store["a"]["ctrl_p"].dtype == np.float32
-    store.save(tmp_path / "t.npz")
+    tr = Trace(np.arange(K) * DT, s, {}, K, 60 * DT)
+    traces = {"a": S.compact(tr, 7)}
+    np.testing.assert_array_equal(traces["a"]["plant_q"][:, 0], np.arange(0, 60, 7))
+    assert traces["a"]["ctrl_p"].dtype == np.float32
+    S.save_traces(tmp_path / "t.npz", traces)
     with np.load(tmp_path / "t.npz") as z:
-        assert sorted(z.files) == ["a_ctrl_p", "a_plant_q", "a_ref", "a_t"]
+        assert sorted(z.files) == ["a_ctrl_p", "a_plant_q", "a_t"]

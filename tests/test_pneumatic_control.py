@@ -278,3 +278,51 @@ def test_smooth_steps_derivatives_are_consistent():
     assert v[0, 0] == 0 and v[0, -1] == pytest.approx(-2.0)
     with pytest.raises(ValueError, match="rise"):
         SmoothSteps((0, 1), (0, 1), 0.0).check()
+
+
+# -- one preset, one gain set, one sinusoid block ------------------------------------------------
+
+@pytest.mark.parametrize("seed", range(3))
+def test_preset_realises_the_stiffness_and_the_torque_at_rest(arm, seed):
+    """PneumaticArm.preset: at rest at q with Π̂ = Π, the actuator model gives σ_d and the
+    pressures hold τ_* (K Φ p = τ_*, −K Φ_q p = σ_d), for seeded q and σ_d."""
+    rng = np.random.default_rng(seed)
+    n = arm.n
+    q, sigma = rng.uniform(-0.4, 0.4, n), rng.uniform(1.5, 4.0, n)
+    ref = np.concatenate([q, np.zeros(3 * n), sigma, np.zeros(n)])
+    p, nu = arm.preset(arm.Pi_nominal, q, ref, lam=np.full(n, 15.0), kd=np.full(n, 18.0),
+                       kinv=1 / arm.act.K, dt=1e-3)
+    qs = ca.SX.sym("q", n)
+    f = ca.Function("f", [qs], [arm.act.torque(qs, ca.DM(p)), arm.act.stiffness(qs, ca.DM(p))])
+    tau, sig = (np.array(v).ravel() for v in f(q))
+    np.testing.assert_allclose(sig, sigma, rtol=1e-9)
+    tau_star = arm.step_fun("open_loop")(arm.Pi_nominal, q, np.zeros(n), ref, 15.0, 18.0,
+                                         np.zeros(arm.n_params), 1 / arm.act.K, 1e-3)[2]
+    np.testing.assert_allclose(tau / arm.K1, np.array(tau_star).ravel(), rtol=1e-9, atol=1e-12)
+    assert nu.shape == (n,)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_stiffness_rate_gain_set(seed):
+    from softgen.studies.gains import Theorem5Gains
+    rng = np.random.default_rng(seed)
+    rate, K = rng.uniform(0.5, 8.0), rng.uniform(1e-6, 1e-4, 2)
+    g = Theorem5Gains.from_stiffness_rate(rate, K[0], K, lam=1.0, kd=2.0, kpi=3.0)
+    assert g.ksigma * K[0] == pytest.approx(rate) and np.allclose(g.kinv * K, 1.0)
+    assert g.params(["ctrl.lam", "ctrl.kinv"]) == {"ctrl.lam": 1.0, "ctrl.kinv": g.kinv}
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_sinusoid_block_equals_the_numpy_sinusoid(seed):
+    from softgen.control.references import Sinusoid, sinusoid_block
+    rng = np.random.default_rng(seed)
+    q = Sinusoid(tuple(rng.uniform(0.1, 1, 2)), tuple(rng.uniform(0.05, 1, 2)),
+                 phase=tuple(rng.uniform(-1, 1, 2)), offset=tuple(rng.uniform(-1, 1, 2)))
+    s = Sinusoid(tuple(rng.uniform(0.1, 1, 2)), tuple(rng.uniform(0.05, 1, 2)),
+                 offset=(5.0, 6.0))
+    blk = sinusoid_block("ref", q, s)
+    for t in rng.uniform(0, 30, 5):
+        y = blk.outputs.split(np.array(blk.eval([], [t])[1]).ravel())
+        for name, want in zip(("q_d", "qd_d", "qdd_d"), q(t)):
+            np.testing.assert_allclose(y[name], want, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(y["sigma_d"], s(t)[0], rtol=1e-12)

@@ -1,14 +1,18 @@
 """Plants that differ from the controller's model, and the ext-robustness-theorem5 study."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.pneumatic_loop import plant_block, uncertain_plant_block
+from softgen.core.metrics import Metrics
 from softgen.experiments import ch10_pneumatic_adaptive as ch10
 from softgen.experiments.ext_robustness import EXPERIMENT, RobustnessConfig, studies
 from softgen.modelfile.model import load_model
+from softgen.studies.pneumatic import plant_values
 from softgen.app.sweep.spec import parse_vary
 
 
@@ -39,10 +43,9 @@ def test_uncertain_plant_values_change_the_dynamics_as_the_model_file_would(arm)
     """Scaling m2 in the block's π equals loading a model file with m2 scaled."""
     model = arm.model
     scaled = dict(model.nominal, m2=model.nominal["m2"] * 1.3)
-    import dataclasses
     arm2 = pneumatic_arm(dataclasses.replace(model, nominal=scaled))
     c = ch10.Ch10AdaptiveConfig(plant_inertial_scale=(1, 1, 1, 1, 1.3, 1, 1, 1))
-    vals = ch10.plant_values(arm, c)
+    vals = plant_values(arm, c)
     unc = uncertain_plant_block(arm, 1e-3)
     p = np.asarray(unc.params.join({k.removeprefix("plant."): v for k, v in vals.items()}),
                    float).ravel()
@@ -73,23 +76,28 @@ def test_study_specs_parse_and_cover_every_group():
         RobustnessConfig(error=1.5).check()
 
 
-def _metrics(**kw):
-    m = {f"{k}_{g}": v for g in ("all", "inertial", "gain_radius", "lengths")
-         for k, v in (("tracking_fraction", 1.0), ("runaway_fraction", 0.0),
-                      ("diverged_fraction", 0.0), ("samples", 40.0),
-                      ("position_rms_error_q95", 1e-4), ("stiffness_rms_error_q95", 1e-3),
-                      ("position_rms_error_median", 1e-4))}
-    m.update({"largest_length_error_min_all": 0.1, "tracking_fraction_lengths_0.01": 0.9,
-              "tracking_fraction_equal_pairs": 1.0, "tracking_fraction_mismatched_pairs": 0.0,
-              "joint1_stiffness_error_range_over_own_radius": 0.03,
-              "joint1_stiffness_error_range_over_other_radius": 0.0,
-              "radius_stiffness_error_rate_slope": -0.8})
-    m.update(kw)
-    return m
+def _metrics(**kw) -> Metrics:
+    """Records of a run that passes every claim; ``kw``: metrics.json keys to change."""
+    m = Metrics()
+    for g in ("all", "inertial", "gain_radius", "lengths"):
+        for k, v in (("tracking_fraction", 1.0), ("runaway_fraction", 0.0),
+                     ("diverged_fraction", 0.0), ("samples", 40.0),
+                     ("position_rms_error_q95", 1e-4), ("stiffness_rms_error_q95", 1e-3),
+                     ("position_rms_error_median", 1e-4)):
+            m.add(k, v, "1", suffix=g)
+    m.add("largest_length_error_min", 0.1, "1", suffix="all")
+    m.add("tracking_fraction", 0.9, "1", suffix="lengths_0.01")
+    m.add("tracking_fraction", 1.0, "1", suffix="equal_pairs")
+    m.add("tracking_fraction", 0.0, "1", suffix="mismatched_pairs")
+    m.add("joint1_stiffness_error_range_over_own_radius", 0.03, "N m/rad")
+    m.add("joint1_stiffness_error_range_over_other_radius", 0.0, "N m/rad")
+    m.add("radius_stiffness_error_rate_slope", -0.8, "1")
+    assert set(kw) <= {r.key for r in m}
+    return Metrics(dataclasses.replace(r, value=kw.get(r.key, r.value)) for r in m)
 
 
 def test_findings_follow_the_metrics():
-    verdicts = lambda m: [f["verdict"] for f in EXPERIMENT.findings(m)]  # noqa: E731
+    verdicts = lambda m: [f["verdict"] for f in EXPERIMENT.findings(m, None)]  # noqa: E731
     v = verdicts(_metrics(tracking_fraction_lengths=0.0))
     assert v == ["reproduced"] * 6
     v = verdicts(_metrics(tracking_fraction_inertial=0.5, tracking_fraction_all=0.0,
@@ -98,8 +106,7 @@ def test_findings_follow_the_metrics():
     v = verdicts(_metrics(tracking_fraction_equal_pairs=0.0, tracking_fraction_mismatched_pairs=0.0,
                           tracking_fraction_lengths=0.0))
     assert v[4] == "not reproduced"
-    m = _metrics()
-    del m["tracking_fraction_equal_pairs"]
+    m = Metrics(r for r in _metrics() if r.key != "tracking_fraction_equal_pairs")
     assert verdicts(m)[4] == "not checked"
     v = verdicts(_metrics(radius_stiffness_error_rate_slope=0.1, tracking_fraction_lengths=0.0))
     assert v[5] == "partly reproduced"
@@ -108,7 +115,7 @@ def test_findings_follow_the_metrics():
 def test_runaways_are_stopped_and_counted():
     """A sample whose link leaves the reference by more than stop_error ends there and is
     counted as a runaway (a ±30 % mismatch of joint 1's muscle lengths runs away)."""
-    from softgen.experiments.ext_robustness import classify
+    from softgen.studies.pneumatic_robustness import classify
     c = ch10.Ch10AdaptiveConfig(plant_actuator_scale=(1, 1, 1.3, 0.7, 1, 1, 1, 1), stop_error=1.0)
     m = ch10.case(c).flat()
     assert m["stopped_at"] is not None and 0 < m["stopped_at"] < 350

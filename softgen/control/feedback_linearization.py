@@ -57,7 +57,7 @@ from softgen.core.errors import ModelError
 from softgen.modelfile.model import RobotModel
 from softgen.symbolic.rigid import FUNCTION_OPTS
 from softgen.control.pneumatic import McKibbenRobot, PneumaticArm
-from softgen.control.pneumatic_loop import (controller_block, plant_block, preset_nu, rk4_stage_step,
+from softgen.control.pneumatic_loop import (controller_block, plant_block, rk4_stage_step,
                              stage_reference_block, theorem5_continuous_block, valve_rhs_fun)
 
 #: Reference layout, the same as the adaptive steps of :mod:`softgen.control.pneumatic`.
@@ -412,7 +412,7 @@ def valve_loop_start(d: ClosedLoop, fl: FeedbackLinearization, arm: PneumaticArm
     ``kq0 … ks0`` (:func:`hurwitz_gains`) or Theorem 5's ``lam, kd, kpi, ksigma, kinv``.
     ``ratio`` scales the controller's belief: FL's π = ratio·π, Theorem 5's
     Π̂(0) = ratio·Π, from the ν of the open-loop stiffness preset
-    (:func:`~softgen.control.pneumatic_loop.preset_nu`, section 10.2). ``T_p`` is the
+    (:meth:`~softgen.control.pneumatic.PneumaticArm.preset`, section 10.2). ``T_p`` is the
     valves' time constant, known to FL.
     """
     n = fl.n
@@ -423,8 +423,8 @@ def valve_loop_start(d: ClosedLoop, fl: FeedbackLinearization, arm: PneumaticArm
         par["pi"] = ratio * fl.parameter_nominal
     else:
         Pi0 = ratio * arm.Pi_nominal
-        x0.update(Pi_hat=Pi0, nu=preset_nu(arm, Pi0, ref0[:n], ref0, lam=gains["lam"],
-                                           kd=gains["kd"], dt=d.dt))
+        x0.update(Pi_hat=Pi0, nu=arm.preset(Pi0, ref0[:n], ref0, lam=gains["lam"],
+                                            kd=gains["kd"], kinv=gains["kinv"], dt=d.dt)[1])
     # Short names to every block that has them (T_p: the FL controller's and the plant's).
     out = tuple({f"{b.name}.{k}": v for k, v in vals.items() for b in d.blocks.values()
                  if k in getattr(b, lay)} for vals, lay in ((x0, "state"), (par, "params")))

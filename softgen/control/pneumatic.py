@@ -105,6 +105,19 @@ class PneumaticArm(McKibbenRobot):
     def parameter_names(self) -> list[str]:
         return [f"{n}/K1" for n in self.dyn.base.names]
 
+    def preset(self, Pi_hat, q, ref, *, lam, kd, kinv, dt: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """``(p, ν)`` of the "initially inflated" preset (section 10.2) at rest at ``q``.
+
+        The open-loop stiffness step (``step_fun("open_loop")``, K_π = 0, q̇ = 0): ν solved
+        so that the actuator model with Π̂ = ``Pi_hat`` gives σ_d of ``ref`` (6n), and the
+        pressures p = Φ^† τ_* + Φ^⊥ ν. The one start of every Theorem 5 run: a state ν
+        that already realises σ_d, so the stiffness loop starts without a transient.
+        """
+        _, p, _, nu = self.step_fun("open_loop")(Pi_hat, q, np.zeros(self.n), ref, lam, kd,
+                                                 np.zeros(self.n_params), kinv, dt)
+        return np.array(p).ravel(), np.array(nu).ravel()
+
     @cached_property
     def Pi_nominal(self) -> np.ndarray:
         """Π = π / K_1 at the model's nominal values (Prop. 11)."""

@@ -113,27 +113,46 @@ def smooth_steps_expr(t, steps: SmoothSteps) -> list:
     return [level + h_act * s, h_act * d1 / r, h_act * d2 / r ** 2, h_act * d3 / r ** 3]
 
 
-def sinusoid_block(name: str, ref: Sinusoid):
-    """:class:`Sinusoid` as a block: reads ``t``, emits ``q_d``, ``qd_d``, ``qdd_d``."""
+def sinusoid_block(name: str, q: Sinusoid, sigma: Sinusoid | None = None):
+    """:class:`Sinusoid` references as a block: reads ``t``; emits ``q_d``, ``qd_d``,
+    ``qdd_d`` (the sinusoid and its exact derivatives, per joint) and, with ``sigma``,
+    ``sigma_d`` (value only). The one sinusoidal reference block of softgen.
+
+    Offsets, amplitudes, angular frequencies ω = 2π f and phases are block parameters
+    (``q_offset``, ``q_amplitude``, ``q_omega``, ``q_phase``, ``sigma_...``), not
+    constants: a run can change them without recompiling, and the products are evaluated
+    as written, ω · (k T), so the references equal numpy's ``sin(omega * t)`` to the last
+    bit (CasADi would fold constants into (ω T) · k).
+    """
     import casadi as ca
 
     from softgen.blocks import Block
-    ref.check()
-    n = len(ref.amplitude)
-    a = np.array(ref.amplitude, dtype=float)
-    w = 2 * np.pi * np.array(ref.frequency, dtype=float)
-    ph = np.zeros(n) if ref.phase is None else np.array(ref.phase, dtype=float)
-    off = np.zeros(n) if ref.offset is None else np.array(ref.offset, dtype=float)
+    n = len(q.check().amplitude)
+    p0 = {}
+    for w, ref in (("q", q), ("sigma", sigma.check() if sigma is not None else None)):
+        if ref is not None:
+            k = len(ref.amplitude)
+            p0.update({f"{w}_offset": list(ref.offset or (0.0,) * k),
+                       f"{w}_amplitude": list(ref.amplitude),
+                       f"{w}_omega": [2 * np.pi * f for f in ref.frequency],
+                       f"{w}_phase": list(ref.phase or (0.0,) * k)})
+    if sigma is not None and len(sigma.amplitude) != n:
+        raise ValueError(f"sigma: expected {n} channels (one per joint), got "
+                         f"{len(sigma.amplitude)}")
 
     def body(x, u, p):
-        arg = ca.DM(w) * u["t"] + ca.DM(ph)
-        return {}, {"q_d": ca.DM(off) + ca.DM(a) * ca.sin(arg),
-                    "qd_d": ca.DM(a * w) * ca.cos(arg),
-                    "qdd_d": -ca.DM(a * w ** 2) * ca.sin(arg)}
+        t, a, w = u["t"], p["q_amplitude"], p["q_omega"]
+        arg = w * t + p["q_phase"]
+        y = {"q_d": p["q_offset"] + a * ca.sin(arg), "qd_d": a * w * ca.cos(arg),
+             "qdd_d": -a * w * w * ca.sin(arg)}
+        if sigma is not None:
+            y["sigma_d"] = p["sigma_offset"] + p["sigma_amplitude"] * ca.sin(
+                p["sigma_omega"] * t + p["sigma_phase"])
+        return {}, y
 
-    return Block.define(name, dt=None, inputs={"t": 1},
-                        outputs=[("q_d", n, "rad"), ("qd_d", n, "rad/s"),
-                                 ("qdd_d", n, "rad/s^2")],
+    outputs = [("q_d", n, "rad"), ("qd_d", n, "rad/s"), ("qdd_d", n, "rad/s^2")]
+    return Block.define(name, dt=None, inputs={"t": 1}, params={k: n for k in p0}, p0=p0,
+                        outputs=outputs + ([("sigma_d", n, "N m/rad")] if sigma else []),
                         body=body, doc="sinusoidal references")
 
 

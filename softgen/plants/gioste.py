@@ -75,14 +75,16 @@ Sample time
     ``substeps`` steps per sample. Halving T is checked by the experiments.
 
 The closed loop (:func:`loop_diagram`) is a :class:`~softgen.blocks.ClosedLoop` of
-library blocks, per sample k: the reference block; the encoders and the dirty
-derivative (:func:`~softgen.plants.hardware.encoder_block`); the identified stiffness
+library blocks, per sample k: the reference block; the encoders
+(:func:`~softgen.blocks.sensors.encoder_block`) and the dirty derivative
+(:func:`~softgen.plants.hardware.dirty_derivative_block`); the identified stiffness
 map of the voltages commanded at k − 1 (:meth:`GiosteEmulation.stiffness_sensor_block`);
 the controller (:func:`~softgen.control.pneumatic_loop.controller_block`); the valve
 interface (:meth:`GiosteEmulation.valve_block`: inverse eq. 10.10, clip); the transport
-delay (:func:`~softgen.plants.hardware.delay_line_block`); the arm over one sample
-(:meth:`GiosteEmulation.plant_block`). The emergency stop is a ``stop=`` condition of
-:func:`softgen.runtime.simulate` (:func:`~softgen.plants.hardware.tracking_stop`).
+delay (:func:`~softgen.blocks.sensors.delay_block`); the arm over one sample
+(:meth:`GiosteEmulation.plant_block`). The emergency stop is a stop rule
+(:func:`emergency_stop`). Runs, gains and the start at rest are study code:
+:mod:`softgen.studies.gioste`.
 
 Diagnostic variant: ``GiosteEmulation(arm, hw, actuator="model")`` keeps the valves,
 encoders and friction but makes the muscles the controller's own model (τ = KΦ(q)p,
@@ -98,25 +100,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
 from dataclasses import dataclass
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-from matplotlib.figure import Figure
-
 from softgen.blocks import Block, ClosedLoop, Layout
-from softgen.control.feasibility import PressureViolation, PressureWarning, check_pressures
-from softgen.control.pneumatic import REFERENCE_BLOCKS, PneumaticArm, pneumatic_arm
+from softgen.blocks.sensors import delay_block, encoder_block
+from softgen.control.pneumatic import REFERENCE_BLOCKS, PneumaticArm
 from softgen.control.pneumatic_loop import controller_block
 from softgen.control.references import SmoothSteps, stiffness_reference_block
-from softgen.modelfile.model import RobotModel, load_model
-from softgen.runtime.simulate import simulate
+from softgen.modelfile.model import RobotModel
+from softgen.plants.hardware import dirty_derivative_block, tracking_stop
 from softgen.symbolic.actuated import rk4_steps
 from softgen.symbolic.rigid import FUNCTION_OPTS
-from softgen.plants.hardware import delay_line_block, encoder_block, tracking_stop
 
 BAR = 1e5          # Pa per bar: eq. 10.10 is in bar
 V_MAX = 6.0        # ITV-2050 command range [0, 6] V (section 10.3.1)
@@ -262,6 +259,7 @@ def fit_muscles(jm: JointMaps, lengths_a: tuple[float, float], *,
     Returns ``{"radius", "gain", "nominal_length": (a, b), "min_length": (a, b),
     "rms_error"}``, the last the fit's rms torque error in N m over the grid.
     """
+    # scipy here, not at the top: only the fitted controller models pay its import time.
     from scipy.optimize import least_squares
 
     q, p = np.meshgrid(np.linspace(*q_range, 41), np.linspace(*p_range, 21))
@@ -576,10 +574,12 @@ class GiosteEmulation:
                             outputs=[("sigma", n, "N m/rad")], body=body,
                             doc="identified stiffness map of the last voltages (eq. 10.11)")
 
-    def encoder_block(self, dt: float) -> Block:
-        """HEDS-5500 encoders and the dirty-derivative velocity (:func:`encoder_block`)."""
-        return encoder_block(self.n, dt, counts_per_rev=self.hw.counts_per_rev,
-                             velocity_filter=self.hw.velocity_filter)
+    def sensor_blocks(self, dt: float) -> list[Block]:
+        """HEDS-5500 encoders (``enc``: the angle rounded to the count,
+        :func:`~softgen.blocks.sensors.encoder_block`) and the dirty-derivative velocity
+        (``vel``, :func:`~softgen.plants.hardware.dirty_derivative_block`)."""
+        return [encoder_block("enc", {"q": self.n}, self.hw.counts_per_rev),
+                dirty_derivative_block(self.n, dt, velocity_filter=self.hw.velocity_filter)]
 
     # static solves on prebuilt functions -----------------------------------------------
     def residual_fun(self) -> ca.Function:
@@ -646,12 +646,16 @@ def loop_diagram(emu: GiosteEmulation, kind: str, dt: float, *,
     n = emu.n
     ref = (stiffness_reference_block("ref", *reference) if reference is not None
            else reference_input_block(n))
-    blocks = [ref, emu.encoder_block(dt), emu.stiffness_sensor_block(dt),
-              controller_block(emu.arm, kind, dt), emu.valve_block(),
-              delay_line_block(2 * n, delay_samples(emu.hw, dt), dt), emu.plant_block(dt)]
-    wires = [("enc.q_m", "ctrl.q"), ("enc.v", "ctrl.qd"), ("ref.ref", "ctrl.ref"),
-             ("ctrl.p", "valves.p_cmd"), ("valves.p_target", "delay.u"),
-             ("delay.y", "plant.p_target")]
+    d = delay_samples(emu.hw, dt)
+    blocks = [ref, *emu.sensor_blocks(dt), emu.stiffness_sensor_block(dt),
+              controller_block(emu.arm, kind, dt), emu.valve_block(), emu.plant_block(dt)]
+    wires = [("enc.q_m", "ctrl.q"), ("vel.v", "ctrl.qd"), ("ref.ref", "ctrl.ref"),
+             ("ctrl.p", "valves.p_cmd")]
+    if d:       # the valves' transport delay (state delay.p_target_line, oldest first)
+        blocks.append(delay_block("delay", {"p_target": 2 * n}, d, dt=dt))
+        wires += [("valves.p_target", "delay.p_target"), ("delay.p_target_d", "plant.p_target")]
+    else:
+        wires.append(("valves.p_target", "plant.p_target"))
     if reference is None:
         wires.append(("ext.ref", "ref.u"))
     tag = f"{emu.name}_{emu.tag}_{kind}_dt{dt:.3e}".replace(".", "p").replace("-", "m")
@@ -663,38 +667,11 @@ def emergency_stop(bound: float):
     """GioSte's emergency stop as a ``stop=`` condition: |q − q_d| > ``bound`` on a joint,
     or the arm's state or the controller's command not finite."""
     return tracking_stop(bound, "plant.q", "ref.q_d",
-                         finite=("plant.qd", "plant.p", "ctrl.p"))
+                         finite=("plant.q", "plant.qd", "plant.p", "ctrl.p"))
 
 
 #: What :func:`emergency_stop` reads: record at least these.
 STOP_SIGNALS = ("plant.q", "plant.qd", "plant.p", "ref.q_d", "ctrl.p")
-
-
-def initial_state(emu: GiosteEmulation, kind: str, ref0: np.ndarray, *, lam, kd, kinv,
-                  Pi_hat0: np.ndarray, dt: float) -> dict:
-    """``x0`` of :func:`loop_diagram`: the arm at rest under the first command.
-
-    The controller's first command is computed at q = q_d(0) with ν from the open-loop
-    stiffness law (its model stiffness equals σ_d(0)); the muscles are at those pressures
-    (inflated beforehand, as in section 10.2), the delay line full of them, and the arm
-    rests where they hold it (:func:`equilibrium`). Π̂(0) = ``Pi_hat0``.
-    """
-    n = emu.n
-    q0, zero = ref0[reference_layout(n).slice("q_d")].copy(), np.zeros(n)
-    ol = emu.arm.step_fun("open_loop")
-    _, p0, _, nu0 = (np.array(v).ravel() for v in ol(
-        Pi_hat0, q0, zero, ref0, lam, kd, np.zeros(emu.arm.n_params), kinv, dt))
-    V0, tgt0, _ = (np.array(v).ravel() for v in emu.interface_fun()(p0))
-    q_start = equilibrium(emu, tgt0, q0)
-    d = delay_samples(emu.hw, dt)
-    x0 = {"plant.q": q_start, "plant.qd": zero, "plant.p": tgt0, "stiff.V_prev": V0,
-          "enc.q_prev": np.floor(q_start / emu.encoder_step + 0.5) * emu.encoder_step,
-          "enc.v_prev": zero, "ctrl.Pi_hat": Pi_hat0}
-    if d:
-        x0["delay.line"] = np.tile(tgt0, d)
-    if kind in ("theorem5", "corollary2"):
-        x0["ctrl.nu"] = nu0
-    return x0
 
 
 def equilibrium(emu: GiosteEmulation, p: np.ndarray, q0: np.ndarray, *,
@@ -713,299 +690,3 @@ def equilibrium(emu: GiosteEmulation, p: np.ndarray, q0: np.ndarray, *,
         if np.max(np.abs(dq)) < tol:
             break
     return q
-
-
-def static_net_stiffness(emu: GiosteEmulation, kind: str, ref0: np.ndarray, gains: dict, *,
-                         Pi_hat0: np.ndarray, dt: float = 1e-3, h: float = 1e-4) -> np.ndarray:
-    """−∂(τ − G)/∂q of the arm under the controller's first command law, state frozen.
-
-    The controller's pressures at (q, q̇ = 0) with ν and Π̂ held at their initial
-    values (K_π = 0) are applied as steady pressures; the emulated arm's torque minus
-    gravity is differentiated in q by central differences of step ``h``. In the
-    controller's own model this is −∂(K Φ p − G)/∂q with K Φ p = τ_*: the null-space
-    pressures cancel the muscles' stiffness exactly. A negative value means the arm
-    falls away from the start faster than the (weak) feedback can act.
-    """
-    n, kappa = emu.n, emu.arm.n_params
-    zero, (lam, kd, ksigma, kinv) = np.zeros(n), (gains[k] for k in ("lam", "kd", "ksigma", "kinv"))
-    r0 = reference_layout(n).split(ref0)
-    _, _, _, nu0 = emu.arm.step_fun("open_loop")(Pi_hat0, r0["q_d"], zero, ref0, lam, kd,
-                                                 np.zeros(kappa), kinv, dt)
-    ctrl = emu.arm.step_fun(kind)
-    args = {"z": np.concatenate([np.array(nu0).ravel(), Pi_hat0]), "qd": zero,
-            "sigma": r0["sigma_d"], "ref": ref0, "lam": lam, "kd": kd,
-            "kpi": np.zeros(kappa), "ksigma": ksigma, "kinv": kinv, "dt": dt}
-    q = ca.SX.sym("q", n)
-    p = ctrl.call({**{k: args[k] for k in ctrl.name_in() if k != "q"}, "q": q})["p"]
-    net = ca.Function("net", [q], [emu.residual_fun()(q, emu.interface_fun()(p)[1])[0]])
-    out = np.empty(n)
-    for j in range(n):
-        e = np.zeros(n)
-        e[j] = h
-        out[j] = -(float(net(r0["q_d"] + e)[j]) - float(net(r0["q_d"] - e)[j])) / (2 * h)
-    return out
-
-
-def feasibility(emu: GiosteEmulation, t, p_cmd, V_raw, label: str, *, warn: bool = True
-                ) -> tuple[list[PressureViolation], float]:
-    """Pressure episodes outside [0, p(6 V)] and the fraction of samples with a clipped volt.
-
-    A commanded pressure below 0 (a muscle asked to push) or above what 6 V gives is
-    unreachable; :func:`~softgen.control.feasibility.check_pressures` finds each
-    episode with joint, muscle and time. With ``warn``, one
-    :class:`~softgen.control.feasibility.PressureWarning` per run names the first
-    episode and counts the others. The bound per joint is the lower of its two valves'
-    6 V pressures.
-    """
-    viol = check_pressures(t, p_cmd, emu.p_max, label=label, warn=False)
-    if warn and viol:
-        more = f" (and {len(viol) - 1} more episodes)" if len(viol) > 1 else ""
-        warnings.warn(viol[0].message(label) + more, PressureWarning, stacklevel=2)
-    clipped = np.any((V_raw < 0.0) | (V_raw > V_MAX) | ~np.isfinite(V_raw), axis=1)
-    return viol, float(clipped.mean()) if clipped.size else 0.0
-
-
-# -- runs ------------------------------------------------------------------------------------
-
-#: Signals :func:`run` records by default: the stop's, and what metrics and figures read.
-RECORD = (*STOP_SIGNALS, "ref.sigma_d", "stiff.sigma", "plant.sigma_physical", "ctrl.nu",
-          "ctrl.Pi_hat", "valves.V", "valves.V_raw")
-
-
-def controller_gains(emu: GiosteEmulation, kd, lam, kpi: float, sigma_range, *,
-                     stiffness_rate: float, per_g2: bool = True) -> dict:
-    """Parameters of :func:`~softgen.control.pneumatic_loop.controller_block` on GioSte:
-    K_d, Λ per joint, K_π by :func:`kpi_vector`, and K̂ calibrated over ``sigma_range``
-    (:meth:`GiosteEmulation.calibrated_gain`) with K_σ = ``stiffness_rate``/K̂."""
-    khat = emu.calibrated_gain(sigma_range)
-    vec = lambda v: np.broadcast_to(np.asarray(v, dtype=float), (emu.n,)).copy()  # noqa: E731
-    return {"lam": vec(lam), "kd": vec(kd), "ksigma": stiffness_rate / khat,
-            "kpi": kpi_vector(emu.arm, kpi, per_g2=per_g2), "kinv": 1 / khat}
-
-
-@dataclass
-class Run:
-    """One run over its reference's K samples; every signal NaN after an emergency stop."""
-
-    t: np.ndarray
-    ref: np.ndarray            # (K, 6n) the references given
-    s: dict                    # signal -> (K, size)
-    diverged_at: float | None
-    n: int
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.s[name]
-
-    @property
-    def valid(self) -> np.ndarray:
-        return np.isfinite(self["plant.q"][:, 0])
-
-    @property
-    def q_d(self) -> np.ndarray:
-        return self.ref[:, reference_layout(self.n).slice("q_d")]
-
-    @property
-    def sigma_d(self) -> np.ndarray:
-        return self.ref[:, reference_layout(self.n).slice("sigma_d")]
-
-    @property
-    def stop(self) -> float:
-        """The emergency stop's time, or the run's last sample when it never tripped."""
-        return float(self.diverged_at if self.diverged_at is not None else self.t[-1])
-
-    def position_error(self, bound: float) -> np.ndarray:
-        """q − q_d; after a stop counted as ``bound`` (a stopped run has failed, and its
-        error is at least the threshold: every index stays finite and ordered)."""
-        e = self["plant.q"] - self.q_d
-        e[~self.valid] = bound
-        return e
-
-    def stiffness_error(self, which: str = "stiff.sigma") -> np.ndarray:
-        """σ − σ_d; after a stop −σ_d (the valves vented, the map gives σ = 0)."""
-        e = self[which] - self.sigma_d
-        e[~self.valid] = -self.sigma_d[~self.valid]
-        return e
-
-    def oscillation(self, window: float, bound: float) -> float:
-        """Half peak-to-peak of q − q_d over the last ``window`` s, linear trend removed
-        (a slow convergence or a drift is not an oscillation); the worst joint."""
-        m = self.t >= self.t[-1] - window
-        e, tt = self.position_error(bound)[m], self.t[m] - self.t[m].mean()
-        A = np.column_stack([np.ones_like(tt), tt])
-        e = e - A @ np.linalg.lstsq(A, e, rcond=None)[0]
-        return float(np.max((e.max(axis=0) - e.min(axis=0)) / 2))
-
-    @classmethod
-    def concatenate(cls, runs: list[Run], gap: float) -> Run:
-        """Runs laid end to end, run k shifted by k·``gap`` in time."""
-        return cls(np.concatenate([r.t + k * gap for k, r in enumerate(runs)]),
-                   np.concatenate([r.ref for r in runs]),
-                   {k: np.concatenate([r[k] for r in runs]) for k in runs[0].s}, None, runs[0].n)
-
-
-def run(emu: GiosteEmulation, kind: str, ref: np.ndarray, gains: dict, *, dt: float,
-        divergence: float, Pi_hat0: np.ndarray, chunk: int = 5000,
-        record=RECORD) -> Run:
-    """Controller ``kind`` on the emulated arm along ``ref`` (K × 6n, row k at t = k dt).
-
-    From :func:`initial_state`, through :func:`loop_diagram` (one compiled loop per
-    controller and ``dt``) and :func:`softgen.runtime.simulate` with
-    :func:`emergency_stop` at ``divergence`` rad; a non-finite value stops the run too.
-    """
-    if (kind, dt) not in emu.diagrams:
-        emu.diagrams[kind, dt] = loop_diagram(emu, kind, dt)
-    d = emu.diagrams[kind, dt]
-    x0 = initial_state(emu, kind, ref[0], lam=gains["lam"], kd=gains["kd"],
-                       kinv=gains["kinv"], Pi_hat0=Pi_hat0, dt=dt)
-    K = ref.shape[0]
-    tr = simulate(d, steps=K, x0=x0, externals={"ref": ref}, chunk=chunk,
-                  params={f"ctrl.{k}": v for k, v in gains.items() if f"ctrl.{k}" in d.params},
-                  stop=[emergency_stop(divergence)], on_nonfinite="stop", record=record)
-    s = {}
-    for name in record:
-        s[name] = np.full((K, tr[name].shape[1]), np.nan)
-        s[name][:tr.t.size] = tr[name]
-    return Run(np.arange(K) * dt, ref, s, tr.stopped_at, emu.n)
-
-
-class Bench:
-    """A controller model on its emulated GioSte, with the settings its runs share.
-
-    ``muscles``: "fitted" identifies the controller's McKibben pairs from the maps
-    (:func:`fitted_model`), "table10.1" keeps the model file's; ``actuator`` as in
-    :class:`GiosteEmulation`. ``config`` is kept for the caller (e.g. an experiment's).
-    """
-
-    def __init__(self, model: str | RobotModel, hw: HardwareConfig = HardwareConfig(), *,
-                 muscles: str = "fitted", actuator: str = "identified", dt: float = 1e-3,
-                 divergence: float = 0.5, stiffness_rate: float = 1.0, per_g2: bool = True,
-                 chunk: int = 5000, config=None):
-        if muscles not in ("fitted", "table10.1"):
-            raise ValueError(f"muscles: expected 'fitted' or 'table10.1', got {muscles!r}")
-        base = load_model(model) if isinstance(model, str) else model
-        self.arm = pneumatic_arm(fitted_model(base, origin=hw.map_origin)
-                                 if muscles == "fitted" else base)
-        self.emu = GiosteEmulation(self.arm, hw, actuator=actuator)
-        self.dt, self.divergence, self.chunk, self.c = dt, divergence, chunk, config
-        self.stiffness_rate, self.per_g2 = stiffness_rate, per_g2
-
-    def gains(self, kd, lam, kpi, sigma_range, *, per_g2: bool | None = None) -> dict:
-        """:func:`controller_gains` with the bench's K_σ rate and K_π reading."""
-        return controller_gains(self.emu, kd, lam, kpi, sigma_range,
-                                stiffness_rate=self.stiffness_rate,
-                                per_g2=self.per_g2 if per_g2 is None else per_g2)
-
-    def run(self, kind: str, ref: np.ndarray, gains: dict, dt: float | None = None) -> Run:
-        """:func:`run` from Π̂(0) = Π of the controller's model."""
-        return run(self.emu, kind, ref, gains, dt=dt or self.dt, divergence=self.divergence,
-                   Pi_hat0=self.arm.Pi_nominal, chunk=self.chunk)
-
-    def net_stiffness(self, ref0: np.ndarray, gains: dict) -> np.ndarray:
-        """:func:`static_net_stiffness` of Theorem 5's first command at ``ref0``."""
-        return static_net_stiffness(self.emu, "theorem5", ref0, gains,
-                                    Pi_hat0=self.arm.Pi_nominal)
-
-
-class TraceStore(dict):
-    """Runs kept compactly as they finish: ``store[name] = run`` keeps its signals up to its
-    stop, every ``every``-th sample, as float32 (the full run can then be freed);
-    :meth:`save` writes them to one ``.npz`` (``<name>_t``, ``<name>_ref``,
-    ``<name>_<block>_<signal>``)."""
-
-    def __init__(self, every: int = 20):
-        super().__init__()
-        self.every = int(every)
-
-    def __setitem__(self, name: str, r: Run) -> None:
-        ok = slice(0, int(r.valid.sum()), self.every)
-        arrays = {"t": r.t[ok], "ref": r.ref[ok],
-                  **{k.replace(".", "_"): v[ok] for k, v in r.s.items()}}
-        super().__setitem__(name, {k: np.asarray(v, np.float32) for k, v in arrays.items()})
-
-    def update(self, other=(), **kw) -> None:
-        for k, v in dict(other, **kw).items():
-            self[k] = v
-
-    def save(self, path: Path) -> None:
-        np.savez_compressed(path, **{f"{n}_{k}": v for n, a in self.items()
-                                     for k, v in a.items()})
-
-
-def feasibility_summary(emu: GiosteEmulation, runs: dict[str, Run]) -> dict:
-    """Over ``{label: run}``: ``pressure_violations`` (episodes of commanded pressure
-    outside [0, p(6 V)], :func:`feasibility`, warned once per run) and
-    ``voltage_clipped_fraction`` (samples before the stops with a clipped voltage)."""
-    episodes, clipped, samples = 0, 0.0, 0
-    for label, r in runs.items():
-        ok = r.valid
-        viol, frac = feasibility(emu, r.t[ok], r["ctrl.p"][ok], r["valves.V_raw"][ok], label)
-        episodes += len(viol)
-        clipped += frac * int(ok.sum())
-        samples += int(ok.sum())
-    return {"pressure_violations": float(episodes),
-            "voltage_clipped_fraction": float(clipped / max(samples, 1))}
-
-
-#: Panels of :func:`runs_figure`: signal, y label.
-PANELS = {"q": "q [rad]", "sigma": "σ [N m/rad]", "nu": "ν", "Pi_hat": "Π̂", "V": "V [V]"}
-
-
-def runs_figure(columns: list, parameter_names, titles: list[str] | None = None, *,
-                labels=None, panels=tuple(PANELS)) -> Figure:
-    """One column per entry of ``columns`` (a :class:`Run`, or runs overlaid and named by
-    ``labels``), one row per panel: q and σ (the map the controller reads, and −∂τ/∂q)
-    against their references, ν, Π̂ and the valve voltages, as the thesis plots them
-    (Fig. 10.6-10.13). Time axes end at the runs' emergency stops, marked and named."""
-    fig = Figure(figsize=(5.5 * len(columns), 2.4 * len(panels)))
-    ax = fig.subplots(len(panels), len(columns), squeeze=False)
-    titles = titles or ([f"run {j + 1}" for j in range(len(columns))] if len(columns) > 1
-                        else ["run"])
-    for j, col in enumerate(columns):
-        col = list(col) if isinstance(col, (list, tuple)) else [col]
-        for r, lab in zip(col, labels or [""] * len(col)):
-            pre = f"{lab} " if lab else ""
-            lines = {"q": [(r["plant.q"], "-", "q")], "nu": [(r["ctrl.nu"], "-", "ν")],
-                     "sigma": [(r["stiff.sigma"], "-", "σ (map)")] + (
-                         [(r["plant.sigma_physical"], ":", "σ (−∂τ/∂q)")] if not lab else []),
-                     "Pi_hat": [(r["ctrl.Pi_hat"], "-", "")], "V": [(r["valves.V"], "-", "V")]}
-            for a, panel in zip(ax[:, j], panels):
-                for y, style, name in lines[panel]:
-                    names = (list(parameter_names) if panel == "Pi_hat" else
-                             [f"{name}{m // 2 + 1}{'ab'[m % 2]}" for m in range(y.shape[1])]
-                             if panel == "V" else [f"{name}{i + 1}" for i in range(y.shape[1])])
-                    a.plot(r.t, y, style, lw=0.9, label=[pre + x for x in names])
-        for a, panel in zip(ax[:, j], panels):
-            if panel in ("q", "sigma"):
-                a.plot(col[0].t, col[0].q_d if panel == "q" else col[0].sigma_d, "k--", lw=0.7)
-            a.set_ylabel(PANELS[panel])
-            a.legend(fontsize=6, loc="upper left")
-            mark_stop(a, col)
-        stops = [f"{lab or 'run'} stopped at {r.diverged_at:.4g} s" for r, lab in
-                 zip(col, labels or [""] * len(col)) if r.diverged_at is not None]
-        ax[0, j].set_title(titles[j] + (f" ({'; '.join(stops)})" if stops else ""), fontsize=9)
-        ax[-1, j].set_xlabel("t [s]")
-    fig.tight_layout()
-    return fig
-
-
-def mark_stop(ax, runs: list[Run]) -> None:
-    """Clip a time axis to the simulated span of ``runs`` and mark their emergency stops."""
-    ax.set_xlim(0.0, max(r.stop for r in runs))
-    for r in runs:
-        if r.diverged_at is not None:
-            ax.axvline(r.diverged_at, color="r", lw=0.8, ls=":")
-
-
-def coupling_index(t, dev, windows, name: str, *, baseline: float, stop: float) -> dict:
-    """``{name}_joint{i}``: the worst window's max |deviation − its mean over ``baseline`` s
-    before the window| per unit of the step, over ``windows`` ``(t0, t1, step)`` (intervals in
-    which only the *other* references move) that end before ``stop``. NaN when none does:
-    a stopped run has no coupling to measure. Subtracting the baseline keeps a steady offset
-    from counting as coupling."""
-    res = np.full(dev.shape[1], np.nan)
-    for t0, t1, step in (w for w in windows if w[1] <= stop):
-        pre, win = (t >= t0 - baseline) & (t < t0), (t >= t0) & (t < t1)
-        d = np.abs(dev - (dev[pre].mean(axis=0) if pre.any() else 0.0))
-        v = d[win].max(axis=0) / step if win.any() and step > 0 else np.zeros(dev.shape[1])
-        res = np.where(np.isnan(res), v, np.maximum(res, v))
-    return {f"{name}_joint{i + 1}": float(x) for i, x in enumerate(res)}

@@ -13,7 +13,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import casadi as ca
+import numpy as np
+
 from softgen.blocks import Block, ClosedLoop
+from softgen.control.references import Sinusoid, sinusoid_block
 from softgen.symbolic.actuated import pneumatic_plant_block
 from softgen.symbolic.actuators import McKibbenPairs
 from softgen.symbolic.rigid import FUNCTION_OPTS, RigidDynamics
@@ -46,30 +49,14 @@ def allocation_controller_block(dyn: RigidDynamics, act: McKibbenPairs, dt: floa
 
 def sinusoid_reference_block(name: str, q_d: Sequence[Mapping], sigma_d: Sequence[Mapping]
                              ) -> Block:
-    """Reads ``t``; emits ``q_d, qd_d, qdd_d`` (offset + amplitude sin(omega t) and its
-    derivatives per joint) and ``sigma_d`` (likewise, value only).
+    """:func:`~softgen.control.references.sinusoid_block` from per-joint specs
+    ``{"offset", "amplitude", "omega"}`` (rad/s) of ``q_d`` and ``sigma_d``."""
+    def sinusoid(spec) -> Sinusoid:
+        return Sinusoid(amplitude=tuple(float(s.get("amplitude", 0.0)) for s in spec),
+                        frequency=tuple(float(s.get("omega", 0.0)) / (2 * np.pi) for s in spec),
+                        offset=tuple(float(s.get("offset", 0.0)) for s in spec))
 
-    Offsets, amplitudes and frequencies are parameters (``q_offset``, ``q_amplitude``,
-    ``q_omega``, ``sigma_...``), not constants: the products are then evaluated as
-    written, omega · (k T), so the references equal numpy's ``sin(omega * t)`` to the
-    last bit (CasADi would fold constants into (omega T) · k).
-    """
-    n = len(q_d)
-    p0 = {f"{w}_{k}": [float(s.get(k, 0.0)) for s in spec] for w, spec in
-          (("q", q_d), ("sigma", sigma_d)) for k in ("offset", "amplitude", "omega")}
-
-    def body(x, u, p):
-        t = u["t"]
-        a, w = p["q_amplitude"], p["q_omega"]
-        return {}, {"q_d": p["q_offset"] + a * ca.sin(w * t), "qd_d": a * w * ca.cos(w * t),
-                    "qdd_d": -a * w * w * ca.sin(w * t),
-                    "sigma_d": p["sigma_offset"]
-                    + p["sigma_amplitude"] * ca.sin(p["sigma_omega"] * t)}
-
-    return Block.define(name, dt=None, inputs={"t": 1}, params={k: n for k in p0}, p0=p0,
-                        outputs=[("q_d", n, "rad"), ("qd_d", n, "rad/s"),
-                                 ("qdd_d", n, "rad/s^2"), ("sigma_d", n, "N m/rad")],
-                        body=body, doc="sinusoidal position and stiffness references")
+    return sinusoid_block(name, sinusoid(q_d), sinusoid(sigma_d))
 
 
 def pendulum_diagram(name: str, dyn: RigidDynamics, act: McKibbenPairs, dt: float, *,
@@ -85,19 +72,12 @@ def pendulum_diagram(name: str, dyn: RigidDynamics, act: McKibbenPairs, dt: floa
 
 
 def tracking_figure(path, t, q, q_d, sigma, sigma_d, p) -> None:
-    """Position and stiffness against their references, and the pressures (bar)."""
-    from matplotlib.figure import Figure
-    fig = Figure(figsize=(7, 7))
-    ax = fig.subplots(3, 1, sharex=True)
-    for a, ys, labels, unit in ((ax[0], (q_d, q), ("q_d", "q"), "q [rad]"),
-                                (ax[1], (sigma_d, sigma), ("sigma_d", "sigma"),
-                                 "sigma [N m/rad]"),
-                                (ax[2], (p[:, :1] / 1e5, p[:, 1:] / 1e5), ("p_a", "p_b"),
-                                 "pressure [bar]")):
-        for y, lab in zip(ys, labels):
-            a.plot(t, y, label=lab)
-        a.set_ylabel(unit)
-        a.legend(loc="upper left")
-    ax[2].set_xlabel("t [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    """Moved to :func:`softgen.studies.figures_pneumatic.pendulum_tracking`.
+
+    TEMPORARY: ``ch6_pneumatic_invasive`` (another engineer's file) still calls it from
+    here. The import is in the body so that plants never load matplotlib or studies at
+    import time; delete this function once that experiment imports the studies one.
+    """
+    from softgen.studies.figures_pneumatic import pendulum_tracking
+    pendulum_tracking(path, t, q, q_d, sigma, sigma_d, p)
+
