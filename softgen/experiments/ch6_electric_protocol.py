@@ -35,13 +35,14 @@ import numpy as np
 
 from softgen.estimation.indices import excitation_records, mse, msrep
 from softgen.estimation.rls import excitation_std
-from softgen.runtime.simulate import save_traces
+from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
 from softgen.modelfile.model import load_model
 from softgen.plants.qbmove import (motor_references, phase_index, phased_references,
-                             protocol_figure, servo_initial_state)
-from softgen.experiments.estimation_common import (achieved_records, estimator, figures, measured_deflections,
-                                qbmove_run, variant_records)
-from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
+                                   servo_initial_state)
+from softgen.runtime.simulate import save_traces
+from softgen.studies.estimation import (achieved_records, estimator, figures,
+                                        measured_deflections, protocol_figure, qbmove_run,
+                                        variant_records)
 
 
 @dataclass(frozen=True)
@@ -137,8 +138,8 @@ def run(c: ElectricProtocolConfig, out) -> Metrics:
 
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Table 6.2: the update stop removes a drift. The emulation has none to remove."""
-    d = [m[f"dof1_drift_stiffness_mse_joint1_phase{k}"] for k in (1, 2, 3)]
-    s = [m[f"dof1_stop_stiffness_mse_joint1_phase{k}"] for k in (1, 2, 3)]
+    d, s = ([m.value("stiffness_mse", joint=1, phase=k, prefix=f"dof1_{tag}_")
+             for k in (1, 2, 3)] for tag in ("drift", "stop"))
     drift = d[1] > 3 * d[0] or d[2] > 3 * d[0]
     return [finding(
         "Table 6.2: without the update stop the stiffness estimate drifts in the "
@@ -146,10 +147,11 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
         "reproduced" if drift and s[1] < d[1] else "not reproduced",
         "stiffness MSE per phase without the stop " + ", ".join(num(x) for x in d)
         + "; with it " + ", ".join(num(x) for x in s) + "; update fraction in phase 2 "
-        f"{num(m['dof1_stop_update_fraction_phase2'])} (a drift: phase 2 or 3 above 3× "
-        f"phase 1). Against the datasheet springs MSE "
-        f"{num(m['dof1_stop_vs_nominal_stiffness_mse_joint1'])}: the model error, not the "
-        "estimator. The emulated spring is a static function of φ (no hysteresis or wear)")]
+        f"{num(m.value('update_fraction', phase=2, prefix='dof1_stop_'))} (a drift: phase 2 "
+        "or 3 above 3× phase 1). Against the datasheet springs MSE "
+        f"{num(m.value('vs_nominal_stiffness_mse', joint=1, prefix='dof1_stop_'))}: the model "
+        "error, not the estimator. The emulated spring is a static function of φ (no "
+        "hysteresis or wear)")]
 
 
 EXPERIMENT = Experiment(

@@ -36,12 +36,13 @@ import numpy as np
 
 from softgen.estimation.indices import excitation_records, mse, noise_records, window_mask
 from softgen.estimation.rls import excitation_std
+from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
 from softgen.modelfile.model import load_model
 from softgen.plants.qbmove import (Sinusoids, motor_references, phase_index, phased_references,
-                             protocol_figure, servo_initial_state)
-from softgen.experiments.estimation_common import (achieved_records, estimator, figures, measured_deflections,
-                                qbmove_run, variant_records)
-from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
+                                   servo_initial_state)
+from softgen.studies.estimation import (achieved_records, estimator, figures,
+                                        measured_deflections, protocol_figure, qbmove_run,
+                                        variant_records)
 
 
 @dataclass(frozen=True)
@@ -144,7 +145,8 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
         w = window_mask(t, c.metric_window, res)      # the emulated model error itself:
         for i in range(n):
             mh.add("datasheet_vs_plant_stiffness_mse", mse(truth.sigma_nominal[w, i],
-                                                           truth.sigma[w, i]), "", joint=i + 1)
+                                                           truth.sigma[w, i]), "(N m/rad)^2",
+                   joint=i + 1)
         m.extend(mh, prefix=pre)
         protocol_figure(out / f"{pre}protocol.png", t, tr["plant.q"], q_d, truth.sigma,
                         sigma_d, phi, std, threshold=c.gate_threshold, window=c.gate_window,
@@ -160,12 +162,14 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Section 7.4: stiffness MSE 3.8e-5 (1-DoF) and 1.9e-4 / 3.8e-4 (2-DoF) on hardware."""
     out = []
-    for pre, joints, thesis in (("", (1,), (3.8e-5,)), ("dof2_", (1, 2), (1.9e-4, 3.8e-4))):
-        if f"{pre}stiffness_mse_joint1" not in m:
+    for pre, thesis in (("", (3.8e-5,)), ("dof2_", (1.9e-4, 3.8e-4))):
+        g = {label: list(m.per_joint(q, prefix=pre + p).values()) for label, q, p in (
+            ("stiffness_mse", "stiffness_mse", ""),
+            ("plant_stiffness_mse", "stiffness_mse", "plant_"),
+            ("datasheet_vs_plant_stiffness_mse", "datasheet_vs_plant_stiffness_mse", ""),
+            ("unfiltered_stiffness_mse", "stiffness_mse", "unfiltered_"))}
+        if not g["stiffness_mse"]:
             continue
-        g = {k: [m[f"{pre}{k}_joint{j}"] for j in joints] for k in (
-            "stiffness_mse", "plant_stiffness_mse", "datasheet_vs_plant_stiffness_mse",
-            "unfiltered_stiffness_mse")}
         ok = [[v < 100 * t for v, t in zip(g[k], thesis)] for k in
               ("stiffness_mse", "plant_stiffness_mse")]
         f = lambda k: " / ".join(num(v) for v in g[k])   # noqa: E731
@@ -174,22 +178,28 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
             + " / ".join(num(t) for t in thesis) + " on hardware with encoders",
             "reproduced" if all(ok[0]) else "partly reproduced" if all(ok[1])
             else "not reproduced",
-            f"filtered estimator ({num(m['lowpass_hz'])} Hz, target and regressor alike): "
-            f"MSE {f('stiffness_mse')} against the datasheet springs as the thesis, of which "
-            f"the emulated 20 % spring mismatch alone is {f('datasheet_vs_plant_stiffness_mse')}"
-            f"; against the plant's springs {f('plant_stiffness_mse')} (threshold 100× the "
-            f"thesis's); unfiltered {f('unfiltered_stiffness_mse')}"))
-    if "ideal_sensors_stiffness_mse_joint1" in m:
+            f"filtered estimator ({num(m.value('lowpass_hz'))} Hz, target and regressor "
+            f"alike): MSE {f('stiffness_mse')} against the datasheet springs as the thesis, of "
+            f"which the emulated 20 % spring mismatch alone is "
+            f"{f('datasheet_vs_plant_stiffness_mse')}; against the plant's springs "
+            f"{f('plant_stiffness_mse')} (threshold 100× the thesis's); unfiltered "
+            f"{f('unfiltered_stiffness_mse')}"))
+    ideal = m.find("stiffness_mse", joint=1, prefix="ideal_sensors_")
+    if ideal is not None:
+        v = {(q, p): m.value(q, joint=1, prefix=p) for q, p in (
+            ("rotatum_uio_rms_error", ""), ("rotatum_rms", ""),
+            ("rotatum_uio_rms_error", "ideal_sensors_"), ("stiffness_mse", "nostop_"),
+            ("stiffness_mse", "freeze_"))}
         out.append(finding(
             "Diagnosis: without the filter the estimate fails because of the encoders' "
             "quantisation, differenced three times over T³, not the estimator",
-            "reproduced" if m["ideal_sensors_stiffness_mse_joint1"] < 1e-2 else "not reproduced",
-            f"observer rotatum error {num(m['rotatum_uio_rms_error_joint1'])} N m/s rms "
-            f"against a rotatum of {num(m['rotatum_rms_joint1'])}; the same run read by "
-            f"unquantised encoders: MSE {num(m['ideal_sensors_stiffness_mse_joint1'])}, "
-            f"rotatum error {num(m['ideal_sensors_rotatum_uio_rms_error_joint1'])}; without "
-            f"the gate {num(m['nostop_stiffness_mse_joint1'])}, frozen "
-            f"{num(m['freeze_stiffness_mse_joint1'])}: neither stop helps"))
+            "reproduced" if ideal.value < 1e-2 else "not reproduced",
+            f"observer rotatum error {num(v['rotatum_uio_rms_error', ''])} N m/s rms against a "
+            f"rotatum of {num(v['rotatum_rms', ''])}; the same run read by unquantised "
+            f"encoders: MSE {num(ideal.value)}, rotatum error "
+            f"{num(v['rotatum_uio_rms_error', 'ideal_sensors_'])}; without the gate "
+            f"{num(v['stiffness_mse', 'nostop_'])}, frozen {num(v['stiffness_mse', 'freeze_'])}"
+            ": neither stop helps"))
     return out
 
 

@@ -1,0 +1,267 @@
+"""Chapter-11 studies: section 11.2's references and gains as data, the cascade's diagram
+as a :class:`~softgen.studies.Scenario`, a measurement helper and the figure.
+
+The library (:mod:`softgen.control.electric`) builds the cascade, plant and reference
+blocks for any gains and sinusoids; what the thesis printed for its runs lives here,
+as frozen data. Every run goes through the one driver (:meth:`Scenario.run`).
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from softgen.blocks import Block, ClosedLoop
+from softgen.control.electric import (REFERENCE_BLOCKS, ElectricArm, cascade_block,
+                                      initial_plant_state, integral_start,
+                                      near_singular_events, plant_block, reference_block)
+from softgen.runtime.simulate import Trace
+from softgen.studies.scenario import Scenario
+
+#: The plant block's state, in the order of the cascade's measurement x.
+PLANT_STATE = ("q", "qd", "qa", "qad", "qb", "qbd")
+
+
+@dataclass(frozen=True)
+class Sinusoid:
+    """``offset + amplitude sin(omega t)`` (one joint's reference)."""
+
+    offset: float
+    amplitude: float
+    omega: float                                     # rad/s
+
+    def derivatives(self, t: np.ndarray, order: int) -> list[np.ndarray]:
+        """The value and its first ``order`` derivatives, A ω^k sin(ωt + kπ/2)."""
+        out = [self.offset + self.amplitude * np.sin(self.omega * t)]
+        for k in range(1, order + 1):
+            out.append(self.amplitude * self.omega ** k * np.sin(self.omega * t + k * np.pi / 2))
+        return out
+
+
+@dataclass(frozen=True)
+class CascadeReferences:
+    """Per-joint sinusoids for q_d and σ_d (section 11.2 by default)."""
+
+    q: tuple[Sinusoid, ...]
+    sigma: tuple[Sinusoid, ...]
+
+    def __post_init__(self) -> None:
+        if len(self.sigma) != len(self.q):
+            raise ValueError(f"sigma: expected {len(self.q)} joints like q, got "
+                             f"{len(self.sigma)}")
+
+    def block(self, name: str = "ref") -> Block:
+        """The reference block (:func:`softgen.control.electric.reference_block`)."""
+        return reference_block(_spec(self.q), _spec(self.sigma), name=name)
+
+    def columns(self, t) -> np.ndarray:
+        """Reference columns (9n × K) for the sample times ``t`` (K,), rows in the order
+        of :data:`~softgen.control.electric.REFERENCE_BLOCKS`."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        q = [s.derivatives(t, 4) for s in self.q]
+        s = [s.derivatives(t, 3) for s in self.sigma]
+        rows = [np.stack([d[k] for d in q]) for k in range(5)]
+        rows += [np.stack([d[k] for d in s]) for k in range(4)]
+        assert len(rows) == len(REFERENCE_BLOCKS)
+        return np.concatenate(rows, axis=0)
+
+    def at(self, t: float) -> np.ndarray:
+        """The 9n reference column at ``t``."""
+        return self.columns(t)[:, 0]
+
+
+def _spec(s: tuple[Sinusoid, ...]) -> tuple[tuple[float, float, float], ...]:
+    return tuple((x.offset, x.amplitude, x.omega) for x in s)
+
+
+#: Section 11.2: q_d = 1 + 0.5 sin(πt/10) on both joints; σ_1d = 8 + 3 sin(πt/8),
+#: σ_2d = 4 + sin(πt/8).
+THESIS_REFERENCES = CascadeReferences(
+    q=(Sinusoid(1.0, 0.5, np.pi / 10), Sinusoid(1.0, 0.5, np.pi / 10)),
+    sigma=(Sinusoid(8.0, 3.0, np.pi / 8), Sinusoid(4.0, 1.0, np.pi / 8)))
+
+
+def sinusoid_references(t, refs: CascadeReferences = THESIS_REFERENCES) -> np.ndarray:
+    """Reference columns (9n × K) of ``refs`` at ``t`` (default: section 11.2)."""
+    return refs.columns(t)
+
+
+class _GainMapping(Mapping):
+    """A frozen gain set read as ``{gain name: value}`` (absent gains are None fields),
+    the form :func:`~softgen.control.electric.check_gains` and the blocks take."""
+
+    def _present(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if getattr(self, f.name) is not None}
+
+    def __getitem__(self, key: str):
+        return self._present()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._present())
+
+    def __len__(self) -> int:
+        return len(self._present())
+
+    def replace(self, **changes):
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True, eq=False)
+class PDGains(_GainMapping):
+    """Theorems 6-7 (Remark 10 with ``ki``): inner k_p, k_d; outer k_p, k_d, k_σ, Δ."""
+
+    kp_m: float
+    kd_m: float
+    kp: float
+    kd: float
+    ksigma: float
+    delta: float
+    ki: float | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class AdaptiveGains(_GainMapping):
+    """Theorems 8-9 (Remark 11 with ``ki``): inner Λ_m, k_m, k_π,m (per motor parameter,
+    layout of π̂_m); outer Λ, k, k_π, k_σ, Δ; ``b_min`` for the projected cascades."""
+
+    lam_m: float
+    k_m: float
+    kpi_m: tuple[float, ...]
+    lam: float
+    k: float
+    kpi: float
+    ksigma: float
+    delta: float
+    ki: float | None = None
+    b_min: float | None = None
+
+
+#: Gains of section 11.2 (NOTES section 1, ch11-electric-pd / -adaptive). The adaptive
+#: "k_p, k_d" are read as (Λ, k) (module docstring of :mod:`softgen.control.electric`);
+#: k_π of the motors per joint (1a, 2a, 1b, 2b) for both b and d.
+THESIS_GAINS: Mapping[str, PDGains | AdaptiveGains] = {
+    "pd": PDGains(kp_m=50, kd_m=25, kp=25, kd=10, ksigma=150, delta=70),
+    "pd_integral": PDGains(kp_m=50, kd_m=25, kp=0.05, kd=0.75, ksigma=30, ki=15, delta=70),
+    "adaptive": AdaptiveGains(lam_m=0.1, k_m=0.1, kpi_m=(6e-4, 1e-3, 1e-4, 1e-4) * 2,
+                              lam=0.1, k=0.5, kpi=0.2, ksigma=20, delta=145),
+    "adaptive_integral": AdaptiveGains(lam_m=0.1, k_m=0.1,
+                                       kpi_m=(6e-4, 1e-3, 1e-4, 1e-4) * 2, lam=0.1, k=0.1,
+                                       kpi=7, ksigma=20, ki=25, delta=145),
+}
+
+
+def cascade_start(arm: ElectricArm, variant: str, gains: Mapping, ctrl: Block, *,
+                  refs: CascadeReferences = THESIS_REFERENCES, nominal: bool = False) -> dict:
+    """Initial state ``{"plant.<s>", "ctrl.<part>"}`` of a cascade diagram: the plant on
+    the references (quasi-steady stiffness without the integral, the integral holding
+    the Δ offset with it), estimates at 0 or (``nominal``) at the model's values."""
+    integral = variant.endswith("_integral")
+    x0 = initial_plant_state(arm, refs.at, **({} if integral else dict(
+        ksigma=gains["ksigma"], delta=gains["delta"])))
+    z0 = arm.initial_state(
+        variant, x0,
+        xi0=integral_start(arm, x0, gains["delta"], gains["ki"]) if integral else None,
+        pi_hat0=arm.parameter_nominal if nominal else None,
+        pi_m_hat0=arm.motor_parameter_nominal if nominal else None)
+    init = {f"plant.{k}": x0[i * arm.n:(i + 1) * arm.n] for i, k in enumerate(PLANT_STATE)}
+    init.update({f"ctrl.{k}": v for k, v in ctrl.state.split(z0).items()})
+    return init
+
+
+#: What a cascade scenario records by default.
+RECORD = ("ref.q_d", "ref.sigma_d", "plant.q", "plant.qa", "plant.qb", "plant.sigma",
+          "plant.tau_e", "ctrl.tau_m", "ctrl.q_m_ref", "ctrl.det")
+
+
+def cascade_scenario(arm: ElectricArm, variant: str, gains: Mapping, *, dt: float,
+                     duration: float, refs: CascadeReferences = THESIS_REFERENCES,
+                     nominal: bool = False, chunk: int = 1000, name: str | None = None,
+                     record=None) -> Scenario:
+    """Reference → cascade ``variant`` → plant (section 11.2's loop) as a scenario that
+    stops at the first non-finite value. Adaptive variants also record π̂ and π̂_m."""
+    ctrl = cascade_block(arm, variant, dt, gains=gains)
+    d = ClosedLoop(name or f"ch11_{arm.step_name(variant)}_{round(1e6 * dt)}us",
+                   [refs.block(), ctrl, plant_block(arm, dt)])
+    if record is None:
+        record = RECORD + (("ctrl.pi_hat", "ctrl.pi_m_hat") if variant.startswith("adaptive")
+                           else ())
+    return Scenario(d.name, d, duration=duration, chunk=chunk, record=tuple(record),
+                    x0=cascade_start(arm, variant, gains, ctrl, refs=refs, nominal=nominal),
+                    on_nonfinite="stop")
+
+
+def thesis_run(arm: ElectricArm, variant: str, *, duration: float = 40.0, dt: float = 1e-3,
+               chunk: int = 1000, initial: str = "zero", **gains) -> dict:
+    """Section 11.2's run of one cascade and its metrics (a measurement helper).
+
+    ``gains`` override :data:`THESIS_GAINS` (a filter route needs ``omega_f``);
+    ``initial``: ``"zero"`` (π̂(0) = 0, as the thesis) or ``"nominal"``. Metrics over
+    the second half: position, stiffness and motor rms errors, signed mean stiffness
+    error, and the largest |motor torque| over the run; ``None`` when the run did not
+    stay finite (then ``first_nonfinite_time``).
+    """
+    g = {**THESIS_GAINS[variant], **gains}
+    tr = cascade_scenario(arm, variant, g, dt=dt, duration=duration, chunk=chunk,
+                          nominal=initial == "nominal").run()
+    finite = tr.stopped_at is None
+    K = tr.t.size
+    half = slice(K // 2, None)
+
+    def rms(e):
+        return np.sqrt(np.mean(e[half] ** 2, axis=0)).tolist() if finite else None
+
+    e_q = tr["plant.q"] - tr["ref.q_d"]
+    e_s = tr["plant.sigma"] - tr["ref.sigma_d"]
+    e_m = np.hstack([tr["plant.qa"], tr["plant.qb"]]) - tr["ctrl.q_m_ref"]
+    out = {"finite": finite, "simulated_seconds_per_wall_second": tr.realtime_factor,
+           "position_rms_error": rms(e_q), "stiffness_rms_error": rms(e_s),
+           "stiffness_mean_error": e_s[half].mean(0).tolist() if finite else None,
+           "motor_rms_error": rms(e_m),
+           "motor_torque_max_abs": float(np.abs(tr["ctrl.tau_m"]).max()) if finite else None,
+           "near_singular": near_singular_events(tr.t, tr["ctrl.det"], g["delta"])}
+    if not finite:
+        out["first_nonfinite_time"] = float(tr.stopped_at)
+    return out
+
+
+def cascade_figure(path, tr: Trace, title: str, *, parameter_nominal=None,
+                   motor_parameter_nominal=None) -> None:
+    """Fig. 11.2-11.5's quantities of one run: link angles, stiffness, motor angles with
+    their references and motor torques per joint (``tr``: a trace of
+    :func:`cascade_scenario`); adaptive runs add π̂/π and b̂/b."""
+    # matplotlib is imported here: only figure-making runs pay its start-up time.
+    from matplotlib.figure import Figure
+    t, n = tr.t, tr["plant.q"].shape[1]
+    adaptive = "ctrl.pi_hat" in tr.signals
+    fig = Figure(figsize=(11, 12 if adaptive else 10))
+    ax = fig.subplots(5 if adaptive else 4, 2, sharex=True)
+    qm = np.hstack([tr["plant.qa"], tr["plant.qb"]])
+    for i in range(n):
+        ax[0, i].plot(t, tr["ref.q_d"][:, i], "k--", lw=1, label="q_d")
+        ax[0, i].plot(t, tr["plant.q"][:, i], lw=1, label="q")
+        ax[0, i].set_ylabel(f"q{i + 1} [rad]")
+        ax[1, i].plot(t, tr["ref.sigma_d"][:, i], "k--", lw=1, label="σ_d")
+        ax[1, i].plot(t, tr["plant.sigma"][:, i], lw=1, label="σ")
+        ax[1, i].set_ylabel(f"σ{i + 1} [N m/rad]")
+        for s, col in (("a", i), ("b", n + i)):
+            ax[2, i].plot(t, tr["ctrl.q_m_ref"][:, col], "k--", lw=0.8)
+            ax[2, i].plot(t, qm[:, col], lw=1, label=f"q{i + 1}{s}")
+            ax[3, i].plot(t, tr["ctrl.tau_m"][:, col], lw=1, label=f"τ{i + 1}{s}")
+        ax[2, i].set_ylabel("motor angle [rad] (-- ref)")
+        ax[3, i].set_ylabel("motor torque [N m]")
+        for a in ax[:4, i]:
+            a.legend(loc="upper right", fontsize=7)
+    if adaptive:
+        ax[4, 0].plot(t, tr["ctrl.pi_hat"] / parameter_nominal, lw=1)
+        ax[4, 0].set_ylabel("π̂ / π (link)")
+        ax[4, 1].plot(t, tr["ctrl.pi_m_hat"][:, :2 * n] / motor_parameter_nominal[:2 * n],
+                      lw=1)
+        ax[4, 1].set_ylabel("b̂ / b (motors)")
+    for a in ax[-1]:
+        a.set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
