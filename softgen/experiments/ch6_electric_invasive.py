@@ -32,23 +32,18 @@ from softgen.experiments.registry import Config, Experiment, Metrics, finding, n
 from softgen.modelfile.model import load_model
 from softgen.plants.qbmove import polynomial_fit_stiffness
 from softgen.runtime.simulate import save_traces
-from softgen.studies.estimation import (estimator, figures, qbmove_run, run_figure,
-                                        variant_records)
+from softgen.studies.estimation import (QbmoveStudyConfig, estimator, figures, qbmove_run,
+                                        run_figure, variant_records)
 from softgen.symbolic.actuators import QbmoveSprings
 
 
 @dataclass(frozen=True)
-class ElectricInvasiveConfig(Config):
+class ElectricInvasiveConfig(QbmoveStudyConfig):
     model: str = "planar_2link"
     duration: float = 60.0
-    dt: float = 1e-3
     substeps: int = 10              # RK4 at 0.1 ms: the motor-spring modes reach ~600 rad/s
     torque_amplitude: float = 0.15  # N m
     torque_frequency: tuple[float, ...] = (0.25, 0.06, 0.17, 0.08)  # Hz: τ_11, τ_12, τ_21, τ_22
-    powers: tuple[int, ...] = (1, 3, 5, 7)
-    p0: float = 1e8
-    delay: int = 2
-    metric_window: tuple[float, float] | None = None
     link_damping: float = 0.5       # N m s/rad on each link (see the module docstring)
     undamped_variant: bool = True
     runaway_speed: float = 20.0     # rad/s: a link faster than this has run away

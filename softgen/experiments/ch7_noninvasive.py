@@ -26,22 +26,18 @@ from softgen.modelfile.model import load_model
 from softgen.plants.qbmove import (Sinusoids, motor_references, phased_references,
                                    servo_initial_state)
 from softgen.runtime.simulate import save_traces
-from softgen.studies.estimation import estimator, figures, qbmove_run, variant_records
+from softgen.studies.estimation import (QbmoveStudyConfig, estimator, figures, qbmove_run,
+                                        variant_records)
 
 
 @dataclass(frozen=True)
-class NoninvasiveConfig(Config):
+class NoninvasiveConfig(QbmoveStudyConfig):
     model: str = "pendulum_qbmove"
     duration: float = 60.0
-    dt: float = 1e-3
-    substeps: int = 10
-    servo_bandwidth: float = 300.0           # rad/s, the motors' own position loop
     q_d: Sinusoids = ((0.0, 0.3, np.pi / 4),)
     sigma_d: Sinusoids = ((5.0, 2.0, np.pi / 6),)
     powers: tuple[int, ...] = (0, 2, 4)
-    p0: float = 1e8
     delay: int = 3
-    metric_window: tuple[float, float] | None = None
 
 
 CONFIG_2DOF = NoninvasiveConfig(

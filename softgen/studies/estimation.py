@@ -9,17 +9,23 @@ per-variant indices of the experiments, and their figures. The machinery itself
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from softgen.blocks import Block
+from softgen.core.config import Config
 from softgen.core.metrics import Metrics
 from softgen.estimation.estimators import EstimatorBase, EstimatorConfig, StiffnessEstimator
-from softgen.estimation.indices import (error_records, estimation_figure, mse, msrep,
-                                        phase_records, update_fraction_records, window_mask)
+from softgen.estimation.indices import (error_records, estimation_figure, excitation_records,
+                                        mse, msrep, phase_records, update_fraction_records,
+                                        window_mask)
 from softgen.estimation.offline import EstimationResult, estimation_result, recorded
-from softgen.estimation.rls import ExcitationGate
-from softgen.plants.qbmove import QbmoveTruth, hardware_diagram, qbmove_truth
+from softgen.estimation.rls import ExcitationGate, excitation_std
+from softgen.plants.qbmove import (QbmoveTruth, Sinusoids, hardware_diagram, motor_references,
+                                   phase_index, phased_references, qbmove_truth,
+                                   servo_initial_state)
 from softgen.runtime.simulate import Trace
 from softgen.studies.scenario import Scenario
 from softgen.symbolic.actuated import QBMOVE_STATE, electric_plant_block, servo_plant_block
@@ -27,7 +33,98 @@ from softgen.symbolic.actuators import QbmoveSprings
 from softgen.symbolic.rigid import RigidDynamics
 
 
-def estimator(model, method: str, c, *, gated: bool = True, name: str | None = None,
+@dataclass(frozen=True)
+class QbmoveStudyConfig(Config):
+    """What :func:`qbmove_run` and :func:`estimator` read: the emulated plant and the
+    estimator's settings. Each estimation experiment's config subclasses it."""
+
+    dt: float = 1e-3                     # s, the sample time T
+    substeps: int = 10                   # RK4 steps of the plant per sample
+    servo_bandwidth: float = 300.0       # rad/s, the motors' own position loop
+    powers: tuple[int, ...] = (1, 3, 5, 7)
+    p0: float | tuple[float, ...] = 1e8  # RLS P(0) = p0 I, or its diagonal
+    delay: int = 2                       # the observer's delay L
+    metric_window: tuple[float, float] | None = None      # None: t >= 10 % of the run
+
+
+@dataclass(frozen=True)
+class ProtocolConfig(QbmoveStudyConfig):
+    """The emulated qbmove hardware of sections 6.2.4 and 7.4 and a phased protocol: per
+    phase, whether q_d and σ_d are their sinusoids (else their offsets)."""
+
+    models: tuple[str, str] = ("qbmove_1dof", "planar_2link")
+    two_dof: bool = True
+    dt: float = 5e-3
+    phase_duration: float = 200.0        # s
+    phases: tuple[tuple[bool, bool], ...] = ((True, True),)
+    q_d: tuple[float, float, float] = (0.5, 0.2, np.pi / 4)     # offset, amplitude, ω
+    sigma_d: tuple[float, float, float] = (5.0, 2.5, np.pi / 8)
+    substeps: int = 20
+    servo_bandwidth: float = 1000.0
+    spring_scale: float = 1.2            # plant springs over the datasheet's
+    encoder_counts: int = 8192
+    torque_noise: float = 0.0            # N m, std of the motor torque sensor
+    seed: int = 0
+    gate_window: float = 2.0             # s, W of the excitation gate
+    gate_threshold: float = 5e-3         # rad
+
+    def samples(self) -> np.ndarray:
+        """Sample times of the whole protocol."""
+        return np.arange(int(round(len(self.phases) * self.phase_duration / self.dt)) + 1) \
+            * self.dt
+
+
+@dataclass
+class ProtocolRun:
+    """One model's protocol run: references, trace, truth, the measured deflections
+    and the gate's statistic (exponentially weighted std over ``gate_window``)."""
+
+    c: ProtocolConfig
+    t: np.ndarray
+    q_d: np.ndarray
+    sigma_d: np.ndarray
+    tr: Trace
+    truth: QbmoveTruth
+    phi: np.ndarray
+    std: np.ndarray
+
+    @property
+    def phase(self) -> np.ndarray:
+        return phase_index(self.t, self.c.phase_duration, len(self.c.phases))
+
+    def records(self, m: Metrics, prefix: str = "") -> Metrics:
+        """The gate statistic per phase and the achieved/desired stiffness per joint."""
+        excitation_records(m, self.t, self.phase, self.std, self.c.gate_window, prefix=prefix)
+        achieved_records(m, self.truth, self.sigma_d, prefix=prefix)
+        return m
+
+    def figure(self, path: Path, updating: Mapping) -> None:
+        c = self.c
+        protocol_figure(path, self.t, self.tr["plant.q"], self.q_d, self.truth.sigma,
+                        self.sigma_d, self.phi, self.std, threshold=c.gate_threshold,
+                        window=c.gate_window, updating=updating,
+                        boundaries=np.arange(1, len(c.phases)) * c.phase_duration)
+
+
+def protocol_run(c: ProtocolConfig, model, label: str, sigma_d: Sinusoids,
+                 estimators: dict[str, Block], *, inputs: dict | None = None,
+                 ideal: Sequence[str] = ()) -> ProtocolRun:
+    """The phased references of ``c`` (q_d on every joint, ``sigma_d`` per joint) tracked
+    by the motor servos, with the ``estimators`` on the emulated hardware."""
+    t = c.samples()
+    q_d, qd_d, qdd_d, sig = phased_references(t, (c.q_d,) * model.dof, sigma_d,
+                                              phase_duration=c.phase_duration, phases=c.phases)
+    refs = motor_references(model, q_d, qd_d, qdd_d, sig)
+    tr, truth = qbmove_run(label, model, c, estimators, K=t.size,
+                           inputs={"q_ref": refs, **(inputs or {})},
+                           x0=servo_initial_state(q_d, qd_d, refs), servo=True, ideal=ideal,
+                           spring_scale=c.spring_scale, counts=c.encoder_counts,
+                           torque_noise=c.torque_noise, seed=c.seed)
+    phi = measured_deflections(tr)
+    return ProtocolRun(c, t, q_d, sig, tr, truth, phi, excitation_std(phi, c.dt / c.gate_window))
+
+
+def estimator(model, method: str, c: QbmoveStudyConfig, *, gated: bool = True, name: str | None = None,
               lowpass: float | None = None) -> EstimatorBase:
     """The estimator of ``method`` with the settings of config ``c`` (dt, delay, powers,
     p0 and, if ``gated``, the excitation gate ``gate_window``/``gate_threshold``)."""
@@ -39,8 +136,8 @@ def estimator(model, method: str, c, *, gated: bool = True, name: str | None = N
         lowpass=lowpass), name=name)
 
 
-def qbmove_run(label: str, model, c, estimators: dict, *, K: int, inputs: dict, x0: dict,
-               servo: bool, ideal=(), spring_scale: float = 1.0, counts=None,
+def qbmove_run(label: str, model, c: QbmoveStudyConfig, estimators: dict, *, K: int,
+               inputs: dict, x0: dict, servo: bool, ideal=(), spring_scale: float = 1.0, counts=None,
                torque_noise: float = 0.0, seed: int = 0, link_damping=None
                ) -> tuple[Trace, QbmoveTruth]:
     """One emulated run: plant (servo-driven or open loop), sensors and the estimator
