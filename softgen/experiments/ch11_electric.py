@@ -31,14 +31,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
-from softgen.control.electric import electric_arm, near_singular_events
+from softgen.control.electric import electric_arm
 from softgen.experiments.registry import (Config, Experiment, Metrics, finding, graded,
                                           not_checked, num)
 from softgen.modelfile.model import load_model
 from softgen.runtime.simulate import Trace
-from softgen.studies.electric import THESIS_GAINS, cascade_figure, cascade_scenario
+from softgen.studies.electric import (THESIS_GAINS, cascade_figure, cascade_records,
+                                     cascade_scenario)
 
 FAMILIES = {"pd": ("pd", "pd_integral"), "adaptive": ("adaptive", "adaptive_integral")}
 #: Windows (s) at the start and the end of a run for "starts worse, then learns".
@@ -91,37 +91,8 @@ def run_variant(c: Ch11Config, variant: str, *, projection: bool = True,
     return sc.run(label=f"ch11 {variant}"), arm
 
 
-def variant_metrics(tr: Trace, variant: str, delta, ksigma, c: Ch11Config) -> Metrics:
-    m, n = Metrics(), tr["plant.q"].shape[1]
-    K = int(round(c.duration / c.dt))
-    if tr.stopped_at is not None:
-        m.add("divergence_time", tr.stopped_at, "s", suffix=variant)
-        return m
-    half, w = slice(K // 2, None), int(round(WINDOW / c.dt))
-    e_q, e_s = tr["plant.q"] - tr["ref.q_d"], tr["plant.sigma"] - tr["ref.sigma_d"]
-    e_m = np.hstack([tr["plant.qa"], tr["plant.qb"]]) - tr["ctrl.q_m_ref"]
-    tau_e = tr["plant.tau_e"]      # Remark 10: at rest k_σ e_σ = −Δ(τ^e_a − τ^e_b)
-    offset = -np.asarray(delta) * (tau_e[:, :n] - tau_e[:, n:]) / np.asarray(ksigma)
-
-    def rms(e, sl=half):
-        return np.sqrt(np.mean(e[sl] ** 2, axis=0))
-    for i in range(n):
-        j = i + 1
-        m.add("position_rms_error", rms(e_q)[i], "rad", joint=j, suffix=variant)
-        m.add("stiffness_rms_error", rms(e_s)[i], "N m/rad", joint=j, suffix=variant)
-        m.add("stiffness_mean_error", e_s[half, i].mean(), "N m/rad", joint=j, suffix=variant)
-        if not variant.endswith("_integral"):
-            m.add("delta_offset_mean", offset[half, i].mean(), "N m/rad", joint=j,
-                  suffix=variant)
-        for s, col in (("a", i), ("b", n + i)):
-            m.add("motor_rms_error", rms(e_m)[col], "rad", joint=f"{j}{s}", suffix=variant)
-        for name, sl in (("start", slice(0, w)), ("end", slice(K - w, K))):
-            m.add(f"position_rms_error_{name}", rms(e_q, sl)[i], "rad", joint=j, suffix=variant)
-    m.add("motor_torque_max_abs", np.abs(tr["ctrl.tau_m"]).max(), "N m", suffix=variant)
-    m.add("near_singular_events", len(near_singular_events(tr.t, tr["ctrl.det"], delta)), "1",
-          suffix=variant)
-    m.add("simulated_seconds_per_wall_second", tr.realtime_factor, "s/s", suffix=variant)
-    return m
+def variant_metrics(tr: Trace, variant: str, g, c: Ch11Config) -> Metrics:
+    return cascade_records(tr, variant, g, window=int(round(WINDOW / c.dt)))
 
 
 def run(c: Ch11Config, out: Path) -> Metrics:
@@ -129,7 +100,7 @@ def run(c: Ch11Config, out: Path) -> Metrics:
     for v in FAMILIES[c.family]:
         g = gains(c, v)
         tr, arm = run_variant(c, v)
-        m.extend(variant_metrics(tr, v, g["delta"], g["ksigma"], c))
+        m.extend(variant_metrics(tr, v, g, c))
         if tr.stopped_at is None:
             cascade_figure(out / f"fig{FIGURE_NUMBER[v].replace('.', '_')}_{v}.png", tr,
                            f"Cascade {v}, two-link electric arm (cf. Fig. {FIGURE_NUMBER[v]})",
@@ -142,8 +113,8 @@ def run(c: Ch11Config, out: Path) -> Metrics:
                                ("unprojected_", c, {"projection": False}),
                                ("printed_gains_", printed, {}),
                                ("printed_gains_dt_1e-4_", printed.replace(dt=1e-4), {})):
-            m.extend(variant_metrics(run_variant(cv, v, **kw)[0], v, g["delta"], g["ksigma"],
-                                     cv), prefix=prefix, keep=_summary)
+            m.extend(variant_metrics(run_variant(cv, v, **kw)[0], v, g, cv), prefix=prefix,
+                     keep=_summary)
     return m
 
 

@@ -34,7 +34,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from softgen.blocks import ClosedLoop
 from softgen.blocks.sensors import encoder_block
@@ -45,7 +44,8 @@ from softgen.experiments.registry import (Config, Experiment, Metrics, finding, 
                                           not_checked, num)
 from softgen.modelfile.model import load_model
 from softgen.runtime.simulate import Trace
-from softgen.studies.electric import THESIS_GAINS, THESIS_REFERENCES, cascade_start
+from softgen.studies.electric import (THESIS_GAINS, THESIS_REFERENCES, cascade_start,
+                                     feedback_figure)
 from softgen.studies.scenario import Scenario
 
 SOURCES = {"true_feedback": 0, "estimated_feedback_invasive": 1,
@@ -161,33 +161,8 @@ def run(c: ExtConfig, out: Path) -> Metrics:
         early = c.replace(t_on=c.t_on_early)       # before the RLS has converged
         m.extend(case_metrics(run_case(sc, early, "estimated_feedback_invasive"), early,
                               "estimated_feedback_invasive", delays), prefix="early_switch_")
-    _figure(traces, c, out)
+    feedback_figure(out / "estimated_stiffness_feedback.png", traces, c.t_on)
     return m
-
-
-def _figure(traces: dict, c: ExtConfig, out: Path) -> None:
-    fig = Figure(figsize=(11, 8))
-    ax = fig.subplots(2, 2, sharex=True)
-    tr0 = traces["true_feedback"]
-    for j in range(2):
-        ax[0, j].plot(tr0.t, tr0["ref.sigma_d"][:, j], "k--", lw=1, label="σ_d")
-        for s, tr in traces.items():
-            if tr.stopped_at is None:
-                ax[0, j].plot(tr.t, tr["plant.sigma"][:, j], lw=0.8, label=s)
-        ax[1, j].plot(tr0.t, tr0["plant.sigma"][:, j], "k", lw=1, label="σ (plant)")
-        for k in ("inv", "non"):
-            ax[1, j].plot(tr0.t, tr0[f"{k}.sigma_hat"][:, j], lw=0.8, label=f"σ̂ {k}")
-        ax[0, j].set_ylabel(f"σ{j + 1} [N m/rad]")
-        ax[1, j].set_ylabel(f"σ̂{j + 1}, loop on true σ")
-        ax[1, j].set_ylim(0, 2 * tr0["ref.sigma_d"][:, j].max())
-        ax[1, j].set_xlabel("t [s]")
-        for a in ax[:, j]:
-            a.axvline(c.t_on, color="0.6", lw=0.8)
-            a.legend(fontsize=7, loc="upper right")
-    fig.suptitle("Adaptive cascade with the fed-back σ from true, invasive and non-invasive "
-                 "estimates (switch at t_on)")
-    fig.tight_layout()
-    fig.savefig(out / "estimated_stiffness_feedback.png", dpi=100)
 
 
 RATIO = 3.0          # issue 12: the better estimator within 3× of true-σ feedback

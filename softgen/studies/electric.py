@@ -17,6 +17,7 @@ from softgen.blocks import Block, ClosedLoop
 from softgen.control.electric import (REFERENCE_BLOCKS, ElectricArm, cascade_block,
                                       initial_plant_state, integral_start,
                                       near_singular_events, plant_block, reference_block)
+from softgen.core.metrics import Metrics
 from softgen.runtime.simulate import Trace
 from softgen.studies.scenario import Scenario
 
@@ -193,38 +194,57 @@ def cascade_scenario(arm: ElectricArm, variant: str, gains: Mapping, *, dt: floa
                     on_nonfinite="stop")
 
 
-def thesis_run(arm: ElectricArm, variant: str, *, duration: float = 40.0, dt: float = 1e-3,
-               chunk: int = 1000, initial: str = "zero", **gains) -> dict:
-    """Section 11.2's run of one cascade and its metrics (a measurement helper).
+def cascade_records(tr: Trace, variant: str, gains: Mapping, *, window: int) -> Metrics:
+    """Section 11.2's indices of one run of :func:`cascade_scenario` (suffix ``variant``).
 
-    ``gains`` override :data:`THESIS_GAINS` (a filter route needs ``omega_f``);
-    ``initial``: ``"zero"`` (π̂(0) = 0, as the thesis) or ``"nominal"``. Metrics over
-    the second half: position, stiffness and motor rms errors, signed mean stiffness
-    error, and the largest |motor torque| over the run; ``None`` when the run did not
-    stay finite (then ``first_nonfinite_time``).
+    Per joint, over the second half: position and stiffness rms errors, the signed mean
+    stiffness error and, without the integral, the offset −Δ(τ^e_a − τ^e_b)/k_σ at which
+    the stiffness row of eq. 11.4 is at rest (Remark 10) that it should equal; per motor
+    (joint ``"1a"`` …) the rms error against its reference; position rms over the first
+    and the last ``window`` samples. Over the run: largest |motor torque|, spans where
+    eq. 11.4 is near singular (:func:`near_singular_events`), simulated s per wall s.
+    A run that stopped at a non-finite value gives ``divergence_time`` alone.
     """
+    m, n, K = Metrics(), tr["plant.q"].shape[1], tr.t.size
+    if tr.stopped_at is not None:
+        return m.add("divergence_time", tr.stopped_at, "s", suffix=variant)
+    half = slice(K // 2, None)
+    e_q, e_s = tr["plant.q"] - tr["ref.q_d"], tr["plant.sigma"] - tr["ref.sigma_d"]
+    e_m = np.hstack([tr["plant.qa"], tr["plant.qb"]]) - tr["ctrl.q_m_ref"]
+    tau_e, delta = tr["plant.tau_e"], gains["delta"]
+    offset = -np.asarray(delta) * (tau_e[:, :n] - tau_e[:, n:]) / np.asarray(gains["ksigma"])
+
+    def rms(e, sl=half):
+        return np.sqrt(np.mean(e[sl] ** 2, axis=0))
+    for i in range(n):
+        j, kw = i + 1, {"joint": i + 1, "suffix": variant}
+        m.add("position_rms_error", rms(e_q)[i], "rad", **kw)
+        m.add("stiffness_rms_error", rms(e_s)[i], "N m/rad", **kw)
+        m.add("stiffness_mean_error", e_s[half, i].mean(), "N m/rad", **kw)
+        if not variant.endswith("_integral"):
+            m.add("delta_offset_mean", offset[half, i].mean(), "N m/rad", **kw)
+        for s, col in (("a", i), ("b", n + i)):
+            m.add("motor_rms_error", rms(e_m)[col], "rad", joint=f"{j}{s}", suffix=variant)
+        for name, sl in (("start", slice(0, window)), ("end", slice(K - window, K))):
+            m.add(f"position_rms_error_{name}", rms(e_q, sl)[i], "rad", **kw)
+    m.add("motor_torque_max_abs", np.abs(tr["ctrl.tau_m"]).max(), "N m", suffix=variant)
+    m.add("near_singular_events", len(near_singular_events(tr.t, tr["ctrl.det"], delta)), "1",
+          suffix=variant)
+    m.add("simulated_seconds_per_wall_second", tr.realtime_factor, "s/s", suffix=variant)
+    return m
+
+
+def thesis_run(arm: ElectricArm, variant: str, *, duration: float = 40.0, dt: float = 1e-3,
+               chunk: int = 1000, initial: str = "zero", window: float = 5.0,
+               **gains) -> Metrics:
+    """Section 11.2's run of one cascade and its :func:`cascade_records` (a measurement
+    helper; ``window`` in s). ``gains`` override :data:`THESIS_GAINS` (a filter route
+    needs ``omega_f``); ``initial``: ``"zero"`` (π̂(0) = 0, as the thesis) or
+    ``"nominal"``."""
     g = {**THESIS_GAINS[variant], **gains}
     tr = cascade_scenario(arm, variant, g, dt=dt, duration=duration, chunk=chunk,
                           nominal=initial == "nominal").run()
-    finite = tr.stopped_at is None
-    K = tr.t.size
-    half = slice(K // 2, None)
-
-    def rms(e):
-        return np.sqrt(np.mean(e[half] ** 2, axis=0)).tolist() if finite else None
-
-    e_q = tr["plant.q"] - tr["ref.q_d"]
-    e_s = tr["plant.sigma"] - tr["ref.sigma_d"]
-    e_m = np.hstack([tr["plant.qa"], tr["plant.qb"]]) - tr["ctrl.q_m_ref"]
-    out = {"finite": finite, "simulated_seconds_per_wall_second": tr.realtime_factor,
-           "position_rms_error": rms(e_q), "stiffness_rms_error": rms(e_s),
-           "stiffness_mean_error": e_s[half].mean(0).tolist() if finite else None,
-           "motor_rms_error": rms(e_m),
-           "motor_torque_max_abs": float(np.abs(tr["ctrl.tau_m"]).max()) if finite else None,
-           "near_singular": near_singular_events(tr.t, tr["ctrl.det"], g["delta"])}
-    if not finite:
-        out["first_nonfinite_time"] = float(tr.stopped_at)
-    return out
+    return cascade_records(tr, variant, g, window=int(round(window / dt)))
 
 
 def cascade_figure(path, tr: Trace, title: str, *, parameter_nominal=None,
@@ -263,5 +283,35 @@ def cascade_figure(path, tr: Trace, title: str, *, parameter_nominal=None,
     for a in ax[-1]:
         a.set_xlabel("t [s]")
     fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+def feedback_figure(path, traces: Mapping[str, Trace], t_on: float) -> None:
+    """σ per joint under each fed-back source (``traces``: source -> trace, one of them
+    ``true_feedback``, whose estimates are drawn against the plant's σ), switch at
+    ``t_on``."""
+    # matplotlib is imported here: only figure-making runs pay its start-up time.
+    from matplotlib.figure import Figure
+    tr0 = traces["true_feedback"]
+    fig = Figure(figsize=(11, 8))
+    ax = fig.subplots(2, tr0["plant.sigma"].shape[1], sharex=True, squeeze=False)
+    for j in range(tr0["plant.sigma"].shape[1]):
+        ax[0, j].plot(tr0.t, tr0["ref.sigma_d"][:, j], "k--", lw=1, label="σ_d")
+        for s, tr in traces.items():
+            if tr.stopped_at is None:
+                ax[0, j].plot(tr.t, tr["plant.sigma"][:, j], lw=0.8, label=s)
+        ax[1, j].plot(tr0.t, tr0["plant.sigma"][:, j], "k", lw=1, label="σ (plant)")
+        for k in ("inv", "non"):
+            ax[1, j].plot(tr0.t, tr0[f"{k}.sigma_hat"][:, j], lw=0.8, label=f"σ̂ {k}")
+        ax[0, j].set_ylabel(f"σ{j + 1} [N m/rad]")
+        ax[1, j].set_ylabel(f"σ̂{j + 1}, loop on true σ")
+        ax[1, j].set_ylim(0, 2 * tr0["ref.sigma_d"][:, j].max())
+        ax[1, j].set_xlabel("t [s]")
+        for a in ax[:, j]:
+            a.axvline(t_on, color="0.6", lw=0.8)
+            a.legend(fontsize=7, loc="upper right")
+    fig.suptitle("Adaptive cascade with the fed-back σ from true, invasive and non-invasive "
+                 "estimates (switch at t_on)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
