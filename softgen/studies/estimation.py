@@ -124,12 +124,12 @@ def protocol_run(c: ProtocolConfig, model, label: str, sigma_d: Sinusoids,
     return ProtocolRun(c, t, q_d, sig, tr, truth, phi, excitation_std(phi, c.dt / c.gate_window))
 
 
-def estimator(model, method: str, c: QbmoveStudyConfig, *, gated: bool = True, name: str | None = None,
-              lowpass: float | None = None) -> EstimatorBase:
+def estimator(model, method: str, c: QbmoveStudyConfig, *, gated: bool = True,
+              name: str | None = None, lowpass: float | None = None) -> EstimatorBase:
     """The estimator of ``method`` with the settings of config ``c`` (dt, delay, powers,
-    p0 and, if ``gated``, the excitation gate ``gate_window``/``gate_threshold``)."""
-    W = getattr(c, "gate_window", None)
-    gate = ExcitationGate(W, c.gate_threshold) if gated and W else None
+    p0 and, if ``gated`` and ``c`` is a protocol's, its excitation gate)."""
+    gate = ExcitationGate(c.gate_window, c.gate_threshold) \
+        if gated and isinstance(c, ProtocolConfig) and c.gate_window else None
     p0 = c.p0 if isinstance(c.p0, float) else tuple(c.p0)
     return StiffnessEstimator(model, EstimatorConfig(
         method, dt=c.dt, delay=c.delay, powers=c.powers, p0=p0, gate=gate,
@@ -137,8 +137,8 @@ def estimator(model, method: str, c: QbmoveStudyConfig, *, gated: bool = True, n
 
 
 def qbmove_run(label: str, model, c: QbmoveStudyConfig, estimators: dict, *, K: int,
-               inputs: dict, x0: dict, servo: bool, ideal=(), spring_scale: float = 1.0, counts=None,
-               torque_noise: float = 0.0, seed: int = 0, link_damping=None
+               inputs: dict, x0: dict, servo: bool, ideal=(), spring_scale: float = 1.0,
+               counts=None, torque_noise: float = 0.0, seed: int = 0, link_damping=None
                ) -> tuple[Trace, QbmoveTruth]:
     """One emulated run: plant (servo-driven or open loop), sensors and the estimator
     blocks ``estimators`` (block name -> Block) in one diagram for K samples."""
