@@ -35,23 +35,15 @@ from pathlib import Path
 
 import numpy as np
 
-from softgen.blocks import ClosedLoop
-from softgen.blocks.sensors import encoder_block
-from softgen.control.electric import (cascade_block, electric_arm, plant_block,
-                                      sigma_feedback_block)
+from softgen.control.electric import electric_arm
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
 from softgen.experiments.registry import (Config, Experiment, Metrics, finding, graded,
                                           not_checked, num)
 from softgen.modelfile.model import load_model
 from softgen.runtime.simulate import Trace
-from softgen.studies.electric import (THESIS_GAINS, THESIS_REFERENCES, cascade_start,
-                                     feedback_figure)
+from softgen.studies.electric import (FEEDBACK_SOURCES, THESIS_GAINS, feedback_figure,
+                                     feedback_scenario)
 from softgen.studies.scenario import Scenario
-
-SOURCES = {"true_feedback": 0, "estimated_feedback_invasive": 1,
-           "estimated_feedback_noninvasive": 2, "delayed_true_feedback": 3}
-RECORD = ("ref.q_d", "ref.sigma_d", "plant.q", "plant.sigma", "sw.sigma_fb",
-          "inv.sigma_hat", "non.sigma_hat")
 
 
 @dataclass(frozen=True)
@@ -84,33 +76,20 @@ def scenario(c: ExtConfig, *, ideal: bool = False) -> tuple[Scenario, dict]:
     the plant's angles instead of encoders. The source is a parameter of each run."""
     model = load_model(c.model)
     arm = electric_arm(model, acceleration="measured", projection=True, sigma_input=True)
-    v = "adaptive_integral"
-    g = THESIS_GAINS[v].replace(b_min=c.b_min, lam_m=c.lam_m, kpi=c.kpi)
-    ests = {}
-    for name, method, powers, lp in (("inv", "electric", c.powers_invasive, None),
-                                     ("non", "noninvasive", c.powers_noninvasive,
-                                      c.lowpass_noninvasive or None)):
-        ests[name] = StiffnessEstimator(model, EstimatorConfig(
-            method, dt=c.dt, powers=powers, p0=c.p0, lowpass=lp),
-            name=f"{model.name}_{name}_feedback")
-    delay = ests["non"].config.delay + 1
-    n, ctrl = arm.n, cascade_block(arm, v, c.dt, gains=g)
-    blocks = [THESIS_REFERENCES.block(), ctrl, plant_block(arm, c.dt),
-              encoder_block("enc", {"q": n, "qa": n, "qb": n},
-                            None if ideal else c.counts_per_rev),
-              *(e.block(k) for k, e in ests.items()), sigma_feedback_block(n, delay)]
-    wires = [("inv.sigma_hat", "sw.sigma_inv"), ("non.sigma_hat", "sw.sigma_non"),
-             ("plant.sigma", "sw.sigma"), ("ctrl.tau_m", "inv.tau_motor")]
-    wires += [(f"enc.{s}_m", f"{e}.{s}") for e in ests for s in ("q", "qa", "qb")]
-    d = ClosedLoop("ext_estimated_stiffness_feedback" + ("_ideal" if ideal else ""), blocks,
-                   wires)
-    sc = Scenario(d.name, d, duration=c.duration, chunk=c.chunk, record=RECORD,
-                  x0=cascade_start(arm, v, g, ctrl), on_nonfinite="stop")
+    ests = {name: StiffnessEstimator(model, EstimatorConfig(
+        method, dt=c.dt, powers=powers, p0=c.p0, lowpass=lp),
+        name=f"{model.name}_{name}_feedback") for name, method, powers, lp in (
+            ("inv", "electric", c.powers_invasive, None),
+            ("non", "noninvasive", c.powers_noninvasive, c.lowpass_noninvasive or None))}
+    g = THESIS_GAINS["adaptive_integral"].replace(b_min=c.b_min, lam_m=c.lam_m, kpi=c.kpi)
+    sc = feedback_scenario("ext_estimated_stiffness_feedback" + ("_ideal" if ideal else ""),
+                           arm, "adaptive_integral", g, ests, dt=c.dt, duration=c.duration,
+                           chunk=c.chunk, counts_per_rev=None if ideal else c.counts_per_rev)
     return sc, {k: e.config.delay for k, e in ests.items()}
 
 
 def run_case(sc: Scenario, c: ExtConfig, source: str) -> Trace:
-    return sc.with_(duration=c.duration, params={"sw.source": SOURCES[source],
+    return sc.with_(duration=c.duration, params={"sw.source": FEEDBACK_SOURCES[source],
                                                  "sw.t_on": c.t_on}).run(label=f"ext {source}")
 
 

@@ -14,9 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from softgen.blocks import Block, ClosedLoop
+from softgen.blocks.sensors import encoder_block
 from softgen.control.electric import (REFERENCE_BLOCKS, ElectricArm, cascade_block,
                                       initial_plant_state, integral_start,
-                                      near_singular_events, plant_block, reference_block)
+                                      near_singular_events, plant_block, reference_block,
+                                      sigma_feedback_block)
+from softgen.estimation.estimators import StiffnessEstimator
 from softgen.core.metrics import Metrics
 from softgen.runtime.simulate import Trace
 from softgen.studies.scenario import Scenario
@@ -192,6 +195,38 @@ def cascade_scenario(arm: ElectricArm, variant: str, gains: Mapping, *, dt: floa
     return Scenario(d.name, d, duration=duration, chunk=chunk, record=tuple(record),
                     x0=cascade_start(arm, variant, gains, ctrl, refs=refs, nominal=nominal),
                     on_nonfinite="stop")
+
+
+#: The fed-back σ per value of the selector's ``source`` (:func:`sigma_feedback_block`).
+FEEDBACK_SOURCES = {"true_feedback": 0, "estimated_feedback_invasive": 1,
+                    "estimated_feedback_noninvasive": 2, "delayed_true_feedback": 3}
+
+#: What a feedback scenario records.
+FEEDBACK_RECORD = ("ref.q_d", "ref.sigma_d", "plant.q", "plant.sigma", "sw.sigma_fb",
+                   "inv.sigma_hat", "non.sigma_hat")
+
+
+def feedback_scenario(name: str, arm: ElectricArm, variant: str, gains: Mapping,
+                      estimators: Mapping[str, StiffnessEstimator], *, dt: float,
+                      duration: float, chunk: int = 1000, counts_per_rev: int | None = None,
+                      refs: CascadeReferences = THESIS_REFERENCES) -> Scenario:
+    """The cascade (``arm`` with ``sigma_input``) fed back a σ chosen by the selector
+    ``sw`` among the plant's, the invasive estimate (block ``inv``, reading the motor
+    torque), the non-invasive one (``non``) and the plant's delayed as the non-invasive
+    estimate is (L + 1 samples); both estimators read the encoders (``counts_per_rev``,
+    None: exact angles). ``sw.source`` (:data:`FEEDBACK_SOURCES`) and ``sw.t_on`` are
+    parameters of each run; the scenario stops at a non-finite value."""
+    n, ctrl = arm.n, cascade_block(arm, variant, dt, gains=gains)
+    blocks = [refs.block(), ctrl, plant_block(arm, dt),
+              encoder_block("enc", {"q": n, "qa": n, "qb": n}, counts_per_rev),
+              *(e.block(k) for k, e in estimators.items()),
+              sigma_feedback_block(n, estimators["non"].config.delay + 1)]
+    wires = [("inv.sigma_hat", "sw.sigma_inv"), ("non.sigma_hat", "sw.sigma_non"),
+             ("plant.sigma", "sw.sigma"), ("ctrl.tau_m", "inv.tau_motor")]
+    wires += [(f"enc.{s}_m", f"{e}.{s}") for e in estimators for s in ("q", "qa", "qb")]
+    d = ClosedLoop(name, blocks, wires)
+    return Scenario(d.name, d, duration=duration, chunk=chunk, record=FEEDBACK_RECORD,
+                    x0=cascade_start(arm, variant, gains, ctrl, refs=refs), on_nonfinite="stop")
 
 
 def cascade_records(tr: Trace, variant: str, gains: Mapping, *, window: int) -> Metrics:
