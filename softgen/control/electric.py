@@ -155,7 +155,7 @@ import casadi as ca
 import numpy as np
 
 from softgen.blocks import Block
-from softgen.core.errors import ModelError
+from softgen.core.errors import ModelError, ShapeError
 from softgen.modelfile.model import RobotModel
 from softgen.symbolic.actuated import electric_plant_fun
 from softgen.symbolic.actuators import QbmoveSprings
@@ -898,7 +898,7 @@ def reference_block(q_spec, sigma_spec, *, name: str = "ref") -> Block:
     """
     n = len(q_spec)
     if len(sigma_spec) != n:
-        raise ValueError(f"sigma_spec: expected {n} joints like q_spec, got {len(sigma_spec)}")
+        raise ShapeError(f"sigma_spec: expected {n} joints like q_spec, got {len(sigma_spec)}")
 
     def derivs(t, spec, order):
         o, a, w = (ca.DM([float(s[i]) for s in spec]) for i in range(3))

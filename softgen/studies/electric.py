@@ -20,6 +20,7 @@ from softgen.control.electric import (REFERENCE_BLOCKS, ElectricArm, cascade_blo
                                       near_singular_events, plant_block, reference_block,
                                       sigma_feedback_block)
 from softgen.estimation.estimators import StiffnessEstimator
+from softgen.core.errors import ShapeError
 from softgen.core.metrics import Metrics
 from softgen.runtime.simulate import Trace
 from softgen.studies.scenario import Scenario
@@ -53,7 +54,7 @@ class CascadeReferences:
 
     def __post_init__(self) -> None:
         if len(self.sigma) != len(self.q):
-            raise ValueError(f"sigma: expected {len(self.q)} joints like q, got "
+            raise ShapeError(f"sigma: expected {len(self.q)} joints like q, got "
                              f"{len(self.sigma)}")
 
     def block(self, name: str = "ref") -> Block:
