@@ -10,14 +10,12 @@ realising the link torque of the reference motion and σ_d with the *nominal* sp
 
 :func:`hardware_diagram` puts plant, encoders (quantised to counts), a noisy motor
 torque sensor and any number of stiffness estimators into one diagram: one generated
-loop runs the whole emulation. :func:`qbmove_truth` gives, after the run, the true
-spring torques, stiffness and rotatum Σ_j σ_j φ̇_j of the plant's springs (nominal ×
-``spring_scale``), vectorised with the model's own casadi Function.
+loop runs the whole emulation; what the plant's springs did along a run (the truth the
+estimates are compared with) is read in :mod:`softgen.studies.estimation`.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -119,44 +117,3 @@ def hardware_diagram(name: str, plant: Block, *, counts_per_rev: int | None = No
         if "tau_motor" in e.inputs:
             wires.append((tau_src, f"{e.name}.tau_motor"))
     return ClosedLoop(name, blocks, wires, externals=ext)
-
-
-@dataclass
-class QbmoveTruth:
-    """What the plant's springs do along a run (rows = samples)."""
-
-    tau_e: np.ndarray          # (K, n) total spring torque
-    sigma: np.ndarray          # (K, n) joint stiffness
-    rotatum: np.ndarray        # (K, n) τ̇_e = Σ σ_j φ̇_j
-    sigma_nominal: np.ndarray  # (K, n) stiffness of the nominal springs at the same state
-    spring_torque: np.ndarray  # (K, 2n) each spring's torque, agonists then antagonists
-    spring_stiffness: np.ndarray  # (K, 2n) each nominal spring's stiffness (unscaled)
-    deflection_rate: np.ndarray   # (K, 2n) φ̇_a, φ̇_b
-
-
-def qbmove_truth(model: RobotModel, x: Mapping[str, np.ndarray], spring_scale) -> QbmoveTruth:
-    """Truth from the plant signals ``x`` (``q, qd, qa, qad, qb, qbd``, each (K, n))."""
-    n = model.dof
-    f = QbmoveSprings(model).functions()[0][0]
-    q, qd, qa, qad, qb, qbd = (np.asarray(x[s]) for s in
-                               ("q", "qd", "qa", "qad", "qb", "qbd"))
-    ta, tb, _, sa, sb, _ = (np.array(v).T for v in f.map(q.shape[0])(q.T, qa.T, qb.T))
-    scale = np.broadcast_to(np.asarray(spring_scale, dtype=float), (2 * n,))
-    sca, scb = scale[:n], scale[n:]
-    return QbmoveTruth(sca * ta + scb * tb, sca * sa + scb * sb,
-                       sca * sa * (qd - qad) + scb * sb * (qd - qbd), sa + sb,
-                       np.hstack([ta, tb]) * scale, np.hstack([sa, sb]),
-                       np.hstack([qd - qad, qd - qbd]))
-
-
-def polynomial_fit_stiffness(phi: np.ndarray, spring_torque: np.ndarray, powers) -> np.ndarray:
-    """(K, n) joint stiffness of the best fit of Σ_p c_p φ^p (the RLS model class of the
-    invasive electric estimator) to each *true* spring torque, by least squares over
-    the given samples: how well the model class can do at all."""
-    n, pw = phi.shape[1] // 2, np.asarray(powers)
-    fit = np.zeros((phi.shape[0], n))
-    for j in range(2 * n):
-        x = phi[:, j]
-        coef, *_ = np.linalg.lstsq(x[:, None] ** pw, spring_torque[:, j], rcond=None)
-        fit[:, j % n] += (pw * x[:, None] ** np.maximum(pw - 1, 0)) @ coef
-    return fit

@@ -3,8 +3,7 @@
 The emulated run (plant, sensors and estimators in one diagram, run as a
 :class:`~softgen.studies.Scenario` by the one driver, truth after it), the
 per-variant indices of the experiments, and their figures. The machinery itself
-(blocks, estimators, the truth of a trace) is in :mod:`softgen.plants.qbmove` and
-:mod:`softgen.estimation`.
+(blocks, estimators) is in :mod:`softgen.plants.qbmove` and :mod:`softgen.estimation`.
 """
 from __future__ import annotations
 
@@ -23,14 +22,55 @@ from softgen.estimation.indices import (error_records, estimation_figure, excita
                                         window_mask)
 from softgen.estimation.offline import EstimationResult, estimation_result, recorded
 from softgen.estimation.rls import ExcitationGate, excitation_std
-from softgen.plants.qbmove import (QbmoveTruth, Sinusoids, hardware_diagram, motor_references,
-                                   phase_index, phased_references, qbmove_truth,
-                                   servo_initial_state)
+from softgen.modelfile.model import RobotModel
+from softgen.plants.qbmove import (Sinusoids, hardware_diagram, motor_references, phase_index,
+                                   phased_references, servo_initial_state)
 from softgen.runtime.simulate import Trace
 from softgen.studies.scenario import Scenario
 from softgen.symbolic.actuated import QBMOVE_STATE, electric_plant_block, servo_plant_block
 from softgen.symbolic.actuators import QbmoveSprings
 from softgen.symbolic.rigid import RigidDynamics
+
+
+@dataclass
+class QbmoveTruth:
+    """What the plant's springs do along a run (rows = samples)."""
+
+    tau_e: np.ndarray          # (K, n) total spring torque
+    sigma: np.ndarray          # (K, n) joint stiffness
+    rotatum: np.ndarray        # (K, n) τ̇_e = Σ σ_j φ̇_j
+    sigma_nominal: np.ndarray  # (K, n) stiffness of the nominal springs at the same state
+    spring_torque: np.ndarray  # (K, 2n) each spring's torque, agonists then antagonists
+    spring_stiffness: np.ndarray  # (K, 2n) each nominal spring's stiffness (unscaled)
+    deflection_rate: np.ndarray   # (K, 2n) φ̇_a, φ̇_b
+
+
+def qbmove_truth(model: RobotModel, x: Mapping[str, np.ndarray], spring_scale) -> QbmoveTruth:
+    """Truth from the plant signals ``x`` (``q, qd, qa, qad, qb, qbd``, each (K, n))."""
+    n = model.dof
+    f = QbmoveSprings(model).functions()[0][0]
+    q, qd, qa, qad, qb, qbd = (np.asarray(x[s]) for s in
+                               ("q", "qd", "qa", "qad", "qb", "qbd"))
+    ta, tb, _, sa, sb, _ = (np.array(v).T for v in f.map(q.shape[0])(q.T, qa.T, qb.T))
+    scale = np.broadcast_to(np.asarray(spring_scale, dtype=float), (2 * n,))
+    sca, scb = scale[:n], scale[n:]
+    return QbmoveTruth(sca * ta + scb * tb, sca * sa + scb * sb,
+                       sca * sa * (qd - qad) + scb * sb * (qd - qbd), sa + sb,
+                       np.hstack([ta, tb]) * scale, np.hstack([sa, sb]),
+                       np.hstack([qd - qad, qd - qbd]))
+
+
+def polynomial_fit_stiffness(phi: np.ndarray, spring_torque: np.ndarray, powers) -> np.ndarray:
+    """(K, n) joint stiffness of the best fit of Σ_p c_p φ^p (the RLS model class of the
+    invasive electric estimator) to each *true* spring torque, by least squares over
+    the given samples: how well the model class can do at all."""
+    n, pw = phi.shape[1] // 2, np.asarray(powers)
+    fit = np.zeros((phi.shape[0], n))
+    for j in range(2 * n):
+        x = phi[:, j]
+        coef, *_ = np.linalg.lstsq(x[:, None] ** pw, spring_torque[:, j], rcond=None)
+        fit[:, j % n] += (pw * x[:, None] ** np.maximum(pw - 1, 0)) @ coef
+    return fit
 
 
 @dataclass(frozen=True)
