@@ -7,9 +7,8 @@ import pytest
 
 from softgen.blocks import ClosedLoop
 from softgen.control.electric import (OUTPUTS, ElectricArm, cascade_block,
-                                      initial_plant_state, integral_start, plant_block,
-                                      reference_block)
-from softgen.control.electric_refs import THESIS_GAINS, sinusoid_references
+                                      initial_plant_state, integral_start, plant_block)
+from softgen.studies.electric import THESIS_GAINS, THESIS_REFERENCES, sinusoid_references
 from softgen.modelfile.model import load_model
 from softgen.symbolic.actuated import electric_plant_fun
 
@@ -96,7 +95,7 @@ def test_plant_and_reference_blocks_equal_their_functions(arm):
     sigma = (scale[:N] * s.k_a * s.a_a * np.cosh(s.a_a * (q - qa))
              + scale[N:] * s.k_b * s.a_b * np.cosh(s.a_b * (q - qb)))
     assert np.allclose(y[p.outputs.slice("sigma")], sigma, rtol=1e-13)
-    r = reference_block()
+    r = THESIS_REFERENCES.block()
     for t in rng.uniform(0, 40, 5):
         assert np.allclose(r.eval(u=[t])[1][r.outputs.slice("ref")],
                            sinusoid_references(t)[:, 0], rtol=1e-13, atol=1e-13)
@@ -108,7 +107,7 @@ def test_generated_diagram_equals_python_stepping(arm, need_compiler):
     v, K = "pd_integral", 30
     pd = ElectricArm(arm.model, dyn=arm.dyn, springs=arm.springs)
     g = THESIS_GAINS[v]
-    blocks = [reference_block(), cascade_block(pd, v, DT, gains=g), plant_block(pd, DT)]
+    blocks = [THESIS_REFERENCES.block(), cascade_block(pd, v, DT, gains=g), plant_block(pd, DT)]
     d = ClosedLoop("test_ch11_blocks", blocks)
     x = initial_plant_state(pd, lambda t: sinusoid_references(t)[:, 0])
     z = pd.initial_state(v, x, xi0=integral_start(pd, x, g["delta"], g["ki"]))
@@ -133,7 +132,7 @@ def test_bad_gains_raise_one_clear_error(arm):
     with pytest.raises(ValueError, match=r"^b_min: expected a positive-definite"):
         cascade_block(arm, "adaptive", DT, gains=g)
     blk = cascade_block(arm, "pd", DT, gains=THESIS_GAINS["pd"])
-    d = ClosedLoop("test_ch11_bad_gains", [reference_block(), blk, plant_block(arm, DT)])
+    d = ClosedLoop("test_ch11_bad_gains", [THESIS_REFERENCES.block(), blk, plant_block(arm, DT)])
     with pytest.raises(ValueError, match=r"ctrl\.ksigma: expected positive"):
         d.parameters({"ctrl.ksigma": -150.0})
 

@@ -12,14 +12,13 @@ import pytest
 
 from softgen.control.electric import (OUTPUTS, VARIANTS, ElectricArm, check_gains,
                                       delta_conditioning, delta_matrix,
-                                      electric_closed_loop_fun, initial_plant_state,
-                                      integral_start, near_singular_events, pd_gains_from_poles,
+                                      near_singular_events, pd_gains_from_poles,
                                       poles_from_pd_gains, quasi_steady_stiffness,
-                                      remark9_delta, run_closed_loop)
-from softgen.control.electric_refs import sinusoid_references
+                                      remark9_delta)
+from softgen.studies.electric import (THESIS_GAINS, cascade_scenario, sinusoid_references,
+                                     thesis_run)
 from softgen.core.errors import ModelError
 from softgen.modelfile.model import load_model
-from softgen.symbolic.actuated import electric_plant_fun
 
 N = 2
 #: Sample time given to the steps in the Lyapunov checks: the inner loop predicts the
@@ -323,15 +322,11 @@ def test_wrong_actuators_and_options_are_rejected():
         ElectricArm(load_model("arm_2link_electric")).step_fun("pid")
 
 
-def _thesis_pd(arm, T, dt=1e-3, steps=500):
-    gains = dict(kp_m=50, kd_m=25, kp=25, kd=10, ksigma=150, delta=70)
-    K = int(round(T / dt))
-    ref = sinusoid_references(dt * np.arange(K))
-    x0 = initial_plant_state(arm, lambda t: sinusoid_references(t)[:, 0], ksigma=150, delta=70)
-    loop = electric_closed_loop_fun(arm, "pd", steps=steps)
-    tr = run_closed_loop(arm, "pd", loop, x0=x0, z0=arm.initial_state("pd", x0), ref=ref,
-                         gains=gains, dt=dt)
-    return tr, ref, gains
+def _thesis_pd(arm, T, dt=1e-3, chunk=500):
+    """Section 11.2's PD run through the diagram and the one driver."""
+    g = THESIS_GAINS["pd"]
+    tr = cascade_scenario(arm, "pd", g, dt=dt, duration=T, chunk=chunk).run()
+    return tr, g
 
 
 def test_closed_loop_pd_with_the_thesis_gains_tracks(arm):
@@ -345,37 +340,19 @@ def test_closed_loop_pd_with_the_thesis_gains_tracks(arm):
     stiffness settles at the Δ offset of Remark 10: its mean error matches the
     quasi-steady −Δ(τ^e_a − τ^e_b)/k_σ within 5 % of the offset.
     """
-    tr, ref, g = _thesis_pd(arm, 3.0)
-    e = tr["x"][:, :N] - ref[:N].T
-    assert np.all(np.isfinite(tr["x"]))
+    tr, g = _thesis_pd(arm, 3.0)
+    e = tr["plant.q"] - tr["ref.q_d"]
+    assert tr.stopped_at is None
     assert np.abs(e).max() < 2 * np.pi / 8192
-    em = tr["x"][:, [2 * N, 2 * N + 1, 4 * N, 4 * N + 1]] - tr["q_m_ref"]
-    assert np.abs(em[tr["t"] >= 1.0]).max() < 2 * np.pi / 8192
-    q, qa, qb = tr["x"][:, :N], tr["x"][:, 2 * N:3 * N], tr["x"][:, 4 * N:5 * N]
-    sp = arm.springs
-    u = sp.k_a * np.sinh(sp.a_a * (q - qa)) - sp.k_b * np.sinh(sp.a_b * (q - qb))
+    em = np.hstack([tr["plant.qa"], tr["plant.qb"]]) - tr["ctrl.q_m_ref"]
+    assert np.abs(em[tr.t >= 1.0]).max() < 2 * np.pi / 8192
+    tau_e = tr["plant.tau_e"]
+    u = tau_e[:, :N] - tau_e[:, N:]
     late = slice(len(e) // 2, None)
-    e_sigma = (tr["sigma"] - ref[5 * N:6 * N].T)[late].mean(0)
+    e_sigma = (tr["plant.sigma"] - tr["ref.sigma_d"])[late].mean(0)
     predicted = (-g["delta"] * u / g["ksigma"])[late].mean(0)
     assert np.all(e_sigma < 0)                           # Δ offset: a non-zero mean
     assert np.allclose(e_sigma, predicted, rtol=0.05)
-
-
-def test_generated_loop_equals_python_stepped_loop(arm, steps):
-    dt, K = 1e-3, 20
-    ref = sinusoid_references(dt * np.arange(K))
-    gains = dict(kp_m=50, kd_m=25, kp=0.05, kd=0.75, ksigma=30, delta=70, ki=15)
-    x = initial_plant_state(arm, lambda t: sinusoid_references(t)[:, 0])
-    z = arm.initial_state("pd_integral", x, xi0=integral_start(arm, x, 70.0, 15.0))
-    loop = electric_closed_loop_fun(arm, "pd_integral", steps=K)
-    tr = run_closed_loop(arm, "pd_integral", loop, x0=x, z0=z, ref=ref, gains=gains, dt=dt)
-    plant = electric_plant_fun(arm.dyn, arm.springs, substeps=1)
-    gv = arm.gain_vectors("pd_integral", gains, dt=dt)
-    for k in range(K):
-        assert np.allclose(tr["x"][k], x, rtol=1e-12, atol=1e-14)
-        out = steps["pd_integral"](z, x, ref[:, k], *gv, dt)
-        x, z = _np(plant(x, out[1], np.ones(2 * N), dt)), _np(out[0])
-        assert np.allclose(tr["tau_m"][k], _np(out[1]), rtol=1e-12, atol=1e-14)
 
 
 def test_quasi_steady_start_is_at_rest(arm):
@@ -409,14 +386,17 @@ def test_compiled_steps_equal_casadi(tmp_path, need_compiler, arm, steps):
 
 
 def test_thesis_run_reports_metrics(arm):
-    from softgen.control.electric_refs import thesis_run
-    r = thesis_run(arm, "pd_integral", duration=1.0, steps=500)
-    assert r["finite"] and r["near_singular"] == []
-    assert len(r["position_rms_error"]) == N and len(r["motor_rms_error"]) == 2 * N
+    m = thesis_run(arm, "pd_integral", duration=1.0, chunk=500, window=0.2)
+    v = "pd_integral"
+    assert m.find("divergence_time", suffix=v) is None
+    assert m.value("near_singular_events", suffix=v) == 0
+    assert len(m.per_joint("position_rms_error", suffix=v)) == N
+    assert len(m.per_joint("motor_rms_error", suffix=v)) == 2 * N
     # The integral variant starts without the Δ offset (integral_start): measured
     # −0.19/−0.06 over this second (the offset still moves with σ_d); the PD variant
     # without integral holds −0.70/−0.31 (second half of a 5 s run).
-    assert np.all(np.abs(r["stiffness_mean_error"]) < 0.3)
+    mean = np.array(list(m.per_joint("stiffness_mean_error", suffix=v).values()))
+    assert mean.size == N and np.all(np.abs(mean) < 0.3)
 
 
 def test_measured_acceleration_route_keeps_the_velocity(routes):

@@ -1,4 +1,4 @@
-"""Blocks of the chapter-12 loops (softgen.control.soft, softgen.control.soft_study):
+"""Blocks of the chapter-12 loops (softgen.control.soft, softgen.studies.soft):
 blocks equal the bundle's step functions, the generated diagram equals Python stepping,
 references have exact derivatives, the shape trace ends at the segment tips."""
 from __future__ import annotations
@@ -9,8 +9,8 @@ import pytest
 from softgen.control.soft import (closed_loop_block, closed_loop_fun, controller_block,
                                   plant_block, plant_fun, reference_block, theorem10_fun,
                                   tip_force_block)
-from softgen.control.soft_study import (Scenario, convergence_time, noise_sequence,
-                                        sampled_loop, shape_trace, tracking_records)
+from softgen.studies.soft import (SoftCase, convergence_time, noise_sequence,
+                                  sampled_loop, shape_trace, tracking_records)
 from softgen.modelfile.model import load_model
 from softgen.runtime.simulate import simulate
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
@@ -109,7 +109,7 @@ def _pendulum_run(pendulum, backend):
     dyn, lin = pendulum
     loop = sampled_loop("t_ch12_pendulum", dyn, reference_block("ref", DT, (0.0, 0.0), 0.0),
                         DT, lin=lin)
-    sc = Scenario("", 0.3, 0.05, 0.01, 0.032, (5e-3, 0.0, 0.0), 0.02, (np.pi / 4, -np.pi / 4))
+    sc = SoftCase("", 0.3, 0.05, 0.01, 0.032, (5e-3, 0.0, 0.0), 0.02, (np.pi / 4, -np.pi / 4))
     steps = 60
     noise = noise_sequence(steps, 2, sc.noise_std, 7, on_velocity=False)
     x0 = loop.x0(-np.array(sc.initial_error), np.zeros(2))

@@ -155,7 +155,7 @@ import casadi as ca
 import numpy as np
 
 from softgen.blocks import Block
-from softgen.core.errors import ModelError
+from softgen.core.errors import ModelError, ShapeError
 from softgen.modelfile.model import RobotModel
 from softgen.symbolic.actuated import electric_plant_fun
 from softgen.symbolic.actuators import QbmoveSprings
@@ -721,51 +721,6 @@ def near_singular_events(t, det, delta, *, fraction: float = 0.1) -> list[dict]:
     return events
 
 
-# -- closed loop ------------------------------------------------------------------------------
-
-def electric_closed_loop_fun(arm: ElectricArm, variant: str, *, steps: int,
-                             substeps: int = 1) -> ca.Function:
-    """``<step name>_loop``: ``steps`` samples of the cascade + the electric plant.
-
-    One sample: the controller reads the plant state x (6n, exact measurement), its
-    torques are held over the sample while ``electric_plant_fun`` integrates eq. 11.1
-    with ``substeps`` RK4 steps. Inputs ``x0`` (6n), ``z0``, ``ref`` (9n × steps), the
-    gains of :meth:`ElectricArm.gain_layout`, ``spring_scale`` (2n; 1 = the plant's
-    springs equal the controller's), ``dt``. Outputs, one column per sample: ``x``
-    (after the sample), ``z`` (after), ``tau_m``, ``q_m_ref``, ``sigma`` and ``det``
-    (read at the sample). One RK4 step per 1 ms sample is enough for section 11.2's
-    runs: four gave the same rms errors to 4 digits (measured, 40 s PD runs).
-    """
-    if not isinstance(steps, int) or steps < 1:
-        raise ValueError(f"steps: expected a positive integer, got {steps!r}")
-    n = arm.n
-    ctrl = arm.step_fun(variant)
-    plant = electric_plant_fun(arm.dyn, arm.springs, substeps=substeps)
-    nz = ctrl.size1_in(0)
-    x, z = ca.SX.sym("x", 6 * n), ca.SX.sym("z", nz)
-    ref = ca.SX.sym("ref", 9 * n)
-    layout = arm.gain_layout(variant)
-    gs = [ca.SX.sym(name, size) for name, size in layout]
-    scale, dt = ca.SX.sym("spring_scale", 2 * n), ca.SX.sym("dt")
-    out = ctrl(z, x, ref, *gs, dt)
-    res = dict(zip(OUTPUTS, out))
-    x_next = plant(x, res["tau_m"], scale, dt)
-    one = ca.Function("one_sample", [ca.vertcat(x, z), ref, *gs, scale, dt],
-                      [ca.vertcat(x_next, res["z_next"]), res["tau_m"], res["q_m_ref"],
-                       res["sigma"], res["det"]], FUNCTION_OPTS)
-    loop = one.mapaccum("loop", steps, [0], [0])
-    X0, Z0 = ca.MX.sym("x0", 6 * n), ca.MX.sym("z0", nz)
-    Rm = ca.MX.sym("ref", 9 * n, steps)
-    gm = [ca.MX.sym(name, size) for name, size in layout]
-    Sm, Dm = ca.MX.sym("spring_scale", 2 * n), ca.MX.sym("dt")
-    XZ, T, Q, S, D = loop(ca.vertcat(X0, Z0), Rm, *gm, Sm, Dm)
-    names = [name for name, _ in layout]
-    return ca.Function(f"{ctrl.name()}_loop", [X0, Z0, Rm, *gm, Sm, Dm],
-                       [XZ[:6 * n, :], XZ[6 * n:, :], T, Q, S, D],
-                       ["x0", "z0", "ref", *names, "spring_scale", "dt"],
-                       ["x", "z", "tau_m", "q_m_ref", "sigma", "det"])
-
-
 def bundle_functions(model: RobotModel, *, dyn: RigidDynamics | None = None,
                      springs: QbmoveSprings | None = None) -> list[tuple[ca.Function, str]]:
     """Every cascade of ``model`` for its bundle: the four variants with model
@@ -867,44 +822,6 @@ def integral_start(arm: ElectricArm, x0, delta, ki) -> np.ndarray:
     return -np.asarray(delta, float) * (ta - tb) / np.asarray(ki, float)
 
 
-def run_closed_loop(arm: ElectricArm, variant: str, loop, *, x0, z0, ref, gains: dict,
-                    dt: float, spring_scale=None) -> dict:
-    """Run ``loop`` (:func:`electric_closed_loop_fun`, or its compiled version) over the
-    reference columns ``ref`` (9n × K, K a multiple of the loop's steps).
-
-    Gains are checked first (:func:`check_gains`). Returns traces with one row per
-    sample: ``t`` (K,), ``x`` (K × 6n, state *at* the sample), ``z`` (state at the
-    sample), ``tau_m``, ``q_m_ref``, ``sigma``, ``det``.
-    """
-    gv = arm.gain_vectors(variant, gains, dt=dt)
-    n = arm.n
-    ref = np.asarray(ref, dtype=float)
-    steps = loop.size_in(2)[1] if hasattr(loop, "size_in") else loop.in_shapes[2][1]
-    K = ref.shape[1]
-    if ref.shape[0] != 9 * n or K % steps:
-        raise ValueError(f"ref: expected {9 * n} rows and a multiple of {steps} columns, "
-                         f"got {ref.shape}")
-    scale = np.ones(2 * n) if spring_scale is None else np.asarray(spring_scale, float)
-    x, z = np.asarray(x0, float).ravel(), np.asarray(z0, float).ravel()
-    keys = ("x", "z", "tau_m", "q_m_ref", "sigma", "det")
-    chunks = {k: [] for k in keys}
-    X = [x[:, None]]
-    Z = [z[:, None]]
-    for c in range(K // steps):
-        out = loop(x, z, ref[:, c * steps:(c + 1) * steps], *gv, scale, dt)
-        out = [np.asarray(o, dtype=float).reshape(-1, steps, order="F") for o in out]
-        for k, o in zip(keys, out):
-            chunks[k].append(o)
-        x, z = out[0][:, -1].copy(), out[1][:, -1].copy()
-        X.append(out[0])
-        Z.append(out[1])
-    tr = {k: np.concatenate(v, axis=1).T for k, v in chunks.items() if k not in ("x", "z")}
-    tr["x"] = np.concatenate(X, axis=1)[:, :K].T
-    tr["z"] = np.concatenate(Z, axis=1)[:, :K].T
-    tr["t"] = dt * np.arange(K)
-    return tr
-
-
 # -- blocks (issue 10's architecture) ----------------------------------------------------------
 
 def cascade_block(arm: ElectricArm, variant: str, dt: float, *, gains: dict | None = None,
@@ -971,20 +888,17 @@ def plant_block(arm: ElectricArm, dt: float, *, substeps: int = 1, name: str = "
                         meta={"model": arm.name})
 
 
-def reference_block(q_spec=None, sigma_spec=None, *, name: str = "ref") -> Block:
-    """Section 11.2's references as a block reading ``t``, with exact derivatives.
+def reference_block(q_spec, sigma_spec, *, name: str = "ref") -> Block:
+    """Sinusoidal references as a block reading ``t``, with exact derivatives.
 
     q_{d,i} = o + A sin(ωt) and σ_{d,i} likewise, one (offset, amplitude, ω) per joint
-    (defaults: q_d = 1 + 0.5 sin(πt/10) on both joints, σ_1d = 8 + 3 sin(πt/8),
-    σ_2d = 4 + sin(πt/8)). Outputs ``ref`` (9n, :data:`REFERENCE_BLOCKS`: q_d and four
-    derivatives, σ_d and three), and ``q_d``, ``sigma_d`` alone.
+    (section 11.2's are data in :mod:`softgen.studies.electric`). Outputs ``ref`` (9n,
+    :data:`REFERENCE_BLOCKS`: q_d and four derivatives, σ_d and three), and ``q_d``,
+    ``sigma_d`` alone.
     """
-    from softgen.control.electric_refs import THESIS_Q, THESIS_SIGMA
-    q_spec = THESIS_Q if q_spec is None else q_spec
-    sigma_spec = THESIS_SIGMA if sigma_spec is None else sigma_spec
     n = len(q_spec)
     if len(sigma_spec) != n:
-        raise ValueError(f"sigma_spec: expected {n} joints like q_spec, got {len(sigma_spec)}")
+        raise ShapeError(f"sigma_spec: expected {n} joints like q_spec, got {len(sigma_spec)}")
 
     def derivs(t, spec, order):
         o, a, w = (ca.DM([float(s[i]) for s in spec]) for i in range(3))
@@ -1000,7 +914,7 @@ def reference_block(q_spec=None, sigma_spec=None, *, name: str = "ref") -> Block
     return Block.define(name, dt=None, inputs={"t": 1},
                         outputs=[("ref", 9 * n, ""), ("q_d", n, "rad"),
                                  ("sigma_d", n, "N m/rad")],
-                        body=body, doc="section 11.2 sinusoidal references")
+                        body=body, doc="sinusoidal references with their derivatives")
 
 
 # -- closing the stiffness loop with an estimator (issue 12, item 3) ---------------------------

@@ -1,12 +1,10 @@
 """Estimators over recorded measurements: a diagram to run, estimates aligned to samples.
 
 Estimation builds the blocks; the caller runs them through the one driver
-(:func:`softgen.runtime.simulate.simulate`), so this package imports neither the
-runtime nor the code generator::
-
-    d = offline_diagram(est)
-    tr = simulate(d, steps=len(Y), externals=split_measurements(est, Y))
-    res = estimation_result(est, tr)
+(:mod:`softgen.runtime.simulate`, e.g. as a :class:`softgen.studies.Scenario` of
+``offline_diagram(est)`` with ``externals=split_measurements(est, Y)``) and files the
+trace with ``estimation_result(est, trace)``, so this package imports neither the
+runtime nor the code generator.
 
 The step returns, at sample k, the estimates for sample k − L (the observer's
 delay); :func:`estimation_result` files them under the sample they refer to, so the
@@ -80,7 +78,7 @@ def estimation_result(est: EstimatorBase, trace, name: str = "est", *,
     ``trace[f"{name}.sigma_hat"]`` etc. are the block's outputs per sample k (estimates
     for k − L); row j of the result is sample j (NaN, or 0 for ``updating``, in the
     last L rows). ``samples``: the length of the log, when the run stopped early at a
-    non-finite value (``simulate(..., on_nonfinite="stop")``): the rows from there
+    non-finite value (the driver's ``on_nonfinite="stop"``): the rows from there
     on are NaN, as a diverged estimator's would be.
     """
     L = est.config.delay
@@ -108,5 +106,5 @@ OUTPUTS = ("sigma_hat", "tau_hat", "tau_uio", "updating", "theta")
 
 
 def recorded(name: str = "est") -> list[str]:
-    """The signals :func:`estimation_result` reads, for ``simulate(record=...)``."""
+    """The signals :func:`estimation_result` reads (the driver's ``record``)."""
     return [f"{name}.{o}" for o in OUTPUTS]

@@ -106,6 +106,9 @@ def excitation_std(s: np.ndarray, alpha: float) -> np.ndarray:
     sample k, as the gate sees it), as two first-order linear filters: m by
     lfilter, then v driven by α (s_k − m_{k−1})².
     """
+    # scipy.signal is imported here: its import is slow (9.6 s cumulative on this loaded
+    # machine, python -X importtime), and softgen.estimation keeps it off the import
+    # path of everything that does not need it (see softgen/estimation/__init__).
     from scipy.signal import lfilter
     s = np.asarray(s, dtype=float)
     # m_k = (1 − α) m_{k−1} + α s_k, started at m_{-1} = s_0.

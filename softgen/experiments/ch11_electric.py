@@ -31,22 +31,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
-from softgen.blocks import ClosedLoop
-from softgen.control.electric import (cascade_block, electric_arm, initial_plant_state,
-                                integral_start, near_singular_events, plant_block,
-                                reference_block)
-from softgen.control.electric_refs import THESIS_GAINS, cascade_figure, sinusoid_references
+from softgen.control.electric import electric_arm
+from softgen.experiments.registry import (Config, Experiment, Metrics, finding, graded,
+                                          not_checked, num)
 from softgen.modelfile.model import load_model
-from softgen.runtime.simulate import Trace, simulate
-from softgen.experiments.registry import (Config, Experiment, Metrics, absent, finding, graded, not_checked,
-                       num)
+from softgen.runtime.simulate import Trace
+from softgen.studies.electric import (THESIS_GAINS, cascade_figure, cascade_records,
+                                     cascade_scenario)
 
 FAMILIES = {"pd": ("pd", "pd_integral"), "adaptive": ("adaptive", "adaptive_integral")}
-STATE = ("q", "qd", "qa", "qad", "qb", "qbd")
-RECORD = ("ref.q_d", "ref.sigma_d", "plant.q", "plant.qa", "plant.qb", "plant.sigma",
-          "plant.tau_e", "ctrl.tau_m", "ctrl.q_m_ref", "ctrl.det")
 #: Windows (s) at the start and the end of a run for "starts worse, then learns".
 WINDOW = 5.0
 
@@ -75,88 +69,43 @@ class Ch11Config(Config):
                              f"{self.duration}")
 
 
-def gains(c: Ch11Config, variant: str, projection: bool = True) -> dict:
+def gains(c: Ch11Config, variant: str, projection: bool = True):
     """Section 11.2's gains (NOTES section 1), with the adaptive ones of the config."""
-    g = dict(THESIS_GAINS[variant])
+    g = THESIS_GAINS[variant]
     if variant.startswith("adaptive"):
-        g.update(lam_m=c.lam_m, **({"b_min": c.b_min} if projection else {}))
+        g = g.replace(lam_m=c.lam_m, b_min=c.b_min if projection else None)
         if variant.endswith("_integral"):
-            g["kpi"] = c.kpi_integral
+            g = g.replace(kpi=c.kpi_integral)
     return g
 
 
 def run_variant(c: Ch11Config, variant: str, *, projection: bool = True,
-                nominal: bool = False) -> Trace:
-    """One run of ``variant`` on section 11.2's references; stops at a non-finite value.
-
-    The plant starts on the references (quasi-steady stiffness without the integral,
-    the integral holding the Δ offset with it); estimates at 0 or (``nominal``) at π."""
-    adaptive, integral = variant.startswith("adaptive"), variant.endswith("_integral")
+                nominal: bool = False) -> tuple[Trace, object]:
+    """One run of ``variant`` on section 11.2's references (stops at a non-finite value):
+    :func:`softgen.studies.electric.cascade_scenario`; estimates at 0 or at π."""
+    adaptive = variant.startswith("adaptive")
     arm = electric_arm(load_model(c.model), acceleration=c.acceleration,
                        projection=projection and adaptive)
-    g = gains(c, variant, arm.projection)
-    d = ClosedLoop(f"ch11_{arm.step_name(variant)}_{round(1e6 * c.dt)}us",
-                   [reference_block(), cascade_block(arm, variant, c.dt, gains=g),
-                    plant_block(arm, c.dt)])
-    x0 = initial_plant_state(arm, lambda t: sinusoid_references(t)[:, 0],
-                             **({} if integral else dict(ksigma=g["ksigma"],
-                                                         delta=g["delta"])))
-    z0 = arm.initial_state(
-        variant, x0, xi0=integral_start(arm, x0, g["delta"], g["ki"]) if integral else None,
-        pi_hat0=arm.parameter_nominal if nominal else None,
-        pi_m_hat0=arm.motor_parameter_nominal if nominal else None)
-    init = {f"plant.{k}": x0[i * arm.n:(i + 1) * arm.n] for i, k in enumerate(STATE)}
-    init.update({f"ctrl.{k}": v for k, v in d.blocks["ctrl"].state.split(z0).items()})
-    rec = RECORD + (("ctrl.pi_hat", "ctrl.pi_m_hat") if adaptive else ())
-    tr = simulate(d, c.duration, x0=init, chunk=c.chunk, record=rec, on_nonfinite="stop",
-                  label=f"ch11 {variant}")
-    tr.meta.update(parameter_nominal=arm.parameter_nominal,
-                   motor_parameter_nominal=arm.motor_parameter_nominal)
-    return tr
+    sc = cascade_scenario(arm, variant, gains(c, variant, arm.projection), dt=c.dt,
+                          duration=c.duration, nominal=nominal, chunk=c.chunk)
+    return sc.run(label=f"ch11 {variant}"), arm
 
 
-def variant_metrics(tr: Trace, variant: str, delta, ksigma, c: Ch11Config) -> Metrics:
-    m, n = Metrics(), tr["plant.q"].shape[1]
-    K = int(round(c.duration / c.dt))
-    if tr.stopped_at is not None:
-        m.add("divergence_time", tr.stopped_at, "s", suffix=variant)
-        return m
-    half, w = slice(K // 2, None), int(round(WINDOW / c.dt))
-    e_q, e_s = tr["plant.q"] - tr["ref.q_d"], tr["plant.sigma"] - tr["ref.sigma_d"]
-    e_m = np.hstack([tr["plant.qa"], tr["plant.qb"]]) - tr["ctrl.q_m_ref"]
-    tau_e = tr["plant.tau_e"]      # Remark 10: at rest k_σ e_σ = −Δ(τ^e_a − τ^e_b)
-    offset = -np.asarray(delta) * (tau_e[:, :n] - tau_e[:, n:]) / np.asarray(ksigma)
-
-    def rms(e, sl=half):
-        return np.sqrt(np.mean(e[sl] ** 2, axis=0))
-    for i in range(n):
-        j = i + 1
-        m.add("position_rms_error", rms(e_q)[i], "rad", joint=j, suffix=variant)
-        m.add("stiffness_rms_error", rms(e_s)[i], "N m/rad", joint=j, suffix=variant)
-        m.add("stiffness_mean_error", e_s[half, i].mean(), "N m/rad", joint=j, suffix=variant)
-        if not variant.endswith("_integral"):
-            m.add("delta_offset_mean", offset[half, i].mean(), "N m/rad", joint=j,
-                  suffix=variant)
-        for s, col in (("a", i), ("b", n + i)):
-            m.add("motor_rms_error", rms(e_m)[col], "rad", joint=f"{j}{s}", suffix=variant)
-        for name, sl in (("start", slice(0, w)), ("end", slice(K - w, K))):
-            m.add(f"position_rms_error_{name}", rms(e_q, sl)[i], "rad", joint=j, suffix=variant)
-    m.add("motor_torque_max_abs", np.abs(tr["ctrl.tau_m"]).max(), "N m", suffix=variant)
-    m.add("near_singular_events", len(near_singular_events(tr.t, tr["ctrl.det"], delta)), "",
-          suffix=variant)
-    m.add("simulated_seconds_per_wall_second", tr.realtime_factor, "s/s", suffix=variant)
-    return m
+def variant_metrics(tr: Trace, variant: str, g, c: Ch11Config) -> Metrics:
+    return cascade_records(tr, variant, g, window=int(round(WINDOW / c.dt)))
 
 
 def run(c: Ch11Config, out: Path) -> Metrics:
     m = Metrics()
     for v in FAMILIES[c.family]:
         g = gains(c, v)
-        tr = run_variant(c, v)
-        m.extend(variant_metrics(tr, v, g["delta"], g["ksigma"], c))
+        tr, arm = run_variant(c, v)
+        m.extend(variant_metrics(tr, v, g, c))
         if tr.stopped_at is None:
             cascade_figure(out / f"fig{FIGURE_NUMBER[v].replace('.', '_')}_{v}.png", tr,
-                           f"Cascade {v}, two-link electric arm (cf. Fig. {FIGURE_NUMBER[v]})")
+                           f"Cascade {v}, two-link electric arm (cf. Fig. {FIGURE_NUMBER[v]})",
+                           parameter_nominal=arm.parameter_nominal,
+                           motor_parameter_nominal=arm.motor_parameter_nominal)
         if c.family != "adaptive" or not c.variants:
             continue
         printed = c.replace(lam_m=0.1, kpi_integral=7.0)
@@ -164,8 +113,7 @@ def run(c: Ch11Config, out: Path) -> Metrics:
                                ("unprojected_", c, {"projection": False}),
                                ("printed_gains_", printed, {}),
                                ("printed_gains_dt_1e-4_", printed.replace(dt=1e-4), {})):
-            tr = run_variant(cv, v, **kw)
-            m.extend(variant_metrics(tr, v, g["delta"], g["ksigma"], cv), prefix=prefix,
+            m.extend(variant_metrics(run_variant(cv, v, **kw)[0], v, g, cv), prefix=prefix,
                      keep=_summary)
     return m
 
@@ -176,96 +124,116 @@ def _summary(r) -> bool:
 
 
 FIGURE_NUMBER = dict(pd="11.2", pd_integral="11.3", adaptive="11.4", adaptive_integral="11.5")
-
-
 POSITION_TOL, MOTOR_TOL = 1e-2, 1e-2          # rad: issue 12's "Done when", and the inner loop
 MEAN_RATIO = 5.0                              # the integral cuts the mean error by > 5×
+JOINTS = (1, 2)
+
+
+def _values(m: Metrics, quantity: str, variants, prefix: str = "", joints=JOINTS) -> dict:
+    """``{(variant, joint): value}`` of ``quantity``; None where a record is absent."""
+    return {(v, j): (r.value if (r := m.find(quantity, joint=j, prefix=prefix, suffix=v))
+                     else None) for v in variants for j in joints}
+
+
+def _lost(quantity: str, vals: dict) -> list[str]:
+    return [f"{quantity} ({v}, joint {j})" for (v, j), x in vals.items() if x is None]
 
 
 def _findings(family: str):
     plain, integ = FAMILIES[family]
-    both, joints = (plain, integ), (1, 2)
-
-    def check(out, m, claim, keys, judge):
-        if lost := absent(m, keys):
-            out.append(not_checked(claim, lost))
-        else:
-            out.append(finding(claim, *judge()))
+    both = (plain, integ)
 
     def findings(m: Metrics, c: Config | None = None) -> list[dict]:
-        """Section 11.2's claims against the metrics (thresholds in each evidence text)."""
+        """Section 11.2's claims against the metric records (thresholds in each evidence)."""
         out = []
         for v in both:
-            if (tdiv := m.get(f"divergence_time_{v}")) is not None:
+            if (r := m.find("divergence_time", suffix=v)) is not None:
                 out.append(finding(f"Section 11.2: the {v} cascade runs the whole simulation.",
-                                   "not reproduced", f"Non-finite at t = {num(tdiv)} s."))
-        keys = [f"motor_rms_error_joint{j}{s}_{v}" for v in both for j in joints for s in "ab"]
-        worst = lambda: max(keys, key=lambda k: m[k])  # noqa: E731
-        check(out, m, "Section 11.2: the desired motor positions are well tracked in the inner "
-              "loop.", keys, lambda: (graded([m[k] < MOTOR_TOL for k in keys]),
-                                      f"Largest motor rms error (second half) {num(m[worst()])}"
-                                      f" rad (`{worst()}`); threshold < {MOTOR_TOL:g} rad."))
-        pos = [f"position_rms_error_joint{j}_{v}" for v in both for j in joints]
-        check(out, m, "Section 11.2: the link positions converge to their references.", pos,
-              lambda: (graded([m[k] < POSITION_TOL for k in pos]),
-                       "Position rms error over the second half: " + ", ".join(
-                           f"{num(m[k])} rad (`{k}`)" for k in pos)
-                       + f"; threshold < {POSITION_TOL:g} rad."))
-        mean = [f"stiffness_mean_error_joint{j}_{plain}" for j in joints]
-        pred = [f"delta_offset_mean_joint{j}_{plain}" for j in joints]
-        check(out, m, "Section 11.2: without the integral term the stiffness error has a "
-              "non-zero mean, caused by the Δ term.", mean + pred,
-              lambda: (graded([abs(m[a]) > 0.05 and abs(m[a] - m[b]) < 0.2 * abs(m[b])
-                               for a, b in zip(mean, pred)]),
-                       "Mean stiffness error (second half) " + ", ".join(
-                           f"joint {j}: {num(m[a])} N m/rad against −Δ(τ^e_a − τ^e_b)/k_σ = "
-                           f"{num(m[b])}" for j, a, b in zip(joints, mean, pred))
-                       + "; required: |mean| > 0.05 N m/rad and within 20 % of the Δ offset "
-                       "of Remark 10."))
-        mi = [f"stiffness_mean_error_joint{j}_{integ}" for j in joints]
-        ratio = lambda j: abs(m[mi[j - 1]]) / abs(m[mean[j - 1]])  # noqa: E731
-        check(out, m, "Section 11.2 (Remarks 10-11): the integral term removes the mean "
-              "stiffness error.", mean + mi,
-              lambda: (graded([ratio(j) < 1 / MEAN_RATIO for j in joints]),
-                       "|mean with| / |mean without| = " + ", ".join(
-                           f"{num(ratio(j))} (joint {j})" for j in joints)
-                       + f"; required < 1/{MEAN_RATIO:g} per joint."))
-        if family != "adaptive":
-            return out
-        w = [(p, x) for p, x in (("", "start"), ("", "end"), ("nominal_start_", "start"))]
-        keys = [f"{p}position_rms_error_{x}_joint{j}_{v}" for v in both for j in joints
-                for p, x in w]
-        trio = lambda v, j: [m[f"{p}position_rms_error_{x}_joint{j}_{v}"]  # noqa: E731
-                             for p, x in w]
-        check(out, m, "Section 11.2: the adaptive controller starts with a larger error than "
-              "with known parameters, and the error shrinks as the parameters are learned.",
-              keys, lambda: (graded([trio(v, j)[0] > trio(v, j)[2] and trio(v, j)[1]
-                                     < trio(v, j)[0] for v in both for j in joints]),
-                             "; ".join(f"{v} joint {j}: first {WINDOW:g} s {num(trio(v, j)[0])}"
-                                       f" rad (known parameters {num(trio(v, j)[2])}), last "
-                                       f"{WINDOW:g} s {num(trio(v, j)[1])}"
-                                       for v in both for j in joints) + "."))
-        runs = [(p, v) for p in ("unprojected_", "printed_gains_", "printed_gains_dt_1e-4_")
-                for v in both]
-        tdiv = {r: m.get(f"{r[0]}divergence_time_{r[1]}") for r in runs}
-        pos = {r: [m.get(f"{r[0]}position_rms_error_joint{j}_{r[1]}") for j in joints]
-               for r in runs}
-        ok = [tdiv[r] is None and all(x is not None and x < POSITION_TOL for x in pos[r])
-              for r in runs]
-        claim = ("Section 11.2: from every estimate at 0 (motor inertia b̂ included) with the "
-                 "printed gains the adaptive cascades track.")
-        if all(tdiv[r] is None and pos[r][0] is None for r in runs):
-            return out + [not_checked(claim, [f"{p}position_rms_error_joint1_{v}"
-                                              for p, v in runs])]
-        out.append(finding(claim, graded(ok), "; ".join(
-                f"{p}{v}: " + (f"diverged at t = {num(tdiv[p, v])} s" if tdiv[p, v] is not None
-                               else "position rms " + ", ".join(
-                                   "absent" if x is None else f"{num(x)} rad"
-                                   for x in pos[p, v])) for p, v in runs)
-            + f"; required: no divergence, position rms < {POSITION_TOL:g} rad."))
-        return out
+                                   "not reproduced", f"Non-finite at t = {num(r.value)} s."))
+        claim = "Section 11.2: the desired motor positions are well tracked in the inner loop."
+        mot = _values(m, "motor_rms_error", both, joints=[f"{j}{s}" for j in JOINTS
+                                                           for s in "ab"])
+        if lost := _lost("motor_rms_error", mot):
+            out.append(not_checked(claim, lost))
+        else:
+            (v, j), worst = max(mot.items(), key=lambda kv: kv[1])
+            out.append(finding(claim, graded([x < MOTOR_TOL for x in mot.values()]),
+                               f"Largest motor rms error (second half) {num(worst)} rad "
+                               f"({v}, motor {j}); threshold < {MOTOR_TOL:g} rad."))
+        claim = "Section 11.2: the link positions converge to their references."
+        pos = _values(m, "position_rms_error", both)
+        if lost := _lost("position_rms_error", pos):
+            out.append(not_checked(claim, lost))
+        else:
+            out.append(finding(claim, graded([x < POSITION_TOL for x in pos.values()]),
+                               "Position rms error over the second half: " + ", ".join(
+                                   f"{num(x)} rad ({v}, joint {j})" for (v, j), x in pos.items())
+                               + f"; threshold < {POSITION_TOL:g} rad."))
+        mean = _values(m, "stiffness_mean_error", both)
+        pred = _values(m, "delta_offset_mean", [plain])
+        claim = ("Section 11.2: without the integral term the stiffness error has a non-zero "
+                 "mean, caused by the Δ term.")
+        if lost := _lost("stiffness_mean_error", _values(m, "stiffness_mean_error", [plain])) \
+                + _lost("delta_offset_mean", pred):
+            out.append(not_checked(claim, lost))
+        else:
+            a, b = ({j: d[plain, j] for j in JOINTS} for d in (mean, pred))
+            out.append(finding(claim, graded([abs(a[j]) > 0.05 and abs(a[j] - b[j])
+                                              < 0.2 * abs(b[j]) for j in JOINTS]),
+                               "Mean stiffness error (second half) " + ", ".join(
+                                   f"joint {j}: {num(a[j])} N m/rad against −Δ(τ^e_a − τ^e_b)"
+                                   f"/k_σ = {num(b[j])}" for j in JOINTS)
+                               + "; required: |mean| > 0.05 N m/rad and within 20 % of the Δ "
+                               "offset of Remark 10."))
+        claim = "Section 11.2 (Remarks 10-11): the integral term removes the mean stiffness error."
+        if lost := _lost("stiffness_mean_error", mean):
+            out.append(not_checked(claim, lost))
+        else:
+            ratio = {j: abs(mean[integ, j]) / abs(mean[plain, j]) for j in JOINTS}
+            out.append(finding(claim, graded([ratio[j] < 1 / MEAN_RATIO for j in JOINTS]),
+                               "|mean with| / |mean without| = " + ", ".join(
+                                   f"{num(ratio[j])} (joint {j})" for j in JOINTS)
+                               + f"; required < 1/{MEAN_RATIO:g} per joint."))
+        return out if family != "adaptive" else out + _adaptive_findings(m, both)
 
     return findings
+
+
+def _adaptive_findings(m: Metrics, both) -> list[dict]:
+    out = []
+    claim = ("Section 11.2: the adaptive controller starts with a larger error than with known "
+             "parameters, and the error shrinks as the parameters are learned.")
+    start, end = (_values(m, f"position_rms_error_{x}", both) for x in ("start", "end"))
+    known = _values(m, "position_rms_error_start", both, prefix="nominal_start_")
+    lost = [f"{p}position_rms_error_{x} ({v}, joint {j})"
+            for p, x, d in (("", "start", start), ("", "end", end), ("nominal_start_", "start",
+                                                                     known))
+            for (v, j), val in d.items() if val is None]
+    if lost:
+        out.append(not_checked(claim, lost))
+    else:
+        out.append(finding(claim, graded([start[k] > known[k] and end[k] < start[k]
+                                          for k in start]), "; ".join(
+            f"{v} joint {j}: first {WINDOW:g} s {num(start[v, j])} rad (known parameters "
+            f"{num(known[v, j])}), last {WINDOW:g} s {num(end[v, j])}" for v, j in start) + "."))
+    runs = [(p, v) for p in ("unprojected_", "printed_gains_", "printed_gains_dt_1e-4_")
+            for v in both]
+    tdiv = {r: (x.value if (x := m.find("divergence_time", prefix=r[0], suffix=r[1])) else None)
+            for r in runs}
+    pos = {r: list(_values(m, "position_rms_error", [r[1]], prefix=r[0]).values())
+           for r in runs}
+    claim = ("Section 11.2: from every estimate at 0 (motor inertia b̂ included) with the "
+             "printed gains the adaptive cascades track.")
+    if all(tdiv[r] is None and pos[r][0] is None for r in runs):
+        return out + [not_checked(claim, [f"{p}position_rms_error ({v})" for p, v in runs])]
+    ok = [tdiv[r] is None and all(x is not None and x < POSITION_TOL for x in pos[r])
+          for r in runs]
+    out.append(finding(claim, graded(ok), "; ".join(
+        f"{p}{v}: " + (f"diverged at t = {num(tdiv[p, v])} s" if tdiv[p, v] is not None
+                       else "position rms " + ", ".join("absent" if x is None else f"{num(x)} rad"
+                                                        for x in pos[p, v])) for p, v in runs)
+        + f"; required: no divergence, position rms < {POSITION_TOL:g} rad."))
+    return out
 
 
 _DISCUSSION = (

@@ -28,26 +28,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from softgen.estimation.indices import mse, msrep
-from softgen.runtime.simulate import save_traces
-from softgen.modelfile.model import load_model
-from softgen.plants.qbmove import polynomial_fit_stiffness, run_figure
-from softgen.symbolic.actuators import QbmoveSprings
-from softgen.experiments.estimation_common import estimator, figures, qbmove_run, variant_records
 from softgen.experiments.registry import Config, Experiment, Metrics, finding, num, times
+from softgen.modelfile.model import load_model
+from softgen.runtime.simulate import save_traces
+from softgen.studies.estimation import (QbmoveStudyConfig, estimator, figures,
+                                        polynomial_fit_stiffness, qbmove_run, run_figure,
+                                        variant_records)
+from softgen.symbolic.actuators import QbmoveSprings
 
 
 @dataclass(frozen=True)
-class ElectricInvasiveConfig(Config):
+class ElectricInvasiveConfig(QbmoveStudyConfig):
     model: str = "planar_2link"
     duration: float = 60.0
-    dt: float = 1e-3
     substeps: int = 10              # RK4 at 0.1 ms: the motor-spring modes reach ~600 rad/s
     torque_amplitude: float = 0.15  # N m
     torque_frequency: tuple[float, ...] = (0.25, 0.06, 0.17, 0.08)  # Hz: τ_11, τ_12, τ_21, τ_22
-    powers: tuple[int, ...] = (1, 3, 5, 7)
-    p0: float = 1e8
-    delay: int = 2
-    metric_window: tuple[float, float] | None = None
     link_damping: float = 0.5       # N m s/rad on each link (see the module docstring)
     undamped_variant: bool = True
     runaway_speed: float = 20.0     # rad/s: a link faster than this has run away
@@ -72,7 +68,7 @@ def run(c: ElectricInvasiveConfig, out) -> Metrics:
         cp = c.replace(torque_amplitude=c.torque_amplitude * (1 + c.perturbation))
         m.extend(_run(cp, out, None, "perturbed_"), prefix="undamped_perturbed_",
                  keep=lambda r: r.quantity in ("stiffness_mse", "max_link_speed"))
-        m.add("undamped_perturbation", c.perturbation, "")
+        m.add("undamped_perturbation", c.perturbation, "1")
     return m
 
 
@@ -123,44 +119,47 @@ def _run(c: ElectricInvasiveConfig, out, beta, pre: str) -> Metrics:
 
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Table 6.1 within 10× (damped run); runaway links reported (both runs)."""
-    ok = [m[f"stiffness_mse_joint{j}"] < 10 * THESIS[f"stiffness_mse_joint{j}"] for j in (1, 2)]
+    mse_ = m.per_joint("stiffness_mse")
+    ok = [mse_[j] < 10 * THESIS[f"stiffness_mse_joint{j}"] for j in mse_]
+    tq = m.per_joint("torque_mse")
     out = [finding(
         "Table 6.1: stiffness MSE 1.8e-7 / 1.9e-7 (joints 1/2) under open-loop torques",
         "reproduced" if all(ok) else "partly reproduced" if any(ok) else "not reproduced",
-        f"with link damping {num(m['link_damping'])} N m s/rad: stiffness MSE "
-        f"{num(m['stiffness_mse_joint1'])} / {num(m['stiffness_mse_joint2'])} "
-        f"({times(m['stiffness_mse_joint1'], 1.84e-7)} / "
-        f"{times(m['stiffness_mse_joint2'], 1.92e-7)} the thesis's; threshold 10×), torque "
-        f"MSE {num(m['torque_mse_joint1'])} / {num(m['torque_mse_joint2'])}")]
+        f"with link damping {num(m.value('link_damping'))} N m s/rad: stiffness MSE "
+        + " / ".join(f"{num(v)} ({times(v, THESIS[f'stiffness_mse_joint{j}'])} the "
+                     "thesis's)" for j, v in mse_.items())
+        + "; threshold 10×; torque MSE " + " / ".join(num(v) for v in tq.values()))]
+    bound = m.value("runaway_speed_bound")
     for pre in ("", "undamped_"):
-        if f"{pre}max_link_speed_joint1" not in m:
+        v = m.per_joint("max_link_speed", prefix=pre)
+        if not v:
             continue
-        v = [m[f"{pre}max_link_speed_joint{j}"] for j in (1, 2)]
+        angle = m.per_joint("max_abs_link_angle", prefix=pre)
+        s = m.per_joint("stiffness_mse", prefix=pre)
         out.append(finding(
             f"{'Damped' if not pre else 'Undamped'} run: the links stay below "
-            f"{num(m['runaway_speed_bound'])} rad/s (no runaway)",
-            "reproduced" if max(v) < m["runaway_speed_bound"] else "not reproduced",
-            f"largest link speeds {num(v[0])} / {num(v[1])} rad/s, link angles up to "
-            f"{num(m[f'{pre}max_abs_link_angle_joint1'])} / "
-            f"{num(m[f'{pre}max_abs_link_angle_joint2'])} rad, deflections up to "
-            f"{num(m[f'{pre}max_abs_deflection'])} rad, fastest motor mode "
-            f"{num(m[f'{pre}motor_mode_max_rad_s'])} rad/s (Nyquist "
-            f"{num(m['nyquist_rad_s'])}); stiffness MSE {num(m[f'{pre}stiffness_mse_joint1'])}"
-            f" / {num(m[f'{pre}stiffness_mse_joint2'])}"))
-    keys = ["undamped_stiffness_mse_joint1", "undamped_perturbed_stiffness_mse_joint1",
-            "undamped_max_link_speed_joint2", "undamped_perturbed_max_link_speed_joint2"]
-    if all(k in m for k in keys):
-        a, b = m[keys[0]], m[keys[1]]
+            f"{num(bound)} rad/s (no runaway)",
+            "reproduced" if max(v.values()) < bound else "not reproduced",
+            "largest link speeds " + " / ".join(num(x) for x in v.values()) + " rad/s, link "
+            "angles up to " + " / ".join(num(x) for x in angle.values()) + " rad, "
+            f"deflections up to {num(m.value('max_abs_deflection', prefix=pre))} rad, "
+            f"fastest motor mode {num(m.value('motor_mode_max_rad_s', prefix=pre))} rad/s "
+            f"(Nyquist {num(m.value('nyquist_rad_s'))}); stiffness MSE "
+            + " / ".join(num(x) for x in s.values())))
+    got = [m.find(q, joint=j, prefix=p) for p in ("undamped_", "undamped_perturbed_")
+           for q, j in (("stiffness_mse", 1), ("max_link_speed", 2))]
+    if None not in got:
+        (a, sp), (b, sp2) = (got[0].value, got[1].value), (got[2].value, got[3].value)
         change = abs(b - a) / abs(a) if a else float("inf")
         out.append(finding(
             "Section 6.2.3 as printed (no link damping): the undamped runaway is "
             "reproducible enough to compare with Table 6.1",
             "not reproduced" if change > 1e-3 else "reproduced",
-            f"changing the torque amplitude by {num(m['undamped_perturbation'])} (relative) "
-            f"moves the undamped stiffness MSE of joint 1 from {num(a)} to {num(b)} "
-            f"(relative change {num(change)}) and the peak speed of link 2 from "
-            f"{num(m[keys[2]])} to {num(m[keys[3]])} rad/s: the runaway is chaotic, its "
-            "indices are orders of magnitude only (threshold 1e-3 relative)"))
+            f"changing the torque amplitude by {num(m.value('undamped_perturbation'))} "
+            f"(relative) moves the undamped stiffness MSE of joint 1 from {num(a)} to {num(b)} "
+            f"(relative change {num(change)}) and the peak speed of link 2 from {num(sp)} to "
+            f"{num(sp2)} rad/s: the runaway is chaotic, its indices are orders of magnitude "
+            "only (threshold 1e-3 relative)"))
     return out
 
 

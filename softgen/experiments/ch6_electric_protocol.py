@@ -33,39 +33,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softgen.estimation.indices import excitation_records, mse, msrep
-from softgen.estimation.rls import excitation_std
-from softgen.runtime.simulate import save_traces
-from softgen.modelfile.model import load_model
-from softgen.plants.qbmove import (motor_references, phase_index, phased_references,
-                             protocol_figure, servo_initial_state)
-from softgen.experiments.estimation_common import (achieved_records, estimator, figures, measured_deflections,
-                                qbmove_run, variant_records)
+from softgen.estimation.indices import mse, msrep
 from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
+from softgen.modelfile.model import load_model
+from softgen.runtime.simulate import save_traces
+from softgen.studies.estimation import (ProtocolConfig, estimator, figures, protocol_run,
+                                        variant_records)
 
 
 @dataclass(frozen=True)
-class ElectricProtocolConfig(Config):
-    models: tuple[str, str] = ("qbmove_1dof", "planar_2link")
-    two_dof: bool = True
-    dt: float = 5e-3
-    phase_duration: float = 200.0
+class ElectricProtocolConfig(ProtocolConfig):
     # per phase: (q_d is the sinusoid, sigma_d is the sinusoid); else their offsets
     phases: tuple[tuple[bool, bool], ...] = ((True, True), (True, False), (False, True))
     q_d: tuple[float, float, float] = (0.53, 0.2, np.pi / 4)     # offset, amplitude, omega
     sigma_d: tuple[float, float, float] = (5.0, 2.5, np.pi / 8)
-    substeps: int = 20
-    servo_bandwidth: float = 1000.0
-    spring_scale: float = 1.2
-    encoder_counts: int = 8192
     torque_noise: float = 1e-3
-    seed: int = 0
-    powers: tuple[int, ...] = (1, 3, 5, 7)
-    p0: float = 1e8
-    delay: int = 2
-    gate_window: float = 2.0
-    gate_threshold: float = 5e-3
-    metric_window: tuple[float, float] | None = None       # None: t >= 10 % of the run
 
 
 THESIS = {
@@ -82,63 +64,49 @@ THESIS = {
 
 def run(c: ElectricProtocolConfig, out) -> Metrics:
     m, traces = Metrics(), {}
-    K = int(round(len(c.phases) * c.phase_duration / c.dt)) + 1
-    t = np.arange(K) * c.dt
-    phase = phase_index(t, c.phase_duration, len(c.phases))
     for dof, name in enumerate(c.models[:1 + c.two_dof], start=1):
         model = load_model(name)
         n, pre = model.dof, "dof1_" if dof == 1 else ""
-        q_d, qd_d, qdd_d, sigma_d = phased_references(
-            t, (c.q_d,) * n, (c.sigma_d,) * n,
-            phase_duration=c.phase_duration, phases=c.phases)
-        refs = motor_references(model, q_d, qd_d, qdd_d, sigma_d)
         ests = {"stop": estimator(model, "electric", c)}
         if dof == 1:
             ests = {"drift": estimator(model, "electric", c, gated=False), **ests}
-        tr, truth = qbmove_run(
-            f"ch6_protocol_{model.name}", model, c, {k: e.block(k) for k, e in ests.items()},
-            K=K, inputs={"q_ref": refs}, x0=servo_initial_state(q_d, qd_d, refs), servo=True,
-            spring_scale=c.spring_scale, counts=c.encoder_counts, torque_noise=c.torque_noise,
-            seed=c.seed)
-        phi = measured_deflections(tr)
-        std = excitation_std(phi, c.dt / c.gate_window)
-        excitation_records(m, t, phase, std, c.gate_window, prefix=pre)
-        achieved_records(m, truth, sigma_d, prefix=pre)
+        r = protocol_run(c, model, f"ch6_protocol_{model.name}", (c.sigma_d,) * n,
+                         {k: e.block(k) for k, e in ests.items()})
+        r.records(m, prefix=pre)
         for tag, est in ests.items():
-            mv, res, mask = variant_records(tr, truth, est, tag, c.metric_window,
-                                            truth.tau_e, phase)
+            mv, res, mask = variant_records(r.tr, r.truth, est, tag, c.metric_window,
+                                            r.truth.tau_e, r.phase)
             # Per spring: each motor's RLS model Σ_p π̂_p φ_j^p at the measured
             # deflection against the plant's spring torque, pooled over the two sides.
             for i in range(n):
                 e, tt = [], []
                 for s, col in (("a", i), ("b", i + n)):
-                    reg = np.stack([phi[:, col] ** p for p in c.powers], axis=1)
+                    reg = np.stack([r.phi[:, col] ** p for p in c.powers], axis=1)
                     e.append(np.sum(reg * res.theta[f"joint{i + 1}{s}"], axis=1)[mask])
-                    tt.append(truth.spring_torque[mask, col])
+                    tt.append(r.truth.spring_torque[mask, col])
                 e, tt = np.concatenate(e), np.concatenate(tt)
                 mv.add("spring_torque_mse", mse(tt, e), "(N m)^2", joint=i + 1)
                 mv.add("spring_torque_msrep", msrep(tt, e), "%", joint=i + 1)
             m.extend(mv, prefix=f"{pre}{tag}_" if dof == 1 else "")
             traces.update({f"dof{dof}_{tag}_sigma_hat": res.sigma_hat,
                            f"dof{dof}_{tag}_updating": res.updating})
-            figures(out, f"{pre}{tag}_" if dof == 1 else "dof2_", tr, truth.sigma, truth.tau_e, res, est,
+            figures(out, f"{pre}{tag}_" if dof == 1 else "dof2_", r.tr, r.truth.sigma,
+                    r.truth.tau_e, res, est,
                     f"{dof}-DoF, {'no update stop' if tag == 'drift' else 'stop'}")
-        traces.update({f"dof{dof}_q": tr["plant.q"], f"dof{dof}_sigma": truth.sigma,
-                       f"dof{dof}_sigma_nominal": truth.sigma_nominal})
-        protocol_figure(out / f"dof{dof}_protocol.png", t, tr["plant.q"], q_d, truth.sigma,
-                        sigma_d, phi, std, threshold=c.gate_threshold, window=c.gate_window,
-                        boundaries=np.arange(1, len(c.phases)) * c.phase_duration,
-                        updating={k: traces[f"dof{dof}_{k}_updating"] for k in ests})
-    m.add("metric_window_start", t[mask][0], "s")
-    m.add("metric_window_end", t[mask][-1], "s")
-    save_traces(out / "traces.npz", t=t, **traces)
+        traces.update({f"dof{dof}_q": r.tr["plant.q"], f"dof{dof}_sigma": r.truth.sigma,
+                       f"dof{dof}_sigma_nominal": r.truth.sigma_nominal})
+        r.figure(out / f"dof{dof}_protocol.png",
+                 {k: traces[f"dof{dof}_{k}_updating"] for k in ests})
+    m.add("metric_window_start", r.t[mask][0], "s")
+    m.add("metric_window_end", r.t[mask][-1], "s")
+    save_traces(out / "traces.npz", t=r.t, **traces)
     return m
 
 
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Table 6.2: the update stop removes a drift. The emulation has none to remove."""
-    d = [m[f"dof1_drift_stiffness_mse_joint1_phase{k}"] for k in (1, 2, 3)]
-    s = [m[f"dof1_stop_stiffness_mse_joint1_phase{k}"] for k in (1, 2, 3)]
+    d, s = ([m.value("stiffness_mse", joint=1, phase=k, prefix=f"dof1_{tag}_")
+             for k in (1, 2, 3)] for tag in ("drift", "stop"))
     drift = d[1] > 3 * d[0] or d[2] > 3 * d[0]
     return [finding(
         "Table 6.2: without the update stop the stiffness estimate drifts in the "
@@ -146,10 +114,11 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
         "reproduced" if drift and s[1] < d[1] else "not reproduced",
         "stiffness MSE per phase without the stop " + ", ".join(num(x) for x in d)
         + "; with it " + ", ".join(num(x) for x in s) + "; update fraction in phase 2 "
-        f"{num(m['dof1_stop_update_fraction_phase2'])} (a drift: phase 2 or 3 above 3× "
-        f"phase 1). Against the datasheet springs MSE "
-        f"{num(m['dof1_stop_vs_nominal_stiffness_mse_joint1'])}: the model error, not the "
-        "estimator. The emulated spring is a static function of φ (no hysteresis or wear)")]
+        f"{num(m.value('update_fraction', phase=2, prefix='dof1_stop_'))} (a drift: phase 2 "
+        "or 3 above 3× phase 1). Against the datasheet springs MSE "
+        f"{num(m.value('vs_nominal_stiffness_mse', joint=1, prefix='dof1_stop_'))}: the model "
+        "error, not the estimator. The emulated spring is a static function of φ (no "
+        "hysteresis or wear)")]
 
 
 EXPERIMENT = Experiment(

@@ -111,7 +111,7 @@ def _run(c: PneumaticInvasiveConfig, out, *, figures: bool) -> Metrics:
     for name, k in (("tau_rate", 0), ("sigma_qd", 1)):
         m.add(f"observer_error_{name}_coef", coef[k] / (-c.dt / 2), "-T/2")
         m.add(f"observer_error_{name}_rms", np.sqrt(np.mean((coef[k] * terms[:, k]) ** 2)), "N m")
-    m.add("observer_error_fit_r2", 1 - np.sum((e - terms @ coef) ** 2) / np.sum(e ** 2), "")
+    m.add("observer_error_fit_r2", 1 - np.sum((e - terms @ coef) ** 2) / np.sum(e ** 2), "1")
     m.add("estimator_seconds_per_step", tr.wall_seconds / K, "s")
     m.add("metric_window_start", t[mask][0], "s")
     m.add("metric_window_end", t[mask][-1], "s")
@@ -128,35 +128,33 @@ def _run(c: PneumaticInvasiveConfig, out, *, figures: bool) -> Metrics:
 
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Fig. 6.2-6.3: the estimate converges; the printed MSEs need the Euler plant."""
+    msrep, mse = (m.value(q, joint=1) for q in ("stiffness_msrep", "stiffness_mse"))
     out = [finding("Fig. 6.2-6.3: stiffness estimated with MSREP of the thesis's order "
-                   "(0.45 %)", "reproduced" if m["stiffness_msrep_joint1"] < 4.5 else
-                   "not reproduced",
-                   f"stiffness MSREP {num(m['stiffness_msrep_joint1'])} % (threshold 10× the "
-                   f"thesis's); MSE {num(m['stiffness_mse_joint1'])} against 1.2e-5, "
-                   f"{times(m['stiffness_mse_joint1'], 1.2e-5)}")]
-    k = "diagnostic_euler_plant_stiffness_mse_joint1"
-    if k in m:
-        ok = m[k] < 10 * 1.2e-5
+                   "(0.45 %)", "reproduced" if msrep < 4.5 else "not reproduced",
+                   f"stiffness MSREP {num(msrep)} % (threshold 10× the thesis's); MSE "
+                   f"{num(mse)} against 1.2e-5, {times(mse, 1.2e-5)}")]
+    diag = {tag: m.find("stiffness_mse", joint=1, prefix=f"diagnostic_{tag}_")
+            for tag in ("euler_plant", "T_half", "T_quarter")}
+    if None not in diag.values():
+        euler = diag["euler_plant"].value
+        obs = m.value("observer_torque_mse", joint=1, prefix="diagnostic_euler_plant_")
         out.append(finding(
             "Table of section 6.1.3: stiffness MSE 1.2e-5 (on the thesis's discrete model)",
-            "reproduced" if ok else "not reproduced",
-            f"on the Euler plant (the observer's own model) MSE {num(m[k])} "
-            f"({times(m[k], 1.2e-5)} the thesis's), observer torque MSE "
-            f"{num(m['diagnostic_euler_plant_observer_torque_mse_joint1'])}; on the continuous "
-            f"plant at T, T/2, T/4: {num(m['stiffness_mse_joint1'])}, "
-            f"{num(m['diagnostic_T_half_stiffness_mse_joint1'])}, "
-            f"{num(m['diagnostic_T_quarter_stiffness_mse_joint1'])} (O(T²))"))
+            "reproduced" if euler < 10 * 1.2e-5 else "not reproduced",
+            f"on the Euler plant (the observer's own model) MSE {num(euler)} "
+            f"({times(euler, 1.2e-5)} the thesis's), observer torque MSE {num(obs)}; on the "
+            f"continuous plant at T, T/2, T/4: {num(mse)}, {num(diag['T_half'].value)}, "
+            f"{num(diag['T_quarter'].value)} (O(T²))"))
+    v = {q: m.value(f"observer_error_{q}") for q in (
+        "fit_r2", "sigma_qd_rms", "tau_rate_rms", "tau_rate_coef", "sigma_qd_coef")}
     out.append(finding(
         "Mechanism (issue 13): the observer's torque error is e ≈ −(T/2) τ̇ − (T/2) σ q̇, "
-        "the σ q̇ term larger", "reproduced" if m["observer_error_fit_r2"] > 0.9 and
-        m["observer_error_sigma_qd_rms"] > m["observer_error_tau_rate_rms"] else
-        "not reproduced",
-        f"least squares on this run: coefficients {num(m['observer_error_tau_rate_coef'])} "
-        f"and {num(m['observer_error_sigma_qd_coef'])} × (−T/2), R² "
-        f"{num(m['observer_error_fit_r2'])}; rms of the σ q̇ term "
-        f"{num(m['observer_error_sigma_qd_rms'])} N m, "
-        f"{times(m['observer_error_sigma_qd_rms'], m['observer_error_tau_rate_rms'])} the "
-        f"τ̇ term's {num(m['observer_error_tau_rate_rms'])}"))
+        "the σ q̇ term larger", "reproduced" if v["fit_r2"] > 0.9 and
+        v["sigma_qd_rms"] > v["tau_rate_rms"] else "not reproduced",
+        f"least squares on this run: coefficients {num(v['tau_rate_coef'])} and "
+        f"{num(v['sigma_qd_coef'])} × (−T/2), R² {num(v['fit_r2'])}; rms of the σ q̇ term "
+        f"{num(v['sigma_qd_rms'])} N m, {times(v['sigma_qd_rms'], v['tau_rate_rms'])} the "
+        f"τ̇ term's {num(v['tau_rate_rms'])}"))
     return out
 
 

@@ -21,27 +21,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softgen.runtime.simulate import save_traces
+from softgen.experiments.registry import Config, Experiment, Metrics, finding, not_checked, num
 from softgen.modelfile.model import load_model
 from softgen.plants.qbmove import (Sinusoids, motor_references, phased_references,
-                             servo_initial_state)
-from softgen.experiments.estimation_common import estimator, figures, qbmove_run, variant_records
-from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
+                                   servo_initial_state)
+from softgen.runtime.simulate import save_traces
+from softgen.studies.estimation import (QbmoveStudyConfig, estimator, figures, qbmove_run,
+                                        variant_records)
 
 
 @dataclass(frozen=True)
-class NoninvasiveConfig(Config):
+class NoninvasiveConfig(QbmoveStudyConfig):
     model: str = "pendulum_qbmove"
     duration: float = 60.0
-    dt: float = 1e-3
-    substeps: int = 10
-    servo_bandwidth: float = 300.0           # rad/s, the motors' own position loop
     q_d: Sinusoids = ((0.0, 0.3, np.pi / 4),)
     sigma_d: Sinusoids = ((5.0, 2.0, np.pi / 6),)
     powers: tuple[int, ...] = (0, 2, 4)
-    p0: float = 1e8
     delay: int = 3
-    metric_window: tuple[float, float] | None = None
 
 
 CONFIG_2DOF = NoninvasiveConfig(
@@ -84,15 +80,17 @@ def run(c: NoninvasiveConfig, out) -> Metrics:
 
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Fig. 7.2-7.3 show the estimate on the true stiffness: MSREP below 1 %."""
-    js = [k[-1] for k in m if k.startswith("stiffness_msrep_joint")]
-    ok = [m[f"stiffness_msrep_joint{j}"] < 1.0 for j in js]
-    return [finding("Fig. 7.2-7.3: the non-invasive estimate follows the true stiffness",
+    claim = "Fig. 7.2-7.3: the non-invasive estimate follows the true stiffness"
+    msrep, mse = m.per_joint("stiffness_msrep"), m.per_joint("stiffness_mse")
+    if not msrep:
+        return [not_checked(claim, ["stiffness_msrep (per joint)"])]
+    ok = [v < 1.0 for v in msrep.values()]
+    return [finding(claim,
                     "reproduced" if all(ok) else "partly reproduced" if any(ok)
                     else "not reproduced",
-                    "stiffness MSREP " + ", ".join(
-                        f"joint {j}: {num(m[f'stiffness_msrep_joint{j}'])} %" for j in js)
-                    + " (threshold 1 %); MSE " + ", ".join(
-                        num(m[f"stiffness_mse_joint{j}"]) for j in js))]
+                    "stiffness MSREP " + ", ".join(f"joint {j}: {num(v)} %"
+                                                   for j, v in msrep.items())
+                    + " (threshold 1 %); MSE " + ", ".join(num(v) for v in mse.values()))]
 
 
 EXPERIMENT_1DOF = Experiment(

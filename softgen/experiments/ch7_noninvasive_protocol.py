@@ -34,39 +34,28 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from softgen.estimation.indices import excitation_records, mse, noise_records, window_mask
-from softgen.estimation.rls import excitation_std
-from softgen.modelfile.model import load_model
-from softgen.plants.qbmove import (Sinusoids, motor_references, phase_index, phased_references,
-                             protocol_figure, servo_initial_state)
-from softgen.experiments.estimation_common import (achieved_records, estimator, figures, measured_deflections,
-                                qbmove_run, variant_records)
+from softgen.estimation.indices import mse, noise_records, window_mask
 from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
+from softgen.plants.qbmove import Sinusoids
+from softgen.modelfile.model import load_model
+from softgen.studies.estimation import (ProtocolConfig, estimator, figures, measured_deflections,
+                                        protocol_run, variant_records)
 
 
 @dataclass(frozen=True)
-class NoninvasiveProtocolConfig(Config):
-    models: tuple[str, str] = ("qbmove_1dof", "planar_2link")
-    two_dof: bool = True
-    dt: float = 5e-3
+class NoninvasiveProtocolConfig(ProtocolConfig):
     phase_duration: float = 400.0
     phases: tuple[tuple[bool, bool], ...] = ((True, True), (False, True))
     q_d: tuple[float, float, float] = (0.4, 0.2, np.pi / 4)
     sigma_d: tuple[float, float, float] = (2.0, 1.0, np.pi / 6)
     sigma_d_dof2: Sinusoids = ((5.0, 1.0, np.pi / 6), (4.0, 1.0, np.pi / 6))
-    substeps: int = 20
-    servo_bandwidth: float = 1000.0
-    spring_scale: float = 1.2
-    encoder_counts: int = 8192
     powers: tuple[int, ...] = (0, 2, 4, 6)
-    p0: tuple[float, ...] = (1.0, 1e3, 1e5, 1e5, 1.0, 1e3, 1e5, 1e5)
+    p0: float | tuple[float, ...] = (1.0, 1e3, 1e5, 1e5, 1.0, 1e3, 1e5, 1e5)
     p0_dof2: tuple[tuple[float, ...], ...] = ((1.0, 1e2, 1e4, 1e5, 1.0, 1e2, 1e4, 1e5),
                                               (1.0, 10.0, 1e5, 1e7, 1.0, 10.0, 1e5, 1e7))
     delay: int = 3
-    gate_window: float = 2.0
-    gate_threshold: float = 5e-3
     freeze_time: float = 200.0
-    metric_window: tuple[float, float] = (200.0, 800.0)
+    metric_window: tuple[float, float] | None = (200.0, 800.0)
     diagnostics: bool = True      # also the 1-DoF estimator on unquantised encoders
     lowpass: float = 0.5          # Hz: identical low-pass of target and regressor (issue 13)
 
@@ -89,16 +78,10 @@ THESIS = {
 
 def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
     m = Metrics()
-    K = int(round(len(c.phases) * c.phase_duration / c.dt)) + 1
-    t = np.arange(K) * c.dt
-    phase = phase_index(t, c.phase_duration, len(c.phases))
+    t = c.samples()
     for dof, name in enumerate(c.models[:1 + c.two_dof], start=1):
         model = load_model(name)
         n, pre = model.dof, "" if dof == 1 else "dof2_"
-        q_d, qd_d, qdd_d, sigma_d = phased_references(
-            t, (c.q_d,) * n, (c.sigma_d,) if dof == 1 else c.sigma_d_dof2,
-            phase_duration=c.phase_duration, phases=c.phases)
-        refs = motor_references(model, q_d, qd_d, qdd_d, sigma_d)
         gated, free = estimator(model, "noninvasive", c), \
             estimator(model, "noninvasive", c, gated=False)
         p0 = None if dof == 1 else c.p0_dof2
@@ -111,21 +94,18 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
             if c.diagnostics:
                 variants["ideal"] = (gated, gated.block("ideal"))
         hold = (t >= c.freeze_time).astype(float)[:, None]
-        tr, truth = qbmove_run(
-            f"ch7_protocol_{model.name}", model, c, {k: b for k, (_, b) in variants.items()},
-            K=K, inputs={"q_ref": refs, **({"hold": hold} if dof == 1 else {})},
-            x0=servo_initial_state(q_d, qd_d, refs), servo=True, ideal=("ideal",),
-            spring_scale=c.spring_scale, counts=c.encoder_counts)
-        phi = measured_deflections(tr)
-        std = excitation_std(phi, c.dt / c.gate_window)
-        mh = excitation_records(Metrics(), t, phase, std, c.gate_window)
-        achieved_records(mh, truth, sigma_d)
+        r = protocol_run(c, model, f"ch7_protocol_{model.name}",
+                         (c.sigma_d,) if dof == 1 else c.sigma_d_dof2,
+                         {k: b for k, (_, b) in variants.items()},
+                         inputs={"hold": hold} if dof == 1 else {}, ideal=("ideal",))
+        tr, truth = r.tr, r.truth
+        mh = r.records(Metrics())
         updating = {}
         for tag, (est, _) in variants.items():
             # The thesis compares with the datasheet (model) springs: so does the headline.
             ref = replace(truth, sigma=truth.sigma_nominal) if tag == "filt" else truth
             mv, res, _ = variant_records(tr, ref, est, tag, c.metric_window, truth.rotatum,
-                                         phase)
+                                         r.phase)
             updating[tag] = res.updating
             if tag in ("filt", "ideal"):
                 noise_records(mv, tr.t, truth.rotatum, res, measured_deflections(
@@ -144,12 +124,10 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
         w = window_mask(t, c.metric_window, res)      # the emulated model error itself:
         for i in range(n):
             mh.add("datasheet_vs_plant_stiffness_mse", mse(truth.sigma_nominal[w, i],
-                                                           truth.sigma[w, i]), "", joint=i + 1)
+                                                           truth.sigma[w, i]), "(N m/rad)^2",
+                   joint=i + 1)
         m.extend(mh, prefix=pre)
-        protocol_figure(out / f"{pre}protocol.png", t, tr["plant.q"], q_d, truth.sigma,
-                        sigma_d, phi, std, threshold=c.gate_threshold, window=c.gate_window,
-                        boundaries=np.arange(1, len(c.phases)) * c.phase_duration,
-                        updating=updating)
+        r.figure(out / f"{pre}protocol.png", updating)
     mask = window_mask(t, c.metric_window, res)
     m.add("lowpass_hz", c.lowpass, "Hz")
     m.add("metric_window_start", t[mask][0], "s")
@@ -160,12 +138,14 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Section 7.4: stiffness MSE 3.8e-5 (1-DoF) and 1.9e-4 / 3.8e-4 (2-DoF) on hardware."""
     out = []
-    for pre, joints, thesis in (("", (1,), (3.8e-5,)), ("dof2_", (1, 2), (1.9e-4, 3.8e-4))):
-        if f"{pre}stiffness_mse_joint1" not in m:
+    for pre, thesis in (("", (3.8e-5,)), ("dof2_", (1.9e-4, 3.8e-4))):
+        g = {label: list(m.per_joint(q, prefix=pre + p).values()) for label, q, p in (
+            ("stiffness_mse", "stiffness_mse", ""),
+            ("plant_stiffness_mse", "stiffness_mse", "plant_"),
+            ("datasheet_vs_plant_stiffness_mse", "datasheet_vs_plant_stiffness_mse", ""),
+            ("unfiltered_stiffness_mse", "stiffness_mse", "unfiltered_"))}
+        if not g["stiffness_mse"]:
             continue
-        g = {k: [m[f"{pre}{k}_joint{j}"] for j in joints] for k in (
-            "stiffness_mse", "plant_stiffness_mse", "datasheet_vs_plant_stiffness_mse",
-            "unfiltered_stiffness_mse")}
         ok = [[v < 100 * t for v, t in zip(g[k], thesis)] for k in
               ("stiffness_mse", "plant_stiffness_mse")]
         f = lambda k: " / ".join(num(v) for v in g[k])   # noqa: E731
@@ -174,22 +154,28 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
             + " / ".join(num(t) for t in thesis) + " on hardware with encoders",
             "reproduced" if all(ok[0]) else "partly reproduced" if all(ok[1])
             else "not reproduced",
-            f"filtered estimator ({num(m['lowpass_hz'])} Hz, target and regressor alike): "
-            f"MSE {f('stiffness_mse')} against the datasheet springs as the thesis, of which "
-            f"the emulated 20 % spring mismatch alone is {f('datasheet_vs_plant_stiffness_mse')}"
-            f"; against the plant's springs {f('plant_stiffness_mse')} (threshold 100× the "
-            f"thesis's); unfiltered {f('unfiltered_stiffness_mse')}"))
-    if "ideal_sensors_stiffness_mse_joint1" in m:
+            f"filtered estimator ({num(m.value('lowpass_hz'))} Hz, target and regressor "
+            f"alike): MSE {f('stiffness_mse')} against the datasheet springs as the thesis, of "
+            f"which the emulated 20 % spring mismatch alone is "
+            f"{f('datasheet_vs_plant_stiffness_mse')}; against the plant's springs "
+            f"{f('plant_stiffness_mse')} (threshold 100× the thesis's); unfiltered "
+            f"{f('unfiltered_stiffness_mse')}"))
+    ideal = m.find("stiffness_mse", joint=1, prefix="ideal_sensors_")
+    if ideal is not None:
+        v = {(q, p): m.value(q, joint=1, prefix=p) for q, p in (
+            ("rotatum_uio_rms_error", ""), ("rotatum_rms", ""),
+            ("rotatum_uio_rms_error", "ideal_sensors_"), ("stiffness_mse", "nostop_"),
+            ("stiffness_mse", "freeze_"))}
         out.append(finding(
             "Diagnosis: without the filter the estimate fails because of the encoders' "
             "quantisation, differenced three times over T³, not the estimator",
-            "reproduced" if m["ideal_sensors_stiffness_mse_joint1"] < 1e-2 else "not reproduced",
-            f"observer rotatum error {num(m['rotatum_uio_rms_error_joint1'])} N m/s rms "
-            f"against a rotatum of {num(m['rotatum_rms_joint1'])}; the same run read by "
-            f"unquantised encoders: MSE {num(m['ideal_sensors_stiffness_mse_joint1'])}, "
-            f"rotatum error {num(m['ideal_sensors_rotatum_uio_rms_error_joint1'])}; without "
-            f"the gate {num(m['nostop_stiffness_mse_joint1'])}, frozen "
-            f"{num(m['freeze_stiffness_mse_joint1'])}: neither stop helps"))
+            "reproduced" if ideal.value < 1e-2 else "not reproduced",
+            f"observer rotatum error {num(v['rotatum_uio_rms_error', ''])} N m/s rms against a "
+            f"rotatum of {num(v['rotatum_rms', ''])}; the same run read by unquantised "
+            f"encoders: MSE {num(ideal.value)}, rotatum error "
+            f"{num(v['rotatum_uio_rms_error', 'ideal_sensors_'])}; without the gate "
+            f"{num(v['stiffness_mse', 'nostop_'])}, frozen {num(v['stiffness_mse', 'freeze_'])}"
+            ": neither stop helps"))
     return out
 
 

@@ -34,24 +34,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from matplotlib.figure import Figure
 
-from softgen.blocks import ClosedLoop
-from softgen.blocks.sensors import encoder_block
-from softgen.control.electric import (cascade_block, electric_arm, initial_plant_state,
-                                integral_start, plant_block, reference_block,
-                                sigma_feedback_block)
-from softgen.control.electric_refs import THESIS_GAINS, sinusoid_references
+from softgen.control.electric import electric_arm
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
+from softgen.experiments.registry import (Config, Experiment, Metrics, finding, graded,
+                                          not_checked, num)
 from softgen.modelfile.model import load_model
-from softgen.runtime.simulate import Trace, simulate
-from softgen.experiments.registry import Config, Experiment, Metrics, absent, finding, graded, not_checked, num
-
-STATE = ("q", "qd", "qa", "qad", "qb", "qbd")
-SOURCES = {"true_feedback": 0, "estimated_feedback_invasive": 1,
-           "estimated_feedback_noninvasive": 2, "delayed_true_feedback": 3}
-RECORD = ("ref.q_d", "ref.sigma_d", "plant.q", "plant.sigma", "sw.sigma_fb",
-          "inv.sigma_hat", "non.sigma_hat")
+from softgen.runtime.simulate import Trace
+from softgen.studies.electric import (FEEDBACK_SOURCES, THESIS_GAINS, feedback_figure,
+                                     feedback_scenario)
+from softgen.studies.scenario import Scenario
 
 
 @dataclass(frozen=True)
@@ -79,41 +71,26 @@ class ExtConfig(Config):
                              f"{self.t_on}, {self.settle}, {self.duration}")
 
 
-def diagram(c: ExtConfig, *, ideal: bool = False):
-    """The loop; ``ideal``: the estimators read the plant's angles instead of encoders."""
+def scenario(c: ExtConfig, *, ideal: bool = False) -> tuple[Scenario, dict]:
+    """The loop as a scenario and the estimators' delays; ``ideal``: the estimators read
+    the plant's angles instead of encoders. The source is a parameter of each run."""
     model = load_model(c.model)
     arm = electric_arm(model, acceleration="measured", projection=True, sigma_input=True)
-    v = "adaptive_integral"
-    g = dict(THESIS_GAINS[v], b_min=c.b_min, lam_m=c.lam_m, kpi=c.kpi)
-    ests = {}
-    for name, method, powers, lp in (("inv", "electric", c.powers_invasive, None),
-                                     ("non", "noninvasive", c.powers_noninvasive,
-                                      c.lowpass_noninvasive or None)):
-        ests[name] = StiffnessEstimator(model, EstimatorConfig(
-            method, dt=c.dt, powers=powers, p0=c.p0, lowpass=lp),
-            name=f"{model.name}_{name}_feedback")
-    delay = ests["non"].config.delay + 1
-    n = arm.n
-    blocks = [reference_block(), cascade_block(arm, v, c.dt, gains=g), plant_block(arm, c.dt),
-              encoder_block("enc", {"q": n, "qa": n, "qb": n},
-                            None if ideal else c.counts_per_rev),
-              *(e.block(k) for k, e in ests.items()), sigma_feedback_block(n, delay)]
-    wires = [("inv.sigma_hat", "sw.sigma_inv"), ("non.sigma_hat", "sw.sigma_non"),
-             ("plant.sigma", "sw.sigma"), ("ctrl.tau_m", "inv.tau_motor")]
-    wires += [(f"enc.{s}_m", f"{e}.{s}") for e in ests for s in ("q", "qa", "qb")]
-    d = ClosedLoop("ext_estimated_stiffness_feedback" + ("_ideal" if ideal else ""), blocks,
-                   wires)
-    x0 = initial_plant_state(arm, lambda t: sinusoid_references(t)[:, 0])
-    z0 = arm.initial_state(v, x0, xi0=integral_start(arm, x0, g["delta"], g["ki"]))
-    init = {f"plant.{k}": x0[i * arm.n:(i + 1) * arm.n] for i, k in enumerate(STATE)}
-    init.update({f"ctrl.{k}": val for k, val in d.blocks["ctrl"].state.split(z0).items()})
-    return d, init, {k: e.config.delay for k, e in ests.items()}
+    ests = {name: StiffnessEstimator(model, EstimatorConfig(
+        method, dt=c.dt, powers=powers, p0=c.p0, lowpass=lp),
+        name=f"{model.name}_{name}_feedback") for name, method, powers, lp in (
+            ("inv", "electric", c.powers_invasive, None),
+            ("non", "noninvasive", c.powers_noninvasive, c.lowpass_noninvasive or None))}
+    g = THESIS_GAINS["adaptive_integral"].replace(b_min=c.b_min, lam_m=c.lam_m, kpi=c.kpi)
+    sc = feedback_scenario("ext_estimated_stiffness_feedback" + ("_ideal" if ideal else ""),
+                           arm, "adaptive_integral", g, ests, dt=c.dt, duration=c.duration,
+                           chunk=c.chunk, counts_per_rev=None if ideal else c.counts_per_rev)
+    return sc, {k: e.config.delay for k, e in ests.items()}
 
 
-def run_case(d, init, c: ExtConfig, source: str) -> Trace:
-    return simulate(d, c.duration, x0=init, chunk=c.chunk, record=RECORD,
-                    params={"sw.source": SOURCES[source], "sw.t_on": c.t_on},
-                    on_nonfinite="stop", label=f"ext {source}")
+def run_case(sc: Scenario, c: ExtConfig, source: str) -> Trace:
+    return sc.with_(duration=c.duration, params={"sw.source": FEEDBACK_SOURCES[source],
+                                                 "sw.t_on": c.t_on}).run(label=f"ext {source}")
 
 
 def _rms(e) -> float:
@@ -145,54 +122,34 @@ def case_metrics(tr: Trace, c: ExtConfig, source: str, delays: dict) -> Metrics:
 
 
 def run(c: ExtConfig, out: Path) -> Metrics:
-    d, init, delays = diagram(c)
+    sc, delays = scenario(c)
     m, traces = Metrics(), {}
     for source in ("true_feedback", "estimated_feedback_invasive",
                    "estimated_feedback_noninvasive"):
-        traces[source] = tr = run_case(d, init, c, source)
+        traces[source] = tr = run_case(sc, c, source)
         m.extend(case_metrics(tr, c, source, delays))
     m.add("simulated_seconds_per_wall_second", traces["true_feedback"].realtime_factor, "s/s")
     if c.variants:
-        m.extend(case_metrics(run_case(d, init, c, "delayed_true_feedback"), c,
+        m.extend(case_metrics(run_case(sc, c, "delayed_true_feedback"), c,
                               "delayed_true_feedback", delays))
-        di, init_i, _ = diagram(c, ideal=True)
+        ideal = scenario(c, ideal=True)[0]
         for source in ("true_feedback", "estimated_feedback_invasive",
                        "estimated_feedback_noninvasive"):
-            m.extend(case_metrics(run_case(di, init_i, c, source), c, source, delays),
+            m.extend(case_metrics(run_case(ideal, c, source), c, source, delays),
                      prefix="ideal_encoders_")
         early = c.replace(t_on=c.t_on_early)       # before the RLS has converged
-        m.extend(case_metrics(run_case(d, init, early, "estimated_feedback_invasive"), early,
+        m.extend(case_metrics(run_case(sc, early, "estimated_feedback_invasive"), early,
                               "estimated_feedback_invasive", delays), prefix="early_switch_")
-    _figure(traces, c, out)
+    feedback_figure(out / "estimated_stiffness_feedback.png", traces, c.t_on)
     return m
 
 
-def _figure(traces: dict, c: ExtConfig, out: Path) -> None:
-    fig = Figure(figsize=(11, 8))
-    ax = fig.subplots(2, 2, sharex=True)
-    tr0 = traces["true_feedback"]
-    for j in range(2):
-        ax[0, j].plot(tr0.t, tr0["ref.sigma_d"][:, j], "k--", lw=1, label="σ_d")
-        for s, tr in traces.items():
-            if tr.stopped_at is None:
-                ax[0, j].plot(tr.t, tr["plant.sigma"][:, j], lw=0.8, label=s)
-        ax[1, j].plot(tr0.t, tr0["plant.sigma"][:, j], "k", lw=1, label="σ (plant)")
-        for k in ("inv", "non"):
-            ax[1, j].plot(tr0.t, tr0[f"{k}.sigma_hat"][:, j], lw=0.8, label=f"σ̂ {k}")
-        ax[0, j].set_ylabel(f"σ{j + 1} [N m/rad]")
-        ax[1, j].set_ylabel(f"σ̂{j + 1}, loop on true σ")
-        ax[1, j].set_ylim(0, 2 * tr0["ref.sigma_d"][:, j].max())
-        ax[1, j].set_xlabel("t [s]")
-        for a in ax[:, j]:
-            a.axvline(c.t_on, color="0.6", lw=0.8)
-            a.legend(fontsize=7, loc="upper right")
-    fig.suptitle("Adaptive cascade with the fed-back σ from true, invasive and non-invasive "
-                 "estimates (switch at t_on)")
-    fig.tight_layout()
-    fig.savefig(out / "estimated_stiffness_feedback.png", dpi=100)
-
-
 RATIO = 3.0          # issue 12: the better estimator within 3× of true-σ feedback
+
+
+def _value(m: Metrics, quantity: str, source: str = "", prefix: str = "") -> float | None:
+    r = m.find(quantity, suffix=source, prefix=prefix)
+    return None if r is None else r.value
 
 
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
@@ -200,49 +157,53 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     out = []
     claim = ("Beyond the thesis: the stiffness loop closed on an online estimate (the better "
              f"of the two) tracks within {RATIO:g}× the stiffness rms error of true-σ feedback.")
-    keys = ["stiffness_rms_error_true_feedback"]
-    est = [f"stiffness_rms_error_estimated_feedback_{k}" for k in ("invasive", "noninvasive")]
-    if lost := absent(m, keys):
-        out.append(not_checked(claim, lost))
+    true = _value(m, "stiffness_rms_error", "true_feedback")
+    if true is None:
+        out.append(not_checked(claim, ["stiffness_rms_error (true_feedback)"]))
     else:
-        got = {k: m[k] for k in est if k in m}
-        div = {k: m[f"divergence_time_estimated_feedback_{k}"] for k in
-               ("invasive", "noninvasive") if f"divergence_time_estimated_feedback_{k}" in m}
+        kinds = ("invasive", "noninvasive")
+        got = {k: x for k in kinds
+               if (x := _value(m, "stiffness_rms_error", f"estimated_feedback_{k}")) is not None}
+        div = {k: x for k in kinds
+               if (x := _value(m, "divergence_time", f"estimated_feedback_{k}")) is not None}
         best = min(got, key=got.get) if got else None
-        ev = [f"true σ {num(m[keys[0]])} N m/rad"]
-        ev += [f"`{k}` {num(v)} N m/rad ({num(v / m[keys[0]])}×)" for k, v in got.items()]
+        ev = [f"true σ {num(true)} N m/rad"]
+        ev += [f"{k} estimate {num(v)} N m/rad ({num(v / true)}×)" for k, v in got.items()]
         ev += [f"{k} feedback diverged at t = {num(t)} s" for k, t in div.items()]
-        ok = best is not None and got[best] < RATIO * m[keys[0]]
+        ok = best is not None and got[best] < RATIO * true
         out.append(finding(claim, "reproduced" if ok else "not reproduced",
                            "; ".join(ev) + f"; required < {RATIO:g}× true-σ feedback."))
     claim = ("Beyond the thesis: what limits the estimated loop is the estimate's error from "
              "quantised encoders, not the estimator's delay.")
-    keys = ["stiffness_rms_error_true_feedback", "stiffness_rms_error_delayed_true_feedback",
-            "estimate_rms_error_invasive", "ideal_encoders_estimate_rms_error_invasive"]
-    if lost := absent(m, keys):
+    need = {"true": ("stiffness_rms_error", "true_feedback", ""),
+            "delayed": ("stiffness_rms_error", "delayed_true_feedback", ""),
+            "quantised": ("estimate_rms_error", "invasive", ""),
+            "ideal": ("estimate_rms_error", "invasive", "ideal_encoders_")}
+    v = {k: _value(m, *w) for k, w in need.items()}
+    if lost := [f"{w[2]}{w[0]} ({w[1]})" for k, w in need.items() if v[k] is None]:
         out.append(not_checked(claim, lost))
     else:
-        t, dl, q, i = (m[k] for k in keys)
-        out.append(finding(claim, graded([abs(dl - t) < 0.1 * t, q > 10 * i]),
-                           f"True σ delayed by L + 1 samples: stiffness rms {num(dl)} against "
-                           f"{num(t)} N m/rad undelayed (required within 10 %); invasive "
-                           f"estimate rms error {num(q)} N m/rad with 8192-count encoders, "
-                           f"{num(i)} with ideal ones (required > 10×)" + "".join(
-                               f"; non-invasive {num(m[a])} against {num(m[b])}"
-                               for a, b in [("estimate_rms_error_noninvasive",
-                                             "ideal_encoders_estimate_rms_error_noninvasive")]
-                               if a in m and b in m) + "."))
+        non = (_value(m, "estimate_rms_error", "noninvasive"),
+               _value(m, "estimate_rms_error", "noninvasive", "ideal_encoders_"))
+        out.append(finding(claim, graded([abs(v["delayed"] - v["true"]) < 0.1 * v["true"],
+                                          v["quantised"] > 10 * v["ideal"]]),
+                           f"True σ delayed by L + 1 samples: stiffness rms {num(v['delayed'])} "
+                           f"against {num(v['true'])} N m/rad undelayed (required within 10 %); "
+                           f"invasive estimate rms error {num(v['quantised'])} N m/rad with "
+                           f"8192-count encoders, {num(v['ideal'])} with ideal ones (required "
+                           "> 10×)" + (f"; non-invasive {num(non[0])} against {num(non[1])}"
+                                       if None not in non else "") + "."))
     claim = ("Beyond the thesis: the estimate may close the loop only once the RLS has "
              "converged.")
-    div, ran = (f"early_switch_{q}_estimated_feedback_invasive"
+    div, ran = (_value(m, q, "estimated_feedback_invasive", "early_switch_")
                 for q in ("divergence_time", "stiffness_rms_error"))
-    if div not in m and ran not in m:
-        out.append(not_checked(claim, [div]))
+    if div is None and ran is None:
+        out.append(not_checked(claim, ["early_switch_divergence_time (invasive)"]))
     else:
-        out.append(finding(claim, "reproduced" if div in m else "not reproduced",
+        out.append(finding(claim, "reproduced" if div is not None else "not reproduced",
                            "Switching to the invasive estimate at t_on_early " + (
-                               f"diverged at t = {num(m[div])} s" if div in m else
-                               f"ran (stiffness rms {num(m[ran])} N m/rad)")
+                               f"diverged at t = {num(div)} s" if div is not None else
+                               f"ran (stiffness rms {num(ran)} N m/rad)")
                            + "; required: the early switch diverges."))
     return out
 

@@ -10,14 +10,12 @@ realising the link torque of the reference motion and σ_d with the *nominal* sp
 
 :func:`hardware_diagram` puts plant, encoders (quantised to counts), a noisy motor
 torque sensor and any number of stiffness estimators into one diagram: one generated
-loop runs the whole emulation. :func:`qbmove_truth` gives, after the run, the true
-spring torques, stiffness and rotatum Σ_j σ_j φ̇_j of the plant's springs (nominal ×
-``spring_scale``), vectorised with the model's own casadi Function.
+loop runs the whole emulation; what the plant's springs did along a run (the truth the
+estimates are compared with) is read in :mod:`softgen.studies.estimation`.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -119,99 +117,3 @@ def hardware_diagram(name: str, plant: Block, *, counts_per_rev: int | None = No
         if "tau_motor" in e.inputs:
             wires.append((tau_src, f"{e.name}.tau_motor"))
     return ClosedLoop(name, blocks, wires, externals=ext)
-
-
-@dataclass
-class QbmoveTruth:
-    """What the plant's springs do along a run (rows = samples)."""
-
-    tau_e: np.ndarray          # (K, n) total spring torque
-    sigma: np.ndarray          # (K, n) joint stiffness
-    rotatum: np.ndarray        # (K, n) τ̇_e = Σ σ_j φ̇_j
-    sigma_nominal: np.ndarray  # (K, n) stiffness of the nominal springs at the same state
-    spring_torque: np.ndarray  # (K, 2n) each spring's torque, agonists then antagonists
-    spring_stiffness: np.ndarray  # (K, 2n) each nominal spring's stiffness (unscaled)
-    deflection_rate: np.ndarray   # (K, 2n) φ̇_a, φ̇_b
-
-
-def qbmove_truth(model: RobotModel, x: Mapping[str, np.ndarray], spring_scale) -> QbmoveTruth:
-    """Truth from the plant signals ``x`` (``q, qd, qa, qad, qb, qbd``, each (K, n))."""
-    n = model.dof
-    f = QbmoveSprings(model).functions()[0][0]
-    q, qd, qa, qad, qb, qbd = (np.asarray(x[s]) for s in
-                               ("q", "qd", "qa", "qad", "qb", "qbd"))
-    ta, tb, _, sa, sb, _ = (np.array(v).T for v in f.map(q.shape[0])(q.T, qa.T, qb.T))
-    scale = np.broadcast_to(np.asarray(spring_scale, dtype=float), (2 * n,))
-    sca, scb = scale[:n], scale[n:]
-    return QbmoveTruth(sca * ta + scb * tb, sca * sa + scb * sb,
-                       sca * sa * (qd - qad) + scb * sb * (qd - qbd), sa + sb,
-                       np.hstack([ta, tb]) * scale, np.hstack([sa, sb]),
-                       np.hstack([qd - qad, qd - qbd]))
-
-
-def polynomial_fit_stiffness(phi: np.ndarray, spring_torque: np.ndarray, powers) -> np.ndarray:
-    """(K, n) joint stiffness of the best fit of Σ_p c_p φ^p (the RLS model class of the
-    invasive electric estimator) to each *true* spring torque, by least squares over
-    the given samples: how well the model class can do at all."""
-    n, pw = phi.shape[1] // 2, np.asarray(powers)
-    fit = np.zeros((phi.shape[0], n))
-    for j in range(2 * n):
-        x = phi[:, j]
-        coef, *_ = np.linalg.lstsq(x[:, None] ** pw, spring_torque[:, j], rcond=None)
-        fit[:, j % n] += (pw * x[:, None] ** np.maximum(pw - 1, 0)) @ coef
-    return fit
-
-
-def protocol_figure(path, t, q, q_d, sigma, sigma_d, phi, std, *, threshold: float,
-                    window: float, boundaries: Sequence[float], updating: Mapping) -> None:
-    """References and achieved stiffness, measured deflections, the gate statistic
-    ``std`` (one column per deflection, threshold ``threshold``) and RLS updates."""
-    from matplotlib.figure import Figure
-    n, d = q_d.shape[0], slice(None, None, max(1, len(t) // 20000))
-    t, q, q_d, sigma, sigma_d, phi, std = (t[d], q[d], q_d[:, d], sigma[d], sigma_d[:, d],
-                                          phi[d], std[d])
-    updating = {k: v[d] for k, v in updating.items()}
-    fig = Figure(figsize=(9, 11))
-    ax = fig.subplots(5, 1, sharex=True)
-    for i in range(n):
-        ax[0].plot(t, q[:, i], lw=0.8, label=f"q{i + 1}")
-        ax[0].plot(t, q_d[i], "k--", lw=0.6, label=f"q{i + 1}_d")
-        ax[1].plot(t, sigma[:, i], lw=0.8, label=f"sigma{i + 1} (plant)")
-        ax[1].plot(t, sigma_d[i], "k--", lw=0.6, label=f"sigma{i + 1}_d")
-    for j in range(phi.shape[1]):
-        lab = f"phi{j % n + 1}{'ab'[j // n]}"
-        ax[2].plot(t, phi[:, j], lw=0.8, label=lab)
-        ax[3].semilogy(t, std[:, j], lw=0.8, label=lab)
-    ax[3].axhline(threshold, color="k", ls="--", lw=0.8, label="threshold")
-    for k, (tag, u) in enumerate(updating.items()):
-        ax[4].plot(t, u.mean(axis=1) + 1.2 * k, lw=0.8, label=tag)
-    for a, lab in zip(ax, ("q [rad]", "sigma [N m/rad]", "measured deflection [rad]",
-                           f"EW std, W = {window:g} s [rad]", "RLS updating")):
-        a.set_ylabel(lab)
-        for b in boundaries:
-            a.axvline(b, color="0.6", lw=0.6)
-        a.legend(fontsize=7, ncol=2, loc="upper left")
-    ax[4].set_xlabel("t [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-
-
-def run_figure(path, t, tau_motor, phi, q, *, title: str = "") -> None:
-    """Motor torques, spring deflections and link angles of a run (as Fig. 6.5)."""
-    from matplotlib.figure import Figure
-    n, d = q.shape[1], slice(None, None, max(1, len(t) // 20000))
-    t, tau_motor, phi, q = t[d], tau_motor[d], phi[d], q[d]
-    fig = Figure(figsize=(8, 8))
-    ax = fig.subplots(3, 1, sharex=True)
-    for a, v, unit, names in ((ax[0], tau_motor, "motor torque [N m]", "tau"),
-                              (ax[1], phi, "deflection [rad]", "phi"),
-                              (ax[2], q, "link angle [rad]", "q")):
-        for j in range(v.shape[1]):
-            side = "" if names == "q" else "ab"[j // n]
-            a.plot(t, v[:, j], lw=0.8, label=f"{names}{j % n + 1}{side}")
-        a.set_ylabel(unit)
-        a.legend(fontsize=7, ncol=2, loc="upper left")
-    ax[0].set_title(title)
-    ax[2].set_xlabel("t [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)

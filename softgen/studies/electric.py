@@ -1,0 +1,353 @@
+"""Chapter-11 studies: section 11.2's references and gains as data, the cascade's diagram
+as a :class:`~softgen.studies.Scenario`, a measurement helper and the figure.
+
+The library (:mod:`softgen.control.electric`) builds the cascade, plant and reference
+blocks for any gains and sinusoids; what the thesis printed for its runs lives here,
+as frozen data. Every run goes through the one driver (:meth:`Scenario.run`).
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from softgen.blocks import Block, ClosedLoop
+from softgen.blocks.sensors import encoder_block
+from softgen.control.electric import (REFERENCE_BLOCKS, ElectricArm, cascade_block,
+                                      initial_plant_state, integral_start,
+                                      near_singular_events, plant_block, reference_block,
+                                      sigma_feedback_block)
+from softgen.estimation.estimators import StiffnessEstimator
+from softgen.core.errors import ShapeError
+from softgen.core.metrics import Metrics
+from softgen.runtime.simulate import Trace
+from softgen.studies.scenario import Scenario
+
+#: The plant block's state, in the order of the cascade's measurement x.
+PLANT_STATE = ("q", "qd", "qa", "qad", "qb", "qbd")
+
+
+@dataclass(frozen=True)
+class Sinusoid:
+    """``offset + amplitude sin(omega t)`` (one joint's reference)."""
+
+    offset: float
+    amplitude: float
+    omega: float                                     # rad/s
+
+    def derivatives(self, t: np.ndarray, order: int) -> list[np.ndarray]:
+        """The value and its first ``order`` derivatives, A ω^k sin(ωt + kπ/2)."""
+        out = [self.offset + self.amplitude * np.sin(self.omega * t)]
+        for k in range(1, order + 1):
+            out.append(self.amplitude * self.omega ** k * np.sin(self.omega * t + k * np.pi / 2))
+        return out
+
+
+@dataclass(frozen=True)
+class CascadeReferences:
+    """Per-joint sinusoids for q_d and σ_d (section 11.2 by default)."""
+
+    q: tuple[Sinusoid, ...]
+    sigma: tuple[Sinusoid, ...]
+
+    def __post_init__(self) -> None:
+        if len(self.sigma) != len(self.q):
+            raise ShapeError(f"sigma: expected {len(self.q)} joints like q, got "
+                             f"{len(self.sigma)}")
+
+    def block(self, name: str = "ref") -> Block:
+        """The reference block (:func:`softgen.control.electric.reference_block`)."""
+        return reference_block(_spec(self.q), _spec(self.sigma), name=name)
+
+    def columns(self, t) -> np.ndarray:
+        """Reference columns (9n × K) for the sample times ``t`` (K,), rows in the order
+        of :data:`~softgen.control.electric.REFERENCE_BLOCKS`."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        q = [s.derivatives(t, 4) for s in self.q]
+        s = [s.derivatives(t, 3) for s in self.sigma]
+        rows = [np.stack([d[k] for d in q]) for k in range(5)]
+        rows += [np.stack([d[k] for d in s]) for k in range(4)]
+        assert len(rows) == len(REFERENCE_BLOCKS)
+        return np.concatenate(rows, axis=0)
+
+    def at(self, t: float) -> np.ndarray:
+        """The 9n reference column at ``t``."""
+        return self.columns(t)[:, 0]
+
+
+def _spec(s: tuple[Sinusoid, ...]) -> tuple[tuple[float, float, float], ...]:
+    return tuple((x.offset, x.amplitude, x.omega) for x in s)
+
+
+#: Section 11.2: q_d = 1 + 0.5 sin(πt/10) on both joints; σ_1d = 8 + 3 sin(πt/8),
+#: σ_2d = 4 + sin(πt/8).
+THESIS_REFERENCES = CascadeReferences(
+    q=(Sinusoid(1.0, 0.5, np.pi / 10), Sinusoid(1.0, 0.5, np.pi / 10)),
+    sigma=(Sinusoid(8.0, 3.0, np.pi / 8), Sinusoid(4.0, 1.0, np.pi / 8)))
+
+
+def sinusoid_references(t, refs: CascadeReferences = THESIS_REFERENCES) -> np.ndarray:
+    """Reference columns (9n × K) of ``refs`` at ``t`` (default: section 11.2)."""
+    return refs.columns(t)
+
+
+class _GainMapping(Mapping):
+    """A frozen gain set read as ``{gain name: value}`` (absent gains are None fields),
+    the form :func:`~softgen.control.electric.check_gains` and the blocks take."""
+
+    def _present(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)
+                if getattr(self, f.name) is not None}
+
+    def __getitem__(self, key: str):
+        return self._present()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._present())
+
+    def __len__(self) -> int:
+        return len(self._present())
+
+    def replace(self, **changes):
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True, eq=False)
+class PDGains(_GainMapping):
+    """Theorems 6-7 (Remark 10 with ``ki``): inner k_p, k_d; outer k_p, k_d, k_σ, Δ."""
+
+    kp_m: float
+    kd_m: float
+    kp: float
+    kd: float
+    ksigma: float
+    delta: float
+    ki: float | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class AdaptiveGains(_GainMapping):
+    """Theorems 8-9 (Remark 11 with ``ki``): inner Λ_m, k_m, k_π,m (per motor parameter,
+    layout of π̂_m); outer Λ, k, k_π, k_σ, Δ; ``b_min`` for the projected cascades."""
+
+    lam_m: float
+    k_m: float
+    kpi_m: tuple[float, ...]
+    lam: float
+    k: float
+    kpi: float
+    ksigma: float
+    delta: float
+    ki: float | None = None
+    b_min: float | None = None
+
+
+#: Gains of section 11.2 (NOTES section 1, ch11-electric-pd / -adaptive). The adaptive
+#: "k_p, k_d" are read as (Λ, k) (module docstring of :mod:`softgen.control.electric`);
+#: k_π of the motors per joint (1a, 2a, 1b, 2b) for both b and d.
+THESIS_GAINS: Mapping[str, PDGains | AdaptiveGains] = {
+    "pd": PDGains(kp_m=50, kd_m=25, kp=25, kd=10, ksigma=150, delta=70),
+    "pd_integral": PDGains(kp_m=50, kd_m=25, kp=0.05, kd=0.75, ksigma=30, ki=15, delta=70),
+    "adaptive": AdaptiveGains(lam_m=0.1, k_m=0.1, kpi_m=(6e-4, 1e-3, 1e-4, 1e-4) * 2,
+                              lam=0.1, k=0.5, kpi=0.2, ksigma=20, delta=145),
+    "adaptive_integral": AdaptiveGains(lam_m=0.1, k_m=0.1,
+                                       kpi_m=(6e-4, 1e-3, 1e-4, 1e-4) * 2, lam=0.1, k=0.1,
+                                       kpi=7, ksigma=20, ki=25, delta=145),
+}
+
+
+def cascade_start(arm: ElectricArm, variant: str, gains: Mapping, ctrl: Block, *,
+                  refs: CascadeReferences = THESIS_REFERENCES, nominal: bool = False) -> dict:
+    """Initial state ``{"plant.<s>", "ctrl.<part>"}`` of a cascade diagram: the plant on
+    the references (quasi-steady stiffness without the integral, the integral holding
+    the Δ offset with it), estimates at 0 or (``nominal``) at the model's values."""
+    integral = variant.endswith("_integral")
+    x0 = initial_plant_state(arm, refs.at, **({} if integral else dict(
+        ksigma=gains["ksigma"], delta=gains["delta"])))
+    z0 = arm.initial_state(
+        variant, x0,
+        xi0=integral_start(arm, x0, gains["delta"], gains["ki"]) if integral else None,
+        pi_hat0=arm.parameter_nominal if nominal else None,
+        pi_m_hat0=arm.motor_parameter_nominal if nominal else None)
+    init = {f"plant.{k}": x0[i * arm.n:(i + 1) * arm.n] for i, k in enumerate(PLANT_STATE)}
+    init.update({f"ctrl.{k}": v for k, v in ctrl.state.split(z0).items()})
+    return init
+
+
+#: What a cascade scenario records by default.
+RECORD = ("ref.q_d", "ref.sigma_d", "plant.q", "plant.qa", "plant.qb", "plant.sigma",
+          "plant.tau_e", "ctrl.tau_m", "ctrl.q_m_ref", "ctrl.det")
+
+
+def cascade_scenario(arm: ElectricArm, variant: str, gains: Mapping, *, dt: float,
+                     duration: float, refs: CascadeReferences = THESIS_REFERENCES,
+                     nominal: bool = False, chunk: int = 1000, name: str | None = None,
+                     record=None) -> Scenario:
+    """Reference → cascade ``variant`` → plant (section 11.2's loop) as a scenario that
+    stops at the first non-finite value. Adaptive variants also record π̂ and π̂_m."""
+    ctrl = cascade_block(arm, variant, dt, gains=gains)
+    d = ClosedLoop(name or f"ch11_{arm.step_name(variant)}_{round(1e6 * dt)}us",
+                   [refs.block(), ctrl, plant_block(arm, dt)])
+    if record is None:
+        record = RECORD + (("ctrl.pi_hat", "ctrl.pi_m_hat") if variant.startswith("adaptive")
+                           else ())
+    return Scenario(d.name, d, duration=duration, chunk=chunk, record=tuple(record),
+                    x0=cascade_start(arm, variant, gains, ctrl, refs=refs, nominal=nominal),
+                    on_nonfinite="stop")
+
+
+#: The fed-back σ per value of the selector's ``source`` (:func:`sigma_feedback_block`).
+FEEDBACK_SOURCES = {"true_feedback": 0, "estimated_feedback_invasive": 1,
+                    "estimated_feedback_noninvasive": 2, "delayed_true_feedback": 3}
+
+#: What a feedback scenario records.
+FEEDBACK_RECORD = ("ref.q_d", "ref.sigma_d", "plant.q", "plant.sigma", "sw.sigma_fb",
+                   "inv.sigma_hat", "non.sigma_hat")
+
+
+def feedback_scenario(name: str, arm: ElectricArm, variant: str, gains: Mapping,
+                      estimators: Mapping[str, StiffnessEstimator], *, dt: float,
+                      duration: float, chunk: int = 1000, counts_per_rev: int | None = None,
+                      refs: CascadeReferences = THESIS_REFERENCES) -> Scenario:
+    """The cascade (``arm`` with ``sigma_input``) fed back a σ chosen by the selector
+    ``sw`` among the plant's, the invasive estimate (block ``inv``, reading the motor
+    torque), the non-invasive one (``non``) and the plant's delayed as the non-invasive
+    estimate is (L + 1 samples); both estimators read the encoders (``counts_per_rev``,
+    None: exact angles). ``sw.source`` (:data:`FEEDBACK_SOURCES`) and ``sw.t_on`` are
+    parameters of each run; the scenario stops at a non-finite value."""
+    n, ctrl = arm.n, cascade_block(arm, variant, dt, gains=gains)
+    blocks = [refs.block(), ctrl, plant_block(arm, dt),
+              encoder_block("enc", {"q": n, "qa": n, "qb": n}, counts_per_rev),
+              *(e.block(k) for k, e in estimators.items()),
+              sigma_feedback_block(n, estimators["non"].config.delay + 1)]
+    wires = [("inv.sigma_hat", "sw.sigma_inv"), ("non.sigma_hat", "sw.sigma_non"),
+             ("plant.sigma", "sw.sigma"), ("ctrl.tau_m", "inv.tau_motor")]
+    wires += [(f"enc.{s}_m", f"{e}.{s}") for e in estimators for s in ("q", "qa", "qb")]
+    d = ClosedLoop(name, blocks, wires)
+    return Scenario(d.name, d, duration=duration, chunk=chunk, record=FEEDBACK_RECORD,
+                    x0=cascade_start(arm, variant, gains, ctrl, refs=refs), on_nonfinite="stop")
+
+
+def cascade_records(tr: Trace, variant: str, gains: Mapping, *, window: int) -> Metrics:
+    """Section 11.2's indices of one run of :func:`cascade_scenario` (suffix ``variant``).
+
+    Per joint, over the second half: position and stiffness rms errors, the signed mean
+    stiffness error and, without the integral, the offset −Δ(τ^e_a − τ^e_b)/k_σ at which
+    the stiffness row of eq. 11.4 is at rest (Remark 10) that it should equal; per motor
+    (joint ``"1a"`` …) the rms error against its reference; position rms over the first
+    and the last ``window`` samples. Over the run: largest |motor torque|, spans where
+    eq. 11.4 is near singular (:func:`near_singular_events`), simulated s per wall s.
+    A run that stopped at a non-finite value gives ``divergence_time`` alone.
+    """
+    m, n, K = Metrics(), tr["plant.q"].shape[1], tr.t.size
+    if tr.stopped_at is not None:
+        return m.add("divergence_time", tr.stopped_at, "s", suffix=variant)
+    half = slice(K // 2, None)
+    e_q, e_s = tr["plant.q"] - tr["ref.q_d"], tr["plant.sigma"] - tr["ref.sigma_d"]
+    e_m = np.hstack([tr["plant.qa"], tr["plant.qb"]]) - tr["ctrl.q_m_ref"]
+    tau_e, delta = tr["plant.tau_e"], gains["delta"]
+    offset = -np.asarray(delta) * (tau_e[:, :n] - tau_e[:, n:]) / np.asarray(gains["ksigma"])
+
+    def rms(e, sl=half):
+        return np.sqrt(np.mean(e[sl] ** 2, axis=0))
+    for i in range(n):
+        j, kw = i + 1, {"joint": i + 1, "suffix": variant}
+        m.add("position_rms_error", rms(e_q)[i], "rad", **kw)
+        m.add("stiffness_rms_error", rms(e_s)[i], "N m/rad", **kw)
+        m.add("stiffness_mean_error", e_s[half, i].mean(), "N m/rad", **kw)
+        if not variant.endswith("_integral"):
+            m.add("delta_offset_mean", offset[half, i].mean(), "N m/rad", **kw)
+        for s, col in (("a", i), ("b", n + i)):
+            m.add("motor_rms_error", rms(e_m)[col], "rad", joint=f"{j}{s}", suffix=variant)
+        for name, sl in (("start", slice(0, window)), ("end", slice(K - window, K))):
+            m.add(f"position_rms_error_{name}", rms(e_q, sl)[i], "rad", **kw)
+    m.add("motor_torque_max_abs", np.abs(tr["ctrl.tau_m"]).max(), "N m", suffix=variant)
+    m.add("near_singular_events", len(near_singular_events(tr.t, tr["ctrl.det"], delta)), "1",
+          suffix=variant)
+    m.add("simulated_seconds_per_wall_second", tr.realtime_factor, "s/s", suffix=variant)
+    return m
+
+
+def thesis_run(arm: ElectricArm, variant: str, *, duration: float = 40.0, dt: float = 1e-3,
+               chunk: int = 1000, initial: str = "zero", window: float = 5.0,
+               **gains) -> Metrics:
+    """Section 11.2's run of one cascade and its :func:`cascade_records` (a measurement
+    helper; ``window`` in s). ``gains`` override :data:`THESIS_GAINS` (a filter route
+    needs ``omega_f``); ``initial``: ``"zero"`` (π̂(0) = 0, as the thesis) or
+    ``"nominal"``."""
+    g = {**THESIS_GAINS[variant], **gains}
+    tr = cascade_scenario(arm, variant, g, dt=dt, duration=duration, chunk=chunk,
+                          nominal=initial == "nominal").run()
+    return cascade_records(tr, variant, g, window=int(round(window / dt)))
+
+
+def cascade_figure(path, tr: Trace, title: str, *, parameter_nominal=None,
+                   motor_parameter_nominal=None) -> None:
+    """Fig. 11.2-11.5's quantities of one run: link angles, stiffness, motor angles with
+    their references and motor torques per joint (``tr``: a trace of
+    :func:`cascade_scenario`); adaptive runs add π̂/π and b̂/b."""
+    # matplotlib is imported here: only figure-making runs pay its start-up time.
+    from matplotlib.figure import Figure
+    t, n = tr.t, tr["plant.q"].shape[1]
+    adaptive = "ctrl.pi_hat" in tr.signals
+    fig = Figure(figsize=(11, 12 if adaptive else 10))
+    ax = fig.subplots(5 if adaptive else 4, 2, sharex=True)
+    qm = np.hstack([tr["plant.qa"], tr["plant.qb"]])
+    for i in range(n):
+        ax[0, i].plot(t, tr["ref.q_d"][:, i], "k--", lw=1, label="q_d")
+        ax[0, i].plot(t, tr["plant.q"][:, i], lw=1, label="q")
+        ax[0, i].set_ylabel(f"q{i + 1} [rad]")
+        ax[1, i].plot(t, tr["ref.sigma_d"][:, i], "k--", lw=1, label="σ_d")
+        ax[1, i].plot(t, tr["plant.sigma"][:, i], lw=1, label="σ")
+        ax[1, i].set_ylabel(f"σ{i + 1} [N m/rad]")
+        for s, col in (("a", i), ("b", n + i)):
+            ax[2, i].plot(t, tr["ctrl.q_m_ref"][:, col], "k--", lw=0.8)
+            ax[2, i].plot(t, qm[:, col], lw=1, label=f"q{i + 1}{s}")
+            ax[3, i].plot(t, tr["ctrl.tau_m"][:, col], lw=1, label=f"τ{i + 1}{s}")
+        ax[2, i].set_ylabel("motor angle [rad] (-- ref)")
+        ax[3, i].set_ylabel("motor torque [N m]")
+        for a in ax[:4, i]:
+            a.legend(loc="upper right", fontsize=7)
+    if adaptive:
+        ax[4, 0].plot(t, tr["ctrl.pi_hat"] / parameter_nominal, lw=1)
+        ax[4, 0].set_ylabel("π̂ / π (link)")
+        ax[4, 1].plot(t, tr["ctrl.pi_m_hat"][:, :2 * n] / motor_parameter_nominal[:2 * n],
+                      lw=1)
+        ax[4, 1].set_ylabel("b̂ / b (motors)")
+    for a in ax[-1]:
+        a.set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+def feedback_figure(path, traces: Mapping[str, Trace], t_on: float) -> None:
+    """σ per joint under each fed-back source (``traces``: source -> trace, one of them
+    ``true_feedback``, whose estimates are drawn against the plant's σ), switch at
+    ``t_on``."""
+    # matplotlib is imported here: only figure-making runs pay its start-up time.
+    from matplotlib.figure import Figure
+    tr0 = traces["true_feedback"]
+    fig = Figure(figsize=(11, 8))
+    ax = fig.subplots(2, tr0["plant.sigma"].shape[1], sharex=True, squeeze=False)
+    for j in range(tr0["plant.sigma"].shape[1]):
+        ax[0, j].plot(tr0.t, tr0["ref.sigma_d"][:, j], "k--", lw=1, label="σ_d")
+        for s, tr in traces.items():
+            if tr.stopped_at is None:
+                ax[0, j].plot(tr.t, tr["plant.sigma"][:, j], lw=0.8, label=s)
+        ax[1, j].plot(tr0.t, tr0["plant.sigma"][:, j], "k", lw=1, label="σ (plant)")
+        for k in ("inv", "non"):
+            ax[1, j].plot(tr0.t, tr0[f"{k}.sigma_hat"][:, j], lw=0.8, label=f"σ̂ {k}")
+        ax[0, j].set_ylabel(f"σ{j + 1} [N m/rad]")
+        ax[1, j].set_ylabel(f"σ̂{j + 1}, loop on true σ")
+        ax[1, j].set_ylim(0, 2 * tr0["ref.sigma_d"][:, j].max())
+        ax[1, j].set_xlabel("t [s]")
+        for a in ax[:, j]:
+            a.axvline(t_on, color="0.6", lw=0.8)
+            a.legend(fontsize=7, loc="upper right")
+    fig.suptitle("Adaptive cascade with the fed-back σ from true, invasive and non-invasive "
+                 "estimates (switch at t_on)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)

@@ -1,0 +1,77 @@
+"""Findings of the estimation experiments (chapters 6-7) read metric records by
+(quantity, joint, phase, variant): verdicts follow the stated thresholds on seeded
+random records, and flat names alone (no record fields) are never parsed."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from softgen.core.metrics import Metrics
+from softgen.experiments import ch6_electric_invasive as ch6_inv
+from softgen.experiments import ch6_electric_protocol as ch6_prot
+from softgen.experiments import ch6_pneumatic_invasive as ch6_pn
+from softgen.experiments import ch7_noninvasive as ch7
+from softgen.experiments import ch7_noninvasive_protocol as ch7_prot
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_noninvasive_verdict_follows_the_msrep_threshold(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 3))
+    msrep = rng.uniform(0.2, 2.0, n)
+    m = Metrics()
+    for j, v in enumerate(msrep, start=1):
+        m.add("stiffness_msrep", v, "%", joint=j).add("stiffness_mse", v * 1e-4, "x", joint=j)
+        m.add("stiffness_msrep", 99.0, "%", joint=j, phase=1)       # other records: not read
+    want = ("reproduced" if np.all(msrep < 1) else "partly reproduced" if np.any(msrep < 1)
+            else "not reproduced")
+    (f,) = ch7.findings(m)
+    assert f["verdict"] == want
+    assert ch7.findings(Metrics.from_flat(m.flat()))[0]["verdict"] == "not checked"
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_protocol_drift_verdict(seed):
+    rng = np.random.default_rng(seed)
+    d, s = rng.uniform(0.01, 1.0, 3), rng.uniform(0.01, 1.0, 3)
+    m = Metrics()
+    for tag, v in (("drift", d), ("stop", s)):
+        for k in (1, 2, 3):
+            m.add("stiffness_mse", v[k - 1], "x", joint=1, phase=k, prefix=f"dof1_{tag}_")
+    m.add("update_fraction", 0.1, "1", phase=2, prefix="dof1_stop_")
+    m.add("vs_nominal_stiffness_mse", 0.2, "x", joint=1, prefix="dof1_stop_")
+    drift = d[1] > 3 * d[0] or d[2] > 3 * d[0]
+    (f,) = ch6_prot.findings(m)
+    assert f["verdict"] == ("reproduced" if drift and s[1] < d[1] else "not reproduced")
+
+
+def _invasive(rng) -> tuple[Metrics, np.ndarray]:
+    mse = np.array(ch6_inv.THESIS["stiffness_mse_joint1"]) * rng.uniform(1, 20, 2)
+    m = Metrics().add("link_damping", 0.5, "N m s/rad").add("runaway_speed_bound", 20, "rad/s")
+    m.add("nyquist_rad_s", 3141.6, "rad/s").add("max_abs_deflection", 0.1, "rad")
+    m.add("motor_mode_max_rad_s", 600, "rad/s")
+    for j in (1, 2):
+        m.add("stiffness_mse", mse[j - 1], "x", joint=j).add("torque_mse", 1e-11, "x", joint=j)
+        m.add("max_link_speed", rng.uniform(0, 40), "rad/s", joint=j)
+        m.add("max_abs_link_angle", 1.0, "rad", joint=j)
+    return m, mse
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_invasive_table_and_runaway_verdicts(seed):
+    m, mse = _invasive(np.random.default_rng(seed))
+    out = ch6_inv.findings(m)
+    thesis = np.array([ch6_inv.THESIS[f"stiffness_mse_joint{j}"] for j in (1, 2)])
+    ok = mse < 10 * thesis
+    assert out[0]["verdict"] == ("reproduced" if ok.all() else "partly reproduced" if ok.any()
+                                 else "not reproduced")
+    speeds = m.per_joint("max_link_speed")
+    assert out[1]["verdict"] == ("reproduced" if max(speeds.values()) < 20 else
+                                 "not reproduced")
+    assert len(out) == 2                         # no undamped records: no undamped claims
+
+
+def test_pneumatic_and_protocol_findings_need_their_records():
+    with pytest.raises(KeyError, match="stiffness_msrep"):
+        ch6_pn.findings(Metrics())
+    assert ch7_prot.findings(Metrics()) == []

@@ -1,0 +1,47 @@
+"""Findings of the chapter-12 experiments read records by (quantity, variant): verdicts
+follow the stated thresholds on seeded random records; absent variants are "not checked"."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from softgen.core.metrics import Metrics
+from softgen.experiments import ch12_soft as ch12
+
+SUFFIXES = ("", "lower_gains", "disturbed")
+
+
+def _planar(rng) -> tuple[Metrics, dict]:
+    v = {(q, s): float(rng.uniform(*r)) for s in SUFFIXES for q, r in (
+        ("position_rms_error", (0.001, 0.15)), ("convergence_time", (1, 10)),
+        ("position_rms_error_initial", (0.01, 1)), ("parameter_estimate_max_norm", (1, 150)))}
+    m = Metrics()
+    for (q, s), x in v.items():
+        m.add(q, x, "1", suffix=s)
+    return m, v
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_planar_verdicts_follow_thresholds(seed):
+    m, v = _planar(np.random.default_rng(seed))
+    out = {f["claim"][:40]: f["verdict"] for f in ch12.findings_planar(m)}
+    tol = ch12.CONVERGED["planar"]
+    track = [v["position_rms_error", s] < tol for s in ("", "lower_gains")]
+    faster = [v["convergence_time", ""] < v["convergence_time", "lower_gains"],
+              v["position_rms_error_initial", ""] < v["position_rms_error_initial",
+                                                        "lower_gains"]]
+    bounded = max(v["parameter_estimate_max_norm", s] for s in SUFFIXES) < ch12.BOUNDED
+    robust = v["position_rms_error", "disturbed"] < ch12.ROBUST["planar"]
+
+    def grade(x):
+        return "reproduced" if all(x) else "partly reproduced" if any(x) else "not reproduced"
+    assert list(out.values()) == [grade(track), grade(faster), grade([bounded]),
+                                  grade([robust])]
+
+
+def test_absent_variant_is_not_checked_and_names_the_record():
+    m, _ = _planar(np.random.default_rng(0))
+    m.records = [r for r in m.records if r.suffix != "disturbed"]
+    out = ch12.findings_planar(m)
+    assert [f["verdict"] for f in out][2:] == ["not checked", "not checked"]
+    assert "disturbed" in out[-1]["evidence"]
