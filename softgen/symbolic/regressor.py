@@ -31,6 +31,7 @@ from fractions import Fraction
 
 import casadi as ca
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from ..errors import ModelError
 
@@ -176,16 +177,114 @@ class BaseParameters:
 def _independent_columns(Wn: np.ndarray, tol: float = 1e-8) -> list[int]:
     """Columns of the column-normalised ``Wn`` that raise the rank, scanned in order.
 
-    Gautier's method: in the QR decomposition of ``Wn`` (no pivoting, so the order
-    of preference is kept), |R_jj| is the distance of column j from the span of the
-    columns before it; exactly dependent columns give round-off (~1e-15), genuine
-    ones O(1e-3) or more. One QR replaces a rank test per column.
+    Gautier's criterion (kept for callers; :func:`_reduce_columns` does the work):
+    a column is kept when its distance from the span of the columns before it
+    exceeds ``tol``.
     """
-    if Wn.shape[0] < Wn.shape[1]:
-        raise ModelError("internal: too few samples for the base-parameter QR "
-                         f"({Wn.shape[0]} rows, {Wn.shape[1]} columns)")
-    R = np.linalg.qr(Wn, mode="r")
-    return [j for j in range(Wn.shape[1]) if abs(R[j, j]) > tol]
+    return _reduce_columns(Wn, tol)[0]
+
+
+#: Columns handled per block by :func:`_reduce_columns` (one GEMM per block).
+_BLOCK = 64
+
+
+def _reduce_columns(W: np.ndarray, tol: float = 1e-8
+                    ) -> tuple[list[int], list[int], np.ndarray, int]:
+    """Ordered rank reduction of the sampled regressor ``W``: kept columns and their
+    dependency coefficients.
+
+    Gautier's method (Gautier 1990, "Numerical calculation of the base inertial
+    parameters of robots"): scan the columns in order of preference and keep a
+    column when its distance from the span of the columns kept before it, measured
+    on the column-normalised matrix, exceeds ``tol`` (exactly dependent columns give
+    round-off, ~1e-15; genuine ones O(1e-3) or more). That distance is |R_jj| of an
+    unpivoted QR decomposition; here it is computed by blocked classical Gram–Schmidt
+    with one re-orthogonalisation (CGS2), which
+
+    * needs only ``rank + margin`` rows rather than as many as there are columns (a
+      Householder QR without pivoting must see every column, dependent or not, on
+      its own row): the caller samples ~rank rows, not twice the monomial count;
+    * never multiplies round-off by round-off: the unpivoted QR of a matrix with
+      many exactly dependent columns fills its trailing block with subnormal numbers
+      (|R_jj| down to 1e-33 measured), which ran ~20x slower than normal arithmetic;
+    * yields the dependencies for free: a dropped column's coefficients on the
+      orthonormal basis were computed to test it, and one triangular solve turns
+      them into ``W[:, dropped] = W[:, kept] @ K`` (no least-squares solve).
+
+    Returns ``kept``, ``dropped``, ``K`` (len(kept) × len(dropped)) and the number
+    of rows the decision needed headroom for (the rank): callers check it is well
+    below the number of rows.
+    """
+    n_rows, n_cols = W.shape
+    norms = np.linalg.norm(W, axis=0)
+    Wn = W / np.where(norms > 0, norms, 1.0)
+    cap = min(n_rows, n_cols)
+    Q = np.zeros((n_rows, cap))
+    coef = np.zeros((cap, n_cols))   # Qᵀ w_j (column j of R when j is kept)
+    kept: list[int] = []
+    k = 0
+    for b0 in range(0, n_cols, _BLOCK):
+        X = Wn[:, b0:b0 + _BLOCK].copy()
+        k0 = k
+        if k0:
+            Qk = Q[:, :k0]
+            C = Qk.T @ X
+            X -= Qk @ C
+            C2 = Qk.T @ X           # second pass: orthogonal to working precision
+            X -= Qk @ C2
+            coef[:k0, b0:b0 + X.shape[1]] = C + C2
+        for t in range(X.shape[1]):
+            j = b0 + t
+            x = X[:, t]
+            if k > k0:              # columns kept earlier in this block
+                Ql = Q[:, k0:k]
+                c = Ql.T @ x
+                x = x - Ql @ c
+                c2 = Ql.T @ x
+                x = x - Ql @ c2
+                coef[k0:k, j] = c + c2
+            nx = float(np.linalg.norm(x))
+            if nx > tol:
+                if k == cap:
+                    raise ModelError("internal: too few samples for the base-parameter "
+                                     f"reduction ({n_rows} rows)")
+                Q[:, k] = x / nx
+                coef[k, j] = nx
+                kept.append(j)
+                k += 1
+    kept_set = set(kept)
+    dropped = [j for j in range(n_cols) if j not in kept_set]
+    if dropped and kept:
+        R = coef[:k][:, kept]
+        Kn = solve_triangular(R, coef[:k][:, dropped])
+        safe = np.where(norms > 0, norms, 1.0)
+        K = Kn * (norms[dropped][None, :] / safe[kept][:, None])
+    else:
+        K = np.zeros((len(kept), len(dropped)))
+    return kept, dropped, K, k
+
+
+def _snap(K: np.ndarray) -> np.ndarray:
+    """:func:`_exact` on every entry of ``K``, the integers (most entries) vectorised."""
+    out = np.round(K)
+    off = np.abs(out - K) > 1e-9 * np.maximum(1.0, np.abs(K))
+    for idx in zip(*np.nonzero(off)):
+        out[idx] = _exact(float(K[idx]))
+    return out
+
+
+def _check_dependencies(W: np.ndarray, kept: list[int], dropped: list[int], K: np.ndarray,
+                        rows: int) -> None:
+    """Raise if the snapped ``K`` does not reproduce the dropped columns on ``rows`` rows
+    (the dependencies are exact; a bad snap or a missed column shows here)."""
+    if not dropped:
+        return
+    Ws = W[:rows]
+    resid = Ws[:, kept] @ K - Ws[:, dropped]
+    worst = float(np.max(np.abs(resid), initial=0.0))
+    if worst > 1e-8 * max(1.0, float(np.max(np.abs(Ws)))):
+        raise ModelError(f"internal: base-parameter reduction left a residual {worst:.3e}; "
+                         "the regressor columns are not exactly dependent")
 
 
 def _exact(x: float) -> float:
@@ -202,9 +301,69 @@ def _exact(x: float) -> float:
     if abs(r - x) <= 1e-9 * max(1.0, abs(x)):
         return float(r)
     fr = Fraction(x).limit_denominator(1000)
-    if abs(float(fr) - x) <= 1e-9 * max(1.0, abs(x)):
+    # An absolute window (the old one, relative to max(1, |x|), is the same for
+    # |x| <= 1): fractions with q <= 1000 lie ~1e-6 apart, so a window relative to
+    # |x| found a spurious one for every |x| above ~1000 (tilted axes gave such).
+    if abs(float(fr) - x) <= 1e-9:
         return float(fr)
     return float(f"{x:.12g}")
+
+
+def _enough_rows(n_rows: int, rank: int, n_cols: int, n_out: int) -> bool:
+    """Whether ``n_rows`` sampled rows leave headroom above the rank found (else the
+    rank may be the number of rows, not the regressor's): a quarter more rows than
+    the rank and four samples to spare, or every column kept."""
+    return rank == n_cols or n_rows >= rank + max(rank // 4, 4 * n_out)
+
+
+def _sampled_reduction(sample, n_cols: int, n_out: int, n_samples: int, tol: float):
+    """:func:`_reduce_columns` on stacked ``sample()`` blocks, drawing more until the
+    rows leave headroom above the rank (:func:`_enough_rows`). The first
+    ``n_samples`` blocks are the same draws as before, so small models reach the
+    same decisions from the same numbers."""
+    blocks = [sample() for _ in range(n_samples)]
+    while True:
+        W = np.vstack(blocks)
+        kept, dropped, K, rank = _reduce_columns(W, tol)
+        if _enough_rows(W.shape[0], rank, n_cols, n_out):
+            return W, kept, dropped, K
+        need = -(-(rank + max(rank // 4, 4 * n_out)) // n_out) + 1
+        blocks += [sample() for _ in range(max(need - len(blocks), len(blocks)))]
+
+
+def _regroup(kept: list[int], dropped: list[int], K: np.ndarray, mons: list[Monomial],
+             params: ca.SX, names: tuple[str, ...]):
+    """π = p^kept + K p^dropped, with each base parameter's name (its kept monomial)
+    and text. Monomials are evaluated and named once each (not once per nonzero K
+    entry, which was quadratic in the chain length)."""
+    psyms = [params[j] for j in range(params.shape[0])]
+    val: dict[int, ca.SX] = {}
+    txt: dict[int, str] = {}
+
+    def v(j):
+        if j not in val:
+            val[j] = mons[j].evaluate(psyms)
+        return val[j]
+
+    def t(j):
+        if j not in txt:
+            txt[j] = mons[j].name(names)
+        return txt[j]
+    pi, pnames, pexprs = [], [], []
+    for a, j in enumerate(kept):
+        terms = [v(j)]
+        text = [t(j)]
+        for b in np.flatnonzero(K[a]) if dropped else ():
+            c = float(K[a, b])
+            terms.append(c * v(dropped[b]))
+            text.append(_term(c, t(dropped[b])))
+        expr = terms[0]
+        for term in terms[1:]:
+            expr = expr + term
+        pi.append(expr)
+        pnames.append(t(j))
+        pexprs.append(" ".join(text))
+    return pi, pnames, pexprs
 
 
 def base_parameters(fact: PolynomialFactorisation, params: ca.SX, names: tuple[str, ...],
@@ -214,9 +373,9 @@ def base_parameters(fact: PolynomialFactorisation, params: ca.SX, names: tuple[s
 
     Columns are scanned in order of increasing monomial degree (ties in the order
     of the model's parameters) and kept when they raise the numerical rank of the
-    sampled regressor (one QR decomposition, :func:`_independent_columns`); each
-    dropped column is written exactly in terms of the kept
-    ones by least squares, snapped to a simple fraction (see :func:`_exact`).
+    sampled regressor (Gautier's criterion, :func:`_reduce_columns`); each dropped
+    column is written exactly in terms of the kept ones, the coefficients snapped
+    to simple fractions (see :func:`_exact`).
     """
     if not fact.columns:
         raise ModelError("the dynamics depend on none of the uncertain parameters")
@@ -228,39 +387,14 @@ def base_parameters(fact: PolynomialFactorisation, params: ca.SX, names: tuple[s
     mons = [fact.monomials[i] for i in order]
     Yfull = ca.horzcat(*cols)
     f = ca.Function("Yfull", list(inputs), [Yfull])
-    # At least twice as many rows as columns, so the QR can reveal every column.
     n_out = max(1, Yfull.shape[0])
-    n_samples = max(n_samples, -(-2 * Yfull.shape[1] // n_out))
-    W = np.vstack([np.array(f(*[rng.uniform(-np.pi, np.pi, i.shape) for i in inputs]))
-                   for _ in range(n_samples)])
-    norms = np.linalg.norm(W, axis=0)
-    Wn = W / np.where(norms > 0, norms, 1.0)
 
-    kept = _independent_columns(Wn, tol)
-    dropped = [j for j in range(Wn.shape[1]) if j not in kept]
-    Kmat, *_ = np.linalg.lstsq(W[:, kept], W[:, dropped], rcond=None) if dropped else (
-        np.zeros((len(kept), 0)),)
-    Kmat = np.vectorize(_exact)(Kmat) if dropped else Kmat
-    resid = W[:, kept] @ Kmat - W[:, dropped] if dropped else np.zeros(1)
-    if np.max(np.abs(resid), initial=0.0) > 1e-8 * max(1.0, np.max(np.abs(W))):
-        raise ModelError("internal: base-parameter reduction left a residual "
-                         f"{np.max(np.abs(resid)):.3e}; the regressor columns are not "
-                         "exactly dependent")
-
-    psyms = [params[j] for j in range(params.shape[0])]
-    mon_vals = [m.evaluate(psyms) for m in mons]
-    pi, pnames, pexprs = [], [], []
-    for a, j in enumerate(kept):
-        expr = mon_vals[j]
-        text = [mons[j].name(names)]
-        for b, d in enumerate(dropped):
-            c = Kmat[a, b]
-            if c != 0.0:
-                expr = expr + c * mon_vals[d]
-                text.append(_term(c, mons[d].name(names)))
-        pi.append(expr)
-        pnames.append(mons[j].name(names))
-        pexprs.append(" ".join([text[0]] + text[1:]))
+    def sample():
+        return np.array(f(*[rng.uniform(-np.pi, np.pi, i.shape) for i in inputs]))
+    W, kept, dropped, K = _sampled_reduction(sample, Yfull.shape[1], n_out, n_samples, tol)
+    K = _snap(K)
+    _check_dependencies(W, kept, dropped, K, rows=min(W.shape[0], 4 * n_out))
+    pi, pnames, pexprs = _regroup(kept, dropped, K, mons, params, names)
     return BaseParameters(Y=ca.horzcat(*[cols[j] for j in kept]), pi=ca.vertcat(*pi),
                           names=pnames, expressions=pexprs, full_rank=len(mons),
                           constant=fact.constant)
@@ -336,10 +470,9 @@ def numeric_base_parameters(delta_of_p: ca.SX, params: ca.SX, names: tuple[str, 
     ``Y_δ A_α`` with ``A`` the exact coefficients of δ(p) (small expressions, factored
     symbolically). ``y_delta`` evaluates Y_δ numerically; it is stacked over seeded
     random samples, the monomial columns are formed numerically, ordered as in
-    :func:`base_parameters` (degree, then the model's parameter order), and the
-    diagonal of the R factor of the QR decomposition of the column-normalised matrix
-    says which raise the rank (|R_jj| is the distance of column j from the span of
-    the earlier ones). Only the kept columns are regrouped, exactly
+    :func:`base_parameters` (degree, then the model's parameter order), and
+    :func:`_reduce_columns` says which raise the rank (the distance of column j from
+    the span of the earlier ones). Only the kept columns are regrouped, exactly
     (:func:`_exact`), into π(p). The result has the same columns, names and
     regrouping as the symbolic route on the same model.
     """
@@ -350,42 +483,27 @@ def numeric_base_parameters(delta_of_p: ca.SX, params: ca.SX, names: tuple[str, 
     a0 = (np.array(ca.evalf(fact.constant)).ravel() if fact.constant is not None
           else np.zeros(delta_of_p.shape[0]))
     rng = np.random.default_rng(seed)
-    Wd = np.vstack([np.array(y_delta(*[rng.uniform(-np.pi, np.pi, s) for s in n_inputs]))
-                    for _ in range(n_samples)])
-    W_all = Wd @ A_all
+    n_out = max(1, n_inputs[0][0]) if n_inputs else 1
+
+    def sample():
+        return np.array(y_delta(*[rng.uniform(-np.pi, np.pi, s) for s in n_inputs])) @ A_all
+    first = [sample() for _ in range(n_samples)]
+    W_all = np.vstack(first)
     scale = max(1.0, float(np.max(np.abs(W_all), initial=0.0)))
     live = [j for j in range(W_all.shape[1]) if np.max(np.abs(W_all[:, j])) > 1e-11 * scale]
     if not live:
         raise ModelError("the dynamics depend on none of the uncertain parameters")
     order = sorted(live, key=lambda i: (fact.monomials[i].degree(),
                                         tuple(-e for e in fact.monomials[i].exponents)))
-    W = W_all[:, order]
     mons = [fact.monomials[i] for i in order]
     A = A_all[:, order]
-    kept = _independent_columns(W / np.linalg.norm(W, axis=0), tol)
-    dropped = [j for j in range(W.shape[1]) if j not in kept]
-    if dropped:
-        Kmat, *_ = np.linalg.lstsq(W[:, kept], W[:, dropped], rcond=None)
-        Kmat = np.vectorize(_exact)(Kmat)
-        resid = W[:, kept] @ Kmat - W[:, dropped]
-        if np.max(np.abs(resid)) > 1e-8 * scale:
-            raise ModelError("internal: base-parameter reduction left a residual "
-                             f"{np.max(np.abs(resid)):.3e}; the regressor columns are not "
-                             "exactly dependent")
-    else:
-        Kmat = np.zeros((len(kept), 0))
-    psyms = [params[j] for j in range(params.shape[0])]
-    pi, pnames, pexprs = [], [], []
-    for a, j in enumerate(kept):
-        expr = mons[j].evaluate(psyms)
-        text = [mons[j].name(names)]
-        for b, d in enumerate(dropped):
-            c = Kmat[a, b]
-            if c != 0.0:
-                expr = expr + c * mons[d].evaluate(psyms)
-                text.append(_term(c, mons[d].name(names)))
-        pi.append(expr)
-        pnames.append(mons[j].name(names))
-        pexprs.append(" ".join(text))
+    queue = [w[:, order] for w in first]
+
+    def ordered_sample():
+        return queue.pop(0) if queue else sample()[:, order]
+    W, kept, dropped, K = _sampled_reduction(ordered_sample, len(order), n_out, n_samples, tol)
+    K = _snap(K)
+    _check_dependencies(W, kept, dropped, K, rows=min(W.shape[0], 4 * n_out))
+    pi, pnames, pexprs = _regroup(kept, dropped, K, mons, params, names)
     return NumericBase(A=A[:, kept], a0=a0, pi=ca.vertcat(*pi), names=pnames,
                        expressions=pexprs, full_rank=len(mons))
