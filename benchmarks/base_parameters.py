@@ -8,8 +8,10 @@ uncertain (masses, centres of mass, inertias: the models' default):
 * ``planar``: :func:`softgen.chains.chain_model` (n identical revolute links);
 * ``spatial``: :func:`softgen.chains.spatial_chain_model` (revolute joints about z
   and y in turn, every fifth prismatic; full inertias and off-axis centres of mass);
-* ``planar-lengths``: ``chain_model`` with the lengths uncertain too, which moves the
-  joints and takes the general (symbolic factorisation) path.
+* ``planar-lengths``: ``chain_model`` with the lengths uncertain too ("every parameter
+  uncertain": masses, lengths, centres of mass, inertias); lengths move the joints, so
+  the base parameters are products of masses and lengths (thesis eq. 10.9);
+* ``spatial-all``: ``spatial_chain_model`` with the joint placements uncertain too.
 
 Reported per point: CPU seconds of the derivation (``time.process_time``, all
 threads of the process, so BLAS threads count), peak resident memory of the whole
@@ -40,15 +42,19 @@ from softgen.chains import chain_model, spatial_chain_model
 from softgen.symbolic.rigid import RigidDynamics
 kind, n, check = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "1"
 t0 = time.process_time()
-if kind == "spatial":
+if kind.startswith("spatial"):
     model = spatial_chain_model(n)
+    if kind == "spatial-all":
+        import dataclasses
+        model = dataclasses.replace(model, uncertain=tuple(k for k in model.nominal
+                                                           if k != "g"))
 else:
     model = chain_model(n)
     if kind == "planar-lengths":
         import dataclasses
         model = dataclasses.replace(model, uncertain=tuple(
             k for k in model.nominal if k[0] in "mlcI" and k != "g"))
-dyn = RigidDynamics(model, route="recursive")
+dyn = RigidDynamics(model, route="recursive", base_method=sys.argv[4])
 t1 = time.process_time()
 base = dyn.base
 nominal = dyn.parameter_nominal
@@ -73,10 +79,12 @@ print("RESULT " + json.dumps(out))
 """
 
 
-def run_point(kind: str, n: int, check: bool, timeout: float) -> dict:
+def run_point(kind: str, n: int, check: bool, timeout: float, base_method: str = "auto"
+              ) -> dict:
     t0 = time.perf_counter()
     try:
-        proc = subprocess.run([sys.executable, "-c", _CHILD, kind, str(n), "1" if check else "0"],
+        proc = subprocess.run([sys.executable, "-c", _CHILD, kind, str(n), "1" if check else "0",
+                               base_method],
                               capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return {"kind": kind, "n": n, "error": f"over {timeout:.0f} s wall"}
@@ -101,11 +109,13 @@ def fmt(row: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, nargs="+", default=[10, 20, 30, 40])
-    ap.add_argument("--kind", nargs="+", default=["planar", "spatial"],
-                    choices=["planar", "spatial", "planar-lengths"])
+    ap.add_argument("--kind", nargs="+", default=["planar-lengths", "spatial-all", "planar", "spatial"],
+                    choices=["planar", "spatial", "planar-lengths", "spatial-all"])
     ap.add_argument("--check", action="store_true", help="verify Y pi = tau (not timed)")
     ap.add_argument("--timeout", type=float, default=900.0)
     ap.add_argument("--json", action="store_true", help="one JSON object per point")
+    ap.add_argument("--base-method", default="auto",
+                    help="RigidDynamics(base_method=...): auto, numeric, regrouped, symbolic")
     args = ap.parse_args(argv)
     if not args.json:
         print("| chain | n | uncertain | base CPU s | peak RSS MB | base params | monomials | "
@@ -113,7 +123,7 @@ def main(argv=None) -> int:
         print("|---|---|---|---|---|---|---|---|")
     for kind in args.kind:
         for n in args.n:
-            row = run_point(kind, n, args.check, args.timeout)
+            row = run_point(kind, n, args.check, args.timeout, args.base_method)
             print(json.dumps(row) if args.json else fmt(row), flush=True)
     return 0
 

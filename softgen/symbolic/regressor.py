@@ -14,8 +14,16 @@ them with the exact coefficients, giving ``tau = Y_b(x) π_b(p)`` where
 ``π_b(p) = π_indep(p) + K π_dep(p)`` is the map from physical to base parameters.
 
 Column independence is decided numerically on random seeded samples of ``x``
-(the method of Gautier and Khalil: one QR decomposition of the stacked samples);
-the regressor itself stays symbolic.
+(Gautier's method: the columns scanned in order, each kept when it is not in the
+span of those kept before it, :func:`_reduce_columns`); the regressor itself stays
+symbolic.
+
+When uncertain parameters move joints (lengths), factoring τ in every parameter
+meets ~n³/6 monomials for a chain of n links; :mod:`softgen.symbolic.rigid`
+then first applies the structural regrouping of :mod:`softgen.symbolic.regroup`,
+factors only in the regrouped parameters and the geometry (~n²/2 monomials), and
+maps the result back to the physical monomials exactly (:func:`expand_in`,
+:func:`base_from_coefficients`): the same base set, names and regrouping.
 
 :func:`numeric_base_parameters` reaches the same base set without factoring the
 dynamics at all, when they are linear in per-link inertial parameters δ(p) (no
@@ -58,7 +66,9 @@ class Monomial:
         out = 1
         for pj, e in zip(p, self.exponents):
             if e:
-                out = out * pj ** e
+                # pj ** 1 is pj (same expression), without a power call; higher powers
+                # as before (x**3 is x*sq(x), not sq(x)*x: the generated C must not move).
+                out = out * (pj if e == 1 else pj ** e)
         return out
 
 
@@ -164,6 +174,10 @@ class BaseParameters:
         Number of distinct monomials before reduction.
     constant
         Terms multiplying no uncertain parameter (``None`` when there are none).
+    combinations
+        The same combinations with the geometric factors taken out where that is
+        shorter (``I1 + m1*c1^2 + l1^2*(m2 + m3)``; issue 24); equal to
+        ``expressions`` when there is nothing to factor. Not in the manifest.
     """
 
     Y: ca.SX
@@ -172,6 +186,11 @@ class BaseParameters:
     expressions: list[str]
     full_rank: int
     constant: ca.SX | None
+    combinations: list[str] | None = None
+
+    def __post_init__(self):
+        if self.combinations is None:
+            self.combinations = list(self.expressions)
 
 
 def _independent_columns(Wn: np.ndarray, tol: float = 1e-8) -> list[int]:
@@ -334,36 +353,32 @@ def _sampled_reduction(sample, n_cols: int, n_out: int, n_samples: int, tol: flo
 def _regroup(kept: list[int], dropped: list[int], K: np.ndarray, mons: list[Monomial],
              params: ca.SX, names: tuple[str, ...]):
     """π = p^kept + K p^dropped, with each base parameter's name (its kept monomial)
-    and text. Monomials are evaluated and named once each (not once per nonzero K
-    entry, which was quadratic in the chain length)."""
+    and text. Each monomial is evaluated and named once (not once per nonzero K
+    entry, which was quadratic in the chain length), and π is one sparse product."""
     psyms = [params[j] for j in range(params.shape[0])]
-    val: dict[int, ca.SX] = {}
-    txt: dict[int, str] = {}
-
-    def v(j):
-        if j not in val:
-            val[j] = mons[j].evaluate(psyms)
-        return val[j]
-
-    def t(j):
-        if j not in txt:
-            txt[j] = mons[j].name(names)
-        return txt[j]
-    pi, pnames, pexprs = [], [], []
+    used = sorted(set(kept) | {dropped[b] for b in np.flatnonzero(np.any(K != 0, axis=0))}
+                  if dropped else set(kept))
+    slot = {j: i for i, j in enumerate(used)}
+    txt = {j: mons[j].name(names) for j in used}
+    vals = ca.vertcat(*[ca.SX(mons[j].evaluate(psyms)) for j in used])
+    rows, cols, data = [], [], []
+    pnames, pexprs = [], []
     for a, j in enumerate(kept):
-        terms = [v(j)]
-        text = [t(j)]
-        for b in np.flatnonzero(K[a]) if dropped else ():
+        rows.append(a)
+        cols.append(slot[j])
+        data.append(1.0)
+        text = [txt[j]]
+        for b in (np.flatnonzero(K[a]) if dropped else ()):
             c = float(K[a, b])
-            terms.append(c * v(dropped[b]))
-            text.append(_term(c, t(dropped[b])))
-        expr = terms[0]
-        for term in terms[1:]:
-            expr = expr + term
-        pi.append(expr)
-        pnames.append(t(j))
+            rows.append(a)
+            cols.append(slot[dropped[b]])
+            data.append(c)
+            text.append(_term(c, txt[dropped[b]]))
+        pnames.append(txt[j])
         pexprs.append(" ".join(text))
-    return pi, pnames, pexprs
+    M = ca.DM.triplet(rows, cols, data, len(kept), len(used))
+    pi = ca.mtimes(M, vals)
+    return [pi[a] for a in range(len(kept))], pnames, pexprs
 
 
 def base_parameters(fact: PolynomialFactorisation, params: ca.SX, names: tuple[str, ...],
@@ -507,3 +522,219 @@ def numeric_base_parameters(delta_of_p: ca.SX, params: ca.SX, names: tuple[str, 
     pi, pnames, pexprs = _regroup(kept, dropped, K, mons, params, names)
     return NumericBase(A=A[:, kept], a0=a0, pi=ca.vertcat(*pi), names=pnames,
                        expressions=pexprs, full_rank=len(mons))
+
+
+def pivot_columns(C: np.ndarray, tol: float = 1e-9) -> tuple[list[int], list[int], np.ndarray]:
+    """Leftmost column basis of an exactly known ``C`` and the other columns on it.
+
+    Gauss–Jordan elimination to reduced row echelon form, the columns scanned in
+    order: the pivot columns are the first columns that raise the rank (the same
+    choice as Gautier's ordered scan of :func:`_reduce_columns`, here on exact
+    coefficients rather than sampled ones), and the non-pivot part of the first
+    ``rank`` rows is ``K`` with ``C[:, dropped] = C[:, kept] @ K``. Rows are swapped
+    for the largest pivot (partial pivoting); a column whose candidate pivot is below
+    ``tol`` times its largest entry is dependent. Each pivot updates only the rows
+    with an entry in its column, so sparse coefficient matrices stay cheap.
+    """
+    C = np.array(C, dtype=float)
+    n_rows, n_cols = C.shape
+    scale = np.max(np.abs(C), axis=0, initial=0.0)
+    r = 0
+    kept: list[int] = []
+    for j in range(n_cols):
+        if r == n_rows:
+            break
+        if scale[j] == 0.0:
+            continue
+        col = np.abs(C[r:, j])
+        i = int(np.argmax(col))
+        if col[i] <= tol * scale[j]:
+            continue
+        if i:
+            C[[r, r + i]] = C[[r + i, r]]
+        C[r] /= C[r, j]
+        others = np.flatnonzero(C[:, j])
+        others = others[others != r]
+        if others.size:
+            C[others] -= np.outer(C[others, j], C[r])
+            # Round-off left where an exact zero belongs would count as a dependency.
+            C[others, j] = 0.0
+        kept.append(j)
+        r += 1
+    kept_set = set(kept)
+    dropped = [j for j in range(n_cols) if j not in kept_set]
+    K = C[:r][:, dropped]
+    K[np.abs(K) <= 1e-13 * np.maximum(1.0, scale[dropped])[None, :]] = 0.0
+    return kept, dropped, K
+
+
+def expand_in(exprs: ca.SX, params: ca.SX) -> tuple[np.ndarray, list[Monomial], np.ndarray]:
+    """Numeric coefficients of polynomial ``exprs`` (a column) in ``params``:
+    ``exprs = C p^mons + c0``, the monomials in the order of :func:`base_parameters`
+    (degree, then the model's parameter order), zero columns left out."""
+    n, n_p = exprs.shape[0], params.shape[0]
+    try:
+        polys = _poly_expand(exprs, params)
+    except _NotPolynomial:
+        polys = None
+    if polys is None:           # the general, differentiating route
+        fact = _factor_entries(exprs, params)
+        c0 = (np.array(ca.evalf(fact.constant)).ravel() if fact.constant is not None
+              else np.zeros(n))
+        cols = (np.array(ca.evalf(ca.horzcat(*fact.columns))) if fact.columns
+                else np.zeros((n, 0)))
+        exps = [m.exponents for m in fact.monomials]
+    else:
+        c0 = np.array([poly.get((), 0.0) for poly in polys])
+        keys = sorted({m for poly in polys for m in poly if m})
+        index = {m: j for j, m in enumerate(keys)}
+        cols = np.zeros((n, len(keys)))
+        for i, poly in enumerate(polys):
+            for m, c in poly.items():
+                if m:
+                    cols[i, index[m]] = c
+        exps = []
+        for m in keys:
+            e = [0] * n_p
+            for i, k in m:
+                e[i] = k
+            exps.append(tuple(e))
+    order = sorted(range(len(exps)), key=lambda i: (sum(exps[i]), tuple(-e for e in exps[i])))
+    live = [i for i in order if np.any(cols[:, i] != 0.0)]
+    return cols[:, live], [Monomial(exps[i]) for i in live], c0
+
+
+def _signed(terms: list[tuple[float, str]]) -> str:
+    """``a + 2*b - 1/2*c`` from (coefficient, monomial text) pairs."""
+    c0, m0 = terms[0]
+    head = _term(c0, m0)
+    head = head[2:] if c0 > 0 else "-" + head[2:]
+    return " ".join([head] + [_term(c, m) for c, m in terms[1:]])
+
+
+def combination_texts(kept: list[int], dropped: list[int], K: np.ndarray,
+                      mons: list[Monomial], names: tuple[str, ...],
+                      outer: set[int]) -> list[str]:
+    """Each base parameter's combination with the factors in ``outer`` (parameter
+    indices, e.g. the lengths) taken out of the terms that share all of them:
+    ``I1 + m1*c1^2 + l1^2*m2 + l1^2*m3`` reads ``I1 + m1*c1^2 + l1^2*(m2 + m3)``,
+    the form of Gautier and Khalil's regrouped ZZR_1 = ZZ_1 + l_1² (m_2 + m_3).
+    One level: ``l1*m2*c2 + l1*l2*(m3 + m4)``, not ``l1*(m2*c2 + l2*(m3 + m4))``."""
+    out = []
+    for a, j in enumerate(kept):
+        terms = [(1.0, mons[j])] + ([(float(K[a, b]), mons[dropped[b]])
+                                     for b in np.flatnonzero(K[a])] if dropped else [])
+        groups: dict[tuple[int, ...], list[tuple[float, Monomial]]] = {}
+        for c, mon in terms:
+            key = tuple(e if i in outer else 0 for i, e in enumerate(mon.exponents))
+            groups.setdefault(key, []).append((c, mon))
+        parts: list[tuple[float, str]] = []
+        for key, group in groups.items():
+            if len(group) == 1 or not any(key):
+                parts += [(c, mon.name(names)) for c, mon in group]
+                continue
+            inner = [(c, Monomial(tuple(0 if i in outer else e
+                                        for i, e in enumerate(mon.exponents))).name(names))
+                     for c, mon in group]
+            parts.append((1.0, f"{Monomial(key).name(names)}*({_signed(inner)})"))
+        out.append(_signed(parts))
+    return out
+
+
+def base_from_coefficients(Yz: ca.SX, C: np.ndarray, mons: list[Monomial], params: ca.SX,
+                           names: tuple[str, ...], outer: set[int] = frozenset()
+                           ) -> tuple[ca.SX, ca.SX, list[str], list[str], list[str]]:
+    """Base parameters of ``τ = Yz (C p^mons)`` in the physical monomials, as
+    :func:`base_parameters` would choose them from τ factored in ``params``.
+
+    ``Yz`` has independent columns, so a set of monomial columns ``Yz C[:, S]`` is
+    independent exactly when ``C[:, S]`` is: the ordered scan runs on the exact
+    coefficients (:func:`pivot_columns`), no sampling. Returns ``Y = Yz C[:, kept]``,
+    π, names, texts and the texts with ``outer`` factored (:func:`combination_texts`).
+    """
+    kept, dropped, K = pivot_columns(C)
+    K = _snap(K)
+    resid = C[:, kept] @ K - C[:, dropped] if dropped else np.zeros(1)
+    if np.max(np.abs(resid), initial=0.0) > 1e-9 * max(1.0, float(np.max(np.abs(C)))):
+        raise ModelError("internal: regrouped base parameters left a residual "
+                         f"{np.max(np.abs(resid)):.3e}")
+    Ck = C[:, kept]
+    r, c = np.nonzero(Ck)
+    Y = ca.mtimes(Yz, ca.DM.triplet(r.tolist(), c.tolist(), Ck[r, c].tolist(),
+                                    Ck.shape[0], Ck.shape[1]))
+    pi, pnames, pexprs = _regroup(kept, dropped, K, mons, params, names)
+    combos = combination_texts(kept, dropped, K, mons, names, set(outer))
+    return Y, ca.vertcat(*pi), pnames, pexprs, combos
+
+
+class _NotPolynomial(Exception):
+    pass
+
+
+def _poly_mul(a: dict, b: dict) -> dict:
+    out: dict = {}
+    for ka, ca_ in a.items():
+        for kb, cb in b.items():
+            if ka and kb:
+                d = dict(ka)
+                for i, e in kb:
+                    d[i] = d.get(i, 0) + e
+                key = tuple(sorted(d.items()))
+            else:
+                key = ka or kb
+            out[key] = out.get(key, 0.0) + ca_ * cb
+    return out
+
+
+def _poly_add(a: dict, b: dict, sign: float = 1.0) -> dict:
+    out = dict(a)
+    for k, c in b.items():
+        out[k] = out.get(k, 0.0) + sign * c
+    return out
+
+
+def _poly_expand(exprs: ca.SX, params: ca.SX) -> list[dict]:
+    """Each entry of ``exprs`` as {monomial: coefficient}, a monomial being a sorted
+    tuple of (parameter index, exponent) pairs (() for the constant).
+
+    Walks the expression graph once (the instructions of an SX Function, common
+    subexpressions evaluated once) with sparse polynomial arithmetic: exact for
+    +, −, ×, squares and division by constants, the operations polynomial
+    coefficients are built from. Anything else raises :class:`_NotPolynomial`.
+    Much cheaper than :func:`factor_polynomial` for many short entries (no
+    symbolic differentiation, no Function per entry).
+    """
+    f = ca.Function("expand", [params], [ca.densify(exprs)])
+    work: dict[int, dict] = {}
+    out: list[dict] = [{} for _ in range(exprs.shape[0])]
+    for k in range(f.n_instructions()):
+        op = f.instruction_id(k)
+        ins = f.instruction_input(k)
+        res = f.instruction_output(k)
+        if op == ca.OP_CONST:
+            c = float(f.instruction_constant(k))
+            work[res[0]] = {(): c} if c != 0.0 else {}
+        elif op == ca.OP_INPUT:
+            work[res[0]] = {((ins[1], 1),): 1.0}
+        elif op == ca.OP_OUTPUT:
+            out[res[1]] = {m: c for m, c in work[ins[0]].items() if c != 0.0}
+        elif op == ca.OP_ADD:
+            work[res[0]] = _poly_add(work[ins[0]], work[ins[1]])
+        elif op == ca.OP_SUB:
+            work[res[0]] = _poly_add(work[ins[0]], work[ins[1]], -1.0)
+        elif op == ca.OP_NEG:
+            work[res[0]] = {m: -c for m, c in work[ins[0]].items()}
+        elif op == ca.OP_TWICE:
+            work[res[0]] = {m: 2.0 * c for m, c in work[ins[0]].items()}
+        elif op == ca.OP_MUL:
+            work[res[0]] = _poly_mul(work[ins[0]], work[ins[1]])
+        elif op == ca.OP_SQ:
+            work[res[0]] = _poly_mul(work[ins[0]], work[ins[0]])
+        elif op == ca.OP_DIV:
+            den = work[ins[1]]
+            if set(den) != {()}:
+                raise _NotPolynomial("division by a non-constant")
+            work[res[0]] = {m: c / den[()] for m, c in work[ins[0]].items()}
+        else:
+            raise _NotPolynomial(f"operation {op}")
+    return out
