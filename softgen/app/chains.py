@@ -33,7 +33,8 @@ from softgen.modelfile.model import RobotModel, load_model
 from softgen.symbolic.linear import LinearParameters
 from softgen.symbolic.mechanics import Mechanics
 
-__all__ = ["chain_model", "measure_route", "scaling_table", "format_table"]
+__all__ = ["chain_model", "spatial_chain_model", "measure_route", "scaling_table",
+           "format_table"]
 
 #: Address-space cap for one compiler run. gcc -O3 on one huge straight-line
 #: function can take many GiB; the cap turns that into a BuildError, not an OOM kill.
@@ -76,6 +77,54 @@ def chain_model(n: int) -> RobotModel:
         path.write_text(text)
         model = load_model(path)
     # The file is gone: a path pointing at it would make source_text() fail later.
+    return dataclasses.replace(model, path=None)
+
+
+_SPATIAL_LINK = """
+[[links]]
+name = "link{i}"
+joint = "{joint}"
+axis = {axis}
+origin_xyz = [0.02, 0.0, 0.1]
+mass = 0.5
+com = [0.01, 0.005, 0.05]
+inertia = [2e-3, 2.2e-3, 1e-3, 1e-5, -2e-5, 3e-5]
+"""
+
+
+def spatial_chain_model(n: int) -> RobotModel:
+    """A spatial chain of ``n`` links: revolute joints alternately about z and y, every
+    fifth joint prismatic along x.
+
+    Each link sits 0.1 m up and 0.02 m sideways from its parent's origin and has
+    m = 0.5 kg, an off-axis centre of mass and a full (off-diagonal) inertia, so
+    every inertial parameter acts; with no ``[parameters]`` table all of them
+    (masses, centres of mass, inertias) are uncertain. Consecutive z and y axes
+    are perpendicular and each y axis is parallel to the next-but-one: the
+    structural regroupings of a generic arm, with no planar degeneracy. Loaded
+    like :func:`chain_model` (same checks, ``path`` None).
+
+    Raises
+    ------
+    ValueError
+        ``n`` is not a positive integer.
+    """
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"n: expected a positive integer, got {n!r}")
+
+    def link(i: int) -> str:
+        if i % 5 == 0:
+            return _SPATIAL_LINK.format(i=i, joint="prismatic", axis="[1.0, 0.0, 0.0]")
+        axis = "[0.0, 0.0, 1.0]" if i % 2 else "[0.0, 1.0, 0.0]"
+        return _SPATIAL_LINK.format(i=i, joint="revolute", axis=axis)
+    text = (f'[model]\nname = "spatial_chain{n}"\nkind = "spatial"\n'
+            f'description = "Spatial chain of {n} links"\n'
+            'source = "softgen.app.chains"\n\n[gravity]\nvector = [0.0, 0.0, -9.81]\n'
+            + "".join(link(i) for i in range(1, n + 1)))
+    with tempfile.TemporaryDirectory(prefix="softgen-chain-") as tmp:
+        path = Path(tmp) / f"spatial_chain{n}.toml"
+        path.write_text(text)
+        model = load_model(path)
     return dataclasses.replace(model, path=None)
 
 

@@ -18,8 +18,9 @@ from softgen.modelfile.model import RobotModel
 from softgen.symbolic.mechanics import Inertial, Mechanics, physical_inertials, symbolic_values
 from softgen.symbolic.recursive import inertial_fields, regressor_transpose_times
 from softgen.symbolic.recursive import slotine_li as recursive_slotine_li
-from softgen.symbolic.regressor import (BaseParameters, NumericBase, base_parameters, factor_polynomial,
-                        numeric_base_parameters)
+from softgen.symbolic.regressor import (BaseParameters, NumericBase, base_from_coefficients, base_parameters,
+                        expand_in, factor_polynomial, numeric_base_parameters)
+from softgen.symbolic.regroup import regroup
 
 #: Routes for τ = B q̈_r + C q̇_r + G, in the order preferred on equal counts.
 ROUTES = ("recursive", "matrix-free", "explicit")
@@ -27,6 +28,14 @@ ROUTES = ("recursive", "matrix-free", "explicit")
 #: Kept for callers that imported it; route="auto" no longer uses a joint count but
 #: the measured instruction counts of every route (:meth:`RigidDynamics.route_detail`).
 AUTO_EXPLICIT_MAX_DOF = 6
+
+#: Smallest chain for which ``base_method="auto"`` regroups before factoring when an
+#: uncertain parameter moves a joint (:meth:`RigidDynamics._regrouped_base`). Shorter
+#: chains keep the direct factorisation: it is fast for them, and its regressor
+#: columns are the ones the shipped bundles were generated from (the regrouped
+#: route gives the same base parameters, names and values, but Y as other, equal,
+#: expressions, hence other C).
+REGROUP_MIN_DOF = 5
 
 #: CasADi options for every generated function: common-subexpression elimination
 #: shrinks the regressor several-fold (measured in ``softgen bench``).
@@ -99,25 +108,28 @@ class RigidDynamics(BaseParameterAPI):
         Slotine–Li law (Prop. 10), Theorem 5, Corollary 2 and Theorem 10 may use
         any of them; :meth:`coriolis_fun` always forms that C explicitly.
     base_method
-        ``"auto"`` (default), ``"numeric"`` or ``"symbolic"``: see below.
+        ``"auto"`` (default), ``"numeric"``, ``"regrouped"`` or ``"symbolic"``: see below.
 
     Base parameters come from numerical identifiability (Gautier's QR, seconds even
     for 40 links; :func:`~softgen.symbolic.regressor.numeric_base_parameters`)
     whenever the dynamics are linear in per-link inertial parameters whose entries
     are polynomials of the uncertain ones, i.e. no uncertain parameter moves a joint
     (lengths that place the next joint, offsets, g); otherwise from the exact
-    symbolic factorisation (:func:`~softgen.symbolic.regressor.factor_polynomial`).
-    Both give the same base columns and names; ``base_method`` (``"auto"``,
-    ``"numeric"``, ``"symbolic"``) forces one.
+    symbolic factorisation (:func:`~softgen.symbolic.regressor.factor_polynomial`):
+    for chains of :data:`REGROUP_MIN_DOF` links or more after the structural
+    regrouping of :mod:`softgen.symbolic.regroup` (``"regrouped"``: only the
+    regrouped parameters and the geometry are factored, ~n²/2 monomials instead of
+    ~n³/6 for uncertain lengths), else directly (``"symbolic"``). All give the same
+    base parameters, names and nominal values; ``base_method`` forces one.
     """
 
     def __init__(self, model: RobotModel, *, route: str = "auto", base_method: str = "auto"):
         if route not in ("auto",) + ROUTES:
             raise ValueError(f"route: expected 'auto', 'recursive', 'matrix-free' or "
                              f"'explicit', got {route!r}")
-        if base_method not in ("auto", "numeric", "symbolic"):
-            raise ValueError(f"base_method: expected 'auto', 'numeric' or 'symbolic', "
-                             f"got {base_method!r}")
+        if base_method not in ("auto", "numeric", "regrouped", "symbolic"):
+            raise ValueError(f"base_method: expected 'auto', 'numeric', 'regrouped' or "
+                             f"'symbolic', got {base_method!r}")
         self.model = model
         self.base_method = base_method
         self.nominal = Mechanics(model, model.nominal)
@@ -207,7 +219,7 @@ class RigidDynamics(BaseParameterAPI):
 
     @cached_property
     def _numeric_base(self) -> NumericBase | None:
-        lin = self._linear if self.base_method != "symbolic" else None
+        lin = self._linear if self.base_method in ("auto", "numeric") else None
         if lin is None:
             if self.base_method == "numeric":
                 raise ValueError("base_method: 'numeric' needs dynamics linear in the link "
@@ -255,6 +267,10 @@ class RigidDynamics(BaseParameterAPI):
                     constant = None
             return BaseParameters(Y=Y, pi=nb.pi, names=nb.names, expressions=nb.expressions,
                                   full_rank=nb.full_rank, constant=constant)
+        if self.base_method == "regrouped" or (self.base_method == "auto"
+                                               and self.model.dof >= REGROUP_MIN_DOF):
+            self.route_detail["base_parameters"] = "regrouped (Gautier-Khalil) + symbolic"
+            return self._regrouped_base()
         self.route_detail["base_parameters"] = "symbolic"
         mech, p = self._symbolic
         tau = mech.slotine_li(self.route)
@@ -268,6 +284,74 @@ class RigidDynamics(BaseParameterAPI):
         if base.constant is not None:
             base.constant = ca.substitute([base.constant], subs_from, subs_to)[0]
         return base
+
+    def _regrouped_base(self) -> BaseParameters:
+        """Base parameters when uncertain parameters move joints: regroup, then factor.
+
+        τ is linear in the links' inertial parameters δ for any geometry; the
+        structural regrouping (:func:`~softgen.symbolic.regroup.regroup`, Gautier and
+        Khalil 1990) writes τ = Y_R(x, ℓ) ρ with ρ = δ^R(δ(p), ℓ) the regrouped
+        parameters and ℓ the uncertain placements (lengths, offsets, g). τ is
+        factored in (ρ, ℓ), whose monomials are few (a regrouped column is at most
+        linear in each length before it), and reduced to base columns Y_z
+        (:func:`~softgen.symbolic.regressor.base_parameters`); substituting ρ(p)
+        and expanding gives π_z = C p^α + c0, and the ordered scan on the exact C
+        (:func:`~softgen.symbolic.regressor.base_from_coefficients`) picks the same
+        base monomials, names and regrouping as factoring τ in p directly would.
+        """
+        model = self.model
+        mech_p, p = self._symbolic
+        values = mech_p.values
+        fields = inertial_fields(model)
+        deltas = [{f: ca.SX.sym(f"{f}{j}") for f in fields} for j in range(1, model.dof + 1)]
+        phys = physical_inertials(model, values)
+        d_syms, d_of_p = [], []
+        for d, ph in zip(deltas, phys):
+            entry = {"m": ph.m, "hx": ph.h[0], "hy": ph.h[1], "hz": ph.h[2],
+                     "Ixx": ph.I[0, 0], "Iyy": ph.I[1, 1], "Izz": ph.I[2, 2],
+                     "Ixy": ph.I[0, 1], "Ixz": ph.I[0, 2], "Iyz": ph.I[1, 2]}
+            for f in fields:
+                d_syms.append(d[f])
+                d_of_p.append(entry[f])
+        reg = regroup(model, values, deltas, fields)
+        rho, rho_names, rho_expr, inertials = [], [], [], []
+        zero = ca.SX(0)
+        for j, r in enumerate(reg, start=1):
+            sy = {}
+            for f in fields:
+                if f in r:
+                    sy[f] = ca.SX.sym(f"{f}{j}R")
+                    rho.append(sy[f])
+                    rho_names.append(f"{f}{j}R")
+                    rho_expr.append(r[f])
+            g = lambda f, sy=sy: sy.get(f, zero)  # noqa: E731
+            inertials.append(Inertial(
+                m=g("m"), h=ca.vertcat(g("hx"), g("hy"), g("hz")),
+                I=ca.vertcat(ca.horzcat(g("Ixx"), g("Ixy"), g("Ixz")),
+                             ca.horzcat(g("Ixy"), g("Iyy"), g("Iyz")),
+                             ca.horzcat(g("Ixz"), g("Iyz"), g("Izz")))))
+        rho_v = ca.vertcat(*rho)
+        rho_of_p = ca.substitute(ca.vertcat(*rho_expr), ca.vertcat(*d_syms),
+                                 ca.vertcat(*d_of_p))
+        m = self.nominal
+        inputs = [m.q, m.qd, m.qd_r, m.qdd_r]
+        tau = recursive_slotine_li(model, values, *inputs, inertials)
+        # The uncertain parameters left in τ: placements, g, damping, stiffness.
+        present = ca.which_depends(tau, p, 1, False) if p.shape[0] else []
+        geo = [k for k in range(p.shape[0]) if present[k]]
+        z = ca.vertcat(rho_v, *[p[k] for k in geo])
+        znames = tuple(rho_names) + tuple(model.uncertain[k] for k in geo)
+        bz = base_parameters(factor_polynomial(tau, z, inputs), z, znames, inputs)
+        pi_p = ca.substitute(bz.pi, rho_v, rho_of_p)
+        C, mons, c0 = expand_in(pi_p, p)
+        Y, pi, names, exprs, combos = base_from_coefficients(bz.Y, C, mons, p,
+                                                             model.uncertain, set(geo))
+        constant = bz.constant
+        if np.any(c0 != 0.0):
+            known = ca.mtimes(bz.Y, ca.DM(c0))
+            constant = known if constant is None else constant + known
+        return BaseParameters(Y=Y, pi=pi, names=names, expressions=exprs,
+                              full_rank=len(mons), constant=constant, combinations=combos)
 
     def _x(self) -> list[ca.SX]:
         m = self.nominal
