@@ -11,7 +11,8 @@ and point this script at its headers and libraries (the ``cmeel.prefix`` directo
         --n 2 5 10 20 40 80 --arm
 
 For every chain (softgen.chains.chain_model(n); with ``--arm`` also the shipped
-7-DoF Panda, ``models/panda.urdf``), it writes one C file with softgen's
+7-DoF Panda, ``models/panda.urdf``, and with ``--urdf FILE ...`` any URDF arm, e.g.
+the UR5 of example-robot-data), it writes one C file with softgen's
 functions as ``softgen generate`` builds them (``RigidDynamics(model)`` with
 route="auto": τ = inverse_dynamics, Yᵀ s and Y π̂ over the base parameters), a text
 description of the chain (joint type, axis, placement, mass, centre of mass,
@@ -255,6 +256,8 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, nargs="+", default=[2, 5, 10, 20, 40, 80])
     ap.add_argument("--arm", action="store_true",
                     help="also the shipped 7-DoF Panda (models/panda.urdf)")
+    ap.add_argument("--urdf", type=Path, nargs="*", default=[],
+                    help="more URDF files (tagged by their file stem), e.g. a UR5")
     ap.add_argument("--calls", type=int, default=20000)
     ap.add_argument("--repeats", type=int, default=7)
     args = ap.parse_args(argv)
@@ -262,6 +265,7 @@ def main(argv=None) -> int:
     models = [(f"chain{n}", chain_model(n)) for n in args.n]
     if args.arm:
         models.append(("panda", load_model("panda")))
+    models += [(path.stem.replace("-", "_"), load_model(path)) for path in args.urdf]
     print("\n".join(harness(models, args.pin_prefix, args.calls, args.repeats)))
     return 0
 

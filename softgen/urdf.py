@@ -13,7 +13,8 @@ attributes each) for which a URDF library would add an install and its own
 dependencies (yourdfpy, for one, pulls lxml and trimesh) and still leave the
 merging and the checks to do here. Xacro macros are not expanded: a file with
 ``xacro:`` elements or ``${...}`` is refused with one line asking to run
-``xacro`` first.
+``xacro`` first. A mere ``xmlns:xacro`` declaration is not refused: ``xacro``
+keeps it in the files it writes (the UR5 of example-robot-data has one).
 
 What is read
     ``<robot name>`` is the model name. It prefixes every generated C symbol, so
@@ -174,7 +175,7 @@ class _Urdf(_Reader):
 
     def __init__(self, path: Path, text: str):
         super().__init__(path)
-        if re.search(r"<\s*xacro:|xmlns:xacro|\$\{", text):
+        if re.search(r"<\s*xacro:|\$\{", text):
             raise self.fail("xacro", "this file uses xacro macros; expand them first "
                             "(`xacro robot.urdf.xacro > robot.urdf`) and load the result")
         try:
