@@ -21,7 +21,8 @@ harness that
 
 1. checks Pinocchio's ``rnea(q, v, a)`` against softgen's τ at q̇_r = q̇, q̈_r = q̈;
 2. times ``rnea`` and ``computeJointTorqueRegressor`` against softgen's τ, Yᵀ s and
-   Y π̂, repeats interleaved, median ns per call. Both sides are compiled with
+   Y π̂, repeats interleaved, median ns of thread CPU time per call (CPU time, so that
+   time preempted on a shared machine does not count). Both sides are compiled with
    ``-O3`` (softgen's C with gcc, the harness with g++ -O3 -DNDEBUG).
 
 Prints one table; ratios are Pinocchio ÷ softgen (above 1: softgen faster).
@@ -78,7 +79,7 @@ _CPP_HEAD = r"""
 #include <pinocchio/multibody.hpp>
 #include <pinocchio/algorithm/rnea.hpp>
 #include <pinocchio/algorithm/regressor.hpp>
-#include <chrono>
+#include <ctime>
 #include <cstdio>
 #include <fstream>
 #include <vector>
@@ -139,11 +140,18 @@ struct CFun {
   inline void operator()() { f(arg.data(), res.data(), iw.data(), w.data(), 0); }
 };
 
+// CPU time of this thread, not wall time: on a shared machine, time spent preempted by
+// other processes is not the function's cost.
+static double cpu_ns() {
+  timespec t;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return t.tv_sec * 1e9 + t.tv_nsec;
+}
+
 template <class F> static double time_ns(F &&fn, long calls) {
-  auto t0 = std::chrono::steady_clock::now();
+  double t0 = cpu_ns();
   for (long c = 0; c < calls; ++c) fn();
-  auto t1 = std::chrono::steady_clock::now();
-  return std::chrono::duration<double, std::nano>(t1 - t0).count() / calls;
+  return (cpu_ns() - t0) / calls;
 }
 
 static double median(std::vector<double> v) {
