@@ -11,7 +11,8 @@ and point this script at its headers and libraries (the ``cmeel.prefix`` directo
         --n 2 5 10 20 40 80 --arm
 
 For every chain (softgen.app.chains.chain_model(n); with ``--arm`` also the shipped
-7-DoF Panda, ``models/panda.urdf``), it writes one C file with softgen's
+7-DoF Panda, ``models/panda.urdf``, and with ``--urdf FILE ...`` any URDF arm, e.g.
+the UR5 of example-robot-data), it writes one C file with softgen's
 functions as ``softgen generate`` builds them (``RigidDynamics(model)`` with
 route="auto": τ = inverse_dynamics, Yᵀ s and Y π̂ over the base parameters), a text
 description of the chain (joint type, axis, placement, mass, centre of mass,
@@ -20,7 +21,8 @@ harness that
 
 1. checks Pinocchio's ``rnea(q, v, a)`` against softgen's τ at q̇_r = q̇, q̈_r = q̈;
 2. times ``rnea`` and ``computeJointTorqueRegressor`` against softgen's τ, Yᵀ s and
-   Y π̂, repeats interleaved, median ns per call. Both sides are compiled with
+   Y π̂, repeats interleaved, median ns of thread CPU time per call (CPU time, so that
+   time preempted on a shared machine does not count). Both sides are compiled with
    ``-O3`` (softgen's C with gcc, the harness with g++ -O3 -DNDEBUG).
 
 Prints one table; ratios are Pinocchio ÷ softgen (above 1: softgen faster).
@@ -77,7 +79,7 @@ _CPP_HEAD = r"""
 #include <pinocchio/multibody.hpp>
 #include <pinocchio/algorithm/rnea.hpp>
 #include <pinocchio/algorithm/regressor.hpp>
-#include <chrono>
+#include <ctime>
 #include <cstdio>
 #include <fstream>
 #include <vector>
@@ -138,11 +140,18 @@ struct CFun {
   inline void operator()() { f(arg.data(), res.data(), iw.data(), w.data(), 0); }
 };
 
+// CPU time of this thread, not wall time: on a shared machine, time spent preempted by
+// other processes is not the function's cost.
+static double cpu_ns() {
+  timespec t;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return t.tv_sec * 1e9 + t.tv_nsec;
+}
+
 template <class F> static double time_ns(F &&fn, long calls) {
-  auto t0 = std::chrono::steady_clock::now();
+  double t0 = cpu_ns();
   for (long c = 0; c < calls; ++c) fn();
-  auto t1 = std::chrono::steady_clock::now();
-  return std::chrono::duration<double, std::nano>(t1 - t0).count() / calls;
+  return (cpu_ns() - t0) / calls;
 }
 
 static double median(std::vector<double> v) {
@@ -255,6 +264,8 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, nargs="+", default=[2, 5, 10, 20, 40, 80])
     ap.add_argument("--arm", action="store_true",
                     help="also the shipped 7-DoF Panda (models/panda.urdf)")
+    ap.add_argument("--urdf", type=Path, nargs="*", default=[],
+                    help="more URDF files (tagged by their file stem), e.g. a UR5")
     ap.add_argument("--calls", type=int, default=20000)
     ap.add_argument("--repeats", type=int, default=7)
     args = ap.parse_args(argv)
@@ -262,6 +273,7 @@ def main(argv=None) -> int:
     models = [(f"chain{n}", chain_model(n)) for n in args.n]
     if args.arm:
         models.append(("panda", load_model("panda")))
+    models += [(path.stem.replace("-", "_"), load_model(path)) for path in args.urdf]
     print("\n".join(harness(models, args.pin_prefix, args.calls, args.repeats)))
     return 0
 

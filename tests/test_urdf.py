@@ -436,6 +436,14 @@ def test_bad_urdf_gives_one_line_naming_the_element(tmp_path, text, match):
     assert match in msg, msg
 
 
+def test_expanded_xacro_output_with_its_namespace_declaration_loads(tmp_path):
+    """``xacro`` keeps ``xmlns:xacro`` in the URDF it writes: that alone is no macro."""
+    path = tmp_path / "expanded.urdf"
+    path.write_text(_swap('<robot name="two">',
+                          '<robot name="two" xmlns:xacro="http://wiki.ros.org/xacro">'))
+    assert load_model(path).dof == 2
+
+
 def test_merged_link_names_the_fixed_links_in_its_error(tmp_path):
     # l2 itself massless, its fixed child a zero inertial: the merged body moves no mass
     # along the prismatic joint, refused by softgen.modelfile.model's check; the message

@@ -84,7 +84,6 @@ from softgen.modelfile.model import MAX_MAGNITUDE, FileReader, RobotModel, parse
 _NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?")
 
 _MOVABLE = {"revolute": "revolute", "continuous": "revolute", "prismatic": "prismatic"}
-_XACRO_NS = "{http://www.ros.org/wiki/xacro}"
 _REFUSED_TYPES = {"floating": "a floating joint (6 DoF)", "planar": "a planar joint (3 DoF)"}
 
 
@@ -223,7 +222,9 @@ class _Urdf(_Reader):
         (comments are not in the parsed tree), so neither is refused."""
         for el in self.root.iter():
             tag = el.tag if isinstance(el.tag, str) else ""
-            if tag.startswith(_XACRO_NS) or tag.startswith("xacro:"):
+            # Any xacro namespace URI (ros.org/wiki/xacro, wiki.ros.org/xacro, ...).
+            if (tag.startswith("{") and "xacro" in tag[1:tag.find("}")]) \
+                    or tag.startswith("xacro:"):
                 raise self._unexpanded(f"<xacro:{tag.rpartition('}')[2]}> element")
             for k, v in el.attrib.items():
                 if "${" in v or "$(" in v:

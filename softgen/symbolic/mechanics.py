@@ -63,10 +63,15 @@ def axis_rotation(axis: tuple[float, float, float], angle: ca.SX) -> ca.SX:
     return ca.DM.eye(3) + ca.sin(angle) * k + (1 - ca.cos(angle)) * ca.mtimes(k, k)
 
 
-def simplify_const(m: np.ndarray) -> ca.DM:
-    """Round a constant rotation so exact 0/±1 entries stay exact (smaller code)."""
-    out = np.where(np.abs(m) < 1e-15, 0.0, m)
-    out = np.where(np.abs(np.abs(out) - 1.0) < 1e-15, np.sign(out), out)
+def simplify_const(m: np.ndarray, tol: float = 1e-15) -> ca.DM:
+    """Round a constant rotation so exact 0/±1 entries stay exact (smaller code).
+
+    ``tol`` bounds the round-off taken for an exact value (cos(π/2) = 6.1e-17 in
+    doubles); it is not a modelling tolerance.
+    """
+    m = np.asarray(m, dtype=float)
+    out = np.where(np.abs(m) < tol, 0.0, m)
+    out = np.where(np.abs(np.abs(out) - 1.0) < tol, np.sign(out), out)
     return ca.DM(out)
 
 

@@ -7,7 +7,10 @@ kinetic energy; this module builds the same left-hand side
 
 by one forward and one backward sweep over the chain, in link coordinates with
 spatial (6D, angular-first) vectors, so its size grows linearly in the number of
-links with a small constant.
+links with a small constant. Each link's coordinates are turned so that its joint
+axis is a coordinate axis and the file's fixed placement is one constant rotation
+per joint with as many exact zeros as a free offset of the joint angle allows
+("Joint frames" below); CasADi SX then drops the products with those zeros.
 
 Which C
 -------
@@ -28,6 +31,49 @@ round-off (tested for planar and spatial chains, revolute and prismatic joints,
 tilted axes). Every law that needs the Christoffel C may use this route: the
 Slotine–Li law of Prop. 10, whose Lyapunov argument uses the skew-symmetry of
 Ḃ − 2C, Theorem 5 and Corollary 2 of chapter 10, and Theorem 10.
+
+Body force in (m, h, I_o)
+-------------------------
+With the spatial inertia about the link origin, I (ω, u) = (I_o ω + h × u, m u − h × ω)
+(h = m c), v = (ω, u), v_r = (ω_r, u_r), a_r = (α, a) and w = ω × ω_r, the body force
+above expands, part by part, to
+
+* m: I a_r = (0, m a); the two ×* terms give (m (u × u_r + u_r × u), m (ω × u_r +
+  ω_r × u)) and I (v × v_r) gives (0, m (ω × u_r + u × ω_r)), so f_m = (0, m b) with
+  b = a + ω_r × u;
+* h: (h × a, α × h) from I a_r; expanding the double cross products
+  (x × (h × y) = h (x·y) − y (x·h)) leaves h × (ω_r × u) in the moment and, by the
+  Jacobi identity, ω_r × (ω × h) in the force: f_h = (h × b, α × h + ω_r × (ω × h));
+* I_o: (I_o α + ½ (ω × I_o ω_r + ω_r × I_o ω − I_o w), 0). The identity
+  Mᵀ (x × y) + (M x) × y + x × (M y) = tr(M) (x × y), true for every 3×3 M, gives for
+  the symmetric I_o: ω × I_o ω_r = tr(I_o) w − I_o w + ω_r × I_o ω, so the moment is
+  I_o (α − w) + ½ tr(I_o) w + ω_r × (I_o ω).
+
+Hence
+
+    n = I_o (α − w) + ½ tr(I_o) w + ω_r × (I_o ω) + h × b,
+    f = m b + α × h + ω_r × (ω × h):
+
+two 3×3 products and no linear velocity of v_r (so u_r is never propagated) instead
+of three 6×6 inertia products; still linear in (m, h, I_o). At v_r = v it is the
+classical Newton–Euler force (I a + v ×* I v). It took the Panda's τ from 1,805 to
+1,135 CasADi instructions (benchmarks/README.md).
+
+Joint frames
+------------
+Link i is expressed in an "aligned" frame, its link frame turned by a constant
+rotation Q_i with Q_i b_i = axis_i for a coordinate axis b_i: a coordinate axis
+(±e_k) keeps its direction (Q_i the identity or a half turn, exact), any other axis
+becomes z. The joint transform between aligned frames is then
+E_i = C_i Rot(b_i, q_i) with the constant C_i = Q_λᵀ P_i Q_i (P_i the placement
+rotation), the translation Q_λᵀ p_i, the motion subspace S_i = b_i (τ_i is one
+component of the force) and the inertia (Q_iᵀ h, Q_iᵀ I_o Q_i). A constant rotation
+about b_i on the right of C_i commutes with the joint rotation:
+C_i Rot(b_i, q) = C_i'' Rot(b_i, q + θ0) with C_i'' = C_i Rot(b_i, −θ0). θ0 is chosen
+(:func:`_fold_offset`) to give C_i'' the most exact zeros, e.g. a placement
+``rpy="0 1.57079632679 0"`` about the joint's own axis y (its cosine 4.9e-12, not 0)
+becomes an exact signed permutation and an angle offset of −4.9e-12 rad. The model is
+unchanged, to round-off; only exact zeros and ±1 make CasADi drop products.
 
 Products with the regressor
 ---------------------------
@@ -74,43 +120,119 @@ def _crm(v, m):
     return ca.cross(v[0], m[0]), ca.cross(v[0], m[1]) + ca.cross(v[1], m[0])
 
 
-def _crf(v, f):
-    """Force cross product v ×* f."""
-    return ca.cross(v[0], f[0]) + ca.cross(v[1], f[1]), ca.cross(v[0], f[1])
-
-
-def _inertia_times(inert: Inertial, v):
-    """I v for the spatial inertia about the link origin: (I_o ω + h × v, m v − h × ω)."""
-    w, u = v
-    return (ca.mtimes(inert.I, w) + ca.cross(inert.h, u), inert.m * u - ca.cross(inert.h, w))
-
-
 def _add(a, b):
     return a[0] + b[0], a[1] + b[1]
 
 
+# -- joint frames (module docstring, "Joint frames") ---------------------------------
+
+#: Entries of a constant rotation within this of 0 or ±1 are round-off of exact values.
+_SNAP = 1e-14
+
+
+def _aligning(axis) -> tuple[np.ndarray, int]:
+    """Q and the index k of b = e_k: Q e_k = ``axis``, Q a rotation.
+
+    A coordinate axis (±e_k) keeps its own direction and Q is the identity or a half
+    turn (exact entries, so inertias keep their zeros); any other axis becomes z.
+    """
+    a = np.asarray(axis, dtype=float)
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = 1.0
+        if np.array_equal(a, e):
+            return np.eye(3), k
+        if np.array_equal(a, -e):
+            d = np.ones(3)
+            d[k] = d[(k + 1) % 3] = -1.0       # a half turn about the third axis
+            return np.diag(d), k
+    # Any unit vector not parallel to a: the coordinate axis least aligned with it.
+    e = np.zeros(3)
+    e[int(np.argmin(np.abs(a)))] = 1.0
+    x = np.cross(e, a)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(a, x), a]), 2
+
+
+def _rot(k: int, angle: float) -> np.ndarray:
+    """Rotation by ``angle`` about e_k (numbers)."""
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = (k + 1) % 3, (k + 2) % 3
+    R = np.eye(3)
+    R[i, i] = R[j, j] = c
+    R[j, i], R[i, j] = s, -s
+    return R
+
+
+def _fold_offset(C: np.ndarray, k: int) -> tuple[np.ndarray, float]:
+    """(C'', θ0) with C = C'' Rot(e_k, θ0) and C'' with the most exact zeros.
+
+    An entry of the two columns that Rot(e_k, ·) mixes vanishes for θ0 = ±atan2 of
+    the two entries of its row, either way round, up to quarter turns; every such
+    candidate is tried and the zeros counted after snapping round-off. Ties keep
+    θ0 = 0 (no offset), then the smallest |θ0|.
+    """
+    i, j = (k + 1) % 3, (k + 2) % 3
+    cands = {0.0}
+    for r in range(3):
+        for base in (np.arctan2(C[r, j], C[r, i]), np.arctan2(C[r, i], C[r, j])):
+            for t in (base, -base):
+                for quarter in range(-2, 3):
+                    # Wrapped only when out of (−π, π]: a tiny θ0 keeps its digits.
+                    a = float(t + quarter * np.pi / 2)
+                    cands.add(a - 2 * np.pi if a > np.pi else a + 2 * np.pi if a <= -np.pi
+                              else a)
+
+    def snapped(t):
+        return np.asarray(simplify_const(C @ _rot(k, -t), _SNAP))
+
+    best = min(sorted(cands), key=lambda t: (np.count_nonzero(snapped(t)), t != 0.0, abs(t)))
+    return snapped(best), best
+
+
 @dataclass
 class _Joint:
-    E: ca.SX        # child rotation in parent coordinates
-    p: ca.SX        # child origin in parent coordinates
-    S: tuple        # motion subspace (angular, linear) in child coordinates
+    E: ca.SX        # child rotation in parent coordinates (aligned frames)
+    p: ca.SX        # child origin in parent coordinates (aligned frames)
+    S: tuple        # motion subspace (angular, linear) in child coordinates: e_k
+    Q: np.ndarray   # link frame -> aligned frame (columns: aligned axes in link coordinates)
 
 
 def _joints(model: RobotModel, q: ca.SX, values: Values) -> list[_Joint]:
+    """Joint transforms between aligned link frames (module docstring, "Joint frames")."""
     out = []
+    Q_parent = np.eye(3)
     for i, link in enumerate(model.links):
-        P = simplify_const(rpy(*link.origin_rpy))
+        P = np.asarray(simplify_const(rpy(*link.origin_rpy)))
+        Q, k = _aligning(link.axis)
+        C = Q_parent.T @ P @ Q
         offset = ca.vertcat(*[model.resolve(x, values) for x in link.origin_xyz])
-        axis = ca.DM(link.axis)
+        p = ca.mtimes(simplify_const(Q_parent.T, _SNAP), offset)
+        b = ca.DM.zeros(3)
+        b[k] = 1.0
         zero = ca.DM.zeros(3)
+        axis = tuple(float(x) for x in np.eye(3)[k])
         if link.joint == "revolute":
-            E = ca.mtimes(P, axis_rotation(link.axis, q[i]))
-            p, S = offset, (axis, zero)
+            C2, theta0 = _fold_offset(C, k)
+            angle = q[i] + theta0 if theta0 != 0.0 else q[i]
+            E = ca.mtimes(ca.DM(C2), axis_rotation(axis, angle))
+            S = (b, zero)
         else:
             # A prismatic joint slides along its axis, fixed in the parent frame.
-            E, p, S = P, offset + ca.mtimes(P, axis) * q[i], (zero, axis)
-        out.append(_Joint(E=E, p=p, S=S))
+            C2 = simplify_const(C, _SNAP)
+            E, p, S = C2, p + C2[:, k] * q[i], (zero, b)
+        out.append(_Joint(E=E, p=p, S=S, Q=Q))
+        Q_parent = Q
     return out
+
+
+def _aligned(inert: Inertial, Q: np.ndarray) -> Inertial:
+    """(m, h, I_o) of a link in its aligned frame: h' = Qᵀ h, I' = Qᵀ I Q."""
+    if np.array_equal(Q, np.eye(3)):
+        return inert
+    Qd = ca.DM(Q)
+    return Inertial(m=inert.m, h=ca.mtimes(Qd.T, inert.h),
+                    I=ca.mtimes(Qd.T, ca.mtimes(inert.I, Qd)))
 
 
 def _to_child(j: _Joint, v):
@@ -167,13 +289,21 @@ def _forward(model, q, qd, qd_r, qdd_r, values, s=None):
 
 
 def _body_force(inert: Inertial, v, vr, ar):
-    """f = I a_r + 𝔅(I, v) v_r, the Christoffel-consistent body force (module docstring)."""
-    # I a_r − ½ I (v × v_r) in one product (I is linear).
-    w = _crm(v, vr)
-    Ia = _inertia_times(inert, (ar[0] - 0.5 * w[0], ar[1] - 0.5 * w[1]))
-    a = _crf(v, _inertia_times(inert, vr))
-    b = _crf(vr, _inertia_times(inert, v))
-    return tuple(Ia[k] + 0.5 * (a[k] + b[k]) for k in range(2))
+    """f = I a_r + 𝔅(I, v) v_r, the Christoffel-consistent body force, expanded in
+    (m, h, I_o) (module docstring, "Body force in (m, h, I_o)"): with w = ω × ω_r and
+    b = a_lin + ω_r × u,
+
+        n = I_o (α − w) + ½ tr(I_o) w + ω_r × (I_o ω) + h × b,
+        f = m b + α × h + ω_r × (ω × h).
+    """
+    (om, u), (omr, _), (al, alin) = v, vr, ar
+    I, h, m = inert.I, inert.h, inert.m
+    w = ca.cross(om, omr)
+    b = alin + ca.cross(omr, u)
+    tr = 0.5 * (I[0, 0] + I[1, 1] + I[2, 2])
+    n = (ca.mtimes(I, al - w) + tr * w + ca.cross(omr, ca.mtimes(I, om)) + ca.cross(h, b))
+    f = m * b + ca.cross(al, h) + ca.cross(omr, ca.cross(om, h))
+    return n, f
 
 
 def _joint_terms(model: RobotModel, q, qd, values: Values) -> ca.SX:
@@ -197,7 +327,7 @@ def slotine_li(model: RobotModel, values: Values, q, qd, qd_r, qdd_r,
     f_child = None
     for i in reversed(range(n)):
         v, vr, ar, _ = fw[i]
-        f = _body_force(inertials[i], v, vr, ar)
+        f = _body_force(_aligned(inertials[i], joints[i].Q), v, vr, ar)
         if f_child is not None:
             f = _add(f, _to_parent(joints[i + 1], f_child))
         tau[i] = _dot(joints[i].S, f)
@@ -213,12 +343,12 @@ def regressor_transpose_times(model: RobotModel, values: Values, q, qd, qd_r, qd
     depend on them (τ is linear in δ). Damping and stiffness columns (s_i q̇_i,
     s_i q_i) are the caller's: they do not go through the recursion.
     """
-    _, fw = _forward(model, q, qd, qd_r, qdd_r, values, s=s)
+    joints, fw = _forward(model, q, qd, qd_r, qdd_r, values, s=s)
     out = []
     for i, inert in enumerate(delta):
         v, vr, ar, psi = fw[i]
         syms = _inertial_symbols(inert)
-        e = _dot(psi, _body_force(inert, v, vr, ar))
+        e = _dot(psi, _body_force(_aligned(inert, joints[i].Q), v, vr, ar))
         g = ca.gradient(e, syms)
         out.append(ca.substitute(g, syms, ca.DM.zeros(syms.shape)))
     return out
