@@ -17,8 +17,9 @@
     Coefficients minimising the condition number of the stacked regressor (Swevers
     et al.'s criterion) subject to joint position, velocity and acceleration limits
     on a time grid. q, q̇ and q̈ are linear in the coefficients, so the limits are
-    linear inequality constraints (exact gradients); the objective, log cond W, is
-    differentiated by finite differences inside SLSQP.
+    linear inequality constraints (exact gradients); the objective, log cond W, has an
+    exact gradient too, from the singular vectors and a reverse-mode derivative of
+    uᵀ Y v (SLSQP, no finite differences).
 """
 from __future__ import annotations
 
@@ -38,6 +39,10 @@ from softgen.core.errors import SoftgenError
 from softgen.modelfile.model import RobotModel
 from softgen.symbolic.friction import friction_columns
 from softgen.symbolic.rigid import RigidDynamics
+
+
+#: Samples per call of the mapped regressor (IdentificationRegressor.evaluate).
+CHUNK = 256
 
 
 class IdentificationRegressor:
@@ -86,6 +91,14 @@ class IdentificationRegressor:
                                 [ca.densify(ca.horzcat(Yb, Yf)), ca.densify(tau0)],
                                 ["q", "qd", "qdd"], ["Y", "tau0"], {"cse": True})
         self._mapped: dict[int, ca.Function] = {}
+        # ∇_(q, q̇, q̈) of uᵀ Y v: the derivative of a singular value of the stacked
+        # regressor (σ = uᵀ W v, dσ = uᵀ dW v) by reverse mode, for the excitation optimiser.
+        u, v = ca.SX.sym("u", n), ca.SX.sym("v", self.p)
+        s = ca.dot(u, ca.mtimes(ca.horzcat(Yb, Yf), v))
+        self._uyv_grad = ca.Function("uYv_gradient", [m.q, m.qd, qdd, u, v],
+                                     [ca.gradient(s, m.q), ca.gradient(s, m.qd),
+                                      ca.gradient(s, qdd)], {"cse": True})
+        self._grad_mapped: dict[int, ca.Function] = {}
 
     @property
     def nominal(self) -> np.ndarray:
@@ -100,13 +113,39 @@ class IdentificationRegressor:
         if q.shape != (K, self.n) or qd.shape != q.shape or qdd.shape != q.shape:
             raise SoftgenError(f"identification regressor: expected K x {self.n} arrays, got "
                                f"{q.shape}, {qd.shape}, {qdd.shape}")
-        f = self._mapped.get(K)
+        # One mapped Function per chunk size (building a map costs ~K; calling it reuses it):
+        # the samples go through in chunks of CHUNK, the last one padded.
+        Y = np.empty((K, self.n, self.p))
+        tau0 = np.empty((K, self.n))
+        f = self._mapped.get(CHUNK)
         if f is None:
-            f = self._mapped[K] = self._fun.map(K)
-        Y, tau0 = f(q.T, qd.T, qdd.T)
-        # map() concatenates the K outputs horizontally: n × (p K).
-        Y = np.asarray(Y).reshape(self.n, K, self.p).transpose(1, 0, 2)
-        return Y, np.asarray(tau0).T
+            f = self._mapped[CHUNK] = self._fun.map(CHUNK)
+        for k0 in range(0, K, CHUNK):
+            k1 = min(K, k0 + CHUNK)
+            args = []
+            for a in (q, qd, qdd):
+                block = np.zeros((CHUNK, self.n))
+                block[:k1 - k0] = a[k0:k1]
+                args.append(block.T)
+            Yc, tc = f(*args)
+            # map() concatenates the outputs horizontally: n × (p CHUNK).
+            Y[k0:k1] = Yc.full().reshape(self.n, CHUNK, self.p).transpose(1, 0, 2)[:k1 - k0]
+            tau0[k0:k1] = tc.full().T[:k1 - k0]
+        return Y, tau0
+
+    def singular_value_gradient(self, q, qd, qdd, U: np.ndarray, v: np.ndarray):
+        """∂(Σ_k U_kᵀ Y(q_k, q̇_k, q̈_k) v) / ∂(q_k, q̇_k, q̈_k): three K×n arrays.
+
+        With (U, v) a pair of singular vectors of the stacked regressor (U reshaped K×n),
+        these are the derivatives of that singular value with respect to each sample's
+        motion (Coulomb columns contribute none: sign(q̇) is flat almost everywhere).
+        """
+        K = q.shape[0]
+        f = self._grad_mapped.get(K)
+        if f is None:
+            f = self._grad_mapped[K] = self._uyv_grad.map(K)
+        out = f(q.T, qd.T, qdd.T, U.T, np.repeat(v[:, None], K, axis=1))
+        return tuple(o.full().T for o in out)
 
     def physical_to_base(self, p: np.ndarray) -> np.ndarray:
         return np.asarray(self.dyn.physical_to_base_fun(p)).ravel()
@@ -284,16 +323,38 @@ def optimise_excitation(reg: IdentificationRegressor, *, harmonics: int = 5,
     c0 = stacked_condition(reg, start, t)
 
     def objective(x):
-        c = stacked_condition(reg, _unpack(x, n, L, period), t)
-        return math.log(c) if math.isfinite(c) else 1e3
+        """log cond W and its gradient: d log(σ_1/σ_r) = dσ_1/σ_1 − dσ_r/σ_r, each dσ from
+        the singular vectors (:meth:`IdentificationRegressor.singular_value_gradient`)
+        and the Fourier basis (q, q̇, q̈ are linear in x)."""
+        tr = _unpack(x, n, L, period)
+        q, qd, qdd = tr.evaluate(t)
+        feasible = bool(np.all(G @ x <= h + 1e-9))
+        Y, _ = reg.evaluate(q, qd, qdd)
+        U, sv, Vt = np.linalg.svd(Y.reshape(-1, reg.p), full_matrices=False)
+        if not sv[-1] > 0:
+            return 1e3, np.zeros_like(x)
+        grad = np.zeros_like(x)
+        for idx, sign in ((0, 1.0), (-1, -1.0)):
+            gq, gqd, gqdd = reg.singular_value_gradient(q, qd, qdd, U[:, idx].reshape(-1, n),
+                                                        Vt[idx])
+            g_ab = gq.T @ Sq + gqd.T @ Sqd + gqdd.T @ Sqdd          # n × 2L
+            grad += sign / sv[idx] * np.concatenate([gq.sum(axis=0), g_ab.ravel()])
+        value = math.log(sv[0] / sv[-1])
+        if feasible and value < best[0]:
+            best[:] = [value, x.copy()]
+        return value, grad
 
-    res = minimize(objective, x0, method="SLSQP",
+    # SLSQP's iterates may leave the limits by round-off: keep the best feasible one seen.
+    best: list = [math.inf, x0]
+
+    Sq, Sqd, Sqdd = start.basis(t)
+    res = minimize(objective, x0, method="SLSQP", jac=True,
                    constraints=[{"type": "ineq", "fun": lambda x: h - G @ x,
                                  "jac": lambda x: -G}],
                    options={"maxiter": maxiter, "ftol": 1e-6})
-    x = res.x if np.all(G @ res.x <= h + 1e-9) and res.fun <= objective(x0) else x0
-    best = _unpack(x, n, L, period)
-    return Excitation(best, stacked_condition(reg, best, t), c0, lim, int(res.nit),
+    objective(res.x)
+    tr = _unpack(best[1], n, L, period)
+    return Excitation(tr, stacked_condition(reg, tr, t), c0, lim, int(res.nit),
                       str(res.message))
 
 
