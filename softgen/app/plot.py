@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from softgen.app.identify.modelfile import file_mode
 from softgen.core.errors import SoftgenError
 
 #: Most panels drawn when no signal is named (the first ones, in the file's order).
@@ -105,8 +106,10 @@ def plot_trace(path: str | Path, signals: list[str] | None = None, *,
     os.close(fd)
     try:
         fig.savefig(tmp, dpi=100, format="png")
+        os.chmod(tmp, file_mode())
         os.replace(tmp, out)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
     return out
+

@@ -23,10 +23,7 @@
 """
 from __future__ import annotations
 
-import csv
 import math
-import os
-import tempfile
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -356,43 +353,3 @@ def optimise_excitation(reg: IdentificationRegressor, *, harmonics: int = 5,
     tr = _unpack(best[1], n, L, period)
     return Excitation(tr, stacked_condition(reg, tr, t), c0, lim, int(res.nit),
                       str(res.message))
-
-
-def write_trajectory_csv(path: str | Path, traj: FourierTrajectory, *, dt: float,
-                         periods: int = 1, force: bool = False) -> Path:
-    """Write t, q*, qd*, qdd* sampled every ``dt`` over ``periods`` periods, atomically.
-
-    Refuses to overwrite an existing file unless ``force``.
-    """
-    path = Path(path)
-    if path.exists() and not force:
-        raise SoftgenError(f"--out {path}: exists; give --force to overwrite it")
-    if not dt > 0:
-        raise SoftgenError(f"--dt: expected a positive sample time, got {dt!r}")
-    K = int(round(periods * traj.period / dt))
-    t = np.arange(K) * dt
-    q, qd, qdd = traj.evaluate(t)
-    n = q.shape[1]
-    header = (["t"] + [f"q{i + 1}" for i in range(n)] + [f"qd{i + 1}" for i in range(n)]
-              + [f"qdd{i + 1}" for i in range(n)])
-    table = np.hstack([t[:, None], q, qd, qdd])
-    write_csv_atomic(path, header, table)
-    return path
-
-
-def write_csv_atomic(path: Path, header: list[str], table: np.ndarray) -> None:
-    """A CSV file (full precision) written to a temporary file and renamed into place."""
-    directory = path.parent if str(path.parent) else Path(".")
-    if not directory.is_dir():
-        raise SoftgenError(f"--out {path}: directory {directory} does not exist")
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(header)
-            for row in table:
-                w.writerow([repr(float(v)) for v in row])
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

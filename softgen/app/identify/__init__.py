@@ -22,13 +22,13 @@ from pathlib import Path
 
 from softgen.app.identify.actuator import ActuatorFit, identify_actuator
 from softgen.app.identify.modelfile import (identified_name, model_tables, to_toml,
-                                            write_text_atomic)
+                                            write_text_atomic, write_trajectory_csv)
 from softgen.app.identify.rigid import (RigidIdentification, identify_rigid,
                                         read_identification_log)
 from softgen.core.errors import SoftgenError
 from softgen.modelfile.model import RobotModel, load_model
 from softgen.studies.excitation import (Excitation, IdentificationRegressor, joint_limits,
-                                        optimise_excitation, write_trajectory_csv)
+                                        optimise_excitation)
 
 __all__ = ["ActuatorFit", "RigidIdentification", "identify_actuator", "identify_model",
            "excite", "report_lines", "write_identified_model"]

@@ -1,4 +1,6 @@
-"""The identified model written as a model file (TOML, the format of ``models/*.toml``).
+"""Files ``softgen identify`` writes: the identified model file, trajectories.
+
+The identified model is written as a model file (TOML, the format of ``models/*.toml``).
 
 The tables are rebuilt from the validated :class:`~softgen.modelfile.model.RobotModel`
 (so a URDF model gives an equivalent ``kind = "spatial"`` TOML file) with every
@@ -10,6 +12,7 @@ temporary file and renamed into place, never over an existing file without ``for
 """
 from __future__ import annotations
 
+import csv
 import json
 import math
 import os
@@ -17,7 +20,10 @@ import tempfile
 from pathlib import Path
 
 from softgen.core.errors import SoftgenError
+import numpy as np
+
 from softgen.modelfile.model import MAX_NAME, RobotModel
+from softgen.studies.excitation import FourierTrajectory
 
 
 def model_tables(model: RobotModel, values: dict[str, float], *,
@@ -121,8 +127,57 @@ def write_text_atomic(path: str | Path, text: str, *, force: bool = False,
     try:
         with os.fdopen(fd, "w") as fh:
             fh.write(text)
+        os.chmod(tmp, file_mode())
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def file_mode() -> int:
+    """The mode a new file gets from the umask (mkstemp's temporary files are 0600)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def write_trajectory_csv(path: str | Path, traj: FourierTrajectory, *, dt: float,
+                         periods: int = 1, force: bool = False) -> Path:
+    """Write t, q*, qd*, qdd* sampled every ``dt`` over ``periods`` periods, atomically.
+
+    Refuses to overwrite an existing file unless ``force``.
+    """
+    path = Path(path)
+    if path.exists() and not force:
+        raise SoftgenError(f"--out {path}: exists; give --force to overwrite it")
+    if not dt > 0:
+        raise SoftgenError(f"--dt: expected a positive sample time, got {dt!r}")
+    K = int(round(periods * traj.period / dt))
+    t = np.arange(K) * dt
+    q, qd, qdd = traj.evaluate(t)
+    n = q.shape[1]
+    header = (["t"] + [f"q{i + 1}" for i in range(n)] + [f"qd{i + 1}" for i in range(n)]
+              + [f"qdd{i + 1}" for i in range(n)])
+    table = np.hstack([t[:, None], q, qd, qdd])
+    write_csv_atomic(path, header, table)
+    return path
+
+
+def write_csv_atomic(path: Path, header: list[str], table: np.ndarray) -> None:
+    """A CSV file (full precision) written to a temporary file and renamed into place."""
+    directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir():
+        raise SoftgenError(f"--out {path}: directory {directory} does not exist")
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(header)
+            for row in table:
+                w.writerow([repr(float(v)) for v in row])
+        os.chmod(tmp, file_mode())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
