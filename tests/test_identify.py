@@ -194,6 +194,30 @@ def test_bad_log_gives_one_line_naming_the_column(arm3, tmp_path, capsys, bad, f
     assert len(err) == 1 and fragment in err[0], err
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_pseudo_inertia_round_trip_and_log_cholesky_bodies_are_physical(seed):
+    from softgen.app.identify.rigid import _from_pseudo_inertia, _pseudo_inertia
+    rng = np.random.default_rng(seed)
+    # A random physical body: principal moments from positive "second moments" (so the
+    # triangle inequality holds), rotated; a random centre of mass.
+    d = rng.uniform(0.01, 1.0, 3)
+    R, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    Ic = R @ np.diag([d[1] + d[2], d[0] + d[2], d[0] + d[1]]) @ R.T
+    m, c = rng.uniform(0.1, 5), rng.normal(scale=0.2, size=3)
+    for about_com in (True, False):
+        I = Ic if about_com else Ic + m * (c @ c * np.eye(3) - np.outer(c, c))
+        J = _pseudo_inertia(m, c, I, about_com)
+        assert np.linalg.eigvalsh(J).min() > 0
+        m2, c2, I2 = _from_pseudo_inertia(J, about_com)
+        assert m2 == pytest.approx(m) and np.allclose(c2, c) and np.allclose(I2, I)
+    # Any upper-triangular U with a positive diagonal gives a consistent body.
+    U = np.triu(rng.normal(size=(4, 4)))
+    U[np.diag_indices(4)] = np.exp(rng.normal(size=4))
+    m3, c3, I3 = _from_pseudo_inertia(U @ U.T, True)
+    lam = np.linalg.eigvalsh(I3)
+    assert m3 > 0 and lam[0] > 0 and lam[0] + lam[1] >= lam[2] * (1 - 1e-12)
+
+
 # ----------------------------------------------------------------------------- excitation
 
 
@@ -334,4 +358,6 @@ def test_recovers_panda_parameters_within_3_sigma(tmp_path):
     res, out = identify_model("panda", log, out=tmp_path / "panda_identified.toml")
     z = (res.estimate - truth) / res.std
     assert np.all(np.abs(z) < 3.0), dict(zip(res.names, np.round(z, 2)))
-    assert out.is_file()
+    # The model file is physically consistent (projected if need be) and loads.
+    assert res.consistent, res.violations
+    assert load_model(out).dof == 7

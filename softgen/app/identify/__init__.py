@@ -96,6 +96,13 @@ def report_lines(res: RigidIdentification) -> list[str]:
                                        res.nominal, res.expressions):
         lines.append(f"{name:<18} {e: .6e} {s: .3e} {r:9.3g} % {nom: .4e}   {ex}")
     lines.append("")
+    if res.projected_from:
+        lines.append("the physical values nearest the model's that give these base parameters "
+                     "are not consistent:")
+        lines += [f"  {v}" for v in res.projected_from]
+        lines.append("so the model file holds the consistent values (log-Cholesky projection) "
+                     "that fit them best: its base parameters differ from the estimates by at "
+                     f"most {res.projection_misfit:.3g} sigma")
     if res.violations:
         lines.append("physically consistent: NO")
         lines += [f"  {v}" for v in res.violations]
