@@ -17,16 +17,20 @@ import argparse
 import importlib
 import sys
 
+from softgen import __version__
 from softgen.core.errors import SoftgenError
 
 #: Verb -> module under softgen.cli, in the order ``softgen --help`` lists them.
 VERBS = {"list": "list", "generate": "generate", "info": "info", "reproduce": "reproduce",
-         "bench": "bench", "estimate": "estimate", "export": "export", "sweep": "sweep"}
+         "bench": "bench", "estimate": "estimate", "export": "export", "sweep": "sweep",
+         "identify": "identify",
+         "plot": "plot"}
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="softgen", description="Soft-robot models, regressors, "
                                 "generated C and adaptive loops (thesis: Trumić 2021).")
+    p.add_argument("--version", action="version", version=f"softgen {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
     for verb, module in VERBS.items():
         mod = importlib.import_module(f"softgen.cli.{module}")

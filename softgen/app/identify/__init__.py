@@ -1,0 +1,157 @@
+"""``softgen identify``: model parameters from data (issue 24 item 3).
+
+Three jobs, each a function here and a mode of the verb:
+
+:func:`identify_model`
+    base inertial parameters plus viscous and Coulomb friction per joint from a log
+    of q and τ (or motor currents), :mod:`softgen.app.identify.rigid`; writes the
+    identified model file (:mod:`softgen.app.identify.modelfile`).
+:func:`identify_actuator`
+    the thesis's actuator characterisations: the qbmove sinh spring (§6.2.4.1) and
+    the McKibben force map (§2.1), :mod:`softgen.app.identify.actuator`.
+:func:`excite`
+    an optimised Fourier-series excitation trajectory for a model
+    (:mod:`softgen.studies.excitation`), written as CSV.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from softgen.app.identify.actuator import ActuatorFit, identify_actuator
+from softgen.app.identify.modelfile import (identified_name, model_tables, to_toml,
+                                            write_text_atomic, write_trajectory_csv)
+from softgen.app.identify.rigid import (RigidIdentification, identify_rigid,
+                                        read_identification_log)
+from softgen.core.errors import SoftgenError
+from softgen.modelfile.model import RobotModel, load_model
+from softgen.studies.excitation import (Excitation, IdentificationRegressor, joint_limits,
+                                        optimise_excitation)
+
+__all__ = ["ActuatorFit", "RigidIdentification", "identify_actuator", "identify_model",
+           "excite", "report_lines", "write_identified_model"]
+
+
+def _rigid(model_name: str | Path) -> RobotModel:
+    model = load_model(model_name)
+    if not isinstance(model, RobotModel):
+        raise SoftgenError(f"{model.name}: identify needs a rigid model (links and joints); "
+                           "soft bodies are not supported")
+    return model
+
+
+def default_out(log: Path, model: RobotModel) -> Path:
+    return log.with_name(f"{identified_name(model)}.toml")
+
+
+def identify_model(model_name: str | Path, log: str | Path, *, out: str | Path | None = None,
+                   force: bool = False, cutoff: float | None = None,
+                   torque_constant: list[float] | None = None, viscous: bool = True,
+                   coulomb: bool = True) -> tuple[RigidIdentification, Path]:
+    """Identify ``model`` from ``log`` and write the identified model file.
+
+    The output is checked for existence before any work (``--force`` to overwrite).
+    """
+    model = _rigid(model_name)
+    log = Path(log)
+    out = Path(out) if out is not None else default_out(log, model)
+    if out.exists() and not force:
+        raise SoftgenError(f"--out {out}: exists; give --force to overwrite it")
+    data = read_identification_log(log, model.dof, torque_constant=torque_constant)
+    res = identify_rigid(model, data, cutoff=cutoff, viscous=viscous, coulomb=coulomb)
+    write_identified_model(res, out, log=log, force=force)
+    return res, out
+
+
+def write_identified_model(res: RigidIdentification, out: str | Path, *, log: Path | None = None,
+                           force: bool = False) -> Path:
+    """The identified model file (module :mod:`~softgen.app.identify.modelfile`)."""
+    model = res.model
+    values = {**model.nominal, **res.physical}
+    fv = res.friction("fv")
+    damping = {j: v for j, v in fv.items() if v >= 0}
+    tables = model_tables(model, values, damping=damping, name=identified_name(model))
+    comments = [f"Identified by softgen identify from {log if log is not None else 'a log'}",
+                f"(model {model.name}). Values of the uncertain parameters below are the "
+                "physical values closest",
+                "to the original model's that reproduce the identified base parameters; "
+                "viscous friction is the links' damping."] + [""] + report_lines(res)
+    return write_text_atomic(out, to_toml(tables, comments), force=force)
+
+
+def report_lines(res: RigidIdentification) -> list[str]:
+    """Human-readable summary: the estimates ± σ and the checks."""
+    lines = [f"{res.samples} samples per joint after filtering (cut-off {res.cutoff_hz:.4g} Hz, "
+             f"decimation {res.decimation}, log dt {res.dt:.6g} s, torque from "
+             f"{res.torque_source})",
+             f"condition number of the weighted data matrix {res.condition:.4g} "
+             f"(unit-norm columns {res.condition_scaled:.4g})",
+             "residual rms per joint [N m]: "
+             + ", ".join(f"{v:.4g}" for v in res.residual_rms),
+             "", "parameter          estimate        std         rel. std   nominal   "
+             "(combination)"]
+    for name, e, s, r, nom, ex in zip(res.names, res.estimate, res.std, res.relative_std,
+                                       res.nominal, res.expressions):
+        lines.append(f"{name:<18} {e: .6e} {s: .3e} {r:9.3g} % {nom: .4e}   {ex}")
+    lines.append("")
+    if res.projected_from:
+        lines.append("the physical values nearest the model's that give these base parameters "
+                     "are not consistent:")
+        lines += [f"  {v}" for v in res.projected_from]
+        lines.append("so the model file holds the consistent values (log-Cholesky projection) "
+                     "that fit them best: its base parameters differ from the estimates by at "
+                     f"most {res.projection_misfit:.3g} sigma")
+    if res.violations:
+        lines.append("physically consistent: NO")
+        lines += [f"  {v}" for v in res.violations]
+    else:
+        lines.append("physically consistent: yes (positive masses, inertias about the centres "
+                     "of mass positive definite with the triangle inequality)")
+    negative = [f"{n} = {v:.4g}" for n, v in zip(res.names, res.estimate)
+                if n.startswith(("fv", "fc")) and v < 0]
+    if negative:
+        lines.append("negative friction (not written to the model): " + ", ".join(negative))
+    return lines
+
+
+@dataclass
+class ExciteResult:
+    excitation: Excitation
+    out: Path
+    samples: int
+    seconds: float
+
+
+def excite(model_name: str | Path, out: str | Path, *, harmonics: int = 5,
+           period: float = 10.0, dt: float = 1e-3, periods: int = 1, seed: int = 0,
+           maxiter: int = 100, grid: int = 100, viscous: bool = True, coulomb: bool = True,
+           force: bool = False) -> ExciteResult:
+    """An optimised excitation trajectory for ``model`` written to ``out`` (CSV)."""
+    model = _rigid(model_name)
+    out = Path(out)
+    if out.exists() and not force:
+        raise SoftgenError(f"--out {out}: exists; give --force to overwrite it")
+    t0 = time.perf_counter()
+    reg = IdentificationRegressor(model, viscous=viscous, coulomb=coulomb)
+    ex = optimise_excitation(reg, harmonics=harmonics, period=period,
+                             limits=joint_limits(model), grid=grid, seed=seed, maxiter=maxiter)
+    write_trajectory_csv(out, ex.trajectory, dt=dt, periods=periods, force=force)
+    return ExciteResult(ex, out, int(round(periods * period / dt)),
+                        time.perf_counter() - t0)
+
+
+def fit_lines(fit: ActuatorFit) -> list[str]:
+    lines = [f"{fit.kind} fit of {fit.samples} samples (columns {', '.join(fit.columns)}):"]
+    for n, v, s, u in zip(fit.names, fit.values, fit.std, fit.units):
+        lines.append(f"  {n:<15} {v:.6g} ± {s:.2g} {u}")
+    lines.append(f"  RMSRE {fit.rmsre_percent:.4g} % over {fit.rmsre_samples} samples "
+                 f"(|measurement| >= 5 % of its maximum; thesis 6.2.4.1), rms error "
+                 f"{fit.rms_error:.4g}")
+    return lines
+
+
+def fit_json(fit: ActuatorFit) -> str:
+    return json.dumps(fit.as_dict(), indent=2) + "\n"
+

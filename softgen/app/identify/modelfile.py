@@ -1,0 +1,183 @@
+"""Files ``softgen identify`` writes: the identified model file, trajectories.
+
+The identified model is written as a model file (TOML, the format of ``models/*.toml``).
+
+The tables are rebuilt from the validated :class:`~softgen.modelfile.model.RobotModel`
+(so a URDF model gives an equivalent ``kind = "spatial"`` TOML file) with every
+parameter value taken from ``values`` (the nominal ones overridden by the
+identified ones); viscous friction becomes the links' ``damping``. A comment block
+at the top records the base-parameter estimates ± σ, the friction, the data's
+condition number and the physical-consistency check. The file is written to a
+temporary file and renamed into place, never over an existing file without ``force``.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+from softgen.core.errors import SoftgenError
+import numpy as np
+
+from softgen.modelfile.model import MAX_NAME, RobotModel
+from softgen.studies.excitation import FourierTrajectory
+
+
+def model_tables(model: RobotModel, values: dict[str, float], *,
+                 damping: dict[int, float] | None = None, name: str | None = None) -> dict:
+    """The TOML tables of ``model`` at parameter ``values`` (name -> number)."""
+    damping = damping or {}
+
+    def v(x):
+        return float(model.resolve(x, values))
+
+    meta = {"name": name or model.name, "kind": model.kind,
+            "description": model.description, "source": model.source}
+    links = []
+    for i, link in enumerate(model.links, start=1):
+        t: dict = {"name": link.name, "joint": link.joint}
+        if model.kind == "planar":
+            t["length"] = v(f"l{i}")
+            t["mass"] = v(link.mass)
+            t["com"] = v(link.com[0]) if link.com[1] == 0.0 else [v(link.com[0]), v(link.com[1])]
+            t["inertia"] = v(link.inertia[2])
+        else:
+            t["axis"] = [float(a) for a in link.axis]
+            t["origin_xyz"] = [v(x) for x in link.origin_xyz]
+            t["origin_rpy"] = [float(a) for a in link.origin_rpy]
+            t["mass"] = v(link.mass)
+            t["com"] = [v(x) for x in link.com]
+            t["inertia"] = [v(x) for x in link.inertia]
+        if link.inertia_about != "com":
+            t["inertia_about"] = link.inertia_about
+        d = damping.get(i - 1)
+        if link.damping is not None or d is not None:
+            t["damping"] = (v(link.damping) if link.damping is not None else 0.0) + (d or 0.0)
+        if link.stiffness is not None:
+            t["stiffness"] = v(link.stiffness)
+        links.append(t)
+    data: dict = {"model": meta}
+    if model.kind == "planar":
+        meta["base_angle_deg"] = math.degrees(model.base_rpy[2])
+        data["gravity"] = {"g": values.get("g", model.nominal["g"])}
+    else:
+        g = values.get("g", model.nominal["g"])
+        data["gravity"] = {"vector": [g * c for c in model.gravity_direction]}
+    data["links"] = links
+    if model.actuators:
+        names = [link.name for link in model.links]
+        data["actuators"] = [
+            {"joint": names[a.joint], "type": a.type,
+             **{k: (list(x) if isinstance(x, tuple) else x) for k, x in a.values}}
+            for a in model.actuators]
+    data["parameters"] = {"uncertain": list(model.uncertain)}
+    return data
+
+
+def _value(x) -> str:
+    if isinstance(x, bool):
+        return "true" if x else "false"
+    if isinstance(x, int):
+        return str(x)
+    if isinstance(x, float):
+        if not math.isfinite(x):
+            raise SoftgenError(f"identified model: non-finite value {x!r} cannot be written")
+        return repr(x)
+    if isinstance(x, str):
+        return json.dumps(x, ensure_ascii=False)     # a valid TOML basic string
+    if isinstance(x, (list, tuple)):
+        return "[" + ", ".join(_value(e) for e in x) + "]"
+    raise SoftgenError(f"identified model: cannot write {type(x).__name__} to TOML")
+
+
+def to_toml(data: dict, comments: list[str] = ()) -> str:
+    """TOML text of ``data`` (tables and arrays of tables of scalars and lists)."""
+    out = [f"# {c}" if c else "#" for c in comments]
+    for key, table in data.items():
+        if isinstance(table, dict):
+            out += ["", f"[{key}]"] + [f"{k} = {_value(x)}" for k, x in table.items()]
+        elif isinstance(table, list) and table and all(isinstance(t, dict) for t in table):
+            for t in table:
+                out += ["", f"[[{key}]]"] + [f"{k} = {_value(x)}" for k, x in t.items()]
+        else:
+            out.insert(len(comments), f"{key} = {_value(table)}")
+    return "\n".join(out) + "\n"
+
+
+def identified_name(model: RobotModel) -> str:
+    name = f"{model.name}_identified"
+    return name if len(name) <= MAX_NAME else name[:MAX_NAME]
+
+
+def write_text_atomic(path: str | Path, text: str, *, force: bool = False,
+                      flag: str = "--out") -> Path:
+    """Write ``text`` to a temporary file beside ``path`` and rename it into place."""
+    path = Path(path)
+    if path.exists() and not force:
+        raise SoftgenError(f"{flag} {path}: exists; give --force to overwrite it")
+    if path.is_dir():
+        raise SoftgenError(f"{flag} {path}: is a directory; give a file name")
+    directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir():
+        raise SoftgenError(f"{flag} {path}: directory {directory} does not exist")
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.chmod(tmp, file_mode())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def file_mode() -> int:
+    """The mode a new file gets from the umask (mkstemp's temporary files are 0600)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def write_trajectory_csv(path: str | Path, traj: FourierTrajectory, *, dt: float,
+                         periods: int = 1, force: bool = False) -> Path:
+    """Write t, q*, qd*, qdd* sampled every ``dt`` over ``periods`` periods, atomically.
+
+    Refuses to overwrite an existing file unless ``force``.
+    """
+    path = Path(path)
+    if path.exists() and not force:
+        raise SoftgenError(f"--out {path}: exists; give --force to overwrite it")
+    if not dt > 0:
+        raise SoftgenError(f"--dt: expected a positive sample time, got {dt!r}")
+    K = int(round(periods * traj.period / dt))
+    t = np.arange(K) * dt
+    q, qd, qdd = traj.evaluate(t)
+    n = q.shape[1]
+    header = (["t"] + [f"q{i + 1}" for i in range(n)] + [f"qd{i + 1}" for i in range(n)]
+              + [f"qdd{i + 1}" for i in range(n)])
+    table = np.hstack([t[:, None], q, qd, qdd])
+    write_csv_atomic(path, header, table)
+    return path
+
+
+def write_csv_atomic(path: Path, header: list[str], table: np.ndarray) -> None:
+    """A CSV file (full precision) written to a temporary file and renamed into place."""
+    directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir():
+        raise SoftgenError(f"--out {path}: directory {directory} does not exist")
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(header)
+            for row in table:
+                w.writerow([repr(float(v)) for v in row])
+        os.chmod(tmp, file_mode())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,115 @@
+"""Saved traces, loaded and drawn (``softgen plot``).
+
+``softgen reproduce`` saves each experiment's time series as ``.npz`` files in its
+results directory (``RESULTS/<id>/traces*.npz``, :func:`softgen.runtime.simulate.save_traces`:
+one array per signal, the time in ``t``; ``block.signal`` names stored as
+``block_signal``). :func:`load_trace` reads one back as a dict of arrays;
+:func:`plot_trace` draws chosen signals against time, one panel per signal.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from softgen.app.identify.modelfile import file_mode
+from softgen.core.errors import SoftgenError
+
+#: Most panels drawn when no signal is named (the first ones, in the file's order).
+DEFAULT_PANELS = 8
+
+
+def trace_file(path: str | Path) -> Path:
+    """The ``.npz`` file meant by ``path``: the file itself, or in a results directory
+    its ``traces.npz`` (or its only ``traces*.npz``)."""
+    p = Path(path)
+    if p.is_dir():
+        files = sorted(p.glob("traces*.npz"))
+        if (p / "traces.npz").is_file():
+            return p / "traces.npz"
+        if len(files) == 1:
+            return files[0]
+        if not files:
+            raise SoftgenError(f"{p}: no traces*.npz in this directory (run softgen reproduce "
+                               "first, or give the .npz file)")
+        raise SoftgenError(f"{p}: several trace files ({', '.join(f.name for f in files)}); "
+                           "give one of them")
+    if not p.exists():
+        raise SoftgenError(f"{p}: no such trace file or results directory")
+    return p
+
+
+def load_trace(path: str | Path) -> dict[str, np.ndarray]:
+    """The arrays of a saved trace (``.npz`` file or results directory), by name."""
+    f = trace_file(path)
+    try:
+        with np.load(f, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise SoftgenError(f"{f}: not a trace file (.npz) ({exc})") from None
+
+
+def time_series(trace: dict[str, np.ndarray]) -> tuple[np.ndarray, list[str]]:
+    """(t, names of the arrays with one row per sample), ``t`` excluded."""
+    if "t" not in trace:
+        raise SoftgenError(f"trace: no time array 't' (arrays: {', '.join(trace) or 'none'})")
+    t = np.asarray(trace["t"]).ravel()
+    names = [k for k, v in trace.items() if k != "t" and np.ndim(v) >= 1
+             and np.shape(v)[0] == t.size and np.issubdtype(np.asarray(v).dtype, np.number)]
+    return t, names
+
+
+def select(trace: dict[str, np.ndarray], signals: list[str] | None) -> list[str]:
+    """The signals to draw: ``signals`` (each checked), or the first few time series."""
+    _, names = time_series(trace)
+    if not signals:
+        return names[:DEFAULT_PANELS]
+    unknown = [s for s in signals if s not in names]
+    if unknown:
+        raise SoftgenError(f"unknown signal(s) {', '.join(unknown)}; available: "
+                           f"{', '.join(names) or '(none)'}")
+    return list(signals)
+
+
+def plot_trace(path: str | Path, signals: list[str] | None = None, *,
+               out: str | Path | None = None, force: bool = False) -> Path:
+    """Draw ``signals`` of the trace at ``path`` against time into ``out`` (PNG, atomic)."""
+    from matplotlib.figure import Figure   # optional at import: only drawing needs it
+    f = trace_file(path)
+    trace = load_trace(f)
+    chosen = select(trace, signals)
+    if not chosen:
+        raise SoftgenError(f"{f}: no time series to draw")
+    out = Path(out) if out is not None else f.with_suffix(".png")
+    if out.exists() and not force:
+        raise SoftgenError(f"--out {out}: exists; give --force to overwrite it")
+    directory = out.parent if str(out.parent) else Path(".")
+    if not directory.is_dir():
+        raise SoftgenError(f"--out {out}: directory {directory} does not exist")
+    t = np.asarray(trace["t"]).ravel()
+    fig = Figure(figsize=(7.0, 1.9 * len(chosen) + 0.6))
+    axes = fig.subplots(len(chosen), 1, sharex=True, squeeze=False)[:, 0]
+    for ax, name in zip(axes, chosen):
+        v = np.asarray(trace[name], dtype=float).reshape(t.size, -1)
+        for j in range(v.shape[1]):
+            ax.plot(t, v[:, j], lw=0.8, label=f"{name}[{j}]" if v.shape[1] > 1 else name)
+        ax.set_ylabel(name, fontsize=8)
+        if v.shape[1] > 1:
+            ax.legend(fontsize=7, ncol=min(v.shape[1], 4), loc="upper right")
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(f"{f.parent.name}/{f.name}", fontsize=9)
+    fig.tight_layout()
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{out.name}.", suffix=".png")
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=100, format="png")
+        os.chmod(tmp, file_mode())
+        os.replace(tmp, out)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return out
+
