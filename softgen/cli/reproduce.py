@@ -36,7 +36,7 @@ def run(args) -> int:
     failed = [r["experiment"] for r in results if "error" in r]
     if failed:
         for r in results:
-            if "error" in r:
+            if "error" in r and r.get("traceback"):
                 print(r["traceback"], file=sys.stderr)
         raise SoftgenError(f"reproduce: {len(failed)} experiment(s) failed: {', '.join(failed)}")
     return 0
