@@ -79,7 +79,12 @@ def run(args) -> int:
     try:
         spec.check()
     except ValueError as exc:
-        raise SoftgenError(f"sweep: {exc}") from None
+        msg = str(exc)
+        # Name the option the user typed (--samples, --seed), not the spec's field.
+        for opt in ("samples", "seed"):
+            if msg.startswith(f"{opt}:"):
+                msg = f"--{msg}"
+        raise SoftgenError(f"sweep: {msg}") from None
     res = run_sweep(spec, Path(out), workers=args.workers, scheduler=args.scheduler,
                     resume=args.resume, force=args.force, fmt=args.format,
                     progress=True if args.progress else None)
