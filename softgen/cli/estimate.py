@@ -61,7 +61,9 @@ def add_arguments(p) -> None:
     p.add_argument("--out", metavar="OUT.csv",
                    help="estimates (default: <log stem>_estimate.csv beside the log)")
     p.add_argument("--dt", type=float, metavar="SECONDS",
-                   help="sample time; must agree with the log's median time step")
-    p.add_argument("--powers", metavar="1,3,5,7", help="RLS regressor exponents")
+                   help="sample time (1e-6 to 1 s); must agree with the log's median "
+                        "time step")
+    p.add_argument("--powers", metavar="1,3,5,7",
+                   help="RLS regressor exponents: 1 to 8 distinct integers in 0..15")
     p.add_argument("--p0", type=float, help="initial RLS covariance (times I)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")

@@ -17,9 +17,12 @@ merging and the checks to do here. Xacro macros are not expanded: a file with
 
 What is read
     ``<robot name>`` is the model name. It prefixes every generated C symbol, so
-    it is sanitised, not refused: every character other than an ASCII letter,
-    digit or ``_`` becomes ``_`` and a leading digit gets the prefix ``r_``
-    (``my-arm`` becomes ``my_arm``); longer than 64 characters is refused.
+    it is sanitised, not refused (:func:`softgen.modelfile.model.sanitise_name`):
+    every character other than an ASCII letter or digit becomes ``_``, runs of
+    ``_`` become one, leading and trailing ``_`` go and a leading digit gets the
+    prefix ``r_`` (``my-arm`` becomes ``my_arm``, ``bräkë☃`` becomes ``br_k``);
+    the name as written is kept in ``RobotModel.original_name``. Longer than 64
+    characters is refused.
     ``<joint type>`` ``revolute``, ``continuous`` (a revolute joint without
     limits) and ``prismatic`` are joints of the chain; ``fixed`` joints are
     merged (below); ``floating``, ``planar`` and ``<mimic>`` are refused. Each
@@ -54,6 +57,7 @@ Gravity is 9.81 m/s² along -z of the root link (z up, as in ROS, REP 103).
 """
 from __future__ import annotations
 
+import dataclasses
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -61,8 +65,22 @@ from pathlib import Path
 
 import numpy as np
 
-from softgen.modelfile.model import MAX_MAGNITUDE, FileReader, RobotModel, parse_rigid
-from softgen.symbolic.mechanics import rpy as rpy_matrix
+from softgen.modelfile.model import (MAX_MAGNITUDE, FileReader, RobotModel, parse_rigid,
+                                     sanitise_name)
+
+
+def rpy_matrix(r: float, p: float, y: float) -> np.ndarray:
+    """R = Rz(y) Ry(p) Rx(r), the URDF convention, multiplied out.
+
+    Written out here (model files come before the symbolic layer, which must not be
+    imported from here) in exactly the form of
+    :func:`softgen.symbolic.mechanics.rpy`, so that both give the same bits; a test
+    checks it against the product of the three elementary rotations.
+    """
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
 
 #: A decimal number as URDF writes it (no ``nan``, ``inf`` or ``1_000``, which
 #: Python's ``float`` would accept).
@@ -145,12 +163,6 @@ def matrix_to_rpy(R: np.ndarray) -> tuple[float, float, float]:
     return float(np.arctan2(R[2, 1], R[2, 2])), p, float(np.arctan2(R[1, 0], R[0, 0]))
 
 
-def sanitise_name(name: str) -> str:
-    """``<robot name>`` as a C identifier (see the module docstring)."""
-    out = "".join(c if (c.isascii() and (c.isalnum() or c == "_")) else "_" for c in name)
-    return f"r_{out}" if out[:1].isdigit() else out
-
-
 def combine(parts: list[_Inertial]) -> _Inertial:
     """One rigid body from several: masses add, the centre of mass is their mean
     weighted by mass, inertias move to it by the parallel-axis theorem.
@@ -183,7 +195,8 @@ class _Urdf(_Reader):
             raise self.fail("XML", f"not well-formed ({exc})") from None
         if self.root.tag != "robot":
             raise self.fail(f"<{self.root.tag}>", "expected a URDF document (root <robot>)")
-        self.name = sanitise_name(self.attr(self.root, "name", "<robot>"))
+        self.original_name = self.attr(self.root, "name", "<robot>")
+        self.name = sanitise_name(self.original_name)
         self.links: dict[str, ET.Element] = {}
         for el in self.root.findall("link"):
             name = self.attr(el, "name", "<link>")
@@ -259,9 +272,15 @@ class _Urdf(_Reader):
         return self.joints[joint].get("type").strip() in _MOVABLE
 
     def has_movable(self, joint: str) -> bool:
-        """Whether ``joint`` or any joint below it moves."""
-        return self.is_movable(joint) or any(self.has_movable(j)
-                                             for j in self.children[self.child(joint)])
+        """Whether ``joint`` or any joint below it moves (iterative: a chain of 1,500
+        fixed joints overflowed Python's recursion limit)."""
+        stack = [joint]
+        while stack:
+            j = stack.pop()
+            if self.is_movable(j):
+                return True
+            stack += self.children[self.child(j)]
+        return False
 
     def inertial(self, link: str, R: np.ndarray, p: np.ndarray) -> _Inertial | None:
         """The ``<inertial>`` of ``link`` in a body frame where the link frame is (R, p)."""
@@ -303,13 +322,16 @@ class _Urdf(_Reader):
 
     def merge_fixed_branch(self, body: _Body | None, joint: str, R: np.ndarray,
                            p: np.ndarray) -> None:
-        """A branch of fixed joints only, hanging from a link at (R, p) in the body frame."""
-        Rj, pj, _ = self.origin(self.joints[joint], f"joint {joint!r}")
-        R2, p2 = R @ Rj, p + R @ pj
-        link = self.child(joint)
-        self.merge_link(body, link, R2, p2, fixed=True)
-        for j in self.children[link]:
-            self.merge_fixed_branch(body, j, R2, p2)
+        """A branch of fixed joints only, hanging from a link at (R, p) in the body frame
+        (depth first, in document order, without recursion)."""
+        stack = [(joint, R, p)]
+        while stack:
+            j, Rp, pp = stack.pop()
+            Rj, pj, _ = self.origin(self.joints[j], f"joint {j!r}")
+            R2, p2 = Rp @ Rj, pp + Rp @ pj
+            link = self.child(j)
+            self.merge_link(body, link, R2, p2, fixed=True)
+            stack += [(c, R2, p2) for c in reversed(self.children[link])]
 
     def chain(self) -> list[_Body]:
         """Walk from the root along the one branch that moves, merging the rest."""
@@ -395,6 +417,7 @@ def urdf_tables(path: Path, text: str) -> tuple[dict, dict[str, str]]:
                       f"links[{i}].mass": f"{link} <mass>",
                       f"links[{i}].com": f"{link} <origin>",
                       f"links[{i}].inertia": f"{link} <inertia>"})
+    names["__original__"] = urdf.original_name
     data = {"model": {"name": urdf.name, "kind": "spatial",
                       "description": f"serial chain from {path.name}", "source": str(path.name)},
             "gravity": {"vector": [0.0, 0.0, -9.81]},
@@ -411,4 +434,7 @@ def parse_urdf(path: Path, text: str) -> RobotModel:
         m = re.match(r"(links\[\d+\]\.\w+|model\.name)", key)
         return names.get(m.group(1), key) if m else key
 
-    return parse_rigid(path, data, key_name)
+    model = parse_rigid(path, data, key_name)
+    if data["model"]["name"] != names.get("__original__"):
+        model = dataclasses.replace(model, original_name=names["__original__"])
+    return model
