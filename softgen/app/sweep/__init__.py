@@ -211,16 +211,23 @@ def _prepare(out: Path, identity: dict, *, resume: bool, force: bool,
             write_text(out / "samples.jsonl",
                        "".join(json.dumps(r, allow_nan=True) + "\n" for r in rows.values()))
             return rows
+    for name in OUTPUTS:
+        p = out / name
+        if p.is_dir() and not p.is_symlink():
+            raise SoftgenError(f"sweep: {p} is a directory; remove it or use another --out")
     try:
         out.mkdir(parents=True, exist_ok=True)
-        for name in OUTPUTS:
-            p = out / name
-            if p.is_dir() and not p.is_symlink():
-                raise SoftgenError(f"sweep: {p} is a directory; remove it or use another --out")
-            p.unlink(missing_ok=True)
     except OSError as exc:
         raise output_error(out, exc) from None
+    # The new identity first (atomic): a full disk stops the sweep here, before any
+    # earlier output is removed.
     write_text(meta, json.dumps(identity, indent=2) + "\n")
+    try:
+        for name in OUTPUTS:
+            if name != "sweep.json":
+                (out / name).unlink(missing_ok=True)
+    except OSError as exc:
+        raise output_error(out, exc) from None
     return {}
 
 
