@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
+from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.errors import SoftgenError
 
 HELP = "joint stiffness from a CSV measurement log (thesis chapters 6, 7)"
@@ -18,7 +20,25 @@ def parser_options() -> dict:
 
 
 def run(args) -> int:
-    """Stiffness from a CSV log: invasive (thesis chapter 6) or non-invasive (chapter 7)."""
+    """Stiffness from a CSV log: invasive (thesis chapter 6) or non-invasive (chapter 7).
+
+    SIGINT/SIGTERM at any moment (also while the estimator's modules load): one line,
+    status 130/143, and an earlier ``--out`` file unchanged (issue 23)."""
+    with stopping():
+        try:
+            return _run(args)
+        except Stop as stop:
+            ignore_signals()
+            out = Path(args.out) if args.out else \
+                Path(args.log).with_name(f"{Path(args.log).stem}_estimate.csv")
+            state = "unchanged" if out.exists() else "not written"
+            raise interrupted(stop.signum, f"estimate: interrupted by "
+                              f"{signal_name(stop.signum)}; {out} {state}") from None
+
+
+def _run(args) -> int:
+    # Imported here: the estimators and CasADi take a second or more to import, which
+    # `softgen --help` and the other verbs should not pay.
     from softgen.app.estimate import estimate_log
     powers = None
     if args.powers is not None:
