@@ -46,6 +46,11 @@ def _nap(c):
     return Metrics().add("err", 2.0 * c.a, "rad")
 
 
+def _die(config, out):
+    os._exit(7)
+
+
+DIE = Experiment(id="sig-die", title="die", section="test", run=_die, config={})
 FAST = Experiment(id="sig-fast", title="fast", section="test", run=_fast, config={"x": 1})
 SLOW = Experiment(id="sig-slow", title="slow", section="test", run=_slow,
                   config={"sleep": 120})
@@ -57,7 +62,7 @@ DRIVER = '''\
 import sys
 from softgen.cli import main
 from softgen.experiments import registry
-for name in ("FAST", "SLOW", "NAP"):
+for name in ("FAST", "SLOW", "NAP", "DIE"):
     registry._MODULES["sig-" + name.lower()] = "faults_signal_fakes:" + name
 sys.exit(main(sys.argv[1:]))
 '''
@@ -163,6 +168,18 @@ def test_reproduce_parent_killed_leaves_no_worker(driver, tmp_path):
     if left:
         os.killpg(proc.pid, signal.SIGKILL)
     assert gone and left == [], left
+
+
+def test_reproduce_killed_worker_is_one_line(driver, tmp_path):
+    """Before: a BrokenProcessPool traceback."""
+    out = tmp_path / "results"
+    proc = _start(driver, "reproduce", "sig-die", "sig-fast", "--out", str(out), "--jobs", "2")
+    status, err, left = _finish(proc, timeout=60)
+    assert status == 2 and "Traceback" not in err, err
+    lines = [ln for ln in err.splitlines() if ln.startswith("softgen: error:")]
+    assert len(lines) == 1 and "failed: sig-die" in lines[0], err
+    assert "worker process died" in err and left == []
+    assert "## sig-die" in (out / "report.md").read_text()
 
 
 # -- sweep ------------------------------------------------------------------------------------

@@ -301,10 +301,10 @@ def _run_sweep(spec: SweepSpec, out: Path, *, workers: int | None, scheduler: st
         journal = (out / "samples.jsonl").open("a", encoding="utf-8")
     except OSError as exc:
         raise output_error(out / "samples.jsonl", exc) from None
+    results = run_tasks(tasks, workers=workers or default_workers(), scheduler=scheduler,
+                        count=len(todo))
     try:
-        for k, (index, res) in enumerate(
-                run_tasks(tasks, workers=workers or default_workers(), scheduler=scheduler,
-                          count=len(todo)), 1):
+        for k, (index, res) in enumerate(results, 1):
             s = by_index[index]
             row = {"index": index, "grid_point": s.grid_point, "replicate": s.replicate,
                    "inputs": flat_inputs(s.overrides), **res}
@@ -322,6 +322,9 @@ def _run_sweep(spec: SweepSpec, out: Path, *, workers: int | None, scheduler: st
             raise
         raise output_error(out / "samples.jsonl", exc) from None
     finally:
+        # An interrupt here stops the backend's workers now (the generator's clean-up),
+        # not whenever the generator happens to be collected.
+        results.close()
         journal.close()
     rows = [done[s.index] for s in samples]
     table = write_table(out / "samples", rows, inputs, fmt)
