@@ -131,3 +131,31 @@ def test_dead_pool_worker_is_one_line(monkeypatch):
     with pytest.raises(SoftgenError, match="a worker process died") as exc:
         list(backends.run_tasks([(i, ()) for i in range(4)], workers=2, scheduler=None))
     assert "\n" not in str(exc.value)
+
+
+@pytest.mark.slow      # a Dask LocalCluster starts in ~10 s here
+def test_dask_submits_in_bounded_batches(monkeypatch):
+    """Before: 100,000 samples submitted up front stalled the scheduler."""
+    distributed = pytest.importorskip("dask.distributed")
+    from softgen.app.sweep import backends
+    real = distributed.LocalCluster
+
+    def in_process(**kw):                 # threads in this process see the patched evaluate
+        return real(**{**kw, "processes": False})
+    monkeypatch.setattr(distributed, "LocalCluster", in_process)
+    monkeypatch.setattr(backends, "evaluate", _ok)
+    taken = []
+
+    def tasks():
+        for i in range(60):
+            taken.append(i)
+            yield i, ()
+
+    it = backends.run_tasks(tasks(), workers=2, scheduler="local", count=60)
+    try:
+        first = next(it)
+        assert len(taken) <= backends.IN_FLIGHT_PER_WORKER * 2 + 1
+        rest = list(it)
+    finally:
+        it.close()
+    assert sorted([first[0]] + [i for i, _ in rest]) == list(range(60))
