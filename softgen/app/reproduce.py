@@ -163,6 +163,8 @@ def _publish(stage: Path, out: Path) -> None:
 
 def _clean_stale_stages(out_root: Path) -> None:
     """Staging directories left by a run killed with SIGKILL (their process is gone)."""
+    if not Path("/proc/self").exists():     # no way to tell a live run's stage here
+        return
     for d in out_root.glob(".*.running-*"):
         pid = d.name.rpartition("-")[2]
         if pid.isdigit() and not Path(f"/proc/{pid}").exists() and d.is_dir():
