@@ -27,6 +27,10 @@ examples:
 
 Writes OUT/samples.csv (one row per sample: inputs, status, metrics), OUT/summary.csv and
 summary.json (quantiles), OUT/sweep.png, and the journal OUT/samples.jsonl that --resume reads.
+Every file is replaced atomically; an OUT holding a sweep is never overwritten without
+--force, and --resume refuses a missing or damaged sweep.json or journal. At most
+1,000,000 samples (grid points x --samples; SOFTGEN_SWEEP_MAX_SAMPLES raises it).
+Ctrl-C or SIGTERM: one line, status 130/143, the journal kept for --resume.
 """
 
 
