@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.errors import NonFiniteError, SoftgenError
 from softgen.estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
@@ -26,6 +27,40 @@ from softgen.modelfile.model import RobotModel, list_models, load_model
 from softgen.runtime.simulate import simulate
 
 METHODS = ("invasive", "noninvasive")
+
+#: Largest exponent of ``--powers`` (the RLS regressor's powers of the spring deflection
+#: φ, thesis eq. 6.22 and 7.13; the thesis uses at most 7). φ is a fraction of a radian,
+#: so φ^j for larger j is numerically zero against the other columns, or overflows for
+#: |φ| > 1: ``--powers 100000`` gave σ̂ = 0 in every row with status 0 (issue 23).
+MAX_POWER = 15
+
+#: Most exponents in ``--powers`` (parameters the RLS fits per spring).
+MAX_POWERS = 8
+
+#: Accepted sample times [s] of a log (``--dt`` or the log's median step): a
+#: measurement log is sampled between a microsecond and a second. Outside, the
+#: discretised model the observer is designed on is degenerate (1e-300 s) or not
+#: observable (1e6 s), or its exponentials overflow (1e300 s).
+DT_RANGE = (1e-6, 1.0)
+
+
+def check_powers(powers: tuple[int, ...] | None) -> None:
+    """``--powers`` within ``0..MAX_POWER``, at most ``MAX_POWERS`` of them, distinct."""
+    if powers is None:
+        return
+    bad = [p for p in powers if isinstance(p, bool) or not isinstance(p, int)
+           or not 0 <= p <= MAX_POWER]
+    if bad or not powers or len(powers) > MAX_POWERS or len(set(powers)) != len(powers):
+        raise SoftgenError(f"estimate: --powers: expected 1 to {MAX_POWERS} distinct integers "
+                           f"in 0..{MAX_POWER}, got {','.join(map(str, powers))}")
+
+
+def check_dt(dt: float, where: str) -> None:
+    """A sample time within :data:`DT_RANGE` (``where`` names the option or the log)."""
+    lo, hi = DT_RANGE
+    if not (math.isfinite(dt) and lo <= dt <= hi):
+        raise SoftgenError(f"estimate: {where}: {dt:.9g} s, expected a sample time between "
+                           f"{lo:g} and {hi:g} s; check the unit of the time column")
 
 
 def estimator_method(model: RobotModel, method: str) -> str:
@@ -182,7 +217,26 @@ def estimate_log(model_name: str, log: str | Path, *, method: str = "invasive",
     the first column and time, after the estimates (``nan``/``inf`` where diverged) are
     written; an implausible one is returned with :attr:`EstimateRun.warnings`.
     """
+    log = Path(log)
+    out = Path(out) if out else log.with_name(f"{log.stem}_estimate.csv")
+    # SIGINT/SIGTERM at any moment: one line, status 130/143; the output is written
+    # atomically, so an earlier file is kept whole (issue 23).
+    with stopping():
+        try:
+            return _estimate_log(model_name, log, out, method=method, dt=dt, powers=powers,
+                                 p0=p0, lowpass=lowpass, force=force)
+        except Stop as stop:
+            ignore_signals()
+            state = "unchanged" if out.exists() else "not written"
+            raise interrupted(stop.signum, f"estimate: interrupted by "
+                              f"{signal_name(stop.signum)}; {out} {state}") from None
+
+
+def _estimate_log(model_name: str, log: Path, out: Path, *, method: str, dt: float | None,
+                  powers: tuple[int, ...] | None, p0: float | None,
+                  lowpass: float | None, force: bool) -> EstimateRun:
     t0 = time.perf_counter()
+    check_powers(powers)
     model = load_model(model_name)
     kind = estimator_method(model, method)
     for flag, v in (("--dt", dt), ("--p0", p0)):
@@ -191,8 +245,8 @@ def estimate_log(model_name: str, log: str | Path, *, method: str = "invasive",
     if lowpass is not None and not (math.isfinite(lowpass) and lowpass >= 0):
         raise SoftgenError(f"estimate: --lowpass: expected a cutoff in Hz (0 for none), "
                            f"got {lowpass!r}")
-    log = Path(log)
-    out = Path(out) if out else log.with_name(f"{log.stem}_estimate.csv")
+    if dt is not None:
+        check_dt(dt, "--dt")
     check_output(out, log, force=force)
     config = EstimatorConfig(kind, dt=dt, powers=powers, p0=p0)
     est = StiffnessEstimator(model, config)      # checks the settings before reading the log
@@ -200,6 +254,8 @@ def estimate_log(model_name: str, log: str | Path, *, method: str = "invasive",
     if dt is not None and abs(dt - log_dt) > step_tolerance(log_dt):
         raise SoftgenError(f"estimate: --dt {dt:g} s disagrees with the median time step "
                            f"{log_dt:.9g} s of {log}; drop --dt or resample the log")
+    if dt is None:
+        check_dt(log_dt, f"{log}: median time step")
     if lowpass is None and kind == "noninvasive":
         positions = [i for i, c in enumerate(est.measurements) if c.startswith("q")]
         lowpass = default_lowpass(log_dt, encoder_resolution(Y[:, positions]))

@@ -1,8 +1,9 @@
 """Metrics of a ``softgen reproduce`` run -> ``report.md`` beside the thesis's numbers."""
 from __future__ import annotations
 
-import os
 from pathlib import Path
+
+from softgen.core.atomic import write_text
 
 
 def _fmt(x) -> str:
@@ -65,7 +66,7 @@ def write_report(results: list[dict], path: Path, *, incomplete: str | None = No
         cfg = res.get("config", {})
         if cfg.get("title"):
             lines.append(f"{cfg['title']} (thesis: {cfg.get('section', '')}). "
-                         f"Wall time {res['wall_seconds']:.2f} s"
+                         f"Wall time {res.get('wall_seconds', float('nan')):.2f} s"
                          + (", quick run" if cfg.get("quick") else "") + ".")
             lines.append("")
         lines += _claims(res.get("findings", []))
@@ -88,10 +89,5 @@ def write_report(results: list[dict], path: Path, *, incomplete: str | None = No
             lines.append("")
             lines += [f"![{f}]({exp}/{f})" for f in figs]
         lines.append("")
-    # Write and rename: an interrupted write never leaves half a report.
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_text("\n".join(lines))
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    # Atomic (issue 23): an interrupted write or a full disk never leaves half a report.
+    write_text(path, "\n".join(lines))

@@ -5,21 +5,26 @@ pending experiments are cancelled, the workers (which ignore both signals, so a
 Ctrl-C to the whole process group reaches only the main process's handler) are
 killed and waited for at most :data:`STOP_GRACE` seconds, and ``report.md`` is
 written with the experiments that finished, marked incomplete. The command exits
-with status 130. Every ``metrics.json`` carries ``run_hash``, the hash of the
+with status 130 (SIGINT) or 143 (SIGTERM), at any moment of the run (issue 23: the
+handlers are set before anything else). Each experiment writes its files into a
+hidden staging directory, published into ``<out>/<id>/`` file by file (atomic
+renames) once it has finished, so an interrupt, a full disk or a failure leaves the
+previous run's files intact; a foreign ``metrics.json`` (not written by reproduce) is
+ignored. Every ``metrics.json`` carries ``run_hash``, the hash of the
 code, models and configuration that produced it; ``--resume`` keeps the
 experiments whose ``metrics.json`` has the hash of the current ones.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
 import os
-import warnings
+import shutil
 import signal
+import warnings
 import sys
-import tempfile
-import threading
 import time
 import traceback
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -27,7 +32,8 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import TextIO
 
-from softgen.core.errors import Interrupted
+from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping, worker_init
+from softgen.core.atomic import check_dir, output_error, write_text
 from softgen.core.paths import GENERATED_DIR, MODELS_DIR
 from softgen.modelfile.model import MODEL_SUFFIXES
 from softgen.app.report import write_report
@@ -73,15 +79,8 @@ def _config(exp: Experiment, quick: bool) -> Config | dict:
 
 
 def _write_json(path: Path, data: dict) -> None:
-    """Write via a temporary file and rename: a killed run never leaves half a file."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(json.dumps(data, indent=2, allow_nan=False) + "\n")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    """Atomic (:mod:`softgen.core.atomic`): a killed run or a full disk never leaves half a file."""
+    write_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
 
 def _config_dict(exp: Experiment, quick: bool) -> dict:
@@ -96,14 +95,26 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None) -
     config_dict = config.to_dict() if isinstance(config, Config) else config
     rhash = run_hash(exp_id, config_dict, quick, code or code_hash())
     out = Path(out_root) / exp_id
-    out.mkdir(parents=True, exist_ok=True)
+    # The experiment writes its figures and traces into a hidden staging directory;
+    # they replace the previous run's files only once it has finished (issue 23): an
+    # interrupt, a full disk or a failure leaves every earlier file as it was.
+    stage = Path(out_root) / f".{exp_id}.running-{os.getpid()}"
+    shutil.rmtree(stage, ignore_errors=True)
+    try:
+        stage.mkdir(parents=True)
+    except OSError as exc:
+        raise output_error(stage, exc) from None
     t0 = time.perf_counter()
-    # Library warnings (a legend that is slow to place, an infeasible pressure) belong
-    # to the run's record, not to the terminal: they are kept in metrics.json and shown
-    # in the report.
-    with warnings.catch_warnings(record=True) as caught, progress_context(exp_id):
-        warnings.simplefilter("always")
-        metrics = exp.run(config, out)
+    try:
+        # Library warnings (a legend that is slow to place, an infeasible pressure) belong
+        # to the run's record, not to the terminal: they are kept in metrics.json and
+        # shown in the report.
+        with warnings.catch_warnings(record=True) as caught, progress_context(exp_id):
+            warnings.simplefilter("always")
+            metrics = exp.run(config, stage)
+        _publish(stage, out)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
     if not isinstance(metrics, Metrics):
         metrics = Metrics.from_flat(metrics)
     findings = check_findings(exp, metrics, config) if exp.findings is not None else None
@@ -128,6 +139,36 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None) -
     result["run_hash"] = rhash
     _write_json(out / "metrics.json", result)
     return result
+
+
+def _publish(stage: Path, out: Path) -> None:
+    """Move every file of ``stage`` into ``out`` (same tree), each fsync'ed then renamed
+    over its namesake: one atomic replacement per file, none before the run finished."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for src in sorted(stage.rglob("*")):
+            dst = out / src.relative_to(stage)
+            if src.is_dir():
+                dst.mkdir(parents=True, exist_ok=True)
+                continue
+            fd = os.open(src, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            os.replace(src, dst)
+    except OSError as exc:
+        raise output_error(out, exc) from None
+
+
+def _clean_stale_stages(out_root: Path) -> None:
+    """Staging directories left by a run killed with SIGKILL (their process is gone)."""
+    if not Path("/proc/self").exists():     # no way to tell a live run's stage here
+        return
+    for d in out_root.glob(".*.running-*"):
+        pid = d.name.rpartition("-")[2]
+        if pid.isdigit() and not Path(f"/proc/{pid}").exists() and d.is_dir():
+            shutil.rmtree(d, ignore_errors=True)
 
 
 def check_findings(exp: Experiment, metrics: Metrics, config) -> list[dict]:
@@ -158,24 +199,13 @@ def _safe_run(exp_id: str, out_root: Path, quick: bool, code: str | None = None)
                 "traceback": traceback.format_exc()}
 
 
-def _worker_init(show_progress: bool | None = None, full_traces: bool = False) -> None:
-    """Workers leave SIGINT and SIGTERM to the main process, which stops them."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+def _worker_init(show_progress: bool | None = None, full_traces: bool = False,
+                 parent: int | None = None) -> None:
+    """Workers leave SIGINT and SIGTERM to the main process, which stops them, and end
+    when it dies, even by SIGKILL (:func:`softgen.app.stop.watch_parent`)."""
+    worker_init(os.getppid() if parent is None else parent)
     set_progress(show_progress)
     set_full_traces(full_traces)
-
-
-class _Stop(BaseException):
-    """Raised in the main thread by the SIGINT/SIGTERM handler."""
-
-    def __init__(self, signum: int):
-        super().__init__(signum)
-        self.signum = signum
-
-
-def _on_signal(signum, frame) -> None:
-    raise _Stop(signum)
 
 
 def _resumable(exp_id: str, out_root: Path, expected: str) -> dict | None:
@@ -185,8 +215,7 @@ def _resumable(exp_id: str, out_root: Path, expected: str) -> dict | None:
         saved = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    if (isinstance(saved, dict) and saved.get("run_hash") == expected
-            and saved.get("experiment") == exp_id and "metrics" in saved):
+    if _well_formed(saved, exp_id) and saved.get("run_hash") == expected:
         return saved
     return None
 
@@ -209,12 +238,67 @@ def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
     """
     progress = progress or sys.stderr   # looked up now: tests and callers swap sys.stderr
     ids = list(ids) if ids else experiment_ids()
-    for i in ids:
-        get(i)  # unknown ids fail before anything runs
     out_root = Path(out_root)
-    out_root.mkdir(parents=True, exist_ok=True)
-    code = code_hash()
     results: dict[str, dict] = {}
+    # The handlers are set first: a signal at any moment (even while the code is hashed)
+    # ends with one line and a report marked incomplete (issue 23).
+    with stopping():
+        try:
+            for i in ids:
+                get(i)  # unknown ids fail before anything runs
+            check_dir(out_root, "--out")        # before long work: one line naming the path
+            try:
+                out_root.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise output_error(out_root, exc) from None
+            _clean_stale_stages(out_root)
+            return _reproduce(ids, out_root, results, quick=quick, jobs=jobs,
+                              progress=progress, resume=resume, show_progress=show_progress,
+                              full_traces=full_traces)
+        except Stop as stop:
+            ignore_signals()            # a second Ctrl-C must not cut the report short
+            raise _stopped(stop.signum, ids, out_root, results, quick, progress) from None
+
+
+def _stopped(signum: int, ids: list[str], out_root: Path, results: dict, quick: bool,
+             progress: TextIO) -> Exception:
+    """After SIGINT/SIGTERM: the report of what finished, marked incomplete; the error."""
+    started = results.pop("__started__", None)
+    code = results.pop("__code__", None)
+    # An experiment that wrote its metrics.json during this run finished, even if its
+    # result was still on its way from the worker when the signal came.
+    if started is not None and code is not None:
+        for i in ids:
+            if i not in results:
+                saved = _resumable(i, out_root, run_hash(i, _config_dict(get(i), quick), quick,
+                                                         code))
+                if saved is not None and \
+                        (out_root / i / "metrics.json").stat().st_mtime >= started:
+                    results[i] = saved
+    name = signal_name(signum)
+    ordered = [results[i] for i in ids if i in results]
+    missing = [i for i in ids if i not in results]
+    why = (f"interrupted by {name}; {len(ordered)} of {len(ids)} experiment(s) finished"
+           + (f"; not finished: {', '.join(missing)}" if missing else ""))
+    try:
+        if out_root.is_dir():
+            write_report(ordered, out_root / "report.md", incomplete=why)
+            print(f"report (incomplete): {out_root / 'report.md'}", file=progress, flush=True)
+            where = f"{out_root / 'report.md'} is marked incomplete (re-run with --resume " \
+                    "to finish)"
+        else:
+            where = "nothing was written"
+    except (OSError, ValueError) as exc:            # a full disk: still one line
+        where = f"report.md not written ({str(exc).splitlines()[0]})"
+    return interrupted(signum, f"reproduce: interrupted by {name}; {len(ordered)} of "
+                               f"{len(ids)} experiment(s) finished; {where}")
+
+
+def _reproduce(ids: list[str], out_root: Path, results: dict, *, quick: bool,
+               jobs: int | None, progress: TextIO, resume: bool,
+               show_progress: bool | None, full_traces: bool) -> list[dict]:
+    code = code_hash()
+    results["__code__"] = code
     if resume:
         for i in ids:
             saved = _resumable(i, out_root, run_hash(i, _config_dict(get(i), quick), quick, code))
@@ -227,52 +311,36 @@ def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo) or 1))
     set_progress(show_progress)
     set_full_traces(full_traces)
-    t0, started = time.perf_counter(), time.time()
+    t0 = time.perf_counter()
+    results["__started__"] = time.time()
     print(f"reproducing {len(todo)} experiment(s) with {jobs} worker(s) -> {out_root}",
           file=progress, flush=True)
-    main_thread = threading.current_thread() is threading.main_thread()
-    old = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)} \
-        if main_thread else {}
-    stopped: int | None = None
-    try:
-        if jobs == 1:
-            for k, exp_id in enumerate(todo, 1):
-                print(f"[{k}/{len(todo)}] {exp_id} ...", file=progress, flush=True)
-                results[exp_id] = _safe_run(exp_id, out_root, quick, code)
-                _report_line(results[exp_id], k, len(todo), t0, progress)
-        else:
-            _run_pool(todo, out_root, quick, code, jobs, results, t0, progress,
-                      (show_progress, full_traces))
-    except _Stop as stop:
-        stopped = stop.signum
-        # An experiment that wrote its metrics.json during this run finished, even if its
-        # result was still on its way from the worker when the signal came.
-        for i in todo:
-            if i not in results:
-                saved = _resumable(i, out_root, run_hash(i, _config_dict(get(i), quick), quick,
-                                                         code))
-                if saved is not None and \
-                        (out_root / i / "metrics.json").stat().st_mtime >= started:
-                    results[i] = saved
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
+    if jobs == 1:
+        for k, exp_id in enumerate(todo, 1):
+            print(f"[{k}/{len(todo)}] {exp_id} ...", file=progress, flush=True)
+            results[exp_id] = _safe_run(exp_id, out_root, quick, code)
+            _report_line(results[exp_id], k, len(todo), t0, progress)
+    else:
+        _run_pool(todo, out_root, quick, code, jobs, results, t0, progress,
+                  (show_progress, full_traces, os.getpid()))
+    results.pop("__started__")
+    results.pop("__code__")
     ordered = [results[i] for i in ids if i in results]
-    if stopped is not None:
-        name = signal.Signals(stopped).name
-        missing = [i for i in ids if i not in results]
-        write_report(ordered, out_root / "report.md",
-                     incomplete=f"interrupted by {name}; {len(ordered)} of {len(ids)} "
-                                f"experiment(s) finished; not finished: {', '.join(missing)}")
-        print(f"report (incomplete): {out_root / 'report.md'}", file=progress, flush=True)
-        raise Interrupted(f"reproduce: interrupted by {name}; {len(ordered)} of {len(ids)} "
-                          f"experiment(s) finished; {out_root / 'report.md'} is marked "
-                          "incomplete (re-run with --resume to finish)")
     # The report covers every experiment with a metrics.json in out_root, so a partial
     # re-run keeps the other sections (the ones run now replace their old results).
     write_report(_all_results(out_root, results), out_root / "report.md")
     print(f"report: {out_root / 'report.md'}", file=progress, flush=True)
     return ordered
+
+
+def _well_formed(saved, exp_id: str) -> bool:
+    """A metrics.json that reproduce wrote for ``exp_id`` (a foreign one is ignored)."""
+    return (isinstance(saved, dict) and saved.get("experiment") == exp_id
+            and isinstance(saved.get("metrics"), dict)
+            and isinstance(saved.get("wall_seconds"), (int, float))
+            and not isinstance(saved.get("wall_seconds"), bool)
+            and isinstance(saved.get("config", {}), dict)
+            and isinstance(saved.get("thesis", {}), dict))
 
 
 def _all_results(out_root: Path, fresh: dict[str, dict]) -> list[dict]:
@@ -286,17 +354,23 @@ def _all_results(out_root: Path, fresh: dict[str, dict]) -> list[dict]:
             saved = json.loads((out_root / i / "metrics.json").read_text())
         except (OSError, ValueError):
             continue
-        if isinstance(saved, dict) and saved.get("experiment") == i and "metrics" in saved:
+        if _well_formed(saved, i):
             out.append(saved)
     return out
 
 
 def _run_pool(todo: list[str], out_root: Path, quick: bool, code: str, jobs: int,
               results: dict, t0: float, progress: TextIO, init: tuple) -> None:
-    pool = ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init, initargs=init)
-    futures = {}
+    futures: dict = {}
+    pool = None
     try:
-        futures = {pool.submit(_safe_run, i, out_root, quick, code): i for i in todo}
+        # Signals wait while the pool starts and takes the work: a Ctrl-C inside the
+        # executor's own locks left its manager thread printing a traceback (issue 23).
+        # They are delivered (and raise Stop) right after.
+        with _signals_held():
+            pool = ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init,
+                                       initargs=init)
+            futures = {pool.submit(_safe_run, i, out_root, quick, code): i for i in todo}
         print(f"running: {', '.join(todo)}", file=progress, flush=True)
         pending, k = set(futures), 0
         while pending:
@@ -311,10 +385,24 @@ def _run_pool(todo: list[str], out_root: Path, quick: bool, code: str, jobs: int
                            "error": f"worker process died ({exc})"}
                 results[res["experiment"]] = res
                 _report_line(res, k, len(todo), t0, progress)
-    except BaseException:
-        _abort_pool(pool, futures)
+    except BaseException as exc:
+        if isinstance(exc, Stop):
+            ignore_signals()                # the clean-up is short; let it finish
+        if pool is not None:
+            _abort_pool(pool, futures)
         raise
     pool.shutdown(wait=True)
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """Block SIGINT and SIGTERM in this thread for the block; pending ones arrive after."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _abort_pool(pool: ProcessPoolExecutor, futures: dict) -> None:

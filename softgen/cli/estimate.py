@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
+from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.errors import ImplausibleError, SoftgenError
 
 HELP = "joint stiffness from a CSV measurement log (thesis chapters 6, 7)"
@@ -18,7 +20,25 @@ def parser_options() -> dict:
 
 
 def run(args) -> int:
-    """Stiffness from a CSV log: invasive (thesis chapter 6) or non-invasive (chapter 7)."""
+    """Stiffness from a CSV log: invasive (thesis chapter 6) or non-invasive (chapter 7).
+
+    SIGINT/SIGTERM at any moment (also while the estimator's modules load): one line,
+    status 130/143, and an earlier ``--out`` file unchanged (issue 23)."""
+    with stopping():
+        try:
+            return _run(args)
+        except Stop as stop:
+            ignore_signals()
+            out = Path(args.out) if args.out else \
+                Path(args.log).with_name(f"{Path(args.log).stem}_estimate.csv")
+            state = "unchanged" if out.exists() else "not written"
+            raise interrupted(stop.signum, f"estimate: interrupted by "
+                              f"{signal_name(stop.signum)}; {out} {state}") from None
+
+
+def _run(args) -> int:
+    # Imported here: the estimators and CasADi take a second or more to import, which
+    # `softgen --help` and the other verbs should not pay.
     from softgen.app.estimate import estimate_log
     powers = None
     if args.powers is not None:
@@ -68,8 +88,10 @@ def add_arguments(p) -> None:
     p.add_argument("--out", metavar="OUT.csv",
                    help="estimates (default: <log stem>_estimate.csv beside the log)")
     p.add_argument("--dt", type=float, metavar="SECONDS",
-                   help="sample time; must agree with the log's median time step")
-    p.add_argument("--powers", metavar="1,3,5,7", help="RLS regressor exponents")
+                   help="sample time (1e-6 to 1 s); must agree with the log's median "
+                        "time step")
+    p.add_argument("--powers", metavar="1,3,5,7",
+                   help="RLS regressor exponents: 1 to 8 distinct integers in 0..15")
     p.add_argument("--p0", type=float, help="initial RLS covariance (times I)")
     p.add_argument("--lowpass", type=float, metavar="HZ",
                    help="cutoff of the identical low-pass of RLS target and regressor; 0 "

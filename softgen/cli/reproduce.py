@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import sys
 
+from softgen.app.report import write_report
+from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.errors import SoftgenError
 from softgen.core.paths import output_dir
 
@@ -26,17 +28,41 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from softgen.app.reproduce import reproduce
     if args.jobs is not None and args.jobs < 1:
         raise SoftgenError(f"reproduce: --jobs: expected a positive integer, got {args.jobs}")
     out = output_dir(args.out, "--out")
-    results = reproduce(args.ids, out, quick=args.quick, jobs=args.jobs,
-                        resume=args.resume, show_progress=True if args.progress else None,
-                        full_traces=args.full_traces)
+    # Signals are caught from here on, before the second of imports below: a Ctrl-C at
+    # any moment writes report.md marked incomplete and ends with one line (issue 23).
+    results = None
+    with stopping():
+        try:
+            # Imported here: the experiments' modules cost a second to import, and
+            # the other verbs do not need them.
+            from softgen.app.reproduce import reproduce
+            # reproduce() sets its own handlers (and writes its own incomplete report);
+            # these cover the moments before and after it.
+            results = reproduce(args.ids, out, quick=args.quick, jobs=args.jobs,
+                                resume=args.resume,
+                                show_progress=True if args.progress else None,
+                                full_traces=args.full_traces)
+        except Stop as stop:
+            ignore_signals()
+            if results is not None:         # after reproduce() finished: all is written
+                raise interrupted(stop.signum, f"reproduce: interrupted by "
+                                  f"{signal_name(stop.signum)} after the run had "
+                                  "finished") from None
+            why = f"interrupted by {signal_name(stop.signum)} before any experiment ran"
+            try:
+                out.mkdir(parents=True, exist_ok=True)
+                write_report([], out / "report.md", incomplete=why)
+            except (OSError, SoftgenError):
+                pass            # the line below still says what happened
+            raise interrupted(stop.signum, f"reproduce: {why}; {out / 'report.md'} is "
+                              "marked incomplete") from None
     failed = [r["experiment"] for r in results if "error" in r]
     if failed:
         for r in results:
-            if "error" in r:
+            if "error" in r and r.get("traceback"):
                 print(r["traceback"], file=sys.stderr)
         raise SoftgenError(f"reproduce: {len(failed)} experiment(s) failed: {', '.join(failed)}")
     return 0

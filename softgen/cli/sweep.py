@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -26,6 +27,10 @@ examples:
 
 Writes OUT/samples.csv (one row per sample: inputs, status, metrics), OUT/summary.csv and
 summary.json (quantiles), OUT/sweep.png, and the journal OUT/samples.jsonl that --resume reads.
+Every file is replaced atomically; an OUT holding a sweep is never overwritten without
+--force, and --resume refuses a missing or damaged sweep.json or journal. At most
+1,000,000 samples (grid points x --samples; SOFTGEN_SWEEP_MAX_SAMPLES raises it).
+Ctrl-C or SIGTERM: one line, status 130/143, the journal kept for --resume.
 """
 
 
@@ -58,7 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     from softgen.app.sweep import SweepSpec, run_sweep
-    from softgen.app.sweep.spec import parse_vary
+    from softgen.app.sweep.spec import check_size, max_samples, parse_vary
     from softgen.experiments.registry import experiment_ids
     if args.experiment not in experiment_ids():
         raise SoftgenError(f"sweep: unknown experiment {args.experiment!r}: expected one of "
@@ -72,6 +77,12 @@ def run(args) -> int:
         raise SoftgenError(f"sweep: --workers: expected a positive integer, got {args.workers}")
     if not varies:
         raise SoftgenError("sweep: nothing to vary: give --vary KEY=DIST (see softgen sweep -h)")
+    if n > max_samples():
+        raise SoftgenError(f"sweep: --samples: {n:,} is over the limit of {max_samples():,} "
+                           "(set SOFTGEN_SWEEP_MAX_SAMPLES to raise it)")
+    # The sweep's size from the grids alone, before the experiment is even loaded.
+    check_size(math.prod(len(v.dist.args) if v.dist.kind == "grid" else int(v.dist.args[2])
+                         for v in varies if v.dist.is_grid), n)
     out = output_dir(args.out or f"sweeps/{args.experiment}", "--out")
     spec = SweepSpec(experiment=args.experiment, vary=tuple(args.vary), samples=n,
                      seed=args.seed, quick=args.quick,
@@ -79,7 +90,12 @@ def run(args) -> int:
     try:
         spec.check()
     except ValueError as exc:
-        raise SoftgenError(f"sweep: {exc}") from None
+        msg = str(exc)
+        # Name the option the user typed (--samples, --seed), not the spec's field.
+        for opt in ("samples", "seed"):
+            if msg.startswith(f"{opt}:"):
+                msg = f"--{msg}"
+        raise SoftgenError(f"sweep: {msg}") from None
     res = run_sweep(spec, Path(out), workers=args.workers, scheduler=args.scheduler,
                     resume=args.resume, force=args.force, fmt=args.format,
                     progress=True if args.progress else None)

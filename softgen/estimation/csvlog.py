@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from softgen.core.atomic import OutputError, atomic_open
 from softgen.core.errors import ShapeError, SoftgenError
 from softgen.estimation.estimators import StiffnessEstimator
 from softgen.estimation.offline import EstimationResult
@@ -204,7 +205,7 @@ def write_estimates(path: str | Path, t: np.ndarray, result: EstimationResult,
     Parameters
     ----------
     path
-        Output file (overwritten).
+        Output file (replaced atomically: the previous file survives any failure).
     t
         (K,) time stamps of the log.
     result
@@ -226,14 +227,18 @@ def write_estimates(path: str | Path, t: np.ndarray, result: EstimationResult,
             raise ShapeError(f"{name}: expected shape ({K}, {n}) to match the {K} time "
                              f"stamps, got {b.shape}")
     table = np.hstack([t[:, None], *blocks])
+    # Atomic (issue 23): an interrupt or a full disk keeps the previous file whole,
+    # never a valid-looking truncated table.
     try:
-        with path.open("w", newline="") as fh:
+        with atomic_open(path, "w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(estimate_columns(est))
             ready = K - result.delay
             for k, row in enumerate(table):
                 w.writerow([repr(float(row[0]))] + [
                     "" if k >= ready else repr(float(v)) for v in row[1:]])
+    except OutputError:
+        raise
     except OSError as exc:
         raise LogError(f"{path}: cannot write estimates ({exc.strerror or exc})") from None
     return path

@@ -39,6 +39,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
+import sys
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -62,6 +64,61 @@ MAX_MAGNITUDE = 1e9
 #: Longest model name: it becomes file names (``build/lib<name>_<hash>.so``) and the
 #: prefix of every C symbol.
 MAX_NAME = 64
+
+#: A model name every generated symbol can start with: ``<name>_<quantity>`` must be a
+#: CasADi function name (a letter first, then letters, digits and single underscores
+#: between them: ``a__b``, ``x_`` and ``_x`` give ``a__b_...``, ``x__...``, ``_x_...``,
+#: which CasADi refuses) and a C identifier.
+_VALID_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*")
+
+#: What a model name may be, in words (for error lines).
+NAME_RULE = (f"a C identifier of at most {MAX_NAME} characters: a letter, then ASCII "
+             "letters, digits and single underscores, not ending with one")
+
+
+def name_problem(name: Any) -> str | None:
+    """Why ``name`` cannot name a model (see :data:`NAME_RULE`); None when it can."""
+    if not isinstance(name, str):
+        return f"expected a string, got {type(name).__name__}"
+    if len(name) > MAX_NAME:
+        return (f"expected a C identifier of at most {MAX_NAME} characters, got "
+                f"{len(name)} characters ({name[:20]!r}...)")
+    if not _VALID_NAME.fullmatch(name):
+        return f"expected {NAME_RULE}, got {name[:40]!r}"
+    return None
+
+
+def sanitise_name(name: str) -> str:
+    """``name`` made a valid model name (:data:`NAME_RULE`) without losing more than it
+    must: every character other than an ASCII letter or digit becomes ``_``, runs of
+    ``_`` become one, leading and trailing ones go, a leading digit gets the prefix
+    ``r_`` (``my-arm`` -> ``my_arm``, ``bräkë☃`` -> ``br_k``, ``2dof`` -> ``r_2dof``).
+    Nothing usable left gives ``robot``. The length is not changed (checked apart)."""
+    out = "".join(c if c.isascii() and c.isalnum() else "_" for c in name)
+    out = re.sub(r"_+", "_", out).strip("_")
+    if not out:
+        return "robot"
+    return f"r_{out}" if out[0].isdigit() else out
+
+
+def read_model_text(path: Path) -> str:
+    """The text of a model file, or one :class:`ModelError` naming it: unreadable,
+    binary, UTF-16/32 (a byte-order mark) or not UTF-8."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ModelError(f"{path}: cannot read model file ({exc.strerror or exc})") from None
+    for bom, enc in ((b"\xff\xfe\x00\x00", "UTF-32"), (b"\x00\x00\xfe\xff", "UTF-32"),
+                     (b"\xff\xfe", "UTF-16"), (b"\xfe\xff", "UTF-16")):
+        if data.startswith(bom):
+            raise ModelError(f"{path}: the file is {enc}-encoded; save it as UTF-8")
+    if b"\x00" in data[:65536]:
+        raise ModelError(f"{path}: binary data (NUL bytes), not a text model file")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ModelError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason}); save "
+                         "it as UTF-8") from None
 
 _GROUPS = {
     "mass": "m",
@@ -204,6 +261,10 @@ class RobotModel(ParameterTable):
     #: Besides the file at ``path``, what the model was read from (see ``source_text``).
     source_extra: str = field(default="", repr=False)
 
+    #: The name as the file wrote it when it had to be sanitised (a URDF ``<robot
+    #: name>``); empty when ``name`` is it.
+    original_name: str = ""
+
     @property
     def actuator_type(self) -> str | None:
         """``"mckibben"``, ``"qbmove"`` or ``None`` (every joint has the same type)."""
@@ -282,10 +343,7 @@ def load_model(name_or_path: str | Path, *, root: str | None = None,
         names the file and the key.
     """
     path = model_path(name_or_path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ModelError(f"{path}: cannot read model file ({exc.strerror})") from None
+    text = read_model_text(path)
     if path.suffix.lower() == ".urdf":
         from softgen.modelfile.urdf import parse_urdf        # serial chains from URDF (issue 17)
         model = parse_urdf(path, text, root=root, tip=tip)
@@ -359,11 +417,14 @@ class FileReader:
 
     def number(self, v: Any, key: str, *, positive=False, nonneg=False) -> float:
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.fail(key, f"expected a number, got {v!r}")
-        x = float(v)
+            raise self.fail(key, f"expected a number, got {_short(v)}")
+        try:
+            x = float(v)
+        except OverflowError:           # an integer of hundreds of digits
+            x = math.inf
         if not math.isfinite(x) or abs(x) > MAX_MAGNITUDE:
             raise self.fail(key, f"expected a finite number of magnitude at most "
-                            f"{MAX_MAGNITUDE:g}, got {v!r}")
+                            f"{MAX_MAGNITUDE:g}, got {_short(v)}")
         if positive and not x > 0:
             raise self.fail(key, f"expected a positive number, got {v!r}")
         if nonneg and x < 0:
@@ -397,6 +458,25 @@ class FileReader:
 
 
 
+def _short(v: Any) -> str:
+    """``repr(v)``, cut to one readable piece (a 400-digit number is not repeated)."""
+    try:
+        text = repr(v)
+    except ValueError:                  # int too large to convert to a string
+        return f"an integer of over {sys.get_int_max_str_digits()} digits"
+    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
+
+
+def check_uncertain(reader: FileReader, uncertain: tuple[str, ...]) -> tuple[str, ...]:
+    """At least one uncertain parameter: every adaptive law, regressor and estimator is
+    built on them (``uncertain = []`` failed deep in the symbolic layer)."""
+    if not uncertain:
+        raise reader.fail("parameters.uncertain", "expected at least one parameter or group "
+                          "(an empty list leaves nothing to adapt or estimate); omit the "
+                          "key for the default")
+    return uncertain
+
+
 def parse_rigid(path: Path, data: dict,
                 key_name: Callable[[str], str] | None = None) -> RobotModel:
     """Validate the tables of a rigid model file (what ``tomllib`` gives for one).
@@ -421,11 +501,10 @@ class _Parser(FileReader):
         self.keys(data, "", _TOP_KEYS, {"model", "links"})
         meta = self.keys(data["model"], "model", _MODEL_KEYS, {"name", "kind"})
         name = meta["name"]
-        # The name prefixes every generated C symbol: ASCII identifiers only.
-        if not isinstance(name, str) or not name.isascii() or not name.isidentifier() \
-                or len(name) > MAX_NAME:
-            raise self.fail("model.name", f"expected a C identifier of at most {MAX_NAME} "
-                            f"characters, got {str(name)[:40]!r}")
+        # The name prefixes every generated C symbol and CasADi function name.
+        problem = name_problem(name)
+        if problem:
+            raise self.fail("model.name", problem)
         kind = self.choice(meta["kind"], "model.kind", ("planar", "spatial"))
         links_raw = data["links"]
         if not isinstance(links_raw, list) or not links_raw:
@@ -445,7 +524,7 @@ class _Parser(FileReader):
 
         gdir, gmag = self.gravity(data.get("gravity", {}), kind)
         nominal["g"] = gmag
-        uncertain = self.uncertain(data.get("parameters", {}), nominal)
+        uncertain = check_uncertain(self, self.uncertain(data.get("parameters", {}), nominal))
         self.moving_mass(links, nominal)
         actuators = self.actuators(data.get("actuators", []), links)
         return RobotModel(name=name, kind=kind, description=str(meta.get("description", "")),

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from softgen.modelfile.model import FileReader, ParameterTable
+from softgen.modelfile.model import FileReader, ParameterTable, check_uncertain, name_problem
 
 #: Kinds of soft model, and configuration variables per segment.
 SOFT_KINDS = {"pcc-planar": 1, "pcc-3d": 3, "affine-planar": 2}
@@ -131,8 +131,10 @@ class _SoftParser(FileReader):
         self.table(data, "", _TOP_KEYS, {"model", "segments"})
         meta = self.table(data["model"], "model", _MODEL_KEYS, {"name", "kind"})
         name = meta["name"]
-        if not isinstance(name, str) or not name.isascii() or not name.isidentifier():
-            raise self.fail("model.name", f"expected a C identifier, got {name!r}")
+        # The same rule as rigid models: it prefixes every C symbol and file name.
+        problem = name_problem(name)
+        if problem:
+            raise self.fail("model.name", problem)
         kind = meta["kind"]
         planar = kind != "pcc-3d"
         if planar and "base_rpy_deg" in meta:
@@ -158,7 +160,7 @@ class _SoftParser(FileReader):
 
         gdir, g = self.gravity(data.get("gravity", {}), planar)
         nominal["g"] = g
-        uncertain = self.uncertain(data.get("parameters", {}), nominal)
+        uncertain = check_uncertain(self, self.uncertain(data.get("parameters", {}), nominal))
         return SoftModel(name=name, kind=kind, description=str(meta.get("description", "")),
                          source=str(meta.get("source", "")), segments=segments,
                          gravity_direction=gdir, base_angle=base_angle, base_rpy=base_rpy,

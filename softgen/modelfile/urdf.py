@@ -28,9 +28,12 @@ Which chain
 
 What is read
     ``<robot name>`` is the model name. It prefixes every generated C symbol, so
-    it is sanitised, not refused: every character other than an ASCII letter,
-    digit or ``_`` becomes ``_`` and a leading digit gets the prefix ``r_``
-    (``my-arm`` becomes ``my_arm``); longer than 64 characters is refused.
+    it is sanitised, not refused (:func:`softgen.modelfile.model.sanitise_name`):
+    every character other than an ASCII letter or digit becomes ``_``, runs of
+    ``_`` become one, leading and trailing ``_`` go and a leading digit gets the
+    prefix ``r_`` (``my-arm`` becomes ``my_arm``, ``bräkë☃`` becomes ``br_k``);
+    the name as written is kept in ``RobotModel.original_name``. Longer than 64
+    characters is refused.
     ``<joint type>`` ``revolute``, ``continuous`` (a revolute joint without
     limits) and ``prismatic`` are joints of the chain; ``fixed`` joints are
     merged (below); ``floating``, ``planar`` and ``<mimic>`` joints are refused on
@@ -68,6 +71,7 @@ Gravity is 9.81 m/s² along -z of the root link (z up, as in ROS, REP 103).
 """
 from __future__ import annotations
 
+import dataclasses
 import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -77,7 +81,8 @@ import numpy as np
 
 from softgen.core.errors import ModelError
 from softgen.modelfile.geometry import rpy as rpy_matrix
-from softgen.modelfile.model import MAX_MAGNITUDE, FileReader, RobotModel, parse_rigid
+from softgen.modelfile.model import (MAX_MAGNITUDE, FileReader, RobotModel, parse_rigid,
+                                     sanitise_name)
 
 #: A decimal number as URDF writes it (no ``nan``, ``inf`` or ``1_000``, which
 #: Python's ``float`` would accept).
@@ -160,12 +165,6 @@ def matrix_to_rpy(R: np.ndarray) -> tuple[float, float, float]:
     return float(np.arctan2(R[2, 1], R[2, 2])), p, float(np.arctan2(R[1, 0], R[0, 0]))
 
 
-def sanitise_name(name: str) -> str:
-    """``<robot name>`` as a C identifier (see the module docstring)."""
-    out = "".join(c if (c.isascii() and (c.isalnum() or c == "_")) else "_" for c in name)
-    return f"r_{out}" if out[:1].isdigit() else out
-
-
 def combine(parts: list[_Inertial]) -> _Inertial:
     """One rigid body from several: masses add, the centre of mass is their mean
     weighted by mass, inertias move to it by the parallel-axis theorem.
@@ -198,7 +197,8 @@ class _Urdf(_Reader):
         self._refuse_unexpanded_xacro()
         if self.root.tag != "robot":
             raise self.fail(f"<{self.root.tag}>", "expected a URDF document (root <robot>)")
-        self.name = sanitise_name(self.attr(self.root, "name", "<robot>"))
+        self.original_name = self.attr(self.root, "name", "<robot>")
+        self.name = sanitise_name(self.original_name)
         self.links: dict[str, ET.Element] = {}
         for el in self.root.findall("link"):
             name = self.attr(el, "name", "<link>")
@@ -515,4 +515,7 @@ def parse_urdf(path: Path, text: str, *, root: str | None = None, tip: str | Non
         m = re.match(r"(links\[\d+\]\.\w+|model\.name)", key)
         return names.get(m.group(1), key) if m else key
 
-    return parse_rigid(path, data, key_name)
+    model = parse_rigid(path, data, key_name)
+    if data["model"]["name"] != names.get("__original__"):
+        model = dataclasses.replace(model, original_name=names["__original__"])
+    return model

@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from softgen.blocks.diagram import EXT, TIME, ClosedLoop
+from softgen.core.atomic import atomic_open
 from softgen.core.errors import SoftgenError
 from softgen.runtime.compiled import compile_functions
 
@@ -150,7 +151,10 @@ def save_traces(path, arrays: Mapping[str, np.ndarray] | None = None, *,
         v = np.asarray(v)
         series = v.ndim and v.shape[0] == rows and np.issubdtype(v.dtype, np.floating)
         out[k] = (v[::step].astype(np.float64 if full else np.float32) if series else v)
-    np.savez_compressed(path, **out)
+    path = str(path) if str(path).endswith(".npz") else f"{path}.npz"   # as numpy names it
+    # Atomic (issue 23): a full disk or an interrupt keeps the previous file whole.
+    with atomic_open(path, "wb") as fh:
+        np.savez_compressed(fh, **out)
 
 
 def set_full_traces(full: bool) -> None:

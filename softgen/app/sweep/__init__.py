@@ -26,11 +26,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from softgen.core.config import Config
+from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping
+from softgen.core.atomic import check_dir, output_error, write_text
 from softgen.core.errors import SoftgenError
 from softgen.app.sweep.backends import DASK_HINT, dask_available, default_workers, run_tasks  # noqa: F401
 from softgen.app.sweep.evaluate import base_config
 from softgen.app.sweep.results import plot, summarise, write_summary, write_table
-from softgen.app.sweep.spec import Vary, flat_inputs, input_columns, parse_vary, plan
+from softgen.app.sweep.spec import Vary, flat_inputs, input_columns, max_samples, parse_vary, plan
 
 __all__ = ["SweepSpec", "SweepResult", "run_sweep", "load_rows", "DASK_HINT",
            "dask_available"]
@@ -55,6 +57,12 @@ class SweepSpec(Config):
     def validate(self) -> None:
         if self.samples < 1:
             raise ValueError(f"samples: expected a positive integer, got {self.samples}")
+        if self.samples > max_samples():
+            raise ValueError(f"samples: {self.samples:,} is over the limit of "
+                             f"{max_samples():,} (set SOFTGEN_SWEEP_MAX_SAMPLES to raise it)")
+        # numpy's generators take non-negative seeds only: said here, naming the option.
+        if self.seed < 0:
+            raise ValueError(f"seed: expected a non-negative integer, got {self.seed}")
 
     def parsed(self) -> tuple[list[Vary], dict]:
         """(varied fields, fixed values)."""
@@ -88,67 +96,186 @@ def _identity(spec: SweepSpec, config: Config) -> dict:
                                   "code": code_hash()}))
 
 
-def load_rows(out: Path) -> dict[int, dict]:
-    """Finished samples of the journal ``out/samples.jsonl`` (a torn last line is skipped)."""
+#: Files a sweep writes into its directory (besides the hidden temporary files).
+OUTPUTS = ("sweep.json", "samples.jsonl", "samples.csv", "samples.parquet", "summary.csv",
+           "summary.json", "sweep.png")
+
+#: Keys of every journal line (one finished sample).
+ROW_KEYS = ("index", "grid_point", "replicate", "inputs", "status", "metrics", "error",
+            "wall_seconds")
+
+
+def _row_problem(r, total: int | None) -> str | None:
+    """Why ``r`` is not a journal row (None: it is one)."""
+    if not isinstance(r, dict):
+        return f"expected a JSON object, got {type(r).__name__}"
+    missing = [k for k in ROW_KEYS if k not in r]
+    if missing:
+        return f"missing key(s) {', '.join(missing)}"
+    i = r["index"]
+    if isinstance(i, bool) or not isinstance(i, int) or i < 0 \
+            or (total is not None and i >= total):
+        return f"index {i!r} is not a sample of this sweep"
+    if not isinstance(r["metrics"], dict) or not isinstance(r["inputs"], dict):
+        return "metrics and inputs must be JSON objects"
+    if r["status"] not in ("ok", "diverged", "error"):
+        return f"unknown status {r['status']!r}"
+    return None
+
+
+def load_rows(out: Path, total: int | None = None) -> dict[int, dict]:
+    """Finished samples of the journal ``out/samples.jsonl``.
+
+    A torn last line (a kill in the middle of a write: no final newline) is skipped;
+    any other line that is not a sample of this sweep (``{}``, ``[1,2]``,
+    ``{"index": 3}``, an index past ``total``) refuses the journal with one line, as
+    does a journal that is not a file: a resume must not guess.
+    """
     rows: dict[int, dict] = {}
     path = out / "samples.jsonl"
-    if path.exists():
-        for line in path.read_text().splitlines():
-            try:
-                r = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            rows[int(r["index"])] = r
+    if not path.exists():
+        return rows
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise SoftgenError(f"sweep: --resume: cannot read the journal {path} ({why}); "
+                           "--force to start over") from None
+    lines = text.split("\n")
+    torn = lines.pop()               # "" when the file ends with a newline
+    for n, line in enumerate(lines, 1):
+        try:
+            r = json.loads(line)
+        except json.JSONDecodeError:
+            r = None
+            problem = "not JSON"
+        else:
+            problem = _row_problem(r, total)
+        if problem:
+            raise SoftgenError(f"sweep: --resume: {path} line {n} is damaged ({problem}); "
+                               "cannot prove what finished: --force to start over")
+        rows[int(r["index"])] = r
+    if torn:
+        try:
+            r = json.loads(torn)
+        except json.JSONDecodeError:
+            r = None
+        if r is not None and _row_problem(r, total) is None:
+            rows[int(r["index"])] = r      # a whole line that only lacks its newline
     return rows
 
 
-def _prepare(out: Path, identity: dict, *, resume: bool, force: bool) -> dict[int, dict]:
+def _read_identity(meta: Path) -> dict:
+    """``sweep.json`` as written by :func:`_prepare`, or one line saying why not."""
+    try:
+        old = json.loads(meta.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise SoftgenError(f"sweep: --resume: {meta} is missing, so nothing proves the "
+                           f"journal belongs to this sweep; --force to start over") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else \
+            str(exc).splitlines()[0]
+        raise SoftgenError(f"sweep: --resume: {meta} is damaged ({why}); --force to start "
+                           "over") from None
+    if not isinstance(old, dict) or not all(k in old for k in ("spec", "config", "code")):
+        raise SoftgenError(f"sweep: --resume: {meta} is damaged (expected an object with "
+                           "spec, config and code); --force to start over")
+    return old
+
+
+def _prepare(out: Path, identity: dict, *, resume: bool, force: bool,
+             total: int) -> dict[int, dict]:
     meta = out / "sweep.json"
-    old = json.loads(meta.read_text()) if meta.exists() else None
-    diff = [] if old is None else [k for k in ("spec", "config", "code")
-                                   if old.get(k) != identity[k]]
-    if old is not None and not (force and not (resume and not diff)):
-        # Both flags: resume the same sweep, start over on another (what a pipeline wants).
-        if not resume:
-            raise SoftgenError(f"sweep: {out} already holds a sweep; --resume to finish it, "
-                               "--force to start over, or another --out")
-        if diff:
+    present = [n for n in OUTPUTS if (out / n).exists() or (out / n).is_symlink()]
+    if present and not force and not resume:
+        raise SoftgenError(f"sweep: {out} already holds a sweep; --resume to finish it, "
+                           f"--force to start over, or another --out (found "
+                           f"{', '.join(present)})")
+    if resume and present:
+        try:
+            old = _read_identity(meta)
+        except SoftgenError:
+            if not force:
+                raise
+            old = None                   # both flags: start over (what a pipeline wants)
+        diff = [] if old is None else [k for k in ("spec", "config", "code")
+                                       if old.get(k) != identity[k]]
+        if old is not None and diff and not force:
             raise SoftgenError(f"sweep: --resume: {out} holds a sweep with another "
                                f"{' and '.join(diff)}; --force to start over")
-        rows = load_rows(out)
-        # Rewrite the journal without a torn last line (a kill mid-write), so that the
-        # lines appended now start on a line of their own.
-        tmp = out / ".samples.jsonl.tmp"
-        tmp.write_text("".join(json.dumps(r, allow_nan=True) + "\n" for r in rows.values()))
-        tmp.replace(out / "samples.jsonl")
-        return rows
-    out.mkdir(parents=True, exist_ok=True)
-    for name in ("samples.jsonl", "samples.csv", "samples.parquet", "summary.csv",
-                 "summary.json", "sweep.png"):
-        (out / name).unlink(missing_ok=True)
-    tmp = meta.with_name(".sweep.json.tmp")
-    tmp.write_text(json.dumps(identity, indent=2) + "\n")
-    tmp.replace(meta)
+        if old is not None and not diff:
+            rows = load_rows(out, total)
+            # Rewrite the journal without a torn last line (a kill mid-write), so that
+            # the lines appended now start on a line of their own; atomic, so that a
+            # second interrupt here loses nothing.
+            write_text(out / "samples.jsonl",
+                       "".join(json.dumps(r, allow_nan=True) + "\n" for r in rows.values()))
+            return rows
+    for name in OUTPUTS:
+        p = out / name
+        if p.is_dir() and not p.is_symlink():
+            raise SoftgenError(f"sweep: {p} is a directory; remove it or use another --out")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise output_error(out, exc) from None
+    # The new identity first (atomic): a full disk stops the sweep here, before any
+    # earlier output is removed.
+    write_text(meta, json.dumps(identity, indent=2) + "\n")
+    try:
+        for name in OUTPUTS:
+            if name != "sweep.json":
+                (out / name).unlink(missing_ok=True)
+    except OSError as exc:
+        raise output_error(out, exc) from None
     return {}
 
 
 def run_sweep(spec: SweepSpec, out: Path, *, workers: int | None = None,
               scheduler: str | None = None, resume: bool = False, force: bool = False,
               fmt: str = "csv", progress: bool | None = None) -> SweepResult:
-    """Run (or finish) the sweep ``spec`` into ``out``; see the module docstring."""
+    """Run (or finish) the sweep ``spec`` into ``out``; see the module docstring.
+
+    SIGINT and SIGTERM (main thread) stop it at any moment: the journal keeps every
+    finished sample (each line is fsync'ed as it is written) and
+    :class:`~softgen.core.errors.Interrupted` is raised with exit status 130 or 143.
+    """
+    with stopping():
+        try:
+            return _run_sweep(spec, Path(out), workers=workers, scheduler=scheduler,
+                              resume=resume, force=force, fmt=fmt, progress=progress)
+        except Stop as stop:
+            ignore_signals()
+            name = signal_name(stop.signum)
+            kept = len(load_rows_quietly(Path(out)))
+            raise interrupted(stop.signum, f"sweep: interrupted by {name}; {kept} finished "
+                              f"sample(s) kept in {Path(out) / 'samples.jsonl'} "
+                              "(--resume to finish)") from None
+
+
+def load_rows_quietly(out: Path) -> dict[int, dict]:
+    """The journal's rows, or none when it cannot be read (for a message only)."""
+    try:
+        return load_rows(out)
+    except SoftgenError:
+        return {}
+
+
+def _run_sweep(spec: SweepSpec, out: Path, *, workers: int | None, scheduler: str | None,
+               resume: bool, force: bool, fmt: str, progress: bool | None) -> SweepResult:
     spec.check()
-    out = Path(out)
     if fmt not in ("csv", "parquet"):
         raise SoftgenError(f"sweep: --format: expected csv or parquet, got {fmt!r}")
     if fmt == "parquet":
         try:
-            import pyarrow  # noqa: F401
+            import pyarrow  # noqa: F401  (optional dependency: checked before any work)
         except ImportError:
             raise SoftgenError("sweep: --format parquet needs pyarrow (pip install pyarrow); "
                                "csv needs nothing") from None
     if scheduler is not None and not dask_available():
         raise SoftgenError(f"sweep: --scheduler {scheduler} needs Dask: {DASK_HINT}; without "
                            "--scheduler the sweep runs on a local process pool")
+    check_dir(out, "sweep: --out")           # one line naming the path, before any work
     varies, fixed = spec.parsed()
     config = base_config(spec.experiment, spec.quick, fixed)
     samples = plan(varies, config, samples=spec.samples, seed=spec.seed)
@@ -158,21 +285,26 @@ def run_sweep(spec: SweepSpec, out: Path, *, workers: int | None = None,
         except ValueError as exc:
             raise SoftgenError(f"sweep: {exc}") from None
     identity = _identity(spec, config)
-    done = _prepare(out, identity, resume=resume, force=force)
+    done = _prepare(out, identity, resume=resume, force=force, total=len(samples))
     inputs = input_columns(samples)
     grid_inputs = [c for v in varies if v.dist.is_grid for c in inputs
                    if c == v.label or (v.index is None and c.startswith(v.key + "["))]
     todo = [s for s in samples if s.index not in done]
     show = sys.stderr.isatty() if progress is None else progress
     t0 = time.perf_counter()
-    tasks = [(s.index, (spec.experiment, spec.quick, fixed, s.overrides, spec.metrics))
-             for s in todo]
+    # Tasks are made as the backends take them: a long sweep holds no second copy.
+    tasks = ((s.index, (spec.experiment, spec.quick, fixed, s.overrides, spec.metrics))
+             for s in todo)
     by_index = {s.index: s for s in samples}
-    journal = (out / "samples.jsonl").open("a")
     failed = 0
     try:
-        for k, (index, res) in enumerate(
-                run_tasks(tasks, workers=workers or default_workers(), scheduler=scheduler), 1):
+        journal = (out / "samples.jsonl").open("a", encoding="utf-8")
+    except OSError as exc:
+        raise output_error(out / "samples.jsonl", exc) from None
+    results = run_tasks(tasks, workers=workers or default_workers(), scheduler=scheduler,
+                        count=len(todo))
+    try:
+        for k, (index, res) in enumerate(results, 1):
             s = by_index[index]
             row = {"index": index, "grid_point": s.grid_point, "replicate": s.replicate,
                    "inputs": flat_inputs(s.overrides), **res}
@@ -181,11 +313,18 @@ def run_sweep(spec: SweepSpec, out: Path, *, workers: int | None = None,
             os.fsync(journal.fileno())
             done[index] = row
             failed += res["status"] != "ok"
-            if show and (k == len(tasks) or k % max(1, len(tasks) // 10) == 0):
-                print(f"sweep {spec.experiment}: {k}/{len(tasks)} samples"
+            if show and (k == len(todo) or k % max(1, len(todo) // 10) == 0):
+                print(f"sweep {spec.experiment}: {k}/{len(todo)} samples"
                       f"{f' ({failed} not ok)' if failed else ''}, "
                       f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    except OSError as exc:
+        if isinstance(exc, SoftgenError):
+            raise
+        raise output_error(out / "samples.jsonl", exc) from None
     finally:
+        # An interrupt here stops the backend's workers now (the generator's clean-up),
+        # not whenever the generator happens to be collected.
+        results.close()
         journal.close()
     rows = [done[s.index] for s in samples]
     table = write_table(out / "samples", rows, inputs, fmt)

@@ -11,59 +11,114 @@ processes, any other string is the address of a running scheduler
 """
 from __future__ import annotations
 
+import contextlib
 import os
-from collections.abc import Iterator
+import signal
+from collections.abc import Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 
+from softgen.app.stop import worker_init
 from softgen.core.errors import SoftgenError
 from softgen.app.sweep.evaluate import evaluate
 
 DASK_HINT = "pip install 'softgen[dask]' (dask.distributed)"
 
 
-def _serial(tasks: list[tuple[int, tuple]]) -> Iterator[tuple[int, dict]]:
+#: Samples in flight per worker: enough to keep every worker busy, few enough that a
+#: million-sample sweep never queues a million futures (process pool and Dask alike).
+IN_FLIGHT_PER_WORKER = 4
+
+Tasks = Iterable[tuple[int, tuple]]
+
+
+def _serial(tasks: Tasks) -> Iterator[tuple[int, dict]]:
     for index, args in tasks:
         yield index, evaluate(*args)
 
 
-def _pool(tasks: list[tuple[int, tuple]], workers: int) -> Iterator[tuple[int, dict]]:
-    # Bounded submission: a million-sample sweep does not queue a million futures.
-    pool = ProcessPoolExecutor(max_workers=workers)
+@contextlib.contextmanager
+def _signals_held():
+    """SIGINT and SIGTERM wait (blocked in this thread) while workers start and take work:
+    an interrupt inside the executor's locks left tracebacks from its threads."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def _pool(tasks: Tasks, workers: int) -> Iterator[tuple[int, dict]]:
+    # Workers ignore SIGINT/SIGTERM (the main process stops them) and end when the main
+    # process dies, even by SIGKILL (softgen.app.stop.watch_parent).
+    with _signals_held():
+        pool = ProcessPoolExecutor(max_workers=workers, initializer=worker_init,
+                                   initargs=(os.getpid(),))
+    clean = False
     try:
         pending: dict = {}
         it = iter(tasks)
-        for index, args in it:
-            pending[pool.submit(evaluate, *args)] = index
-            if len(pending) >= 4 * workers:
-                break
+
+        def submit() -> bool:
+            nxt = next(it, None)
+            if nxt is None:
+                return False
+            with _signals_held():
+                pending[pool.submit(evaluate, *nxt[1])] = nxt[0]
+            return True
+
+        while len(pending) < IN_FLIGHT_PER_WORKER * workers and submit():
+            pass
         while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            done, _ = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
             for fut in done:
                 index = pending.pop(fut)
-                yield index, fut.result()
-                nxt = next(it, None)
-                if nxt is not None:
-                    pending[pool.submit(evaluate, *nxt[1])] = nxt[0]
+                try:
+                    res = fut.result()
+                except BrokenProcessPool:
+                    raise SoftgenError("sweep: a worker process died (killed, or out of "
+                                       "memory); the finished samples are in the journal: "
+                                       "--resume to finish") from None
+                yield index, res
+                submit()
+        clean = True
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+        if clean:
+            pool.shutdown(wait=True)
+        else:
+            _kill_pool(pool)
+
+
+def _kill_pool(pool: ProcessPoolExecutor) -> None:
+    """Interrupted or failed: kill the workers now (they may be deep in a long sample)."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.kill()
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.join(5.0)
+    pool.shutdown(wait=False, cancel_futures=True)
 
 
 def dask_available() -> bool:
     try:
-        import dask.distributed  # noqa: F401
+        import dask.distributed  # noqa: F401  (optional extra)
     except ImportError:
         return False
     return True
 
 
-def _dask(tasks: list[tuple[int, tuple]], workers: int,
-          scheduler: str) -> Iterator[tuple[int, dict]]:
+def _dask(tasks: Tasks, workers: int, scheduler: str) -> Iterator[tuple[int, dict]]:
     try:
+        # Optional extra (softgen[dask]); imported only for --scheduler.
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError:
         raise SoftgenError(f"sweep: --scheduler {scheduler} needs Dask: {DASK_HINT}; "
                            "without --scheduler the sweep runs on a local process pool") from None
     cluster = None
+    client = None
     try:
         if scheduler == "local":
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
@@ -75,29 +130,54 @@ def _dask(tasks: list[tuple[int, tuple]], workers: int,
             except OSError as exc:
                 raise SoftgenError(f"sweep: --scheduler {scheduler}: cannot reach a Dask "
                                    f"scheduler there ({exc})") from None
-        with client:
-            futures = {}
-            for index, args in tasks:
-                # pure=False: equal arguments are still separate runs (and keys stay unique).
-                fut = client.submit(evaluate, *args, pure=False, key=f"softgen-sample-{index}")
-                futures[fut] = index
-            for fut in as_completed(futures):
-                yield futures[fut], fut.result()
+        # Bounded batches: a few samples per worker in flight, the next submitted as one
+        # finishes (100,000 samples submitted up front stalled the scheduler).
+        slots = IN_FLIGHT_PER_WORKER * max(1, len(client.scheduler_info().get("workers", {}))
+                                           or workers)
+        it = iter(tasks)
+        futures: dict = {}
+        queue = as_completed()
+
+        def submit() -> bool:
+            nxt = next(it, None)
+            if nxt is None:
+                return False
+            index, args = nxt
+            # pure=False: equal arguments are still separate runs (and keys stay unique).
+            fut = client.submit(evaluate, *args, pure=False, key=f"softgen-sample-{index}")
+            futures[fut] = index
+            queue.add(fut)
+            return True
+
+        while len(futures) < slots and submit():
+            pass
+        for fut in queue:
+            index = futures.pop(fut)
+            res = fut.result()
+            fut.release()
+            yield index, res
+            submit()
     finally:
+        if client is not None:
+            with contextlib.suppress(Exception):
+                client.close(timeout=5)
         if cluster is not None:
-            cluster.close()
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=5)
 
 
-def run_tasks(tasks: list[tuple[int, tuple]], *, workers: int,
-              scheduler: str | None) -> Iterator[tuple[int, dict]]:
-    """``(index, result)`` of every task, as they finish."""
+def run_tasks(tasks: Tasks, *, workers: int, scheduler: str | None,
+              count: int | None = None) -> Iterator[tuple[int, dict]]:
+    """``(index, result)`` of every task, as they finish; ``count`` is the number of
+    tasks when ``tasks`` is an iterator (default ``len(tasks)``)."""
     if workers < 1:
         raise SoftgenError(f"sweep: --workers: expected a positive integer, got {workers}")
+    n = len(tasks) if count is None else count       # type: ignore[arg-type]
     if scheduler is not None:
         return _dask(tasks, workers, scheduler)
-    if workers == 1 or len(tasks) <= 1:
+    if workers == 1 or n <= 1:
         return _serial(tasks)
-    return _pool(tasks, min(workers, len(tasks)))
+    return _pool(tasks, min(workers, n))
 
 
 def default_workers() -> int:

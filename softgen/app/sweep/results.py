@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from softgen.core.atomic import atomic_open, replacing, write_text
+
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
 STAT_NAMES = ("count", "mean", "std", "min", "q05", "q25", "median", "q75", "q95", "max")
 
@@ -44,17 +46,16 @@ def write_table(path: Path, rows: list[dict], inputs: list[str], fmt: str = "csv
         import pyarrow as pa
         import pyarrow.parquet as pq
         target = path.with_suffix(".parquet")
-        pq.write_table(pa.table({c: [f.get(c) for f in flat] for c in cols}), target)
+        with replacing(target) as tmp:
+            pq.write_table(pa.table({c: [f.get(c) for f in flat] for c in cols}), tmp)
         return target
     target = path.with_suffix(".csv")
-    tmp = target.with_name(f".{target.name}.tmp")
-    with tmp.open("w", newline="") as fh:
+    with atomic_open(target, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=cols)
         w.writeheader()
         for f in flat:
             # repr of a float round-trips exactly: the table is the data, not a rounding.
             w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in f.items()})
-    tmp.replace(target)
     return target
 
 
@@ -94,8 +95,8 @@ def summarise(rows: list[dict], grid_inputs: list[str]) -> dict:
 
 
 def write_summary(out: Path, summary: dict) -> None:
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=True) + "\n")
-    with (out / "summary.csv").open("w", newline="") as fh:
+    write_text(out / "summary.json", json.dumps(summary, indent=2, allow_nan=True) + "\n")
+    with atomic_open(out / "summary.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["grid_point", "metric", *STAT_NAMES])
         blocks = [("all", summary["metrics"])] + [(p["grid_point"], p["metrics"])
@@ -155,5 +156,6 @@ def plot(out: Path, rows: list[dict], summary: dict, grid_inputs: list[str],
                  f"diverged, {c['error']} failed)", fontsize=9)
     fig.tight_layout()
     path = out / "sweep.png"
-    fig.savefig(path, dpi=100)
+    with replacing(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
     return path

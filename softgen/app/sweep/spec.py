@@ -30,6 +30,7 @@ import ast
 import dataclasses
 import itertools
 import math
+import os
 import re
 import typing
 from dataclasses import dataclass
@@ -38,6 +39,37 @@ import numpy as np
 
 from softgen.core.config import Config
 from softgen.core.errors import SoftgenError
+
+#: Most samples a sweep may have (grid points times samples per point), checked before
+#: anything is allocated: ``linspace(1, 2, 1e12)`` is one line, not a 7 TiB list. The
+#: environment variable ``SOFTGEN_SWEEP_MAX_SAMPLES`` raises it.
+MAX_SAMPLES = 1_000_000
+
+
+def max_samples() -> int:
+    """:data:`MAX_SAMPLES`, or ``SOFTGEN_SWEEP_MAX_SAMPLES`` when set (a positive integer)."""
+    env = os.environ.get("SOFTGEN_SWEEP_MAX_SAMPLES")
+    if env is None:
+        return MAX_SAMPLES
+    try:
+        value = int(env)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise SoftgenError(f"SOFTGEN_SWEEP_MAX_SAMPLES: expected a positive integer, got {env!r}")
+    return value
+
+
+def check_size(grid_points: int, samples: int) -> int:
+    """``grid_points * samples`` if within :func:`max_samples`, else one line."""
+    limit = max_samples()
+    total = grid_points * samples
+    if total > limit:
+        raise SoftgenError(f"sweep: {grid_points:,} grid point(s) x {samples:,} sample(s) = "
+                           f"{total:,} samples, over the limit of {limit:,} (set "
+                           "SOFTGEN_SWEEP_MAX_SAMPLES to raise it)")
+    return total
+
 
 #: Distribution -> number of arguments (None: one or more values).
 KINDS = {"uniform": 2, "normal": 2, "loguniform": 2, "choice": None, "grid": None,
@@ -168,6 +200,10 @@ def parse_vary(text: str) -> Vary:
             raise SoftgenError(f"{where}: normal(mean, std) needs std > 0, got {args}")
         if kind == "linspace" and (int(args[2]) != args[2] or args[2] < 1):
             raise SoftgenError(f"{where}: linspace(lo, hi, n) needs a positive integer n")
+        if kind == "linspace" and args[2] > max_samples():
+            raise SoftgenError(f"{where}: linspace(lo, hi, n) with n = {args[2]:.6g}, over "
+                               f"the limit of {max_samples():,} samples (set "
+                               "SOFTGEN_SWEEP_MAX_SAMPLES to raise it)")
         dist = Dist(kind, args)
     elif call:
         raise SoftgenError(f"{where}: unknown distribution {call['kind']!r}: expected one of "
@@ -236,6 +272,9 @@ def plan(varies: list[Vary], config: Config, *, samples: int, seed: int) -> list
     check_varies(varies, config)
     hints = field_hints(config)
     grids = [v for v in varies if v.dist.is_grid]
+    # The size first, from the grid lengths alone: nothing is allocated past the limit.
+    check_size(math.prod(len(v.dist.args) if v.dist.kind == "grid" else int(v.dist.args[2])
+                         for v in grids), samples)
     points = list(itertools.product(*(v.dist.grid_values() for v in grids))) or [()]
     auto_seed = ("seed" in hints and hints["seed"] is int
                  and not any(v.key == "seed" for v in varies))

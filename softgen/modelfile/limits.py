@@ -1,0 +1,96 @@
+"""How big a model's derived expressions will be, known before anything is derived.
+
+A 60-link chain ran 20 minutes (110 MB of C, gcc at 2.9 GB) and a 40-segment planar
+PCC model 15 minutes at 2.5 GB before being killed, printing nothing (issue 23).
+:func:`expression_size` estimates, from the model file alone (links, segments,
+quadrature points, uncertain parameters), the number of CasADi operations of the
+functions ``softgen generate`` and ``softgen info`` derive for it;
+:func:`check_expression_size` refuses a model past :data:`MAX_EXPRESSION_SIZE` with
+one line naming the estimate, the limit and the environment variable that raises it
+(``SOFTGEN_MAX_EXPRESSION_SIZE``). It takes microseconds: call it before deriving.
+
+The estimate is a fit to measured derivations (``bundle_spec`` of the default bundle (affine: ``soft_pendulum``, 8 quadrature points),
+the sum of ``n_instructions()`` of its functions, 2026-12-02):
+
+==================  ===========  ==========  ============  ==========
+model               DoF          uncertain   measured ops  estimate
+==================  ===========  ==========  ============  ==========
+planar, 4 links     4            12          5,246         5,760
+planar, 8 links     8            24          20,251        23,040
+planar, 12 links    12           36          47,963        51,840
+planar, 16 links    16           48          92,219        92,160
+spatial, 7 links    7            70          58,044        56,595
+spatial, 12 links   12           120         164,045       166,320
+pcc-planar, 4 seg.  4            16          31,905        32,000
+pcc-3d, 4 seg.      12           16          118,519       118,272
+affine, 1 seg., 8   2            4           20,329        20,160
+==================  ===========  ==========  ============  ==========
+
+Rigid chains grow as n (n + p) (n joints, p uncertain parameters: the matrix-free
+route, DESIGN.md); soft chains as s³ (dof + p) times the quadrature points (every
+point's position depends on every earlier segment, and the inertia sums over them;
+an 8-segment planar PCC model did not finish deriving in 150 s). The default limit,
+250,000 operations, is about a minute of derivation and compilation: 26 planar or 14
+spatial links, 6 planar PCC or 4 spatial PCC segments with the default parameters.
+"""
+from __future__ import annotations
+
+import os
+
+from softgen.core.errors import ModelError
+
+#: Default largest estimated expression size (CasADi operations) a model may derive.
+MAX_EXPRESSION_SIZE = 250_000
+
+#: The environment variable that raises (or lowers) :data:`MAX_EXPRESSION_SIZE`.
+ENV_VAR = "SOFTGEN_MAX_EXPRESSION_SIZE"
+
+#: Operations per unit of the size measure, by model kind (fits of the table above).
+_RIGID = {"planar": 90.0, "spatial": 105.0}
+_SOFT = {"pcc-planar": 25.0, "pcc-3d": 66.0, "affine-planar": 420.0}
+
+
+def expression_size(model) -> int:
+    """Estimated CasADi operations of the functions derived for ``model`` (a rigid or
+    soft model object of :mod:`softgen.modelfile`); see the module docstring."""
+    p = len(model.uncertain)
+    if hasattr(model, "segments"):
+        s = len(model.segments)
+        points = max(seg.quadrature_order for seg in model.segments)
+        c = _SOFT.get(model.kind, max(_SOFT.values()))
+        return int(c * s ** 3 * (model.dof + p) * points)
+    n = len(model.links)
+    c = _RIGID.get(model.kind, max(_RIGID.values()))
+    return int(c * n * (n + p))
+
+
+def expression_limit() -> int:
+    """:data:`MAX_EXPRESSION_SIZE`, or ``$SOFTGEN_MAX_EXPRESSION_SIZE`` when set."""
+    env = os.environ.get(ENV_VAR)
+    if env is None or not env.strip():
+        return MAX_EXPRESSION_SIZE
+    try:
+        value = int(float(env))
+    except (ValueError, OverflowError):
+        value = 0
+    if value < 1:
+        raise ModelError(f"{ENV_VAR}: expected a positive number of operations, got {env!r}")
+    return value
+
+
+def check_expression_size(model, limit: int | None = None) -> int:
+    """The estimate of :func:`expression_size`, or one :class:`ModelError` line when it
+    is over ``limit`` (default :func:`expression_limit`) naming the limit and
+    ``SOFTGEN_MAX_EXPRESSION_SIZE``."""
+    size = expression_size(model)
+    limit = expression_limit() if limit is None else limit
+    if size > limit:
+        parts = (f"{len(model.segments)} segments" if hasattr(model, "segments")
+                 else f"{len(model.links)} links")
+        where = model.path if getattr(model, "path", None) is not None else model.name
+        raise ModelError(
+            f"{where}: model too large to derive: {parts}, {model.dof} DoF and "
+            f"{len(model.uncertain)} uncertain parameters give an estimated {size:,} "
+            f"operations, over the limit of {limit:,} (about a minute of derivation; set "
+            f"{ENV_VAR}={size} to derive it anyway, or make fewer parameters uncertain)")
+    return size
