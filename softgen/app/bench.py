@@ -34,7 +34,8 @@ from softgen.modelfile.model import list_models, load_model
 from softgen.modelfile.soft import SoftModel
 from softgen.bundles.bundle import load_bundle
 from softgen.runtime.simulate import simulate
-from softgen.control.electric_refs import THESIS_Q
+from softgen.studies.electric import THESIS_GAINS, THESIS_REFERENCES, sinusoid_references
+from softgen.studies.soft import tracking_loop
 
 
 #: Hand-written C references kept under benchmarks/: model -> (function, source).
@@ -87,7 +88,6 @@ def _theorem10_loop_speed(model, seconds: float = 20.0) -> dict:
     """Theorem 10 in continuous time with the soft plant (one ROS2 step per 1 ms sample)
     and sinusoidal references, run by the driver: simulated seconds per wall second."""
     from softgen.control.soft import reference_block
-    from softgen.control.soft_study import tracking_loop
     from softgen.symbolic.pcc import SoftDynamics
 
     dyn, n = SoftDynamics(model), model.dof
@@ -135,7 +135,6 @@ def _cascade_loop_speed(model, seconds: float = 20.0) -> dict:
     the loop (computing σ̂ while the selector feeds the plant's σ back)."""
     from softgen.blocks.sensors import encoder_block
     from softgen.control import electric as el
-    from softgen.control.electric_refs import THESIS_GAINS, sinusoid_references
     from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
     dt, n, g, out = 1e-3, model.dof, THESIS_GAINS["pd"], {}
     arm, fb = el.electric_arm(model), el.electric_arm(model, sigma_input=True)
@@ -154,7 +153,7 @@ def _cascade_loop_speed(model, seconds: float = 20.0) -> dict:
               ("plant.sigma", "sw.sigma"), ("ctrl.tau_m", "inv.tau_motor")]
              + [(f"enc.{s}_m", f"inv.{s}") for s in ("q", "qa", "qb")])):
         d = ClosedLoop(f"bench_{model.name}_{key}",
-                       [el.reference_block(), el.plant_block(arm, dt), *blocks], wires)
+                       [THESIS_REFERENCES.block(), el.plant_block(arm, dt), *blocks], wires)
         simulate(d, steps=1000, x0=x0)                  # compile (cached), warm up
         out[f"{key}_sim_s_per_wall_s"] = simulate(d, duration=seconds, x0=x0,
                                                   record=["plant.q"]).realtime_factor
@@ -222,7 +221,7 @@ def bench_model(name: str, *, calls: int = 200_000) -> dict:
         out.update(_theorem5_loop_speed(model))
     # The cascade's speed is measured at section 11.2's references and gains, given for
     # the joints of the chapter-11 arm: models with the capability and that many joints.
-    if REGISTRY["electric_cascade"].why_not(model) is None and model.dof == len(THESIS_Q):
+    if REGISTRY["electric_cascade"].why_not(model) is None and model.dof == len(THESIS_REFERENCES.q):
         out.update(_cascade_loop_speed(model))
     return out
 
