@@ -23,7 +23,7 @@ import timeit
 import numpy as np
 import pinocchio as pin
 
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.bundles.bundle import load_bundle
 
 

@@ -40,7 +40,7 @@ import casadi as ca
 import numpy as np
 
 from softgen.app.chains import chain_model
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.symbolic.mechanics import rpy
 from softgen.symbolic.rigid import RigidDynamics
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.symbolic.rigid import RigidDynamics
 
 _LOOP = r"""

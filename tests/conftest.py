@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 
 from softgen.codegen.build import find_compiler
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 
 #: A spatial 3-joint arm mixing revolute and prismatic joints, with damping and
 #: joint stiffness, off-diagonal inertias and a tilted gravity: exercises every

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from softgen.core.errors import ModelError
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
 
 RNG = np.random.default_rng(7)

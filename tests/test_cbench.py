@@ -109,7 +109,7 @@ def test_hand_written_reference_equals_generated_regressor(tmp_path):
 
     import numpy as np
 
-    from softgen.modelfile.model import load_model
+    from softgen.modelfile.load import load_model
     from softgen.symbolic.rigid import RigidDynamics
     if not _have_compiler():
         pytest.skip("no C compiler found")

@@ -16,7 +16,7 @@ from softgen.bundles.bundle import GENERATED_DIR, BundleOptions, bundle_spec, ge
 from softgen.codegen.build import build, find_compiler
 from softgen.codegen.generate import library_name, render
 from softgen.core.errors import BuildError, BundleError
-from softgen.modelfile.model import list_models, load_model
+from softgen.modelfile.load import list_models, load_model
 from softgen.runtime import library
 from softgen.bundles.bundle import load_bundle
 

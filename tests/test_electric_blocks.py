@@ -9,7 +9,7 @@ from softgen.blocks import ClosedLoop
 from softgen.control.electric import (OUTPUTS, ElectricArm, cascade_block,
                                       initial_plant_state, integral_start, plant_block)
 from softgen.studies.electric import THESIS_GAINS, THESIS_REFERENCES, sinusoid_references
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.symbolic.actuated import electric_plant_fun
 
 N, DT = 2, 1e-3

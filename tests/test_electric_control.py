@@ -18,7 +18,7 @@ from softgen.control.electric import (OUTPUTS, VARIANTS, ElectricArm, check_gain
 from softgen.studies.electric import (THESIS_GAINS, cascade_scenario, sinusoid_references,
                                      thesis_run)
 from softgen.core.errors import ModelError
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 
 N = 2
 #: Sample time given to the steps in the Lyapunov checks: the inner loop predicts the

@@ -7,7 +7,7 @@ import pytest
 
 from softgen.control.electric import ElectricArm, check_gains
 from softgen.core.errors import ShapeError
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.studies.electric import (THESIS_GAINS, AdaptiveGains, CascadeReferences,
                                      PDGains, Sinusoid)
 

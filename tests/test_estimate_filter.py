@@ -16,7 +16,7 @@ from softgen.app.estimate import (LOWPASS_ANCHOR, default_lowpass, encoder_resol
                                   estimate_log, sample_log)
 from softgen.cli import main
 from softgen.estimation.csvlog import read_log
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.symbolic.actuators import QbmoveSprings
 
 

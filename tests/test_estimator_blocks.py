@@ -9,7 +9,7 @@ from softgen.estimation.estimators import (ElectricInvasiveEstimator, EstimatorC
                                            NoninvasiveEstimator, PneumaticInvasiveEstimator,
                                            StiffnessEstimator)
 from softgen.estimation.offline import estimation_result, offline_diagram, split_measurements
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import simulate
 from softgen.symbolic.actuated import electric_plant_block, electric_plant_fun
 from softgen.symbolic.actuators import QbmoveSprings

@@ -10,7 +10,7 @@ from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
 from softgen.estimation.offline import (estimation_result, offline_diagram,
                                         split_measurements)
 from softgen.estimation.rls import RLS, ExcitationGate, excitation_step, rls_step
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import simulate
 
 

@@ -26,7 +26,8 @@ from softgen.export import project
 from softgen.export.example import python_loop
 from softgen.export.project import RECORD, bundle_files, export, summary
 from softgen.export.scenarios import capability, example_for
-from softgen.modelfile.model import MODELS_DIR, load_model
+from softgen.modelfile.model import MODELS_DIR
+from softgen.modelfile.load import load_model
 
 #: One model of each capability: rigid, McKibben, electric VSAs, soft (planar PCC).
 MODELS = ("planar_2link", "planar_2link_mckibben", "arm_2link_electric", "pcc_planar_4seg")

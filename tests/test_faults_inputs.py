@@ -12,7 +12,8 @@ import pytest
 
 from softgen.cli import main
 from softgen.core.errors import ModelError
-from softgen.modelfile.model import MAX_NAME, load_model, name_problem, sanitise_name
+from softgen.modelfile.model import MAX_NAME, name_problem, sanitise_name
+from softgen.modelfile.load import load_model
 from softgen.modelfile.urdf import rpy_matrix
 from softgen.symbolic.mechanics import rpy as symbolic_rpy
 

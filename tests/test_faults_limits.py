@@ -10,7 +10,7 @@ import pytest
 from softgen.core.errors import ModelError, SoftgenError
 from softgen.modelfile.limits import (ENV_VAR, MAX_EXPRESSION_SIZE, check_expression_size,
                                       expression_size)
-from softgen.modelfile.model import list_models, load_model
+from softgen.modelfile.load import list_models, load_model
 
 
 def _planar_chain(tmp_path, n: int):

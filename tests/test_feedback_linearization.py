@@ -17,7 +17,7 @@ from softgen.control.feedback_linearization import feedback_linearization, hurwi
 from softgen.control.pneumatic_loop import stage_reference_block
 from softgen.control.references import Sinusoid
 from softgen.core.errors import ModelError
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import simulate
 from softgen.symbolic.actuated import valve_plant_fun
 

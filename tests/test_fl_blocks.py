@@ -20,7 +20,7 @@ from softgen.control.pneumatic_loop import (plant_block,
                                             stage_reference_block, theorem5_continuous_block,
                                             valve_rhs_fun)
 from softgen.control.references import SmoothSteps, stiffness_reference_block
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import simulate
 from softgen.studies.indices import coupling_index, windows
 

@@ -10,7 +10,7 @@ import pytest
 from softgen.control.feasibility import PressureWarning
 from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.references import SmoothSteps
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.plants import gioste as gc
 from softgen.studies import gioste as gs
 from softgen.studies.gains import Theorem5Gains

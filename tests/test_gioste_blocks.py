@@ -9,7 +9,7 @@ import pytest
 from softgen.blocks import ClosedLoop
 from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.references import SmoothSteps
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.plants import gioste as G
 from softgen.blocks.sensors import delay_block, encoder_block, quantized
 from softgen.plants.hardware import dirty_derivative_block, tracking_stop

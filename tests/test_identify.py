@@ -18,7 +18,7 @@ import softgen
 from softgen.app.identify import identify_model
 from softgen.app.identify.actuator import fit_mckibben, fit_sinh, identify_actuator, rmsre
 from softgen.cli import main
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.studies.excitation import (FourierTrajectory, IdentificationRegressor,
                                         joint_limits, optimise_excitation, stacked_condition)
 

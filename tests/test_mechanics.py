@@ -11,7 +11,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.symbolic.mechanics import Mechanics
 from softgen.symbolic.rigid import RigidDynamics
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from softgen.core.errors import ModelError
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 
 # --------------------------------------------------------------------------- texts
 

@@ -7,7 +7,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.symbolic.pcc import (LinearRoute, SoftBody, SoftDynamics, augmented_map,
                                   augmented_jacobian, augmented_route, symbolic_values)
 

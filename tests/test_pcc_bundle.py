@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from softgen.bundles.bundle import bundle_spec
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 
 MODELS = ("soft_pendulum", "pcc_planar_4seg", "pcc_3d_4seg")
 EPS = (1e-12, 1e-8, 1e-6, 1e-3)

@@ -12,7 +12,7 @@ from softgen.control.pneumatic import KINDS, pneumatic_arm
 from softgen.control.pneumatic_loop import closed_loop
 from softgen.control.references import SmoothSteps
 from softgen.core.errors import ModelError
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 
 SPECIAL = (0.0, 1e-12, 1e-6, 1e-3)
 

@@ -18,7 +18,7 @@ from softgen.estimation.rls import ExcitationGate, excitation_std
 from softgen.experiments import ch6_electric_protocol as ch6
 from softgen.experiments import ch7_noninvasive_protocol as ch7
 from softgen.core.metrics import Metrics
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.plants.qbmove import motor_references, phased_references
 from softgen.runtime.simulate import simulate
 from softgen.symbolic.actuators import QbmoveSprings

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from softgen.app.chains import chain_model
-from softgen.modelfile.model import list_models, load_model
+from softgen.modelfile.load import list_models, load_model
 from softgen.symbolic import recursive
 from softgen.symbolic.mechanics import Mechanics
 from softgen.symbolic.rigid import ROUTES, RigidDynamics

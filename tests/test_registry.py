@@ -21,7 +21,8 @@ from softgen.codegen.manifest import validate_manifest
 from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.pneumatic_loop import closed_loop
 from softgen.core.errors import BundleError
-from softgen.modelfile.model import RobotModel, list_models, load_model
+from softgen.modelfile.model import RobotModel
+from softgen.modelfile.load import list_models, load_model
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 from softgen.symbolic.rigid import RigidDynamics
 

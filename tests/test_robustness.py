@@ -11,7 +11,7 @@ from softgen.control.pneumatic_loop import plant_block, uncertain_plant_block
 from softgen.core.metrics import Metrics
 from softgen.experiments import ch10_pneumatic_adaptive as ch10
 from softgen.experiments.ext_robustness import EXPERIMENT, RobustnessConfig, studies
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.studies.pneumatic import plant_values
 from softgen.app.sweep.spec import parse_vary
 

@@ -10,7 +10,7 @@ import casadi as ca
 from softgen.blocks import Block, ClosedLoop
 from softgen.control.references import sinusoid_block
 from softgen.control.slotine_li import controller_block, plant_block
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.symbolic.rigid import RigidDynamics
 from softgen.core.errors import ShapeError
 from softgen.bundles.bundle import BundleOptions, load_bundle

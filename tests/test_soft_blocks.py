@@ -11,7 +11,7 @@ from softgen.control.soft import (closed_loop_block, closed_loop_fun, controller
                                   tip_force_block)
 from softgen.studies.soft import (SoftCase, convergence_time, noise_sequence,
                                   sampled_loop, shape_trace, tracking_records)
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import simulate
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 

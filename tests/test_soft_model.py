@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from softgen.core.errors import ModelError
-from softgen.modelfile.model import list_models, load_model
+from softgen.modelfile.load import list_models, load_model
 from softgen.modelfile.soft import SoftModel
 from softgen.symbolic.pcc import SoftBody, gauss_legendre
 

@@ -14,7 +14,7 @@ import pytest
 from softgen.bundles.bundle import check_model_unchanged
 from softgen.cli import main
 from softgen.core.errors import BundleError, ModelError
-from softgen.modelfile.model import list_models, load_model
+from softgen.modelfile.load import list_models, load_model
 from softgen.symbolic.rigid import RigidDynamics
 from softgen.modelfile.urdf import matrix_to_rpy, sanitise_name
 

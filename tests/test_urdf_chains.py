@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from softgen.core.errors import ModelError
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.symbolic.rigid import RigidDynamics
 from test_urdf import rnea, tree_from_urdf
 

@@ -30,7 +30,7 @@ from softgen.blocks import ClosedLoop
 from softgen.control.references import SmoothSteps, Sinusoid, sinusoid_block, stiffness_reference_block
 from softgen.control.slotine_li import controller_block, plant_block
 from softgen.symbolic.rigid import RigidDynamics
-from softgen.modelfile.model import list_models, load_model
+from softgen.modelfile.load import list_models, load_model
 from softgen.modelfile.soft import SoftModel
 from softgen.bundles.bundle import load_bundle
 from softgen.runtime.simulate import simulate

@@ -29,7 +29,8 @@ import casadi as ca
 from softgen.codegen.build import compile_shared
 from softgen.codegen.cbench import time_in_c
 from softgen.core.errors import BuildError
-from softgen.modelfile.model import RobotModel, load_model
+from softgen.modelfile.model import RobotModel
+from softgen.modelfile.load import load_model
 from softgen.symbolic.linear import LinearParameters
 from softgen.symbolic.mechanics import Mechanics
 
@@ -58,7 +59,7 @@ def chain_model(n: int) -> RobotModel:
 
     Each link has m = 0.1 kg, l = 0.1 m, centre of mass mid-link and
     I = 1e-4 kg m² about it. The model is written to a temporary TOML file and
-    loaded with :func:`softgen.modelfile.model.load_model`, so it passes the same checks
+    loaded with :func:`softgen.modelfile.load.load_model`, so it passes the same checks
     as a shipped model; the file is removed afterwards and ``path`` is None.
 
     Raises

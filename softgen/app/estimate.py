@@ -23,7 +23,8 @@ from softgen.core.errors import NonFiniteError, SoftgenError
 from softgen.estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
 from softgen.estimation.offline import estimation_result, offline_diagram, split_measurements
-from softgen.modelfile.model import RobotModel, list_models, load_model
+from softgen.modelfile.model import RobotModel
+from softgen.modelfile.load import list_models, load_model
 from softgen.runtime.simulate import simulate
 
 METHODS = ("invasive", "noninvasive")

@@ -32,7 +32,8 @@ import numpy as np
 from softgen.app.chains import chain_model
 from softgen.core.errors import SoftgenError
 from softgen.modelfile.geometry import rpy
-from softgen.modelfile.model import RobotModel, load_model
+from softgen.modelfile.model import RobotModel
+from softgen.modelfile.load import load_model
 from softgen.symbolic.rigid import RigidDynamics
 
 def describe(model) -> str:

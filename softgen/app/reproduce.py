@@ -35,7 +35,7 @@ from typing import TextIO
 from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping, worker_init
 from softgen.core.atomic import check_dir, output_error, write_text
 from softgen.core.paths import GENERATED_DIR, MODELS_DIR
-from softgen.modelfile.model import MODEL_SUFFIXES
+from softgen.modelfile.load import MODEL_SUFFIXES
 from softgen.app.report import write_report
 from softgen.runtime.simulate import progress_context, set_full_traces, set_progress
 from softgen.core.config import Config

@@ -24,8 +24,8 @@ from softgen.bundles.registry import REGISTRY, Capability, Context, merge
 from softgen.codegen.generate import BundleSpec, content_hash, write_bundle
 from softgen.core.errors import BundleError, ModelError
 from softgen.core.paths import GENERATED_DIR
-from softgen.modelfile.model import (MAX_NAME, RobotModel, list_models, load_model,
-                                     shipped_model_file)
+from softgen.modelfile.model import MAX_NAME, RobotModel
+from softgen.modelfile.load import list_models, load_model, shipped_model_file
 from softgen.modelfile.soft import SoftModel
 from softgen.runtime.library import Bundle
 from softgen.symbolic.pcc import SoftDynamics

@@ -41,7 +41,7 @@ def run(args) -> int:
 
     from softgen.bundles.bundle import GENERATED_DIR
     from softgen.codegen.build import find_compiler
-    from softgen.modelfile.model import list_models
+    from softgen.modelfile.load import list_models
     if args.all == bool(args.models):
         raise SoftgenError("generate: give MODEL names or --all (not both)")
     if args.jobs is not None and args.jobs < 1:

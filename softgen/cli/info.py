@@ -25,7 +25,7 @@ def capability_table(model) -> list[dict]:
 def run(args) -> int:
     # Imported here, not at the top: start-up cost of every other verb (see above).
     from softgen.bundles.bundle import GENERATED_DIR, BundleOptions, bundle_spec
-    from softgen.modelfile.model import load_model
+    from softgen.modelfile.load import load_model
     model = load_model(args.model)
     spec = bundle_spec(model, BundleOptions())
     manifest_path = GENERATED_DIR / model.name / "manifest.json"

@@ -10,7 +10,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from softgen.experiments.registry import experiment_ids, get
-    from softgen.modelfile.model import list_models, load_model
+    from softgen.modelfile.load import list_models, load_model
     models = [load_model(name) for name in list_models()]
     w = max((len(m.name) for m in models), default=0)
     k = max((len(m.kind) for m in models), default=0)

@@ -36,7 +36,7 @@ from softgen.control.pneumatic import pneumatic_arm
 from softgen.core.config import Config
 from softgen.core.metrics import Metric, Metrics, absent, finding, graded, not_checked, num, times
 from softgen.experiments.registry import Experiment
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.studies import figures_pneumatic as F
 from softgen.studies import pneumatic as S
 from softgen.studies.gains import SECTION_10_2

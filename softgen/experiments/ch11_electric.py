@@ -35,7 +35,7 @@ from pathlib import Path
 from softgen.control.electric import electric_arm
 from softgen.experiments.registry import (Config, Experiment, Metrics, finding, graded,
                                           not_checked, num)
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import Trace
 from softgen.studies.electric import (THESIS_GAINS, cascade_figure, cascade_records,
                                      cascade_scenario)

@@ -30,7 +30,7 @@ from pathlib import Path
 from softgen.control.soft import reference_block
 from softgen.experiments.registry import (Config, Experiment, Metrics, finding, graded,
                                           not_checked, num)
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.studies.soft import SoftStudyConfig, run_cases, sampled_loop, tracking_loop
 from softgen.symbolic.pcc import SoftDynamics
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from softgen.estimation.indices import mse, msrep
 from softgen.experiments.registry import Config, Experiment, Metrics, finding, num, times
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import save_traces
 from softgen.studies.estimation import (QbmoveStudyConfig, estimator, figures,
                                         polynomial_fit_stiffness, qbmove_run, run_figure,

@@ -35,7 +35,7 @@ import numpy as np
 
 from softgen.estimation.indices import mse, msrep
 from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import save_traces
 from softgen.studies.estimation import (ProtocolConfig, estimator, figures, protocol_run,
                                         variant_records)

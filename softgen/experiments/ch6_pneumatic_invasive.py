@@ -23,7 +23,7 @@ import numpy as np
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
 from softgen.estimation.indices import error_records, estimation_figure, mse, msrep, window_mask
 from softgen.estimation.offline import estimation_result, recorded
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.plants.pneumatic import pendulum_diagram, sinusoid_reference_block, tracking_figure
 from softgen.runtime.simulate import simulate, save_traces
 from softgen.symbolic.actuators import McKibbenPairs

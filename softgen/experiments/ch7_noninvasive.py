@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from softgen.experiments.registry import Config, Experiment, Metrics, finding, not_checked, num
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.plants.qbmove import (Sinusoids, motor_references, phased_references,
                                    servo_initial_state)
 from softgen.runtime.simulate import save_traces

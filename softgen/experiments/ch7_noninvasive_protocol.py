@@ -37,7 +37,7 @@ import numpy as np
 from softgen.estimation.indices import mse, noise_records, window_mask
 from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
 from softgen.plants.qbmove import Sinusoids
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.studies.estimation import (ProtocolConfig, estimator, figures, measured_deflections,
                                         protocol_run, variant_records)
 

@@ -39,7 +39,7 @@ from softgen.control.electric import electric_arm
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
 from softgen.experiments.registry import (Config, Experiment, Metrics, finding, graded,
                                           not_checked, num)
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import Trace
 from softgen.studies.electric import (FEEDBACK_SOURCES, THESIS_GAINS, feedback_figure,
                                      feedback_scenario)

@@ -21,7 +21,7 @@ from softgen.control.slotine_li import controller_block, plant_block
 from softgen.core.config import Config
 from softgen.core.metrics import Metrics, finding, graded, not_checked, num
 from softgen.experiments.registry import Experiment
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.studies import Scenario
 from softgen.studies import figures_pneumatic as F
 from softgen.symbolic.rigid import RigidDynamics

@@ -56,7 +56,8 @@ from softgen.control.slotine_li import plant_block as rigid_plant_block
 from softgen.control.soft import closed_loop_block, tip_force_block
 from softgen.control.soft import reference_block as soft_reference_block
 from softgen.core.errors import SoftgenError
-from softgen.modelfile.model import RobotModel, load_model
+from softgen.modelfile.model import RobotModel
+from softgen.modelfile.load import load_model
 from softgen.modelfile.soft import SoftModel
 from softgen.studies import Scenario
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics

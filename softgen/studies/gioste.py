@@ -17,7 +17,8 @@ import numpy as np
 
 from softgen.control.feasibility import PressureViolation, PressureWarning, check_pressures
 from softgen.control.pneumatic import pneumatic_arm
-from softgen.modelfile.model import RobotModel, load_model
+from softgen.modelfile.model import RobotModel
+from softgen.modelfile.load import load_model
 from softgen.plants.gioste import (STOP_SIGNALS, V_MAX, GiosteEmulation, HardwareConfig,
                                    delay_samples, emergency_stop, equilibrium, fitted_model,
                                    kpi_vector, loop_diagram, reference_layout)

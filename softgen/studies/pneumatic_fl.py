@@ -17,7 +17,7 @@ from softgen.control.feedback_linearization import (feedback_linearization, hurw
 from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.references import SmoothSteps, stiffness_reference_block
 from softgen.core.metrics import Metrics
-from softgen.modelfile.model import load_model
+from softgen.modelfile.load import load_model
 from softgen.studies.gains import Theorem5Gains
 from softgen.studies.indices import (POSITION_TO_STIFFNESS, STIFFNESS_TO_POSITION,
                                      coupling_records, phase_rms_records, windows)

@@ -98,7 +98,8 @@ import casadi as ca
 import numpy as np
 
 from softgen.modelfile.model import RobotModel
-from softgen.symbolic.mechanics import Inertial, Values, axis_rotation, rpy, simplify_const, physical_inertials
+from softgen.symbolic.frames import (Inertial, Values, axis_rotation, physical_inertials, rpy,
+                                     simplify_const)
 
 __all__ = ["slotine_li", "regressor_transpose_times", "inertial_fields", "INERTIAL_FIELDS"]
 

@@ -26,7 +26,8 @@ from softgen.app.identify.modelfile import (identified_name, model_tables, to_to
 from softgen.app.identify.rigid import (RigidIdentification, identify_rigid,
                                         read_identification_log)
 from softgen.core.errors import SoftgenError
-from softgen.modelfile.model import RobotModel, load_model
+from softgen.modelfile.model import RobotModel
+from softgen.modelfile.load import load_model
 from softgen.studies.excitation import (Excitation, IdentificationRegressor, joint_limits,
                                         optimise_excitation)
 

@@ -1,0 +1,118 @@
+"""Which file a model name means, and reading it: TOML (rigid or soft body), URDF, or a
+TOML model that references a URDF file's chain (``[urdf]``). The readers themselves are
+:mod:`softgen.modelfile.model` (rigid chains), :mod:`softgen.modelfile.soft` and
+:mod:`softgen.modelfile.urdf`; this module sits above them, so none imports another's
+dispatcher.
+"""
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from pathlib import Path
+
+from softgen.core.errors import ModelError
+from softgen.core.paths import MODELS_DIR
+from softgen.modelfile.model import (MAX_NAME, FileReader, RobotModel, _Parser,
+                                     read_model_text)
+from softgen.modelfile.soft import is_soft, parse_soft_model
+from softgen.modelfile.urdf import parse_urdf
+
+
+#: Suffixes of model files, in the order a bare name looks them up in ``models/``.
+MODEL_SUFFIXES = (".toml", ".urdf")
+
+def shipped_model_file(name: str) -> Path | None:
+    """``models/<name>.toml`` or ``models/<name>.urdf``, whichever exists (TOML first)."""
+    for suffix in MODEL_SUFFIXES:
+        if (MODELS_DIR / f"{name}{suffix}").is_file():
+            return MODELS_DIR / f"{name}{suffix}"
+    return None
+
+def model_path(name_or_path: str | Path) -> Path:
+    """The file of a model given by name (``planar_2link``) or by path.
+
+    A bare name (no directory, no suffix) is a shipped model first: a stray file
+    of that name in the current directory does not shadow it. Give ``./name`` or
+    a path with a suffix to read such a file.
+    """
+    text = str(name_or_path)
+    p = Path(name_or_path)
+    if "/" in text or "\\" in text or p.suffix:
+        return p
+    valid = 0 < len(text) <= MAX_NAME and text.isascii() and text.isidentifier()
+    shipped = shipped_model_file(text) if valid else None
+    if shipped is not None:
+        return shipped
+    if len(text) <= 255 and p.is_file():
+        return p
+    if not valid:
+        raise ModelError(f"model name {text[:40]!r}{'...' if len(text) > 40 else ''}: "
+                         f"expected a C identifier of at most {MAX_NAME} characters or a "
+                         "path to a .toml or .urdf file")
+    known = ", ".join(list_models()) or "(none)"
+    raise ModelError(f"unknown model {text!r}: expected one of {known} "
+                     f"or a path to a .toml or .urdf file")
+
+def list_models() -> list[str]:
+    """Names of the models shipped in ``models/`` (TOML and URDF files)."""
+    return sorted({p.stem for suffix in MODEL_SUFFIXES for p in MODELS_DIR.glob(f"*{suffix}")})
+
+def load_model(name_or_path: str | Path, *, root: str | None = None,
+               tip: str | None = None) -> RobotModel:
+    """Load and validate a model file.
+
+    ``root`` and ``tip`` choose the serial chain between two links of a URDF file
+    (joints off it are ignored, fixed links on it merged); a TOML model gives them in
+    its ``[urdf]`` table instead.
+
+    Raises
+    ------
+    ModelError
+        Unknown key, missing field, wrong shape or non-physical value; the message
+        names the file and the key.
+    """
+    path = model_path(name_or_path)
+    text = read_model_text(path)
+    if path.suffix.lower() == ".urdf":
+        model = parse_urdf(path, text, root=root, tip=tip)
+        if root is None and tip is None:
+            return model
+        return dataclasses.replace(model, source_extra=f"[chain] root={root} tip={tip}")
+    if root is not None or tip is not None:
+        raise ModelError(f"{path}: root/tip choose a chain of a URDF file; for a TOML model "
+                         "give them in its [urdf] table")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ModelError(f"{path}: not valid TOML ({exc})") from None
+    if isinstance(data, dict) and "urdf" in data:
+        return _urdf_reference(path, data)
+    if is_soft(data):
+        return parse_soft_model(path, data)
+    return _Parser(path).parse(data)
+
+def _urdf_reference(path: Path, data: dict) -> RobotModel:
+    """A TOML model that is a URDF file's chain: ``[urdf] file, root, tip`` and an
+    optional ``[model] name, description``."""
+    r = FileReader(path)
+    r.keys(data, "", {"model", "urdf"}, {"urdf"})
+    model = r.keys(data.get("model", {}), "model", {"name", "description"}, set())
+    table = r.keys(data["urdf"], "urdf", {"file", "root", "tip"}, {"file"})
+    for k, v in [*table.items(), *model.items()]:
+        if not isinstance(v, str) or not v:
+            raise r.fail(f"urdf.{k}" if k in table else f"model.{k}",
+                         f"expected a non-empty string, got {v!r}")
+    urdf = (path.parent / table["file"]).resolve()
+    try:
+        text = urdf.read_text()
+    except OSError as exc:
+        raise r.fail("urdf.file", f"cannot read {urdf} ({exc.strerror})") from None
+    name = model.get("name")
+    if name is not None and not (name.isascii() and name.isidentifier()
+                                 and len(name) <= MAX_NAME):
+        raise r.fail("model.name", f"expected a C identifier of at most {MAX_NAME} "
+                     f"characters, got {name!r}")
+    m = parse_urdf(urdf, text, root=table.get("root"), tip=table.get("tip"), name=name,
+                   description=model.get("description"))
+    return dataclasses.replace(m, path=path, source=str(path.name),
+                               source_extra=f"[urdf file] {urdf.name}\n{text}")
