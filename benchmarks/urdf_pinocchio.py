@@ -45,7 +45,7 @@ import numpy as np
 import pinocchio as pin
 
 from softgen.bundles.bundle import generate, load_bundle
-from softgen.modelfile.model import MODELS_DIR
+from softgen.core.paths import MODELS_DIR
 from softgen.modelfile.load import load_model
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -26,7 +26,7 @@ from softgen.export import project
 from softgen.export.example import python_loop
 from softgen.export.project import RECORD, bundle_files, export, summary
 from softgen.export.scenarios import capability, example_for
-from softgen.modelfile.model import MODELS_DIR
+from softgen.core.paths import MODELS_DIR
 from softgen.modelfile.load import load_model
 
 #: One model of each capability: rigid, McKibben, electric VSAs, soft (planar PCC).

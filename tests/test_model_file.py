@@ -140,7 +140,7 @@ def test_pendulum_1link_nominal_values():
 
 
 def test_load_by_path_equals_load_by_name():
-    from softgen.modelfile.model import MODELS_DIR
+    from softgen.core.paths import MODELS_DIR
 
     by_name = load_model("planar_2link")
     by_path = load_model(MODELS_DIR / "planar_2link.toml")

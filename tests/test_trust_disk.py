@@ -25,7 +25,7 @@ from softgen.codegen.build import (clean_orphans, ensure_library, library_path, 
                                    record_path, verify_library)
 from softgen.codegen.manifest import validate_manifest
 from softgen.core.errors import BundleError, ModelError
-from softgen.modelfile.model import MODELS_DIR
+from softgen.core.paths import MODELS_DIR
 from softgen.modelfile.load import load_model
 from softgen.bundles.bundle import load_bundle
 

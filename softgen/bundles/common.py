@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from softgen.modelfile.model import MODELS_DIR
+from softgen.core.paths import MODELS_DIR
 
 #: RK4 steps per sample in the generated actuated plants.
 PLANT_SUBSTEPS = 10

@@ -42,7 +42,7 @@ from softgen.core.paths import GENERATED_DIR, output_dir, writable
 from softgen.export.api import api_header, api_source
 from softgen.export.example import example_text, python_loop, scenario_header
 from softgen.export.scenarios import DT, Example, example_for
-from softgen.modelfile.model import MODELS_DIR
+from softgen.core.paths import MODELS_DIR
 from softgen.modelfile.load import load_model, model_path
 
 __all__ = ["ExportResult", "bundle_files", "build_project", "export", "python_loop", "render",

@@ -496,6 +496,7 @@ def urdf_tables(path: Path, text: str, *, root: str | None = None,
                       "source": str(path.name)},
             "gravity": {"vector": [0.0, 0.0, -9.81]},
             "links": links}
+    names["__original__"] = urdf.original_name
     return data, names
 
 
@@ -516,6 +517,6 @@ def parse_urdf(path: Path, text: str, *, root: str | None = None, tip: str | Non
         return names.get(m.group(1), key) if m else key
 
     model = parse_rigid(path, data, key_name)
-    if data["model"]["name"] != names.get("__original__"):
+    if name is None and data["model"]["name"] != names.get("__original__"):
         model = dataclasses.replace(model, original_name=names["__original__"])
     return model
