@@ -42,9 +42,7 @@ import numpy as np
 
 from softgen.blocks import ClosedLoop
 from softgen.control.electric import (cascade_block, electric_arm, initial_plant_state,
-                                      plant_block as electric_plant_block, reference_block)
-from softgen.control.electric_refs import THESIS_GAINS, THESIS_Q, THESIS_SIGMA, \
-    sinusoid_references
+                                      plant_block as electric_plant_block)
 from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.pneumatic_loop import controller_block as pneumatic_controller_block
 from softgen.control.pneumatic_loop import plant_block as pneumatic_plant_block
@@ -62,6 +60,8 @@ from softgen.modelfile.soft import SoftModel
 from softgen.studies import Scenario
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 from softgen.symbolic.rigid import RigidDynamics
+from softgen.studies.electric import (THESIS_GAINS, THESIS_REFERENCES, CascadeReferences,
+                                      sinusoid_references)
 
 #: Sample time of every example loop (s) and the default length of a run.
 DT = 1e-3
@@ -156,7 +156,7 @@ def motor_mode_resolved(model: RobotModel) -> bool:
     ω·DT ≤ :data:`MAX_MODE_STEP` (measured: arm_2link_electric, b = 1e-3 kg m², ω·DT =
     0.07, tracks to 1e-4 rad; planar_2link, b = 3e-6, ω·DT = 1.35, errs by 0.3 rad).
     """
-    sigma_max = max(o + a for o, a, _ in THESIS_SIGMA)
+    sigma_max = max(s.offset + s.amplitude for s in THESIS_REFERENCES.sigma)
     b = min(float(np.min(model.resolve(a.get("motor_inertia"), model.nominal)))
             for a in model.actuators)
     return b > 0 and math.sqrt(sigma_max / (2 * b)) * DT <= MAX_MODE_STEP
@@ -240,13 +240,15 @@ def _theorem5(model: RobotModel, steps: int) -> Example:
 def _electric_pd(model: RobotModel, steps: int) -> Example:
     arm = electric_arm(model)
     n = arm.n
-    q_spec = tuple(THESIS_Q[i % len(THESIS_Q)] for i in range(n))
-    s_spec = tuple(THESIS_SIGMA[i % len(THESIS_SIGMA)] for i in range(n))
+    # Section 11.2's sinusoids, repeated over the arm's joints.
+    thesis_q, thesis_s = THESIS_REFERENCES.q, THESIS_REFERENCES.sigma
+    refs = CascadeReferences(tuple(thesis_q[i % len(thesis_q)] for i in range(n)),
+                             tuple(thesis_s[i % len(thesis_s)] for i in range(n)))
     g = dict(GAINS["electric_pd"])
     d = ClosedLoop(f"{model.name}_loop",
-                   [reference_block(q_spec, s_spec), cascade_block(arm, "pd", DT, gains=g),
+                   [refs.block(), cascade_block(arm, "pd", DT, gains=g),
                     electric_plant_block(arm, DT)])
-    x0 = initial_plant_state(arm, lambda t: sinusoid_references(t, q_spec, s_spec)[:, 0],
+    x0 = initial_plant_state(arm, lambda t: sinusoid_references(t, refs)[:, 0],
                              ksigma=g["ksigma"], delta=g["delta"])
     z0 = arm.initial_state("pd", x0)
     init = {f"plant.{k}": x0[i * n:(i + 1) * n]
