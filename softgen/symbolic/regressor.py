@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from fractions import Fraction
 
 import casadi as ca
@@ -50,26 +51,37 @@ MAX_DEGREE = 8
 class Monomial:
     exponents: tuple[int, ...]          # one per parameter symbol
 
+    @cached_property
+    def nonzero(self) -> tuple[tuple[int, int], ...]:
+        """(parameter index, exponent) of the parameters present, in index order: long
+        chains have hundreds of parameters and a monomial a few of them."""
+        return tuple((i, e) for i, e in enumerate(self.exponents) if e)
+
     def degree(self) -> int:
-        return sum(self.exponents)
+        return sum(e for _, e in self.nonzero)
+
+    def order_key(self) -> tuple:
+        """Sort key: degree, then the exponent vector in decreasing lexicographic order
+        (``(degree, tuple(-e for e in exponents))``, from the nonzero entries only: a
+        sentinel past the last index stands for the zeros after them)."""
+        return (self.degree(),
+                tuple((i, -e) for i, e in self.nonzero) + ((len(self.exponents), 0),))
 
     def name(self, names: tuple[str, ...]) -> str:
-        parts = []
-        for n, e in zip(names, self.exponents):
-            if e == 1:
-                parts.append(n)
-            elif e > 1:
-                parts.append(f"{n}^{e}")
-        return "*".join(parts) if parts else "1"
+        return _monomial_name(self.nonzero, names)
 
     def evaluate(self, p):
         out = 1
-        for pj, e in zip(p, self.exponents):
-            if e:
-                # pj ** 1 is pj (same expression), without a power call; higher powers
-                # as before (x**3 is x*sq(x), not sq(x)*x: the generated C must not move).
-                out = out * (pj if e == 1 else pj ** e)
+        for j, e in self.nonzero:
+            # pj ** 1 is pj (same expression), without a power call; higher powers
+            # as before (x**3 is x*sq(x), not sq(x)*x: the generated C must not move).
+            out = out * (p[j] if e == 1 else p[j] ** e)
         return out
+
+
+def _monomial_name(nonzero, names: tuple[str, ...]) -> str:
+    parts = [names[i] if e == 1 else f"{names[i]}^{e}" for i, e in nonzero]
+    return "*".join(parts) if parts else "1"
 
 
 @dataclass
@@ -350,6 +362,24 @@ def _sampled_reduction(sample, n_cols: int, n_out: int, n_samples: int, tol: flo
         blocks += [sample() for _ in range(max(need - len(blocks), len(blocks)))]
 
 
+def _evaluate_all(mons: list[Monomial], p: list) -> ca.SX:
+    """``Monomial.evaluate`` of every monomial as one column, factor by factor: the
+    k-th factors of all monomials multiply in one elementwise product (a Python-level
+    CasADi call per factor and monomial dominated long chains). Same expressions:
+    the products are formed left to right and 1·x is x."""
+    if not mons:
+        return ca.SX(0, 1)
+    depth = max(len(m.nonzero) for m in mons)
+    one = ca.SX(1)
+    acc = None
+    for k in range(max(depth, 1)):
+        col = ca.vertcat(*[(p[m.nonzero[k][0]] if m.nonzero[k][1] == 1
+                            else p[m.nonzero[k][0]] ** m.nonzero[k][1])
+                           if k < len(m.nonzero) else one for m in mons])
+        acc = col if acc is None else acc * col
+    return acc
+
+
 def _regroup(kept: list[int], dropped: list[int], K: np.ndarray, mons: list[Monomial],
              params: ca.SX, names: tuple[str, ...]):
     """π = p^kept + K p^dropped, with each base parameter's name (its kept monomial)
@@ -360,7 +390,7 @@ def _regroup(kept: list[int], dropped: list[int], K: np.ndarray, mons: list[Mono
                   if dropped else set(kept))
     slot = {j: i for i, j in enumerate(used)}
     txt = {j: mons[j].name(names) for j in used}
-    vals = ca.vertcat(*[ca.SX(mons[j].evaluate(psyms)) for j in used])
+    vals = _evaluate_all([mons[j] for j in used], psyms)
     rows, cols, data = [], [], []
     pnames, pexprs = [], []
     for a, j in enumerate(kept):
@@ -377,8 +407,7 @@ def _regroup(kept: list[int], dropped: list[int], K: np.ndarray, mons: list[Mono
         pnames.append(txt[j])
         pexprs.append(" ".join(text))
     M = ca.DM.triplet(rows, cols, data, len(kept), len(used))
-    pi = ca.mtimes(M, vals)
-    return [pi[a] for a in range(len(kept))], pnames, pexprs
+    return ca.mtimes(M, vals), pnames, pexprs
 
 
 def base_parameters(fact: PolynomialFactorisation, params: ca.SX, names: tuple[str, ...],
@@ -395,9 +424,7 @@ def base_parameters(fact: PolynomialFactorisation, params: ca.SX, names: tuple[s
     if not fact.columns:
         raise ModelError("the dynamics depend on none of the uncertain parameters")
     rng = np.random.default_rng(seed)
-    order = sorted(range(len(fact.monomials)),
-                   key=lambda i: (fact.monomials[i].degree(),
-                                  tuple(-e for e in fact.monomials[i].exponents)))
+    order = sorted(range(len(fact.monomials)), key=lambda i: fact.monomials[i].order_key())
     cols = [fact.columns[i] for i in order]
     mons = [fact.monomials[i] for i in order]
     Yfull = ca.horzcat(*cols)
@@ -410,7 +437,7 @@ def base_parameters(fact: PolynomialFactorisation, params: ca.SX, names: tuple[s
     K = _snap(K)
     _check_dependencies(W, kept, dropped, K, rows=min(W.shape[0], 4 * n_out))
     pi, pnames, pexprs = _regroup(kept, dropped, K, mons, params, names)
-    return BaseParameters(Y=ca.horzcat(*[cols[j] for j in kept]), pi=ca.vertcat(*pi),
+    return BaseParameters(Y=ca.horzcat(*[cols[j] for j in kept]), pi=pi,
                           names=pnames, expressions=pexprs, full_rank=len(mons),
                           constant=fact.constant)
 
@@ -508,8 +535,7 @@ def numeric_base_parameters(delta_of_p: ca.SX, params: ca.SX, names: tuple[str, 
     live = [j for j in range(W_all.shape[1]) if np.max(np.abs(W_all[:, j])) > 1e-11 * scale]
     if not live:
         raise ModelError("the dynamics depend on none of the uncertain parameters")
-    order = sorted(live, key=lambda i: (fact.monomials[i].degree(),
-                                        tuple(-e for e in fact.monomials[i].exponents)))
+    order = sorted(live, key=lambda i: fact.monomials[i].order_key())
     mons = [fact.monomials[i] for i in order]
     A = A_all[:, order]
     queue = [w[:, order] for w in first]
@@ -520,7 +546,7 @@ def numeric_base_parameters(delta_of_p: ca.SX, params: ca.SX, names: tuple[str, 
     K = _snap(K)
     _check_dependencies(W, kept, dropped, K, rows=min(W.shape[0], 4 * n_out))
     pi, pnames, pexprs = _regroup(kept, dropped, K, mons, params, names)
-    return NumericBase(A=A[:, kept], a0=a0, pi=ca.vertcat(*pi), names=pnames,
+    return NumericBase(A=A[:, kept], a0=a0, pi=pi, names=pnames,
                        expressions=pexprs, full_rank=len(mons))
 
 
@@ -599,9 +625,10 @@ def expand_in(exprs: ca.SX, params: ca.SX) -> tuple[np.ndarray, list[Monomial], 
             for i, k in m:
                 e[i] = k
             exps.append(tuple(e))
-    order = sorted(range(len(exps)), key=lambda i: (sum(exps[i]), tuple(-e for e in exps[i])))
+    mons = [Monomial(e) for e in exps]
+    order = sorted(range(len(mons)), key=lambda i: mons[i].order_key())
     live = [i for i in order if np.any(cols[:, i] != 0.0)]
-    return cols[:, live], [Monomial(exps[i]) for i in live], c0
+    return cols[:, live], [mons[i] for i in live], c0
 
 
 def _signed(terms: list[tuple[float, str]]) -> str:
@@ -624,19 +651,18 @@ def combination_texts(kept: list[int], dropped: list[int], K: np.ndarray,
     for a, j in enumerate(kept):
         terms = [(1.0, mons[j])] + ([(float(K[a, b]), mons[dropped[b]])
                                      for b in np.flatnonzero(K[a])] if dropped else [])
-        groups: dict[tuple[int, ...], list[tuple[float, Monomial]]] = {}
+        groups: dict[tuple, list[tuple[float, Monomial]]] = {}
         for c, mon in terms:
-            key = tuple(e if i in outer else 0 for i, e in enumerate(mon.exponents))
+            key = tuple((i, e) for i, e in mon.nonzero if i in outer)
             groups.setdefault(key, []).append((c, mon))
         parts: list[tuple[float, str]] = []
         for key, group in groups.items():
-            if len(group) == 1 or not any(key):
+            if len(group) == 1 or not key:
                 parts += [(c, mon.name(names)) for c, mon in group]
                 continue
-            inner = [(c, Monomial(tuple(0 if i in outer else e
-                                        for i, e in enumerate(mon.exponents))).name(names))
-                     for c, mon in group]
-            parts.append((1.0, f"{Monomial(key).name(names)}*({_signed(inner)})"))
+            inner = [(c, _monomial_name([(i, e) for i, e in mon.nonzero if i not in outer],
+                                        names)) for c, mon in group]
+            parts.append((1.0, f"{_monomial_name(key, names)}*({_signed(inner)})"))
         out.append(_signed(parts))
     return out
 
@@ -664,7 +690,7 @@ def base_from_coefficients(Yz: ca.SX, C: np.ndarray, mons: list[Monomial], param
                                     Ck.shape[0], Ck.shape[1]))
     pi, pnames, pexprs = _regroup(kept, dropped, K, mons, params, names)
     combos = combination_texts(kept, dropped, K, mons, names, set(outer))
-    return Y, ca.vertcat(*pi), pnames, pexprs, combos
+    return Y, pi, pnames, pexprs, combos
 
 
 class _NotPolynomial(Exception):
