@@ -8,15 +8,20 @@ For every model (a shipped name or a path, default the shipped Panda), the τ th
    prints; inputs, outputs and constants included) and, with ``--callgrind``, machine
    instructions per call at -O3 from ``valgrind --tool=callgrind``: the Ir of a loop of
    2K calls minus that of K calls, divided by K (start-up and harness cancel);
-2. timed: median over repeats of the thread CPU time per call in a plain C loop at
-   -O3 (CPU time rather than wall time: on a shared machine the time a process spends
-   preempted is not the function's cost).
+2. timed: thread CPU time per call in a plain C loop at -O3 (CPU time rather than
+   wall time: on a shared machine the time a process spends preempted is not the
+   function's cost), the median of ``--repeats`` repeats in one process, and of those
+   the median over ``--rounds`` rounds that run every function's process in turn (so
+   that functions compared see the same machine load).
 
 No Pinocchio needed (``pinocchio_chains.py --arm --urdf FILE`` gives the ratio to it).
-Run from a checkout; to measure another revision, put its ``softgen`` first on
-``PYTHONPATH``:
+Run from a checkout. To compare with another revision, emit its functions with its
+``softgen`` first on ``PYTHONPATH``, then time both in the same interleaved rounds:
 
-    .venv/bin/python benchmarks/tau_cost.py panda /path/to/ur5.urdf --callgrind
+    PYTHONPATH=/path/to/old/checkout .venv/bin/python benchmarks/tau_cost.py \
+        panda ur5.urdf --tag before --emit /tmp/tau_before
+    .venv/bin/python benchmarks/tau_cost.py panda ur5.urdf --tag after \
+        --also /tmp/tau_before --callgrind
 """
 from __future__ import annotations
 
@@ -38,7 +43,7 @@ _LOOP = r"""
 #include <stdio.h>
 #include <stdlib.h>
 #include <time.h>
-#include "tau.h"
+#include "%(h)s"
 static double cpu_ns(void) {
   struct timespec t;
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
@@ -75,12 +80,12 @@ int main(int argc, char **argv) {
 """
 
 
-def _loop(tmp: Path, name: str) -> Path:
-    """The harness of ``name``, compiled at -O3 with the generated C."""
+def _loop(tmp: Path, name: str, src: Path) -> Path:
+    """The harness of ``name``, compiled at -O3 with the generated C ``src``."""
     exe = tmp / f"loop_{name}"
-    (tmp / f"loop_{name}.c").write_text(_LOOP % {"f": name})
-    subprocess.run(["gcc", "-O3", "-o", str(exe), str(tmp / f"loop_{name}.c"),
-                    str(tmp / "tau.c"), "-lm"], check=True)
+    (tmp / f"loop_{name}.c").write_text(_LOOP % {"f": name, "h": src.with_suffix(".h")})
+    subprocess.run(["gcc", "-O3", "-Werror=implicit-function-declaration", "-o", str(exe),
+                    str(tmp / f"loop_{name}.c"), str(src), "-lm"], check=True)
     return exe
 
 
@@ -106,35 +111,57 @@ def callgrind_ir(exe: Path, k: int = 2000) -> float:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("models", nargs="*", default=["panda"])
-    ap.add_argument("--calls", type=int, default=20_000)
-    ap.add_argument("--repeats", type=int, default=51)
+    ap.add_argument("--calls", type=int, default=20_000, help="calls per timed repeat")
+    ap.add_argument("--repeats", type=int, default=11, help="timed repeats per round")
+    ap.add_argument("--rounds", type=int, default=9,
+                    help="rounds; each runs every function once, in turn")
     ap.add_argument("--callgrind", action="store_true")
+    ap.add_argument("--tag", default="", help="suffix of the function names (e.g. before)")
+    ap.add_argument("--emit", type=Path, help="also keep the generated tau.c/.h and the "
+                    "counts in this directory (for --also of a later run)")
+    ap.add_argument("--also", type=Path, nargs="*", default=[],
+                    help="directories written by --emit of other revisions: their "
+                         "functions are timed in the same rounds, interleaved")
     args = ap.parse_args(argv)
     if args.callgrind and not shutil.which("valgrind"):
         raise SystemExit("--callgrind: valgrind is not on PATH")
 
     cpu = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text()
                 .splitlines() if ln.startswith("model name")), platform.processor())
-    print(f"# {cpu}; gcc -O3; median of {args.repeats} repeats of {args.calls} calls")
+    print(f"# {cpu}; gcc -O3; thread CPU time per call, median over {args.rounds} "
+          f"interleaved rounds of the median of {args.repeats} repeats of {args.calls} calls")
+    suffix = f"_{args.tag}" if args.tag else ""
     with tempfile.TemporaryDirectory(prefix="softgen-tau-") as tmp:
         tmp = Path(tmp)
+        out = args.emit or tmp
+        out.mkdir(parents=True, exist_ok=True)
         gen = ca.CodeGenerator("tau.c", {"with_header": True})
         rows = []
         for spec in args.models:
             model = load_model(Path(spec) if spec.endswith((".urdf", ".toml")) else spec)
             f = RigidDynamics(model).inverse_dynamics_fun()
-            name = f"tau_{model.name}"
+            name = f"tau_{model.name}{suffix}"
             ins = f.sx_in()
             gen.add(ca.Function(name, ins, f.call(ins), f.name_in(), f.name_out(),
                                 {"cse": True}))
-            rows.append((model.name, name, int(f.n_instructions())))
-        gen.generate(str(tmp) + "/")
-        exes = {name: _loop(tmp, name) for _, name, _ in rows}
-        print(f"{'model':<20} {'CasADi instr':>12} {'Ir/call':>9} {'ns/call':>8}")
-        for model, name, n in rows:
-            ir = f"{callgrind_ir(exes[name]):9.0f}" if args.callgrind else f"{'-':>9}"
-            ns = ns_per_call(exes[name], args.calls, args.repeats)
-            print(f"{model:<20} {n:12d} {ir} {ns:8.1f}", flush=True)
+            rows.append((name, int(f.n_instructions())))
+        gen.generate(str(out) + "/")
+        (out / "counts.txt").write_text("".join(f"{n} {k}\n" for n, k in rows))
+        sources = [(rows, out / "tau.c")]
+        for d in args.also:
+            other = [(ln.split()[0], int(ln.split()[1]))
+                     for ln in (d / "counts.txt").read_text().splitlines()]
+            sources.append((other, d / "tau.c"))
+        table = [(name, n, _loop(tmp, name, src)) for rws, src in sources for name, n in rws]
+        times: dict[str, list[float]] = {name: [] for name, _, _ in table}
+        for _ in range(args.rounds):
+            for name, _, exe in table:
+                times[name].append(ns_per_call(exe, args.calls, args.repeats))
+        print(f"{'function':<24} {'CasADi instr':>12} {'Ir/call':>9} {'ns/call':>8}")
+        for name, n, exe in sorted(table):
+            ir = f"{callgrind_ir(exe):9.0f}" if args.callgrind else f"{'-':>9}"
+            ns = sorted(times[name])[len(times[name]) // 2]
+            print(f"{name:<24} {n:12d} {ir} {ns:8.1f}", flush=True)
     return 0
 
 

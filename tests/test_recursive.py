@@ -272,3 +272,30 @@ def test_manifest_records_route():
 def test_bad_options_name_the_field(kw, field):
     with pytest.raises(ValueError, match=field):
         RigidDynamics(load_model("pendulum_1link"), **kw)
+
+
+def test_placement_spin_about_the_joint_axis_becomes_an_angle_offset(tmp_path):
+    """rpy 0 1.57079632679 0 before a joint about y (a UR5's shoulder): the constant
+    rotation is an exact signed permutation and the 4.9e-12 rad go to the joint angle;
+    negative coordinate axes take a half-turn frame. τ still equals the energy routes."""
+    from softgen.symbolic.mechanics import rpy
+    P = rpy(0.0, 1.57079632679, 0.0)
+    C, theta0 = recursive._fold_offset(P, 1)
+    assert np.count_nonzero(C) == 3 and set(np.abs(C[C != 0])) == {1.0}
+    assert theta0 == pytest.approx(1.57079632679 - np.pi / 2, rel=1e-12, abs=1e-20)
+    np.testing.assert_allclose(C @ recursive._rot(1, theta0), P, rtol=0, atol=1e-16)
+    for axis in ((0, -1, 0), (0, 0, -1), (-1, 0, 0), (0.6, 0, 0.8)):
+        Q, k = recursive._aligning(axis)
+        assert np.allclose(Q @ np.eye(3)[k], axis) and np.isclose(np.linalg.det(Q), 1)
+        np.testing.assert_allclose(Q.T @ Q, np.eye(3), atol=1e-15)
+    links = [("[0, 0, 1]", "[0, 0, 0]"), ("[0, 1, 0]", "[0, 1.57079632679, 0]"),
+             ("[0, -1, 0]", "[0.3, 1.57079632679, 0]"), ("[0, 0, -1]", "[1.5707963267948966, 0, 0]")]
+    text = '[model]\nname = "spin"\nkind = "spatial"\n\n[gravity]\nvector = [0.0, 0.0, -9.81]\n'
+    for i, (axis, r) in enumerate(links):
+        text += (f'\n[[links]]\njoint = "revolute"\naxis = {axis}\n'
+                 f"origin_xyz = [0.05, {0.1 * i}, 0.2]\norigin_rpy = {r}\nmass = 1.2\n"
+                 "com = [0.02, -0.03, 0.1]\n"
+                 "inertia = [[0.02, 0.001, -0.002], [0.001, 0.03, 0.003], [-0.002, 0.003, 0.025]]\n")
+    path = tmp_path / "spin.toml"
+    path.write_text(text)
+    _routes_agree(load_model(path), ("recursive", "matrix-free", "explicit"))

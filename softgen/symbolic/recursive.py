@@ -38,7 +38,7 @@ With the spatial inertia about the link origin, I (ω, u) = (I_o ω + h × u, m 
 (h = m c), v = (ω, u), v_r = (ω_r, u_r), a_r = (α, a) and w = ω × ω_r, the body force
 above expands, part by part, to
 
-* m: I a_r = (0, m a); the two ×* terms give (m (u × u_r + u_r × u), m (ω × u_r +
+* m: I a_r = (0, m a); the two ×* terms (before the ½) give (m (u × u_r + u_r × u), m (ω × u_r +
   ω_r × u)) and I (v × v_r) gives (0, m (ω × u_r + u × ω_r)), so f_m = (0, m b) with
   b = a + ω_r × u;
 * h: (h × a, α × h) from I a_r; expanding the double cross products
@@ -67,8 +67,8 @@ rotation Q_i with Q_i b_i = axis_i for a coordinate axis b_i: a coordinate axis
 becomes z. The joint transform between aligned frames is then
 E_i = C_i Rot(b_i, q_i) with the constant C_i = Q_λᵀ P_i Q_i (P_i the placement
 rotation), the translation Q_λᵀ p_i, the motion subspace S_i = b_i (τ_i is one
-component of the force) and the inertia (Q_iᵀ h, Q_iᵀ I_o Q_i). A constant rotation
-about b_i on the right of C_i commutes with the joint rotation:
+component of the force) and the inertia (Q_iᵀ h, Q_iᵀ I_o Q_i). For a revolute joint,
+a constant rotation about b_i on the right of C_i commutes with the joint rotation:
 C_i Rot(b_i, q) = C_i'' Rot(b_i, q + θ0) with C_i'' = C_i Rot(b_i, −θ0). θ0 is chosen
 (:func:`_fold_offset`) to give C_i'' the most exact zeros, e.g. a placement
 ``rpy="0 1.57079632679 0"`` about the joint's own axis y (its cosine 4.9e-12, not 0)
