@@ -13,7 +13,7 @@ import pytest
 from softgen.bundles.common import PLANT_SUBSTEPS
 from softgen.bundles.bundle import (GENERATED_DIR, BundleOptions, bundle_spec, capabilities,
                                     load_bundle)
-from softgen.bundles.registry import HAS_REGRESSOR, REGISTRY, merge
+from softgen.bundles.registry import HAS_REGRESSOR, REGISTRY, loop_calling_step, merge
 from softgen.bundles.rigid import slotine_li_diagram
 from softgen.bundles.soft import theorem10_diagram
 from softgen.cli import main
@@ -254,3 +254,18 @@ def test_manifest_closed_loops_come_from_the_diagrams_and_are_validated():
         entry["state"][0]["size"] += 1
         with pytest.raises(BundleError, match=rf"closed_loops\.{key}\.state"):
             validate_manifest(man, path)
+
+
+def test_bundle_loop_is_the_diagram_loop():
+    """The bundle's loop (a mapaccum calling the step, so the C holds the step once)
+    == ClosedLoop.loop_fun: same name and signature, equal values on seeded inputs."""
+    rng = np.random.default_rng(34)
+    d = slotine_li_diagram(RigidDynamics(load_model("pendulum_1link")), BundleOptions())
+    a, b = loop_calling_step(d, 40), d.loop_fun(40)
+    assert (a.name(), a.name_in(), a.name_out()) == (b.name(), b.name_in(), b.name_out())
+    for _ in range(3):
+        args = (d.initial_state({"plant.q": rng.uniform(-1, 1)}),
+                np.abs(rng.uniform(0.1, 2, d.params.size)), float(rng.integers(0, 100)),
+                rng.uniform(-0.5, 0.5, (d.externals.size, 40)))
+        for u, v in zip(a(*args), b(*args)):
+            np.testing.assert_allclose(np.array(u), np.array(v), rtol=1e-12, atol=1e-12)

@@ -1551,129 +1551,45 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_step_work_bytes(casadi_int *
 
 /* one_sample:(xa[6],p[5],e[3])->(xa_next[6],y[7]) */
 static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=1.0000000000000000e-03;
-  a02=arg[1]? arg[1][2] : 0;
-  a02=(a01*a02);
-  a03=arg[0]? arg[0][4] : 0;
-  a04=arg[2]? arg[2][1] : 0;
-  a05=arg[1]? arg[1][0] : 0;
-  a06=arg[2]? arg[2][0] : 0;
-  a07=arg[0]? arg[0][3] : 0;
-  a06=(a06-a07);
-  a06=(a05*a06);
-  a06=(a04+a06);
-  a06=(a06-a03);
-  a08=(a03*a06);
-  a02=(a02*a08);
-  a02=(a00+a02);
-  if (res[0]!=0) res[0][0]=a02;
-  a02=arg[0]? arg[0][1] : 0;
-  a08=arg[1]? arg[1][3] : 0;
-  a08=(a01*a08);
-  a09=arg[2]? arg[2][2] : 0;
-  a04=(a04-a03);
-  a05=(a05*a04);
-  a09=(a09+a05);
-  a05=(a09*a06);
-  a08=(a08*a05);
-  a08=(a02+a08);
-  if (res[0]!=0) res[0][1]=a08;
-  a08=arg[0]? arg[0][2] : 0;
-  a05=arg[1]? arg[1][4] : 0;
-  a05=(a01*a05);
-  a04=-9.8100000000000005e+00;
-  a10=sin(a07);
-  a04=(a04*a10);
-  a11=(a04*a06);
-  a05=(a05*a11);
-  a05=(a08-a05);
-  if (res[0]!=0) res[0][2]=a05;
-  a05=1.6666666666666666e-04;
-  a11=5.0000000000000001e-04;
-  a12=(a03*a00);
-  a09=(a09*a02);
-  a12=(a12+a09);
-  a04=(a04*a08);
-  a12=(a12-a04);
-  a04=arg[1]? arg[1][1] : 0;
-  a04=(a04*a06);
-  a12=(a12+a04);
-  a04=9.9999999999999995e-08;
-  a06=(a04*a03);
-  a09=-1.1772000000000000e+00;
-  a10=(a09*a10);
-  a06=(a06-a10);
-  a06=(a12-a06);
-  a10=1.4999999999999999e-02;
-  a06=(a06/a10);
-  a13=(a11*a06);
-  a13=(a03+a13);
-  a14=(2.*a13);
-  a14=(a03+a14);
-  a15=(a04*a13);
-  a16=(a11*a03);
-  a16=(a07+a16);
-  a16=sin(a16);
-  a16=(a09*a16);
-  a15=(a15-a16);
-  a15=(a12-a15);
-  a15=(a15/a10);
-  a16=(a11*a15);
-  a16=(a03+a16);
-  a17=(2.*a16);
-  a14=(a14+a17);
-  a17=(a04*a16);
-  a11=(a11*a13);
-  a11=(a07+a11);
-  a11=sin(a11);
-  a11=(a09*a11);
-  a17=(a17-a11);
-  a17=(a12-a17);
-  a17=(a17/a10);
-  a11=(a01*a17);
-  a11=(a03+a11);
-  a14=(a14+a11);
-  a14=(a05*a14);
-  a14=(a07+a14);
-  if (res[0]!=0) res[0][3]=a14;
-  a15=(2.*a15);
-  a06=(a06+a15);
-  a17=(2.*a17);
-  a06=(a06+a17);
-  a04=(a04*a11);
-  a16=(a01*a16);
-  a16=(a07+a16);
-  a16=sin(a16);
-  a09=(a09*a16);
-  a04=(a04-a09);
-  a04=(a12-a04);
-  a04=(a04/a10);
-  a06=(a06+a04);
-  a05=(a05*a06);
-  a05=(a03+a05);
-  if (res[0]!=0) res[0][4]=a05;
-  a05=arg[0]? arg[0][5] : 0;
-  a06=1.;
-  a06=(a05+a06);
-  if (res[0]!=0) res[0][5]=a06;
-  a01=(a01*a05);
-  if (res[1]!=0) res[1][0]=a01;
-  if (res[1]!=0) res[1][1]=a07;
-  if (res[1]!=0) res[1][2]=a03;
-  if (res[1]!=0) res[1][3]=a12;
-  if (res[1]!=0) res[1][4]=a00;
-  if (res[1]!=0) res[1][5]=a02;
-  if (res[1]!=0) res[1][6]=a08;
+  casadi_real **res1=res+2, *rr, *w0=w+18, *w1=w+24, *w2=w+29, w3, *w4=w+34, *w5=w+37, *w6=w+42, w7;
+  const casadi_real **arg1=arg+3, *cs;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w0);
+  /* #1: @1 = @0[:5] */
+  for (rr=w1, cs=w0+0; cs!=w0+5; cs+=1) *rr++ = *cs;
+  /* #2: @2 = input[1][0] */
+  casadi_copy(arg[1], 5, w2);
+  /* #3: @3 = @0[5] */
+  for (rr=(&w3), cs=w0+5; cs!=w0+6; cs+=1) *rr++ = *cs;
+  /* #4: @4 = input[2][0] */
+  casadi_copy(arg[2], 3, w4);
+  /* #5: {@5, @6} = pendulum_qbmove_slotine_li_step(@1, @2, @3, @4) */
+  arg1[0]=w1;
+  arg1[1]=w2;
+  arg1[2]=(&w3);
+  arg1[3]=w4;
+  res1[0]=w5;
+  res1[1]=w6;
+  if (casadi_f12(arg1, res1, iw, w, 0)) return 1;
+  /* #6: output[0][0] = @5 */
+  casadi_copy(w5, 5, res[0]);
+  /* #7: @3 = 1 */
+  w3 = 1.;
+  /* #8: @7 = @0[5] */
+  for (rr=(&w7), cs=w0+5; cs!=w0+6; cs+=1) *rr++ = *cs;
+  /* #9: @3 = (@3+@7) */
+  w3 += w7;
+  /* #10: output[0][1] = @3 */
+  if (res[0]) res[0][5] = w3;
+  /* #11: output[1][0] = @6 */
+  casadi_copy(w6, 7, res[1]);
   return 0;
 }
 
 /* one_sample_acc10:(xa[6],p[5x10],e[3x10])->(xa_next[6x10],y[7x10]) */
 static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+18, *w01=w+24, *w02=w+29, *w03=w+32, *w04=w+38, *w05=w+45, *w06=w+52, *w07=w+59, *w08=w+66, *w09=w+73, *w10=w+80;
-  casadi_real *w11=w+87, *w12=w+94, *w13=w+101;
+  casadi_real **res1=res+2, *w00=w+51, *w01=w+57, *w02=w+62, *w03=w+65, *w04=w+71, *w05=w+78, *w06=w+85, *w07=w+92, *w08=w+99, *w09=w+106, *w10=w+113;
+  casadi_real *w11=w+120, *w12=w+127, *w13=w+134;
   const casadi_real **arg1=arg+3;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 6, w00);
@@ -1832,8 +1748,8 @@ static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10_acc10:(xa[6],p[5x100],e[3x100])->(xa_next[6x100],y[7x100]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+108, *w03=w+114, *w04=w+174, *w05=w+244, *w06=w+314, *w07=w+384, *w08=w+454, *w09=w+524, *w10=w+594, *w11=w+664, *w12=w+734;
-  casadi_real *w13=w+804;
+  casadi_real **res1=res+2, *w00=w+141, *w03=w+147, *w04=w+207, *w05=w+277, *w06=w+347, *w07=w+417, *w08=w+487, *w09=w+557, *w10=w+627, *w11=w+697, *w12=w+767;
+  casadi_real *w13=w+837;
   const casadi_real **arg1=arg+3, *wr01, *wr02;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 6, w00);
@@ -2010,8 +1926,8 @@ static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10_acc10_acc10:(xa[6],p[5x1000],e[3x1000])->(xa_next[6x1000],y[7x1000]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+954, *w03=w+960, *w04=w+1560, *w05=w+2260, *w06=w+2960, *w07=w+3660, *w08=w+4360, *w09=w+5060, *w10=w+5760, *w11=w+6460, *w12=w+7160;
-  casadi_real *w13=w+7860;
+  casadi_real **res1=res+2, *w00=w+987, *w03=w+993, *w04=w+1593, *w05=w+2293, *w06=w+2993, *w07=w+3693, *w08=w+4393, *w09=w+5093, *w10=w+5793, *w11=w+6493, *w12=w+7193;
+  casadi_real *w13=w+7893;
   const casadi_real **arg1=arg+3, *wr01, *wr02;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 6, w00);
@@ -2189,7 +2105,7 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
 /* pendulum_qbmove_slotine_li_loop:(x0[5],p[5],k0,e[3x1000])->(x[5x1000],y[7x1000]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, *w0=w+9360, w1, *w2=w+9365, *w3=w+9371, *w5=w+14371, *w6=w+20371;
+  casadi_real **res1=res+2, *rr, *w0=w+9393, w1, *w2=w+9398, *w3=w+9404, *w5=w+14404, *w6=w+20404;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr4;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 5, w0);
@@ -2287,18 +2203,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_slotine_li_loop_sparsity_
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 16;
-  if (sz_res) *sz_res = 10;
+  if (sz_arg) *sz_arg = 20;
+  if (sz_res) *sz_res = 12;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 27371;
+  if (sz_w) *sz_w = 27404;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 16*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 10*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 20*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 12*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 27371*sizeof(casadi_real);
+  if (sz_w) *sz_w = 27404*sizeof(casadi_real);
   return 0;
 }
 

@@ -1498,110 +1498,45 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_slotine_li_step_work_bytes(casadi_int *sz_a
 
 /* one_sample:(xa[5],p[4],e[3])->(xa_next[5],y[6]) */
 static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=1.0000000000000000e-03;
-  a02=arg[1]? arg[1][2] : 0;
-  a02=(a01*a02);
-  a03=arg[2]? arg[2][2] : 0;
-  a04=arg[1]? arg[1][0] : 0;
-  a05=arg[2]? arg[2][1] : 0;
-  a06=arg[0]? arg[0][3] : 0;
-  a07=(a05-a06);
-  a07=(a04*a07);
-  a03=(a03+a07);
-  a07=arg[2]? arg[2][0] : 0;
-  a08=arg[0]? arg[0][2] : 0;
-  a07=(a07-a08);
-  a04=(a04*a07);
-  a05=(a05+a04);
-  a05=(a05-a06);
-  a04=(a03*a05);
-  a02=(a02*a04);
-  a02=(a00+a02);
-  if (res[0]!=0) res[0][0]=a02;
-  a02=arg[0]? arg[0][1] : 0;
-  a04=arg[1]? arg[1][3] : 0;
-  a04=(a01*a04);
-  a07=-9.8100000000000005e+00;
-  a09=sin(a08);
-  a07=(a07*a09);
-  a10=(a07*a05);
-  a04=(a04*a10);
-  a04=(a02-a04);
-  if (res[0]!=0) res[0][1]=a04;
-  a04=1.6666666666666666e-04;
-  a10=5.0000000000000001e-04;
-  a03=(a03*a00);
-  a07=(a07*a02);
-  a03=(a03-a07);
-  a07=arg[1]? arg[1][1] : 0;
-  a07=(a07*a05);
-  a03=(a03+a07);
-  a07=-1.1477700000000000e-01;
-  a09=(a07*a09);
-  a09=(a03+a09);
-  a05=2.6264999999999999e-03;
-  a09=(a09/a05);
-  a11=(a10*a09);
-  a11=(a06+a11);
-  a12=(2.*a11);
-  a12=(a06+a12);
-  a13=(a10*a06);
-  a13=(a08+a13);
-  a13=sin(a13);
-  a13=(a07*a13);
-  a13=(a03+a13);
-  a13=(a13/a05);
-  a14=(a10*a13);
-  a14=(a06+a14);
-  a15=(2.*a14);
-  a12=(a12+a15);
-  a10=(a10*a11);
-  a10=(a08+a10);
-  a10=sin(a10);
-  a10=(a07*a10);
-  a10=(a03+a10);
-  a10=(a10/a05);
-  a11=(a01*a10);
-  a11=(a06+a11);
-  a12=(a12+a11);
-  a12=(a04*a12);
-  a12=(a08+a12);
-  if (res[0]!=0) res[0][2]=a12;
-  a13=(2.*a13);
-  a09=(a09+a13);
-  a10=(2.*a10);
-  a09=(a09+a10);
-  a14=(a01*a14);
-  a14=(a08+a14);
-  a14=sin(a14);
-  a07=(a07*a14);
-  a07=(a03+a07);
-  a07=(a07/a05);
-  a09=(a09+a07);
-  a04=(a04*a09);
-  a04=(a06+a04);
-  if (res[0]!=0) res[0][3]=a04;
-  a04=arg[0]? arg[0][4] : 0;
-  a09=1.;
-  a09=(a04+a09);
-  if (res[0]!=0) res[0][4]=a09;
-  a01=(a01*a04);
-  if (res[1]!=0) res[1][0]=a01;
-  if (res[1]!=0) res[1][1]=a08;
-  if (res[1]!=0) res[1][2]=a06;
-  if (res[1]!=0) res[1][3]=a03;
-  if (res[1]!=0) res[1][4]=a00;
-  if (res[1]!=0) res[1][5]=a02;
+  casadi_real **res1=res+2, *rr, *w0=w+16, *w1=w+21, *w2=w+25, w3, *w4=w+29, *w5=w+32, *w6=w+36, w7;
+  const casadi_real **arg1=arg+3, *cs;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w0);
+  /* #1: @1 = @0[:4] */
+  for (rr=w1, cs=w0+0; cs!=w0+4; cs+=1) *rr++ = *cs;
+  /* #2: @2 = input[1][0] */
+  casadi_copy(arg[1], 4, w2);
+  /* #3: @3 = @0[4] */
+  for (rr=(&w3), cs=w0+4; cs!=w0+5; cs+=1) *rr++ = *cs;
+  /* #4: @4 = input[2][0] */
+  casadi_copy(arg[2], 3, w4);
+  /* #5: {@5, @6} = qbmove_1dof_slotine_li_step(@1, @2, @3, @4) */
+  arg1[0]=w1;
+  arg1[1]=w2;
+  arg1[2]=(&w3);
+  arg1[3]=w4;
+  res1[0]=w5;
+  res1[1]=w6;
+  if (casadi_f12(arg1, res1, iw, w, 0)) return 1;
+  /* #6: output[0][0] = @5 */
+  casadi_copy(w5, 4, res[0]);
+  /* #7: @3 = 1 */
+  w3 = 1.;
+  /* #8: @7 = @0[4] */
+  for (rr=(&w7), cs=w0+4; cs!=w0+5; cs+=1) *rr++ = *cs;
+  /* #9: @3 = (@3+@7) */
+  w3 += w7;
+  /* #10: output[0][1] = @3 */
+  if (res[0]) res[0][4] = w3;
+  /* #11: output[1][0] = @6 */
+  casadi_copy(w6, 6, res[1]);
   return 0;
 }
 
 /* one_sample_acc10:(xa[5],p[4x10],e[3x10])->(xa_next[5x10],y[6x10]) */
 static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+16, *w01=w+21, *w02=w+25, *w03=w+28, *w04=w+33, *w05=w+39, *w06=w+45, *w07=w+51, *w08=w+57, *w09=w+63, *w10=w+69;
-  casadi_real *w11=w+75, *w12=w+81, *w13=w+87;
+  casadi_real **res1=res+2, *w00=w+44, *w01=w+49, *w02=w+53, *w03=w+56, *w04=w+61, *w05=w+67, *w06=w+73, *w07=w+79, *w08=w+85, *w09=w+91, *w10=w+97;
+  casadi_real *w11=w+103, *w12=w+109, *w13=w+115;
   const casadi_real **arg1=arg+3;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 5, w00);
@@ -1760,8 +1695,8 @@ static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10_acc10:(xa[5],p[4x100],e[3x100])->(xa_next[5x100],y[6x100]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+93, *w03=w+98, *w04=w+148, *w05=w+208, *w06=w+268, *w07=w+328, *w08=w+388, *w09=w+448, *w10=w+508, *w11=w+568, *w12=w+628;
-  casadi_real *w13=w+688;
+  casadi_real **res1=res+2, *w00=w+121, *w03=w+126, *w04=w+176, *w05=w+236, *w06=w+296, *w07=w+356, *w08=w+416, *w09=w+476, *w10=w+536, *w11=w+596, *w12=w+656;
+  casadi_real *w13=w+716;
   const casadi_real **arg1=arg+3, *wr01, *wr02;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 5, w00);
@@ -1938,8 +1873,8 @@ static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10_acc10_acc10:(xa[5],p[4x1000],e[3x1000])->(xa_next[5x1000],y[6x1000]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+818, *w03=w+823, *w04=w+1323, *w05=w+1923, *w06=w+2523, *w07=w+3123, *w08=w+3723, *w09=w+4323, *w10=w+4923, *w11=w+5523, *w12=w+6123;
-  casadi_real *w13=w+6723;
+  casadi_real **res1=res+2, *w00=w+846, *w03=w+851, *w04=w+1351, *w05=w+1951, *w06=w+2551, *w07=w+3151, *w08=w+3751, *w09=w+4351, *w10=w+4951, *w11=w+5551, *w12=w+6151;
+  casadi_real *w13=w+6751;
   const casadi_real **arg1=arg+3, *wr01, *wr02;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 5, w00);
@@ -2117,7 +2052,7 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
 /* qbmove_1dof_slotine_li_loop:(x0[4],p[4],k0,e[3x1000])->(x[4x1000],y[6x1000]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, *w0=w+8023, w1, *w2=w+8027, *w3=w+8032, *w5=w+12032, *w6=w+17032;
+  casadi_real **res1=res+2, *rr, *w0=w+8051, w1, *w2=w+8055, *w3=w+8060, *w5=w+12060, *w6=w+17060;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr4;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 4, w0);
@@ -2215,18 +2150,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* qbmove_1dof_slotine_li_loop_sparsity_out(
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 16;
-  if (sz_res) *sz_res = 10;
+  if (sz_arg) *sz_arg = 20;
+  if (sz_res) *sz_res = 12;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 23032;
+  if (sz_w) *sz_w = 23060;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 16*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 10*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 20*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 12*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 23032*sizeof(casadi_real);
+  if (sz_w) *sz_w = 23060*sizeof(casadi_real);
   return 0;
 }
 

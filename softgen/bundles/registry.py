@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
 
+import casadi as ca
 import numpy as np
 
 from softgen.codegen.generate import Generated
@@ -266,7 +267,7 @@ def diagram_manifest(diagram, steps: int) -> dict:
         return [{"name": s.name, "size": s.size, "unit": s.unit} for s in lay]
 
     return {
-        "step": diagram.step_fun().name(), "loop": diagram.loop_fun(steps).name(),
+        "step": diagram.step_fun().name(), "loop": f"{diagram.loop_name()}_loop",
         "steps": int(steps), "dt": float(diagram.dt),
         "blocks": {bn: b.doc for bn, b in diagram.blocks.items()},
         "state": layout(diagram.state), "params": layout(diagram.params),
@@ -282,10 +283,33 @@ def _defaults(diagram):
         else np.zeros(0)
 
 
+def loop_calling_step(diagram, steps: int) -> ca.Function:
+    """``diagram.loop_fun(steps)`` — same name, inputs, outputs and values — built as
+    a ``mapaccum`` over *calls* of ``diagram.step_fun()``.
+
+    ``ClosedLoop.loop_fun`` evaluates the step on SX symbols, which inlines it: a bundle
+    holding both the step and the loop would carry the step's C twice (measured:
+    generated/ 9.5 MB -> 14.1 MB with both inlined). Here the loop's C calls the step.
+    """
+    f = diagram.step_fun()
+    nx, n_p, ne = diagram.state.size, diagram.params.size, diagram.externals.size
+    xa, p, e = ca.MX.sym("xa", nx + 1), ca.MX.sym("p", n_p), ca.MX.sym("e", ne)
+    xn, y = f(xa[:nx], p, xa[nx], e)
+    one = ca.Function("one_sample", [xa, p, e], [ca.vertcat(xn, xa[nx] + 1), y],
+                      ["xa", "p", "e"], ["xa_next", "y"])
+    acc = one.mapaccum("acc", int(steps), [0], [0])
+    x0, pm, k0 = ca.MX.sym("x0", nx), ca.MX.sym("p", n_p), ca.MX.sym("k0")
+    em = ca.MX.sym("e", ne, int(steps))
+    XA, Y = acc(ca.vertcat(x0, k0), pm, em)
+    return ca.Function(f"{diagram.loop_name()}_loop", [x0, pm, k0, em], [XA[:nx, :], Y],
+                       ["x0", "p", "k0", "e"], ["x", "y"])
+
+
 def diagram_functions(diagram, steps: int, what: str) -> list[Generated]:
     """The step and the ``steps``-sample loop of ``diagram`` as bundle functions."""
     blocks = " + ".join(b.doc or bn for bn, b in diagram.blocks.items())
     return [Generated(diagram.step_fun(), f"one {diagram.dt:g} s sample of the {what} diagram "
                                           f"({blocks}): (x, p, k, e) -> (x_next, y)"),
-            Generated(diagram.loop_fun(steps), f"{steps} samples of the {what} diagram in one "
-                                               "call: (x0, p, k0, E) -> (X, Y)")]
+            Generated(loop_calling_step(diagram, steps),
+                      f"{steps} samples of the {what} diagram in one call: (x0, p, k0, E) "
+                      "-> (X, Y)")]
