@@ -241,6 +241,20 @@ def test_sweep_signal_is_one_line_and_the_journal_resumes(driver, tmp_path, sig,
     assert _journal_ok(out) == 40
 
 
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_sweep_signal_in_the_first_second_is_one_line(driver, tmp_path, sig):
+    """Before: SIGTERM while the sweep started exited 143 with no message."""
+    proc = _start(driver, "sweep", "sig-nap", "--vary", "a=uniform(0,2)", "--samples", "4",
+                  "--out", str(tmp_path / "sweep"))
+    time.sleep(0.4 + random.Random(sig).uniform(0.0, 0.6))
+    os.killpg(proc.pid, sig)
+    status, err, left = _finish(proc)
+    if status == 0:
+        pytest.skip("the sweep finished before the signal")
+    line = _one_line(err, status, sig)
+    assert f"sweep: interrupted by {signal.Signals(sig).name}" in line and left == []
+
+
 def test_sweep_parent_killed_leaves_no_worker(driver, tmp_path):
     out = tmp_path / "sweep"
     proc = _start(driver, "sweep", "sig-nap", "--vary", "a=uniform(0,2)", "--vary",
