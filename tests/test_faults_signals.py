@@ -150,6 +150,28 @@ def test_reproduce_signal_in_the_first_second_writes_an_incomplete_report(driver
     assert "**Incomplete run**" in report
 
 
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_reproduce_interrupted_keeps_the_earlier_files(driver, tmp_path, sig):
+    """An experiment stopped half way replaces none of its earlier files (hash-checked)."""
+    out = tmp_path / "results"
+    earlier = out / "sig-slow"
+    earlier.mkdir(parents=True)
+    files = {earlier / "metrics.json": b'{"experiment": "sig-slow", "metrics": {}}\n',
+             earlier / "traces.npz": os.urandom(4096), earlier / "figure.png": os.urandom(999)}
+    for p, data in files.items():
+        p.write_bytes(data)
+    before = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
+    proc = _start(driver, "reproduce", "sig-slow", "--out", str(out), "--jobs", "1")
+    _wait_for(lambda: (out / "slow-started").exists(), proc)
+    os.killpg(proc.pid, sig)
+    status, err, left = _finish(proc)
+    _one_line(err, status, sig)
+    assert {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in files} == before
+    assert sorted(p.name for p in earlier.iterdir()) == sorted(p.name for p in files)
+    assert not list(out.glob(".sig-slow.running-*")) and left == []
+    assert "**Incomplete run**" in (out / "report.md").read_text()
+
+
 def test_reproduce_parent_killed_leaves_no_worker(driver, tmp_path):
     """Before: kill -9 of reproduce left pool workers alive indefinitely."""
     out = tmp_path / "results"
@@ -217,6 +239,20 @@ def test_sweep_signal_is_one_line_and_the_journal_resumes(driver, tmp_path, sig,
     assert status == 0, err
     assert f"({40 - done} run now, {done} resumed)" in proc.stdout_text
     assert _journal_ok(out) == 40
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_sweep_signal_in_the_first_second_is_one_line(driver, tmp_path, sig):
+    """Before: SIGTERM while the sweep started exited 143 with no message."""
+    proc = _start(driver, "sweep", "sig-nap", "--vary", "a=uniform(0,2)", "--samples", "4",
+                  "--out", str(tmp_path / "sweep"))
+    time.sleep(0.4 + random.Random(sig).uniform(0.0, 0.6))
+    os.killpg(proc.pid, sig)
+    status, err, left = _finish(proc)
+    if status == 0:
+        pytest.skip("the sweep finished before the signal")
+    line = _one_line(err, status, sig)
+    assert f"sweep: interrupted by {signal.Signals(sig).name}" in line and left == []
 
 
 def test_sweep_parent_killed_leaves_no_worker(driver, tmp_path):

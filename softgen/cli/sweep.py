@@ -6,6 +6,7 @@ import math
 import sys
 from pathlib import Path
 
+from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.errors import SoftgenError
 from softgen.core.paths import output_dir
 
@@ -62,6 +63,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    """SIGINT/SIGTERM at any moment (also while the experiment loads): one line and
+    status 130/143; once samples run, :func:`~softgen.app.sweep.run_sweep` keeps the
+    journal consistent and says how many finished."""
+    with stopping():
+        try:
+            return _run(args)
+        except Stop as stop:
+            ignore_signals()
+            raise interrupted(stop.signum, f"sweep: interrupted by "
+                              f"{signal_name(stop.signum)} outside the sampling; the journal "
+                              "is as it was") from None
+
+
+def _run(args) -> int:
+    # Imported here: the sweep machinery pulls in numpy and the experiment registry,
+    # which `softgen --help` and the other verbs should not pay for.
     from softgen.app.sweep import SweepSpec, run_sweep
     from softgen.app.sweep.spec import check_size, max_samples, parse_vary
     from softgen.experiments.registry import experiment_ids
