@@ -160,8 +160,7 @@ def read_identification_log(path: str | Path, n: int, *,
         cols, source = tau_cols, "tau"
         if header and not all(c in header for c in tau_cols) and all(c in header for c in cur_cols):
             raise LogError(f"{path}: columns {', '.join(cur_cols)} are motor currents; give "
-                           "--torque-constant K_t [N m/A] (or log tau1..tau{n})".replace(
-                               "{n}", str(n)))
+                           f"--torque-constant K_t [N m/A] (or log tau1..tau{n})")
     t, Y, dt = read_log(path, q_cols + cols, min_rows=10)
     q, tau = Y[:, :n], Y[:, n:]
     if torque_constant is not None:
