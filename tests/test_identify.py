@@ -16,7 +16,7 @@ import pytest
 
 import softgen
 from softgen.app.identify import identify_model
-from softgen.app.identify.actuator import fit_mckibben, fit_sinh, identify_actuator, rmsre
+from softgen.app.identify.actuator import fit_mckibben, identify_actuator, rmsre, sinh_model
 from softgen.cli import main
 from softgen.modelfile.load import load_model
 from softgen.studies.excitation import (FourierTrajectory, IdentificationRegressor,
@@ -284,9 +284,13 @@ def test_sinh_fit_reproduces_the_thesis_k_and_a(tmp_path, seed):
     assert abs(k / THESIS_K - 1) < 0.02 and abs(a / THESIS_A - 1) < 0.01
     # RMSRE of the thesis's definition: ~ the 2 % relative noise put in.
     assert 1.0 < fit.rmsre_percent < 3.0
-    assert fit.rmsre_percent == pytest.approx(rmsre(tau_s, fit_sinh(
-        np.column_stack([q - qa, q - qb]), tau_s).values[0] * (
-        np.sinh(fit.values[1] * (q - qa)) + np.sinh(fit.values[1] * (q - qb))))[0])
+    # ... computed as defined: over the samples with |tau| >= 5 % of its maximum.
+    phi = np.column_stack([q - qa, q - qb])
+    keep = np.abs(tau_s) >= 0.05 * np.abs(tau_s).max()
+    rel = (tau_s - sinh_model(k, a, phi))[keep] / tau_s[keep]
+    assert fit.rmsre_percent == pytest.approx(100 * np.sqrt(np.mean(rel ** 2)))
+    assert fit.rmsre_samples == keep.sum()
+    assert rmsre(tau_s, sinh_model(k, a, phi))[0] == pytest.approx(fit.rmsre_percent)
 
 
 def test_sinh_fit_of_one_spring_by_deflection_and_cli(tmp_path, capsys):
@@ -361,3 +365,17 @@ def test_recovers_panda_parameters_within_3_sigma(tmp_path):
     # The model file is physically consistent (projected if need be) and loads.
     assert res.consistent, res.violations
     assert load_model(out).dof == 7
+
+
+def test_uncertain_damping_replaces_the_viscous_column(tmp_path):
+    text = ARM3.replace('inertia = 0.02\n', 'inertia = 0.02\ndamping = 0.1\n').replace(
+        'uncertain = ["mass", "com", "inertia"]', 'uncertain = ["mass", "com", "inertia", "damping"]')
+    path = tmp_path / "arm3d.toml"
+    path.write_text(text)
+    reg = IdentificationRegressor(load_model(path))
+    assert "d1" in reg.base_names and "fv1" not in reg.friction_names
+    assert {"fv2", "fv3", "fc1", "fc2", "fc3"} <= set(reg.friction_names)
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(200, 3))
+    Y, _ = reg.evaluate(x, rng.normal(size=(200, 3)), rng.normal(size=(200, 3)))
+    assert np.linalg.matrix_rank(Y.reshape(-1, reg.p)) == reg.p      # no repeated column

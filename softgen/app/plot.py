@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 
-from softgen.app.identify.modelfile import file_mode
 from softgen.core.errors import SoftgenError
 
 #: Most panels drawn when no signal is named (the first ones, in the file's order).
@@ -113,3 +112,13 @@ def plot_trace(path: str | Path, signals: list[str] | None = None, *,
         raise
     return out
 
+
+def file_mode() -> int:
+    """The mode a new file gets from the umask (mkstemp's temporary files are 0600).
+
+    The same as :func:`softgen.app.identify.modelfile.file_mode`, repeated so that
+    ``softgen plot`` does not import the identification package (CasADi, SciPy).
+    """
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask

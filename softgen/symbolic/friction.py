@@ -58,8 +58,3 @@ def friction_columns(qd: ca.SX, *, viscous: tuple[bool, ...] | bool = True,
             names.append(f"{kind}{i + 1}")
     return (ca.horzcat(*cols) if cols else ca.SX.zeros(n, 0)), names
 
-
-def friction_torque(qd, fv, fc, *, smoothing: float = 0.0):
-    """τ_f = f_v q̇ + f_c sign(q̇) element-wise (numbers or CasADi; same model as the columns)."""
-    s = ca.tanh(qd / smoothing) if smoothing > 0 else ca.sign(qd)
-    return fv * qd + fc * s

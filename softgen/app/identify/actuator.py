@@ -203,7 +203,7 @@ def fit_mckibben(p: np.ndarray, x: np.ndarray, force: np.ndarray, *,
     pred = mckibben_force(*vals, p, x)
     r, used = rmsre(force, pred, floor)
     return ActuatorFit("mckibben", ["gain", "nominal_length", "min_length"], vals, std,
-                       ["1/m (N per Pa per m^2)", "m", "m"], r, used, len(force),
+                       ["1", "m", "m"], r, used, len(force),
                        float(np.sqrt(np.mean((force - pred) ** 2))), columns or [])
 
 

@@ -160,8 +160,7 @@ def read_identification_log(path: str | Path, n: int, *,
         cols, source = tau_cols, "tau"
         if header and not all(c in header for c in tau_cols) and all(c in header for c in cur_cols):
             raise LogError(f"{path}: columns {', '.join(cur_cols)} are motor currents; give "
-                           "--torque-constant K_t [N m/A] (or log tau1..tau{n})".replace(
-                               "{n}", str(n)))
+                           f"--torque-constant K_t [N m/A] (or log tau1..tau{n})")
     t, Y, dt = read_log(path, q_cols + cols, min_rows=10)
     q, tau = Y[:, :n], Y[:, n:]
     if torque_constant is not None:
@@ -419,32 +418,40 @@ def consistent_parameters(reg: IdentificationRegressor, pi_hat: np.ndarray,
             th.append(U[tri])
         return np.concatenate(th + [np.array([values[k] for k in free])])
 
-    def p_of(theta):
-        p = np.empty(len(names))
-        for li, (fields, about_com) in enumerate(links):
-            U = np.zeros((4, 4))
-            U[tri] = theta[li * _FIELDS:(li + 1) * _FIELDS]
-            U[np.diag_indices(4)] = np.exp(np.diag(U))
-            m, c, I = _from_pseudo_inertia(U @ U.T, about_com)
-            vals = [m, *c, I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
-            for f, v in zip(fields, vals):
-                p[index[f]] = v
-        for j, k in enumerate(free):
-            p[index[k]] = theta[len(links) * _FIELDS + j]
-        return p
-
-    nominal = {**model.nominal}
-    th0 = theta_of(nominal)
+    th0 = theta_of(model.nominal)
+    # θ -> p as one CasADi expression: the residual and its exact Jacobian are then one
+    # Function call each (finite differences over ~10 n parameters were far too slow).
+    th = ca.SX.sym("theta", len(th0))
+    p_sx = [ca.SX(0)] * len(names)
+    for li, (fields, about_com) in enumerate(links):
+        U = ca.SX.zeros(4, 4)
+        for e, (r, c) in enumerate(zip(*tri)):
+            x = th[li * _FIELDS + e]
+            U[int(r), int(c)] = ca.exp(x) if r == c else x
+        J = ca.mtimes(U, U.T)
+        m, h, Sigma = J[3, 3], J[0:3, 3], J[0:3, 0:3]
+        com = h / m
+        I = ca.trace(Sigma) * ca.SX.eye(3) - Sigma
+        if about_com:
+            I = I - m * (ca.dot(com, com) * ca.SX.eye(3) - ca.mtimes(com, com.T))
+        vals = [m, com[0], com[1], com[2], I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2],
+                I[1, 2]]
+        for f_, v in zip(fields, vals):
+            p_sx[index[f_]] = v
+    for j, k in enumerate(free):
+        p_sx[index[k]] = th[len(links) * _FIELDS + j]
+    p_expr = ca.vertcat(*p_sx)
     f = reg.dyn.physical_to_base_fun
     sig = np.where(pi_std > 0, pi_std, np.maximum(np.abs(pi_hat), 1e-12) * 1e-6)
     lam = 1e-4
+    r_expr = ca.vertcat((f(p_expr) - ca.DM(pi_hat)) / ca.DM(sig), lam * (th - ca.DM(th0)))
+    F = ca.Function("projection", [th], [r_expr, ca.jacobian(r_expr, th), p_expr])
 
-    def resid(th):
-        return np.concatenate([(np.asarray(f(p_of(th))).ravel() - pi_hat) / sig,
-                               lam * (th - th0)])
-
-    out = least_squares(resid, th0, method="trf", x_scale="jac", max_nfev=200 * len(th0))
-    return {k: float(v) for k, v in zip(names, p_of(out.x))}
+    out = least_squares(lambda x: np.asarray(F(x)[0]).ravel(), th0,
+                        jac=lambda x: np.asarray(F(x)[1]), method="lm", xtol=1e-12,
+                        ftol=1e-12, gtol=1e-12, max_nfev=100 * len(th0))
+    p = np.asarray(F(out.x)[2]).ravel()
+    return {k: float(v) for k, v in zip(names, p)}
 
 
 def consistency_violations(model: RobotModel, values: dict[str, float]) -> list[str]:
