@@ -13,7 +13,7 @@ import pytest
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
 from softgen.estimation.offline import (estimation_result, offline_diagram,
                                         split_measurements)
-from softgen.estimation.indices import excitation_records
+from softgen.studies.indices import excitation_records
 from softgen.estimation.rls import ExcitationGate, excitation_std
 from softgen.experiments import ch6_electric_protocol as ch6
 from softgen.experiments import ch7_noninvasive_protocol as ch7

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softgen.estimation.indices import mse, msrep
+from softgen.studies.indices import mse, msrep
 from softgen.experiments.registry import Config, Experiment, Metrics, finding, num, times
 from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import save_traces

@@ -21,10 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
-from softgen.estimation.indices import error_records, estimation_figure, mse, msrep, window_mask
+from softgen.studies.indices import error_records, estimation_figure, mse, msrep, window_mask
 from softgen.estimation.offline import estimation_result, recorded
 from softgen.modelfile.load import load_model
-from softgen.plants.pneumatic import pendulum_diagram, sinusoid_reference_block, tracking_figure
+from softgen.plants.pneumatic import pendulum_diagram, sinusoid_reference_block
+from softgen.studies.figures_pneumatic import pendulum_tracking as tracking_figure
 from softgen.runtime.simulate import simulate, save_traces
 from softgen.symbolic.actuators import McKibbenPairs
 from softgen.symbolic.rigid import RigidDynamics

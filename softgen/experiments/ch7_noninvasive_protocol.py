@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from softgen.estimation.indices import mse, noise_records, window_mask
+from softgen.studies.indices import mse, noise_records, window_mask
 from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
 from softgen.plants.qbmove import Sinusoids
 from softgen.modelfile.load import load_model

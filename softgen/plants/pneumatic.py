@@ -70,14 +70,3 @@ def pendulum_diagram(name: str, dyn: RigidDynamics, act: McKibbenPairs, dt: floa
                       [("plant.q", "ctrl.q"), ("plant.qd", "ctrl.qd"), ("ctrl.p", "plant.p"),
                        ("plant.q", f"{estimator.name}.q"), ("ctrl.p", f"{estimator.name}.p")])
 
-
-def tracking_figure(path, t, q, q_d, sigma, sigma_d, p) -> None:
-    """Moved to :func:`softgen.studies.figures_pneumatic.pendulum_tracking`.
-
-    TEMPORARY: ``ch6_pneumatic_invasive`` (another engineer's file) still calls it from
-    here. The import is in the body so that plants never load matplotlib or studies at
-    import time; delete this function once that experiment imports the studies one.
-    """
-    from softgen.studies.figures_pneumatic import pendulum_tracking
-    pendulum_tracking(path, t, q, q_d, sigma, sigma_d, p)
-

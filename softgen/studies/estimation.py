@@ -17,7 +17,7 @@ from softgen.blocks import Block
 from softgen.core.config import Config
 from softgen.core.metrics import Metrics
 from softgen.estimation.estimators import EstimatorBase, EstimatorConfig, StiffnessEstimator
-from softgen.estimation.indices import (error_records, estimation_figure, excitation_records,
+from softgen.studies.indices import (error_records, estimation_figure, excitation_records,
                                         mse, msrep, phase_records, update_fraction_records,
                                         window_mask)
 from softgen.estimation.offline import EstimationResult, estimation_result, recorded
