@@ -22,7 +22,7 @@ import errno
 import os
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from softgen.core.errors import SoftgenError
 
@@ -62,7 +62,7 @@ def temp_path(path: Path) -> Path:
 
 
 @contextlib.contextmanager
-def replacing(path: str | os.PathLike, *, mode: int | None = None) -> Iterator[Path]:
+def replacing(path: str | os.PathLike[str], *, mode: int | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on a clean exit fsync it and rename it
     over ``path``. On any exception (also KeyboardInterrupt) the temporary file is
     removed and ``path`` is left as it was. ``OSError`` becomes :class:`OutputError`.
@@ -92,7 +92,8 @@ def replacing(path: str | os.PathLike, *, mode: int | None = None) -> Iterator[P
 
 
 @contextlib.contextmanager
-def atomic_open(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator[IO]:
+def atomic_open(path: str | os.PathLike[str], mode: str = "w",
+                **kwargs: Any) -> Iterator[IO[Any]]:
     """``open(path, mode)`` whose content replaces ``path`` only when the block ends
     without an exception (``mode`` "w" or "wb"; ``kwargs`` as for :func:`open`)."""
     if mode not in ("w", "wb"):
@@ -105,19 +106,19 @@ def atomic_open(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator[
             fh.flush()
 
 
-def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+def write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
     """Replace ``path`` atomically by ``data``; returns ``path``."""
     with atomic_open(path, "wb") as fh:
         fh.write(data)
     return Path(path)
 
 
-def write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> Path:
+def write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8") -> Path:
     """Replace ``path`` atomically by ``text``; returns ``path``."""
     return write_bytes(path, text.encode(encoding))
 
 
-def check_dir(directory: str | os.PathLike, what: str = "output directory") -> Path:
+def check_dir(directory: str | os.PathLike[str], what: str = "output directory") -> Path:
     """``directory`` (or its nearest existing ancestor, where it will be created) exists,
     is a directory and is writable; else one line naming it. Call before long work."""
     d = Path(directory)
