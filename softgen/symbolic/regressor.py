@@ -518,12 +518,11 @@ def numeric_base_parameters(delta_of_p: ca.SX, params: ca.SX, names: tuple[str, 
     (:func:`_exact`), into π(p). The result has the same columns, names and
     regrouping as the symbolic route on the same model.
     """
-    fact = _factor_entries(delta_of_p, params)
-    if not fact.columns:
+    # δ(p) are short polynomials: expanded by one walk of their expression graph
+    # (expand_in), not by differentiating each entry (_factor_entries).
+    A_all, all_mons, a0 = expand_in(delta_of_p, params)
+    if not all_mons:
         raise ModelError("the dynamics depend on none of the uncertain parameters")
-    A_all = np.array(ca.evalf(ca.horzcat(*fact.columns)))
-    a0 = (np.array(ca.evalf(fact.constant)).ravel() if fact.constant is not None
-          else np.zeros(delta_of_p.shape[0]))
     rng = np.random.default_rng(seed)
     n_out = max(1, n_inputs[0][0]) if n_inputs else 1
 
@@ -535,8 +534,8 @@ def numeric_base_parameters(delta_of_p: ca.SX, params: ca.SX, names: tuple[str, 
     live = [j for j in range(W_all.shape[1]) if np.max(np.abs(W_all[:, j])) > 1e-11 * scale]
     if not live:
         raise ModelError("the dynamics depend on none of the uncertain parameters")
-    order = sorted(live, key=lambda i: fact.monomials[i].order_key())
-    mons = [fact.monomials[i] for i in order]
+    order = sorted(live, key=lambda i: all_mons[i].order_key())
+    mons = [all_mons[i] for i in order]
     A = A_all[:, order]
     queue = [w[:, order] for w in first]
 
