@@ -80,7 +80,7 @@ def test_regrouping_leaves_tau_unchanged(tmp_path, name):
 def test_planar_regrouping_is_the_classical_closed_form():
     """Planar revolute chain: m_j goes into the link before it, MXR_j = MX_j + l_j M_{j+1}
     and ZZR_j = ZZ_j + l_j² M_{j+1} with M_{j+1} = m_{j+1} + ... + m_n (Khalil and
-    Dombre 2002, section 14.4.2); MY and the last link's parameters are untouched."""
+    Dombre 2002, base inertial parameters); MY and the last link's parameters are untouched."""
     model = _all_uncertain(chain_model(5))
     n = model.dof
     values, p = symbolic_values(model)

@@ -2,10 +2,10 @@
 
 Gautier and Khalil (1990), "Direct calculation of minimum set of inertial
 parameters of serial robots" (IEEE Trans. Robot. Autom. 6(3)), and Khalil and
-Dombre, *Modeling, Identification and Control of Robots* (2002), section 14.4:
-some inertial parameters of link j never act on their own, only together with
-those of the link before it, and are *regrouped* into it. Stated without
-Denavit–Hartenberg frames:
+Dombre, *Modeling, Identification and Control of Robots* (2002), the chapter on
+the base inertial parameters: some inertial parameters of link j never act on
+their own, only together with those of the link before it, and are *regrouped*
+into it. Stated without Denavit–Hartenberg frames:
 
 Let link j hang from its parent by a joint with motion subspace S (a revolute
 joint rotates about the unit axis a through the joint origin, S = (a, 0); a

@@ -110,8 +110,8 @@ class RigidDynamics(BaseParameterAPI):
     base_method
         ``"auto"`` (default), ``"numeric"``, ``"regrouped"`` or ``"symbolic"``: see below.
 
-    Base parameters come from numerical identifiability (Gautier's QR, seconds even
-    for 40 links; :func:`~softgen.symbolic.regressor.numeric_base_parameters`)
+    Base parameters come from numerical identifiability (Gautier's ordered rank
+    scan, seconds even for 40 links; :func:`~softgen.symbolic.regressor.numeric_base_parameters`)
     whenever the dynamics are linear in per-link inertial parameters whose entries
     are polynomials of the uncertain ones, i.e. no uncertain parameter moves a joint
     (lengths that place the next joint, offsets, g); otherwise from the exact
