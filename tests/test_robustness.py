@@ -114,9 +114,17 @@ def test_findings_follow_the_metrics():
 
 def test_runaways_are_stopped_and_counted():
     """A sample whose link leaves the reference by more than stop_error ends there and is
-    counted as a runaway (a ±30 % mismatch of joint 1's muscle lengths runs away)."""
+    counted as a runaway (a ±30 % mismatch of joint 1's muscle lengths runs away).
+
+    Whether and when a mismatched sample crosses the threshold is chaotic: a 1e-12 change
+    of one scale, or the round-off of a different but equal expression of the dynamics,
+    moves the stop time or decides whether it stops (the old scales 1, 1, 1.3, 0.7 with
+    1.0 rad stopped or not by such changes). This sample and threshold stopped within the
+    run in 19 of 21 neighbours (third scale ±1e-6) before and after the recursive τ was
+    re-expressed (issue 25)."""
     from softgen.studies.pneumatic_robustness import classify
-    c = ch10.Ch10AdaptiveConfig(plant_actuator_scale=(1, 1, 1.3, 0.7, 1, 1, 1, 1), stop_error=1.0)
+    c = ch10.Ch10AdaptiveConfig(plant_actuator_scale=(1.3, 0.7, 1.3, 0.7, 1, 1, 1, 1),
+                                stop_error=0.8)
     m = ch10.case(c).flat()
     assert m["stopped_at"] is not None and 0 < m["stopped_at"] < 350
     assert "position_rms_error_joint1_phase3" not in m
