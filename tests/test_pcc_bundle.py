@@ -28,8 +28,12 @@ def _inputs(f, rng):
         v = rng.uniform(-1, 1, shape)
         if name in ("dt",):
             v = np.full(shape, 1e-3)
-        elif name in ("lam", "kd", "kpi", "p"):      # gains (p: a diagram's parameters)
+        elif name in ("lam", "kd", "kpi"):
             v = np.abs(v) + 0.1
+        elif name == "p":           # a closed-loop diagram's parameters: its gains
+            v = np.abs(v) + 0.5
+        elif name in ("x0", "e"):   # a diagram loop's start and its external inputs:
+            v = 0.01 * v            # small, so that its 1000 samples stay finite
         elif name == "s":
             v = np.full(shape, 0.7)
         args[name] = v
