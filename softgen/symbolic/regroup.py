@@ -140,8 +140,13 @@ def regroup(model: RobotModel, values, deltas: list[dict], fields: tuple[str, ..
             x.pop(elim)
         out[j] = x
         if j > 0:
-            # The image in the parent at q_j = 0 (by invariance, at every q_j).
-            incoming = to_parent(pushed, joints[j].E, joints[j].p)
+            # The image in the parent at q_j = 0 (by invariance, at every q_j). The
+            # recursion's joint transforms are between joint-aligned frames (link frame
+            # times Q, softgen.symbolic.recursive): the parameters here are in the link
+            # frames, so the transform is taken back to them, Q_parent E Qᵀ and Q_parent p.
+            J, Qp = joints[j], ca.DM(joints[j - 1].Q)
+            E = ca.mtimes(ca.mtimes(Qp, J.E), ca.DM(J.Q).T)
+            incoming = to_parent(pushed, E, ca.mtimes(Qp, J.p))
         else:
             incoming = None     # pushed into the fixed base: acts on nothing
     return out
