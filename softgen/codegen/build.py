@@ -148,6 +148,13 @@ def check_source(bundle: Path, manifest: dict) -> Path:
     if digest != manifest.get("source_sha256"):
         raise BundleError(f"{c_file}: does not match manifest.json (stale or edited); "
                           f"run `softgen generate {manifest['model']}`")
+    if "header_sha256" in manifest:
+        h_file = c_file.with_suffix(".h")
+        if not h_file.is_file():
+            raise BundleError(f"{h_file}: missing; run `softgen generate {manifest['model']}`")
+        if hashlib.sha256(h_file.read_bytes()).hexdigest() != manifest["header_sha256"]:
+            raise BundleError(f"{h_file}: does not match manifest.json (stale or edited); "
+                              f"run `softgen generate {manifest['model']}`")
     expected = library_name(manifest["model"], c_src, manifest.get("optimization", "-O3"))
     if manifest.get("library") != expected:
         raise BundleError(f"{Path(bundle) / 'manifest.json'}: library: expected {expected!r} "

@@ -113,6 +113,9 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         "softgen_codegen_version": CODEGEN_VERSION,
         "library": library_name(spec.name, c_src, spec.optimization),
         "source_sha256": hashlib.sha256(c_src).hexdigest(),
+        # The header too: an edited declaration (one double made float) would compile
+        # against the library and silently corrupt every call (issue 23).
+        "header_sha256": hashlib.sha256(h_src).hexdigest(),
         "parameters": spec.parameters,
         "functions": {
             g.function.name(): {**signature(g.function), "doc": g.doc,

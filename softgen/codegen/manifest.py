@@ -161,6 +161,8 @@ def validate_manifest(manifest: Any, path: Path | str = "manifest.json") -> dict
         raise c.fail("library", f"expected build/lib{model}_<16 hex digits>.so, "
                      f"got {_short(m['library'])}")
     c.string(c.get(m, "source_sha256", ""), "source_sha256", _HEX64, "64 hexadecimal digits")
+    if "header_sha256" in m:
+        c.string(m["header_sha256"], "header_sha256", _HEX64, "64 hexadecimal digits")
 
     params = c.table(c.get(m, "parameters", ""), "parameters")
     names = c.strings(c.get(params, "names", "parameters."), "parameters.names")
