@@ -22,13 +22,17 @@ def add_arguments(p) -> None:
 
 
 def _generate_one(name: str, out: Path, build: bool) -> str:
-    """Generate (and compile) one bundle; the line ``generate`` prints for it."""
+    """Generate (and compile) one bundle; the line ``generate`` prints for it. Each phase
+    (derive and write, compile) is announced as it starts, from whichever worker runs
+    it, so a long compile is never silent."""
     from softgen.bundles.bundle import generate
     from softgen.codegen.build import ensure_library
     t0 = time.perf_counter()
+    print(f"{name}: deriving and writing C ...", flush=True)
     bundle = generate(name, out)
     msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
     if build:
+        print(f"{name}: compiling ({time.perf_counter() - t0:.1f} s elapsed) ...", flush=True)
         lib, secs, repaired = ensure_library(bundle)
         msg += (f", {'rebuilt' if repaired else 'built' if secs else 'cached'} {lib.name}"
                 + (f" in {secs:.2f} s" if secs else "")
@@ -37,7 +41,7 @@ def _generate_one(name: str, out: Path, build: bool) -> str:
 
 
 def run(args) -> int:
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
     from softgen.bundles.bundle import GENERATED_DIR
     from softgen.codegen.build import find_compiler
@@ -56,10 +60,10 @@ def run(args) -> int:
         for name in names:
             print(_generate_one(name, out, build), flush=True)
         return 0
-    # Bundles are independent: derive and compile them side by side. Errors surface in
-    # model order, as in a sequential run.
+    # Bundles are independent: derive and compile them side by side, each reported as it
+    # finishes (one slow compile holds nothing back); the first error stops the run.
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         futures = [pool.submit(_generate_one, name, out, build) for name in names]
-        for fut in futures:
+        for fut in as_completed(futures):
             print(fut.result(), flush=True)
     return 0
