@@ -196,7 +196,7 @@ def test_typed_wrappers_equal_casadi_on_random_inputs(built, tmp_path):
     got = np.array([float(v) for v in r.stdout.split()])
     assert got.shape == (len(expected),)
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12)
-    assert "all 26 function wrappers" in _run([res.binary, "--check"]).stdout
+    assert "all 29 function wrappers" in _run([res.binary, "--check"]).stdout
 
 
 @pytest.mark.compiler
@@ -206,9 +206,9 @@ def test_wrappers_refuse_mismatched_buffers_and_shapes(built, tmp_path):
     res = built["planar_2link"]
     f = "planar_2link_slotine_li_loop"
     for case, (name, old, new, message) in {
-        "work": ("planar_2link.h", f"#define {f}_SZ_W 30097", f"#define {f}_SZ_W 30000",
+        "work": ("planar_2link.h", f"#define {f}_SZ_W 47239", f"#define {f}_SZ_W 30000",
                  "work buffers too small for the generated function"),
-        "shape": ("planar_2link_api.c", f"{f}_shape_in[] = {{4, 1,", f"{f}_shape_in[] = {{1, 4,",
+        "shape": ("planar_2link_api.c", f"{f}_shape_in[] = {{9, 1,", f"{f}_shape_in[] = {{1, 9,",
                   "an input or output is not dense of the expected shape"),
     }.items():
         d = tmp_path / case
