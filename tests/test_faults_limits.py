@@ -159,3 +159,23 @@ def test_dask_submits_in_bounded_batches(monkeypatch):
     finally:
         it.close()
     assert sorted([first[0]] + [i for i, _ in rest]) == list(range(60))
+
+
+@pytest.mark.parametrize("verb", ["generate", "info"])
+@pytest.mark.parametrize("make, n, words", [(_planar_chain, 60, "60 links"),
+                                            (_pcc, 40, "40 segments")])
+def test_generate_and_info_refuse_huge_models_in_one_line(tmp_path, make, n, words, verb,
+                                                          capsys, monkeypatch):
+    """The size check guards the bundle assembly itself, so every verb that derives gets
+    it: status 2 and one line in under 5 s, nothing written."""
+    from softgen.cli import main
+    monkeypatch.delenv(ENV_VAR, raising=False)
+    path = make(tmp_path, n)
+    out = tmp_path / "gen"
+    t0 = time.perf_counter()
+    args = [verb, str(path)] + (["--out", str(out), "--no-build"] if verb == "generate" else [])
+    assert main(args) == 2
+    assert time.perf_counter() - t0 < 5
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0] and ENV_VAR in err[0], err
+    assert not out.exists()

@@ -30,6 +30,7 @@ from softgen.modelfile.soft import SoftModel
 from softgen.runtime.library import Bundle
 from softgen.symbolic.pcc import SoftDynamics
 from softgen.symbolic.rigid import RigidDynamics
+from softgen.modelfile.limits import check_expression_size
 
 
 def capabilities(model) -> list[tuple[Capability, str | None]]:
@@ -46,6 +47,9 @@ def bundle_spec(model: RobotModel | SoftModel,
     tests) ask.
     """
     options.check()
+    # Refuse, in microseconds and one line, a model whose derivation would run for many
+    # minutes and gigabytes (a 60-link chain, a 40-segment PCC body; issue 23).
+    check_expression_size(model)
     if isinstance(model, SoftModel):
         return _cached_soft_spec(model.source_text(), model.path, options, model)
     return _assemble(model, options)
