@@ -26,7 +26,9 @@ def code_hash() -> str:
     directories (``softgen/...``, ``models/...``, ``generated/...``), never by where the
     checkout or install lives, so two copies of the same code hash alike.
     """
-    h = hashlib.sha256(f"casadi={casadi.__version__} numpy={numpy.__version__}\n".encode())
+    # casadi's stubs omit __version__; the attribute exists at run time.
+    casadi_version = getattr(casadi, "__version__")  # noqa: B009
+    h = hashlib.sha256(f"casadi={casadi_version} numpy={numpy.__version__}\n".encode())
     named = [(f"softgen/{f.relative_to(_PACKAGE)}", f) for f in sorted(_PACKAGE.rglob("*.py"))]
     named += [(f"models/{f.name}", f)
               for f in sorted(f for s in MODEL_SUFFIXES for f in MODELS_DIR.glob(f"*{s}"))]
