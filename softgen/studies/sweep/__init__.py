@@ -38,7 +38,7 @@ from softgen.core.errors import SoftgenError
 from softgen.core.provenance import code_hash
 from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.studies.sweep.backends import DASK_HINT, dask_available, default_workers, run_tasks  # noqa: F401
-from softgen.studies.sweep.evaluate import SweepTarget, base_config
+from softgen.studies.sweep.evaluate import SweepTarget, Target, base_config
 from softgen.studies.sweep.results import plot, summarise, write_summary, write_table
 from softgen.studies.sweep.spec import Vary, flat_inputs, input_columns, max_samples, parse_vary, plan
 
@@ -297,7 +297,8 @@ def _run_sweep(spec: SweepSpec, out: Path, exp: SweepTarget, *, workers: int | N
                            "--scheduler the sweep runs on a local process pool")
     check_dir(out, "sweep: --out")           # one line naming the path, before any work
     varies, fixed = spec.parsed()
-    config = base_config(exp, spec.quick, fixed)
+    target = Target.of(exp)                  # what each task sends (it must pickle)
+    config = base_config(target, spec.quick, fixed)
     samples = plan(varies, config, samples=spec.samples, seed=spec.seed)
     for s in samples[:1]:                    # every sample's config must check; the first
         try:                                 # tells, before any worker starts
@@ -313,7 +314,7 @@ def _run_sweep(spec: SweepSpec, out: Path, exp: SweepTarget, *, workers: int | N
     show = sys.stderr.isatty() if progress is None else progress
     t0 = time.perf_counter()
     # Tasks are made as the backends take them: a long sweep holds no second copy.
-    tasks = ((s.index, (exp, spec.quick, fixed, s.overrides, spec.metrics))
+    tasks = ((s.index, (target, spec.quick, fixed, s.overrides, spec.metrics))
              for s in todo)
     by_index = {s.index: s for s in samples}
     failed = 0

@@ -4,10 +4,8 @@
 overrides, the metric patterns) and returns plain data, so that it pickles for any
 backend and its result depends on its arguments alone. The engine knows no registry:
 whoever starts the sweep (``softgen sweep``, an experiment made of sweeps) looks the
-experiment up and passes it in. An experiment is a frozen dataclass of module-level
-functions and a typed config, so it pickles with its functions by reference (module
-and name): a pool or Dask worker imports the experiment's module, never this package's
-caller.
+experiment up and passes it in; the workers get its :class:`Target` (id, config, quick
+overrides, ``run`` and ``case``), which pickles with the functions by reference.
 """
 from __future__ import annotations
 
@@ -17,6 +15,7 @@ import tempfile
 import time
 import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -38,6 +37,29 @@ class SweepTarget(Protocol):
     quick: dict
     run: Callable[[Config, Path], Any]
     case: Callable[[Config], Any] | None
+
+
+@dataclass(frozen=True)
+class Target:
+    """The part of an experiment that a worker needs, sent with every sample.
+
+    Not the whole experiment: its ``findings``, ``thesis`` and ``discussion`` are no
+    business of a sample, and a ``findings`` made by a factory (a closure, as in
+    ch11-electric-*) does not pickle. ``run`` and ``case`` are module-level functions,
+    so they pickle by reference (module and name): the worker imports the experiment's
+    module, never the caller's.
+    """
+
+    id: str
+    config: Config | dict
+    quick: dict
+    run: Callable[[Config, Path], Any]
+    case: Callable[[Config], Any] | None
+
+    @classmethod
+    def of(cls, exp: SweepTarget) -> Target:
+        return cls(id=exp.id, config=exp.config, quick=dict(exp.quick), run=exp.run,
+                   case=exp.case)
 
 
 def base_config(exp: SweepTarget, quick: bool, fixed: dict | None = None) -> Config:
