@@ -108,7 +108,7 @@ def _die(*args):
 
 
 def test_pool_submits_in_bounded_batches(monkeypatch):
-    from softgen.app.sweep import backends
+    from softgen.studies.sweep import backends
     monkeypatch.setattr(backends, "evaluate", _ok)      # forked workers inherit it
     taken = []
 
@@ -126,7 +126,7 @@ def test_pool_submits_in_bounded_batches(monkeypatch):
 
 def test_dead_pool_worker_is_one_line(monkeypatch):
     """Before: a BrokenProcessPool traceback."""
-    from softgen.app.sweep import backends
+    from softgen.studies.sweep import backends
     monkeypatch.setattr(backends, "evaluate", _die)
     with pytest.raises(SoftgenError, match="a worker process died") as exc:
         list(backends.run_tasks([(i, ()) for i in range(4)], workers=2, scheduler=None))
@@ -137,7 +137,7 @@ def test_dead_pool_worker_is_one_line(monkeypatch):
 def test_dask_submits_in_bounded_batches(monkeypatch):
     """Before: 100,000 samples submitted up front stalled the scheduler."""
     distributed = pytest.importorskip("dask.distributed")
-    from softgen.app.sweep import backends
+    from softgen.studies.sweep import backends
     real = distributed.LocalCluster
 
     def in_process(**kw):                 # threads in this process see the patched evaluate

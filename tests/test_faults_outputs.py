@@ -209,16 +209,15 @@ TOY = registry.Experiment(id="toy-out", title="toy", section="softgen", run=None
 
 
 @pytest.fixture
-def toy(monkeypatch):
-    real = registry.get
-    monkeypatch.setattr(registry, "get", lambda i: TOY if i == "toy-out" else real(i))
+def toy():
+    """The toy experiment (``_sweep`` passes it to run_sweep: the engine has no registry)."""
     return TOY
 
 
 def _sweep(out, **kw):
-    from softgen.app.sweep import SweepSpec, run_sweep
+    from softgen.studies.sweep import SweepSpec, run_sweep
     spec = SweepSpec(experiment="toy-out", vary=("a=uniform(0, 2)",), samples=6, seed=3)
-    return run_sweep(spec, out, workers=1, progress=False, **kw)
+    return run_sweep(spec, out, experiment=TOY, workers=1, progress=False, **kw)
 
 
 @pytest.mark.parametrize("name", ["summary.csv", "samples.csv"])

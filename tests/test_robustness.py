@@ -13,7 +13,7 @@ from softgen.experiments import ch10_pneumatic_adaptive as ch10
 from softgen.experiments.ext_robustness import EXPERIMENT, RobustnessConfig, studies
 from softgen.modelfile.load import load_model
 from softgen.studies.pneumatic import plant_values
-from softgen.app.sweep.spec import parse_vary
+from softgen.studies.sweep.spec import parse_vary
 
 
 @pytest.fixture(scope="module")

@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
+import pickle
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,9 +14,11 @@ from softgen.core.config import Config
 from softgen.core.errors import SoftgenError
 from softgen.experiments import registry
 from softgen.core.metrics import Metrics
+from softgen.core.provenance import code_hash
 from softgen.runtime.simulate import DivergenceError
-from softgen.app.sweep import SweepSpec, dask_available, load_rows, run_sweep
-from softgen.app.sweep.spec import parse_vary, plan
+from softgen.studies.sweep import SweepSpec, dask_available, load_rows, run_sweep
+from softgen.studies.sweep.evaluate import Target
+from softgen.studies.sweep.spec import parse_vary, plan
 
 
 @dataclass(frozen=True)
@@ -45,9 +49,8 @@ TOY = registry.Experiment(id="toy", title="toy", section="softgen", run=None,
 
 
 @pytest.fixture
-def toy(monkeypatch):
-    real = registry.get
-    monkeypatch.setattr(registry, "get", lambda i: TOY if i == "toy" else real(i))
+def toy():
+    """The toy experiment, passed to run_sweep itself (the engine knows no registry)."""
     CALLS.clear()
     return TOY
 
@@ -125,7 +128,7 @@ def _spec(**kw):
 
 
 def test_serial_sweep_writes_a_tidy_table_and_quantiles(toy, tmp_path):
-    res = run_sweep(_spec(), tmp_path / "s", workers=1, progress=False)
+    res = run_sweep(_spec(), tmp_path / "s", workers=1, progress=False, experiment=TOY)
     rows = list(csv.DictReader((tmp_path / "s" / "samples.csv").open()))
     assert len(rows) == 6 and [int(r["sample"]) for r in rows] == list(range(6))
     for r in rows:
@@ -145,46 +148,46 @@ def test_serial_sweep_writes_a_tidy_table_and_quantiles(toy, tmp_path):
 
 def test_failed_and_diverged_samples_are_rows_not_crashes(toy, tmp_path):
     res = run_sweep(SweepSpec(experiment="toy", vary=("a=grid(1, 9)", "mode=choice(fine)"),
-                              samples=1), tmp_path / "f", workers=1, progress=False)
+                              samples=1), tmp_path / "f", workers=1, progress=False, experiment=TOY)
     assert [r["status"] for r in res.rows] == ["ok", "diverged"]
     assert "plant.q is not finite" in res.rows[1]["error"]
     res = run_sweep(SweepSpec(experiment="toy", vary=("mode=grid(fine, boom)",), samples=1),
-                    tmp_path / "g", workers=1, progress=False)
+                    tmp_path / "g", workers=1, progress=False, experiment=TOY)
     assert res.rows[1]["status"] == "error"
     assert res.rows[1]["error"] == "RuntimeError: toy failure"
 
 
 def test_interrupted_sweep_resumes_only_missing_samples(toy, tmp_path):
     out = tmp_path / "r"
-    full = run_sweep(_spec(), out, workers=1, progress=False)
+    full = run_sweep(_spec(), out, workers=1, progress=False, experiment=TOY)
     journal = (out / "samples.jsonl").read_text().splitlines()
     # As if killed after two samples, in the middle of writing the third line.
     (out / "samples.jsonl").write_text("\n".join(journal[:2]) + "\n" + journal[2][:17])
     (out / "samples.csv").unlink()
     CALLS.clear()
-    again = run_sweep(_spec(), out, workers=1, resume=True, progress=False)
+    again = run_sweep(_spec(), out, workers=1, resume=True, progress=False, experiment=TOY)
     assert again.ran == 4 and len(CALLS) == 4
     key = lambda r: (r["index"], r["inputs"], r["metrics"])  # noqa: E731
     assert [key(r) for r in again.rows] == [key(r) for r in full.rows]
     assert sorted(load_rows(out)) == list(range(6))
     # a finished sweep resumed runs nothing
     CALLS.clear()
-    assert run_sweep(_spec(), out, workers=1, resume=True, progress=False).ran == 0 and not CALLS
+    assert run_sweep(_spec(), out, workers=1, resume=True, progress=False, experiment=TOY).ran == 0 and not CALLS
 
 
 def test_output_directory_rules(toy, tmp_path):
     out = tmp_path / "o"
-    run_sweep(_spec(samples=1), out, workers=1, progress=False)
+    run_sweep(_spec(samples=1), out, workers=1, progress=False, experiment=TOY)
     with pytest.raises(SoftgenError, match="already holds a sweep; --resume"):
-        run_sweep(_spec(samples=1), out, workers=1, progress=False)
+        run_sweep(_spec(samples=1), out, workers=1, progress=False, experiment=TOY)
     with pytest.raises(SoftgenError, match="another spec"):
-        run_sweep(_spec(samples=2), out, workers=1, resume=True, progress=False)
-    assert run_sweep(_spec(samples=2), out, workers=1, force=True, progress=False).ran == 4
+        run_sweep(_spec(samples=2), out, workers=1, resume=True, progress=False, experiment=TOY)
+    assert run_sweep(_spec(samples=2), out, workers=1, force=True, progress=False, experiment=TOY).ran == 4
 
 
 def test_quick_and_fixed_values_reach_the_config(toy, tmp_path):
     res = run_sweep(SweepSpec(experiment="toy", vary=("a=grid(2)", "b=(2.0, 2.0, 2.0)"),
-                              quick=True), tmp_path / "q", workers=1, progress=False)
+                              quick=True), tmp_path / "q", workers=1, progress=False, experiment=TOY)
     assert CALLS[-1]["n"] == 1 and CALLS[-1]["b"] == (2.0, 2.0, 2.0)
     assert res.rows[0]["metrics"]["n_times_a"] == 2.0
 
@@ -192,20 +195,24 @@ def test_quick_and_fixed_values_reach_the_config(toy, tmp_path):
 def test_bad_values_fail_before_running(toy, tmp_path):
     with pytest.raises(SoftgenError, match="ToyConfig.n: expected int"):
         run_sweep(SweepSpec(experiment="toy", vary=("n=grid(1.5)",)), tmp_path / "b",
-                  workers=1, progress=False)
+                  workers=1, progress=False, experiment=TOY)
     assert not CALLS
 
 
 def test_scheduler_without_dask_is_one_clear_line(toy, tmp_path, monkeypatch):
-    import softgen.app.sweep as sw
+    import softgen.studies.sweep as sw
     monkeypatch.setattr(sw, "dask_available", lambda: False)
     with pytest.raises(SoftgenError) as e:
-        run_sweep(_spec(), tmp_path / "d", scheduler="local", progress=False)
+        run_sweep(_spec(), tmp_path / "d", scheduler="local", progress=False, experiment=TOY)
     msg = str(e.value)
     assert "softgen[dask]" in msg and "process pool" in msg and "\n" not in msg
 
 
 # -- the same metrics on every backend (a real experiment: workers import it themselves) -------
+
+def _real_experiment():
+    return registry.get("ch10-pneumatic-adaptive")
+
 
 def _real_spec():
     return SweepSpec(experiment="ch10-pneumatic-adaptive", samples=2, seed=3,
@@ -216,15 +223,15 @@ def _real_spec():
 
 @pytest.mark.compiler
 def test_process_pool_and_dask_give_identical_per_sample_metrics(tmp_path):
-    serial = run_sweep(_real_spec(), tmp_path / "serial", workers=1, progress=False)
-    pool = run_sweep(_real_spec(), tmp_path / "pool", workers=2, progress=False)
+    serial = run_sweep(_real_spec(), tmp_path / "serial", workers=1, progress=False, experiment=_real_experiment())
+    pool = run_sweep(_real_spec(), tmp_path / "pool", workers=2, progress=False, experiment=_real_experiment())
     key = lambda r: (r["index"], r["inputs"], r["status"], r["metrics"])  # noqa: E731
     assert [key(r) for r in serial.rows] == [key(r) for r in pool.rows]
     assert all(r["status"] == "ok" and len(r["metrics"]) == 4 for r in serial.rows)
     if not dask_available():
         pytest.skip("dask.distributed not installed (pip install 'softgen[dask]')")
     dask = run_sweep(_real_spec(), tmp_path / "dask", workers=2, scheduler="local",
-                     progress=False)
+                     progress=False, experiment=_real_experiment())
     assert [key(r) for r in dask.rows] == [key(r) for r in serial.rows]
 
 
@@ -237,3 +244,47 @@ def test_cli_refuses_bad_flags_in_one_line(capsys):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert words in err and len(err.splitlines()) == 1
+
+
+# -- the engine takes the experiment object (issue 21) ------------------------------------------
+
+def test_spec_label_must_name_the_experiment_passed(toy, tmp_path):
+    with pytest.raises(SoftgenError) as e:
+        run_sweep(_spec(experiment="other"), tmp_path / "x", experiment=TOY, workers=1,
+                  progress=False)
+    assert "'other'" in str(e.value) and "'toy'" in str(e.value) and "\n" not in str(e.value)
+    assert not CALLS and not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("exp_id", registry.experiment_ids())
+def test_what_workers_get_pickles_by_reference(exp_id):
+    """What pool and Dask workers receive for every registered experiment: the same
+    functions (module and name), the same config."""
+    exp = registry.get(exp_id)
+    back = pickle.loads(pickle.dumps(Target.of(exp)))
+    assert back == Target.of(exp) and back.run is exp.run and back.case is exp.case
+
+
+def test_an_experiment_that_does_not_pickle_whole_still_sweeps_on_a_pool(tmp_path):
+    """ch11-electric-*'s findings are closures: the workers must not need them."""
+    def findings(metrics, config):              # a local function: does not pickle
+        return []
+    exp = dataclasses.replace(TOY, findings=findings)
+    with pytest.raises((AttributeError, pickle.PicklingError)):
+        pickle.dumps(exp)
+    serial = run_sweep(_spec(), tmp_path / "s", experiment=exp, workers=1, progress=False)
+    pool = run_sweep(_spec(), tmp_path / "p", experiment=exp, workers=2, progress=False)
+    key = lambda r: (r["index"], r["inputs"], r["status"], r["metrics"])  # noqa: E731
+    assert [key(r) for r in pool.rows] == [key(r) for r in serial.rows]
+    assert all(r["status"] == "ok" for r in pool.rows)
+
+
+def test_sweep_json_identity_names_the_experiment_by_id(toy, tmp_path):
+    """The identity --resume compares is plain data: the id, the config and the code
+    hash, nothing about where the experiment or the engine lives."""
+    run_sweep(_spec(samples=1), tmp_path / "i", experiment=TOY, workers=1, progress=False)
+    meta = json.loads((tmp_path / "i" / "sweep.json").read_text())
+    assert sorted(meta) == ["code", "config", "spec"]
+    assert meta["spec"]["experiment"] == "toy"
+    assert meta["config"] == json.loads(json.dumps(ToyConfig().to_dict()))
+    assert meta["code"] == code_hash()

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping
+from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.errors import NonFiniteError, SoftgenError
 from softgen.estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator

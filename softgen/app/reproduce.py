@@ -32,10 +32,9 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import TextIO
 
-from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping, worker_init
+from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping, worker_init
 from softgen.core.atomic import check_dir, output_error, write_text
-from softgen.core.paths import GENERATED_DIR, MODELS_DIR
-from softgen.modelfile.load import MODEL_SUFFIXES
+from softgen.core.provenance import code_hash
 from softgen.app.report import write_report
 from softgen.runtime.simulate import progress_context, set_full_traces, set_progress
 from softgen.core.config import Config
@@ -44,24 +43,6 @@ from softgen.core.metrics import VERDICTS, Metrics, finding
 
 #: Seconds to wait for killed workers before giving up on them.
 STOP_GRACE = 10.0
-
-_PACKAGE = Path(__file__).resolve().parents[1]
-
-
-def code_hash() -> str:
-    """sha256 of softgen's sources, the model files and the generated manifests."""
-    import casadi
-    import numpy
-    h = hashlib.sha256(f"casadi={casadi.__version__} numpy={numpy.__version__}\n".encode())
-    named = [(f"softgen/{f.relative_to(_PACKAGE)}", f) for f in sorted(_PACKAGE.rglob("*.py"))]
-    named += [(f"models/{f.name}", f)
-              for f in sorted(f for s in MODEL_SUFFIXES for f in MODELS_DIR.glob(f"*{s}"))]
-    named += [(f"generated/{f.parent.name}/{f.name}", f)
-              for f in sorted(GENERATED_DIR.glob("*/manifest.json"))]
-    for name, f in named:
-        h.update(name.encode() + b"\0")
-        h.update(f.read_bytes() + b"\0")
-    return h.hexdigest()
 
 
 def run_hash(exp_id: str, config: dict, quick: bool, code: str) -> str:
@@ -202,7 +183,7 @@ def _safe_run(exp_id: str, out_root: Path, quick: bool, code: str | None = None)
 def _worker_init(show_progress: bool | None = None, full_traces: bool = False,
                  parent: int | None = None) -> None:
     """Workers leave SIGINT and SIGTERM to the main process, which stops them, and end
-    when it dies, even by SIGKILL (:func:`softgen.app.stop.watch_parent`)."""
+    when it dies, even by SIGKILL (:func:`softgen.core.stop.watch_parent`)."""
     worker_init(os.getppid() if parent is None else parent)
     set_progress(show_progress)
     set_full_traces(full_traces)

@@ -5,7 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping
+from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.errors import ImplausibleError, SoftgenError
 
 HELP = "joint stiffness from a CSV measurement log (thesis chapters 6, 7)"

@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 
 from softgen.app.report import write_report
-from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping
+from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.errors import SoftgenError
 from softgen.core.paths import output_dir
 

@@ -1,4 +1,5 @@
-"""``softgen sweep``: arguments and entry point (the work is in :mod:`softgen.app.sweep`)."""
+"""``softgen sweep``: arguments and entry point (the work is in :mod:`softgen.studies.sweep`,
+the experiment looked up by :mod:`softgen.app.sweep`)."""
 from __future__ import annotations
 
 import argparse
@@ -6,7 +7,7 @@ import math
 import sys
 from pathlib import Path
 
-from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping
+from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.errors import SoftgenError
 from softgen.core.paths import output_dir
 
@@ -64,7 +65,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args) -> int:
     """SIGINT/SIGTERM at any moment (also while the experiment loads): one line and
-    status 130/143; once samples run, :func:`~softgen.app.sweep.run_sweep` keeps the
+    status 130/143; once samples run, :func:`~softgen.studies.sweep.run_sweep` keeps the
     journal consistent and says how many finished."""
     with stopping():
         try:
@@ -77,14 +78,12 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    # Imported here: the sweep machinery pulls in numpy and the experiment registry,
-    # which `softgen --help` and the other verbs should not pay for.
-    from softgen.app.sweep import SweepSpec, run_sweep
-    from softgen.app.sweep.spec import check_size, max_samples, parse_vary
-    from softgen.experiments.registry import experiment_ids
-    if args.experiment not in experiment_ids():
-        raise SoftgenError(f"sweep: unknown experiment {args.experiment!r}: expected one of "
-                           f"{', '.join(experiment_ids())}")
+    # Imported here: the sweep machinery pulls in numpy, CasADi and the experiment
+    # registry, which `softgen --help` and the other verbs should not pay for.
+    from softgen.app.sweep import check_experiment, sweep_experiment
+    from softgen.studies.sweep import SweepSpec
+    from softgen.studies.sweep.spec import check_size, max_samples, parse_vary
+    check_experiment(args.experiment)
     varies = [parse_vary(v) for v in args.vary]
     random = any(v.dist.is_random for v in varies)
     n = args.samples if args.samples is not None else (100 if random else 1)
@@ -113,9 +112,9 @@ def _run(args) -> int:
             if msg.startswith(f"{opt}:"):
                 msg = f"--{msg}"
         raise SoftgenError(f"sweep: {msg}") from None
-    res = run_sweep(spec, Path(out), workers=args.workers, scheduler=args.scheduler,
-                    resume=args.resume, force=args.force, fmt=args.format,
-                    progress=True if args.progress else None)
+    res = sweep_experiment(spec, Path(out), workers=args.workers, scheduler=args.scheduler,
+                           resume=args.resume, force=args.force, fmt=args.format,
+                           progress=True if args.progress else None)
     c = res.summary["status"]
     print(f"sweep {args.experiment}: {len(res.rows)} samples ({res.ran} run now, "
           f"{len(res.rows) - res.ran} resumed): {c['ok']} ok, {c['diverged']} diverged, "

@@ -43,6 +43,9 @@ DATA_ROOT = _data_root()
 MODELS_DIR = _env_dir("SOFTGEN_MODELS_DIR", DATA_ROOT / "models")
 GENERATED_DIR = _env_dir("SOFTGEN_GENERATED_DIR", DATA_ROOT / "generated")
 
+#: Suffixes of model files, in the order a bare name looks them up in ``models/``.
+MODEL_SUFFIXES = (".toml", ".urdf")
+
 
 def cache_dir() -> Path:
     """The user-level cache of compiled libraries (see the module docstring)."""

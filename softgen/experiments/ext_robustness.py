@@ -3,8 +3,9 @@
 Beyond the thesis. Section 10.2 runs Theorem 5 with the exact actuator model (Φ and K
 known) and adapts only the inertial parameters Π. This study runs the
 ``ch10-pneumatic-adaptive`` scenario (same references, gains, preset, 350 s) as a
-Monte Carlo sweep (:mod:`softgen.app.sweep`) in which the plant's true values are drawn
-around the model's while the controller keeps the model's:
+Monte Carlo sweep (:mod:`softgen.studies.sweep`, given that experiment's object) in
+which the plant's true values are drawn around the model's while the controller keeps
+the model's:
 
 ``all``
     every uncertain inertial parameter (m, l, c, I of both links) and every actuator
@@ -33,13 +34,11 @@ from pathlib import Path
 
 import numpy as np
 
-# The one layering exception of this module: its studies are sweeps, and the sweep runner
-# lives in the app layer (softgen.app.sweep).
-from softgen.app.sweep import SweepSpec, run_sweep
 from softgen.core.config import Config
 from softgen.core.metrics import Metrics, finding, graded, not_checked, num
 from softgen.experiments.registry import Experiment, get
 from softgen.studies import figures_pneumatic as F
+from softgen.studies.sweep import SweepSpec, run_sweep
 from softgen.studies.pneumatic_robustness import (POS_TOL, RUNAWAY, STIFF_TOL, classify,
                                                   row_key)
 
@@ -113,7 +112,8 @@ def studies(c: RobustnessConfig) -> dict[str, SweepSpec]:
 def run(c: RobustnessConfig, out: Path) -> Metrics:
     m = Metrics()
     # The exact plant: the reference every sample is read against.
-    nominal = get(TARGET).case(get(TARGET).config)
+    target = get(TARGET)
+    nominal = target.case(target.config)
     m.add("nominal_position_rms_error",
           max(nominal.per_joint("position_rms_error", phase=3).values()), "rad")
     m.add("nominal_stiffness_rms_error",
@@ -122,8 +122,8 @@ def run(c: RobustnessConfig, out: Path) -> Metrics:
     wall = 0.0
     for name, spec in studies(c).items():
         # Resume a sweep this code already started here, else start over.
-        res = run_sweep(spec, out / "sweeps" / name, workers=c.workers or None,
-                        resume=True, force=True, progress=False)
+        res = run_sweep(spec, out / "sweeps" / name, experiment=target,
+                        workers=c.workers or None, resume=True, force=True, progress=False)
         results[name] = res
         wall += res.wall_seconds
         cls = classify(res.rows)

@@ -11,15 +11,15 @@ import tomllib
 from pathlib import Path
 
 from softgen.core.errors import ModelError
-from softgen.core.paths import MODELS_DIR
+from softgen.core.paths import MODEL_SUFFIXES, MODELS_DIR  # noqa: F401  (re-exported)
 from softgen.modelfile.model import (MAX_NAME, FileReader, RobotModel, _Parser,
                                      read_model_text)
 from softgen.modelfile.soft import is_soft, parse_soft_model
 from softgen.modelfile.urdf import parse_urdf
 
 
-#: Suffixes of model files, in the order a bare name looks them up in ``models/``.
-MODEL_SUFFIXES = (".toml", ".urdf")
+# MODEL_SUFFIXES lives in softgen.core.paths (imported above, re-exported here) so that
+# softgen.core.provenance can hash the model files without importing this layer.
 
 def shipped_model_file(name: str) -> Path | None:
     """``models/<name>.toml`` or ``models/<name>.urdf``, whichever exists (TOML first)."""

@@ -21,6 +21,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from types import FrameType
 
 from softgen.core.errors import Interrupted
 
@@ -42,7 +43,7 @@ class Stop(BaseException):
         self.signum = signum
 
 
-def _raise_stop(signum, frame) -> None:
+def _raise_stop(signum: int, frame: FrameType | None) -> None:
     raise Stop(signum)
 
 

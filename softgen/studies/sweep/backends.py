@@ -1,6 +1,6 @@
 """Where the samples run: this process, a local process pool, or a Dask cluster.
 
-Every backend maps :func:`softgen.app.sweep.evaluate.evaluate` over the samples and yields
+Every backend maps :func:`softgen.studies.sweep.evaluate.evaluate` over the samples and yields
 ``(index, result)`` as samples finish, in any order; the sweep writes each result to
 its journal as it arrives, so an interrupted sweep loses only the samples in flight.
 
@@ -18,9 +18,9 @@ from collections.abc import Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
-from softgen.app.stop import worker_init
+from softgen.core.stop import worker_init
 from softgen.core.errors import SoftgenError
-from softgen.app.sweep.evaluate import evaluate
+from softgen.studies.sweep.evaluate import evaluate
 
 DASK_HINT = "pip install 'softgen[dask]' (dask.distributed)"
 
@@ -51,7 +51,7 @@ def _signals_held():
 
 def _pool(tasks: Tasks, workers: int) -> Iterator[tuple[int, dict]]:
     # Workers ignore SIGINT/SIGTERM (the main process stops them) and end when the main
-    # process dies, even by SIGKILL (softgen.app.stop.watch_parent).
+    # process dies, even by SIGKILL (softgen.core.stop.watch_parent).
     with _signals_held():
         pool = ProcessPoolExecutor(max_workers=workers, initializer=worker_init,
                                    initargs=(os.getpid(),))

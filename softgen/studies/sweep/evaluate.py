@@ -1,8 +1,11 @@
 """One sample of a sweep, in whichever process runs it (a pool worker or a Dask worker).
 
-:func:`evaluate` takes only plain data (the experiment id, the config overrides, the
-metric patterns) and returns plain data, so that it pickles for any backend and its
-result depends on its arguments alone.
+:func:`evaluate` takes the experiment object itself and plain data (the config
+overrides, the metric patterns) and returns plain data, so that it pickles for any
+backend and its result depends on its arguments alone. The engine knows no registry:
+whoever starts the sweep (``softgen sweep``, an experiment made of sweeps) looks the
+experiment up and passes it in; the workers get its :class:`Target` (id, config, quick
+overrides, ``run`` and ``case``), which pickles with the functions by reference.
 """
 from __future__ import annotations
 
@@ -11,22 +14,58 @@ import math
 import tempfile
 import time
 import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
 from softgen.core.config import Config
 from softgen.core.errors import SoftgenError
 from softgen.core.metrics import Metrics
+from softgen.runtime.simulate import DivergenceError
 
 #: Status of a sample: it ran; the closed loop produced a non-finite value; it failed.
 STATUSES = ("ok", "diverged", "error")
 
 
-def base_config(experiment_id: str, quick: bool, fixed: dict | None = None) -> Config:
+class SweepTarget(Protocol):
+    """What a sweep needs of an experiment (``softgen.experiments.registry.Experiment``
+    has it; this layer may not import that one)."""
+
+    id: str
+    config: Config | dict
+    quick: dict
+    run: Callable[[Config, Path], Any]
+    case: Callable[[Config], Any] | None
+
+
+@dataclass(frozen=True)
+class Target:
+    """The part of an experiment that a worker needs, sent with every sample.
+
+    Not the whole experiment: its ``findings``, ``thesis`` and ``discussion`` are no
+    business of a sample, and a ``findings`` made by a factory (a closure, as in
+    ch11-electric-*) does not pickle. ``run`` and ``case`` are module-level functions,
+    so they pickle by reference (module and name): the worker imports the experiment's
+    module, never the caller's.
+    """
+
+    id: str
+    config: Config | dict
+    quick: dict
+    run: Callable[[Config, Path], Any]
+    case: Callable[[Config], Any] | None
+
+    @classmethod
+    def of(cls, exp: SweepTarget) -> Target:
+        return cls(id=exp.id, config=exp.config, quick=dict(exp.quick), run=exp.run,
+                   case=exp.case)
+
+
+def base_config(exp: SweepTarget, quick: bool, fixed: dict | None = None) -> Config:
     """The experiment's typed config with its quick overrides and ``fixed`` values."""
-    from softgen.experiments.registry import get
-    exp = get(experiment_id)
     if not isinstance(exp.config, Config):
-        raise SoftgenError(f"sweep: {experiment_id} has no typed config to vary")
+        raise SoftgenError(f"sweep: {exp.id} has no typed config to vary")
     config = exp.config.replace(**(exp.quick if quick else {}))
     try:
         return config.replace(**(fixed or {}))
@@ -41,7 +80,7 @@ def select(metrics: dict, patterns: tuple[str, ...]) -> dict:
     return {k: v for k, v in metrics.items() if any(fnmatch.fnmatchcase(k, p) for p in patterns)}
 
 
-def evaluate(experiment_id: str, quick: bool, fixed: dict, overrides: dict,
+def evaluate(exp: SweepTarget, quick: bool, fixed: dict, overrides: dict,
              patterns: tuple[str, ...]) -> dict:
     """Run one sample; ``{"status", "metrics", "error", "warnings", "wall_seconds"}``.
 
@@ -49,15 +88,12 @@ def evaluate(experiment_id: str, quick: bool, fixed: dict, overrides: dict,
     study wants to see which samples fail and why. The experiment's ``case`` (metrics
     only) is used when it has one, else ``run`` into a scratch directory.
     """
-    from softgen.experiments.registry import get
-    from softgen.runtime.simulate import DivergenceError
-    exp = get(experiment_id)
     t0 = time.perf_counter()
     status, error, metrics = "ok", "", {}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            config = base_config(experiment_id, quick, fixed).replace(**overrides)
+            config = base_config(exp, quick, fixed).replace(**overrides)
             if exp.case is not None:
                 raw = exp.case(config)
             else:

@@ -1,14 +1,21 @@
 """Monte Carlo and grid studies over an experiment's typed config (issue 17).
 
->>> from softgen.app.sweep import SweepSpec, run_sweep
+>>> from softgen.studies.sweep import SweepSpec, run_sweep
+>>> from softgen.experiments.registry import get
 >>> spec = SweepSpec(experiment="ch10-pneumatic-adaptive", samples=200, seed=1,
 ...                  vary=("plant_inertial_scale=uniform(0.7, 1.3)",),
 ...                  metrics=("position_rms_error_*",))
->>> result = run_sweep(spec, Path("sweep-out"), workers=2)           # doctest: +SKIP
+>>> result = run_sweep(spec, Path("sweep-out"), experiment=get(spec.experiment),
+...                    workers=2)                                     # doctest: +SKIP
 
-What is varied and how samples are drawn: :mod:`softgen.app.sweep.spec`; one sample:
-:mod:`softgen.app.sweep.evaluate`; where samples run (this process, a process pool, Dask):
-:mod:`softgen.app.sweep.backends`; what is written: :mod:`softgen.app.sweep.results`.
+The engine knows no experiment registry (it is below the experiments layer): the caller
+passes the experiment object, and ``spec.experiment`` is its id, a label only (in
+``sweep.json``, the progress lines and the figure). ``softgen sweep`` looks the id up
+(:mod:`softgen.app.sweep`); an experiment made of sweeps passes another experiment.
+
+What is varied and how samples are drawn: :mod:`softgen.studies.sweep.spec`; one sample:
+:mod:`softgen.studies.sweep.evaluate`; where samples run (this process, a process pool, Dask):
+:mod:`softgen.studies.sweep.backends`; what is written: :mod:`softgen.studies.sweep.results`.
 
 The output directory holds ``sweep.json`` (the spec, the base config, the code hash),
 ``samples.jsonl`` (the journal: one line per finished sample, appended as samples
@@ -26,23 +33,27 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from softgen.core.config import Config
-from softgen.app.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.atomic import check_dir, output_error, write_text
 from softgen.core.errors import SoftgenError
-from softgen.app.sweep.backends import DASK_HINT, dask_available, default_workers, run_tasks  # noqa: F401
-from softgen.app.sweep.evaluate import base_config
-from softgen.app.sweep.results import plot, summarise, write_summary, write_table
-from softgen.app.sweep.spec import Vary, flat_inputs, input_columns, max_samples, parse_vary, plan
+from softgen.core.provenance import code_hash
+from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping
+from softgen.studies.sweep.backends import DASK_HINT, dask_available, default_workers, run_tasks  # noqa: F401
+from softgen.studies.sweep.evaluate import SweepTarget, Target, base_config
+from softgen.studies.sweep.results import plot, summarise, write_summary, write_table
+from softgen.studies.sweep.spec import Vary, flat_inputs, input_columns, max_samples, parse_vary, plan
 
-__all__ = ["SweepSpec", "SweepResult", "run_sweep", "load_rows", "DASK_HINT",
+__all__ = ["SweepSpec", "SweepResult", "SweepTarget", "run_sweep", "load_rows", "DASK_HINT",
            "dask_available"]
 
 
 @dataclass(frozen=True)
 class SweepSpec(Config):
-    """What a sweep runs: experiment, varied fields, samples per grid point, seed, metrics.
+    """What a sweep runs: experiment id, varied fields, samples per grid point, seed, metrics.
 
-    ``vary`` entries are ``KEY=DIST`` texts (:mod:`softgen.app.sweep.spec`); a plain value
+    ``experiment`` is the id of the experiment passed to :func:`run_sweep` (a label: the
+    spec stays plain data, so that ``sweep.json`` records it as text).
+
+    ``vary`` entries are ``KEY=DIST`` texts (:mod:`softgen.studies.sweep.spec`); a plain value
     fixes a field for every sample. ``metrics`` are shell-style patterns of the metric
     names to keep (all when empty). ``quick`` starts from the experiment's quick config.
     """
@@ -90,7 +101,8 @@ class SweepResult:
 
 
 def _identity(spec: SweepSpec, config: Config) -> dict:
-    from softgen.app.reproduce import code_hash
+    """What ``--resume`` compares: the spec (with the experiment's id, not its object or
+    module), the base config and :func:`~softgen.core.provenance.code_hash`."""
     # Through JSON once, so that it compares equal to what sweep.json reads back.
     return json.loads(json.dumps({"spec": spec.to_dict(), "config": config.to_dict(),
                                   "code": code_hash()}))
@@ -231,10 +243,12 @@ def _prepare(out: Path, identity: dict, *, resume: bool, force: bool,
     return {}
 
 
-def run_sweep(spec: SweepSpec, out: Path, *, workers: int | None = None,
-              scheduler: str | None = None, resume: bool = False, force: bool = False,
-              fmt: str = "csv", progress: bool | None = None) -> SweepResult:
-    """Run (or finish) the sweep ``spec`` into ``out``; see the module docstring.
+def run_sweep(spec: SweepSpec, out: Path, *, experiment: SweepTarget,
+              workers: int | None = None, scheduler: str | None = None,
+              resume: bool = False, force: bool = False, fmt: str = "csv",
+              progress: bool | None = None) -> SweepResult:
+    """Run (or finish) the sweep ``spec`` of ``experiment`` into ``out``; see the module
+    docstring. ``experiment.id`` must be ``spec.experiment``.
 
     SIGINT and SIGTERM (main thread) stop it at any moment: the journal keeps every
     finished sample (each line is fsync'ed as it is written) and
@@ -242,7 +256,7 @@ def run_sweep(spec: SweepSpec, out: Path, *, workers: int | None = None,
     """
     with stopping():
         try:
-            return _run_sweep(spec, Path(out), workers=workers, scheduler=scheduler,
+            return _run_sweep(spec, Path(out), experiment, workers=workers, scheduler=scheduler,
                               resume=resume, force=force, fmt=fmt, progress=progress)
         except Stop as stop:
             ignore_signals()
@@ -261,9 +275,15 @@ def load_rows_quietly(out: Path) -> dict[int, dict]:
         return {}
 
 
-def _run_sweep(spec: SweepSpec, out: Path, *, workers: int | None, scheduler: str | None,
-               resume: bool, force: bool, fmt: str, progress: bool | None) -> SweepResult:
+def _run_sweep(spec: SweepSpec, out: Path, exp: SweepTarget, *, workers: int | None,
+               scheduler: str | None, resume: bool, force: bool, fmt: str,
+               progress: bool | None) -> SweepResult:
     spec.check()
+    # The id is what sweep.json records: a spec labelled with another experiment would
+    # let a resume mix two experiments' samples in one journal.
+    if exp.id != spec.experiment:
+        raise SoftgenError(f"sweep: experiment: the spec names {spec.experiment!r} but "
+                           f"the experiment passed is {exp.id!r}")
     if fmt not in ("csv", "parquet"):
         raise SoftgenError(f"sweep: --format: expected csv or parquet, got {fmt!r}")
     if fmt == "parquet":
@@ -277,7 +297,8 @@ def _run_sweep(spec: SweepSpec, out: Path, *, workers: int | None, scheduler: st
                            "--scheduler the sweep runs on a local process pool")
     check_dir(out, "sweep: --out")           # one line naming the path, before any work
     varies, fixed = spec.parsed()
-    config = base_config(spec.experiment, spec.quick, fixed)
+    target = Target.of(exp)                  # what each task sends (it must pickle)
+    config = base_config(target, spec.quick, fixed)
     samples = plan(varies, config, samples=spec.samples, seed=spec.seed)
     for s in samples[:1]:                    # every sample's config must check; the first
         try:                                 # tells, before any worker starts
@@ -293,7 +314,7 @@ def _run_sweep(spec: SweepSpec, out: Path, *, workers: int | None, scheduler: st
     show = sys.stderr.isatty() if progress is None else progress
     t0 = time.perf_counter()
     # Tasks are made as the backends take them: a long sweep holds no second copy.
-    tasks = ((s.index, (spec.experiment, spec.quick, fixed, s.overrides, spec.metrics))
+    tasks = ((s.index, (target, spec.quick, fixed, s.overrides, spec.metrics))
              for s in todo)
     by_index = {s.index: s for s in samples}
     failed = 0
