@@ -16,13 +16,11 @@ experiments whose ``metrics.json`` has the hash of the current ones.
 """
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import math
 import os
 import shutil
-import signal
 import warnings
 import sys
 import time
@@ -32,7 +30,8 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import TextIO
 
-from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping, worker_init
+from softgen.core.stop import (Stop, ignore_signals, interrupted, signal_name, signals_held,
+                               stopping, worker_init)
 from softgen.core.atomic import check_dir, output_error, write_text
 from softgen.core.provenance import code_hash
 from softgen.app.report import write_report
@@ -348,7 +347,7 @@ def _run_pool(todo: list[str], out_root: Path, quick: bool, code: str, jobs: int
         # Signals wait while the pool starts and takes the work: a Ctrl-C inside the
         # executor's own locks left its manager thread printing a traceback (issue 23).
         # They are delivered (and raise Stop) right after.
-        with _signals_held():
+        with signals_held():
             pool = ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init,
                                        initargs=init)
             futures = {pool.submit(_safe_run, i, out_root, quick, code): i for i in todo}
@@ -374,16 +373,6 @@ def _run_pool(todo: list[str], out_root: Path, quick: bool, code: str, jobs: int
         raise
     pool.shutdown(wait=True)
 
-
-@contextlib.contextmanager
-def _signals_held():
-    """Block SIGINT and SIGTERM in this thread for the block; pending ones arrive after."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _abort_pool(pool: ProcessPoolExecutor, futures: dict) -> None:

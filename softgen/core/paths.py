@@ -22,7 +22,7 @@ import os
 from importlib import resources
 from pathlib import Path
 
-from softgen.core.errors import SoftgenError
+from softgen.core.atomic import check_dir
 
 #: The repository root when running from a checkout.
 _CHECKOUT = Path(__file__).resolve().parents[2]
@@ -69,14 +69,4 @@ def output_dir(path: str, flag: str) -> Path:
 
     Nothing is created here: a run that fails later leaves no empty directory behind.
     """
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise SoftgenError(f"{flag} {p}: exists and is not a directory; give a directory")
-    base = p
-    while not base.exists():
-        base = base.parent
-    if not base.is_dir():
-        raise SoftgenError(f"{flag} {p}: {base} is not a directory")
-    if not os.access(base, os.W_OK | os.X_OK):
-        raise SoftgenError(f"{flag} {p}: {base} is not writable")
-    return p
+    return check_dir(path, flag)

@@ -13,12 +13,11 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
 from collections.abc import Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
-from softgen.core.stop import worker_init
+from softgen.core.stop import signals_held, worker_init
 from softgen.core.errors import SoftgenError
 from softgen.studies.sweep.evaluate import evaluate
 
@@ -37,22 +36,11 @@ def _serial(tasks: Tasks) -> Iterator[tuple[int, dict]]:
         yield index, evaluate(*args)
 
 
-@contextlib.contextmanager
-def _signals_held():
-    """SIGINT and SIGTERM wait (blocked in this thread) while workers start and take work:
-    an interrupt inside the executor's locks left tracebacks from its threads."""
-    held = {signal.SIGINT, signal.SIGTERM}
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
 
 def _pool(tasks: Tasks, workers: int) -> Iterator[tuple[int, dict]]:
     # Workers ignore SIGINT/SIGTERM (the main process stops them) and end when the main
     # process dies, even by SIGKILL (softgen.core.stop.watch_parent).
-    with _signals_held():
+    with signals_held():
         pool = ProcessPoolExecutor(max_workers=workers, initializer=worker_init,
                                    initargs=(os.getpid(),))
     clean = False
@@ -64,7 +52,7 @@ def _pool(tasks: Tasks, workers: int) -> Iterator[tuple[int, dict]]:
             nxt = next(it, None)
             if nxt is None:
                 return False
-            with _signals_held():
+            with signals_held():
                 pending[pool.submit(evaluate, *nxt[1])] = nxt[0]
             return True
 
