@@ -190,9 +190,6 @@ ACC_REGULARIZATION = 1e-10
 #: in (kg m²)²: b̂ = 0 (π̂_m(0) = 0) must give a finite answer; b = 1e-3 gives b² = 1e-6.
 MOTOR_REGULARIZATION = 1e-14
 
-#: Models whose bundle carries the chapter-11 cascades (hook in softgen/bundle.py).
-CASCADE_MODELS = ("arm_2link_electric",)
-
 #: Outputs of every step, in order.
 OUTPUTS = ("z_next", "tau_m", "q_m_ref", "qd_m_ref", "qdd_m_ref", "tau_e_ref", "sigma", "det")
 
