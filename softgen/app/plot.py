@@ -8,14 +8,13 @@ one array per signal, the time in ``t``; ``block.signal`` names stored as
 """
 from __future__ import annotations
 
-import os
-import tempfile
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from softgen.core.errors import SoftgenError
+from softgen.core.atomic import replacing
 
 #: Most panels drawn when no signal is named (the first ones, in the file's order).
 DEFAULT_PANELS = 8
@@ -101,24 +100,6 @@ def plot_trace(path: str | Path, signals: list[str] | None = None, *,
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(f"{f.parent.name}/{f.name}", fontsize=9)
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{out.name}.", suffix=".png")
-    os.close(fd)
-    try:
+    with replacing(out) as tmp:
         fig.savefig(tmp, dpi=100, format="png")
-        os.chmod(tmp, file_mode())
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return out
-
-
-def file_mode() -> int:
-    """The mode a new file gets from the umask (mkstemp's temporary files are 0600).
-
-    The same as :func:`softgen.app.identify.modelfile.file_mode`, repeated so that
-    ``softgen plot`` does not import the identification package (CasADi, SciPy).
-    """
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask

@@ -36,6 +36,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from softgen.core.errors import SoftgenError
+from softgen.app.identify.rigid import read_header
 from softgen.estimation.csvlog import LogError, read_log
 
 #: Fraction of the largest |measurement| below which a sample is left out of the RMSRE.
@@ -77,21 +78,10 @@ def rmsre(sensor: np.ndarray, model: np.ndarray, floor: float = RMSRE_FLOOR
     return float(100.0 * np.sqrt(np.mean(rel * rel))), int(keep.sum())
 
 
-def _header(path: Path) -> list[str]:
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            row = next(csv.reader(fh), None)
-    except FileNotFoundError:
-        raise LogError(f"{path}: no such data file") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise LogError(f"{path}: cannot read data ({exc})") from None
-    return [h.strip() for h in row] if row else []
-
-
 def _read_table(path: Path, names: list[str]) -> np.ndarray:
     """Columns ``names`` of a CSV table (no time column needed: characterisation data
     are not a time series); one error line naming a missing column or a bad cell."""
-    header = _header(path)
+    header = read_header(path, "data")
     missing = [n for n in names if n not in header]
     if missing:
         raise LogError(f"{path}: missing column(s) {', '.join(missing)}; found "
@@ -211,7 +201,7 @@ def identify_actuator(kind: str, path: str | Path, *, floor: float = RMSRE_FLOOR
     """Read the data file for ``kind`` ("sinh" or "mckibben") and fit it."""
     path = Path(path)
     if kind == "sinh":
-        header = _header(path)
+        header = read_header(path, "data")
         if "deflection" in header:
             cols = ["deflection", "tau"]
             d = _read_table(path, cols)

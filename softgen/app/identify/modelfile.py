@@ -15,14 +15,13 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
 from softgen.core.errors import SoftgenError
 import numpy as np
 
 from softgen.modelfile.model import MAX_NAME, RobotModel
+from softgen.core.atomic import atomic_open, write_text
 from softgen.studies.excitation import FourierTrajectory
 
 
@@ -123,23 +122,7 @@ def write_text_atomic(path: str | Path, text: str, *, force: bool = False,
     directory = path.parent if str(path.parent) else Path(".")
     if not directory.is_dir():
         raise SoftgenError(f"{flag} {path}: directory {directory} does not exist")
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.chmod(tmp, file_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-def file_mode() -> int:
-    """The mode a new file gets from the umask (mkstemp's temporary files are 0600)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
+    return write_text(path, text)
 
 
 def write_trajectory_csv(path: str | Path, traj: FourierTrajectory, *, dt: float,
@@ -169,15 +152,8 @@ def write_csv_atomic(path: Path, header: list[str], table: np.ndarray) -> None:
     directory = path.parent if str(path.parent) else Path(".")
     if not directory.is_dir():
         raise SoftgenError(f"--out {path}: directory {directory} does not exist")
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(header)
-            for row in table:
-                w.writerow([repr(float(v)) for v in row])
-        os.chmod(tmp, file_mode())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for row in table:
+            w.writerow([repr(float(v)) for v in row])

@@ -125,14 +125,15 @@ class RigidIdentification:
                 if n.startswith(kind) and n[2:].isdigit() and n not in self.model.nominal}
 
 
-def _header(path: Path) -> list[str]:
+def read_header(path: Path, what: str = "log") -> list[str]:
+    """The column names of a CSV ``what`` file (one error line if it cannot be read)."""
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:
             row = next(csv.reader(fh), None)
     except FileNotFoundError:
-        raise LogError(f"{path}: no such log file") from None
+        raise LogError(f"{path}: no such {what} file") from None
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise LogError(f"{path}: cannot read log ({exc})") from None
+        raise LogError(f"{path}: cannot read {what} ({exc})") from None
     return [h.strip() for h in row] if row else []
 
 
@@ -145,7 +146,7 @@ def read_identification_log(path: str | Path, n: int, *,
     uniform (row).
     """
     path = Path(path)
-    header = _header(path)
+    header = read_header(path)
     q_cols = [f"q{i + 1}" for i in range(n)]
     tau_cols = [f"tau{i + 1}" for i in range(n)]
     cur_cols = [f"i{i + 1}" for i in range(n)]
