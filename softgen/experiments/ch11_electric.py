@@ -14,7 +14,9 @@ quasi-steady stiffness (without integral) or with the integral holding the Δ of
 
 Adaptive cascades (issue 12, item 3; measured with this module's diagrams).
 The thesis starts every estimate at 0, the motor inertia b̂ included. From b̂ = 0 the
-first samples drive b̂ below 0, an adapted motor of negative inertia, and the loop
+first sample drives the side-a motors' b̂ below 0 while the side-b motors' b̂ rise, and
+the second sample takes those below 0 as well (module docstring of
+:mod:`softgen.control.electric`): adapted motors of negative inertia, and the loop
 diverges (``unprojected_*``: at 6 ms and 0.1 s; with the printed Λ_m = 0.1, b̂_1a =
 −1.2e-3 kg m² at 9 ms and divergence at 0.24 s, a run not repeated here). Fix: the
 projection b̂ ≥ ``b_min`` (Ioannou & Sun, Robust Adaptive Control), a bound that holds
