@@ -106,14 +106,14 @@ the diagram blocks below; ``ch11-electric-adaptive`` repeats each run). From π�
 (the thesis's start) Theorem 8's law drives b̂ below zero within two samples, not all
 motors alike: the first sample takes the side-a motors' b̂ below zero (b̂_1a = −6.5e-4
 kg m² at 1 ms with Λ_m = 10) while the side-b motors' b̂ *rise* (b̂_1b = +1.1e-4); the
-second takes those below zero too (b̂_1b = −9.5e-5 at 2 ms). The sign of the first step
-is that of Y_b s_m, opposite for the two motors of a pair, which are pre-tensioned in
-opposite directions. With the printed Λ_m = 0.1, b̂_1a = −1.2e-3 kg m² at 9 ms. An
+second takes those below zero too (b̂_1b = −9.5e-5 at 2 ms): the first step is
+−k_b Y_b s_m per motor, and Y_b s_m starts with opposite signs on the two motors of a
+pair. With the printed Λ_m = 0.1, b̂_1a = −1.2e-3 kg m² at 9 ms. An
 adapted motor of negative inertia follows, and the cascade diverges (0.24 s with
 Λ_m = 0.1, 6 ms with Λ_m = 10). Started at π̂_m = π_m without projection the same runs
-track for 3 s with every b̂ within 0.1 % of b (both variants): the negative b̂ from the
-zero start, not the unprojected law, is what diverges (3 s runs of
-``ch11_electric.run_variant(..., projection=False, nominal=True)``). Divergence times move with
+track for 3 s with no b̂ below 0.999 b (both variants): the negative b̂ from the zero
+start, not the unprojected law, is what diverges (3 s runs of ch11's
+``run_variant(..., projection=False, nominal=True)``). Divergence times move with
 floating-point rounding (a change of the symbolic dynamics route moved the first from
 0.33 s to 0.24 s); the divergence does not.
 ``projection=True`` adds the gain ``b_min`` (2n) and keeps b̂ ≥ b_min after every
