@@ -293,3 +293,20 @@ def test_estimate_signal_keeps_the_previous_output(driver, tmp_path, sig):
     assert "estimate: interrupted" in line and "unchanged" in line
     assert hashlib.sha256(out.read_bytes()).hexdigest() == before
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+@pytest.mark.parametrize("sig, status", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_any_verb_stops_with_one_line(tmp_path, sig, status):
+    """A verb without handlers of its own (``generate``) ends on SIGTERM/SIGINT with one
+    line and 128 + signum, from the moment ``main`` runs: the window in which the signal
+    killed the process silently is the interpreter's start-up only."""
+    cmd = [sys.executable, "-c", "import sys, time; from softgen.cli import main; "
+           "sys.argv[0] = 'softgen'; sys.exit(main(['generate', 'pcc_3d_4seg', "
+           f"'--out', {str(tmp_path / 'out')!r}, '--no-build']))"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    time.sleep(1.5)          # inside the derivation (about 10 s for pcc_3d_4seg)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == status, err
+    lines = [x for x in err.splitlines() if x.strip() and "deriving" not in x]
+    assert lines == [f"softgen: error: stopped by {signal.Signals(sig).name}"], err

@@ -15,10 +15,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 
 from softgen import __version__
 from softgen.core.errors import SoftgenError
+from softgen.core.stop import Stop, exit_status, stopping
 
 #: Verb -> module under softgen.cli, in the order ``softgen --help`` lists them.
 VERBS = {"list": "list", "generate": "generate", "info": "info", "reproduce": "reproduce",
@@ -42,12 +44,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    # From the first line on, SIGINT and SIGTERM end the run with one line and 130/143,
+    # even before a verb's own handlers (issue 23: a SIGTERM while the parser loaded the
+    # verbs used to kill the process silently). Verbs that save work nest their own.
     try:
-        return args.func(args)
-    except KeyboardInterrupt:
-        print("softgen: error: interrupted", file=sys.stderr)
-        return 130
+        with stopping():
+            args = build_parser().parse_args(argv)
+            return args.func(args)
+    except (KeyboardInterrupt, Stop) as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        print(f"softgen: error: stopped by {signal.Signals(signum).name}", file=sys.stderr)
+        return exit_status(signum)
     except (SoftgenError, ValueError, FileNotFoundError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"softgen: error: {msg}", file=sys.stderr)
