@@ -10,6 +10,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from softgen.bundles.bundle import bundle_spec
 from softgen.cli import main
 from softgen.core.errors import ModelError
 from softgen.modelfile.model import MAX_NAME, name_problem, sanitise_name
@@ -220,3 +221,11 @@ def test_estimate_dt_out_of_range_names_the_option(capsys, tmp_path):
                               "--method", "noninvasive", "--dt", "1e-300",
                               "--out", str(tmp_path / "e.csv")])
     assert "--dt" in line
+
+
+def test_sanitised_name_reaches_the_manifest(tmp_path):
+    """The manifest keeps the name the URDF wrote beside the C identifier it became."""
+    p = tmp_path / "r.urdf"
+    p.write_text(_urdf("my-arm v2")[0], encoding="utf-8")
+    spec = bundle_spec(load_model(p))
+    assert spec.extra["original_name"] == "my-arm v2"

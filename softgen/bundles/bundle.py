@@ -77,6 +77,10 @@ def _assemble(model, options: BundleOptions) -> BundleSpec:
         fns += part.functions
         merge(extra, part.extra)
     extra["capabilities"] = [c.name for c in caps]
+    if getattr(model, "original_name", ""):
+        # The file's own name, when it had to be sanitised into a C identifier (a URDF
+        # <robot name="ur5-e">): users search the manifest for the name they wrote.
+        extra["original_name"] = model.original_name
     params = {
         "names": dyn.parameter_names,
         "nominal": [float(v) for v in dyn.parameter_nominal],
