@@ -166,3 +166,39 @@ def test_resume_skips_experiments_whose_hash_matches(fakes, tmp_path, monkeypatc
     # Without --resume, everything runs.
     reproduce(["fake-fast"], out, jobs=1)
     assert runs.read_text().count("run") == 3
+
+
+def test_set_changes_the_config_of_experiments_that_have_the_key(fakes, tmp_path, capsys):
+    """``--set KEY=VALUE`` reaches the run and its hash; a key no chosen experiment has,
+    or a malformed item, is one line before anything runs."""
+    out = tmp_path / "results"
+    assert main(["reproduce", "fake-fast", "--out", str(out), "--set", "x=5"]) == 0
+    saved = json.loads((out / "fake-fast" / "metrics.json").read_text())
+    assert saved["metrics"] == {"value": 5.0} and saved["config"]["x"] == 5
+    # --resume with the same --set keeps it; without it the hash differs and it runs again.
+    assert main(["reproduce", "fake-fast", "--out", str(out), "--set", "x=5", "--resume"]) == 0
+    assert "[resume] fake-fast" in capsys.readouterr().err
+    assert main(["reproduce", "fake-fast", "--out", str(out), "--resume"]) == 0
+    assert json.loads((out / "fake-fast" / "metrics.json").read_text())["metrics"] == \
+        {"value": 1.0}
+    capsys.readouterr()
+    for bad, text in ((["--set", "nope=1"], "--set nope: no chosen experiment has this key"),
+                      (["--set", "x"], "expected KEY=VALUE")):
+        assert main(["reproduce", "fake-fast", "--out", str(tmp_path / "b"), *bad]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and text in err[0], err
+    assert not (tmp_path / "b").exists()
+
+
+def test_costliest_experiment_starts_first(fakes, tmp_path, monkeypatch, capsys):
+    """``Experiment.cost`` orders the runs; the report keeps the order asked for."""
+    import dataclasses
+    import trust_fake_experiments
+    fast = registry.get("fake-fast")
+    monkeypatch.setattr(trust_fake_experiments, "SLOW",
+                        dataclasses.replace(fast, id="fake-slow", cost=10.0))
+    reproduce(["fake-fast", "fake-slow"], tmp_path / "r", jobs=1)
+    err = capsys.readouterr().err
+    assert err.index("fake-slow ...") < err.index("fake-fast ...")
+    report = (tmp_path / "r" / "report.md").read_text()
+    assert report.index("## fake-fast") < report.index("## fake-slow")

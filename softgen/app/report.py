@@ -67,6 +67,7 @@ def write_report(results: list[dict], path: Path, *, incomplete: str | None = No
         if cfg.get("title"):
             lines.append(f"{cfg['title']} (thesis: {cfg.get('section', '')}). "
                          f"Wall time {res.get('wall_seconds', float('nan')):.2f} s"
+                         + (f", CPU {res['cpu_seconds']:.1f} s" if "cpu_seconds" in res else "")
                          + (", quick run" if cfg.get("quick") else "") + ".")
             lines.append("")
         lines += _claims(res.get("findings", []))

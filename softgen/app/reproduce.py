@@ -16,10 +16,12 @@ experiments whose ``metrics.json`` has the hash of the current ones.
 """
 from __future__ import annotations
 
+import ast
 import hashlib
 import json
 import math
 import os
+import resource
 import shutil
 import warnings
 import sys
@@ -28,7 +30,7 @@ import traceback
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 from softgen.core.stop import (Stop, ignore_signals, interrupted, signal_name, signals_held,
                                stopping, worker_init)
@@ -37,6 +39,7 @@ from softgen.core.provenance import code_hash
 from softgen.app.report import write_report
 from softgen.runtime.simulate import progress_context, set_full_traces, set_progress
 from softgen.core.config import Config
+from softgen.core.errors import SoftgenError
 from softgen.experiments.registry import Experiment, experiment_ids, get
 from softgen.core.metrics import VERDICTS, Metrics, finding
 
@@ -51,11 +54,54 @@ def run_hash(exp_id: str, config: dict, quick: bool, code: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def _config(exp: Experiment, quick: bool) -> Config | dict:
-    """The experiment's typed config with the quick overrides (a dict for legacy modules)."""
+#: ``--set KEY=VALUE`` pairs, in order: each applies to the experiments whose config has KEY.
+Sets = tuple[tuple[str, Any], ...]
+
+
+def _config(exp: Experiment, quick: bool, sets: Sets = ()) -> Config | dict:
+    """The experiment's typed config with the quick overrides, then the ``--set`` values
+    of the keys it has (a dict for legacy modules)."""
+    own = {k: v for k, v in sets if k in _keys(exp)}
     if isinstance(exp.config, Config):
-        return exp.config.replace(**(exp.quick if quick else {})).check()
-    return {**exp.config, **(exp.quick if quick else {})}
+        return exp.config.replace(**{**(exp.quick if quick else {}), **own}).check()
+    return {**exp.config, **(exp.quick if quick else {}), **own}
+
+
+
+def _keys(exp: Experiment) -> tuple[str, ...]:
+    c = exp.config
+    return tuple(c.to_dict()) if isinstance(c, Config) else tuple(c)
+
+
+def parse_sets(items: list[str], ids: list[str]) -> Sets:
+    """``KEY=VALUE`` strings as pairs: VALUE a Python literal (``200``, ``0.1``,
+    ``(0.01, 0.1)``, ``True``) or else a string. A key no chosen experiment has, or a value
+    of the wrong type, is one error line naming it (checked before anything runs)."""
+    out = []
+    exps = [get(i) for i in ids]
+    for item in items:
+        key, eq, text = item.partition("=")
+        key = key.strip()
+        if not eq or not key:
+            raise SoftgenError(f"reproduce: --set {item!r}: expected KEY=VALUE")
+        try:
+            value = ast.literal_eval(text.strip())
+        except (ValueError, SyntaxError):
+            value = text.strip()
+        if isinstance(value, list):
+            value = tuple(value)
+        takers = [e for e in exps if key in _keys(e)]
+        if not takers:
+            raise SoftgenError(f"reproduce: --set {key}: no chosen experiment has this key "
+                               f"(experiments: {', '.join(ids)})")
+        for e in takers:
+            try:
+                _config(e, False, ((key, value),))
+            except (ValueError, TypeError) as exc:
+                raise SoftgenError(f"reproduce: --set {key}={text.strip()}: {e.id}: "
+                                   f"{str(exc).splitlines()[0]}") from None
+        out.append((key, value))
+    return tuple(out)
 
 
 def _write_json(path: Path, data: dict) -> None:
@@ -63,15 +109,16 @@ def _write_json(path: Path, data: dict) -> None:
     write_text(path, json.dumps(data, indent=2, allow_nan=False) + "\n")
 
 
-def _config_dict(exp: Experiment, quick: bool) -> dict:
-    c = _config(exp, quick)
+def _config_dict(exp: Experiment, quick: bool, sets: Sets = ()) -> dict:
+    c = _config(exp, quick, sets)
     return c.to_dict() if isinstance(c, Config) else c
 
 
-def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None) -> dict:
+def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None,
+            sets: Sets = ()) -> dict:
     """Run one experiment in this process; write ``out_root/<id>/metrics.json``."""
     exp = get(exp_id)
-    config = _config(exp, quick)
+    config = _config(exp, quick, sets)
     config_dict = config.to_dict() if isinstance(config, Config) else config
     rhash = run_hash(exp_id, config_dict, quick, code or code_hash())
     out = Path(out_root) / exp_id
@@ -84,7 +131,7 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None) -
         stage.mkdir(parents=True)
     except OSError as exc:
         raise output_error(stage, exc) from None
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_seconds()
     try:
         # Library warnings (a legend that is slow to place, an infeasible pressure) belong
         # to the run's record, not to the terminal: they are kept in metrics.json and
@@ -106,7 +153,7 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None) -
     result = {"experiment": exp_id, "metrics": metrics, "thesis": dict(exp.thesis),
               "config": {**config_dict, "quick": quick, "section": exp.section,
                          "title": exp.title},
-              "wall_seconds": time.perf_counter() - t0}
+              "wall_seconds": time.perf_counter() - t0, "cpu_seconds": _cpu_seconds() - c0}
     if units:
         result["units"] = units
     seen = list(dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught))
@@ -119,6 +166,14 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None) -
     result["run_hash"] = rhash
     _write_json(out / "metrics.json", result)
     return result
+
+
+def _cpu_seconds() -> float:
+    """User + system CPU seconds of this process and its finished children (an
+    experiment's own worker pool, the C compiler): what a run costs on a loaded machine,
+    where wall time says little (issue 25)."""
+    r = [resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
+    return sum(x.ru_utime + x.ru_stime for x in r)
 
 
 def _publish(stage: Path, out: Path) -> None:
@@ -171,9 +226,10 @@ def check_findings(exp: Experiment, metrics: Metrics, config) -> list[dict]:
                         f"findings raised {type(exc).__name__}: {exc}")]
 
 
-def _safe_run(exp_id: str, out_root: Path, quick: bool, code: str | None = None) -> dict:
+def _safe_run(exp_id: str, out_root: Path, quick: bool, code: str | None = None,
+              sets: Sets = ()) -> dict:
     try:
-        return run_one(exp_id, out_root, quick, code)
+        return run_one(exp_id, out_root, quick, code, sets)
     except Exception as exc:  # reported per experiment; the others still run
         return {"experiment": exp_id, "error": f"{type(exc).__name__}: {exc}",
                 "traceback": traceback.format_exc()}
@@ -203,7 +259,7 @@ def _resumable(exp_id: str, out_root: Path, expected: str) -> dict | None:
 def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
               jobs: int | None = None, progress: TextIO | None = None,
               resume: bool = False, show_progress: bool | None = None,
-              full_traces: bool = False) -> list[dict]:
+              full_traces: bool = False, sets: Sets = ()) -> list[dict]:
     """Run ``ids`` (default: all) with ``jobs`` worker processes; write ``report.md``.
 
     Returns the results in the order of ``ids``; a failed experiment's entry has
@@ -232,16 +288,17 @@ def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
             except OSError as exc:
                 raise output_error(out_root, exc) from None
             _clean_stale_stages(out_root)
-            return _reproduce(ids, out_root, results, quick=quick, jobs=jobs,
+            return _reproduce(ids, out_root, results, quick=quick, sets=sets, jobs=jobs,
                               progress=progress, resume=resume, show_progress=show_progress,
                               full_traces=full_traces)
         except Stop as stop:
             ignore_signals()            # a second Ctrl-C must not cut the report short
-            raise _stopped(stop.signum, ids, out_root, results, quick, progress) from None
+            raise _stopped(stop.signum, ids, out_root, results, quick, progress,
+                           sets) from None
 
 
 def _stopped(signum: int, ids: list[str], out_root: Path, results: dict, quick: bool,
-             progress: TextIO) -> Exception:
+             progress: TextIO, sets: Sets = ()) -> Exception:
     """After SIGINT/SIGTERM: the report of what finished, marked incomplete; the error."""
     started = results.pop("__started__", None)
     code = results.pop("__code__", None)
@@ -250,8 +307,8 @@ def _stopped(signum: int, ids: list[str], out_root: Path, results: dict, quick: 
     if started is not None and code is not None:
         for i in ids:
             if i not in results:
-                saved = _resumable(i, out_root, run_hash(i, _config_dict(get(i), quick), quick,
-                                                         code))
+                saved = _resumable(i, out_root, run_hash(i, _config_dict(get(i), quick, sets),
+                                                         quick, code))
                 if saved is not None and \
                         (out_root / i / "metrics.json").stat().st_mtime >= started:
                     results[i] = saved
@@ -274,19 +331,21 @@ def _stopped(signum: int, ids: list[str], out_root: Path, results: dict, quick: 
                                f"{len(ids)} experiment(s) finished; {where}")
 
 
-def _reproduce(ids: list[str], out_root: Path, results: dict, *, quick: bool,
+def _reproduce(ids: list[str], out_root: Path, results: dict, *, quick: bool, sets: Sets,
                jobs: int | None, progress: TextIO, resume: bool,
                show_progress: bool | None, full_traces: bool) -> list[dict]:
     code = code_hash()
     results["__code__"] = code
     if resume:
         for i in ids:
-            saved = _resumable(i, out_root, run_hash(i, _config_dict(get(i), quick), quick, code))
+            saved = _resumable(i, out_root, run_hash(i, _config_dict(get(i), quick, sets),
+                                                     quick, code))
             if saved is not None:
                 results[i] = saved
                 print(f"[resume] {i}: metrics.json matches the current code and config; "
                       "kept", file=progress, flush=True)
-    todo = [i for i in ids if i not in results]
+    # Costliest first (Experiment.cost); the report keeps the order of ``ids``.
+    todo = sorted((i for i in ids if i not in results), key=lambda i: -get(i).cost)
     # Default: one worker per CPU (more only adds load), never more than experiments.
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(todo) or 1))
     set_progress(show_progress)
@@ -298,10 +357,10 @@ def _reproduce(ids: list[str], out_root: Path, results: dict, *, quick: bool,
     if jobs == 1:
         for k, exp_id in enumerate(todo, 1):
             print(f"[{k}/{len(todo)}] {exp_id} ...", file=progress, flush=True)
-            results[exp_id] = _safe_run(exp_id, out_root, quick, code)
+            results[exp_id] = _safe_run(exp_id, out_root, quick, code, sets)
             _report_line(results[exp_id], k, len(todo), t0, progress)
     else:
-        _run_pool(todo, out_root, quick, code, jobs, results, t0, progress,
+        _run_pool(todo, out_root, quick, code, jobs, results, t0, progress, sets,
                   (show_progress, full_traces, os.getpid()))
     results.pop("__started__")
     results.pop("__code__")
@@ -340,7 +399,7 @@ def _all_results(out_root: Path, fresh: dict[str, dict]) -> list[dict]:
 
 
 def _run_pool(todo: list[str], out_root: Path, quick: bool, code: str, jobs: int,
-              results: dict, t0: float, progress: TextIO, init: tuple) -> None:
+              results: dict, t0: float, progress: TextIO, sets: Sets, init: tuple) -> None:
     futures: dict = {}
     pool = None
     try:
@@ -350,7 +409,7 @@ def _run_pool(todo: list[str], out_root: Path, quick: bool, code: str, jobs: int
         with signals_held():
             pool = ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init,
                                        initargs=init)
-            futures = {pool.submit(_safe_run, i, out_root, quick, code): i for i in todo}
+            futures = {pool.submit(_safe_run, i, out_root, quick, code, sets): i for i in todo}
         print(f"running: {', '.join(todo)}", file=progress, flush=True)
         pending, k = set(futures), 0
         while pending:

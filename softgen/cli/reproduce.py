@@ -15,6 +15,11 @@ def add_arguments(p) -> None:
     p.add_argument("ids", nargs="*", metavar="ID")
     p.add_argument("--out", default="results", help="output directory (default: results/)")
     p.add_argument("--quick", action="store_true", help="shortened runs")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="change a config value of the chosen experiments that have KEY "
+                        "(after --quick); e.g. the full robustness study: "
+                        "ext-robustness-theorem5 --set samples=200 --set group_samples=40 "
+                        "--set length_samples=20")
     p.add_argument("--jobs", type=int, default=None,
                    help="worker processes (default: the number of CPUs)")
     p.add_argument("--progress", action="store_true",
@@ -38,13 +43,15 @@ def run(args) -> int:
         try:
             # Imported here: the experiments' modules cost a second to import, and
             # the other verbs do not need them.
-            from softgen.app.reproduce import reproduce
+            from softgen.app.reproduce import parse_sets, reproduce
+            from softgen.experiments.registry import experiment_ids
+            sets = parse_sets(args.set, args.ids or experiment_ids())
             # reproduce() sets its own handlers (and writes its own incomplete report);
             # these cover the moments before and after it.
             results = reproduce(args.ids, out, quick=args.quick, jobs=args.jobs,
                                 resume=args.resume,
                                 show_progress=True if args.progress else None,
-                                full_traces=args.full_traces)
+                                full_traces=args.full_traces, sets=sets)
         except Stop as stop:
             ignore_signals()
             if results is not None:         # after reproduce() finished: all is written

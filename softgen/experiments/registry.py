@@ -61,6 +61,10 @@ class Experiment:
     # config -> metrics of one run, no files written: what a sweep evaluates per sample
     # (``softgen sweep``). Without it a sweep calls ``run`` into a scratch directory.
     case: Callable[[Config], Metrics | dict] | None = None
+    # CPU seconds of the default run, as a profile measured it (metrics.json's
+    # ``cpu_seconds``): ``reproduce`` starts the costliest first so that the longest
+    # experiment is not the one left running alone at the end. A scheduling hint only.
+    cost: float = 0.0
 
 
 def experiment_ids() -> list[str]:
