@@ -352,3 +352,49 @@ def test_compiled_generic_projectors_equal_casadi(need_compiler, mck, mck_proj):
                 o = np.asarray(o).reshape(r.shape)
                 assert np.all(np.isfinite(o)), f.name()
                 assert np.allclose(o, r, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(r).max()))
+
+
+def _biarticular(act: McKibbenPairs):
+    """Φ of the two McKibben pairs plus a fifth, biarticular muscle acting on both joints:
+    one dense-coupled 2 × 5 block (nullity 3), not one pair per joint."""
+    def build(q):
+        Phi = act.Phi(q)
+        psi = (0.17 + 0.03 * (q[0] + q[1])) ** 2 - 0.14 ** 2
+        return ca.horzcat(Phi, ca.vertcat(0.5 * psi, 0.8 * psi))
+    return _fun("Phi_bi", 2, build)
+
+
+@pytest.mark.parametrize("kind", ["theorem5", "corollary2"])
+def test_generic_law_meets_its_defining_equations_on_a_coupled_matrix(arms, kind):
+    """Generic route on a biarticular Φ (2 × 5): p = Φ^†τ_* + Φ^⊥ν gives Φp = τ_*, and ν̇
+    of the step makes d/dt(Φ_q p) = K_σ(σ − σ_d) − K̂⁻¹σ̇_d along q̇, ν̇, dΠ̂/dt and the
+    reference rates (eq. 10.1's derivation, the q̈ path omitted as in the module)."""
+    closed = arms["closed"]
+    proj = Projectors(_biarticular(closed.act))           # Φ_q: row i in q_i
+    arm = PneumaticArm(closed.model, dyn=closed.dyn, act=closed.act, route="generic",
+                       projectors=proj)
+    assert arm.n_nu == 3
+    f = arm.step_fun(kind)
+    n, r, k = 2, 3, arm.n_params
+    syms = [ca.SX.sym(f.name_in(i), f.size1_in(i)) for i in range(f.n_in())]
+    S = dict(zip(f.name_in(), syms))
+    z_next, p, tau_star, _ = f(*syms)
+    z, q, ref, dt = S["z"], S["q"], S["ref"], S["dt"]
+    # Forward Euler: (ν̇, dΠ̂/dt); z_next − z loses a few digits to cancellation (seen:
+    # residuals up to 1.5e-13 of the scale, hence 1e-12 below).
+    rates = (z_next - z) / dt
+    Phi_q_p = proj.Phi_q(q) @ p
+    lhs = ca.jtimes(Phi_q_p, ca.vertcat(q, z, ref[:3 * n]),
+                    ca.vertcat(S["qd"], rates, ref[n:4 * n]))
+    want = S["ksigma"] * (S["sigma"] - ref[4 * n:5 * n])
+    if kind == "theorem5":
+        want = want - S["kinv"] * ref[5 * n:]
+    check = ca.Function("check", syms, [proj.Phi(q) @ p - tau_star, lhs - want, lhs])
+    rng = np.random.default_rng(9)
+    for _ in range(20):
+        args = _step_args(f, rng, n)
+        assert len(args[0]) == r + k
+        torque, resid, scale = (np.array(o) for o in check(*args))
+        tau = np.abs(np.array(f(*args)[2])).max()
+        assert np.abs(torque).max() <= 1e-12 * tau
+        assert np.abs(resid).max() <= 1e-12 * np.abs(scale).max()
