@@ -183,8 +183,8 @@ def test_mckibben_finite_and_exact_where_one_elongation_is_small(mck, mck_proj, 
 @pytest.mark.parametrize("n,m,nx,seed", DENSE[:2])
 def test_near_rank_loss_stays_finite_and_backward_accurate(n, m, nx, seed):
     """Row n−1 → row 0 + ε·(row n−1): σ_min ~ ε. At ε = 1e-12, 1e-6, 1e-3 the results are
-    finite and M M^† M = M holds to κ(M)·1e-15 (QR route, κ not κ²); at ε = 0 the rank is
-    gone and det(MMᵀ) is zero to rounding."""
+    finite and M M^† M = M, M M^† = I hold to κ(M)·1e-14 (QR route, κ not κ²); at ε = 0
+    the rank is gone and det(MMᵀ) is zero to rounding."""
     base = _dense(n, m, nx, seed)
     eps_s = ca.SX.sym("eps")
     x = ca.SX.sym("x", nx)
@@ -201,6 +201,7 @@ def test_near_rank_loss_stays_finite_and_backward_accurate(n, m, nx, seed):
             kappa = s[0] / s[-1]
             assert np.all(np.isfinite(Mp)) and np.all(np.isfinite(N))
             assert np.abs(Mv @ Mp @ Mv - Mv).max() <= 100 * kappa * 1e-16 * s[0]
+            assert np.abs(Mv @ Mp - np.eye(n)).max() <= 100 * kappa * 1e-16   # κ, not κ²
             assert np.isclose(det.item(), np.prod(s ** 2), rtol=1e-12 * kappa, atol=0)
         Mv, *_, det = (np.array(o) for o in f(xv, 0.0))
         assert abs(det.item()) <= 1e-12 * np.abs(Mv).max() ** (2 * n)
@@ -230,6 +231,9 @@ def test_bad_structures_give_one_error_line():
     assert "\n" not in str(e.value)
     with pytest.raises(ModelError, match="more inputs than rows"):
         Projectors(_fun("T", 1, lambda x: ca.vertcat(x, x)))
+    with pytest.raises(ModelError, match="expected the shapes of"):
+        Projectors(_fun("Phi", 2, lambda x: ca.horzcat(ca.diag(x), ca.diag(x))),
+                   _fun("Phi_q", 2, ca.diag))
     with pytest.raises(ValueError, match="full row rank"):
         pinv(ca.SX.sym("A", 3, 2))
     S = ca.SX.sym("S", 3, 2)
@@ -398,3 +402,19 @@ def test_generic_law_meets_its_defining_equations_on_a_coupled_matrix(arms, kind
         tau = np.abs(np.array(f(*args)[2])).max()
         assert np.abs(torque).max() <= 1e-12 * tau
         assert np.abs(resid).max() <= 1e-12 * np.abs(scale).max()
+
+
+@pytest.mark.compiler
+def test_compiled_generic_theorem5_equals_casadi(need_compiler, arms):
+    """The generic Theorem 5 step (orthonormal basis) compiled to C == the casadi.Function."""
+    f = arms["ortho"].step_fun("theorem5")
+    lib = compile_functions("arm_2link_pneumatic", [f], backend="c")
+    rng = np.random.default_rng(10)
+    for _ in range(20):
+        args = _step_args(f, rng, 2)
+        ref = [np.array(o).ravel() for o in f(*args)]
+        got = lib[f.name()](*args)
+        for r, o in zip(ref, got):
+            o = np.asarray(o).ravel()
+            assert np.all(np.isfinite(o))
+            assert np.allclose(o, r, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(r).max()))

@@ -23,12 +23,14 @@ McKibben pair per joint gives n blocks of 1 × 2; a dense matrix is one block. E
 derivation below runs per block, so a block structure costs what its blocks cost and
 the per-joint basis of section 2.1 is found without being told.
 
-Pseudo-inverse (QR route). Per block, Mᵀ = QR by modified Gram-Schmidt (R upper
-triangular with positive diagonal, Q orthonormal columns), and M^† = Q R⁻ᵀ by one
-triangular solve. This never forms (MMᵀ)⁻¹: the normal-equations route squares the
-condition number κ(M), the QR route works with κ(M) itself, and Gram-Schmidt (no
-Householder sign choice) keeps every entry a smooth function of x wherever M has full
-row rank. det(MMᵀ) = Π R_ii² comes for free and is the rank-loss indicator.
+Pseudo-inverse (QR route). Per block, Mᵀ = QR by Gram-Schmidt with reorthogonalisation
+(R upper triangular with positive diagonal, Q orthonormal columns), and M^† = Q R⁻ᵀ by
+one triangular solve. This never forms or inverts MMᵀ, whose condition number is κ(M)²;
+Gram-Schmidt (no Householder sign choice) keeps every entry a smooth function of x
+wherever M has full row rank. det(MMᵀ) = Π R_ii² comes for free and is the rank-loss
+indicator. A 1 × 1 block is inverted directly. Measured on a dense 2 × 5 block at
+κ = 9e6: ‖MM^† − I‖ = 3.5e-10 by this route, 2.0e-3 by Mᵀ solve(MMᵀ, I)
+(tests/test_projectors.py holds the route to 100 κ ε).
 
 Null-space basis. Per block with nullity k = (columns − rows):
 
@@ -120,16 +122,23 @@ def _zeros(M, rows: int, cols: int):
 
 # -- pseudo-inverse ------------------------------------------------------------------------
 
-def _mgs(A):
-    """A = QR by modified Gram-Schmidt (A tall, full column rank): Q, R, R_ii > 0."""
+def _gram_schmidt(A):
+    """A = QR by Gram-Schmidt with one reorthogonalisation (A tall, full column rank).
+
+    Each column is projected off the previous ones twice ("twice is enough", Giraud et
+    al. 2005): one pass leaves Q orthogonal only to κ(A)·ε, which would cost M^† a
+    factor κ (measured: ‖MM^† − I‖ 3e-3 at κ = 1e7 with one pass). R_ii > 0, so every
+    entry is a smooth function of A where A has full column rank.
+    """
     m, r = A.shape
-    cols = [A[:, j] for j in range(r)]
     Q, R = [], _zeros(A, r, r)
     for j in range(r):
-        v = cols[j]
-        for i in range(j):                          # modified: project the updated v
-            R[i, j] = ca.dot(Q[i], v)
-            v = v - R[i, j] * Q[i]
+        v = A[:, j]
+        for _ in range(2 if j else 1):
+            for i in range(j):
+                h = ca.dot(Q[i], v)
+                R[i, j] = R[i, j] + h
+                v = v - h * Q[i]
         R[j, j] = ca.norm_2(v)
         Q.append(v / R[j, j])
     return ca.horzcat(*Q), R
@@ -162,7 +171,7 @@ def _solve_lower(L, B):
 def _block_pinv(Mb):
     if Mb.shape == (1, 1):                          # a 1 × 1 block is its own inverse
         return 1 / Mb, Mb
-    Q, R = _mgs(Mb.T)                               # Mᵀ = QR  =>  M^† = Q R⁻ᵀ
+    Q, R = _gram_schmidt(Mb.T)                               # Mᵀ = QR  =>  M^† = Q R⁻ᵀ
     return _solve_upper(R, Q.T).T, R
 
 
@@ -361,6 +370,11 @@ class Projectors:
         self.Phi_fun, self.Phi_q_fun = Phi, Phi_q
         self.nq = Phi.size1_in(0)
         self.n, self.m = Phi.size_out(0)
+        if Phi_q is not None and (Phi_q.size_out(0) != Phi.size_out(0)
+                                  or Phi_q.size_in(0) != Phi.size_in(0)):
+            raise ModelError(f"{Phi_q.name()}: expected the shapes of {Phi.name()} "
+                             f"({self.nq} -> {self.n}x{self.m}), got {Phi_q.size1_in(0)} -> "
+                             f"{Phi_q.size1_out(0)}x{Phi_q.size2_out(0)}")
         if self.n >= self.m:
             raise ModelError(f"{Phi.name()}: an actuator matrix with a null space needs more "
                              f"inputs than rows, got {self.n}x{self.m}")
