@@ -28,7 +28,7 @@ Pseudo-inverse (QR route). Per block, Mᵀ = QR by Gram-Schmidt with reorthogona
 one triangular solve. This never forms or inverts MMᵀ, whose condition number is κ(M)²;
 Gram-Schmidt (no Householder sign choice) keeps every entry a smooth function of x
 wherever M has full row rank. det(MMᵀ) = Π R_ii² comes for free and is the rank-loss
-indicator. A 1 × 1 block is inverted directly. Measured on a dense 2 × 5 block at
+indicator. A one-row block (κ = 1: every McKibben pair) is Mᵀ/(MMᵀ) directly. Measured on a dense 2 × 5 block at
 κ = 9e6: ‖MM^† − I‖ = 3.5e-10 by this route, 2.0e-3 by Mᵀ solve(MMᵀ, I)
 (tests/test_projectors.py holds the route to 100 κ ε).
 
@@ -169,8 +169,13 @@ def _solve_lower(L, B):
 
 
 def _block_pinv(Mb):
-    if Mb.shape == (1, 1):                          # a 1 × 1 block is its own inverse
-        return 1 / Mb, Mb
+    if Mb.shape[0] == 1:
+        # One row: κ = 1, so Mᵀ/(MMᵀ) is as accurate as QR and needs no square root
+        # (R = ‖M‖ is returned for the determinant). A 1 × 1 block is its own inverse.
+        if Mb.shape[1] == 1:
+            return 1 / Mb, Mb
+        g = Mb @ Mb.T
+        return Mb.T / g, ca.sqrt(g)
     Q, R = _gram_schmidt(Mb.T)                               # Mᵀ = QR  =>  M^† = Q R⁻ᵀ
     return _solve_upper(R, Q.T).T, R
 
