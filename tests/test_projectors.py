@@ -207,6 +207,28 @@ def test_near_rank_loss_stays_finite_and_backward_accurate(n, m, nx, seed):
         assert abs(det.item()) <= 1e-12 * np.abs(Mv).max() ** (2 * n)
 
 
+def test_mx_expressions_give_the_sx_results():
+    """The builders take MX as well as SX expressions (same blocks, same numbers)."""
+    Phi = _dense(2, 5, 3, 1)
+    xs, xm = ca.SX.sym("x", 3), ca.MX.sym("x", 3)
+    outs = {}
+    for x in (xs, xm):
+        M = Phi(x)
+        outs[type(x)] = ca.Function("f", [x], [ca.densify(o) for o in (
+            pinv(M), null_basis(M), gram_determinant(M))])
+    Bm = ca.MX(2, 4)
+    Bm[0, 0], Bm[0, 1] = ca.cos(xm[0]) + 2, xm[0]
+    Bm[1, 2], Bm[1, 3] = xm[1] + 3, ca.sin(xm[1])
+    assert blocks(Bm) == [([0], [0, 1]), ([1], [2, 3])]
+    rng = np.random.default_rng(11)
+    for _ in range(10):
+        x = rng.uniform(-1.0, 1.0, 3)
+        for a, b in zip(outs[ca.SX](x), outs[ca.MX](x)):
+            assert np.allclose(np.array(a), np.array(b), rtol=1e-12, atol=1e-14)
+        N = np.array(ca.Function("N", [xm], [null_basis(Bm)])(x))
+        assert np.abs(np.array(ca.Function("B", [xm], [Bm])(x)) @ N).max() < 1e-15
+
+
 def test_find_rank_loss_names_the_state():
     # Rows (1, 0, x0) and (1, x1, 0) are parallel exactly at x = (0, 0), the box centre.
     f = _fun("A", 2, lambda x: ca.vertcat(ca.horzcat(1, 0, x[0]), ca.horzcat(1, x[1], 0)))

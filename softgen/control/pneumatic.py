@@ -202,9 +202,10 @@ class PneumaticArm(McKibbenRobot):
         return ca.solve(M, tau_star - bias)
 
     def solve_direction(self, q, rhs):
-        """(Φ_q Φ^⊥)^† rhs: for one McKibben pair per joint Φ_qΦ^⊥ is diagonal and never
-        singular, so the closed form divides; the generic route multiplies by the
-        derived pseudo-inverse."""
+        """(Φ_q Φ^⊥)^† rhs (eq. 10.1): for one McKibben pair per joint Φ_qΦ^⊥ is diagonal
+        and never singular, so the closed form divides; the generic route multiplies by
+        the derived pseudo-inverse, which for more null directions than joints (Φ_qΦ^⊥
+        wide) gives the minimum-norm solution."""
         if self.route == "closed_form":
             return rhs / ca.diag(self.act.stiffness_direction(q))
         return self.proj.stiffness_pinv(q) @ rhs

@@ -55,9 +55,11 @@ has every eigenvalue ≥ 1, so that Cholesky is well conditioned whatever M does
 ``orthonormal=False`` keeps the unnormalised smooth basis (no square roots; for
 McKibben pairs exactly :meth:`~softgen.symbolic.actuators.McKibbenPairs.null_basis`).
 
-Rank loss. :func:`gram_determinant` is det(MMᵀ) (symbolic, emittable); the numeric
-:func:`singular_values` and :func:`find_rank_loss` sample a box of states and name
-the first state where σ_min(M) ≤ rtol σ_max(M).
+Rank loss. Where M loses row rank M^† does not exist and these expressions are not
+finite or huge (division by a zero R_ii or norm, or by its rounding residue).
+:func:`gram_determinant` is det(MMᵀ) (symbolic, emittable) so a caller can tell such
+states; the numeric :func:`singular_values` and :func:`find_rank_loss` sample a box of
+states and name the first state where σ_min(M) ≤ rtol σ_max(M).
 """
 from __future__ import annotations
 
