@@ -135,8 +135,17 @@ def test_dense_basis_is_continuous_along_a_path(n, m, nx, seed):
         prev = cur
 
 
-def test_generic_equals_mckibben_closed_forms(mck, mck_proj):
+def _unequal(mck):
+    """The same pairs with unequal muscles (lengths differ between sides and joints)."""
+    return mck.with_values(ln_a=[0.17, 0.18], ln_b=[0.16, 0.175], lm_a=[0.14, 0.15],
+                           lm_b=[0.13, 0.145], R=[0.03, 0.025])
+
+
+@pytest.mark.parametrize("unequal", [False, True])
+def test_generic_equals_mckibben_closed_forms(mck, unequal):
+    mck = _unequal(mck) if unequal else mck
     q = ca.SX.sym("q", 2)
+    mck_proj = Projectors(_fun("Phi", mck.n, mck.Phi), _fun("Phi_q", mck.n, mck.Phi_q))
     raw = Projectors(mck_proj.Phi_fun, mck_proj.Phi_q_fun, orthonormal=False)
 
     def proj_onto(N):
@@ -247,6 +256,17 @@ def test_find_rank_loss_none_for_mckibben_in_its_range(mck, mck_proj):
     assert find_rank_loss(mck_proj.Phi_fun, -lim, lim, samples=300) is None
     S = _fun("S", 2, mck_proj.stiffness_direction)
     assert find_rank_loss(S, -lim, lim, samples=300) is None
+    assert mck_proj.rank_loss(-lim, lim, samples=300) is None
+
+
+def test_rank_loss_reports_the_stiffness_direction_too():
+    """Φ = [[1, 0, q0], [0, 1, q1]] never loses rank; with Φ_q = [[0, 0, q0], [0, 0, 0]]
+    the 2 × 1 Φ_qΦ^⊥ vanishes at q0 = 0 (the box centre): the report names that state."""
+    Phi = _fun("Phi", 2, lambda q: ca.vertcat(ca.horzcat(1, 0, q[0]), ca.horzcat(0, 1, q[1])))
+    Phi_q = _fun("Phi_q", 2, lambda q: ca.vertcat(ca.horzcat(0, 0, q[0]), ca.DM.zeros(1, 3)))
+    loss = Projectors(Phi, Phi_q).rank_loss([-1, -1], [1, 1], names=["q1", "q2"])
+    assert loss is not None and loss.state[0] == 0 and "Phi_q Phi_perp(q)" in str(loss)
+    assert "\n" not in str(loss)
 
 
 def test_bad_structures_give_one_error_line():
@@ -266,9 +286,9 @@ def test_bad_structures_give_one_error_line():
 
 # -- Theorem 5 by the generic route -----------------------------------------------------------
 
-def _arms(model):
+def _arms(model, act=None):
     """The closed-form, unnormalised generic and orthonormal generic routes of ``model``."""
-    closed = PneumaticArm(model)
+    closed = PneumaticArm(model, act=act)
     raw = Projectors(_fun("Phi", 2, closed.act.Phi), _fun("Phi_q", 2, closed.act.Phi_q),
                      orthonormal=False)
     return dict(
@@ -304,10 +324,18 @@ def _step_args(f, rng, n):
     return out
 
 
+@pytest.fixture(scope="module")
+def arms_unequal(arms):
+    return _arms(arms["closed"].model, act=_unequal(arms["closed"].act))
+
+
+@pytest.mark.parametrize("unequal", [False, True])
 @pytest.mark.parametrize("kind", ["prop11", "open_loop", "theorem5", "corollary2"])
-def test_generic_route_unnormalised_gives_the_closed_form_law(arms, kind):
+def test_generic_route_unnormalised_gives_the_closed_form_law(arms, arms_unequal, kind,
+                                                              unequal):
     """With the unnormalised generic basis (= (φ_b, φ_a) per joint) every output equals
-    the closed form's to 1e-12 on random states."""
+    the closed form's to 1e-12 on random states, for equal and unequal muscles."""
+    arms = arms_unequal if unequal else arms
     fc, fr = arms["closed"].step_fun(kind), arms["raw"].step_fun(kind)
     assert fr.name().endswith("_generic")
     rng = np.random.default_rng(5)
@@ -318,11 +346,13 @@ def test_generic_route_unnormalised_gives_the_closed_form_law(arms, kind):
             assert np.allclose(b, a, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(a).max()))
 
 
+@pytest.mark.parametrize("unequal", [False, True])
 @pytest.mark.parametrize("kind", ["theorem5", "corollary2"])
-def test_generic_route_orthonormal_gives_the_same_pressures(arms, kind):
+def test_generic_route_orthonormal_gives_the_same_pressures(arms, arms_unequal, kind, unequal):
     """Orthonormal basis N' = N T⁻¹, T = N'ᵀN (diagonal): from ν' = Tν the generic law
     commands the same p and τ_*, and integrates ν'⁺ = Tν⁺ + dt Ṫν (ν' = Tν differentiated),
-    Π̂⁺ unchanged, to 1e-12 on random states."""
+    Π̂⁺ unchanged, to 1e-12 on random states (equal and unequal muscles)."""
+    arms = arms_unequal if unequal else arms
     closed, ortho = arms["closed"], arms["ortho"]
     fc, fo = closed.step_fun(kind), ortho.step_fun(kind)
     q, qd = ca.SX.sym("q", 2), ca.SX.sym("qd", 2)

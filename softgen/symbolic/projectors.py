@@ -448,6 +448,19 @@ class Projectors:
                 det = det * ca.det(M[rows, cols][:, self.pivots[cols[0]]])
         return det
 
+    def rank_loss(self, lower, upper, *, names: list[str] | None = None,
+                  **kwargs) -> RankLoss | None:
+        """The first sampled state of the box where Φ, then Φ_qΦ^⊥, loses rank, or None
+        (:func:`find_rank_loss`; ``str()`` is one line naming the state)."""
+        q = ca.SX.sym("q", self.nq)
+        S = ca.Function("Phi_q_Phi_perp", [q], [self.stiffness_direction(q)], ["q"], ["S"])
+        for f, what in ((self.Phi_fun, f"{self.Phi_fun.name()}(q)"), (S, "Phi_q Phi_perp(q)")):
+            loss = find_rank_loss(f, lower, upper, what=what,
+                                  names=names or [f"q[{i}]" for i in range(self.nq)], **kwargs)
+            if loss is not None:
+                return loss
+        return None
+
     def functions(self, name: str) -> list[ca.Function]:
         """``<name>_projectors`` (Φ^†, Φ^⊥, P, (Φ_qΦ^⊥)^†) and ``<name>_rank`` (det ΦΦᵀ,
         det Φ_qΦ^⊥ᵀ-Gram) as casadi.Functions of q."""
