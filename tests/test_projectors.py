@@ -269,6 +269,24 @@ def test_rank_loss_reports_the_stiffness_direction_too():
     assert "\n" not in str(loss)
 
 
+def test_mixed_blocks_square_blocks_and_unused_columns():
+    """A 1 × 2 block, a 1 × 1 block (no null direction) and a column no row uses (its own
+    null direction e_3): identities hold and the basis is block by block."""
+    def build(x):
+        M = ca.SX(2, 4)
+        M[0, 0], M[0, 1], M[1, 2] = x[0] + 2, ca.sin(x[1]), ca.cos(x[1]) + 2
+        return M
+    proj = Projectors(_fun("Phi", 2, build), _fun("Phi_q", 2, lambda x: ca.DM.ones(2, 4)))
+    assert blocks(proj.Phi(ca.SX.sym("q", 2))) == [([0], [0, 1]), ([1], [2]), ([], [3])]
+    f = _funs(proj)
+    rng = np.random.default_rng(12)
+    for _ in range(10):
+        M, Mp, P, N, S, Sp = (np.array(o) for o in f(rng.uniform(-1.0, 1.0, 2)))
+        assert np.allclose(M @ Mp, np.eye(2), atol=1e-15)
+        assert np.allclose(M @ N, 0, atol=1e-15) and np.allclose(N.T @ N, np.eye(2))
+        assert np.allclose(N[:, 1], [0, 0, 0, 1]) and np.allclose(N @ N.T, P, atol=1e-15)
+
+
 def test_bad_structures_give_one_error_line():
     with pytest.raises(ModelError, match="row 1 is structurally zero") as e:
         blocks(ca.SX(ca.DM([[1.0, 2.0, 0.0], [0.0, 0.0, 0.0]])))

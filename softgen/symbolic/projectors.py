@@ -129,7 +129,7 @@ def _gram_schmidt(A):
 
     Each column is projected off the previous ones twice ("twice is enough", Giraud et
     al. 2005): one pass leaves Q orthogonal only to κ(A)·ε, which would cost M^† a
-    factor κ (measured: ‖MM^† − I‖ 3e-3 at κ = 1e7 with one pass). R_ii > 0, so every
+    factor κ (measured: ‖MM^† − I‖ = 2.9e-3 at κ = 9e6 with one pass). R_ii > 0, so every
     entry is a smooth function of A where A has full column rank.
     """
     m, r = A.shape
