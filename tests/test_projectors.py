@@ -441,6 +441,25 @@ def test_generic_routes_close_the_loop_like_the_closed_form():
     assert np.abs(qo - qc).max() < 1e-8 and np.abs(so - sc).max() < 1e-4
 
 
+@pytest.mark.parametrize("route", ["raw", "ortho"])
+def test_generic_steps_are_finite_at_and_near_zero(arms, route):
+    """Every generic step with q, q̇ and the references at 0, 1e-12, 1e-6, 1e-3, and at
+    φ_a or φ_b of every joint at those values."""
+    arm = arms[route]
+    mck = arm.act
+    rng = np.random.default_rng(13)
+    for kind in ("prop11", "open_loop", "theorem5", "corollary2"):
+        f = arm.step_fun(kind)
+        for v0 in SPECIAL:
+            for q in (np.full(2, v0), _mckibben_special_q(mck, "a", v0),
+                      _mckibben_special_q(mck, "b", v0)):
+                args = _step_args(f, rng, 2)
+                S = dict(zip(f.name_in(), range(f.n_in())))
+                args[S["q"]], args[S["qd"]], args[S["ref"]] = q, np.full(2, v0), np.full(12, v0)
+                for o in f(*args):
+                    assert np.all(np.isfinite(np.array(o))), (kind, v0)
+
+
 def test_closed_form_route_is_the_default(arms):
     assert arms["closed"].route == "closed_form"
     assert arms["closed"].step_fun("theorem5").name() == "arm_2link_pneumatic_theorem5"
