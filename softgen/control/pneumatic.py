@@ -35,6 +35,16 @@ functions carry the suffix ``_model_acceleration``.
 
 Every step integrates its states by forward Euler over the sample ``dt`` and holds p
 (zero-order hold). Gains are diagonal and passed as vectors.
+
+Routes to Φ^†, Φ^⊥ and (Φ_q Φ^⊥)^† (:data:`ROUTES`): ``"closed_form"`` uses the
+McKibben formulas of :class:`~softgen.symbolic.actuators.McKibbenPairs` (ΦΦᵀ and
+Φ_qΦ^⊥ diagonal, one pair per joint; what the shipped bundles generate);
+``"generic"`` derives them from the actuator matrix function Φ(q), Φ_q(q) by
+:class:`~softgen.symbolic.projectors.Projectors` (any full-row-rank Φ; orthonormal
+Φ^⊥ by default), and its functions carry the suffix ``_generic``. The law is the same
+in any basis of the null space: with Φ^⊥' = Φ^⊥T⁻¹ and ν' = Tν, Φ^⊥'ν' = Φ^⊥ν and
+eq. 10.1 for ν' is eq. 10.1 for ν differentiated through T, so both routes command the
+same pressures from corresponding states (tests/test_projectors.py).
 """
 from __future__ import annotations
 
@@ -46,6 +56,7 @@ import numpy as np
 from softgen.core.errors import ModelError
 from softgen.modelfile.model import RobotModel
 from softgen.symbolic.actuators import McKibbenPairs
+from softgen.symbolic.projectors import Projectors
 from softgen.symbolic.rigid import FUNCTION_OPTS, RigidDynamics
 
 #: Reference layout of every step: q_d, q̇_d, q̈_d, q⃛_d, σ_d, σ̇_d (n each).
@@ -55,6 +66,9 @@ REFERENCE_BLOCKS = ("q_d", "qd_d", "qdd_d", "qddd_d", "sigma_d", "sigmad_d")
 #: section 10.3.3); "model" closes it with q̈ from the adapted model, M̂(q) q̈ =
 #: τ_* − Y_*(q, q̇, q̇, 0) Π̂, since Φ p = τ_* makes Y_*(q, q̇, q̇, q̈) Π = τ_*.
 ACCELERATION = ("omit", "model")
+
+#: Where Φ^†, Φ^⊥ and (Φ_q Φ^⊥)^† come from (module docstring).
+ROUTES = ("closed_form", "generic")
 
 #: Controller kinds -> generated function suffix.
 KINDS = {
@@ -91,15 +105,42 @@ class PneumaticArm(McKibbenRobot):
     """Symbolic core of the chapter-10 controllers for one McKibben-driven model."""
 
     def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None,
-                 act: McKibbenPairs | None = None, acceleration: str = "omit"):
+                 act: McKibbenPairs | None = None, acceleration: str = "omit",
+                 route: str = "closed_form", projectors: Projectors | None = None):
+        """``route``: :data:`ROUTES`. ``projectors`` (generic route only): the Φ(q),
+        Φ_q(q) functions to derive from, for an actuator matrix that is not one McKibben
+        pair per joint; default ``act.Phi``, ``act.Phi_q`` as functions of q. ``act``
+        still gives the gains K (torque KΦp, eq. 2.2)."""
         if acceleration not in ACCELERATION:
             raise ValueError(f"acceleration: expected one of {', '.join(ACCELERATION)}, "
                              f"got {acceleration!r}")
+        if route not in ROUTES:
+            raise ValueError(f"route: expected one of {', '.join(ROUTES)}, got {route!r}")
+        if projectors is not None and route != "generic":
+            raise ValueError("projectors: only used by route=\"generic\"")
         super().__init__(model, dyn=dyn, act=act)
         self.acceleration = acceleration
+        self.route = route
+        if route == "closed_form":
+            self.proj = self.act
+        else:
+            if projectors is None:
+                q = ca.SX.sym("q", self.n)
+                projectors = Projectors(
+                    ca.Function(f"{self.name}_Phi", [q], [self.act.Phi(q)], ["q"], ["Phi"]),
+                    ca.Function(f"{self.name}_Phi_q", [q], [self.act.Phi_q(q)], ["q"],
+                                ["Phi_q"]))
+            self.proj = projectors
         # c_i = K_1 / K_i: assumed known (same muscles, known pulley radii).
         self.gain_ratio = self.act.K[0] / self.act.K
         self.K1 = float(self.act.K[0])
+
+    @cached_property
+    def n_nu(self) -> int:
+        """Entries of ν: the null-space dimension of Φ (n for one pair per joint)."""
+        if self.route == "closed_form":
+            return self.n
+        return self.proj.m - self.proj.n
 
     @property
     def parameter_names(self) -> list[str]:
@@ -160,16 +201,24 @@ class PneumaticArm(McKibbenRobot):
         bias = ca.substitute(lhs, a, ca.DM.zeros(self.n))
         return ca.solve(M, tau_star - bias)
 
+    def solve_direction(self, q, rhs):
+        """(Φ_q Φ^⊥)^† rhs (eq. 10.1): for one McKibben pair per joint Φ_qΦ^⊥ is diagonal
+        and never singular, so the closed form divides; the generic route multiplies by
+        the derived pseudo-inverse, which for more null directions than joints (Φ_qΦ^⊥
+        wide) gives the minimum-norm solution."""
+        if self.route == "closed_form":
+            return rhs / ca.diag(self.act.stiffness_direction(q))
+        return self.proj.stiffness_pinv(q) @ rhs
+
     def open_loop_nu(self, q, tau_star, sigma_d, kinv):
         """ν making the model's stiffness −K̂ Φ_q p equal σ_d at p = Φ^†τ_* + Φ^⊥ν."""
-        a = self.act
-        M = ca.diag(a.stiffness_direction(q))
-        return (-kinv * sigma_d - a.Phi_q(q) @ (a.Phi_pinv(q) @ tau_star)) / M
+        a = self.proj
+        return self.solve_direction(q, -kinv * sigma_d - a.Phi_q(q) @ (a.Phi_pinv(q) @ tau_star))
 
     def theorem5_rates(self, q, qd, sigma, nu, Pi_hat, ref, lam, kd, kpi, ksigma,
                        kinv=None):
         """(p, τ_*, dν/dt, dΠ̂/dt) of Theorem 5; ``kinv=None`` gives Corollary 2."""
-        n, a = self.n, self.act
+        n, a = self.n, self.proj
         tau_star, yts, _ = self.tracking(q, qd, Pi_hat, ref, lam, kd)
         Pi_dot = kpi * yts
         g = a.Phi_pinv(q) @ tau_star                     # Φ^† τ_*
@@ -186,8 +235,7 @@ class PneumaticArm(McKibbenRobot):
             - (Phi_q_dot @ N + Phi_q @ N_dot) @ nu
         if kinv is not None:
             rhs = rhs - kinv * sigmad_d
-        # (Φ_q Φ^⊥)^† of a diagonal, never-singular matrix is its inverse.
-        nu_dot = rhs / ca.diag(a.stiffness_direction(q))
+        nu_dot = self.solve_direction(q, rhs)
         p = g + N @ nu
         return p, tau_star, nu_dot, Pi_dot
 
@@ -210,18 +258,18 @@ class PneumaticArm(McKibbenRobot):
         """
         if kind not in KINDS:
             raise ValueError(f"kind: expected one of {', '.join(KINDS)}, got {kind!r}")
-        n, k = self.n, self.n_params
+        n, k, r = self.n, self.n_params, self.n_nu
         S = self._symbols()
         q, qd, ref, lam, kd, kpi, dt = (S[x] for x in ("q", "qd", "ref", "lam", "kd", "kpi",
                                                        "dt"))
-        a = self.act
+        a = self.proj
         if kind in ("prop11", "open_loop"):
             Pi_hat = ca.SX.sym("z", k)
             z = Pi_hat
             tau_star, yts, _ = self.tracking(q, qd, Pi_hat, ref, lam, kd)
             z_next = Pi_hat + dt * kpi * yts
             if kind == "prop11":
-                nu = ca.SX.zeros(n)
+                nu = ca.SX.zeros(r)
                 ins, names = [z, q, qd, ref, lam, kd, kpi, dt], \
                     ["z", "q", "qd", "ref", "lam", "kd", "kpi", "dt"]
             else:
@@ -230,8 +278,8 @@ class PneumaticArm(McKibbenRobot):
                     ["z", "q", "qd", "ref", "lam", "kd", "kpi", "kinv", "dt"]
             p = a.Phi_pinv(q) @ tau_star + a.null_basis(q) @ nu
         else:
-            z = ca.SX.sym("z", n + k)
-            nu, Pi_hat = z[:n], z[n:]
+            z = ca.SX.sym("z", r + k)
+            nu, Pi_hat = z[:r], z[r:]
             kinv = S["kinv"] if kind == "theorem5" else None
             p, tau_star, nu_dot, Pi_dot = self.theorem5_rates(
                 q, qd, S["sigma"], nu, Pi_hat, ref, lam, kd, kpi, S["ksigma"], kinv)
@@ -245,26 +293,33 @@ class PneumaticArm(McKibbenRobot):
             names.append("dt")
         suffix = "_model_acceleration" if self.acceleration == "model" and \
             kind in ("theorem5", "corollary2") else ""
+        suffix += self._route_suffix
         return ca.Function(f"{self.name}_{KINDS[kind]}{suffix}", ins,
                            [z_next, p, tau_star, ca.densify(ca.SX(nu))], names,
                            ["z_next", "p", "tau_star", "nu"], FUNCTION_OPTS)
 
+    @property
+    def _route_suffix(self) -> str:
+        return "" if self.route == "closed_form" else "_generic"
+
     def derived_fun(self) -> ca.Function:
         """``<model>_null_space``: Φ^†, Φ^⊥, Φ_q Φ^⊥ and their chain-rule rates at (q, q̇)."""
-        a = self.act
+        a = self.proj
         q, qd = ca.SX.sym("q", self.n), ca.SX.sym("qd", self.n)
         P, N, M = a.Phi_pinv(q), a.null_basis(q), a.stiffness_direction(q)
         outs = [P, N, M, ca.jtimes(P, q, qd), ca.jtimes(N, q, qd), ca.jtimes(a.Phi_q(q), q, qd)]
-        return ca.Function(f"{self.name}_null_space", [q, qd], [ca.densify(o) for o in outs],
-                           ["q", "qd"],
+        return ca.Function(f"{self.name}_null_space{self._route_suffix}", [q, qd],
+                           [ca.densify(o) for o in outs], ["q", "qd"],
                            ["Phi_pinv", "Phi_perp", "Phi_q_Phi_perp", "Phi_pinv_dot",
                             "Phi_perp_dot", "Phi_q_dot"], FUNCTION_OPTS)
 
     def functions(self) -> list[tuple[ca.Function, str]]:
         """Every chapter-10 function of this model, with one-line docs."""
         return [
-            (self.derived_fun(), "pinv, null-space basis (phi_b, phi_a) per joint, Phi_q Phi_perp "
-                                 "and their chain-rule time derivatives (Th. 5, Remark 8)"),
+            (self.derived_fun(), ("pinv, null-space basis (phi_b, phi_a) per joint, Phi_q Phi_perp "
+                                  if self.route == "closed_form" else
+                                  "pinv (QR), orthonormal null-space basis, Phi_q Phi_perp ")
+             + "and their chain-rule time derivatives (Th. 5, Remark 8)"),
             (self.step_fun("prop11"), "actuator-aware Slotine-Li step, p = pinv(Phi) tau_* "
                                       "(Prop. 11)"),
             (self.step_fun("open_loop"), "adaptive position control with open-loop stiffness "
@@ -276,10 +331,11 @@ class PneumaticArm(McKibbenRobot):
         ]
 
 
-def pneumatic_arm(model: RobotModel, *, acceleration: str = "omit") -> PneumaticArm:
+def pneumatic_arm(model: RobotModel, *, acceleration: str = "omit",
+                  route: str = "closed_form") -> PneumaticArm:
     """:class:`PneumaticArm` of ``model``, or one clear error if it has no McKibben pairs."""
     if model.actuator_type != "mckibben":
         got = model.actuator_type or "no [[actuators]]"
         raise ModelError(f"{model.name}: the chapter-10 controllers need McKibben pairs "
                          f"(type = \"mckibben\") on every joint, got {got}")
-    return PneumaticArm(model, acceleration=acceleration)
+    return PneumaticArm(model, acceleration=acceleration, route=route)

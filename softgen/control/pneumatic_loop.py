@@ -79,7 +79,7 @@ def controller_block(arm: PneumaticArm, kind: str, dt: float, *, name: str = "ct
     f = arm.step_fun(kind)
     parts = [("Pi_hat", arm.n_params)]
     if kind in ("theorem5", "corollary2"):
-        parts = [("nu", arm.n)] + parts
+        parts = [("nu", arm.n_nu)] + parts
     params = [g for g in ("lam", "kd", "kpi", "ksigma", "kinv") if g in f.name_in()]
     return Block.wrap(name, f, dt=dt, state={"z": "z_next"}, state_parts={"z": parts},
                       params=params, constants={"dt": dt}, doc=f"chapter-10 controller {kind}",
