@@ -553,6 +553,7 @@ class PneumaticInvasiveEstimator(EstimatorBase):
         if n == 1:
             self.inertia, self.beta = float(M0[0, 0]), float(D0[0, 0])
         checks = pneumatic_conditions(self.model, self.config, self.dyn)
+        self.uio_conditions = checks
         failed = [ch for ch in checks if ch.holds is False]
         if failed:
             raise ModelError(f"{self.model.name}: no delayed UIO for the pneumatic estimator "
@@ -566,6 +567,11 @@ class PneumaticInvasiveEstimator(EstimatorBase):
     def _rls_instances(self):
         names = [f"joint{i + 1}" for i in range(self.n)]
         return names, {r: [("q", i)] for i, r in enumerate(names)}
+
+    def describe(self) -> dict:
+        """The base entry plus the UIO existence conditions checked, each with its value."""
+        return {**super().describe(),
+                "uio_conditions": [ch.as_dict() for ch in self.uio_conditions]}
 
     def _estimates(self, y0, est):
         n, pw = self.n, self.config.powers
