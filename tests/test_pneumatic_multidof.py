@@ -108,3 +108,17 @@ def test_stiffness_error_on_a_continuous_plant_falls_with_the_sample_time():
         errs.append((np.abs(res.sigma_hat[late] - sig[late]).max(axis=0)
                      / np.abs(sig[late]).max(axis=0)).max())
     assert errs[1] < 0.02 and errs[1] < errs[0] / 5, errs
+
+
+@pytest.mark.parametrize("eps", [0.0, 1e-12, 1e-6, 1e-3])
+def test_estimator_step_is_finite_near_zero(eps):
+    """The 3-link step at q = eps (the thesis's 1-DoF observability issue is at q = 0),
+    zero and nominal pressures, zero and random state: finite everywhere."""
+    model = load_model(USER)
+    est = StiffnessEstimator(model, EstimatorConfig("pneumatic"))
+    f = est.step_fun()
+    rng = np.random.default_rng(int(eps * 1e12) % 7)
+    for s in (est.initial_state(), est.initial_state() + 1e-3 * rng.normal(size=est.n_state)):
+        for p in (0.0, 3e5):
+            y = np.concatenate([eps * np.ones(3), p * np.ones(6)])
+            assert all(np.all(np.isfinite(np.array(o))) for o in f(s, y))

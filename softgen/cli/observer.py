@@ -27,8 +27,8 @@ def add_arguments(p) -> None:
     p.add_argument("--actuator", metavar="V1,V2,...",
                    help="--model: McKibben pressures p1a,p1b,... in Pa (default half of "
                         "pressure_max) or qbmove motor positions qa1..,qb1.. (default q0)")
-    p.add_argument("--dt", type=float, default=1e-2, help="--model: sample time (default 0.01)")
-    p.add_argument("--integrator", choices=("euler", "rk4"), default="euler",
+    p.add_argument("--dt", type=float, help="--model: sample time (default 0.01 s)")
+    p.add_argument("--integrator", choices=("euler", "rk4"),
                    help="--model: one Euler (the thesis's discretisation) or RK4 step")
 
 
@@ -39,12 +39,14 @@ def run(args) -> int:
                                       read_system, write_observer)
     if args.system is not None:
         system = read_system(args.system)
-        model_only = [o for o in ("q0", "actuator") if getattr(args, o) is not None]
+        model_only = [o for o in ("q0", "actuator", "dt", "integrator")
+                      if getattr(args, o) is not None]
         if model_only:
             raise SoftgenError(f"observer: --{model_only[0]} is for --model, not --system")
     else:
-        system = linearise_model(args.model, q0=args.q0, actuator=args.actuator, dt=args.dt,
-                                 integrator=args.integrator)
+        system = linearise_model(args.model, q0=args.q0, actuator=args.actuator,
+                                 dt=1e-2 if args.dt is None else args.dt,
+                                 integrator=args.integrator or "euler")
     n, p = system.A.shape[0], system.C.shape[0]
     delay = args.delay
     if delay is None:
