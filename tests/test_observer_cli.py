@@ -1,7 +1,9 @@
 """``softgen observer``: a delayed UIO for a user's system (thesis eq. 5.4, Props. 7-9)."""
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 
 import casadi as ca
 import numpy as np
@@ -11,6 +13,7 @@ from softgen.app.observer import (check_system, linearise_model, observer_functi
                                   read_system)
 from softgen.cli import main
 from softgen.codegen.build import compile_shared, find_compiler
+from softgen.estimation.uio import _prop8
 
 
 def _toml_matrix(M) -> str:
@@ -106,7 +109,6 @@ def test_compiled_c_step_equals_the_casadi_function(tmp_path, capsys):
                                                      "p": 3}
     assert all(c["holds"] for c in ob["conditions"])
     np.testing.assert_array_equal(np.array(ob["matrices"]["A"]), A)   # repr round-trips
-    import hashlib
     assert man["header_sha256"] == hashlib.sha256((out / "plant3.h").read_bytes()).hexdigest()
     lib = tmp_path / "libplant3.so"
     compile_shared(out / "plant3.c", lib)
@@ -172,7 +174,6 @@ BAD = [
 
 @pytest.mark.parametrize("case, text, pattern", BAD, ids=[b[0] for b in BAD])
 def test_bad_files_give_one_line_naming_the_key(tmp_path, capsys, case, text, pattern):
-    import re
     f = tmp_path / f"{case}.toml"
     f.write_text(text)
     assert main(["observer", "--system", str(f)]) == 2
@@ -239,5 +240,4 @@ def test_qbmove_linearisation_is_strongly_observable_at_the_shortest_window(caps
     assert "Prop. 8: rank [O^1, H^1] = n + rank H^1: 6 = 6 (holds)" in out
     system = linearise_model("pendulum_qbmove", dt=1e-3)
     Bu, Du, _, _ = system.split()
-    from softgen.estimation.uio import _prop8
     assert not _prop8(system.A, Bu, system.C, Du, 6, None)[0]   # the L = n test's verdict

@@ -238,7 +238,8 @@ def read_system(path: str | Path) -> LinearSystem:
         raise SystemFileError(f"{path}: B, D: the unknown-input columns {unknown} of [B; D] "
                               f"are dependent (rank {r} < {len(unknown)}): two unknown inputs "
                               f"act identically, so no observer can tell them apart")
-    name = data.get("name", re.sub(r"\W", "_", path.stem))
+    stem = re.sub(r"\W", "_", path.stem)
+    name = data.get("name", stem if _NAME.match(stem) else f"system_{stem}")
     if not isinstance(name, str) or not _NAME.match(name):
         raise SystemFileError(f"{path}: name: expected a C identifier, got {_short(name)}")
     return LinearSystem(name=name, A=A, B=B, C=C, D=D, unknown=unknown,
