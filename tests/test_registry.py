@@ -78,8 +78,8 @@ def test_shipped_models_get_what_their_files_declare():
         for cap in ("qbmove_actuators", "electric_cascade", "electric_stiffness_estimator",
                     "noninvasive_stiffness_estimator"):
             assert (cap in got) == (kind == "qbmove"), (name, cap)
-        assert ("pneumatic_stiffness_estimator" in got) == (kind == "mckibben"
-                                                            and m.dof == 1), name
+        # every McKibben arm: the n-joint UIO conditions hold (B(0) invertible)
+        assert ("pneumatic_stiffness_estimator" in got) == (kind == "mckibben"), name
     # The chapter-11 arm, formerly the one name in CASCADE_MODELS, still gets its cascades.
     assert "electric_cascade" in _gets(load_model("arm_2link_electric"))
 
@@ -96,7 +96,8 @@ def test_every_failed_condition_says_why_naming_the_file():
 def test_conditions_on_random_user_models(tmp_path, seed):
     """Seeded random planar arms (1-4 links, no / qbmove / McKibben actuators): the
     cascade goes to exactly the all-qbmove arms, the pneumatic estimator to the
-    one-link McKibben arms, and what is not generated says why."""
+    McKibben arms (any number of links: the UIO conditions hold), and what is not
+    generated says why."""
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 5))
     kind = [None, "qbmove", "mckibben"][int(rng.integers(0, 3))]
@@ -104,7 +105,7 @@ def test_conditions_on_random_user_models(tmp_path, seed):
     got = _gets(m)
     assert ("electric_cascade" in got) == (kind == "qbmove")
     assert ("pneumatic_control" in got) == (kind == "mckibben")
-    assert ("pneumatic_stiffness_estimator" in got) == (kind == "mckibben" and n == 1)
+    assert ("pneumatic_stiffness_estimator" in got) == (kind == "mckibben")
     why = dict((c.name, w) for c, w in capabilities(m))
     if kind is None:
         assert "no [[actuators]]" in why["electric_cascade"]

@@ -539,6 +539,24 @@ int arm_2link_pneumatic_fl_lie_work_bytes(casadi_int *sz_arg, casadi_int* sz_res
 #define arm_2link_pneumatic_fl_lie_SZ_RES 3
 #define arm_2link_pneumatic_fl_lie_SZ_IW 0
 #define arm_2link_pneumatic_fl_lie_SZ_W 0
+int arm_2link_pneumatic_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int arm_2link_pneumatic_pneumatic_estimator_step_checkout(void);
+void arm_2link_pneumatic_pneumatic_estimator_step_release(int mem);
+void arm_2link_pneumatic_pneumatic_estimator_step_incref(void);
+void arm_2link_pneumatic_pneumatic_estimator_step_decref(void);
+casadi_int arm_2link_pneumatic_pneumatic_estimator_step_n_in(void);
+casadi_int arm_2link_pneumatic_pneumatic_estimator_step_n_out(void);
+casadi_real arm_2link_pneumatic_pneumatic_estimator_step_default_in(casadi_int i);
+const char* arm_2link_pneumatic_pneumatic_estimator_step_name_in(casadi_int i);
+const char* arm_2link_pneumatic_pneumatic_estimator_step_name_out(casadi_int i);
+const casadi_int* arm_2link_pneumatic_pneumatic_estimator_step_sparsity_in(casadi_int i);
+const casadi_int* arm_2link_pneumatic_pneumatic_estimator_step_sparsity_out(casadi_int i);
+int arm_2link_pneumatic_pneumatic_estimator_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int arm_2link_pneumatic_pneumatic_estimator_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define arm_2link_pneumatic_pneumatic_estimator_step_SZ_ARG 2
+#define arm_2link_pneumatic_pneumatic_estimator_step_SZ_RES 5
+#define arm_2link_pneumatic_pneumatic_estimator_step_SZ_IW 0
+#define arm_2link_pneumatic_pneumatic_estimator_step_SZ_W 0
 void arm_2link_pneumatic_casadi_version(int* major, int* minor, int* patch);
 int arm_2link_pneumatic_casadi_int_size(void);
 int arm_2link_pneumatic_casadi_real_size(void);

@@ -539,6 +539,24 @@ int planar_2link_mckibben_fl_lie_work_bytes(casadi_int *sz_arg, casadi_int* sz_r
 #define planar_2link_mckibben_fl_lie_SZ_RES 3
 #define planar_2link_mckibben_fl_lie_SZ_IW 0
 #define planar_2link_mckibben_fl_lie_SZ_W 0
+int planar_2link_mckibben_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int planar_2link_mckibben_pneumatic_estimator_step_checkout(void);
+void planar_2link_mckibben_pneumatic_estimator_step_release(int mem);
+void planar_2link_mckibben_pneumatic_estimator_step_incref(void);
+void planar_2link_mckibben_pneumatic_estimator_step_decref(void);
+casadi_int planar_2link_mckibben_pneumatic_estimator_step_n_in(void);
+casadi_int planar_2link_mckibben_pneumatic_estimator_step_n_out(void);
+casadi_real planar_2link_mckibben_pneumatic_estimator_step_default_in(casadi_int i);
+const char* planar_2link_mckibben_pneumatic_estimator_step_name_in(casadi_int i);
+const char* planar_2link_mckibben_pneumatic_estimator_step_name_out(casadi_int i);
+const casadi_int* planar_2link_mckibben_pneumatic_estimator_step_sparsity_in(casadi_int i);
+const casadi_int* planar_2link_mckibben_pneumatic_estimator_step_sparsity_out(casadi_int i);
+int planar_2link_mckibben_pneumatic_estimator_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int planar_2link_mckibben_pneumatic_estimator_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define planar_2link_mckibben_pneumatic_estimator_step_SZ_ARG 2
+#define planar_2link_mckibben_pneumatic_estimator_step_SZ_RES 5
+#define planar_2link_mckibben_pneumatic_estimator_step_SZ_IW 0
+#define planar_2link_mckibben_pneumatic_estimator_step_SZ_W 0
 void planar_2link_mckibben_casadi_version(int* major, int* minor, int* patch);
 int planar_2link_mckibben_casadi_int_size(void);
 int planar_2link_mckibben_casadi_real_size(void);

@@ -8,8 +8,9 @@ from __future__ import annotations
 
 from softgen.blocks import ClosedLoop
 from softgen.bundles.common import PLANT_SUBSTEPS
-from softgen.bundles.registry import (HAS_REGRESSOR, MOTOR_DYNAMICS, REGISTRY, RIGID, Context,
-                                      Part, actuator, diagram_functions, diagram_manifest, dof)
+from softgen.bundles.registry import (HAS_REGRESSOR, MOTOR_DYNAMICS, REGISTRY, RIGID, Condition,
+                                      Context, Part, actuator, diagram_functions,
+                                      diagram_manifest)
 from softgen.codegen.generate import Generated
 from softgen.control.electric import bundle_functions as cascade_functions
 from softgen.control.feedback_linearization import GAIN_NAMES as FL_GAIN_NAMES
@@ -19,7 +20,8 @@ from softgen.control.pneumatic_loop import closed_loop as pneumatic_closed_loop
 from softgen.control.pneumatic_loop import controller_block as pneumatic_controller_block
 from softgen.control.slotine_li import controller_block, controller_fun, plant_block, \
     plant_step_fun
-from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
+from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator, \
+    pneumatic_conditions
 from softgen.symbolic.actuated import electric_plant_fun, pneumatic_plant_fun, valve_plant_fun
 
 MCKIBBEN = actuator("mckibben")
@@ -192,10 +194,31 @@ def _estimator(method: str):
     return build
 
 
+def _pneumatic_uio(model) -> str | None:
+    """The n-joint pneumatic observer exists: Props. 7-9 (eq. 5.3) at the thesis delay.
+
+    Theorem 1 is proved for one link; for n McKibben joints with every joint angle
+    measured the observer's system (X = (q, q̇), u the joint torques) has CB = 0 and
+    CAB = T² M₀⁻¹ of full rank, so the conditions hold whenever B(0) is invertible —
+    but they are evaluated on the model, not assumed (each rank is in ``softgen info``
+    via :func:`~softgen.estimation.estimators.pneumatic_conditions`).
+    """
+    failed = next((c for c in pneumatic_conditions(model) if c.holds is False), None)
+    if failed is None:
+        return None
+    where = str(model.path) if getattr(model, "path", None) is not None else model.name
+    return f"{where}: no delayed UIO for the {model.dof}-joint pneumatic observer: " \
+           f"{failed.line()}"
+
+
+PNEUMATIC_UIO = Condition("a delayed UIO exists for the joint-torque observer on q (Props. 7-9, "
+                          "eq. 5.3, delay 2)", _pneumatic_uio)
+
 REGISTRY.capability("pneumatic_stiffness_estimator", layer="estimation",
-                    needs=(RIGID, MCKIBBEN, dof(exactly=1)),
-                    doc="invasive stiffness estimator of one McKibben joint (sec. 6.1, "
-                        "Theorem 1)")(_estimator("pneumatic"))
+                    needs=(RIGID, MCKIBBEN, PNEUMATIC_UIO),
+                    doc="invasive stiffness estimator of McKibben joints (sec. 6.1, Theorem "
+                        "1, extended to n joints where the UIO conditions hold)"
+                    )(_estimator("pneumatic"))
 REGISTRY.capability("electric_stiffness_estimator", layer="estimation",
                     needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
                     doc="invasive stiffness estimator of qbmove joints (sec. 6.2)"

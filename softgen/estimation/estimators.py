@@ -13,16 +13,24 @@ Each method is its own class sharing :class:`EstimatorBase`:
 (:meth:`~EstimatorBase.step_fun`) and as a :class:`~softgen.blocks.Block`
 (:meth:`~EstimatorBase.block`) to run in a diagram with plant and sensors.
 
-``method="pneumatic"`` (section 6.1, Theorem 1; one link, McKibben pair)
-    y = (q, p_a, p_b). Linear part I q̈ + β q̇ = u with I, β from the model, so
-    u = τ_e − (G(q) + K q); the correction τ̂_e = û + G(q̂) + K q̂ is the model's
-    inverse dynamics minus its linear part, evaluated symbolically. (Eq. 6.3 prints
-    û − m g l sin q̂; with the proof's own u = τ_e − m g l sin q the sign is +.)
-    RLS on τ̂_e = (p_a q^j, p_b q^j)_j Π (pressures in bar), σ̂ = −∂(ΦΠ̂)/∂q
-    (σ = −∂τ/∂q, eq. 2.3). The observer and RLS work with a zero-order-hold model
-    only in name: ZOH sampling of this relative-degree-2 model has a sampling zero
-    at −1, so no stable delayed UIO exists for it (``design_uio`` says so); Euler,
-    as the thesis, is the default.
+``method="pneumatic"`` (section 6.1, Theorem 1; McKibben pairs, any number of joints)
+    y = (q, p_a, p_b) per joint. Linear part M₀ q̈ + D₀ q̇ = u with M₀ = B(0) and D₀ the
+    viscous damping, both ∂/∂q̈ and ∂/∂q̇ of the model's inverse dynamics by CasADi (I
+    and β for one link, Theorem 1). The flexibility torque is the inverse dynamics at the
+    observer's estimates: τ̂_e = û + (C q̂̇ + G(q̂) + K q̂ + D q̂̇ − D₀ q̂̇) + (B(q̂) − M₀) q̈̂
+    with M₀ q̈̂ = û − D₀ q̂̇; for one link the last term is zero and this is eq. 6.3 (eq. 6.3
+    prints û − m g l sin q̂; with the proof's own u = τ_e − m g l sin q the sign is +).
+    Theorem 1 is proved for one link and the thesis leaves the multi-link case as future
+    work (section 6.1.4): here the UIO conditions (Props. 7-9, eq. 5.3) are evaluated
+    for the model (:func:`pneumatic_conditions`; with every joint angle measured CB = 0
+    and CAB = T² M₀⁻¹, so they hold whenever B(0) is invertible) and recorded in the
+    manifest. One RLS per joint on τ̂_e,i = (p_a,i q_i^j, p_b,i q_i^j)_j Π_i (pressures in
+    bar), σ̂_i = −∂(Φ_iΠ̂_i)/∂q_i (σ = −∂τ/∂q, eq. 2.3). The observer and RLS work with a
+    zero-order-hold model only in name: ZOH sampling of this relative-degree-2 model has
+    a sampling zero at −1, so no stable delayed UIO exists for it (``design_uio`` says
+    so); Euler, as the thesis, is the default. Its q̈̂ is a second difference one
+    sample late, so on a continuous plant the stiffness error is first order in T
+    (2-DoF McKibben arm: 14.5 % at 10 ms, 1.0 % at 1 ms; exact on the Euler plant).
 ``method="electric"`` (section 6.2, Theorem 2; qbmove, any number of joints)
     y = (q, q_a, q_b, τ_a, τ_b). One observer per motor on b q̈_j + d q̇_j = τ^e_j + τ_j
     with unknown input (τ^e_j, τ_j) and outputs (q_j, τ_j) (Remark 2). RLS per
@@ -55,7 +63,7 @@ from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
 from softgen.symbolic.rigid import FUNCTION_OPTS, RigidDynamics
 from softgen.estimation.discretize import discretize
 from softgen.estimation.rls import ExcitationGate, excitation_step, rls_step
-from softgen.estimation.uio import UIO, design_uio
+from softgen.estimation.uio import UIO, ExistenceCheck, design_uio, existence_conditions
 
 METHODS = ("pneumatic", "electric", "noninvasive")
 
@@ -463,11 +471,67 @@ def _qbmove(est: EstimatorBase) -> QbmoveSprings:
     return QbmoveSprings(est.model)
 
 
-class PneumaticInvasiveEstimator(EstimatorBase):
-    """Section 6.1, Theorem 1: one link with a McKibben pair; y = (q, p_a, p_b).
+def pneumatic_linear_part(model: RobotModel, dyn: RigidDynamics | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """(M₀, D₀): the linear part M₀ q̈ + D₀ q̇ = u of the n-DoF pneumatic observer.
 
-    Linear part I q̈ + β q̇ = u; τ̂_e = û + G(q̂) + K q̂; RLS on (p_a q^j, p_b q^j)_j with
-    pressures in bar; σ̂ = −∂(ΦΠ̂)/∂q (module docstring).
+    Theorem 1's linear part I q̈ + β q̇ (eq. 6.1a) generalised to n McKibben joints
+    (the multi-link case the thesis names as future work, section 6.1.4):
+    ``M₀ = ∂h/∂q̈`` at ``q = 0`` (the inertia matrix B(0)) and ``D₀ = ∂h/∂q̇`` at
+    ``q = q̇ = 0`` (the viscous damping: C(q, q̇) q̇ is quadratic in q̇), both
+    derived by CasADi from the model's inverse dynamics
+    ``h(q, q̇, q̈) = B q̈ + C q̇ + G + K q + D q̇``. With one link they are I and β.
+    """
+    dyn = dyn or RigidDynamics(model)
+    m = dyn.nominal
+    h = ca.substitute(m.slotine_li(dyn.route), m.qd_r, m.qd)      # h(q, q̇, q̈ = q̈_r)
+    z = ca.DM.zeros(model.dof)
+    f = ca.Function("pneumatic_linear_part", [m.q, m.qd, m.qdd_r],
+                    [ca.jacobian(h, m.qdd_r), ca.jacobian(h, m.qd)])
+    M0, D0 = (np.array(v, dtype=float) for v in f(z, z, z))
+    return M0, D0
+
+
+def pneumatic_observer_system(model: RobotModel, config: EstimatorConfig | None = None,
+                              dyn: RigidDynamics | None = None):
+    """Discrete (A, B, C, D) of the pneumatic observer (eq. 5.1) for ``model``.
+
+    ``Ẋ = A_c X + B_c u`` with ``X = (q, q̇)``, ``A_c = [[0, I], [0, −M₀⁻¹D₀]]``,
+    ``B_c = [0; M₀⁻¹]``, ``Y = q`` (``C = [I, 0]``, ``D = 0``), discretised as the
+    config says (Euler by default, as the proof of Theorem 1).
+    """
+    c = (config or EstimatorConfig("pneumatic")).resolved()
+    n = model.dof
+    M0, D0 = pneumatic_linear_part(model, dyn)
+    if n == 1:     # scalar division: Theorem 1's −β/I and 1/I bit for bit
+        MiD, Mi = D0 / M0, 1.0 / M0
+    else:
+        MiD, Mi = np.linalg.solve(M0, D0), np.linalg.inv(M0)
+    Z, I = np.zeros((n, n)), np.eye(n)
+    Ac = np.block([[Z, I], [Z, -MiD]])
+    Bc = np.vstack([Z, Mi])
+    A, B = discretize(Ac, Bc, c.dt, method=c.discretization)
+    return A, B, np.hstack([I, Z]), np.zeros((n, n))
+
+
+def pneumatic_conditions(model: RobotModel, config: EstimatorConfig | None = None,
+                         dyn: RigidDynamics | None = None) -> list[ExistenceCheck]:
+    """The existence conditions (Props. 7-9, eq. 5.3) of the n-DoF pneumatic observer,
+    each with its value, at the config's delay (thesis default L = 2)."""
+    c = (config or EstimatorConfig("pneumatic")).resolved()
+    return existence_conditions(*pneumatic_observer_system(model, c, dyn), c.delay)
+
+
+class PneumaticInvasiveEstimator(EstimatorBase):
+    """Section 6.1, Theorem 1, on n McKibben joints; y = (q_1..q_n, p_1a, p_1b, ..., p_nb).
+
+    Linear part M₀ q̈ + D₀ q̇ = u (:func:`pneumatic_linear_part`; I q̈ + β q̇ with one
+    link). The observer reconstructs u; the flexibility torque is the inverse dynamics
+    at the observer's estimates, τ̂_e = h(q̂, q̂̇, q̈̂) with M₀ q̈̂ = û − D₀ q̂̇, i.e.
+    τ̂_e = û + (C q̂̇ + G + K q̂ + D q̂̇ − D₀ q̂̇) + (B(q̂) − M₀) q̈̂ (eq. 6.3 for one link,
+    where the last term vanishes). One RLS per joint on (p_a,i q_i^j, p_b,i q_i^j)_j
+    (each pair's torque depends on its own joint and pressures, eq. 2.2), pressures in
+    bar; σ̂_i = −∂(Φ_iΠ̂_i)/∂q_i (module docstring).
     """
 
     method = "pneumatic"
@@ -477,56 +541,85 @@ class PneumaticInvasiveEstimator(EstimatorBase):
         if model.actuator_type != "mckibben":
             raise ModelError(f"{model.name}: the pneumatic estimator needs McKibben "
                              f"actuators, got {model.actuator_type or 'none'}")
-        if self.n != 1:
-            raise ModelError(f"{model.name}: the invasive pneumatic estimator is for one "
-                             f"link (section 6.1), got {self.n} joints")
         self.actuator = McKibbenPairs(model)
-        self.groups = [("q", 1), ("p", 2)]
+        self.groups = [("q", self.n), ("p", 2 * self.n)]
 
     def _measurement_names(self) -> list[str]:
-        return ["q1", "p1a", "p1b"]
+        n = self.n
+        return [f"q{i + 1}" for i in range(n)] + [f"p{i + 1}{s}" for i in range(n) for s in "ab"]
 
     def _observers(self) -> list[_Observer]:
-        B0 = np.array(self.dyn.inertia_fun()(0.0))
-        for q in (0.7, -1.3, 2.9):     # the linear part needs a constant inertia
-            if not np.allclose(np.array(self.dyn.inertia_fun()(q)), B0, rtol=1e-12):
-                raise ModelError(f"{self.model.name}: inertia depends on q; the pneumatic "
-                                 "estimator's linear model (Theorem 1) needs it constant")
-        inertia = float(B0[0, 0])
-        beta = self.model.nominal.get("d1", 0.0)
-        self.inertia, self.beta = inertia, beta
-        Ac = np.array([[0.0, 1.0], [0.0, -beta / inertia]])
-        Bc = np.array([[0.0], [1.0 / inertia]])
-        return [self._design(Ac, Bc, [[1.0, 0.0]], [[0.0]], "link", [0])]
+        n = self.n
+        M0, D0 = pneumatic_linear_part(self.model, self.dyn)
+        self.inertia_matrix, self.damping_matrix = M0, D0
+        # Is B(q) constant (one revolute link)? Then the (B(q̂) − M₀) q̈̂ term is zero.
+        inertia = self.dyn.inertia_fun()
+        rng = np.random.default_rng(0)
+        self.constant_inertia = all(
+            np.allclose(np.array(inertia(q)), M0, rtol=1e-12, atol=0)
+            for q in (0.7 * np.ones(n), -1.3 * np.ones(n), rng.uniform(-3, 3, n)))
+        if n == 1:
+            self.inertia, self.beta = float(M0[0, 0]), float(D0[0, 0])
+        checks = pneumatic_conditions(self.model, self.config, self.dyn)
+        self.uio_conditions = checks
+        failed = [ch for ch in checks if ch.holds is False]
+        if failed:
+            raise ModelError(f"{self.model.name}: no delayed UIO for the pneumatic estimator "
+                             f"with delay {self.config.delay}: {failed[0].line()}")
+        A, B, C, D = pneumatic_observer_system(self.model, self.config, self.dyn)
+        c = self.config
+        poles = None if not c.pole else [float(c.pole)] * A.shape[0]
+        uio = design_uio(A, B, C, D, delay=c.delay, poles=poles, dt=c.dt)
+        return [_Observer("link", uio, list(range(n)))]
 
     def _rls_instances(self):
-        return ["joint1"], {"joint1": [("q", 0)]}
+        names = [f"joint{i + 1}" for i in range(self.n)]
+        return names, {r: [("q", i)] for i, r in enumerate(names)}
+
+    def describe(self) -> dict:
+        """The base entry plus the UIO existence conditions checked, each with its value."""
+        return {**super().describe(),
+                "uio_conditions": [ch.as_dict() for ch in self.uio_conditions]}
 
     def _estimates(self, y0, est):
-        pw = self.config.powers
+        n, pw = self.n, self.config.powers
         m = self.dyn.nominal
-        f, regs, sig, tor, tau_uio = {}, {}, {}, {}, ca.SX.zeros(self.n)
+        f, regs, sig, tor, tau_uio = {}, {}, {}, {}, ca.SX.zeros(n)
         xh, u = est["link"]
-        q_hat, qd_hat = xh[0], xh[1]
-        # Nonlinear part of the model: inverse dynamics at q̈ = 0 minus β q̇.
+        q_hat, qd_hat = xh[:n], xh[n:]
+        # Nonlinear part of the model: inverse dynamics at q̈ = 0 minus the linear D₀ q̇.
         tau_id = ca.substitute(m.slotine_li(self.dyn.route),
                                ca.vertcat(m.q, m.qd, m.qd_r, m.qdd_r),
-                               ca.vertcat(q_hat, qd_hat, qd_hat, 0.0))
-        tau_e = u[0] + tau_id[0] - self.beta * qd_hat
-        tau_uio[0] = tau_e
+                               ca.vertcat(q_hat, qd_hat, qd_hat, ca.SX.zeros(n)))
+        if n == 1:    # Theorem 1 as before: u + h(q̂, q̂̇, 0) − β q̂̇
+            tau_e = u[0] + tau_id[0] - self.beta * qd_hat
+        else:
+            M0, D0 = ca.DM(self.inertia_matrix), ca.DM(self.damping_matrix)
+            tau_e = u + tau_id - D0 @ qd_hat
+        if not self.constant_inertia:
+            # (B(q̂) − M₀) q̈̂ with M₀ q̈̂ = û − D₀ q̂̇: the inertia the linear part left out.
+            M0, D0 = ca.DM(self.inertia_matrix), ca.DM(self.damping_matrix)
+            qdd_hat = ca.solve(M0, u - D0 @ qd_hat)
+            B_hat = ca.substitute(m.inertia(), m.q, q_hat)
+            tau_e = tau_e + (B_hat - M0) @ qdd_hat
         # Pressures enter the regressor in bar. With P(0) = 1e9 I and pressures in
         # Pa, the covariance along the regressor (1/|φ|² ≈ 1e-10) falls below the
         # round-off of the update (1e9 · 2e-16) and the estimates blow up;
         # in bar it is ≈ 0.1 (measured in ch6-pneumatic-invasive).
-        q, pa, pb = y0[0], y0[1] * PRESSURE_SCALE, y0[2] * PRESSURE_SCALE
         qs = ca.SX.sym("qs")
-        phi_s = ca.vertcat(*[pa * qs ** j for j in pw], *[pb * qs ** j for j in pw])
-        dphi_s = ca.jacobian(phi_s, qs)
-        reg = ca.substitute(phi_s, qs, q)
-        dreg = ca.substitute(dphi_s, qs, q)
-        f["joint1"], regs["joint1"] = tau_e, reg
-        sig["joint1"] = lambda th, d=dreg: -ca.dot(d, th)
-        tor["joint1"] = lambda th, r=reg: ca.dot(r, th)
+        for i in range(n):
+            r = f"joint{i + 1}"
+            q = y0[i]
+            pa = y0[n + 2 * i] * PRESSURE_SCALE
+            pb = y0[n + 2 * i + 1] * PRESSURE_SCALE
+            phi_s = ca.vertcat(*[pa * qs ** j for j in pw], *[pb * qs ** j for j in pw])
+            dphi_s = ca.jacobian(phi_s, qs)
+            reg = ca.substitute(phi_s, qs, q)
+            dreg = ca.substitute(dphi_s, qs, q)
+            tau_uio[i] = tau_e[i] if n > 1 else tau_e
+            f[r], regs[r] = tau_uio[i], reg
+            sig[r] = lambda th, d=dreg: -ca.dot(d, th)
+            tor[r] = lambda th, rr=reg: ca.dot(rr, th)
         return f, regs, sig, tor, tau_uio
 
 

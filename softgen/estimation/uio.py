@@ -112,6 +112,8 @@ __all__ = [
     "UIO",
     "design_uio",
     "smallest_delay",
+    "existence_conditions",
+    "ExistenceCheck",
     "observability_matrix",
     "invertibility_matrix",
     "is_invertible",
@@ -293,6 +295,24 @@ def _prop8(A, B, C, D, L: int, rtol) -> tuple[bool, int, int]:
     return r_oh == A.shape[0] + r_h, r_oh, r_h
 
 
+def _prop8_system(A, B, C, D, rtol) -> tuple[bool, int, int, int]:
+    """Prop. 8 as the system property "for some L ≤ n": (holds, L, rank [O^L, H^L], rank H^L).
+
+    The smallest ``L`` that passes (the last one tried, ``n``, when none does). In
+    exact arithmetic the test is monotone, so trying ``L = n`` alone would do; but the
+    rank tolerance scales with ``‖C‖ ‖A‖^L ‖B‖`` (:func:`_markov_scale`), and for a
+    stiff plant (``‖A‖`` in the hundreds: an Euler-sampled qbmove motor) ``‖A‖^n``
+    turns every genuine singular value into "noise". The shortest window that shows
+    strong observability is the best-conditioned evidence for it.
+    """
+    n = A.shape[0]
+    for L in range(n + 1):
+        ok, r_oh, r_h = _prop8(A, B, C, D, L, rtol)
+        if ok:
+            return True, L, r_oh, r_h
+    return False, n, r_oh, r_h
+
+
 def is_invertible(A, B, C, D, L: int, *, rtol: float | None = None) -> bool:
     """Prop. 7: is the system invertible with delay ``L``?
 
@@ -332,8 +352,9 @@ def is_strongly_observable(A, B, C, D, L: int | None = None, *,
         Relative SVD rank tolerance (default ``100 · max(shape) · ε``).
     """
     A, B, C, D = _system(A, B, C, D)
-    L = A.shape[0] if L is None else _delay(L)
-    return _prop8(A, B, C, D, L, _rtol(rtol))[0]
+    if L is None:
+        return _prop8_system(A, B, C, D, _rtol(rtol))[0]
+    return _prop8(A, B, C, D, _delay(L), _rtol(rtol))[0]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -371,6 +392,17 @@ def _staircase(A: np.ndarray, C: np.ndarray, rtol, scales=(0.0, 0.0)) -> list[di
     of ``A``), or to the larger data ``scales = (scale_A, scale_C)`` that
     ``A`` and ``C`` were computed from.
     """
+    levels, complete = _staircase_levels(A, C, rtol, scales)
+    return levels if complete else None
+
+
+def _staircase_levels(A: np.ndarray, C: np.ndarray, rtol,
+                      scales=(0.0, 0.0)) -> tuple[list[dict], bool]:
+    """The levels of :func:`_staircase` and whether they exhaust the state space.
+
+    The sizes of the levels add up to the dimension of the observable subspace of
+    ``(A, C)``; the flag is False when an unobservable remainder is left.
+    """
     scale_a = max(np.linalg.norm(A, 2), scales[0])
     scale_c = max(np.linalg.norm(C, 2), scales[1])
     levels = []
@@ -378,20 +410,20 @@ def _staircase(A: np.ndarray, C: np.ndarray, rtol, scales=(0.0, 0.0)) -> list[di
     first = True
     while Ai.shape[0] > 0:  # r ≥ 1 on every level, so the dimension shrinks
         if Ci.size == 0:
-            return None
+            return levels, False
         U, s, Vt = np.linalg.svd(Ci)
         k = _default_rtol(Ci.shape) if rtol is None else rtol
         tol = k * (scale_c if first else max(scale_a, scale_c))
         r = int(np.count_nonzero(s > tol))
         if r == 0:
-            return None
+            return levels, False
         T1, T2 = Vt[:r].T, Vt[r:].T
         levels.append(dict(
             T1=T1, T2=T2, C1=Ci @ T1,
             A11=T1.T @ Ai @ T1, A12=T1.T @ Ai @ T2, A21=T2.T @ Ai @ T1, A22=T2.T @ Ai @ T2))
         Ai, Ci = levels[-1]["A22"], levels[-1]["A12"]
         first = False
-    return levels
+    return levels, True
 
 
 def _pole_blocks(sizes: list[int], poles: np.ndarray) -> list[np.ndarray] | None:
@@ -733,7 +765,7 @@ def _no_delay_reason(A, B, C, D, rtol) -> str | None:
     if m > p:
         return (f"no delay L ≤ n = {n} works: rank H^L grows by at most p = {p} per extra "
                 f"sample, fewer than the m = {m} unknown inputs (Prop. 7)")
-    so, r_oh, r_h = _prop8(A, B, C, D, n, rtol)
+    so, _, r_oh, r_h = _prop8_system(A, B, C, D, rtol)
     if not so:
         return (f"no delay L ≤ n = {n} works: the system is not strongly observable (Prop. 8: "
                 f"rank [O^{n}, H^{n}] = {r_oh}, need n + rank H^{n} = {n} + {r_h} = {n + r_h}); "
@@ -746,7 +778,7 @@ def _no_delay_reason(A, B, C, D, rtol) -> str | None:
 
 def _smallest(A, B, C, D, rtol) -> int | None:
     n = A.shape[0]
-    if B.shape[1] > C.shape[0] or not _prop8(A, B, C, D, n, rtol)[0]:
+    if B.shape[1] > C.shape[0] or not _prop8_system(A, B, C, D, rtol)[0]:
         return None
     for L in range(n + 1):
         if _prop7(A, B, C, D, L, rtol)[0]:
@@ -866,7 +898,7 @@ def design_uio(A, B, C, D, *, delay: int, poles=None, dt: float | None = None,
         prev = f"H^{L - 1}" if L > 0 else "H^-1"
         raise ValueError(f"system is not invertible with delay {L} (Prop. 7: rank H^{L} = {r1}, "
                          f"need m + rank {prev} = {m} + {r0} = {m + r0}); {tail}")
-    so, r_oh, r_h = _prop8(A, B, C, D, n, rtol)
+    so, _, r_oh, r_h = _prop8_system(A, B, C, D, rtol)
     if not so:
         raise ValueError(f"system is not strongly observable (Prop. 8: rank [O^{n}, H^{n}] = "
                          f"{r_oh}, need n + rank H^{n} = {n} + {r_h} = {n + r_h}), so its "
@@ -880,3 +912,94 @@ def design_uio(A, B, C, D, *, delay: int, poles=None, dt: float | None = None,
     G = np.linalg.pinv(BD)
     return UIO(A=A, B=B, C=C, D=D, E=E, F=F, G=G, N=np.vstack([N1, N2]), delay=L, dt=dt,
                poles=placed)
+
+
+# ----------------------------------------------------------------------------------------------
+# the existence conditions, each with its value (for reports: ``softgen observer``, ``info``)
+
+
+@dataclass(frozen=True)
+class ExistenceCheck:
+    """One existence condition of a delayed UIO, evaluated.
+
+    Attributes
+    ----------
+    name
+        Where it comes from (``"Prop. 7 (eq. 5.3)"``).
+    text
+        The condition as an equation with the delay filled in
+        (``"rank H^2 = m + rank H^1"``).
+    value, required
+        The left- and right-hand side as evaluated (ranks, or dimensions).
+    holds
+        ``value == required``; None when the condition could not be evaluated
+        because an earlier one failed (Prop. 9 needs Prop. 7).
+    """
+
+    name: str
+    text: str
+    value: int | None
+    required: int | None
+    holds: bool | None
+
+    def line(self) -> str:
+        """One line for a report: ``<name>: <text>: 2 = 2 (holds)``."""
+        if self.holds is None:
+            return f"{self.name}: {self.text}: not evaluated (needs Prop. 7)"
+        rel, verdict = ("=", "holds") if self.holds else ("≠", "FAILS")
+        return f"{self.name}: {self.text}: {self.value} {rel} {self.required} ({verdict})"
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "condition": self.text, "value": self.value,
+                "required": self.required, "holds": self.holds}
+
+
+def existence_conditions(A, B, C, D, delay: int, *,
+                         rtol: float | None = None) -> list[ExistenceCheck]:
+    """Every condition :func:`design_uio` checks for ``delay``, with its value.
+
+    1. ``G = [B; D]^†`` is a left inverse (eq. 5.4): ``rank [B; D] = m``.
+    2. Prop. 7, eq. 5.3 (invertibility with delay L): ``rank H^L = m + rank H^{L-1}``.
+    3. Prop. 8 (strong observability, "for some L ≤ n"; reported at the smallest
+       such ``L``, or at ``n`` when none passes): ``rank [O^L, H^L] = n + rank H^L``.
+    4. Prop. 9 (``E`` Schur for some ``F`` with ``F H^L = [B, 0]``): the reduced
+       pair ``(Ā, C̄) = (A − B N2 O^L, N1 O^L)`` is observable (its observable
+       subspace has dimension ``n``), or ``Ā`` is already nilpotent (then
+       ``F̂1 = 0`` is deadbeat; value and required are then ``n``).
+
+    An observer with this delay exists exactly when all four hold (this is the
+    test of :func:`smallest_delay` at one ``L``; ranks with the module's
+    tolerance rule).
+
+    Returns
+    -------
+    list of ExistenceCheck
+        In the order above; the Prop. 9 entry has ``holds=None`` when Prop. 7 fails.
+    """
+    A, B, C, D = _system(A, B, C, D)
+    L = _delay(delay)
+    rtol = _rtol(rtol)
+    n, m = A.shape[0], B.shape[1]
+    out = []
+    r_bd = _rank(np.vstack([B, D]), rtol)
+    out.append(ExistenceCheck("[B; D] full column rank (G of eq. 5.4)", "rank [B; D] = m",
+                              r_bd, m, r_bd == m))
+    ok7, r1, r0 = _prop7(A, B, C, D, L, rtol)
+    prev = f"H^{L - 1}" if L > 0 else "H^-1"
+    out.append(ExistenceCheck("Prop. 7 (eq. 5.3)", f"rank H^{L} = m + rank {prev}", r1, m + r0,
+                              ok7))
+    ok8, L8, r_oh, r_h = _prop8_system(A, B, C, D, rtol)
+    out.append(ExistenceCheck("Prop. 8", f"rank [O^{L8}, H^{L8}] = n + rank H^{L8}", r_oh,
+                              n + r_h, ok8))
+    text9 = f"(A - B N2 O^{L}, N1 O^{L}) observable: observable dimension = n"
+    if ok7:
+        *_, Abar, Cbar, scales = _decoupling(A, B, C, D, L, rtol)
+        if _is_nilpotent(Abar, scales[0]):
+            dim = n
+        else:
+            levels, _ = _staircase_levels(Abar, Cbar, rtol, scales)
+            dim = sum(lev["C1"].shape[1] for lev in levels)
+        out.append(ExistenceCheck("Prop. 9", text9, dim, n, dim == n))
+    else:
+        out.append(ExistenceCheck("Prop. 9", text9, None, n, None))
+    return out
