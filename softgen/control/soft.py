@@ -12,6 +12,35 @@ block: A_i⁻¹ where A_i is square (PCC; det A_i = sinc²(Δ_i) in 3D, singular
 at Δ_i = kπ), (A_iᵀA_i)⁻¹A_iᵀ where it is a column (the affine pendulum,
 A = H(1, 0)ᵀ). A uses the nominal rest lengths: the thesis treats A as known.
 
+Force columns (beyond the thesis; ``forces=`` of :func:`theorem10_fun`,
+:func:`closed_loop_fun` and their blocks): constant world-frame forces f_g on
+declared groups of segment tips (:func:`force_groups`) enter eq. 3.6 as Σ_g J_gᵀ f_g
+with J_g = Σ_{i∈g} J_i, linear in f_g, so they are extra regressor columns
+Y_f = −[J_1ᵀ … J_Gᵀ] with unknown parameters f = (f_1, …, f_G) (:func:`force_columns`)::
+
+    τ = A(q)† (Y π̂ + Y_f f̂ + K_d σ) = A(q)† (Y π̂ − Jᵀ f̂ + K_d σ),
+    dπ̂/dt = K_π Yᵀ σ,     df̂/dt = K_f Y_fᵀ σ = −K_f J σ.
+
+Lyapunov (as Theorem 10): with the plant B q̈ + C q̇ + G + K q + D q̇ = A τ + Jᵀ f and
+Y π = B q̈_r + C q̇_r + G + K q + D q̇_r, subtracting gives
+B σ̇ + (C + D) σ = Y π − A τ − Jᵀ f. Where A is square (PCC), A τ = Y π̂ − Jᵀ f̂ + K_d σ
+and, with π̃ = π̂ − π, f̃ = f̂ − f: B σ̇ = −(C + D + K_d) σ − Y π̃ + Jᵀ f̃. For
+V = ½ σᵀBσ + ½ π̃ᵀK_π⁻¹π̃ + ½ f̃ᵀK_f⁻¹f̃ (π, f constant),
+V̇ = σᵀBσ̇ + ½ σᵀḂσ + π̃ᵀK_π⁻¹ dπ̂/dt + f̃ᵀK_f⁻¹ df̂/dt
+  = −σᵀ(K_d + D)σ + ½ σᵀ(Ḃ − 2C)σ − σᵀYπ̃ + π̃ᵀYᵀσ + σᵀJᵀf̃ − f̃ᵀJσ
+  = −σᵀ(K_d + D)σ ≤ 0:
+the skew term vanishes (Ḃ − 2C skew) and each cross term cancels with its update,
+exactly as the π̃ term of Theorem 10 does, so the same Barbalat argument gives σ → 0
+with π̂ and f̂ bounded (not necessarily converging to π, f without persistent
+excitation). Where A is a column (the affine pendulum) A τ = P(Y π̂ − Jᵀ f̂ + K_d σ)
+with P = A A† ≠ I, and V̇ gains σᵀ(I − P)(Y π̃ − Jᵀ f̃ + …)-type terms that do not
+cancel: the argument does not hold there, for the force columns as for Theorem 10
+itself on the underactuated pendulum; what happens is measured (ch12-affine-pendulum).
+J_g is evaluated at the nominal rest lengths, as A is (the kinematics are treated as
+known); with uncertain lengths Jᵀ f is bilinear (p is linear in the lengths,
+:class:`~softgen.symbolic.pcc.LinearRoute`) and its exact parameters would be the
+products ℓ_a f_k, which are not built here.
+
 The plant step integrates eq. 3.6 with external forces on the segment tips,
 B q̈ + C q̇ + G + K q + D q̇ = A τ + Σ_i J_iᵀ f_i (J_i: 3×n Jacobian of tip i's
 world position), with τ and f held over the sample, and adds measurement noise
@@ -31,6 +60,7 @@ import casadi as ca
 import numpy as np
 
 from softgen.blocks import Block
+from softgen.core.errors import ModelError
 from softgen.symbolic.rigid import FUNCTION_OPTS
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 from softgen.symbolic.actuated import rk4_steps
@@ -56,16 +86,89 @@ def apply_pinv(blocks: list, v):
     return ca.vertcat(*out)
 
 
-def theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None) -> ca.Function:
+#: Force axes per model kind: planar models move in the world x-y plane (z ignored).
+FORCE_AXES = {"pcc-planar": "xy", "affine-planar": "xy", "pcc-3d": "xyz"}
+
+
+def force_groups(dyn: SoftDynamics, forces) -> tuple[tuple[int, ...], ...]:
+    """The tip groups of ``forces``, each carrying one unknown constant world force.
+
+    Entries: ``"tip"`` (the last segment's tip), ``"tips"`` (one force shared by every
+    segment tip, e.g. the same payload on each), a segment index ``i`` (0-based, negative
+    from the end) or a tuple of indices (one force shared by those tips). ``()`` or
+    ``None``: no force columns. A bad entry is one ``ModelError`` line naming it.
+    """
+    ns = dyn.model.n_segments
+    out = []
+    for e in forces or ():
+        if e == "tip":
+            g = (ns - 1,)
+        elif e == "tips":
+            g = tuple(range(ns))
+        elif isinstance(e, (int, np.integer)) and not isinstance(e, bool):
+            g = (int(e),)
+        elif isinstance(e, (tuple, list)) and e and all(
+                isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in e):
+            g = tuple(int(i) for i in e)
+        else:
+            raise ModelError(f"{dyn.name}: forces: expected 'tip', 'tips', a segment index "
+                             f"or a tuple of them, got {e!r}")
+        if any(not -ns <= i < ns for i in g):
+            raise ModelError(f"{dyn.name}: forces: segment index out of range 0..{ns - 1} "
+                             f"in {e!r}")
+        g = tuple(sorted({i % ns for i in g}))
+        if g in out:
+            raise ModelError(f"{dyn.name}: forces: tip group {g} declared twice")
+        out.append(g)
+    return tuple(out)
+
+
+def force_columns(dyn: SoftDynamics, groups, q=None):
+    """Y_f(q) = −[J_1ᵀ … J_Gᵀ] (n × k·G, k = 2 planar or 3 in 3D), J_g = Σ_{i∈g} J_i.
+
+    J_i is the derived 3×n Jacobian of segment tip i's world position
+    (:meth:`~softgen.symbolic.pcc.SoftBody.tip_jacobians`) at nominal rest lengths, and the
+    generalised force of a constant world force f_g on the tips of group g is J_gᵀ f_g
+    (eq. 3.6 with external forces): Y_f f = −Σ_g J_gᵀ f_g, linear in f (module docstring).
+    ``q``: expression substituted for the configuration (default the nominal symbol).
+    """
+    b = dyn.nominal
+    k = len(FORCE_AXES[dyn.model.kind])
+    J = b.tip_jacobians()
+    cols = [-sum((J[i][:k, :] for i in g), ca.SX.zeros(k, b.n)).T for g in groups]
+    Yf = ca.horzcat(*cols) if cols else ca.SX.zeros(b.n, 0)
+    return Yf if q is None else ca.substitute(Yf, b.q, q)
+
+
+def force_names(dyn: SoftDynamics, groups) -> list[str]:
+    """Names of the force parameters, ``f<group>_<axis>`` (group = its tips, 0-based)."""
+    axes = FORCE_AXES[dyn.model.kind]
+    return [f"f{''.join(map(str, g)) if len(g) < 10 else 'tips'}_{a}" for g in groups
+            for a in axes]
+
+
+def _force_tag(groups) -> str:
+    """Name part of a function with force columns: ``_f<tips>`` per group."""
+    return "".join("_f" + "".join(map(str, g)) for g in groups)
+
+
+def theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
+                  forces=()) -> ca.Function:
     """``<model>_theorem10_step``: one sample of Theorem 10.
 
     Inputs ``pi_hat`` (r), ``q, qd, q_d, qd_d, qdd_d`` (n), ``lam, kd`` (n, the
     diagonals of Λ and K_d), ``kpi`` (r, diagonal of K_π), ``dt``. Outputs
     ``pi_hat_next = pi_hat + dt K_π Yᵀσ``, ``tau`` (the actuator inputs, m) and
     ``sigma`` (n).
+
+    ``forces`` (:func:`force_groups`; default none): force columns (module docstring),
+    τ = A† (Y π̂ − Jᵀ f̂ + K_d σ). The function is then ``<model>_theorem10<tag>_step``
+    with the extra input ``f_hat`` (after ``pi_hat``) and ``kf`` (after ``kpi``, the
+    diagonal of K_f) and the extra output ``f_hat_next = f_hat − dt K_f J σ``.
     """
     lin = LinearRoute(dyn) if lin is None else lin
     n, r = dyn.model.dof, lin.r
+    groups = force_groups(dyn, forces)
     pi_hat, kpi = ca.SX.sym("pi_hat", r), ca.SX.sym("kpi", r)
     q, qd, q_d, qd_d, qdd_d, lam, kd = (ca.SX.sym(s, n) for s in
                                         ("q", "qd", "q_d", "qd_d", "qdd_d", "lam", "kd"))
@@ -75,12 +178,24 @@ def theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None) -> ca.Funct
     sigma = qd_r - qd
     y_pi, yt_s = lin.at(pi_hat, q, qd, qd_r, qdd_r, sigma)
     tau_star = y_pi + kd * sigma
+    if groups:
+        Yf = force_columns(dyn, groups, q)
+        f_hat, kf = ca.SX.sym("f_hat", Yf.shape[1]), ca.SX.sym("kf", Yf.shape[1])
+        tau_star = tau_star + ca.mtimes(Yf, f_hat)
     if dyn.base.constant is not None:      # terms multiplying no uncertain parameter
         tau_star = tau_star + ca.substitute(
             dyn.base.constant, ca.vertcat(dyn.nominal.q, dyn.nominal.qd, dyn.nominal.qd_r,
                                           dyn.nominal.qdd_r), ca.vertcat(q, qd, qd_r, qdd_r))
     blocks = [ca.substitute(A, dyn.nominal.q, q) for A in dyn.nominal.actuation_blocks()]
     tau = apply_pinv(blocks, tau_star)
+    if groups:
+        names = ["pi_hat", "f_hat", "q", "qd", "q_d", "qd_d", "qdd_d", "lam", "kd", "kpi",
+                 "kf", "dt"]
+        return ca.Function(f"{dyn.name}_theorem10{_force_tag(groups)}_step",
+                           [pi_hat, f_hat, q, qd, q_d, qd_d, qdd_d, lam, kd, kpi, kf, dt],
+                           [pi_hat + dt * kpi * yt_s, f_hat + dt * kf * ca.mtimes(Yf.T, sigma),
+                            tau, sigma],
+                           names, ["pi_hat_next", "f_hat_next", "tau", "sigma"], FUNCTION_OPTS)
     return ca.Function(f"{dyn.name}_theorem10_step",
                        [pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd, kpi, dt],
                        [pi_hat + dt * kpi * yt_s, tau, sigma],
@@ -194,7 +309,7 @@ def _projector(blocks: list):
 
 
 def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
-                    ctl: ca.Function | None = None) -> ca.Function:
+                    ctl: ca.Function | None = None, *, forces=()) -> ca.Function:
     """``<model>_theorem10_closed_loop``: one step of Theorem 10 in continuous time.
 
     The controller acts continuously inside the ODE (as in the thesis's
@@ -210,10 +325,17 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     ``f_ext`` (3 per segment tip, world), ``noise`` (2n, added to the measured
     (q, q̇) the controller sees, held over the step), ``dt``. Outputs ``z_next``,
     ``tau`` and ``sigma`` at the start of the step.
+
+    ``forces`` (:func:`force_groups`; default none): Theorem 10 with force columns
+    (module docstring); ``<model>_theorem10<tag>_closed_loop`` with state
+    ``z = (q, q̇, π̂, f̂)`` and the extra input ``kf`` after ``kpi``. f̂, like π̂, is
+    integrated explicitly (outside the W matrix): it is slow, not stiff.
     """
     lin = LinearRoute(dyn) if lin is None else lin
-    ctl = theorem10_fun(dyn, lin) if ctl is None else ctl
+    groups = force_groups(dyn, forces)
+    ctl = theorem10_fun(dyn, lin, forces=groups) if ctl is None else ctl
     n, r, ns = dyn.model.dof, lin.r, dyn.model.n_segments
+    nf = len(force_names(dyn, groups))
     b = dyn.nominal
     # SX pieces, called twice each from an MX graph so that the C holds them once.
     tau_s, f_s = ca.SX.sym("tau", b.n_inputs), ca.SX.sym("f_ext", 3 * ns)
@@ -237,14 +359,21 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     wsolve = ca.Function(f"{dyn.name}_cl_wsolve", [b.q, qm_s, kd_s, lam_s, h_s, v_s],
                          [ca.vertcat(v_s[:n] + g * kv, kv)], FUNCTION_OPTS)
 
-    z = ca.MX.sym("z", 2 * n + r)
+    z = ca.MX.sym("z", 2 * n + r + nf)
     ref0, ref1 = ca.MX.sym("ref0", 3 * n), ca.MX.sym("ref1", 3 * n)
     lam, kd, kpi = ca.MX.sym("lam", n), ca.MX.sym("kd", n), ca.MX.sym("kpi", r)
+    kf = ca.MX.sym("kf", nf)
     f_ext, noise, dt = ca.MX.sym("f_ext", 3 * ns), ca.MX.sym("noise", 2 * n), ca.MX.sym("dt")
 
     def rhs(zz, ref):
-        q, qd, pi_hat = zz[:n], zz[n:2 * n], zz[2 * n:]
+        q, qd, pi_hat = zz[:n], zz[n:2 * n], zz[2 * n:2 * n + r]
         qm, qdm = q + noise[:n], qd + noise[n:]
+        if nf:     # dt = 1 makes the step's Euler increments the time derivatives
+            f_hat = zz[2 * n + r:]
+            pin, fn, tau, sigma = ctl(pi_hat, f_hat, qm, qdm, ref[:n], ref[n:2 * n],
+                                      ref[2 * n:], lam, kd, kpi, kf, 1.0)
+            return (ca.vertcat(qd, qdd(q, qd, tau, f_ext), pin - pi_hat, fn - f_hat),
+                    tau, sigma)
         pin, tau, sigma = ctl(pi_hat, qm, qdm, ref[:n], ref[n:2 * n], ref[2 * n:],
                               lam, kd, kpi, 1.0)
         return ca.vertcat(qd, qdd(q, qd, tau, f_ext), pin - pi_hat), tau, sigma
@@ -258,6 +387,12 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     f2, _, _ = rhs(z + dt * k1, ref1)
     k2 = W(f2 - 2 * k1)
     z_next = z + 1.5 * dt * k1 + 0.5 * dt * k2
+    if nf:
+        return ca.Function(f"{dyn.name}_theorem10{_force_tag(groups)}_closed_loop",
+                           [z, ref0, ref1, lam, kd, kpi, kf, f_ext, noise, dt],
+                           [z_next, tau, sigma],
+                           CLOSED_LOOP_INPUTS[:6] + ["kf"] + CLOSED_LOOP_INPUTS[6:],
+                           CLOSED_LOOP_OUTPUTS)
     return ca.Function(f"{dyn.name}_theorem10_closed_loop",
                        [z, ref0, ref1, lam, kd, kpi, f_ext, noise, dt],
                        [z_next, tau, sigma], CLOSED_LOOP_INPUTS, CLOSED_LOOP_OUTPUTS)
@@ -274,7 +409,7 @@ def _units(dyn: SoftDynamics) -> tuple[str, str]:
 
 
 def closed_loop_block(dyn: SoftDynamics, dt: float, *, lin: LinearRoute | None = None,
-                      name: str = "loop") -> Block:
+                      name: str = "loop", forces=()) -> Block:
     """Theorem 10 in continuous time with the plant (:func:`closed_loop_fun`) as a block.
 
     State ``q, qd, pi_hat`` (the plant's configuration and velocity, π̂); inputs
@@ -285,10 +420,26 @@ def closed_loop_block(dyn: SoftDynamics, dt: float, *, lin: LinearRoute | None =
     Outputs ``tau`` and ``sigma`` at the start of the sample and the state at the
     sample. One ROS2 step per sample: the loop for the stiff lumped-mass models
     (planar and 3D PCC, §12.2.1 and §12.2.3).
+
+    ``forces`` (:func:`force_groups`): force columns; the state gains ``f_hat`` (N) and
+    the parameters ``kf`` (the diagonal of K_f).
     """
     lin = LinearRoute(dyn) if lin is None else lin
     n, r = dyn.model.dof, lin.r
     uq, uv = _units(dyn)
+    groups = force_groups(dyn, forces)
+    if groups:
+        nf = len(force_names(dyn, groups))
+        return Block.wrap(name, closed_loop_fun(dyn, lin, forces=groups), dt=dt,
+                          state={"z": "z_next"},
+                          state_parts={"z": [("q", n, uq), ("qd", n, uv), ("pi_hat", r, ""),
+                                             ("f_hat", nf, "N")]},
+                          params=["lam", "kd", "kpi", "kf"], constants={"dt": dt},
+                          rules={"lam": "positive", "kd": "positive", "kpi": "nonnegative",
+                                 "kf": "nonnegative"},
+                          doc="Theorem 10 with force columns + soft plant, continuous time",
+                          meta={"model": dyn.name, "parameters": r,
+                                "forces": force_names(dyn, groups)})
     return Block.wrap(name, closed_loop_fun(dyn, lin), dt=dt, state={"z": "z_next"},
                       state_parts={"z": [("q", n, uq), ("qd", n, uv), ("pi_hat", r, "")]},
                       params=["lam", "kd", "kpi"], constants={"dt": dt},
@@ -298,14 +449,26 @@ def closed_loop_block(dyn: SoftDynamics, dt: float, *, lin: LinearRoute | None =
 
 
 def controller_block(dyn: SoftDynamics, dt: float, *, lin: LinearRoute | None = None,
-                     name: str = "ctrl") -> Block:
+                     name: str = "ctrl", forces=()) -> Block:
     """Sampled Theorem 10 (:func:`theorem10_fun`: τ held, Euler π̂) as a block.
 
     State ``pi_hat``; inputs ``q, qd`` (measured) and ``q_d, qd_d, qdd_d``;
     parameters ``lam``, ``kd``, ``kpi``; outputs ``tau``, ``sigma``. For models
     without light modes (the distributed-mass affine pendulum, §12.2.2).
+
+    ``forces`` (:func:`force_groups`): force columns; state ``f_hat`` too, parameter ``kf``.
     """
     lin = LinearRoute(dyn) if lin is None else lin
+    groups = force_groups(dyn, forces)
+    if groups:
+        return Block.wrap(name, theorem10_fun(dyn, lin, forces=groups), dt=dt,
+                          state={"pi_hat": "pi_hat_next", "f_hat": "f_hat_next"},
+                          params=["lam", "kd", "kpi", "kf"], constants={"dt": dt},
+                          rules={"lam": "positive", "kd": "positive", "kpi": "nonnegative",
+                                 "kf": "nonnegative"},
+                          doc="Theorem 10 with force columns, sampled (zero-order hold)",
+                          meta={"model": dyn.name, "parameters": lin.r,
+                                "forces": force_names(dyn, groups)})
     return Block.wrap(name, theorem10_fun(dyn, lin), dt=dt, state={"pi_hat": "pi_hat_next"},
                       params=["lam", "kd", "kpi"], constants={"dt": dt},
                       rules={"lam": "positive", "kd": "positive", "kpi": "nonnegative"},
