@@ -39,21 +39,25 @@ def _tip_jacobians_fd(dyn, q, h=1e-6):
 
 @pytest.mark.parametrize("model, forces", [
     ("soft_pendulum", ("tip",)), ("pcc_planar_4seg", ("tips",)),
-    ("pcc_planar_4seg", (1, (0, 3))), ("pcc_3d_4seg", ("tip",)), ("pcc_3d_4seg", ("tips", 2))])
+    ("pcc_planar_4seg", (1, (0, 3))), ("pcc_planar_4seg", ("tip:y", "0,1:x")),
+    ("soft_pendulum", ("tip:x",)), ("pcc_3d_4seg", ("tip",)), ("pcc_3d_4seg", ("tips", 2)),
+    ("pcc_3d_4seg", ("tips:xz",))])
 @pytest.mark.parametrize("seed", range(3))
 def test_columns_times_forces_is_minus_the_generalised_force(dyns, model, forces, seed):
     """Y_f(q) f = −Σ_g Σ_{i∈g} J_i(q)ᵀ f_g on random states, J_i by finite differences."""
     dyn = dyns[model]
     rng = np.random.default_rng(seed)
     groups = force_groups(dyn, forces)
-    k = 3 if dyn.model.kind == "pcc-3d" else 2
+    rows = [["xyz".index(a) for a in axes] for _, axes in groups]
+    nf = sum(map(len, rows))
     q = rng.uniform(-0.6, 0.6, dyn.model.dof)
-    f = rng.normal(0.0, 2.0, k * len(groups))
+    f = rng.normal(0.0, 2.0, nf)
     Yf = np.array(ca.Function("yf", [dyn.nominal.q], [force_columns(dyn, groups)])(q))
     J = _tip_jacobians_fd(dyn, q)
-    want = -sum(J[i][:k].T @ f[k * j:k * j + k] for j, g in enumerate(groups) for i in g)
-    assert Yf.shape == (dyn.model.dof, k * len(groups)) == (dyn.model.dof,
-                                                             len(force_names(dyn, groups)))
+    at = np.cumsum([0] + [len(r) for r in rows])
+    want = -sum(J[i][rows[j]].T @ f[at[j]:at[j + 1]] for j, (g, _) in enumerate(groups)
+                for i in g)
+    assert Yf.shape == (dyn.model.dof, nf) == (dyn.model.dof, len(force_names(dyn, groups)))
     assert np.allclose(Yf @ f, want, rtol=1e-6, atol=1e-8 * max(1.0, np.abs(want).max()))
 
 
@@ -73,7 +77,7 @@ def test_forces_enter_tau_and_update_linearly(pendulum, seed):
                                                        kpi, dt))
     pin, fn, tau, s = (np.array(v).ravel() for v in F(pi, f_hat, q, qd, q_d, qd_d, qdd_d, lam,
                                                       kd, kpi, kf, dt))
-    Yf = np.array(ca.Function("yf", [dyn.nominal.q], [force_columns(dyn, ((0,),))])(q))
+    Yf = np.array(ca.Function("yf", [dyn.nominal.q], [force_columns(dyn, ("tip",))])(q))
     A = np.array(dyn.actuation_fun()(q))
     assert np.allclose(pin, pin0, rtol=1e-12, atol=1e-15) and np.allclose(s, s0)
     assert np.allclose(tau - tau0, np.linalg.lstsq(A, Yf @ f_hat, rcond=None)[0],
@@ -88,7 +92,8 @@ def test_default_is_the_law_without_columns(pendulum):
     assert F.name() == "soft_pendulum_theorem10_step" and F.name_in() == THEOREM10_INPUTS
 
 
-@pytest.mark.parametrize("bad", [("nose",), (7,), ((0, 9),), (True,), ("tip", -1)])
+@pytest.mark.parametrize("bad", [("nose",), (7,), ((0, 9),), (True,), ("tip", -1),
+                                 ("tip:z",), ("tip:xx",), ("1,a:x",), ("tips:",)])
 def test_bad_force_declaration_is_one_error_line(dyns, bad):
     with pytest.raises(ModelError) as e:
         force_groups(dyns["pcc_planar_4seg"], bad)

@@ -90,66 +90,93 @@ def apply_pinv(blocks: list, v):
 FORCE_AXES = {"pcc-planar": "xy", "affine-planar": "xy", "pcc-3d": "xyz"}
 
 
-def force_groups(dyn: SoftDynamics, forces) -> tuple[tuple[int, ...], ...]:
-    """The tip groups of ``forces``, each carrying one unknown constant world force.
+def _is_index(i) -> bool:
+    return isinstance(i, (int, np.integer)) and not isinstance(i, bool)
+
+
+def force_groups(dyn: SoftDynamics, forces) -> tuple[tuple[tuple[int, ...], str], ...]:
+    """The declared forces as (tips, axes) groups, each one unknown constant world force.
 
     Entries: ``"tip"`` (the last segment's tip), ``"tips"`` (one force shared by every
     segment tip, e.g. the same payload on each), a segment index ``i`` (0-based, negative
-    from the end) or a tuple of indices (one force shared by those tips). ``()`` or
-    ``None``: no force columns. A bad entry is one ``ModelError`` line naming it.
+    from the end), a tuple of indices (one force shared by those tips), or a string
+    ``"<where>:<axes>"`` restricting the adapted components (``"tip:x"``; ``<where>`` is
+    ``tip``, ``tips`` or comma-separated indices; default every axis of the model kind,
+    :data:`FORCE_AXES`). ``()`` or ``None``: no force columns. Groups already normalised
+    pass through. A bad entry is one ``ModelError`` line naming it.
     """
-    ns = dyn.model.n_segments
+    ns, all_axes = dyn.model.n_segments, FORCE_AXES[dyn.model.kind]
     out = []
+
+    def bad(e, why):
+        return ModelError(f"{dyn.name}: forces: {why}, got {e!r}")
+
     for e in forces or ():
-        if e == "tip":
+        axes = all_axes
+        where = e
+        if isinstance(e, tuple) and len(e) == 2 and isinstance(e[0], tuple) \
+                and isinstance(e[1], str):
+            where, axes = e                                  # already normalised
+        elif isinstance(e, str) and ":" in e:
+            where, axes = e.split(":", 1)
+        if isinstance(where, str) and where not in ("tip", "tips"):
+            try:
+                where = tuple(int(i) for i in where.split(","))
+            except ValueError:
+                raise bad(e, "expected 'tip', 'tips', segment indices or a tuple of them, "
+                             "optionally ':<axes>'") from None
+        if where == "tip":
             g = (ns - 1,)
-        elif e == "tips":
+        elif where == "tips":
             g = tuple(range(ns))
-        elif isinstance(e, (int, np.integer)) and not isinstance(e, bool):
-            g = (int(e),)
-        elif isinstance(e, (tuple, list)) and e and all(
-                isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in e):
-            g = tuple(int(i) for i in e)
+        elif _is_index(where):
+            g = (int(where),)
+        elif isinstance(where, (tuple, list)) and where and all(map(_is_index, where)):
+            g = tuple(int(i) for i in where)
         else:
-            raise ModelError(f"{dyn.name}: forces: expected 'tip', 'tips', a segment index "
-                             f"or a tuple of them, got {e!r}")
+            raise bad(e, "expected 'tip', 'tips', segment indices or a tuple of them, "
+                         "optionally ':<axes>'")
         if any(not -ns <= i < ns for i in g):
-            raise ModelError(f"{dyn.name}: forces: segment index out of range 0..{ns - 1} "
-                             f"in {e!r}")
+            raise bad(e, f"segment index out of range 0..{ns - 1}")
+        if not axes or any(a not in all_axes for a in axes) or len(set(axes)) < len(axes):
+            raise bad(e, f"axes: expected distinct letters of {all_axes!r}")
         g = tuple(sorted({i % ns for i in g}))
-        if g in out:
-            raise ModelError(f"{dyn.name}: forces: tip group {g} declared twice")
-        out.append(g)
+        if g in [o[0] for o in out]:
+            raise bad(e, f"tip group {g} declared twice")
+        out.append((g, "".join(sorted(axes))))
     return tuple(out)
 
 
 def force_columns(dyn: SoftDynamics, groups, q=None):
-    """Y_f(q) = −[J_1ᵀ … J_Gᵀ] (n × k·G, k = 2 planar or 3 in 3D), J_g = Σ_{i∈g} J_i.
+    """Y_f(q) = −[J_1ᵀ … J_Gᵀ] (n × Σ_g k_g), J_g = Σ_{i∈g} J_i restricted to the group's
+    axes (k_g of them: x, y planar; x, y, z in 3D by default).
 
     J_i is the derived 3×n Jacobian of segment tip i's world position
     (:meth:`~softgen.symbolic.pcc.SoftBody.tip_jacobians`) at nominal rest lengths, and the
     generalised force of a constant world force f_g on the tips of group g is J_gᵀ f_g
     (eq. 3.6 with external forces): Y_f f = −Σ_g J_gᵀ f_g, linear in f (module docstring).
-    ``q``: expression substituted for the configuration (default the nominal symbol).
+    ``groups``: :func:`force_groups`. ``q``: expression substituted for the configuration
+    (default the nominal symbol).
     """
     b = dyn.nominal
-    k = len(FORCE_AXES[dyn.model.kind])
     J = b.tip_jacobians()
-    cols = [-sum((J[i][:k, :] for i in g), ca.SX.zeros(k, b.n)).T for g in groups]
+    cols = []
+    for tips, axes in force_groups(dyn, groups):
+        rows = ["xyz".index(a) for a in axes]
+        cols.append(-sum((J[i][rows, :] for i in tips), ca.SX.zeros(len(rows), b.n)).T)
     Yf = ca.horzcat(*cols) if cols else ca.SX.zeros(b.n, 0)
     return Yf if q is None else ca.substitute(Yf, b.q, q)
 
 
 def force_names(dyn: SoftDynamics, groups) -> list[str]:
-    """Names of the force parameters, ``f<group>_<axis>`` (group = its tips, 0-based)."""
-    axes = FORCE_AXES[dyn.model.kind]
-    return [f"f{''.join(map(str, g)) if len(g) < 10 else 'tips'}_{a}" for g in groups
+    """Names of the force parameters, ``f<tips>_<axis>`` (tips 0-based)."""
+    return [f"f{''.join(map(str, g))}_{a}" for g, axes in force_groups(dyn, groups)
             for a in axes]
 
 
 def _force_tag(groups) -> str:
-    """Name part of a function with force columns: ``_f<tips>`` per group."""
-    return "".join("_f" + "".join(map(str, g)) for g in groups)
+    """Name part of a function with force columns: ``_f<tips>[<axes>]`` per group."""
+    return "".join(f"_f{''.join(map(str, g))}{axes}" for g, axes in groups)
 
 
 def theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,

@@ -102,7 +102,8 @@ class PendulumConfig(SoftStudyConfig):
     # long enough for the soft pendulum to settle at all (issue 22 item 6).
     clean_long_duration: float = 1000.0                                  # s
     # Force columns (beyond the thesis): _disturbed_forces and _disturbed_forces_k4, and
-    # with separate_causes _clean_forces (columns, no force, no noise). () to skip.
+    # with separate_causes _clean_forces (columns, no force, no noise) and
+    # _force_only_long_forces (columns, the force alone, clean_long_duration). () to skip.
     force_columns: tuple = ("tip",)
     kf: float = 1.0                                                      # K_f = k_f I
     force_columns_reason: str = (
@@ -229,6 +230,13 @@ def run_pendulum(c: PendulumConfig, out: Path) -> Metrics:
                 rows.append(("_clean_forces", g_f, False, 0.0, d, e0))
             m.extend(run_cases(loop_f, c.cases(1, rows), c, out, "ch12-affine-pendulum",
                                _figures(f"fig12_5_k{k}", rows), "rad"), keep=_not_speed)
+            if c.separate_causes and c.clean_long_duration and not tag:
+                # The force alone, long: what the columns reject once settling is over.
+                rows = [("_force_only_long_forces", g_f, False, c.force, d, e0)]
+                m.extend(run_cases(loop_f, c.cases(1, rows),
+                                   dataclasses.replace(c, duration=c.clean_long_duration),
+                                   out, "ch12-affine-pendulum", _figures("fig12_5_k1", rows),
+                                   "rad"), keep=_not_speed)
     return m
 
 
@@ -377,8 +385,15 @@ def findings_pendulum(m: Metrics, c: Config | None = None) -> list[dict]:
             # The columns adapt from t = 0, not only once the force is on: how much of the
             # gain is the force and how much faster settling, from the runs without force.
             f["evidence"] += (f" Without noise or force: {num(both['clean'])} rad without, "
-                              f"{num(both['clean_forces'])} rad with the columns, so part "
-                              "of the gain is faster settling, not the force.")
+                              f"{num(both['clean_forces'])} rad with the columns"
+                              + (", so part of the gain at the end of the run is faster "
+                                 "settling, not the force." if both["clean_forces"]
+                                 < both["clean"] else "."))
+        long = _get(m, "position_rms_error", ["force_only_long", "force_only_long_forces"])
+        if isinstance(long, dict) and f["verdict"] != "not checked":
+            f["evidence"] += (f" The force alone without noise, long run: "
+                              f"{num(long['force_only_long'])} rad without, "
+                              f"{num(long['force_only_long_forces'])} rad with the columns.")
         out.append(f)
     return out
 
