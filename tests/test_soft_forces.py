@@ -182,3 +182,41 @@ def test_adapted_loop_finds_a_known_constant_force(seed):
     assert np.all(np.isfinite(z))
     assert np.linalg.norm(z[-2:] - f) < 1e-3 * np.linalg.norm(f)
     assert np.abs(z[:n] - q_d).max() < 1e-3
+
+
+def _grade(x):
+    return "reproduced" if all(x) else "partly reproduced" if any(x) else "not reproduced"
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_force_column_findings_follow_the_records(seed):
+    """3D and pendulum findings with force columns grade the stated thresholds on seeded
+    random records, and the pendulum's cause text follows the clean runs."""
+    from softgen.core.metrics import Metrics
+    from softgen.experiments import ch12_soft as ch12
+    rng = np.random.default_rng(seed)
+    m3 = Metrics()
+    v3 = {}
+    for s in ("", "disturbed", "disturbed_lateral", "disturbed_lateral_forces", "lateral_clean",
+              "lateral_clean_forces", "noise_only", "disturbed_forces"):
+        v3[s] = float(rng.uniform(0.001, 0.03))
+        m3.add("position_rms_error", v3[s], "m", suffix=s)
+        m3.add("parameter_estimate_max_norm", 1.0, "mixed", suffix=s)
+    last = ch12.findings_3d(m3)[-1]
+    assert last["verdict"] == _grade([v3["disturbed_lateral_forces"] < 0.01,
+                                      v3["lateral_clean_forces"] < 0.01])
+    assert ("sets the floor" in last["evidence"]) == (v3["noise_only"] >= 0.01)
+
+    mp = Metrics()
+    vp = {}
+    for s in ("", "k4", "disturbed", "disturbed_k4", "noise_only", "force_only", "clean",
+              "clean_long", "force_only_long", "disturbed_forces", "disturbed_forces_k4",
+              "clean_forces", "force_only_long_forces"):
+        vp[s] = float(10 ** rng.uniform(-4, 0))
+        mp.add("position_rms_error", vp[s], "rad", suffix=s)
+        mp.add("parameter_estimate_max_norm", 1.0, "mixed", suffix=s)
+    out = ch12.findings_pendulum(mp, ch12.PendulumConfig())
+    tol = ch12.CONVERGED["pendulum"]
+    short = vp["clean"] >= tol and vp["clean_long"] < tol
+    assert ("too short" in out[2]["evidence"]) == short
+    assert out[-1]["verdict"] == _grade([vp["disturbed_forces"] < 0.02])
