@@ -160,11 +160,11 @@ def test_adapted_loop_finds_a_known_constant_force(seed):
 
     Tolerance: at rest σ = Λq̃ and df̂/dt = −K_f J σ = 0, so J q̃ = 0, and the σ equation
     gives Jᵀ f̃ = K_d Λ q̃; then q̃ᵀJᵀf̃ = 0 = K_dΛ‖q̃‖², so q̃ = 0 and f̂ = f (J has rank 2
-    there): the force is the unique equilibrium. Its slowest rate is about
-    k_f λ_min(J (K_d + D)⁻¹ Jᵀ) = 100 · 0.054 ≈ 5 1/s at that q_d, so after 2 s the
-    transient is near e^−10 ≈ 5e-5 of its start (measured 1.2e-6 relative for
-    f = (0.3, −0.1) N); 1e-3 relative leaves that margin and still fails a wrong sign or
-    a missing column, which do not converge at all.
+    there): the force is the unique equilibrium. With σ ≈ K_d⁻¹Jᵀf̃ quasi-statically its
+    slowest rate is about k_f λ_min(J K_d⁻¹ Jᵀ) = 100 · 0.065 ≈ 6 1/s at that q_d, so
+    after 2 s the transient is near e^−12 ≈ 6e-6 of its start (measured 1.3e-6 relative
+    for f = (0.3, −0.1) N); 1e-3 relative leaves a wide margin and still fails a wrong
+    sign or a missing column, which do not converge at all.
     """
     dyn = SoftDynamics(load_model("pcc_planar_4seg"))
     lin = LinearRoute(dyn)

@@ -21,21 +21,27 @@ Y_f = −[J_1ᵀ … J_Gᵀ] with unknown parameters f = (f_1, …, f_G) (:func:
     τ = A(q)† (Y π̂ + Y_f f̂ + K_d σ) = A(q)† (Y π̂ − Jᵀ f̂ + K_d σ),
     dπ̂/dt = K_π Yᵀ σ,     df̂/dt = K_f Y_fᵀ σ = −K_f J σ.
 
-Lyapunov (as Theorem 10): with the plant B q̈ + C q̇ + G + K q + D q̇ = A τ + Jᵀ f and
-Y π = B q̈_r + C q̇_r + G + K q + D q̇_r, subtracting gives
-B σ̇ + (C + D) σ = Y π − A τ − Jᵀ f. Where A is square (PCC), A τ = Y π̂ − Jᵀ f̂ + K_d σ
-and, with π̃ = π̂ − π, f̃ = f̂ − f: B σ̇ = −(C + D + K_d) σ − Y π̃ + Jᵀ f̃. For
+Lyapunov (as Theorem 10): with the plant B q̈ + C q̇ + G + K q + D q̇ = A τ + Jᵀ f and Y
+as built here, Y π = B q̈_r + C q̇_r + G + K q + D q̇ (eq. 12.1,
+:meth:`~softgen.symbolic.pcc.SoftBody.slotine_li`: D multiplies the measured q̇, so it
+cancels), subtracting gives B σ̇ + C σ = Y π − A τ − Jᵀ f. Where A is square (PCC),
+A τ = Y π̂ − Jᵀ f̂ + K_d σ and, with π̃ = π̂ − π, f̃ = f̂ − f:
+B σ̇ = −(C + K_d) σ − Y π̃ + Jᵀ f̃. For
 V = ½ σᵀBσ + ½ π̃ᵀK_π⁻¹π̃ + ½ f̃ᵀK_f⁻¹f̃ (π, f constant),
 V̇ = σᵀBσ̇ + ½ σᵀḂσ + π̃ᵀK_π⁻¹ dπ̂/dt + f̃ᵀK_f⁻¹ df̂/dt
-  = −σᵀ(K_d + D)σ + ½ σᵀ(Ḃ − 2C)σ − σᵀYπ̃ + π̃ᵀYᵀσ + σᵀJᵀf̃ − f̃ᵀJσ
-  = −σᵀ(K_d + D)σ ≤ 0:
+  = −σᵀK_dσ + ½ σᵀ(Ḃ − 2C)σ − σᵀYπ̃ + π̃ᵀYᵀσ + σᵀJᵀf̃ − f̃ᵀJσ
+  = −σᵀK_dσ ≤ 0
+(with D q̇_r in Y instead, D stays on the left and V̇ = −σᵀ(K_d + D)σ, the same proof):
 the skew term vanishes (Ḃ − 2C skew) and each cross term cancels with its update,
 exactly as the π̃ term of Theorem 10 does, so the same Barbalat argument gives σ → 0
 with π̂ and f̂ bounded (not necessarily converging to π, f without persistent
-excitation). Where A is a column (the affine pendulum) A τ = P(Y π̂ − Jᵀ f̂ + K_d σ)
-with P = A A† ≠ I, and V̇ gains σᵀ(I − P)(Y π̃ − Jᵀ f̃ + …)-type terms that do not
-cancel: the argument does not hold there, for the force columns as for Theorem 10
-itself on the underactuated pendulum; what happens is measured (ch12-affine-pendulum).
+excitation). This needs A square and invertible along the path (PCC: A_i = 1 planar,
+det A_i = sinc²Δ_i in 3D). Where A is a column (the affine pendulum) A τ = P(Y π̂ − Jᵀ f̂
++ K_d σ) with P = A A† ≠ I, the same steps give
+V̇ = −σᵀK_dσ + σᵀ(I − P)(Y π̂ − Jᵀ f̂ + K_d σ): the part of the wanted generalised
+force that the tip moment cannot produce is sign-indefinite, so the argument does not
+hold there, for the force columns as for Theorem 10 itself on the underactuated
+pendulum; what happens is measured (ch12-affine-pendulum).
 J_g is evaluated at the nominal rest lengths, as A is (the kinematics are treated as
 known); with uncertain lengths Jᵀ f is bilinear (p is linear in the lengths,
 :class:`~softgen.symbolic.pcc.LinearRoute`) and its exact parameters would be the
