@@ -163,8 +163,8 @@ def test_adapted_loop_finds_a_known_constant_force(seed):
     there): the force is the unique equilibrium. With σ ≈ K_d⁻¹Jᵀf̃ quasi-statically its
     slowest rate is about k_f λ_min(J K_d⁻¹ Jᵀ) = 100 · 0.065 ≈ 6 1/s at that q_d, so
     after 2 s the transient is near e^−12 ≈ 6e-6 of its start (measured 1.3e-6 relative
-    for f = (0.3, −0.1) N); 1e-3 relative leaves a wide margin and still fails a wrong
-    sign or a missing column, which do not converge at all.
+    for f = (0.3, −0.1) N); 1e-3 relative leaves a wide margin and still fails a sign
+    error in the columns (f̂ → −f) or a missing one (that component cannot move).
     """
     dyn = SoftDynamics(load_model("pcc_planar_4seg"))
     lin = LinearRoute(dyn)
