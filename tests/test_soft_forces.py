@@ -220,3 +220,29 @@ def test_force_column_findings_follow_the_records(seed):
     short = vp["clean"] >= tol and vp["clean_long"] < tol
     assert ("too short" in out[2]["evidence"]) == short
     assert out[-1]["verdict"] == _grade([vp["disturbed_forces"] < 0.02])
+
+
+def test_closed_loop_block_with_forces_equals_step_function(dyns):
+    """The continuous-time block's state is (q, q̇, π̂, f̂), its parameter kf: the block
+    evaluates the step function."""
+    from softgen.control.soft import closed_loop_block
+    dyn = dyns["pcc_planar_4seg"]
+    lin = LinearRoute(dyn)
+    n, r, ns = dyn.model.dof, lin.r, dyn.model.n_segments
+    rng = np.random.default_rng(2)
+    F = closed_loop_fun(dyn, lin, forces=("tips",))
+    blk = closed_loop_block(dyn, DT, lin=lin, forces=("tips",))
+    z = np.concatenate([rng.uniform(-0.5, 0.5, 2 * n), rng.uniform(-0.1, 0.1, r),
+                        rng.normal(0, 0.3, 2)])
+    ref0, ref1 = rng.uniform(-1, 1, 3 * n), rng.uniform(-1, 1, 3 * n)
+    lam, kd, kpi, kf = np.full(n, 5.0), np.full(n, 1.0), np.full(r, 1.0), np.full(2, 0.5)
+    f, noise = rng.uniform(-0.5, 0.5, 3 * ns), rng.normal(0, 0.03, 2 * n)
+    zn, tau, sigma = (np.array(v).ravel() for v in F(z, ref0, ref1, lam, kd, kpi, kf, f,
+                                                     noise, DT))
+    u = blk.inputs.join({"ref0": ref0, "ref1": ref1, "f_ext": f, "noise": noise})
+    p = blk.params.join({"lam": lam, "kd": kd, "kpi": kpi, "kf": kf})
+    xn, y = blk.eval(z, u, p)
+    assert np.allclose(np.asarray(xn).ravel(), zn, rtol=1e-12, atol=1e-14)
+    out = blk.outputs.split(np.asarray(y).ravel())
+    assert np.allclose(out["tau"], tau, rtol=1e-12, atol=1e-14)
+    assert np.array_equal(out["f_hat"], z[2 * n + r:])
