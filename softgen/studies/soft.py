@@ -129,18 +129,21 @@ class SoftStudyConfig(Config):
             raise ValueError(f"duration: expected more than metric_window, got {self.duration}")
 
     def cases(self, n_segments: int, rows) -> list[SoftCase]:
-        """(suffix, gains, noisy, force, direction, e(0)) rows as cases, forces on from
-        ``t_disturbance``, noise ``noise_std`` where noisy. Gains (Λ, K_d, K_π) or, for a
-        loop with force columns, (Λ, K_d, K_π, K_f)."""
+        """(suffix, gains, noisy, force, direction, e(0)[, noise index]) rows as cases,
+        forces on from ``t_disturbance``, noise ``noise_std`` where noisy. Gains
+        (Λ, K_d, K_π) or, for a loop with force columns, (Λ, K_d, K_π, K_f). The noise
+        index (default the row's position) picks the seed: a variant given the index of
+        the case it is compared with sees the same noise."""
         return [SoftCase.of(sfx, g, self.noise_std if noisy else 0.0, f, d, n_segments,
-                            self.t_disturbance, e0) for sfx, g, noisy, f, d, e0 in rows]
+                            self.t_disturbance, e0, *k) for sfx, g, noisy, f, d, e0, *k in rows]
 
 
 @dataclass(frozen=True)
 class SoftCase:
     """One run: name suffix, gains (scalars: Λ = λI, K_d = k_d I, K_π = k_π I), noise
     standard deviation (0: ideal sensing), tip force (3 per tip) from ``t_on``, the
-    initial tracking error e(0) = q_d(0) − q(0), and K_f = k_f I (force columns only)."""
+    initial tracking error e(0) = q_d(0) − q(0), K_f = k_f I (force columns only) and
+    the noise index (seed ``noise_seed`` + index; None: the case's position)."""
 
     suffix: str
     lam: float
@@ -151,15 +154,17 @@ class SoftCase:
     t_on: float
     initial_error: tuple[float, ...]
     kf: float = 0.0
+    noise_index: int | None = None
 
     @classmethod
     def of(cls, suffix: str, gains, noise_std: float, force: float, direction,
-           n_segments: int, t_on: float, initial_error) -> SoftCase:
+           n_segments: int, t_on: float, initial_error,
+           noise_index: int | None = None) -> SoftCase:
         """The case with ``force`` along ``direction`` on every tip (:func:`tip_forces`);
         ``gains`` (Λ, K_d, K_π) or (Λ, K_d, K_π, K_f)."""
         lam, kd, kpi, *kf = gains
         return cls(suffix, lam, kd, kpi, noise_std, tip_forces(force, direction, n_segments),
-                   t_on, tuple(initial_error), *kf)
+                   t_on, tuple(initial_error), *(kf or [0.0]), noise_index)
 
 
 def noise_sequence(steps: int, n: int, std: float, seed: int, *,
@@ -268,7 +273,8 @@ def run_cases(loop: SoftLoop, cases: list[SoftCase], c: SoftStudyConfig, out: Pa
     r0 = ref.outputs.split(ref.eval(u=[0.0])[1])
     m, wall = Metrics(), 0.0
     for j, sc in enumerate(cases):
-        noise = noise_sequence(steps, n, sc.noise_std, c.noise_seed + j,
+        k = j if sc.noise_index is None else sc.noise_index
+        noise = noise_sequence(steps, n, sc.noise_std, c.noise_seed + k,
                                on_velocity=c.noise_on_velocity)
         tr = Scenario(f"{label}{sc.suffix}", d, steps=steps, params=loop.params(sc),
                       x0=loop.x0(r0["q_d"] - np.array(sc.initial_error), r0["qd_d"]),
