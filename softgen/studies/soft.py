@@ -18,7 +18,9 @@ error (rad, or m for pcc-3d) of the true state:
 - ``parameter_estimate_max_norm``: max over the run of ‖π̂(t)‖₂;
 - ``input_max_abs``: max over the run and the actuators of |τ_i(t)|;
 - ``convergence_time``: the first time after which ‖e‖ stays below ``band``;
-- ``position_rms_error_initial``: rms of ‖e‖ over the first ``initial`` seconds.
+- ``position_rms_error_initial``: rms of ‖e‖ over the first ``initial`` seconds;
+- ``force_estimate_<name>_final`` (loops with force columns): the adapted force f̂ at
+  the end of the run, per parameter (N).
 """
 from __future__ import annotations
 
@@ -30,7 +32,7 @@ from matplotlib.figure import Figure
 
 from softgen.blocks import Block, ClosedLoop
 from softgen.control.soft import (backbone_samples, closed_loop_block, controller_block,
-                                  plant_block, tip_force_block)
+                                  force_groups, force_names, plant_block, tip_force_block)
 from softgen.core.config import Config
 from softgen.core.metrics import Metrics
 from softgen.studies.scenario import Scenario
@@ -43,7 +45,9 @@ class SoftLoop:
 
     ``plant`` is the block holding the true ``q``/``qd``, ``ctrl`` the block holding
     ``pi_hat``, ``tau`` and the gains ``lam``, ``kd``, ``kpi``; the reference block is
-    ``ref`` and the disturbance ``dist``.
+    ``ref`` and the disturbance ``dist``. ``forces``: the names of the adapted force
+    parameters (force columns, :func:`softgen.control.soft.force_names`), whose estimate
+    ``f_hat`` and gain ``kf`` the controller block then holds too.
     """
 
     diagram: ClosedLoop
@@ -51,41 +55,50 @@ class SoftLoop:
     plant: str
     ctrl: str
     r: int
+    forces: tuple[str, ...] = ()
 
     @property
     def record(self) -> tuple[str, ...]:
-        return ("ref.q_d", f"{self.plant}.q", f"{self.ctrl}.tau", f"{self.ctrl}.pi_hat")
+        return ("ref.q_d", f"{self.plant}.q", f"{self.ctrl}.tau", f"{self.ctrl}.pi_hat") + \
+            ((f"{self.ctrl}.f_hat",) if self.forces else ())
 
     def params(self, sc: SoftCase) -> dict:
         return {f"{self.ctrl}.lam": sc.lam, f"{self.ctrl}.kd": sc.kd,
-                f"{self.ctrl}.kpi": sc.kpi, "dist.force": sc.force, "dist.t_on": sc.t_on}
+                f"{self.ctrl}.kpi": sc.kpi, "dist.force": sc.force, "dist.t_on": sc.t_on,
+                **({f"{self.ctrl}.kf": sc.kf} if self.forces else {})}
 
     def x0(self, q0, qd0) -> dict:
         return {f"{self.plant}.q": q0, f"{self.plant}.qd": qd0}
 
 
 def tracking_loop(name: str, dyn: SoftDynamics, ref: Block, dt: float,
-                  lin: LinearRoute | None = None) -> SoftLoop:
+                  lin: LinearRoute | None = None, *, forces=()) -> SoftLoop:
     """References ``ref`` → continuous-time Theorem 10 + plant (one ROS2 step per sample),
-    tip forces from ``dist``, noise from ``ext.noise`` (planar and 3D PCC)."""
+    tip forces from ``dist``, noise from ``ext.noise`` (planar and 3D PCC). ``forces``:
+    force columns (:func:`softgen.control.soft.force_groups`), default none."""
     lin = LinearRoute(dyn) if lin is None else lin
     n = dyn.model.dof
+    groups = force_groups(dyn, forces)
     d = ClosedLoop(name, [ref, tip_force_block("dist", dyn.model.n_segments),
-                          closed_loop_block(dyn, dt, lin=lin)], externals={"noise": 2 * n})
-    return SoftLoop(d, dyn, "loop", "loop", lin.r)
+                          closed_loop_block(dyn, dt, lin=lin, forces=groups)],
+                   externals={"noise": 2 * n})
+    return SoftLoop(d, dyn, "loop", "loop", lin.r, tuple(force_names(dyn, groups)))
 
 
 def sampled_loop(name: str, dyn: SoftDynamics, ref: Block, dt: float,
-                 lin: LinearRoute | None = None) -> SoftLoop:
+                 lin: LinearRoute | None = None, *, forces=()) -> SoftLoop:
     """References → sampled Theorem 10 (τ held) → plant (ROS2), the controller reading
-    the noisy measurement ``plant.q_meas``/``qd_meas`` (the affine pendulum)."""
+    the noisy measurement ``plant.q_meas``/``qd_meas`` (the affine pendulum). ``forces``:
+    force columns (:func:`softgen.control.soft.force_groups`), default none."""
     lin = LinearRoute(dyn) if lin is None else lin
     n = dyn.model.dof
+    groups = force_groups(dyn, forces)
     d = ClosedLoop(name, [ref, tip_force_block("dist", dyn.model.n_segments),
-                          controller_block(dyn, dt, lin=lin), plant_block(dyn, dt)],
+                          controller_block(dyn, dt, lin=lin, forces=groups),
+                          plant_block(dyn, dt)],
                    [("plant.q_meas", "ctrl.q"), ("plant.qd_meas", "ctrl.qd")],
                    externals={"noise": 2 * n})
-    return SoftLoop(d, dyn, "plant", "ctrl", lin.r)
+    return SoftLoop(d, dyn, "plant", "ctrl", lin.r, tuple(force_names(dyn, groups)))
 
 
 @dataclass(frozen=True)
@@ -116,17 +129,21 @@ class SoftStudyConfig(Config):
             raise ValueError(f"duration: expected more than metric_window, got {self.duration}")
 
     def cases(self, n_segments: int, rows) -> list[SoftCase]:
-        """(suffix, gains, noisy, force, direction, e(0)) rows as cases, forces on from
-        ``t_disturbance``, noise ``noise_std`` where noisy."""
+        """(suffix, gains, noisy, force, direction, e(0)[, noise index]) rows as cases,
+        forces on from ``t_disturbance``, noise ``noise_std`` where noisy. Gains
+        (Λ, K_d, K_π) or, for a loop with force columns, (Λ, K_d, K_π, K_f). The noise
+        index (default the row's position) picks the seed: a variant given the index of
+        the case it is compared with sees the same noise."""
         return [SoftCase.of(sfx, g, self.noise_std if noisy else 0.0, f, d, n_segments,
-                            self.t_disturbance, e0) for sfx, g, noisy, f, d, e0 in rows]
+                            self.t_disturbance, e0, *k) for sfx, g, noisy, f, d, e0, *k in rows]
 
 
 @dataclass(frozen=True)
 class SoftCase:
     """One run: name suffix, gains (scalars: Λ = λI, K_d = k_d I, K_π = k_π I), noise
-    standard deviation (0: ideal sensing), tip force (3 per tip) from ``t_on``, and the
-    initial tracking error e(0) = q_d(0) − q(0)."""
+    standard deviation (0: ideal sensing), tip force (3 per tip) from ``t_on``, the
+    initial tracking error e(0) = q_d(0) − q(0), K_f = k_f I (force columns only) and
+    the noise index (seed ``noise_seed`` + index; None: the case's position)."""
 
     suffix: str
     lam: float
@@ -136,13 +153,18 @@ class SoftCase:
     force: tuple[float, ...]
     t_on: float
     initial_error: tuple[float, ...]
+    kf: float = 0.0
+    noise_index: int | None = None
 
     @classmethod
     def of(cls, suffix: str, gains, noise_std: float, force: float, direction,
-           n_segments: int, t_on: float, initial_error) -> SoftCase:
-        """The case with ``force`` along ``direction`` on every tip (:func:`tip_forces`)."""
-        return cls(suffix, *gains, noise_std, tip_forces(force, direction, n_segments), t_on,
-                   tuple(initial_error))
+           n_segments: int, t_on: float, initial_error,
+           noise_index: int | None = None) -> SoftCase:
+        """The case with ``force`` along ``direction`` on every tip (:func:`tip_forces`);
+        ``gains`` (Λ, K_d, K_π) or (Λ, K_d, K_π, K_f)."""
+        lam, kd, kpi, *kf = gains
+        return cls(suffix, lam, kd, kpi, noise_std, tip_forces(force, direction, n_segments),
+                   t_on, tuple(initial_error), *(kf or [0.0]), noise_index)
 
 
 def noise_sequence(steps: int, n: int, std: float, seed: int, *,
@@ -251,7 +273,8 @@ def run_cases(loop: SoftLoop, cases: list[SoftCase], c: SoftStudyConfig, out: Pa
     r0 = ref.outputs.split(ref.eval(u=[0.0])[1])
     m, wall = Metrics(), 0.0
     for j, sc in enumerate(cases):
-        noise = noise_sequence(steps, n, sc.noise_std, c.noise_seed + j,
+        k = j if sc.noise_index is None else sc.noise_index
+        noise = noise_sequence(steps, n, sc.noise_std, c.noise_seed + k,
                                on_velocity=c.noise_on_velocity)
         tr = Scenario(f"{label}{sc.suffix}", d, steps=steps, params=loop.params(sc),
                       x0=loop.x0(r0["q_d"] - np.array(sc.initial_error), r0["qd_d"]),
@@ -271,6 +294,10 @@ def run_cases(loop: SoftLoop, cases: list[SoftCase], c: SoftStudyConfig, out: Pa
                                     f"|f| = {np.linalg.norm(sc.force[:3]):g} N",
                               unit=unit, three_d=unit == "m",
                               t_on=sc.t_on if any(sc.force) else None)
+        if loop.forces:    # the adapted forces at the end of the run (force columns)
+            f_end = tr[f"{loop.ctrl}.f_hat"][-1]
+            for nm, v in zip(loop.forces, f_end):
+                m.add(f"force_estimate_{nm}_final", v, "N", suffix=sc.suffix.lstrip("_"))
         fig.savefig(out / figures[sc.suffix], dpi=90)
         tr.save(out / f"traces{sc.suffix}.npz")
     m.add("simulated_seconds_per_wall_second", len(cases) * c.duration / wall, "s/s")
