@@ -24,7 +24,7 @@ from softgen.core.errors import SoftgenError
 VERBS = {"list": "list", "generate": "generate", "info": "info", "reproduce": "reproduce",
          "bench": "bench", "estimate": "estimate", "export": "export", "sweep": "sweep",
          "identify": "identify",
-         "plot": "plot"}
+         "plot": "plot", "check": "check"}
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -55,7 +55,7 @@ import casadi as ca
 import numpy as np
 
 from softgen.blocks import Block
-from softgen.control.soft import _projector, apply_pinv, plant_fun, theorem10_fun
+from softgen.control.soft import _projector, apply_pinv, plant_fun, plant_rhs, theorem10_fun
 from softgen.core.errors import SoftgenError
 from softgen.symbolic.rigid import FUNCTION_OPTS
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
@@ -197,6 +197,22 @@ def loop_jacobian(dyn: SoftDynamics, law: str, lin: LinearRoute | None = None, *
                        ["x", "pi_hat", "lam", "kd", "dt"], ["A"])
 
 
+def continuous_jacobian(dyn: SoftDynamics, lin: LinearRoute | None = None) -> ca.Function:
+    """∂ẋ/∂x of Theorem 10 acting continuously on the plant (regulation, q_d = 0, π̂
+    frozen), x = (q, q̇): the loop the sampled ones approximate. exp(h λ) of its
+    eigenvalues λ is what a sampled loop at h should reproduce."""
+    lin = LinearRoute(dyn) if lin is None else lin
+    n, r, ns = dyn.model.dof, lin.r, dyn.model.n_segments
+    x = ca.MX.sym("x", 2 * n)
+    pi_hat, lam, kd = ca.MX.sym("pi_hat", r), ca.MX.sym("lam", n), ca.MX.sym("kd", n)
+    zero = ca.MX.zeros(n)
+    _, tau, _ = theorem10_fun(dyn, lin)(pi_hat, x[:n], x[n:], zero, zero, zero, lam, kd,
+                                        ca.MX.zeros(r), 0.0)
+    xdot = plant_rhs(dyn)(x, ca.vertcat(tau, ca.MX.zeros(3 * ns)))
+    return ca.Function(f"{dyn.name}_theorem10_continuous_jacobian", [x, pi_hat, lam, kd],
+                       [ca.jacobian(xdot, x)], ["x", "pi_hat", "lam", "kd"], ["A"])
+
+
 @dataclass(frozen=True)
 class Verdict:
     """The check's answer for one law, gains and sample time."""
@@ -208,17 +224,33 @@ class Verdict:
     kd: float
     rho_zero: float        # spectral radius with π̂ = 0
     rho_true: float        # spectral radius with π̂ = π (nominal)
+    # max |exp(dt λ)| of the continuous loop at π̂ = 0 and π̂ = π: above 1 the loop is
+    # unstable before any sampling (e.g. the inverted pendulum with π̂ = 0).
+    rho_cont_zero: float = float("nan")
+    rho_cont_true: float = float("nan")
     d_scale: float = 1.0
 
     @property
     def stable(self) -> bool:
         return max(self.rho_zero, self.rho_true) < 1.0
 
+    @property
+    def continuous_stable(self) -> bool:
+        return max(self.rho_cont_zero, self.rho_cont_true) < 1.0
+
+    @property
+    def word(self) -> str:
+        if self.stable:
+            return "stable"
+        return "UNSTABLE (sampling)" if self.continuous_stable else \
+            "UNSTABLE (as the continuous loop)"
+
     def line(self) -> str:
         worse = "" if self.d_scale == 1.0 else f", predictor D x{self.d_scale:g}"
         return (f"{self.model}: {self.law} dt={self.dt:g} s lam={self.lam:g} kd={self.kd:g}"
-                f"{worse}: {'stable' if self.stable else 'UNSTABLE'} (spectral radius "
-                f"{self.rho_zero:.4g} at pi_hat=0, {self.rho_true:.4g} at pi_hat=pi)")
+                f"{worse}: {self.word} (spectral radius {self.rho_zero:.4g} at pi_hat=0, "
+                f"{self.rho_true:.4g} at pi_hat=pi; continuous loop {self.rho_cont_zero:.4g},"
+                f" {self.rho_cont_true:.4g})")
 
 
 class Checker:
@@ -228,12 +260,20 @@ class Checker:
         self.dyn = dyn
         self.lin = LinearRoute(dyn) if lin is None else lin
         self._jac: dict[tuple[str, float], ca.Function] = {}
+        self._cont: ca.Function | None = None
 
     def jacobian(self, law: str, d_scale: float = 1.0) -> ca.Function:
         key = (law, d_scale)
         if key not in self._jac:
             self._jac[key] = loop_jacobian(self.dyn, law, self.lin, d_scale=d_scale)
         return self._jac[key]
+
+    def radius_continuous(self, dt: float, lam: float, kd: float, pi_hat) -> float:
+        if self._cont is None:
+            self._cont = continuous_jacobian(self.dyn, self.lin)
+        n = self.dyn.model.dof
+        A = np.array(self._cont(np.zeros(2 * n), pi_hat, np.full(n, lam), np.full(n, kd)))
+        return float(np.exp(dt * np.max(np.linalg.eigvals(A).real)))
 
     def radius(self, law: str, dt: float, lam: float, kd: float, pi_hat,
                d_scale: float = 1.0) -> float:
@@ -249,9 +289,12 @@ class Checker:
             if not (np.isfinite(v) and v > 0):
                 raise StabilityCheckError(f"{what}: expected a positive number, got {v}")
         pi = self.dyn.parameter_nominal
+        z = np.zeros_like(pi)
         return Verdict(self.dyn.name, law, dt, lam, kd,
-                       self.radius(law, dt, lam, kd, np.zeros_like(pi), d_scale),
-                       self.radius(law, dt, lam, kd, pi, d_scale), d_scale)
+                       self.radius(law, dt, lam, kd, z, d_scale),
+                       self.radius(law, dt, lam, kd, pi, d_scale),
+                       self.radius_continuous(dt, lam, kd, z),
+                       self.radius_continuous(dt, lam, kd, pi), d_scale)
 
 
 def check_sampled(dyn: SoftDynamics, dt: float, lam: float, kd: float, *,
@@ -262,5 +305,5 @@ def check_sampled(dyn: SoftDynamics, dt: float, lam: float, kd: float, *,
 
 
 __all__ = ["SAMPLED_INPUTS", "SAMPLED_OUTPUTS", "LAWS", "StabilityCheckError", "Verdict",
-           "Checker", "check_sampled", "loop_jacobian", "loop_step_fun",
+           "Checker", "check_sampled", "continuous_jacobian", "loop_jacobian", "loop_step_fun",
            "sampled_controller_block", "sampled_theorem10_fun"]
