@@ -16,18 +16,20 @@ The linearly implicit step (:func:`sampled_theorem10_fun`)
     The torque is computed so that Theorem 10's law holds at the state the plant will
     reach with it, to first order: with τ⁰(q, q̇) = Y π̂ + K_d σ (+ the known terms),
 
-        τ = τ⁰(q_k, q̇_k) + h J_q q̇_k + J Δq̇,   J = ∂τ⁰/∂q̇ + h ∂τ⁰/∂q,
+        τ = τ⁰(q_k, q̇_k) + h J_q q̇_k + J Δq̇,   J = ∂τ⁰/∂q̇ + h J_q,  J_q = ∂(K_d σ)/∂q,
         Δq̇ = h M⁻¹ (P τ − u_{k−1}),   M = B(q_k) + h D + h² K,
 
     the velocity change over the sample predicted by one implicit-Euler step of the
-    plant's stiff linear part (the same matrix as the ROS2 W of the plant), driven by
-    the change of the applied generalized force u = A A† τ since the last sample
-    (the plant was in balance with u_{k−1} on its fast modes). It is one n × n linear
-    solve: (I − J h M⁻¹ P) τ = τ⁰ + h J_q q̇_k − J h M⁻¹ u_{k−1}. On a fast mode it
-    gives τ independent of q̇_k whatever D̂ is (dead-beat), so neither the gain nor the
-    adapted damping estimate can destabilise it. J is derived by CasADi from the law
-    itself, so it holds D̂, B̂ Λ, the Coriolis terms and K_d (I + h Λ). As h → 0 it is
-    Theorem 10's τ⁰ (tested).
+    plant's stiff linear part (the matrix of the ROS2 plant's W), driven by the change of
+    the applied generalized force u = A A† τ since the last sample (the plant was in
+    balance with u_{k−1} on its fast modes). With w = M⁻¹ (P τ − u_{k−1}) it is one
+    n × n solve, (M − h P J) w = P τ_e − u_{k−1}, τ = τ_e + h J w, τ_e = τ⁰ + h J_q q̇_k.
+    On a fast mode it gives τ independent of q̇_k whatever D̂ is (dead-beat), so
+    neither the gain nor the adapted damping estimate can destabilise it. J is derived
+    by CasADi from the law itself, so it holds D̂, B̂ Λ, the Coriolis terms and K_d; K_d σ
+    is linear in (q, q̇) and so is evaluated exactly at the predicted end state, Y π̂ only
+    in q̇ (its q-dependence, gravity and elasticity, is slow: h K̂ ≪ D). As h → 0 it is
+    Theorem 10's τ⁰ (tested; the limit sets in below the fastest B/D).
 
     What the controller knows: as in Theorem 10, A(q) with nominal rest lengths
     (the thesis treats A as known) and the regressor's structure; π̂ starts at 0 and is
@@ -132,16 +134,18 @@ def sampled_theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
 
 
 def sampled_controller_block(dyn: SoftDynamics, dt: float, *, lin: LinearRoute | None = None,
-                             name: str = "ctrl") -> Block:
+                             name: str = "ctrl", fun: ca.Function | None = None) -> Block:
     """The linearly implicit sampled Theorem 10 (:func:`sampled_theorem10_fun`) as a block.
 
     State ``pi_hat`` and ``u_prev`` (the generalized force it applied last sample);
     inputs ``q, qd`` (measured) and ``q_d, qd_d, qdd_d``; parameters ``lam``, ``kd``,
     ``kpi`` (diagonals of Λ, K_d, K_π); outputs ``tau``, ``sigma``. Pair it with
-    :func:`softgen.control.soft.plant_block` at the same ``dt``.
+    :func:`softgen.control.soft.plant_block` at the same ``dt``. ``fun``: the step,
+    when already derived (:func:`sampled_theorem10_fun`).
     """
     lin = LinearRoute(dyn) if lin is None else lin
-    return Block.wrap(name, sampled_theorem10_fun(dyn, lin), dt=dt,
+    fun = sampled_theorem10_fun(dyn, lin) if fun is None else fun
+    return Block.wrap(name, fun, dt=dt,
                       state={"pi_hat": "pi_hat_next", "u_prev": "u_next"},
                       params=["lam", "kd", "kpi"], constants={"dt": dt},
                       rules={"lam": "positive", "kd": "positive", "kpi": "nonnegative"},
