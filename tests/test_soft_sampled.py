@@ -169,20 +169,24 @@ def simulate_regulation(step: ca.Function, n_state: int, pi_hat, lam, kd, dt, n,
     return bool(np.all(np.isfinite(xn)) and np.linalg.norm(xn) < x0)
 
 
-def agreement_grid(path, lam=5.0):
-    """Rows (law, kd, dt, π̂, predicted stable, simulated stable)."""
+def agreement_grid(path, lam=5.0, wrong_predictor=4.0):
+    """Rows (law, kd, dt, π̂, spectral radius, predicted stable, simulated stable). Beside
+    the two laws, the implicit one with its predictor's D ``wrong_predictor`` times too
+    large at 1 ms, where the check predicts instability for the larger gains."""
     dyn, lin = _dyn(path)
     chk = Checker(dyn, lin)
     n = dyn.model.dof
     rows = []
-    for law in ("zoh", "implicit"):
-        step = loop_step_fun(dyn, law, lin)
+    for law, d_scale, dts in (("zoh", 1.0, GRID_DT), ("implicit", 1.0, GRID_DT),
+                              ("implicit", wrong_predictor, (1e-3,))):
+        step = loop_step_fun(dyn, law, lin, d_scale=d_scale)
+        label = law if d_scale == 1.0 else f"{law} D x{d_scale:g}"
         for kd in GRID_KD:
-            for dt in GRID_DT:
+            for dt in dts:
                 for which, pi in (("0", np.zeros(lin.r)), ("pi", dyn.parameter_nominal)):
-                    rho = chk.radius(law, dt, lam, kd, pi)
+                    rho = chk.radius(law, dt, lam, kd, pi, d_scale)
                     sim = simulate_regulation(step, step.size1_in(0), pi, lam, kd, dt, n)
-                    rows.append((law, kd, dt, which, rho, rho < 1, sim))
+                    rows.append((label, kd, dt, which, rho, rho < 1, sim))
     return rows
 
 

@@ -37,7 +37,9 @@ The linearly implicit step (:func:`sampled_theorem10_fun`)
     the model file: a sampled controller must know how fast the plant answers its
     torque within a sample (a model of the sampled plant), the one extra assumption.
     The feedforward Y π̂ does not use them. :func:`check_sampled` measures how far the
-    predictor's D may be off (``d_scale``).
+    predictor's D may be off (``d_scale``): on ``pcc_planar_4seg`` at Λ = 5, K_d = 1,
+    1 ms the loop stays stable with 0.1x to 2x the plant's D and is unstable with 3x
+    (spectral radius 1.54): overestimating the damping is what hurts.
 
     Adaptation: π̂_{k+1} = π̂_k + h K_π Yᵀ σ_k (forward Euler at the sample, as the
     thesis's law dπ̂/dt = K_π Yᵀσ sampled); the implicit torque removes the reason it
