@@ -47,9 +47,15 @@ The linearly implicit step (:func:`sampled_theorem10_fun`)
 
 The stability check (:func:`loop_jacobian`, :func:`check_sampled`)
     Linearises the sampled loop (controller + the ROS2 plant over one sample) about the
-    regulated equilibrium q = q_d = q*, q̇ = 0 with π̂ frozen, builds the discrete-time
-    transition matrix by CasADi and returns its spectral radius; stable when it is
-    below 1 for π̂ = 0 (the start) and π̂ = π (the converged estimate).
+    regulated equilibrium q = q_d = 0, q̇ = 0 (straight: hanging for the PCC arms,
+    upright for the pendulum) with π̂ frozen, builds the discrete-time transition matrix
+    by CasADi and returns its spectral radius; stable when it is below 1 for π̂ = 0 (the
+    start) and π̂ = π (the converged estimate). Beside it, max |exp(dt λ)| of the
+    continuous loop's linearisation tells sampling-made instability from an unstable
+    loop (the upright pendulum with π̂ = 0 and the Fig. 12.4 gains is unstable before any
+    sampling: 1.001 per ms). Validated against simulation of the nonlinear sampled loop
+    (``tests/test_soft_sampled.py``, slow). The adaptation's own dynamics are not in it:
+    π̂ is frozen at the two ends of its path.
 """
 from __future__ import annotations
 
