@@ -63,8 +63,10 @@ def _default_cases() -> tuple[Case, ...]:
              p.duration, "rad"),
         Case("3d", d3.model, d3.amplitude, d3.phase, d3.omega, d3.gains, (0.0,) * 12,
              d3.duration, "m"),
+        # The full run's 250 s: in the quick run's 60 s both loops are still 1.65 rad
+        # (rms) from upright, so the comparison would say nothing (measured).
         Case("pendulum", pe.model, (0.0, 0.0), (0.0, 0.0), 0.0, pe.gains, pe.initial_error,
-             pe.duration, "rad"),
+             PendulumConfig().duration, "rad"),
         Case("user_3seg", USER_MODEL, p.amplitude[:3], p.phase[:3], p.omega, p.higher,
              (0.0,) * 3, p.duration, "rad"))
 
@@ -144,6 +146,8 @@ def run_case(case: Case, c: SampledConfig) -> tuple[Metrics, dict]:
         v = chk.check(law, c.dt, lam, kd)
         m.add("spectral_radius_max", max(v.rho_zero, v.rho_true), "1",
               suffix=f"{case.tag}_{law}")
+    m.add("spectral_radius_max", max(v.rho_cont_zero, v.rho_cont_true), "1",
+          suffix=f"{case.tag}_continuous")
     return m, traces
 
 
@@ -186,18 +190,29 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
             f"(ratio {num(r.value)})" for t, r in got.items())
         out = [finding(claim, graded([r.value < cfg.target_ratio for r in got.values()]),
                        ev + " (rms of ‖q_d − q‖ over the last window, sampled vs continuous).")]
-    claim2 = ("The linearised check predicts the zero-order-hold step unstable and the "
-              "linearly implicit step stable at these gains and 1 ms.")
+    claim2 = ("The linearised check: wherever the continuous loop is stable at these gains "
+              "(max |exp(dt λ)| < 1), sampling makes the zero-order-hold step unstable and "
+              "leaves the linearly implicit step as stable as the continuous loop (spectral "
+              "radii within 1e-3).")
+    laws = ("zoh", "implicit", "continuous")
     rad = {(t, law): m.find("spectral_radius_max", suffix=f"{t}_{law}") for t in tags
-           for law in ("zoh", "implicit")}
+           for law in laws}
     if lost := [f"spectral_radius_max ({t}_{law})" for (t, law), r in rad.items() if r is None]:
         out.append(not_checked(claim2, lost))
     else:
-        out.append(finding(claim2, graded(
-            [rad[(t, "zoh")].value > 1 and rad[(t, "implicit")].value < 1 for t in tags]),
-            "; ".join(f"{t}: ZOH {num(rad[(t, 'zoh')].value)}, implicit "
-                      f"{num(rad[(t, 'implicit')].value)}" for t in tags)
-            + " (largest spectral radius over π̂ = 0 and π̂ = π)."))
+        v = {k: r.value for k, r in rad.items()}
+        stable = [t for t in tags if v[(t, "continuous")] < 1]
+        ev = "; ".join(f"{t}: ZOH {num(v[(t, 'zoh')])}, implicit {num(v[(t, 'implicit')])}, "
+                       f"continuous {num(v[(t, 'continuous')])}" for t in tags)
+        rest = [t for t in tags if t not in stable]
+        ev += (" (largest spectral radius over π̂ = 0 and π̂ = π)." + (
+            f" Unstable before sampling, so not counted: {', '.join(rest)}." if rest else ""))
+        if not stable:
+            out.append(finding(claim2, "not reproduced", ev))
+        else:
+            out.append(finding(claim2, graded(
+                [v[(t, "zoh")] > 1 and abs(v[(t, "implicit")] - v[(t, "continuous")]) < 1e-3
+                 for t in stable]), ev))
     return out
 
 
@@ -210,4 +225,6 @@ EXPERIMENT = Experiment(
         "10 s of each loop; `rms_ratio_sampled_to_continuous_<tag>` their ratio; "
         "`spectral_radius_max_<tag>_<law>`: the linearised sampled loop's spectral radius "
         "(regulation about q = 0, the larger over π̂ = 0 and π̂ = π) for the old "
-        "zero-order-hold step and the new one."))
+        "zero-order-hold step (`zoh`) and the new one (`implicit`), and max |exp(dt λ)| of "
+        "the continuous loop (`continuous`). The pendulum runs the full 250 s of "
+        "ch12-affine-pendulum (in 60 s neither loop is upright yet)."))
