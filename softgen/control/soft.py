@@ -54,11 +54,21 @@ to the returned output. The lumped-mass models are stiff (light modes: B⁻¹D u
 to 3e8 1/s for the planar arm), so the generated plant uses the L-stable ROS2
 method; classical RK4 (``method="rk4"``) is kept for small steps and tests.
 
-A controller sampled with zero-order hold cannot stabilise those light modes at
-millisecond rates (K_d/B up to 1e10 1/s), so :func:`closed_loop_fun` also gives
-Theorem 10 in continuous time, controller inside the ODE, as one ROS2 step: this
-is the loop to use for the thesis's planar and 3D PCC simulations. The sampled
-step works for the affine pendulum (distributed mass).
+Why the zero-order-hold step diverges (measured; not B's small eigenvalues): on
+every mode whose time constant B/D is far below the sample, the plant's velocity
+settles within the sample to D q̇ = τ − f, so the held torque's velocity terms,
+(D̂ − K_d) q̇_k (Y's damping column multiplies q̇), act as the algebraic map
+q̇_{k+1} ≈ D⁻¹(D̂ − K_d) q̇_k: stable only while |D̂ − K_d| < D. On
+``pcc_planar_4seg`` (D = 0.1) at 1 ms with π̂ = π frozen, K_d = 0.19 runs and 0.21
+diverges; with π̂ = 0 frozen, 0.09 runs and 0.11 diverges; with 2D, 0.38 runs and 0.42
+diverges; 2000x the masses (0.21 runs, 0.25 diverges), dt = 0.1 ms or 20 plant
+substeps (0.15 runs, 0.25 diverges) barely move it. From
+π̂ = 0 with adaptation (K_d = 0.05) D̂'s column of Yᵀσ, q̇ σ = q̇ q̇_r − q̇², is driven by
+the start-up velocity jump and D̂ goes negative (to −0.92 within 5 ms) until
+|D̂ − K_d| > D. :mod:`softgen.control.soft_sampled` gives the sampled law that is
+stable at 1 ms (linearly implicit in the fast terms) and the check that predicts it;
+:func:`closed_loop_fun` gives Theorem 10 in continuous time, controller inside the
+ODE, as one ROS2 step (the loop of the thesis's simulations).
 """
 from __future__ import annotations
 

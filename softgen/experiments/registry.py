@@ -39,6 +39,7 @@ _MODULES = {
     "ch12-3d-pcc": ".ch12_soft:EXPERIMENT_3D",
     "ext-estimated-stiffness-feedback": ".ext_estimated_stiffness",
     "ext-robustness-theorem5": ".ext_robustness",
+    "ext-sampled-soft": ".ext_sampled_soft",
 }
 
 

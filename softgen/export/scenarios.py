@@ -3,12 +3,12 @@
 Which loop a model gets is read from what the model *is*, never from its name:
 
 - a soft body (planar or 3D PCC, affine segments: :class:`~softgen.modelfile.soft.SoftModel`)
-  runs Theorem 10 (thesis section 12.1) with the plant in one block
-  (:func:`softgen.control.soft.closed_loop_block`: the controller acts inside one ROS2
-  step of the plant). The sampled loop (τ held over 1 ms,
-  :func:`softgen.control.soft.controller_block` + ``plant_block``) diverges on the
-  lumped-mass PCC models, whose light modes have rates of 1e6-1e10 1/s; the
-  integrated block is the one that runs stably at 1 ms, so the example uses it
+  runs Theorem 10 (thesis section 12.1) sampled at 1 ms as a real embedded loop does:
+  the controller (:func:`softgen.control.soft_sampled.sampled_controller_block`, the
+  linearly implicit step, τ held over the sample) and the plant
+  (:func:`softgen.control.soft.plant_block`) are two blocks. The zero-order-hold step
+  (:func:`softgen.control.soft.controller_block`) is not used: it diverges once
+  |D̂ − K_d| > D on the damping-dominated modes (:mod:`softgen.control.soft_sampled`)
   (sinusoidal references; affine bodies, the soft inverted pendulum, regulate to
   upright from an initial error, as in section 12.2.2);
 - a rigid arm with McKibben pairs (actuator type ``mckibben``) runs Theorem 5 (section
@@ -51,7 +51,9 @@ from softgen.control.references import Sinusoid, SmoothSteps, sinusoid_block, \
     stiffness_reference_block
 from softgen.control.slotine_li import controller_block as slotine_li_block
 from softgen.control.slotine_li import plant_block as rigid_plant_block
-from softgen.control.soft import closed_loop_block, tip_force_block
+from softgen.control.soft import plant_block as soft_plant_block
+from softgen.control.soft import tip_force_block
+from softgen.control.soft_sampled import sampled_controller_block
 from softgen.control.soft import reference_block as soft_reference_block
 from softgen.core.errors import SoftgenError
 from softgen.modelfile.model import RobotModel
@@ -276,27 +278,30 @@ def _theorem10(model: SoftModel, steps: int) -> Example:
     error0 = _cycle(spec.get("initial_error", (0.0,)), n)
     unit = "m" if model.kind == "pcc-3d" else "rad"
     ref = soft_reference_block("ref", DT, tuple(amp), spec["omega"], tuple(phase), unit=unit)
-    loop = closed_loop_block(dyn, DT, lin=lin).with_defaults(
+    ctrl = sampled_controller_block(dyn, DT, lin=lin).with_defaults(
         p0={"lam": np.full(n, g["lam"]), "kd": np.full(n, g["kd"]),
             "kpi": np.full(lin.r, g["kpi"])})
     # The measurement noise input stays an external input of the diagram (zero here,
-    # in C as in Python); no tip force (the disturbance block's defaults).
-    d = ClosedLoop(f"{model.name}_loop", [ref, tip_force_block("dist", model.n_segments), loop],
+    # in C as in Python); no tip force (the disturbance block's defaults). The
+    # controller reads the plant's measured output, as on hardware.
+    d = ClosedLoop(f"{model.name}_loop", [ref, tip_force_block("dist", model.n_segments),
+                                          ctrl, soft_plant_block(dyn, DT)],
+                   [("plant.q_meas", "ctrl.q"), ("plant.qd_meas", "ctrl.qd")],
                    externals={"noise": 2 * n})
     r0 = d.blocks["ref"].eval(u=[0.0])[1]
     sc = Scenario(f"{model.name}_loop", d, steps=steps,
-                  x0={"loop.q": r0[:n] - error0, "loop.qd": r0[n:2 * n]},
+                  x0={"plant.q": r0[:n] - error0, "plant.qd": r0[n:2 * n]},
                   externals={"noise": np.zeros((steps, 2 * n))})
     return Example(
         "theorem10", "Theorem 10 on the soft robot",
-        "adaptive control of the soft body (thesis Theorem 10, section 12.1) with the "
-        "controller acting inside one ROS2 step of the plant per sample (the loop of the "
-        "section 12.2 simulations; a sampled controller with τ held over 1 ms diverges on "
-        "the lumped-mass PCC models, whose light modes are too fast for it), tracking "
+        "adaptive control of the soft body (thesis Theorem 10, section 12.1) sampled at "
+        "1 ms: the controller (the linearly implicit step of softgen.control.soft_sampled, "
+        "τ held over the sample) and the plant (one ROS2 step per sample) are separate "
+        "blocks, the controller reading the plant's measurement, π̂(0) = 0; tracking "
         "sinusoids q_d,i = M_i sin(ω t + φ_i) from rest on the reference (affine bodies: "
         "regulation to upright, q_d = 0, from an initial error); no measurement "
         "noise (the external input `noise` is held at zero), no tip force.",
-        sc, (("ref.q_d", "loop.q", unit),),
+        sc, (("ref.q_d", "plant.q", unit),),
         "Λ = 5, K_d = 1, K_π = 1: the higher gains of the section 12.2.1 study")
 
 
