@@ -356,10 +356,10 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     """``<model>_theorem10_closed_loop``: one step of Theorem 10 in continuous time.
 
     The controller acts continuously inside the ODE (as in the thesis's
-    simulations), state ``z = (q, q̇, π̂)``; one ROS2 step of length ``dt``. A
-    sampled (zero-order-hold) controller cannot stabilise the lumped-mass models
-    at millisecond rates: K_d σ acts on modes with inertia down to 3e-10 kg m²
-    (planar) or 3e-6 (3D), i.e. rates K_d/B of 1e6-1e10 1/s. The W matrix holds
+    simulations), state ``z = (q, q̇, π̂)``; one ROS2 step of length ``dt``. The
+    zero-order-hold step (:func:`theorem10_fun`) diverges at millisecond rates once
+    |D̂ − K_d| > D on the damping-dominated modes (module docstring); the sampled law
+    that does not is :mod:`softgen.control.soft_sampled`. The W matrix holds
     the stiff linear part of the closed loop, B q̈ ≈ −(K + P K_d Λ) q − (D + P K_d) q̇
     with P = A A† (I where A is square).
 
