@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import ast
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -92,7 +93,11 @@ def parse_law(text: object, names: tuple[str, ...] | list[str], where: str) -> L
     if len(text) > MAX_LENGTH:
         raise fail(f"expression of {len(text)} characters (at most {MAX_LENGTH})")
     try:
-        tree = ast.parse(text.strip(), mode="eval")
+        # Python's own warnings on odd literals ("1if", "\\k") would be a second line:
+        # the law is refused or accepted on its tree alone.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError as exc:
         raise fail(f"not an expression ({exc.msg}, column {exc.offset}): {_quote(text)}"
                    ) from None
@@ -229,8 +234,12 @@ def finite_at(law: Law, constants: Mapping[str, float], variables: tuple[str, ..
     (``phi/phi`` is 0/0 there and is refused)."""
     x = ca.SX.sym("x", len(variables))
     expr = law({**constants, **{v: x[i] for i, v in enumerate(variables)}})
-    val, jac = _scalar_fun(expr, x)(np.zeros(len(variables)))
-    val, jac = np.asarray(val, dtype=float).ravel(), np.asarray(jac, dtype=float).ravel()
+    _, jac = _scalar_fun(expr, x)(np.zeros(len(variables)))
+    jac = np.asarray(jac, dtype=float).ravel()
+    # The value with numbers in place of the variables: every operation is done in
+    # floating point, so 0/0 is caught (symbolically CasADi simplifies phi/phi to 1).
+    val = np.asarray(ca.evalf(law({**constants, **{v: 0.0 for v in variables}})),
+                     dtype=float).ravel()
     at = ", ".join(f"{v} = 0" for v in variables)
     if not np.all(np.isfinite(val)):
         raise ModelError(f"{where}: value not finite at {at} (got {val[0]!r}): "
