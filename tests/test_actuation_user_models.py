@@ -30,7 +30,9 @@ EXPECTED = {
                  "pneumatic_control", "theorem5_loop", "feedback_linearization"},
     "partial": {"rigid_dynamics", "nominal_plant", "slotine_li"},
     "sea": {"rigid_dynamics", "nominal_plant", "slotine_li"},
-    "urdf": {"rigid_dynamics", "nominal_plant", "slotine_li"},
+    "urdf": {"rigid_dynamics", "nominal_plant", "slotine_li", "qbmove_actuators",
+             "electric_cascade", "electric_stiffness_estimator",
+             "noninvasive_stiffness_estimator"},
 }
 
 
@@ -56,7 +58,8 @@ def test_urdf_actuators_name_joints_or_links():
     m = load_model(USER["urdf"])
     assert [link.name for link in m.links] == ["turret", "upper", "fore"]
     assert [(a.joint, a.type, a.family) for a in m.actuators] == [
-        (0, "direct", "direct"), (1, "antagonistic", "qbmove"), (2, "antagonistic", "qbmove")]
+        (j, "antagonistic", "qbmove") for j in range(3)]
+    assert m.actuator_type == "qbmove"
 
 
 @pytest.mark.slow
