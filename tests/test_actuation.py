@@ -6,6 +6,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from softgen.bundles.bundle import bundle_spec
 from softgen.bundles.registry import PRESSURE_PAIRS, SINH_SPRING_PAIRS
 from softgen.core.errors import ModelError
 from softgen.modelfile.load import load_model
@@ -144,9 +145,7 @@ def test_declared_sinh_pair_is_a_qbmove_robot(tmp_path):
     np.testing.assert_allclose(S.a_b, [5.0, 5.0], rtol=1e-12)
 
 
-def test_declared_pressure_pair_linear_in_p(tmp_path):
-    """A declared pressure law linear in p is the McKibben family: Phi from the law."""
-    pair = """
+PRESSURE_PAIR = """
 [[actuators]]
 joint = "{j}"
 type = "antagonistic"
@@ -159,7 +158,11 @@ c = 2e-6
 law = "-c*(1 + 0.2*q + 0.1*q**2)*p"
 c = 3e-6
 """
-    m = _load(tmp_path, BASE + pair.format(j="j1") + pair.format(j="j2"))
+
+
+def test_declared_pressure_pair_linear_in_p(tmp_path):
+    """A declared pressure law linear in p is the McKibben family: Phi from the law."""
+    m = _load(tmp_path, BASE + PRESSURE_PAIR.format(j="j1") + PRESSURE_PAIR.format(j="j2"))
     assert m.actuator_type == "mckibben" and PRESSURE_PAIRS(m) is None
     P, A = McKibbenPairs(m), Actuation(m)
     q, u = _fun(A)
@@ -172,6 +175,15 @@ c = 3e-6
             assert np.abs(np.array(d)).max() <= 1e-12
     with pytest.raises(ModelError, match="with_values needs McKibben muscles"):
         P.with_values(R=[0.01, 0.01])
+
+
+@pytest.mark.slow
+def test_declared_pressure_arm_gets_the_pneumatic_bundle(tmp_path):
+    """The chapter-9/10 builders run on declared pressure laws (Phi derived from them)."""
+    m = _load(tmp_path, BASE + PRESSURE_PAIR.format(j="j1") + PRESSURE_PAIR.format(j="j2"))
+    caps = set(bundle_spec(m).extra["capabilities"])
+    assert {"mckibben_actuators", "pneumatic_control", "theorem5_loop",
+            "feedback_linearization"} <= caps
 
 
 def test_pressure_law_not_linear_in_p_is_recorded(tmp_path):
