@@ -31,6 +31,12 @@ satisfy the triangle inequality, and model names are C identifiers of at most
 :data:`MAX_NAME` characters. B(q) positive definite at seeded configurations is
 checked before generation (``softgen.bundles.bundle.generate``), where B is available.
 
+Actuators (issue 22): each joint may carry one ``[[actuators]]`` table, of type
+``direct``, ``sea``, ``antagonistic`` (laws declared as expressions, parsed by the safe
+parser of :mod:`softgen.modelfile.expr`) or the shipped instances ``mckibben`` and
+``qbmove``, which are expanded into the same declared laws; joints without one are
+passive. Each law is checked finite, with a finite slope, at rest.
+
 Every scalar of the model has a canonical parameter name (``m1``, ``l1``,
 ``c1``, ``I1``, ``d1``, ``k1``, ``g``, ...), so the symbolic layer can make any
 of them a CasADi symbol, and the regressor can factor the dynamics in them.

@@ -1,7 +1,7 @@
 """Antagonistic variable-stiffness actuators, symbolic (thesis chapter 2).
 
 Two families, each built from a :class:`~softgen.modelfile.model.RobotModel` whose
-``[[actuators]]`` declare one actuator per joint:
+``[[actuators]]`` put one actuator of the family on every joint:
 
 :class:`McKibbenPairs` (section 2.1)
     Muscle elongations φ_a = (l_n,a − qR)² − l_min,a², φ_b = (l_n,b + qR)² − l_min,b²;
@@ -14,6 +14,12 @@ Two families, each built from a :class:`~softgen.modelfile.model.RobotModel` who
     σ_j = ∂τ^e_j/∂φ_j (eq. 2.8), joint totals (eq. 2.7, 2.9), σ̇ (eq. 2.9) and the
     deflection giving a wanted spring torque, φ = asinh(τ/k)/a (eq. 11.3, with k for
     the printed k_g: NOTES section 2 item 12).
+
+Both are built from the model's declared laws where the model file declares them rather
+than naming the type: McKibbenPairs from any pressure pair linear in p (Φ(q) = ∂τ/∂p,
+K = 1), QbmoveSprings from any spring pair whose laws satisfy τ'' = cτ, c > 0, τ(0) = 0
+(a = √c, k = τ'(0)/a). The generic derivations for every declared law are in
+:mod:`softgen.symbolic.actuation`; tests/test_actuation.py checks the two agree.
 
 Every derivative is taken by CasADi from the definition; nothing is transcribed.
 """
