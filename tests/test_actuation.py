@@ -361,3 +361,27 @@ def test_generated_actuation_is_finite_at_singular_points(which):
             out = f.call([np.full(f.size1_in(i), x) for i in range(f.n_in())])
             for o in out:
                 assert np.all(np.isfinite(np.array(o))), (f.name(), x)
+
+
+_PIECES = ["phi", "k", "a", "q", "p", "theta", "sinh(", "exp(", "sqrt(", "log(", "(", ")",
+           "+", "-", "*", "/", "**", "0", "1", "2.5", "1e308", "pi", ".", "[0]", "'", ","]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_random_laws_in_a_model_file_fail_as_one_line(tmp_path, seed):
+    """Random law strings in a model file: the model loads, or one ModelError line
+    naming the file and the key; never another exception."""
+    rng = np.random.default_rng(50 + seed)
+    loaded = 0
+    for i in range(60):
+        law = "".join(str(rng.choice(_PIECES)) for _ in range(int(rng.integers(1, 9))))
+        law = law.replace('"', "").replace("\\", "")
+        p = tmp_path / f"m{i}.toml"
+        p.write_text(BASE + _pair("j1", law_a=law, consts_a="k = 0.5\na = 2.0"))
+        try:
+            load_model(p)
+            loaded += 1
+        except ModelError as exc:
+            text = str(exc)
+            assert text.startswith(f"{p}: actuators[0].a") and "\n" not in text, text
+    assert loaded < 60
