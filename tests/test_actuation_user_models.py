@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from softgen.bundles.bundle import bundle_spec, capabilities
+from softgen.core.errors import ModelError
 from softgen.modelfile.load import load_model
 
 DATA = Path(__file__).parent / "data" / "user_models"
@@ -68,3 +69,14 @@ def test_user_model_bundle_builds(which):
     m = load_model(USER[which])
     spec = bundle_spec(m)
     assert set(spec.extra["capabilities"]) == EXPECTED[which]
+
+
+def test_urdf_actuator_on_an_unknown_joint(tmp_path):
+    text = USER["urdf"].read_text().replace('joint = "fore"', 'joint = "knee"')
+    p = tmp_path / "arm.toml"
+    p.write_text(text.replace('file = "arm3_declared.urdf"',
+                              f'file = "{DATA / "arm3_declared.urdf"}"'))
+    with pytest.raises(ModelError, match=r"arm.toml: actuators\[2\].joint: expected a URDF "
+                       r"joint of the chain \(yaw, shoulder, elbow\) or its child link "
+                       r"\(turret, upper, fore\), got 'knee'"):
+        load_model(p)

@@ -122,6 +122,12 @@ def _urdf_reference(path: Path, data: dict) -> RobotModel:
         links = chain_joints(urdf, text, root=table.get("root"), tip=table.get("tip"))
         raw = data["actuators"]
         if isinstance(raw, list):
+            for i, t in enumerate(raw):
+                j = t.get("joint") if isinstance(t, dict) else None
+                if isinstance(j, str) and j not in links and j not in links.values():
+                    raise r.fail(f"actuators[{i}].joint", "expected a URDF joint of the chain "
+                                 f"({', '.join(links)}) or its child link "
+                                 f"({', '.join(links.values())}), got {j!r}")
             raw = [dict(t, joint=links.get(t["joint"], t["joint"]))
                    if isinstance(t, dict) and isinstance(t.get("joint"), str) else t
                    for t in raw]
