@@ -9,6 +9,7 @@ import pytest
 from softgen.bundles.bundle import bundle_spec
 from softgen.bundles.registry import PRESSURE_PAIRS, SINH_SPRING_PAIRS
 from softgen.core.errors import ModelError
+from softgen.modelfile.expr import linear_in, parse_law, spring_c, spring_derivatives
 from softgen.modelfile.load import load_model
 from softgen.symbolic.actuation import NEWTON_STEPS, Actuation
 from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
@@ -385,3 +386,25 @@ def test_random_laws_in_a_model_file_fail_as_one_line(tmp_path, seed):
             text = str(exc)
             assert text.startswith(f"{p}: actuators[0].a") and "\n" not in text, text
     assert loaded < 60
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_law_classification_on_random_constants(seed):
+    """tau'' = c tau: c = a^2 for k sinh(a phi) however written, 0 for k phi, none for
+    a cubic or a cosh (tau(0) != 0); linear in p decided structurally by CasADi."""
+    rng = np.random.default_rng(200 + seed)
+    k, a = float(rng.uniform(0.005, 5)), float(rng.uniform(0.5, 9))
+    for text in ("k*sinh(a*phi)", "k*(exp(a*phi) - exp(-a*phi))/2", "-k*sinh(-a*phi)"):
+        law = parse_law(text, ("phi", "k", "a"), "t")
+        c = spring_c(spring_derivatives(law, {"k": k, "a": a}))
+        assert c == pytest.approx(a * a, rel=1e-9)
+    law = parse_law("k*phi", ("phi", "k"), "t")
+    assert spring_c(spring_derivatives(law, {"k": k})) == 0.0
+    for text in ("k*phi + a*phi**3", "k*cosh(a*phi)", "k*tanh(a*phi)"):
+        law = parse_law(text, ("phi", "k", "a"), "t")
+        assert spring_c(spring_derivatives(law, {"k": k, "a": a})) is None, text
+    vars_ = ("q", "p")
+    assert linear_in(parse_law("k*(1 + a*q**2)*p", ("q", "p", "k", "a"), "t"),
+                     {"k": k, "a": a}, vars_, "p")
+    assert not linear_in(parse_law("k*sqrt(p + a)", ("q", "p", "k", "a"), "t"),
+                         {"k": k, "a": a}, vars_, "p")
