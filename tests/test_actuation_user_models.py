@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from softgen.bundles.bundle import bundle_spec, capabilities
+from softgen.bundles.registry import LINEAR_SEA
 from softgen.core.errors import ModelError
 from softgen.modelfile.load import load_model
 
@@ -80,3 +81,15 @@ def test_urdf_actuator_on_an_unknown_joint(tmp_path):
                        r"joint of the chain \(yaw, shoulder, elbow\) or its child link "
                        r"\(turret, upper, fore\), got 'knee'"):
         load_model(p)
+
+
+def test_linear_sea_condition(tmp_path):
+    """The property the SEA cascade needs: a linear spring and a motor on every joint."""
+    assert LINEAR_SEA(load_model(USER["sea"])) is None
+    assert "fore passive" in LINEAR_SEA(load_model(USER["partial"]))
+    assert "actuators.type = 'qbmove'" in LINEAR_SEA(load_model(USER["qbmove"]))
+    p = tmp_path / "cubic.toml"
+    p.write_text(USER["sea"].read_text().replace('law = "k*phi"',
+                                                 'law = "k*phi + 3*phi**3"'))
+    assert "actuators[2].law = 'k*phi + 3*phi**3' is not linear in phi" in \
+        LINEAR_SEA(load_model(p))

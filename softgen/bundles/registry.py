@@ -30,6 +30,7 @@ import casadi as ca
 import numpy as np
 
 from softgen.codegen.generate import Generated
+from softgen.modelfile.expr import parse_law, spring_c, spring_derivatives
 from softgen.modelfile.model import RobotModel, pressure_linear, sinh_constants
 from softgen.modelfile.soft import SoftModel
 from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
@@ -143,9 +144,33 @@ def _pressure_pairs(model) -> str | None:
     return None
 
 
+def _linear_sea(model) -> str | None:
+    """Every joint a series-elastic actuator (one spring, one motor with inertia and
+    damping) whose law is linear, k phi (tau'' = c tau with c = 0 and tau(0) = 0): the
+    chapter-11 cascade without stiffness control (no capability uses it yet)."""
+    what = "a series-elastic actuator with a linear spring law"
+    why = _every_joint(model, what)
+    if why:
+        return why
+    for i, a in enumerate(_acts(model)):
+        key = f"actuators[{i}]"
+        if a.drive != "spring" or len(a.sides) != 1:
+            return (f"{_where(model)}: actuators.type = {a.type!r} ({key}, joint "
+                    f"{model.links[a.joint].name}, drive {a.drive}; needs {what})")
+        side = a.sides[0]
+        consts = dict(side.constants)
+        law = parse_law(side.law, ("phi", *consts), f"{key}.law")
+        if spring_c(spring_derivatives(law, consts)) != 0.0:
+            return (f"{_where(model)}: {key}.law = {side.law!r} is not linear in phi "
+                    "(needs k*phi)")
+    return _motor_dynamics(model)
+
+
 SINH_SPRING_PAIRS = Condition("antagonistic spring pair on every joint with laws tau'' = "
                               "c tau, c > 0, tau(0) = 0 (k sinh(a phi): qbmove or declared)",
                               _sinh_spring_pairs)
+LINEAR_SEA = Condition("series-elastic actuator with a linear spring law (k phi) and motor "
+                       "dynamics on every joint", _linear_sea)
 PRESSURE_PAIRS = Condition("pressure-driven antagonistic pair on every joint with laws "
                            "linear in p (McKibben or declared)", _pressure_pairs)
 
