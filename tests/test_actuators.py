@@ -5,6 +5,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from softgen.bundles.registry import SINH_SPRING_PAIRS
 from softgen.core.errors import ModelError
 from softgen.modelfile.load import load_model
 from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
@@ -185,12 +186,17 @@ def test_actuator_errors_name_the_key(tmp_path, extra, match):
         load_model(p)
 
 
-def test_every_joint_needs_an_actuator(tmp_path):
+def test_a_joint_without_an_actuator_is_passive(tmp_path):
+    """Partial actuation is allowed (issue 22): l2 is passive, the robot is no qbmove
+    robot, and the qbmove capabilities say which joint is passive."""
     two = BASE + BASE.split("[[links]]")[1].replace('"l1"', '"l2"').join(["[[links]]", ""])
     p = tmp_path / "m.toml"
     p.write_text(two + QB)
-    with pytest.raises(ModelError, match="missing for l2"):
-        load_model(p)
+    m = load_model(p)
+    assert m.actuator_type is None and m.actuator_of(1) is None
+    assert "l2 passive" in SINH_SPRING_PAIRS(m)
+    with pytest.raises(ModelError, match="expected type 'qbmove'"):
+        QbmoveSprings(m)
 
 
 def test_wrong_actuator_type_for_the_model():

@@ -30,7 +30,8 @@ import casadi as ca
 import numpy as np
 
 from softgen.codegen.generate import Generated
-from softgen.modelfile.model import RobotModel
+from softgen.modelfile.expr import parse_law, spring_c, spring_derivatives
+from softgen.modelfile.model import RobotModel, pressure_linear, sinh_constants
 from softgen.modelfile.soft import SoftModel
 from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
 from softgen.symbolic.pcc import LinearRoute
@@ -85,36 +86,129 @@ def _has_regressor(model) -> str | None:
 HAS_REGRESSOR = Condition("has a regressor (parameters.uncertain not empty)", _has_regressor)
 
 
-def actuator(kind: str) -> Condition:
-    """Every joint carries an actuator of ``kind`` (``[[actuators]] type``).
+def _acts(model) -> tuple:
+    return tuple(getattr(model, "actuators", ()) or ())
 
-    The model-file reader already requires one actuator per joint and one type for the
-    whole robot; the condition still checks every joint, so that a model built in
-    memory is judged the same way.
+
+def _every_joint(model, what: str) -> str | None:
+    """Why not every joint of ``model`` carries an actuator (None if each does)."""
+    acts = _acts(model)
+    if not acts:
+        return f"{_where(model)}: no [[actuators]] (needs {what} on every joint)"
+    passive = sorted(set(range(model.dof)) - {a.joint for a in acts})
+    if passive:
+        names = [model.links[j].name for j in passive]
+        return (f"{_where(model)}: actuators: joint(s) {', '.join(names)} passive (needs "
+                f"{what} on every joint)")
+    return None
+
+
+def _sinh_spring_pairs(model) -> str | None:
+    """Every joint an antagonistic spring pair whose laws satisfy tau'' = c tau with
+    c > 0 and tau(0) = 0 (k sinh(a phi), c = a^2; eq. 6.6): the chapter-11 cascade
+    inverts them in closed form (eq. 11.3) and the electric estimators differentiate
+    them. Decided on the laws by CasADi (``Actuator.sinh``, :func:`sinh_constants`)."""
+    what = "an antagonistic spring pair with tau'' = c tau, c > 0"
+    why = _every_joint(model, what)
+    if why:
+        return why
+    for i, a in enumerate(_acts(model)):
+        key = f"actuators[{i}]"
+        if a.drive != "spring" or len(a.sides) != 2:
+            return (f"{_where(model)}: actuators.type = {a.type!r} ({key}, joint "
+                    f"{model.links[a.joint].name}, drive {a.drive}; needs {what})")
+        for side in a.sides:
+            if sinh_constants(side) is None:
+                return (f"{_where(model)}: {key}.{side.name}.law = {side.law!r}: no "
+                        "constant c > 0 with tau'' = c tau and tau(0) = 0 (needs "
+                        "k sinh(a phi))")
+    return None
+
+
+def _pressure_pairs(model) -> str | None:
+    """Every joint a pressure-driven antagonistic pair whose laws are linear in p
+    (tau = Phi(q) p, eq. 2.2; checked by CasADi: d law/dp independent of p)."""
+    what = "a pressure-driven antagonistic pair linear in p"
+    why = _every_joint(model, what)
+    if why:
+        return why
+    for i, a in enumerate(_acts(model)):
+        key = f"actuators[{i}]"
+        if a.drive != "pressure" or len(a.sides) != 2:
+            return (f"{_where(model)}: actuators.type = {a.type!r} ({key}, joint "
+                    f"{model.links[a.joint].name}, drive {a.drive}; needs {what})")
+        for side in a.sides:
+            if not pressure_linear(side):
+                return (f"{_where(model)}: {key}.{side.name}.law = {side.law!r} is not "
+                        "linear in p (needs tau = phi(q) p)")
+    return None
+
+
+def _linear_sea(model) -> str | None:
+    """Every joint a series-elastic actuator (one spring, one motor with inertia and
+    damping) whose law is linear, k phi (tau'' = c tau with c = 0 and tau(0) = 0): the
+    chapter-11 cascade without stiffness control (:class:`softgen.control.sea.SeaArm`;
+    no capability is registered with it yet)."""
+    what = "a series-elastic actuator with a linear spring law"
+    why = _every_joint(model, what)
+    if why:
+        return why
+    for i, a in enumerate(_acts(model)):
+        key = f"actuators[{i}]"
+        if a.drive != "spring" or len(a.sides) != 1:
+            return (f"{_where(model)}: actuators.type = {a.type!r} ({key}, joint "
+                    f"{model.links[a.joint].name}, drive {a.drive}; needs {what})")
+        side = a.sides[0]
+        consts = dict(side.constants)
+        law = parse_law(side.law, ("phi", *consts), f"{key}.law")
+        if spring_c(spring_derivatives(law, consts)) != 0.0:
+            return (f"{_where(model)}: {key}.law = {side.law!r} is not linear in phi "
+                    "(needs k*phi)")
+    return _motor_dynamics(model)
+
+
+SINH_SPRING_PAIRS = Condition("antagonistic spring pair on every joint with laws tau'' = "
+                              "c tau, c > 0, tau(0) = 0 (k sinh(a phi): qbmove or declared)",
+                              _sinh_spring_pairs)
+LINEAR_SEA = Condition("series-elastic actuator with a linear spring law (k phi) and motor "
+                       "dynamics on every joint", _linear_sea)
+PRESSURE_PAIRS = Condition("pressure-driven antagonistic pair on every joint with laws "
+                           "linear in p (McKibben or declared)", _pressure_pairs)
+
+
+def actuator(kind: str) -> Condition:
+    """The property condition of an actuator family: ``"qbmove"`` ->
+    :data:`SINH_SPRING_PAIRS`, ``"mckibben"`` -> :data:`PRESSURE_PAIRS` (the builders
+    registered under these names need the property, not the type name); any other
+    ``kind``: every joint carries ``[[actuators]] type = kind``.
     """
+    if kind == "qbmove":
+        return SINH_SPRING_PAIRS
+    if kind == "mckibben":
+        return PRESSURE_PAIRS
+
     def check(model) -> str | None:
-        acts = tuple(getattr(model, "actuators", ()) or ())
-        if not acts:
-            return f"{_where(model)}: no [[actuators]] (needs type = {kind!r} on every joint)"
-        kinds = sorted({a.type for a in acts})
+        why = _every_joint(model, f"type = {kind!r}")
+        if why:
+            return why
+        kinds = sorted({a.type for a in _acts(model)})
         if kinds != [kind]:
             return (f"{_where(model)}: actuators.type = {', '.join(map(repr, kinds))} "
-                    f"(needs {kind!r} on every joint)")
-        if len(acts) != model.dof:
-            return (f"{_where(model)}: actuators: {len(acts)} of {model.dof} joints actuated "
                     f"(needs {kind!r} on every joint)")
         return None
     return Condition(f"{kind} actuator on every joint", check)
 
 
 def _motor_dynamics(model) -> str | None:
-    """qbmove springs driven by motors with inertia and damping (eq. 2.6's motor rows)."""
-    for a in tuple(getattr(model, "actuators", ()) or ()):
+    """Springs driven by motors with inertia and damping (eq. 2.6's motor rows) on every
+    actuated joint."""
+    for i, a in enumerate(_acts(model)):
         for key in ("motor_inertia", "motor_damping"):
             values = dict(a.values).get(key)
             if values is None or not all(v > 0 for v in values):
-                return (f"{_where(model)}: actuators (joint {a.joint + 1}).{key}: needs "
-                        f"positive values, got {values!r}")
+                return (f"{_where(model)}: actuators[{i}] (joint "
+                        f"{model.links[a.joint].name}).{key}: needs positive values, got "
+                        f"{values!r}")
     return None
 
 

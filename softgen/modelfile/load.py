@@ -15,7 +15,7 @@ from softgen.core.paths import MODEL_SUFFIXES, MODELS_DIR  # noqa: F401  (re-exp
 from softgen.modelfile.model import (MAX_NAME, FileReader, RobotModel, _Parser,
                                      read_model_text)
 from softgen.modelfile.soft import is_soft, parse_soft_model
-from softgen.modelfile.urdf import parse_urdf
+from softgen.modelfile.urdf import chain_joints, parse_urdf
 
 
 # MODEL_SUFFIXES lives in softgen.core.paths (imported above, re-exported here) so that
@@ -92,10 +92,11 @@ def load_model(name_or_path: str | Path, *, root: str | None = None,
     return _Parser(path).parse(data)
 
 def _urdf_reference(path: Path, data: dict) -> RobotModel:
-    """A TOML model that is a URDF file's chain: ``[urdf] file, root, tip`` and an
-    optional ``[model] name, description``."""
+    """A TOML model that is a URDF file's chain: ``[urdf] file, root, tip``, an
+    optional ``[model] name, description`` and optional ``[[actuators]]`` (as in a TOML
+    model; ``joint`` names a URDF joint or its child link)."""
     r = FileReader(path)
-    r.keys(data, "", {"model", "urdf"}, {"urdf"})
+    r.keys(data, "", {"model", "urdf", "actuators"}, {"urdf"})
     model = r.keys(data.get("model", {}), "model", {"name", "description"}, set())
     table = r.keys(data["urdf"], "urdf", {"file", "root", "tip"}, {"file"})
     for k, v in [*table.items(), *model.items()]:
@@ -114,5 +115,22 @@ def _urdf_reference(path: Path, data: dict) -> RobotModel:
                      f"characters, got {name!r}")
     m = parse_urdf(urdf, text, root=table.get("root"), tip=table.get("tip"), name=name,
                    description=model.get("description"))
-    return dataclasses.replace(m, path=path, source=str(path.name),
+    actuators = m.actuators
+    if "actuators" in data:
+        # URDF joint names become their child links' names (the model's link names);
+        # errors name this TOML file, where the actuators are written.
+        links = chain_joints(urdf, text, root=table.get("root"), tip=table.get("tip"))
+        raw = data["actuators"]
+        if isinstance(raw, list):
+            for i, t in enumerate(raw):
+                j = t.get("joint") if isinstance(t, dict) else None
+                if isinstance(j, str) and j not in links and j not in links.values():
+                    raise r.fail(f"actuators[{i}].joint", "expected a URDF joint of the chain "
+                                 f"({', '.join(links)}) or its child link "
+                                 f"({', '.join(links.values())}), got {j!r}")
+            raw = [dict(t, joint=links.get(t["joint"], t["joint"]))
+                   if isinstance(t, dict) and isinstance(t.get("joint"), str) else t
+                   for t in raw]
+        actuators = _Parser(path).actuators(raw, list(m.links))
+    return dataclasses.replace(m, path=path, source=str(path.name), actuators=actuators,
                                source_extra=f"[urdf file] {urdf.name}\n{text}")

@@ -31,12 +31,19 @@ satisfy the triangle inequality, and model names are C identifiers of at most
 :data:`MAX_NAME` characters. B(q) positive definite at seeded configurations is
 checked before generation (``softgen.bundles.bundle.generate``), where B is available.
 
+Actuators (issue 22): each joint may carry one ``[[actuators]]`` table, of type
+``direct``, ``sea``, ``antagonistic`` (laws declared as expressions, parsed by the safe
+parser of :mod:`softgen.modelfile.expr`) or the shipped instances ``mckibben`` and
+``qbmove``, which are expanded into the same declared laws; joints without one are
+passive. Each law is checked finite, with a finite slope, at rest.
+
 Every scalar of the model has a canonical parameter name (``m1``, ``l1``,
 ``c1``, ``I1``, ``d1``, ``k1``, ``g``, ...), so the symbolic layer can make any
 of them a CasADi symbol, and the regressor can factor the dynamics in them.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import sys
@@ -48,6 +55,8 @@ from typing import Any
 import numpy as np
 
 from softgen.core.errors import ModelError
+from softgen.modelfile.expr import (CONSTANTS, FUNCTIONS, finite_at, linear_in, parse_law,
+                                    spring_c, spring_derivatives)
 
 #: A scalar of the model: either a number (fixed) or the name of a parameter.
 Scalar = float | str
@@ -171,27 +180,73 @@ _ACTUATOR_KEYS = {
     # qbmove-style electric VSA, thesis sections 2.2 and 6.2: tau^e = k sinh(a phi)
     # per spring, two motors with inertia b and viscous damping d.
     "qbmove": ({"joint", "type", "a", "k", "motor_inertia", "motor_damping"}, set()),
+    # Declared laws (issue 22). A torque motor on the joint: input tau.
+    "direct": ({"joint", "type"}, set()),
+    # Series elastic: one motor (inertia, damping) through a spring of declared law over
+    # phi = q - theta (default k*phi); every other key is a constant of the law.
+    "sea": ({"joint", "type", "motor_inertia", "motor_damping"}, {"law"}),
+    # Antagonistic pair: sides a and b (tables with a law and its constants), driven by
+    # springs from two motors (drive = "spring") or by pressures (drive = "pressure").
+    "antagonistic": ({"joint", "type", "drive", "a", "b"},
+                     {"motor_inertia", "motor_damping", "pressure_max"}),
 }
 _PAIRED = {"nominal_length", "min_length", "a", "k", "motor_inertia", "motor_damping"}
+
+#: What each drive's laws are written over: spring laws over the deflection phi = q -
+#: theta (theta the motor position), pressure laws over the joint angle q and the side's
+#: pressure p.
+LAW_VARIABLES = {"spring": ("phi",), "pressure": ("q", "p")}
+
+#: The two shipped instances as declared laws (thesis eq. 2.2 with the chapter-2
+#: elongations, NOTES section 2 item 5; eq. 6.6): (law of side a, law of side b).
+MCKIBBEN_LAWS = ("K*((ln - R*q)**2 - lm**2)*p", "-K*((ln + R*q)**2 - lm**2)*p")
+SINH_LAW = "k*sinh(a*phi)"
+LINEAR_SPRING_LAW = "k*phi"
+
+
+@dataclass(frozen=True)
+class Side:
+    """One declared law of an actuator: ``law`` over :data:`LAW_VARIABLES` [``drive``]
+    with ``constants`` (name, value). ``name`` is ``"a"``/``"b"`` for a pair, ``""`` for
+    the one spring of an SEA."""
+
+    name: str
+    law: str
+    constants: tuple[tuple[str, float], ...]
 
 
 @dataclass(frozen=True)
 class Actuator:
-    """The antagonistic actuator of one joint.
+    """The actuator of one joint.
 
     ``values`` maps each key of the model file to a number (``radius``, ``gain``,
     ``pressure_max``) or an ``(a side, b side)`` pair (the keys in ``_PAIRED``).
+    ``drive`` is ``"torque"`` (direct), ``"spring"`` (SEA, electric pairs) or
+    ``"pressure"``; ``sides`` are its declared laws (for ``mckibben`` and ``qbmove``
+    the expansion of the named instance, :data:`MCKIBBEN_LAWS`, :data:`SINH_LAW`).
+    ``family`` is ``"qbmove"`` for any spring pair whose two laws are k sinh(a phi)
+    (tau'' = c tau, c > 0, tau(0) = 0) with motor dynamics, ``"mckibben"`` for McKibben
+    pairs and any pressure pair whose laws are linear in p (tau = phi(q) p, eq. 2.2's
+    form), else the type; ``sinh`` holds (k, a) per side when the laws are sinh.
     """
 
-    type: str                           # "mckibben" | "qbmove"
+    type: str                           # mckibben | qbmove | direct | sea | antagonistic
     joint: int                          # 0-based index of the actuated joint
     values: tuple[tuple[str, Any], ...]
+    drive: str = ""
+    sides: tuple[Side, ...] = ()
+    family: str = ""
+    sinh: tuple[tuple[float, float], ...] = ()
 
     def __getitem__(self, key: str) -> Any:
         return dict(self.values)[key]
 
     def get(self, key: str, default: Any = None) -> Any:
         return dict(self.values).get(key, default)
+
+    @property
+    def has_motor_dynamics(self) -> bool:
+        return self.get("motor_inertia") is not None and self.get("motor_damping") is not None
 
 
 class ParameterTable:
@@ -264,8 +319,20 @@ class RobotModel(ParameterTable):
 
     @property
     def actuator_type(self) -> str | None:
-        """``"mckibben"``, ``"qbmove"`` or ``None`` (every joint has the same type)."""
-        return self.actuators[0].type if self.actuators else None
+        """The actuator family every joint shares: ``"mckibben"`` (also a declared
+        pressure pair linear in p), ``"qbmove"`` (also a declared spring pair with
+        k sinh(a phi) laws and motors) or ``None`` (no
+        actuators, direct torque, SEA, other declared laws, mixed or partial actuation:
+        callers that know only these families drive the chain by joint torques)."""
+        fams = {a.family for a in self.actuators}
+        if len(self.actuators) != self.dof or len(fams) != 1:
+            return None
+        fam = fams.pop()
+        return fam if fam in ("mckibben", "qbmove") else None
+
+    def actuator_of(self, joint: int) -> Actuator | None:
+        """The actuator of joint ``joint`` (0-based), None for a passive joint."""
+        return next((a for a in self.actuators if a.joint == joint), None)
 
     @property
     def dof(self) -> int:
@@ -444,7 +511,8 @@ class _Parser(FileReader):
                                 "have zero mass)")
 
     def actuators(self, raw: Any, links: list[Link]) -> tuple[Actuator, ...]:
-        """``[[actuators]]``: one antagonistic actuator per revolute joint, all one type."""
+        """``[[actuators]]``: at most one actuator per joint, of any type; joints without
+        one are passive (their ``damping`` and ``stiffness`` still act)."""
         if not isinstance(raw, list):
             raise self.fail("actuators", "expected an array of tables [[actuators]]")
         if not raw:
@@ -457,50 +525,147 @@ class _Parser(FileReader):
                 raise self.fail(key, f"expected a table, got {type(table).__name__}")
             kind = self.choice(table.get("type"), f"{key}.type", tuple(_ACTUATOR_KEYS))
             required, optional = _ACTUATOR_KEYS[kind]
-            self.keys(table, key, required | optional, required)
+            if kind == "sea":           # every other key is a constant of the law
+                self.keys(table, key, set(table), required)
+            else:
+                self.keys(table, key, required | optional, required)
             joint = table["joint"]
             if joint not in names:
                 raise self.fail(f"{key}.joint", f"expected a link name ({', '.join(names)}), "
                                 f"got {joint!r}")
             j = names.index(joint)
-            if links[j].joint != "revolute":
+            if links[j].joint != "revolute" and kind not in ("direct", "sea"):
                 raise self.fail(f"{key}.joint", f"{joint!r} is prismatic; antagonistic "
                                 "actuators drive revolute joints")
             if j in out:
                 raise self.fail(f"{key}.joint", f"joint {joint!r} already has an actuator")
-            values: list[tuple[str, Any]] = []
-            for field_ in sorted((required | optional) - {"joint", "type"}):
-                if field_ not in table:
-                    continue
-                v = table[field_]
-                if field_ in _PAIRED:
-                    if isinstance(v, list):
-                        pair = self.vector(v, f"{key}.{field_}", 2)
-                    else:
-                        pair = (self.number(v, f"{key}.{field_}"),) * 2
-                    for side, x in zip("ab", pair):
-                        if not x > 0:
-                            raise self.fail(f"{key}.{field_}", f"expected positive values, "
-                                            f"got {x!r} for side {side}")
-                    values.append((field_, pair))
-                else:
-                    values.append((field_, self.number(v, f"{key}.{field_}", positive=True)))
-            act = Actuator(type=kind, joint=j, values=tuple(values))
-            if kind == "mckibben":
-                for side, ln, lm in zip("ab", act["nominal_length"], act["min_length"]):
-                    if not ln > lm:
-                        raise self.fail(f"{key}.nominal_length", f"side {side}: nominal "
-                                        f"length {ln} must exceed min_length {lm}")
-            out[j] = act
-        kinds = {a.type for a in out.values()}
-        if len(kinds) > 1:
-            raise self.fail("actuators", f"expected one actuator type for the whole robot, "
-                            f"got {sorted(kinds)}")
-        missing = [names[j] for j in range(len(links)) if j not in out]
-        if missing:
-            raise self.fail("actuators", f"every joint needs an actuator; missing for "
-                            f"{', '.join(missing)}")
-        return tuple(out[j] for j in range(len(links)))
+            if kind in ("mckibben", "qbmove"):
+                out[j] = self.named_actuator(table, key, kind, j)
+            else:
+                out[j] = self.declared_actuator(table, key, kind, j)
+        return tuple(out[j] for j in sorted(out))
+
+    def named_actuator(self, table: dict, key: str, kind: str, j: int) -> Actuator:
+        """A ``mckibben`` or ``qbmove`` actuator, expanded into its declared laws."""
+        required, optional = _ACTUATOR_KEYS[kind]
+        values: list[tuple[str, Any]] = []
+        for field_ in sorted((required | optional) - {"joint", "type"}):
+            if field_ not in table:
+                continue
+            v = table[field_]
+            if field_ in _PAIRED:
+                values.append((field_, self.pair(v, f"{key}.{field_}")))
+            else:
+                values.append((field_, self.number(v, f"{key}.{field_}", positive=True)))
+        act = Actuator(type=kind, joint=j, values=tuple(values))
+        if kind == "mckibben":
+            for side, ln, lm in zip("ab", act["nominal_length"], act["min_length"]):
+                if not ln > lm:
+                    raise self.fail(f"{key}.nominal_length", f"side {side}: nominal "
+                                    f"length {ln} must exceed min_length {lm}")
+            K = act["gain"] * act["radius"]
+            sides = tuple(Side(s, law, (("K", K), ("R", act["radius"]), ("ln", ln),
+                                        ("lm", lm)))
+                          for s, law, ln, lm in zip("ab", MCKIBBEN_LAWS, act["nominal_length"],
+                                                    act["min_length"]))
+            return dataclasses.replace(act, drive="pressure", sides=sides, family="mckibben")
+        sides = tuple(Side(s, SINH_LAW, (("k", k), ("a", a)))
+                      for s, k, a in zip("ab", act["k"], act["a"]))
+        return dataclasses.replace(act, drive="spring", sides=sides, family="qbmove",
+                                   sinh=tuple(zip(act["k"], act["a"])))
+
+    def pair(self, v: Any, key: str) -> tuple[float, float]:
+        """A positive value per side: one number for both, or ``[a, b]``."""
+        if isinstance(v, list):
+            pair = self.vector(v, key, 2)
+        else:
+            pair = (self.number(v, key),) * 2
+        for side, x in zip("ab", pair):
+            if not x > 0:
+                raise self.fail(key, f"expected positive values, got {x!r} for side {side}")
+        return (pair[0], pair[1])
+
+    def declared_actuator(self, table: dict, key: str, kind: str, j: int) -> Actuator:
+        """A ``direct``, ``sea`` or ``antagonistic`` actuator: its laws parsed (safe
+        parser, :mod:`softgen.modelfile.expr`), finite with a finite slope at rest."""
+        if kind == "direct":
+            return Actuator(type=kind, joint=j, values=(), drive="torque", family=kind)
+        values: list[tuple[str, Any]] = []
+        if kind == "sea":
+            for field_ in ("motor_damping", "motor_inertia"):
+                x = self.number(table[field_], f"{key}.{field_}", positive=True)
+                values.append((field_, (x,)))
+            consts = {k: v for k, v in table.items()
+                      if k not in ("joint", "type", "law", "motor_inertia", "motor_damping")}
+            law = table.get("law", LINEAR_SPRING_LAW)
+            if "law" not in table and "k" not in table:
+                raise self.fail(f"{key}.k", f"missing required field (the default law is "
+                                f"{LINEAR_SPRING_LAW!r}; or give law = \"...\")")
+            side = self.side(law, consts, key, "spring", "")
+            return Actuator(type=kind, joint=j, values=tuple(values), drive="spring",
+                            sides=(side,), family=kind)
+        drive = self.choice(table["drive"], f"{key}.drive", tuple(LAW_VARIABLES))
+        if drive == "spring":
+            given = [f for f in ("motor_inertia", "motor_damping") if f in table]
+            if len(given) == 1:
+                other = ({"motor_inertia", "motor_damping"} - set(given)).pop()
+                raise self.fail(f"{key}.{other}", "missing required field (motor dynamics "
+                                "need both motor_inertia and motor_damping)")
+            for field_ in sorted(given):
+                values.append((field_, self.pair(table[field_], f"{key}.{field_}")))
+            if "pressure_max" in table:
+                raise self.fail(f"{key}.pressure_max", "only for drive = \"pressure\"")
+        else:
+            for field_ in ("motor_inertia", "motor_damping"):
+                if field_ in table:
+                    raise self.fail(f"{key}.{field_}", "only for drive = \"spring\"")
+            if "pressure_max" in table:
+                values.append(("pressure_max", self.number(table["pressure_max"],
+                                                           f"{key}.pressure_max",
+                                                           positive=True)))
+        sides = []
+        for s in "ab":
+            sub = table[s]
+            if not isinstance(sub, dict):
+                raise self.fail(f"{key}.{s}", f"expected a table [actuators.{s}] with a law "
+                                f"and its constants, got {_short(sub)}")
+            if "law" not in sub:
+                raise self.fail(f"{key}.{s}.law", "missing required field")
+            consts = {k: v for k, v in sub.items() if k != "law"}
+            sides.append(self.side(sub["law"], consts, f"{key}.{s}", drive, s))
+        act = Actuator(type=kind, joint=j, values=tuple(values), drive=drive,
+                       sides=tuple(sides), family=kind)
+        if drive == "spring" and act.has_motor_dynamics:
+            sinh = [sinh_constants(sd) for sd in sides]
+            if all(x is not None for x in sinh):
+                act = dataclasses.replace(act, family="qbmove", sinh=tuple(sinh))
+        if drive == "pressure" and all(pressure_linear(sd) for sd in sides):
+            act = dataclasses.replace(act, family="mckibben")
+        return act
+
+    def side(self, law: Any, consts: dict, key: str, drive: str, name: str) -> Side:
+        """One declared law: constants checked (numbers, names free), law parsed over
+        the drive's variables and the constants, every constant used, value and slope
+        finite at rest (phi = 0, or q = p = 0)."""
+        variables = LAW_VARIABLES[drive]
+        reserved = set(variables) | set(FUNCTIONS) | set(CONSTANTS)
+        values: dict[str, float] = {}
+        for c, v in consts.items():
+            if not (isinstance(c, str) and c.isidentifier() and c.isascii()) or c in reserved:
+                raise self.fail(f"{key}.{c}", "not a constant name (an identifier other than "
+                                f"{', '.join(sorted(reserved))})")
+            values[c] = self.number(v, f"{key}.{c}")
+        where = f"{self.path}: {key}.law" if self._key_name is None else \
+            f"{self.path}: {self._key_name(key + '.law')}"
+        parsed = parse_law(law, (*variables, *values), where)
+        unused = sorted(set(values) - parsed.used)
+        if unused:
+            raise self.fail(f"{key}.{unused[0]}", f"constant not used by the law {law!r} "
+                            "(a misspelt name?)")
+        if drive == "pressure" and "p" not in parsed.used:
+            raise self.fail(f"{key}.law", f"a pressure law must depend on p: {law!r}")
+        finite_at(parsed, values, variables, where)
+        return Side(name, law, tuple(values.items()))
 
     def gravity(self, g: Any, kind: str) -> tuple[tuple[float, float, float], float]:
         g = self.keys(g, "gravity", _GRAVITY_KEYS, set())
@@ -624,6 +789,27 @@ class _Parser(FileReader):
                                 f"unknown parameter or group {s!r} (groups: "
                                 f"{', '.join(_GROUPS)}; parameters: {', '.join(nominal)})")
         return tuple(n for n in nominal if n in chosen)
+
+
+def sinh_constants(side: Side) -> tuple[float, float] | None:
+    """(k, a) when the spring law of ``side`` is k sinh(a phi): tau'' = c tau with
+    c > 0 and tau(0) = 0 (checked by CasADi on samples, :func:`spring_c`), a = sqrt(c),
+    k = tau'(0)/a. None for any other law (linear springs have c = 0)."""
+    consts = dict(side.constants)
+    f = spring_derivatives(parse_law(side.law, ("phi", *consts), "law"), consts)
+    c = spring_c(f)
+    if c is None or c <= 0:
+        return None
+    a = math.sqrt(c)
+    return (float(f(0.0)[1]) / a, a)
+
+
+def pressure_linear(side: Side) -> bool:
+    """Whether a pressure law is linear in p (tau = phi(q) p, the form of eq. 2.2 the
+    pneumatic controllers are written for): d law/dp independent of p, by CasADi."""
+    consts = dict(side.constants)
+    law = parse_law(side.law, (*LAW_VARIABLES["pressure"], *consts), "law")
+    return linear_in(law, consts, LAW_VARIABLES["pressure"], "p")
 
 
 def _group_of(name: str) -> str:

@@ -500,6 +500,13 @@ def urdf_tables(path: Path, text: str, *, root: str | None = None,
     return data, names
 
 
+def chain_joints(path: Path, text: str, *, root: str | None = None,
+                 tip: str | None = None) -> dict[str, str]:
+    """URDF joint name -> child link name of each moving joint on the chain (the link
+    names of the model), so that a TOML file's ``[[actuators]]`` may name either."""
+    return {b.joint: b.child for b in _Urdf(path, text).chain(root, tip)}
+
+
 def parse_urdf(path: Path, text: str, *, root: str | None = None, tip: str | None = None,
                name: str | None = None, description: str | None = None) -> RobotModel:
     """A validated :class:`~softgen.modelfile.model.RobotModel` from the URDF document

@@ -1,7 +1,7 @@
 """Antagonistic variable-stiffness actuators, symbolic (thesis chapter 2).
 
 Two families, each built from a :class:`~softgen.modelfile.model.RobotModel` whose
-``[[actuators]]`` declare one actuator per joint:
+``[[actuators]]`` put one actuator of the family on every joint:
 
 :class:`McKibbenPairs` (section 2.1)
     Muscle elongations φ_a = (l_n,a − qR)² − l_min,a², φ_b = (l_n,b + qR)² − l_min,b²;
@@ -15,6 +15,12 @@ Two families, each built from a :class:`~softgen.modelfile.model.RobotModel` who
     deflection giving a wanted spring torque, φ = asinh(τ/k)/a (eq. 11.3, with k for
     the printed k_g: NOTES section 2 item 12).
 
+Both are built from the model's declared laws where the model file declares them rather
+than naming the type: McKibbenPairs from any pressure pair linear in p (Φ(q) = ∂τ/∂p,
+K = 1), QbmoveSprings from any spring pair whose laws satisfy τ'' = cτ, c > 0, τ(0) = 0
+(a = √c, k = τ'(0)/a). The generic derivations for every declared law are in
+:mod:`softgen.symbolic.actuation`; tests/test_actuation.py checks the two agree.
+
 Every derivative is taken by CasADi from the definition; nothing is transcribed.
 """
 from __future__ import annotations
@@ -26,6 +32,7 @@ import numpy as np
 
 from softgen.core.errors import ModelError
 from softgen.modelfile.model import RobotModel
+from softgen.symbolic.actuation import declared_law
 
 
 def _require(model: RobotModel, kind: str) -> None:
@@ -38,6 +45,15 @@ def _require(model: RobotModel, kind: str) -> None:
 def _pair(model: RobotModel, key: str) -> tuple[np.ndarray, np.ndarray]:
     """(side a, side b) arrays of a paired actuator value, one entry per joint."""
     vals = np.array([act[key] for act in model.actuators], dtype=float)
+    return vals[:, 0], vals[:, 1]
+
+
+def _sinh_pair(model: RobotModel, which: int) -> tuple[np.ndarray, np.ndarray]:
+    """(side a, side b) arrays of k (``which`` 0) or a (1) of the sinh springs: the
+    model file's numbers for ``type = "qbmove"``, the values derived from a declared
+    spring law with tau'' = c tau (a = sqrt(c), k = tau'(0)/a) otherwise."""
+    vals = np.array([[side[which] for side in act.sinh] for act in model.actuators],
+                    dtype=float)
     return vals[:, 0], vals[:, 1]
 
 
@@ -58,13 +74,20 @@ class McKibbenPairs:
         _require(model, "mckibben")
         self.model = model
         self.n = model.dof
+        #: Declared pressure laws (``type = "antagonistic"``, ``drive = "pressure"``,
+        #: linear in p): Φ(q) is derived from them (∂τ_side/∂p_side) with K = 1, and the
+        #: muscle constants (R, K_g, l_n, l_min) do not exist.
+        self.declared = any(act.type != "mckibben" for act in model.actuators)
+        self.pressure_max = np.array([act.get("pressure_max", np.inf)
+                                      for act in model.actuators])
+        if self.declared:
+            self.K = np.ones(self.n)
+            return
         self.R = np.array([act["radius"] for act in model.actuators])
         self.Kg = np.array([act["gain"] for act in model.actuators])
         self.K = self.Kg * self.R                        # K_i = K_g,i R_i
         self.ln_a, self.ln_b = _pair(model, "nominal_length")
         self.lm_a, self.lm_b = _pair(model, "min_length")
-        self.pressure_max = np.array([act.get("pressure_max", np.inf)
-                                      for act in model.actuators])
 
     def with_values(self, *, R=None, Kg=None, ln_a=None, ln_b=None, lm_a=None,
                     lm_b=None) -> McKibbenPairs:
@@ -74,6 +97,9 @@ class McKibbenPairs:
         is the same expressions with other values; symbols make those values
         parameters of one generated function instead of one build per sample.
         """
+        if self.declared:
+            raise ModelError(f"{self.model.name}: actuators: with_values needs McKibben "
+                             "muscles (type = \"mckibben\"); these are declared pressure laws")
         out = copy.copy(self)
         for key, v in (("R", R), ("Kg", Kg), ("ln_a", ln_a), ("ln_b", ln_b), ("lm_a", lm_a),
                        ("lm_b", lm_b)):
@@ -86,10 +112,23 @@ class McKibbenPairs:
 
     # -- expressions ---------------------------------------------------------------
     def elongations(self, q: ca.SX) -> tuple[ca.SX, ca.SX]:
-        """(φ_a(q), φ_b(q)), n each (section 2.1)."""
+        """(φ_a(q), φ_b(q)), n each (section 2.1); for declared pressure laws
+        φ_a = ∂τ_a/∂p_a and φ_b = −∂τ_b/∂p_b, by CasADi."""
+        if self.declared:
+            return self._declared_elongations(q)
         phi_a = (self.ln_a - q * self.R) ** 2 - self.lm_a ** 2
         phi_b = (self.ln_b + q * self.R) ** 2 - self.lm_b ** 2
         return phi_a, phi_b
+
+    def _declared_elongations(self, q: ca.SX) -> tuple[ca.SX, ca.SX]:
+        p = ca.SX.sym("p")
+        cols: dict[str, list] = {"a": [], "b": []}
+        for act in self.model.actuators:
+            for side, sign in zip(act.sides, (1.0, -1.0)):
+                law = declared_law(act.joint, "pressure", side)
+                slope = ca.jacobian(law(q=q[act.joint], p=p), p)
+                cols[side.name].append(sign * slope)   # independent of p (linear law)
+        return ca.vertcat(*cols["a"]), ca.vertcat(*cols["b"])
 
     def Phi(self, q: ca.SX) -> ca.SX:
         """Muscle elongation matrix Φ(q), n × 2n, rows (… φ_i,a, −φ_i,b …)."""
@@ -195,14 +234,19 @@ class McKibbenPairs:
 
 
 class QbmoveSprings:
-    """qbmove-style antagonistic springs and motors, one VSA per joint (sec. 2.2, 6.2)."""
+    """qbmove-style antagonistic springs and motors, one VSA per joint (sec. 2.2, 6.2).
+
+    Built for every model whose ``actuator_type`` is ``"qbmove"``: ``type = "qbmove"``
+    or a declared spring pair (``type = "antagonistic"``, ``drive = "spring"``) whose two
+    laws satisfy tau'' = c tau with c > 0 and tau(0) = 0, i.e. are k sinh(a phi).
+    """
 
     def __init__(self, model: RobotModel):
         _require(model, "qbmove")
         self.model = model
         self.n = model.dof
-        self.a_a, self.a_b = _pair(model, "a")
-        self.k_a, self.k_b = _pair(model, "k")
+        self.a_a, self.a_b = _sinh_pair(model, 1)
+        self.k_a, self.k_b = _sinh_pair(model, 0)
         self.b_a, self.b_b = _pair(model, "motor_inertia")
         self.d_a, self.d_b = _pair(model, "motor_damping")
 
