@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +19,8 @@ import softgen
 from softgen.app.identify import identify_model
 from softgen.app.identify.actuator import fit_mckibben, identify_actuator, rmsre, sinh_model
 from softgen.cli import main
+from softgen.app.identify.modelfile import model_tables, to_toml
+from softgen.core.paths import MODELS_DIR
 from softgen.modelfile.load import load_model
 from softgen.studies.excitation import (FourierTrajectory, IdentificationRegressor,
                                         joint_limits, optimise_excitation, stacked_condition)
@@ -379,3 +382,17 @@ def test_uncertain_damping_replaces_the_viscous_column(tmp_path):
     x = rng.normal(size=(200, 3))
     Y, _ = reg.evaluate(x, rng.normal(size=(200, 3)), rng.normal(size=(200, 3)))
     assert np.linalg.matrix_rank(Y.reshape(-1, reg.p)) == reg.p      # no repeated column
+
+
+@pytest.mark.parametrize("name", ["arm3_qbmove", "arm3_mckibben_unequal", "arm3_partial",
+                                  "arm3_sea", "planar_2link_mckibben", "arm_2link_electric"])
+def test_identified_model_file_keeps_declared_actuators(name, tmp_path):
+    """The model file ``identify`` writes loads again with the same actuators: declared
+    laws (SEA, antagonistic pairs and their constants, passive joints) survive."""
+    user = Path(__file__).parent / "data" / "user_models" / f"{name}.toml"
+    model = load_model(user if user.is_file() else MODELS_DIR / f"{name}.toml")
+    path = tmp_path / "again.toml"
+    path.write_text(to_toml(model_tables(model, dict(model.nominal))))
+    again = load_model(path)
+    assert [(a.type, a.joint, a.drive, a.family, a.sides, a.values) for a in again.actuators] \
+        == [(a.type, a.joint, a.drive, a.family, a.sides, a.values) for a in model.actuators]

@@ -68,12 +68,28 @@ def model_tables(model: RobotModel, values: dict[str, float], *,
     data["links"] = links
     if model.actuators:
         names = [link.name for link in model.links]
-        data["actuators"] = [
-            {"joint": names[a.joint], "type": a.type,
-             **{k: (list(x) if isinstance(x, tuple) else x) for k, x in a.values}}
-            for a in model.actuators]
+        data["actuators"] = [_actuator_table(a, names) for a in model.actuators]
     data["parameters"] = {"uncertain": list(model.uncertain)}
     return data
+
+
+def _actuator_table(a, names: list[str]) -> dict:
+    """One ``[[actuators]]`` entry as the model file writes it: the named instances
+    (``mckibben``, ``qbmove``) by their keys, declared laws (``sea``, ``antagonistic``)
+    with their law and constants, ``[actuators.a]``/``[actuators.b]`` for a pair."""
+    t: dict = {"joint": names[a.joint], "type": a.type}
+    if a.type in ("mckibben", "qbmove"):
+        return {**t, **{k: (list(x) if isinstance(x, tuple) else x) for k, x in a.values}}
+    if a.type == "direct":
+        return t
+    # SEA motor values are stored as 1-tuples, a pair's as (a side, b side).
+    values = {k: (x[0] if isinstance(x, tuple) and len(x) == 1 else
+                  list(x) if isinstance(x, tuple) else x) for k, x in a.values}
+    if a.type == "sea":
+        (side,) = a.sides
+        return {**t, **values, "law": side.law, **dict(side.constants)}
+    return {**t, "drive": a.drive, **values,
+            **{sd.name: {"law": sd.law, **dict(sd.constants)} for sd in a.sides}}
 
 
 def _value(x) -> str:
@@ -100,7 +116,11 @@ def to_toml(data: dict, comments: list[str] = ()) -> str:
             out += ["", f"[{key}]"] + [f"{k} = {_value(x)}" for k, x in table.items()]
         elif isinstance(table, list) and table and all(isinstance(t, dict) for t in table):
             for t in table:
-                out += ["", f"[[{key}]]"] + [f"{k} = {_value(x)}" for k, x in t.items()]
+                out += ["", f"[[{key}]]"] + [f"{k} = {_value(x)}" for k, x in t.items()
+                                             if not isinstance(x, dict)]
+                for sub, st in t.items():      # sub-tables of this entry, after its keys
+                    if isinstance(st, dict):
+                        out += [f"[{key}.{sub}]"] + [f"{k} = {_value(x)}" for k, x in st.items()]
         else:
             out.insert(len(comments), f"{key} = {_value(table)}")
     return "\n".join(out) + "\n"
