@@ -7,6 +7,7 @@ import pytest
 
 from softgen.core.metrics import Metrics
 from softgen.experiments import ch12_soft as ch12
+from softgen.studies.soft import norm_drift
 
 SUFFIXES = ("", "lower_gains", "disturbed")
 
@@ -14,7 +15,8 @@ SUFFIXES = ("", "lower_gains", "disturbed")
 def _planar(rng) -> tuple[Metrics, dict]:
     v = {(q, s): float(rng.uniform(*r)) for s in SUFFIXES for q, r in (
         ("position_rms_error", (0.001, 0.15)), ("convergence_time", (1, 10)),
-        ("position_rms_error_initial", (0.01, 1)), ("parameter_estimate_max_norm", (1, 150)))}
+        ("position_rms_error_initial", (0.01, 1)), ("parameter_estimate_max_norm", (1, 150)),
+        ("parameter_estimate_norm_drift", (0.0, 0.1)))}
     m = Metrics()
     for (q, s), x in v.items():
         m.add(q, x, "1", suffix=s)
@@ -30,12 +32,14 @@ def test_planar_verdicts_follow_thresholds(seed):
     faster = [v["convergence_time", ""] < v["convergence_time", "lower_gains"],
               v["position_rms_error_initial", ""] < v["position_rms_error_initial",
                                                         "lower_gains"]]
-    bounded = max(v["parameter_estimate_max_norm", s] for s in SUFFIXES) < ch12.BOUNDED
+    # Bounded as a trend: the largest norm under BOUNDED and no scenario drifting.
+    bounded = [max(v["parameter_estimate_max_norm", s] for s in SUFFIXES) < ch12.BOUNDED,
+               *(v["parameter_estimate_norm_drift", s] < ch12.DRIFT for s in SUFFIXES)]
     robust = v["position_rms_error", "disturbed"] < ch12.ROBUST["planar"]
 
     def grade(x):
         return "reproduced" if all(x) else "partly reproduced" if any(x) else "not reproduced"
-    assert list(out.values()) == [grade(track), grade(faster), grade([bounded]),
+    assert list(out.values()) == [grade(track), grade(faster), grade(bounded),
                                   grade([robust])]
 
 
@@ -45,3 +49,14 @@ def test_absent_variant_is_not_checked_and_names_the_record():
     out = ch12.findings_planar(m)
     assert [f["verdict"] for f in out][2:] == ["not checked", "not checked"]
     assert "disturbed" in out[-1]["evidence"]
+
+
+def test_drift_is_the_trend_over_the_second_half():
+    """A linear drift of 10 % over the second half reads 0.1, a settled norm 0, and noise
+    on a settled norm stays below the threshold."""
+    t = np.linspace(0.0, 100.0, 10001)
+    drifting = np.where(t < 50, 1.0, 1.0 + 0.1 * (t - 50) / 50) / 1.05
+    assert abs(norm_drift(t, drifting * 1.05) - 0.1 / 1.05) < 1e-9
+    assert norm_drift(t, np.ones_like(t)) < 1e-12
+    noisy = 1 + 0.01 * np.random.default_rng(3).standard_normal(t.size)
+    assert norm_drift(t, noisy) < ch12.DRIFT

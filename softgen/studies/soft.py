@@ -194,6 +194,19 @@ def convergence_time(t: np.ndarray, err: np.ndarray, band: float) -> float:
     return float(t[above[-1] + 1])
 
 
+def norm_drift(t: np.ndarray, norm: np.ndarray) -> float:
+    """Relative change of ‖π̂‖ over the second half of the run along its least-squares
+    line: slope × (half the run) / mean. "Bounded" as a trend (issue 24): a threshold
+    on max ‖π̂‖ passes an estimate that still drifts linearly at the end of a finite run."""
+    half = t >= t[0] + (t[-1] - t[0]) / 2
+    th, nh = t[half], norm[half]
+    if th.size < 3 or not np.all(np.isfinite(nh)):
+        return float("nan")
+    slope = np.polyfit(th - th[0], nh, 1)[0]
+    mean = float(np.mean(nh))
+    return float(abs(slope) * (th[-1] - th[0]) / mean) if mean > 0 else 0.0
+
+
 def tracking_records(t, q_d, q, pi_hat, tau, *, unit: str, window: float, band: float,
                      initial: float, suffix: str = "") -> Metrics:
     """The §12.2 records of one scenario (module docstring)."""
@@ -203,8 +216,9 @@ def tracking_records(t, q_d, q, pi_hat, tau, *, unit: str, window: float, band: 
     m = Metrics()
     m.add("position_rms_error", np.sqrt(np.mean(e[last] ** 2)), unit, suffix=suffix)
     m.add("position_max_error_final", e[last].max(), unit, suffix=suffix)
-    m.add("parameter_estimate_max_norm", np.linalg.norm(pi_hat, axis=1).max(), "mixed",
-          suffix=suffix)
+    norm = np.linalg.norm(pi_hat, axis=1)
+    m.add("parameter_estimate_max_norm", norm.max(), "mixed", suffix=suffix)
+    m.add("parameter_estimate_norm_drift", norm_drift(t, norm), "1", suffix=suffix)
     m.add("input_max_abs", np.abs(tau).max(), "N m, N" if unit == "m" else "N m",
           suffix=suffix)
     m.add("convergence_time", convergence_time(t, e, band), "s", suffix=suffix)
