@@ -138,11 +138,14 @@ def run_2dof(c: TwoLinkConfig, out: Path) -> Metrics:
 def _common_claims(m: Metrics, c: GiosteConfig, n: int, phases, sigma_min: float, track: str,
                    decouple: str, params: str) -> list[dict]:
     """Tracking and decoupling, for the printed gains and each gain-study scale run."""
-    same = [(f"gain_study_inertial_kpi_x{s:g}_", f"The same with K_π of the inertial {params} "
-             f"scaled by {s:g} (gain study)") for s in c.inertial_kpi_scales
+    # Each claim self-contained (issue 24: two rows read "The same with ..." for the
+    # tracking and the decoupling claim, with different verdicts).
+    same = [(f"gain_study_inertial_kpi_x{s:g}_", f" (gain study: K_π of the inertial {params} "
+             f"scaled by {s:g})") for s in c.inertial_kpi_scales
             if m.find("diverged_at", phase=phases[0], prefix=f"gain_study_inertial_kpi_x{s:g}_")]
-    return ([C.tracking_claim(m, p, n, phases, sigma_min, t) for p, t in [("", track), *same]]
-            + [C.decoupling_claim(m, p, t) for p, t in [("", decouple), *same]])
+    return ([C.tracking_claim(m, p, n, phases, sigma_min, track + t)
+             for p, t in [("", ""), *same]]
+            + [C.decoupling_claim(m, p, decouple + t) for p, t in [("", ""), *same]])
 
 
 def _study_claim(m: Metrics, c: OneLinkConfig) -> list[dict]:
