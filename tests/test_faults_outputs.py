@@ -294,3 +294,36 @@ def test_sweep_summaries_survive_a_full_disk(toy, tmp_path, monkeypatch):
     # stops it there, with every earlier file intact.
     assert {n: _hash(out / n) for n in names} == before
     _no_tmp_left(out)
+
+
+def test_unusable_cache_falls_back_with_one_warning(tmp_path, monkeypatch, capsys):
+    """A cache path that cannot be a directory (a file in the way): builds still work,
+    in a private temporary directory, said once on stderr; no traceback (issue 23)."""
+    import casadi as ca
+    from softgen.core import paths
+    from softgen.runtime.compiled import compile_functions
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    monkeypatch.setenv("SOFTGEN_CACHE_DIR", str(blocker / "cache"))
+    monkeypatch.setattr(paths, "_WARNED", set())
+    x = ca.SX.sym("x")
+    f = ca.Function("cachefault_square", [x], [x * x * 1.5])
+    where = paths.cache_dir()
+    assert where != blocker / "cache" and where.is_dir()
+    lib = compile_functions("cachefault", [f])
+    assert float(np.asarray(lib["cachefault_square"](3.0)).ravel()[0]) == 13.5
+    paths.cache_dir()
+    err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert len(err) == 1 and "is not usable" in err[0] and str(where) in err[0], err
+
+
+def test_estimate_of_the_shipped_sample_writes_in_the_current_directory(tmp_path,
+                                                                        monkeypatch):
+    """The README's estimate example must not write into the package (or the checkout)."""
+    from softgen.core.paths import derived_output
+    import softgen
+    sample = Path(softgen.__file__).parent / "samples" / "pendulum_qbmove_log.csv"
+    monkeypatch.chdir(tmp_path)
+    assert derived_output(sample, "_estimate.csv") == tmp_path / "pendulum_qbmove_log_estimate.csv"
+    mine = tmp_path / "logs" / "run.csv"
+    assert derived_output(mine, "_estimate.csv") == tmp_path / "logs" / "run_estimate.csv"

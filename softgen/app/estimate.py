@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping
+from softgen.core.paths import derived_output
 from softgen.core.errors import NonFiniteError, SoftgenError
 from softgen.estimation.csvlog import first_non_finite, read_log, step_tolerance, write_estimates
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
@@ -219,7 +220,7 @@ def estimate_log(model_name: str, log: str | Path, *, method: str = "invasive",
     written; an implausible one is returned with :attr:`EstimateRun.warnings`.
     """
     log = Path(log)
-    out = Path(out) if out else log.with_name(f"{log.stem}_estimate.csv")
+    out = Path(out) if out else derived_output(log, "_estimate.csv")
     # SIGINT/SIGTERM at any moment: one line, status 130/143; the output is written
     # atomically, so an earlier file is kept whole (issue 23).
     with stopping():

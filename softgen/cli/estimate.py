@@ -7,6 +7,7 @@ from pathlib import Path
 
 from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.errors import ImplausibleError, SoftgenError
+from softgen.core.paths import derived_output
 
 HELP = "joint stiffness from a CSV measurement log (thesis chapters 6, 7)"
 
@@ -29,8 +30,7 @@ def run(args) -> int:
             return _run(args)
         except Stop as stop:
             ignore_signals()
-            out = Path(args.out) if args.out else \
-                Path(args.log).with_name(f"{Path(args.log).stem}_estimate.csv")
+            out = Path(args.out) if args.out else derived_output(args.log, "_estimate.csv")
             state = "unchanged" if out.exists() else "not written"
             raise interrupted(stop.signum, f"estimate: interrupted by "
                               f"{signal_name(stop.signum)}; {out} {state}") from None
@@ -86,7 +86,8 @@ def add_arguments(p) -> None:
                    help="invasive: pneumatic (McKibben) or electric (qbmove), chapter 6; "
                         "noninvasive: qbmove, chapter 7 (default: invasive)")
     p.add_argument("--out", metavar="OUT.csv",
-                   help="estimates (default: <log stem>_estimate.csv beside the log)")
+                   help="estimates (default: <log stem>_estimate.csv beside the log; for the "
+                        "shipped sample log, in the current directory)")
     p.add_argument("--dt", type=float, metavar="SECONDS",
                    help="sample time (1e-6 to 1 s); must agree with the log's median "
                         "time step")

@@ -19,6 +19,8 @@ This module imports nothing of softgen, so every layer may use it.
 from __future__ import annotations
 
 import os
+import sys
+import tempfile
 from importlib import resources
 from pathlib import Path
 
@@ -48,12 +50,42 @@ MODEL_SUFFIXES = (".toml", ".urdf")
 
 
 def cache_dir() -> Path:
-    """The user-level cache of compiled libraries (see the module docstring)."""
+    """The user-level cache of compiled libraries (see the module docstring).
+
+    A cache that cannot be used (a file in its path, no write permission, a read-only
+    file system) is not an error: builds go to a private temporary directory instead,
+    said once on stderr (issue 23: the compile failed with a traceback).
+    """
     env = os.environ.get("SOFTGEN_CACHE_DIR")
     if env:
-        return Path(env).expanduser()
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    return (Path(xdg) if xdg else Path.home() / ".cache") / "softgen"
+        wanted = Path(env).expanduser()
+    else:
+        xdg = os.environ.get("XDG_CACHE_HOME")
+        wanted = (Path(xdg) if xdg else Path.home() / ".cache") / "softgen"
+    why = _unusable(wanted)
+    if why is None:
+        return wanted
+    fallback = Path(tempfile.gettempdir()) / f"softgen-cache-{os.getuid()}"
+    if wanted not in _WARNED:
+        _WARNED.add(wanted)
+        print(f"softgen: warning: cache {wanted} is not usable ({why}); compiled "
+              f"libraries go to {fallback} (set SOFTGEN_CACHE_DIR to choose)", file=sys.stderr)
+    fallback.mkdir(mode=0o700, exist_ok=True)
+    return fallback
+
+
+_WARNED: set[Path] = set()
+
+
+def _unusable(d: Path) -> str | None:
+    """Why ``d`` cannot hold the cache (created here if it can be), or None."""
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return exc.strerror or type(exc).__name__
+    if not (d.is_dir() and os.access(d, os.W_OK | os.X_OK)):
+        return "not writable"
+    return None
 
 
 def writable(directory: Path) -> bool:
@@ -62,6 +94,17 @@ def writable(directory: Path) -> bool:
     while not d.exists():
         d = d.parent
     return d.is_dir() and os.access(d, os.W_OK | os.X_OK)
+
+
+def derived_output(source: str | Path, suffix: str) -> Path:
+    """``<source stem><suffix>`` beside ``source``; in the current directory when the
+    source is shipped inside the package (the README's sample log), no place to write
+    into (an installed package, or the repository's own tree)."""
+    source = Path(source)
+    package = Path(__file__).resolve().parents[1]
+    if package in source.resolve().parents:
+        return Path.cwd() / f"{source.stem}{suffix}"
+    return source.with_name(f"{source.stem}{suffix}")
 
 
 def output_dir(path: str, flag: str) -> Path:
