@@ -62,8 +62,8 @@ from softgen.modelfile.soft import SoftModel
 from softgen.studies import Scenario
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 from softgen.symbolic.rigid import RigidDynamics
-from softgen.studies.electric import (THESIS_GAINS, THESIS_REFERENCES, CascadeReferences,
-                                      sinusoid_references)
+from softgen.studies.electric import (STIFFNESS_MARGIN, THESIS_GAINS, THESIS_REFERENCES,
+                                      model_references, sinusoid_references)
 
 #: Sample time of every example loop (s) and the default length of a run.
 DT = 1e-3
@@ -153,15 +153,20 @@ def motor_mode_resolved(model: RobotModel) -> bool:
     """Whether the fastest motor mode of the electric VSAs is resolved at :data:`DT`.
 
     A motor of inertia b held by its spring at the example's largest reference
-    stiffness σ_max (section 11.2: 11 N m/rad; each of the two springs carries σ/2)
-    oscillates at ω = sqrt(σ_max / (2 b)); one RK4 step per sample follows it while
-    ω·DT ≤ :data:`MAX_MODE_STEP` (measured: arm_2link_electric, b = 1e-3 kg m², ω·DT =
-    0.07, tracks to 1e-4 rad; planar_2link, b = 3e-6, ω·DT = 1.35, errs by 0.3 rad).
+    stiffness σ_max (:func:`~softgen.studies.electric.model_references`: section 11.2's
+    11 N m/rad where the springs hold the arm with it, more where they need it; each of
+    the two springs carries σ/2) oscillates at ω = sqrt(σ_max / (2 b)); one RK4 step
+    per sample follows it while ω·DT ≤ :data:`MAX_MODE_STEP` (measured:
+    arm_2link_electric, b = 1e-3 kg m², ω·DT = 0.07, tracks to 1e-4 rad; planar_2link,
+    b = 3e-6, ω·DT = 1.35, errs by 0.3 rad).
     """
-    sigma_max = max(s.offset + s.amplitude for s in THESIS_REFERENCES.sigma)
     b = min(float(np.min(model.resolve(a.get("motor_inertia"), model.nominal)))
             for a in model.actuators)
-    return b > 0 and math.sqrt(sigma_max / (2 * b)) * DT <= MAX_MODE_STEP
+    if b <= 0:
+        return False
+    refs = model_references(electric_arm(model))
+    sigma_max = max(s.offset + abs(s.amplitude) for s in refs.sigma)
+    return math.sqrt(sigma_max / (2 * b)) * DT <= MAX_MODE_STEP
 
 
 def example_for(model: str | Path | RobotModel | SoftModel, *,
@@ -242,10 +247,16 @@ def _theorem5(model: RobotModel, steps: int) -> Example:
 def _electric_pd(model: RobotModel, steps: int) -> Example:
     arm = electric_arm(model)
     n = arm.n
-    # Section 11.2's sinusoids, repeated over the arm's joints.
-    thesis_q, thesis_s = THESIS_REFERENCES.q, THESIS_REFERENCES.sigma
-    refs = CascadeReferences(tuple(thesis_q[i % len(thesis_q)] for i in range(n)),
-                             tuple(thesis_s[i % len(thesis_s)] for i in range(n)))
+    # Section 11.2's sinusoids, repeated over the arm's joints, with each joint's
+    # stiffness raised where its springs could not hold the arm at the printed one (the
+    # thesis's arm keeps the printed references exactly).
+    refs = model_references(arm)
+    base = THESIS_REFERENCES.sigma
+    scaled = [f"{i + 1} (x{s.offset / base[i % len(base)].offset:.3g})"
+              for i, s in enumerate(refs.sigma) if s != base[i % len(base)]]
+    raised = (f" The stiffness sinusoids of joints {', '.join(scaled)} are scaled up to "
+              f"{STIFFNESS_MARGIN:g} times the least stiffness with which the springs "
+              f"hold the arm on the position reference (model_references).") if scaled else ""
     g = dict(GAINS["electric_pd"])
     d = ClosedLoop(f"{model.name}_loop",
                    [refs.block(), cascade_block(arm, "pd", DT, gains=g),
@@ -263,7 +274,7 @@ def _electric_pd(model: RobotModel, steps: int) -> Example:
         "loops, motor position loops) of the arm with its qbmove-style electric VSAs "
         "(eq. 11.1, one RK4 step per sample, motor torques held), tracking the section "
         "11.2 sinusoids of position and stiffness from rest on the reference, at the "
-        "quasi-steady stiffness of Remark 10.",
+        "quasi-steady stiffness of Remark 10." + raised,
         sc, (("ref.q_d", "plant.q", "rad"), ("ref.sigma_d", "plant.sigma", "N m/rad")),
         "the PD gains printed in section 11.2 (THESIS_GAINS['pd'])")
 

@@ -11,6 +11,7 @@ import dataclasses
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 
+import casadi as ca
 import numpy as np
 
 from softgen.blocks import Block, ClosedLoop
@@ -351,3 +352,89 @@ def feedback_figure(path, traces: Mapping[str, Trace], t_on: float) -> None:
                  "estimates (switch at t_on)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
+
+
+# -- references derived from a model (issue 22: any qbmove-style arm) ---------------------
+
+#: Least ratio σ_d(t) / σ_min(τ(t)) the derived stiffness references keep on every joint
+#: (:func:`model_references`). At σ = σ_min the co-contraction that realises σ at the
+#: torque τ is zero and the map (τ, σ) → deflections is singular (∂φ/∂σ → ∞; the
+#: arccosh of :meth:`QbmoveSprings.preset` at 1), so the motor references of eq. 11.3
+#: and their Lie derivatives blow up near it. Measured on user_arm3_urdf's shoulder with
+#: section 11.2's σ_d = 4 + sin(πt/8) (ratio ≈ 1 at the peaks of the gravity torque):
+#: position error up to 1.0 rad, or a non-finite motor torque at 0.587 s with ω rounded
+#: to 5 digits; at σ_d = 8 + 3 sin(πt/8) it tracks to 3e-5 rad. The thesis's own arm
+#: keeps a ratio of at least 2.1 (shoulder) with its printed references.
+STIFFNESS_MARGIN = 1.5
+
+#: Samples per second of the reference grid over which :func:`model_references` checks
+#: the margin (the references' fastest period is 16 s).
+GRID_RATE = 20.0
+
+
+def least_stiffness_fun(arm: ElectricArm) -> ca.Function:
+    """σ_min(τ) (n → n): the least joint stiffness σ = τ'_a(φ_a) + τ'_b(φ_b) whose springs
+    hold the total torque τ_a(φ_a) + τ_b(φ_b) = τ (eq. 2.7, 2.9), from the model's
+    declared laws by CasADi.
+
+    The minimum over the co-contraction is where the gradients are parallel (Lagrange):
+    τ''_a τ'_b = τ''_b τ'_a, solved with the torque balance by Newton's method
+    (``ca.rootfinder``) from the equal split τ_a = τ_b = τ/2 of the mean spring. For the
+    sinh law with equal springs this is φ_a = φ_b and σ_min = a √(4k² + τ²).
+    """
+    s, n = arm.springs, arm.n
+    pa, pb, tau = ca.SX.sym("phi_a", n), ca.SX.sym("phi_b", n), ca.SX.sym("tau", n)
+    ones = ca.DM.ones(n)
+    # The laws act joint-wise (element-wise), so the directional derivative along ones
+    # is the diagonal of the Jacobian: τ'_j and τ''_j by differentiation, not by hand.
+    ta, tb = s.spring_torque(pa, "a"), s.spring_torque(pb, "b")
+    da, db = ca.jtimes(ta, pa, ones), ca.jtimes(tb, pb, ones)
+    dda, ddb = ca.jtimes(da, pa, ones), ca.jtimes(db, pb, ones)
+    x = ca.vertcat(pa, pb)
+    g = ca.Function("g", [x, tau], [ca.vertcat(ta + tb - tau, dda * db - ddb * da)])
+    solve = ca.rootfinder("least_stiffness", "newton", g,
+                          {"abstol": 1e-13, "max_iter": 100, "error_on_fail": True})
+    a, k = 0.5 * (s.a_a + s.a_b), 0.5 * (s.k_a + s.k_b)
+    guess = ca.vertcat(*[ca.asinh(tau / (2 * k)) / a] * 2)
+    xs = solve(guess, tau)
+    sigma = ca.Function("sigma", [x], [da + db])(xs)
+    return ca.Function("least_stiffness", [tau], [sigma], ["tau"], ["sigma_min"])
+
+
+def reference_torque(arm: ElectricArm, refs: CascadeReferences, t) -> np.ndarray:
+    """Joint torque the springs must give on the position references (K × n):
+    τ = −(B q̈_d + C q̇_d + G) of eq. 11.1a (the plant's sign: B q̈ + … = −τ^e)."""
+    n = arm.n
+    q, qd, qdd = (ca.SX.sym(x, n) for x in ("q", "qd", "qdd"))
+    f = ca.Function("id", [q, qd, qdd], [arm.inverse_dynamics(q, qd, qd, qdd)])
+    c = refs.columns(t)
+    return -np.array(f.map(c.shape[1])(c[:n], c[n:2 * n], c[2 * n:3 * n])).T
+
+
+def model_references(arm: ElectricArm, base: CascadeReferences = THESIS_REFERENCES, *,
+                     margin: float = STIFFNESS_MARGIN) -> CascadeReferences:
+    """Section 11.2's references made feasible for ``arm``, joint by joint.
+
+    Positions: ``base``'s sinusoids cycled over the joints (q_d = 1 + 0.5 sin(πt/10)).
+    The sinh springs of eq. 6.6 hold any torque, so the position amplitude is not
+    limited by the springs' torque range; what a posture costs is stiffness: holding τ
+    needs σ ≥ σ_min(τ) (:func:`least_stiffness_fun`). Stiffness: ``base``'s sinusoid of
+    the joint, kept if σ_d(t) ≥ ``margin`` · σ_min(τ(t)) over the references' common
+    period (τ(t) of :func:`reference_torque` on a :data:`GRID_RATE` grid), else scaled
+    (offset and amplitude by one factor, the shape of the thesis's kept) to the least
+    factor that meets the margin. The thesis's arm meets it with the printed values,
+    so its references are section 11.2's exactly.
+    """
+    n = arm.n
+    q = tuple(base.q[i % len(base.q)] for i in range(n))
+    sig = [base.sigma[i % len(base.sigma)] for i in range(n)]
+    periods = [2 * np.pi / s.omega for s in (*q, *sig) if s.omega > 0]
+    span = float(np.lcm.reduce(np.round(periods).astype(int))) if periods else 1.0
+    t = np.linspace(0.0, span, int(span * GRID_RATE) + 1)
+    tau = reference_torque(arm, CascadeReferences(q, tuple(sig)), t)
+    smin = np.array(least_stiffness_fun(arm).map(t.size)(tau.T)).T        # K × n
+    for i, s in enumerate(sig):
+        need = float(np.max(margin * smin[:, i] / s.derivatives(t, 0)[0]))
+        if need > 1.0:
+            sig[i] = Sinusoid(s.offset * need, s.amplitude * need, s.omega)
+    return CascadeReferences(q, tuple(sig))
