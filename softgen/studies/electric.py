@@ -438,3 +438,63 @@ def model_references(arm: ElectricArm, base: CascadeReferences = THESIS_REFERENC
         if need > 1.0:
             sig[i] = Sinusoid(s.offset * need, s.amplitude * need, s.omega)
     return CascadeReferences(q, tuple(sig))
+
+
+#: Largest ratio ω_l / λ of a joint's link spring mode ω_l = √(σ_max / B_ii,min) to the
+#: pole λ of its loops that :func:`model_gains` keeps. The PD cascade cancels the
+#: dynamics exactly, so in continuous time its error poles do not depend on the arm;
+#: sampled at dt with the motor torques held, the hold leaves a disturbance that excites
+#: the link through its springs, and the error it leaves grows with ω_l² and falls with
+#: the loop gains. Measured on user_arm3_qbmove's hand (B_33 = 3.0e-4 kg m², section
+#: 11.2's σ_d = 8 + 3 sin(πt/8), thesis gains): position rms 6.3e-3 rad; halving σ_d
+#: halves it (3.0e-3), ten times the link inertia gives 1.3e-3, doubling the outer
+#: poles (k_p = 100, k_d = 20) or the inner ones (k_p,m = 200, k_d,m = 50) gives 1.5e-3.
+#: The thesis's arm, at its printed gains (λ = √k_p = 5), has ω_l / λ ≤ 8.7 (elbow).
+MODE_RATIO = 10.0
+
+
+def least_link_inertia(arm: ElectricArm, refs: CascadeReferences, t) -> np.ndarray:
+    """min over ``t`` of the diagonal B_ii(q_d(t)) of the link inertia matrix (n): what a
+    joint's springs move at the lightest posture of the reference. B = ∂τ/∂q̈ of the
+    inverse dynamics, by CasADi."""
+    n = arm.n
+    q, z = ca.SX.sym("q", n), ca.SX.zeros(n)
+    qdd = ca.SX.sym("qdd", n)
+    b = ca.diag(ca.jacobian(arm.inverse_dynamics(q, z, z, qdd), qdd))
+    f = ca.Function("b_diag", [q, qdd], [b])
+    qd = refs.columns(t)[:n]
+    return np.array(f.map(qd.shape[1])(qd, 0)).min(axis=1)
+
+
+def model_gains(arm: ElectricArm, refs: CascadeReferences,
+                base: PDGains = THESIS_GAINS["pd"], *, ratio: float = MODE_RATIO) -> PDGains:
+    """``base`` (section 11.2's PD gains) with each joint's poles moved out as fast as
+    its link spring mode needs (:data:`MODE_RATIO`), by pole placement.
+
+    The outer position loop is ë + k_d ė + k_p e = 0 (Theorem 7 with the inner loop
+    ideal) and the inner one ë_j + k_d,m ė_j + k_p,m e_j = 0 (Theorem 6); scaling every
+    pole of joint i by s_i = max(1, ω_l,i / (ratio · √k_p)), with
+    ω_l,i = √(max_t σ_d,i / min_t B_ii(q_d)) (:func:`least_link_inertia`), gives
+    k_p s², k_d s, k_p,m s², k_d,m s (both motors of the joint). k_σ and Δ are kept: the
+    stiffness row is first order at k_σ = 150 1/s (k_σ dt = 0.15), and Δ only keeps
+    eq. 11.4 invertible (det ≥ 2Δ − |γ_a − γ_b|). A joint that meets the ratio at the
+    printed gains keeps them exactly (the thesis's arm does: all its joints).
+    """
+    n = arm.n
+    periods = [2 * np.pi / s.omega for s in (*refs.q, *refs.sigma) if s.omega > 0]
+    span = float(np.lcm.reduce(np.round(periods).astype(int))) if periods else 1.0
+    t = np.linspace(0.0, span, int(span * GRID_RATE) + 1)
+    inertia = least_link_inertia(arm, refs, t)
+    sigma_max = np.array([s.offset + abs(s.amplitude) for s in refs.sigma])
+    omega = np.sqrt(sigma_max / inertia)
+    lam = np.sqrt(np.broadcast_to(np.asarray(base.kp, float), (n,)))
+    s = np.maximum(1.0, omega / (ratio * lam))
+    if np.all(s == 1.0):
+        return base
+    s2 = np.concatenate([s, s])
+
+    def scaled(g, f):
+        v = np.broadcast_to(np.asarray(g, float), f.shape) * f
+        return tuple(float(x) for x in v)
+    return base.replace(kp=scaled(base.kp, s ** 2), kd=scaled(base.kd, s),
+                        kp_m=scaled(base.kp_m, s2 ** 2), kd_m=scaled(base.kd_m, s2))
