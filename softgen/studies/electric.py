@@ -378,7 +378,7 @@ def least_stiffness_fun(arm: ElectricArm) -> ca.Function:
     declared laws by CasADi.
 
     The minimum over the co-contraction is where the gradients are parallel (Lagrange):
-    τ''_a τ'_b = τ''_b τ'_a, solved with the torque balance by Newton's method
+    τ''_a / τ'_a = τ''_b / τ'_b, solved with the torque balance by Newton's method
     (``ca.rootfinder``) from the equal split τ_a = τ_b = τ/2 of the mean spring. For the
     sinh law with equal springs this is φ_a = φ_b and σ_min = a √(4k² + τ²).
     """
@@ -391,7 +391,10 @@ def least_stiffness_fun(arm: ElectricArm) -> ca.Function:
     da, db = ca.jtimes(ta, pa, ones), ca.jtimes(tb, pb, ones)
     dda, ddb = ca.jtimes(da, pa, ones), ca.jtimes(db, pb, ones)
     x = ca.vertcat(pa, pb)
-    g = ca.Function("g", [x, tau], [ca.vertcat(ta + tb - tau, dda * db - ddb * da)])
+    # The parallel-gradient condition divided by τ'_a τ'_b (> 0, a stiffness): for
+    # exponential laws τ''/τ' stays bounded (a tanh(aφ)) where the product grows like
+    # e^{2aφ}, which is what lets Newton converge at large torques.
+    g = ca.Function("g", [x, tau], [ca.vertcat(ta + tb - tau, dda / da - ddb / db)])
     solve = ca.rootfinder("least_stiffness", "newton", g,
                           {"abstol": 1e-13, "max_iter": 100, "error_on_fail": True})
     a, k = 0.5 * (s.a_a + s.a_b), 0.5 * (s.k_a + s.k_b)
