@@ -40,7 +40,8 @@ POSITION_RMS = 1e-3
 #: Stiffness: without the integral, eq. 11.4's stiffness row rests at
 #: e_σ = −Δ(τ^e_a − τ^e_b)/k_σ (Remark 10), a bounded error by design, not a tracking
 #: failure. What is asserted is that σ follows σ_d up to that offset: the rms of
-#: e_σ − offset below 2 % of the joint's mean σ_d (measured ≤ 0.4 %), and the plain
+#: e_σ − offset below 2 % of the joint's mean σ_d (measured: ≤ 1.2e-3 N m/rad,
+#: ≤ 1e-4 of σ_d), and the plain
 #: stiffness rms error below Remark 10's bound, max |offset| over the run.
 STIFFNESS_REL_RMS = 0.02
 
