@@ -458,7 +458,12 @@ def model_references(arm: ElectricArm, base: CascadeReferences = THESIS_REFERENC
 #: 11.2's σ_d = 8 + 3 sin(πt/8), thesis gains): position rms 6.3e-3 rad; halving σ_d
 #: halves it (3.0e-3), ten times the link inertia gives 1.3e-3, doubling the outer
 #: poles (k_p = 100, k_d = 20) or the inner ones (k_p,m = 200, k_d,m = 50) gives 1.5e-3.
-#: The thesis's arm, at its printed gains (λ = √k_p = 5), has ω_l / λ ≤ 8.73 (elbow; 7.66 at the shoulder).
+#: The thesis's arm, at its printed gains (λ = √k_p = 5), has ω_l / λ ≤ 8.73 (elbow;
+#: 7.66 at the shoulder), so a ratio ≥ 8.73 keeps its printed gains. Sweep of the ratio
+#: with :func:`model_references` (position rms over the second half of 10 s, worst
+#: joint): user_arm3_qbmove 4.7e-5 / 1.3e-4 / 4.8e-4 / 6.3e-3 rad at 5 / 10 / 20 / 40
+#: (40: the printed gains); user_arm3_urdf 7.3e-5 / 1.7e-4 / 3.9e-4 rad at 5 / 10 / 20.
+#: 10 is the least round ratio the thesis's arm meets.
 MODE_RATIO = 10.0
 
 
