@@ -18,7 +18,10 @@ Which loop a model gets is read from what the model *is*, never from its name:
 - a rigid arm with qbmove-style electric VSAs (actuator type ``qbmove``) runs the
   chapter-11 PD cascade (eq. 11.4-11.6, :func:`softgen.control.electric.cascade_block`)
   against the arm with its motors and springs (eq. 11.1), when the 1 ms sample resolves
-  the motors' spring modes (:func:`motor_mode_resolved`);
+  the motors' spring modes (:func:`motor_mode_resolved`); references and gains are
+  section 11.2's, made feasible per joint from the model's springs and inertias
+  (:func:`~softgen.studies.electric.model_references`,
+  :func:`~softgen.studies.electric.model_gains`; the thesis's arm keeps the printed ones);
 - any other rigid chain (also an electric arm with motors too light for 1 ms) runs Slotine–Li adaptive control (Prop. 10, eq. 9.2) against
   the nominal arm, one RK4 step per sample with τ held.
 
@@ -62,7 +65,8 @@ from softgen.modelfile.soft import SoftModel
 from softgen.studies import Scenario
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 from softgen.symbolic.rigid import RigidDynamics
-from softgen.studies.electric import (THESIS_GAINS, THESIS_REFERENCES, CascadeReferences,
+from softgen.studies.electric import (MODE_RATIO, STIFFNESS_MARGIN, THESIS_GAINS,
+                                      THESIS_REFERENCES, model_gains, model_references,
                                       sinusoid_references)
 
 #: Sample time of every example loop (s) and the default length of a run.
@@ -79,7 +83,8 @@ GAINS = {
     # Theorem 5: Λ = 15, K_d = 18, K_π = 35, K_σ = rate / K_1 with rate 2 1/s and
     # K^-1 = 1/K (the ch10 adaptive study), Π̂(0) = 0.9 Π.
     "theorem5": dict(lam=15.0, kd=18.0, kpi=35.0, stiffness_rate=2.0, pi_hat0_ratio=0.9),
-    # Chapter-11 PD cascade: the gains printed in section 11.2 (NOTES section 1).
+    # Chapter-11 PD cascade: the gains printed in section 11.2 (NOTES section 1), with
+    # a joint's poles moved out where its model needs (studies.electric.model_gains).
     "electric_pd": dict(THESIS_GAINS["pd"]),
     # Theorem 10: the "higher" gains of the section 12.2.1 planar PCC study
     # (Λ = 5, K_d = 1, K_π = 1).
@@ -153,15 +158,20 @@ def motor_mode_resolved(model: RobotModel) -> bool:
     """Whether the fastest motor mode of the electric VSAs is resolved at :data:`DT`.
 
     A motor of inertia b held by its spring at the example's largest reference
-    stiffness σ_max (section 11.2: 11 N m/rad; each of the two springs carries σ/2)
-    oscillates at ω = sqrt(σ_max / (2 b)); one RK4 step per sample follows it while
-    ω·DT ≤ :data:`MAX_MODE_STEP` (measured: arm_2link_electric, b = 1e-3 kg m², ω·DT =
-    0.07, tracks to 1e-4 rad; planar_2link, b = 3e-6, ω·DT = 1.35, errs by 0.3 rad).
+    stiffness σ_max (:func:`~softgen.studies.electric.model_references`: section 11.2's
+    11 N m/rad where the springs hold the arm with it, more where they need it; each of
+    the two springs carries σ/2) oscillates at ω = sqrt(σ_max / (2 b)); one RK4 step
+    per sample follows it while ω·DT ≤ :data:`MAX_MODE_STEP` (measured:
+    arm_2link_electric, b = 1e-3 kg m², ω·DT = 0.07, tracks to 1e-4 rad; planar_2link,
+    b = 3e-6, ω·DT = 1.35, errs by 0.3 rad).
     """
-    sigma_max = max(s.offset + s.amplitude for s in THESIS_REFERENCES.sigma)
     b = min(float(np.min(model.resolve(a.get("motor_inertia"), model.nominal)))
             for a in model.actuators)
-    return b > 0 and math.sqrt(sigma_max / (2 * b)) * DT <= MAX_MODE_STEP
+    if b <= 0:
+        return False
+    refs = model_references(electric_arm(model))
+    sigma_max = max(s.offset + abs(s.amplitude) for s in refs.sigma)
+    return math.sqrt(sigma_max / (2 * b)) * DT <= MAX_MODE_STEP
 
 
 def example_for(model: str | Path | RobotModel | SoftModel, *,
@@ -242,11 +252,20 @@ def _theorem5(model: RobotModel, steps: int) -> Example:
 def _electric_pd(model: RobotModel, steps: int) -> Example:
     arm = electric_arm(model)
     n = arm.n
-    # Section 11.2's sinusoids, repeated over the arm's joints.
-    thesis_q, thesis_s = THESIS_REFERENCES.q, THESIS_REFERENCES.sigma
-    refs = CascadeReferences(tuple(thesis_q[i % len(thesis_q)] for i in range(n)),
-                             tuple(thesis_s[i % len(thesis_s)] for i in range(n)))
-    g = dict(GAINS["electric_pd"])
+    # Section 11.2's sinusoids, repeated over the arm's joints, with each joint's
+    # stiffness raised where its springs could not hold the arm at the printed one (the
+    # thesis's arm keeps the printed references exactly).
+    refs = model_references(arm)
+    base = THESIS_REFERENCES.sigma
+    scaled = [f"{i + 1} (x{s.offset / base[i % len(base)].offset:.3g})"
+              for i, s in enumerate(refs.sigma) if s != base[i % len(base)]]
+    raised = (f" The stiffness sinusoids of joints {', '.join(scaled)} are scaled up to "
+              f"{STIFFNESS_MARGIN:g} times the least stiffness with which the springs "
+              f"hold the arm on the position reference (model_references).") if scaled else ""
+    # Section 11.2's PD gains, each joint's poles moved out where its link spring mode
+    # is faster than the thesis's arm's (the thesis's arm keeps them exactly).
+    gains = model_gains(arm, refs)
+    g = dict(gains)
     d = ClosedLoop(f"{model.name}_loop",
                    [refs.block(), cascade_block(arm, "pd", DT, gains=g),
                     electric_plant_block(arm, DT)])
@@ -263,9 +282,18 @@ def _electric_pd(model: RobotModel, steps: int) -> Example:
         "loops, motor position loops) of the arm with its qbmove-style electric VSAs "
         "(eq. 11.1, one RK4 step per sample, motor torques held), tracking the section "
         "11.2 sinusoids of position and stiffness from rest on the reference, at the "
-        "quasi-steady stiffness of Remark 10.",
+        "quasi-steady stiffness of Remark 10." + raised,
         sc, (("ref.q_d", "plant.q", "rad"), ("ref.sigma_d", "plant.sigma", "N m/rad")),
-        "the PD gains printed in section 11.2 (THESIS_GAINS['pd'])")
+        "the PD gains printed in section 11.2 (THESIS_GAINS['pd'])" + (
+            "" if gains is THESIS_GAINS["pd"] else
+            f", with each joint's poles scaled so that its link spring mode is at most "
+            f"{MODE_RATIO:g} times its outer pole (model_gains): k_p = "
+            f"{_fmt(g['kp'])}, k_d = {_fmt(g['kd'])}, k_p,m = {_fmt(g['kp_m'])}, "
+            f"k_d,m = {_fmt(g['kd_m'])}"))
+
+
+def _fmt(v) -> str:
+    return ", ".join(f"{x:.4g}" for x in np.atleast_1d(v))
 
 
 def _theorem10(model: SoftModel, steps: int) -> Example:
