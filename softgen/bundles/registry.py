@@ -147,8 +147,8 @@ def _pressure_pairs(model) -> str | None:
 def _linear_sea(model) -> str | None:
     """Every joint a series-elastic actuator (one spring, one motor with inertia and
     damping) whose law is linear, k phi (tau'' = c tau with c = 0 and tau(0) = 0): the
-    chapter-11 cascade without stiffness control (:class:`softgen.control.sea.SeaArm`;
-    no capability is registered with it yet)."""
+    chapter-11 cascade without stiffness control (:class:`softgen.control.sea.SeaArm`,
+    capability ``sea_cascade``)."""
     what = "a series-elastic actuator with a linear spring law"
     why = _every_joint(model, what)
     if why:
