@@ -147,8 +147,8 @@ def _pressure_pairs(model) -> str | None:
 def _linear_sea(model) -> str | None:
     """Every joint a series-elastic actuator (one spring, one motor with inertia and
     damping) whose law is linear, k phi (tau'' = c tau with c = 0 and tau(0) = 0): the
-    chapter-11 cascade without stiffness control (:class:`softgen.control.sea.SeaArm`;
-    no capability is registered with it yet)."""
+    chapter-11 cascade without stiffness control (:class:`softgen.control.sea.SeaArm`,
+    capability ``sea_cascade``)."""
     what = "a series-elastic actuator with a linear spring law"
     why = _every_joint(model, what)
     if why:
@@ -174,6 +174,86 @@ LINEAR_SEA = Condition("series-elastic actuator with a linear spring law (k phi)
                        "dynamics on every joint", _linear_sea)
 PRESSURE_PAIRS = Condition("pressure-driven antagonistic pair on every joint with laws "
                            "linear in p (McKibben or declared)", _pressure_pairs)
+
+
+def _fully_torque_actuated(model) -> str | None:
+    """Every joint receives a commanded joint torque: a model with no [[actuators]] (a
+    bare rigid chain is torque driven, eq. 2.1), or an actuator on every joint.
+
+    Why "an actuator on every joint" and not "a direct torque on every joint": the
+    Slotine–Li loop (Prop. 10) and the nominal-plant loop are the *link level* of a
+    cascade; each actuator kind realises the commanded joint torque through its own
+    inner loop — a McKibben pair through its pressures (Φ†, ch. 10), a spring pair or
+    an SEA through its motors (ch. 11; :mod:`softgen.control.sea`), a direct joint as
+    is. That is how the shipped McKibben and qbmove arms use it, and they keep it. A
+    passive joint has no inner loop: no torque reaches it, so a law commanding a
+    torque on every joint does not apply (the partly actuated arm gets
+    :data:`PARTLY_ACTUATED` controllers instead)."""
+    acts = _acts(model)
+    if not acts:
+        return None
+    passive = sorted(set(range(model.dof)) - {a.joint for a in acts})
+    if passive:
+        names = [model.links[j].name for j in passive]
+        return (f"{_where(model)}: actuators: joint(s) {', '.join(names)} passive (needs a "
+                "torque on every joint: an actuator on each, or no [[actuators]])")
+    return None
+
+
+FULLY_TORQUE_ACTUATED = Condition("a torque on every joint (an actuator on each joint, "
+                                  "realising the torque through its inner loop, or no "
+                                  "[[actuators]] at all)", _fully_torque_actuated)
+
+
+def _partly_actuated(model) -> str | None:
+    """At least one passive joint, each with positive stiffness and damping (it settles
+    by itself), and every actuated joint's torque reachable with
+    motors that have dynamics: a direct torque, or a spring (SEA or antagonistic pair)
+    whose law is invertible near 0 (τ_e'(0) > 0 summed over its sides, so the
+    deflection giving a wanted torque exists: :meth:`Actuation.deflection`) driven by
+    motors with inertia and damping. Pressure drives are not covered (the
+    collocated controller of :mod:`softgen.control.partial` commands motors or
+    torques)."""
+    acts = _acts(model)
+    passive = sorted(set(range(model.dof)) - {a.joint for a in acts})
+    if not acts or not passive:
+        return (f"{_where(model)}: actuators: no passive joint (needs at least one "
+                "passive joint and an actuator on another)")
+    for j in passive:
+        link = model.links[j]
+        for k in ("stiffness", "damping"):
+            v = model.resolve(getattr(link, k), model.nominal)
+            if not float(v) > 0:
+                return (f"{_where(model)}: links ({link.name}).{k}: a passive joint needs "
+                        f"a positive {k} to settle, got {getattr(link, k)!r}")
+    for i, a in enumerate(acts):
+        key = f"actuators[{i}]"
+        if a.drive == "torque":
+            continue
+        if a.drive != "spring":
+            return (f"{_where(model)}: {key}.drive = {a.drive!r} (joint "
+                    f"{model.links[a.joint].name}; needs a direct torque or a spring "
+                    "drive with motors)")
+        slope = 0.0
+        for side in a.sides:
+            consts = dict(side.constants)
+            law = parse_law(side.law, ("phi", *consts), f"{key}.{side.name or 'law'}")
+            slope += float(spring_derivatives(law, consts)(0.0)[1])
+        if not slope > 0:
+            return (f"{_where(model)}: {key} (joint {model.links[a.joint].name}): spring "
+                    f"slope at phi = 0 is {slope:g} (needs > 0 to reach any torque)")
+        for k in ("motor_inertia", "motor_damping"):
+            v = a.get(k)
+            if v is None or not all(x > 0 for x in v):
+                return (f"{_where(model)}: {key} (joint {model.links[a.joint].name}).{k}: "
+                        f"needs positive values, got {v!r}")
+    return None
+
+
+PARTLY_ACTUATED = Condition("partly actuated: at least one passive joint (stiffness and "
+                            "damping > 0), every actuated "
+                            "joint a direct torque or a spring drive (SEA or pair) with "
+                            "slope > 0 at phi = 0 and motor dynamics", _partly_actuated)
 
 
 def actuator(kind: str) -> Condition:

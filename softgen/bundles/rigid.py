@@ -6,10 +6,13 @@ registered with (:mod:`softgen.bundles.registry`), never a list of names.
 """
 from __future__ import annotations
 
+import math
+
 from softgen.blocks import ClosedLoop
 from softgen.bundles.common import PLANT_SUBSTEPS
-from softgen.bundles.registry import (HAS_REGRESSOR, MOTOR_DYNAMICS, REGISTRY, RIGID, Condition,
-                                      Context, Part, actuator, diagram_functions,
+from softgen.bundles.registry import (FULLY_TORQUE_ACTUATED, HAS_REGRESSOR, LINEAR_SEA,
+                                      MOTOR_DYNAMICS, PARTLY_ACTUATED, REGISTRY, RIGID,
+                                      Condition, Context, Part, actuator, diagram_functions,
                                       diagram_manifest)
 from softgen.codegen.generate import Generated
 from softgen.control.electric import bundle_functions as cascade_functions
@@ -18,6 +21,10 @@ from softgen.control.feedback_linearization import FeedbackLinearization
 from softgen.control.pneumatic import KINDS, REFERENCE_BLOCKS, PneumaticArm
 from softgen.control.pneumatic_loop import closed_loop as pneumatic_closed_loop
 from softgen.control.pneumatic_loop import controller_block as pneumatic_controller_block
+from softgen.control.partial import PartialArm
+from softgen.control.partial import closed_loop as partial_closed_loop
+from softgen.control.sea import SeaArm
+from softgen.control.sea import closed_loop as sea_closed_loop
 from softgen.control.slotine_li import controller_block, controller_fun, plant_block, \
     plant_step_fun
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator, \
@@ -58,7 +65,7 @@ def rigid_dynamics(ctx: Context) -> Part:
     return Part(fns)
 
 
-@REGISTRY.capability("nominal_plant", layer="symbolic", needs=(RIGID,),
+@REGISTRY.capability("nominal_plant", layer="symbolic", needs=(RIGID, FULLY_TORQUE_ACTUATED),
                      doc="one RK4 step of the nominal rigid robot, tau held")
 def nominal_plant(ctx: Context) -> Part:
     return Part([Generated(plant_step_fun(ctx.dyn), "one RK4 step of the nominal plant, "
@@ -80,7 +87,8 @@ def slotine_li_diagram(dyn, options) -> ClosedLoop:
                       externals=[("q_d", n, uq), ("qd_d", n, uv), ("qdd_d", n, f"{uv}/s")])
 
 
-@REGISTRY.capability("slotine_li", layer="control", needs=(RIGID, HAS_REGRESSOR),
+@REGISTRY.capability("slotine_li", layer="control",
+                     needs=(RIGID, FULLY_TORQUE_ACTUATED, HAS_REGRESSOR),
                      doc="Slotine-Li adaptive control (Prop. 10): the controller step and "
                          "its closed loop with the nominal plant as a diagram")
 def slotine_li(ctx: Context) -> Part:
@@ -180,6 +188,86 @@ def qbmove_actuators(ctx: Context) -> Part:
 def electric_cascade(ctx: Context) -> Part:
     return Part([Generated(f, doc) for f, doc in
                  cascade_functions(ctx.model, dyn=ctx.dyn, springs=ctx.springs)])
+
+
+#: Example gains and references of the ``sea_cascade`` diagram's block defaults: link PD
+#: k_p = 100, k_d = 20 (poles at -10, double), motor PD k_p,m = 2500, k_d,m = 100 (at
+#: -50, double: five times faster than the link loop, the cascade's separation); the
+#: values tests/test_actuation_sea.py tracks with at 1 ms. References as the export's.
+SEA_GAINS = dict(kp=100.0, kd=20.0, kp_m=2500.0, kd_m=100.0)
+SEA_REFERENCE = dict(amplitude=(0.6, 0.5), frequency=(0.25, 0.4), offset=(0.0, 0.3))
+
+
+def _cycled(values, n: int) -> list[float]:
+    return [float(values[i % len(values)]) for i in range(n)]
+
+
+@REGISTRY.capability("sea_cascade", layer="control", needs=(RIGID, LINEAR_SEA),
+                     doc="PD cascade for linear series-elastic joints (Theorems 6-7 with "
+                         "c = 0): the controller step, the SEA plant, and their closed loop "
+                         "as a diagram")
+def sea_cascade(ctx: Context) -> Part:
+    arm = SeaArm(ctx.model, dyn=ctx.dyn)
+    n, r = arm.n, SEA_REFERENCE
+    d = sea_closed_loop(arm, ctx.options.loop_dt, offset=_cycled(r["offset"], n),
+                        amplitude=_cycled(r["amplitude"], n),
+                        omega=[2 * math.pi * f for f in _cycled(r["frequency"], n)],
+                        gains=SEA_GAINS, substeps=ctx.options.loop_substeps)
+    steps = ctx.options.loop_steps
+    fns = [Generated(arm.step_fun(), "one sample of the SEA PD cascade: (x, ref, gains, dt) "
+                                     "-> (motor torques u, theta_d, theta_d_dot)"),
+           Generated(arm.plant_fun(PLANT_SUBSTEPS), f"{PLANT_SUBSTEPS} RK4 steps of the arm "
+                                                    "with its SEAs over h, motor torques held")]
+    fns += diagram_functions(d, steps, "SEA cascade closed-loop")
+    return Part(fns, {"closed_loops": {"sea_cascade": diagram_manifest(d, steps)}})
+
+
+#: Example gains and set-points of the ``partial_collocated`` diagram's block defaults,
+#: cycled over the actuated joints (motors: over the motors). Direct torque joints
+#: k_p = 20, k_d = 4; spring-driven joints k_p = 0.05, k_d = 0.005 (a light wrist: the
+#: spring must transmit the PD torque, so the link loop is kept well below the motor
+#: loop's 50 rad/s; with k_p = 2, k_d = 0.3 the wrist oscillated, measured); motor PD as
+#: the SEA cascade's. Set-points held 2.5 s each.
+PARTIAL_GAINS = dict(kp_direct=20.0, kd_direct=4.0, kp_spring=0.05, kd_spring=0.005,
+                     kp_m=2500.0, kd_m=100.0)
+PARTIAL_TIMES = (0.0, 2.5, 5.0, 7.5)
+PARTIAL_SETPOINTS = ((-0.5, -1.0, 0.3, -0.2), (0.2, -0.3, 0.4, 0.0))
+
+
+def partial_gains(arm: PartialArm) -> dict:
+    """:data:`PARTIAL_GAINS` as the controller's gain vectors for ``arm``."""
+    g = PARTIAL_GAINS
+    direct = [arm.model.actuator_of(j).drive == "torque" for j in arm.actuated]
+    return {"kp": [g["kp_direct"] if d else g["kp_spring"] for d in direct],
+            "kd": [g["kd_direct"] if d else g["kd_spring"] for d in direct],
+            "kp_m": [g["kp_m"]] * arm.nm, "kd_m": [g["kd_m"]] * arm.nm}
+
+
+def partial_setpoints(arm: PartialArm) -> list[list[float]]:
+    """:data:`PARTIAL_SETPOINTS` (one row per actuated joint, cycled) as rows per time."""
+    na = len(arm.actuated)
+    rows = [PARTIAL_SETPOINTS[i % len(PARTIAL_SETPOINTS)] for i in range(na)]
+    return [[rows[i][k] for i in range(na)] for k in range(len(PARTIAL_TIMES))]
+
+
+@REGISTRY.capability("partial_collocated", layer="control", needs=(RIGID, PARTLY_ACTUATED),
+                     doc="collocated set-point control of a partly actuated arm (actuated "
+                         "joints regulated, passive joints settle at the model's "
+                         "equilibrium): the controller step, the plant, and their closed "
+                         "loop as a diagram")
+def partial_collocated(ctx: Context) -> Part:
+    arm = PartialArm(ctx.model, dyn=ctx.dyn)
+    d = partial_closed_loop(arm, ctx.options.loop_dt, times=PARTIAL_TIMES,
+                            setpoints=partial_setpoints(arm), gains=partial_gains(arm),
+                            substeps=ctx.options.loop_substeps)
+    steps = ctx.options.loop_steps
+    fns = [Generated(arm.step_fun(), "one sample of collocated set-point control: (x, q_ad, "
+                                     "gains) -> (actuator commands u, wanted torques, "
+                                     "equilibrium q_bar, its residual)"),
+           Generated(arm.plant_fun(PLANT_SUBSTEPS), f"{PLANT_SUBSTEPS} RK4 steps of the partly "
+                                                    "actuated arm over h, commands held")]
+    fns += diagram_functions(d, steps, "collocated closed-loop")
+    return Part(fns, {"closed_loops": {"partial_collocated": diagram_manifest(d, steps)}})
 
 
 def _estimator(method: str):

@@ -24,12 +24,16 @@ loop in the motor accelerations (compare :mod:`softgen.control.electric`).
 
 The controller holds u over the sample; :func:`step_fun` is one sample, and
 :func:`plant_fun` the plant (RK4 substeps, u held), both CasADi Functions.
+:func:`controller_block`, :func:`plant_block` and :func:`reference_block` are the same as
+diagram blocks, and :func:`closed_loop` wires them (the bundle's ``sea_cascade``
+capability and the exported example of an SEA arm).
 """
 from __future__ import annotations
 
 import casadi as ca
 import numpy as np
 
+from softgen.blocks import Block, ClosedLoop
 from softgen.core.errors import ModelError
 from softgen.modelfile.model import RobotModel
 from softgen.symbolic.actuated import rk4_steps
@@ -114,3 +118,100 @@ class SeaArm:
                            [x, ref, kp, kd, kpm, kdm, dt], [u, th_d, thd_d],
                            ["x", "ref", "kp", "kd", "kp_m", "kd_m", "dt"],
                            ["u", "theta_d", "theta_d_dot"], {"cse": True})
+
+
+#: Gain names of :meth:`SeaArm.step_fun`, in its input order.
+GAIN_NAMES = ("kp", "kd", "kp_m", "kd_m")
+
+
+def controller_block(arm: SeaArm, dt: float, *, gains: dict | None = None,
+                     name: str = "ctrl") -> Block:
+    """The PD cascade (module docstring) as a block: reads ``x`` (q, q̇, θ, θ̇, the
+    plant's measurement) and ``ref`` (q_d and four derivatives); emits the motor torques
+    ``u`` and the motor reference θ_d, θ̇_d. Stateless; the gains of :data:`GAIN_NAMES`
+    are parameters (diagonals, positive), ``gains`` their defaults."""
+    n = arm.n
+    p0 = None
+    if gains is not None:
+        p0 = {}
+        for g in GAIN_NAMES:
+            v = np.broadcast_to(np.asarray(gains[g], float), (n,)).copy()
+            if not np.all(v > 0):
+                raise ValueError(f"gains.{g}: expected positive values, got {v.tolist()}")
+            p0[g] = v
+    return Block.wrap(name, arm.step_fun(), dt=dt, params=list(GAIN_NAMES),
+                      constants={"dt": dt}, p0=p0, rules={g: "positive" for g in GAIN_NAMES},
+                      doc="SEA PD cascade (Theorems 6-7, linear springs)",
+                      meta={"model": arm.model.name})
+
+
+def plant_block(arm: SeaArm, dt: float, *, substeps: int = 4, name: str = "plant") -> Block:
+    """The arm with its SEAs over one sample (:meth:`SeaArm.plant_fun`, ``substeps`` RK4
+    steps, u held). State q, q̇, θ, θ̇; input ``u`` (motor torques); outputs the state at
+    the sample, ``x`` (the four stacked: the cascade's measurement) and ``tau_e`` (the
+    spring torques τ_e(q − θ), eq. 2.7)."""
+    n = arm.n
+    f = arm.plant_fun(substeps)
+    parts = ("q", "qd", "th", "thd")
+
+    def body(x, u, p):
+        xv = ca.vertcat(*[x[k] for k in parts])
+        xn = f(xv, u["u"], dt)
+        y = {k: x[k] for k in parts}
+        y.update(x=xv, tau_e=-arm.act.torque(x["q"], x["th"]))
+        return {k: xn[i * n:(i + 1) * n] for i, k in enumerate(parts)}, y
+
+    units = ("rad", "rad/s", "rad", "rad/s")
+    return Block.define(name, dt=dt, state=[(k, n, un) for k, un in zip(parts, units)],
+                        inputs=[("u", n, "N m")],
+                        outputs=[(k, n, un) for k, un in zip(parts, units)]
+                        + [("x", 4 * n, ""), ("tau_e", n, "N m")],
+                        body=body, doc=f"arm with linear SEAs (eq. 2.6-2.7 with one spring), "
+                                       f"RK4 x{substeps}, motor torques held",
+                        meta={"model": arm.model.name})
+
+
+def reference_block(offset, amplitude, omega, *, name: str = "ref") -> Block:
+    """q_d,i = o_i + A_i sin(ω_i t) with its exact derivatives up to the fourth (the
+    cascade's θ̈_d needs q_d C⁴): reads ``t``; emits ``ref`` (5n) and ``q_d``. Offsets,
+    amplitudes and ω are parameters, so a run changes them without recompiling."""
+    n = len(amplitude)
+    p0 = {"q_offset": [float(v) for v in offset], "q_amplitude": [float(v) for v in amplitude],
+          "q_omega": [float(v) for v in omega]}
+
+    def body(x, u, p):
+        a, w = p["q_amplitude"], p["q_omega"]
+        arg = w * u["t"]
+        rows = [p["q_offset"] + a * ca.sin(arg)]
+        for k in range(1, 5):                       # A ω^k sin(ωt + kπ/2)
+            rows.append(a * w ** k * ca.sin(arg + k * np.pi / 2))
+        return {}, {"ref": ca.vertcat(*rows), "q_d": rows[0]}
+
+    return Block.define(name, dt=None, inputs={"t": 1}, params={k: n for k in p0}, p0=p0,
+                        outputs=[("ref", 5 * n, ""), ("q_d", n, "rad")], body=body,
+                        doc="sinusoidal references, C4")
+
+
+def closed_loop(arm: SeaArm, dt: float, *, offset, amplitude, omega, gains: dict | None = None,
+                substeps: int = 4, name: str | None = None) -> ClosedLoop:
+    """Reference, cascade and plant wired by signal name (``x``, ``ref``, ``u``); named
+    ``<model>_sea_cascade`` unless ``name`` is given."""
+    return ClosedLoop(name or f"{arm.model.name}_sea_cascade",
+                      [reference_block(offset, amplitude, omega),
+                       controller_block(arm, dt, gains=gains),
+                       plant_block(arm, dt, substeps=substeps)])
+
+
+def initial_state(arm: SeaArm, ref0, gains: dict, dt: float) -> np.ndarray:
+    """Plant state (q, q̇, θ, θ̇) on the reference ``ref0`` (5n) at rest in the cascade:
+    link on q_d, q̇_d; motors on θ_d, θ̇_d. θ̇_d reads θ through q̈, a fixed point the
+    iteration reaches in two passes (three are run)."""
+    n, step = arm.n, arm.step_fun()
+    ref0 = np.asarray(ref0, float).ravel()
+    q0, qd0 = ref0[:n], ref0[n:2 * n]
+    x = np.concatenate([q0, qd0, q0, np.zeros(n)])
+    g = [np.broadcast_to(np.asarray(gains[k], float), (n,)) for k in GAIN_NAMES]
+    for _ in range(3):
+        _, th, thd = step(x, ref0, *g, dt)
+        x = np.concatenate([q0, qd0, np.array(th).ravel(), np.array(thd).ravel()])
+    return x

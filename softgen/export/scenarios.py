@@ -44,12 +44,20 @@ from pathlib import Path
 import numpy as np
 
 from softgen.blocks import ClosedLoop
+from softgen.bundles.registry import LINEAR_SEA, PARTLY_ACTUATED
+from softgen.bundles.rigid import (PARTIAL_TIMES, SEA_GAINS, partial_gains,
+                                   partial_setpoints)
 from softgen.control.electric import (cascade_block, electric_arm, initial_plant_state,
                                       plant_block as electric_plant_block)
+from softgen.control.partial import PartialArm
+from softgen.control.partial import closed_loop as partial_closed_loop
 from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.pneumatic_loop import controller_block as pneumatic_controller_block
 from softgen.control.pneumatic_loop import plant_block as pneumatic_plant_block
 from softgen.control.pneumatic_loop import preset_nu
+from softgen.control.sea import SeaArm
+from softgen.control.sea import closed_loop as sea_closed_loop
+from softgen.control.sea import initial_state as sea_initial_state
 from softgen.control.references import Sinusoid, SmoothSteps, sinusoid_block, \
     stiffness_reference_block
 from softgen.control.slotine_li import controller_block as slotine_li_block
@@ -74,6 +82,9 @@ DT = 1e-3
 DEFAULT_SECONDS = 10.0
 #: Largest ω·DT of a motor mode the electric example integrates (:func:`motor_mode_resolved`).
 MAX_MODE_STEP = 0.5
+
+#: RK4 steps per sample of the SEA arm (as tests/test_actuation_sea.py's plant).
+SEA_SUBSTEPS = 4
 
 #: Example gains per loop kind, with where the values come from.
 GAINS = {
@@ -142,6 +153,12 @@ def capability(model: RobotModel | SoftModel) -> str:
     """The example loop ``model`` supports: its kind of body and of actuator."""
     if isinstance(model, SoftModel):
         return "theorem10"
+    # Series-elastic and partly actuated arms: the loops that drive their actuators
+    # (read from the registry's conditions, which say what the model is).
+    if LINEAR_SEA(model) is None:
+        return "sea_cascade"
+    if PARTLY_ACTUATED(model) is None:
+        return "partial"
     kind = model.actuator_type
     if kind == "mckibben":
         return "theorem5"
@@ -333,5 +350,60 @@ def _theorem10(model: SoftModel, steps: int) -> Example:
         "Λ = 5, K_d = 1, K_π = 1: the higher gains of the section 12.2.1 study")
 
 
+# -- series-elastic and partly actuated arms (issue 22) ------------------------------------
+
+def _sea_cascade(model: RobotModel, steps: int) -> Example:
+    arm = SeaArm(model)
+    n, r = arm.n, RIGID_REFERENCE
+    g = dict(SEA_GAINS)
+    off, amp = _cycle(r["offset"], n), _cycle(r["amplitude"], n)
+    omega = 2 * np.pi * _cycle(r["frequency"], n)
+    d = sea_closed_loop(arm, DT, offset=off, amplitude=amp, omega=omega, gains=g,
+                        substeps=SEA_SUBSTEPS, name=f"{model.name}_loop")
+    ref0 = np.array(d.blocks["ref"].eval(u=[0.0])[1][:5 * n]).ravel()
+    x0 = sea_initial_state(arm, ref0, g, DT)
+    sc = Scenario(f"{model.name}_loop", d, steps=steps,
+                  x0={f"plant.{k}": x0[i * n:(i + 1) * n]
+                      for i, k in enumerate(("q", "qd", "th", "thd"))})
+    return Example(
+        "sea_cascade", "the PD cascade on the series-elastic arm",
+        "the PD cascade for linear series-elastic joints (thesis Theorems 6-7 with a "
+        "linear spring: outer link loop giving the spring torque, motor reference "
+        "θ_d = q + v/k, inner motor loop; softgen.control.sea) of the arm with its SEAs "
+        f"({SEA_SUBSTEPS} RK4 steps per sample, motor torques held), tracking sinusoids "
+        "q_d,i = o_i + a_i sin(2π f_i t) (C⁴, exact derivatives) from rest on the "
+        "reference, motors on their reference deflection.",
+        sc, (("ref.q_d", "plant.q", "rad"),),
+        "k_p = 100, k_d = 20, k_p,m = 2500, k_d,m = 100: the bundle's sea_cascade "
+        "defaults (softgen.bundles.rigid.SEA_GAINS)")
+
+
+def _partial(model: RobotModel, steps: int) -> Example:
+    arm = PartialArm(model)
+    d = partial_closed_loop(arm, DT, times=PARTIAL_TIMES, setpoints=partial_setpoints(arm),
+                            gains=partial_gains(arm), substeps=SEA_SUBSTEPS,
+                            name=f"{model.name}_loop")
+    # From rest at the first set-point's equilibrium q̄, motors holding it: the loop
+    # starts at rest and each later set-point is a regulation from rest.
+    n, nm = arm.n, arm.nm
+    x = arm.rest_state(partial_setpoints(arm)[0])
+    init = {"plant.q": x[:n]}
+    if nm:
+        init["plant.th"] = x[2 * n:2 * n + nm]
+    sc = Scenario(f"{model.name}_loop", d, steps=steps, x0=init)
+    return Example(
+        "partial", "collocated set-point control of the partly actuated arm",
+        "collocated set-point control (softgen.control.partial): the actuated joints are "
+        "regulated to piecewise-constant set-points (PD plus the static torque at the "
+        "equilibrium q̄; spring-driven joints through their motors), the passive joints "
+        "settle by their own stiffness and damping at the equilibrium the model gives "
+        f"(ctrl.q_bar); {SEA_SUBSTEPS} RK4 steps per sample, commands held. Guarantee "
+        "(ideal torques): bounded, converging to the critical points of the closed-loop "
+        "potential, locally to q̄. No trajectory tracking is claimed.",
+        sc, (("ctrl.q_bar", "plant.q", "rad"),),
+        "direct joints k_p = 20, k_d = 4; spring joints k_p = 0.05, k_d = 0.005; motors "
+        "k_p,m = 2500, k_d,m = 100 (softgen.bundles.rigid.PARTIAL_GAINS)")
+
+
 _BUILDERS = {"slotine_li": _slotine_li, "theorem5": _theorem5, "electric_pd": _electric_pd,
-             "theorem10": _theorem10}
+             "theorem10": _theorem10, "sea_cascade": _sea_cascade, "partial": _partial}

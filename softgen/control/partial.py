@@ -1,0 +1,335 @@
+"""Collocated set-point control of a partly actuated rigid arm (issue 22).
+
+An arm whose joints are split into actuated ones A (a direct torque, or a spring — an
+SEA or an antagonistic spring pair — driven by motors with dynamics) and passive ones P
+(no actuator; their own stiffness K_P > 0 and damping D_P > 0, eq. 2.1's K q + D q̇).
+Nothing can command the passive joints, so no law tracks a trajectory on every joint
+(Slotine–Li, Prop. 10, needs a torque on each); what the math allows is **collocated
+regulation**: the actuated joints are driven to set-points q_A,d, the passive joints
+settle where the model puts them.
+
+**The link-level law.** With S(q) = G(q) + K q the static torque (eq. 2.1 at q̇ = q̈ = 0,
+derived by CasADi from the model's Slotine–Li expression), let q̄ = (q_A,d, q̄_P) with
+q̄_P solving S_P(q̄) = 0 — the passive joints' equilibrium under gravity and their
+springs with the actuated joints at their set-points (:data:`NEWTON_STEPS` Newton steps
+from q_P = 0, residual an output). The wanted actuated torques are
+
+    τ_A = S_A(q̄) − K_p (q_A − q_A,d) − K_d q̇_A,      τ_P = 0.
+
+**Guarantee** (for τ_A applied exactly). The closed loop is the arm with the potential
+W(q) = U_g(q) + ½ qᵀ K q + ½ (q_A − q_A,d)ᵀ K_p (q_A − q_A,d) − S_A(q̄)ᵀ q_A, whose
+gradient is S(q) + [K_p (q_A − q_A,d) − S_A(q̄); 0], zero at q̄; and dissipation K_d on A
+and D_P on P. V = ½ q̇ᵀ B q̇ + W has V̇ = −q̇_Aᵀ K_d q̇_A − q̇_Pᵀ D_P q̇_P ≤ 0 (B̊ − 2C skew).
+Hence, for revolute joints (U_g bounded), K_p > 0 and K_P > 0 make W radially
+unbounded: **q and q̇ stay bounded** (in the sublevel set of V(0)). By LaSalle (V̇ = 0
+forces q̇ = 0, so S + ... = 0), **q converges to the critical points of W**; where the
+Hessian ∂S/∂q + diag(K_p on A) is positive definite at q̄ (checked by
+:meth:`PartialArm.hessian_min_eig` and reported), q̄ is a strict local minimum and
+asymptotically stable: the passive joints converge to q̄_P, the equilibrium the model
+gives. Nothing is claimed about tracking a moving reference.
+
+**Realising τ_A.** A direct joint gets τ_A as its torque. A spring joint needs the
+deflection φ_d with Σ_sides −τ_e(φ_d) = τ_A (both motors of a pair at the same
+deflection: no co-contraction), found by Newton on the summed law (monotone when the
+summed slope is positive, the registry's PARTLY_ACTUATED condition at φ = 0); motor
+reference θ_d = q − φ_d, and the motor loop of Theorem 6 (eq. 11.2) with the spring
+torque cancelled: u_m = d θ̇ − τ_e(φ) + b(−k_p,m (θ − θ_d) − k_d,m (θ̇ − q̇)) — the
+motors follow the link (θ̇_d ≈ q̇: the deflection's rate is neglected, a simplification
+of the SEA cascade's Lie derivatives). With the motor loop the guarantee above is that
+of the ideal torque plus a fast inner loop (singular perturbation; not proved here,
+measured in tests/test_user_sea_partial.py).
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from softgen.blocks import Block, ClosedLoop
+from softgen.core.errors import ModelError
+from softgen.modelfile.model import RobotModel
+from softgen.symbolic.actuated import rk4_steps
+from softgen.symbolic.actuation import Actuation
+from softgen.symbolic.rigid import RigidDynamics
+
+#: Newton steps for q̄_P and for the deflections (fixed: the generated C has no loop).
+NEWTON_STEPS = 20
+#: Gain names of :meth:`PartialArm.step_fun`, in its input order.
+GAIN_NAMES = ("kp", "kd", "kp_m", "kd_m")
+
+
+class PartialArm:
+    """A rigid chain with passive joints and direct or spring-driven actuated joints."""
+
+    def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None):
+        where = str(model.path) if model.path is not None else model.name
+        self.model, self.n = model, model.dof
+        self.act = Actuation(model)
+        self.actuated = list(self.act.actuated)
+        self.passive = [j for j in range(self.n) if j not in self.actuated]
+        if not self.passive or not self.actuated:
+            raise ModelError(f"{where}: actuators: the collocated controller needs at least "
+                             "one passive and one actuated joint")
+        for a in model.actuators:
+            if a.drive not in ("torque", "spring") or (a.drive == "spring"
+                                                       and not a.has_motor_dynamics):
+                raise ModelError(f"{where}: actuators (joint {model.links[a.joint].name}): "
+                                 "the collocated controller needs a direct torque or a "
+                                 "spring drive with motor_inertia and motor_damping")
+        for j in self.passive:
+            link = model.links[j]
+            for key in ("stiffness", "damping"):
+                v = model.resolve(getattr(link, key), model.nominal)
+                if not float(v) > 0:
+                    raise ModelError(f"{where}: links ({link.name}).{key}: a passive joint "
+                                     f"needs a positive {key} to settle, got {v!r}")
+        self.dyn = dyn or RigidDynamics(model)
+        # Motor variables (spring drives) and their inertia/damping, in the order of u.
+        self.motor = [k for k, (j, _, _) in enumerate(self.act.variables)
+                      if model.actuator_of(j).drive == "spring"]
+        b, d = [], []
+        for a in model.actuators:
+            if a.drive == "spring":
+                ns = len(a.sides)
+                b += [float(model.resolve(v, model.nominal)) for v in
+                      np.broadcast_to(np.asarray(a["motor_inertia"], dtype=object), (ns,))]
+                d += [float(model.resolve(v, model.nominal)) for v in
+                      np.broadcast_to(np.asarray(a["motor_damping"], dtype=object), (ns,))]
+        self.b, self.d = np.array(b), np.array(d)
+        self.nm = len(self.motor)
+
+    # -- pieces ----------------------------------------------------------------------
+    def static_torque(self, q) -> ca.SX:
+        """S(q) = G(q) + K q: eq. 2.1's torque at rest (the Slotine–Li expression at
+        q̇ = q̇_r = q̈_r = 0, derived by CasADi)."""
+        m, z = self.dyn.nominal, ca.SX.zeros(self.n)
+        return ca.substitute(m.slotine_li(self.dyn.route), ca.vertcat(m.q, m.qd, m.qd_r, m.qdd_r),
+                             ca.vertcat(q, z, z, z))
+
+    def _u_full(self, tau, th) -> ca.SX:
+        """The actuator vector of :class:`Actuation` (m): torques at direct slots, motor
+        positions at spring slots."""
+        out, im = [], 0
+        for j, _, _ in self.act.variables:
+            if self.model.actuator_of(j).drive == "torque":
+                out.append(tau[j])
+            else:
+                out.append(th[im])
+                im += 1
+        return ca.vertcat(*out)
+
+    def equilibrium(self, q_ad) -> tuple[ca.SX, ca.SX]:
+        """q̄ = (q_A,d, q̄_P) with S_P(q̄) = 0 (Newton from q_P = 0) and the residual."""
+        A, P = self.actuated, self.passive
+        qp = ca.SX.sym("qp", len(P))
+        qbar = ca.SX.zeros(self.n)
+        for i, j in enumerate(A):
+            qbar[j] = q_ad[i]
+        for i, j in enumerate(P):
+            qbar[j] = qp[i]
+        r = self.static_torque(qbar)[P]
+        newton = ca.Function("newton", [qp, q_ad], [qp - ca.solve(ca.jacobian(r, qp), r)])
+        res = ca.Function("res", [qp, q_ad], [r])
+        x = ca.SX.zeros(len(P))
+        for _ in range(NEWTON_STEPS):
+            x = newton(x, q_ad)
+        out = ca.SX.zeros(self.n)
+        for i, j in enumerate(A):
+            out[j] = q_ad[i]
+        for i, j in enumerate(P):
+            out[j] = x[i]
+        return out, res(x, q_ad)
+
+    def _deflection(self, j: int, tau_j) -> ca.SX:
+        """φ_d with Σ_sides −τ_e(φ_d) = τ_j on joint j (Newton from τ_j/slope)."""
+        laws = [law for law in self.act.laws if law.joint == j]
+        z = ca.SX.sym("z")
+        total = sum(law(phi=z) for law in laws)
+        slope = ca.jacobian(total, z)
+        t = ca.SX.sym("t")
+        f = ca.Function("nt", [z, t], [z - (total + t) / slope])
+        s0 = float(ca.evalf(ca.substitute(slope, z, 0)))
+        x = -tau_j / s0
+        for _ in range(NEWTON_STEPS):
+            x = f(x, tau_j)
+        return x
+
+    # -- the plant -------------------------------------------------------------------
+    def plant_fun(self, substeps: int = 1) -> ca.Function:
+        """``<model>_partial_plant``: (x, u, h) -> x after h; x = (q, q̇, θ, θ̇) with θ the
+        motor positions of the spring drives; u the actuator commands in the order of
+        :class:`Actuation` (joint torques of direct joints, motor torques of motors)."""
+        n, nm, m = self.n, self.nm, self.act.m
+        xs, us = ca.SX.sym("xs", 2 * n + 2 * nm), ca.SX.sym("us", m)
+        q, qd = xs[:n], xs[n:2 * n]
+        th, thd = xs[2 * n:2 * n + nm], xs[2 * n + nm:]
+        direct = ca.SX.zeros(n)
+        for k, (j, _, _) in enumerate(self.act.variables):
+            if self.model.actuator_of(j).drive == "torque":
+                direct[j] = us[k]
+        uv = self._u_full(direct, th)
+        tau = self.act.torque(q, uv)
+        mn = self.dyn.nominal
+        qdd = ca.substitute(self.dyn.forward_dynamics_expr(tau), ca.vertcat(mn.q, mn.qd),
+                            ca.vertcat(q, qd))
+        tau_e = self.act.motor_torque(q, uv)[self.motor] if nm else ca.SX(0, 1)
+        thdd = (us[self.motor] - self.d * thd + tau_e) / self.b if nm else ca.SX(0, 1)
+        rhs = ca.Function("rhs", [xs, us], [ca.vertcat(qd, qdd, thd, thdd)])
+        x, u, h = ca.SX.sym("x", 2 * n + 2 * nm), ca.SX.sym("u", m), ca.SX.sym("h")
+        return ca.Function(f"{self.model.name}_partial_plant", [x, u, h],
+                           [rk4_steps(rhs, x, u, h, substeps)], ["x", "u", "h"], ["x_next"])
+
+    # -- the controller --------------------------------------------------------------
+    def step_fun(self) -> ca.Function:
+        """``<model>_partial_collocated``: (x, q_ad, kp, kd, kp_m, kd_m) -> (u, tau_a,
+        q_bar, residual): x as :meth:`plant_fun`; q_ad, kp, kd per actuated joint;
+        kp_m, kd_m per motor; u the actuator commands; tau_a the wanted joint torques
+        (0 on passive joints); q_bar the equilibrium; residual S_P(q̄)."""
+        n, nm, A = self.n, self.nm, self.actuated
+        x = ca.SX.sym("x", 2 * n + 2 * nm)
+        q, qd = x[:n], x[n:2 * n]
+        th, thd = x[2 * n:2 * n + nm], x[2 * n + nm:]
+        q_ad = ca.SX.sym("q_ad", len(A))
+        kp, kd = ca.SX.sym("kp", len(A)), ca.SX.sym("kd", len(A))
+        kpm, kdm = ca.SX.sym("kp_m", nm), ca.SX.sym("kd_m", nm)
+        qbar, res = self.equilibrium(q_ad)
+        s_bar = self.static_torque(qbar)
+        tau = ca.SX.zeros(n)
+        for i, j in enumerate(A):
+            tau[j] = s_bar[j] - kp[i] * (q[j] - q_ad[i]) - kd[i] * qd[j]
+        # Motor references θ_d = q − φ_d(τ_j), every side of a joint at one deflection.
+        th_d, qd_m = [], []
+        for j, _, _ in (v for v in self.act.variables
+                        if self.model.actuator_of(v[0]).drive == "spring"):
+            phi = self._deflection(j, tau[j])
+            th_d.append(q[j] - phi)
+            qd_m.append(qd[j])
+        u = []
+        if nm:
+            th_d, qd_m = ca.vertcat(*th_d), ca.vertcat(*qd_m)
+            tau_e = self.act.motor_torque(q, self._u_full(tau, th))[self.motor]
+            um = self.d * thd - tau_e + self.b * (-kpm * (th - th_d) - kdm * (thd - qd_m))
+        im = 0
+        for j, _, _ in self.act.variables:
+            if self.model.actuator_of(j).drive == "torque":
+                u.append(tau[j])
+            else:
+                u.append(um[im])
+                im += 1
+        return ca.Function(f"{self.model.name}_partial_collocated",
+                           [x, q_ad, kp, kd, kpm, kdm], [ca.vertcat(*u), tau, qbar, res],
+                           ["x", "q_ad", "kp", "kd", "kp_m", "kd_m"],
+                           ["u", "tau_a", "q_bar", "residual"], {"cse": True})
+
+    def motor_reference_fun(self) -> ca.Function:
+        """(q, τ) -> θ_d: the motor positions whose springs give the joint torques τ at
+        q (θ_d = q − φ_d(τ_j), the controller's motor reference)."""
+        q, tau = ca.SX.sym("q", self.n), ca.SX.sym("tau", self.n)
+        th = [q[j] - self._deflection(j, tau[j]) for j, _, _ in self.act.variables
+              if self.model.actuator_of(j).drive == "spring"]
+        return ca.Function("motor_reference", [q, tau], [ca.vertcat(*th) if th else ca.SX(0, 1)])
+
+    def rest_state(self, q_ad) -> np.ndarray:
+        """Plant state at rest at the equilibrium q̄ of set-points ``q_ad``, the motors at
+        the deflections that hold it (θ = θ_d(q̄, S(q̄)))."""
+        qs = ca.SX.sym("qs", len(self.actuated))
+        qbar, _ = self.equilibrium(qs)
+        qbar = np.array(ca.Function("qb", [qs], [qbar])(np.asarray(q_ad, float))).ravel()
+        z = ca.SX.sym("z", self.n)
+        tau = np.array(ca.Function("S", [z], [self.static_torque(z)])(qbar)).ravel()
+        tau[self.passive] = 0.0
+        th = np.array(self.motor_reference_fun()(qbar, tau)).ravel()
+        return np.concatenate([qbar, np.zeros(self.n), th, np.zeros(self.nm)])
+
+    def hessian_min_eig(self, q_ad, kp) -> float:
+        """Least eigenvalue of ∂S/∂q + diag(K_p on A) at q̄ (symmetrised): positive means
+        q̄ is a strict local minimum of W (module docstring)."""
+        q_ad = np.asarray(q_ad, float).ravel()
+        qs = ca.SX.sym("qs", len(self.actuated))
+        qbar, _ = self.equilibrium(qs)
+        qbar = np.array(ca.Function("qb", [qs], [qbar])(q_ad)).ravel()
+        z = ca.SX.sym("z", self.n)
+        H = np.array(ca.Function("H", [z], [ca.jacobian(self.static_torque(z), z)])(qbar))
+        H = 0.5 * (H + H.T)
+        for i, j in enumerate(self.actuated):
+            H[j, j] += np.broadcast_to(np.asarray(kp, float), (len(self.actuated),))[i]
+        return float(np.linalg.eigvalsh(H).min())
+
+
+# -- blocks and the closed loop ---------------------------------------------------------
+
+def controller_block(arm: PartialArm, dt: float, *, gains: dict | None = None,
+                     name: str = "ctrl") -> Block:
+    """:meth:`PartialArm.step_fun` as a block: reads ``x`` and the set-points ``q_ad``
+    (from a reference block, :func:`setpoint_block`); the gains are parameters,
+    ``gains`` their defaults (positive)."""
+    p0 = None
+    if gains is not None:
+        sizes = {"kp": len(arm.actuated), "kd": len(arm.actuated), "kp_m": arm.nm,
+                 "kd_m": arm.nm}
+        p0 = {}
+        for g in GAIN_NAMES:
+            v = np.broadcast_to(np.asarray(gains[g], float), (sizes[g],)).copy()
+            if not np.all(v > 0):
+                raise ValueError(f"gains.{g}: expected positive values, got {v.tolist()}")
+            p0[g] = v
+    return Block.wrap(name, arm.step_fun(), dt=dt, params=list(GAIN_NAMES), p0=p0,
+                      rules={g: "positive" for g in GAIN_NAMES},
+                      doc="collocated set-point control of the partly actuated arm",
+                      meta={"model": arm.model.name})
+
+
+def setpoint_block(times, values, *, name: str = "ref") -> Block:
+    """Piecewise-constant set-points of the actuated joints: reads ``t``; emits ``q_ad``
+    = ``values[i]`` for ``times[i] <= t < times[i + 1]`` (``times[0]`` = 0). Each
+    constant segment is one regulation problem of the module docstring."""
+    times = [float(t) for t in times]
+    values = np.atleast_2d(np.asarray(values, float))
+    if len(times) != values.shape[0] or times[0] != 0.0 or sorted(times) != times:
+        raise ValueError(f"times: expected increasing times from 0, one per row of values "
+                         f"({values.shape[0]} rows), got {times}")
+    na = values.shape[1]
+
+    def body(x, u, p):
+        out = ca.DM(values[0])
+        for t_i, v in zip(times[1:], values[1:]):
+            out = ca.if_else(u["t"] >= t_i, ca.DM(v), out)
+        return {}, {"q_ad": out}
+
+    return Block.define(name, dt=None, inputs={"t": 1}, outputs=[("q_ad", na, "rad")],
+                        body=body, doc="piecewise-constant set-points")
+
+
+def plant_block(arm: PartialArm, dt: float, *, substeps: int = 4, name: str = "plant"
+                ) -> Block:
+    """The partly actuated arm over one sample (:meth:`PartialArm.plant_fun`,
+    ``substeps`` RK4 steps, u held). State q, q̇, θ, θ̇ (motors of the spring drives);
+    input ``u``; outputs the state and ``x`` (stacked: the controller's measurement)."""
+    n, nm = arm.n, arm.nm
+    f = arm.plant_fun(substeps)
+    parts = [("q", n, "rad"), ("qd", n, "rad/s")]
+    if nm:
+        parts += [("th", nm, "rad"), ("thd", nm, "rad/s")]
+    names = [p[0] for p in parts]
+    sizes = [p[1] for p in parts]
+    offs = np.cumsum([0] + sizes)
+
+    def body(x, u, p):
+        xv = ca.vertcat(*[x[k] for k in names])
+        xn = f(xv, u["u"], dt)
+        y = {k: x[k] for k in names}
+        y["x"] = xv
+        return {k: xn[offs[i]:offs[i + 1]] for i, k in enumerate(names)}, y
+
+    return Block.define(name, dt=dt, state=parts, inputs=[("u", arm.act.m, "")],
+                        outputs=parts + [("x", int(offs[-1]), "")], body=body,
+                        doc=f"partly actuated arm, RK4 x{substeps}, commands held",
+                        meta={"model": arm.model.name})
+
+
+def closed_loop(arm: PartialArm, dt: float, *, times, setpoints, gains: dict,
+                substeps: int = 4, name: str | None = None) -> ClosedLoop:
+    """Set-points, controller and plant wired by signal name (``q_ad``, ``x``, ``u``);
+    named ``<model>_partial`` unless ``name`` is given."""
+    return ClosedLoop(name or f"{arm.model.name}_partial",
+                      [setpoint_block(times, setpoints), controller_block(arm, dt, gains=gains),
+                       plant_block(arm, dt, substeps=substeps)])
