@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import json
+import sys
+import time
 
 HELP = "capabilities (and why not), functions, shapes, parameters, sizes of a model"
 
@@ -25,9 +27,17 @@ def capability_table(model) -> list[dict]:
 def run(args) -> int:
     # Imported here, not at the top: start-up cost of every other verb (see above).
     from softgen.bundles.bundle import GENERATED_DIR, BundleOptions, bundle_spec
+    from softgen.modelfile.limits import check_expression_size
     from softgen.modelfile.load import load_model
     model = load_model(args.model)
+    check_expression_size(model)          # a model too large is refused before the line
+    # The derivation takes seconds on a large model (issue 23: `info` on a 60-DoF URDF
+    # was silent for minutes): say so on stderr, keeping stdout (and --json) clean.
+    t0 = time.perf_counter()
+    print(f"{model.name}: deriving ...", file=sys.stderr, flush=True)
     spec = bundle_spec(model, BundleOptions())
+    print(f"{model.name}: derived in {time.perf_counter() - t0:.1f} s", file=sys.stderr,
+          flush=True)
     manifest_path = GENERATED_DIR / model.name / "manifest.json"
     c_path = GENERATED_DIR / model.name / f"{model.name}.c"
     caps = capability_table(model)
