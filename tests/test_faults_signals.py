@@ -64,7 +64,8 @@ from softgen.cli import main
 from softgen.experiments import registry
 for name in ("FAST", "SLOW", "NAP", "DIE"):
     registry._MODULES["sig-" + name.lower()] = "faults_signal_fakes:" + name
-sys.exit(main(sys.argv[1:]))
+if __name__ == "__main__":       # Dask's spawned workers import this file as __mp_main__
+    sys.exit(main(sys.argv[1:]))
 '''
 
 
@@ -310,3 +311,22 @@ def test_any_verb_stops_with_one_line(tmp_path, sig, status):
     assert proc.returncode == status, err
     lines = [x for x in err.splitlines() if x.strip() and "deriving" not in x]
     assert lines == [f"softgen: error: stopped by {signal.Signals(sig).name}"], err
+
+
+@pytest.mark.slow      # a Dask LocalCluster starts in a few seconds
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_dask_sweep_signal_is_one_line_and_no_worker_left(driver, tmp_path, sig):
+    """Before: Ctrl-C of a Dask sweep printed 7 tracebacks (issue 23). Now: one line,
+    130/143, the journal consistent, the LocalCluster's processes gone."""
+    pytest.importorskip("dask.distributed")
+    out = tmp_path / "sweep"
+    proc = _start(driver, "sweep", "sig-nap", "--vary", "a=uniform(0,2)", "--samples", "60",
+                  "--seed", "3", "--workers", "2", "--scheduler", "local", "--out", str(out))
+    _wait_for(lambda: (out / "samples.jsonl").exists()
+              and (out / "samples.jsonl").stat().st_size > 0, proc, timeout=120)
+    os.killpg(proc.pid, sig)
+    status, err, left = _finish(proc, timeout=60)
+    line = _one_line(err, status, sig)
+    assert f"interrupted by {signal.Signals(sig).name}" in line
+    assert left == []
+    assert 0 < _journal_ok(out) < 60

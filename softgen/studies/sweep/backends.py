@@ -109,8 +109,10 @@ def _dask(tasks: Tasks, workers: int, scheduler: str) -> Iterator[tuple[int, dic
     client = None
     try:
         if scheduler == "local":
+            # The workers leave Ctrl-C to this process (softgen.studies.sweep.dask_worker).
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=40)
+                                   dashboard_address=None, silence_logs=40,
+                                   preload=["softgen.studies.sweep.dask_worker"])
             client = Client(cluster)
         else:
             try:
