@@ -22,8 +22,15 @@ Which loop a model gets is read from what the model *is*, never from its name:
   section 11.2's, made feasible per joint from the model's springs and inertias
   (:func:`~softgen.studies.electric.model_references`,
   :func:`~softgen.studies.electric.model_gains`; the thesis's arm keeps the printed ones);
-- any other rigid chain (also an electric arm with motors too light for 1 ms) runs Slotine–Li adaptive control (Prop. 10, eq. 9.2) against
-  the nominal arm, one RK4 step per sample with τ held.
+- a rigid arm with a linear series-elastic actuator on every joint (``LINEAR_SEA``) runs
+  the SEA cascade (:mod:`softgen.control.sea`: link-level PD on the joint torque, motor
+  references θ_d = q + v/k, Theorem-6 motor loop) against the arm with its motors;
+- a partly actuated arm (a passive elastic and damped joint; ``PARTLY_ACTUATED``) runs
+  collocated set-point regulation (:mod:`softgen.control.partial`): the actuated joints
+  hold set-points, the passive ones settle by their own stiffness and damping;
+- any other rigid chain (also an electric arm with motors too light for 1 ms) runs
+  Slotine–Li adaptive control (Prop. 10, eq. 9.2) against the nominal arm, one RK4 step
+  per sample with τ held.
 
 Every loop is a :class:`~softgen.blocks.ClosedLoop` of library blocks named
 ``<model>_loop`` (its one-step function is ``<model>_loop_step``), wrapped in a
