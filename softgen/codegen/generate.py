@@ -21,7 +21,7 @@ import casadi as ca
 from softgen.codegen.build import clean_orphans, library_name
 
 #: Bumped whenever the generated code for the same model would change.
-CODEGEN_VERSION = "1"
+CODEGEN_VERSION = "2"   # 2: issue 22 (declared actuators, sampled Theorem 10, multi-DoF UIO)
 
 CODEGEN_OPTS = {"with_header": True}
 
