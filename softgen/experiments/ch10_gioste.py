@@ -222,7 +222,7 @@ EXPERIMENT_1DOF = Experiment(
     "ch10-gioste-1dof", "Theorem 5 and open-loop stiffness control on the emulated one-link "
     "GioSte", "10.3.2-10.3.4, Fig. 10.6-10.11", run_1dof, OneLinkConfig().check(), QUICK_1DOF,
     discussion=DISCUSSION, findings=findings_1dof,
-    cost=34.0)   # CPU s, profile of 2026-12-02 (Experiment.cost)
+    cost=31.0)  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
 EXPERIMENT_2DOF = Experiment(
     "ch10-gioste-2dof", "Theorem 5 on the emulated two-link GioSte", "10.3.5, Fig. 10.12-10.13",
     run_2dof, TwoLinkConfig().check(), QUICK_2DOF, discussion=DISCUSSION, findings=findings_2dof)

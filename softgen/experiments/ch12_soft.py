@@ -503,12 +503,14 @@ EXPERIMENT_PLANAR = Experiment(
     quick={"duration": 20.0, "t_disturbance": 10.0}, findings=findings_planar,
     discussion=_DISCUSSION)
 EXPERIMENT_PENDULUM = Experiment(
+    cost=33.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
     id="ch12-affine-pendulum", title="Theorem 10 regulating a soft inverted pendulum with "
     "affine curvature", section="12.2.2, Fig. 12.4-12.5", run=run_pendulum,
     config=PendulumConfig().check(),
     quick={"duration": 60.0, "t_disturbance": 30.0, "separate_causes": False},
     findings=findings_pendulum, discussion=_DISCUSSION)
 EXPERIMENT_3D = Experiment(
+    cost=48.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
     id="ch12-3d-pcc", title="Theorem 10 on a 3D 4-segment PCC soft arm",
     section="12.2.3, Fig. 12.6-12.7", run=run_3d, config=Soft3DConfig().check(),
     quick={"duration": 20.0, "t_disturbance": 12.0, "lateral_variant": False},

@@ -181,7 +181,7 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
 
 EXPERIMENT = Experiment(
     id="ch7-noninvasive-protocol",
-    cost=24.0,   # CPU s, profile of 2026-12-02 (Experiment.cost)
+    cost=26.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
     title="Non-invasive estimator on emulated qbmove hardware: position+stiffness, then "
           "co-contraction only",
     section="7.4, Fig. 7.5-7.7",

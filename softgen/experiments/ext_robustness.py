@@ -280,7 +280,7 @@ def findings(m: Metrics, c: RobustnessConfig | None = None) -> list[dict]:
 
 EXPERIMENT = Experiment(
     id="ext-robustness-theorem5",
-    cost=45.0,   # CPU s, profile of 2026-12-02 (Experiment.cost)
+    cost=92.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
     title="Theorem 5 under ±30 % actuator and inertial errors (Monte Carlo)",
     section="softgen (beyond 10.2)",
     run=run,

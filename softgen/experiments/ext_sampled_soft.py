@@ -217,6 +217,7 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
 
 
 EXPERIMENT = Experiment(
+    cost=69.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
     id="ext-sampled-soft", title="Theorem 10 sampled at 1 ms (linearly implicit) vs the "
     "continuous loop on four soft bodies", section="softgen (beyond 12.2)", run=run,
     config=SampledConfig().check(), quick={}, findings=findings, case=case_metrics,
