@@ -103,45 +103,40 @@ def _every_joint(model, what: str) -> str | None:
     return None
 
 
+def _pairs(model, drive: str, what: str, law_why) -> str | None:
+    """Every joint an antagonistic pair of ``drive`` whose two laws pass ``law_why``
+    (a side -> None, or why its law does not qualify)."""
+    why = _every_joint(model, what)
+    if why:
+        return why
+    for i, a in enumerate(_acts(model)):
+        key = f"actuators[{i}]"
+        if a.drive != drive or len(a.sides) != 2:
+            return (f"{_where(model)}: actuators.type = {a.type!r} ({key}, joint "
+                    f"{model.links[a.joint].name}, drive {a.drive}; needs {what})")
+        for side in a.sides:
+            if (bad := law_why(side)) is not None:
+                return f"{_where(model)}: {key}.{side.name}.law = {side.law!r}{bad}"
+    return None
+
+
 def _sinh_spring_pairs(model) -> str | None:
     """Every joint an antagonistic spring pair whose laws satisfy tau'' = c tau with
     c > 0 and tau(0) = 0 (k sinh(a phi), c = a^2; eq. 6.6): the chapter-11 cascade
     inverts them in closed form (eq. 11.3) and the electric estimators differentiate
     them. Decided on the laws by CasADi (``Actuator.sinh``, :func:`sinh_constants`)."""
-    what = "an antagonistic spring pair with tau'' = c tau, c > 0"
-    why = _every_joint(model, what)
-    if why:
-        return why
-    for i, a in enumerate(_acts(model)):
-        key = f"actuators[{i}]"
-        if a.drive != "spring" or len(a.sides) != 2:
-            return (f"{_where(model)}: actuators.type = {a.type!r} ({key}, joint "
-                    f"{model.links[a.joint].name}, drive {a.drive}; needs {what})")
-        for side in a.sides:
-            if sinh_constants(side) is None:
-                return (f"{_where(model)}: {key}.{side.name}.law = {side.law!r}: no "
-                        "constant c > 0 with tau'' = c tau and tau(0) = 0 (needs "
-                        "k sinh(a phi))")
-    return None
+    return _pairs(model, "spring", "an antagonistic spring pair with tau'' = c tau, c > 0",
+                  lambda side: None if sinh_constants(side) is not None else
+                  ": no constant c > 0 with tau'' = c tau and tau(0) = 0 (needs "
+                  "k sinh(a phi))")
 
 
 def _pressure_pairs(model) -> str | None:
     """Every joint a pressure-driven antagonistic pair whose laws are linear in p
     (tau = Phi(q) p, eq. 2.2; checked by CasADi: d law/dp independent of p)."""
-    what = "a pressure-driven antagonistic pair linear in p"
-    why = _every_joint(model, what)
-    if why:
-        return why
-    for i, a in enumerate(_acts(model)):
-        key = f"actuators[{i}]"
-        if a.drive != "pressure" or len(a.sides) != 2:
-            return (f"{_where(model)}: actuators.type = {a.type!r} ({key}, joint "
-                    f"{model.links[a.joint].name}, drive {a.drive}; needs {what})")
-        for side in a.sides:
-            if not pressure_linear(side):
-                return (f"{_where(model)}: {key}.{side.name}.law = {side.law!r} is not "
-                        "linear in p (needs tau = phi(q) p)")
-    return None
+    return _pairs(model, "pressure", "a pressure-driven antagonistic pair linear in p",
+                  lambda side: None if pressure_linear(side) else
+                  " is not linear in p (needs tau = phi(q) p)")
 
 
 def _linear_sea(model) -> str | None:
@@ -256,29 +251,6 @@ PARTLY_ACTUATED = Condition("partly actuated: at least one passive joint (stiffn
                             "slope > 0 at phi = 0 and motor dynamics", _partly_actuated)
 
 
-def actuator(kind: str) -> Condition:
-    """The property condition of an actuator family: ``"qbmove"`` ->
-    :data:`SINH_SPRING_PAIRS`, ``"mckibben"`` -> :data:`PRESSURE_PAIRS` (the builders
-    registered under these names need the property, not the type name); any other
-    ``kind``: every joint carries ``[[actuators]] type = kind``.
-    """
-    if kind == "qbmove":
-        return SINH_SPRING_PAIRS
-    if kind == "mckibben":
-        return PRESSURE_PAIRS
-
-    def check(model) -> str | None:
-        why = _every_joint(model, f"type = {kind!r}")
-        if why:
-            return why
-        kinds = sorted({a.type for a in _acts(model)})
-        if kinds != [kind]:
-            return (f"{_where(model)}: actuators.type = {', '.join(map(repr, kinds))} "
-                    f"(needs {kind!r} on every joint)")
-        return None
-    return Condition(f"{kind} actuator on every joint", check)
-
-
 def _motor_dynamics(model) -> str | None:
     """Springs driven by motors with inertia and damping (eq. 2.6's motor rows) on every
     actuated joint."""
@@ -294,23 +266,6 @@ def _motor_dynamics(model) -> str | None:
 
 MOTOR_DYNAMICS = Condition("motors with dynamics (actuators.motor_inertia and "
                            "motor_damping > 0)", _motor_dynamics)
-
-
-def dof(at_most: int | None = None, *, exactly: int | None = None) -> Condition:
-    """A bound on the number of configuration variables."""
-    if exactly is not None:
-        text = f"{exactly} degree(s) of freedom"
-
-        def check(model):
-            return None if model.dof == exactly else \
-                f"{_where(model)}: {model.dof} degrees of freedom (needs exactly {exactly})"
-    else:
-        text = f"at most {at_most} degrees of freedom"
-
-        def check(model):
-            return None if model.dof <= at_most else \
-                f"{_where(model)}: {model.dof} degrees of freedom (needs at most {at_most})"
-    return Condition(text, check)
 
 
 def _spatial(model) -> str | None:

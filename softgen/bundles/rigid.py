@@ -11,9 +11,9 @@ import math
 from softgen.blocks import ClosedLoop
 from softgen.bundles.common import PLANT_SUBSTEPS
 from softgen.bundles.registry import (FULLY_TORQUE_ACTUATED, HAS_REGRESSOR, LINEAR_SEA,
-                                      MOTOR_DYNAMICS, PARTLY_ACTUATED, REGISTRY, RIGID,
-                                      Condition, Context, Part, actuator, diagram_functions,
-                                      diagram_manifest)
+                                      MOTOR_DYNAMICS, PARTLY_ACTUATED, PRESSURE_PAIRS, REGISTRY,
+                                      RIGID, SINH_SPRING_PAIRS, Condition, Context, Part,
+                                      diagram_functions, diagram_manifest)
 from softgen.codegen.generate import Generated
 from softgen.control.electric import bundle_functions as cascade_functions
 from softgen.control.feedback_linearization import GAIN_NAMES as FL_GAIN_NAMES
@@ -31,8 +31,8 @@ from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator, \
     pneumatic_conditions
 from softgen.symbolic.actuated import electric_plant_fun, pneumatic_plant_fun, valve_plant_fun
 
-MCKIBBEN = actuator("mckibben")
-QBMOVE = actuator("qbmove")
+MCKIBBEN = PRESSURE_PAIRS     # the builders need the laws' property, not a type name
+QBMOVE = SINH_SPRING_PAIRS
 
 
 @REGISTRY.capability("rigid_dynamics", layer="symbolic", needs=(RIGID,),
