@@ -42,6 +42,10 @@ from softgen.experiments.registry import (Config, Experiment, Metrics, finding, 
                                           not_checked, num)
 from softgen.modelfile.load import load_model
 from softgen.studies.soft import SoftStudyConfig, run_cases, sampled_loop, tracking_loop
+# Thresholds re-exported: they are the findings' documented constants (ch12.BOUNDED, ...).
+from softgen.studies.soft_claims import (BOUNDED, CONVERGED, DRIFT, ROBUST,  # noqa: F401
+                                         bounded_claim, columns_claim, converges_claim,
+                                         records_of)
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 
 PI = math.pi
@@ -289,76 +293,14 @@ def run_3d(c: Soft3DConfig, out: Path) -> Metrics:
 
 # --------------------------------------------------------------------------- findings
 
-#: Thresholds of the findings (unit of the configuration: rad, or m for the 3D robot).
-CONVERGED = {"planar": 0.02, "pendulum": 0.05, "3d": 0.02}     # rms ‖e‖, last 10 s
-ROBUST = {"planar": 0.1, "pendulum": 0.1, "3d": 0.05}          # with noise σ = 0.032
-BOUNDED = 100.0                                                # max ‖π̂‖
-DRIFT = 0.05          # relative change of ‖π̂‖ along its trend over the second half
-
-
-def _get(m: Metrics, quantity: str, suffixes) -> dict[str, float] | list[str]:
-    """``{suffix: value}`` of ``quantity`` per variant, or the records it lacks."""
-    got = {s: m.find(quantity, suffix=s) for s in suffixes}
-    lost = [f"{quantity} ({s or 'headline'})" for s, r in got.items() if r is None]
-    return lost or {s: r.value for s, r in got.items()}
-
-
-def _converges(m, claim, suffixes, tol, unit) -> dict:
-    v = _get(m, "position_rms_error", suffixes)
-    if isinstance(v, list):
-        return not_checked(claim, v)
-    return finding(claim, graded([x < tol for x in v.values()]),
-                   "; ".join(f"{s or 'headline'}: {num(x)} {unit}" for s, x in v.items())
-                   + f" (rms of ‖q_d − q‖ over the last 10 s); threshold < {tol:g} {unit}.")
-
-
-def _bounded(m, claim, suffixes) -> dict:
-    """Bounded as a trend: max ‖π̂‖ below :data:`BOUNDED` *and* no drift — the linear
-    trend of ‖π̂‖ over the second half changes it by less than :data:`DRIFT` (issue 24)."""
-    v = _get(m, "parameter_estimate_max_norm", suffixes)
-    d = _get(m, "parameter_estimate_norm_drift", suffixes)
-    if isinstance(v, list) or isinstance(d, list):
-        return not_checked(claim, (v if isinstance(v, list) else []) +
-                           (d if isinstance(d, list) else []))
-    steady = {s: d[s] is not None and d[s] < DRIFT for s in suffixes}
-    drifting = [s for s in suffixes if not steady[s]]
-    return finding(claim, graded([max(v.values()) < BOUNDED, *steady.values()]),
-                   f"largest max_t ‖π̂(t)‖ over the scenarios {num(max(v.values()))} (from "
-                   f"π̂(0) = 0; threshold < {BOUNDED:g}); change of ‖π̂‖ along its trend over "
-                   "the second half: " + ", ".join(f"{num(d[s])} ({s or 'headline'})"
-                                                   for s in suffixes)
-                   + f" (threshold < {DRIFT:g}" + (f"; still drifting: "
-                                                   f"{', '.join(x or 'headline' for x in drifting)}"
-                                                   if drifting else "") + ").")
-
-
-def _force_estimate(m: Metrics, suffix: str) -> str:
-    """' (f̂ at the end: x, y[, z] N)' of a run with force columns, from its records."""
-    keys = [k for k in m.keys() if k.startswith("force_estimate_")
-            and k.endswith(f"_final_{suffix}")]
-    return f" (f̂ at the end {', '.join(num(m[k]) for k in keys)} N)" if keys else ""
-
-
-def _with_columns(m, claim, pairs, graded_on, tol, unit) -> dict:
-    """Force columns (beyond the thesis): rms error of each (without, with) pair of
-    variants; the verdict grades ``graded_on`` (variants with columns) against ``tol``."""
-    v = _get(m, "position_rms_error", [x for p in pairs for x in p])
-    if isinstance(v, list):
-        return not_checked(claim, v)
-    return finding(claim, graded([v[s] < tol for s in graded_on]), "; ".join(
-        f"{a}: {num(v[a])} {unit} without, {num(v[b])} {unit} with force columns"
-        f"{_force_estimate(m, b)}" for a, b in pairs)
-        + f" (rms of ‖q_d − q‖ over the last 10 s); threshold < {tol:g} {unit}.")
-
-
 def findings_planar(m: Metrics, c: Config | None = None) -> list[dict]:
     """Fig. 12.2-12.3 claims; thresholds in CONVERGED, ROBUST, BOUNDED."""
-    out = [_converges(m, "Fig. 12.2: Theorem 10 makes the planar PCC arm track the "
+    out = [converges_claim(m, "Fig. 12.2: Theorem 10 makes the planar PCC arm track the "
                          "sinusoidal references with all parameters unknown.",
                       ["", "lower_gains"], CONVERGED["planar"], "rad")]
     claim = ("Fig. 12.2: higher control gains give a faster tracking convergence and a more "
              "precise tracking since the beginning.")
-    tc, e0 = (_get(m, q, ["", "lower_gains"]) for q in ("convergence_time",
+    tc, e0 = (records_of(m, q, ["", "lower_gains"]) for q in ("convergence_time",
                                                         "position_rms_error_initial"))
     if lost := [x for r in (tc, e0) if isinstance(r, list) for x in r]:
         out.append(not_checked(claim, lost))
@@ -369,14 +311,14 @@ def findings_planar(m: Metrics, c: Config | None = None) -> list[dict]:
                            f"(higher) vs {num(tc['lower_gains'])} s (lower); rms over the "
                            f"first 5 s {num(e0[''])} vs {num(e0['lower_gains'])} rad; "
                            "reproduced when the higher gains are smaller on both."))
-    out.append(_bounded(m, "Fig. 12.2-12.3: the parameter estimates behave and remain "
+    out.append(bounded_claim(m, "Fig. 12.2-12.3: the parameter estimates behave and remain "
                            "bounded.", ["", "lower_gains", "disturbed"]))
-    out.append(_converges(m, "Fig. 12.3: the approach is robust to a persistent 0.5 N force "
+    out.append(converges_claim(m, "Fig. 12.3: the approach is robust to a persistent 0.5 N force "
                              "on each segment from t = 25 s, measurement noise (σ = 0.032 rad) "
                              "and an initial error of (1, −1, 1, −1) rad.",
                           ["disturbed"], ROBUST["planar"], "rad"))
     if m.find("position_rms_error", suffix="disturbed_forces") is not None:
-        out.append(_with_columns(m, "Beyond the thesis (issue 22): with force columns (one "
+        out.append(columns_claim(m, "Beyond the thesis (issue 22): with force columns (one "
                                     "adapted world force shared by the tips) the disturbed "
                                     "case tracks at least as well.",
                                  [("disturbed", "disturbed_forces")], ["disturbed_forces"],
@@ -387,29 +329,29 @@ def findings_planar(m: Metrics, c: Config | None = None) -> list[dict]:
 def findings_pendulum(m: Metrics, c: Config | None = None) -> list[dict]:
     """Fig. 12.4-12.5 claims; thresholds in CONVERGED, ROBUST, BOUNDED."""
     out = [
-        _converges(m, "Fig. 12.4: the controller stabilises the soft inverted pendulum "
+        converges_claim(m, "Fig. 12.4: the controller stabilises the soft inverted pendulum "
                       "upright, with lower (k = 1) and higher (k = 4) stiffness.",
                    ["", "k4"], CONVERGED["pendulum"], "rad"),
-        _bounded(m, "§12.2.2: the parameter estimates remain bounded.",
+        bounded_claim(m, "§12.2.2: the parameter estimates remain bounded.",
                  ["", "k4", "disturbed", "disturbed_k4"]),
-        _converges(m, "Fig. 12.5: upright regulation with noise (σ = 0.032 rad) and a "
+        converges_claim(m, "Fig. 12.5: upright regulation with noise (σ = 0.032 rad) and a "
                       "5e-3 N disturbance from t = 125 s, both stiffnesses.",
                    ["disturbed", "disturbed_k4"], ROBUST["pendulum"], "rad"),
     ]
-    causes = _get(m, "position_rms_error", ["noise_only", "force_only"])
+    causes = records_of(m, "position_rms_error", ["noise_only", "force_only"])
     if isinstance(causes, dict) and out[-1]["verdict"] != "not checked":
         out[-1]["evidence"] += (f" Soft pendulum (k = 1, same gains) with the noise alone "
                                 f"{num(causes['noise_only'])} rad, with the force alone "
                                 f"{num(causes['force_only'])} rad.")
         out[-1]["evidence"] += _pendulum_causes(m, c)
     if m.find("position_rms_error", suffix="disturbed_forces") is not None:
-        f = _with_columns(m, "Beyond the thesis (issue 22): with force columns (an adapted "
+        f = columns_claim(m, "Beyond the thesis (issue 22): with force columns (an adapted "
                              "tip force) the disturbed soft pendulum (k = 1, Fig. 12.5 gains) "
                              "stays within 0.02 rad.",
                           [("disturbed", "disturbed_forces"),
                            ("disturbed_k4", "disturbed_forces_k4")], ["disturbed_forces"],
                           0.02, "rad")
-        both = _get(m, "position_rms_error", ["clean", "clean_forces"])
+        both = records_of(m, "position_rms_error", ["clean", "clean_forces"])
         if isinstance(both, dict) and f["verdict"] != "not checked":
             # The columns adapt from t = 0, not only once the force is on: how much of the
             # gain is the force and how much faster settling, from the runs without force.
@@ -418,7 +360,7 @@ def findings_pendulum(m: Metrics, c: Config | None = None) -> list[dict]:
                               + (", so part of the gain at the end of the run is faster "
                                  "settling, not the force." if both["clean_forces"]
                                  < both["clean"] else "."))
-        long = _get(m, "position_rms_error", ["force_only_long", "force_only_long_forces"])
+        long = records_of(m, "position_rms_error", ["force_only_long", "force_only_long_forces"])
         if isinstance(long, dict) and f["verdict"] != "not checked":
             f["evidence"] += (f" The force alone without noise, long run: "
                               f"{num(long['force_only_long'])} rad without, "
@@ -430,7 +372,7 @@ def findings_pendulum(m: Metrics, c: Config | None = None) -> list[dict]:
 def _pendulum_causes(m: Metrics, c: Config | None) -> str:
     """What the soft pendulum's disturbed error at the end of the run is made of, from the
     runs with neither noise nor force (issue 22 item 6: the run is short for these gains)."""
-    v = _get(m, "position_rms_error", ["noise_only", "force_only", "clean", "clean_long",
+    v = records_of(m, "position_rms_error", ["noise_only", "force_only", "clean", "clean_long",
                                        "force_only_long"])
     if isinstance(v, list):
         return ""
@@ -454,27 +396,27 @@ def findings_3d(m: Metrics, c: Config | None = None) -> list[dict]:
     """Fig. 12.6-12.7 claims; thresholds in CONVERGED, ROBUST, BOUNDED."""
     lateral = m.find("position_rms_error", suffix="disturbed_lateral") is not None
     out = [
-        _converges(m, "Fig. 12.6: Theorem 10 (Λ = 7, K_d = 13, K_π = 2) makes the 3D PCC arm "
+        converges_claim(m, "Fig. 12.6: Theorem 10 (Λ = 7, K_d = 13, K_π = 2) makes the 3D PCC arm "
                       "track sinusoidal references with all parameters unknown.",
                    [""], CONVERGED["3d"], "m"),
-        _bounded(m, "§12.2.3: the parameter estimates remain bounded.",
+        bounded_claim(m, "§12.2.3: the parameter estimates remain bounded.",
                  ["", "disturbed"] + ["disturbed_lateral"] * lateral),
-        _converges(m, "Fig. 12.7: tracking survives noise (σ = 0.032 m), a 5 N force on "
+        converges_claim(m, "Fig. 12.7: tracking survives noise (σ = 0.032 m), a 5 N force on "
                       "each segment tip from t = 50 s and an initial error of ±0.05 m.",
                    ["disturbed"], ROBUST["3d"], "m")]
     if lateral:
-        out.append(_converges(m, "Fig. 12.7 with the force across gravity (+x) instead of "
+        out.append(converges_claim(m, "Fig. 12.7 with the force across gravity (+x) instead of "
                                  "along it (the direction is not printed).",
                               ["disturbed_lateral"], ROBUST["3d"], "m"))
     if m.find("position_rms_error", suffix="disturbed_lateral_forces") is not None:
-        f = _with_columns(m, "Beyond the thesis (issue 22): with force columns (one adapted "
+        f = columns_claim(m, "Beyond the thesis (issue 22): with force columns (one adapted "
                              "world force shared by the tips) the lateral-force case stays "
                              "within 0.01 m.",
                           [("disturbed_lateral", "disturbed_lateral_forces"),
                            ("lateral_clean", "lateral_clean_forces"),
                            ("disturbed", "disturbed_forces")],
                           ["disturbed_lateral_forces", "lateral_clean_forces"], 0.01, "m")
-        floor = _get(m, "position_rms_error", ["noise_only"])
+        floor = records_of(m, "position_rms_error", ["noise_only"])
         if isinstance(floor, dict) and f["verdict"] != "not checked":
             f["evidence"] += (f" lateral_clean*: without noise; with the noise alone (no "
                               f"force, no columns) {num(floor['noise_only'])} m"
@@ -482,7 +424,7 @@ def findings_3d(m: Metrics, c: Config | None = None) -> list[dict]:
                                  "noisy cases." if floor["noise_only"] >= 0.01 else "."))
         out.append(f)
     elif m.find("position_rms_error", suffix="disturbed_forces") is not None:
-        out.append(_with_columns(m, "Beyond the thesis (issue 22): with force columns the "
+        out.append(columns_claim(m, "Beyond the thesis (issue 22): with force columns the "
                                     "disturbed case tracks as well.",
                                  [("disturbed", "disturbed_forces")], ["disturbed_forces"],
                                  ROBUST["3d"], "m"))
