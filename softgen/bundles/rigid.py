@@ -22,6 +22,7 @@ from softgen.control.pneumatic import KINDS, REFERENCE_BLOCKS, PneumaticArm
 from softgen.control.pneumatic_loop import closed_loop as pneumatic_closed_loop
 from softgen.control.pneumatic_loop import controller_block as pneumatic_controller_block
 from softgen.control.partial import PartialArm
+from softgen.control.references import Sinusoid
 from softgen.control.partial import closed_loop as partial_closed_loop
 from softgen.control.sea import SeaArm
 from softgen.control.sea import closed_loop as sea_closed_loop
@@ -234,6 +235,31 @@ PARTIAL_TIMES = (0.0, 2.5, 5.0, 7.5)
 PARTIAL_SETPOINTS = ((-0.5, -1.0, 0.3, -0.2), (0.2, -0.3, 0.4, 0.0))
 
 
+#: Example gains and references of collocated tracking (:meth:`PartialArm.tracking_fun`),
+#: cycled over the actuated joints as above. Link gains shape ë + K_d ė + K_p e = 0
+#: (10 rad/s, critically damped); the motor loop is 200 rad/s, critically damped,
+#: because a spring-driven joint's link error is its torque error divided by B̄ K_p (tiny
+#: for a light wrist): on tests/data/user_models/arm3_partial.toml the wrist tracked
+#: 0.019 / 0.0042 / 0.0019 rad rms with k_p,m = 2500 / 1e4 / 4e4 (k_d,m = 100 / 200 /
+#: 400), the torque realisation error falling 2.8e-4 / 5.0e-5 / 1.2e-5 N m (measured).
+PARTIAL_TRACKING_GAINS = dict(kp=100.0, kd=20.0, kp_m=4.0e4, kd_m=400.0)
+PARTIAL_REFERENCE = ((0.5, 0.3, -0.3), (0.4, 0.25, 0.2))      # amplitude rad, Hz, offset rad
+
+
+def partial_tracking_gains(arm: PartialArm) -> dict:
+    """:data:`PARTIAL_TRACKING_GAINS` as the tracking controller's gain vectors."""
+    g, na = PARTIAL_TRACKING_GAINS, len(arm.actuated)
+    return {"kp": [g["kp"]] * na, "kd": [g["kd"]] * na, "kp_m": [g["kp_m"]] * arm.nm,
+            "kd_m": [g["kd_m"]] * arm.nm}
+
+
+def partial_reference(arm: PartialArm) -> Sinusoid:
+    """:data:`PARTIAL_REFERENCE` cycled over the actuated joints."""
+    rows = [PARTIAL_REFERENCE[i % len(PARTIAL_REFERENCE)] for i in range(len(arm.actuated))]
+    return Sinusoid(amplitude=tuple(r[0] for r in rows), frequency=tuple(r[1] for r in rows),
+                    offset=tuple(r[2] for r in rows))
+
+
 def partial_gains(arm: PartialArm) -> dict:
     """:data:`PARTIAL_GAINS` as the controller's gain vectors for ``arm``."""
     g = PARTIAL_GAINS
@@ -254,7 +280,8 @@ def partial_setpoints(arm: PartialArm) -> list[list[float]]:
                      doc="collocated set-point control of a partly actuated arm (actuated "
                          "joints regulated, passive joints settle at the model's "
                          "equilibrium): the controller step, the plant, and their closed "
-                         "loop as a diagram")
+                         "loop as a diagram; and the step of collocated partial feedback "
+                         "linearisation (the actuated joints track a trajectory)")
 def partial_collocated(ctx: Context) -> Part:
     arm = PartialArm(ctx.model, dyn=ctx.dyn)
     d = partial_closed_loop(arm, ctx.options.loop_dt, times=PARTIAL_TIMES,
@@ -265,7 +292,11 @@ def partial_collocated(ctx: Context) -> Part:
                                      "gains) -> (actuator commands u, wanted torques, "
                                      "equilibrium q_bar, its residual)"),
            Generated(arm.plant_fun(PLANT_SUBSTEPS), f"{PLANT_SUBSTEPS} RK4 steps of the partly "
-                                                    "actuated arm over h, commands held")]
+                                                    "actuated arm over h, commands held"),
+           Generated(arm.tracking_fun(), "one sample of collocated partial feedback "
+                                         "linearisation: (x, references of the actuated "
+                                         "joints, gains) -> (actuator commands u, wanted "
+                                         "torques, passive accelerations)")]
     fns += diagram_functions(d, steps, "collocated closed-loop")
     return Part(fns, {"closed_loops": {"partial_collocated": diagram_manifest(d, steps)}})
 

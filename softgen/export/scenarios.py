@@ -26,8 +26,9 @@ Which loop a model gets is read from what the model *is*, never from its name:
   the SEA cascade (:mod:`softgen.control.sea`: link-level PD on the joint torque, motor
   references θ_d = q + v/k, Theorem-6 motor loop) against the arm with its motors;
 - a partly actuated arm (a passive elastic and damped joint; ``PARTLY_ACTUATED``) runs
-  collocated set-point regulation (:mod:`softgen.control.partial`): the actuated joints
-  hold set-points, the passive ones settle by their own stiffness and damping;
+  collocated partial feedback linearisation (:mod:`softgen.control.partial`): the
+  actuated joints track sinusoids, the passive ones follow by their own stiffness and
+  damping;
 - any other rigid chain (also an electric arm with motors too light for 1 ms) runs
   Slotine–Li adaptive control (Prop. 10, eq. 9.2) against the nominal arm, one RK4 step
   per sample with τ held.
@@ -52,12 +53,11 @@ import numpy as np
 
 from softgen.blocks import ClosedLoop
 from softgen.bundles.registry import LINEAR_SEA, PARTLY_ACTUATED
-from softgen.bundles.rigid import (PARTIAL_TIMES, SEA_GAINS, partial_gains,
-                                   partial_setpoints)
+from softgen.bundles.rigid import (SEA_GAINS, partial_reference, partial_tracking_gains)
 from softgen.control.electric import (cascade_block, electric_arm, initial_plant_state,
                                       plant_block as electric_plant_block)
 from softgen.control.partial import PartialArm
-from softgen.control.partial import closed_loop as partial_closed_loop
+from softgen.control.partial import tracking_loop as partial_tracking_loop
 from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.pneumatic_loop import controller_block as pneumatic_controller_block
 from softgen.control.pneumatic_loop import plant_block as pneumatic_plant_block
@@ -387,29 +387,30 @@ def _sea_cascade(model: RobotModel, steps: int) -> Example:
 
 def _partial(model: RobotModel, steps: int) -> Example:
     arm = PartialArm(model)
-    d = partial_closed_loop(arm, DT, times=PARTIAL_TIMES, setpoints=partial_setpoints(arm),
-                            gains=partial_gains(arm), substeps=SEA_SUBSTEPS,
-                            name=f"{model.name}_loop")
-    # From rest at the first set-point's equilibrium q̄, motors holding it: the loop
-    # starts at rest and each later set-point is a regulation from rest.
+    ref = partial_reference(arm)
+    d = partial_tracking_loop(arm, DT, reference=ref, gains=partial_tracking_gains(arm),
+                              substeps=SEA_SUBSTEPS, name=f"{model.name}_loop")
+    # From rest at the equilibrium q̄ of the references' starting point (the passive
+    # joints settled there, the motors holding it): the actuated joints start on q_d(0)
+    # with the reference's velocity still to pick up.
     n, nm = arm.n, arm.nm
-    x = arm.rest_state(partial_setpoints(arm)[0])
+    x = arm.rest_state(list(ref.offset or ()))
     init = {"plant.q": x[:n]}
     if nm:
         init["plant.th"] = x[2 * n:2 * n + nm]
     sc = Scenario(f"{model.name}_loop", d, steps=steps, x0=init)
     return Example(
-        "partial", "collocated set-point control of the partly actuated arm",
-        "collocated set-point control (softgen.control.partial): the actuated joints are "
-        "regulated to piecewise-constant set-points (PD plus the static torque at the "
-        "equilibrium q̄; spring-driven joints through their motors), the passive joints "
-        "settle by their own stiffness and damping at the equilibrium the model gives "
-        f"(ctrl.q_bar); {SEA_SUBSTEPS} RK4 steps per sample, commands held. Guarantee "
-        "(ideal torques): bounded, converging to the critical points of the closed-loop "
-        "potential, locally to q̄. No trajectory tracking is claimed.",
-        sc, (("ctrl.q_bar", "plant.q", "rad"),),
-        "direct joints k_p = 20, k_d = 4; spring joints k_p = 0.05, k_d = 0.005; motors "
-        "k_p,m = 2500, k_d,m = 100 (softgen.bundles.rigid.PARTIAL_GAINS)")
+        "partial", "collocated tracking of the partly actuated arm",
+        "collocated partial feedback linearisation (softgen.control.partial, "
+        "PartialArm.tracking_fun): the actuated joints track sinusoids q_d,i = o_i + a_i "
+        "sin(2π f_i t) exactly for ideal torques (ë + K_d ė + K_p e = 0); spring-driven "
+        "joints realise their torque through their motors (deflection and its rate by the "
+        "chain rule); the passive joints follow their internal dynamics under their own "
+        f"stiffness and damping (no claim beyond boundedness seen in runs); {SEA_SUBSTEPS} "
+        "RK4 steps per sample, commands held.",
+        sc, (("ref.q_d", "ctrl.q_a", "rad"),),
+        "k_p = 100, k_d = 20 (link error, 1/s^2 and 1/s); motors k_p,m = 4e4, k_d,m = 400 "
+        "(softgen.bundles.rigid.PARTIAL_TRACKING_GAINS)")
 
 
 _BUILDERS = {"slotine_li": _slotine_li, "theorem5": _theorem5, "electric_pd": _electric_pd,
