@@ -8,7 +8,7 @@ are not part of the model), every moving joint off the root→tip path is remove
 everything below it, fixed branches stay as fixed joints (nothing is merged there).
 
 Vendor files cannot be shipped with softgen; set ``SOFTGEN_VENDOR_URDFS`` to a folder of
-them (UR3/5/10, Kinova, Panda, Z1, Talos) to run :func:`test_vendor_arms_match_newton_euler`.
+them (UR3/5/10, Kinova, Panda, Z1, Talos, xArm7, SO-100) to run :func:`test_vendor_arms_match_newton_euler`.
 """
 from __future__ import annotations
 
@@ -249,7 +249,8 @@ VENDOR = os.environ.get("SOFTGEN_VENDOR_URDFS")
 VENDOR_ARMS = [("ur3_robot.urdf", None, None), ("ur5_robot.urdf", None, None),
                ("ur10_robot.urdf", None, None), ("kinova.urdf", None, None),
                ("panda.urdf", None, "panda_hand"), ("z1.urdf", None, "link06"),
-               ("talos_full_v2.urdf", "torso_2_link", "arm_left_7_link")]
+               ("talos_full_v2.urdf", "torso_2_link", "arm_left_7_link"),
+               ("xarm7.urdf", None, None), ("so100.urdf", None, None)]
 
 
 @pytest.mark.skipif(not VENDOR, reason="set SOFTGEN_VENDOR_URDFS to a folder of vendor URDFs")
