@@ -326,3 +326,42 @@ def test_sinusoid_block_equals_the_numpy_sinusoid(seed):
         for name, want in zip(("q_d", "qd_d", "qdd_d"), q(t)):
             np.testing.assert_allclose(y[name], want, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(y["sigma_d"], s(t)[0], rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["planar_2link_mckibben", "arm3_mckibben_unequal"])
+def test_adaptation_law_cancels_the_cross_term(name):
+    """Lyapunov identity of the position loop (Theorem 5 proof, Prop. 11) for muscles of
+    unequal K_i = K_1/c_i: with p = Φ^†τ_* + Φ^⊥ν unclipped, V = ½ sᵀB s/K_1 +
+    ½ Π̃ᵀK_π⁻¹Π̃ has V̇ = sᵀK(Y_*Π + τ_0 − τ_*)/K_1 − Π̃ᵀ(dΠ̂/dt)/K_π, which must equal
+    −sᵀ diag(1/c) K_d s at any state. The printed direction Y_*ᵀ s leaves the cross
+    term sᵀ(K/K_1 − I)Y_*Π̃ whenever the K_i differ."""
+    from pathlib import Path
+    path = name if "unequal" not in name else str(
+        Path(__file__).parent / "data" / "user_models" / f"{name}.toml")
+    a = pneumatic_arm(load_model(path))
+    n, k = a.n, a.n_params
+    q, qd, ref = ca.SX.sym("q", n), ca.SX.sym("qd", n), ca.SX.sym("ref", 6 * n)
+    Pi_hat, lam, kd = ca.SX.sym("P", k), ca.SX.sym("lam", n), ca.SX.sym("kd", n)
+    tau_star, yts, s = a.tracking(q, qd, Pi_hat, ref, lam, kd)
+    e = a.gain_ratio
+    Y, known = a.regressor_star(q, qd, ref[n:2 * n] + lam * (ref[:n] - q),
+                                ref[2 * n:3 * n] + lam * (ref[n:2 * n] - qd))
+    model = Y @ a.Pi_nominal + (known if known is not None else 0)
+    w = ca.DM(1 / e)                                   # K / K_1
+    vdot = ca.dot(s, w * (model - tau_star)) - ca.dot(a.Pi_nominal - Pi_hat, yts)
+    printed = ca.dot(s, w * (model - tau_star)) - ca.dot(a.Pi_nominal - Pi_hat, Y.T @ s)
+    want = -ca.dot(s, w * kd * s)
+    f = ca.Function("f", [q, qd, ref, Pi_hat, lam, kd], [vdot, printed, want])
+    rng = np.random.default_rng(11)
+    worst_printed = 0.0
+    for _ in range(10):
+        args = [rng.uniform(-0.5, 0.5, n), rng.uniform(-1, 1, n), rng.uniform(-1, 1, 6 * n),
+                a.Pi_nominal * rng.uniform(0.5, 1.5, k), rng.uniform(1, 20, n),
+                rng.uniform(1, 20, n)]
+        got, pr, ref_v = (float(x) for x in f(*args))
+        assert got == pytest.approx(ref_v, rel=1e-9, abs=1e-9 * abs(ref_v) + 1e-12)
+        worst_printed = max(worst_printed, abs(pr - ref_v) / abs(ref_v))
+    if np.all(e == 1):
+        assert worst_printed < 1e-9                    # the thesis's arm: eq. 10.2 as printed
+    else:
+        assert worst_printed > 1e-3                    # unequal K: the printed law misses

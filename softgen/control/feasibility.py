@@ -4,14 +4,21 @@ A muscle can only pull: its gauge pressure must lie in [0, p_max]. Controllers
 compute pressures from a model and know nothing of that range, so a reference the
 muscles cannot reach shows up as a negative (or too large) command. The plants
 clip it (:func:`softgen.symbolic.actuated.valve_plant_fun`); this module reports
-it, once per episode, with the joint, the muscle and the time.
+it, once per episode, with the joint, the muscle and the time; and
+:func:`stiffness_range` says beforehand which stiffness a joint can have at all
+while its muscles hold the arm.
 """
 from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
+import casadi as ca
 import numpy as np
+
+if TYPE_CHECKING:
+    from softgen.control.pneumatic import McKibbenRobot
 
 
 class PressureWarning(UserWarning):
@@ -71,3 +78,46 @@ def check_pressures(t, p, p_max, *, label: str = "", warn: bool = True
         for v in out:
             warnings.warn(v.message(label), PressureWarning, stacklevel=2)
     return out
+
+
+def stiffness_range(robot: McKibbenRobot, qs) -> tuple[np.ndarray, np.ndarray]:
+    """Per joint, the stiffnesses [σ_lo, σ_hi] its muscles can give while holding the
+    arm at rest at every configuration of ``qs`` (rows of n angles) with pressures in
+    [0, p_max].
+
+    At rest the muscles must give the static torque τ = G(q) (+ joint springs: the
+    inverse dynamics at q̇ = q̈ = 0), and per joint (τ_i, σ_i) = K_i (φ_a p_a − φ_b p_b,
+    −φ_a,q p_a + φ_b,q p_b) (eq. 2.2-2.3) is a regular 2 × 2 system
+    (:meth:`~softgen.symbolic.actuators.McKibbenPairs.allocation`), so each pressure is
+    affine in σ_i and each bound on it bounds σ_i on one side. σ_lo > σ_hi means no
+    stiffness at all holds the arm there (the muscles are too weak for its weight).
+    The dynamic part of a tracking controller's torque comes on top: use a margin.
+    """
+    act, n = robot.act, robot.n
+    q, tau, sig = ca.SX.sym("q", n), ca.SX.sym("tau", n), ca.SX.sym("sigma", n)
+    alloc = ca.Function("alloc", [q, tau, sig], [act.allocation(q, tau, sig)])
+    static = robot.dyn.inverse_dynamics_fun()
+    pmax = np.repeat(np.asarray(act.pressure_max, dtype=float), 2)
+    lo, hi = np.zeros(n), np.full(n, np.inf)
+    zero = np.zeros(n)
+    for qv in np.atleast_2d(np.asarray(qs, dtype=float)):
+        t = np.array(static(qv, zero, zero, zero)).ravel()
+        a = np.array(alloc(qv, t, zero)).ravel()                # pressures at σ = 0
+        b = np.array(alloc(qv, t, np.ones(n))).ravel() - a      # their change per N m/rad
+        for k in range(2 * n):
+            j = k // 2
+            for bound, upper in ((0.0, False), (pmax[k], True)):
+                if not np.isfinite(bound):
+                    continue
+                # a + σ b >= bound (lower) or <= bound (upper)
+                if b[k] == 0:
+                    ok = a[k] <= bound if upper else a[k] >= bound
+                    if not ok:
+                        lo[j], hi[j] = np.inf, -np.inf
+                    continue
+                edge = (bound - a[k]) / b[k]
+                if (b[k] > 0) == upper:
+                    hi[j] = min(hi[j], edge)
+                else:
+                    lo[j] = max(lo[j], edge)
+    return lo, hi

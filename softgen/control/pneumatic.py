@@ -179,7 +179,17 @@ class PneumaticArm(McKibbenRobot):
         return Y, known
 
     def tracking(self, q, qd, Pi_hat, ref, lam, kd):
-        """τ_* (eq. 10.4), Y_*ᵀ s (eq. 10.2) and s for the references ``ref`` (6n)."""
+        """τ_* (eq. 10.4), the adaptation direction Y_*ᵀ diag(1/c) s (eq. 10.2, see
+        below) and s for the references ``ref`` (6n).
+
+        Eq. 10.2 prints Y_*ᵀ s, from V = ½ sᵀK⁻¹B s, whose derivative is
+        sᵀK⁻¹(Bṡ + ½Ḃs) only when K⁻¹B is symmetric: when every K_i is the same (the
+        thesis's arm). With K_i = K_1/c_i the closed loop is
+        B ṡ + C s = K_1 (Y Π̃ − diag(1/c) K_d s), and V = ½ sᵀB s/K_1 + ½ Π̃ᵀK_π⁻¹Π̃
+        gives V̇ = −sᵀ diag(1/c) K_d s with dΠ̂/dt = K_π Yᵀ s = K_π Y_*ᵀ diag(1/c) s
+        (tests/test_pneumatic_control.py checks the identity). For equal muscles
+        (c = 1) this is eq. 10.2 as printed, and the generated C is unchanged.
+        """
         n = self.n
         q_d, qd_d, qdd_d = ref[:n], ref[n:2 * n], ref[2 * n:3 * n]
         e = q_d - q
@@ -190,7 +200,8 @@ class PneumaticArm(McKibbenRobot):
         tau_star = Y @ Pi_hat + kd * s
         if known is not None:
             tau_star = tau_star + known
-        return tau_star, Y.T @ s, s
+        c = self.gain_ratio
+        return tau_star, Y.T @ (s if np.all(c == 1) else s / ca.DM(c)), s
 
     def model_acceleration(self, q, qd, Pi_hat, tau_star):
         """q̈ the adapted model predicts under τ_* (see :data:`ACCELERATION`)."""

@@ -58,7 +58,8 @@ from softgen.control.electric import (cascade_block, electric_arm, initial_plant
                                       plant_block as electric_plant_block)
 from softgen.control.partial import PartialArm
 from softgen.control.partial import tracking_loop as partial_tracking_loop
-from softgen.control.pneumatic import pneumatic_arm
+from softgen.control.feasibility import stiffness_range
+from softgen.control.pneumatic import PneumaticArm, pneumatic_arm
 from softgen.control.pneumatic_loop import controller_block as pneumatic_controller_block
 from softgen.control.pneumatic_loop import plant_block as pneumatic_plant_block
 from softgen.control.pneumatic_loop import preset_nu
@@ -118,6 +119,12 @@ RIGID_REFERENCE = dict(amplitude=(0.6, 0.5), frequency=(0.25, 0.4), offset=(0.0,
 PNEUMATIC_Q_STEPS = ((0.0, 0.2, 5.0), (0.0, 0.3, 0.1))
 PNEUMATIC_SIGMA_STEPS = ((0.0, 2.5, 7.5), (3.0, 4.0, 2.5))
 PNEUMATIC_RISE = 1.0
+#: Share of a joint's stiffness range (:func:`~softgen.control.feasibility.stiffness_range`,
+#: the arm held at rest within [0, p_max]) the example's stiffness steps may use: they
+#: lie in [σ_lo / h, h σ_hi], the rest is left to the dynamic part of τ_* and the
+#: stiffness transients. Measured (``pneumatic_stiffness_steps``): with h = 0.8 the
+#: commanded pressures of user_arm3_mckibben (hand σ_hi = 3.28 N m/rad) stay in range.
+STIFFNESS_HEADROOM = 0.8
 #: RK4 steps per sample of the McKibben arm (the stiff muscle forces; as the bundle's
 #: ``<model>_pneumatic_plant``, which the earlier hand-written example ran).
 PNEUMATIC_SUBSTEPS = 10
@@ -239,7 +246,7 @@ def _theorem5(model: RobotModel, steps: int) -> Example:
     arm = pneumatic_arm(model)
     n, g = arm.n, GAINS["theorem5"]
     q_steps = [SmoothSteps(*PNEUMATIC_Q_STEPS, PNEUMATIC_RISE)] * n
-    s_steps = [SmoothSteps(*PNEUMATIC_SIGMA_STEPS, PNEUMATIC_RISE)] * n
+    s_steps, scaled = pneumatic_stiffness_steps(arm)
     ref = stiffness_reference_block("ref", q_steps, s_steps)
     lam, kd = np.full(n, g["lam"]), np.full(n, g["kd"])
     kinv = 1.0 / arm.act.K
@@ -267,10 +274,56 @@ def _theorem5(model: RobotModel, steps: int) -> Example:
         "[0, p_max] (10 RK4 steps per sample), the stiffness σ read from the pressures acting at each sample. ν and "
         "the pressures start from the open-loop stiffness step (K_π = 0) at rest, the "
         "thesis's \"initially inflated\" preset; Π̂(0) = 0.9 Π. References: smoothed "
-        "steps (C³) of position and stiffness.",
+        "steps (C³) of position and stiffness." + scaled,
         sc, (("ref.q_d", "plant.q", "rad"), ("ref.sigma_d", "plant.sigma", "N m/rad")),
         "Λ = 15, K_d = 18, K_π = 35, K_σ = 2/K_1, K⁻¹ = 1/K: the chapter-10 adaptive "
         "study's gains")
+
+
+def pneumatic_stiffness_steps(arm: PneumaticArm) -> tuple[list[SmoothSteps], str]:
+    """The Theorem 5 example's stiffness steps, made reachable joint by joint, and a
+    sentence saying which were scaled ("" if none).
+
+    :data:`PNEUMATIC_SIGMA_STEPS` on every joint, unless the joint's muscles cannot give
+    those stiffnesses while holding the arm at rest on the position references (all
+    joints at one angle of :data:`PNEUMATIC_Q_STEPS`' range; :func:`stiffness_range`)
+    with :data:`STIFFNESS_HEADROOM`: then its levels are scaled by one factor into the
+    range. A stiffness the muscles cannot give drives the commanded pressures out of
+    [0, p_max]; the clipped plant no longer applies Φp = τ_*, s stops vanishing and
+    K_π Y_*ᵀ s integrates the clipping error: Π̂ drifts and the loop runs away (measured
+    on user_arm3_mckibben with gains 0.16/0.14/0.12: the hand's muscle a is commanded
+    above p_max from t = 2.90 s, on the step to σ_d = 4 N m/rad, beyond its 3.28; the
+    joints leave by 0.05 rad at t = 3.0 s). An arm its muscles cannot hold at all is
+    one clear error.
+    """
+    times, levels = PNEUMATIC_SIGMA_STEPS
+    qs = np.linspace(min(PNEUMATIC_Q_STEPS[1]), max(PNEUMATIC_Q_STEPS[1]), 31)
+    lo, hi = stiffness_range(arm, np.repeat(qs[:, None], arm.n, axis=1))
+    h = STIFFNESS_HEADROOM
+    out, notes = [], []
+    for j in range(arm.n):
+        where = (f"{arm.name}: joint {j + 1} ({arm.model.links[j].name}), q in "
+                 f"[{qs[0]:g}, {qs[-1]:g}] rad")
+        if not lo[j] <= hi[j]:
+            raise SoftgenError(f"{where}: its muscles cannot hold the arm at rest with "
+                               f"pressures in [0, {arm.act.pressure_max[j]:g}] Pa at any "
+                               "stiffness; check the actuator's gain, radius and pressure_max")
+        f = 1.0
+        if max(levels) > h * hi[j]:
+            f = h * hi[j] / max(levels)
+        elif min(levels) < lo[j] / h:
+            f = lo[j] / h / min(levels)
+        if f * min(levels) < lo[j] / h * (1 - 1e-12) or f * max(levels) > h * hi[j] * (1 + 1e-12):
+            raise SoftgenError(f"{where}: stiffness range [{lo[j]:.3g}, {hi[j]:.3g}] N m/rad "
+                               f"too narrow for the example's steps {min(levels):g}-"
+                               f"{max(levels):g} N m/rad with headroom {h:g}")
+        if f != 1.0:
+            notes.append(f"{j + 1} (x{f:.3g}, range [{lo[j]:.3g}, {hi[j]:.3g}] N m/rad)")
+        out.append(SmoothSteps(times, tuple(f * v for v in levels), PNEUMATIC_RISE))
+    scaled = (f" The stiffness steps of joints {', '.join(notes)} are scaled into "
+              f"{STIFFNESS_HEADROOM:g} of the range the muscles give while holding the arm "
+              "at rest within [0, p_max] (pneumatic_stiffness_steps).") if notes else ""
+    return out, scaled
 
 
 def _electric_pd(model: RobotModel, steps: int) -> Example:
