@@ -155,7 +155,16 @@ def test_ch6_protocol_smoke(tmp_path):
     req += [f"dof1_stop_update_fraction_phase{k}" for k in (1, 2, 3)]
     req += [f"dof1_deflection_std_phase{k}" for k in (1, 2, 3)]
     req += ["stiffness_mse_joint2", "torque_msrep_joint2"]
+    # The probe: the same 1-DoF protocol with a torque-reading offset over phase 2.
+    req += [f"dof1_offset_{tag}_stiffness_mse_joint1_phase{k}" for tag in ("drift", "stop")
+            for k in (1, 2, 3)]
     _check(metrics, ch6.THESIS, req)
+    # Phase 1 comes before the offset: the same estimates as the unbiased run there.
+    for tag in ("drift", "stop"):
+        assert metrics[f"dof1_offset_{tag}_stiffness_mse_joint1_phase1"] == \
+            metrics[f"dof1_{tag}_stiffness_mse_joint1_phase1"]
+        assert metrics[f"dof1_offset_{tag}_stiffness_mse_joint1_phase3"] != \
+            metrics[f"dof1_{tag}_stiffness_mse_joint1_phase3"]
     assert (tmp_path / "traces.npz").exists()
     assert (tmp_path / "dof1_protocol.png").exists()
     assert (tmp_path / "dof2_estimation.png").exists()
