@@ -155,7 +155,14 @@ def test_info_and_export_take_the_chain(humanoid, tmp_path, capsys):
                  "--out", str(proj)]) == 0
     assert "the chain torso_2_link -> left_3_link" in capsys.readouterr().out
     assert json.loads((proj / "manifest.json").read_text())["dof"] == 3
-    assert "--root torso_2_link --tip left_3_link" in (proj / "README.md").read_text()
+    readme = (proj / "README.md").read_text()
+    assert "--root torso_2_link --tip left_3_link" in readme
+    # The README's Python replay of the example cuts the same chain, and runs.
+    call = re.search(r"columns, rows = (python_loop\(.*\))", readme).group(1)
+    assert 'root="torso_2_link", tip="left_3_link"' in call
+    from softgen.export.example import python_loop
+    cols, rows = eval(call.replace("steps=1000", "steps=5"), {"python_loop": python_loop})
+    assert rows.shape == (5, len(cols))
 
 
 def test_identify_excite_takes_the_chain(humanoid, tmp_path, capsys):

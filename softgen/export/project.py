@@ -172,6 +172,8 @@ def render(manifest: dict, c_src: bytes, h_src: bytes, manifest_bytes: bytes,
         # A shipped model's file is recorded relative to the repository: name it instead.
         "MODEL_ARG": m if not Path(manifest.get("model_file", m)).is_absolute()
         else manifest["model_file"],
+        "CHAIN_ARGS": "".join(f', {k}="{v}"' for k, v in
+                              (manifest.get("model_chain") or {}).items() if v),
         "SECONDS": f"{ex.scenario.n_steps * ex.loop.dt:g}",
         "FUNCTIONS": table}).encode()
     record = {"model": m, "bundle_hash": manifest["hash"], "export_version": EXPORT_VERSION,
