@@ -75,3 +75,47 @@ def test_pneumatic_and_protocol_findings_need_their_records():
     with pytest.raises(KeyError, match="stiffness_msrep"):
         ch6_pn.findings(Metrics())
     assert ch7_prot.findings(Metrics()) == []
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_protocol_offset_probe_verdict(seed):
+    """The second ch6-electric-protocol claim reads the dof1_offset_* records with the
+    drift rule of the first (phase 2 or 3 above 3x phase 1) and the stop below it."""
+    rng = np.random.default_rng(seed)
+    m = Metrics()
+    base = {"drift": rng.uniform(0.01, 1.0, 3), "stop": rng.uniform(0.01, 1.0, 3)}
+    probe = {"drift": rng.uniform(0.01, 1.0, 3), "stop": rng.uniform(0.01, 1.0, 3)}
+    for pre, vals in (("dof1_", base), ("dof1_offset_", probe)):
+        for tag, v in vals.items():
+            for k in (1, 2, 3):
+                m.add("stiffness_mse", v[k - 1], "x", joint=1, phase=k, prefix=f"{pre}{tag}_")
+    m.add("update_fraction", 0.1, "1", phase=2, prefix="dof1_stop_")
+    m.add("vs_nominal_stiffness_mse", 0.2, "x", joint=1, prefix="dof1_stop_")
+    m.add("offset_probe", 0.03, "N m")
+    d, s = probe["drift"], probe["stop"]
+    want = d[1] > 3 * d[0] or d[2] > 3 * d[0]
+    first, second = ch6_prot.findings(m)
+    assert second["verdict"] == ("reproduced" if want and max(s[1:]) < max(d[1:])
+                                 else "not reproduced")
+    assert "up to 0.0300 N m" in second["evidence"]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_noninvasive_protocol_headline_is_against_the_plant(seed):
+    """Section 7.4's verdict is per joint on ``stiffness_mse`` (the estimate against the
+    emulated plant's springs), 100x the thesis's MSE; the datasheet comparison
+    (``vs_nominal_*``) is reported, not judged."""
+    rng = np.random.default_rng(seed)
+    thesis = (1.9e-4, 3.8e-4)
+    mse = np.array(thesis) * 100 * rng.uniform(0.3, 3, 2)
+    m = Metrics().add("lowpass_hz", 0.5, "Hz")
+    for j, v in enumerate(mse, start=1):
+        m.add("stiffness_mse", v, "x", joint=j, prefix="dof2_")
+        m.add("vs_nominal_stiffness_mse", 1e-9, "x", joint=j, prefix="dof2_")  # not judged
+        m.add("datasheet_vs_plant_stiffness_mse", 0.5, "x", joint=j, prefix="dof2_")
+        m.add("stiffness_mse", 1e4, "x", joint=j, prefix="dof2_unfiltered_")
+    ok = mse < 100 * np.array(thesis)
+    (f,) = ch7_prot.findings(m)
+    assert f["verdict"] == ("reproduced" if ok.all() else "partly reproduced" if ok.any()
+                            else "not reproduced")
+    assert "against the emulated plant's springs" in f["evidence"]

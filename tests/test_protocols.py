@@ -13,6 +13,7 @@ import pytest
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
 from softgen.estimation.offline import (estimation_result, offline_diagram,
                                         split_measurements)
+from softgen.studies.estimation import variant_records
 from softgen.studies.indices import excitation_records
 from softgen.estimation.rls import ExcitationGate, excitation_std
 from softgen.experiments import ch6_electric_protocol as ch6
@@ -154,21 +155,44 @@ def test_ch6_protocol_smoke(tmp_path):
     req += [f"dof1_stop_update_fraction_phase{k}" for k in (1, 2, 3)]
     req += [f"dof1_deflection_std_phase{k}" for k in (1, 2, 3)]
     req += ["stiffness_mse_joint2", "torque_msrep_joint2"]
+    # The probe: the same 1-DoF protocol with a torque-reading offset over phase 2.
+    req += [f"dof1_offset_{tag}_stiffness_mse_joint1_phase{k}" for tag in ("drift", "stop")
+            for k in (1, 2, 3)]
     _check(metrics, ch6.THESIS, req)
+    # Phase 1 comes before the offset: the same estimates as the unbiased run there.
+    for tag in ("drift", "stop"):
+        assert metrics[f"dof1_offset_{tag}_stiffness_mse_joint1_phase1"] == \
+            metrics[f"dof1_{tag}_stiffness_mse_joint1_phase1"]
+        assert metrics[f"dof1_offset_{tag}_stiffness_mse_joint1_phase3"] != \
+            metrics[f"dof1_{tag}_stiffness_mse_joint1_phase3"]
     assert (tmp_path / "traces.npz").exists()
     assert (tmp_path / "dof1_protocol.png").exists()
     assert (tmp_path / "dof2_estimation.png").exists()
 
 
 @pytest.mark.slow
-def test_ch7_protocol_smoke(tmp_path):
+def test_ch7_protocol_smoke(tmp_path, monkeypatch):
     cfg = ch7.EXPERIMENT.config.replace(phase_duration=2.0, metric_window=(1.0, 4.0),
                                         freeze_time=1.0, gate_window=0.5)
+    # Every variant, the headline's included, is scored against the plant's springs
+    # (20 % stiffer than the datasheet's), never against the datasheet's.
+    refs = []
+
+    def spy(tr, truth, *args, **kw):
+        refs.append((args[1], np.allclose(truth.sigma, 1.2 * truth.sigma_nominal, rtol=0.05)
+                     and not np.allclose(truth.sigma, truth.sigma_nominal)))
+        return variant_records(tr, truth, *args, **kw)
+    monkeypatch.setattr(ch7, "variant_records", spy)
     metrics = ch7.run(cfg, tmp_path).flat()
+    assert {tag for tag, _ in refs} >= {"filt", "gate", "nostop", "freeze"}
+    assert all(plant for _, plant in refs), refs
     req = [f"{p}stiffness_{m}_joint1" for p in ("", "nostop_", "freeze_", "dof2_",
                                                  "ideal_sensors_") for m in ("mse", "msrep")]
     req += ["dof2_stiffness_mse_joint2", "rotatum_uio_rms_error_joint1",
-            "update_fraction_phase1", "deflection_std_phase2"]
+            "update_fraction_phase1", "deflection_std_phase2",
+            "vs_nominal_stiffness_mse_joint1", "dof2_vs_nominal_stiffness_mse_joint2"]
     _check(metrics, ch7.THESIS, req)
+    # The headline is against the plant's springs: no separate plant_* copy of it.
+    assert not [k for k in metrics if "plant_stiffness" in k and "datasheet" not in k]
     assert metrics["metric_window_start"] == 1.0
     assert (tmp_path / "protocol.png").exists()

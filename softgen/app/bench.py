@@ -30,7 +30,7 @@ from softgen.blocks import ClosedLoop
 from softgen.control.references import SmoothSteps, Sinusoid, sinusoid_block, stiffness_reference_block
 from softgen.control.slotine_li import controller_block, plant_block
 from softgen.symbolic.rigid import RigidDynamics
-from softgen.modelfile.load import list_models, load_model
+from softgen.modelfile.load import as_model, list_models
 from softgen.modelfile.soft import SoftModel
 from softgen.bundles.bundle import load_bundle
 from softgen.runtime.simulate import simulate
@@ -160,11 +160,12 @@ def _cascade_loop_speed(model, seconds: float = 20.0) -> dict:
     return out
 
 
-def bench_model(name: str, *, calls: int = 200_000) -> dict:
-    """All figures of one model's bundle."""
+def bench_model(name, *, calls: int = 200_000) -> dict:
+    """All figures of one model's bundle (a name, a file or a loaded chain)."""
     from softgen.codegen.cbench import time_in_c
 
-    model = load_model(name)
+    model = as_model(name)
+    name = model.name
     t0 = time.perf_counter()
     spec = bundle_spec(model, BundleOptions())
     files = render(spec)
@@ -192,7 +193,9 @@ def bench_model(name: str, *, calls: int = 200_000) -> dict:
         # samples per call: timed apart, with fewer calls.
         loops = [d["loop"] for d in spec.extra.get("closed_loops", {}).values()]
         names = [g.function.name() for g in spec.functions if g.function.name() not in loops]
-        hand = HAND_WRITTEN.get(name)
+        # The hand-written reference is of the shipped model's regressor only (a model
+        # file or URDF chain may share its name, not its dynamics).
+        hand = HAND_WRITTEN.get(name) if bundle_dir == shipped else None
         extra = [hand[1]] if hand is not None and hand[1].is_file() else []
         # The harness links to the library just built (one compile per bundle), and
         # times a hand-written reference, if any, interleaved with the generated code.
@@ -206,13 +209,14 @@ def bench_model(name: str, *, calls: int = 200_000) -> dict:
         if loops:
             per_call.update(time_in_c(bundle_dir / f"{name}.c", loops,
                                       calls=max(calls // 2000, 20), library=lib))
-    bundle = load_bundle(name)
-    rng = np.random.default_rng(0)
-    for fname, entry in out["functions"].items():
-        entry["c_loop_ns"] = per_call.get(fname)
-        number = 200 if fname.endswith("_loop") else 20000
-        entry["python_fast_ns"], entry["python_call_ns"] = _python_latency(
-            bundle[fname], rng, number=number)
+        # The bundle just timed in C (the shipped one only when it is this model's).
+        bundle = load_bundle(bundle_dir)
+        rng = np.random.default_rng(0)
+        for fname, entry in out["functions"].items():
+            entry["c_loop_ns"] = per_call.get(fname)
+            number = 200 if fname.endswith("_loop") else 20000
+            entry["python_fast_ns"], entry["python_call_ns"] = _python_latency(
+                bundle[fname], rng, number=number)
     if isinstance(model, SoftModel):
         out.update(_theorem10_loop_speed(model))
     else:
@@ -261,9 +265,8 @@ def run_bench(*, models: list[str] | None = None, chains: bool = False, calls: i
     """Measure and print; return everything measured (also written to ``json_out``)."""
     import sys
     stream = stream or sys.stdout
-    names = models or list_models()
-    for n in names:
-        load_model(n)   # unknown model names fail before anything is timed
+    # Unknown model names fail before anything is timed.
+    names = [as_model(n) for n in models or list_models()]
     result = {"machine": {"platform": platform.platform(), "processor": platform.processor(),
                           "python": platform.python_version()}, "models": []}
     for name in names:

@@ -9,15 +9,15 @@ zero-order-hold step and the linearly implicit one, and returns one
 from __future__ import annotations
 
 from softgen.control.soft_sampled import LAWS, Checker, StabilityCheckError, Verdict
-from softgen.modelfile.load import load_model
+from softgen.modelfile.load import as_model
 from softgen.modelfile.soft import SoftModel
 from softgen.symbolic.pcc import SoftDynamics
 
 
-def check_model(model_ref: str, dt: float, kd: list[float], lam: list[float],
+def check_model(model_ref, dt: float, kd: list[float], lam: list[float],
                 laws: list[str] | tuple[str, ...] = LAWS, d_scale: float = 1.0) -> list[Verdict]:
     """Verdicts for every law, Λ = λI and K_d = k_d I in ``lam`` x ``kd``."""
-    model = load_model(model_ref)
+    model = as_model(model_ref)
     if not isinstance(model, SoftModel):
         raise StabilityCheckError(f"{model.path}: model.kind = {model.kind!r}: the sampled "
                                   "Theorem 10 check needs a soft body (pcc-planar, pcc-3d, "

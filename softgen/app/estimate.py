@@ -25,7 +25,7 @@ from softgen.estimation.csvlog import first_non_finite, read_log, step_tolerance
 from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator
 from softgen.estimation.offline import estimation_result, offline_diagram, split_measurements
 from softgen.modelfile.model import RobotModel
-from softgen.modelfile.load import list_models, load_model
+from softgen.modelfile.load import as_model, list_models, load_model
 from softgen.runtime.simulate import simulate
 
 METHODS = ("invasive", "noninvasive")
@@ -205,7 +205,7 @@ def check_output(out: Path, log: Path, *, force: bool) -> None:
         raise SoftgenError(f"estimate: --out {out}: directory {out.parent} is not writable")
 
 
-def estimate_log(model_name: str, log: str | Path, *, method: str = "invasive",
+def estimate_log(model_name, log: str | Path, *, method: str = "invasive",
                  out: str | Path | None = None, dt: float | None = None,
                  powers: tuple[int, ...] | None = None, p0: float | None = None,
                  lowpass: float | None = None, force: bool = False) -> EstimateRun:
@@ -234,12 +234,12 @@ def estimate_log(model_name: str, log: str | Path, *, method: str = "invasive",
                               f"{signal_name(stop.signum)}; {out} {state}") from None
 
 
-def _estimate_log(model_name: str, log: Path, out: Path, *, method: str, dt: float | None,
+def _estimate_log(model_name, log: Path, out: Path, *, method: str, dt: float | None,
                   powers: tuple[int, ...] | None, p0: float | None,
                   lowpass: float | None, force: bool) -> EstimateRun:
     t0 = time.perf_counter()
     check_powers(powers)
-    model = load_model(model_name)
+    model = as_model(model_name)           # a name, a file or a loaded chain
     kind = estimator_method(model, method)
     for flag, v in (("--dt", dt), ("--p0", p0)):
         if v is not None and not (math.isfinite(v) and v > 0):

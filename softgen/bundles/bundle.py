@@ -18,8 +18,8 @@ import numpy as np
 # The builder modules register their capabilities on import; nothing else is used here.
 import softgen.bundles.rigid  # noqa: F401
 import softgen.bundles.soft  # noqa: F401
-from softgen.bundles.common import (DEFAULT_OPTIONS, BundleOptions, identity_bytes, model_file_path,
-                                    model_source)
+from softgen.bundles.common import (DEFAULT_OPTIONS, BundleOptions, identity_bytes, model_chain,
+                                    model_file_path, model_source)
 from softgen.bundles.registry import REGISTRY, Capability, Context, merge
 from softgen.codegen.generate import BundleSpec, content_hash, write_bundle
 from softgen.core.errors import BundleError, ModelError
@@ -100,7 +100,11 @@ def identity_hash(manifest: dict) -> str | None:
     if not path.is_file():
         return None
     options = BundleOptions(**manifest.get("options", {}))
-    return content_hash(identity_bytes(path.read_text(), options))
+    # What generation hashed (bundle_spec): the model's source_text, which besides the
+    # file holds a chain's root and tip links and the URDF file a TOML [urdf] model
+    # references. (The file's text alone made every such bundle "stale".)
+    text = load_model(path, **model_chain(manifest)).source_text()
+    return content_hash(identity_bytes(text, options))
 
 
 #: Model files already reported missing (the warning is given once per file).
@@ -144,7 +148,8 @@ def check_model_unchanged(manifest: dict, bundle_dir: Path | str | None = None) 
 def casadi_functions(manifest: dict) -> dict:
     """The bundle's casadi.Functions rebuilt from its model file (no-compiler fallback)."""
     path = model_file_path(manifest)
-    spec = bundle_spec(load_model(path), BundleOptions(**manifest.get("options", {})))
+    spec = bundle_spec(load_model(path, **model_chain(manifest)),
+                       BundleOptions(**manifest.get("options", {})))
     return {g.function.name(): g.function for g in spec.functions}
 
 
@@ -191,20 +196,29 @@ def check_inertia_positive_definite(model: RobotModel, inertia_fun, *,
                              f"{what} moves no mass or inertia")
 
 
-def generate(name_or_path: str | Path, out_root: Path = GENERATED_DIR,
+def generate(name_or_path: str | Path | RobotModel | SoftModel,
+             out_root: Path = GENERATED_DIR,
              options: BundleOptions = DEFAULT_OPTIONS) -> Path:
-    """Write ``out_root/<model>/`` for one model; return the bundle directory.
+    """Write ``out_root/<model>/`` for one model (a name, a file or a loaded model, such
+    as a URDF chain cut with ``load_model(path, root=, tip=)``); return the bundle
+    directory.
 
     A model file outside ``models/`` that takes the name of a shipped model is
-    refused for the shipped ``generated/`` (it would replace that bundle); write it
-    elsewhere with ``out_root``.
+    refused for the shipped ``generated/`` (it would replace that bundle), and so is a
+    chain cut out of a shipped file; write it elsewhere with ``out_root``.
     """
-    model = load_model(name_or_path)
+    model = name_or_path if isinstance(name_or_path, (RobotModel, SoftModel)) \
+        else load_model(name_or_path)
     out_root = Path(out_root)
     shipped = shipped_model_file(model.name)
     if (model.path is not None and shipped is not None
-            and Path(model.path).resolve() != shipped.resolve()
+            and (Path(model.path).resolve() != shipped.resolve()
+                 or getattr(model, "chain", None) is not None)
             and out_root.resolve() == GENERATED_DIR.resolve()):
+        if getattr(model, "chain", None) is not None:
+            raise ModelError(f"{model.path}: the chain {model.name!r} (--root/--tip) would "
+                             f"replace the bundle of the shipped model models/{shipped.name}; "
+                             "generate it elsewhere (--out DIR)")
         raise ModelError(f"{model.path}: model.name: {model.name!r} is the name of a shipped "
                          f"model (models/{shipped.name}); rename the model or generate it "
                          "elsewhere (--out DIR)")

@@ -65,7 +65,21 @@ def model_source(model) -> dict:
         shown = f"models/{path.relative_to(MODELS_DIR.resolve()).as_posix()}"
     except ValueError:
         shown = str(path)
-    return {"model_file": shown, "model_sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+    source = {"model_file": shown,
+              "model_sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+    chain = getattr(model, "chain", None)
+    if chain is not None:
+        # A URDF chain cut with --root/--tip: the file alone is the whole tree, so the
+        # staleness check and the no-compiler fallback must cut the same chain again.
+        source["model_chain"] = {"root": chain[0], "tip": chain[1]}
+    return source
+
+
+def model_chain(manifest: dict) -> dict:
+    """``root=`` and ``tip=`` of :func:`softgen.modelfile.load.load_model` for the
+    manifest's model (empty unless it is a chain cut out of a URDF file)."""
+    chain = manifest.get("model_chain") or {}
+    return {"root": chain.get("root"), "tip": chain.get("tip")} if chain else {}
 
 
 def model_file_path(manifest: dict) -> Path:

@@ -3,6 +3,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from softgen.cli._chain import add_chain_arguments, chain_model, has_chain, single_model
+from softgen.core.errors import SoftgenError
+
 HELP = "latency, sizes, build time, closed-loop speed"
 
 
@@ -18,9 +21,13 @@ def add_arguments(p) -> None:
                         "'softgen[peers]')")
     p.add_argument("--peer-chains", type=int, nargs="+", metavar="N", default=[2, 5, 10, 20],
                    help="chain lengths for --peers (default 2 5 10 20)")
+    add_chain_arguments(p)
 
 
 def run(args) -> int:
+    single_model(args, args.models, "bench")
+    if args.peers and has_chain(args):
+        raise SoftgenError("bench: --peers compares whole URDF files; drop --root/--tip")
     if args.peers:
         # The peers compile Pinocchio's headers: nothing of it is imported otherwise.
         from softgen.app.peers import PeerSet, run_peers
@@ -28,6 +35,6 @@ def run(args) -> int:
                                            urdf_models=tuple(args.models) or ("panda",)))))
         return 0
     from softgen.app.bench import run_bench
-    run_bench(models=args.models or None, chains=args.chains, calls=args.calls,
+    run_bench(models=[chain_model(args, m, "bench") for m in args.models] or None, chains=args.chains, calls=args.calls,
               json_out=Path(args.json) if args.json else None)
     return 0

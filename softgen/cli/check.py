@@ -1,6 +1,8 @@
 """``softgen check``: predict whether a sampled soft-body loop is stable at given gains"""
 from __future__ import annotations
 
+from softgen.cli._chain import add_chain_arguments, chain_model
+
 HELP = "predict from the linearised sampled loop whether Theorem 10 at --dt is stable"
 
 
@@ -16,13 +18,14 @@ def add_arguments(p) -> None:
                         "(softgen.control.soft_sampled); default both")
     p.add_argument("--d-scale", type=float, default=1.0,
                    help="scale of the implicit step's predictor damping (a wrong model)")
+    add_chain_arguments(p)
 
 
 def run(args) -> int:
     # Imported here, not at the top: the CLI imports every verb to build its parser, and
     # this one pulls CasADi and the symbolic layer.
     from softgen.app.check import check_model
-    verdicts = check_model(args.model, args.dt, args.kd, args.lam, args.law, args.d_scale)
+    verdicts = check_model(chain_model(args, args.model, "check"), args.dt, args.kd, args.lam, args.law, args.d_scale)
     for v in verdicts:
         print(v.line())
     return 0 if all(v.stable for v in verdicts) else 1

@@ -5,6 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from softgen.cli._chain import add_chain_arguments, chain_model
 from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping
 from softgen.core.errors import ImplausibleError, SoftgenError
 from softgen.core.paths import derived_output
@@ -47,7 +48,7 @@ def _run(args) -> int:
         except ValueError:
             raise SoftgenError(f"estimate: --powers: expected comma-separated integers "
                                f"such as 1,3,5,7, got {args.powers!r}") from None
-    res = estimate_log(args.model, args.log, method=args.method, out=args.out, dt=args.dt,
+    res = estimate_log(chain_model(args, args.model, "estimate"), args.log, method=args.method, out=args.out, dt=args.dt,
                        powers=powers, p0=args.p0, lowpass=args.lowpass, force=args.force)
     label = res.method if res.method == args.method else f"{res.method} ({args.method})"
     filt = f"low-pass {res.lowpass:.3g} Hz" if res.lowpass else "unfiltered"
@@ -102,3 +103,4 @@ def add_arguments(p) -> None:
                    help="exit with status 3 when the estimate is implausible (negative "
                         "stiffness, RLS not converged, too little excitation)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --out file")
+    add_chain_arguments(p)

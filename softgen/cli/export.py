@@ -1,6 +1,8 @@
 """``softgen export``: arguments and entry point (the work is in :mod:`softgen.export.project`)."""
 from __future__ import annotations
 
+from softgen.cli._chain import add_chain_arguments, chain_model
+
 HELP = ("a self-contained C project: generated code, typed wrappers, CMake/Makefile, and "
         "the C of an example closed loop (chosen by the model's kind) in a fixed-rate driver")
 
@@ -18,13 +20,14 @@ def add_arguments(p) -> None:
                    help="also build the project (make, with the C compiler of --cc or $CC)")
     p.add_argument("--cc", metavar="CC", help="C compiler for --build (default $CC, cc, gcc, "
                    "clang)")
+    add_chain_arguments(p)
 
 
 def run(args) -> int:
     # Imported here: every verb's module is imported to build the parser, and this one
     # pulls in CasADi and the control library (start-up cost of every other verb).
     from softgen.export.project import export, summary
-    res = export(args.model, args.out, force=args.force, build=args.build, cc=args.cc)
+    res = export(chain_model(args, args.model, "export"), args.out, force=args.force, build=args.build, cc=args.cc)
     for line in summary(res):
         print(line)
     return 0

@@ -6,6 +6,7 @@ import sys
 import time
 from pathlib import Path
 
+from softgen.cli._chain import add_chain_arguments, chain_model, single_model
 from softgen.core.errors import SoftgenError
 from softgen.core.paths import output_dir
 
@@ -19,17 +20,19 @@ def add_arguments(p) -> None:
     p.add_argument("--no-build", action="store_true", help="write sources only")
     p.add_argument("--jobs", type=int, default=None,
                    help="bundles generated side by side (default: the number of CPUs)")
+    add_chain_arguments(p)
 
 
-def _generate_one(name: str, out: Path, build: bool) -> str:
+def _generate_one(model, out: Path, build: bool) -> str:
     """Generate (and compile) one bundle; the line ``generate`` prints for it. Each phase
     (derive and write, compile) is announced as it starts, from whichever worker runs
     it, so a long compile is never silent."""
     from softgen.bundles.bundle import generate
     from softgen.codegen.build import ensure_library
     t0 = time.perf_counter()
+    name = getattr(model, "name", model)      # a loaded URDF chain (--root/--tip)
     print(f"{name}: deriving and writing C ...", flush=True)
-    bundle = generate(name, out)
+    bundle = generate(model, out)
     msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
     if build:
         print(f"{name}: compiling ({time.perf_counter() - t0:.1f} s elapsed) ...", flush=True)
@@ -56,7 +59,9 @@ def run(args) -> int:
         raise SoftgenError("generate: give MODEL names or --all (not both)")
     if args.jobs is not None and args.jobs < 1:
         raise SoftgenError(f"generate: --jobs: expected a positive integer, got {args.jobs}")
+    single_model(args, args.models, "generate")
     names = list_models() if args.all else args.models
+    names = [chain_model(args, n, "generate") for n in names]
     out = output_dir(args.out, "--out") if args.out else GENERATED_DIR
     build = not args.no_build and find_compiler() is not None
     if not args.no_build and not build:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from softgen.cli._chain import add_chain_arguments, chain_model, has_chain
 from softgen.core.errors import SoftgenError
 
 HELP = ("model parameters from logs: base inertial parameters and friction, actuator "
@@ -47,6 +48,7 @@ def add_arguments(p) -> None:
                    "currents i1..in [A]; tau = K i (one K, or one per joint)")
     g.add_argument("--no-viscous", action="store_true", help="no viscous friction columns")
     g.add_argument("--no-coulomb", action="store_true", help="no Coulomb friction columns")
+    add_chain_arguments(p)
     e = p.add_argument_group("excitation (--excite)")
     e.add_argument("--harmonics", type=int, default=5, help="harmonics per joint (default 5)")
     e.add_argument("--period", type=float, default=10.0, help="period [s] (default 10)")
@@ -76,8 +78,9 @@ def run(args) -> int:
     # every other verb (and --help) would pay for at start-up.
     from softgen.app import identify as app
     if args.actuator is not None:
-        if args.model is not None or args.excite:
-            raise SoftgenError("identify: --actuator takes no MODEL and no --excite")
+        if args.model is not None or args.excite or has_chain(args):
+            raise SoftgenError("identify: --actuator takes no MODEL, --excite, --root or "
+                               "--tip")
         if args.log is None:
             raise SoftgenError("identify: --actuator needs --log DATA.csv")
         if args.out is not None:
@@ -91,12 +94,13 @@ def run(args) -> int:
         return 0
     if args.model is None:
         raise SoftgenError("identify: expected MODEL (or --actuator sinh|mckibben)")
+    model = chain_model(args, args.model, "identify")
     if args.excite:
         if args.out is None:
             raise SoftgenError("identify: --excite needs --out TRAJ.csv")
         if args.log is not None:
             raise SoftgenError("identify: --excite takes no --log")
-        r = app.excite(args.model, args.out, harmonics=args.harmonics, period=args.period,
+        r = app.excite(model, args.out, harmonics=args.harmonics, period=args.period,
                        dt=args.dt, periods=args.periods, seed=args.seed, maxiter=args.maxiter,
                        viscous=not args.no_viscous, coulomb=not args.no_coulomb,
                        force=args.force)
@@ -108,7 +112,7 @@ def run(args) -> int:
         return 0
     if args.log is None:
         raise SoftgenError("identify: MODEL needs --log LOG.csv (or --excite --out TRAJ.csv)")
-    res, out = app.identify_model(args.model, args.log, out=args.out, force=args.force,
+    res, out = app.identify_model(model, args.log, out=args.out, force=args.force,
                                   cutoff=args.cutoff,
                                   torque_constant=_constants(args.torque_constant),
                                   viscous=not args.no_viscous, coulomb=not args.no_coulomb)

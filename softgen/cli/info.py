@@ -5,12 +5,15 @@ import json
 import sys
 import time
 
+from softgen.cli._chain import add_chain_arguments
+
 HELP = "capabilities (and why not), functions, shapes, parameters, sizes of a model"
 
 
 def add_arguments(p) -> None:
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--json", action="store_true")
+    add_chain_arguments(p)
 
 
 def capability_table(model) -> list[dict]:
@@ -29,7 +32,7 @@ def run(args) -> int:
     from softgen.bundles.bundle import GENERATED_DIR, BundleOptions, bundle_spec
     from softgen.modelfile.limits import check_expression_size
     from softgen.modelfile.load import load_model
-    model = load_model(args.model)
+    model = load_model(args.model, root=args.root, tip=args.tip)
     check_expression_size(model)          # a model too large is refused before the line
     # The derivation takes seconds on a large model (issue 23: `info` on a 60-DoF URDF
     # was silent for minutes): say so on stderr, keeping stdout (and --json) clean.

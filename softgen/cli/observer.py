@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from softgen.cli._chain import add_chain_arguments, chain_model
 from softgen.core.errors import SoftgenError
 
 HELP = "delayed unknown-input observer (eq. 5.4) for a system file or a model's linearisation"
@@ -30,6 +31,7 @@ def add_arguments(p) -> None:
     p.add_argument("--dt", type=float, help="--model: sample time (default 0.01 s)")
     p.add_argument("--integrator", choices=("euler", "rk4"),
                    help="--model: one Euler (the thesis's discretisation) or RK4 step")
+    add_chain_arguments(p)
 
 
 def run(args) -> int:
@@ -38,13 +40,13 @@ def run(args) -> int:
     from softgen.app.observer import (check_system, linearise_model, no_observer_line,
                                       read_system, write_observer)
     if args.system is not None:
-        system = read_system(args.system)
-        model_only = [o for o in ("q0", "actuator", "dt", "integrator")
+        model_only = [o for o in ("q0", "actuator", "dt", "integrator", "root", "tip")
                       if getattr(args, o) is not None]
         if model_only:
             raise SoftgenError(f"observer: --{model_only[0]} is for --model, not --system")
+        system = read_system(args.system)
     else:
-        system = linearise_model(args.model, q0=args.q0, actuator=args.actuator,
+        system = linearise_model(chain_model(args, args.model, "observer"), q0=args.q0, actuator=args.actuator,
                                  dt=1e-2 if args.dt is None else args.dt,
                                  integrator=args.integrator or "euler")
     n, p = system.A.shape[0], system.C.shape[0]

@@ -44,6 +44,8 @@ from softgen.export.example import example_text, python_loop, scenario_header
 from softgen.export.scenarios import DT, Example, example_for
 from softgen.core.paths import MODELS_DIR
 from softgen.modelfile.load import load_model, model_path
+from softgen.modelfile.model import RobotModel
+from softgen.modelfile.soft import SoftModel
 
 __all__ = ["ExportResult", "bundle_files", "build_project", "export", "python_loop", "render",
            "summary"]
@@ -56,16 +58,25 @@ EXPORT_VERSION = "2"
 # -- which bundle ------------------------------------------------------------------------
 
 @contextlib.contextmanager
-def bundle_files(model: str, generated_root: Path | None = None):
+def bundle_files(model, generated_root: Path | None = None):
     """Yield ``(bundle_dir, manifest, note)`` for ``model``, generating it first if needed.
 
     A shipped model's bundle is read from ``generated_root`` (default: where ``softgen
     generate`` writes); when it is missing or stale (its model file, CasADi or the code
     generator changed, or its C source does not match the manifest) it is generated
     again there, or in a temporary directory when that is not writable. A model file
-    given by path is always generated in a temporary directory. ``note`` says which
-    (empty when the bundle was current).
+    given by path, or loaded (a URDF chain cut by ``--root``/``--tip``), is always
+    generated in a temporary directory. ``note`` says which (empty when the bundle was
+    current).
     """
+    if isinstance(model, (RobotModel, SoftModel)):
+        with tempfile.TemporaryDirectory(prefix="softgen-export-") as tmp:
+            bundle = generate(model, Path(tmp))
+            chain = f" (the chain {model.chain[0] or 'root'} -> {model.chain[1]} of " \
+                    f"{model.path})" if getattr(model, "chain", None) else ""
+            yield bundle, read_manifest(bundle), \
+                f"generated {model.name}{chain} in a temporary directory"
+        return
     path = model_path(model)            # one ModelError line for an unknown name
     root = Path(generated_root or GENERATED_DIR)
     shipped = path.resolve().parent == MODELS_DIR.resolve()
@@ -93,6 +104,12 @@ def bundle_files(model: str, generated_root: Path | None = None):
 
 
 # -- rendering ---------------------------------------------------------------------------
+
+def _chain_text(manifest: dict) -> str:
+    """`` --root R --tip T`` of a bundle of a URDF chain (empty for a whole file)."""
+    chain = manifest.get("model_chain") or {}
+    return "".join(f" --{k} {chain[k]}" for k in ("root", "tip") if chain.get(k))
+
 
 def _template(name: str, values: dict[str, str]) -> str:
     """Template ``name`` with every ``@KEY@`` replaced (one left over is a bug: raised)."""
@@ -149,12 +166,14 @@ def render(manifest: dict, c_src: bytes, h_src: bytes, manifest_bytes: bytes,
     table = "\n".join(f"- `{f}`: {s.get('doc', '')}" for f, s in
                       {**manifest["functions"], **loop_manifest["functions"]}.items())
     files["README.md"] = _template("README.md.in", {
-        **values, "MODEL_FILE": manifest.get("model_file", m),
+        **values, "MODEL_FILE": manifest.get("model_file", m) + _chain_text(manifest),
         "HASH": manifest["hash"][:16], "CASADI_VERSION": manifest.get("casadi_version", "?"),
         "EXAMPLE_TEXT": example_text(ex), "ORDER": " -> ".join(ex.loop.order),
         # A shipped model's file is recorded relative to the repository: name it instead.
         "MODEL_ARG": m if not Path(manifest.get("model_file", m)).is_absolute()
         else manifest["model_file"],
+        "CHAIN_ARGS": "".join(f', {k}="{v}"' for k, v in
+                              (manifest.get("model_chain") or {}).items() if v),
         "SECONDS": f"{ex.scenario.n_steps * ex.loop.dt:g}",
         "FUNCTIONS": table}).encode()
     record = {"model": m, "bundle_hash": manifest["hash"], "export_version": EXPORT_VERSION,
@@ -252,7 +271,7 @@ def previous_files(out: Path) -> dict[str, str]:
     return {k: v for k, v in files.items() if k in own and isinstance(v, str)}
 
 
-def export(model: str, out: Path | str, *, force: bool = False, build: bool = False,
+def export(model, out: Path | str, *, force: bool = False, build: bool = False,
            cc: str | None = None, generated_root: Path | None = None) -> ExportResult:
     """Write the C project of ``model`` to ``out`` (see the module docstring).
 

@@ -14,7 +14,7 @@ from softgen.core.errors import ModelError
 from softgen.core.paths import MODEL_SUFFIXES, MODELS_DIR  # noqa: F401  (re-exported)
 from softgen.modelfile.model import (MAX_NAME, FileReader, RobotModel, _Parser,
                                      read_model_text)
-from softgen.modelfile.soft import is_soft, parse_soft_model
+from softgen.modelfile.soft import SoftModel, is_soft, parse_soft_model
 from softgen.modelfile.urdf import chain_joints, parse_urdf
 
 
@@ -77,7 +77,8 @@ def load_model(name_or_path: str | Path, *, root: str | None = None,
         model = parse_urdf(path, text, root=root, tip=tip)
         if root is None and tip is None:
             return model
-        return dataclasses.replace(model, source_extra=f"[chain] root={root} tip={tip}")
+        return dataclasses.replace(model, source_extra=f"[chain] root={root} tip={tip}",
+                                   chain=(root, tip))
     if root is not None or tip is not None:
         raise ModelError(f"{path}: root/tip choose a chain of a URDF file; for a TOML model "
                          "give them in its [urdf] table")
@@ -90,6 +91,11 @@ def load_model(name_or_path: str | Path, *, root: str | None = None,
     if is_soft(data):
         return parse_soft_model(path, data)
     return _Parser(path).parse(data)
+
+def as_model(ref):
+    """A loaded model (``RobotModel`` or ``SoftModel``, e.g. a URDF chain cut by
+    ``--root``/``--tip``) as it is; a name or path through :func:`load_model`."""
+    return ref if isinstance(ref, (RobotModel, SoftModel)) else load_model(ref)
 
 def _urdf_reference(path: Path, data: dict) -> RobotModel:
     """A TOML model that is a URDF file's chain: ``[urdf] file, root, tip``, an

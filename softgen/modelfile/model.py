@@ -317,6 +317,11 @@ class RobotModel(ParameterTable):
     #: name>``); empty when ``name`` is it.
     original_name: str = ""
 
+    #: The ``(root, tip)`` links a URDF file's chain was cut with by
+    #: ``load_model(path, root=, tip=)`` (``--root``/``--tip``), ``None`` otherwise: the
+    #: file alone does not say which chain, so a bundle's manifest records them.
+    chain: tuple[str | None, str | None] | None = None
+
     @property
     def actuator_type(self) -> str | None:
         """The actuator family every joint shares: ``"mckibben"`` (also a declared

@@ -148,9 +148,10 @@ class ProtocolRun:
 
 def protocol_run(c: ProtocolConfig, model, label: str, sigma_d: Sinusoids,
                  estimators: dict[str, Block], *, inputs: dict | None = None,
-                 ideal: Sequence[str] = ()) -> ProtocolRun:
+                 ideal: Sequence[str] = (), torque_bias=None) -> ProtocolRun:
     """The phased references of ``c`` (q_d on every joint, ``sigma_d`` per joint) tracked
-    by the motor servos, with the ``estimators`` on the emulated hardware."""
+    by the motor servos, with the ``estimators`` on the emulated hardware (``torque_bias``:
+    see :func:`qbmove_run`)."""
     t = c.samples()
     q_d, qd_d, qdd_d, sig = phased_references(t, (c.q_d,) * model.dof, sigma_d,
                                               phase_duration=c.phase_duration, phases=c.phases)
@@ -159,7 +160,7 @@ def protocol_run(c: ProtocolConfig, model, label: str, sigma_d: Sinusoids,
                            inputs={"q_ref": refs, **(inputs or {})},
                            x0=servo_initial_state(q_d, qd_d, refs), servo=True, ideal=ideal,
                            spring_scale=c.spring_scale, counts=c.encoder_counts,
-                           torque_noise=c.torque_noise, seed=c.seed)
+                           torque_noise=c.torque_noise, seed=c.seed, torque_bias=torque_bias)
     phi = measured_deflections(tr)
     return ProtocolRun(c, t, q_d, sig, tr, truth, phi, excitation_std(phi, c.dt / c.gate_window))
 
@@ -178,10 +179,13 @@ def estimator(model, method: str, c: QbmoveStudyConfig, *, gated: bool = True,
 
 def qbmove_run(label: str, model, c: QbmoveStudyConfig, estimators: dict, *, K: int,
                inputs: dict, x0: dict, servo: bool, ideal=(), spring_scale: float = 1.0,
-               counts=None, torque_noise: float = 0.0, seed: int = 0, link_damping=None
-               ) -> tuple[Trace, QbmoveTruth]:
+               counts=None, torque_noise: float = 0.0, seed: int = 0, link_damping=None,
+               torque_bias=None) -> tuple[Trace, QbmoveTruth]:
     """One emulated run: plant (servo-driven or open loop), sensors and the estimator
-    blocks ``estimators`` (block name -> Block) in one diagram for K samples."""
+    blocks ``estimators`` (block name -> Block) in one diagram for K samples.
+
+    ``torque_bias`` (K, 2n) [N m], optional: an offset of the motor torque readings on
+    top of their noise (a sensor's slow thermal drift), which needs ``torque_noise``."""
     dyn, springs, n = RigidDynamics(model), QbmoveSprings(model), model.dof
     kw = dict(substeps=c.substeps, spring_scale=spring_scale)
     plant = servo_plant_block(dyn, springs, c.dt, bandwidth=c.servo_bandwidth, **kw) \
@@ -191,6 +195,13 @@ def qbmove_run(label: str, model, c: QbmoveStudyConfig, estimators: dict, *, K: 
     ext = dict(inputs)
     if "tau_motor_noise" in d.externals:
         ext["tau_motor_noise"] = np.random.default_rng(seed).standard_normal((K, 2 * n))
+        if torque_bias is not None:
+            # The sensor reads tau + std * noise input: an offset b is b / std of that input.
+            ext["tau_motor_noise"] = ext["tau_motor_noise"] + np.asarray(torque_bias) \
+                / torque_noise
+    elif torque_bias is not None:
+        raise ValueError("torque_bias: the run has no torque sensor (torque_noise = 0 or no "
+                         "estimator reads tau_motor)")
     rec = [f"plant.{s}" for s in QBMOVE_STATE] + [f"enc.{s}_m" for s in ("q", "qa", "qb")]
     rec += ["plant.tau_motor"] * servo + [r for e in estimators for r in recorded(e)]
     tr = Scenario(label, d, steps=K, x0={f"plant.{k}": v for k, v in x0.items()},

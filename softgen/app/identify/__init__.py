@@ -27,7 +27,7 @@ from softgen.app.identify.rigid import (RigidIdentification, identify_rigid,
                                         read_identification_log)
 from softgen.core.errors import SoftgenError
 from softgen.modelfile.model import RobotModel
-from softgen.modelfile.load import load_model
+from softgen.modelfile.load import as_model
 from softgen.studies.excitation import (Excitation, IdentificationRegressor, joint_limits,
                                         optimise_excitation)
 
@@ -35,8 +35,8 @@ __all__ = ["ActuatorFit", "RigidIdentification", "identify_actuator", "identify_
            "excite", "report_lines", "write_identified_model"]
 
 
-def _rigid(model_name: str | Path) -> RobotModel:
-    model = load_model(model_name)
+def _rigid(model_name) -> RobotModel:
+    model = as_model(model_name)           # a name, a file or a loaded chain
     if not isinstance(model, RobotModel):
         raise SoftgenError(f"{model.name}: identify needs a rigid model (links and joints); "
                            "soft bodies are not supported")
@@ -47,7 +47,7 @@ def default_out(log: Path, model: RobotModel) -> Path:
     return log.with_name(f"{identified_name(model)}.toml")
 
 
-def identify_model(model_name: str | Path, log: str | Path, *, out: str | Path | None = None,
+def identify_model(model_name, log: str | Path, *, out: str | Path | None = None,
                    force: bool = False, cutoff: float | None = None,
                    torque_constant: list[float] | None = None, viscous: bool = True,
                    coulomb: bool = True) -> tuple[RigidIdentification, Path]:
@@ -125,7 +125,7 @@ class ExciteResult:
     seconds: float
 
 
-def excite(model_name: str | Path, out: str | Path, *, harmonics: int = 5,
+def excite(model_name, out: str | Path, *, harmonics: int = 5,
            period: float = 10.0, dt: float = 1e-3, periods: int = 1, seed: int = 0,
            maxiter: int = 100, grid: int = 100, viscous: bool = True, coulomb: bool = True,
            force: bool = False) -> ExciteResult:
