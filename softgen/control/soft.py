@@ -356,7 +356,7 @@ def _block_lower_triangular(J, k: int) -> bool:
         all(J[i:i + k, i + k:].nnz() == 0 for i in range(0, J.shape[0], k))
 
 
-def plant_qdd(b, tau, f_ext):
+def plant_qdd(b, tau, f_ext, *, route: str = "auto"):
     """q̈ of eq. 3.6 with tip forces at nominal parameters, B q̈ = A τ + Σ J_iᵀ f_i − bias.
 
     For point masses B = Jᵀ M J (J: the point Jacobians stacked, M = diag(m_j I₃)) and
@@ -365,8 +365,16 @@ def plant_qdd(b, tau, f_ext):
     pcc-3d: mass j moves with segments 1..j only; J invertible as B is SPD),
     q̈ = J⁻¹ (M⁻¹ J⁻ᵀ (A τ + Σ J_iᵀ f_i − K q − D q̇) − (J̇ q̇ − g)) by block back- and
     forward-substitution with 3 × 3 adjugate inverses: B is never formed or factorised
-    (cond J = √cond B). Elsewhere B⁻¹ by LDLᵀ (:func:`spd_solve`; B is SPD).
+    (cond J = √cond B). Elsewhere, or with ``route="ldl"``, B⁻¹ by LDLᵀ
+    (:func:`spd_solve`; B is SPD) and J_iᵀ f_i with the tip Jacobians formed.
     """
+    if route not in ("auto", "ldl"):
+        raise ValueError(f"route: expected 'auto' or 'ldl', got {route!r}")
+    if route == "ldl":
+        rhs = ca.mtimes(b.actuation(), tau) - b.bias_pm()
+        for i, J in enumerate(b.tip_jacobians()):
+            rhs = rhs + ca.mtimes(J.T, f_ext[3 * i:3 * i + 3])
+        return spd_solve(b.inertia_pm(), rhs)
     # Σ J_iᵀ f_i as one reverse sweep of Σ f_i·o_i (the tip Jacobians are not formed).
     work = sum((ca.dot(f_ext[3 * i:3 * i + 3], o) for i, (_, o) in enumerate(b.frames)),
                ca.SX(0))
@@ -408,7 +416,8 @@ def _projector(blocks: list):
 
 
 def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
-                    ctl: ca.Function | None = None, *, forces=()) -> ca.Function:
+                    ctl: ca.Function | None = None, *, forces=(),
+                    route: str = "auto") -> ca.Function:
     """``<model>_theorem10_closed_loop``: one step of Theorem 10 in continuous time.
 
     The controller acts continuously inside the ODE (as in the thesis's
@@ -429,6 +438,10 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     (module docstring); ``<model>_theorem10<tag>_closed_loop`` with state
     ``z = (q, q̇, π̂, f̂)`` and the extra input ``kf`` after ``kpi``. f̂, like π̂, is
     integrated explicitly (outside the W matrix): it is slow, not stiff.
+
+    ``route``: how q̈ and W's B are computed (the same values): ``"auto"``, the
+    block-triangular solve on the jets body (:func:`plant_qdd`); ``"ldl"``, B formed and
+    factorised by LDLᵀ with CasADi's derivatives (the route before issue 25; tests).
     """
     lin = LinearRoute(dyn) if lin is None else lin
     groups = force_groups(dyn, forces)
@@ -438,9 +451,9 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     b = dyn.nominal
     # SX pieces, called twice each from an MX graph so that the C holds them once.
     tau_s, f_s = ca.SX.sym("tau", b.n_inputs), ca.SX.sym("f_ext", 3 * ns)
-    bj = dyn.nominal_jets
+    bj = dyn.nominal_jets if route == "auto" else b
     qdd = ca.Function(f"{dyn.name}_cl_qdd", [bj.q, bj.qd, tau_s, f_s],
-                      bj.expand([plant_qdd(bj, tau_s, f_s)]), FUNCTION_OPTS)
+                      bj.expand([plant_qdd(bj, tau_s, f_s, route=route)]), FUNCTION_OPTS)
     qm_s, kd_s, lam_s = ca.SX.sym("qm", n), ca.SX.sym("kd", n), ca.SX.sym("lam", n)
     h_s, v_s = ca.SX.sym("h"), ca.SX.sym("v", 2 * n)
     B = bj.expand([bj.inertia_pm()])[0]      # the J of q̈'s first stage (cse shares it)
