@@ -304,7 +304,7 @@ int pcc_planar_4seg_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_ARG 20
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_RES 12
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_IW 0
-#define pcc_planar_4seg_theorem10_closed_loop_SZ_W 194902
+#define pcc_planar_4seg_theorem10_closed_loop_SZ_W 194761
 int pcc_planar_4seg_theorem10_sampled_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_theorem10_sampled_step_checkout(void);
 void pcc_planar_4seg_theorem10_sampled_step_release(int mem);
@@ -358,7 +358,7 @@ int pcc_planar_4seg_theorem10_sampled_loop_loop_work_bytes(casadi_int *sz_arg, c
 #define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_ARG 20
 #define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_RES 12
 #define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_IW 0
-#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_W 266264
+#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_W 266163
 int pcc_planar_4seg_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_plant_checkout(void);
 void pcc_planar_4seg_plant_release(int mem);

@@ -341,6 +341,70 @@ def spd_solve(A, b):
     return ca.vertcat(*x)
 
 
+def _inv3(A):
+    """A⁻¹ of a 3×3 SX matrix by its adjugate (no pivoting: exact wherever det A ≠ 0)."""
+    cof = [[A[(i + 1) % 3, (j + 1) % 3] * A[(i + 2) % 3, (j + 2) % 3]
+            - A[(i + 1) % 3, (j + 2) % 3] * A[(i + 2) % 3, (j + 1) % 3] for j in range(3)]
+           for i in range(3)]
+    det = A[0, 0] * cof[0][0] + A[0, 1] * cof[0][1] + A[0, 2] * cof[0][2]
+    return ca.vertcat(*[ca.horzcat(*[cof[j][i] for j in range(3)]) for i in range(3)]) / det
+
+
+def _block_lower_triangular(J, k: int) -> bool:
+    """True if J is square and block lower triangular in k × k blocks (structurally)."""
+    return J.shape[0] == J.shape[1] and J.shape[0] % k == 0 and \
+        all(J[i:i + k, i + k:].nnz() == 0 for i in range(0, J.shape[0], k))
+
+
+def plant_qdd(b, tau, f_ext, *, route: str = "auto"):
+    """q̈ of eq. 3.6 with tip forces at nominal parameters, B q̈ = A τ + Σ J_iᵀ f_i − bias.
+
+    For point masses B = Jᵀ M J (J: the point Jacobians stacked, M = diag(m_j I₃)) and
+    bias = Jᵀ M (J̇ q̇ − g) + K q + D q̇ (:meth:`~softgen.symbolic.pcc.SoftBody.bias_pm`).
+    Where J is square and block lower triangular (one lumped mass per 3-DoF segment,
+    pcc-3d: mass j moves with segments 1..j only; J invertible as B is SPD),
+    q̈ = J⁻¹ (M⁻¹ J⁻ᵀ (A τ + Σ J_iᵀ f_i − K q − D q̇) − (J̇ q̇ − g)) by block back- and
+    forward-substitution with 3 × 3 adjugate inverses: B is never formed or factorised
+    (cond J = √cond B). Elsewhere, or with ``route="ldl"``, B⁻¹ by LDLᵀ
+    (:func:`spd_solve`; B is SPD) and J_iᵀ f_i with the tip Jacobians formed.
+    """
+    if route not in ("auto", "ldl"):
+        raise ValueError(f"route: expected 'auto' or 'ldl', got {route!r}")
+    if route == "ldl":
+        rhs = ca.mtimes(b.actuation(), tau) - b.bias_pm()
+        for i, J in enumerate(b.tip_jacobians()):
+            rhs = rhs + ca.mtimes(J.T, f_ext[3 * i:3 * i + 3])
+        return spd_solve(b.inertia_pm(), rhs)
+    # Σ J_iᵀ f_i as one reverse sweep of Σ f_i·o_i (the tip Jacobians are not formed).
+    work = sum((ca.dot(f_ext[3 * i:3 * i + 3], o) for i, (_, o) in enumerate(b.frames)),
+               ca.SX(0))
+    rhs = ca.mtimes(b.actuation(), tau) + b._d.gradient(work, b.q)
+    Js = b.point_jacobians()
+    J = ca.vertcat(*Js)
+    if b.model.kind != "pcc-3d" or not _block_lower_triangular(J, 3):
+        return spd_solve(b.inertia_pm(), rhs - b.bias_pm())
+    g = b.values["g"] * ca.DM(b.model.gravity_direction)
+    rhs = rhs - b.spring() - b.damping()
+    a0 = [a - g for a in b.point_bias_accelerations()]
+    nb = len(Js)
+    inv = [_inv3(J[3 * j:3 * j + 3, 3 * j:3 * j + 3]) for j in range(nb)]
+    # Jᵀ y = rhs (block upper triangular), then a = M⁻¹ y − a0 are the point
+    # accelerations minus J̇ q̇; J q̈ = a (block lower triangular).
+    y: list = [None] * nb
+    for j in reversed(range(nb)):
+        r = rhs[3 * j:3 * j + 3]
+        for i in range(j + 1, nb):
+            r = r - ca.mtimes(J[3 * i:3 * i + 3, 3 * j:3 * j + 3].T, y[i])
+        y[j] = ca.mtimes(inv[j].T, r)
+    x: list = []
+    for j in range(nb):
+        r = y[j] / b.mass_points[j][0] - a0[j]
+        for i in range(j):
+            r = r - ca.mtimes(J[3 * j:3 * j + 3, 3 * i:3 * i + 3], x[i])
+        x.append(ca.mtimes(inv[j], r))
+    return ca.vertcat(*x)
+
+
 def _projector(blocks: list):
     """A A† per block (identity for square blocks)."""
     out = []
@@ -352,7 +416,8 @@ def _projector(blocks: list):
 
 
 def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
-                    ctl: ca.Function | None = None, *, forces=()) -> ca.Function:
+                    ctl: ca.Function | None = None, *, forces=(),
+                    route: str = "auto") -> ca.Function:
     """``<model>_theorem10_closed_loop``: one step of Theorem 10 in continuous time.
 
     The controller acts continuously inside the ODE (as in the thesis's
@@ -373,6 +438,10 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     (module docstring); ``<model>_theorem10<tag>_closed_loop`` with state
     ``z = (q, q̇, π̂, f̂)`` and the extra input ``kf`` after ``kpi``. f̂, like π̂, is
     integrated explicitly (outside the W matrix): it is slow, not stiff.
+
+    ``route``: how q̈ and W's B are computed (the same values): ``"auto"``, the
+    block-triangular solve on the jets body (:func:`plant_qdd`); ``"ldl"``, B formed and
+    factorised by LDLᵀ with CasADi's derivatives (the route before issue 25; tests).
     """
     lin = LinearRoute(dyn) if lin is None else lin
     groups = force_groups(dyn, forces)
@@ -382,15 +451,12 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     b = dyn.nominal
     # SX pieces, called twice each from an MX graph so that the C holds them once.
     tau_s, f_s = ca.SX.sym("tau", b.n_inputs), ca.SX.sym("f_ext", 3 * ns)
-    # q̈ of eq. 3.6 with tip forces, as dyn.forward_dynamics_expr but B⁻¹ by LDLᵀ (B is SPD).
-    rhs = ca.mtimes(b.actuation(), tau_s) - b.bias_pm()
-    for i, J in enumerate(b.tip_jacobians()):
-        rhs = rhs + ca.mtimes(J.T, f_s[3 * i:3 * i + 3])
-    qdd = ca.Function(f"{dyn.name}_cl_qdd", [b.q, b.qd, tau_s, f_s],
-                      [spd_solve(b.inertia_pm(), rhs)], FUNCTION_OPTS)
+    bj = dyn.nominal_jets if route == "auto" else b
+    qdd = ca.Function(f"{dyn.name}_cl_qdd", [bj.q, bj.qd, tau_s, f_s],
+                      bj.expand([plant_qdd(bj, tau_s, f_s, route=route)]), FUNCTION_OPTS)
     qm_s, kd_s, lam_s = ca.SX.sym("qm", n), ca.SX.sym("kd", n), ca.SX.sym("lam", n)
     h_s, v_s = ca.SX.sym("h"), ca.SX.sym("v", 2 * n)
-    B = b.inertia_pm()
+    B = bj.expand([bj.inertia_pm()])[0]      # the J of q̈'s first stage (cse shares it)
     P = _projector([ca.substitute(A, b.q, qm_s) for A in b.actuation_blocks()])
     K = b._quadratic_form("k") + ca.mtimes(P, ca.diag(kd_s * lam_s))
     D = b._quadratic_form("d") + ca.mtimes(P, ca.diag(kd_s))
@@ -399,7 +465,7 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     square = all(A.shape[0] == A.shape[1] for A in b.actuation_blocks())
     solve = spd_solve if square else ca.solve
     kv = solve(B + g * D + g * g * K, ca.mtimes(B, v_s[n:]) - g * ca.mtimes(K, v_s[:n]))
-    wsolve = ca.Function(f"{dyn.name}_cl_wsolve", [b.q, qm_s, kd_s, lam_s, h_s, v_s],
+    wsolve = ca.Function(f"{dyn.name}_cl_wsolve", [bj.q, qm_s, kd_s, lam_s, h_s, v_s],
                          [ca.vertcat(v_s[:n] + g * kv, kv)], FUNCTION_OPTS)
 
     z = ca.MX.sym("z", 2 * n + r + nf)
