@@ -321,6 +321,7 @@ def test_registered_findings_are_wired():
 def _results() -> list[dict]:
     def res(exp_id, findings=None):
         r = {"experiment": exp_id, "metrics": {"a_metric": 1.5}, "thesis": {},
+             "units": {"a_metric": "rad"}, "not_in_thesis": {"*": "a synthetic result"},
              "config": {"title": f"Title of {exp_id}", "section": "10.2", "quick": True},
              "wall_seconds": 1.0}
         if findings is not None:
@@ -353,7 +354,7 @@ def test_report_renders_summary_and_per_experiment_claims(tmp_path):
     assert r"| A holds \| both ways | reproduced | a = 1.5 see table |" in a
     assert "| B holds | partly reproduced | b = 3 |" in a
     b = text.split("## exp-b")[1].split("## exp-c")[0]
-    assert "Claims checked" not in b and "| a_metric |  | 1.5 |" in b
+    assert "Claims checked" not in b and "| a_metric | rad | 1.5 |" in b
     assert "**failed**: `RuntimeError: boom`" in text
     assert text.count("| claim | verdict | evidence |") == 2
 

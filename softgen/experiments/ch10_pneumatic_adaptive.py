@@ -241,7 +241,18 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     return out
 
 
+#: Section 10.2 shows Fig. 10.2-10.3 and prints no number.
+NOT_IN_THESIS = {"*": "section 10.2 shows Fig. 10.2-10.3 only, no numbers"}
+CAPTIONS = {
+    "fig10_2_tracking.png": "Joint positions and stiffnesses against their references through "
+                            "the three phases (position steps, stiffness steps, both) under "
+                            "Theorem 5, with the commanded muscle pressures; mirrors Fig. 10.2.",
+    "fig10_3_parameters.png": "The five estimated parameters Π̂ (from 0.9 Π) over the same run; "
+                              "mirrors Fig. 10.3.",
+}
+
 EXPERIMENT = Experiment(
+    not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS,
     id="ch10-pneumatic-adaptive",
     title="Decoupled adaptive position and stiffness control of a two-link McKibben arm",
     section="10.2, Fig. 10.2-10.3", run=run, case=case, config=Ch10AdaptiveConfig().check(),

@@ -248,12 +248,28 @@ _DISCUSSION = (
     f"{WINDOW:g} s. `near_singular_events_*` counts spans where a joint's 2 × 2 block of "
     "eq. 11.4 has det < 0.1 · 2Δ.")
 
+#: Section 11.2 shows Fig. 11.2-11.5 and prints no number.
+NOT_IN_THESIS = {"*": "section 11.2 shows Fig. 11.2-11.5 only, no numbers"}
+_WHAT = ("link positions, stiffnesses and motor positions against their references, "
+         "with the motor torques, of the cascade")
+CAPTIONS = {
+    "fig11_2_pd.png": f"PD-augmented cascade without integral term: {_WHAT}; mirrors Fig. 11.2.",
+    "fig11_3_pd_integral.png": f"PD-augmented cascade with the integral term: {_WHAT}; "
+                               "mirrors Fig. 11.3.",
+    "fig11_4_adaptive.png": f"Adaptive cascade without integral term: {_WHAT} and the "
+                            "parameter estimates; mirrors Fig. 11.4.",
+    "fig11_5_adaptive_integral.png": f"Adaptive cascade with the integral term: {_WHAT} and "
+                                     "the parameter estimates; mirrors Fig. 11.5.",
+    "*.png": "A further run of the cascade, named by its file; layout of Fig. 11.2-11.5.",
+}
+
 EXPERIMENT_PD = Experiment(
     id="ch11-electric-pd",
     title="Cascaded PD-augmented position and stiffness control, electric VSAs",
     section="11.2, Fig. 11.2-11.3",
     run=run, config=Ch11Config().check(), quick={"duration": 20.0},
-    findings=_findings("pd"), discussion=_DISCUSSION)
+    findings=_findings("pd"), discussion=_DISCUSSION, not_in_thesis=NOT_IN_THESIS,
+    captions=CAPTIONS)
 
 EXPERIMENT_ADAPTIVE = Experiment(
     id="ch11-electric-adaptive",
@@ -261,7 +277,7 @@ EXPERIMENT_ADAPTIVE = Experiment(
     section="11.2, Fig. 11.4-11.5",
     run=run, config=Ch11Config(family="adaptive", acceleration="measured").check(),
     quick={"duration": 20.0, "variants": False},
-    findings=_findings("adaptive"),
+    findings=_findings("adaptive"), not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS,
     discussion=_DISCUSSION + (
         " Every estimate starts at 0 as in the thesis, with the projection b̂ ≥ `b_min`, "
         "inner Λ_m = `lam_m` and Remark 11's k_π = `kpi_integral` (module docstring: why). "
