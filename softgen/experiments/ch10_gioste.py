@@ -180,7 +180,7 @@ def findings_1dof(m: Metrics, c: OneLinkConfig | None = None) -> list[dict]:
     out += _study_claim(m, c)
     out += C.law_claims(m, "", "")
     out += C.law_claims(m, "tuned_", " (on the loop that tracks: issue-13 gain study)")
-    return out + [C.feasible(m)]
+    return out + [C.feasible(m, "Section 10.3.3 (one-link GioSte)")]
 
 
 def findings_2dof(m: Metrics, c: TwoLinkConfig | None = None) -> list[dict]:
@@ -191,7 +191,7 @@ def findings_2dof(m: Metrics, c: TwoLinkConfig | None = None) -> list[dict]:
         "significant mutual impact of position and stiffness control", "parameters")
     out.append(C.bounded_claim(m, "Fig. 10.13: the two-link parameter estimates remain "
                                   "bounded (no drift over the last phase)"))
-    return out + [C.feasible(m)]
+    return out + [C.feasible(m, "Section 10.3.5 (two-link GioSte)")]
 
 
 DISCUSSION = """\

@@ -158,7 +158,8 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     ok = [mse_[j] < 10 * THESIS[f"stiffness_mse_joint{j}"] for j in mse_]
     tq = m.per_joint("torque_mse")
     out = [finding(
-        "Table 6.1: stiffness MSE 1.8e-7 / 1.9e-7 (joints 1/2) under open-loop torques",
+        "Table 6.1: stiffness MSE 1.8e-7 / 1.9e-7 (joints 1/2) under open-loop torques, on "
+        "the damped variant (link damping added, issue 13)",
         "reproduced" if all(ok) else "partly reproduced" if any(ok) else "not reproduced",
         f"with link damping {num(m.value('link_damping'))} N m s/rad: stiffness MSE "
         + " / ".join(f"{num(v)} ({times(v, THESIS[f'stiffness_mse_joint{j}'])} the "

@@ -119,9 +119,10 @@ def bounded_claim(m: Metrics, claim: str) -> dict:
                    + f" (threshold < {DRIFT:g})")
 
 
-def feasible(m: Metrics) -> dict:
+def feasible(m: Metrics, where: str) -> dict:
+    """``where``: the section and robot, so that each experiment's claim is its own."""
     v, f = m.value("pressure_violations"), m.value("voltage_clipped_fraction")
-    return finding("Section 10.3.3: the commanded voltages stay within the valves' range",
+    return finding(f"{where}: the commanded voltages stay within the valves' range",
                    "reproduced" if v == 0 and f == 0 else "not reproduced",
                    f"{int(v)} episodes of commanded pressure outside [0, p(6 V)], "
                    f"{num(100 * f)} % of samples with a clipped voltage (all runs of the "
