@@ -77,6 +77,8 @@ THESIS.update({k.replace("stiffness_", "vs_nominal_stiffness_", 1): v
 THESIS.update({k.replace("torque_", "spring_torque_", 1): v
                for k, v in list(THESIS.items()) if "_torque_" in f"_{k}"})
 NOT_IN_THESIS = {
+    "dof1_offset_*": "our drift probe: the 1-DoF protocol again with a torque-reading offset "
+                     "over phase 2 (module docstring); the thesis ran no such probe",
     "*deflection_std*": "our excitation measure for the update stop (module docstring)",
     "*achieved_over_desired_stiffness*": "our check of the emulated stiffness allocation",
     "*update_fraction_phase*": "our share of samples with the RLS updating",
@@ -84,6 +86,7 @@ NOT_IN_THESIS = {
                                     "whole protocol",
     "*estimator_seconds_per_step": "our timing",
     "metric_window_*": "the window the indices cover",
+    "offset_probe": "the torque-reading offset of our drift probe (dof1_offset_*)",
 }
 CAPTIONS = {
     "dof1_protocol.png": "One-DoF emulated qbmove through the three phases: position, "
