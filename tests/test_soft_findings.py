@@ -60,3 +60,13 @@ def test_drift_is_the_trend_over_the_second_half():
     assert norm_drift(t, np.ones_like(t)) < 1e-12
     noisy = 1 + 0.01 * np.random.default_rng(3).standard_normal(t.size)
     assert norm_drift(t, noisy) < ch12.DRIFT
+
+
+def test_drift_since_reads_only_the_last_phase():
+    """Chapter 10 reads the trend over the last phase (issue 24): a norm that moved while
+    an earlier phase excited it, then settled, passes there but not over the second half."""
+    t = np.linspace(0.0, 350.0, 35001)
+    norm = np.where(t < 250, 1.0 + t / 250, 2.0)
+    assert norm_drift(t, norm, since=250.0) < 1e-12
+    assert norm_drift(t, norm) > ch12.DRIFT
+    assert abs(norm_drift(t, 1 + 0.01 * t, since=250.0) - 1.0 / 4.0) < 1e-9

@@ -41,7 +41,7 @@ def _toy_case(c: ToyConfig) -> Metrics:
         raise DivergenceError("toy", 1.0, "plant.q")
     noise = np.random.default_rng(c.seed).normal()
     return (Metrics().add("err", c.a * sum(c.b) + 1e-3 * noise, "rad")
-            .add("n_times_a", c.n * c.a, ""))
+            .add("n_times_a", c.n * c.a, "rad"))
 
 
 TOY = registry.Experiment(id="toy", title="toy", section="softgen", run=None,

@@ -1,9 +1,20 @@
-"""Metrics of a ``softgen reproduce`` run -> ``report.md`` beside the thesis's numbers."""
+"""Metrics of a ``softgen reproduce`` run -> ``report.md`` beside the thesis's numbers.
+
+A report a researcher can read (issue 24): every metric row has a unit; every row has
+the thesis's number or the experiment's stated reason why the thesis prints none
+(``Experiment.not_in_thesis``); every figure has a caption (``Experiment.captions``);
+claim texts are unique across the report. :func:`problems` lists what breaks these, and
+the report shows that list at its top.
+"""
 from __future__ import annotations
 
+from collections import Counter
+from collections.abc import Mapping
+from fnmatch import fnmatchcase
 from pathlib import Path
 
 from softgen.core.atomic import write_text
+from softgen.core.metrics import VERDICTS
 
 
 def _fmt(x) -> str:
@@ -19,15 +30,57 @@ def _cell(x) -> str:
     return " ".join(str(x).splitlines()).replace("|", "\\|")
 
 
+#: Thesis cell of a row whose metric the thesis prints no number for (reason below it).
+NOT_PRINTED = "not printed"
+
+
+def caption_of(name: str, captions: Mapping[str, str]) -> str | None:
+    """The caption of figure file ``name``: the first pattern of ``captions`` it matches."""
+    return next((c for pat, c in captions.items() if fnmatchcase(name, pat)), None)
+
+
+def not_printed(key: str, declared: Mapping[str, str]) -> tuple[str, str] | None:
+    """``(pattern, reason)`` that says why the thesis has no number for ``key``, or None."""
+    return next(((pat, r) for pat, r in declared.items() if fnmatchcase(key, pat)), None)
+
+
+def problems(results: list[dict]) -> list[str]:
+    """What makes the report unreadable: a metric row without a unit, a row with neither
+    the thesis's number nor a reason it has none, a figure without a caption, a claim text
+    used twice (issue 24). One line each; empty when the report is complete."""
+    out, claims = [], Counter()
+    for res in results:
+        if "error" in res:
+            continue
+        exp, units = res["experiment"], res.get("units", {})
+        thesis, why = res.get("thesis", {}), res.get("not_in_thesis", {})
+        for key in res["metrics"]:
+            if not str(units.get(key, "")).strip():
+                out.append(f"{exp}: metric `{key}` has no unit")
+            if key not in thesis and not_printed(key, why) is None:
+                out.append(f"{exp}: metric `{key}` has no thesis number and no reason why not")
+        for name, caption in res.get("figures", {}).items():
+            if not caption:
+                out.append(f"{exp}: figure `{name}` has no caption")
+        claims.update(f["claim"] for f in res.get("findings", []))
+    out += [f"claim text used {n} times: {c!r}" for c, n in claims.items() if n > 1]
+    return out
+
+
 def _summary(results: list[dict]) -> list[str]:
-    """experiment | claim | verdict over every experiment with findings (none: no lines)."""
-    rows = [f"| {_cell(res['experiment'])} | {_cell(f['claim'])} | {_cell(f['verdict'])} |"
-            for res in results for f in res.get("findings", [])]
-    if not rows:
+    """experiment | claim | verdict over every experiment with findings (none: no lines),
+    after the count of each verdict over exactly these rows."""
+    found = [(res["experiment"], f) for res in results for f in res.get("findings", [])]
+    if not found:
         return []
-    return ["**Claims checked** (verdicts computed from this run's metrics; evidence in each "
-            "experiment's section)", "", "| experiment | claim | verdict |", "|---|---|---|",
-            *rows, ""]
+    count = Counter(f["verdict"] for _, f in found)
+    tally = ", ".join(f"{count[v]} {v}" for v in VERDICTS if count[v])
+    return [f"**Claims checked**: {len(found)} ({tally}); verdicts computed from this run's "
+            "metrics, evidence in each experiment's section. A claim checked on a variant "
+            "of the thesis's setting names that variant in its text.", "",
+            "| experiment | claim | verdict |", "|---|---|---|",
+            *(f"| {_cell(e)} | {_cell(f['claim'])} | {_cell(f['verdict'])} |"
+              for e, f in found), ""]
 
 
 def _claims(findings: list[dict]) -> list[str]:
@@ -55,6 +108,10 @@ def write_report(results: list[dict], path: Path, *, incomplete: str | None = No
     if incomplete:
         lines += [f"**Incomplete run**: {_cell(incomplete)}. Only the experiments below "
                   "finished in this run.", ""]
+    if bad := problems(results):
+        lines += ["**Report problems** (issue 24: every row needs a unit and a thesis number "
+                  "or the reason it has none, every figure a caption, every claim its own "
+                  "text):", "", *(f"- {_cell(p)}" for p in bad), ""]
     lines += _summary(results)
     for res in results:
         exp = res["experiment"]
@@ -73,22 +130,35 @@ def write_report(results: list[dict], path: Path, *, incomplete: str | None = No
         lines += _claims(res.get("findings", []))
         lines += ["| metric | unit | ours | thesis | ours / thesis |", "|---|---|---|---|---|"]
         ours, thesis = res["metrics"], res.get("thesis", {})
-        units = res.get("units", {})
+        units, why = res.get("units", {}), res.get("not_in_thesis", {})
+        reasons: dict[str, str] = {}
         for key in list(ours) + [k for k in thesis if k not in ours]:
             o, t = ours.get(key), thesis.get(key)
             ratio = (o / t) if isinstance(o, (int, float)) and isinstance(t, (int, float)) \
                 and t != 0 else None
-            lines.append(f"| {key} | {_cell(units.get(key, ''))} | {_fmt(o)} | {_fmt(t)} | "
-                         f"{_fmt(ratio)} |")
+            cell = _fmt(t)
+            if key not in thesis:
+                # The thesis's number, or the declared reason it has none (listed below).
+                why_not = not_printed(key, why)
+                cell = NOT_PRINTED if why_not else "**undeclared**"
+                if why_not:
+                    reasons.setdefault(*why_not)
+            unit = units.get(key, "") or ("**missing**" if key in ours else "")
+            lines.append(f"| {key} | {_cell(unit)} | {_fmt(o)} | {cell} | {_fmt(ratio)} |")
+        if reasons:
+            lines += ["", f"*{NOT_PRINTED}*: the thesis prints no number for these rows:", ""]
+            lines += [f"- `{_cell(p)}`: {_cell(r)}" for p, r in reasons.items()]
         if res.get("warnings"):
             lines += ["", "Warnings raised during the run:", ""]
             lines += [f"- {_cell(w)}" for w in res["warnings"]]
         if res.get("discussion"):
             lines += ["", res["discussion"].strip()]
-        figs = sorted(p.name for p in (path.parent / exp).glob("*.png"))
-        if figs:
-            lines.append("")
-            lines += [f"![{f}]({exp}/{f})" for f in figs]
+        # This run's figures with their captions (older metrics.json: whatever is there).
+        figs = res["figures"] if "figures" in res else {
+            p.name: None for p in sorted((path.parent / exp).glob("*.png"))}
+        for f, caption in figs.items():
+            lines += ["", f"![{f}]({exp}/{f})", "",
+                      f"*{_cell(caption)}*" if caption else "**no caption declared**"]
         lines.append("")
     # Atomic (issue 23): an interrupted write or a full disk never leaves half a report.
     write_text(path, "\n".join(lines))

@@ -36,7 +36,7 @@ from softgen.core.stop import (Stop, ignore_signals, interrupted, signal_name, s
                                stopping, worker_init)
 from softgen.core.atomic import check_dir, output_error, write_text
 from softgen.core.provenance import code_hash
-from softgen.app.report import write_report
+from softgen.app.report import caption_of, write_report
 from softgen.runtime.simulate import progress_context, set_full_traces, set_progress
 from softgen.core.config import Config
 from softgen.core.errors import SoftgenError
@@ -139,6 +139,8 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None,
         with warnings.catch_warnings(record=True) as caught, progress_context(exp_id):
             warnings.simplefilter("always")
             metrics = exp.run(config, stage)
+        figures = {f.name: caption_of(f.name, exp.captions)
+                   for f in sorted(stage.glob("*.png"))}
         _publish(stage, out)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
@@ -151,6 +153,7 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None,
     metrics = {k: (v if not isinstance(v, float) or math.isfinite(v) else None)
                for k, v in metrics.items()}
     result = {"experiment": exp_id, "metrics": metrics, "thesis": dict(exp.thesis),
+              "not_in_thesis": dict(exp.not_in_thesis), "figures": figures,
               "config": {**config_dict, "quick": quick, "section": exp.section,
                          "title": exp.title},
               "wall_seconds": time.perf_counter() - t0, "cpu_seconds": _cpu_seconds() - c0}

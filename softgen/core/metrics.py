@@ -46,7 +46,12 @@ class Metrics:
     def __init__(self, records: Iterable[Metric] = ()):
         self.records: list[Metric] = list(records)
 
-    def add(self, quantity: str, value: float | None, unit: str = "", **kw: Any) -> Metrics:
+    def add(self, quantity: str, value: float | None, unit: str, **kw: Any) -> Metrics:
+        """Declare one metric; ``unit`` is required ("1" for a dimensionless count or
+        ratio): a report row without a unit cannot be read (issue 24)."""
+        if not (isinstance(unit, str) and unit.strip()):
+            raise ValueError(f"metric {Metric(quantity, None, **kw).key!r}: no unit (give one, "
+                             f"\"1\" for a dimensionless count or ratio)")
         self.records.append(Metric(quantity, None if value is None else float(value), unit, **kw))
         return self
 

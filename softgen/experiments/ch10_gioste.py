@@ -180,7 +180,7 @@ def findings_1dof(m: Metrics, c: OneLinkConfig | None = None) -> list[dict]:
     out += _study_claim(m, c)
     out += C.law_claims(m, "", "")
     out += C.law_claims(m, "tuned_", " (on the loop that tracks: issue-13 gain study)")
-    return out + [C.feasible(m)]
+    return out + [C.feasible(m, "Section 10.3.3 (one-link GioSte)")]
 
 
 def findings_2dof(m: Metrics, c: TwoLinkConfig | None = None) -> list[dict]:
@@ -189,12 +189,9 @@ def findings_2dof(m: Metrics, c: TwoLinkConfig | None = None) -> list[dict]:
         m, c or TwoLinkConfig(), 2, (None,), 12.0, "Fig. 10.12: with K_d = diag(15, 2), "
         "Λ = 8, K_π = 45 both joints track position and stiffness", "Fig. 10.12: no "
         "significant mutual impact of position and stiffness control", "parameters")
-    r, done = m.value("parameter_estimate_max_ratio"), m.value("completed")
-    out.append(finding("Fig. 10.13: parameter estimates remain bounded",
-                       "reproduced" if r < C.BOUNDED_RATIO and done == 1.0 else "not reproduced",
-                       f"largest |Π̂|/|Π| {num(r)} (bounded: below {C.BOUNDED_RATIO} over a "
-                       f"completed run; completed: {bool(done)})"))
-    return out + [C.feasible(m)]
+    out.append(C.bounded_claim(m, "Fig. 10.13: the two-link parameter estimates remain "
+                                  "bounded (no drift over the last phase)"))
+    return out + [C.feasible(m, "Section 10.3.5 (two-link GioSte)")]
 
 
 DISCUSSION = """\
@@ -218,11 +215,50 @@ from its identified maps: they say what those maps and the printed gains imply.
 - `dt_halving_*` checks the 1 ms forward-Euler controller.
 """
 
+#: Sections 10.3.2-10.3.5 ran on hardware and show figures only; no number to compare.
+NOT_IN_THESIS = {"*": "sections 10.3.2-10.3.5 show hardware figures (Fig. 10.6-10.13), no "
+                      "numbers"}
+_RUNS = "positions, stiffnesses, valve voltages and parameter estimates"
+CAPTIONS_1DOF = {
+    "gain_study_inertial_kpi_x*": "The tracking protocol again with K_π of the inertial "
+                                  "parameters scaled (gain study, our diagnostic); layout of "
+                                  "Fig. 10.6-10.8.",
+    "matched_*": "The same protocol with the controller's own muscles as the arm's (diagnostic "
+                 "of the actuator model); layout of Fig. 10.6-10.11 (the one in its name).",
+    "tuned_*": "The open/closed-loop comparison repeated on the K_d of the issue-13 gain study "
+               "that tracks (a variant of the printed gains); layout of Fig. 10.9-10.11.",
+    "fig10_6-10_8_tracking.png": f"Emulated one-link GioSte under Theorem 5, experiments #1-#3 "
+                                 f"(position steps, stiffness steps, both): {_RUNS}; mirrors "
+                                 "Fig. 10.6-10.8.",
+    "fig10_9-10_10_rise_times.png": f"Open-loop against closed-loop stiffness control for "
+                                    f"decreasing position rise times: {_RUNS}; mirrors Fig. "
+                                    "10.9-10.10.",
+    "fig10_11_stiffness_steps.png": f"Open-loop against closed-loop stiffness control under "
+                                    f"stiffness steps at constant position: {_RUNS}; mirrors "
+                                    "Fig. 10.11.",
+    "*.png": "A further run of the one-link emulation, named by its file; layout of "
+             "Fig. 10.6-10.11.",
+}
+CAPTIONS_2DOF = {
+    "gain_study_inertial_kpi_x*": "The two-link protocol again with K_π of the inertial "
+                                  "parameters scaled (gain study, our diagnostic); layout of "
+                                  "Fig. 10.12-10.13.",
+    "matched_*": "The two-link protocol with the controller's own muscles as the arm's "
+                 "(diagnostic of the actuator model); layout of Fig. 10.12-10.13.",
+    "fig10_12-10_13_two_link.png": f"Emulated two-link GioSte under Theorem 5, three phases of "
+                                   f"position and stiffness steps on both joints: {_RUNS}; "
+                                   "mirrors Fig. 10.12-10.13.",
+    "*.png": "A further run of the two-link emulation, named by its file; layout of "
+             "Fig. 10.12-10.13.",
+}
+
 EXPERIMENT_1DOF = Experiment(
     "ch10-gioste-1dof", "Theorem 5 and open-loop stiffness control on the emulated one-link "
     "GioSte", "10.3.2-10.3.4, Fig. 10.6-10.11", run_1dof, OneLinkConfig().check(), QUICK_1DOF,
-    discussion=DISCUSSION, findings=findings_1dof,
+    discussion=DISCUSSION, findings=findings_1dof, not_in_thesis=NOT_IN_THESIS,
+    captions=CAPTIONS_1DOF,
     cost=31.0)  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
 EXPERIMENT_2DOF = Experiment(
     "ch10-gioste-2dof", "Theorem 5 on the emulated two-link GioSte", "10.3.5, Fig. 10.12-10.13",
-    run_2dof, TwoLinkConfig().check(), QUICK_2DOF, discussion=DISCUSSION, findings=findings_2dof)
+    run_2dof, TwoLinkConfig().check(), QUICK_2DOF, discussion=DISCUSSION, findings=findings_2dof,
+    not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS_2DOF)

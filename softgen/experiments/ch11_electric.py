@@ -144,15 +144,19 @@ def _lost(quantity: str, vals: dict) -> list[str]:
 def _findings(family: str):
     plain, integ = FAMILIES[family]
     both = (plain, integ)
+    # Each claim names its cascade: the PD and adaptive experiments check the same
+    # sentences of section 11.2, and a report's claim texts must be unique (issue 24).
+    sec = (f"Section 11.2 ({'PD-augmented' if family == 'pd' else 'adaptive'} cascade, "
+           f"Fig. {FIGURE_NUMBER[plain]}-{FIGURE_NUMBER[integ]})")
 
     def findings(m: Metrics, c: Config | None = None) -> list[dict]:
         """Section 11.2's claims against the metric records (thresholds in each evidence)."""
         out = []
         for v in both:
             if (r := m.find("divergence_time", suffix=v)) is not None:
-                out.append(finding(f"Section 11.2: the {v} cascade runs the whole simulation.",
+                out.append(finding(f"{sec}: the {v} cascade runs the whole simulation.",
                                    "not reproduced", f"Non-finite at t = {num(r.value)} s."))
-        claim = "Section 11.2: the desired motor positions are well tracked in the inner loop."
+        claim = f"{sec}: the desired motor positions are well tracked in the inner loop."
         mot = _values(m, "motor_rms_error", both, joints=[f"{j}{s}" for j in JOINTS
                                                            for s in "ab"])
         if lost := _lost("motor_rms_error", mot):
@@ -162,7 +166,7 @@ def _findings(family: str):
             out.append(finding(claim, graded([x < MOTOR_TOL for x in mot.values()]),
                                f"Largest motor rms error (second half) {num(worst)} rad "
                                f"({v}, motor {j}); threshold < {MOTOR_TOL:g} rad."))
-        claim = "Section 11.2: the link positions converge to their references."
+        claim = f"{sec}: the link positions converge to their references."
         pos = _values(m, "position_rms_error", both)
         if lost := _lost("position_rms_error", pos):
             out.append(not_checked(claim, lost))
@@ -173,7 +177,7 @@ def _findings(family: str):
                                + f"; threshold < {POSITION_TOL:g} rad."))
         mean = _values(m, "stiffness_mean_error", both)
         pred = _values(m, "delta_offset_mean", [plain])
-        claim = ("Section 11.2: without the integral term the stiffness error has a non-zero "
+        claim = (f"{sec}: without the integral term the stiffness error has a non-zero "
                  "mean, caused by the Δ term.")
         if lost := _lost("stiffness_mean_error", _values(m, "stiffness_mean_error", [plain])) \
                 + _lost("delta_offset_mean", pred):
@@ -187,7 +191,7 @@ def _findings(family: str):
                                    f"/k_σ = {num(b[j])}" for j in JOINTS)
                                + "; required: |mean| > 0.05 N m/rad and within 20 % of the Δ "
                                "offset of Remark 10."))
-        claim = "Section 11.2 (Remarks 10-11): the integral term removes the mean stiffness error."
+        claim = f"{sec}, Remarks 10-11: the integral term removes the mean stiffness error."
         if lost := _lost("stiffness_mean_error", mean):
             out.append(not_checked(claim, lost))
         else:
@@ -248,12 +252,28 @@ _DISCUSSION = (
     f"{WINDOW:g} s. `near_singular_events_*` counts spans where a joint's 2 × 2 block of "
     "eq. 11.4 has det < 0.1 · 2Δ.")
 
+#: Section 11.2 shows Fig. 11.2-11.5 and prints no number.
+NOT_IN_THESIS = {"*": "section 11.2 shows Fig. 11.2-11.5 only, no numbers"}
+_WHAT = ("link positions, stiffnesses and motor positions against their references, "
+         "with the motor torques, of the cascade")
+CAPTIONS = {
+    "fig11_2_pd.png": f"PD-augmented cascade without integral term: {_WHAT}; mirrors Fig. 11.2.",
+    "fig11_3_pd_integral.png": f"PD-augmented cascade with the integral term: {_WHAT}; "
+                               "mirrors Fig. 11.3.",
+    "fig11_4_adaptive.png": f"Adaptive cascade without integral term: {_WHAT} and the "
+                            "parameter estimates; mirrors Fig. 11.4.",
+    "fig11_5_adaptive_integral.png": f"Adaptive cascade with the integral term: {_WHAT} and "
+                                     "the parameter estimates; mirrors Fig. 11.5.",
+    "*.png": "A further run of the cascade, named by its file; layout of Fig. 11.2-11.5.",
+}
+
 EXPERIMENT_PD = Experiment(
     id="ch11-electric-pd",
     title="Cascaded PD-augmented position and stiffness control, electric VSAs",
     section="11.2, Fig. 11.2-11.3",
     run=run, config=Ch11Config().check(), quick={"duration": 20.0},
-    findings=_findings("pd"), discussion=_DISCUSSION)
+    findings=_findings("pd"), discussion=_DISCUSSION, not_in_thesis=NOT_IN_THESIS,
+    captions=CAPTIONS)
 
 EXPERIMENT_ADAPTIVE = Experiment(
     id="ch11-electric-adaptive",
@@ -261,7 +281,7 @@ EXPERIMENT_ADAPTIVE = Experiment(
     section="11.2, Fig. 11.4-11.5",
     run=run, config=Ch11Config(family="adaptive", acceleration="measured").check(),
     quick={"duration": 20.0, "variants": False},
-    findings=_findings("adaptive"),
+    findings=_findings("adaptive"), not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS,
     discussion=_DISCUSSION + (
         " Every estimate starts at 0 as in the thesis, with the projection b̂ ≥ `b_min`, "
         "inner Λ_m = `lam_m` and Remark 11's k_π = `kpi_integral` (module docstring: why). "

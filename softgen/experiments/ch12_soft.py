@@ -439,21 +439,64 @@ _DISCUSSION = (
     "actuator input. The regressor has the base parameters of the automatic factorisation "
     "(31 planar, 4 pendulum, 38 in 3D) instead of the thesis's 173 / 4 / 60.")
 
+#: Section 12.2 shows Fig. 12.2-12.7 and prints no number for these simulations.
+NOT_IN_THESIS = {"*": "section 12.2 shows Fig. 12.2-12.7 only, no numbers"}
+_PANELS = ("configuration variables against their references, tracking errors, parameter "
+           "estimates, commanded inputs and the shape")
+CAPTIONS_PLANAR = {
+    "fig12_2_higher_gains.png": f"Planar 4-segment PCC arm, higher gains: {_PANELS}; mirrors "
+                                "Fig. 12.2 (higher-gain row).",
+    "fig12_2_lower_gains.png": f"Planar 4-segment PCC arm, lower gains: {_PANELS}; mirrors "
+                               "Fig. 12.2 (lower-gain row).",
+    "fig12_3_disturbed.png": f"Planar arm with noise (σ = 0.032 rad), 0.5 N per segment and an "
+                             f"initial error of (1, −1, 1, −1) rad: {_PANELS}; mirrors Fig. 12.3.",
+    "fig12_3_*.png": "The Fig. 12.3 case again with force columns in the regressor (an adapted "
+                     "world force, beyond the thesis); layout of Fig. 12.3.",
+}
+CAPTIONS_PENDULUM = {
+    "fig12_4_k1.png": f"Soft inverted pendulum (affine curvature, k = 1 N m/rad) regulated "
+                      f"upright: {_PANELS}; mirrors Fig. 12.4 (low stiffness).",
+    "fig12_4_k4.png": f"Stiffer pendulum (k = 4 N m/rad) regulated upright: {_PANELS}; mirrors "
+                      "Fig. 12.4 (medium stiffness).",
+    "fig12_5_k1.png": f"Pendulum k = 1 with noise (σ = 0.032 rad) and a 5e-3 N disturbance: "
+                      f"{_PANELS}; mirrors Fig. 12.5 (soft pendulum).",
+    "fig12_5_k4.png": f"Pendulum k = 4 with noise and disturbance: {_PANELS}; mirrors Fig. 12.5 "
+                      "(stiff pendulum).",
+    "fig12_5_k1_noise_only.png": "Fig. 12.5's soft case with the noise only (separating the "
+                                 "causes, issue 22); layout of Fig. 12.5.",
+    "fig12_5_k1_force_only.png": "Fig. 12.5's soft case with the force only (issue 22); layout "
+                                 "of Fig. 12.5.",
+    "fig12_5_k1_clean.png": "Fig. 12.5's soft case with the disturbed gains and neither noise "
+                            "nor force (issue 22); layout of Fig. 12.5.",
+    "fig12_5_*forces*.png": "A Fig. 12.5 case again with force columns in the regressor (an "
+                            "adapted tip force, beyond the thesis); layout of Fig. 12.5.",
+}
+CAPTIONS_3D = {
+    "fig12_6_ideal.png": f"3D 4-segment PCC arm tracking sinusoidal references without "
+                         f"disturbance: {_PANELS}; mirrors Fig. 12.6.",
+    "fig12_7_disturbed.png": f"3D arm with noise (σ = 0.032 m), 5 N per segment and an initial "
+                             f"error of ±0.05 m: {_PANELS}; mirrors Fig. 12.7.",
+    "fig12_7_*.png": "A Fig. 12.7 variant named by its file (lateral force, force columns, "
+                     "noise or force alone; beyond the thesis); layout of Fig. 12.7.",
+}
+
 EXPERIMENT_PLANAR = Experiment(
     id="ch12-planar-pcc", title="Theorem 10 on a planar 4-segment PCC soft arm",
     section="12.2.1, Fig. 12.2-12.3", run=run_planar, config=PlanarConfig().check(),
     quick={"duration": 20.0, "t_disturbance": 10.0}, findings=findings_planar,
-    discussion=_DISCUSSION)
+    discussion=_DISCUSSION, not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS_PLANAR)
 EXPERIMENT_PENDULUM = Experiment(
     cost=33.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
     id="ch12-affine-pendulum", title="Theorem 10 regulating a soft inverted pendulum with "
     "affine curvature", section="12.2.2, Fig. 12.4-12.5", run=run_pendulum,
     config=PendulumConfig().check(),
     quick={"duration": 60.0, "t_disturbance": 30.0, "separate_causes": False},
-    findings=findings_pendulum, discussion=_DISCUSSION)
+    findings=findings_pendulum, discussion=_DISCUSSION, not_in_thesis=NOT_IN_THESIS,
+    captions=CAPTIONS_PENDULUM)
 EXPERIMENT_3D = Experiment(
     cost=48.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
     id="ch12-3d-pcc", title="Theorem 10 on a 3D 4-segment PCC soft arm",
     section="12.2.3, Fig. 12.6-12.7", run=run_3d, config=Soft3DConfig().check(),
     quick={"duration": 20.0, "t_disturbance": 12.0, "lateral_variant": False},
-    findings=findings_3d, discussion=_DISCUSSION)
+    findings=findings_3d, discussion=_DISCUSSION, not_in_thesis=NOT_IN_THESIS,
+    captions=CAPTIONS_3D)

@@ -80,8 +80,12 @@ def run(c: NoninvasiveConfig, out) -> Metrics:
 
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Fig. 7.2-7.3 show the estimate on the true stiffness: MSREP below 1 %."""
-    claim = "Fig. 7.2-7.3: the non-invasive estimate follows the true stiffness"
     msrep, mse = m.per_joint("stiffness_msrep"), m.per_joint("stiffness_mse")
+    # The figure of the robot the run has (one joint: Fig. 7.2, two: Fig. 7.3), so that the
+    # two experiments' claims read on their own in the report's summary (issue 24).
+    robot = {1: "Fig. 7.2: on the one-link robot", 2: "Fig. 7.3: on the two-link arm"}
+    claim = f"{robot.get(len(msrep), 'Fig. 7.2-7.3:')} the non-invasive estimate follows " \
+            "the true stiffness"
     if not msrep:
         return [not_checked(claim, ["stiffness_msrep (per joint)"])]
     ok = [v < 1.0 for v in msrep.values()]
@@ -93,14 +97,26 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
                     + " (threshold 1 %); MSE " + ", ".join(num(v) for v in mse.values()))]
 
 
+#: Section 7.3 shows Fig. 7.2-7.3 and prints no number for these simulations.
+NOT_IN_THESIS = {"*": "section 7.3 shows Fig. 7.2-7.3 only, no numbers"}
+
+
+def _captions(fig: str, robot: str) -> dict[str, str]:
+    return {"estimation.png": f"True and estimated stiffness and flexibility (rotatum) torque "
+                              f"of the {robot} with the non-invasive estimator (Theorem 4 + "
+                              f"RLS), and their errors; mirrors Fig. {fig}."}
+
+
 EXPERIMENT_1DOF = Experiment(
     id="ch7-noninvasive-1dof",
     title="Non-invasive stiffness estimation, one-link qbmove robot (Theorem 3/4 + RLS)",
     section="7.3, Fig. 7.2", run=run, config=NoninvasiveConfig(), quick={"duration": 20.0},
-    thesis={}, discussion=DISCUSSION, findings=findings)
+    thesis={}, discussion=DISCUSSION, findings=findings, not_in_thesis=NOT_IN_THESIS,
+    captions=_captions("7.2", "one-link qbmove robot"))
 
 EXPERIMENT_2DOF = Experiment(
     id="ch7-noninvasive-2dof",
     title="Non-invasive stiffness estimation, two-link arm with qbmove VSAs (Theorem 4 + RLS)",
     section="7.3, Fig. 7.3", run=run, config=CONFIG_2DOF, quick={"duration": 20.0},
-    thesis={}, discussion=DISCUSSION, findings=findings)
+    thesis={}, discussion=DISCUSSION, findings=findings, not_in_thesis=NOT_IN_THESIS,
+    captions=_captions("7.3", "two-link arm (both joints)"))

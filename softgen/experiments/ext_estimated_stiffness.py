@@ -208,7 +208,14 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     return out
 
 
+#: An experiment of our own: the thesis prints nothing to compare with.
+NOT_IN_THESIS = {"*": "beyond the thesis (its chapter 13 names it as future work): no thesis number"}
+CAPTIONS = {"estimated_stiffness_feedback.png": "Stiffness and position errors of the adaptive "
+     "cascade (Fig. 11.5 setting) with the stiffness fed back from the true σ and from the "
+     "invasive and non-invasive online estimates; beyond the thesis, no thesis figure."}
+
 EXPERIMENT = Experiment(
+    not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS,
     id="ext-estimated-stiffness-feedback",
     title="Adaptive cascade with the stiffness fed back from an online estimator",
     section="softgen (beyond the thesis: ch. 11 + ch. 6-7 estimators)",

@@ -216,7 +216,12 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     return out
 
 
+#: An experiment of our own: the thesis prints nothing to compare with.
+NOT_IN_THESIS = {"*": "beyond the thesis (Theorem 10 sampled at 1 ms, against the continuous loop): no thesis number"}
+CAPTIONS: dict[str, str] = {}        # it draws no figure
+
 EXPERIMENT = Experiment(
+    not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS,
     cost=69.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
     id="ext-sampled-soft", title="Theorem 10 sampled at 1 ms (linearly implicit) vs the "
     "continuous loop on four soft bodies", section="softgen (beyond 12.2)", run=run,

@@ -52,6 +52,14 @@ class Experiment:
     config: Config | dict             # full run (typed; dict only for legacy modules)
     quick: dict = field(default_factory=dict)   # overrides for a quick run
     thesis: dict = field(default_factory=dict)  # numbers the thesis reports, same keys
+    # Every other metric says why it has no thesis number: metrics.json-key pattern
+    # (fnmatch) -> reason, e.g. {"diagnostic_*": "our time-step check; the thesis runs
+    # none"}; "*" only where the thesis prints no number for the experiment at all. A
+    # metric with neither is flagged in report.md and fails tests/test_report.py.
+    not_in_thesis: dict = field(default_factory=dict)
+    # Figure file-name pattern (fnmatch) -> caption under the figure in report.md: what
+    # it shows and which thesis figure it mirrors (or that it mirrors none).
+    captions: dict = field(default_factory=dict)
     # How to read ours against the thesis's (markdown; refers to metric names, never
     # to numbers, which come only from the run).
     discussion: str = ""

@@ -110,7 +110,17 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     return out
 
 
+#: Chapter 9 states Prop. 10 without a simulation: no thesis numbers or figures.
+NOT_IN_THESIS = {"*": "softgen's own check of Prop. 10 (chapter 9 runs no simulation)"}
+CAPTIONS = {
+    "tracking_error.png": "Position tracking error of both joints under Slotine-Li adaptive "
+                          "control (Prop. 10) on the Table 7.1 arm; no thesis figure.",
+    "parameter_estimates.png": "Parameter estimates π̂ against the true π of the Table 7.1 "
+                               "arm during the same run; no thesis figure.",
+}
+
 EXPERIMENT = Experiment(
+    not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS,
     id="rigid-2link-adaptive",
     title="Slotine-Li adaptive tracking of the two-link arm (Prop. 10)",
     section="chapter 9, Prop. 10; plant of Table 7.1",

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from softgen.core.metrics import Metrics, finding, num
+from softgen.core.metrics import Metrics, finding, graded, not_checked, num
 from softgen.studies.gioste_protocols import TRACKED_COUNTS
-from softgen.studies.indices import POSITION_TO_STIFFNESS, STIFFNESS_TO_POSITION
+from softgen.studies.indices import DRIFT, POSITION_TO_STIFFNESS, STIFFNESS_TO_POSITION
 
 STIFFNESS_FRACTION = 0.01   # stiffness rms over the second half of a phase < 1 % of σ_d
 BOUNDED_RATIO = 10.0        # |Π̂|/|Π| below this: bounded estimates
@@ -101,9 +101,28 @@ def law_claims(m: Metrics, p: str, note: str) -> list[dict]:
     return out
 
 
-def feasible(m: Metrics) -> dict:
+def bounded_claim(m: Metrics, claim: str) -> dict:
+    """Bounded as a trend (issue 24): a completed run, the largest |Π̂|/|Π| below
+    :data:`BOUNDED_RATIO` and ‖Π̂‖ changing by less than :data:`DRIFT` along its trend
+    over the last phase (each phase's steps bring new excitation: the estimates
+    legitimately move when one starts)."""
+    r, done = m.value("parameter_estimate_max_ratio"), m.value("completed")
+    d = m.find("parameter_estimate_norm_drift")
+    if d is None:
+        return not_checked(claim, ["parameter_estimate_norm_drift"])
+    ok = [r < BOUNDED_RATIO and done == 1.0, d.value is not None and d.value < DRIFT]
+    return finding(claim, graded(ok),
+                   f"largest |Π̂|/|Π| {num(r)} (bounded: below {BOUNDED_RATIO} over a "
+                   f"completed run; completed: {bool(done)}); change of ‖Π̂‖ along its trend "
+                   f"over the last phase "
+                   + ("undefined" if d.value is None else num(d.value))
+                   + f" (threshold < {DRIFT:g})")
+
+
+def feasible(m: Metrics, where: str) -> dict:
+    """``where``: the section and robot, so that each experiment's claim is its own."""
     v, f = m.value("pressure_violations"), m.value("voltage_clipped_fraction")
-    return finding("Section 10.3.3: the commanded voltages stay within the valves' range",
+    return finding(f"{where}: the commanded voltages stay within the valves' range",
                    "reproduced" if v == 0 and f == 0 else "not reproduced",
                    f"{int(v)} episodes of commanded pressure outside [0, p(6 V)], "
                    f"{num(100 * f)} % of samples with a clipped voltage (all runs of the "

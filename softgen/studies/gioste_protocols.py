@@ -20,7 +20,8 @@ from softgen.runtime.simulate import Trace
 from softgen.studies import figures_pneumatic as F
 from softgen.studies import gioste as S
 from softgen.studies.indices import (POSITION_TO_STIFFNESS, STIFFNESS_TO_POSITION,
-                                     coupling_records, parameter_ratio, phase_rms_records, rms)
+                                     coupling_records, norm_drift, parameter_ratio,
+                                     phase_rms_records, rms)
 
 #: A run tracks when its settled |q − q_d| is within this many encoder counts.
 TRACKED_COUNTS = 2
@@ -68,6 +69,11 @@ def indices(su: S.Bench, cat: Trace, phases, runs: dict[int | None, Trace]) -> M
                       "physical_stiffness_rms_error", "N m/rad")
     m.add("parameter_estimate_max_ratio",
           parameter_ratio(cat["ctrl.Pi_hat"][cat.valid], su.arm.Pi_nominal), "1")
+    # Fig. 10.13's "remain bounded" as a trend (issue 24), over the last phase only: each
+    # phase's steps bring new excitation and the estimates legitimately move with them.
+    m.add("parameter_estimate_norm_drift", norm_drift(
+        cat.t[cat.valid], np.linalg.norm(cat["ctrl.Pi_hat"][cat.valid], axis=1),
+        since=phases[-1][0]), "1")
     for k, r in runs.items():
         m.add("diverged_at", S.stop_time(r), "s", phase=k)
         m.add("completed", float(r.stopped_at is None), "1", phase=k)

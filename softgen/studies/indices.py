@@ -118,6 +118,26 @@ def parameter_ratio(Pi_hat, Pi) -> float:
     return float(np.max(np.linalg.norm(np.asarray(Pi_hat), axis=1)) / np.linalg.norm(Pi))
 
 
+#: "Bounded" as a trend: ‖π̂‖ changes by less than this fraction along its least-squares
+#: line over the window :func:`norm_drift` reads (issue 24; chapters 10 and 12).
+DRIFT = 0.05
+
+
+def norm_drift(t: np.ndarray, norm: np.ndarray, *, since: float | None = None) -> float:
+    """Relative change of ‖π̂‖ over the window t ≥ ``since`` (default: the second half of
+    the run) along its least-squares line: slope × window length / mean. "Bounded" as a
+    trend (issue 24): a threshold on max ‖π̂‖ passes an estimate that still drifts
+    linearly at the end of a finite run."""
+    t, norm = np.asarray(t), np.asarray(norm)
+    half = t >= (t[0] + (t[-1] - t[0]) / 2 if since is None else since)
+    th, nh = t[half], norm[half]
+    if th.size < 3 or not np.all(np.isfinite(nh)):
+        return float("nan")
+    slope = np.polyfit(th - th[0], nh, 1)[0]
+    mean = float(np.mean(nh))
+    return float(abs(slope) * (th[-1] - th[0]) / mean) if mean > 0 else 0.0
+
+
 def rms(e, axis=None):
     """Root mean square of ``e`` (over ``axis``)."""
     return np.sqrt(np.mean(np.asarray(e) ** 2, axis=axis))

@@ -35,6 +35,7 @@ from softgen.control.soft import (backbone_samples, closed_loop_block, controlle
                                   force_groups, force_names, plant_block, tip_force_block)
 from softgen.core.config import Config
 from softgen.core.metrics import Metrics
+from softgen.studies.indices import norm_drift
 from softgen.studies.scenario import Scenario
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 
@@ -192,19 +193,6 @@ def convergence_time(t: np.ndarray, err: np.ndarray, band: float) -> float:
     if above[-1] == len(t) - 1:
         return float("inf")
     return float(t[above[-1] + 1])
-
-
-def norm_drift(t: np.ndarray, norm: np.ndarray) -> float:
-    """Relative change of ‖π̂‖ over the second half of the run along its least-squares
-    line: slope × (half the run) / mean. "Bounded" as a trend (issue 24): a threshold
-    on max ‖π̂‖ passes an estimate that still drifts linearly at the end of a finite run."""
-    half = t >= t[0] + (t[-1] - t[0]) / 2
-    th, nh = t[half], norm[half]
-    if th.size < 3 or not np.all(np.isfinite(nh)):
-        return float("nan")
-    slope = np.polyfit(th - th[0], nh, 1)[0]
-    mean = float(np.mean(nh))
-    return float(abs(slope) * (th[-1] - th[0]) / mean) if mean > 0 else 0.0
 
 
 def tracking_records(t, q_d, q, pi_hat, tau, *, unit: str, window: float, band: float,

@@ -5,12 +5,12 @@ suffix), never by parsing names; an absent record makes the claim "not checked".
 from __future__ import annotations
 
 from softgen.core.metrics import Metrics, finding, graded, not_checked, num
+from softgen.studies.indices import DRIFT
 
 #: Thresholds of the findings (unit of the configuration: rad, or m for the 3D robot).
 CONVERGED = {"planar": 0.02, "pendulum": 0.05, "3d": 0.02}     # rms ‖e‖, last 10 s
 ROBUST = {"planar": 0.1, "pendulum": 0.1, "3d": 0.05}          # with noise σ = 0.032
 BOUNDED = 100.0                                                # max ‖π̂‖
-DRIFT = 0.05          # relative change of ‖π̂‖ along its trend over the second half
 
 
 def records_of(m: Metrics, quantity: str, suffixes) -> dict[str, float] | list[str]:
