@@ -94,6 +94,8 @@ NOT_IN_THESIS = {
     "*rotatum*": "our observer diagnostics",
     "*update_fraction_phase*": "our share of samples with the RLS updating",
     "*achieved_over_desired_stiffness*": "our check of the emulated stiffness allocation",
+    "*stiffness_ratio_to_plant_*": "our mean σ̂/σ_plant: whether the estimate lands on the "
+                                   "plant's springs (1) or the datasheet's (0.833)",
     "*estimator_seconds_per_step": "our timing",
     "lowpass_hz": "our filter setting (issue 13)",
     "metric_window_*": "the window the indices cover",
