@@ -234,8 +234,12 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
     rows = diagram.recorded(record)
     key = (chunk, None if record is None else tuple(record), backend)
     if key not in diagram.compiled:
+        # The compiled loop calls the diagram's sample function once per sample, writing
+        # the recorded signals straight into the trace (codegen.generate._plain_loop).
+        lf = diagram.loop_fun(chunk, record)
         diagram.compiled[key] = compile_functions(
-            diagram.loop_name(record), [diagram.loop_fun(chunk, record)], backend=backend)
+            diagram.loop_name(record), [lf], backend=backend,
+            loops={lf.name(): diagram.sample_fun(record)})
     loop = next(iter(diagram.compiled[key].values()))
     ins, outs = loop.inputs, loop.outputs
     ins[1][:] = P
