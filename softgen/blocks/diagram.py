@@ -242,6 +242,27 @@ class ClosedLoop:
         digest = hashlib.sha256(",".join(self.recorded(record).names).encode()).hexdigest()
         return f"{self.name}_rec{digest[:8]}"
 
+    def sample_fun(self, record: Sequence[str] | None = None, *,
+                   name: str | None = None) -> ca.Function:
+        """``<loop name>_sample``: one sample of :meth:`loop_fun`, the function it repeats.
+
+        ``(xa, p, e) -> (xa_next, y)`` with xa = (x, k): the state and the sample index
+        travel together (the accumulator), ``y`` holds the :meth:`recorded` signals.
+        The driver's compiled loop calls it once per sample (``codegen.generate``,
+        ``BundleSpec.loops``).
+        """
+        rows = self.recorded(record)
+        f = self.step_fun()
+        nx = self.state.size
+        Xa, P, E = ca.SX.sym("xa", nx + 1), ca.SX.sym("p", self.params.size), \
+            ca.SX.sym("e", self.externals.size)
+        xn, y = f(Xa[:nx], P, Xa[nx], E)
+        if record is not None:
+            y = ca.vertcat(*[y[self.signals.slice(r.name)] for r in rows])
+        return ca.Function(name or f"{self.loop_name(record)}_sample", [Xa, P, E],
+                           [ca.vertcat(xn, Xa[nx] + 1), y], ["xa", "p", "e"],
+                           ["xa_next", "y"])
+
     def loop_fun(self, steps: int, record: Sequence[str] | None = None) -> ca.Function:
         """``<name>_loop``: ``steps`` samples of the whole diagram in one function.
 
@@ -255,16 +276,8 @@ class ClosedLoop:
         key = (steps, None if record is None else tuple(record))
         if key in self._loops:
             return self._loops[key]
-        rows = self.recorded(record)
-        f = self.step_fun()
         nx = self.state.size
-        Xa, P, E = ca.SX.sym("xa", nx + 1), ca.SX.sym("p", self.params.size), \
-            ca.SX.sym("e", self.externals.size)
-        xn, y = f(Xa[:nx], P, Xa[nx], E)
-        if record is not None:
-            y = ca.vertcat(*[y[self.signals.slice(r.name)] for r in rows])
-        one = ca.Function("one_sample", [Xa, P, E], [ca.vertcat(xn, Xa[nx] + 1), y],
-                          ["xa", "p", "e"], ["xa_next", "y"])
+        one = self.sample_fun(record, name="one_sample")
         acc = one.mapaccum("acc", steps, [0], [0])
         X0, Pm, k0 = ca.MX.sym("x0", nx), ca.MX.sym("p", self.params.size), ca.MX.sym("k0")
         Em = ca.MX.sym("e", self.externals.size, steps)

@@ -44,6 +44,9 @@ class BundleSpec:
     identity: bytes = b""          # model file bytes + options: what the hash covers
     extra: dict = field(default_factory=dict)   # extra manifest keys (e.g. "model_file")
     optimization: str = "-O3"      # compiler level; recorded in the manifest when not -O3
+    #: Loop functions (``mapaccum`` of a per-sample function) to emit as a plain C loop:
+    #: loop name -> the function it repeats (see :func:`_plain_loop`).
+    loops: dict[str, ca.Function] = field(default_factory=dict)
 
 
 def content_hash(identity: bytes) -> str:
@@ -90,6 +93,74 @@ def _write_atomic(path: Path, data: bytes) -> None:
         raise
 
 
+def _plain_loop(c_src: bytes, loop: ca.Function, sample: ca.Function) -> bytes:
+    """``loop`` (N samples of ``sample`` by ``mapaccum``) re-emitted as a plain C loop.
+
+    ``loop``: ``(x0 (nx), p, k0 (1), E (ne × N)) -> (X (nx × N), Y (ny × N))``,
+    ``sample``: ``(xa = (x, k), p, e) -> (xa_next, y)``. CasADi builds ``mapaccum`` as a
+    tower of nested unrolled calls (10 per level) that copies the state and the
+    recorded signals into a work vector at every level and repeats ``p`` N times, so
+    every recorded signal costs memory traffic per level (issue 25: Theorem 5's loop
+    ran at ~2,300x real time recording 7 signals against ~3,000x recording q, in CPU
+    time). Here the same ``sample`` code is called once per sample, writing y straight
+    into the output column and x into X; the state moves by pointer swap. The CasADi
+    function is unchanged (its API, sizes, names; the CasADi backend evaluates the
+    tower); only its exported entry point calls this loop. Same operations in the same
+    order on every sample: the numbers are the same.
+    """
+    n_x = sample.sparsity_in(0).nnz() - 1
+    n_p, n_e = sample.sparsity_in(1).nnz(), sample.sparsity_in(2).nnz()
+    n_y, steps = sample.sparsity_out(1).nnz(), loop.sparsity_out(1).size2()
+    shapes = ([loop.sparsity_in(i).size() for i in range(4)],
+              [loop.sparsity_out(i).size() for i in range(2)])
+    if (loop.n_in(), loop.n_out(), sample.n_in(), sample.n_out()) != (4, 2, 3, 2) or \
+            shapes != ([(n_x, 1), (n_p, 1), (1, 1), (n_e, steps)],
+                       [(n_x, steps), (n_y, steps)]) or \
+            not all(sample.sparsity_in(i).is_dense() for i in range(3)) or \
+            not all(sample.sparsity_out(i).is_dense() for i in range(2)):
+        raise ValueError(f"loops: {loop.name()} is not N samples of {sample.name()} "
+                         "(x0, p, k0, E) -> (X, Y)")
+    # The loop borrows the tower's work vectors, which hold every nested call's.
+    n_a = n_x + 1
+    if loop.sz_arg() < 4 + sample.sz_arg() or loop.sz_res() < 2 + sample.sz_res() or \
+            loop.sz_iw() < sample.sz_iw() or loop.sz_w() < 2 * n_a + sample.sz_w():
+        raise ValueError(f"loops: the work vectors of {loop.name()} are too small for "
+                         f"a loop over {sample.name()}")
+    name, fn = loop.name(), f"softgen_plain_{loop.name()}"
+    entry = (f"CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, "
+             "casadi_int* iw, casadi_real* w, int mem){\n")
+    text = c_src.decode()
+    head, sep, rest = text.partition(entry)
+    call, nl, tail = rest.partition("\n")
+    if not sep or entry in tail or not (call.startswith("  return casadi_f")
+                                        and call.endswith("(arg, res, iw, w, mem);")):
+        raise ValueError(f"loops: no entry point of {name} in the generated C (a CasADi "
+                         "version that emits it differently)")
+    body = f"""/* {name}: {steps} samples of {sample.name()} in a plain loop (softgen). */
+static int {fn}(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {{
+  const casadi_real** a = arg + 4;
+  casadi_real** r = res + 2;
+  casadi_real *xa = w, *xb = w + {n_a}, *t;
+  casadi_int i, j;
+  for (i = 0; i < {n_x}; ++i) xa[i] = arg[0] ? arg[0][i] : 0;
+  xa[{n_x}] = arg[2] ? arg[2][0] : 0;
+  for (j = 0; j < {steps}; ++j) {{
+    a[0] = xa;
+    a[1] = arg[1];
+    a[2] = arg[3] ? arg[3] + j * {n_e} : 0;
+    r[0] = xb;
+    r[1] = res[1] ? res[1] + j * {n_y} : 0;
+    if ({sample.name()}(a, r, iw, w + {2 * n_a}, 0)) return 1;
+    if (res[0]) for (i = 0; i < {n_x}; ++i) res[0][j * {n_x} + i] = xb[i];
+    t = xa; xa = xb; xb = t;
+  }}
+  return 0;
+}}
+
+"""
+    return (head + body + entry + f"  return {fn}(arg, res, iw, w, mem);" + nl + tail).encode()
+
+
 def render(spec: BundleSpec) -> dict[str, bytes]:
     """The bundle's files as bytes, keyed by file name (nothing is written)."""
     names = [g.function.name() for g in spec.functions]
@@ -98,13 +169,22 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
     for n in names:
         if not n.startswith(spec.name + "_"):
             raise ValueError(f"functions: {n!r} must be named {spec.name}_<quantity>")
+    loops = {f.name(): f for f in (g.function for g in spec.functions)
+             if f.name() in spec.loops}
+    if set(loops) != set(spec.loops):
+        raise ValueError(f"loops: {', '.join(sorted(set(spec.loops) - set(loops)))} "
+                         f"not among the functions of bundle {spec.name!r}")
     with tempfile.TemporaryDirectory() as tmp:
         cg = ca.CodeGenerator(f"{spec.name}.c", CODEGEN_OPTS)
+        for sample in spec.loops.values():    # defined before the loops that call them
+            cg.add(sample)
         for g in spec.functions:
             cg.add(g.function)
         cg.generate(tmp + os.sep)
         c_src = (Path(tmp) / f"{spec.name}.c").read_bytes()
         h_src = (Path(tmp) / f"{spec.name}.h").read_bytes()
+    for name, f in loops.items():
+        c_src = _plain_loop(c_src, f, spec.loops[name])
     digest = content_hash(spec.identity)
     manifest = {
         "model": spec.name,

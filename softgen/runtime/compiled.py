@@ -29,11 +29,13 @@ _warned = False
 
 def compile_functions(name: str, functions: list[ca.Function], *,
                       docs: dict[str, str] | None = None,
-                      backend: str = "auto") -> dict[str, BundleFunction]:
+                      backend: str = "auto",
+                      loops: dict[str, ca.Function] | None = None) -> dict[str, BundleFunction]:
     """Compile ``functions`` (named ``<name>_<quantity>``) once; load them with buffers.
 
     ``backend``: ``"auto"`` (C if a compiler exists, else CasADi), ``"c"`` or
-    ``"casadi"``.
+    ``"casadi"``. ``loops``: loop function name -> the per-sample function its
+    ``mapaccum`` repeats, emitted as a plain C loop (``BundleSpec.loops``).
     """
     global _warned
     if backend not in ("auto", "c", "casadi"):
@@ -47,7 +49,7 @@ def compile_functions(name: str, functions: list[ca.Function], *,
     docs = docs or {}
     # Compiled on first use, once per machine: -O1 (see codegen.build.OPT_LEVELS).
     spec = BundleSpec(name=name, functions=[Generated(f, docs.get(f.name(), "")) for f in functions],
-                      optimization="-O1")
+                      optimization="-O1", loops=dict(loops or {}))
     files = render(spec)
     digest = hashlib.sha256(files[f"{name}.c"]).hexdigest()[:16]
     spec.identity = files[f"{name}.c"]

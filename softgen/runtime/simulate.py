@@ -58,6 +58,7 @@ class Trace:
     stop_reason: str | None = None
     wall_seconds: float = 0.0
     meta: dict = field(default_factory=dict)
+    cpu_seconds: float = 0.0
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name in self.signals:
@@ -121,6 +122,12 @@ class Trace:
     def realtime_factor(self) -> float:
         """Simulated seconds per wall second of the loop calls (compilation excluded)."""
         return self.simulated_seconds / self.wall_seconds if self.wall_seconds else float("inf")
+
+    @property
+    def cpu_realtime_factor(self) -> float:
+        """Simulated seconds per CPU second of the calling thread over the same span: on
+        a loaded machine the wall clock also counts the time other processes ran."""
+        return self.simulated_seconds / self.cpu_seconds if self.cpu_seconds else float("inf")
 
 
 Predicate = Callable[[Trace], np.ndarray]
@@ -234,8 +241,12 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
     rows = diagram.recorded(record)
     key = (chunk, None if record is None else tuple(record), backend)
     if key not in diagram.compiled:
+        # The compiled loop calls the diagram's sample function once per sample, writing
+        # the recorded signals straight into the trace (codegen.generate._plain_loop).
+        lf = diagram.loop_fun(chunk, record)
         diagram.compiled[key] = compile_functions(
-            diagram.loop_name(record), [diagram.loop_fun(chunk, record)], backend=backend)
+            diagram.loop_name(record), [lf], backend=backend,
+            loops={lf.name(): diagram.sample_fun(record)})
     loop = next(iter(diagram.compiled[key].values()))
     ins, outs = loop.inputs, loop.outputs
     ins[1][:] = P
@@ -252,7 +263,7 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
     show = sys.stderr.isatty() if progress is None else progress
     if _PROGRESS["prefix"]:
         label = f"{_PROGRESS['prefix']}: {label}"
-    t_wall = time.perf_counter()
+    t_wall, t_cpu = time.perf_counter(), time.thread_time()
     last_print = t_wall
     n_done, stopped_at, reason = 0, None, None
     final = X.copy()
@@ -296,14 +307,15 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
             print(f"{label}: {n_done * dt:.1f}/{steps * dt:.1f} s simulated, "
                   f"{n_done / steps * 100:.0f} %, ETA {el * (steps - n_done) / n_done:.0f} s",
                   file=sys.stderr, flush=True)
-    wall = time.perf_counter() - t_wall
+    wall, cpu = time.perf_counter() - t_wall, time.thread_time() - t_cpu
     loop.release_output(1)      # the cached loop must not keep this trace alive
     Y = Y[:n_done]
     signals = {r.name: Y[:, rows.slice(r.name)] for r in rows}
     t = signals.pop(TIME)[:, 0].copy()
     return Trace(t=t, signals=signals, final_state=diagram.state.split(final),
                  next_k=k0 + n_done, stopped_at=stopped_at, stop_reason=reason,
-                 wall_seconds=wall, meta={"dt": dt, "diagram": diagram.name})
+                 wall_seconds=wall, meta={"dt": dt, "diagram": diagram.name},
+                 cpu_seconds=cpu)
 
 
 def _externals(diagram: ClosedLoop, given: Mapping, steps: int) -> np.ndarray | None:
