@@ -251,3 +251,49 @@ def test_bundle_modules_import_no_cycle():
     for n in graph:
         visit(n)
     assert "bundle" not in graph["soft"] and "bundle" not in graph["rigid"]
+
+
+def _two_functions(prefix: str):
+    import casadi as ca
+    from softgen.codegen.generate import BundleSpec, Generated
+    x = ca.SX.sym("x", 3)
+    small = ca.Function(f"{prefix}_small", [x], [ca.sin(x) * 2], ["x"], ["y"])
+    big = ca.Function(f"{prefix}_big", [x], [ca.cos(x) + ca.sumsqr(x)], ["x"], ["y"])
+    return BundleSpec(name=prefix, functions=[Generated(small, "small one"),
+                                              Generated(big, "big one", optimization="-O1")])
+
+
+def test_function_levels_wrap_only_their_functions(need_compiler, tmp_path):
+    """A function at its own level is one guarded push/optimize/pop stretch of the C,
+    from its heading to its work functions; the library still equals CasADi."""
+    spec = _two_functions("lv")
+    files = render(spec)
+    src = files["lv.c"].decode()
+    body = src[src.index("#pragma GCC push_options"):src.index("#pragma GCC pop_options")]
+    assert src.count("#pragma GCC optimize") == 1 and '#pragma GCC optimize ("O1")' in body
+    assert "/* lv_big:(" in body and "lv_big_work_bytes(" in body and "lv_small" not in body
+    m = json.loads(files["manifest.json"])
+    assert m["functions"]["lv_big"]["optimization"] == "-O1"
+    assert "optimization" not in m["functions"]["lv_small"]
+    from softgen.codegen.generate import write_bundle
+    b = load_bundle(write_bundle(spec, tmp_path), model_check=None, backend="c")
+    for g in spec.functions:
+        x = np.array([0.3, -1.2, 2.0])
+        assert np.allclose(b[g.function.name()](x), np.array(g.function(x)).ravel(),
+                           rtol=1e-14, atol=0)
+
+
+def test_function_level_rule(specs):
+    """Loops (MX maps) at -O1, straight-line functions at the bundle's level; in model
+    bundles the controller, closed-loop and estimator steps at -O1, the model at -O3."""
+    import casadi as ca
+    from softgen.codegen.generate import function_level
+    x = ca.SX.sym("x", 1)
+    f = ca.Function("f", [x], [ca.sin(x)])
+    assert function_level(f) == "-O3" and function_level(f.mapaccum(10)) == "-O1"
+    assert function_level(f, "-O1") == "-O1"
+    fns = json.loads(render(specs["planar_2link"])["manifest.json"])["functions"]
+    assert fns["planar_2link_electric_cascade_pd"]["optimization"] == "-O1"
+    assert fns["planar_2link_slotine_li_loop"]["optimization"] == "-O1"
+    for q in ("inertia", "regressor", "forward_dynamics"):
+        assert "optimization" not in fns[f"planar_2link_{q}"]

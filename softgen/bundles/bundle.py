@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import warnings
+from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -55,6 +56,19 @@ def bundle_spec(model: RobotModel | SoftModel,
     return _assemble(model, options)
 
 
+#: Capabilities whose functions are steps run in loops: controllers, closed loops and
+#: estimators. Their C is compiled at :data:`STEP_LEVEL` inside the -O3 bundle (issue
+#: 25). They are most of a bundle's compile time (planar_2link: 6.1 CPU-s at -O3,
+#: 3.7 with its electric plant, cascades and estimators at -O1) and gain nothing from
+#: -O3: measured per call (cbench, loaded machine) those of planar_2link took 0.69-0.95
+#: of their -O3 time and pcc_planar_4seg's Theorem 10 steps 0.81-1.22; experiments run
+#: them in run-time diagrams compiled at -O1 anyway (runtime.compiled). The model
+#: quantities (dynamics, regressors, plants) stay at -O3, where the regressors gain
+#: 10-30 % (codegen.build.CFLAGS).
+STEP_LAYERS = ("control", "estimation")
+STEP_LEVEL = "-O1"
+
+
 @lru_cache(maxsize=8)
 def _cached_soft_spec(text: str, path, options: BundleOptions, model: SoftModel) -> BundleSpec:
     del text, path       # the cache key; ``model`` was parsed from them
@@ -74,7 +88,8 @@ def _assemble(model, options: BundleOptions) -> BundleSpec:
     fns, caps = [], REGISTRY.applicable(model)
     for cap in caps:
         part = cap.build(ctx)
-        fns += part.functions
+        fns += [replace(g, optimization=g.optimization or STEP_LEVEL)
+                if cap.layer in STEP_LAYERS else g for g in part.functions]
         merge(extra, part.extra)
     extra["capabilities"] = [c.name for c in caps]
     if getattr(model, "original_name", ""):

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,17 +22,24 @@ import casadi as ca
 from softgen.codegen.build import clean_orphans, library_name
 
 #: Bumped whenever the generated code for the same model would change.
-CODEGEN_VERSION = "2"   # 2: issue 22 (declared actuators, sampled Theorem 10, multi-DoF UIO)
+# 2: issue 22 (declared actuators, sampled Theorem 10, multi-DoF UIO)
+# 3: issue 25 (per-function compiler levels, codegen.generate.function_level)
+CODEGEN_VERSION = "3"
 
 CODEGEN_OPTS = {"with_header": True}
 
 
 @dataclass(frozen=True)
 class Generated:
-    """One function to emit: the casadi.Function and a one-line description."""
+    """One function to emit: the casadi.Function and a one-line description.
+
+    ``optimization``: the compiler level of this function's C when it differs from
+    the bundle's (None: :func:`function_level` decides).
+    """
 
     function: ca.Function
     doc: str
+    optimization: str | None = None
 
 
 @dataclass
@@ -75,6 +83,61 @@ def _can_fail(f: ca.Function) -> bool:
     return not f.is_a("SXFunction")
 
 
+def function_level(f: ca.Function, bundle_level: str = "-O3") -> str:
+    """The compiler level of ``f``'s C in a bundle compiled at ``bundle_level``.
+
+    Loops (CasADi maps and mapaccums: anything but a straight-line SX function) are
+    compiled at -O1: on the largest one (the 3D soft loop) gcc takes 6.2 s instead of
+    16.1 s and the code is no slower (11.2 vs 17.3 ms per 1000 samples; see
+    :data:`softgen.codegen.build.OPT_LEVELS`). Bundles choose other functions' levels
+    themselves (:attr:`Generated.optimization`). A fixed rule, never a timing taken at
+    generate time, so that generated/ stays byte-identical everywhere.
+    """
+    if bundle_level != "-O3":
+        return bundle_level
+    return "-O3" if f.is_a("SXFunction") else "-O1"
+
+
+#: The first line of each function CasADi emits (``/* name:(inputs)->(outputs) */``).
+_HEADING = re.compile(rb"^/\* [A-Za-z_][A-Za-z0-9_]*:\(", re.M)
+_GNU = b"#if defined(__GNUC__) && !defined(__clang__)\n"
+
+
+def with_levels(c_src: bytes, names: list[str], levels: dict[str, str]) -> bytes:
+    """``c_src`` with the functions of ``levels`` compiled at their own level.
+
+    Each named function's stretch of the file (its helpers, first emitted for it, the
+    exported wrapper and its work functions) is wrapped in ``#pragma GCC
+    push_options``/``optimize``/``pop_options``; compilers other than gcc skip the
+    pragmas (guarded), so the file stays standalone C. ``names``: every exported
+    function of the file, in the order they were added to the code generator.
+    """
+    out, pos = [], 0
+    for name in names:
+        m = re.search(rb"CASADI_SYMBOL_EXPORT int " + name.encode() + rb"_work_bytes\(",
+                      c_src[pos:])
+        if m is None:
+            raise ValueError(f"{name}: no {name}_work_bytes in the generated C")
+        end = c_src.index(b"\n}\n", pos + m.end()) + 3
+        level = levels.get(name)
+        if level is not None:
+            head = _HEADING.search(c_src, pos, end)
+            if head is None:
+                raise ValueError(f"{name}: no function heading in the generated C")
+            start = head.start()
+            out += [c_src[pos:start],
+                    b"/* softgen: compiled at " + level.encode() + b" (codegen.generate."
+                    b"function_level) */\n" + _GNU + b"#pragma GCC push_options\n"
+                    b"#pragma GCC optimize (\"" + level.lstrip("-").encode() + b"\")\n"
+                    b"#endif\n", c_src[start:end],
+                    _GNU + b"#pragma GCC pop_options\n#endif\n"]
+        else:
+            out.append(c_src[pos:end])
+        pos = end
+    out.append(c_src[pos:])
+    return b"".join(out)
+
+
 def _write_atomic(path: Path, data: bytes) -> None:
     """Write via a temporary file and rename, so a reader never sees half a file."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -105,6 +168,10 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         cg.generate(tmp + os.sep)
         c_src = (Path(tmp) / f"{spec.name}.c").read_bytes()
         h_src = (Path(tmp) / f"{spec.name}.h").read_bytes()
+    levels = {g.function.name(): lvl for g in spec.functions
+              if (lvl := g.optimization or function_level(g.function, spec.optimization))
+              != spec.optimization}
+    c_src = with_levels(c_src, names, levels)
     digest = content_hash(spec.identity)
     manifest = {
         "model": spec.name,
@@ -120,7 +187,9 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         "functions": {
             g.function.name(): {**signature(g.function), "doc": g.doc,
                                 "instructions": int(g.function.n_instructions()),
-                                "can_fail": _can_fail(g.function)}
+                                "can_fail": _can_fail(g.function),
+                                **({"optimization": levels[g.function.name()]}
+                                   if g.function.name() in levels else {})}
             for g in spec.functions
         },
         **spec.extra,
