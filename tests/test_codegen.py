@@ -297,3 +297,24 @@ def test_function_level_rule(specs):
     assert fns["planar_2link_slotine_li_loop"]["optimization"] == "-O1"
     for q in ("inertia", "regressor", "forward_dynamics"):
         assert "optimization" not in fns[f"planar_2link_{q}"]
+
+
+def test_generate_keeps_an_up_to_date_bundle(tmp_path):
+    """`softgen generate` derives nothing when the bundle is current (a fresh clone's
+    generated/), and derives again when its C was edited or with --force."""
+    from softgen.bundles.bundle import up_to_date
+    from softgen.cli import main
+    out = tmp_path / "g"
+    d = generate("pendulum_1link", out)
+    model = load_model("pendulum_1link")
+    assert up_to_date(model, d)
+    c = d / "pendulum_1link.c"
+    shipped = c.read_bytes()
+    c.write_bytes(shipped + b"/* edited */\n")
+    assert not up_to_date(model, d)
+    assert main(["generate", "pendulum_1link", "--out", str(out), "--no-build"]) == 0
+    assert c.read_bytes() == shipped and up_to_date(model, d)
+    m = json.loads((d / "manifest.json").read_text())
+    m["hash"] = "0" * 64
+    (d / "manifest.json").write_text(json.dumps(m))
+    assert not up_to_date(model, d)

@@ -9,6 +9,7 @@ This module knows no model name and no controller.
 from __future__ import annotations
 
 import hashlib
+import json
 import warnings
 from dataclasses import replace
 from functools import lru_cache
@@ -229,6 +230,28 @@ def generate(name_or_path: str | Path, out_root: Path = GENERATED_DIR,
     if inertia is not None:
         check_inertia_positive_definite(model, inertia)
     return write_bundle(spec, out_root)
+
+
+def up_to_date(model: RobotModel | SoftModel, bundle: Path,
+               options: BundleOptions = DEFAULT_OPTIONS) -> bool:
+    """Whether ``bundle`` is what generating ``model`` now would write.
+
+    Its manifest's hash covers the model file's text, the options, the CasADi version
+    and :data:`~softgen.codegen.generate.CODEGEN_VERSION` (bumped whenever the C for
+    the same model changes), and its C and header must match the manifest's sha256;
+    then deriving again gives the same bytes (tests/test_codegen.py checks that the
+    shipped generated/ is exactly what derivation writes). Deriving every model costs
+    ~24 CPU-s of ``softgen generate --all`` (issue 25), for nothing on a fresh clone.
+    """
+    from softgen.codegen.build import check_source, read_manifest
+    try:
+        manifest = read_manifest(bundle)
+        check_source(bundle, manifest)
+    except BundleError:
+        return False
+    return (manifest.get("options") == json.loads(json.dumps(options.__dict__))
+            and manifest["hash"] == content_hash(identity_bytes(model.source_text(), options))
+            and manifest.get("model_file") == model_source(model)["model_file"])
 
 
 def generate_all(out_root: Path = GENERATED_DIR) -> list[Path]:
