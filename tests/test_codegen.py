@@ -275,6 +275,12 @@ def test_function_levels_wrap_only_their_functions(need_compiler, tmp_path):
     m = json.loads(files["manifest.json"])
     assert m["functions"]["lv_big"]["optimization"] == "-O1"
     assert "optimization" not in m["functions"]["lv_small"]
+    from softgen.codegen.build import OPT_LEVELS
+    from softgen.codegen.manifest import LEVELS, validate_manifest
+    assert LEVELS == OPT_LEVELS
+    m["functions"]["lv_big"]["optimization"] = "-Ofast"
+    with pytest.raises(BundleError, match="lv_big.optimization: expected one of -O1"):
+        validate_manifest(m)
     from softgen.codegen.generate import write_bundle
     b = load_bundle(write_bundle(spec, tmp_path), model_check=None, backend="c")
     for g in spec.functions:
