@@ -291,7 +291,7 @@ def test_function_levels_wrap_only_their_functions(need_compiler, tmp_path):
 
 def test_function_level_rule(specs):
     """Loops (MX maps) at -O1, straight-line functions at the bundle's level; in model
-    bundles the controller, closed-loop and estimator steps at -O1, the model at -O3."""
+    bundles the controller and closed-loop steps at -O1, the model and estimators at -O3."""
     import casadi as ca
     from softgen.codegen.generate import function_level
     x = ca.SX.sym("x", 1)
@@ -301,7 +301,7 @@ def test_function_level_rule(specs):
     fns = json.loads(render(specs["planar_2link"])["manifest.json"])["functions"]
     assert fns["planar_2link_electric_cascade_pd"]["optimization"] == "-O1"
     assert fns["planar_2link_slotine_li_loop"]["optimization"] == "-O1"
-    for q in ("inertia", "regressor", "forward_dynamics"):
+    for q in ("inertia", "regressor", "forward_dynamics", "electric_estimator_step"):
         assert "optimization" not in fns[f"planar_2link_{q}"]
 
 

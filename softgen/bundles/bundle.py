@@ -57,16 +57,17 @@ def bundle_spec(model: RobotModel | SoftModel,
     return _assemble(model, options)
 
 
-#: Capabilities whose functions are steps run in loops: controllers, closed loops and
-#: estimators. Their C is compiled at :data:`STEP_LEVEL` inside the -O3 bundle (issue
-#: 25). They are most of a bundle's compile time (planar_2link: 6.1 CPU-s at -O3,
-#: 3.7 with its electric plant, cascades and estimators at -O1) and gain nothing from
-#: -O3: measured per call (cbench, loaded machine) those of planar_2link took 0.69-0.95
-#: of their -O3 time and pcc_planar_4seg's Theorem 10 steps 0.81-1.22; experiments run
-#: them in run-time diagrams compiled at -O1 anyway (runtime.compiled). The model
-#: quantities (dynamics, regressors, plants) stay at -O3, where the regressors gain
-#: 10-30 % (codegen.build.CFLAGS).
-STEP_LAYERS = ("control", "estimation")
+#: Capabilities whose functions are controller steps and closed loops. Their C is
+#: compiled at :data:`STEP_LEVEL` inside the -O3 bundle (issue 25): they are a large
+#: part of a bundle's compile time and gain nothing measurable from -O3. Measured on
+#: planar_2link (cbench, 5000 calls, load ~4 on 2 CPUs, -O1 over -O3 time per call):
+#: electric_cascade_adaptive 1.02, electric_cascade_pd_filter 1.07, slotine_li_step
+#: 1.00, slotine_li_loop 1.11 (the unchanged electric_plant read 1.10 in the same run:
+#: the noise). Experiments run these steps in run-time diagrams compiled at -O1 anyway
+#: (runtime.compiled). Not the estimators: their steps took 2.95-3.43 times as long at
+#: -O1. Nor the model quantities (dynamics, regressors, plants): the regressors gain
+#: 10-30 % from -O3 (codegen.build.CFLAGS).
+STEP_LAYERS = ("control",)
 STEP_LEVEL = "-O1"
 
 
