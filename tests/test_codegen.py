@@ -289,20 +289,19 @@ def test_function_levels_wrap_only_their_functions(need_compiler, tmp_path):
                            rtol=1e-14, atol=0)
 
 
-def test_function_level_rule(specs):
-    """Loops (MX maps) at -O1, straight-line functions at the bundle's level; in model
-    bundles the controller and closed-loop steps at -O1, the model and estimators at -O3."""
-    import casadi as ca
-    from softgen.codegen.generate import function_level
-    x = ca.SX.sym("x", 1)
-    f = ca.Function("f", [x], [ca.sin(x)])
-    assert function_level(f) == "-O3" and function_level(f.mapaccum(10)) == "-O1"
-    assert function_level(f, "-O1") == "-O1"
+def test_function_levels_of_model_bundles(specs):
+    """The electric cascade and Theorem 10 steps at -O1 (measured no slower); the model,
+    the estimators and the Theorem 5 and Slotine-Li loops at the bundle's -O3."""
     fns = json.loads(render(specs["planar_2link"])["manifest.json"])["functions"]
     assert fns["planar_2link_electric_cascade_pd"]["optimization"] == "-O1"
-    assert fns["planar_2link_slotine_li_loop"]["optimization"] == "-O1"
-    for q in ("inertia", "regressor", "forward_dynamics", "electric_estimator_step"):
+    for q in ("inertia", "regressor", "forward_dynamics", "electric_estimator_step",
+              "slotine_li_loop"):
         assert "optimization" not in fns[f"planar_2link_{q}"]
+    fns = json.loads(render(specs["pcc_planar_4seg"])["manifest.json"])["functions"]
+    assert fns["pcc_planar_4seg_theorem10_closed_loop"]["optimization"] == "-O1"
+    assert "optimization" not in fns["pcc_planar_4seg_regressor"]
+    fns = json.loads(render(specs["arm_2link_pneumatic"])["manifest.json"])["functions"]
+    assert not any("optimization" in f for f in fns.values())
 
 
 def test_generate_keeps_an_up_to_date_bundle(tmp_path):

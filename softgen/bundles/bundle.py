@@ -57,17 +57,18 @@ def bundle_spec(model: RobotModel | SoftModel,
     return _assemble(model, options)
 
 
-#: Capabilities whose functions are controller steps and closed loops. Their C is
-#: compiled at :data:`STEP_LEVEL` inside the -O3 bundle (issue 25): they are a large
-#: part of a bundle's compile time and gain nothing measurable from -O3. Measured on
-#: planar_2link (cbench, 5000 calls, load ~4 on 2 CPUs, -O1 over -O3 time per call):
-#: electric_cascade_adaptive 1.02, electric_cascade_pd_filter 1.07, slotine_li_step
-#: 1.00, slotine_li_loop 1.11 (the unchanged electric_plant read 1.10 in the same run:
-#: the noise). Experiments run these steps in run-time diagrams compiled at -O1 anyway
-#: (runtime.compiled). Not the estimators: their steps took 2.95-3.43 times as long at
-#: -O1. Nor the model quantities (dynamics, regressors, plants): the regressors gain
-#: 10-30 % from -O3 (codegen.build.CFLAGS).
-STEP_LAYERS = ("control",)
+#: Capabilities whose functions are compiled at :data:`STEP_LEVEL` inside the -O3
+#: bundle (issue 25): their steps are a large part of the bundle's compile time and
+#: measured no slower at -O1. cbench, old (-O3) and new C of the same bundle, load ~1-2
+#: on 2 CPUs, time per call at -O1 over -O3 (unchanged -O3 functions of the same runs
+#: read 0.94-1.03): electric_cascade (planar_2link) 1.00-1.10; theorem10
+#: (pcc_planar_4seg) steps 0.89-1.12, closed loop 1.09. Not chosen, being slower at
+#: -O1: the Theorem 5 steps 1.20 and closed loop 1.15 (arm_2link_pneumatic), the
+#: Slotine-Li loop 1.13, the estimator steps (about 3x); the model quantities
+#: (dynamics, regressors, plants) keep -O3, where the regressors gain 10-30 %.
+#: Experiments never call these bundle functions: they compile their own diagrams at
+#: -O1 (runtime.compiled), so no metric depends on this choice.
+O1_CAPABILITIES = ("electric_cascade", "theorem10")
 STEP_LEVEL = "-O1"
 
 
@@ -91,7 +92,7 @@ def _assemble(model, options: BundleOptions) -> BundleSpec:
     for cap in caps:
         part = cap.build(ctx)
         fns += [replace(g, optimization=g.optimization or STEP_LEVEL)
-                if cap.layer in STEP_LAYERS else g for g in part.functions]
+                if cap.name in O1_CAPABILITIES else g for g in part.functions]
         merge(extra, part.extra)
     extra["capabilities"] = [c.name for c in caps]
     if getattr(model, "original_name", ""):

@@ -23,7 +23,7 @@ from softgen.codegen.build import clean_orphans, library_name
 
 #: Bumped whenever the generated code for the same model would change.
 # 2: issue 22 (declared actuators, sampled Theorem 10, multi-DoF UIO)
-# 3: issue 25 (per-function compiler levels, codegen.generate.function_level)
+# 3: issue 25 (per-function compiler levels, Generated.optimization)
 CODEGEN_VERSION = "3"
 
 CODEGEN_OPTS = {"with_header": True}
@@ -34,7 +34,7 @@ class Generated:
     """One function to emit: the casadi.Function and a one-line description.
 
     ``optimization``: the compiler level of this function's C when it differs from
-    the bundle's (None: :func:`function_level` decides).
+    the bundle's (None: the bundle's).
     """
 
     function: ca.Function
@@ -83,21 +83,6 @@ def _can_fail(f: ca.Function) -> bool:
     return not f.is_a("SXFunction")
 
 
-def function_level(f: ca.Function, bundle_level: str = "-O3") -> str:
-    """The compiler level of ``f``'s C in a bundle compiled at ``bundle_level``.
-
-    Loops (CasADi maps and mapaccums: anything but a straight-line SX function) are
-    compiled at -O1: on the largest one (the 3D soft loop) gcc takes 6.2 s instead of
-    16.1 s and the code is no slower (11.2 vs 17.3 ms per 1000 samples; see
-    :data:`softgen.codegen.build.OPT_LEVELS`). Bundles choose other functions' levels
-    themselves (:attr:`Generated.optimization`). A fixed rule, never a timing taken at
-    generate time, so that generated/ stays byte-identical everywhere.
-    """
-    if bundle_level != "-O3":
-        return bundle_level
-    return "-O3" if f.is_a("SXFunction") else "-O1"
-
-
 #: The first line of each function CasADi emits (``/* name:(inputs)->(outputs) */``).
 _HEADING = re.compile(rb"^/\* [A-Za-z_][A-Za-z0-9_]*:\(", re.M)
 _GNU = b"#if defined(__GNUC__) && !defined(__clang__)\n"
@@ -126,8 +111,8 @@ def with_levels(c_src: bytes, names: list[str], levels: dict[str, str]) -> bytes
                 raise ValueError(f"{name}: no function heading in the generated C")
             start = head.start()
             out += [c_src[pos:start],
-                    b"/* softgen: compiled at " + level.encode() + b" (codegen.generate."
-                    b"function_level) */\n" + _GNU + b"#pragma GCC push_options\n"
+                    b"/* softgen: compiled at " + level.encode() + b" (Generated.optimization)"
+                    b" */\n" + _GNU + b"#pragma GCC push_options\n"
                     b"#pragma GCC optimize (\"" + level.lstrip("-").encode() + b"\")\n"
                     b"#endif\n", c_src[start:end],
                     _GNU + b"#pragma GCC pop_options\n#endif\n"]
@@ -168,9 +153,10 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         cg.generate(tmp + os.sep)
         c_src = (Path(tmp) / f"{spec.name}.c").read_bytes()
         h_src = (Path(tmp) / f"{spec.name}.h").read_bytes()
-    levels = {g.function.name(): lvl for g in spec.functions
-              if (lvl := g.optimization or function_level(g.function, spec.optimization))
-              != spec.optimization}
+    # Functions at their own level (chosen by the bundle from measurements, never by
+    # timing at generate time: generated/ stays byte-identical everywhere).
+    levels = {g.function.name(): g.optimization for g in spec.functions
+              if g.optimization not in (None, spec.optimization)}
     c_src = with_levels(c_src, names, levels)
     digest = content_hash(spec.identity)
     manifest = {
