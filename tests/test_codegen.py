@@ -251,3 +251,75 @@ def test_bundle_modules_import_no_cycle():
     for n in graph:
         visit(n)
     assert "bundle" not in graph["soft"] and "bundle" not in graph["rigid"]
+
+
+def _two_functions(prefix: str):
+    import casadi as ca
+    from softgen.codegen.generate import BundleSpec, Generated
+    x = ca.SX.sym("x", 3)
+    small = ca.Function(f"{prefix}_small", [x], [ca.sin(x) * 2], ["x"], ["y"])
+    big = ca.Function(f"{prefix}_big", [x], [ca.cos(x) + ca.sumsqr(x)], ["x"], ["y"])
+    return BundleSpec(name=prefix, functions=[Generated(small, "small one"),
+                                              Generated(big, "big one", optimization="-O1")])
+
+
+def test_function_levels_wrap_only_their_functions(need_compiler, tmp_path):
+    """A function at its own level is one guarded push/optimize/pop stretch of the C,
+    from its heading to its work functions; the library still equals CasADi."""
+    spec = _two_functions("lv")
+    files = render(spec)
+    src = files["lv.c"].decode()
+    body = src[src.index("#pragma GCC push_options"):src.index("#pragma GCC pop_options")]
+    assert src.count("#pragma GCC optimize") == 1 and '#pragma GCC optimize ("O1")' in body
+    assert "/* lv_big:(" in body and "lv_big_work_bytes(" in body and "lv_small" not in body
+    m = json.loads(files["manifest.json"])
+    assert m["functions"]["lv_big"]["optimization"] == "-O1"
+    assert "optimization" not in m["functions"]["lv_small"]
+    from softgen.codegen.build import OPT_LEVELS
+    from softgen.codegen.manifest import LEVELS, validate_manifest
+    assert LEVELS == OPT_LEVELS
+    m["functions"]["lv_big"]["optimization"] = "-Ofast"
+    with pytest.raises(BundleError, match="lv_big.optimization: expected one of -O1"):
+        validate_manifest(m)
+    from softgen.codegen.generate import write_bundle
+    b = load_bundle(write_bundle(spec, tmp_path), model_check=None, backend="c")
+    for g in spec.functions:
+        x = np.array([0.3, -1.2, 2.0])
+        assert np.allclose(b[g.function.name()](x), np.array(g.function(x)).ravel(),
+                           rtol=1e-14, atol=0)
+
+
+def test_function_levels_of_model_bundles(specs):
+    """The electric cascade and Theorem 10 steps at -O1 (measured no slower); the model,
+    the estimators and the Theorem 5 and Slotine-Li loops at the bundle's -O3."""
+    fns = json.loads(render(specs["planar_2link"])["manifest.json"])["functions"]
+    assert fns["planar_2link_electric_cascade_pd"]["optimization"] == "-O1"
+    for q in ("inertia", "regressor", "forward_dynamics", "electric_estimator_step",
+              "slotine_li_loop"):
+        assert "optimization" not in fns[f"planar_2link_{q}"]
+    fns = json.loads(render(specs["pcc_planar_4seg"])["manifest.json"])["functions"]
+    assert fns["pcc_planar_4seg_theorem10_closed_loop"]["optimization"] == "-O1"
+    assert "optimization" not in fns["pcc_planar_4seg_regressor"]
+    fns = json.loads(render(specs["arm_2link_pneumatic"])["manifest.json"])["functions"]
+    assert not any("optimization" in f for f in fns.values())
+
+
+def test_generate_keeps_an_up_to_date_bundle(tmp_path):
+    """`softgen generate` derives nothing when the bundle is current (a fresh clone's
+    generated/), and derives again when its C was edited or with --force."""
+    from softgen.bundles.bundle import up_to_date
+    from softgen.cli import main
+    out = tmp_path / "g"
+    d = generate("pendulum_1link", out)
+    model = load_model("pendulum_1link")
+    assert up_to_date(model, d)
+    c = d / "pendulum_1link.c"
+    shipped = c.read_bytes()
+    c.write_bytes(shipped + b"/* edited */\n")
+    assert not up_to_date(model, d)
+    assert main(["generate", "pendulum_1link", "--out", str(out), "--no-build"]) == 0
+    assert c.read_bytes() == shipped and up_to_date(model, d)
+    m = json.loads((d / "manifest.json").read_text())
+    m["hash"] = "0" * 64
+    (d / "manifest.json").write_text(json.dumps(m))
+    assert not up_to_date(model, d)

@@ -10111,6 +10111,11 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_plant_work_bytes(casadi_int
   return 0;
 }
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_pd:(z[0],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],dt)->(z_next[0],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -11399,7 +11404,15 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_work_bytes(casad
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_pd_integral:(z[2],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],ki[2],dt)->(z_next[2],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -12713,7 +12726,15 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral_work_by
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_adaptive:(z[13],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],dt)->(z_next[13],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -14198,7 +14219,15 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_work_bytes
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_adaptive_integral:(z[15],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],ki[2],dt)->(z_next[15],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -15707,7 +15736,15 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral_w
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_pd_measured_acceleration:(z[2],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],dt)->(z_next[2],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -16799,7 +16836,15 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_measured_acceler
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_pd_integral_measured_acceleration:(z[4],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],ki[2],dt)->(z_next[4],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -17915,7 +17960,15 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral_measure
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_adaptive_measured_acceleration:(z[15],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],dt)->(z_next[15],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -19222,7 +19275,15 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_measured_a
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_adaptive_integral_measured_acceleration:(z[17],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],ki[2],dt)->(z_next[17],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -20554,7 +20615,15 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral_m
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_pd_filter:(z[8],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],omega_f,dt)->(z_next[8],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -20996,7 +21065,15 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_filter_work_byte
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_pd_integral_filter:(z[10],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],ki[2],omega_f,dt)->(z_next[10],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -21454,7 +21531,15 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral_filter_
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_adaptive_filter:(z[21],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],omega_f,dt)->(z_next[21],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -21994,7 +22079,15 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_filter_wor
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* arm_2link_electric_electric_cascade_adaptive_integral_filter:(z[23],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],ki[2],omega_f,dt)->(z_next[23],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
 static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -22550,6 +22643,9 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral_f
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 /* arm_2link_electric_electric_estimator_step:(state[117],y[10])->(state_next[117],sigma_hat[2],tau_hat[2],tau_uio[2],updating[4]) */
 static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {

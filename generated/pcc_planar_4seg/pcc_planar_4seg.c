@@ -17895,6 +17895,11 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_base_parameters_work_bytes(casadi_int *
   return 0;
 }
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pcc_planar_4seg_theorem10_step:(pi_hat[31],q[4],qd[4],q_d[4],qd_d[4],qdd_d[4],lam[4],kd[4],kpi[31],dt)->(pi_hat_next[31],tau[4],sigma[4]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -20256,7 +20261,15 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_step_work_bytes(casadi_int *s
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pcc_planar_4seg_theorem10_closed_step:(x[39],p[39],k,e[44])->(x_next[39],y[48]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -28610,7 +28623,15 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_closed_step_work_bytes(casadi
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* one_sample:(xa[40],p[39],e[44])->(xa_next[40],y[48]) */
 static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w5=w+417, *w6=w+456, w7;
@@ -29279,7 +29300,15 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_closed_loop_work_bytes(casadi
   if (sz_w) *sz_w = 194761*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pcc_planar_4seg_theorem10_sampled_step:(pi_hat[31],u_prev[4],q[4],qd[4],q_d[4],qd_d[4],qdd_d[4],lam[4],kd[4],kpi[31],dt)->(pi_hat_next[31],u_next[4],tau[4],sigma[4]) */
 static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -34255,7 +34284,15 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_step_work_bytes(casad
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pcc_planar_4seg_theorem10_sampled_loop_step:(x[43],p[39],k,e[32])->(x_next[43],y[60]) */
 static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -45104,7 +45141,15 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_loop_step_work_bytes(
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* one_sample:(xa[44],p[39],e[32])->(xa_next[44],y[60]) */
 static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w5=w+359, *w6=w+402, w7;
@@ -45773,6 +45818,9 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_loop_loop_work_bytes(
   if (sz_w) *sz_w = 266163*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 /* pcc_planar_4seg_plant:(x[8],tau[4],f_ext[12],noise[8],dt)->(x_next[8],y[8]) */
 static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {

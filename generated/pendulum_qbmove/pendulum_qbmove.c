@@ -4382,6 +4382,11 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_plant_work_bytes(casadi_int *s
   return 0;
 }
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_pd:(z[0],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,dt)->(z_next[0],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -4972,7 +4977,15 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_work_bytes(casadi_i
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_pd_integral:(z,x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,dt)->(z_next,tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -5576,7 +5589,15 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_work_bytes
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_adaptive:(z[7],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,dt)->(z_next[7],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -6310,7 +6331,15 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_work_bytes(ca
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_adaptive_integral:(z[8],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,ki,dt)->(z_next[8],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -7057,7 +7086,15 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_work
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_pd_measured_acceleration:(z,x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,dt)->(z_next,tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -7621,7 +7658,15 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_measured_accelerati
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration:(z[2],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,dt)->(z_next[2],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -8198,7 +8243,15 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_measured_a
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_adaptive_measured_acceleration:(z[8],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,dt)->(z_next[8],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -8897,7 +8950,15 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_measured_acce
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration:(z[9],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,ki,dt)->(z_next[9],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -9609,7 +9670,15 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_meas
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_pd_filter:(z[4],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,omega_f,dt)->(z_next[4],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -9876,7 +9945,15 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_filter_work_bytes(c
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_pd_integral_filter:(z[5],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,omega_f,dt)->(z_next[5],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -10152,7 +10229,15 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_filter_wor
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_adaptive_filter:(z[11],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,omega_f,dt)->(z_next[11],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -10477,7 +10562,15 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_filter_work_b
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pendulum_qbmove_electric_cascade_adaptive_integral_filter:(z[12],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,ki,omega_f,dt)->(z_next[12],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -10811,6 +10904,9 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_filt
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 /* pendulum_qbmove_electric_estimator_step:(state[59],y[5])->(state_next[59],sigma_hat,tau_hat,tau_uio,updating[2]) */
 static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {

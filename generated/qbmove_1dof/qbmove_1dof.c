@@ -4216,6 +4216,11 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_plant_work_bytes(casadi_int *sz_ar
   return 0;
 }
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_pd:(z[0],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,dt)->(z_next[0],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -4715,7 +4720,15 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_work_bytes(casadi_int *
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_pd_integral:(z,x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,dt)->(z_next,tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -5228,7 +5241,15 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral_work_bytes(cas
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_adaptive:(z[6],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,dt)->(z_next[6],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -5856,7 +5877,15 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_work_bytes(casadi
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_adaptive_integral:(z[7],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,ki,dt)->(z_next[7],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -6497,7 +6526,15 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral_work_byt
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_pd_measured_acceleration:(z,x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,dt)->(z_next,tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -6985,7 +7022,15 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_measured_acceleration_w
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_pd_integral_measured_acceleration:(z[2],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,dt)->(z_next[2],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -7486,7 +7531,15 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral_measured_accel
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_adaptive_measured_acceleration:(z[7],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,dt)->(z_next[7],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -8091,7 +8144,15 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_measured_accelera
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_adaptive_integral_measured_acceleration:(z[8],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,ki,dt)->(z_next[8],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -8709,7 +8770,15 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral_measured
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_pd_filter:(z[4],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,omega_f,dt)->(z_next[4],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -8969,7 +9038,15 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_filter_work_bytes(casad
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_pd_integral_filter:(z[5],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,omega_f,dt)->(z_next[5],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -9238,7 +9315,15 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral_filter_work_by
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_adaptive_filter:(z[10],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,omega_f,dt)->(z_next[10],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -9550,7 +9635,15 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_filter_work_bytes
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* qbmove_1dof_electric_cascade_adaptive_integral_filter:(z[11],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,ki,omega_f,dt)->(z_next[11],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
 static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
@@ -9871,6 +9964,9 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral_filter_w
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 /* qbmove_1dof_electric_estimator_step:(state[59],y[5])->(state_next[59],sigma_hat,tau_hat,tau_uio,updating[2]) */
 static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {

@@ -15375,6 +15375,11 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_base_parameters_work_bytes(casadi_int *sz
   return 0;
 }
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* soft_pendulum_theorem10_step:(pi_hat[4],q[2],qd[2],q_d[2],qd_d[2],qdd_d[2],lam[2],kd[2],kpi[4],dt)->(pi_hat_next[4],tau,sigma[2]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -18060,7 +18065,15 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_step_work_bytes(casadi_int *sz_
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* soft_pendulum_theorem10_closed_step:(x[8],p[8],k,e[19])->(x_next[8],y[12]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -26625,7 +26638,15 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_closed_step_work_bytes(casadi_i
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* one_sample:(xa[9],p[8],e[19])->(xa_next[9],y[12]) */
 static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w5=w+608, *w6=w+616, w7;
@@ -27294,7 +27315,15 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_closed_loop_work_bytes(casadi_i
   if (sz_w) *sz_w = 47026*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* soft_pendulum_theorem10_sampled_step:(pi_hat[4],u_prev[2],q[2],qd[2],q_d[2],qd_d[2],qdd_d[2],lam[2],kd[2],kpi[4],dt)->(pi_hat_next[4],u_next[2],tau,sigma[2]) */
 static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -33448,7 +33477,15 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_step_work_bytes(casadi_
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* soft_pendulum_theorem10_sampled_loop_step:(x[10],p[8],k,e[13])->(x_next[10],y[18]) */
 static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -42981,7 +43018,15 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_loop_step_work_bytes(ca
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* one_sample:(xa[11],p[8],e[13])->(xa_next[11],y[18]) */
 static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w5=w+562, *w6=w+572, w7;
@@ -43650,6 +43695,9 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_loop_loop_work_bytes(ca
   if (sz_w) *sz_w = 71210*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 /* soft_pendulum_plant:(x[4],tau,f_ext[3],noise[4],dt)->(x_next[4],y[4]) */
 static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {

@@ -9,7 +9,9 @@ This module knows no model name and no controller.
 from __future__ import annotations
 
 import hashlib
+import json
 import warnings
+from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -55,6 +57,21 @@ def bundle_spec(model: RobotModel | SoftModel,
     return _assemble(model, options)
 
 
+#: Capabilities whose functions are compiled at :data:`STEP_LEVEL` inside the -O3
+#: bundle (issue 25): their steps are a large part of the bundle's compile time and
+#: measured no slower at -O1. cbench, old (-O3) and new C of the same bundle, load ~1-2
+#: on 2 CPUs, time per call at -O1 over -O3 (unchanged -O3 functions of the same runs
+#: read 0.94-1.03): electric_cascade (planar_2link) 1.00-1.10; theorem10
+#: (pcc_planar_4seg) steps 0.89-1.12, closed loop 1.09. Not chosen, being slower at
+#: -O1: the Theorem 5 steps 1.20 and closed loop 1.15 (arm_2link_pneumatic), the
+#: Slotine-Li loop 1.13, the estimator steps (about 3x); the model quantities
+#: (dynamics, regressors, plants) keep -O3, where the regressors gain 10-30 %.
+#: Experiments never call these bundle functions: they compile their own diagrams at
+#: -O1 (runtime.compiled), so no metric depends on this choice.
+O1_CAPABILITIES = ("electric_cascade", "theorem10")
+STEP_LEVEL = "-O1"
+
+
 @lru_cache(maxsize=8)
 def _cached_soft_spec(text: str, path, options: BundleOptions, model: SoftModel) -> BundleSpec:
     del text, path       # the cache key; ``model`` was parsed from them
@@ -74,7 +91,8 @@ def _assemble(model, options: BundleOptions) -> BundleSpec:
     fns, caps = [], REGISTRY.applicable(model)
     for cap in caps:
         part = cap.build(ctx)
-        fns += part.functions
+        fns += [replace(g, optimization=g.optimization or STEP_LEVEL)
+                if cap.name in O1_CAPABILITIES else g for g in part.functions]
         merge(extra, part.extra)
     extra["capabilities"] = [c.name for c in caps]
     if getattr(model, "original_name", ""):
@@ -228,6 +246,28 @@ def generate(name_or_path: str | Path | RobotModel | SoftModel,
     if inertia is not None:
         check_inertia_positive_definite(model, inertia)
     return write_bundle(spec, out_root)
+
+
+def up_to_date(model: RobotModel | SoftModel, bundle: Path,
+               options: BundleOptions = DEFAULT_OPTIONS) -> bool:
+    """Whether ``bundle`` is what generating ``model`` now would write.
+
+    Its manifest's hash covers the model file's text, the options, the CasADi version
+    and :data:`~softgen.codegen.generate.CODEGEN_VERSION` (bumped whenever the C for
+    the same model changes), and its C and header must match the manifest's sha256;
+    then deriving again gives the same bytes (tests/test_codegen.py checks that the
+    shipped generated/ is exactly what derivation writes). Deriving every model costs
+    ~24 CPU-s of ``softgen generate --all`` (issue 25), for nothing on a fresh clone.
+    """
+    from softgen.codegen.build import check_source, read_manifest
+    try:
+        manifest = read_manifest(bundle)
+        check_source(bundle, manifest)
+    except BundleError:
+        return False
+    return (manifest.get("options") == json.loads(json.dumps(options.__dict__))
+            and manifest["hash"] == content_hash(identity_bytes(model.source_text(), options))
+            and manifest.get("model_file") == model_source(model)["model_file"])
 
 
 def generate_all(out_root: Path = GENERATED_DIR) -> list[Path]:

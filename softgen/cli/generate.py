@@ -18,25 +18,41 @@ def add_arguments(p) -> None:
     p.add_argument("--all", action="store_true", help="every model in models/")
     p.add_argument("--out", help="output root (default: generated/)")
     p.add_argument("--no-build", action="store_true", help="write sources only")
+    p.add_argument("--force", action="store_true",
+                   help="derive and compile every bundle again, even when it is up to date")
     p.add_argument("--jobs", type=int, default=None,
                    help="bundles generated side by side (default: the number of CPUs)")
     add_chain_arguments(p)
 
 
-def _generate_one(model, out: Path, build: bool) -> str:
+def _say(line: str) -> None:
+    """One line in one write: workers and the parent share stdout, and print's separate
+    write of the newline let their lines run into each other."""
+    sys.stdout.write(line + "\n")
+    sys.stdout.flush()
+
+
+def _generate_one(model, out: Path, build: bool, force: bool = False) -> str:
     """Generate (and compile) one bundle; the line ``generate`` prints for it. Each phase
     (derive and write, compile) is announced as it starts, from whichever worker runs
     it, so a long compile is never silent."""
-    from softgen.bundles.bundle import generate
+    from softgen.bundles.bundle import generate, up_to_date
     from softgen.codegen.build import ensure_library
+    from softgen.modelfile.load import load_model
     t0 = time.perf_counter()
     name = getattr(model, "name", model)      # a loaded URDF chain (--root/--tip)
-    print(f"{name}: deriving and writing C ...", flush=True)
-    bundle = generate(model, out)
-    msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
+    loaded = load_model(model) if isinstance(model, (str, Path)) else model
+    if not force and up_to_date(loaded, out / loaded.name):
+        # The shipped bundles of a fresh clone: deriving them again gives the same bytes.
+        bundle = out / loaded.name
+        msg = f"{bundle}  up to date (--force derives it again)"
+    else:
+        _say(f"{name}: deriving and writing C ...")
+        bundle = generate(model, out)
+        msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
     if build:
-        print(f"{name}: compiling ({time.perf_counter() - t0:.1f} s elapsed) ...", flush=True)
-        lib, secs, repaired = ensure_library(bundle)
+        _say(f"{name}: compiling ({time.perf_counter() - t0:.1f} s elapsed) ...")
+        lib, secs, repaired = ensure_library(bundle, force=force)
         msg += (f", {'rebuilt' if repaired else 'built' if secs else 'cached'} {lib.name}"
                 + (f" in {secs:.2f} s" if secs else "")
                 + (f" (cached library rejected: {repaired})" if repaired else ""))
@@ -69,15 +85,15 @@ def run(args) -> int:
     jobs = min(args.jobs or os.cpu_count() or 1, len(names))
     if jobs <= 1:
         for name in names:
-            print(_generate_one(name, out, build), flush=True)
+            _say(_generate_one(name, out, build, args.force))
         return 0
     # Bundles are independent: derive and compile them side by side, each reported as it
     # finishes (one slow compile holds nothing back); the first error stops the run.
     # Largest first: the 3D PCC bundle alone compiles for most of the run, and started
     # last it is the whole critical path. Its size is the shipped C's where there is one.
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = [pool.submit(_generate_one, name, out, build)
+        futures = [pool.submit(_generate_one, name, out, build, args.force)
                    for name in sorted(names, key=lambda n: -_shipped_size(n, GENERATED_DIR))]
         for fut in as_completed(futures):
-            print(fut.result(), flush=True)
+            _say(fut.result())
     return 0

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,17 +22,24 @@ import casadi as ca
 from softgen.codegen.build import clean_orphans, library_name
 
 #: Bumped whenever the generated code for the same model would change.
-CODEGEN_VERSION = "2"   # 2: issue 22 (declared actuators, sampled Theorem 10, multi-DoF UIO)
+# 2: issue 22 (declared actuators, sampled Theorem 10, multi-DoF UIO)
+# 3: issue 25 (per-function compiler levels, Generated.optimization)
+CODEGEN_VERSION = "3"
 
 CODEGEN_OPTS = {"with_header": True}
 
 
 @dataclass(frozen=True)
 class Generated:
-    """One function to emit: the casadi.Function and a one-line description."""
+    """One function to emit: the casadi.Function and a one-line description.
+
+    ``optimization``: the compiler level of this function's C when it differs from
+    the bundle's (None: the bundle's).
+    """
 
     function: ca.Function
     doc: str
+    optimization: str | None = None
 
 
 @dataclass
@@ -76,6 +84,46 @@ def _can_fail(f: ca.Function) -> bool:
     ``return 0``; anything else (MX graphs, maps, calls) may propagate a code.
     """
     return not f.is_a("SXFunction")
+
+
+#: The first line of each function CasADi emits (``/* name:(inputs)->(outputs) */``).
+_HEADING = re.compile(rb"^/\* [A-Za-z_][A-Za-z0-9_]*:\(", re.M)
+_GNU = b"#if defined(__GNUC__) && !defined(__clang__)\n"
+
+
+def with_levels(c_src: bytes, names: list[str], levels: dict[str, str]) -> bytes:
+    """``c_src`` with the functions of ``levels`` compiled at their own level.
+
+    Each named function's stretch of the file (its helpers, first emitted for it, the
+    exported wrapper and its work functions) is wrapped in ``#pragma GCC
+    push_options``/``optimize``/``pop_options``; compilers other than gcc skip the
+    pragmas (guarded), so the file stays standalone C. ``names``: every exported
+    function of the file, in the order they were added to the code generator.
+    """
+    out, pos = [], 0
+    for name in names:
+        m = re.search(rb"CASADI_SYMBOL_EXPORT int " + name.encode() + rb"_work_bytes\(",
+                      c_src[pos:])
+        if m is None:
+            raise ValueError(f"{name}: no {name}_work_bytes in the generated C")
+        end = c_src.index(b"\n}\n", pos + m.end()) + 3
+        level = levels.get(name)
+        if level is not None:
+            head = _HEADING.search(c_src, pos, end)
+            if head is None:
+                raise ValueError(f"{name}: no function heading in the generated C")
+            start = head.start()
+            out += [c_src[pos:start],
+                    b"/* softgen: compiled at " + level.encode() + b" (Generated.optimization)"
+                    b" */\n" + _GNU + b"#pragma GCC push_options\n"
+                    b"#pragma GCC optimize (\"" + level.lstrip("-").encode() + b"\")\n"
+                    b"#endif\n", c_src[start:end],
+                    _GNU + b"#pragma GCC pop_options\n#endif\n"]
+        else:
+            out.append(c_src[pos:end])
+        pos = end
+    out.append(c_src[pos:])
+    return b"".join(out)
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
@@ -185,6 +233,11 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         h_src = (Path(tmp) / f"{spec.name}.h").read_bytes()
     for name, f in loops.items():
         c_src = _plain_loop(c_src, f, spec.loops[name])
+    # Functions at their own level (chosen by the bundle from measurements, never by
+    # timing at generate time: generated/ stays byte-identical everywhere).
+    levels = {g.function.name(): g.optimization for g in spec.functions
+              if g.optimization not in (None, spec.optimization)}
+    c_src = with_levels(c_src, names, levels)
     digest = content_hash(spec.identity)
     manifest = {
         "model": spec.name,
@@ -200,7 +253,9 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         "functions": {
             g.function.name(): {**signature(g.function), "doc": g.doc,
                                 "instructions": int(g.function.n_instructions()),
-                                "can_fail": _can_fail(g.function)}
+                                "can_fail": _can_fail(g.function),
+                                **({"optimization": levels[g.function.name()]}
+                                   if g.function.name() in levels else {})}
             for g in spec.functions
         },
         **spec.extra,

@@ -24,6 +24,9 @@ from typing import Any
 
 from softgen.core.errors import BundleError
 
+#: Compiler levels a function may name (``functions.<name>.optimization``); the same
+#: as :data:`softgen.codegen.build.OPT_LEVELS` (tests/test_codegen.py checks it).
+LEVELS = ("-O1", "-O2", "-O3")
 _HEX64 = re.compile(r"^[0-9a-f]{64}$")
 _LIBRARY = re.compile(r"^build/lib[A-Za-z_][A-Za-z0-9_]*_[0-9a-f]{16}\.so$")
 
@@ -187,6 +190,9 @@ def validate_manifest(manifest: Any, path: Path | str = "manifest.json") -> dict
         c.string(c.get(f, "doc", key + "."), f"{key}.doc")
         if "instructions" in f:
             c.integer(f["instructions"], f"{key}.instructions")
+        if "optimization" in f and f["optimization"] not in LEVELS:
+            raise c.fail(f"{key}.optimization", f"expected one of {', '.join(LEVELS)}, got "
+                         f"{_short(f['optimization'])}")
         if "can_fail" in f and not isinstance(f["can_fail"], bool):
             raise c.fail(f"{key}.can_fail", f"expected true or false, got {_short(f['can_fail'])}")
 
