@@ -357,14 +357,15 @@ def _reproduce(ids: list[str], out_root: Path, results: dict, *, quick: bool, se
     results["__started__"] = time.time()
     print(f"reproducing {len(todo)} experiment(s) with {jobs} worker(s) -> {out_root}",
           file=progress, flush=True)
+    eta = Eta(todo)
     if jobs == 1:
         for k, exp_id in enumerate(todo, 1):
             print(f"[{k}/{len(todo)}] {exp_id} ...", file=progress, flush=True)
             results[exp_id] = _safe_run(exp_id, out_root, quick, code, sets)
-            _report_line(results[exp_id], k, len(todo), t0, progress)
+            _report_line(results[exp_id], k, len(todo), t0, progress, eta)
     else:
         _run_pool(todo, out_root, quick, code, jobs, results, t0, progress, sets,
-                  (show_progress, full_traces, os.getpid()))
+                  (show_progress, full_traces, os.getpid()), eta)
     results.pop("__started__")
     results.pop("__code__")
     ordered = [results[i] for i in ids if i in results]
@@ -402,7 +403,8 @@ def _all_results(out_root: Path, fresh: dict[str, dict]) -> list[dict]:
 
 
 def _run_pool(todo: list[str], out_root: Path, quick: bool, code: str, jobs: int,
-              results: dict, t0: float, progress: TextIO, sets: Sets, init: tuple) -> None:
+              results: dict, t0: float, progress: TextIO, sets: Sets, init: tuple,
+              eta: Eta) -> None:
     futures: dict = {}
     pool = None
     try:
@@ -426,7 +428,7 @@ def _run_pool(todo: list[str], out_root: Path, quick: bool, code: str, jobs: int
                     res = {"experiment": futures[fut], "traceback": "",
                            "error": f"worker process died ({exc})"}
                 results[res["experiment"]] = res
-                _report_line(res, k, len(todo), t0, progress)
+                _report_line(res, k, len(todo), t0, progress, eta)
     except BaseException as exc:
         if isinstance(exc, Stop):
             ignore_signals()                # the clean-up is short; let it finish
@@ -451,11 +453,34 @@ def _abort_pool(pool: ProcessPoolExecutor, futures: dict) -> None:
     pool.shutdown(wait=False, cancel_futures=True)
 
 
-def _report_line(res: dict, k: int, total: int, t0: float, progress: TextIO) -> None:
+#: Cost assumed for an experiment without a hint (CPU s): the cheap ones have none.
+MIN_COST = 5.0
+
+
+class Eta:
+    """The whole run's time left, from the experiments' cost hints (``Experiment.cost``):
+    wall seconds per unit of cost finished so far × the cost still to run. Per
+    experiment ETAs said "0 s" while one long study ran on (issue 24)."""
+
+    def __init__(self, todo: list[str]):
+        self.cost = {i: max(get(i).cost, MIN_COST) for i in todo}
+        self.left, self.done = sum(self.cost.values()), 0.0
+
+    def finished(self, exp_id: str, elapsed: float) -> str:
+        c = self.cost.get(exp_id, MIN_COST)
+        self.left, self.done = self.left - c, self.done + c
+        if self.left <= 1e-9 or self.done <= 0:
+            return ""
+        return f", about {elapsed * self.left / self.done:.0f} s left"
+
+
+def _report_line(res: dict, k: int, total: int, t0: float, progress: TextIO,
+                 eta: Eta | None = None) -> None:
     elapsed = time.perf_counter() - t0
+    left = eta.finished(res["experiment"], elapsed) if eta is not None else ""
     if "error" in res:
-        print(f"[{k}/{total}] {res['experiment']} FAILED after {elapsed:.1f} s: {res['error']}",
-              file=progress, flush=True)
+        print(f"[{k}/{total}] {res['experiment']} FAILED after {elapsed:.1f} s: {res['error']}"
+              f"{left}", file=progress, flush=True)
     else:
         print(f"[{k}/{total}] {res['experiment']} done in {res['wall_seconds']:.1f} s "
-              f"({elapsed:.1f} s elapsed)", file=progress, flush=True)
+              f"({elapsed:.1f} s elapsed{left})", file=progress, flush=True)
