@@ -61,13 +61,13 @@ def bundle_spec(model: RobotModel | SoftModel,
 #: bundle (issue 25): their steps are a large part of the bundle's compile time and
 #: measured no slower at -O1. cbench, old (-O3) and new C of the same bundle, load ~1-2
 #: on 2 CPUs, time per call at -O1 over -O3 (unchanged -O3 functions of the same runs
-#: read 0.94-1.03): electric_cascade (planar_2link) 1.00-1.10; theorem10
-#: (pcc_planar_4seg) steps 0.89-1.12, closed loop 1.09. Not chosen, being slower at
-#: -O1: the Theorem 5 steps 1.20 and closed loop 1.15 (arm_2link_pneumatic), the
-#: Slotine-Li loop 1.13, the estimator steps (about 3x); the model quantities
-#: (dynamics, regressors, plants) keep -O3, where the regressors gain 10-30 %.
-#: Experiments never call these bundle functions: they compile their own diagrams at
-#: -O1 (runtime.compiled), so no metric depends on this choice.
+#: read 0.94-1.03): electric_cascade (the shipped 2-link electric arm) 1.00-1.10;
+#: theorem10 (the shipped planar 4-segment PCC arm) steps 0.89-1.12, closed loop 1.09.
+#: Not chosen, being slower at -O1: the Theorem 5 steps 1.20 and closed loop 1.15 (the
+#: shipped 2-link McKibben arm), the Slotine-Li loop 1.13, the estimator steps (about
+#: 3x); the model quantities (dynamics, regressors, plants) keep -O3, where the
+#: regressors gain 10-30 %. Experiments never call these bundle functions: they compile
+#: their own diagrams at -O1 (runtime.compiled), so no metric depends on this choice.
 O1_CAPABILITIES = ("electric_cascade", "theorem10")
 STEP_LEVEL = "-O1"
 
