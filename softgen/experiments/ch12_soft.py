@@ -468,6 +468,11 @@ CAPTIONS_PENDULUM = {
                                  "of Fig. 12.5.",
     "fig12_5_k1_clean.png": "Fig. 12.5's soft case with the disturbed gains and neither noise "
                             "nor force (issue 22); layout of Fig. 12.5.",
+    "fig12_5_k1_clean_long.png": "Fig. 12.5's soft case with neither noise nor force, run "
+                                 "for clean_long_duration instead of 250 s: whether the run "
+                                 "is too short (issue 22); layout of Fig. 12.5.",
+    "fig12_5_k1_force_only_long.png": "Fig. 12.5's soft case with the force alone, run for "
+                                      "clean_long_duration (issue 22); layout of Fig. 12.5.",
     "fig12_5_*forces*.png": "A Fig. 12.5 case again with force columns in the regressor (an "
                             "adapted tip force, beyond the thesis); layout of Fig. 12.5.",
 }
