@@ -142,6 +142,12 @@ class PartialArm:
 
     def _deflection(self, j: int, tau_j) -> ca.SX:
         """φ_d with Σ_sides −τ_e(φ_d) = τ_j on joint j (Newton from τ_j/slope)."""
+        return self._deflection_and_rate(j, tau_j)[0]
+
+    def _deflection_and_rate(self, j: int, tau_j) -> tuple[ca.SX, ca.SX]:
+        """φ_d of :meth:`_deflection` and ∂φ_d/∂τ_j = −1 / (Σ_sides τ_e)'(φ_d), by the
+        implicit function theorem on the summed law at the Newton solution (cheaper in
+        the generated step than differentiating through the Newton iterations)."""
         laws = [law for law in self.act.laws if law.joint == j]
         z = ca.SX.sym("z")
         total = sum(law(phi=z) for law in laws)
@@ -152,7 +158,7 @@ class PartialArm:
         x = -tau_j / s0
         for _ in range(NEWTON_STEPS):
             x = f(x, tau_j)
-        return x
+        return x, -1 / ca.substitute(slope, z, x)
 
     # -- the plant -------------------------------------------------------------------
     def plant_fun(self, substeps: int = 1) -> ca.Function:
@@ -190,32 +196,23 @@ class PartialArm:
         a direct joint gets its torque; a spring joint's motors track θ_d = q − φ_d(τ_j),
         every side at one deflection, with the motor loop of Theorem 6 (eq. 11.2) and the
         spring torque cancelled. The motor velocity reference is θ̇_d = q̇ − φ̇_d with
-        φ̇_d = (∂φ_d/∂τ_j) τ̇_j (chain rule through the Newton solution) when ``tau_dot`` is
-        given, else θ̇_d ≈ q̇ (the deflection's rate neglected: set-point regulation)."""
+        φ̇_d = (∂φ_d/∂τ_j) τ̇_j (:meth:`_deflection_and_rate`) when ``tau_dot`` is given,
+        else θ̇_d ≈ q̇ (the deflection's rate neglected: set-point regulation)."""
         q, qd, th, thd = self._split_state(x)
+        if not self.nm:
+            return self._u_full(tau, th)
+        defl = {j: self._deflection_and_rate(j, tau[j]) for j, _, _ in self.act.variables
+                if self.model.actuator_of(j).drive == "spring"}     # once per joint
         th_d, qd_m = [], []
         for j, _, _ in (v for v in self.act.variables
                         if self.model.actuator_of(v[0]).drive == "spring"):
-            phi = self._deflection(j, tau[j])
+            phi, rate = defl[j]
             th_d.append(q[j] - phi)
-            if tau_dot is None:
-                qd_m.append(qd[j])
-            else:
-                t = ca.SX.sym("t")
-                slope = ca.jacobian(self._deflection(j, t), t)
-                qd_m.append(qd[j] - ca.substitute(slope, t, tau[j]) * tau_dot[j])
-        if self.nm:
-            tau_e = self.act.motor_torque(q, self._u_full(tau, th))[self.motor]
-            um = self.d * thd - tau_e + self.b * (-kpm * (th - ca.vertcat(*th_d))
-                                                  - kdm * (thd - ca.vertcat(*qd_m)))
-        u, im = [], 0
-        for j, _, _ in self.act.variables:
-            if self.model.actuator_of(j).drive == "torque":
-                u.append(tau[j])
-            else:
-                u.append(um[im])
-                im += 1
-        return ca.vertcat(*u)
+            qd_m.append(qd[j] if tau_dot is None else qd[j] - rate * tau_dot[j])
+        tau_e = self.act.motor_torque(q, self._u_full(tau, th))[self.motor]
+        um = self.d * thd - tau_e + self.b * (-kpm * (th - ca.vertcat(*th_d))
+                                              - kdm * (thd - ca.vertcat(*qd_m)))
+        return self._u_full(tau, um)      # torques at direct slots, motor torques at motors
 
     def step_fun(self) -> ca.Function:
         """``<model>_partial_collocated``: (x, q_ad, kp, kd, kp_m, kd_m) -> (u, tau_a,
