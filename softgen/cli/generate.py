@@ -48,7 +48,7 @@ def _generate_one(model, out: Path, build: bool, force: bool = False) -> str:
         msg = f"{bundle}  up to date (--force derives it again)"
     else:
         _say(f"{name}: deriving and writing C ...")
-        bundle = generate(model, out)
+        bundle = generate(loaded, out)        # loaded once, above
         msg = f"{bundle}  generated in {time.perf_counter() - t0:.2f} s"
     if build:
         _say(f"{name}: compiling ({time.perf_counter() - t0:.1f} s elapsed) ...")
