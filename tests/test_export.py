@@ -28,6 +28,9 @@ from softgen.export.project import RECORD, bundle_files, export, summary
 from softgen.export.scenarios import capability, example_for
 from softgen.core.paths import MODELS_DIR
 from softgen.modelfile.load import load_model
+from export_check import build_or_skip
+from export_check import read_csv as _csv
+from export_check import run as _run
 
 #: One model of each capability: rigid, McKibben, electric VSAs, soft (planar PCC).
 MODELS = ("planar_2link", "planar_2link_mckibben", "arm_2link_electric", "pcc_planar_4seg")
@@ -74,26 +77,10 @@ def user_model(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def built(tmp_path_factory, user_model):
     """Each model exported and built once with its Makefile (the system compiler)."""
-    from softgen.codegen.build import find_compiler
-    if find_compiler() is None or shutil.which("make") is None:
-        pytest.skip("no C compiler or make")
     root = tmp_path_factory.mktemp("export")
-    out = {m: export(m, root / m, build=True) for m in MODELS}
-    out["user"] = export(str(user_model), root / "user", build=True)
+    out = {m: build_or_skip(m, root / m) for m in MODELS}
+    out["user"] = build_or_skip(str(user_model), root / "user")
     return out
-
-
-def _run(cmd, cwd=None, ok=True) -> subprocess.CompletedProcess:
-    r = subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True,
-                       timeout=300)
-    if ok:
-        assert r.returncode == 0, f"{cmd}: exit {r.returncode}\n{r.stdout}\n{r.stderr}"
-    return r
-
-
-def _csv(path: Path) -> tuple[list[str], np.ndarray]:
-    return path.read_text().splitlines()[0].split(","), np.loadtxt(path, delimiter=",",
-                                                                   skiprows=1, ndmin=2)
 
 
 def _reported(text: str, header: str) -> np.ndarray:

@@ -9,21 +9,18 @@ on seeded random springs.
 """
 from __future__ import annotations
 
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from softgen.control.electric import electric_arm
-from softgen.export.example import python_loop
-from softgen.export.project import export
 from softgen.export.scenarios import example_for
 from softgen.modelfile.load import load_model
 from softgen.studies.electric import (GRID_RATE, STIFFNESS_MARGIN, THESIS_GAINS,
                                       THESIS_REFERENCES, least_stiffness_fun, model_gains,
                                       model_references, reference_torque)
+from export_check import build_or_skip, csv_equals_python
 
 DATA = Path(__file__).parent / "data" / "user_models"
 USER_MODELS = ("arm3_qbmove.toml", "arm3_urdf.toml")
@@ -126,11 +123,8 @@ def test_derived_stiffness_references_keep_the_margin(name):
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    from softgen.codegen.build import find_compiler
-    if find_compiler() is None or shutil.which("make") is None:
-        pytest.skip("no C compiler or make")
     root = tmp_path_factory.mktemp("user_electric")
-    return {m: export(str(DATA / m), root / m.removesuffix(".toml"), build=True)
+    return {m: build_or_skip(str(DATA / m), root / m.removesuffix(".toml"))
             for m in USER_MODELS}
 
 
@@ -141,14 +135,7 @@ def test_exported_cascade_equals_scenario_and_tracks(built, name, tmp_path):
     res = built[name]
     assert res.example == "electric_pd"
     path = str(DATA / name)
-    r = subprocess.run([str(res.binary), "--fast", "--steps", str(STEPS), "--csv",
-                        str(tmp_path / "c.csv")], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stdout + r.stderr
-    text = (tmp_path / "c.csv").read_text().splitlines()
-    c_names, c_rows = text[0].split(","), np.loadtxt(text[1:], delimiter=",", ndmin=2)
-    columns, py_rows = python_loop(path, STEPS)
-    assert c_names == columns and c_rows.shape == py_rows.shape
-    np.testing.assert_allclose(c_rows, py_rows, rtol=1e-12, atol=1e-12)
+    r, columns, py_rows = csv_equals_python(res.binary, path, STEPS, tmp_path)
 
     ex = example_for(path, steps=STEPS)
     tr = ex.scenario.run(progress=False)

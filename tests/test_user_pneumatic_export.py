@@ -6,8 +6,6 @@ stiffness steps are scaled into what each joint's muscles can give
 from __future__ import annotations
 
 import re
-import shutil
-import subprocess
 from pathlib import Path
 
 import casadi as ca
@@ -15,14 +13,12 @@ import numpy as np
 import pytest
 
 from softgen.cli import main
-from softgen.codegen.build import find_compiler
 from softgen.control.feasibility import check_pressures, stiffness_range
 from softgen.control.pneumatic import pneumatic_arm
-from softgen.export.example import python_loop
-from softgen.export.project import export
 from softgen.export.scenarios import (PNEUMATIC_SIGMA_STEPS, STIFFNESS_HEADROOM, example_for,
                                       pneumatic_stiffness_steps)
 from softgen.modelfile.load import load_model
+from export_check import build_or_skip, csv_equals_python, run
 
 MODEL = Path(__file__).parent / "data" / "user_models" / "arm3_mckibben_unequal.toml"
 
@@ -98,15 +94,8 @@ def test_muscles_too_weak_to_hold_the_arm_is_one_line(tmp_path, capsys):
 @pytest.mark.slow
 @pytest.mark.compiler
 def test_user_mckibben_export_builds_runs_and_tracks(tmp_path):
-    if find_compiler() is None or shutil.which("make") is None:
-        pytest.skip("no C compiler or make")
-    res = export(str(MODEL), tmp_path / "ex", build=True)
-    steps = 400
-    subprocess.run([str(res.binary), "--fast", "--steps", str(steps), "--csv",
-                    str(tmp_path / "c.csv")], check=True, capture_output=True, timeout=300)
-    c_rows = np.loadtxt(tmp_path / "c.csv", delimiter=",", skiprows=1, ndmin=2)
-    _, py_rows = python_loop(str(MODEL), steps)
-    np.testing.assert_allclose(c_rows, py_rows, rtol=1e-12, atol=1e-12)
+    res = build_or_skip(str(MODEL), tmp_path / "ex")
+    csv_equals_python(res.binary, str(MODEL), 400, tmp_path)
     # The whole 10 s run (Π̂(0) = 0.9 Π, K_π = 35) in Python: every pressure command in
     # [0, p_max] (so the plant applies what Theorem 5 assumes) and Π̂ bounded. Measured
     # on 2026-12-02: hand muscle a peaks at 4.0e5 of 5e5 Pa; max |Π̂| 1.09 max |Π̂(0)|.
@@ -120,8 +109,7 @@ def test_user_mckibben_export_builds_runs_and_tracks(tmp_path):
     # "Tracks": rms position error of each joint over the whole run (start included)
     # below 0.03 rad. Measured on 2026-12-02: 0.0062, 0.0046, 0.0053 rad (0.0062, 0.0038,
     # 0.0024 with the adaptation direction Y_*ᵀ s as printed).
-    out = subprocess.run([str(res.binary), "--fast", "--seconds", "10"], check=True,
-                         capture_output=True, text=True, timeout=300).stdout
+    out = run([res.binary, "--fast", "--seconds", "10"]).stdout
     rms = [float(x) for x in re.findall(r"\[\d+\]: rms (\S+),", out.split("plant.sigma")[0])]
     assert len(rms) == 3 and all(np.isfinite(rms)), out
     assert max(rms) < 0.03, out

@@ -4,8 +4,6 @@ examples that build, equal ``scenario.run()`` to 1e-12 and track / settle."""
 from __future__ import annotations
 
 import re
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -17,11 +15,10 @@ from softgen.bundles.registry import (FULLY_TORQUE_ACTUATED, LINEAR_SEA, PARTLY_
 from softgen.control.partial import PartialArm
 from softgen.core.errors import ModelError
 from softgen.core.paths import MODELS_DIR
-from softgen.export.example import python_loop
-from softgen.export.project import export
 from softgen.export.scenarios import capability
 from softgen.modelfile.load import load_model
 from softgen.modelfile.model import RobotModel
+from export_check import build_or_skip, csv_equals_python, read_csv, run
 
 DATA = Path(__file__).parent / "data" / "user_models"
 SEA, PARTIAL = DATA / "arm3_sea.toml", DATA / "arm3_partial.toml"
@@ -117,22 +114,8 @@ def test_partial_step_finite_at_singular_points(arm):
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    from softgen.codegen.build import find_compiler
-    if find_compiler() is None or shutil.which("make") is None:
-        pytest.skip("no C compiler or make")
     root = tmp_path_factory.mktemp("export")
-    return {k: export(str(p), root / k, build=True) for k, p in (("sea", SEA), ("partial", PARTIAL))}
-
-
-def _run(cmd) -> subprocess.CompletedProcess:
-    r = subprocess.run([str(c) for c in cmd], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, f"{cmd}: exit {r.returncode}\n{r.stdout}\n{r.stderr}"
-    return r
-
-
-def _csv(path: Path):
-    return path.read_text().splitlines()[0].split(","), np.loadtxt(path, delimiter=",",
-                                                                   skiprows=1, ndmin=2)
+    return {k: build_or_skip(str(p), root / k) for k, p in (("sea", SEA), ("partial", PARTIAL))}
 
 
 @pytest.mark.compiler
@@ -141,12 +124,7 @@ def test_exported_program_equals_scenario_run(built, which, tmp_path):
     res = built[which]
     assert res.example == {"sea": "sea_cascade", "partial": "partial"}[which]
     steps = int(np.random.default_rng(5 + len(which)).integers(300, 700))
-    _run([res.binary, "--fast", "--steps", steps, "--csv", tmp_path / "c.csv"])
-    names, c_rows = _csv(tmp_path / "c.csv")
-    columns, py_rows = python_loop(str(SEA if which == "sea" else PARTIAL), steps)
-    assert names == columns and c_rows.shape == py_rows.shape
-    assert np.all(np.isfinite(py_rows))
-    np.testing.assert_allclose(c_rows, py_rows, rtol=1e-12, atol=1e-12)
+    csv_equals_python(res.binary, str(SEA if which == "sea" else PARTIAL), steps, tmp_path)
 
 
 @pytest.mark.compiler
@@ -155,7 +133,7 @@ def test_exported_sea_arm_tracks(built, tmp_path):
     position error below 5e-3 rad on every joint — 1 % of the smallest amplitude, the
     level at which tracking is visible on a plot; measured 2.3e-4 / 8.3e-4 / 1.6e-3 rad
     (the light, soft wrist spring k = 8 N m/rad tracks worst)."""
-    r = _run([built["sea"].binary, "--fast", "--steps", 10000])
+    r = run([built["sea"].binary, "--fast", "--steps", 10000])
     rms = [float(m) for m in re.findall(r"\[\d\]: rms (\S+),", r.stdout)]
     assert len(rms) == 3 and max(rms) < 5e-3, r.stdout
 
@@ -168,8 +146,8 @@ def test_exported_partial_arm_tracks(built, tmp_path):
     joint below 5e-3 rad (1 % of the smallest amplitude; measured 4.5e-4 / 1.9e-3 rad
     in the Python run of the same diagram), and the passive elbow bounded (|q| < 1 rad;
     measured max 0.18 rad)."""
-    _run([built["partial"].binary, "--fast", "--steps", 10000, "--csv", tmp_path / "c.csv"])
-    names, rows = _csv(tmp_path / "c.csv")
+    run([built["partial"].binary, "--fast", "--steps", 10000, "--csv", tmp_path / "c.csv"])
+    names, rows = read_csv(tmp_path / "c.csv")
     col = {n: i for i, n in enumerate(names)}
     q = rows[:, [col[f"plant.q[{i}]"] for i in range(1, 4)]]
     e = rows[:, [col[f"ctrl.q_a[{i}]"] for i in (1, 2)]] - rows[:, [col[f"ref.q_d[{i}]"]
