@@ -79,6 +79,22 @@ q_{j,d} = q − asinh(τ^e_j / k_j) / a_j.
   section 11.2's PD run: position rms error 6e-2 rad at ω_f = 100 rad/s against 8e-5
   rad with ``"model"``; ω_f = 400 rad/s at dt = 1 ms diverges).
 
+**Jets** (:data:`JETS`; issue 25). The generated ``"model"`` route writes the chain
+rule out (:meth:`ElectricArm._closed_jets`): sinh and cosh of each spring argument come
+from one exp (:func:`_sinh_cosh`) and are differentiated by hand (Ṡ = a φ̇ C, Ċ = a φ̇ S),
+asinh of eq. 11.3 shares its square root with ρ_j = 1/(a_j k_j √(1 + u_j²)) of
+q̇_{j,d} = q̇ − ρ_j τ̇_j, eq. 11.4 is differentiated as a linear system (M τ̇ = ṙ − Ṁ τ),
+the link's q⃛ differentiates the model's equation, not its solve, and ``jtimes`` is left
+with the rigid-body v of eq. 11.4 only. A division used more than once is a reciprocal
+multiplied in (:func:`_neg_recip`). The jets equal those of the ``"ad"`` route (CasADi's
+``jtimes`` through the whole map, kept as the tests' reference) to rounding (≤ 1e-12
+relative, tests/test_electric_jets.py); so do the PD steps. The adaptive variants' α
+solve, (MᵀM + μI)⁻¹Mᵀr per joint, is written without forming the normal equations'
+determinant (:func:`_regularized_solve2`): at b̂ = 0, where M has rank one, CasADi's
+solve of MᵀM + μI (the ``"ad"`` route) loses up to ten digits. Measured on the 2-link
+arm's PD step: 1,171 → 1,167 CasADi instructions, 110 → 21 divisions, and 8 sinh,
+4 cosh, 4 asinh → 8 exp, 4 log1p.
+
 **Link acceleration** (:data:`ACCELERATIONS`, model route only): the q̈ along which
 the Lie derivatives run is either the (adapted) model's (``"model"``) or the backward
 difference of the measured q̇ over the last sample (``"measured"``, state ``qd_prev``;
@@ -104,13 +120,17 @@ stiffness; the integral variants start at σ_d with ξ(0) from :func:`integral_s
 **Adaptive start and projection** (measured on section 11.2's runs, dt = 1 ms, with
 the diagram blocks below; ``ch11-electric-adaptive`` repeats each run). From π̂_m(0) = 0
 (the thesis's start) Theorem 8's law drives b̂ below zero within two samples, not all
-motors alike: the first sample takes the side-a motors' b̂ below zero (b̂_1a = −6.5e-4
-kg m² at 1 ms with Λ_m = 10) while the side-b motors' b̂ *rise* (b̂_1b = +1.1e-4); the
-second takes those below zero too (b̂_1b = −9.5e-5 at 2 ms): the first step is
+motors alike: the first sample takes the side-a motors' b̂ below zero (b̂_1a = −9.1e-6
+kg m² at 1 ms with Λ_m = 10) while the side-b motors' b̂ *rise* (b̂_1b = +1.4e-6); the
+second takes those below zero too (b̂_1b = −5.0e-2 at 2 ms): the first step is
 −k_b Y_b s_m per motor, and Y_b s_m starts with opposite signs on the two motors of a
-pair. With the printed Λ_m = 0.1, b̂_1a = −1.2e-3 kg m² at 9 ms. An
-adapted motor of negative inertia follows, and the cascade diverges (0.24 s with
-Λ_m = 0.1, 6 ms with Λ_m = 10). Started at π̂_m = π_m without projection the same runs
+pair. With the printed Λ_m = 0.1, b̂_1a = −4.4e-4 kg m² at 2 ms. An
+adapted motor of negative inertia follows, and the cascade diverges (10 ms with
+Λ_m = 0.1, 5 ms with Λ_m = 10). At b̂ = 0 the α solve's M has rank one and only the
+regularisation fixes α (cond(MᵀM + μI) ≈ 1e10): these numbers are of the 2 × 2 form
+without the normal equations' cancellation (:func:`_regularized_solve2`, issue 25);
+CasADi's solve of MᵀM + μI had given b̂_1a = −6.5e-4 at 1 ms, b̂_1b = −9.5e-5 at 2 ms
+and divergence at 6 ms: rounding, not the law. Started at π̂_m = π_m without projection the same runs
 track for 3 s with no b̂ below 0.999 b (both variants): the negative b̂ from the zero
 start, not the unprojected law, is what diverges (3 s runs of ch11's
 ``run_variant(..., projection=False, nominal=True)``). Divergence times move with
@@ -123,7 +143,7 @@ b_min = 0.1 b the antagonist motors' b̂ sit on the bound for the whole run (the
 keeps pushing them down) and the cascades track. The printed inner Λ_m = 0.1 leaves a
 motor pole at ≈ 0.1 rad/s (b s² + k s + kΛ, b = 1e-3, k = 0.1): joint-2 position rms
 0.14 rad over the second half of 40 s, the same at dt = 0.1 ms; Λ_m = 10 gives 1e-3 rad.
-Remark 11's k_π = 7 diverges at 0.114 s at dt = 1 ms and at 0.129 s at dt = 0.1 ms (not
+Remark 11's k_π = 7 diverges at 0.123 s at dt = 1 ms and at 0.129 s at dt = 0.1 ms (not
 the Euler step: the link adaptation outruns the inner loop that must realise its
 torques); k_π = 0.2 (Theorem 9's) works.
 
@@ -180,6 +200,11 @@ VARIANTS = {
 #: How the inner loop gets q̇_{j,d}, q̈_{j,d} (module docstring).
 DERIVATIVES = ("model", "filter")
 
+#: How the ``"model"`` route forms q̇_{j,d}, q̈_{j,d} (module docstring, "Jets"): the chain
+#: rule written out (``"closed"``, generated) or CasADi's ``jtimes`` through the whole
+#: map eq. 11.4 ∘ eq. 11.3 (``"ad"``, kept as the tests' reference).
+JETS = ("closed", "ad")
+
 #: Where the Lie derivatives take the link acceleration q̈ from: the (adapted) link
 #: model, or the backward difference of the measured q̇ over the last sample
 #: (state ``qd_prev``; its own rate, the jerk, is then left out).
@@ -218,10 +243,80 @@ def _check_variant(variant: str, derivatives: str = "model") -> None:
                          f"got {derivatives!r}")
 
 
-def _solve2(m11, m12, m21, m22, r1, r2):
-    """Element-wise solution of n independent 2 × 2 systems (Cramer's rule) and det."""
+#: Taylor coefficients 1/(2k+1)! of sinh x / x, k = 1..7, and where the series is used.
+_SINH_SERIES = tuple(1 / np.prod(np.arange(1.0, 2 * k + 2)) for k in range(1, 8))
+_SINH_SERIES_BELOW = 0.5
+
+
+def _sinh_cosh(x):
+    """(sinh x, cosh x) from one exp, element-wise (eq. 6.6, 2.8 of the springs).
+
+    cosh x = (eˣ + e⁻ˣ)/2 has no cancellation. sinh x = (eˣ − e⁻ˣ)/2 has, for small |x|
+    (relative error ≈ 2ε coth x: 4.3ε at |x| = 0.5, every digit as x → 0), so below
+    |x| = 0.5 the Taylor series to x¹⁵ is used (truncation < 1e-17 relative there).
+    exp, not expm1: glibc's exp is about twice as fast (6.2 against 11.9 ns per call,
+    measured), and the step needs eight. Overflows where sinh does (|x| > ~710).
+    """
+    e = ca.exp(x)
+    ie = 1 / e
+    y = x * x
+    series = _SINH_SERIES[-1]
+    for c in reversed(_SINH_SERIES[:-1]):
+        series = c + y * series
+    small = x + x * (y * series)
+    return ca.if_else(ca.fabs(x) < _SINH_SERIES_BELOW, small, 0.5 * (e - ie)), 0.5 * (e + ie)
+
+
+def _asinh(u, root):
+    """asinh u given root = √(1 + u²): sign(u) log1p(|u| + u²/(1 + root)), the form
+    without cancellation at 0 and for u < 0 (asinh is odd)."""
+    t = ca.fabs(u)
+    return ca.copysign(ca.log1p(t + t * t / (1 + root)), u)
+
+
+def _neg_recip(x):
+    """−1/x, to multiply by. CasADi rewrites y·(1/x) into y/x, a division per use (each
+    ~4 times a product's cost and a long latency); y·(−1/x) stays a product, so one
+    division serves every use (−(y·(−1/x)) = y/x to rounding)."""
+    return -1 / x
+
+
+def _solve2(m11, m12, m21, m22, r1, r2, *, recip: bool = False):
+    """Element-wise solution of n independent 2 × 2 systems (Cramer's rule) and det;
+    ``recip``: one division (:func:`_neg_recip`) instead of two."""
     det = m11 * m22 - m12 * m21
+    if recip:
+        nr = _neg_recip(det)
+        return (m12 * r2 - r1 * m22) * nr, (m21 * r1 - m11 * r2) * nr, det
     return (r1 * m22 - m12 * r2) / det, (m11 * r2 - m21 * r1) / det, det
+
+
+def _regularized_solve2(m11, m12, m21, m22, r1, r2, mu):
+    """α = (MᵀM + μI)⁻¹ Mᵀ r for n independent 2 × 2 blocks M, element-wise.
+
+    For 2 × 2, adj(MᵀM + μI) = adj(M) adj(M)ᵀ + μI and adj(M)ᵀMᵀ = det(M) I, so
+    α = (det(M) adj(M) r + μ Mᵀ r) / (det(M)² + μ‖M‖²_F + μ²): the normal equations'
+    determinant is never formed by subtraction, whose cancellation (cond(M)² of it, up
+    to 1e10 at b̂ = 0 where M has rank one) is what a solve of MᵀM + μI pays."""
+    dm = m11 * m22 - m12 * m21
+    frob = m11 * m11 + m12 * m12 + m21 * m21 + m22 * m22
+    nr = _neg_recip(dm * dm + mu * frob + mu * mu)
+    a1 = dm * (m22 * r1 - m12 * r2) + mu * (m11 * r1 + m21 * r2)
+    a2 = dm * (m11 * r2 - m21 * r1) + mu * (m12 * r1 + m22 * r2)
+    return -a1 * nr, -a2 * nr
+
+
+def _inverse_small(A):
+    """A⁻¹ for the link models' small matrices: explicit with one division for n ≤ 2
+    (the chapter-11 arms), CasADi's solve otherwise."""
+    n = A.shape[0]
+    if n == 1:
+        return -_neg_recip(A[0, 0])
+    if n == 2:
+        nr = _neg_recip(A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0])
+        return ca.vertcat(ca.horzcat(-A[1, 1] * nr, A[0, 1] * nr),
+                          ca.horzcat(A[1, 0] * nr, -A[0, 0] * nr))
+    return ca.solve(A, ca.DM.eye(n))
 
 
 class ElectricArm:
@@ -241,12 +336,15 @@ class ElectricArm:
         Adaptive variants: keep b̂ ≥ ``b_min`` (an extra gain; module docstring).
     sigma_input
         Feed back the input ``sigma_fb`` instead of the spring model's σ.
+    jets
+        ``"closed"`` or ``"ad"`` (see :data:`JETS`; same step name, same values to
+        rounding).
     """
 
     def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None,
                  springs: QbmoveSprings | None = None, derivatives: str = "model",
                  acceleration: str = "model", projection: bool = False,
-                 sigma_input: bool = False):
+                 sigma_input: bool = False, jets: str = "closed"):
         if model.actuator_type != "qbmove":
             got = model.actuator_type or "no [[actuators]]"
             raise ModelError(f"{model.name}: the chapter-11 controllers need qbmove "
@@ -257,6 +355,9 @@ class ElectricArm:
             raise ValueError(f"acceleration: expected one of {', '.join(ACCELERATIONS)} "
                              f"(\"measured\" with derivatives=\"model\" only), "
                              f"got {acceleration!r}")
+        if jets not in JETS:
+            raise ValueError(f"jets: expected one of {', '.join(JETS)}, got {jets!r}")
+        self.jets = jets
         self.acceleration = acceleration
         self.projection = bool(projection)
         self.sigma_input = bool(sigma_input)
@@ -403,13 +504,52 @@ class ElectricArm:
         A = M.T @ M + ACC_REGULARIZATION * ca.DM.eye(self.n)
         return ca.solve(A, M.T @ (tau_link - bias))
 
-    def outer(self, variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G, sigma_offset=0):
+    def _link_jets(self, q, qd, acc, tau_link, tau_link_dot, pi_hat=None, pi_hat_dot=None):
+        """(q̈, q⃛) of :meth:`link_acceleration`, q⃛ along (q̇, q̈ = ``acc``, τ̇_link, π̂̇).
+
+        With the model M(q) q̈ + b(q, q̇) = τ (affine in q̈): nominal, q̈ = M⁻¹(τ − b)
+        and M q⃛ = τ̇ − Ṁ q̈ − ḃ; adapted, (MᵀM + μI) q̈ = Mᵀ y, y = τ − b, so
+        (MᵀM + μI) q⃛ = Ṁᵀ y + Mᵀ ẏ − (ṀᵀM + MᵀṀ) q̈. The equation is differentiated,
+        not the solve; Ṁ, ḃ by ``jtimes`` on the rigid-body expressions; one inverse
+        (:func:`_inverse_small`) serves both.
+        """
+        a = ca.SX.sym("qdd_held", self.n)
+        W, F = [q, qd], [qd, acc]
+        if pi_hat is None:
+            lhs = self.inverse_dynamics(q, qd, qd, a)
+        else:
+            lhs = self.regressor_times(q, qd, qd, a, pi_hat)
+            W.append(pi_hat)
+            F.append(pi_hat_dot)
+        W, F = ca.vertcat(*W), ca.vertcat(*F)
+        M = ca.jacobian(lhs, a)
+        bias = ca.substitute(lhs, a, ca.DM.zeros(self.n))
+        if pi_hat is None:
+            Minv = _inverse_small(M)
+            lhs_dot = ca.substitute(ca.jtimes(lhs, W, F), a, acc)     # Ṁ q̈ + ḃ
+            return Minv @ (tau_link - bias), Minv @ (tau_link_dot - lhs_dot)
+        M_dot = ca.jtimes(M, W, F)
+        y = tau_link - bias
+        y_dot = tau_link_dot - ca.jtimes(bias, W, F)
+        Ainv = _inverse_small(M.T @ M + ACC_REGULARIZATION * ca.DM.eye(self.n))
+        A_dot = M_dot.T @ M + M.T @ M_dot
+        return Ainv @ (M.T @ y), Ainv @ (M_dot.T @ y + M.T @ y_dot - A_dot @ acc)
+
+    def outer(self, variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G, sigma_offset=0,
+              springs=None, parts=None):
         """Outer loop: commanded (τ^e_a, τ^e_b), det, σ, rates of (ξ, π̂), q̈ of the model.
 
-        ``sigma_offset`` is added to the spring model's σ (a fed-back σ, see step_fun)."""
+        ``sigma_offset`` is added to the spring model's σ (a fed-back σ, see step_fun).
+        ``springs``: (τ^e_a, τ^e_b, σ) to use instead of the spring model at (q, q_a, q_b)
+        (the closed jets pass them in terms of sinh/cosh placeholders). ``parts``: a dict
+        that receives the right-hand side (v, w) of eq. 11.4."""
         e, ed = q - R["q_d"], qd - R["qd_d"]
-        ta, tb = self.spring_torques(q, qa, qb)
-        sigma = self.springs.stiffness(q, qa, qb) + sigma_offset
+        if springs is None:
+            ta, tb = self.spring_torques(q, qa, qb)
+            sigma = self.springs.stiffness(q, qa, qb) + sigma_offset
+        else:
+            ta, tb, sigma = springs
+            sigma = sigma + sigma_offset
         e_sigma = sigma - R["sigma_d"]
         rates = {}
         if _is_adaptive(variant):
@@ -428,11 +568,146 @@ class ElectricArm:
             w = w - G["ki"] * xi
             rates["xi"] = e_sigma
         m11, m12, m21, m22 = self.delta_system(qd, qad, qbd, G["delta"])
-        tau_a, tau_b, det = _solve2(m11, m12, m21, m22, v, w)
+        tau_a, tau_b, det = _solve2(m11, m12, m21, m22, v, w, recip=springs is not None)
+        if parts is not None:
+            parts.update(v=v, w=w)
         return tau_a, tau_b, det, sigma, rates, qdd_model
 
+    def _closed_jets(self, variant, q, qd, qad, qbd, Z, R, G, rates, parts, tau_a, tau_b,
+                     det, S, C, qm, qmd, dt, alpha=None):
+        """(q_{j,d}, q̇_{j,d}, q̈_{j,d}) of the ``"model"`` route with the chain rule written
+        out (module docstring, "Jets"); ``S``, ``C`` are the placeholders of sinh(a_j φ_j),
+        cosh(a_j φ_j) (2n, a then b), ``parts`` holds (v, w) of eq. 11.4. ``alpha``:
+        the motor accelerations to use instead of solving for them (step_fun's
+        ``_alpha_input``).
+
+        Every quantity is a per-joint scalar jet (value, rate, second rate), the motor
+        accelerations α entering affinely (linearised at α = 0, as the ``"ad"`` route):
+
+        - springs (eq. 6.6, 2.9): Ṡ_j = a_j φ̇_j C_j, σ̇ = Σ a_j² k_j S_j φ̇_j,
+          σ̈ = Σ a_j² k_j (a_j C_j φ̇_j² + S_j (q̈ − α_j));
+        - γ_j = c_j φ̇_j (eq. 11.1b): γ̇_j = c_j (q̈ − α_j), γ̈_j = c_j q⃛ (α̇ left out);
+        - v (eq. 11.4's first row, the rigid-body part) by ``jtimes`` along (q̇, q̈, π̂̇,
+          reference rates) with q̈ and q⃛ as placeholders, filled by :meth:`_link_jets`
+          (or by the measured q̈ and q⃛ = 0);
+        - eq. 11.4 differentiated, M τ = (v, w): M τ̇ = (v̇, ẇ − γ̇·τ),
+          M τ̈ = (v̈, ẅ − 2 γ̇·τ̇ − γ̈·τ), M⁻¹(p, r) = ((m22 p + r)/det, −p − (m22 p + r)/det);
+        - eq. 11.3, u_j = τ_j/k_j, ρ_j = 1/(a_j k_j √(1 + u_j²)):
+          q̇_{j,d} = q̇ − ρ_j τ̇_j, q̈_{j,d} = q̈ − ρ_j τ̈_j + a_j² ρ_j³ τ_j τ̇_j².
+        """
+        n, sp = self.n, self.springs
+        ka, kb = ca.DM(sp.k_a), ca.DM(sp.k_b)
+        aa, ab = ca.DM(sp.a_a), ca.DM(sp.a_b)
+        c_a, c_b = ca.DM(self.c_a), ca.DM(self.c_b)
+        Sa, Sb, Ca, Cb = S[:n], S[n:], C[:n], C[n:]
+        pd_a, pd_b = qd - qad, qd - qbd                               # φ̇_j
+        # Rates of v: CasADi's jtimes on the rigid-body expression only, with q̈ and q⃛
+        # as placeholders (q̈, q⃛ of the link model from _link_jets, which differentiates
+        # the model's equation instead of its solve; the measured route has q⃛ = 0).
+        acc, jerk_ph = ca.SX.sym("acc", n), ca.SX.sym("jerk", n)
+        nxt = {"q_d": "qd_d", "qd_d": "qdd_d", "qdd_d": "qddd_d", "qddd_d": "qdddd_d"}
+        W, F = [q, qd, acc], [qd, acc, jerk_ph]
+        pi_hat = Z.get("pi_hat")
+        pi_dot = rates.get("pi_hat")
+        if pi_hat is not None:
+            W.append(pi_hat)
+            F.append(pi_dot)
+        for b, b_next in nxt.items():
+            W.append(R[b])
+            F.append(R[b_next])
+        W, F = ca.vertcat(*W), ca.vertcat(*F)
+        vd = ca.jtimes(parts["v"], W, F)
+        vdd = ca.jtimes(vd, W, F)
+        if self.acceleration == "model":
+            tl = -(ka * Sa + kb * Sb)                                 # eq. 11.1a
+            tl_dot = -(ka * aa * pd_a * Ca + kb * ab * pd_b * Cb)
+            acc_val, jerk = self._link_jets(q, qd, acc, tl, tl_dot, pi_hat, pi_dot)
+        else:
+            acc_val, jerk = -(qd - Z["qd_prev"]) * _neg_recip(dt), ca.DM.zeros(n)
+        vdd = ca.substitute(vdd, jerk_ph, jerk)
+        # σ and w = σ̇_d − k_σ e_σ [− k_I ξ] (eq. 11.4, 11.8); α_j-coefficients of σ̈ are
+        # −a_j² k_j S_j, so those of ẅ are k_σ a_j² k_j S_j.
+        ks = G["ksigma"]
+        wa, wb = aa * aa * ka * Sa, ab * ab * kb * Sb
+        sig_d = wa * pd_a + wb * pd_b
+        sig_dd = (aa * aa * aa * ka * Ca * pd_a * pd_a + ab * ab * ab * kb * Cb * pd_b * pd_b
+                  + (wa + wb) * acc)
+        wd = R["sigmadd_d"] - ks * (sig_d - R["sigmad_d"])
+        wdd = R["sigmaddd_d"] - ks * (sig_dd - R["sigmadd_d"])
+        if _is_integral(variant):
+            wd = wd - G["ki"] * rates["xi"]                            # ξ̇ = e_σ
+            wdd = wdd - G["ki"] * (sig_d - R["sigmad_d"])
+        # γ rates at α = 0 (γ̇_j = γ̇0_j − c_j α_j) and eq. 11.4's M⁻¹ (nr = −1/det).
+        gd_a, gd_b = c_a * acc, c_b * acc
+        m22 = c_b * pd_b - G["delta"]
+        nr = _neg_recip(det)
+        # τ̇ = τ̇0 + g (1, −1), g = gA α_a + gB α_b.
+        ta_d = -(m22 * vd + wd - gd_a * tau_a - gd_b * tau_b) * nr
+        tb_d = -vd - ta_d
+        gA, gB = -c_a * tau_a * nr, -c_b * tau_b * nr
+        # τ̈ = τ̈0 + h (1, −1), h = hA α_a + hB α_b: 2 γ̇·τ̇ linearised at α = 0.
+        s2 = wdd - 2 * (gd_a * ta_d + gd_b * tb_d) - (c_a * tau_a + c_b * tau_b) * jerk
+        ta_dd = -(m22 * vdd + s2) * nr
+        tb_dd = -vdd - ta_dd
+        dgd = 2 * (gd_a - gd_b)
+        hA = -(ks * wa - dgd * gA + 2 * c_a * ta_d) * nr
+        hB = -(ks * wb - dgd * gB + 2 * c_b * tb_d) * nr
+        # eq. 11.3 and its rates: one square root per motor serves asinh and ρ.
+        a_m, k_m_ = ca.vertcat(aa, ab), ca.vertcat(ka, kb)
+        tau = ca.vertcat(tau_a, tau_b)
+        u = tau * (1 / k_m_)
+        root = ca.sqrt(1 + u * u)
+        q_ref = ca.vertcat(q, q) - _asinh(u, root) * (1 / a_m)
+        rho = _neg_recip(root) * (-1 / (a_m * k_m_))
+        tau_d, tau_dd = ca.vertcat(ta_d, tb_d), ca.vertcat(ta_dd, tb_dd)
+        kap = (a_m * a_m) * rho * rho * rho * tau
+        A1 = ca.vertcat(qd, qd) - rho * tau_d
+        A2 = ca.vertcat(acc, acc) - rho * tau_dd + kap * tau_d * tau_d
+        # α enters q̇_{j,d} as p1_j g and q̈_{j,d} as p1_j h + p3_j g (sign +1 for a,
+        # −1 for b).
+        sgn = ca.vertcat(ca.DM.ones(n), -ca.DM.ones(n))
+        p1 = -sgn * rho
+        p3 = 2 * sgn * kap * tau_d
+        A1, A2, p3, hA, hB = ca.substitute([A1, A2, p3, hA, hB], [acc], [acc_val])
+        em = qm - q_ref
+        if alpha is not None:
+            g2 = ca.vertcat(*[gA * alpha[:n] + gB * alpha[n:]] * 2)
+            h2 = ca.vertcat(*[hA * alpha[:n] + hB * alpha[n:]] * 2)
+            return q_ref, A1 + p1 * g2, A2 + p1 * h2 + p3 * g2
+        if _is_adaptive(variant):
+            # Rows of G1 = ∂q̇_d/∂α, G2 = ∂q̈_d/∂α over (α_a, α_b) of the same joint.
+            gA2, gB2, hA2, hB2 = (ca.vertcat(x, x) for x in (gA, gB, hA, hB))
+            G1A, G1B = p1 * gA2, p1 * gB2
+            G2A, G2B = p1 * hA2 + p3 * gA2, p1 * hB2 + p3 * gB2
+            # Theorem 8 under the adapted motor model, regularised least squares per
+            # joint (module docstring): M α = r with M = diag(b̂)(I − G2 − Λ G1) − k G1.
+            b_hat = Z["pi_m_hat"][:2 * n]
+            lam_m, k_m = G["lam_m"], G["k_m"]
+            MA = -b_hat * (G2A + lam_m * G1A) - k_m * G1A
+            MB = -b_hat * (G2B + lam_m * G1B) - k_m * G1B
+            r = b_hat * (A2 - lam_m * (qmd - A1)) - k_m * (qmd - A1 + lam_m * em)
+            al_a, al_b = _regularized_solve2(MA[:n] + b_hat[:n], MB[:n], MA[n:],
+                                             MB[n:] + b_hat[n:], r[:n], r[n:],
+                                             MOTOR_REGULARIZATION)
+            al_a2, al_b2 = ca.vertcat(al_a, al_a), ca.vertcat(al_b, al_b)
+            return q_ref, A1 + G1A * al_a2 + G1B * al_b2, A2 + G2A * al_a2 + G2B * al_b2
+        # Theorem 6 with the known motors: α = q̈_{j,d} − k_p e_j − k_d ė_j. α enters the
+        # references only through g and h, so α_j = r_j + p1_j h + (p3_j + k_d p1_j) g
+        # turns into a 2 × 2 system per joint in (g, h) (the same solution as in α).
+        kp_m, kd_m = G["kp_m"], G["kd_m"]
+        r = A2 - kp_m * em - kd_m * (qmd - A1)
+        Q = p3 + kd_m * p1
+
+        def dot(x, y):                     # Σ over the joint's two motors of x_j y_j
+            return x[:n] * y[:n] + x[n:] * y[n:]
+        gv, hv = ca.vertcat(gA, gB), ca.vertcat(hA, hB)
+        g, h, _ = _solve2(1 - dot(gv, Q), -dot(gv, p1), -dot(hv, Q), 1 - dot(hv, p1),
+                          dot(gv, r), dot(hv, r), recip=True)
+        g2, h2 = ca.vertcat(g, g), ca.vertcat(h, h)
+        return q_ref, A1 + p1 * g2, A2 + p1 * h2 + p3 * g2
+
     # -- the generated step -----------------------------------------------------------------
-    def step_fun(self, variant: str) -> ca.Function:
+    def step_fun(self, variant: str, *, _alpha_input: bool = False) -> ca.Function:
         """``<model>_electric_cascade_<variant>[_filter]``: one sample of both loops.
 
         Inputs ``z`` (:meth:`state_layout`), ``x`` (6n measured plant state q, q̇, q_a,
@@ -443,6 +718,11 @@ class ElectricArm:
         ``tau_e_ref`` (2n, elastic torques of eq. 11.4); ``sigma`` (n, measured through
         the spring model); ``det`` (n, determinant of each joint's 2 × 2 block of eq. 11.4,
         γ_a − γ_b + 2Δ for equal springs).
+
+        ``_alpha_input`` (tests): the motor accelerations α become a last input instead of
+        being solved for, and the outputs are (q_{j,d}, q̇_{j,d}(α), q̈_{j,d}(α)) only:
+        the jets of both :data:`JETS` routes compared without the α solve, which is
+        ill-conditioned for the adaptive variants (regularised least squares).
         """
         _check_variant(variant, self.derivatives)
         n = self.n
@@ -463,12 +743,29 @@ class ElectricArm:
         # A fed-back σ (sigma_input): σ_fb = σ_model(x) + o with o held over the Lie
         # derivatives (σ_fb's own rate is the spring model's), o = σ_fb − σ_model(x).
         offset = ca.SX.sym("sigma_offset", n) if self.sigma_input else 0
+        closed = self.derivatives == "model" and self.jets == "closed"
+        springs_at, parts = None, {}
+        if closed:
+            # sinh(a_j φ_j), cosh(a_j φ_j) as placeholders (a then b side): the jets below
+            # differentiate them by hand, and they are evaluated once at the end.
+            sc = ca.SX.sym("sinh_cosh", 4 * n)
+            S, C = sc[:2 * n], sc[2 * n:]
+            ka, kb = ca.DM(self.springs.k_a), ca.DM(self.springs.k_b)
+            aa, ab = ca.DM(self.springs.a_a), ca.DM(self.springs.a_b)
+            springs_at = (ka * S[:n], kb * S[n:], aa * ka * C[:n] + ab * kb * C[n:])
         tau_a, tau_b, det, sigma, rates, qdd_model = self.outer(
-            variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G, offset)
-        h = ca.vertcat(*self.motor_references(q, tau_a, tau_b))      # eq. 11.3
+            variant, q, qd, qa, qb, qad, qbd, xi, pi_hat, R, G, offset, springs_at, parts)
+        if not closed:
+            h = ca.vertcat(*self.motor_references(q, tau_a, tau_b))      # eq. 11.3
 
         qm, qmd = ca.vertcat(qa, qb), ca.vertcat(qad, qbd)
-        if self.derivatives == "model":
+        if closed:
+            alpha_in = ca.SX.sym("alpha", 2 * n) if _alpha_input else None
+            q_ref, qd_ref, qdd_ref = self._closed_jets(
+                variant, q, qd, qad, qbd, Z, R, G, rates, parts, tau_a, tau_b, det, S, C,
+                qm, qmd, dt, alpha_in)
+            filt_next = []
+        elif self.derivatives == "model":
             # Motor accelerations α enter q̇_{j,d} (through γ_j) and q̈_{j,d} (through σ
             # and the spring torques): placeholders here, solved below from the inner
             # loop's own closed-loop equation (the algebraic loop of the cascade).
@@ -514,6 +811,8 @@ class ElectricArm:
                 M = ca.DM.eye(2 * n) - G2 - ca.diag(kd_m) @ G1
                 r = A2 - kp_m * em - kd_m * (qmd - A1)
                 alpha_sol = ca.solve(M, r)
+            if _alpha_input:
+                alpha_in = alpha_sol = ca.SX.sym("alpha", 2 * n)
             qd_ref = A1 + G1 @ alpha_sol
             qdd_ref = A2 + G2 @ alpha_sol
             filt_next = []
@@ -525,7 +824,12 @@ class ElectricArm:
             filt_next = [q_ref + dt * qd_c_next, qd_c_next]
 
         # Inner loop, per motor (a then b).
-        te = ca.vertcat(*self.spring_torques(q + dt / 2 * qd, qa + dt / 2 * qad, qb + dt / 2 * qbd))
+        if closed:
+            phi_mid = ca.vertcat(q - qa, q - qb) + 0.5 * dt * ca.vertcat(qd - qad, qd - qbd)
+            te = ca.vertcat(ka, kb) * _sinh_cosh(ca.vertcat(aa, ab) * phi_mid)[0]
+        else:
+            te = ca.vertcat(*self.spring_torques(q + dt / 2 * qd, qa + dt / 2 * qad,
+                                                 qb + dt / 2 * qbd))
         em, emd = qm - q_ref, qmd - qd_ref
         s = self.springs
         if _is_adaptive(variant):
@@ -556,6 +860,16 @@ class ElectricArm:
         ins = [z, x, ref, *gsyms, dt]
         names = ["z", "x", "ref", *G.keys(), "dt"]
         outs = [z_next, tau_m, q_ref, qd_ref, qdd_ref, ca.vertcat(tau_a, tau_b), sigma, det]
+        out_names = list(OUTPUTS)
+        if _alpha_input:
+            if self.derivatives != "model" or self.sigma_input:
+                raise ValueError("_alpha_input: model derivatives without sigma_input only")
+            ins.append(alpha_in)
+            names.append("alpha")
+            outs, out_names = outs[2:5], out_names[2:5]
+        if closed:
+            S_val, C_val = _sinh_cosh(ca.vertcat(aa, ab) * ca.vertcat(q - qa, q - qb))
+            outs = ca.substitute(outs, [sc], [ca.vertcat(S_val, C_val)])
         if self.sigma_input:
             sigma_fb = ca.SX.sym("sigma_fb", n)
             outs = ca.substitute(outs, [offset],
@@ -563,7 +877,7 @@ class ElectricArm:
             ins.insert(3, sigma_fb)
             names.insert(3, "sigma_fb")
         return ca.Function(self.step_name(variant), ins, [ca.densify(o) for o in outs], names,
-                           list(OUTPUTS), FUNCTION_OPTS)
+                           out_names, FUNCTION_OPTS)
 
     def functions(self) -> list[tuple[ca.Function, str]]:
         """The four cascades of this model (its derivative route), with one-line docs."""

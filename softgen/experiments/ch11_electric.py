@@ -17,14 +17,14 @@ The thesis starts every estimate at 0, the motor inertia b̂ included. From b̂ 
 first sample drives the side-a motors' b̂ below 0 while the side-b motors' b̂ rise, and
 the second sample takes those below 0 as well (module docstring of
 :mod:`softgen.control.electric`): adapted motors of negative inertia, and the loop
-diverges (``unprojected_*``: at 6 ms and 0.1 s; with the printed Λ_m = 0.1, b̂_1a =
-−1.2e-3 kg m² at 9 ms and divergence at 0.24 s, a run not repeated here). Fix: the
+diverges (``unprojected_*``: at 5 ms and 9 ms; with the printed Λ_m = 0.1, b̂_1a =
+−4.4e-4 kg m² at 2 ms and divergence at 10 ms, a run not repeated here). Fix: the
 projection b̂ ≥ ``b_min`` (Ioannou & Sun, Robust Adaptive Control), a bound that holds
 the true b, so Theorem 8's V̇ ≤ 0 is kept. Two printed gains fail even so
 (``printed_gains_*``): the inner Λ_m = 0.1 puts a motor pole at ≈ 0.1 rad/s (b s² + k s
 + kΛ with b = 1e-3, k = 0.1), the motors lag their references for seconds and joint 2
 misses by ~0.1 rad; Λ_m = ``lam_m`` = 10 tracks. Remark 11's k_π = 7 diverges at
-0.11 s, and at 0.13 s with dt = 0.1 ms (``printed_gains_dt_1e-4_*``), so it is not the
+0.12 s, and at 0.13 s with dt = 0.1 ms (``printed_gains_dt_1e-4_*``), so it is not the
 Euler step; the link adaptation is then faster than the inner loop that must realise its
 torques. k_π = ``kpi_integral`` = 0.2, Theorem 9's value, tracks.
 """
