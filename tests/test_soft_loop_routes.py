@@ -11,7 +11,7 @@ import pytest
 from softgen.control.soft import closed_loop_fun, plant_qdd, sinusoid_expr
 from softgen.modelfile.load import load_model
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
-from softgen.symbolic.smooth import cosc_w, jet_values, nu_w, sinc_w
+from softgen.symbolic.smooth import cosc_w, jet_values, jet_values_from_nu, nu_w, sinc_w
 
 DT = 1e-3
 
@@ -30,6 +30,30 @@ def test_jet_values_are_the_derivatives_of_the_smooth_functions():
             # order 3 loses digits to cancellation near the switch in both forms
             np.testing.assert_allclose(rec[:3], ad[:3], rtol=1e-9, atol=1e-13)
             np.testing.assert_allclose(rec[3], ad[3], rtol=1e-5, atol=1e-12)
+
+
+def test_jet_values_from_nu_equal_jet_values():
+    w = ca.SX.sym("w")
+    full, fast = jet_values(w, 2), jet_values_from_nu(w, 2)
+    f = ca.Function("f", [w], [ca.vertcat(*[ca.vertcat(*full[fn], *fast[fn])
+                                            for fn in (sinc_w, cosc_w, nu_w)])])
+    for x in (0.0, 1e-24, 1e-12, 1e-6, 0.01, 0.0999, 0.1, 0.5, 2.0, 9.0):
+        v = np.array(f(x)).reshape(3, 2, 3)
+        assert np.all(np.isfinite(v))
+        np.testing.assert_allclose(v[:, 1], v[:, 0], rtol=1e-14, atol=1e-300)
+
+
+def test_scaled_ldl_equals_ldl():
+    from softgen.control.soft import spd_solve, spd_solve_scaled
+    A, b = ca.SX.sym("A", 12, 12), ca.SX.sym("b", 12)
+    f = ca.Function("f", [A, b], [spd_solve(A, b), spd_solve_scaled(A, b)])
+    g = ca.Function("g", [A, b], [spd_solve_scaled(A, b)])
+    assert g.n_instructions() < ca.Function("h", [A, b], [spd_solve(A, b)]).n_instructions()
+    rng = np.random.default_rng(4)
+    X = rng.normal(0, 1, (12, 12))
+    M = X @ X.T + 1e-3 * np.eye(12)
+    a, c = (np.array(v).ravel() for v in f(M, rng.normal(0, 1, 12)))
+    np.testing.assert_allclose(c, a, rtol=0, atol=1e-10 * np.abs(a).max())
 
 
 def test_block_triangular_qdd_equals_ldl():

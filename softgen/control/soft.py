@@ -363,6 +363,28 @@ def spd_solve(A, b):
     return ca.vertcat(*x)
 
 
+def spd_solve_scaled(A, b):
+    """:func:`spd_solve` with the products L_ik D_k formed once per entry (U = L D), so
+    each update of the factorisation is one multiplication instead of two: at n = 12
+    about 290 fewer operations, the same values to rounding (issue 25)."""
+    n = A.shape[0]
+    L = [[None] * n for _ in range(n)]
+    U = [[None] * n for _ in range(n)]
+    D = [None] * n
+    for j in range(n):
+        D[j] = A[j, j] - sum((U[j][k] * L[j][k] for k in range(j)), ca.SX(0))
+        for i in range(j + 1, n):
+            U[i][j] = A[i, j] - sum((U[i][k] * L[j][k] for k in range(j)), ca.SX(0))
+            L[i][j] = U[i][j] / D[j]
+    y = []
+    for i in range(n):
+        y.append(b[i] - sum((L[i][k] * y[k] for k in range(i)), ca.SX(0)))
+    x = [None] * n
+    for i in reversed(range(n)):
+        x[i] = y[i] / D[i] - sum((L[k][i] * x[k] for k in range(i + 1, n)), ca.SX(0))
+    return ca.vertcat(*x)
+
+
 def _inv3(A):
     """A⁻¹ of a 3×3 SX matrix by its adjugate (no pivoting: exact wherever det A ≠ 0)."""
     cof = [[A[(i + 1) % 3, (j + 1) % 3] * A[(i + 2) % 3, (j + 2) % 3]
@@ -511,7 +533,7 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     g = ROS2_GAMMA * h_s
     # With square actuation blocks P = I and W's matrix is SPD: LDLᵀ; else QR.
     square = all(A.shape[0] == A.shape[1] for A in b.actuation_blocks())
-    solve = spd_solve if square else ca.solve
+    solve = (spd_solve_scaled if chain else spd_solve) if square else ca.solve
     kv = solve(B + g * D + g * g * K, ca.mtimes(B, v_s[n:]) - g * ca.mtimes(K, v_s[:n]))
     wsolve = ca.Function(f"{dyn.name}_cl_wsolve", [bj.q, qm_s, kd_s, lam_s, h_s, v_s],
                          [ca.vertcat(v_s[:n] + g * kv, kv)], FUNCTION_OPTS)

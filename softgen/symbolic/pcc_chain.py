@@ -28,7 +28,7 @@ import casadi as ca
 
 from softgen.modelfile.soft import SoftModel
 from softgen.symbolic.pcc import SoftBody
-from softgen.symbolic.smooth import cosc_w, jet_values, nu_w, sinc_w
+from softgen.symbolic.smooth import cosc_w, jet_values_from_nu, nu_w, sinc_w
 
 
 def _cross(a, b):
@@ -60,15 +60,15 @@ def _local_fun(model: SoftModel, i: int, values) -> ca.Function:
     Ld = xd[2]
     a, b, ad, bd = x[0] / r, x[1] / r, xd[0] / r, xd[1] / r
     w = a * a + b * b
-    jv = jet_values(w, 2)
+    jv = jet_values_from_nu(w, 2)
     S, K, N = jv[sinc_w], jv[cosc_w], jv[nu_w]
     v, vd = ca.vertcat(-b, a, 0), ca.vertcat(-bd, ad, 0)
     R = ca.SX.eye(3) * (1 - K[0] * w) + S[0] * _skew(v) + K[0] * ca.mtimes(v, v.T)
     wd = 2 * (a * ad + b * bd)
     wdd = 2 * (ad * ad + bd * bd)
 
-    def jet(F, G, sc):
-        """L (F a, F b, G) · sc, its ∂/∂x (3 × 3), its rate and bias second rate."""
+    def moving(F, G):
+        """L (F a, F b, G), its ∂/∂x (3 × 3), its rate and its second rate at ẍ = 0."""
         u = ca.vertcat(F[0] * a, F[0] * b, G[0])
         du_dw = ca.vertcat(F[1] * a, F[1] * b, G[1])
         # ∂u/∂(a, b): u_a = 2a du/dw + F e_x, u_b = 2b du/dw + F e_y
@@ -81,8 +81,8 @@ def _local_fun(model: SoftModel, i: int, values) -> ca.Function:
                          G[2] * wd * wd + G[1] * wdd)
         return L * u, D, Ld * u + L * ud, 2 * Ld * ud + L * udd
 
-    t, Dt, td, tdd = jet(K, S, 1)
-    c, Dc, cd, cdd = jet(N, K, 1)
+    t, Dt, td, tdd = moving(K, S)
+    c, Dc, cd, cdd = moving(N, K)
     Sv = _skew(v)
     Jl = ca.SX.eye(3) + K[0] * Sv + N[0] * ca.mtimes(Sv, Sv)
     # v = (−b, a, 0): ∂v/∂x = [[0, −1/r, 0], [1/r, 0, 0], [0, 0, 0]]
@@ -199,8 +199,9 @@ def _u_derivs(F, G, a, b, da, db, ea=None, eb=None):
 
 
 def chain_regressor_products(lin, model: SoftModel, mu, base_frame, K, D):
-    """(Y π̂, Yᵀσ) of :class:`~softgen.symbolic.pcc.LinearRoute` for a lumped pcc-3d
-    model, by one forward and one backward pass over the segments (issue 25).
+    """(Y π̂, Yᵀσ) of eq. 12.1 as :class:`~softgen.symbolic.pcc.LinearRoute` builds them,
+    for a lumped pcc-3d model, by one forward and one backward pass over the segments
+    (issue 25; the same values, tested).
 
     The mass point of segment j is p_j = Σ_{a<j} (ℓ_a + δL_a) T_a + (ℓ_j + δL_j) C_j with
     the unit-length chord T_a = R_a u^t(x_a), u^t = (K a, K b, S), and centroid
@@ -228,7 +229,7 @@ def chain_regressor_products(lin, model: SoftModel, mu, base_frame, K, D):
         x, xd, xr, xrr, xs = q[sl], qd[sl], qd_r[sl], qdd_r[sl], sigma[sl]
         a, b = x[0] / r, x[1] / r
         w = a * a + b * b
-        jv = jet_values(w, 2)
+        jv = jet_values_from_nu(w, 2)
         S, Kc, N = jv[sinc_w], jv[cosc_w], jv[nu_w]
         v = ca.vertcat(-b, a, 0)
         Sv = _skew(v)
