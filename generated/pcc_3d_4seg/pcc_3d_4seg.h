@@ -340,7 +340,7 @@ int pcc_3d_4seg_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int*
 #define pcc_3d_4seg_theorem10_closed_loop_SZ_ARG 20
 #define pcc_3d_4seg_theorem10_closed_loop_SZ_RES 12
 #define pcc_3d_4seg_theorem10_closed_loop_SZ_IW 0
-#define pcc_3d_4seg_theorem10_closed_loop_SZ_W 336226
+#define pcc_3d_4seg_theorem10_closed_loop_SZ_W 335989
 int pcc_3d_4seg_theorem10_sampled_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_3d_4seg_theorem10_sampled_step_checkout(void);
 void pcc_3d_4seg_theorem10_sampled_step_release(int mem);

@@ -837,6 +837,7 @@ class LinearRoute:
         D = nom._quadratic_form("d", lin_values)
         tau = tau + ca.mtimes(K, q) + ca.mtimes(D, qd)
         psi = psi + ca.dot(sigma, ca.mtimes(K, q) + ca.mtimes(D, qd))
+        self.mu, self.K_hat, self.D_hat = mu, K, D      # for the chain route (pcc_chain)
         tau, psi = body.expand([tau, psi])
         self.Y_pi = tau
         self.Yt_sigma = ca.jacobian(psi, self.pi).T

@@ -228,6 +228,22 @@ _TAYLOR: dict[Callable, Callable[[int], float]] = {
 }
 
 
+def _closed_jets(w, small, order: int) -> dict:
+    """The closed forms of :func:`jet_values` at w_safe = max(w, W_SWITCH)."""
+    ws = ca.if_else(small, W_SWITCH, w)
+    x = ca.sqrt(ws)
+    iw = 1 / ws
+    S, C = [ca.sin(x) / x], [ca.cos(x)]
+    for k in range(order):
+        C.append(-S[k] / 2)
+        S.append((C[k] - (2 * k + 1) * S[k]) * iw / 2)
+    K, N = [(1 - C[0]) * iw], [(1 - S[0]) * iw]
+    for k in range(order):
+        K.append((-C[k + 1] - (k + 1) * K[k]) * iw)
+        N.append((-S[k + 1] - (k + 1) * N[k]) * iw)
+    return {sinc_w: S, cosc_w: K, nu_w: N}
+
+
 def jet_values(w, order: int) -> dict:
     """d^k f/dw^k, k = 0..order, of sinc_w, cosc_w and nu_w at w: {function: [values]}.
 
@@ -240,18 +256,7 @@ def jet_values(w, order: int) -> dict:
     sqrt and 1/w per w instead of CasADi's derivative trees of each quotient.
     """
     small = w < W_SWITCH
-    ws = ca.if_else(small, W_SWITCH, w)
-    x = ca.sqrt(ws)
-    iw = 1 / ws
-    S, C = [ca.sin(x) / x], [ca.cos(x)]
-    for k in range(order):
-        C.append(-S[k] / 2)
-        S.append((C[k] - (2 * k + 1) * S[k]) * iw / 2)
-    K, N = [(1 - C[0]) * iw], [(1 - S[0]) * iw]
-    for k in range(order):
-        K.append((-C[k + 1] - (k + 1) * K[k]) * iw)
-        N.append((-S[k + 1] - (k + 1) * N[k]) * iw)
-    closed = {sinc_w: S, cosc_w: K, nu_w: N}
+    closed = _closed_jets(w, small, order)
     out = {}
     for fn, term in _TAYLOR.items():
         c = [term(j) for j in range(N_TERMS)]
@@ -261,4 +266,26 @@ def jet_values(w, order: int) -> dict:
             d = [c[j] * math.factorial(j) / math.factorial(j - k) for j in range(k, N_TERMS)]
             vals.append(ca.if_else(small, _series(w, d), closed[fn][k]))
         out[fn] = vals
+    return out
+
+
+def jet_values_from_nu(w, order: int) -> dict:
+    """:func:`jet_values` with one Taylor polynomial family: ν_w's (to ``order`` + 1).
+
+    Below the switch, sinc_w and cosc_w and their derivatives follow from ν_w's by
+    S = 1 − w N (ν's definition) and K = 3N + 2w N' (from 2w S' = C − S and
+    w K = 1 − C), differentiated: S⁽ᵏ⁾ = −k N⁽ᵏ⁻¹⁾ − w N⁽ᵏ⁾, K⁽ᵏ⁾ = (2k + 3) N⁽ᵏ⁾
+    + 2w N⁽ᵏ⁺¹⁾; above it, the closed forms of :func:`jet_values`. The same values to
+    rounding (tested), with about half the operations: the Taylor branches are most
+    of them (issue 25)."""
+    small = w < W_SWITCH
+    closed = _closed_jets(w, small, order)
+    c = [_TAYLOR[nu_w](j) for j in range(N_TERMS)]
+    Nt = [_series(w, [c[j] * math.factorial(j) / math.factorial(j - k)
+                      for j in range(k, N_TERMS)]) for k in range(order + 2)]
+    St = [1 - w * Nt[0]] + [-k * Nt[k - 1] - w * Nt[k] for k in range(1, order + 1)]
+    Kt = [(2 * k + 3) * Nt[k] + 2 * w * Nt[k + 1] for k in range(order + 1)]
+    out = {}
+    for fn, taylor in ((sinc_w, St), (cosc_w, Kt), (nu_w, Nt)):
+        out[fn] = [ca.if_else(small, t, v) for t, v in zip(taylor, closed[fn])]
     return out
