@@ -40,7 +40,11 @@ from softgen.core.paths import cache_dir, writable
 from softgen.core.errors import BuildError, BundleError
 
 #: -O3 is worth ~10-30 % on the regressors; -fno-math-errno lets gcc inline sqrt.
-CFLAGS = ("-O3", "-fPIC", "-shared", "-fno-math-errno")
+#: -fno-semantic-interposition: CasADi emits its helpers (casadi_sq, ...) as global
+#: functions, which under -fPIC may be interposed, so gcc called them through the PLT
+#: and spilled every live register around each call (34 calls of casadi_sq per sample
+#: of the Theorem 5 loop); with it they are inlined, to the same bits (issue 25).
+CFLAGS = ("-O3", "-fPIC", "-shared", "-fno-math-errno", "-fno-semantic-interposition")
 #: Optimisation levels a bundle may ask for (manifest key ``optimization``, default -O3).
 #: Run-time diagram loops use -O1: on the largest one (the 3D soft loop, 1.1 MB of C)
 #: gcc takes 6.2 s instead of 16.1 s and the code is no slower (11.2 vs 17.3 ms per
