@@ -471,13 +471,48 @@ class RigidDynamics(BaseParameterAPI):
                     ["q", "qd", "qd_r", "qdd_r"], [m.slotine_li(self.route)], ["tau"])
 
     def forward_dynamics_expr(self, tau: ca.SX) -> ca.SX:
-        """q̈ = B⁻¹ (τ − C q̇ − G − K q − D q̇) at nominal parameters."""
+        """q̈ = B⁻¹ (τ − C q̇ − G − K q − D q̇) at nominal parameters (eq. 2.5 solved for q̈).
+
+        B and the bias are those of :attr:`_forward_parts` (the smallest of three equal
+        expressions, measured).
+        """
+        B, bias = self._forward_parts
+        return ca.solve(B, tau - bias)
+
+    @cached_property
+    def _forward_parts(self) -> tuple[ca.SX, ca.SX]:
+        """(B(q), C q̇ + G + K q + D q̇) in the nominal symbols, from one of three equal
+        expressions, whichever makes q̈ = B⁻¹ (τ − bias) the fewest CasADi instructions:
+
+        ``"mechanics"``  B formed by :class:`Mechanics`, the bias the route's τ at
+            q̇_r = q̇, q̈_r = 0 (the only form before issue 25);
+        ``"route"``  B = ∂τ/∂q̈_r of the route's τ (eq. 10.9: τ is linear in q̈_r),
+            same bias: for the Panda 3,435 instructions instead of 4,834;
+        ``"regressor"``  τ = Y π + τ₀ at the nominal base parameters, B = ∂τ/∂q̈_r
+            and the bias as above: for the 2-link arms 57 instead of 96 (B in the
+            relative angle only, gravity in one sin/cos per joint).
+        The choice and the counts go to :attr:`route_detail` (``forward_dynamics``).
+        """
         m = self.nominal
-        # The Slotine–Li expression at q̇_r = q̇, q̈_r = 0 is the bias C q̇ + G + K q + D q̇,
-        # built by the same route as everything else.
-        bias = ca.substitute(m.slotine_li(self.route), ca.vertcat(m.qd_r, m.qdd_r),
-                             ca.vertcat(m.qd, ca.DM.zeros(m.n)))
-        return ca.solve(m.inertia(), tau - bias)
+        at_rest = (ca.vertcat(m.qd_r, m.qdd_r), ca.vertcat(m.qd, ca.DM.zeros(m.n)))
+
+        def split(t: ca.SX) -> tuple[ca.SX, ca.SX]:
+            # τ is affine in q̈_r, so its Jacobian holds no q̈_r; q̇_r still appears
+            # where the route wrote the Coriolis term with it, and is q̇ here.
+            B = ca.substitute(ca.jacobian(t, m.qdd_r), m.qd_r, m.qd)
+            return B, ca.substitute(t, *at_rest)
+
+        sl = m.slotine_li(self.route)
+        y_pi = ca.mtimes(self.base.Y, ca.DM(self.parameter_nominal))
+        parts = {"mechanics": (m.inertia(), ca.substitute(sl, *at_rest)), "route": split(sl),
+                 "regressor": split(y_pi if self.base.constant is None
+                                    else y_pi + self.base.constant)}
+        tau = ca.SX.sym("tau", m.n)
+        # On equal counts the first wins: models whose count does not drop keep their C.
+        self._pick("forward_dynamics", {
+            k: ca.Function("qdd", [m.q, m.qd, tau], [ca.solve(B, tau - b)], FUNCTION_OPTS)
+            for k, (B, b) in parts.items()})
+        return parts[self.route_detail["forward_dynamics"]]
 
     @_cached_fun
     def forward_dynamics_fun(self) -> ca.Function:
