@@ -268,7 +268,7 @@ int arm_2link_pneumatic_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_in
 #define arm_2link_pneumatic_slotine_li_loop_SZ_ARG 20
 #define arm_2link_pneumatic_slotine_li_loop_SZ_RES 12
 #define arm_2link_pneumatic_slotine_li_loop_SZ_IW 0
-#define arm_2link_pneumatic_slotine_li_loop_SZ_W 47238
+#define arm_2link_pneumatic_slotine_li_loop_SZ_W 47233
 int arm_2link_pneumatic_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int arm_2link_pneumatic_mckibben_torque_checkout(void);
 void arm_2link_pneumatic_mckibben_torque_release(int mem);
@@ -502,7 +502,7 @@ int arm_2link_pneumatic_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casa
 #define arm_2link_pneumatic_theorem5_closed_loop_SZ_ARG 20
 #define arm_2link_pneumatic_theorem5_closed_loop_SZ_RES 12
 #define arm_2link_pneumatic_theorem5_closed_loop_SZ_IW 0
-#define arm_2link_pneumatic_theorem5_closed_loop_SZ_W 99425
+#define arm_2link_pneumatic_theorem5_closed_loop_SZ_W 99419
 int arm_2link_pneumatic_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int arm_2link_pneumatic_feedback_linearization_checkout(void);
 void arm_2link_pneumatic_feedback_linearization_release(int mem);

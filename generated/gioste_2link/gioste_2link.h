@@ -268,7 +268,7 @@ int gioste_2link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_r
 #define gioste_2link_slotine_li_loop_SZ_ARG 20
 #define gioste_2link_slotine_li_loop_SZ_RES 12
 #define gioste_2link_slotine_li_loop_SZ_IW 0
-#define gioste_2link_slotine_li_loop_SZ_W 47237
+#define gioste_2link_slotine_li_loop_SZ_W 47231
 int gioste_2link_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int gioste_2link_mckibben_torque_checkout(void);
 void gioste_2link_mckibben_torque_release(int mem);
@@ -502,7 +502,7 @@ int gioste_2link_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int*
 #define gioste_2link_theorem5_closed_loop_SZ_ARG 20
 #define gioste_2link_theorem5_closed_loop_SZ_RES 12
 #define gioste_2link_theorem5_closed_loop_SZ_IW 0
-#define gioste_2link_theorem5_closed_loop_SZ_W 99425
+#define gioste_2link_theorem5_closed_loop_SZ_W 99419
 int gioste_2link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int gioste_2link_feedback_linearization_checkout(void);
 void gioste_2link_feedback_linearization_release(int mem);
