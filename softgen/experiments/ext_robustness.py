@@ -67,7 +67,7 @@ class RobustnessConfig(Config):
     radius_error: float = 0.2          # the pulley-radius grids
     rates: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)   # K_σ K_1 of the radius_rate grid, 1/s
     seed: int = 7
-    workers: int = 0                    # 0: one per CPU
+    workers: int = 0                    # 0: one per CPU this process may use (core.cpus)
 
     def validate(self) -> None:
         for k in ("error", "radius_error", "pair_error"):
