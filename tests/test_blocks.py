@@ -218,3 +218,26 @@ def test_stop_condition_records_the_signals_it_reads():
     tr = simulate(d, steps=N, externals={"noise": np.zeros((N, 1))}, record=["ctrl.tau"],
                   stop=[("q above 0.5", lambda c: c["plant.q"][:, 0] > 0.5, ["plant.q"])])
     assert tr.stop_reason == "q above 0.5" and "plant.q" in tr.signals
+
+
+def test_same_loop_under_another_name_is_compiled_once(need_compiler, tmp_path,
+                                                       monkeypatch):
+    """Two diagrams equal but for their name share one compiled library (the cache is
+    keyed by the C without the name, issue 25) and give the same numbers; a diagram
+    that differs in a constant gets its own."""
+    import softgen.codegen.build as build
+    monkeypatch.setenv("SOFTGEN_CACHE_DIR", str(tmp_path))
+    built = []
+    real = build.compile_shared
+    monkeypatch.setattr(build, "compile_shared",
+                        lambda c_file, *a, **k: built.append(c_file.name) or real(c_file, *a, **k))
+    kw = dict(steps=120, x0={"plant.q": 0.3}, externals={"noise": np.zeros((120, 1))})
+    blocks = lambda dt=DT: [reference(), pid(dt), plant(dt)]  # noqa: E731
+    a = simulate(ClosedLoop("first_loop", blocks(), externals={"noise": 1}), **kw)
+    b = simulate(ClosedLoop("second_loop", blocks(), externals={"noise": 1}), **kw)
+    assert built == ["first_loop.c"]
+    np.testing.assert_array_equal(a["ctrl.tau"], b["ctrl.tau"])
+    assert sorted(p.name.split("_")[0] for p in tmp_path.iterdir() if p.is_dir()) == \
+        ["content", "first"]
+    simulate(ClosedLoop("third_loop", blocks(2 * DT), externals={"noise": 1}), **kw)
+    assert built == ["first_loop.c", "third_loop.c"]

@@ -19,6 +19,6 @@ def test_eta_scales_elapsed_by_the_cost_left():
 
 
 def test_eta_counts_an_experiment_without_a_hint():
-    eta = Eta(["ch6-electric-protocol", "ch6-electric-invasive"])
-    assert get("ch6-electric-invasive").cost < MIN_COST
+    eta = Eta(["ch6-electric-protocol", "ch11-electric-pd"])
+    assert get("ch11-electric-pd").cost < MIN_COST
     assert eta.finished("ch6-electric-protocol", 10.0).endswith("s left")

@@ -157,6 +157,20 @@ def test_failed_and_diverged_samples_are_rows_not_crashes(toy, tmp_path):
     assert res.rows[1]["error"] == "RuntimeError: toy failure"
 
 
+def test_sweep_without_its_figure_writes_the_same_tables(toy, tmp_path):
+    """``plot_figure=False`` (ext-robustness-theorem5 draws its own figure): no
+    sweep.png, the same samples and summary."""
+    spec = SweepSpec(experiment="toy", vary=("a=grid(1, 9)",), samples=1)
+    with_fig = run_sweep(spec, tmp_path / "a", workers=1, progress=False, experiment=TOY)
+    without = run_sweep(spec, tmp_path / "b", workers=1, progress=False, experiment=TOY,
+                        plot_figure=False)
+    assert with_fig.plot is not None and (tmp_path / "a" / "sweep.png").is_file()
+    assert without.plot is None and not (tmp_path / "b" / "sweep.png").exists()
+    assert [r["metrics"] for r in without.rows] == [r["metrics"] for r in with_fig.rows]
+    assert (tmp_path / "a" / "summary.csv").read_text() == \
+        (tmp_path / "b" / "summary.csv").read_text()
+
+
 def test_interrupted_sweep_resumes_only_missing_samples(toy, tmp_path):
     out = tmp_path / "r"
     full = run_sweep(_spec(), out, workers=1, progress=False, experiment=TOY)

@@ -34,6 +34,7 @@ from typing import Any, TextIO
 
 from softgen.core.stop import (Stop, ignore_signals, interrupted, signal_name, signals_held,
                                stopping, worker_init)
+from softgen.core.cpus import ENV as CPUS_ENV, share as cpu_share
 from softgen.core.atomic import check_dir, output_error, write_text
 from softgen.core.provenance import code_hash
 from softgen.app.report import caption_of, write_report
@@ -239,10 +240,14 @@ def _safe_run(exp_id: str, out_root: Path, quick: bool, code: str | None = None,
 
 
 def _worker_init(show_progress: bool | None = None, full_traces: bool = False,
-                 parent: int | None = None) -> None:
+                 parent: int | None = None, cpus: int | None = None) -> None:
     """Workers leave SIGINT and SIGTERM to the main process, which stops them, and end
-    when it dies, even by SIGKILL (:func:`softgen.core.stop.watch_parent`)."""
+    when it dies, even by SIGKILL (:func:`softgen.core.stop.watch_parent`). ``cpus``:
+    the worker's share of the machine (:mod:`softgen.core.cpus`), what an experiment's
+    own process pool may use."""
     worker_init(os.getppid() if parent is None else parent)
+    if cpus is not None:
+        os.environ[CPUS_ENV] = str(cpus)
     set_progress(show_progress)
     set_full_traces(full_traces)
 
@@ -365,7 +370,7 @@ def _reproduce(ids: list[str], out_root: Path, results: dict, *, quick: bool, se
             _report_line(results[exp_id], k, len(todo), t0, progress, eta)
     else:
         _run_pool(todo, out_root, quick, code, jobs, results, t0, progress, sets,
-                  (show_progress, full_traces, os.getpid()), eta)
+                  (show_progress, full_traces, os.getpid(), cpu_share(jobs)), eta)
     results.pop("__started__")
     results.pop("__code__")
     ordered = [results[i] for i in ids if i in results]

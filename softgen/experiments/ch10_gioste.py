@@ -261,4 +261,5 @@ EXPERIMENT_1DOF = Experiment(
 EXPERIMENT_2DOF = Experiment(
     "ch10-gioste-2dof", "Theorem 5 on the emulated two-link GioSte", "10.3.5, Fig. 10.12-10.13",
     run_2dof, TwoLinkConfig().check(), QUICK_2DOF, discussion=DISCUSSION, findings=findings_2dof,
-    not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS_2DOF)
+    not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS_2DOF,
+    cost=9.0)  # CPU s, 2026-12-02 fresh clone (wall of a single-threaded run; issue 25)

@@ -295,6 +295,7 @@ def run_3d(c: Soft3DConfig, out: Path) -> Metrics:
 # --------------------------------------------------------------------------- findings
 
 EXPERIMENT_PLANAR = Experiment(
+    cost=8.0,  # CPU s, 2026-12-02 fresh clone (wall of a single-threaded run; issue 25)
     id="ch12-planar-pcc", title="Theorem 10 on a planar 4-segment PCC soft arm",
     section="12.2.1, Fig. 12.2-12.3", run=run_planar, config=PlanarConfig().check(),
     quick={"duration": 20.0, "t_disturbance": 10.0}, findings=findings_planar,

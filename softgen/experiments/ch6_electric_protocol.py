@@ -199,6 +199,7 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
 
 
 EXPERIMENT = Experiment(
+    cost=13.0,  # CPU s, 2026-12-02 fresh clone (wall of a single-threaded run; issue 25)
     id="ch6-electric-protocol",
     title="Invasive electric estimator on emulated qbmove hardware: three-phase protocol "
           "with and without the RLS update stop",

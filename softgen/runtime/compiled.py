@@ -9,18 +9,29 @@ names the library, so a stale one is never loaded). The cache is
 - else ``$XDG_CACHE_HOME/softgen``,
 - else ``~/.cache/softgen``.
 
+Two diagrams that differ only in their name (ext-sampled-soft's continuous loops are
+ch12's tracking loops under another name) emit the same C but for the name: the cache
+is keyed by the C with the name taken out, so the second one loads the library the
+first one compiled (issue 25: 2 of the ~50 loops of ``softgen reproduce``, 3D loop
+~9 CPU-s of gcc). A lock per content makes a second process that wants a loop being
+compiled wait for it instead of compiling it again.
+
 Without a C compiler the casadi.Functions are evaluated by CasADi (slower), with one
 warning per process.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import os
 import warnings
+from pathlib import Path
 
 import casadi as ca
 
 from softgen.codegen.build import find_compiler
 from softgen.codegen.generate import BundleSpec, Generated, render, signature, write_bundle
+from softgen.core.atomic import write_text
 from softgen.core.paths import cache_dir
 from softgen.runtime.library import Bundle, BundleFunction
 
@@ -51,9 +62,54 @@ def compile_functions(name: str, functions: list[ca.Function], *,
     spec = BundleSpec(name=name, functions=[Generated(f, docs.get(f.name(), "")) for f in functions],
                       optimization="-O1", loops=dict(loops or {}))
     files = render(spec)
-    digest = hashlib.sha256(files[f"{name}.c"]).hexdigest()[:16]
-    spec.identity = files[f"{name}.c"]
-    root = cache_dir() / f"{name}_{digest}"
-    if not (root / name / "manifest.json").is_file():
-        write_bundle(spec, root)
-    return Bundle(root / name).functions
+    c_src = files[f"{name}.c"]
+    spec.identity = c_src
+    # The name occurs in the C only as the stem of its identifiers (<name>_<quantity>,
+    # softgen_plain_<name>_...); with it taken out, equal bytes are the same code.
+    content = hashlib.sha256(c_src.replace(name.encode(), b"\0")).hexdigest()[:16]
+    index = cache_dir() / "content"
+    index.mkdir(parents=True, exist_ok=True)
+    with _locked(index / f"{content}.lock"):
+        owner = _owner(index / content)
+        if owner is not None and owner != name:
+            # Another diagram's name, same code: its functions under our names.
+            funcs = Bundle(cache_dir() / f"{owner}_{content}" / owner).functions
+            return {k.replace(owner, name, 1): v for k, v in funcs.items()}
+        root = cache_dir() / f"{name}_{content}"
+        if not (root / name / "manifest.json").is_file():
+            write_bundle(spec, root)
+        funcs = Bundle(root / name).functions      # compiles it (once) if needed
+        if owner is None:
+            write_text(index / content, name + "\n")
+        return funcs
+
+
+def _owner(path: Path) -> str | None:
+    """The name the code of ``path`` was first compiled under (None: never, or its
+    bundle is gone)."""
+    try:
+        owner = path.read_text().strip()
+    except OSError:
+        return None
+    if not owner or not (path.parent.parent / f"{owner}_{path.name}" / owner /
+                         "manifest.json").is_file():
+        return None
+    return owner
+
+
+@contextlib.contextmanager
+def _locked(path: Path):
+    """An exclusive lock on ``path`` while the block runs (released if the process
+    dies); without ``fcntl`` (Windows) no lock, as before: a concurrent compile of the
+    same loop is then done twice, never exposed half-written (codegen.build)."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)

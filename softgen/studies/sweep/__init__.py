@@ -246,9 +246,11 @@ def _prepare(out: Path, identity: dict, *, resume: bool, force: bool,
 def run_sweep(spec: SweepSpec, out: Path, *, experiment: SweepTarget,
               workers: int | None = None, scheduler: str | None = None,
               resume: bool = False, force: bool = False, fmt: str = "csv",
-              progress: bool | None = None) -> SweepResult:
+              progress: bool | None = None, plot_figure: bool = True) -> SweepResult:
     """Run (or finish) the sweep ``spec`` of ``experiment`` into ``out``; see the module
-    docstring. ``experiment.id`` must be ``spec.experiment``.
+    docstring. ``experiment.id`` must be ``spec.experiment``. ``plot_figure=False``: no
+    ``sweep.png`` (an experiment made of sweeps that draws its own figure; ~1 CPU-s
+    each, issue 25).
 
     SIGINT and SIGTERM (main thread) stop it at any moment: the journal keeps every
     finished sample (each line is fsync'ed as it is written) and
@@ -257,7 +259,8 @@ def run_sweep(spec: SweepSpec, out: Path, *, experiment: SweepTarget,
     with stopping():
         try:
             return _run_sweep(spec, Path(out), experiment, workers=workers, scheduler=scheduler,
-                              resume=resume, force=force, fmt=fmt, progress=progress)
+                              resume=resume, force=force, fmt=fmt, progress=progress,
+                              plot_figure=plot_figure)
         except Stop as stop:
             ignore_signals()
             name = signal_name(stop.signum)
@@ -277,7 +280,7 @@ def load_rows_quietly(out: Path) -> dict[int, dict]:
 
 def _run_sweep(spec: SweepSpec, out: Path, exp: SweepTarget, *, workers: int | None,
                scheduler: str | None, resume: bool, force: bool, fmt: str,
-               progress: bool | None) -> SweepResult:
+               progress: bool | None, plot_figure: bool = True) -> SweepResult:
     spec.check()
     # The id is what sweep.json records: a spec labelled with another experiment would
     # let a resume mix two experiments' samples in one journal.
@@ -352,7 +355,7 @@ def _run_sweep(spec: SweepSpec, out: Path, exp: SweepTarget, *, workers: int | N
     summary = summarise(rows, grid_inputs)
     summary["spec"] = spec.to_dict()
     write_summary(out, summary)
-    fig = plot(out, rows, summary, grid_inputs, spec.experiment)
+    fig = plot(out, rows, summary, grid_inputs, spec.experiment) if plot_figure else None
     return SweepResult(out=out, rows=rows, summary=summary, table=table, plot=fig,
                        wall_seconds=time.perf_counter() - t0, ran=len(todo),
                        meta={"inputs": inputs, "grid_inputs": grid_inputs})

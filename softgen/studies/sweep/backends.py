@@ -17,6 +17,7 @@ from collections.abc import Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
+from softgen.core.cpus import available_cpus
 from softgen.core.stop import signals_held, worker_init
 from softgen.core.errors import SoftgenError
 from softgen.studies.sweep.evaluate import evaluate
@@ -171,4 +172,6 @@ def run_tasks(tasks: Tasks, *, workers: int, scheduler: str | None,
 
 
 def default_workers() -> int:
-    return os.cpu_count() or 1
+    """One per CPU this process may use (:func:`softgen.core.cpus.available_cpus`: its
+    share when ``softgen reproduce`` runs experiments in parallel)."""
+    return available_cpus()
