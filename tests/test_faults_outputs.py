@@ -327,3 +327,23 @@ def test_estimate_of_the_shipped_sample_writes_in_the_current_directory(tmp_path
     assert derived_output(sample, "_estimate.csv") == tmp_path / "pendulum_qbmove_log_estimate.csv"
     mine = tmp_path / "logs" / "run.csv"
     assert derived_output(mine, "_estimate.csv") == tmp_path / "logs" / "run_estimate.csv"
+
+
+def test_runtime_cache_entry_from_other_compiler_flags_is_not_loaded(tmp_path, monkeypatch):
+    """A cache written by a softgen that built with other flags (an upgrade): the loop is
+    compiled anew under its own key, not loaded from the stale entry, whose manifest
+    names a library these flags never build (a BundleError before the fix)."""
+    import casadi as ca
+    from softgen.codegen import build
+    from softgen.runtime import compiled
+    monkeypatch.setenv("SOFTGEN_CACHE_DIR", str(tmp_path / "cache"))
+    x = ca.SX.sym("x")
+    f = ca.Function("flagcache_cube", [x], [x * x * x])
+    monkeypatch.setattr(build, "CFLAGS", build.CFLAGS[:-1])        # the older flags
+    assert float(np.asarray(compiled.compile_functions("flagcache", [f])["flagcache_cube"](
+        2.0)).ravel()[0]) == 8.0
+    monkeypatch.undo()
+    monkeypatch.setenv("SOFTGEN_CACHE_DIR", str(tmp_path / "cache"))
+    assert float(np.asarray(compiled.compile_functions("flagcache", [f])["flagcache_cube"](
+        3.0)).ravel()[0]) == 27.0
+    assert len(list((tmp_path / "cache").glob("flagcache_*"))) == 2

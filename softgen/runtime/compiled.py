@@ -29,7 +29,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from softgen.codegen.build import find_compiler
+from softgen.codegen.build import LDLIBS, cflags, find_compiler
 from softgen.codegen.generate import BundleSpec, Generated, render, signature, write_bundle
 from softgen.core.atomic import write_text
 from softgen.core.paths import cache_dir
@@ -66,7 +66,12 @@ def compile_functions(name: str, functions: list[ca.Function], *,
     spec.identity = c_src
     # The name occurs in the C only as the stem of its identifiers (<name>_<quantity>,
     # softgen_plain_<name>_...); with it taken out, equal bytes are the same code.
-    content = hashlib.sha256(c_src.replace(name.encode(), b"\0")).hexdigest()[:16]
+    # The compiler flags are part of the key, as they are of the library's name
+    # (codegen.build.library_name): an entry written by a softgen built with other flags
+    # names another library, and loading it would fail instead of compiling anew.
+    flags = " ".join(cflags(spec.optimization) + LDLIBS).encode()
+    content = hashlib.sha256(c_src.replace(name.encode(), b"\0") + b"\0" + flags
+                             ).hexdigest()[:16]
     index = cache_dir() / "content"
     index.mkdir(parents=True, exist_ok=True)
     with _locked(index / f"{content}.lock"):
