@@ -177,7 +177,30 @@ def test_chain_plant_equals_the_previous_route(method):
             np.testing.assert_allclose(a, c, rtol=0, atol=tol * max(1, np.abs(c).max()))
 
 
-def test_planar_plant_keeps_its_route():
+def test_chain_sampled_controller_equals_the_linear_route():
+    from softgen.control.soft_sampled import sampled_theorem10_fun
+    dyn = SoftDynamics(load_model("pcc_3d_4seg"))
+    lin = LinearRoute(dyn)
+    n, r = dyn.model.dof, lin.r
+    new = sampled_theorem10_fun(dyn, lin)
+    old = sampled_theorem10_fun(dyn, lin, route="linear")
+    assert new.n_instructions() < old.n_instructions()
+    rng = np.random.default_rng(14)
+    for q in _states(dyn.model.n_segments, rng):
+        args = [rng.normal(0, 1, r), rng.normal(0, 1, n), q,
+                *(rng.normal(0, 1, n) for _ in range(4)), rng.uniform(1, 5, n),
+                rng.uniform(0.1, 2, n), rng.uniform(0, 1, r), 1e-3]
+        for a, c in zip(new(*args), old(*args)):
+            a, c = np.array(a), np.array(c)
+            assert np.all(np.isfinite(a))
+            np.testing.assert_allclose(a, c, rtol=0, atol=1e-10 * max(1, np.abs(c).max()))
+
+
+def test_planar_plant_and_sampled_controller_keep_their_route():
     from softgen.control.soft import plant_fun
+    from softgen.control.soft_sampled import sampled_theorem10_fun
     dyn = SoftDynamics(load_model("pcc_planar_4seg"))
+    lin = LinearRoute(dyn)
     assert plant_fun(dyn).n_instructions() == plant_fun(dyn, route="qr").n_instructions()
+    assert sampled_theorem10_fun(dyn, lin).n_instructions() == \
+        sampled_theorem10_fun(dyn, lin, route="linear").n_instructions()
