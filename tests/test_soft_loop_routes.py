@@ -151,3 +151,81 @@ def test_chain_controller_equals_the_linear_route():
             a, c = np.array(a), np.array(c)
             assert np.all(np.isfinite(a))
             np.testing.assert_allclose(a, c, rtol=0, atol=1e-10 * max(1, np.abs(c).max()))
+
+
+@pytest.mark.parametrize("method", ["ros2", "rk4"])
+def test_chain_plant_equals_the_previous_route(method):
+    from softgen.control.soft import plant_fun
+    dyn = SoftDynamics(load_model("pcc_3d_4seg"))
+    b, n, ns = dyn.nominal, dyn.model.dof, dyn.model.n_segments
+    new, old = plant_fun(dyn, method=method), plant_fun(dyn, method=method, route="qr")
+    assert new.n_instructions() < old.n_instructions()
+    cond = ca.Function("B", [b.q], [b.inertia_pm()])
+    rng = np.random.default_rng(13)
+    # RK4 is only stable on the light modes for very small steps (plant_fun's docstring)
+    dt = 1e-3 if method == "ros2" else 1e-6
+    for q in _states(ns, rng):
+        args = [np.concatenate([q, rng.normal(0, 1, n)]), rng.normal(0, 1, b.n_inputs),
+                rng.normal(0, 1, 3 * ns), rng.normal(0, 1e-3, 2 * n), dt]
+        # The old route solves with B itself (cond B from 2e5 to 3e8 on these states), so
+        # it is only good to rounding times cond B: 1e-10 cannot hold where cond B > 1e6
+        # (measured: 2e-7 at cond 3e8). The bound is the forward error of that solve.
+        tol = max(1e-10, 1e-14 * np.linalg.cond(np.array(cond(q))))
+        for a, c in zip(new(*args), old(*args)):
+            a, c = np.array(a), np.array(c)
+            assert np.all(np.isfinite(a))
+            np.testing.assert_allclose(a, c, rtol=0, atol=tol * max(1, np.abs(c).max()))
+
+
+def test_chain_sampled_controller_equals_the_linear_route():
+    from softgen.control.soft_sampled import sampled_theorem10_fun
+    dyn = SoftDynamics(load_model("pcc_3d_4seg"))
+    lin = LinearRoute(dyn)
+    n, r = dyn.model.dof, lin.r
+    new = sampled_theorem10_fun(dyn, lin)
+    old = sampled_theorem10_fun(dyn, lin, route="linear")
+    assert new.n_instructions() < old.n_instructions()
+    rng = np.random.default_rng(14)
+    for q in _states(dyn.model.n_segments, rng):
+        args = [rng.normal(0, 1, r), rng.normal(0, 1, n), q,
+                *(rng.normal(0, 1, n) for _ in range(4)), rng.uniform(1, 5, n),
+                rng.uniform(0.1, 2, n), rng.uniform(0, 1, r), 1e-3]
+        for a, c in zip(new(*args), old(*args)):
+            a, c = np.array(a), np.array(c)
+            assert np.all(np.isfinite(a))
+            np.testing.assert_allclose(a, c, rtol=0, atol=1e-10 * max(1, np.abs(c).max()))
+
+
+def test_planar_plant_and_sampled_controller_keep_their_route():
+    from softgen.control.soft import plant_fun
+    from softgen.control.soft_sampled import sampled_theorem10_fun
+    dyn = SoftDynamics(load_model("pcc_planar_4seg"))
+    lin = LinearRoute(dyn)
+    assert plant_fun(dyn).n_instructions() == plant_fun(dyn, route="qr").n_instructions()
+    assert sampled_theorem10_fun(dyn, lin).n_instructions() == \
+        sampled_theorem10_fun(dyn, lin, route="linear").n_instructions()
+
+
+def test_chain_plant_qdd_solves_the_body_equations_to_rounding():
+    """Why the plant test above bounds by cond B: the chain route's q̈ satisfies
+    B q̈ = A τ + Σ J_iᵀ f_i − bias (all from the body) with a normwise backward error of
+    1e-17 (measured; the QR route: up to 2e-15), so the two differ by that times cond B."""
+    from softgen.control.soft import plant_rhs
+    dyn = SoftDynamics(load_model("pcc_3d_4seg"))
+    b, n, ns = dyn.nominal, dyn.model.dof, dyn.model.n_segments
+    tau, f = ca.SX.sym("tau", b.n_inputs), ca.SX.sym("f", 3 * ns)
+    rhs = ca.mtimes(b.actuation(), tau) - b.bias_pm()
+    for i, J in enumerate(b.tip_jacobians()):
+        rhs = rhs + ca.mtimes(J.T, f[3 * i:3 * i + 3])
+    F = ca.Function("F", [b.q, b.qd, tau, f], [b.inertia_pm(), rhs])
+    new = plant_rhs(dyn)
+    rng = np.random.default_rng(13)
+    for q in _states(ns, rng):
+        qd, t, ff = rng.normal(0, 1, n), rng.normal(0, 1, b.n_inputs), rng.normal(0, 1, 3 * ns)
+        B, r = (np.array(v) for v in F(q, qd, t, ff))
+        r = r.ravel()
+        a = np.array(new(np.concatenate([q, qd]), np.concatenate([t, ff]))).ravel()[n:]
+        assert np.all(np.isfinite(a))
+        res = np.linalg.norm(B @ a - r) / (np.linalg.norm(B, 2) * np.linalg.norm(a)
+                                           + np.linalg.norm(r))
+        assert res < 1e-15

@@ -394,7 +394,7 @@ int pcc_3d_4seg_theorem10_sampled_loop_loop_work_bytes(casadi_int *sz_arg, casad
 #define pcc_3d_4seg_theorem10_sampled_loop_loop_SZ_ARG 20
 #define pcc_3d_4seg_theorem10_sampled_loop_loop_SZ_RES 12
 #define pcc_3d_4seg_theorem10_sampled_loop_loop_SZ_IW 0
-#define pcc_3d_4seg_theorem10_sampled_loop_loop_SZ_W 495587
+#define pcc_3d_4seg_theorem10_sampled_loop_loop_SZ_W 495165
 int pcc_3d_4seg_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_3d_4seg_plant_checkout(void);
 void pcc_3d_4seg_plant_release(int mem);

@@ -267,12 +267,20 @@ def theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
                        THEOREM10_INPUTS, THEOREM10_OUTPUTS, FUNCTION_OPTS)
 
 
-def plant_rhs(dyn: SoftDynamics) -> ca.Function:
-    """ẋ = (q̇, q̈) of eq. 3.6 at nominal parameters, x = (q, q̇), u = (τ, f_ext)."""
+def plant_rhs(dyn: SoftDynamics, *, route: str = "auto") -> ca.Function:
+    """ẋ = (q̇, q̈) of eq. 3.6 at nominal parameters, x = (q, q̇), u = (τ, f_ext).
+
+    ``route``: ``"auto"`` takes q̈ from the block-triangular solve with the recursive pass
+    where it applies (lumped pcc-3d, :func:`plant_qdd`; issue 25), else as ``"qr"``:
+    B and the bias formed, ``casadi.solve`` (the route before issue 25; tests).
+    """
+    if route not in ("auto", "qr"):
+        raise ValueError(f"route: expected 'auto' or 'qr', got {route!r}")
     b = dyn.nominal
     tau = ca.SX.sym("tau", b.n_inputs)
     f_ext = ca.SX.sym("f_ext", 3 * dyn.model.n_segments)
-    qdd = dyn.forward_dynamics_expr(tau, f_ext)
+    qdd = plant_qdd(b, tau, f_ext) if route == "auto" and _chain_applies(b) else \
+        dyn.forward_dynamics_expr(tau, f_ext)
     return ca.Function("rhs", [ca.vertcat(b.q, b.qd), ca.vertcat(tau, f_ext)],
                        [ca.vertcat(b.qd, qdd)], ["x", "u"], ["xdot"])
 
@@ -281,7 +289,7 @@ def plant_rhs(dyn: SoftDynamics) -> ca.Function:
 ROS2_GAMMA = 1 + 1 / 2 ** 0.5
 
 
-def _ros2_step(dyn: SoftDynamics, rhs: ca.Function, x, u, h):
+def _ros2_step(dyn: SoftDynamics, rhs: ca.Function, x, u, h, *, chain: bool = False):
     """One ROS2 step with the stiff linear part as its W matrix.
 
     W = I − γ h J_W with J_W = [[0, I], [−B⁻¹K, −B⁻¹D]] at the step's start. ROS2 keeps
@@ -289,19 +297,25 @@ def _ros2_step(dyn: SoftDynamics, rhs: ca.Function, x, u, h):
     the lumped-mass models, where B⁻¹D reaches 3e8 1/s (planar) or 3e4 1/s (3D) at
     q = 0 and explicit RK4 at 1 ms diverges. W k = r is solved as
     (B + γhD + γ²h²K) k_v = B r_v − γh K r_q,  k_q = r_q + γh k_v.
+
+    ``chain`` (lumped pcc-3d, :func:`_chain_applies`): B = Σ m_j J_jᵀ J_j from the J of the
+    recursive pass (the rhs's own J, shared by ``cse``) and the SPD matrix B + γhD + γ²h²K
+    by LDLᵀ (:func:`spd_solve_scaled`), instead of B from the body and ``casadi.solve``.
     """
     b = dyn.nominal
     n = b.n
     q = x[:n]
     subs = lambda e: ca.substitute(e, b.q, q)       # noqa: E731
-    B = subs(b.inertia_pm())
+    B = inertia_from_blocks(chain_terms(b, q, ca.SX.zeros(n)).J,
+                            [m for m, _ in b.mass_points]) if chain else subs(b.inertia_pm())
     K = b._quadratic_form("k")
     D = b._quadratic_form("d")
     g = ROS2_GAMMA * h
     M = B + g * D + g * g * K
+    solve = spd_solve_scaled if chain else ca.solve
 
     def wsolve(r):
-        kv = ca.solve(M, ca.mtimes(B, r[n:]) - g * ca.mtimes(K, r[:n]))
+        kv = solve(M, ca.mtimes(B, r[n:]) - g * ca.mtimes(K, r[:n]))
         return ca.vertcat(r[:n] + g * kv, kv)
 
     k1 = wsolve(rhs(x, u))
@@ -309,7 +323,8 @@ def _ros2_step(dyn: SoftDynamics, rhs: ca.Function, x, u, h):
     return x + 1.5 * h * k1 + 0.5 * h * k2
 
 
-def plant_fun(dyn: SoftDynamics, *, substeps: int = 1, method: str = "ros2") -> ca.Function:
+def plant_fun(dyn: SoftDynamics, *, substeps: int = 1, method: str = "ros2",
+              route: str = "auto") -> ca.Function:
     """``<model>_plant``: ``substeps`` steps over one sample ``dt``, τ and f held.
 
     ``method`` is ``"ros2"`` (default: second-order, L-stable, see :func:`_ros2_step`)
@@ -317,6 +332,9 @@ def plant_fun(dyn: SoftDynamics, *, substeps: int = 1, method: str = "ros2") -> 
     Inputs ``x = (q, q̇)`` (2n), ``tau`` (m), ``f_ext`` (3 per segment tip, world
     frame, segment 1 first; planar models ignore z), ``noise`` (2n, added to the
     output), ``dt``. Outputs ``x_next`` and ``y = x_next + noise``.
+
+    ``route`` (:func:`plant_rhs`): ``"auto"`` uses the recursive pass for q̈ and for the
+    ROS2 W matrix's B where it applies (lumped pcc-3d), ``"qr"`` the route before issue 25.
     """
     if method not in ("ros2", "rk4"):
         raise ValueError(f"method: expected 'ros2' or 'rk4', got {method!r}")
@@ -325,12 +343,13 @@ def plant_fun(dyn: SoftDynamics, *, substeps: int = 1, method: str = "ros2") -> 
     x, tau = ca.SX.sym("x", 2 * n), ca.SX.sym("tau", b.n_inputs)
     f_ext, noise = ca.SX.sym("f_ext", 3 * dyn.model.n_segments), ca.SX.sym("noise", 2 * n)
     dt = ca.SX.sym("dt")
-    rhs = plant_rhs(dyn)
+    rhs = plant_rhs(dyn, route=route)
+    chain = route == "auto" and _chain_applies(b)
     u = ca.vertcat(tau, f_ext)
     xn = x
     for _ in range(substeps):
         xn = rk4_steps(rhs, xn, u, dt / substeps, 1) if method == "rk4" else \
-            _ros2_step(dyn, rhs, xn, u, dt / substeps)
+            _ros2_step(dyn, rhs, xn, u, dt / substeps, chain=chain)
     suffix = "plant" if method == "ros2" else "plant_rk4"
     return ca.Function(f"{dyn.name}_{suffix}", [x, tau, f_ext, noise, dt], [xn, xn + noise],
                        PLANT_INPUTS, PLANT_OUTPUTS, FUNCTION_OPTS)

@@ -65,10 +65,13 @@ import casadi as ca
 import numpy as np
 
 from softgen.blocks import Block
-from softgen.control.soft import _projector, apply_pinv, plant_fun, plant_rhs, theorem10_fun
+from softgen.control.soft import (_chain_applies, _inv3, _projector, apply_pinv, plant_fun,
+                                  plant_rhs, theorem10_fun)
 from softgen.core.errors import SoftgenError
 from softgen.symbolic.rigid import FUNCTION_OPTS
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
+from softgen.symbolic.pcc_chain import (chain_regressor_products, chain_terms,
+                                       inertia_from_blocks)
 
 #: Inputs and outputs of ``<model>_theorem10_sampled_step``, in order.
 SAMPLED_INPUTS = ["pi_hat", "u_prev", "q", "qd", "q_d", "qd_d", "qdd_d", "lam", "kd", "kpi",
@@ -80,12 +83,24 @@ class StabilityCheckError(SoftgenError):
     """Bad input to the sampled-loop stability check."""
 
 
-def _law(dyn: SoftDynamics, lin: LinearRoute, pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd):
-    """Theorem 10's generalized force τ⁰ = Y π̂ + K_d σ (+ known terms), σ and Yᵀσ."""
+def _law(dyn: SoftDynamics, lin: LinearRoute, pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd,
+         chain: bool = False):
+    """Theorem 10's generalized force τ⁰ = Y π̂ + K_d σ (+ known terms), σ and Yᵀσ.
+
+    ``chain``: Y π̂ and Yᵀσ by the recursive pass
+    (:func:`~softgen.symbolic.pcc_chain.chain_regressor_products`, lumped pcc-3d), else
+    by :meth:`LinearRoute.at` (the same values)."""
     qd_r = qd_d + lam * (q_d - q)
     qdd_r = qdd_d + lam * (qd_d - qd)
     sigma = qd_r - qd
-    y_pi, yt_s = lin.at(pi_hat, q, qd, qd_r, qdd_r, sigma)
+    if chain:
+        y_pi, yt_s = ca.substitute(
+            list(chain_regressor_products(lin, dyn.model, lin.mu, dyn.nominal.base_frame(),
+                                          lin.K_hat, lin.D_hat)),
+            [lin.pi, lin.q, lin.qd, lin.qd_r, lin.qdd_r, lin.sigma],
+            [pi_hat, q, qd, qd_r, qdd_r, sigma])
+    else:
+        y_pi, yt_s = lin.at(pi_hat, q, qd, qd_r, qdd_r, sigma)
     tau0 = y_pi + kd * sigma
     if dyn.base.constant is not None:      # terms multiplying no uncertain parameter
         tau0 = tau0 + ca.substitute(
@@ -95,7 +110,7 @@ def _law(dyn: SoftDynamics, lin: LinearRoute, pi_hat, q, qd, q_d, qd_d, qdd_d, l
 
 
 def sampled_theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
-                          d_scale: float = 1.0) -> ca.Function:
+                          d_scale: float = 1.0, route: str = "auto") -> ca.Function:
     """``<model>_theorem10_sampled_step``: one sample of the linearly implicit Theorem 10.
 
     Thesis Theorem 10 (§12.1, τ = A† (Y π̂ + K_d σ), dπ̂/dt = K_π Yᵀσ) with the torque
@@ -105,16 +120,24 @@ def sampled_theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
     (r), ``dt``. Outputs ``pi_hat_next``, ``u_next`` (= A τ), ``tau`` (m), ``sigma``.
     ``d_scale`` scales the predictor's damping D (a deliberately wrong model, for the
     robustness check only).
+
+    ``route``: ``"auto"`` takes Y π̂, Yᵀσ, A_i and B (= Σ m_j J_jᵀ J_j) from the recursive
+    pass where it applies (lumped pcc-3d, as :func:`~softgen.control.soft.theorem10_fun`;
+    issue 25), else as ``"linear"``: :meth:`LinearRoute.at`, the body's B and A_i (the
+    same values; tests). M − h P J is not symmetric: a general solve either way.
     """
+    if route not in ("auto", "linear"):
+        raise ValueError(f"route: expected 'auto' or 'linear', got {route!r}")
     lin = LinearRoute(dyn) if lin is None else lin
     b = dyn.nominal
     n, r = dyn.model.dof, lin.r
+    chain = route == "auto" and _chain_applies(b)
     pi_hat, kpi = ca.SX.sym("pi_hat", r), ca.SX.sym("kpi", r)
     u_prev = ca.SX.sym("u_prev", n)
     q, qd, q_d, qd_d, qdd_d, lam, kd = (ca.SX.sym(s, n) for s in
                                         ("q", "qd", "q_d", "qd_d", "qdd_d", "lam", "kd"))
     h = ca.SX.sym("dt")
-    tau0, sigma, yt_s = _law(dyn, lin, pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd)
+    tau0, sigma, yt_s = _law(dyn, lin, pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd, chain)
     # K_d σ is linear in (q, q̇) and is evaluated at the predicted end state exactly;
     # Y π̂ is linearised in q̇ only (its damping, Coriolis and B̂ Λ terms: the fast
     # ones). Its q-dependence (gravity, elasticity) stays explicit: h K̂ ≪ D, and its
@@ -122,10 +145,15 @@ def sampled_theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
     J_q = ca.jacobian(kd * sigma, q)
     J = ca.jacobian(tau0, qd) + h * J_q
     sub = lambda e: ca.substitute(e, b.q, q)        # noqa: E731
-    B = sub(b.inertia_pm())
+    if chain:      # square A_i (P = I), closed-form A_i and B from the one pass
+        ct = chain_terms(b, q, ca.SX.zeros(n))
+        B = inertia_from_blocks(ct.J, [m for m, _ in b.mass_points])
+        blocks = ct.A
+    else:
+        B = sub(b.inertia_pm())
+        blocks = [sub(A) for A in b.actuation_blocks()]
     K = sub(b._quadratic_form("k"))
     D = d_scale * sub(b._quadratic_form("d"))
-    blocks = [sub(A) for A in b.actuation_blocks()]
     P = _projector(blocks)
     M = B + h * D + h * h * K
     # With w = M⁻¹ (P τ* − u_prev) (so Δq̇ = h w), τ* = τ_e + h J w, τ_e = τ⁰ + h J_q q̇,
@@ -134,7 +162,9 @@ def sampled_theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
     w = ca.solve(M - h * ca.mtimes(P, J), ca.mtimes(P, tau_e) - u_prev)
     tau_star = tau_e + h * ca.mtimes(J, w)
     u_next = ca.mtimes(P, tau_star)
-    tau = apply_pinv(blocks, tau_star)
+    tau = ca.vertcat(*[ca.mtimes(_inv3(A_i), tau_star[3 * i:3 * i + 3])
+                       for i, A_i in enumerate(blocks)]) if chain else \
+        apply_pinv(blocks, tau_star)
     return ca.Function(f"{dyn.name}_theorem10_sampled_step",
                        [pi_hat, u_prev, q, qd, q_d, qd_d, qdd_d, lam, kd, kpi, h],
                        [pi_hat + h * kpi * yt_s, u_next, tau, sigma],
