@@ -69,3 +69,13 @@ def test_fixed_layout_keeps_every_label_inside_the_figure_and_apart(tmp_path, ro
             assert overlap_x <= 1 or overlap_y <= 1
     save(fig, tmp_path / "f.png", 90)
     assert (tmp_path / "f.png").stat().st_size > 0
+
+
+def test_log_tick_labels_are_plain_text_of_the_same_value(tmp_path):
+    fig = Figure(figsize=(4, 3))
+    a = fig.subplots()
+    a.semilogy([0, 1, 2], [1e-3, 2e-2, 5e1])
+    save(fig, tmp_path / "log.png", 90)
+    labels = [t.get_text() for t in a.get_yticklabels() if t.get_text()]
+    assert "10⁻²" in labels and "10¹" in labels, labels
+    assert not any("$" in s for s in labels)
