@@ -291,6 +291,8 @@ def cascade_figure(path, tr: Trace, title: str, *, parameter_nominal=None,
     :func:`cascade_scenario`); adaptive runs add π̂/π and b̂/b."""
     # matplotlib is imported here: only figure-making runs pay its start-up time.
     from matplotlib.figure import Figure
+
+    from softgen.studies.plotting import save
     t, n = tr.t, tr["plant.q"].shape[1]
     adaptive = "ctrl.pi_hat" in tr.signals
     fig = Figure(figsize=(11, 12 if adaptive else 10))
@@ -320,8 +322,7 @@ def cascade_figure(path, tr: Trace, title: str, *, parameter_nominal=None,
     for a in ax[-1]:
         a.set_xlabel("t [s]")
     fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save(fig, path, dpi=100)
 
 
 def feedback_figure(path, traces: Mapping[str, Trace], t_on: float) -> None:
@@ -330,6 +331,8 @@ def feedback_figure(path, traces: Mapping[str, Trace], t_on: float) -> None:
     ``t_on``."""
     # matplotlib is imported here: only figure-making runs pay its start-up time.
     from matplotlib.figure import Figure
+
+    from softgen.studies.plotting import save
     tr0 = traces["true_feedback"]
     fig = Figure(figsize=(11, 8))
     ax = fig.subplots(2, tr0["plant.sigma"].shape[1], sharex=True, squeeze=False)
@@ -350,8 +353,7 @@ def feedback_figure(path, traces: Mapping[str, Trace], t_on: float) -> None:
             a.legend(fontsize=7, loc="upper right")
     fig.suptitle("Adaptive cascade with the fed-back σ from true, invasive and non-invasive "
                  "estimates (switch at t_on)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save(fig, path, dpi=100)
 
 
 # -- references derived from a model (issue 22: any qbmove-style arm) ---------------------

@@ -256,10 +256,15 @@ def protocol_figure(path, t, q, q_d, sigma, sigma_d, phi, std, *, threshold: flo
     ``std`` (one column per deflection, threshold ``threshold``) and RLS updates."""
     # matplotlib is imported here: only figure-making runs pay its start-up time.
     from matplotlib.figure import Figure
-    n, d = q_d.shape[0], slice(None, None, max(1, len(t) // 20000))
-    t, q, q_d, sigma, sigma_d, phi, std = (t[d], q[d], q_d[:, d], sigma[d], sigma_d[:, d],
-                                          phi[d], std[d])
-    updating = {k: v[d] for k, v in updating.items()}
+
+    from softgen.studies.plotting import envelope, save
+    # Long runs are drawn from their min/max envelope (every sample's extreme stays
+    # visible; the metrics never see these arrays).
+    n, tt = q_d.shape[0], t
+    t, q = envelope(tt, q)
+    q_d, sigma_d = (envelope(tt, np.asarray(v).T)[1].T for v in (q_d, sigma_d))
+    sigma, phi, std = (envelope(tt, v)[1] for v in (sigma, phi, std))
+    updating = {k: envelope(tt, np.asarray(v).mean(axis=1))[1] for k, v in updating.items()}
     fig = Figure(figsize=(9, 11))
     ax = fig.subplots(5, 1, sharex=True)
     for i in range(n):
@@ -273,7 +278,7 @@ def protocol_figure(path, t, q, q_d, sigma, sigma_d, phi, std, *, threshold: flo
         ax[3].semilogy(t, std[:, j], lw=0.8, label=lab)
     ax[3].axhline(threshold, color="k", ls="--", lw=0.8, label="threshold")
     for k, (tag, u) in enumerate(updating.items()):
-        ax[4].plot(t, u.mean(axis=1) + 1.2 * k, lw=0.8, label=tag)
+        ax[4].plot(t, u + 1.2 * k, lw=0.8, label=tag)
     for a, lab in zip(ax, ("q [rad]", "sigma [N m/rad]", "measured deflection [rad]",
                            f"EW std, W = {window:g} s [rad]", "RLS updating")):
         a.set_ylabel(lab)
@@ -281,16 +286,18 @@ def protocol_figure(path, t, q, q_d, sigma, sigma_d, phi, std, *, threshold: flo
             a.axvline(b, color="0.6", lw=0.6)
         a.legend(fontsize=7, ncol=2, loc="upper left")
     ax[4].set_xlabel("t [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save(fig, path, dpi=100)
 
 
 def run_figure(path, t, tau_motor, phi, q, *, title: str = "") -> None:
     """Motor torques, spring deflections and link angles of a run (as Fig. 6.5)."""
     # matplotlib is imported here: only figure-making runs pay its start-up time.
     from matplotlib.figure import Figure
-    n, d = q.shape[1], slice(None, None, max(1, len(t) // 20000))
-    t, tau_motor, phi, q = t[d], tau_motor[d], phi[d], q[d]
+
+    from softgen.studies.plotting import envelope, save
+    n, tt = q.shape[1], t
+    t, tau_motor = envelope(tt, tau_motor)     # drawn from the min/max envelope
+    phi, q = envelope(tt, phi)[1], envelope(tt, q)[1]
     fig = Figure(figsize=(8, 8))
     ax = fig.subplots(3, 1, sharex=True)
     for a, v, unit, names in ((ax[0], tau_motor, "motor torque [N m]", "tau"),
@@ -303,5 +310,4 @@ def run_figure(path, t, tau_motor, phi, q, *, title: str = "") -> None:
         a.legend(fontsize=7, ncol=2, loc="upper left")
     ax[0].set_title(title)
     ax[2].set_xlabel("t [s]")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save(fig, path, dpi=100)

@@ -11,14 +11,14 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from softgen.runtime.simulate import Trace
+from softgen.studies.plotting import envelope, save
 
 #: Panels of :func:`gioste_runs`: signal, y label.
 PANELS = {"q": "q [rad]", "sigma": "σ [N m/rad]", "nu": "ν", "Pi_hat": "Π̂", "V": "V [V]"}
 
 
 def _save(fig: Figure, path, dpi: int) -> None:
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
+    save(fig, path, dpi)
 
 
 def _stop_time(tr: Trace) -> float:
@@ -40,7 +40,9 @@ def gioste_runs(path, columns: list, parameter_names, titles: list[str] | None =
     against their references, ν, Π̂ and the valve voltages, as the thesis plots them
     (Fig. 10.6-10.13). Time axes end at the runs' emergency stops, marked and named."""
     fig = Figure(figsize=(5.5 * len(columns), 2.4 * len(panels)))
-    ax = fig.subplots(len(panels), len(columns), squeeze=False)
+    # Shared time axis per column (mark_stop gives every panel of a column the same
+    # limits): inner panels draw no tick labels, the costliest part of these figures.
+    ax = fig.subplots(len(panels), len(columns), squeeze=False, sharex="col")
     titles = titles or ([f"run {j + 1}" for j in range(len(columns))] if len(columns) > 1
                         else ["run"])
     for j, col in enumerate(columns):
@@ -56,13 +58,14 @@ def gioste_runs(path, columns: list, parameter_names, titles: list[str] | None =
                     names = (list(parameter_names) if panel == "Pi_hat" else
                              [f"{name}{m // 2 + 1}{'ab'[m % 2]}" for m in range(y.shape[1])]
                              if panel == "V" else [f"{name}{i + 1}" for i in range(y.shape[1])])
-                    a.plot(r.t, y, style, lw=0.9, label=[pre + x for x in names])
+                    a.plot(*envelope(r.t, y), style, lw=0.9, label=[pre + x for x in names])
         for a, panel in zip(ax[:, j], panels):
             if panel in ("q", "sigma"):
-                a.plot(col[0].t, col[0]["ref.q_d" if panel == "q" else "ref.sigma_d"], "k--",
-                       lw=0.7)
+                a.plot(*envelope(col[0].t, col[0]["ref.q_d" if panel == "q" else
+                                                    "ref.sigma_d"]), "k--", lw=0.7)
             a.set_ylabel(PANELS[panel])
-            a.legend(fontsize=6, loc="upper left")
+            if j == 0:    # every column draws the same names: one legend per row
+                a.legend(fontsize=6, loc="upper left")
             mark_stop(a, col)
         stops = [f"{lab or 'run'} stopped at {r.stopped_at:.4g} s" for r, lab in
                  zip(col, labels or [""] * len(col)) if r.stopped_at is not None]

@@ -46,6 +46,7 @@ from matplotlib.figure import Figure
 
 from softgen.core.metrics import Metrics
 from softgen.estimation.offline import EstimationResult
+from softgen.studies.plotting import envelope, save
 
 #: Metric quantities and units of the two coupling directions.
 POSITION_TO_STIFFNESS = ("position_to_stiffness_coupling", "N m/rad per rad")
@@ -187,31 +188,32 @@ def estimation_figure(path, t, truth_sigma, truth_tau, res: EstimationResult, *,
                       title: str, names: dict[str, list[str]],
                       torque_label: str = "tau_e [N m]") -> None:
     """Estimate against truth, relative error, and RLS parameters over time (long runs
-    are drawn every few samples: at most ~20 000 points per line)."""
-    n = truth_sigma.shape[1]
-    d = slice(None, None, max(1, len(t) // 20000))
-    t, truth_sigma, truth_tau = t[d], truth_sigma[d], truth_tau[d]
-    res = EstimationResult(res.sigma_hat[d], res.tau_hat[d], res.tau_uio[d], res.updating[d],
-                           {r: v[d] for r, v in res.theta.items()}, res.delay,
-                           res.wall_seconds)
+    are drawn from their min/max envelope, :func:`~softgen.studies.plotting.envelope`;
+    the relative errors are formed from every sample before thinning)."""
+    n, tt = truth_sigma.shape[1], t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel_tau = np.abs(100 * (res.tau_hat - truth_tau) / truth_tau)
+        rel_sig = np.abs(100 * (res.sigma_hat - truth_sigma) / truth_sigma)
+    t, truth_sigma = envelope(tt, truth_sigma)
+    truth_tau, tau_hat, tau_uio, sigma_hat, rel_tau, rel_sig = (
+        envelope(tt, v)[1] for v in (truth_tau, res.tau_hat, res.tau_uio, res.sigma_hat,
+                                     rel_tau, rel_sig))
+    theta = {r: envelope(tt, v)[1] for r, v in res.theta.items()}
     fig = Figure(figsize=(5.5 * n, 9))
     ax = fig.subplots(4, n, sharex=True, squeeze=False)
     for i in range(n):
         ax[0, i].plot(t, truth_tau[:, i], "k", lw=1.2, label="true")
-        ax[0, i].plot(t, res.tau_hat[:, i], "--", lw=1, label="RLS model")
-        ax[0, i].plot(t, res.tau_uio[:, i], ":", lw=0.8, label="observer")
+        ax[0, i].plot(t, tau_hat[:, i], "--", lw=1, label="RLS model")
+        ax[0, i].plot(t, tau_uio[:, i], ":", lw=0.8, label="observer")
         ax[0, i].set_ylabel(torque_label)
         ax[0, i].set_title(f"{title}, joint {i + 1}")
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rel_tau = 100 * (res.tau_hat[:, i] - truth_tau[:, i]) / truth_tau[:, i]
-            rel_sig = 100 * (res.sigma_hat[:, i] - truth_sigma[:, i]) / truth_sigma[:, i]
         ax[1, i].plot(t, truth_sigma[:, i], "k", lw=1.2, label="true")
-        ax[1, i].plot(t, res.sigma_hat[:, i], "--", lw=1, label="estimate")
+        ax[1, i].plot(t, sigma_hat[:, i], "--", lw=1, label="estimate")
         ax[1, i].set_ylabel("sigma [N m/rad]")
-        ax[2, i].semilogy(t, np.abs(rel_sig), lw=0.8, label="stiffness")
-        ax[2, i].semilogy(t, np.abs(rel_tau), lw=0.8, label="torque")
+        ax[2, i].semilogy(t, rel_sig[:, i], lw=0.8, label="stiffness")
+        ax[2, i].semilogy(t, rel_tau[:, i], lw=0.8, label="torque")
         ax[2, i].set_ylabel("|relative error| [%]")
-        for r, th in res.theta.items():
+        for r, th in theta.items():
             if int(r.rstrip("ab")[len("joint"):]) - 1 == i:
                 for j in range(th.shape[1]):
                     ax[3, i].plot(t, th[:, j], lw=0.8, label=f"{r} {names[r][j]}")
@@ -220,8 +222,7 @@ def estimation_figure(path, t, truth_sigma, truth_tau, res: EstimationResult, *,
         ax[3, i].set_xlabel("t [s]")
         for a in ax[:, i]:
             a.legend(fontsize=6, ncol=2, loc="upper left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    save(fig, path, dpi=100)
 
 
 def phase_records(m: Metrics, quantity: str, values: dict[int, np.ndarray], mask, phase,

@@ -36,6 +36,7 @@ from softgen.control.soft import (backbone_samples, closed_loop_block, controlle
 from softgen.core.config import Config
 from softgen.core.metrics import Metrics
 from softgen.studies.indices import norm_drift
+from softgen.studies.plotting import save
 from softgen.studies.scenario import Scenario
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 
@@ -261,7 +262,6 @@ def scenario_figure(t, q_d, q, pi_hat, tau, shapes, *, title: str, unit: str,
         ax_s.set_aspect("equal", adjustable="datalim")
     ax_s.set_title("shape trace (darker = later)", fontsize=9)
     fig.suptitle(title)
-    fig.tight_layout()
     return fig
 
 
@@ -300,7 +300,7 @@ def run_cases(loop: SoftLoop, cases: list[SoftCase], c: SoftStudyConfig, out: Pa
             f_end = tr[f"{loop.ctrl}.f_hat"][-1]
             for nm, v in zip(loop.forces, f_end):
                 m.add(f"force_estimate_{nm}_final", v, "N", suffix=sc.suffix.lstrip("_"))
-        fig.savefig(out / figures[sc.suffix], dpi=90)
+        save(fig, out / figures[sc.suffix], dpi=90)
         tr.save(out / f"traces{sc.suffix}.npz")
     m.add("simulated_seconds_per_wall_second", len(cases) * c.duration / wall, "s/s")
     return m

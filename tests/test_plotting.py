@@ -1,0 +1,81 @@
+"""Figure output of the studies (issue 25): the envelope used for drawing and the
+one-pass fixed layout."""
+import numpy as np
+import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from softgen.studies.plotting import envelope, fixed_layout, save
+
+
+def test_envelope_keeps_extremes_ends_and_order():
+    t = np.linspace(0.0, 100.0, 200_001)
+    y = np.c_[np.sin(t), np.zeros_like(t)]
+    y[123_457, 1] = 5.0          # a one-sample spike must survive thinning
+    y[150_000, 1] = -3.0
+    tt, yy = envelope(t, y, buckets=1000)
+    assert len(tt) <= 4 * 1000 and yy.shape == (len(tt), 2)
+    assert np.all(np.diff(tt) >= 0)
+    assert (tt[0], tt[-1]) == (t[0], t[-1])
+    np.testing.assert_array_equal(yy[0], y[0])
+    np.testing.assert_array_equal(yy[-1], y[-1])
+    np.testing.assert_array_equal(yy.max(axis=0), y.max(axis=0))
+    np.testing.assert_array_equal(yy.min(axis=0), y.min(axis=0))
+    # The spike is drawn inside its own bucket's time span.
+    k = int(np.argmax(yy[:, 1]))
+    assert abs(tt[k] - t[123_457]) <= 100.0 / 1000
+
+
+def test_envelope_leaves_short_traces_and_skips_nan():
+    t = np.arange(100.0)
+    y = np.sin(t)
+    tt, yy = envelope(t, y, buckets=50)
+    assert tt is t and yy is y
+    t = np.arange(10_000.0)
+    y = np.sin(t)
+    y[:3000] = np.nan
+    tt, yy = envelope(t, y, buckets=100)
+    assert np.nanmax(yy) == np.nanmax(y) and np.nanmin(yy) == np.nanmin(y)
+    assert np.isnan(yy[0]) and not np.isnan(yy[-1])
+
+
+@pytest.mark.parametrize("rows, cols, sharex", [(5, 2, "col"), (4, 2, True), (3, 1, True),
+                                                (1, 3, False), (2, 4, True)])
+def test_fixed_layout_keeps_every_label_inside_the_figure_and_apart(tmp_path, rows, cols,
+                                                                    sharex):
+    fig = Figure(figsize=(5.5 * cols, 2.4 * rows))
+    ax = fig.subplots(rows, cols, squeeze=False, sharex=sharex)
+    t = np.linspace(0.0, 40.0, 500)
+    for a in ax.flat:
+        a.plot(t, -2.5e-3 * np.sin(t), label="q1")
+        a.set_ylabel("σ [N m/rad]")
+        a.legend(fontsize=6, loc="upper left")
+    for a in ax[-1]:
+        a.set_xlabel("t [s]")
+    for j, a in enumerate(ax[0]):
+        a.set_title(f"run {j + 1}", fontsize=9)
+    fig.suptitle("a title")
+    fixed_layout(fig)
+    r = FigureCanvasAgg(fig).get_renderer()
+    box = fig.bbox
+    tight = [a.get_tightbbox(r) for a in ax.flat]
+    for b in tight:
+        assert b.x0 >= box.x0 - 1 and b.y0 >= box.y0 - 1
+        assert b.x1 <= box.x1 + 1 and b.y1 <= box.y1 + 1
+    for i, b in enumerate(tight):     # no two panels' labels overlap
+        for c in tight[i + 1:]:
+            overlap_x = min(b.x1, c.x1) - max(b.x0, c.x0)
+            overlap_y = min(b.y1, c.y1) - max(b.y0, c.y0)
+            assert overlap_x <= 1 or overlap_y <= 1
+    save(fig, tmp_path / "f.png", 90)
+    assert (tmp_path / "f.png").stat().st_size > 0
+
+
+def test_log_tick_labels_are_plain_text_of_the_same_value(tmp_path):
+    fig = Figure(figsize=(4, 3))
+    a = fig.subplots()
+    a.semilogy([0, 1, 2], [1e-3, 2e-2, 5e1])
+    save(fig, tmp_path / "log.png", 90)
+    labels = [t.get_text() for t in a.get_yticklabels() if t.get_text()]
+    assert "10⁻²" in labels and "10¹" in labels, labels
+    assert not any("$" in s for s in labels)
