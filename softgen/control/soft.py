@@ -197,6 +197,30 @@ def _force_tag(groups) -> str:
     return "".join(f"_f{''.join(map(str, g))}{axes}" for g, axes in groups)
 
 
+def regressor_products(dyn: SoftDynamics, lin: LinearRoute, pi_hat, q, qd, qd_r, qdd_r,
+                       sigma, *, chain: bool):
+    """(Y π̂, Yᵀσ) of Theorem 10 (eq. 12.1) at the given symbols.
+
+    ``chain``: by the recursive pass (:func:`~softgen.symbolic.pcc_chain.chain_regressor_products`,
+    lumped pcc-3d, see :func:`_chain_applies`), else by :meth:`LinearRoute.at` (the same
+    values)."""
+    if not chain:
+        return lin.at(pi_hat, q, qd, qd_r, qdd_r, sigma)
+    return tuple(ca.substitute(
+        list(chain_regressor_products(lin, dyn.model, lin.mu, dyn.nominal.base_frame(),
+                                      lin.K_hat, lin.D_hat)),
+        [lin.pi, lin.q, lin.qd, lin.qd_r, lin.qdd_r, lin.sigma],
+        [pi_hat, q, qd, qd_r, qdd_r, sigma]))
+
+
+def known_terms(dyn: SoftDynamics, q, qd, qd_r, qdd_r):
+    """The part of the generalized force that multiplies no uncertain parameter
+    (``dyn.base.constant``, not None) at the given symbols."""
+    b = dyn.nominal
+    return ca.substitute(dyn.base.constant, ca.vertcat(b.q, b.qd, b.qd_r, b.qdd_r),
+                         ca.vertcat(q, qd, qd_r, qdd_r))
+
+
 def theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
                   forces=(), route: str = "auto") -> ca.Function:
     """``<model>_theorem10_step``: one sample of Theorem 10.
@@ -229,23 +253,14 @@ def theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
     qdd_r = qdd_d + lam * (qd_d - qd)
     sigma = qd_r - qd
     chain = route == "auto" and _chain_applies(dyn.nominal)
-    if chain:
-        y_pi, yt_s = ca.substitute(
-            list(chain_regressor_products(lin, dyn.model, lin.mu, dyn.nominal.base_frame(),
-                                          lin.K_hat, lin.D_hat)),
-            [lin.pi, lin.q, lin.qd, lin.qd_r, lin.qdd_r, lin.sigma],
-            [pi_hat, q, qd, qd_r, qdd_r, sigma])
-    else:
-        y_pi, yt_s = lin.at(pi_hat, q, qd, qd_r, qdd_r, sigma)
+    y_pi, yt_s = regressor_products(dyn, lin, pi_hat, q, qd, qd_r, qdd_r, sigma, chain=chain)
     tau_star = y_pi + kd * sigma
     if groups:
         Yf = force_columns(dyn, groups, q)
         f_hat, kf = ca.SX.sym("f_hat", Yf.shape[1]), ca.SX.sym("kf", Yf.shape[1])
         tau_star = tau_star + ca.mtimes(Yf, f_hat)
-    if dyn.base.constant is not None:      # terms multiplying no uncertain parameter
-        tau_star = tau_star + ca.substitute(
-            dyn.base.constant, ca.vertcat(dyn.nominal.q, dyn.nominal.qd, dyn.nominal.qd_r,
-                                          dyn.nominal.qdd_r), ca.vertcat(q, qd, qd_r, qdd_r))
+    if dyn.base.constant is not None:
+        tau_star = tau_star + known_terms(dyn, q, qd, qd_r, qdd_r)
     if chain:      # closed-form A_i and its adjugate inverse (det A_i = sinc²Δ_i)
         A = chain_terms(dyn.nominal, q, ca.SX.zeros(n)).A
         tau = ca.vertcat(*[ca.mtimes(_inv3(A_i), tau_star[3 * i:3 * i + 3])
@@ -359,6 +374,18 @@ CLOSED_LOOP_INPUTS = ["z", "ref0", "ref1", "lam", "kd", "kpi", "f_ext", "noise",
 CLOSED_LOOP_OUTPUTS = ["z_next", "tau", "sigma"]
 
 
+def _ldl_substitute(L, D, b):
+    """x with L D Lᵀ x = b: forward substitution by the unit lower L, D, then back."""
+    n = len(D)
+    y = []
+    for i in range(n):
+        y.append(b[i] - sum((L[i][k] * y[k] for k in range(i)), ca.SX(0)))
+    x = [None] * n
+    for i in reversed(range(n)):
+        x[i] = y[i] / D[i] - sum((L[k][i] * x[k] for k in range(i + 1, n)), ca.SX(0))
+    return ca.vertcat(*x)
+
+
 def spd_solve(A, b):
     """A⁻¹ b for a symmetric positive definite SX matrix A, by LDLᵀ without pivoting.
 
@@ -373,13 +400,7 @@ def spd_solve(A, b):
         for i in range(j + 1, n):
             L[i][j] = (A[i, j] - sum((L[i][k] * L[j][k] * D[k] for k in range(j)),
                                      ca.SX(0))) / D[j]
-    y = []
-    for i in range(n):
-        y.append(b[i] - sum((L[i][k] * y[k] for k in range(i)), ca.SX(0)))
-    x = [None] * n
-    for i in reversed(range(n)):
-        x[i] = y[i] / D[i] - sum((L[k][i] * x[k] for k in range(i + 1, n)), ca.SX(0))
-    return ca.vertcat(*x)
+    return _ldl_substitute(L, D, b)
 
 
 def spd_solve_scaled(A, b):
@@ -395,13 +416,7 @@ def spd_solve_scaled(A, b):
         for i in range(j + 1, n):
             U[i][j] = A[i, j] - sum((U[i][k] * L[j][k] for k in range(j)), ca.SX(0))
             L[i][j] = U[i][j] / D[j]
-    y = []
-    for i in range(n):
-        y.append(b[i] - sum((L[i][k] * y[k] for k in range(i)), ca.SX(0)))
-    x = [None] * n
-    for i in reversed(range(n)):
-        x[i] = y[i] / D[i] - sum((L[k][i] * x[k] for k in range(i + 1, n)), ca.SX(0))
-    return ca.vertcat(*x)
+    return _ldl_substitute(L, D, b)
 
 
 def _inv3(A):

@@ -65,12 +65,13 @@ import casadi as ca
 import numpy as np
 
 from softgen.blocks import Block
-from softgen.control.soft import (_chain_applies, _inv3, _projector, apply_pinv, plant_fun,
-                                  plant_rhs, theorem10_fun)
+from softgen.control.soft import (_chain_applies, _inv3, _projector, apply_pinv,
+                                  known_terms, plant_fun, plant_rhs, regressor_products,
+                                  theorem10_fun)
 from softgen.core.errors import SoftgenError
 from softgen.symbolic.rigid import FUNCTION_OPTS
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
-from softgen.symbolic.pcc_chain import (chain_regressor_products, chain_terms,
+from softgen.symbolic.pcc_chain import (chain_terms,
                                        inertia_from_blocks)
 
 #: Inputs and outputs of ``<model>_theorem10_sampled_step``, in order.
@@ -87,25 +88,14 @@ def _law(dyn: SoftDynamics, lin: LinearRoute, pi_hat, q, qd, q_d, qd_d, qdd_d, l
          chain: bool = False):
     """Theorem 10's generalized force τ⁰ = Y π̂ + K_d σ (+ known terms), σ and Yᵀσ.
 
-    ``chain``: Y π̂ and Yᵀσ by the recursive pass
-    (:func:`~softgen.symbolic.pcc_chain.chain_regressor_products`, lumped pcc-3d), else
-    by :meth:`LinearRoute.at` (the same values)."""
+    ``chain``: how Y π̂ and Yᵀσ are formed (:func:`~softgen.control.soft.regressor_products`)."""
     qd_r = qd_d + lam * (q_d - q)
     qdd_r = qdd_d + lam * (qd_d - qd)
     sigma = qd_r - qd
-    if chain:
-        y_pi, yt_s = ca.substitute(
-            list(chain_regressor_products(lin, dyn.model, lin.mu, dyn.nominal.base_frame(),
-                                          lin.K_hat, lin.D_hat)),
-            [lin.pi, lin.q, lin.qd, lin.qd_r, lin.qdd_r, lin.sigma],
-            [pi_hat, q, qd, qd_r, qdd_r, sigma])
-    else:
-        y_pi, yt_s = lin.at(pi_hat, q, qd, qd_r, qdd_r, sigma)
+    y_pi, yt_s = regressor_products(dyn, lin, pi_hat, q, qd, qd_r, qdd_r, sigma, chain=chain)
     tau0 = y_pi + kd * sigma
-    if dyn.base.constant is not None:      # terms multiplying no uncertain parameter
-        tau0 = tau0 + ca.substitute(
-            dyn.base.constant, ca.vertcat(dyn.nominal.q, dyn.nominal.qd, dyn.nominal.qd_r,
-                                          dyn.nominal.qdd_r), ca.vertcat(q, qd, qd_r, qdd_r))
+    if dyn.base.constant is not None:
+        tau0 = tau0 + known_terms(dyn, q, qd, qd_r, qdd_r)
     return tau0, sigma, yt_s
 
 
