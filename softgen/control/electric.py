@@ -92,8 +92,10 @@ relative, tests/test_electric_jets.py); so do the PD steps. The adaptive variant
 solve, (MᵀM + μI)⁻¹Mᵀr per joint, is written without forming the normal equations'
 determinant (:func:`_regularized_solve2`): at b̂ = 0, where M has rank one, CasADi's
 solve of MᵀM + μI (the ``"ad"`` route) loses up to ten digits. Measured on the 2-link
-arm's PD step: 1,171 → 1,167 CasADi instructions, 110 → 21 divisions, and 8 sinh,
-4 cosh, 4 asinh → 8 exp, 4 log.
+arm's PD step (``ElectricArm(model, jets=...).step_fun("pd")``, ``"ad"`` → ``"closed"``):
+1,106 → 1,207 CasADi instructions (more, for the series and the explicit formulas),
+but 107 → 17 divisions and 8 sinh, 4 cosh, 4 asinh → 8 exp, 4 log, which is where the
+time went: 604 → 268-285 ns per call (``softgen bench arm_2link_electric``).
 
 **Link acceleration** (:data:`ACCELERATIONS`, model route only): the q̈ along which
 the Lie derivatives run is either the (adapted) model's (``"model"``) or the backward
