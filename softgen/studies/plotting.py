@@ -13,6 +13,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from softgen.core.atomic import replacing
+
 if TYPE_CHECKING:    # matplotlib is imported by the figure functions, not by importers
     from matplotlib.figure import Figure
 
@@ -114,10 +116,12 @@ def thin_ticks(fig: Figure) -> None:
 
 def save(fig: Figure, path, dpi: int) -> None:
     """Lay ``fig`` out once (:func:`fixed_layout`, :func:`thin_ticks`) and write it as
-    PNG at ``dpi``."""
+    PNG at ``dpi``, atomically (:func:`softgen.core.atomic.replacing`: a figure function
+    called outside ``reproduce``'s staging directory never leaves half a PNG)."""
     fixed_layout(fig)
     thin_ticks(fig)
-    fig.savefig(path, dpi=dpi)
+    with replacing(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
 
 
 def envelope(t, y, buckets: int = 1500):
