@@ -30,8 +30,7 @@ import casadi as ca
 import numpy as np
 
 from softgen.codegen.generate import Generated
-from softgen.modelfile.expr import parse_law, spring_c, spring_derivatives
-from softgen.modelfile.model import RobotModel, pressure_linear, sinh_constants
+from softgen.modelfile.model import RobotModel
 from softgen.modelfile.soft import SoftModel
 from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
 from softgen.symbolic.pcc import LinearRoute
@@ -116,7 +115,7 @@ def _pairs(model, drive: str, what: str, law_why) -> str | None:
                     f"{model.links[a.joint].name}, drive {a.drive}; needs {what})")
         for side in a.sides:
             if (bad := law_why(side)) is not None:
-                return f"{_where(model)}: {key}.{side.name}.law = {side.law!r}{bad}"
+                return f"{_where(model)}: {key}.{side.name}.law = {side.text!r}{bad}"
     return None
 
 
@@ -124,9 +123,9 @@ def _sinh_spring_pairs(model) -> str | None:
     """Every joint an antagonistic spring pair whose laws satisfy tau'' = c tau with
     c > 0 and tau(0) = 0 (k sinh(a phi), c = a^2; eq. 6.6): the chapter-11 cascade
     inverts them in closed form (eq. 11.3) and the electric estimators differentiate
-    them. Decided on the laws by CasADi (``Actuator.sinh``, :func:`sinh_constants`)."""
+    them. Decided on the laws' properties, judged once at load (``side.law.spring.c``)."""
     return _pairs(model, "spring", "an antagonistic spring pair with tau'' = c tau, c > 0",
-                  lambda side: None if sinh_constants(side) is not None else
+                  lambda side: None if side.law.spring.sinh is not None else
                   ": no constant c > 0 with tau'' = c tau and tau(0) = 0 (needs "
                   "k sinh(a phi))")
 
@@ -135,7 +134,7 @@ def _pressure_pairs(model) -> str | None:
     """Every joint a pressure-driven antagonistic pair whose laws are linear in p
     (tau = Phi(q) p, eq. 2.2; checked by CasADi: d law/dp independent of p)."""
     return _pairs(model, "pressure", "a pressure-driven antagonistic pair linear in p",
-                  lambda side: None if pressure_linear(side) else
+                  lambda side: None if side.law.pressure.linear_in_p else
                   " is not linear in p (needs tau = phi(q) p)")
 
 
@@ -154,10 +153,8 @@ def _linear_sea(model) -> str | None:
             return (f"{_where(model)}: actuators.type = {a.type!r} ({key}, joint "
                     f"{model.links[a.joint].name}, drive {a.drive}; needs {what})")
         side = a.sides[0]
-        consts = dict(side.constants)
-        law = parse_law(side.law, ("phi", *consts), f"{key}.law")
-        if spring_c(spring_derivatives(law, consts)) != 0.0:
-            return (f"{_where(model)}: {key}.law = {side.law!r} is not linear in phi "
+        if not side.law.spring.linear:
+            return (f"{_where(model)}: {key}.law = {side.text!r} is not linear in phi "
                     "(needs k*phi)")
     return _motor_dynamics(model)
 
@@ -229,11 +226,7 @@ def _partly_actuated(model) -> str | None:
             return (f"{_where(model)}: {key}.drive = {a.drive!r} (joint "
                     f"{model.links[a.joint].name}; needs a direct torque or a spring "
                     "drive with motors)")
-        slope = 0.0
-        for side in a.sides:
-            consts = dict(side.constants)
-            law = parse_law(side.law, ("phi", *consts), f"{key}.{side.name or 'law'}")
-            slope += float(spring_derivatives(law, consts)(0.0)[1])
+        slope = sum(side.law.spring.slope0 for side in a.sides)
         if not slope > 0:
             return (f"{_where(model)}: {key} (joint {model.links[a.joint].name}): spring "
                     f"slope at phi = 0 is {slope:g} (needs > 0 to reach any torque)")
@@ -321,6 +314,10 @@ class Capability:
     doc: str
     needs: tuple[Condition, ...]
     build: Callable[[Context], Part]
+    #: Whether the capability models the declared actuators (their laws, motors or
+    #: pressures); a model whose non-torque actuators no granted capability models is
+    #: warned about (:class:`Decision`).
+    uses_actuators: bool = False
 
     def why_not(self, model) -> str | None:
         """None if every condition holds, else the first failed condition's reason."""
@@ -337,8 +334,10 @@ class Registry:
     def __init__(self):
         self._caps: dict[str, Capability] = {}
 
-    def capability(self, name: str, *, layer: str, needs: tuple[Condition, ...], doc: str):
-        """Decorator registering ``build(ctx) -> Part`` under ``name``."""
+    def capability(self, name: str, *, layer: str, needs: tuple[Condition, ...], doc: str,
+                   uses_actuators: bool = False):
+        """Decorator registering ``build(ctx) -> Part`` under ``name`` (``uses_actuators``:
+        see :attr:`Capability.uses_actuators`)."""
         if layer not in LAYERS:
             raise ValueError(f"capability {name}: layer: expected one of {', '.join(LAYERS)}, "
                              f"got {layer!r}")
@@ -346,7 +345,8 @@ class Registry:
         def register(build: Callable[[Context], Part]):
             if name in self._caps:
                 raise ValueError(f"capability {name!r} registered twice")
-            self._caps[name] = Capability(name, layer, doc, tuple(needs), build)
+            self._caps[name] = Capability(name, layer, doc, tuple(needs), build,
+                                          uses_actuators)
             return build
         return register
 
@@ -369,6 +369,88 @@ class Registry:
 
 #: The one registry; :mod:`softgen.bundles.rigid` and :mod:`softgen.bundles.soft` fill it.
 REGISTRY = Registry()
+
+
+# --------------------------------------------------------------------------- the decision
+
+@dataclass(frozen=True)
+class Decision:
+    """What a model gets, decided once from its laws' properties (issue 31).
+
+    ``results`` holds every registered capability with None (granted) or why not, in
+    registration order; ``warnings`` what a user should know although nothing is refused
+    (a declared actuator that no granted capability models). ``info``, ``generate``,
+    ``export``, ``bench``, ``check`` and the experiments all read this one object
+    (:func:`decide`), so they cannot disagree.
+    """
+
+    model: str
+    results: tuple[tuple[Capability, str | None], ...]
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def granted(self) -> list[Capability]:
+        return [c for c, why in self.results if why is None]
+
+    @property
+    def granted_names(self) -> list[str]:
+        return [c.name for c in self.granted]
+
+    def why_not(self, name: str) -> str | None:
+        """None if the model gets capability ``name``, else why not."""
+        for c, why in self.results:
+            if c.name == name:
+                return why
+        raise KeyError(f"no capability {name!r} (registered: "
+                       f"{', '.join(c.name for c, _ in self.results)})")
+
+    def gets(self, name: str) -> bool:
+        return self.why_not(name) is None
+
+    def manifest(self) -> dict:
+        """The manifest's record of the decision: granted names (``capabilities``, as
+        before), the refused ones with their reasons, and the warnings."""
+        return {"capabilities": self.granted_names,
+                "capabilities_refused": {c.name: why for c, why in self.results
+                                         if why is not None},
+                "warnings": list(self.warnings)}
+
+
+def _unused_actuators(model, results) -> tuple[str, ...]:
+    """Warnings for declared actuators (other than direct torques) that no granted
+    capability models: their laws are in the file, but nothing generated uses them."""
+    acts = [a for a in _acts(model) if a.drive != "torque"]
+    if not acts or any(c.uses_actuators and why is None for c, why in results):
+        return ()
+    reason = next((why for c, why in results if c.uses_actuators and why is not None
+                   and c.layer == "control"), None)
+    names = ", ".join(f"{model.links[a.joint].name} ({a.type}"
+                      f"{', ' + a.drive if a.type == 'antagonistic' else ''})" for a in acts)
+    return (f"{_where(model)}: actuators of joints {names} are declared but no capability "
+            "models them: the bundle holds the rigid dynamics only"
+            + (f" (first reason: {reason})" if reason else ""),)
+
+
+_DECISION_ATTR = "_softgen_decision"
+
+
+def decide(model) -> Decision:
+    """The capability decision for ``model`` over the capabilities registered so far, made
+    once per model object (the conditions read the laws' properties judged at load;
+    nothing is parsed again). Callers use :func:`softgen.bundles.bundle.decide`, which
+    imports every builder module first so that the registry is complete."""
+    cached = getattr(model, _DECISION_ATTR, None)
+    if isinstance(cached, Decision) and len(cached.results) == len(REGISTRY.names()):
+        return cached
+    results = tuple(REGISTRY.evaluate(model))
+    d = Decision(model.name, results, _unused_actuators(model, results))
+    try:
+        # Frozen dataclasses: the decision is a function of the model's content, kept on
+        # the object (dataclasses.replace makes a new model, which decides anew).
+        object.__setattr__(model, _DECISION_ATTR, d)
+    except (AttributeError, TypeError):
+        pass
+    return d
 
 
 def merge(into: dict, extra: dict, where: str = "") -> dict:

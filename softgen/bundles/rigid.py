@@ -101,7 +101,7 @@ def slotine_li(ctx: Context) -> Part:
     return Part(fns, {"closed_loops": {"slotine_li": diagram_manifest(d, steps)}})
 
 
-@REGISTRY.capability("mckibben_actuators", layer="symbolic", needs=(RIGID, MCKIBBEN),
+@REGISTRY.capability("mckibben_actuators", layer="symbolic", uses_actuators=True, needs=(RIGID, MCKIBBEN),
                      doc="McKibben pairs (Phi, Phi_q, sigma) and the pneumatic robot "
                          "(eq. 2.5), ideal and with first-order valves (sec. 10.4)")
 def mckibben_actuators(ctx: Context) -> Part:
@@ -116,7 +116,7 @@ def mckibben_actuators(ctx: Context) -> Part:
     return Part(fns, {"actuator": "mckibben", "estimators": {}})
 
 
-@REGISTRY.capability("pneumatic_control", layer="control", needs=(RIGID, MCKIBBEN),
+@REGISTRY.capability("pneumatic_control", layer="control", uses_actuators=True, needs=(RIGID, MCKIBBEN),
                      doc="chapter-10 controllers: Prop. 11, open-loop stiffness, "
                          "Theorem 5, Corollary 2")
 def pneumatic_control(ctx: Context) -> Part:
@@ -131,12 +131,11 @@ def pneumatic_control(ctx: Context) -> Part:
         "state_layout": states,
         "Pi_names": arm.parameter_names,
         "Pi_nominal": [float(v) for v in arm.Pi_nominal],
-        "K1": arm.K1,
         "pressure_unit": "Pa",
     }})
 
 
-@REGISTRY.capability("theorem5_loop", layer="control", needs=(RIGID, MCKIBBEN),
+@REGISTRY.capability("theorem5_loop", layer="control", uses_actuators=True, needs=(RIGID, MCKIBBEN),
                      doc="Theorem 5 on the McKibben arm (ideal pressures, clipped to "
                          "[0, p_max]) as a closed-loop diagram")
 def theorem5_loop(ctx: Context) -> Part:
@@ -152,7 +151,7 @@ def theorem5_loop(ctx: Context) -> Part:
                 {"closed_loops": {"theorem5": diagram_manifest(d, steps)}})
 
 
-@REGISTRY.capability("feedback_linearization", layer="control", needs=(RIGID, MCKIBBEN),
+@REGISTRY.capability("feedback_linearization", layer="control", uses_actuators=True, needs=(RIGID, MCKIBBEN),
                      doc="feedback linearisation of the pneumatic robot with valves "
                          "(sec. 10.4)")
 def feedback_linearization(ctx: Context) -> Part:
@@ -170,7 +169,7 @@ def feedback_linearization(ctx: Context) -> Part:
     }}})
 
 
-@REGISTRY.capability("qbmove_actuators", layer="symbolic", needs=(RIGID, QBMOVE),
+@REGISTRY.capability("qbmove_actuators", layer="symbolic", uses_actuators=True, needs=(RIGID, QBMOVE),
                      doc="qbmove sinh springs (tau_e, sigma, inverse) and the electric VSA "
                          "robot (eq. 2.6)")
 def qbmove_actuators(ctx: Context) -> Part:
@@ -182,7 +181,7 @@ def qbmove_actuators(ctx: Context) -> Part:
     return Part(fns, {"actuator": "qbmove", "estimators": {}})
 
 
-@REGISTRY.capability("electric_cascade", layer="control",
+@REGISTRY.capability("electric_cascade", layer="control", uses_actuators=True,
                      needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
                      doc="chapter-11 cascades (Theorems 6-9, Remarks 10-11): motor-level "
                          "inner loop under a link-level outer loop")
@@ -203,7 +202,7 @@ def _cycled(values, n: int) -> list[float]:
     return [float(values[i % len(values)]) for i in range(n)]
 
 
-@REGISTRY.capability("sea_cascade", layer="control", needs=(RIGID, LINEAR_SEA),
+@REGISTRY.capability("sea_cascade", layer="control", uses_actuators=True, needs=(RIGID, LINEAR_SEA),
                      doc="PD cascade for linear series-elastic joints (Theorems 6-7 with "
                          "c = 0): the controller step, the SEA plant, and their closed loop "
                          "as a diagram")
@@ -246,9 +245,10 @@ PARTIAL_TRACKING_GAINS = dict(kp=100.0, kd=20.0, kp_m=4.0e4, kd_m=400.0)
 PARTIAL_REFERENCE = ((0.5, 0.3, -0.3), (0.4, 0.25, 0.2))      # amplitude rad, Hz, offset rad
 
 
-def partial_tracking_gains(arm: PartialArm) -> dict:
-    """:data:`PARTIAL_TRACKING_GAINS` as the tracking controller's gain vectors."""
-    g, na = PARTIAL_TRACKING_GAINS, len(arm.actuated)
+def partial_tracking_gains(arm: PartialArm, gains: dict | None = None) -> dict:
+    """``gains`` (default :data:`PARTIAL_TRACKING_GAINS`) as the tracking controller's gain
+    vectors."""
+    g, na = gains or PARTIAL_TRACKING_GAINS, len(arm.actuated)
     return {"kp": [g["kp"]] * na, "kd": [g["kd"]] * na, "kp_m": [g["kp_m"]] * arm.nm,
             "kd_m": [g["kd_m"]] * arm.nm}
 
@@ -276,7 +276,7 @@ def partial_setpoints(arm: PartialArm) -> list[list[float]]:
     return [[rows[i][k] for i in range(na)] for k in range(len(PARTIAL_TIMES))]
 
 
-@REGISTRY.capability("partial_collocated", layer="control", needs=(RIGID, PARTLY_ACTUATED),
+@REGISTRY.capability("partial_collocated", layer="control", uses_actuators=True, needs=(RIGID, PARTLY_ACTUATED),
                      doc="collocated set-point control of a partly actuated arm (actuated "
                          "joints regulated, passive joints settle at the model's "
                          "equilibrium): the controller step, the plant, and their closed "
@@ -333,16 +333,16 @@ def _pneumatic_uio(model) -> str | None:
 PNEUMATIC_UIO = Condition("a delayed UIO exists for the joint-torque observer on q (Props. 7-9, "
                           "eq. 5.3, delay 2)", _pneumatic_uio)
 
-REGISTRY.capability("pneumatic_stiffness_estimator", layer="estimation",
+REGISTRY.capability("pneumatic_stiffness_estimator", layer="estimation", uses_actuators=True,
                     needs=(RIGID, MCKIBBEN, PNEUMATIC_UIO),
                     doc="invasive stiffness estimator of McKibben joints (sec. 6.1, Theorem "
                         "1, extended to n joints where the UIO conditions hold)"
                     )(_estimator("pneumatic"))
-REGISTRY.capability("electric_stiffness_estimator", layer="estimation",
+REGISTRY.capability("electric_stiffness_estimator", layer="estimation", uses_actuators=True,
                     needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
                     doc="invasive stiffness estimator of qbmove joints (sec. 6.2)"
                     )(_estimator("electric"))
-REGISTRY.capability("noninvasive_stiffness_estimator", layer="estimation",
+REGISTRY.capability("noninvasive_stiffness_estimator", layer="estimation", uses_actuators=True,
                     needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
                     doc="non-invasive stiffness estimator of qbmove joints (ch. 7)"
                     )(_estimator("noninvasive"))
