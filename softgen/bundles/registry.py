@@ -318,6 +318,9 @@ class Capability:
     #: pressures); a model whose non-torque actuators no granted capability models is
     #: warned about (:class:`Decision`).
     uses_actuators: bool = False
+    #: The drive of the actuators it models ("spring", "pressure"; "" any): which
+    #: capability's reason a warning about unused actuators quotes.
+    drive: str = ""
 
     def why_not(self, model) -> str | None:
         """None if every condition holds, else the first failed condition's reason."""
@@ -335,9 +338,9 @@ class Registry:
         self._caps: dict[str, Capability] = {}
 
     def capability(self, name: str, *, layer: str, needs: tuple[Condition, ...], doc: str,
-                   uses_actuators: bool = False):
-        """Decorator registering ``build(ctx) -> Part`` under ``name`` (``uses_actuators``:
-        see :attr:`Capability.uses_actuators`)."""
+                   uses_actuators: bool = False, drive: str = ""):
+        """Decorator registering ``build(ctx) -> Part`` under ``name`` (``uses_actuators``,
+        ``drive``: see :class:`Capability`)."""
         if layer not in LAYERS:
             raise ValueError(f"capability {name}: layer: expected one of {', '.join(LAYERS)}, "
                              f"got {layer!r}")
@@ -346,7 +349,7 @@ class Registry:
             if name in self._caps:
                 raise ValueError(f"capability {name!r} registered twice")
             self._caps[name] = Capability(name, layer, doc, tuple(needs), build,
-                                          uses_actuators)
+                                          uses_actuators, drive)
             return build
         return register
 
@@ -422,8 +425,9 @@ def _unused_actuators(model, results) -> tuple[str, ...]:
     acts = [a for a in _acts(model) if a.drive != "torque"]
     if not acts or any(c.uses_actuators and why is None for c, why in results):
         return ()
+    drives = {a.drive for a in acts}
     reason = next((why for c, why in results if c.uses_actuators and why is not None
-                   and c.layer == "control"), None)
+                   and c.layer == "control" and c.drive in drives), None)
     names = ", ".join(f"{model.links[a.joint].name} ({a.type}"
                       f"{', ' + a.drive if a.type == 'antagonistic' else ''})" for a in acts)
     return (f"{_where(model)}: actuators of joints {names} are declared but no capability "

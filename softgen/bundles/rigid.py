@@ -101,7 +101,8 @@ def slotine_li(ctx: Context) -> Part:
     return Part(fns, {"closed_loops": {"slotine_li": diagram_manifest(d, steps)}})
 
 
-@REGISTRY.capability("mckibben_actuators", layer="symbolic", uses_actuators=True, needs=(RIGID, MCKIBBEN),
+@REGISTRY.capability("mckibben_actuators", layer="symbolic",
+                     uses_actuators=True, drive="pressure", needs=(RIGID, MCKIBBEN),
                      doc="McKibben pairs (Phi, Phi_q, sigma) and the pneumatic robot "
                          "(eq. 2.5), ideal and with first-order valves (sec. 10.4)")
 def mckibben_actuators(ctx: Context) -> Part:
@@ -116,7 +117,8 @@ def mckibben_actuators(ctx: Context) -> Part:
     return Part(fns, {"actuator": "mckibben", "estimators": {}})
 
 
-@REGISTRY.capability("pneumatic_control", layer="control", uses_actuators=True, needs=(RIGID, MCKIBBEN),
+@REGISTRY.capability("pneumatic_control", layer="control",
+                     uses_actuators=True, drive="pressure", needs=(RIGID, MCKIBBEN),
                      doc="chapter-10 controllers: Prop. 11, open-loop stiffness, "
                          "Theorem 5, Corollary 2")
 def pneumatic_control(ctx: Context) -> Part:
@@ -135,7 +137,8 @@ def pneumatic_control(ctx: Context) -> Part:
     }})
 
 
-@REGISTRY.capability("theorem5_loop", layer="control", uses_actuators=True, needs=(RIGID, MCKIBBEN),
+@REGISTRY.capability("theorem5_loop", layer="control",
+                     uses_actuators=True, drive="pressure", needs=(RIGID, MCKIBBEN),
                      doc="Theorem 5 on the McKibben arm (ideal pressures, clipped to "
                          "[0, p_max]) as a closed-loop diagram")
 def theorem5_loop(ctx: Context) -> Part:
@@ -151,7 +154,8 @@ def theorem5_loop(ctx: Context) -> Part:
                 {"closed_loops": {"theorem5": diagram_manifest(d, steps)}})
 
 
-@REGISTRY.capability("feedback_linearization", layer="control", uses_actuators=True, needs=(RIGID, MCKIBBEN),
+@REGISTRY.capability("feedback_linearization", layer="control",
+                     uses_actuators=True, drive="pressure", needs=(RIGID, MCKIBBEN),
                      doc="feedback linearisation of the pneumatic robot with valves "
                          "(sec. 10.4)")
 def feedback_linearization(ctx: Context) -> Part:
@@ -169,7 +173,8 @@ def feedback_linearization(ctx: Context) -> Part:
     }}})
 
 
-@REGISTRY.capability("qbmove_actuators", layer="symbolic", uses_actuators=True, needs=(RIGID, QBMOVE),
+@REGISTRY.capability("qbmove_actuators", layer="symbolic",
+                     uses_actuators=True, drive="spring", needs=(RIGID, QBMOVE),
                      doc="qbmove sinh springs (tau_e, sigma, inverse) and the electric VSA "
                          "robot (eq. 2.6)")
 def qbmove_actuators(ctx: Context) -> Part:
@@ -181,7 +186,7 @@ def qbmove_actuators(ctx: Context) -> Part:
     return Part(fns, {"actuator": "qbmove", "estimators": {}})
 
 
-@REGISTRY.capability("electric_cascade", layer="control", uses_actuators=True,
+@REGISTRY.capability("electric_cascade", layer="control", uses_actuators=True, drive="spring",
                      needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
                      doc="chapter-11 cascades (Theorems 6-9, Remarks 10-11): motor-level "
                          "inner loop under a link-level outer loop")
@@ -202,7 +207,8 @@ def _cycled(values, n: int) -> list[float]:
     return [float(values[i % len(values)]) for i in range(n)]
 
 
-@REGISTRY.capability("sea_cascade", layer="control", uses_actuators=True, needs=(RIGID, LINEAR_SEA),
+@REGISTRY.capability("sea_cascade", layer="control",
+                     uses_actuators=True, drive="spring", needs=(RIGID, LINEAR_SEA),
                      doc="PD cascade for linear series-elastic joints (Theorems 6-7 with "
                          "c = 0): the controller step, the SEA plant, and their closed loop "
                          "as a diagram")
@@ -276,7 +282,8 @@ def partial_setpoints(arm: PartialArm) -> list[list[float]]:
     return [[rows[i][k] for i in range(na)] for k in range(len(PARTIAL_TIMES))]
 
 
-@REGISTRY.capability("partial_collocated", layer="control", uses_actuators=True, needs=(RIGID, PARTLY_ACTUATED),
+@REGISTRY.capability("partial_collocated", layer="control",
+                     uses_actuators=True, needs=(RIGID, PARTLY_ACTUATED),
                      doc="collocated set-point control of a partly actuated arm (actuated "
                          "joints regulated, passive joints settle at the model's "
                          "equilibrium): the controller step, the plant, and their closed "
@@ -333,16 +340,19 @@ def _pneumatic_uio(model) -> str | None:
 PNEUMATIC_UIO = Condition("a delayed UIO exists for the joint-torque observer on q (Props. 7-9, "
                           "eq. 5.3, delay 2)", _pneumatic_uio)
 
-REGISTRY.capability("pneumatic_stiffness_estimator", layer="estimation", uses_actuators=True,
+REGISTRY.capability("pneumatic_stiffness_estimator", layer="estimation",
+                    uses_actuators=True, drive="pressure",
                     needs=(RIGID, MCKIBBEN, PNEUMATIC_UIO),
                     doc="invasive stiffness estimator of McKibben joints (sec. 6.1, Theorem "
                         "1, extended to n joints where the UIO conditions hold)"
                     )(_estimator("pneumatic"))
-REGISTRY.capability("electric_stiffness_estimator", layer="estimation", uses_actuators=True,
+REGISTRY.capability("electric_stiffness_estimator", layer="estimation",
+                    uses_actuators=True, drive="spring",
                     needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
                     doc="invasive stiffness estimator of qbmove joints (sec. 6.2)"
                     )(_estimator("electric"))
-REGISTRY.capability("noninvasive_stiffness_estimator", layer="estimation", uses_actuators=True,
+REGISTRY.capability("noninvasive_stiffness_estimator", layer="estimation",
+                    uses_actuators=True, drive="spring",
                     needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
                     doc="non-invasive stiffness estimator of qbmove joints (ch. 7)"
                     )(_estimator("noninvasive"))
