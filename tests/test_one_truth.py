@@ -184,3 +184,21 @@ def test_python_api_is_found():
     assert repr(b.regressor).startswith("<planar_2link_regressor(q[2], qd[2], qd_r[2], "
                                         "qdd_r[2]) -> (Y[2x5])")
     assert ".regressor: planar_2link_regressor(" in repr(b)
+
+
+def test_every_document_pointed_to_is_in_the_repository():
+    """The README and the docstrings point only to files the repository has (issue 31:
+    design notes outside it)."""
+    root = Path(__file__).parents[1]
+    texts = {root / "README.md": (root / "README.md").read_text()}
+    texts.update({p: p.read_text() for p in (root / "softgen").rglob("*.py")})
+    pattern = re.compile(r"(?<![\w/.])((?:docs|benchmarks)/[\w.-]+\.(?:md|py|sh)"
+                         r"|(?:\.\./)+shared/\S+|DESIGN\.md|NOTES\.md)")
+    missing = set()
+    for path, text in texts.items():
+        for ref in pattern.findall(text):
+            if ref in ("DESIGN.md", "NOTES.md") or ref.startswith(".."):
+                missing.add(f"{path.relative_to(root)}: {ref} (outside the repository)")
+            elif not (root / ref).exists():
+                missing.add(f"{path.relative_to(root)}: {ref}")
+    assert not missing, sorted(missing)

@@ -21,7 +21,8 @@ def check_model(model_ref, dt: float, kd: list[float], lam: list[float],
     # The model's one capability decision (what info lists): no Theorem 10, no check.
     why = decide(model).why_not("theorem10")
     if why is not None or not isinstance(model, SoftModel):
-        raise StabilityCheckError(f"check: the sampled Theorem 10 check does not apply: {why}")
+        raise StabilityCheckError(f"check: the sampled Theorem 10 check needs a soft body "
+                                  f"Theorem 10 applies to: {why}")
     for law in laws:
         if law not in LAWS:
             raise StabilityCheckError(f"--law: expected one of {', '.join(LAWS)}, got {law!r}")

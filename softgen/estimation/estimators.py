@@ -1,7 +1,7 @@
 """The three stiffness estimators of thesis Part II, each one generated step function.
 
 Every estimator is ``state_next, outputs = step(state, y_k)`` with an explicit
-sample time (DESIGN.md section 1): a delayed unknown-input observer (chapter 5)
+sample time (docs/design.md section 1): a delayed unknown-input observer (chapter 5)
 designed by :func:`~softgen.estimation.uio.design_uio` for a linear model whose
 unknown input collects every nonlinearity, a nonlinear correction derived from the
 symbolic robot model, and one RLS (eq. 5.5) per spring or joint.

@@ -1,4 +1,4 @@
-"""Registry of reproducible experiments, keyed by the ids of thesis/NOTES.md.
+"""Registry of reproducible experiments, keyed by the ids of docs/thesis-notes.md.
 
 An experiment is a module exposing ``EXPERIMENT``, an :class:`Experiment` whose
 ``run(config, out_dir)`` simulates, draws its figures into ``out_dir`` and returns

@@ -6,7 +6,7 @@ A model file is data: a serial chain of revolute or prismatic joints with the
 inertial and geometric values of each link, gravity, optional viscous damping and
 joint stiffness, and the list of parameters treated as uncertain. Loading checks
 everything before any symbolic work happens and raises one :class:`ModelError`
-naming the file and the key (DESIGN.md section 3, items 2 and 8).
+naming the file and the key (docs/design.md section 3, items 2 and 8).
 
 Two kinds of chain are accepted:
 

@@ -1,6 +1,6 @@
 """Load a generated bundle and call its functions with numpy arrays.
 
-The one loader module (DESIGN.md section 3 item 6). Each function gets
+The one loader module (docs/design.md section 3 item 6). Each function gets
 preallocated, column-major input and output buffers fixed once in CasADi's
 ``buffer()`` evaluator, so a call goes straight into the compiled library.
 Two ways to call:

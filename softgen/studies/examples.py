@@ -42,7 +42,7 @@ from softgen.bundles.bundle import decide, derivation
 from softgen.bundles.registry import Context
 from softgen.bundles.rigid import (PARTIAL_TRACKING_GAINS, SEA_GAINS, partial_reference,
                                    partial_tracking_gains)
-from softgen.control.electric import (cascade_block, electric_arm, initial_plant_state,
+from softgen.control.electric import (ElectricArm, cascade_block, initial_plant_state,
                                       plant_block as electric_plant_block)
 from softgen.control.feasibility import stiffness_range
 from softgen.control.partial import PartialArm
@@ -297,7 +297,8 @@ def motor_mode_step(model) -> float:
     each spring carries σ/2)."""
     b = min(float(np.min(model.resolve(a.get("motor_inertia"), model.nominal)))
             for a in model.actuators)
-    refs = model_references(electric_arm(model))
+    ctx = derivation(model)
+    refs = model_references(ElectricArm(model, dyn=ctx.dyn, springs=ctx.springs))
     sigma_max = max(s.offset + abs(s.amplitude) for s in refs.sigma)
     omega = math.sqrt(sigma_max / (2 * b))
     dt = DT
@@ -499,7 +500,7 @@ class ElectricPdConfig(Config):
 
 def _electric_pd(ctx: Context, c: ElectricPdConfig, steps: int) -> Example:
     model = ctx.model
-    arm = electric_arm(model)
+    arm = ElectricArm(model, dyn=ctx.dyn, springs=ctx.springs)
     n = arm.n
     dt = float(c.dt) if c.dt is not None else motor_mode_step(model)
     refs = model_references(arm, margin=c.stiffness_margin)
