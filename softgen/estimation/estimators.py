@@ -87,6 +87,15 @@ from softgen.estimation.lawterms import parity, pressure_terms, regressor_powers
 from softgen.estimation.rls import ExcitationGate, excitation_step, rls_step
 from softgen.estimation.uio import UIO, ExistenceCheck, design_uio, existence_conditions
 
+__all__ = ["DEFAULTS", "ESTIMATORS", "METHODS", "PRESSURE_SCALE", "ElectricInvasiveEstimator",
+           "EstimatorBase", "EstimatorConfig", "NoninvasiveEstimator",
+           "PneumaticInvasiveEstimator", "SpringSide", "StiffnessEstimator",
+           "electric_conditions", "estimator_problem", "motor_observer_system",
+           "noninvasive_conditions", "observer_conditions", "pneumatic_conditions",
+           "pneumatic_linear_part", "pneumatic_observer_system", "pressure_joints",
+           "pressure_law_terms", "rls_joint", "spring_powers", "spring_sides",
+           "triple_integrator"]
+
 METHODS = ("pneumatic", "electric", "noninvasive")
 
 #: Pressures (Pa in the measurements) are scaled to bar in the pneumatic regressor.
@@ -752,7 +761,7 @@ def pneumatic_conditions(model: RobotModel, config: EstimatorConfig | None = Non
     return existence_conditions(*pneumatic_observer_system(model, c, dyn), c.delay)
 
 
-def motor_observer_system(side: SpringSide, config: EstimatorConfig | None = None):
+def motor_observer_system(side: SpringSide):
     """Continuous (A_c, B_c, C, D) of Theorem 2's motor observer for one spring:
     X = (q_m, q̇_m), U = (τ^e, τ_m), Y = (q_m, τ_m) (eq. 6.4, Remark 2)."""
     b, d = side.inertia, side.damping
@@ -772,7 +781,7 @@ def electric_conditions(model: RobotModel, config: EstimatorConfig | None = None
     c = (config or EstimatorConfig("electric")).resolved()
     out = {}
     for s in spring_sides(model):
-        Ac, Bc, C, D = motor_observer_system(s, c)
+        Ac, Bc, C, D = motor_observer_system(s)
         A, B = discretize(Ac, Bc, c.dt, method=c.discretization)
         out[f"motor{s.joint + 1}{s.side}"] = existence_conditions(A, B, C, D, c.delay)
     return out
@@ -949,7 +958,7 @@ class ElectricInvasiveEstimator(EstimatorBase):
     def _observers(self) -> list[_Observer]:
         obs = []
         for s in self.springs:
-            Ac, Bc, C, D = motor_observer_system(s, self.config)
+            Ac, Bc, C, D = motor_observer_system(s)
             obs.append(self._design(Ac, Bc, C, D, f"motor{s.joint + 1}{s.side}",
                                     [self.index[s.position], self.index[s.torque]]))
         return obs

@@ -39,12 +39,12 @@ import math
 import casadi as ca
 import numpy as np
 
+__all__ = ["SAMPLES", "ZERO", "linear_in_p", "parity",
+           "polynomial_support", "pressure_terms", "regressor_powers", "taylor_coefficients"]
+
 #: Points (both signs) where parity and polynomial form are evaluated: deflections or
 #: joint angles in rad, from near 0 to the largest a joint reaches.
 SAMPLES = (0.013, 0.1, 0.3, 0.6, 0.9)
-
-#: Pressures [bar] where a pressure law's form in p is evaluated (regulators give 0-10 bar).
-PRESSURE_SAMPLES = (0.3, 1.0, 2.5, 4.0, 6.0)
 
 #: Relative size under which a Taylor coefficient or a residual counts as zero: far above
 #: the round-off of evaluating a law (1e-16 relative), far below any physical term.
@@ -146,9 +146,8 @@ def pressure_terms(law: ca.SX, q: ca.SX, pbar: ca.SX, *, q_degree: int, p_degree
     for k in range(p_degree + 1):
         cks.append(ca.substitute(d, pbar, 0.0) / math.factorial(k))
         d = ca.jacobian(d, pbar)
-    # Powers of p̄: those whose coefficient function is not zero on the q samples. When
-    # the law equals its expansion in p̄ on the samples, exactly those; otherwise every
-    # power up to p_degree whose coefficient is not zero.
+    # Powers of p̄: those up to p_degree whose coefficient function c_k(q) is not zero on
+    # the q samples (a law Φ(q) p gives exactly k = 1; structurally zero ones are 0.0).
     qs = [*SAMPLES, 0.0, *(-s for s in SAMPLES)]
     ck_fun = ca.Function("ck", [q], cks)
     C = np.array([[float(v) for v in ck_fun(qv)] for qv in qs])     # (samples, k)
