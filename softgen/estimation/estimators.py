@@ -120,16 +120,20 @@ class EstimatorConfig:
     Parameters
     ----------
     method
-        ``"pneumatic"``, ``"electric"`` or ``"noninvasive"``.
+        ``"pneumatic"`` (invasive, pressure-driven pairs, section 6.1), ``"electric"``
+        (invasive, spring drives with motors, section 6.2) or ``"noninvasive"`` (spring
+        drives, chapter 7); named after the thesis's sections, applied by law.
     dt
         Sample time T [s].
     delay
         Observer delay L (default: the thesis's, 2 invasive, 3 non-invasive).
     powers
-        Exponents j of the RLS regressor, the same for every law (see the module
-        docstring); default None: chosen per law from its properties
+        Exponents j of the RLS regressor, the same for every law (for a pressure law,
+        the powers of q beside each power of p̄; see the module docstring); default
+        None: chosen per law from its properties
         (:func:`~softgen.estimation.lawterms.regressor_powers`, degree
-        :data:`DEFAULTS`).
+        :data:`DEFAULTS`). An odd spring law refuses even powers in the electric
+        estimator (section 6.2.2).
     p0
         Initial RLS covariance: a scalar (times I) or one value per parameter.
     forgetting
