@@ -139,22 +139,32 @@ def test_theorem5_example_default_gains_are_section_10_2_in_physical_units():
     assert kd == pytest.approx(18.0 * K, rel=1e-15) and kpi == pytest.approx(35.0 * K, rel=1e-15)
 
 
-def test_generate_and_info_warn_about_declared_actuators_nothing_models(tmp_path, capsys):
-    """A declared actuator that no granted capability models is a warning at generate
-    and at info (issue 31: generate dropped it silently)."""
+def test_unused_declared_actuators_are_a_warning_of_the_decision():
+    """A declared actuator (not a direct torque) that no granted capability models is a
+    warning of the decision (issue 31: generate dropped it silently); with one granted,
+    none. Decided on the registry's results, so checked on them directly."""
+    from softgen.bundles.registry import _unused_actuators
+    m = load_model(DATA / "arm2_cubic_motors.toml")
+    results = decide(m).results
+    assert _unused_actuators(m, results) == ()          # the estimators model them
+    without = tuple((c, why if not c.uses_actuators else "refused here")
+                    for c, why in results)
+    (w,) = _unused_actuators(m, without)
+    assert "actuators of joints l1 (antagonistic, spring), l2" in w and "refused here" in w
+
+
+def test_generate_and_info_print_the_decisions_warnings(tmp_path, capsys, monkeypatch):
+    """What the decision warns about, generate and info print on stderr (info also with
+    --json, whose stdout stays JSON and carries them)."""
+    import softgen.bundles.registry as reg
+    monkeypatch.setattr(reg, "_unused_actuators", lambda model, results: ("WARN-31",))
     model = tmp_path / "arm.toml"
-    text = (DATA / "arm2_cubic_pairs.toml").read_text()
-    # laws no capability models: not invertible (τ'(0) = 0)
-    model.write_text(text.replace("k*phi + k3*phi**3", "k3*phi**3").replace("k = 2.0\n", ""))
-    m = load_model(model)
-    if not decide(m).warnings:
-        pytest.skip("a capability models these laws now")
+    model.write_text((DATA / "arm2_cubic_motors.toml").read_text())
     assert main(["generate", str(model), "--out", str(tmp_path / "gen"), "--no-build"]) == 0
-    err = capsys.readouterr().err
-    assert "warning" in err and "no capability models them" in err
+    assert "softgen: warning: WARN-31" in capsys.readouterr().err
     assert main(["info", str(model), "--json"]) == 0
     cap = capsys.readouterr()
-    assert json.loads(cap.out)["warnings"] and "no capability models them" in cap.err
+    assert json.loads(cap.out)["warnings"] == ["WARN-31"] and "WARN-31" in cap.err
 
 
 def test_experiments_read_the_decision():

@@ -12,7 +12,7 @@ from softgen.blocks import ClosedLoop
 from softgen.bundles.common import PLANT_SUBSTEPS
 from softgen.bundles.registry import (FULLY_TORQUE_ACTUATED, HAS_REGRESSOR, LINEAR_SEA,
                                       MOTOR_DYNAMICS, PARTLY_ACTUATED, PRESSURE_PAIRS, REGISTRY,
-                                      RIGID, SINH_SPRING_PAIRS, Condition, Context, Part,
+                                      RIGID, SINH_SPRING_PAIRS, Context, Part,
                                       diagram_functions, diagram_manifest)
 from softgen.codegen.generate import Generated
 from softgen.control.electric import bundle_functions as cascade_functions
@@ -28,8 +28,6 @@ from softgen.control.sea import SeaArm
 from softgen.control.sea import closed_loop as sea_closed_loop
 from softgen.control.slotine_li import controller_block, controller_fun, plant_block, \
     plant_step_fun
-from softgen.estimation.estimators import EstimatorConfig, StiffnessEstimator, \
-    pneumatic_conditions
 from softgen.symbolic.actuated import electric_plant_fun, pneumatic_plant_fun, valve_plant_fun
 
 MCKIBBEN = PRESSURE_PAIRS     # the builders need the laws' property, not a type name
@@ -308,51 +306,6 @@ def partial_collocated(ctx: Context) -> Part:
     return Part(fns, {"closed_loops": {"partial_collocated": diagram_manifest(d, steps)}})
 
 
-def _estimator(method: str):
-    def build(ctx: Context) -> Part:
-        e = StiffnessEstimator(ctx.model, EstimatorConfig(method))
-        c = e.config
-        f = e.step_fun()
-        return Part([Generated(f, f"{c.method} stiffness estimator step, T = {c.dt} s, "
-                                  f"delay {c.delay}: (state, y_k) -> estimates for sample k - "
-                                  f"{c.delay} (chapters 6-7)")],
-                    {"estimators": {f.name(): e.describe()}})
-    return build
-
-
-def _pneumatic_uio(model) -> str | None:
-    """The n-joint pneumatic observer exists: Props. 7-9 (eq. 5.3) at the thesis delay.
-
-    Theorem 1 is proved for one link; for n McKibben joints with every joint angle
-    measured the observer's system (X = (q, q̇), u the joint torques) has CB = 0 and
-    CAB = T² M₀⁻¹ of full rank, so the conditions hold whenever B(0) is invertible —
-    but they are evaluated on the model, not assumed (each rank is in ``softgen info``
-    via :func:`~softgen.estimation.estimators.pneumatic_conditions`).
-    """
-    failed = next((c for c in pneumatic_conditions(model) if c.holds is False), None)
-    if failed is None:
-        return None
-    where = str(model.path) if getattr(model, "path", None) is not None else model.name
-    return f"{where}: no delayed UIO for the {model.dof}-joint pneumatic observer: " \
-           f"{failed.line()}"
-
-
-PNEUMATIC_UIO = Condition("a delayed UIO exists for the joint-torque observer on q (Props. 7-9, "
-                          "eq. 5.3, delay 2)", _pneumatic_uio)
-
-REGISTRY.capability("pneumatic_stiffness_estimator", layer="estimation",
-                    uses_actuators=True, drive="pressure",
-                    needs=(RIGID, MCKIBBEN, PNEUMATIC_UIO),
-                    doc="invasive stiffness estimator of McKibben joints (sec. 6.1, Theorem "
-                        "1, extended to n joints where the UIO conditions hold)"
-                    )(_estimator("pneumatic"))
-REGISTRY.capability("electric_stiffness_estimator", layer="estimation",
-                    uses_actuators=True, drive="spring",
-                    needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
-                    doc="invasive stiffness estimator of qbmove joints (sec. 6.2)"
-                    )(_estimator("electric"))
-REGISTRY.capability("noninvasive_stiffness_estimator", layer="estimation",
-                    uses_actuators=True, drive="spring",
-                    needs=(RIGID, QBMOVE, MOTOR_DYNAMICS),
-                    doc="non-invasive stiffness estimator of qbmove joints (ch. 7)"
-                    )(_estimator("noninvasive"))
+# The stiffness estimators (chapters 6-7, by law) register after the capabilities above,
+# so that a bundle lists its functions in the same order as before they moved.
+import softgen.bundles.estimators  # noqa: E402,F401
