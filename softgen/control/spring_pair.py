@@ -24,16 +24,26 @@ by :data:`NEWTON_STEPS` Newton steps on the declared laws (generated C, no loop)
 each step solves it regularised, (JᵀJ + μI)⁻¹Jᵀ r with μ = :data:`REGULARIZATION` ‖J‖²_F
 (equal to J⁻¹r to a relative 1e-24 cond(J)², finite where J is singular), and clamps the
 deflections into the laws' monotone intervals (:func:`~softgen.symbolic.spring_laws.
-monotone_interval`). The start is the better, by residual, of
+monotone_interval`). Newton runs from two starts and the result with the smaller residual
+is taken (a start at a singular point, such as φ = 0 for odd stiffening laws, is thus
+harmless; a result on the controller's branch wins over one off it, see below):
 
 - the previous sample's solution (a controller state): the solution moves by O(dt) per
   sample along a smooth reference, so Newton converges quadratically from it for any law
   whose J is nonsingular along the way (measured: residuals at rounding after
   :data:`NEWTON_STEPS` steps on every test law, tests/test_spring_pair.py);
-- the closed form of the pair's nearest law with τ'' = cτ (c and k fitted on the laws,
-  :func:`~softgen.symbolic.spring_laws.rate_fit`): for k sinh(aφ) (c = a² > 0) it is
-  eq. 11.3's inversion, exact, so the qbmove references are the closed form to rounding
-  (:meth:`QbmoveSprings.preset`); k sin(ωφ) for c < 0; the branch φ_a ≥ φ_b, as preset's.
+- for laws with τ'' = cτ exactly (:func:`softgen.modelfile.expr.spring_c`; k sinh(aφ),
+  c = a² > 0, or k sin(ωφ), c = −ω²), the closed form of the pair (c and k the sides'
+  means, as :meth:`QbmoveSprings.preset`): for k sinh(aφ) it is eq. 11.3's inversion,
+  exact for equal springs, so the qbmove references are the closed form to rounding;
+- for any other law, a start found by bisection: the torque split s = T/σ_d and the
+  co-contraction d ≥ 0 with τ_a'(s + d) + τ_b'(s − d) = σ_d by :data:`BISECTION_STEPS`
+  halvings of [0, d_max] (the stiffness moves one way with d on the controller's branch),
+  then s corrected by one Newton step on the torque. (A closed form of a fitted τ'' = cτ
+  law, :func:`~softgen.symbolic.spring_laws.rate_fit`, was tried first: on tanh springs
+  it overshot the co-contraction twofold and Newton crossed to the mirrored branch.)
+
+Both starts lie on the branch φ_a ≥ φ_b of equal springs, preset's.
 
 A pair of linear laws (τ'' ≡ 0 on both sides) has J singular everywhere: its stiffness
 is the constant τ_a'(0) + τ_b'(0) and only the position is controlled; both springs take
@@ -89,6 +99,15 @@ from softgen.symbolic.spring_laws import (SpringSide, extremum_index, pair_contr
 #: (cubic, sinh, tan, tanh, asymmetric pairs; tests/test_spring_pair.py).
 NEWTON_STEPS = 3
 
+#: Halvings of the co-contraction interval of the bisection start (its width / 65536:
+#: 2.4e-5 rad for a quarter turn, well inside Newton's basin).
+BISECTION_STEPS = 16
+
+#: Newton steps of the stand-alone deflection solve (:meth:`SpringPairArm.deflections_fun`),
+#: which a caller may start cold (phi_prev = 0): from the fitted closed form, eight steps
+#: reach rounding on the tested laws over their ranges (tests/test_spring_pair.py).
+COLD_STEPS = 8
+
 #: μ/‖J‖²_F of the regularised Newton solve (module docstring).
 REGULARIZATION = 1e-24
 
@@ -117,9 +136,15 @@ class JointPair:
     stiffening: bool
 
     @property
-    def fit(self) -> tuple[float, float]:
-        """(c, k) of the closed-form start: the mean of the sides' fits."""
-        return (0.5 * (self.a.fit[0] + self.b.fit[0]), 0.5 * (self.a.fit[1] + self.b.fit[1]))
+    def closed_form(self) -> tuple[float, float] | None:
+        """(c, k) of the closed-form start when both laws are τ'' = cτ exactly with c ≠ 0
+        (the means of the sides', k = τ'(0)/√|c|), else None."""
+        ca_, cb = self.a.rate, self.b.rate
+        if ca_ is None or cb is None or ca_ == 0 or cb == 0 or (ca_ > 0) != (cb > 0):
+            return None
+        c = 0.5 * (ca_ + cb)
+        k = 0.5 * (self.a.slope0 / np.sqrt(abs(ca_)) + self.b.slope0 / np.sqrt(abs(cb)))
+        return c, float(k)
 
     @property
     def constant_stiffness(self) -> float:
@@ -216,12 +241,15 @@ class SpringPairArm:
         return ca.fmin(ca.fmax(phi, side.interval[0]), side.interval[1])
 
     def _guess(self, p: JointPair, T, S):
-        """Closed-form start (φ_a, φ_b) from the pair's fitted τ'' = cτ law (module
-        docstring); the branch φ_a ≥ φ_b. Finite at any input."""
+        """Start (φ_a, φ_b) of Newton besides the previous sample's (module docstring):
+        the closed form for τ'' = cτ laws, else the bisection start; the branch φ_a ≥ φ_b.
+        Finite at any input."""
         if not p.stiffness:
             phi = T / p.constant_stiffness
             return phi, phi
-        c, k = p.fit
+        if p.closed_form is None:
+            return self._bisection_guess(p, T, S)
+        c, k = p.closed_form
         tiny = 1e-300
         if c > 0:
             w = float(np.sqrt(c))
@@ -238,6 +266,23 @@ class SpringPairArm:
             plus, minus = 2 * T / ca.fmax(S, tiny), ca.SX(0)
         return (plus + minus) / 2, (plus - minus) / 2
 
+    def _bisection_guess(self, p: JointPair, T, S):
+        """s = T/σ_d, d by bisection of τ_a'(s + d) + τ_b'(s − d) = σ_d on [0, d_max]
+        (d_max keeps both deflections in their intervals), then s ← s − r/σ with the
+        torque residual r (module docstring)."""
+        (alo, ahi), (blo, bhi) = p.a.interval, p.b.interval
+        s = ca.fmin(ca.fmax(T / ca.fmax(S, 1e-300), max(alo, blo)), min(ahi, bhi))
+        lo, hi = ca.SX(0), ca.fmax(ca.fmin(ahi - s, s - blo), 0)
+        for _ in range(BISECTION_STEPS):
+            mid = 0.5 * (lo + hi)
+            f = self._jet(p.a, s + mid)[1] + self._jet(p.b, s - mid)[1] - S
+            up = f > 0 if p.stiffening else f < 0          # past the root: d too large
+            lo, hi = ca.if_else(up, lo, mid), ca.if_else(up, mid, hi)
+        d = 0.5 * (lo + hi)
+        ja, jb = self._jet(p.a, s + d), self._jet(p.b, s - d)
+        s = s - (ja[0] + jb[0] - T) / (ja[1] + jb[1])
+        return s + d, s - d
+
     def _residual(self, p: JointPair, xa, xb, T, S):
         ja, jb = self._jet(p.a, xa), self._jet(p.b, xb)
         r2 = ja[1] + jb[1] - S if p.stiffness else ca.SX(0)
@@ -253,10 +298,11 @@ class SpringPairArm:
         da, db, _ = _regularized_solve2(ja[1], jb[1], ja[2], jb[2], r1, r2)
         return self._clamp(p.a, xa - da), self._clamp(p.b, xb - db)
 
-    def deflections(self, T, S, phi_prev):
+    def deflections(self, T, S, phi_prev, steps: int = NEWTON_STEPS):
         """(φ, torque residual, stiffness residual, det J) per joint at the wanted spring
         torques T (n) and stiffnesses S (n); φ (2n, in the order of the actuator
-        variables), started from the better of ``phi_prev`` and the closed form."""
+        variables), ``steps`` Newton steps from the better of ``phi_prev`` and the closed
+        form."""
         phi = [ca.SX(0)] * self.m
         res_t, res_s, dets = [], [], []
         for p in self.pairs:
@@ -266,12 +312,22 @@ class SpringPairArm:
             pa, pb = self._clamp(p.a, phi_prev[p.ia]), self._clamp(p.b, phi_prev[p.ib])
             if not p.stiffness:
                 pb = pa = 0.5 * (pa + pb)
-            r1g, r2g, _, _ = self._residual(p, ga, gb, T[j], S[j])
-            r1p, r2p, _, _ = self._residual(p, pa, pb, T[j], S[j])
+            for _ in range(steps):
+                ga, gb = self._newton(p, ga, gb, T[j], S[j])
+                pa, pb = self._newton(p, pa, pb, T[j], S[j])
+            r1g, r2g, jga, jgb = self._residual(p, ga, gb, T[j], S[j])
+            r1p, r2p, jpa, jpb = self._residual(p, pa, pb, T[j], S[j])
             better = (r1p * r1p + (PHI_SCALE * r2p) ** 2) < (r1g * r1g + (PHI_SCALE * r2g) ** 2)
+            if p.stiffness:
+                # The controller's branch: det J < 0 beyond the least stiffness of a
+                # stiffening pair, > 0 beyond the largest of a softening one (dσ/dφ_a =
+                # −det J/τ_b' along the torque constraint). A start on it wins over one
+                # off it; between two alike the smaller residual wins.
+                sgn = -1.0 if p.stiffening else 1.0
+                on_g = sgn * (jga[1] * jgb[2] - jgb[1] * jga[2]) > 0
+                on_p = sgn * (jpa[1] * jpb[2] - jpb[1] * jpa[2]) > 0
+                better = ca.if_else(on_p == on_g, better, on_p)
             xa, xb = ca.if_else(better, pa, ga), ca.if_else(better, pb, gb)
-            for _ in range(NEWTON_STEPS):
-                xa, xb = self._newton(p, xa, xb, T[j], S[j])
             r1, r2, ja, jb = self._residual(p, xa, xb, T[j], S[j])
             phi[p.ia], phi[p.ib] = xa, xb
             res_t.append(r1)
@@ -309,10 +365,11 @@ class SpringPairArm:
         """``<model>_spring_pair_deflections``: (tau n, sigma n, phi_prev 2n) -> (phi,
         tau_residual, sigma_residual, det): the springs' deflections giving total spring
         torques ``tau`` (τ_a + τ_b; the joint receives −tau) and stiffnesses ``sigma``,
-        warm-started from ``phi_prev`` (any finite values, or the previous call's phi)."""
+        :data:`COLD_STEPS` Newton steps from the better of ``phi_prev`` (the previous
+        call's phi; any values, NaN included) and the closed-form start."""
         n, m = self.n, self.m
         T, S, prev = ca.SX.sym("tau", n), ca.SX.sym("sigma", n), ca.SX.sym("phi_prev", m)
-        phi, rt, rs, det = self.deflections(T, S, prev)
+        phi, rt, rs, det = self.deflections(T, S, prev, COLD_STEPS)
         return ca.Function(f"{self.name}_spring_pair_deflections", [T, S, prev],
                            [phi, rt, rs, det], ["tau", "sigma", "phi_prev"],
                            ["phi", "tau_residual", "sigma_residual", "det"], FUNCTION_OPTS)

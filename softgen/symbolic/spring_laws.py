@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from softgen.modelfile.expr import Law
+from softgen.modelfile.expr import Law, spring_c, spring_derivatives
 
 #: Largest deflection (rad) a spring law is considered over. Laws are declared without a
 #: domain; a deflection beyond a quarter turn is not a spring's (and k sinh(aφ) with the
@@ -134,6 +134,9 @@ class SpringSide:
     slope0: float
     linear: bool
     fit: tuple[float, float]
+    #: c with τ'' = c τ exactly and τ(0) = 0 (:func:`softgen.modelfile.expr.spring_c`:
+    #: k sinh(aφ), k sin(ωφ), k φ), None for any other law.
+    rate: float | None = None
     #: Evaluators and the fine grid over the interval, filled on first use.
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
@@ -147,7 +150,8 @@ class SpringSide:
             raise ValueError(f"{where} = {law.text!r}: slope tau'(0) = {slope0:g}, needs a "
                              "law strictly increasing around phi = 0 (tau' > 0)")
         return cls(law, dict(constants), interval, slope0, is_linear(law, constants),
-                   rate_fit(law, constants, interval))
+                   rate_fit(law, constants, interval),
+                   spring_c(spring_derivatives(law, constants)))
 
     def jet(self) -> ca.Function:
         if "jet" not in self._cache:
