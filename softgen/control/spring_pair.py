@@ -220,15 +220,20 @@ class SpringPairArm:
         return [p.joint for p in self.pairs if p.stiffness]
 
     def describe(self) -> list[dict]:
-        """Per joint: the laws, their monotone intervals and slopes at rest, the mode."""
+        """Per joint: the laws, their monotone intervals and slopes at rest, the mode and
+        the stiffness range at zero spring torque (N m/rad, on the controller's branch,
+        deflections within the intervals; 6 significant digits, sampled)."""
         out = []
         for p in self.pairs:
+            lo, hi = self.stiffness_range(p.joint, 0.0)
             out.append({"joint": self.model.links[p.joint].name,
                         "laws": [p.a.law.text, p.b.law.text],
                         "intervals": [list(p.a.interval), list(p.b.interval)],
                         "slope0": [p.a.slope0, p.b.slope0],
-                        "mode": "position and stiffness" if p.stiffness else
-                        f"position only (constant stiffness {p.constant_stiffness:g} N m/rad)"})
+                        "mode": ("position and stiffness (stiffening)" if p.stiffening else
+                                 "position and stiffness (softening)") if p.stiffness else
+                        f"position only (constant stiffness {p.constant_stiffness:g} N m/rad)",
+                        "stiffness_range_at_rest": [float(f"{lo:.6g}"), float(f"{hi:.6g}")]})
         return out
 
     # -- the laws ---------------------------------------------------------------------
