@@ -104,8 +104,9 @@ NEWTON_STEPS = 3
 BISECTION_STEPS = 16
 
 #: Newton steps of the stand-alone deflection solve (:meth:`SpringPairArm.deflections_fun`),
-#: which a caller may start cold (phi_prev = 0): from the fitted closed form, eight steps
-#: reach rounding on the tested laws over their ranges (tests/test_spring_pair.py).
+#: which a caller may start cold (phi_prev = 0): from the closed-form or bisection start,
+#: eight steps reach rounding on the tested laws over their ranges
+#: (tests/test_spring_pair.py).
 COLD_STEPS = 8
 
 #: μ/‖J‖²_F of the regularised Newton solve (module docstring).
