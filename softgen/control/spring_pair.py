@@ -24,9 +24,10 @@ by :data:`NEWTON_STEPS` Newton steps on the declared laws (generated C, no loop)
 each step solves it regularised, (JᵀJ + μI)⁻¹Jᵀ r with μ = :data:`REGULARIZATION` ‖J‖²_F
 (equal to J⁻¹r to a relative 1e-24 cond(J)², finite where J is singular), and clamps the
 deflections into the laws' monotone intervals (:func:`~softgen.symbolic.spring_laws.
-monotone_interval`). Newton runs from two starts and the result with the smaller residual
-is taken (a start at a singular point, such as φ = 0 for odd stiffening laws, is thus
-harmless; a result on the controller's branch wins over one off it, see below):
+monotone_interval`). Newton starts from the better of two points: one on the
+controller's branch (below) over one off it, else the one with the smaller residual (a
+start at a singular point, such as φ = 0 for odd stiffening laws, thus never wins over a
+start on the branch):
 
 - the previous sample's solution (a controller state): the solution moves by O(dt) per
   sample along a smooth reference, so Newton converges quadratically from it for any law
@@ -318,9 +319,6 @@ class SpringPairArm:
             pa, pb = self._clamp(p.a, phi_prev[p.ia]), self._clamp(p.b, phi_prev[p.ib])
             if not p.stiffness:
                 pb = pa = 0.5 * (pa + pb)
-            for _ in range(steps):
-                ga, gb = self._newton(p, ga, gb, T[j], S[j])
-                pa, pb = self._newton(p, pa, pb, T[j], S[j])
             r1g, r2g, jga, jgb = self._residual(p, ga, gb, T[j], S[j])
             r1p, r2p, jpa, jpb = self._residual(p, pa, pb, T[j], S[j])
             better = (r1p * r1p + (PHI_SCALE * r2p) ** 2) < (r1g * r1g + (PHI_SCALE * r2g) ** 2)
@@ -328,12 +326,15 @@ class SpringPairArm:
                 # The controller's branch: det J < 0 beyond the least stiffness of a
                 # stiffening pair, > 0 beyond the largest of a softening one (dσ/dφ_a =
                 # −det J/τ_b' along the torque constraint). A start on it wins over one
-                # off it; between two alike the smaller residual wins.
+                # off it (φ = 0 of odd stiffening laws, det J = 0, never beats a start on
+                # the branch); between two alike the smaller residual wins.
                 sgn = -1.0 if p.stiffening else 1.0
                 on_g = sgn * (jga[1] * jgb[2] - jgb[1] * jga[2]) > 0
                 on_p = sgn * (jpa[1] * jpb[2] - jpb[1] * jpa[2]) > 0
                 better = ca.if_else(on_p == on_g, better, on_p)
             xa, xb = ca.if_else(better, pa, ga), ca.if_else(better, pb, gb)
+            for _ in range(steps):
+                xa, xb = self._newton(p, xa, xb, T[j], S[j])
             r1, r2, ja, jb = self._residual(p, xa, xb, T[j], S[j])
             phi[p.ia], phi[p.ib] = xa, xb
             res_t.append(r1)
