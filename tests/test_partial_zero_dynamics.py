@@ -161,3 +161,11 @@ def test_passive_joints_settle_at_each_set_point():
         assert np.abs(q[k, :2] - qbar[k, :2]).max() < 2e-3, (t, q[k], qbar[k])
         assert np.abs(qd[k]).max() < 2e-2
         assert abs(q[k, 2] - qbar[k, 2]) < 2e-3
+
+
+def test_bundle_of_the_damped_arm_carries_collocated_control():
+    from softgen.bundles.bundle import bundle_spec
+    spec = bundle_spec(load_model(DAMPED))
+    names = {g.function.name() for g in spec.functions}
+    assert {"wrist_damped_partial_collocated", "wrist_damped_partial_tracking"} <= names
+    assert "slotine_li" not in spec.extra["capabilities"]

@@ -275,3 +275,17 @@ def test_compiled_functions_equal_casadi(tmp_path, need_compiler, arms):
             got = [got] if f.n_out() == 1 else got
             for w, o in zip(want, got):
                 np.testing.assert_allclose(np.ravel(o), _np(w), rtol=1e-12, atol=1e-13)
+
+
+def test_bundle_of_a_user_model_carries_the_cascade():
+    """`generate` of cubic2 (a user model, not shipped) includes the three functions and
+    the manifest's description of each joint (mode, stiffness range at rest)."""
+    from softgen.bundles.bundle import bundle_spec
+    spec = bundle_spec(load_model(DATA / "cubic2.toml"))
+    names = {g.function.name() for g in spec.functions}
+    assert {"cubic2_spring_pair_cascade", "cubic2_spring_pair_plant",
+            "cubic2_spring_pair_deflections"} <= names
+    joints = spec.extra["spring_pair"]["joints"]
+    assert [j["mode"] for j in joints] == ["position and stiffness (stiffening)"] * 2
+    assert joints[0]["stiffness_range_at_rest"][0] == pytest.approx(4.0, rel=1e-6)
+    assert "spring_pair_cascade" in spec.extra["capabilities"]
