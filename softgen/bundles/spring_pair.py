@@ -8,11 +8,11 @@ model file is why.
 
 **qbmove arms get it too.** k sinh(aφ) laws qualify (strictly increasing, J nonsingular
 off the least stiffness), and on them the Newton references are eq. 11.3's closed form to
-rounding (tests/test_spring_pair.py), so the shipped qbmove models (arm_2link_electric,
-planar_2link, pendulum_qbmove, qbmove_1dof) carry both this cascade and the chapter-11
-ones (``electric_cascade``): the two are different controllers (a static inversion of
-(T, σ_d) here; eq. 11.4's stiffness loop with Δ there). Which one an example runs is the
-export's choice, not this module's.
+rounding (tests/test_spring_pair.py), so every qbmove model (the four shipped ones
+among them) carries both this cascade and the chapter-11 ones (``electric_cascade``):
+the two are different controllers (a static inversion of (T, σ_d) here; eq. 11.4's
+stiffness loop with Δ there). Which one an example runs is the export's choice, not this
+module's.
 
 The bundle carries the controller step (``<model>_spring_pair_cascade``), the plant
 (``<model>_spring_pair_plant``, :data:`~softgen.bundles.common.PLANT_SUBSTEPS` RK4 steps)
@@ -144,7 +144,7 @@ class SpringPairExample(Config):
     reference; position rms over the second half, worst joint / stiffness rms relative to
     the mean σ_d, worst joint / largest motor torque; no motor torque limits declared):
     cubic2 5.0e-5 rad / 1.0e-6 / 1.27 N m; user_arm3_spring_pairs (cubic, sinh, tan)
-    2.1e-4 rad / 4.9e-6 / 2.43 N m; arm_2link_electric 8.8e-6 rad / 1.6e-6 / 0.39 N m;
+    2.1e-4 rad / 4.9e-6 / 2.43 N m; the chapter-11 arm (Tables 11.1-11.2) 8.8e-6 rad / 1.6e-6 / 0.39 N m;
     user_arm2_softening (tanh) 1.5e-5 rad / 3.5e-7 / 0.84 N m.
     """
 
