@@ -17,7 +17,7 @@ N m, per motor; no model declares motor torque limits; load ~9 on 2 CPUs):
   with 3e-6 kg m² motors, whose spring modes 1 ms does not resolve: planar_2link
   1.1e-3, 1.5e-3 rad, pendulum_qbmove 5.7e-3 rad.
 
-Newton's residuals stay at rounding along every run (≤ 9e-15).
+Newton's residuals stay at rounding along every run (≤ 1.1e-14 N m and N m/rad).
 """
 from __future__ import annotations
 
