@@ -27,7 +27,7 @@ USER = {
 EXPECTED = {
     "qbmove": {"rigid_dynamics", "nominal_plant", "slotine_li", "qbmove_actuators",
                "electric_cascade", "electric_stiffness_estimator",
-               "noninvasive_stiffness_estimator"},
+               "noninvasive_stiffness_estimator", "spring_pair_cascade"},
     "mckibben": {"rigid_dynamics", "nominal_plant", "slotine_li", "mckibben_actuators",
                  "pneumatic_control", "theorem5_loop", "feedback_linearization",
                  "pneumatic_stiffness_estimator"},
@@ -39,7 +39,7 @@ EXPECTED = {
             "electric_stiffness_estimator", "noninvasive_stiffness_estimator"},
     "urdf": {"rigid_dynamics", "nominal_plant", "slotine_li", "qbmove_actuators",
              "electric_cascade", "electric_stiffness_estimator",
-             "noninvasive_stiffness_estimator"},
+             "noninvasive_stiffness_estimator", "spring_pair_cascade"},
 }
 
 

@@ -20,6 +20,7 @@ import numpy as np
 # The builder modules register their capabilities on import; nothing else is used here.
 import softgen.bundles.rigid  # noqa: F401
 import softgen.bundles.soft  # noqa: F401
+import softgen.bundles.spring_pair  # noqa: F401
 from softgen.bundles.common import (DEFAULT_OPTIONS, BundleOptions, actuator_record,
                                     identity_bytes, model_chain, model_file_path, model_source)
 from softgen.bundles.registry import Capability, Context, Decision, merge

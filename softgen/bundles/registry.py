@@ -198,26 +198,26 @@ FULLY_TORQUE_ACTUATED = Condition("a torque on every joint (an actuator on each 
 
 
 def _partly_actuated(model) -> str | None:
-    """At least one passive joint, each with positive stiffness and damping (it settles
-    by itself), and every actuated joint's torque reachable with
-    motors that have dynamics: a direct torque, or a spring (SEA or antagonistic pair)
-    whose law is invertible near 0 (τ_e'(0) > 0 summed over its sides, so the
-    deflection giving a wanted torque exists: :meth:`Actuation.deflection`) driven by
-    motors with inertia and damping. Pressure drives are not covered (the
-    collocated controller of :mod:`softgen.control.partial` commands motors or
-    torques)."""
+    """At least one passive joint whose zero dynamics settle, and every actuated joint's
+    torque reachable with motors that have dynamics.
+
+    Passive joints (:func:`softgen.control.partial.zero_dynamics_problem`, derived there):
+    each damped (damping > 0: without it the passive motion conserves energy and never
+    settles), and held at a strict minimum of gravity and stiffness (the Hessian of the
+    potential in the passive joints positive definite at their equilibrium, checked on
+    the model for actuated set-points over ±1 rad): stiffness is not needed where gravity
+    holds them (an arm hanging down), and does not suffice where gravity overturns it.
+    Actuated joints: a direct torque, or a spring (SEA or antagonistic pair) whose law is
+    invertible near 0 (τ_e'(0) > 0 summed over its sides, so the deflection giving a
+    wanted torque exists: :meth:`Actuation.deflection`) driven by motors with inertia and
+    damping. Pressure drives are not covered (the collocated controller of
+    :mod:`softgen.control.partial` commands motors or torques)."""
+    from softgen.control.partial import zero_dynamics_problem   # control sits above
     acts = _acts(model)
     passive = sorted(set(range(model.dof)) - {a.joint for a in acts})
     if not acts or not passive:
         return (f"{_where(model)}: actuators: no passive joint (needs at least one "
                 "passive joint and an actuator on another)")
-    for j in passive:
-        link = model.links[j]
-        for k in ("stiffness", "damping"):
-            v = model.resolve(getattr(link, k), model.nominal)
-            if not float(v) > 0:
-                return (f"{_where(model)}: links ({link.name}).{k}: a passive joint needs "
-                        f"a positive {k} to settle, got {getattr(link, k)!r}")
     for i, a in enumerate(acts):
         key = f"actuators[{i}]"
         if a.drive == "torque":
@@ -235,13 +235,14 @@ def _partly_actuated(model) -> str | None:
             if v is None or not all(x > 0 for x in v):
                 return (f"{_where(model)}: {key} (joint {model.links[a.joint].name}).{k}: "
                         f"needs positive values, got {v!r}")
-    return None
+    return zero_dynamics_problem(model)
 
 
-PARTLY_ACTUATED = Condition("partly actuated: at least one passive joint (stiffness and "
-                            "damping > 0), every actuated "
-                            "joint a direct torque or a spring drive (SEA or pair) with "
-                            "slope > 0 at phi = 0 and motor dynamics", _partly_actuated)
+PARTLY_ACTUATED = Condition("partly actuated: at least one passive joint, each damped and "
+                            "held at a strict minimum of gravity and stiffness (stable zero "
+                            "dynamics), every actuated joint a direct torque or a spring "
+                            "drive (SEA or pair) with slope > 0 at phi = 0 and motor "
+                            "dynamics", _partly_actuated)
 
 
 def _motor_dynamics(model) -> str | None:

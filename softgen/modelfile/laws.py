@@ -17,10 +17,11 @@ the deflections |φ| ≤ ``deflection_max`` the model file declares (default
   c = a², eq. 6.6 and 11.1b; k φ: c = 0), else None;
 - ``odd``: τ_e(−φ) = −τ_e(φ) on samples (the odd Taylor terms of the thesis's RLS,
   section 6.2.3, are a complete basis only for odd laws);
-- ``monotone_range``: the largest r ≤ ``deflection_max`` on which τ_e is finite and
-  strictly increasing (τ_e' > 0) on [−r, r]: the law is **invertible** there (the
-  deflection giving a wanted torque exists and is unique, eq. 11.3); 0 when τ_e'(0) ≤ 0
-  (``k*phi**2``, ``k*cos(phi)``: not invertible);
+- ``monotone_interval``: the largest sampled interval around 0 within ±``deflection_max``
+  on which τ_e is finite and strictly increasing (τ_e' > 0): the law is **invertible**
+  there (the deflection giving a wanted torque exists and is unique, eq. 11.3); None when
+  τ_e'(0) ≤ 0 (``k*phi**2``, ``k*cos(phi)``: not invertible); ``monotone_range`` the
+  symmetric part of it;
 - ``slope_range``: (min, max) of τ_e' on [−r, r] (the stiffness one spring can give);
 - ``linear``: τ_e'' ≡ 0 on the range (c = 0): such a spring's stiffness is constant.
 
@@ -49,11 +50,14 @@ import numpy as np
 from softgen.modelfile.expr import Law, spring_c
 
 #: Deflection range (rad) on which a spring law is judged when the model file declares no
-#: ``deflection_max``: a qbmove's springs reach about ±0.7 rad (thesis section 6.2).
-DEFAULT_DEFLECTION_MAX = 1.0
+#: ``deflection_max``: a quarter turn. Laws are declared without a domain; a deflection
+#: beyond it is not a spring's (k sinh(aφ) with the thesis's a ≈ 7 gives 1e3 times its
+#: rest stiffness there).
+DEFAULT_DEFLECTION_MAX = float(np.pi / 2)
 
-#: Points of the grid on [−range, range] on which monotonicity and slopes are judged.
-GRID = 401
+#: Samples per side of 0 over [0, range] for the sampled properties (a step of 1.6e-3 rad
+#: at the default range).
+SAMPLES = 1000
 
 #: What each drive's laws are written over (spring laws over the deflection φ = q − θ,
 #: pressure laws over the joint angle q and the side's pressure p).
@@ -70,13 +74,21 @@ class SpringProperties:
     odd: bool
     linear: bool
     deflection_max: float
-    monotone_range: float
+    #: (φ_lo, φ_hi) around 0 where the law is invertible (:func:`monotone_interval`),
+    #: None when it is not invertible at rest.
+    monotone_interval: tuple[float, float] | None
     slope_range: tuple[float, float]
 
     @property
+    def monotone_range(self) -> float:
+        """The largest r with the law invertible on [−r, r] (0 if it is not at rest)."""
+        iv = self.monotone_interval
+        return 0.0 if iv is None else min(-iv[0], iv[1])
+
+    @property
     def invertible(self) -> bool:
-        """τ_e strictly increasing and finite near φ = 0 (on ±``monotone_range``)."""
-        return self.monotone_range > 0.0
+        """τ_e strictly increasing and finite around φ = 0 (:attr:`monotone_interval`)."""
+        return self.monotone_interval is not None
 
     @property
     def sinh(self) -> tuple[float, float] | None:
@@ -90,7 +102,8 @@ class SpringProperties:
         return {"tau0": self.tau0, "slope0": self.slope0, "c": self.c, "odd": self.odd,
                 "linear": self.linear, "invertible": self.invertible,
                 "deflection_max": self.deflection_max,
-                "monotone_range": self.monotone_range,
+                "monotone_interval": None if self.monotone_interval is None
+                else list(self.monotone_interval),
                 "slope_range": list(self.slope_range)}
 
 
@@ -165,29 +178,66 @@ class ActuatorLaw:
 
 # --------------------------------------------------------------------------- spring laws
 
+def spring_jet(law: Law, constants: Mapping[str, float]) -> ca.Function:
+    """phi -> (tau(phi), tau'(phi), tau''(phi), tau'''(phi)) of a spring law, by CasADi."""
+    phi = ca.SX.sym("phi")
+    tau = law({**constants, "phi": phi})
+    d1 = ca.jacobian(tau, phi)
+    d2 = ca.jacobian(d1, phi)
+    return ca.Function("spring_jet", [phi], [tau, d1, d2, ca.jacobian(d2, phi)],
+                       ["phi"], ["tau", "d1", "d2", "d3"])
+
+
+def jet_samples(law: Law, constants: Mapping[str, float], phi: np.ndarray) -> np.ndarray:
+    """(4, len(phi)): τ and its first three derivatives at ``phi``."""
+    f = spring_jet(law, constants).map(phi.size)
+    with np.errstate(all="ignore"):
+        return np.array([np.asarray(v, float).ravel() for v in f(phi.reshape(1, -1))])
+
+
+def monotone_interval(law: Law, constants: Mapping[str, float], *,
+                      limit: float = DEFAULT_DEFLECTION_MAX, samples: int = SAMPLES
+                      ) -> tuple[float, float] | None:
+    """(φ_lo, φ_hi), φ_lo < 0 < φ_hi: the largest sampled interval around 0 within
+    ±``limit`` where τ' > 0 and finite and τ increases from sample to sample; None when
+    τ'(0) is not positive and finite. The ends are samples one step inside the first
+    sample that fails (a pole, such as tan's, or a turning point is never inside)."""
+    h = limit / samples
+    out = []
+    for sign in (1.0, -1.0):
+        phi = sign * h * np.arange(samples + 1)
+        tau, d1 = jet_samples(law, constants, phi)[:2]
+        ok = np.isfinite(tau) & np.isfinite(d1) & (d1 > 0)
+        ok[1:] &= sign * np.diff(tau) > 0
+        if not ok[0]:
+            return None
+        bad = np.flatnonzero(~ok)
+        last = samples if bad.size == 0 else max(int(bad[0]) - 1, 0)
+        if last == 0:
+            return None
+        out.append(float(phi[last]))
+    return out[1], out[0]
+
+
 def spring_properties(law: ActuatorLaw) -> SpringProperties:
     """Judge a spring law once (module docstring)."""
     f = law.derivatives
     r = float(law.deflection_max)
-    grid = np.linspace(-r, r, GRID)
-    tau, d1 = (np.asarray(v, dtype=float).ravel()
-               for v in f.map(GRID)(grid.reshape(1, -1))[:2])
+    consts = law.constant_values
+    interval = monotone_interval(law.parsed, consts, limit=r)
     tau0, slope0 = (float(v) for v in f(0.0)[:2])
-    mid = GRID // 2
-    ok = np.isfinite(tau) & np.isfinite(d1) & (d1 > 0)
-    # The largest symmetric run of grid points around 0 where τ is finite and increasing.
-    k = 0
-    while k < mid and ok[mid - k - 1] and ok[mid + k + 1]:
-        k += 1
-    monotone = float(grid[mid + k]) if ok[mid] else 0.0
-    window = d1[mid - k:mid + k + 1] if ok[mid] else np.array([slope0])
+    grid = np.linspace(-r, r, 2 * SAMPLES + 1)
+    tau, d1 = jet_samples(law.parsed, consts, grid)[:2]
+    inside = ((grid >= interval[0]) & (grid <= interval[1]) if interval is not None
+              else np.zeros(grid.shape, bool))
+    window = d1[inside] if inside.any() else np.array([slope0])
     c = spring_c(f)
     odd = bool(np.all(np.isfinite(tau)) and
                np.allclose(tau, -tau[::-1], rtol=1e-9,
                            atol=1e-12 * max(np.abs(tau).max(), 1e-300)))
     return SpringProperties(
         tau0=tau0, slope0=slope0, c=c, odd=odd, linear=c == 0.0, deflection_max=r,
-        monotone_range=monotone,
+        monotone_interval=interval,
         slope_range=(float(np.min(window)), float(np.max(window))))
 
 

@@ -42,6 +42,8 @@ from softgen.bundles.bundle import decide, derivation
 from softgen.bundles.registry import Context
 from softgen.bundles.rigid import (PARTIAL_TRACKING_GAINS, SEA_GAINS, partial_reference,
                                    partial_tracking_gains)
+from softgen.bundles.spring_pair import SpringPairExample
+from softgen.bundles.spring_pair import example_loop as spring_pair_loop
 from softgen.control.electric import (ElectricArm, cascade_block, initial_plant_state,
                                       plant_block as electric_plant_block)
 from softgen.control.feasibility import stiffness_range
@@ -62,6 +64,7 @@ from softgen.control.soft import plant_block as soft_plant_block
 from softgen.control.soft import reference_block as soft_reference_block
 from softgen.control.soft import tip_force_block
 from softgen.control.soft_sampled import sampled_controller_block
+from softgen.control.spring_pair import SpringPairArm
 from softgen.core.config import Config
 from softgen.core.errors import SoftgenError
 from softgen.modelfile.load import load_model
@@ -77,7 +80,7 @@ from softgen.studies.scenario import Scenario
 __all__ = ["DT", "DEFAULT_SECONDS", "Example", "ExampleSpec", "EXAMPLES", "choose",
            "example_for", "applicable", "parse_overrides", "motor_mode_step",
            "SlotineLiConfig", "Theorem5Config", "ElectricPdConfig", "SeaCascadeConfig",
-           "PartialConfig", "Theorem10Config"]
+           "PartialConfig", "Theorem10Config", "SpringPairExample"]
 
 #: Sample time of the example loops (s), unless a config sets its own, and their length.
 DT = 1e-3
@@ -695,6 +698,27 @@ def _theorem10(ctx: Context, c: Theorem10Config, steps: int) -> Example:
         "of the section 12.2.1 study)", c)
 
 
+# --------------------------------------------------------------------------- spring pairs
+
+def _spring_pair(ctx: Context, c: SpringPairExample, steps: int) -> Example:
+    model = ctx.model
+    d = spring_pair_loop(model, DT, c, arm=SpringPairArm(model, dyn=ctx.dyn))
+    d = ClosedLoop(f"{model.name}_loop", list(d.blocks.values()))
+    sc = Scenario(f"{model.name}_loop", d, steps=steps)       # the blocks start on the reference
+    return Example(
+        "spring_pair", "the spring-pair cascade on the arm's antagonistic springs",
+        "position and stiffness control of antagonistic spring pairs with motors for any "
+        "invertible declared law (softgen.control.spring_pair: a Theorem-7 link loop gives "
+        "the spring torque, Newton on the declared laws the two deflections giving it and "
+        "the stiffness reference, Theorem-6 motor loops track them; rates by implicit "
+        f"differentiation) of the arm with its springs and motors ({c.substeps} RK4 steps "
+        "per sample, motor torques held), tracking sinusoids of position and of stiffness "
+        "(kept off the pair's singular stiffness) from rest on the reference.",
+        sc, (("ref.q_d", "plant.q", "rad"), ("ref.sigma_d", "plant.sigma", "N m/rad")),
+        f"k_p = {c.kp:g}, k_d = {c.kd:g}, k_p,m = {c.kp_m:g}, k_d,m = {c.kd_m:g} "
+        "(SpringPairExample, bundles.spring_pair)", c)
+
+
 # --------------------------------------------------------------------------- registration
 
 register("theorem10", capability="theorem10", title="Theorem 10 on the soft robot",
@@ -704,6 +728,9 @@ register("theorem5", capability="theorem5_loop", title="Theorem 5 on the McKibbe
 register("electric-pd", capability="electric_cascade",
          title="the chapter-11 PD cascade on the electric VSA arm",
          config=ElectricPdConfig, build=_electric_pd)
+register("spring-pair", capability="spring_pair_cascade",
+         title="the spring-pair cascade on the arm's antagonistic springs",
+         config=SpringPairExample, build=_spring_pair)
 register("sea-cascade", capability="sea_cascade",
          title="the PD cascade on the series-elastic arm", config=SeaCascadeConfig,
          build=_sea_cascade)
