@@ -67,7 +67,7 @@ def test_export_refuses_a_robot_no_controller_serves_in_one_line(tmp_path, capsy
     says why on one line (issue 31: it used to run Slotine-Li with a torque on every
     joint)."""
     out = tmp_path / "ex"
-    assert main(["export", str(DATA / "arm3_wrist_only.toml"), "--out", str(out)]) == 2
+    assert main(["export", str(DATA / "wrist_only.toml"), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no controller applies" in err
     assert "shoulder" in err
@@ -144,7 +144,7 @@ def test_unused_declared_actuators_are_a_warning_of_the_decision():
     warning of the decision (issue 31: generate dropped it silently); with one granted,
     none. Decided on the registry's results, so checked on them directly."""
     from softgen.bundles.registry import _unused_actuators
-    m = load_model(DATA / "arm2_cubic_motors.toml")
+    m = load_model(DATA / "cubic2.toml")
     results = decide(m).results
     assert _unused_actuators(m, results) == ()          # the estimators model them
     without = tuple((c, why if not c.uses_actuators else "refused here")
@@ -159,7 +159,7 @@ def test_generate_and_info_print_the_decisions_warnings(tmp_path, capsys, monkey
     import softgen.bundles.registry as reg
     monkeypatch.setattr(reg, "_unused_actuators", lambda model, results: ("WARN-31",))
     model = tmp_path / "arm.toml"
-    model.write_text((DATA / "arm2_cubic_motors.toml").read_text())
+    model.write_text((DATA / "cubic2.toml").read_text())
     assert main(["generate", str(model), "--out", str(tmp_path / "gen"), "--no-build"]) == 0
     assert "softgen: warning: WARN-31" in capsys.readouterr().err
     assert main(["info", str(model), "--json"]) == 0
