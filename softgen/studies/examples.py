@@ -185,7 +185,9 @@ def choose(model, example: str | None = None) -> ExampleSpec:
     for spec, why in results:
         if why is None:
             return spec
-    raise SoftgenError(f"{model.name}: no controller applies; {_missing(model, results)}")
+    why = _missing(model, results)
+    raise SoftgenError(why if "no controller applies" in why
+                       else f"{model.name}: no controller applies; {why}")
 
 
 def _missing(model, results) -> str:
