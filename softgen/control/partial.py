@@ -455,11 +455,12 @@ class PartialArm:
 
 # -- blocks and the closed loop ---------------------------------------------------------
 
-def _gain_defaults(arm: PartialArm, gains: dict | None) -> dict | None:
+def gain_vectors(gains: dict | None, sizes: dict[str, int]) -> dict | None:
+    """``gains`` (``kp, kd, kp_m, kd_m``: a number or one value per entry) as positive
+    vectors of ``sizes`` (link gains per actuated joint, motor gains per motor): a block's
+    defaults, or one ValueError naming the gain (also the spring-pair cascade's)."""
     if gains is None:
         return None
-    sizes = {"kp": len(arm.actuated), "kd": len(arm.actuated), "kp_m": arm.nm,
-             "kd_m": arm.nm}
     p0 = {}
     for g in GAIN_NAMES:
         v = np.broadcast_to(np.asarray(gains[g], float), (sizes[g],)).copy()
@@ -467,6 +468,11 @@ def _gain_defaults(arm: PartialArm, gains: dict | None) -> dict | None:
             raise ValueError(f"gains.{g}: expected positive values, got {v.tolist()}")
         p0[g] = v
     return p0
+
+
+def _gain_defaults(arm: PartialArm, gains: dict | None) -> dict | None:
+    na = len(arm.actuated)
+    return gain_vectors(gains, {"kp": na, "kd": na, "kp_m": arm.nm, "kd_m": arm.nm})
 
 
 def controller_block(arm: PartialArm, dt: float, *, gains: dict | None = None,

@@ -86,6 +86,7 @@ import numpy as np
 from softgen.blocks import Block, ClosedLoop
 from softgen.control.electric import REFERENCE_BLOCKS
 from softgen.control.electric import reference_block as _electric_reference_block
+from softgen.control.partial import GAIN_NAMES, gain_vectors
 from softgen.core.errors import ModelError
 from softgen.modelfile.model import RobotModel
 from softgen.symbolic.actuated import spring_motor_plant_fun
@@ -117,8 +118,8 @@ REGULARIZATION = 1e-24
 #: the start is chosen (N m against N m/rad · rad).
 PHI_SCALE = 1.0
 
-#: Gain names of the step, in its input order (k_p, k_d per joint; k_p,m, k_d,m per motor).
-GAIN_NAMES = ("kp", "kd", "kp_m", "kd_m")
+# GAIN_NAMES (imported from control.partial, one home): the step's gains in its input
+# order (k_p, k_d per joint; k_p,m, k_d,m per motor).
 
 #: Largest |t/S| of the sinh closed form (atanh's argument), to stay finite at any input.
 _ATANH_MAX = 1 - 1e-12
@@ -589,16 +590,7 @@ def check_references(arm: SpringPairArm, t: np.ndarray, cols: np.ndarray, *, mar
 
 
 def _gain_defaults(arm: SpringPairArm, gains: dict | None) -> dict | None:
-    if gains is None:
-        return None
-    sizes = {"kp": arm.n, "kd": arm.n, "kp_m": arm.m, "kd_m": arm.m}
-    p0 = {}
-    for g in GAIN_NAMES:
-        v = np.broadcast_to(np.asarray(gains[g], float), (sizes[g],)).copy()
-        if not np.all(v > 0):
-            raise ValueError(f"gains.{g}: expected positive values, got {v.tolist()}")
-        p0[g] = v
-    return p0
+    return gain_vectors(gains, {"kp": arm.n, "kd": arm.n, "kp_m": arm.m, "kd_m": arm.m})
 
 
 def controller_block(arm: SpringPairArm, dt: float, *, gains: dict | None = None,
