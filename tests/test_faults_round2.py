@@ -836,3 +836,34 @@ def test_U10_sigma_negative_after_a_lowpass_does_not_say_try_lowpass(capsys, tmp
 def test_U11_observer_name_too_long_for_a_file_is_one_line(capsys, tmp_path):
     _refused(capsys, ["observer", "--system", _system(tmp_path, name="b" * 70), "--out",
                       tmp_path / "o"], "name")
+
+
+def test_law_constants_are_folded_as_numpy_computes_them():
+    """Property: the checker's folded value of a random constant expression is numpy's
+    (seeded), and a law is refused exactly when a folded exponent or constant is out of
+    bounds; the bound is the model file's (one limit for every number of a model)."""
+    from softgen.core.errors import ModelError
+    from softgen.modelfile import expr
+    from softgen.modelfile.model import MAX_MAGNITUDE
+    assert expr.MAX_CONSTANT == MAX_MAGNITUDE
+    rng = np.random.default_rng(3636)
+    ops = ["+", "-", "*", "/", "**"]
+    for _ in range(300):
+        a, b, c = (float(x) for x in rng.integers(-9, 10, 3))
+        o1, o2 = rng.choice(ops, 2)
+        text = f"(({a:g}){o1}({b:g})){o2}({c:g})"
+        with np.errstate(all="ignore"):
+            x = np.float64(a)
+            ref = eval(f"(x{o1}np.float64({b})){o2}np.float64({c})", {"np": np, "x": x})
+        node = __import__("ast").parse(text, mode="eval").body
+        got = expr._folded(node, lambda m: AssertionError(m))
+        assert (got == ref) or (math.isnan(got) and np.isnan(ref)) or \
+            (math.isinf(got) and np.isinf(ref)), (text, got, ref)
+        law = f"k*phi**({text})"
+        ok = math.isfinite(ref) and abs(ref) <= expr.MAX_EXPONENT
+        try:
+            expr.parse_law(law, ("phi", "k"), "t")
+            accepted = True
+        except ModelError:
+            accepted = False
+        assert accepted == ok or (ok and not accepted and abs(ref) > expr.MAX_CONSTANT), law
