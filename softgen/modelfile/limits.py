@@ -136,14 +136,15 @@ class Limit:
                              f"got {text!r}")
         return value
 
-    def check(self, n: float, subject: str) -> int:
+    def check(self, n: float, subject: str, qualifier: str = "") -> int:
         """``n`` when within the limit, else one :class:`LimitError` line that starts with
-        ``subject`` (the option or file) and names the limit and the variable."""
+        ``subject`` (the option or file) and names the limit and the variable;
+        ``qualifier`` precedes the number ("about ", "more than ")."""
         limit = self.value()
         if not n <= limit:                       # also NaN
             shown = f"{n:,.0f}" if abs(n) < 1e18 else f"{n:.3g}"
-            raise LimitError(f"{subject}: {shown} {self.what}, over the limit of {limit:,} "
-                             f"({self.why}; set {self.env} to raise it)")
+            raise LimitError(f"{subject}: {qualifier}{shown} {self.what}, over the limit of "
+                             f"{limit:,} ({self.why}; set {self.env} to raise it)")
         return int(n)
 
 

@@ -43,7 +43,6 @@ filtering of Gautier 1997 and Swevers et al. 1997):
 """
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,7 +53,7 @@ from scipy.optimize import least_squares
 from scipy.signal import butter, filtfilt
 
 from softgen.core.errors import SoftgenError
-from softgen.estimation.csvlog import LogError, read_log
+from softgen.estimation.csvlog import LogError, read_header, read_log
 from softgen.modelfile.model import RobotModel
 from softgen.studies.excitation import IdentificationRegressor
 
@@ -123,18 +122,6 @@ class RigidIdentification:
         """{joint index (0-based): coefficient} of ``kind`` "fv" or "fc"."""
         return {int(n[2:]) - 1: float(v) for n, v in zip(self.names, self.estimate)
                 if n.startswith(kind) and n[2:].isdigit() and n not in self.model.nominal}
-
-
-def read_header(path: Path, what: str = "log") -> list[str]:
-    """The column names of a CSV ``what`` file (one error line if it cannot be read)."""
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            row = next(csv.reader(fh), None)
-    except FileNotFoundError:
-        raise LogError(f"{path}: no such {what} file") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise LogError(f"{path}: cannot read {what} ({exc})") from None
-    return [h.strip() for h in row] if row else []
 
 
 def read_identification_log(path: str | Path, n: int, *,
