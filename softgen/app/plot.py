@@ -82,6 +82,11 @@ def plot_trace(path: str | Path, signals: list[str] | None = None, *,
     if not chosen:
         raise SoftgenError(f"{f}: no time series to draw")
     out = Path(out) if out is not None else f.with_suffix(".png")
+    if out.resolve() == f.resolve():
+        # --force is for an earlier figure, never for the trace being drawn (issue 36:
+        # ``plot X.npz --out X.npz --force`` replaced the trace by a PNG).
+        raise SoftgenError(f"--out {out}: is the trace file it draws (the input); give "
+                           "another file name")
     if out.exists() and not force:
         raise SoftgenError(f"--out {out}: exists; give --force to overwrite it")
     directory = out.parent if str(out.parent) else Path(".")
