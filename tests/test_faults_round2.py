@@ -391,6 +391,7 @@ def test_L03_export_force_into_a_folder_of_foreign_files_is_refused(capsys, tmp_
                          "--force-foreign"])[0] == 0
     assert (out / "notes.txt").read_text() == "mine\n"
     # An earlier export's folder needs only --force; build products are its own.
+    (out / "notes.txt").unlink()
     (out / "planar_2link.o").write_bytes(b"obj")
     assert _cli(capsys, ["export", "planar_2link", "--out", out, "--force"])[0] == 0
 

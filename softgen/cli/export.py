@@ -16,6 +16,9 @@ def add_arguments(p) -> None:
     p.add_argument("--force", action="store_true",
                    help="write into a non-empty DIR, overwriting the exported files (files of an "
                         "earlier export are removed only if unchanged since)")
+    p.add_argument("--force-foreign", action="store_true",
+                   help="with --force: also write into a DIR holding files no export record "
+                        "lists (a file of the same name as an exported one is overwritten)")
     p.add_argument("--build", action="store_true",
                    help="also build the project (make, with the C compiler of --cc or $CC)")
     p.add_argument("--cc", metavar="CC", help="C compiler for --build (default $CC, cc, gcc, "
@@ -27,7 +30,8 @@ def run(args) -> int:
     # Imported here: every verb's module is imported to build the parser, and this one
     # pulls in CasADi and the control library (start-up cost of every other verb).
     from softgen.export.project import export, summary
-    res = export(chain_model(args, args.model, "export"), args.out, force=args.force, build=args.build, cc=args.cc)
+    res = export(chain_model(args, args.model, "export"), args.out, force=args.force, build=args.build, cc=args.cc,
+                 force_foreign=args.force_foreign)
     for line in summary(res):
         print(line)
     return 0
