@@ -137,7 +137,9 @@ def _planar_chain(tmp_path, n: int) -> Path:
 def _qbmove_chain(tmp_path, n: int) -> Path:
     body = "".join(f'[[links]]\nname = "l{i}"\njoint = "revolute"\nlength = 0.3\nmass = 1.0\n'
                    'com = 0.15\ninertia = 0.01\n\n' for i in range(n))
-    acts = "".join(f'[[actuators]]\njoint = "l{i}"\ntype = "qbmove"\n\n' for i in range(n))
+    acts = "".join(f'[[actuators]]\njoint = "l{i}"\ntype = "qbmove"\na = [6.7, 6.9]\n'
+                   'k = [0.02, 0.02]\nmotor_inertia = 3e-6\nmotor_damping = 1e-6\n\n'
+                   for i in range(n))
     p = tmp_path / f"qb{n}.toml"
     p.write_text(f'[model]\nname = "qb{n}"\nkind = "planar"\n\n{body}{acts}')
     return p

@@ -163,8 +163,11 @@ HARMONICS = Limit("harmonics", 50, "SOFTGEN_MAX_HARMONICS",
                   "each adds 2 optimisation variables per joint")
 
 #: States of a system ``softgen observer`` designs for. The existence conditions take
-#: ranks of (L+1)p × (L+1)m block matrices for every L ≤ n: a 1,000-state system ran
-#: 82 CPU-s without output (issue 36); 200 states take a few seconds.
-OBSERVER_STATES = Limit("states", 200, "SOFTGEN_MAX_OBSERVER_STATES",
-                        "the delay search costs about n^4")
+#: ranks of (L+1)p × (L+1)m block matrices for every L ≤ n, about n⁴: a 1,000-state
+#: system ran 82 CPU-s without output (issue 36). Measured on random systems with no
+#: observer (the search runs to L = n; 2026-12-04, load 8): 50 states 2.9 CPU-s, 100
+#: states 45 CPU-s. A 7-joint arm with qbmove drives has 42.
+OBSERVER_STATES = Limit("states", 50, "SOFTGEN_MAX_OBSERVER_STATES",
+                        "the delay search grows as n^4: 50 states take a few CPU-s, 100 "
+                        "about a minute")
 
