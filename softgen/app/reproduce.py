@@ -211,8 +211,18 @@ def _clean_stale_stages(out_root: Path) -> None:
         return
     for d in out_root.glob(".*.running-*"):
         pid = d.name.rpartition("-")[2]
-        if pid.isdigit() and not Path(f"/proc/{pid}").exists() and d.is_dir():
+        if pid.isdigit() and not _running(int(pid)) and d.is_dir():
             shutil.rmtree(d, ignore_errors=True)
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` runs: a zombie (a killed worker no one has reaped yet,
+    e.g. under a container's PID 1) does not."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
 
 
 def check_findings(exp: Experiment, metrics: Metrics, config) -> list[dict]:

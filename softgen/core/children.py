@@ -39,8 +39,12 @@ def stop(signum=signal.SIGTERM, frame=None):
         except OSError:
             pass
     os._exit(128 + signum)
-for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+stops = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
+for s in stops:
     signal.signal(s, stop)
+# A pool worker blocks or ignores SIGINT and SIGTERM (they are its parent's to handle):
+# the mask is inherited across exec, and a blocked SIGTERM would never arrive.
+signal.pthread_sigmask(signal.SIG_UNBLOCK, stops)
 linux = False
 try:
     import ctypes
@@ -50,7 +54,8 @@ except (OSError, AttributeError):
 if os.getppid() != parent:
     stop()
 try:
-    child = os.posix_spawnp(argv[0], argv, os.environ, setpgroup=0)
+    child = os.posix_spawnp(argv[0], argv, os.environ, setpgroup=0, setsigmask=(),
+                            setsigdef=stops)
 except OSError as exc:
     sys.stderr.write(f"{argv[0]}: {exc.strerror or exc}\n")
     os._exit(127)
