@@ -46,8 +46,9 @@ def load_trace(path: str | Path) -> dict[str, np.ndarray]:
     try:
         with np.load(f, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise SoftgenError(f"{f}: not a trace file (.npz) ({exc})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise SoftgenError(f"{f}: not a trace file (.npz) ({exc or type(exc).__name__})") \
+            from None
 
 
 def time_series(trace: dict[str, np.ndarray]) -> tuple[np.ndarray, list[str]]:
