@@ -22,6 +22,7 @@ import signal
 import subprocess
 import sys
 from collections.abc import Callable, Sequence
+from typing import Any
 
 #: Seconds the caller waits for the supervisor to end its program group on an exception.
 GRACE = 5.0
@@ -81,7 +82,7 @@ def supervised(cmd: Sequence[str]) -> list[str]:
 def run(cmd: Sequence[str], *, cwd: str | os.PathLike[str] | None = None,
         timeout: float | None = None, capture_output: bool = True, text: bool = True,
         preexec_fn: Callable[[], None] | None = None,
-        env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+        env: dict[str, str] | None = None) -> subprocess.CompletedProcess[Any]:
     """``subprocess.run(cmd, ...)`` with the program tree ended with this process.
 
     Raises ``subprocess.TimeoutExpired`` like ``subprocess.run`` (after ending the tree);
@@ -101,7 +102,7 @@ def run(cmd: Sequence[str], *, cwd: str | os.PathLike[str] | None = None,
     return subprocess.CompletedProcess(list(map(str, cmd)), proc.returncode, out, err)
 
 
-def _stop(proc: subprocess.Popen) -> None:
+def _stop(proc: subprocess.Popen[Any]) -> None:
     """SIGTERM to the supervisor (it kills the program's group), then SIGKILL."""
     try:
         proc.send_signal(signal.SIGTERM)

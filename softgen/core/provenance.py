@@ -8,7 +8,9 @@ studies layer need it.
 from __future__ import annotations
 
 import hashlib
+import json
 from pathlib import Path
+from typing import Any
 
 import casadi
 import numpy
@@ -40,7 +42,7 @@ def code_hash() -> str:
     return h.hexdigest()
 
 
-def seal(record: dict) -> str:
+def seal(record: dict[str, Any]) -> str:
     """sha256 of a record's content (every key but ``seal``), as canonical JSON.
 
     What binds a saved result to the run that wrote it: the export record
@@ -48,6 +50,5 @@ def seal(record: dict) -> str:
     record whose seal does not match its content (edited by hand, written by another
     tool) is not trusted (issue 36: an edited metrics.json was kept by ``--resume``).
     """
-    import json
     body = {k: v for k, v in record.items() if k != "seal"}
     return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
