@@ -414,6 +414,9 @@ def generate_attempts(rng, ctx):
         yield Attempt("generate", f"{signal.Signals(sig).name} while deriving",
                       ["generate", "pcc_3d_4seg", "--out", "gen", "--force"],
                       signal=(sig, rng.uniform(1.5, 4.0)))
+        yield Attempt("generate", f"{signal.Signals(sig).name} of two side by side",
+                      ["generate", "pcc_3d_4seg", "pcc_planar_4seg", "--out", "gen", "--force",
+                       "--jobs", "2"], signal=(sig, rng.uniform(3.0, 6.0)))
 
 
 def _est(*extra, log="est.csv", out="e.csv"):

@@ -36,6 +36,7 @@ from softgen.core.stop import (Stop, ignore_signals, interrupted, signal_name, s
                                stopping, worker_init)
 from softgen.core.cpus import ENV as CPUS_ENV, share as cpu_share
 from softgen.core.atomic import check_dir, output_error, write_text
+from softgen.core.children import end_pool
 from softgen.core.provenance import code_hash, seal
 from softgen.app.report import caption_of, write_report
 from softgen.runtime.simulate import progress_context, set_full_traces, set_progress
@@ -486,14 +487,7 @@ def _abort_pool(pool: ProcessPoolExecutor, futures: dict) -> None:
     """Cancel what has not started, kill the workers, wait at most STOP_GRACE seconds."""
     for fut in futures:
         fut.cancel()
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    for p in procs:
-        if p.is_alive():
-            p.kill()
-    deadline = time.monotonic() + STOP_GRACE
-    for p in procs:
-        p.join(max(0.0, deadline - time.monotonic()))
-    pool.shutdown(wait=False, cancel_futures=True)
+    end_pool(pool, STOP_GRACE)
 
 
 #: Cost assumed for an experiment without a hint (CPU s): the cheap ones have none.

@@ -17,10 +17,12 @@ This module imports nothing of softgen, so every layer may use it.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -110,3 +112,20 @@ def _stop(proc: subprocess.Popen[Any]) -> None:
     except BaseException:
         proc.kill()
         proc.wait()
+
+
+def end_pool(pool: Any, grace: float = GRACE) -> None:
+    """End a ``concurrent.futures.ProcessPoolExecutor`` now: cancel what has not started,
+    kill its workers (a compiler a worker runs ends with it, see :func:`run`) and wait
+    at most ``grace`` seconds for them. What a verb does when it is interrupted or fails:
+    ``shutdown(wait=True)`` would wait for every running task to finish."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for p in procs:
+        with contextlib.suppress(Exception):
+            if p.is_alive():
+                p.kill()
+    deadline = time.monotonic() + grace
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.join(max(0.0, deadline - time.monotonic()))
+    pool.shutdown(wait=False, cancel_futures=True)
