@@ -31,7 +31,8 @@ def run(args) -> int:
     # pulls in CasADi and the control library (start-up cost of every other verb).
     from softgen.export.project import export, summary
     res = export(chain_model(args, args.model, "export"), args.out, force=args.force, build=args.build, cc=args.cc,
-                 force_foreign=args.force_foreign)
+                 force_foreign=args.force_foreign,
+                 progress=lambda line: print(line, flush=True))
     for line in summary(res):
         print(line)
     return 0

@@ -33,6 +33,7 @@ import shlex
 import shutil
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -304,7 +305,8 @@ def previous_files(out: Path) -> dict[str, str]:
 
 def export(model, out: Path | str, *, force: bool = False, build: bool = False,
            cc: str | None = None, generated_root: Path | None = None,
-           force_foreign: bool = False) -> ExportResult:
+           force_foreign: bool = False,
+           progress: Callable[[str], None] | None = None) -> ExportResult:
     """Write the C project of ``model`` to ``out`` (see the module docstring).
 
     ``out`` must be new or empty unless ``force``: then the files of this export are
@@ -330,6 +332,8 @@ def export(model, out: Path | str, *, force: bool = False, build: bool = False,
         if compiler is None:
             raise SoftgenError("--build: no C compiler found" + (f" ({cc or 'CC'} not on PATH)"
                                if cc else "") + "; install gcc or clang, set CC, or drop --build")
+    say = progress or (lambda line: None)       # phase lines: never a silent minute
+    say("export: deriving the example scenario and generating its C ...")
     ex = example_for(model)
     with bundle_files(model, generated_root) as (bundle, manifest, note):
         m = manifest["model"]
@@ -339,6 +343,7 @@ def export(model, out: Path | str, *, force: bool = False, build: bool = False,
     res = ExportResult(out=out, model=m, files=sorted(files), example=ex.kind, note=note,
                        kept=kept)
     if build:
+        say(f"export: building {out} with make ...")
         res.build_seconds, res.binary = build_project(out, m, compiler)
     return res
 
