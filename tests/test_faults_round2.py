@@ -533,6 +533,46 @@ def test_O01_O02_compilers_die_with_reproduce(tmp_path, sig):
     assert not list(out.glob(".*.running-*"))
 
 
+@pytest.mark.parametrize("blocked", [False, True])
+def test_O_a_supervised_program_tree_dies_with_its_parent(tmp_path, blocked):
+    """core.children.run: the program and its grandchildren end when the process that
+    started them is SIGKILLed, also when that process blocks SIGTERM (a pool worker)."""
+    if not Path("/proc/self").exists():
+        pytest.skip("needs /proc")
+    mark = tmp_path / "pids"
+    cc = tmp_path / "fakecc"
+    cc.write_text(FAKE_CC.format(mark=mark))
+    cc.chmod(0o755)
+    code = ("import signal, sys; from softgen.core import children\n"
+            + ("signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM, signal.SIGINT})\n"
+               if blocked else "")
+            + f"children.run([{str(cc)!r}])\n")
+    parent = subprocess.Popen([PY, "-c", code])
+    deadline = time.monotonic() + 30
+    while not (mark.exists() and len(mark.read_text().split()) >= 2):
+        assert parent.poll() is None and time.monotonic() < deadline
+        time.sleep(0.05)
+    pids = [int(x) for x in mark.read_text().split()]
+    parent.kill()
+    parent.wait()
+    deadline = time.monotonic() + 5
+    while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = [p for p in pids if _alive(p)]
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert not left
+
+
+def test_O_supervised_run_returns_like_subprocess_run(tmp_path):
+    from softgen.core import children
+    r = children.run(["sh", "-c", "echo out; echo err >&2; exit 3"], cwd=tmp_path)
+    assert (r.returncode, r.stdout, r.stderr) == (3, "out\n", "err\n")
+    with pytest.raises(subprocess.TimeoutExpired):
+        children.run(["sleep", "30"], timeout=0.5)
+    assert children.run([str(tmp_path / "none")]).returncode == 127
+
+
 # == T: tracebacks ============================================================================
 
 def test_T01_full_cache_is_one_line(tmp_path, monkeypatch):
