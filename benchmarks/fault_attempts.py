@@ -204,7 +204,10 @@ HOSTILE_LAWS = [
 # -- the generators ---------------------------------------------------------------------------
 
 def _help_and_junk(verb: str) -> list[Attempt]:
-    return [Attempt(verb, "no arguments", [verb]),
+    # ``reproduce`` with no arguments is the main job (every experiment, minutes): it is
+    # interrupted after a few seconds, which must end it cleanly.
+    long = (signal.SIGINT, 6.0) if verb == "reproduce" else None
+    return [Attempt(verb, "no arguments", [verb], signal=long),
             Attempt(verb, "--help", [verb, "--help"]),
             Attempt(verb, "unknown option", [verb, "--no-such-option", "1"]),
             Attempt(verb, "nonexistent path", [verb, "no/such/file.toml"]),
@@ -612,8 +615,11 @@ def sweep_attempts(rng, ctx):
     for vary in ("kd=uniform(1,2)x", "kd=linspace(1,2,1e12)", "zz=uniform(1,2)",
                  "kd=normal(1)", "kd=choice()", "kd=grid(" + ",".join(["1"] * 2000) + ")",
                  "kd=uniform(2,1)", "kd", "=1"):
+        # A 2,000-point grid is a valid sweep of minutes: interrupted after a while.
+        long = (signal.SIGINT, 12.0) if vary.startswith("kd=grid") else None
         yield Attempt("sweep", f"--vary {vary[:30]}", ["sweep", exp, "--vary", vary,
-                                                       "--samples", "2", "--out", "s"])
+                                                       "--samples", "2", "--out", "s"],
+                      signal=long)
     for opt, v in (("--samples", "0"), ("--samples", str(10 ** 13)), ("--seed", "-1"),
                    ("--workers", "0"), ("--scheduler", "tcp://127.0.0.1:1"),
                    ("--format", "xls")):
