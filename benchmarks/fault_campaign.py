@@ -352,8 +352,14 @@ def _bundle(p: Path):
     check_source(p, read_manifest(p))
 
 
+def seal(record: dict) -> str:
+    """A record's seal, computed here (as softgen.core.provenance.seal and the export
+    record define it) so that the campaign also judges versions without that function."""
+    body = {k: v for k, v in record.items() if k != "seal"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
+
+
 def _export(p: Path):
-    from softgen.core.provenance import seal
     rec = json.loads((p / "softgen_export.json").read_text())
     assert rec["seal"] == seal(rec), "record seal"
     for name, digest in rec["files"].items():
@@ -382,7 +388,6 @@ def _observer(p: Path):
 
 
 def _results(p: Path):
-    from softgen.core.provenance import seal
     for m in p.glob("*/metrics.json"):
         data = json.loads(m.read_text())
         assert data.get("seal") == seal(data), f"{m.parent.name}: metrics.json seal"
