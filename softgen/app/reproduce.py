@@ -484,9 +484,8 @@ def _run_pool(todo: list[str], out_root: Path, quick: bool, code: str, jobs: int
 
 
 def _abort_pool(pool: ProcessPoolExecutor, futures: dict) -> None:
-    """Cancel what has not started, kill the workers, wait at most STOP_GRACE seconds."""
-    for fut in futures:
-        fut.cancel()
+    """Cancel what has not started, kill the workers, wait at most STOP_GRACE seconds
+    (:func:`softgen.core.children.end_pool`; ``futures`` are left to the pool)."""
     end_pool(pool, STOP_GRACE)
 
 

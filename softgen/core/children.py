@@ -120,6 +120,11 @@ def end_pool(pool: Any, grace: float = GRACE) -> None:
     at most ``grace`` seconds for them. What a verb does when it is interrupted or fails:
     ``shutdown(wait=True)`` would wait for every running task to finish."""
     procs = list((getattr(pool, "_processes", None) or {}).values())
+    # The pending futures are cancelled by the pool's own manager thread (shutdown), never
+    # from here: Python 3.11's manager, finding the pool broken by the kills, sets an
+    # exception on every pending future and raised InvalidStateError on one cancelled
+    # from outside, a thread traceback after the one line (found by the campaign).
+    pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         with contextlib.suppress(Exception):
             if p.is_alive():
@@ -128,4 +133,3 @@ def end_pool(pool: Any, grace: float = GRACE) -> None:
     for p in procs:
         with contextlib.suppress(Exception):
             p.join(max(0.0, deadline - time.monotonic()))
-    pool.shutdown(wait=False, cancel_futures=True)
