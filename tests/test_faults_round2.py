@@ -573,6 +573,62 @@ def test_O_supervised_run_returns_like_subprocess_run(tmp_path):
     assert children.run([str(tmp_path / "none")]).returncode == 127
 
 
+QUEUE_FAKES = '''\
+import time
+from pathlib import Path
+from softgen.experiments.registry import Experiment
+
+
+def _nap(config, out):
+    (Path(out).parent.parent / f"started-{config['i']}").write_text("")
+    time.sleep(60)
+    return {"value": 1.0}
+
+
+NAPS = [Experiment(id=f"r2-nap{i}", title="nap", section="test", run=_nap, config={"i": i})
+        for i in range(5)]
+'''
+
+QUEUE_DRIVER = '''\
+import sys
+from softgen.cli import main
+from softgen.experiments import registry
+for i in range(5):
+    registry._MODULES[f"r2-nap{i}"] = f"round2_queue:NAPS"
+import round2_queue
+registry.get = (lambda real: lambda exp_id: round2_queue.NAPS[int(exp_id[-1])]
+                if exp_id.startswith("r2-nap") else real(exp_id))(registry.get)
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
+'''
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_O_interrupt_with_queued_experiments_is_one_line(tmp_path, sig):
+    """Found by the campaign: SIGINT of ``reproduce`` with experiments still queued
+    printed a thread traceback from concurrent.futures (InvalidStateError) after the one
+    line, because the queued futures were cancelled from outside the pool's thread."""
+    src = tmp_path / "src"
+    src.mkdir()
+    (src / "round2_queue.py").write_text(QUEUE_FAKES)
+    (src / "driver.py").write_text(QUEUE_DRIVER)
+    env = {**os.environ, "PYTHONPATH": str(src) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    out = tmp_path / "results"
+    proc = subprocess.Popen([PY, str(src / "driver.py"), "reproduce",
+                             *[f"r2-nap{i}" for i in range(5)], "--out", str(out),
+                             "--jobs", "2"], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while len(list(tmp_path.glob("started-*"))) < 2:
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        time.sleep(0.05)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + sig, err
+    assert "Traceback" not in err and "Exception in thread" not in err, err
+    assert len([x for x in err.splitlines() if x.startswith("softgen: error:")]) == 1, err
+
+
 # == T: tracebacks ============================================================================
 
 def test_T01_full_cache_is_one_line(tmp_path, monkeypatch):
@@ -623,6 +679,13 @@ def test_T04_T05_deeply_nested_toml_is_one_line(capsys, tmp_path, case, value):
     p = tmp_path / "deep.toml"
     p.write_text(f'[model]\nname = "a"\nkind = "planar"\nx = {value}\n')
     _refused(capsys, ["info", p], str(p), "nested")
+
+
+def test_a_list_for_the_model_kind_is_one_line(capsys, tmp_path):
+    """Found by the campaign: ``kind = [1]`` was a TypeError traceback."""
+    p = tmp_path / "k.toml"
+    p.write_text('[model]\nname = "a"\nkind = [1]\n')
+    _refused(capsys, ["info", p], str(p))
 
 
 def test_T06_deeply_nested_system_file_is_one_line(capsys, tmp_path):
