@@ -68,7 +68,7 @@ U07     ``generate`` whose compile fails: the reason is not on the one line
 U08     ``identify`` of a log sampled at 2 s: says only that samples are few
 U09     ``identify --excite --maxiter -5``: status 0 with 0 iterations
 U10     ``estimate`` σ̂ ≤ 0 after a low-pass: still says "try --lowpass"
-U11     ``observer --system`` with a 70-character name: "File name too long"
+U11     ``identify --actuator sinh`` on a URDF: a 35,000-character "found columns" line
 E01     (found on the way) ``estimate --out /dev/full --force``: a device node replaced
 ======  ================================================================================
 
@@ -939,9 +939,18 @@ def test_U10_sigma_negative_after_a_lowpass_does_not_say_try_lowpass(capsys, tmp
     assert any("--lowpass" in x for x in lines)
 
 
-def test_U11_observer_name_too_long_for_a_file_is_one_line(capsys, tmp_path):
+def test_U11_a_file_that_is_no_csv_gets_a_readable_line(capsys, tmp_path):
+    """Before: ``identify --actuator sinh`` on a URDF printed its whole first line as the
+    "found" columns: one line of 35,000 characters."""
+    p = tmp_path / "r.urdf"
+    p.write_text('<robot name="r">' + "<a>" * 5000 + "</a>" * 5000 + "</robot>\n")
+    line = _refused(capsys, ["identify", "--actuator", "sinh", "--log", p], "missing column")
+    assert len(line) < 400
+
+
+def test_observer_names_follow_the_model_name_limit(capsys, tmp_path):
     _refused(capsys, ["observer", "--system", _system(tmp_path, name="b" * 70), "--out",
-                      tmp_path / "o"], "name")
+                      tmp_path / "o"], "name", "64")
 
 
 def test_law_constants_are_folded_as_numpy_computes_them():

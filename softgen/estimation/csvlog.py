@@ -207,7 +207,7 @@ def _read_rows(path: Path, rows, names: Sequence[str],
     missing = ([] if time_col else ["t (or time)"]) + [n for n in names if n not in header]
     if missing:
         raise LogError(f"{path}: missing column(s) {', '.join(missing)}; "
-                       f"found {_names(header)}")
+                       f"found {column_names(header)}")
     for n in wanted:
         if header.count(n) > 1:
             where = [str(i + 1) for i, h in enumerate(header) if h == n]
@@ -249,8 +249,9 @@ def _read_rows(path: Path, rows, names: Sequence[str],
     return t, Y, dt
 
 
-def _names(header: Sequence[str]) -> str:
-    """The header's column names for a message, cut to one readable line."""
+def column_names(header: Sequence[str]) -> str:
+    """The header's column names for a message, cut to one readable line (the first line
+    of a file that is no CSV, a URDF, was printed whole: 35,000 characters, issue 36)."""
     text = ", ".join(header) or "(none)"
     return text if len(text) <= 200 else text[:197] + "..."
 

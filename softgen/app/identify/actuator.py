@@ -35,7 +35,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from softgen.core.errors import SoftgenError
-from softgen.estimation.csvlog import LogError, numbered_rows, read_header, read_log
+from softgen.estimation.csvlog import (LogError, column_names, numbered_rows, read_header,
+                                       read_log)
 
 #: Fraction of the largest |measurement| below which a sample is left out of the RMSRE.
 RMSRE_FLOOR = 0.05
@@ -83,7 +84,7 @@ def _read_table(path: Path, names: list[str]) -> np.ndarray:
     missing = [n for n in names if n not in header]
     if missing:
         raise LogError(f"{path}: missing column(s) {', '.join(missing)}; found "
-                       f"{', '.join(header) or '(none)'}")
+                       f"{column_names(header)}")
     if "t" in header or "time" in header:
         _, Y, _ = read_log(path, names, min_rows=3)
         return Y
@@ -207,7 +208,7 @@ def identify_actuator(kind: str, path: str | Path, *, floor: float = RMSRE_FLOOR
             raise LogError(f"{path}: missing column(s) "
                            f"{', '.join(c for c in ('q', 'qa') if c not in header)} "
                            "(or give a deflection column); found "
-                           f"{', '.join(header) or '(none)'}")
+                           f"{column_names(header)}")
         d = _read_table(path, cols)
         phi = d[:, 0:1] - d[:, 1:-1]
         return fit_sinh(phi, d[:, -1], floor=floor, columns=cols)
