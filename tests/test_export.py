@@ -397,7 +397,7 @@ def test_force_deletes_only_unchanged_files_of_a_sealed_record(tmp_path):
     # Hand-edited record: it now claims mine.c (with its true hash) and drops nothing.
     record["files"]["mine.c"] = hashlib.sha256(mine.read_bytes()).hexdigest()
     (out / RECORD).write_text(json.dumps(record, indent=2))
-    second = export("planar_2link", out, force=True)
+    second = export("planar_2link", out, force=True, force_foreign=True)
     assert mine.read_text() == "/* the user's own file */\n"
     # The record was not valid, so nothing of the first export was removed either.
     assert (out / "pendulum_1link.c").is_file() and second.kept == []
@@ -405,7 +405,7 @@ def test_force_deletes_only_unchanged_files_of_a_sealed_record(tmp_path):
     # one left unchanged is removed when the next export no longer writes it.
     api = out / "planar_2link_api.c"
     api.write_text(api.read_text() + "/* edited by hand */\n")
-    third = export("pendulum_1link", out, force=True)
+    third = export("pendulum_1link", out, force=True, force_foreign=True)
     names = {p.name for p in out.iterdir()}
     assert "planar_2link_api.c" in names and third.kept == ["planar_2link_api.c"]
     assert "planar_2link.c" not in names and "planar_2link_loop.c" not in names
@@ -415,7 +415,7 @@ def test_force_deletes_only_unchanged_files_of_a_sealed_record(tmp_path):
     record["files"]["mine.c"] = hashlib.sha256(mine.read_bytes()).hexdigest()
     record["seal"] = project.seal(record)
     (out / RECORD).write_text(json.dumps(record, indent=2))
-    export("planar_2link", out, force=True)
+    export("planar_2link", out, force=True, force_foreign=True)
     assert mine.is_file() and (out / "pendulum_1link.c").is_file() is False
     assert any("kept planar_2link_api.c" in line for line in summary(third))
 
@@ -443,6 +443,6 @@ def test_bad_input_gets_one_line(tmp_path, capsys, monkeypatch):
     assert not (tmp_path / "b").exists()                   # refused before writing anything
     with pytest.raises(SoftgenError, match="steps: expected a positive integer"):
         python_loop("planar_2link", 0)
-    lines = summary(export("planar_2link", full, force=True))
+    lines = summary(export("planar_2link", full, force=True, force_foreign=True))
     assert any(line.startswith("run:") for line in lines)
     assert (full / "mine.txt").read_text() == "keep"

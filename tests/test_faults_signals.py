@@ -162,7 +162,8 @@ def test_reproduce_interrupted_keeps_the_earlier_files(driver, tmp_path, sig):
     for p, data in files.items():
         p.write_bytes(data)
     before = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
-    proc = _start(driver, "reproduce", "sig-slow", "--out", str(out), "--jobs", "1")
+    proc = _start(driver, "reproduce", "sig-slow", "--out", str(out), "--jobs", "1",
+                  "--force")
     _wait_for(lambda: (out / "slow-started").exists(), proc)
     os.killpg(proc.pid, sig)
     status, err, left = _finish(proc)

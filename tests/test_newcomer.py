@@ -71,6 +71,8 @@ def test_partial_rerun_keeps_the_other_report_sections(tmp_path, capsys):
     other.mkdir()
     saved = {"experiment": "ch6-pneumatic-invasive", "metrics": {"stiffness_mse": 1.0},
              "thesis": {}, "config": {}, "wall_seconds": 1.0}
+    from softgen.core.provenance import seal       # as reproduce writes it (issue 36)
+    saved["seal"] = seal(saved)
     (other / "metrics.json").write_text(json.dumps(saved))
     reproduce(["rigid-2link-adaptive"], tmp_path, quick=True, jobs=1)
     text = (tmp_path / "report.md").read_text()

@@ -17,7 +17,10 @@ def write_log(path, K=400, dt=5e-3, scale=None):
     q = 0.2 * np.sin(t)
     qa, qb = q - 0.4 - 0.05 * np.sin(2 * t), q + 0.4 + 0.05 * np.sin(3 * t)
     if scale is not None:                       # +-1e300: finite, and absurd
-        q, qa, qb = scale * np.sign(q + 1e-9), -scale * np.ones(K), scale * np.ones(K)
+        # q flips sign (a log with every column constant is refused before the run as
+        # too little excitation, issue 36; this one must reach the estimator).
+        q = scale * np.sign(np.sin(7 * t) + 1e-9)
+        qa, qb = -scale * np.ones(K), scale * np.ones(K)
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["t", "q1", "qa1", "qb1"])

@@ -174,21 +174,62 @@ def default_lowpass(dt: float, resolution: float | None) -> float:
     return float(min(cap, f0 * (res0 / resolution) ** (2 / 3) * (dt0 / dt) ** (1 / 3)))
 
 
-def plausibility(t: np.ndarray, result, est) -> list[str]:
+#: A direction of the RLS parameters is *informed* by the log when the data shrank its
+#: covariance below this fraction of P(0) (P(N) = (P(0)⁻¹ + Σ φφᵀ)⁻¹ for λ = 1): at 0.5
+#: the log weighs as much as the prior. On the shipped sample log every direction ends
+#: below 1.2e-5 of P(0); with ``--p0 1e-300`` all six stay at 1 − 1e-290.
+INFORMED = 0.5
+
+
+def uninformed(P0: np.ndarray, PN: np.ndarray) -> int:
+    """How many directions of an RLS's parameters the log left at their prior: the
+    eigenvalues of P(0)^(-1/2) P(N) P(0)^(-1/2) above :data:`INFORMED` (P(0) diagonal)."""
+    d = 1.0 / np.sqrt(np.diag(P0))
+    M = PN * d[:, None] * d[None, :]
+    lam = np.linalg.eigvalsh(0.5 * (M + M.T))
+    return int(np.sum(~(lam <= INFORMED)))        # NaN counts as uninformed
+
+
+def plausibility(t: np.ndarray, result, est, *, lowpass: float | None = None,
+                 covariance: dict | None = None, p0: float | None = None,
+                 default_p0: float | None = None) -> list[str]:
     """What makes the estimate implausible, one line each (empty when nothing does):
-    a non-positive stiffness, an RLS whose parameters still move, or too little
-    excitation for the RLS to update. Judged on the second half of the log, where the
-    estimate should have converged."""
+
+    - an RLS whose covariance the log left at its prior in some direction
+      (``covariance``: RLS name -> (P(0), P(N)); :func:`uninformed`): too little
+      excitation, or a ``--p0`` (``p0``, against the method's ``default_p0``) too small
+      for the regressor's scale, so that the estimate stays at its initial value;
+    - a non-positive stiffness (with the hint of a low-pass only when none was used);
+    - an RLS whose parameters still move, or too little excitation for the RLS to
+      update. Judged on the second half of the log, where the estimate should have
+      converged.
+    """
     found = []
+    stuck = False
+    for r, (P0, PN) in (covariance or {}).items():
+        k = uninformed(P0, PN)
+        if not k:
+            continue
+        n = P0.shape[0]
+        stuck = stuck or k == n
+        small = p0 is not None and default_p0 is not None and p0 < default_p0
+        stays = ("the estimate stays at its initial value" if k == n else
+                 "those directions stay near their initial value")
+        cause = (f"--p0 {p0:g} is too small for the regressor's scale (the method's default "
+                 f"is {default_p0:g}): {stays}" if small else
+                 f"too little excitation in those directions: {stays}")
+        found.append(f"RLS {r}: the log informs {n - k} of {n} parameter directions "
+                     f"(P(N) ≥ {INFORMED:g} P(0) in the others): {cause}")
     half = t >= t[0] + 0.5 * (t[-1] - t[0])
     s = result.sigma_hat[half]
     s = s[np.all(np.isfinite(s), axis=1)]
     if s.size:
         neg = float(np.mean(s <= 0))
         if neg > 0.01:
+            hint = (" (unfiltered differences of quantised encoders? try --lowpass)"
+                    if lowpass is None and not stuck else "")
             found.append(f"σ̂ ≤ 0 in {100 * neg:.0f} % of the second half of the log: not a "
-                         "stiffness (unfiltered differences of quantised encoders? try "
-                         "--lowpass)")
+                         f"stiffness{hint}")
     upd = result.updating[half]
     if upd.size and float(np.mean(upd)) < 0.05:
         found.append(f"the RLS updated in {100 * float(np.mean(upd)):.1f} % of the second "
@@ -199,13 +240,28 @@ def plausibility(t: np.ndarray, result, est) -> list[str]:
         th = th[np.all(np.isfinite(th), axis=1)]
         if len(th) < 2:
             continue
-        scale = float(np.linalg.norm(th[-1])) or 1.0
-        drift = float(np.linalg.norm(th[-1] - th[0])) / scale
+        # Relative to the largest parameter: norms of raw values as small as 1e-298
+        # underflow to 0 (issue 36: --p0 1e-300 passed this check).
+        big = float(np.max(np.abs(th[-1]))) or 1.0
+        scale = float(np.linalg.norm(th[-1] / big)) or 1.0
+        drift = float(np.linalg.norm((th[-1] - th[0]) / big)) / scale
         if drift > 0.1:
             found.append(f"RLS {r}: parameters moved by {100 * drift:.0f} % over the last "
                          "quarter of the log: not converged (a longer log, or more "
                          "excitation)")
     return found
+
+
+def check_excitation(log: Path, Y: np.ndarray, names) -> None:
+    """Refuse a log in which every measured column is constant (all zero, a robot at
+    rest): nothing in it can move an estimate (issue 36: such logs blamed quantised
+    encoders)."""
+    span = np.ptp(Y, axis=0) if len(Y) else np.zeros(len(names))
+    scale = np.maximum(np.abs(Y).max(axis=0, initial=0.0), 1.0)
+    if np.all(span <= 1e-12 * scale):
+        raise SoftgenError(f"estimate: {log}: too little excitation: every measured column "
+                           f"({', '.join(names)}) is constant over the log; the estimator "
+                           "needs the joints moving and the springs deflecting")
 
 
 def check_output(out: Path, log: Path, *, force: bool) -> None:
@@ -214,6 +270,10 @@ def check_output(out: Path, log: Path, *, force: bool) -> None:
         raise SoftgenError(f"estimate: --out {out} is the log itself; choose another file")
     if out.is_dir():
         raise SoftgenError(f"estimate: --out {out} is a directory; give a file name")
+    if (out.exists() or out.is_symlink()) and not out.is_file():
+        # A device or a FIFO: the atomic rename would replace the node itself (as root,
+        # --out /dev/full --force did, issue 36).
+        raise SoftgenError(f"estimate: --out {out} is not a regular file; give a file name")
     if out.exists() and not force:
         raise SoftgenError(f"estimate: --out {out} exists; add --force to overwrite it")
     if not out.parent.is_dir():
@@ -270,6 +330,7 @@ def _estimate_log(model_name, log: Path, out: Path, *, method: str, dt: float | 
     config = EstimatorConfig(kind, dt=dt, powers=powers, p0=p0)
     est = StiffnessEstimator(model, config)      # checks the settings before reading the log
     t, Y, log_dt = read_log(log, est.measurements, min_rows=est.config.delay + 2)
+    check_excitation(log, Y, est.measurements)
     if dt is not None and abs(dt - log_dt) > step_tolerance(log_dt):
         raise SoftgenError(f"estimate: --dt {dt:g} s disagrees with the median time step "
                            f"{log_dt:.9g} s of {log}; drop --dt or resample the log")
@@ -296,9 +357,16 @@ def _estimate_log(model_name, log: Path, out: Path, *, method: str, dt: float | 
         raise NonFiniteError(f"estimate: diverged: {column} is {value!r} at t = {float(t[k])!r} s "
                              f"(sample {k} of {log}); estimates written to {out} ('nan'/'inf' "
                              f"where diverged, empty only where there is no estimate yet)")
+    P0 = est.initial_state()
+    covariance = {r: (P0[est.layout[f"P_{r}"]].reshape(n, n),
+                      np.asarray(trace.final_state[f"est.P_{r}"], dtype=float).reshape(n, n))
+                  for r in est.rls_names for n in [est.n_parameters]}
+    default_p0 = EstimatorConfig(kind).resolved().p0
     return EstimateRun(len(t), est.config.dt, kind, est.config.delay, out,
                        time.perf_counter() - t0, lowpass,
-                       tuple(plausibility(t, result, est)))
+                       tuple(plausibility(t, result, est, lowpass=lowpass,
+                                          covariance=covariance, p0=p0,
+                                          default_p0=default_p0)))
 
 
 # -- the shipped sample log ------------------------------------------------------------

@@ -69,8 +69,10 @@ from softgen.core.errors import SoftgenError
 from softgen.estimation.discretize import discretize
 from softgen.estimation.uio import (ExistenceCheck, design_uio, existence_conditions,
                                     invertibility_matrix, smallest_delay)
+from softgen.app.estimate import DT_RANGE
+from softgen.modelfile.limits import OBSERVER_STATES
 from softgen.modelfile.load import load_model
-from softgen.modelfile.model import RobotModel
+from softgen.modelfile.model import MAX_NAME, RobotModel
 from softgen.symbolic.actuated import euler_steps, rk4_steps
 from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
 from softgen.symbolic.rigid import FUNCTION_OPTS, RigidDynamics
@@ -185,6 +187,9 @@ def read_system(path: str | Path) -> LinearSystem:
     except (tomllib.TOMLDecodeError, json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise SystemFileError(f"{path}: not valid {suffix[1:].upper()} "
                               f"({str(exc).splitlines()[0]})") from None
+    except RecursionError:           # arrays nested thousands deep (issue 36)
+        raise SystemFileError(f"{path}: not valid {suffix[1:].upper()} (nested too "
+                              "deeply)") from None
     if not isinstance(data, dict):
         raise SystemFileError(f"{path}: expected a table of keys A, B, C, D, got "
                               f"{type(data).__name__}")
@@ -192,6 +197,8 @@ def read_system(path: str | Path) -> LinearSystem:
     if extra:
         raise SystemFileError(f"{path}: {extra[0]}: unknown key (expected some of "
                               f"{', '.join(sorted(_KEYS))})")
+    if isinstance(data.get("A"), list):      # the size first, before 1e6 cells are read
+        OBSERVER_STATES.check(len(data["A"]), f"{path}: A")
     A = _matrix(path, data, "A", (None, None), "(n, n)")
     n = A.shape[0]
     if A.shape != (n, n):
@@ -240,8 +247,15 @@ def read_system(path: str | Path) -> LinearSystem:
                               f"act identically, so no observer can tell them apart")
     stem = re.sub(r"\W", "_", path.stem)
     name = data.get("name", stem if _NAME.match(stem) else f"system_{stem}")
-    if not isinstance(name, str) or not _NAME.match(name):
-        raise SystemFileError(f"{path}: name: expected a C identifier, got {_short(name)}")
+    if not isinstance(name, str) or not _NAME.match(name) or len(name) > MAX_NAME:
+        # The name becomes file and C symbol names: a 500-character one failed deep in
+        # the writer (issue 36).
+        what = f"{len(name)} characters" if isinstance(name, str) and _NAME.match(name) \
+            else _short(name)
+        raise SystemFileError(f"{path}: name: expected a C identifier of at most {MAX_NAME} "
+                              f"characters, got {what}" + ("" if "name" in data else
+                                                           " (from the file name; give "
+                                                           "name = \"...\")"))
     return LinearSystem(name=name, A=A, B=B, C=C, D=D, unknown=unknown,
                         dt=None if dt is None else float(dt), source=str(path), identity=raw,
                         note={"time": time, **({"discretization": method}
@@ -294,8 +308,11 @@ def linearise_model(model: RobotModel | str, *, q0: str | None = None,
                            f"driven)")
     if integrator not in ("euler", "rk4"):
         raise SoftgenError(f"observer: --integrator: expected euler or rk4, got {integrator!r}")
-    if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
-        raise SoftgenError(f"observer: --dt: expected a sample time > 0, got {dt!r}")
+    lo, hi = DT_RANGE
+    if not (isinstance(dt, (int, float)) and math.isfinite(dt) and lo <= dt <= hi):
+        # 1e300 overflowed in the linearisation's rank tolerances (issue 36).
+        raise SoftgenError(f"observer: --dt: expected a sample time between {lo:g} and "
+                           f"{hi:g} s, got {dt!r}")
     n = model.dof
     dyn = RigidDynamics(model)
     m = dyn.nominal
@@ -410,6 +427,14 @@ def check_system(system: LinearSystem, delay: int) -> ObserverCheck:
     """Props. 7-9 (eq. 5.3) for the unknown inputs of ``system`` at ``delay``."""
     if isinstance(delay, bool) or not isinstance(delay, int) or delay < 0:
         raise SoftgenError(f"observer: --delay: expected a non-negative integer, got {delay!r}")
+    n = system.A.shape[0]
+    OBSERVER_STATES.check(n, f"observer: {system.source}")
+    if delay > n:
+        # Props. 7-9: if no delay L <= n gives an observer, none does; the block
+        # matrices of a larger L only cost (100,000 ran for minutes, issue 36).
+        raise SoftgenError(f"observer: --delay {delay}: at most n = {n} (the number of "
+                           "states): if no delay up to n gives an observer, no larger one "
+                           "does; omit --delay for the smallest that works")
     Bu, Du, _, _ = system.split()
     conds = existence_conditions(system.A, Bu, system.C, Du, delay)
     return ObserverCheck(delay, conds, smallest_delay(system.A, Bu, system.C, Du))

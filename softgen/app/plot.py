@@ -46,8 +46,9 @@ def load_trace(path: str | Path) -> dict[str, np.ndarray]:
     try:
         with np.load(f, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise SoftgenError(f"{f}: not a trace file (.npz) ({exc})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise SoftgenError(f"{f}: not a trace file (.npz) ({exc or type(exc).__name__})") \
+            from None
 
 
 def time_series(trace: dict[str, np.ndarray]) -> tuple[np.ndarray, list[str]]:
@@ -82,6 +83,11 @@ def plot_trace(path: str | Path, signals: list[str] | None = None, *,
     if not chosen:
         raise SoftgenError(f"{f}: no time series to draw")
     out = Path(out) if out is not None else f.with_suffix(".png")
+    if out.resolve() == f.resolve():
+        # --force is for an earlier figure, never for the trace being drawn (issue 36:
+        # ``plot X.npz --out X.npz --force`` replaced the trace by a PNG).
+        raise SoftgenError(f"--out {out}: is the trace file it draws (the input); give "
+                           "another file name")
     if out.exists() and not force:
         raise SoftgenError(f"--out {out}: exists; give --force to overwrite it")
     directory = out.parent if str(out.parent) else Path(".")

@@ -36,7 +36,8 @@ from softgen.core.stop import (Stop, ignore_signals, interrupted, signal_name, s
                                stopping, worker_init)
 from softgen.core.cpus import ENV as CPUS_ENV, share as cpu_share
 from softgen.core.atomic import check_dir, output_error, write_text
-from softgen.core.provenance import code_hash
+from softgen.core.children import end_pool
+from softgen.core.provenance import code_hash, seal
 from softgen.app.report import caption_of, write_report
 from softgen.runtime.simulate import progress_context, set_full_traces, set_progress
 from softgen.core.config import Config
@@ -169,6 +170,11 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None,
     if findings is not None:
         result["findings"] = findings
     result["run_hash"] = rhash
+    # The seal binds the numbers to this run (its config and code, through run_hash):
+    # a metrics.json edited afterwards no longer matches it and is run again by --resume
+    # and left out of the report (issue 36).
+    result = json.loads(json.dumps(result, allow_nan=False))
+    result["seal"] = seal(result)
     _write_json(out / "metrics.json", result)
     return result
 
@@ -207,8 +213,18 @@ def _clean_stale_stages(out_root: Path) -> None:
         return
     for d in out_root.glob(".*.running-*"):
         pid = d.name.rpartition("-")[2]
-        if pid.isdigit() and not Path(f"/proc/{pid}").exists() and d.is_dir():
+        if pid.isdigit() and not _running(int(pid)) and d.is_dir():
             shutil.rmtree(d, ignore_errors=True)
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` runs: a zombie (a killed worker no one has reaped yet,
+    e.g. under a container's PID 1) does not."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
 
 
 def check_findings(exp: Experiment, metrics: Metrics, config) -> list[dict]:
@@ -263,6 +279,22 @@ def _resumable(exp_id: str, out_root: Path, expected: str) -> dict | None:
     if _well_formed(saved, exp_id) and saved.get("run_hash") == expected:
         return saved
     return None
+
+
+def _why_not_resumed(exp_id: str, out_root: Path) -> str:
+    """Why ``--resume`` runs ``exp_id`` again, for the progress line."""
+    path = out_root / exp_id / "metrics.json"
+    try:
+        saved = json.loads(path.read_text())
+    except FileNotFoundError:
+        return "no metrics.json"
+    except (OSError, ValueError):
+        return "metrics.json unreadable"
+    if not isinstance(saved, dict) or saved.get("experiment") != exp_id:
+        return "metrics.json written by something else"
+    if saved.get("seal") != seal(saved):
+        return "metrics.json does not match its seal (edited, or not written by reproduce)"
+    return "code or config changed since"
 
 
 def reproduce(ids: list[str] | None, out_root: Path, *, quick: bool = False,
@@ -353,6 +385,9 @@ def _reproduce(ids: list[str], out_root: Path, results: dict, *, quick: bool, se
                 results[i] = saved
                 print(f"[resume] {i}: metrics.json matches the current code and config; "
                       "kept", file=progress, flush=True)
+            else:
+                print(f"[resume] {i}: {_why_not_resumed(i, out_root)}; running it",
+                      file=progress, flush=True)
     # Costliest first (Experiment.cost); the report keeps the order of ``ids``.
     todo = sorted((i for i in ids if i not in results), key=lambda i: -get(i).cost)
     # Default: one worker per CPU (more only adds load), never more than experiments.
@@ -383,8 +418,10 @@ def _reproduce(ids: list[str], out_root: Path, results: dict, *, quick: bool, se
 
 
 def _well_formed(saved, exp_id: str) -> bool:
-    """A metrics.json that reproduce wrote for ``exp_id`` (a foreign one is ignored)."""
+    """A metrics.json that reproduce wrote for ``exp_id`` and nobody changed since (its
+    seal matches): a foreign or edited one is ignored."""
     return (isinstance(saved, dict) and saved.get("experiment") == exp_id
+            and saved.get("seal") == seal(saved)
             and isinstance(saved.get("metrics"), dict)
             and isinstance(saved.get("wall_seconds"), (int, float))
             and not isinstance(saved.get("wall_seconds"), bool)
@@ -440,23 +477,17 @@ def _run_pool(todo: list[str], out_root: Path, quick: bool, code: str, jobs: int
             ignore_signals()                # the clean-up is short; let it finish
         if pool is not None:
             _abort_pool(pool, futures)
+            # The killed workers could not remove their staging directories.
+            _clean_stale_stages(out_root)
         raise
     pool.shutdown(wait=True)
 
 
 
 def _abort_pool(pool: ProcessPoolExecutor, futures: dict) -> None:
-    """Cancel what has not started, kill the workers, wait at most STOP_GRACE seconds."""
-    for fut in futures:
-        fut.cancel()
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    for p in procs:
-        if p.is_alive():
-            p.kill()
-    deadline = time.monotonic() + STOP_GRACE
-    for p in procs:
-        p.join(max(0.0, deadline - time.monotonic()))
-    pool.shutdown(wait=False, cancel_futures=True)
+    """Cancel what has not started, kill the workers, wait at most STOP_GRACE seconds
+    (:func:`softgen.core.children.end_pool`; ``futures`` are left to the pool)."""
+    end_pool(pool, STOP_GRACE)
 
 
 #: Cost assumed for an experiment without a hint (CPU s): the cheap ones have none.

@@ -26,13 +26,24 @@ def has_chain(args) -> bool:
 
 def chain_model(args, ref, verb: str):
     """``ref`` (a model name or path) as the verb passes it on: unchanged without
-    ``--root``/``--tip``, else the loaded chain."""
+    ``--root``/``--tip``, else the loaded chain.
+
+    Either way the model's size is checked here, before the verb derives anything
+    (:func:`softgen.modelfile.limits.check_expression_size`, one line naming
+    ``SOFTGEN_MAX_EXPRESSION_SIZE``): every verb that takes a model gets the same check
+    (issue 36: ``check``, ``export``, ``identify``, ``observer`` and ``estimate`` derived
+    for minutes in silence)."""
+    from softgen.modelfile.limits import check_expression_size
+    from softgen.modelfile.load import load_model
     if not has_chain(args):
+        if ref is not None:
+            check_expression_size(load_model(ref))
         return ref
     if ref is None:
         raise SoftgenError(f"{verb}: --root/--tip choose a chain of a URDF MODEL; give one")
-    from softgen.modelfile.load import load_model
-    return load_model(ref, root=args.root, tip=args.tip)
+    model = load_model(ref, root=args.root, tip=args.tip)
+    check_expression_size(model)
+    return model
 
 
 def single_model(args, models: list[str], verb: str) -> None:

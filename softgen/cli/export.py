@@ -16,6 +16,9 @@ def add_arguments(p) -> None:
     p.add_argument("--force", action="store_true",
                    help="write into a non-empty DIR, overwriting the exported files (files of an "
                         "earlier export are removed only if unchanged since)")
+    p.add_argument("--force-foreign", action="store_true",
+                   help="with --force: also write into a DIR holding files no export record "
+                        "lists (a file of the same name as an exported one is overwritten)")
     p.add_argument("--build", action="store_true",
                    help="also build the project (make, with the C compiler of --cc or $CC)")
     p.add_argument("--cc", metavar="CC", help="C compiler for --build (default $CC, cc, gcc, "
@@ -39,7 +42,9 @@ def run(args) -> int:
     loaded = model if not isinstance(model, str) else load_model(model)
     overrides = parse_overrides(choose(loaded, args.example), args.set)
     res = export(loaded if not isinstance(model, str) else model, args.out, force=args.force,
-                 build=args.build, cc=args.cc, example=args.example, overrides=overrides)
+                 build=args.build, cc=args.cc, example=args.example, overrides=overrides,
+                 force_foreign=args.force_foreign,
+                 progress=lambda line: print(line, flush=True))
     for line in summary(res):
         print(line)
     return 0

@@ -71,6 +71,9 @@ def _shipped_size(name: str, generated: Path) -> int:
 def run(args) -> int:
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
+    from softgen.core.children import end_pool
+    from softgen.core.stop import worker_init
+
     from softgen.bundles.bundle import GENERATED_DIR
     from softgen.codegen.build import find_compiler
     from softgen.modelfile.load import list_models
@@ -94,9 +97,18 @@ def run(args) -> int:
     # finishes (one slow compile holds nothing back); the first error stops the run.
     # Largest first: the 3D PCC bundle alone compiles for most of the run, and started
     # last it is the whole critical path. Its size is the shipped C's where there is one.
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    # Workers leave SIGINT/SIGTERM to this process and die with it, even by SIGKILL; on an
+    # interrupt or the first error they are killed now, not waited for (issue 36: they
+    # went on deriving and compiling under PID 1).
+    pool = ProcessPoolExecutor(max_workers=jobs, initializer=worker_init,
+                               initargs=(os.getpid(),))
+    try:
         futures = [pool.submit(_generate_one, name, out, build, args.force)
                    for name in sorted(names, key=lambda n: -_shipped_size(n, GENERATED_DIR))]
         for fut in as_completed(futures):
             _say(fut.result())
+    except BaseException:
+        end_pool(pool)
+        raise
+    pool.shutdown(wait=True)
     return 0

@@ -29,13 +29,18 @@ def add_arguments(p) -> None:
                         "float32, decimated for figures)")
     p.add_argument("--resume", action="store_true",
                    help="skip experiments whose metrics.json matches the current code and "
-                        "config")
+                        "config (and its seal: an edited one runs again)")
+    p.add_argument("--force", action="store_true",
+                   help="run again into an --out that holds results of these experiments "
+                        "(default: refused)")
 
 
 def run(args) -> int:
     if args.jobs is not None and args.jobs < 1:
         raise SoftgenError(f"reproduce: --jobs: expected a positive integer, got {args.jobs}")
     out = output_dir(args.out, "--out")
+    if not (args.resume or args.force):
+        _refuse_existing(out, args.ids)
     # Signals are caught from here on, before the second of imports below: a Ctrl-C at
     # any moment writes report.md marked incomplete and ends with one line (issue 23).
     results = None
@@ -73,3 +78,21 @@ def run(args) -> int:
                 print(r["traceback"], file=sys.stderr)
         raise SoftgenError(f"reproduce: {len(failed)} experiment(s) failed: {', '.join(failed)}")
     return 0
+
+
+def _refuse_existing(out, ids: list[str]) -> None:
+    """Nothing is overwritten silently (README): an --out holding results of the
+    experiments to run needs --resume (keep what is current) or --force."""
+    if not out.is_dir():
+        return
+    from softgen.experiments.registry import experiment_ids
+    names = ids or experiment_ids()
+    # report.md is not counted: it is rewritten from every metrics.json in --out, so a
+    # run of other experiments into the same directory loses nothing.
+    found = [f"{i}/" for i in names if (out / i).exists()]
+    if found:
+        shown = ", ".join(found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3
+                                        else "")
+        raise SoftgenError(f"reproduce: --out {out} already holds results ({shown}); add "
+                           "--resume to keep the current ones and run the rest, or --force "
+                           "to run them again over them")

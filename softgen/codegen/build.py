@@ -36,8 +36,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from softgen.core import children
+from softgen.core.atomic import output_error
 from softgen.core.paths import cache_dir, writable
-from softgen.core.errors import BuildError, BundleError
+from softgen.core.errors import BuildError, BundleError, SoftgenError
 
 #: -O3 is worth ~10-30 % on the regressors; -fno-math-errno lets gcc inline sqrt.
 #: -fno-semantic-interposition: CasADi emits its helpers (casadi_sq, ...) as global
@@ -111,13 +113,27 @@ def compile_shared(c_file: Path, out: Path, *, cc: str | None = None,
 
     t0 = time.perf_counter()
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
-                              preexec_fn=limit if memory_bytes else None)
+        # Supervised: the compiler's process tree (cc1, as, ld) ends with this process,
+        # even when it is killed (issue 36: cc1 ran on under PID 1).
+        proc = children.run(cmd, timeout=timeout, preexec_fn=limit if memory_bytes else None)
     except subprocess.TimeoutExpired:
         raise BuildError(f"compiling {c_file} took over {timeout:.0f} s") from None
     if proc.returncode != 0:
-        raise BuildError(f"compiling {c_file} failed", proc.stderr)
+        raise BuildError(f"compiling {c_file} failed: {compiler_reason(proc.stderr)}",
+                         proc.stderr)
     return time.perf_counter() - t0
+
+
+def compiler_reason(stderr: str) -> str:
+    """The line of a compiler's (or make's) stderr that says why it failed, for the one
+    line the command line prints: the first error or full-disk line, else the last line
+    (issue 36: "compiling X failed" alone hid "No space left on device")."""
+    lines = [ln.strip() for ln in (stderr or "").splitlines() if ln.strip()]
+    if not lines:
+        return "no message from the compiler"
+    keys = ("no space left", "error", "fatal", "cannot", "killed", "undefined reference")
+    pick = next((ln for ln in lines if any(k in ln.lower() for k in keys)), lines[-1])
+    return pick if len(pick) <= 300 else pick[:297] + "..."
 
 
 def _no_constant(name: str):
@@ -326,21 +342,31 @@ def ensure_library(bundle: Path, *, cc: str | None = None,
     if problem is None and not force:
         return lib, 0.0, None
     require_compiler(cc)   # before creating anything
-    lib.parent.mkdir(parents=True, exist_ok=True)
-    # Build to a temporary name and rename: concurrent builds never expose half a
-    # library. The process id in the name lets a later build remove an orphan.
-    fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.{os.getpid()}.",
-                               suffix=".so")
-    os.close(fd)
+    where = lib.parent
     try:
-        seconds = compile_shared(c_file, Path(tmp), cc=cc,
-                                 optimization=manifest.get("optimization", "-O3"))
-        # Replace, never overwrite in place: a process that has the old file mapped
-        # keeps its (unlinked) copy instead of seeing its pages change under it.
-        os.replace(tmp, lib)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
-    _write_record(lib, manifest, seconds)
+        lib.parent.mkdir(parents=True, exist_ok=True)
+        # Build to a temporary name and rename: concurrent builds never expose half a
+        # library. The process id in the name lets a later build remove an orphan.
+        fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.{os.getpid()}.",
+                                   suffix=".so")
+        os.close(fd)
+        try:
+            seconds = compile_shared(c_file, Path(tmp), cc=cc,
+                                     optimization=manifest.get("optimization", "-O3"))
+            # Replace, never overwrite in place: a process that has the old file mapped
+            # keeps its (unlinked) copy instead of seeing its pages change under it.
+            where = lib
+            os.replace(tmp, lib)
+        finally:
+            Path(tmp).unlink(missing_ok=True)
+        where = record_path(lib)
+        _write_record(lib, manifest, seconds)
+    except OSError as exc:
+        # A full or read-only build directory is one line naming it (issue 36: a
+        # traceback); a library without its record is never loaded (verify_library).
+        if isinstance(exc, SoftgenError):
+            raise
+        raise output_error(where, exc) from None
     # Old libraries of this bundle are stale by construction (other hash): remove them.
     for old in lib.parent.glob(f"lib{manifest['model']}_*.so"):
         if old != lib:

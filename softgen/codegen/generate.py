@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import re
+import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +21,8 @@ from pathlib import Path
 import casadi as ca
 
 from softgen.codegen.build import clean_orphans, library_name
+from softgen.core.atomic import OutputError, write_set
+from softgen.core.errors import SoftgenError
 
 #: Bumped whenever the generated code for the same model would change.
 # 2: issue 22 (declared actuators, sampled Theorem 10, multi-DoF UIO)
@@ -126,21 +129,6 @@ def with_levels(c_src: bytes, names: list[str], levels: dict[str, str]) -> bytes
     return b"".join(out)
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    """Write via a temporary file and rename, so a reader never sees half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # The process id in the name lets a later write remove an orphan (a SIGKILL here).
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{os.getpid()}.")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o644)   # mkstemp makes 0600; generated sources are ordinary files
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _plain_loop(c_src: bytes, loop: ca.Function, sample: ca.Function) -> bytes:
     """``loop`` (N samples of ``sample`` by ``mapaccum``) re-emitted as a plain C loop.
 
@@ -209,6 +197,43 @@ static int {fn}(const casadi_real** arg, casadi_real** res, casadi_int* iw, casa
     return (head + body + entry + f"  return {fn}(arg, res, iw, w, mem);" + nl + tail).encode()
 
 
+def _emit(spec: BundleSpec) -> tuple[bytes, bytes]:
+    """CasADi's C and header of the bundle's functions, written by its CodeGenerator
+    into a temporary directory and read back. A full or unwritable temporary directory
+    is one :class:`~softgen.core.atomic.OutputError` line naming it (issue 36: an
+    OSError traceback, or CasADi's ``stream_ptr`` assertion)."""
+    cg = ca.CodeGenerator(f"{spec.name}.c", CODEGEN_OPTS)
+    for sample in spec.loops.values():    # defined before the loops that call them
+        cg.add(sample)
+    for g in spec.functions:
+        cg.add(g.function)
+    where = Path(tempfile.gettempdir())
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            where = Path(tmp)
+            cg.generate(tmp + os.sep)
+            return ((where / f"{spec.name}.c").read_bytes(),
+                    (where / f"{spec.name}.h").read_bytes())
+    except OSError as exc:
+        if isinstance(exc, SoftgenError):
+            raise
+        raise OutputError(f"cannot write the generated C to {where}: "
+                          f"{exc.strerror or exc}") from None
+    except RuntimeError as exc:        # CasADi's C++ streams: no errno of their own
+        free = _free_bytes(where)
+        why = "No space left on device" if free is not None and free < (1 << 20) else \
+            str(exc).splitlines()[0]
+        raise OutputError(f"cannot write the generated C to {where}: {why} (set TMPDIR to "
+                          "a directory with room)") from None
+
+
+def _free_bytes(path: Path) -> int | None:
+    try:
+        return shutil.disk_usage(path if path.exists() else path.parent).free
+    except OSError:
+        return None
+
+
 def render(spec: BundleSpec) -> dict[str, bytes]:
     """The bundle's files as bytes, keyed by file name (nothing is written)."""
     names = [g.function.name() for g in spec.functions]
@@ -222,15 +247,7 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
     if set(loops) != set(spec.loops):
         raise ValueError(f"loops: {', '.join(sorted(set(spec.loops) - set(loops)))} "
                          f"not among the functions of bundle {spec.name!r}")
-    with tempfile.TemporaryDirectory() as tmp:
-        cg = ca.CodeGenerator(f"{spec.name}.c", CODEGEN_OPTS)
-        for sample in spec.loops.values():    # defined before the loops that call them
-            cg.add(sample)
-        for g in spec.functions:
-            cg.add(g.function)
-        cg.generate(tmp + os.sep)
-        c_src = (Path(tmp) / f"{spec.name}.c").read_bytes()
-        h_src = (Path(tmp) / f"{spec.name}.h").read_bytes()
+    c_src, h_src = _emit(spec)
     for name, f in loops.items():
         c_src = _plain_loop(c_src, f, spec.loops[name])
     # Functions at their own level (chosen by the bundle from measurements, never by
@@ -282,9 +299,14 @@ def write_bundle(spec: BundleSpec, out_root: Path) -> Path:
     bundle = Path(out_root) / spec.name
     files = render(spec)
     clean_orphans(bundle, tuple(f".{fname}." for fname in files))
+    changed = {}
     for fname, data in files.items():
         path = bundle / fname
-        if path.exists() and path.read_bytes() == data:
+        if path.is_file() and path.read_bytes() == data:
             continue
-        _write_atomic(path, data)
+        changed[fname] = data
+    # All or nothing (issue 36): the new files are complete on disk before any replaces
+    # its namesake, the manifest last; a full disk keeps the earlier bundle whole.
+    if changed:
+        write_set(bundle, changed, last=("manifest.json",))
     return bundle

@@ -134,3 +134,50 @@ def check_dir(directory: str | os.PathLike[str], what: str = "output directory")
     if not os.access(base, os.W_OK | os.X_OK):
         raise OutputError(f"{what} {d}: {base} is not writable")
     return d
+
+
+def write_set(directory: str | os.PathLike[str], files: dict[str, bytes], *,
+              last: tuple[str, ...] = ()) -> Path:
+    """Replace several files of ``directory`` as one step as far as a file system
+    allows: every new file is written and fsync'ed under its temporary name first, and
+    only when all are complete are they renamed over their namesakes (the names in
+    ``last`` after the others: a manifest or record that vouches for them).
+
+    A full disk, an interrupt or any error while writing leaves every earlier file as
+    it was (issue 36: ``generate --force`` on a nearly full disk replaced the C and the
+    manifest and then failed); the renames themselves take no space.
+    """
+    directory = Path(directory)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise output_error(directory, exc) from None
+    staged: list[tuple[Path, Path]] = []
+    order = sorted(files, key=lambda name: (name in last, last.index(name) if name in last
+                                            else 0))
+    try:
+        for name in order:
+            path = directory / name
+            tmp = temp_path(path)
+            staged.append((tmp, path))
+            try:
+                with open(tmp, "wb") as fh:
+                    fh.write(files[name])
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                os.chmod(tmp, 0o644)
+            except OSError as exc:
+                if isinstance(exc, SoftgenError):
+                    raise
+                raise output_error(path, exc) from None
+        for tmp, path in staged:
+            try:
+                os.replace(tmp, path)
+            except OSError as exc:
+                raise output_error(path, exc) from None
+    finally:
+        for tmp, _ in staged:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+    _fsync_dir(directory)
+    return directory

@@ -8,7 +8,9 @@ studies layer need it.
 from __future__ import annotations
 
 import hashlib
+import json
 from pathlib import Path
+from typing import Any
 
 import casadi
 import numpy
@@ -38,3 +40,15 @@ def code_hash() -> str:
         h.update(name.encode() + b"\0")
         h.update(f.read_bytes() + b"\0")
     return h.hexdigest()
+
+
+def seal(record: dict[str, Any]) -> str:
+    """sha256 of a record's content (every key but ``seal``), as canonical JSON.
+
+    What binds a saved result to the run that wrote it: the export record
+    (``softgen_export.json``) and every ``metrics.json`` of ``reproduce`` carry it, and a
+    record whose seal does not match its content (edited by hand, written by another
+    tool) is not trusted (issue 36: an edited metrics.json was kept by ``--resume``).
+    """
+    body = {k: v for k, v in record.items() if k != "seal"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()

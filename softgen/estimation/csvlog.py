@@ -20,8 +20,12 @@ from __future__ import annotations
 
 import csv
 import math
+import os
+import stat
+import sys
+import time
 from array import array
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +34,7 @@ from softgen.core.atomic import OutputError, atomic_open
 from softgen.core.errors import ShapeError, SoftgenError
 from softgen.estimation.estimators import StiffnessEstimator
 from softgen.estimation.offline import EstimationResult
+from softgen.modelfile.limits import LOG_ROWS
 
 #: Accepted names of the time column, in order of preference.
 TIME_COLUMNS = ("t", "time")
@@ -47,6 +52,96 @@ class LogError(SoftgenError, ValueError):
 def step_tolerance(dt: float) -> float:
     """Largest accepted deviation [s] of a time step from the sample time ``dt``."""
     return max(RTOL * dt, ATOL)
+
+
+#: Longest line of a log [characters]: a row of a few hundred numbers. A file with a
+#: longer line is not a CSV log (``/dev/zero`` is one endless line: ``estimate`` read it
+#: until killed, issue 36).
+MAX_LINE = 1 << 20
+
+#: Seconds between the progress lines of a long read (on a terminal).
+PROGRESS_EVERY = 2.0
+
+
+def _lines(path: Path, fh) -> Iterator[str]:
+    """The lines of ``fh``, each read with a bounded length; a line past
+    :data:`MAX_LINE` or holding NUL bytes is one :class:`LogError` (binary data, a
+    device), never an unbounded read."""
+    line_no = 0
+    while True:
+        line = fh.readline(MAX_LINE + 1)
+        if not line:
+            return
+        line_no += 1
+        if "\0" in line:
+            raise LogError(f"{path}: line {line_no} holds NUL bytes: binary data, not a "
+                           "text CSV log")
+        if len(line) > MAX_LINE and not line.endswith("\n"):
+            raise LogError(f"{path}: line {line_no} is longer than {MAX_LINE:,} "
+                           "characters: not a CSV log (binary data or a device?)")
+        yield line
+
+
+def _size_check(path: Path, fh) -> None:
+    """Refuse, before reading it, a log whose size alone puts it far past the row limit
+    (:data:`~softgen.modelfile.limits.LOG_ROWS`; twice the limit, from the bytes per row
+    of its first 64 kB); the exact count is checked as the rows stream in."""
+    try:
+        size = os.fstat(fh.fileno()).st_size
+        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode) or size <= 0:
+            return
+        head = fh.buffer.peek(1 << 16)[:1 << 16] if hasattr(fh, "buffer") else b""
+    except (OSError, AttributeError, ValueError):
+        return
+    rows = head.count(b"\n")
+    if rows < 2:
+        return
+    estimate = size * rows / len(head)
+    if estimate > 2 * LOG_ROWS.value():
+        LOG_ROWS.check(estimate, str(path), "about ")
+
+
+def numbered_rows(path: Path, fh) -> Iterator[tuple[int, list[str]]]:
+    """(line number, cells) of every non-blank row of an open CSV file: lines of bounded
+    length (:func:`_lines`), at most :data:`~softgen.modelfile.limits.LOG_ROWS` rows
+    (``SOFTGEN_MAX_LOG_ROWS``), a progress line every few seconds on a terminal."""
+    _size_check(path, fh)
+    reader = csv.reader(_lines(path, fh))
+    limit = LOG_ROWS.value()
+    show = sys.stderr.isatty()
+    t0 = last = time.monotonic()
+    count = 0
+    try:
+        for row in reader:
+            if row and any(c.strip() for c in row):
+                count += 1
+                if count > limit + 1:             # the header is one of them
+                    LOG_ROWS.check(count - 1, str(path), "at least ")
+                if show and count % 4096 == 0 and time.monotonic() - last > PROGRESS_EVERY:
+                    last = time.monotonic()
+                    print(f"reading {path}: {count - 1:,} rows, {last - t0:.0f} s",
+                          file=sys.stderr, flush=True)
+                yield reader.line_num, row
+    except csv.Error as exc:
+        raise LogError(f"{path}: row {reader.line_num}: malformed CSV ({exc})") from None
+
+
+def read_header(path: str | Path, what: str = "log") -> list[str]:
+    """The column names of a CSV ``what`` file (one error line if it cannot be read)."""
+    path = Path(path)
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            row = next(csv.reader(_lines(path, fh)), None)
+    except FileNotFoundError:
+        raise LogError(f"{path}: no such {what} file") from None
+    except IsADirectoryError:
+        raise LogError(f"{path}: is a directory, not a {what} file") from None
+    except UnicodeDecodeError:
+        raise LogError(f"{path}: not a text (UTF-8) CSV {what} file") from None
+    except (OSError, csv.Error) as exc:
+        raise LogError(f"{path}: cannot read {what} ({getattr(exc, 'strerror', None) or exc})"
+                       ) from None
+    return [h.strip() for h in row] if row else []
 
 
 def read_log(path: str | Path, names: Sequence[str], *,
@@ -80,7 +175,7 @@ def read_log(path: str | Path, names: Sequence[str], *,
     path = Path(path)
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:
-            return _read_rows(path, _numbered_rows(path, fh), names, min_rows)
+            return _read_rows(path, numbered_rows(path, fh), names, min_rows)
     except FileNotFoundError:
         raise LogError(f"{path}: no such log file") from None
     except UnicodeDecodeError:
@@ -114,7 +209,7 @@ def _read_rows(path: Path, rows, names: Sequence[str],
     missing = ([] if time_col else ["t (or time)"]) + [n for n in names if n not in header]
     if missing:
         raise LogError(f"{path}: missing column(s) {', '.join(missing)}; "
-                       f"found {', '.join(header) or '(none)'}")
+                       f"found {column_names(header)}")
     for n in wanted:
         if header.count(n) > 1:
             where = [str(i + 1) for i, h in enumerate(header) if h == n]
@@ -156,15 +251,11 @@ def _read_rows(path: Path, rows, names: Sequence[str],
     return t, Y, dt
 
 
-def _numbered_rows(path: Path, fh):
-    """(line number, cells) of every non-blank row; the line is that of its end."""
-    reader = csv.reader(fh)
-    try:
-        for row in reader:
-            if row and any(c.strip() for c in row):
-                yield reader.line_num, row
-    except csv.Error as exc:
-        raise LogError(f"{path}: row {reader.line_num}: malformed CSV ({exc})") from None
+def column_names(header: Sequence[str]) -> str:
+    """The header's column names for a message, cut to one readable line (the first line
+    of a file that is no CSV, a URDF, was printed whole: 35,000 characters, issue 36)."""
+    text = ", ".join(header) or "(none)"
+    return text if len(text) <= 200 else text[:197] + "..."
 
 
 def _number(path: Path, line: int, name: str, cell: str) -> float:

@@ -13,12 +13,16 @@ The scenario is the model's registered example (:mod:`softgen.studies.examples`:
 the capability decision grants, or ``--example ID``, with ``--set KEY=VALUE`` on its typed
 config), and its Python twin is ``scenario.run()``. A model no example serves is refused
 in one line before anything is written. The export is deterministic: the same model gives
-the same bytes. Every file is written atomically (a temporary file in the same
-directory, fsync, rename), and ``softgen_export.json`` records what was written with
-each file's sha256, sealed by a hash of the record itself: ``--force`` removes a file
-of an earlier export only when a valid record lists it, it is a name an export writes
-(:func:`export_names`) *and* the file still has the recorded hash, so neither a
-hand-edited record nor a hand-edited file makes it delete a user's file.
+the same bytes. The files are written as a set (:func:`softgen.core.atomic.write_set`):
+all of them complete on disk as temporaries in the same directory before any is renamed
+over its namesake, so a full disk leaves an earlier export whole; and
+``softgen_export.json``, renamed last, records what was written with each file's sha256,
+sealed by a hash of the record itself: ``--force`` removes a file of an earlier export
+(after the new set is in place) only when a valid record lists it, it is a name an
+export writes (:func:`export_names`) *and* the file still has the recorded hash, so
+neither a hand-edited record nor a hand-edited file makes it delete a user's file. A
+folder holding files no valid record accounts for (:func:`foreign_files`) is refused
+unless ``force_foreign`` (``--force-foreign``).
 """
 from __future__ import annotations
 
@@ -29,17 +33,20 @@ import os
 import re
 import shlex
 import shutil
-import subprocess
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from softgen.bundles.bundle import check_model_unchanged, generate
-from softgen.codegen.build import check_source, find_compiler, read_manifest
+from softgen.codegen.build import check_source, compiler_reason, find_compiler, read_manifest
 from softgen.codegen.generate import BundleSpec, Generated
 from softgen.codegen.generate import render as render_bundle
+from softgen.core import children
+from softgen.core.atomic import output_error, write_set
 from softgen.core.errors import BuildError, BundleError, SoftgenError
+from softgen.core.provenance import seal
 from softgen.core.paths import GENERATED_DIR, output_dir, writable
 from softgen.export.api import api_header, api_source
 from softgen.export.example import example_text, python_loop, scenario_header
@@ -139,12 +146,6 @@ def loop_bundle(ex: Example, model: str) -> tuple[dict, bytes, bytes]:
             files[f"{model}_loop.h"])
 
 
-def seal(record: dict) -> str:
-    """sha256 over a record's content (everything but the seal), canonical JSON."""
-    body = {k: v for k, v in record.items() if k != "seal"}
-    return hashlib.sha256(json.dumps(body, sort_keys=True).encode()).hexdigest()
-
-
 def render(manifest: dict, c_src: bytes, h_src: bytes, manifest_bytes: bytes,
            ex: Example) -> dict[str, bytes]:
     """The exported project's files (name -> bytes); a function of the bundle and the
@@ -214,32 +215,6 @@ def _check_out_dir(out: Path, force: bool) -> None:
                            "directory, or --force to overwrite the exported files")
 
 
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory, fsync'd
-    and renamed over it, so that no reader (and no crash) ever sees half a file."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)    # mkstemp makes 0600; these are ordinary source files
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
-def _fsync_dir(path: Path) -> None:
-    """Make the renames in ``path`` durable (a no-op where directories cannot be opened)."""
-    with contextlib.suppress(OSError):
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
 def _sha256(path: Path) -> str | None:
     try:
         return hashlib.sha256(path.read_bytes()).hexdigest()
@@ -255,6 +230,67 @@ def export_names(model: str) -> set[str]:
         "example_config.h", "Makefile", "CMakeLists.txt", "README.md", RECORD}
 
 
+def build_products(model: str) -> set[str]:
+    """What building an export of ``model`` adds to its folder (the Makefile's objects,
+    library and example; CMake's ``build/``): the export's own, never a user's."""
+    return {f"{model}{suffix}" for suffix in (".o", "_api.o", "_loop.o", "_loop_api.o",
+                                               "_example")} | {"main.o", f"lib{model}.a",
+                                                               "build"}
+
+
+def _record(out: Path) -> dict | None:
+    """The sealed record of an earlier export in ``out`` (None: none, or not valid)."""
+    try:
+        record = json.loads((out / RECORD).read_text())
+        if record.get("seal") != seal(record) or not isinstance(record.get("files"), dict) \
+                or not isinstance(record.get("model"), str):
+            return None
+    except (OSError, ValueError, UnicodeDecodeError, AttributeError, TypeError):
+        return None
+    return record
+
+
+def foreign_files(out: Path) -> list[str]:
+    """Entries of ``out`` that no valid export record accounts for: not listed by the
+    earlier export's sealed record, not its record itself, not what building it makes
+    (:func:`build_products`). Hidden temporaries of an interrupted export are ours."""
+    if not out.is_dir():
+        return []
+    record = _record(out)
+    own = {RECORD} | (set(record["files"]) | build_products(record["model"])
+                      if record is not None else set())
+    return sorted(p.name for p in out.iterdir()
+                  if p.name not in own and not _our_temporary(p.name))
+
+
+def _our_temporary(name: str) -> bool:
+    """``.<file>.<pid>.tmp`` of :func:`softgen.core.atomic.write_set` (and the older
+    ``mkstemp`` names ``.<file>.<random>.tmp``)."""
+    return name.startswith(".") and name.endswith(".tmp")
+
+
+def _clean_temporaries(out: Path) -> None:
+    """Temporaries of an export killed before its renames (its process is gone)."""
+    if not out.is_dir():
+        return
+    for p in out.iterdir():
+        if not (_our_temporary(p.name) and p.is_file()):
+            continue
+        pid = p.name[:-len(".tmp")].rpartition(".")[2]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+            p.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
 def previous_files(out: Path) -> dict[str, str]:
     """The files a valid earlier record of ``out`` lists, with their sha256.
 
@@ -262,21 +298,19 @@ def previous_files(out: Path) -> dict[str, str]:
     its content (hand-edited). Only names an export of the record's model writes
     (:func:`export_names`) are returned, so that not even a re-sealed record can point
     at a file of another name."""
-    try:
-        record = json.loads((out / RECORD).read_text())
-        files, model = record["files"], record["model"]
-        if record.get("seal") != seal(record) or not isinstance(files, dict) \
-                or not isinstance(model, str):
-            return {}
-    except (OSError, ValueError, UnicodeDecodeError, KeyError, TypeError):
+    record = _record(out)
+    if record is None:
         return {}
+    files, model = record["files"], record["model"]
     own = export_names(model) - {RECORD}
     return {k: v for k, v in files.items() if k in own and isinstance(v, str)}
 
 
 def export(model, out: Path | str, *, force: bool = False, build: bool = False,
            cc: str | None = None, generated_root: Path | None = None,
-           example: str | None = None, overrides: dict | None = None) -> ExportResult:
+           example: str | None = None, overrides: dict | None = None,
+           force_foreign: bool = False,
+           progress: Callable[[str], None] | None = None) -> ExportResult:
     """Write the C project of ``model`` to ``out`` (see the module docstring).
 
     ``out`` must be new or empty unless ``force``: then the files of this export are
@@ -288,38 +322,62 @@ def export(model, out: Path | str, *, force: bool = False, build: bool = False,
     """
     out = Path(out)
     _check_out_dir(out, force)
+    foreign = foreign_files(out) if force else []
+    if foreign and not force_foreign:
+        shown = ", ".join(foreign[:4]) + (f" and {len(foreign) - 4} more"
+                                          if len(foreign) > 4 else "")
+        raise SoftgenError(f"--out {out}: holds files no softgen export record lists "
+                           f"({shown}); --force replaces only an earlier export's files: "
+                           "choose another --out, or add --force-foreign to write the "
+                           "export among them (same-named files are overwritten)")
     compiler = None
     if build:
         compiler = find_compiler(cc)
         if compiler is None:
             raise SoftgenError("--build: no C compiler found" + (f" ({cc or 'CC'} not on PATH)"
                                if cc else "") + "; install gcc or clang, set CC, or drop --build")
+    say = progress or (lambda line: None)       # phase lines: never a silent minute
+    say("export: deriving the example scenario and generating its C ...")
     ex = example_for(model, example=example, overrides=overrides)
     with bundle_files(model, generated_root) as (bundle, manifest, note):
         m = manifest["model"]
         files = render(manifest, *((bundle / f).read_bytes() for f in
                                    (f"{m}.c", f"{m}.h", "manifest.json")), ex)
-    out.mkdir(parents=True, exist_ok=True)
-    kept = []
-    if force:
-        for name, digest in sorted(previous_files(out).items()):
-            path = out / name
-            if name in files or not path.is_file() or path.is_symlink():
-                continue
-            if _sha256(path) == digest:
-                path.unlink()
-            else:
-                kept.append(name)
-    for name, data in files.items():
-        if name != RECORD:
-            write_atomic(out / name, data)
-    write_atomic(out / RECORD, files[RECORD])    # last: it vouches for the files above
-    _fsync_dir(out)
+    kept = _write_files(out, files, force)
     res = ExportResult(out=out, model=m, files=sorted(files), example=ex.kind, note=note,
                        kept=kept, dt=ex.dt)
     if build:
+        say(f"export: building {out} with make ...")
         res.build_seconds, res.binary = build_project(out, m, compiler)
     return res
+
+
+def _write_files(out: Path, files: dict[str, bytes], force: bool) -> list[str]:
+    """Write the export's files into ``out``; return the earlier export's files kept.
+
+    The new set is written complete first, as hidden temporaries beside the files they
+    replace, and only then renamed over them, the record last (it vouches for the
+    others): a full disk or an interrupt while writing leaves the earlier export whole
+    (issue 36: its sources were deleted first, then the writes failed). Then, with
+    ``force``, a file of the earlier export that this one does not write is removed if
+    its (sealed) record lists it with the hash it still has, and kept otherwise.
+    """
+    _clean_temporaries(out)
+    earlier = previous_files(out) if force else {}
+    write_set(out, files, last=(RECORD,))
+    kept = []
+    for name, digest in sorted(earlier.items()):
+        path = out / name
+        if name in files or not path.is_file() or path.is_symlink():
+            continue
+        if _sha256(path) == digest:
+            try:
+                path.unlink()
+            except OSError as exc:
+                raise output_error(path, exc) from None
+        else:
+            kept.append(name)
+    return kept
 
 
 def build_project(out: Path, model: str, compiler: str) -> tuple[float, Path]:
@@ -327,7 +385,9 @@ def build_project(out: Path, model: str, compiler: str) -> tuple[float, Path]:
     make = shutil.which("make")
     t0 = time.perf_counter()
     if make:
-        cmds = [[make, "-C", str(out), f"CC={compiler}"]]
+        # make runs in the project folder (cwd): "-C out" on top of it made any relative
+        # --out fail (issue 36).
+        cmds = [[make, f"CC={compiler}"]]
     else:   # the Makefile's commands, without make
         flags = [compiler, "-std=c99", "-ffp-contract=off", "-O2"]
         objs = [f"{model}.o", f"{model}_api.o", f"{model}_loop.o", f"{model}_loop_api.o",
@@ -335,10 +395,10 @@ def build_project(out: Path, model: str, compiler: str) -> tuple[float, Path]:
         cmds = [[*flags, "-c", "-o", o, o[:-2] + ".c"] for o in objs]
         cmds.append([*flags, "-o", f"{model}_example", *objs, "-lm"])
     for cmd in cmds:
-        proc = subprocess.run(cmd, cwd=out, capture_output=True, text=True)
+        proc = children.run(cmd, cwd=out)           # ends with softgen (issue 36)
         if proc.returncode != 0:
-            raise BuildError(f"building {out} failed ({shlex.join(cmd)})",
-                             proc.stderr[-4000:])
+            raise BuildError(f"building {out} failed ({shlex.join(cmd)} in {out}): "
+                             f"{compiler_reason(proc.stderr)}", proc.stderr[-4000:])
     return time.perf_counter() - t0, out / f"{model}_example"
 
 

@@ -5,7 +5,9 @@ A law is an arithmetic expression over named symbols. It is parsed with Python's
 evaluated: numbers, ``+ - * / **``, unary ``+``/``-``, parentheses, the names the caller
 allows, the constant ``pi`` and calls of :data:`FUNCTIONS`. Anything else (attribute
 access, subscripts, lambdas, strings, comparisons, keyword arguments, unknown names or
-functions, exponent literals above :data:`MAX_EXPONENT`) is one :class:`ModelError`
+functions, constant exponents above :data:`MAX_EXPONENT` and constants beyond
+:data:`MAX_CONSTANT`, both judged by their folded value, so ``phi**(2**64)`` as much as
+``phi**1e308``) is one :class:`ModelError`
 naming the file and the key, e.g. ``models/x.toml: actuators[1].a.law: unknown name
 'q2' (expected one of phi, k, a)``. Nothing is ever passed to ``eval``: the checked tree
 is walked and each node becomes a CasADi SX operation, so a law is a CasADi expression
@@ -41,6 +43,10 @@ CONSTANTS = {"pi": math.pi}
 #: Largest magnitude of a literal exponent (``x**1e6`` is refused: it overflows every
 #: double and makes CasADi build a huge product tree).
 MAX_EXPONENT = 64
+#: Largest magnitude of a constant in a law, written or folded (``2**64``, ``exp(700)``):
+#: the limit of every other number of a model file (``model.MAX_MAGNITUDE``, which
+#: imports this module and so cannot be imported here; a test keeps them equal).
+MAX_CONSTANT = 1e9
 #: Longest law text and most nodes of its tree (a law is a line, not a program).
 MAX_LENGTH = 1000
 MAX_NODES = 400
@@ -105,6 +111,7 @@ def parse_law(text: object, names: tuple[str, ...] | list[str], where: str) -> L
         raise fail(f"not an expression ({type(exc).__name__}): {_quote(text)}") from None
     used: set[str] = set()
     count = 0
+    folded_ok: set[int] = set()       # nodes inside a constant already checked
     # The Name nodes that are the called function of a Call (checked with the Call).
     callees = {id(n.func) for n in ast.walk(tree.body) if isinstance(n, ast.Call)}
     expected = ", ".join(names) if names else "no names"
@@ -125,6 +132,9 @@ def parse_law(text: object, names: tuple[str, ...] | list[str], where: str) -> L
                 x = math.inf
             if not math.isfinite(x):
                 raise fail(f"number {_quote(repr(v))} is not finite")
+            if abs(x) > MAX_CONSTANT:
+                raise fail(f"number {_quote(repr(v))} is beyond the magnitude of a model "
+                           f"value ({MAX_CONSTANT:g}): {_quote(text)}")
         elif isinstance(node, ast.Name):
             if id(node) in callees:
                 continue
@@ -139,10 +149,10 @@ def parse_law(text: object, names: tuple[str, ...] | list[str], where: str) -> L
                 raise fail(f"operator {type(node.op).__name__} is not allowed (only + - * / "
                            f"**): {_quote(text)}")
             if isinstance(node.op, ast.Pow):
-                e = _literal(node.right)
-                if e is not None and abs(e) > MAX_EXPONENT:
+                e = _folded(node.right, fail)
+                if e is not None and not abs(e) <= MAX_EXPONENT:
                     raise fail(f"exponent {e:g} too large (at most {MAX_EXPONENT} in "
-                               "magnitude)")
+                               f"magnitude): {_quote(text)}")
         elif isinstance(node, ast.UnaryOp):
             if type(node.op) not in _UNARY:
                 raise fail(f"operator {type(node.op).__name__} is not allowed (only unary "
@@ -163,22 +173,85 @@ def parse_law(text: object, names: tuple[str, ...] | list[str], where: str) -> L
             continue                    # the operator tokens, checked with their node
         else:
             raise fail(f"{kind.__name__} is not allowed: {_quote(text)}")
+        if isinstance(node, (ast.BinOp, ast.Call)) and id(node) not in folded_ok:
+            # A constant subexpression is bounded by its value, as a literal is: the
+            # folded 2**64 or exp(700) as much as the literal 1e308 (issue 36).
+            v = _folded(node, fail)
+            if v is not None:
+                if not math.isfinite(v):
+                    raise fail(f"constant {_quote(ast.unparse(node))} is not finite ({v}): "
+                               f"{_quote(text)}")
+                if abs(v) > MAX_CONSTANT:
+                    raise fail(f"constant {_quote(ast.unparse(node))} = {v:.3g} is beyond "
+                               f"the magnitude of a model value ({MAX_CONSTANT:g}): "
+                               f"{_quote(text)}")
+                folded_ok.update(id(n) for n in ast.walk(node))
     return Law(text=text, names=names, used=frozenset(used), tree=tree)
 
 
-def _literal(node: ast.AST) -> float | None:
-    """The value of a numeric literal, signed (``-70``), else None."""
-    sign = 1.0
-    while isinstance(node, ast.UnaryOp) and type(node.op) in _UNARY:
-        sign = -sign if isinstance(node.op, ast.USub) else sign
-        node = node.operand
-    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)) \
-            and not isinstance(node.value, bool):
-        try:
-            return sign * float(node.value)
-        except OverflowError:
-            return math.inf
-    return None
+def _folded(node: ast.AST, fail) -> float | None:
+    """The value of a constant subexpression (numbers, ``pi``, + - * / **, unary signs,
+    calls of :data:`FUNCTIONS`), computed in floating point, else None.
+
+    An operation that overflows gives ``inf`` (so the caller's limits refuse it), an
+    undefined one (``0/0``, ``log(-1)``) ``nan``. Integers are folded as floats, so
+    ``10**10**10`` costs one overflow, never a ten-billion-digit integer. ``fail`` makes
+    the one-line error for a tree too deep to walk.
+    """
+    def value(n: ast.AST) -> float | None:
+        if isinstance(n, ast.Constant):
+            v = n.value
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                return None
+            try:
+                return float(v)
+            except OverflowError:
+                return math.inf
+        if isinstance(n, ast.Name):
+            return CONSTANTS.get(n.id)
+        if isinstance(n, ast.UnaryOp) and type(n.op) in _UNARY:
+            x = value(n.operand)
+            return None if x is None else (-x if isinstance(n.op, ast.USub) else x)
+        if isinstance(n, ast.BinOp) and type(n.op) in _BINOPS:
+            a = value(n.left)
+            b = value(n.right) if a is not None else None
+            if a is None or b is None:
+                return None
+            return _arith(type(n.op), a, b)
+        if isinstance(n, ast.Call) and isinstance(n.func, ast.Name) \
+                and n.func.id in FUNCTIONS and not n.keywords \
+                and len(n.args) == FUNCTIONS[n.func.id][0]:
+            args = [value(a) for a in n.args]
+            if any(a is None for a in args):
+                return None
+            try:
+                out = float(ca.evalf(FUNCTIONS[n.func.id][1](*(ca.DM(a) for a in args))))
+            except (RuntimeError, ValueError, OverflowError):
+                return math.nan
+            return out
+        return None
+
+    try:
+        return value(node)
+    except RecursionError:
+        raise fail("expression nested too deeply") from None
+
+
+def _arith(op: type, a: float, b: float) -> float:
+    """``a op b`` in IEEE arithmetic: overflow to ±inf, undefined to nan (never raises)."""
+    with np.errstate(all="ignore"):
+        x, y = np.float64(a), np.float64(b)
+        if op is ast.Add:
+            return float(x + y)
+        if op is ast.Sub:
+            return float(x - y)
+        if op is ast.Mult:
+            return float(x * y)
+        if op is ast.Div:
+            return float(x / y) if y != 0 else (math.nan if x == 0 or x != x
+                                                 else math.copysign(math.inf, x) * (
+                                                     math.copysign(1.0, y)))
+        return float(np.power(x, y))
 
 
 def _quote(text: str) -> str:

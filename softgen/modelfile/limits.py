@@ -94,3 +94,80 @@ def check_expression_size(model, limit: int | None = None) -> int:
             f"operations, over the limit of {limit:,} (about a minute of derivation; set "
             f"{ENV_VAR}={size} to derive it anyway, or make fewer parameters uncertain)")
     return size
+
+
+# -- the other sizes a verb derives or allocates from (issue 36) -------------------------
+
+class LimitError(ModelError):
+    """An input whose size is over a documented limit (one line: the size, the limit, the
+    environment variable that raises it)."""
+
+
+class Limit:
+    """A size a verb checks before it derives or allocates: a default and the environment
+    variable that changes it (one home for each number; the message names both).
+
+    Parameters
+    ----------
+    what
+        What is counted, as the message says it ("rows of a measurement log").
+    default
+        The limit when the environment variable is not set.
+    env
+        ``SOFTGEN_MAX_...``.
+    why
+        What passing it would cost, for the message ("about a minute and 1 GB").
+    """
+
+    def __init__(self, what: str, default: int, env: str, why: str):
+        self.what, self.default, self.env, self.why = what, default, env, why
+
+    def value(self) -> int:
+        """The limit: ``$env`` when set (a positive number), else the default."""
+        text = os.environ.get(self.env)
+        if text is None or not text.strip():
+            return self.default
+        try:
+            value = int(float(text))
+        except (ValueError, OverflowError):
+            value = 0
+        if value < 1:
+            raise LimitError(f"{self.env}: expected a positive number of {self.what}, "
+                             f"got {text!r}")
+        return value
+
+    def check(self, n: float, subject: str, qualifier: str = "") -> int:
+        """``n`` when within the limit, else one :class:`LimitError` line that starts with
+        ``subject`` (the option or file) and names the limit and the variable;
+        ``qualifier`` precedes the number ("about ", "more than ")."""
+        limit = self.value()
+        if not n <= limit:                       # also NaN
+            shown = f"{n:,.0f}" if abs(n) < 1e18 else f"{n:.3g}"
+            raise LimitError(f"{subject}: {qualifier}{shown} {self.what}, over the limit of "
+                             f"{limit:,} ({self.why}; set {self.env} to raise it)")
+        return int(n)
+
+
+#: Rows of a measurement log read by ``estimate`` and ``identify``, and of a trajectory
+#: ``identify --excite`` writes. A 1e7-row log took 90 CPU-s and 6.8 GB in ``estimate``
+#: with no output (issue 36): about 700 bytes and 9 µs per row through the estimator,
+#: so a million rows is about 10 s and 700 MB (5,000 s of a 5 ms log).
+LOG_ROWS = Limit("rows", 1_000_000, "SOFTGEN_MAX_LOG_ROWS",
+                 "about 10 s and 700 MB per million rows")
+
+#: Harmonics per joint of an excitation trajectory (``identify --excite --harmonics``):
+#: the optimiser's variables grow as 2 × harmonics × joints and each iteration evaluates
+#: the regressor on the whole grid; Swevers et al. use 5. 100,000 harmonics ran
+#: 21.6 CPU-s before a traceback (issue 36).
+HARMONICS = Limit("harmonics", 50, "SOFTGEN_MAX_HARMONICS",
+                  "each adds 2 optimisation variables per joint")
+
+#: States of a system ``softgen observer`` designs for. The existence conditions take
+#: ranks of (L+1)p × (L+1)m block matrices for every L ≤ n, about n⁴: a 1,000-state
+#: system ran 82 CPU-s without output (issue 36). Measured on random systems with no
+#: observer (the search runs to L = n; 2026-12-04, load 8): 50 states 2.9 CPU-s, 100
+#: states 45 CPU-s. A 7-joint arm with qbmove drives has 42.
+OBSERVER_STATES = Limit("states", 50, "SOFTGEN_MAX_OBSERVER_STATES",
+                        "the delay search grows as n^4: 50 states take a few CPU-s, 100 "
+                        "about a minute")
+

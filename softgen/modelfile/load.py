@@ -86,6 +86,8 @@ def load_model(name_or_path: str | Path, *, root: str | None = None,
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ModelError(f"{path}: not valid TOML ({exc})") from None
+    except RecursionError:           # arrays or tables nested thousands deep (issue 36)
+        raise ModelError(f"{path}: not valid TOML (nested too deeply)") from None
     if isinstance(data, dict) and "urdf" in data:
         return _urdf_reference(path, data)
     if is_soft(data):

@@ -110,7 +110,8 @@ class SoftModel(ParameterTable):
 def is_soft(data: Any) -> bool:
     """Whether parsed TOML ``data`` declares a soft model (``model.kind`` is a soft kind)."""
     meta = data.get("model") if isinstance(data, dict) else None
-    return isinstance(meta, dict) and meta.get("kind") in SOFT_KINDS
+    kind = meta.get("kind") if isinstance(meta, dict) else None
+    return isinstance(kind, str) and kind in SOFT_KINDS     # a list there was a TypeError
 
 
 def parse_soft_model(path: Path, data: dict) -> SoftModel:

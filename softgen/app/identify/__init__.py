@@ -16,18 +16,23 @@ Three jobs, each a function here and a mode of the verb:
 from __future__ import annotations
 
 import json
+import math
+import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+
+import numpy as np
 
 from softgen.app.identify.actuator import ActuatorFit, identify_actuator
 from softgen.app.identify.modelfile import (identified_name, model_tables, to_toml,
                                             write_text_atomic, write_trajectory_csv)
-from softgen.app.identify.rigid import (RigidIdentification, identify_rigid,
-                                        read_identification_log)
-from softgen.core.errors import SoftgenError
+from softgen.app.identify.rigid import (MIN_EXPLAINED, RigidIdentification, check_log,
+                                        identify_rigid, read_identification_log, unit_hints)
+from softgen.core.errors import ModelError, SoftgenError
 from softgen.modelfile.model import RobotModel
-from softgen.modelfile.load import as_model
+from softgen.modelfile.limits import HARMONICS, LOG_ROWS
+from softgen.modelfile.load import as_model, load_model
 from softgen.studies.excitation import (Excitation, IdentificationRegressor, joint_limits,
                                         optimise_excitation)
 
@@ -61,9 +66,48 @@ def identify_model(model_name, log: str | Path, *, out: str | Path | None = None
     if out.exists() and not force:
         raise SoftgenError(f"--out {out}: exists; give --force to overwrite it")
     data = read_identification_log(log, model.dof, torque_constant=torque_constant)
-    res = identify_rigid(model, data, cutoff=cutoff, viscous=viscous, coulomb=coulomb)
+    check_log(data, model)
+    options = {"cutoff": cutoff, "viscous": viscous, "coulomb": coulomb}
+    res = identify_rigid(model, data, **options)
+    problem = implausible(res)
+    if problem:
+        fits = not res.explained.size or res.explained.min() >= MIN_EXPLAINED
+        hints = unit_hints(data, model, res) if fits else []
+        raise SoftgenError("; ".join([f"identify: {log}: {problem}", *hints,
+                                      *swap_hint(model, data, res, options)]))
     write_identified_model(res, out, log=log, force=force)
     return res, out
+
+
+def implausible(res: RigidIdentification) -> str | None:
+    """Why the identification must not be written (None when it may): a fit that explains
+    too little of the torque, or physical values that no model file may hold."""
+    worst = int(np.argmin(res.explained)) if res.explained.size else 0
+    if res.explained.size and not res.explained[worst] >= MIN_EXPLAINED:
+        return (f"the model explains {100 * max(res.explained[worst], 0.0):.1f} % of joint "
+                f"{worst + 1}'s torque (at least {100 * MIN_EXPLAINED:.0f} % expected): q and "
+                "tau do not belong together (noise, swapped columns, or another robot's log)")
+    if res.violations:
+        return (f"the identified values are not physical ({res.violations[0]}"
+                + (f", and {len(res.violations) - 1} more" if len(res.violations) > 1 else "")
+                + "); nothing written")
+    return None
+
+
+def swap_hint(model: RobotModel, data, res: RigidIdentification, options: dict) -> list[str]:
+    """``["... swapped ..."]`` when the log identifies clearly better with its q and tau
+    columns exchanged, else ``[]``."""
+    swapped = replace(data, q=data.tau, tau=data.q)
+    try:
+        check_log(swapped, model)
+        other = identify_rigid(model, swapped, **options)
+    except (SoftgenError, ValueError, np.linalg.LinAlgError):
+        return []
+    if implausible(other) is None and other.explained.min() > res.explained.min() + 0.05:
+        return [f"with q and tau exchanged the log fits (R^2 {other.explained.min():.3f} "
+                f"against {res.explained.min():.3f}) and is physical: are the columns "
+                "swapped?"]
+    return []
 
 
 def write_identified_model(res: RigidIdentification, out: str | Path, *, log: Path | None = None,
@@ -79,7 +123,23 @@ def write_identified_model(res: RigidIdentification, out: str | Path, *, log: Pa
                 "physical values closest",
                 "to the original model's that reproduce the identified base parameters; "
                 "viscous friction is the links' damping."] + [""] + report_lines(res)
-    return write_text_atomic(out, to_toml(tables, comments), force=force)
+    text = to_toml(tables, comments)
+    check_loadable(text, out)
+    return write_text_atomic(out, text, force=force)
+
+
+def check_loadable(text: str, out: Path) -> None:
+    """Refuse to write a model file that ``softgen info`` would refuse: ``text`` is read
+    back by the model loader first (issue 36: ``mass = -12.16`` was written)."""
+    with tempfile.TemporaryDirectory(prefix="softgen-identify-") as tmp:
+        path = Path(tmp) / Path(out).name
+        path.write_text(text)
+        try:
+            load_model(path)
+        except ModelError as exc:
+            msg = str(exc).replace(str(path), str(out)).splitlines()[0]
+            raise SoftgenError(f"identify: the identified model would not load ({msg}); "
+                               "nothing written") from None
 
 
 def report_lines(res: RigidIdentification) -> list[str]:
@@ -130,6 +190,8 @@ def excite(model_name, out: str | Path, *, harmonics: int = 5,
            maxiter: int = 100, grid: int = 100, viscous: bool = True, coulomb: bool = True,
            force: bool = False) -> ExciteResult:
     """An optimised excitation trajectory for ``model`` written to ``out`` (CSV)."""
+    check_excitation_options(harmonics=harmonics, period=period, dt=dt, periods=periods,
+                             maxiter=maxiter)
     model = _rigid(model_name)
     out = Path(out)
     if out.exists() and not force:
@@ -141,6 +203,40 @@ def excite(model_name, out: str | Path, *, harmonics: int = 5,
     write_trajectory_csv(out, ex.trajectory, dt=dt, periods=periods, force=force)
     return ExciteResult(ex, out, int(round(periods * period / dt)),
                         time.perf_counter() - t0)
+
+
+#: Samples per cycle of the highest harmonic a written trajectory must have.
+SAMPLES_PER_CYCLE = 10
+
+
+def _count(value, flag: str, least: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < least:
+        raise SoftgenError(f"identify: {flag}: expected an integer of at least {least}, "
+                           f"got {value!r}")
+    return value
+
+
+def check_excitation_options(*, harmonics: int, period: float, dt: float, periods: int,
+                             maxiter: int) -> int:
+    """Every ``--excite`` option checked before the optimisation runs; returns the rows
+    the trajectory will have. One line each (issue 36: ``--dt 100`` wrote "0 samples"
+    with status 0, ``--period 1e9`` failed allocating 7 TiB after the optimisation,
+    ``--harmonics 100000`` after 21.6 CPU-s)."""
+    HARMONICS.check(_count(harmonics, "--harmonics", 1), "identify: --harmonics")
+    _count(periods, "--periods", 1)
+    _count(maxiter, "--maxiter", 0)
+    for flag, v in (("--period", period), ("--dt", dt)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
+                math.isfinite(v) and v > 0):
+            raise SoftgenError(f"identify: {flag}: expected a positive number of seconds, "
+                               f"got {v!r}")
+    longest = period / (SAMPLES_PER_CYCLE * harmonics)
+    if dt > longest:
+        raise SoftgenError(f"identify: --dt {dt:g} s: {harmonics} harmonics over a {period:g} s "
+                           f"period need at least {SAMPLES_PER_CYCLE} samples per cycle of the "
+                           f"highest, so --dt at most {longest:.3g} s")
+    return LOG_ROWS.check(periods * period / dt, f"identify: --excite: {periods} period(s) "
+                          f"of {period:g} s every {dt:g} s")
 
 
 def fit_lines(fit: ActuatorFit) -> list[str]:

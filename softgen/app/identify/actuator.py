@@ -28,7 +28,6 @@ out of it; how many is reported.
 """
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,8 +35,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from softgen.core.errors import SoftgenError
-from softgen.app.identify.rigid import read_header
-from softgen.estimation.csvlog import LogError, read_log
+from softgen.estimation.csvlog import (LogError, column_names, numbered_rows, read_header,
+                                       read_log)
 
 #: Fraction of the largest |measurement| below which a sample is left out of the RMSRE.
 RMSRE_FLOOR = 0.05
@@ -85,28 +84,26 @@ def _read_table(path: Path, names: list[str]) -> np.ndarray:
     missing = [n for n in names if n not in header]
     if missing:
         raise LogError(f"{path}: missing column(s) {', '.join(missing)}; found "
-                       f"{', '.join(header) or '(none)'}")
+                       f"{column_names(header)}")
     if "t" in header or "time" in header:
         _, Y, _ = read_log(path, names, min_rows=3)
         return Y
     rows = []
     with path.open(newline="", encoding="utf-8-sig") as fh:
-        reader = csv.reader(fh)
+        reader = numbered_rows(path, fh)         # bounded lines and rows (issue 36)
         next(reader)
         idx = [header.index(n) for n in names]
-        for row in reader:
-            if not row or not any(c.strip() for c in row):
-                continue
+        for line, row in reader:
             vals = []
             for n, i in zip(names, idx):
                 cell = row[i].strip() if i < len(row) else ""
                 try:
                     v = float(cell)
                 except ValueError:
-                    raise LogError(f"{path}: row {reader.line_num}, column {n!r}: not a "
+                    raise LogError(f"{path}: row {line}, column {n!r}: not a "
                                    f"number: {cell!r}") from None
                 if not np.isfinite(v):
-                    raise LogError(f"{path}: row {reader.line_num}, column {n!r}: non-finite "
+                    raise LogError(f"{path}: row {line}, column {n!r}: non-finite "
                                    f"value {cell!r}")
                 vals.append(v)
             rows.append(vals)
@@ -211,7 +208,7 @@ def identify_actuator(kind: str, path: str | Path, *, floor: float = RMSRE_FLOOR
             raise LogError(f"{path}: missing column(s) "
                            f"{', '.join(c for c in ('q', 'qa') if c not in header)} "
                            "(or give a deflection column); found "
-                           f"{', '.join(header) or '(none)'}")
+                           f"{column_names(header)}")
         d = _read_table(path, cols)
         phi = d[:, 0:1] - d[:, 1:-1]
         return fit_sinh(phi, d[:, -1], floor=floor, columns=cols)

@@ -43,7 +43,6 @@ filtering of Gautier 1997 and Swevers et al. 1997):
 """
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,7 +53,7 @@ from scipy.optimize import least_squares
 from scipy.signal import butter, filtfilt
 
 from softgen.core.errors import SoftgenError
-from softgen.estimation.csvlog import LogError, read_log
+from softgen.estimation.csvlog import LogError, read_header, read_log
 from softgen.modelfile.model import RobotModel
 from softgen.studies.excitation import IdentificationRegressor
 
@@ -68,6 +67,18 @@ MIN_CUTOFF = 1.0
 MAX_CUTOFF_NYQUIST = 0.4
 #: Samples per cut-off period kept after decimation: f_s,new = DECIMATE_RATE × f_c.
 DECIMATE_RATE = 2.5
+#: Fewest equations (samples × joints after decimation) per identified parameter.
+MIN_ROWS_PER_PARAMETER = 3
+#: Sample times [s] an identification log may have: it must resolve q̈ of a robot's
+#: motion (a few Hz), so 10 Hz or faster; slower is most likely a time column in ms
+#: (issue 36: a log with t in ms gave dt = 2 s and a model with negative inertias).
+DT_RANGE = (1e-6, 0.1)
+#: The fit must explain at least this fraction of each joint's torque variance (R²);
+#: below, the identified numbers describe noise (issue 36: a log of noise gave R² 0.002).
+MIN_EXPLAINED = 0.5
+#: A logged torque this many times the model file's prediction (or its inverse) points
+#: to a unit: mN·m, kN·m, or a current without --torque-constant.
+TORQUE_RATIO = 30.0
 
 
 @dataclass
@@ -102,6 +113,11 @@ class RigidIdentification:
     decimation: int
     dt: float
     torque_source: str
+    #: Fraction of the filtered torque's variance the fit explains, per joint (R²).
+    explained: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    #: rms of the logged torque over rms of the model file's nominal prediction along the
+    #: same motion, per joint: about 1 for a log in SI units of this robot.
+    torque_ratio: np.ndarray = field(default_factory=lambda: np.zeros(0))
     physical: dict[str, float] = field(default_factory=dict)
     violations: list[str] = field(default_factory=list)
     #: Violations of the nearest values, when a projection (consistent_parameters) replaced
@@ -123,18 +139,6 @@ class RigidIdentification:
         """{joint index (0-based): coefficient} of ``kind`` "fv" or "fc"."""
         return {int(n[2:]) - 1: float(v) for n, v in zip(self.names, self.estimate)
                 if n.startswith(kind) and n[2:].isdigit() and n not in self.model.nominal}
-
-
-def read_header(path: Path, what: str = "log") -> list[str]:
-    """The column names of a CSV ``what`` file (one error line if it cannot be read)."""
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            row = next(csv.reader(fh), None)
-    except FileNotFoundError:
-        raise LogError(f"{path}: no such {what} file") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
-        raise LogError(f"{path}: cannot read {what} ({exc})") from None
-    return [h.strip() for h in row] if row else []
 
 
 def read_identification_log(path: str | Path, n: int, *,
@@ -276,9 +280,11 @@ def identify_rigid(model: RobotModel, log: IdentificationLog, *, cutoff: float |
         raise SoftgenError(f"log: {log.q.shape[1]} joints, model {model.name} has {reg.n}")
     fil = filter_and_differentiate(reg, log.q, log.tau, log.dt, cutoff)
     W = fil.W
-    if W.shape[0] * reg.n <= reg.p:
-        raise SoftgenError(f"log: {W.shape[0]} samples after filtering are too few for "
-                           f"{reg.p} parameters")
+    if W.shape[0] * reg.n < MIN_ROWS_PER_PARAMETER * reg.p:
+        raise SoftgenError(f"log: {W.shape[0]} samples per joint after filtering are too few "
+                           f"for {reg.p} parameters (at least {MIN_ROWS_PER_PARAMETER} "
+                           f"equations per parameter: {-(-MIN_ROWS_PER_PARAMETER * reg.p // reg.n)} "
+                           "samples per joint); log longer or raise --cutoff")
     theta, C, sigma, rms, cond, cond_n = weighted_least_squares(W, fil.y)
     std = np.sqrt(np.maximum(np.diag(C), 0.0))
     res = RigidIdentification(model=model, names=list(reg.names),
@@ -288,6 +294,14 @@ def identify_rigid(model: RobotModel, log: IdentificationLog, *, cutoff: float |
                               samples=W.shape[0], cutoff_hz=fil.cutoff,
                               decimation=fil.decimation, dt=log.dt,
                               torque_source=log.torque_source)
+    pred = np.einsum("knp,p->kn", W, theta)
+    var = np.sum((fil.y - fil.y.mean(axis=0)) ** 2, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        res.explained = np.where(var > 0, 1.0 - np.sum((fil.y - pred) ** 2, axis=0) / var,
+                                 0.0)
+        nominal = np.einsum("knp,p->kn", W, np.nan_to_num(reg.nominal))
+        res.torque_ratio = np.sqrt(np.mean(fil.y ** 2, axis=0)) / \
+            np.sqrt(np.mean(nominal ** 2, axis=0))
     res.physical = physical_parameters(reg, theta[:reg.n_base], std[:reg.n_base])
     res.violations = consistency_violations(model, {**model.nominal, **res.physical})
     if res.violations:
@@ -483,3 +497,55 @@ def consistency_violations(model: RobotModel, values: dict[str, float]) -> list[
         if k.startswith(("d", "k")) and k[1:].isdigit() and v < 0:
             out.append(f"{k} = {v:.6g}: {'damping' if k[0] == 'd' else 'stiffness'} is negative")
     return out
+
+
+# -- plausibility before success (issue 36) -------------------------------------------------
+
+def check_log(log: IdentificationLog, model: RobotModel) -> None:
+    """Refuse a log whose sample time or signals rule an identification out: a time
+    step outside :data:`DT_RANGE` (the time column in ms), a τ column that never
+    changes (nothing logged), a q column that never moves."""
+    lo, hi = DT_RANGE
+    if not lo <= log.dt <= hi:
+        unit = ("is the time column in milliseconds?" if log.dt > hi else
+                "is the time column in seconds?")
+        raise SoftgenError(f"identify: {log.path}: median time step {log.dt:.6g} s: an "
+                           f"identification log needs q'' of the motion, so a sample time "
+                           f"between {lo:g} and {hi:g} s; {unit}")
+    n = log.q.shape[1]
+    flat_tau = [f"tau{j + 1}" for j in range(n) if np.ptp(log.tau[:, j]) == 0]
+    if flat_tau:
+        value = float(log.tau[0, int(flat_tau[0][3:]) - 1])
+        raise SoftgenError(f"identify: {log.path}: {', '.join(flat_tau)} constant "
+                           f"({value:g}) over the whole log: no torque was logged (or the "
+                           "wrong column)")
+    still = [f"q{j + 1}" for j in range(n) if np.ptp(log.q[:, j]) == 0]
+    if still:
+        raise SoftgenError(f"identify: {log.path}: {', '.join(still)} never moves: the log "
+                           "does not excite those joints (softgen identify MODEL --excite "
+                           "writes a trajectory that does)")
+
+
+def unit_hints(log: IdentificationLog, model: RobotModel, res: RigidIdentification | None
+               ) -> list[str]:
+    """Likely causes of an implausible identification, read from the log's ranges: q of
+    a revolute joint spanning more than a turn (degrees), a torque far from what the
+    model file predicts along the same motion (mN·m, kN·m, currents)."""
+    hints = []
+    for j, link in enumerate(model.links):
+        span = float(np.ptp(log.q[:, j]))
+        if link.joint == "revolute" and span > 2 * math.pi:
+            hints.append(f"q{j + 1} spans {span:.4g}, more than a turn (2 pi rad): is q in "
+                         "degrees?")
+            break
+    if res is not None and res.torque_ratio.size:
+        r = res.torque_ratio
+        big, small = np.nanmax(r), np.nanmin(r)
+        if big > TORQUE_RATIO:
+            hints.append(f"the logged torque is {big:,.0f} times what the model file predicts "
+                         "along this motion: is tau in mN m (or a current without "
+                         "--torque-constant)?")
+        elif 0 < small < 1 / TORQUE_RATIO:
+            hints.append(f"the logged torque is 1/{1 / small:,.0f} of what the model file "
+                         "predicts along this motion: is tau in kN m, or another robot's?")
+    return hints

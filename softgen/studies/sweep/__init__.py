@@ -243,6 +243,10 @@ def _prepare(out: Path, identity: dict, *, resume: bool, force: bool,
     return {}
 
 
+#: Seconds between progress lines at most (besides one per tenth of the samples).
+PROGRESS_EVERY = 5.0
+
+
 def run_sweep(spec: SweepSpec, out: Path, *, experiment: SweepTarget,
               workers: int | None = None, scheduler: str | None = None,
               resume: bool = False, force: bool = False, fmt: str = "csv",
@@ -325,6 +329,10 @@ def _run_sweep(spec: SweepSpec, out: Path, exp: SweepTarget, *, workers: int | N
         journal = (out / "samples.jsonl").open("a", encoding="utf-8")
     except OSError as exc:
         raise output_error(out / "samples.jsonl", exc) from None
+    if show:
+        print(f"sweep {spec.experiment}: {len(todo)} sample(s) to run -> {out}",
+              file=sys.stderr, flush=True)
+    last_line = time.perf_counter()
     results = run_tasks(tasks, workers=workers or default_workers(), scheduler=scheduler,
                         count=len(todo))
     try:
@@ -337,7 +345,11 @@ def _run_sweep(spec: SweepSpec, out: Path, exp: SweepTarget, *, workers: int | N
             os.fsync(journal.fileno())
             done[index] = row
             failed += res["status"] != "ok"
-            if show and (k == len(todo) or k % max(1, len(todo) // 10) == 0):
+            # Every tenth, and at least every few seconds (issue 36: a 4,000-sample
+            # grid was silent for minutes before its first tenth).
+            if show and (k == len(todo) or k % max(1, len(todo) // 10) == 0
+                         or time.perf_counter() - last_line > PROGRESS_EVERY):
+                last_line = time.perf_counter()
                 print(f"sweep {spec.experiment}: {k}/{len(todo)} samples"
                       f"{f' ({failed} not ok)' if failed else ''}, "
                       f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 from collections.abc import Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -99,6 +100,10 @@ def dask_available() -> bool:
     return True
 
 
+#: Seconds to wait for a remote Dask scheduler.
+CONNECT_TIMEOUT = 5.0
+
+
 def _dask(tasks: Tasks, workers: int, scheduler: str) -> Iterator[tuple[int, dict]]:
     try:
         # Optional extra (softgen[dask]); imported only for --scheduler.
@@ -116,8 +121,12 @@ def _dask(tasks: Tasks, workers: int, scheduler: str) -> Iterator[tuple[int, dic
                                    preload=["softgen.studies.sweep.dask_worker"])
             client = Client(cluster)
         else:
+            # Said before the wait, and bounded: an unreachable address is one line
+            # within seconds, never a silent quarter-minute (issue 36).
+            print(f"sweep: connecting to the Dask scheduler at {scheduler} (up to "
+                  f"{CONNECT_TIMEOUT:g} s) ...", file=sys.stderr, flush=True)
             try:
-                client = Client(scheduler, timeout="10s")
+                client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT:g}s")
             except OSError as exc:
                 raise SoftgenError(f"sweep: --scheduler {scheduler}: cannot reach a Dask "
                                    f"scheduler there ({exc})") from None
