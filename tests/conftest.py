@@ -1,6 +1,10 @@
 """Shared fixtures: models written on the fly, and the C-compiler marker."""
 from __future__ import annotations
 
+import os
+import resource
+import time
+
 import pytest
 
 from softgen.codegen.build import find_compiler
@@ -101,3 +105,27 @@ def extra_models(tmp_path_factory):
 def need_compiler():
     if find_compiler() is None:
         pytest.skip("no C compiler found")
+
+
+# -- CPU accounting (issue 34: the default suite within 150 CPU-s) ---------------------
+# SOFTGEN_TEST_CPU=FILE writes one line per test phase: CPU seconds of this process and
+# of its finished children (compilers, subprocesses), wall seconds and the node id, so
+# that `sort -rn FILE | head` says where a fresh clone's test CPU goes. Off by default.
+_CPU_LOG = os.environ.get("SOFTGEN_TEST_CPU")
+
+
+def _cpu_now() -> tuple[float, float, float]:
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(
+        resource.RUSAGE_CHILDREN)
+    return (me.ru_utime + me.ru_stime, kids.ru_utime + kids.ru_stime, time.perf_counter())
+
+
+if _CPU_LOG:
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        a = _cpu_now()
+        yield
+        b = _cpu_now()
+        with open(_CPU_LOG, "a") as fh:
+            fh.write(f"{b[0] - a[0] + b[1] - a[1]:.3f} {b[0] - a[0]:.3f} {b[1] - a[1]:.3f} "
+                     f"{b[2] - a[2]:.3f} {item.nodeid}\n")
