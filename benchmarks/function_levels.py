@@ -40,10 +40,10 @@ def _children_cpu() -> float:
 
 def measure(stem: str, functions: list[Generated], loops: dict, timed: list[str],
             levels: list[str], calls: int, tmp: Path) -> dict:
-    """{level: (compile CPU s, {function: ns per call})} of one C file."""
+    """{level: (compile CPU s, {function: ns per call})} of one C file (bundle ``stem``)."""
     spec = BundleSpec(name=stem, functions=functions, loops=loops)
     files = render(spec)
-    d = tmp / stem
+    d = tmp / timed[0]
     d.mkdir(parents=True, exist_ok=True)
     for fname, data in files.items():
         (d / fname).write_bytes(data)
@@ -114,7 +114,7 @@ def main(argv=None) -> int:
                     f = g.function
                     # Bundle loops repeat `loop_steps` samples per call: fewer calls.
                     calls = max(a.calls // 1000, 10) if f.name().endswith("_loop") else a.calls
-                    jobs.append((f.name(), [Generated(f, "")], {}, [f.name()], calls))
+                    jobs.append((model.name, [Generated(f, "")], {}, [f.name()], calls))
             print(f"== {model.name}: compile CPU s / ns per call at "
                   f"{' '.join(a.levels)}; picked (slack {a.slack:.0%})", flush=True)
             total = dict.fromkeys(a.levels, 0.0)
@@ -132,7 +132,7 @@ def main(argv=None) -> int:
                 cells = "  ".join(f"{k} {s:6.2f} s {sum(ns.values()):10.1f} ns"
                                   for k, (s, ns) in row.items())
                 instr = gens[0].function.n_instructions()
-                print(f"  {stem:<58} {instr:>6}  {cells}  -> {lv}", flush=True)
+                print(f"  {timed[0]:<58} {instr:>6}  {cells}  -> {lv}", flush=True)
             print("  compile CPU total: " + ", ".join(f"{k} {v:.1f} s" for k, v in total.items())
                   + f", picked {picked_total:.1f} s", flush=True)
     return 0
