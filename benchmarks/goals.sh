@@ -84,10 +84,12 @@ import json, sys
 r = {m["model"]: m for m in json.load(open(sys.argv[1]))["models"]}
 t5 = r["planar_2link_mckibben"]["loops"]["theorem5"]
 t10 = r["pcc_3d_4seg"]["loops"]["theorem10"]
-cas = r["arm_2link_electric"]["loops"]["cascade_loop"]
+cas = r["arm_2link_electric"]
 print(f"Theorem 5, 7 signals: {t5['sim_s_per_cpu_s']:.0f}x real time (CPU)   goal >= 3000x")
 print(f"3D PCC Theorem 10:    {t10['sim_s_per_cpu_s']:.0f}x real time (CPU)   goal >= 200x")
-print(f"cascade step:         {cas['cpu_ns_per_sample']:.0f} ns (CPU)           goal < 300 ns")
+print(f"cascade step:         {cas['cascade_step_ns']:.0f} ns (CPU, C loop)    goal < 300 ns")
+print(f"  (the whole cascade loop with the motor plant: "
+      f"{cas['loops']['cascade_loop']['cpu_ns_per_sample']:.0f} ns per sample)")
 EOF
   uptime
 fi

@@ -501,6 +501,12 @@ def _bench_functions(out: dict, model, spec, files, *, calls, flags, stream, pyt
                 except Exception as exc:   # noqa: BLE001
                     _fail(out, "Python latency", fname, exc, stream)
             print(_function_row(fname, entry, width), file=stream, flush=True)
+        step = per_call.get(f"{name}_electric_cascade_pd")
+        if step is not None:
+            # The chapter-11 cascade step (issue 34's goal: < 300 ns), said on its own.
+            out["cascade_step_ns"] = step
+            print(f"  chapter-11 PD cascade step ({name}_electric_cascade_pd, C loop, thread "
+                  f"CPU clock): {step:.1f} ns per call", file=stream, flush=True)
         if "hand_written" in out:
             h = out["hand_written"]
             print(f"  {h['function']} vs hand-written C ({Path(h['reference']).name}): "

@@ -60,22 +60,27 @@ def streamed(n: int) -> list[str]:
             if not any(k == q or k.startswith(q + "_joint") for q in trace_only)]
 
 
-def monitor_block(arm, dt: float) -> tuple[Block, list[tuple[str, str]]]:
+def monitor_block(arm, dt: float, phases: tuple[int, ...] = (1, 2, 3)
+                  ) -> tuple[Block, list[tuple[str, str]]]:
     """The monitor of the scenario's loop and its wires (see the module docstring).
 
-    State (all zero at the start of a run): ``sq_q``, ``sq_s`` (phases × joints, phase
-    major), ``count`` (phases), ``emax_q``, ``emax_s``, ``pi_max``, ``saturated``,
-    ``samples``. Output ``stop``: 1 at a sample where some |q − q_d| > ``stop_error``
-    (parameter; 0: never), as :func:`softgen.plants.hardware.tracking_stop` decides it.
+    State (all zero at the start of a run): ``sq_q``, ``sq_s`` (``phases`` × joints,
+    phase major), ``count`` (``phases``: which of :data:`~softgen.studies.pneumatic.PHASES`,
+    1-based, have their rms errors accumulated), ``emax_q``, ``emax_s``, ``pi_max`` (the
+    largest ‖Π̂‖², its root taken at the end: the same number, a root less per sample),
+    ``saturated``, ``samples``. Output ``stop``: 1 at a sample where some |q − q_d| >
+    ``stop_error`` (parameter; 0: never), as :func:`softgen.plants.hardware.tracking_stop`
+    decides it.
     """
     n, n_pi = arm.n, len(arm.Pi_nominal)
-    n_ph = len(S.PHASES)
+    n_ph = len(phases)
     p_max = ca.DM(np.repeat(arm.act.pressure_max, 2))
 
     def body(x, u, p):
         t, eq, es = u["t"], u["q"] - u["q_d"], u["sigma"] - u["sigma_d"]
         # The second half of each phase, as phase_rms_records masks the trace.
-        win = [ca.logic_and(t >= (t0 + t1) / 2, t < t1) for t0, t1 in S.PHASES]
+        win = [ca.logic_and(t >= (t0 + t1) / 2, t < t1)
+               for t0, t1 in (S.PHASES[k - 1] for k in phases)]
         sq_q = ca.vertcat(*[x["sq_q"][k * n + i] + ca.if_else(win[k], eq[i] ** 2, 0)
                             for k in range(n_ph) for i in range(n)])
         sq_s = ca.vertcat(*[x["sq_s"][k * n + i] + ca.if_else(win[k], es[i] ** 2, 0)
@@ -90,50 +95,53 @@ def monitor_block(arm, dt: float) -> tuple[Block, list[tuple[str, str]]]:
         return ({"sq_q": sq_q, "sq_s": sq_s, "count": count,
                  "emax_q": ca.fmax(x["emax_q"], ca.mmax(aq)),
                  "emax_s": ca.fmax(x["emax_s"], ca.mmax(a_s)),
-                 "pi_max": ca.fmax(x["pi_max"], ca.norm_2(u["Pi_hat"])),
+                 "pi_max": ca.fmax(x["pi_max"], ca.sumsqr(u["Pi_hat"])),
                  "saturated": x["saturated"] + ca.if_else(any_out, 1, 0),
                  "samples": x["samples"] + 1},
                 {"stop": ca.if_else(stop, 1, 0)})
 
     block = Block.define(
-        MONITOR, dt=dt,
+        MONITOR + "".join(map(str, phases)), dt=dt,
         state={"sq_q": n_ph * n, "sq_s": n_ph * n, "count": n_ph, "emax_q": 1, "emax_s": 1,
                "pi_max": 1, "saturated": 1, "samples": 1},
         inputs={"t": 1, "q": n, "q_d": n, "sigma": n, "sigma_d": n, "p": 2 * n,
                 "Pi_hat": n_pi},
         params={"stop_error": 1}, outputs={"stop": 1}, body=body,
         doc="section-10.2 metrics accumulated in the loop (studies.pneumatic_batch)")
-    wires = [("t", f"{MONITOR}.t"), ("plant.q", f"{MONITOR}.q"), ("ref.q_d", f"{MONITOR}.q_d"),
-             ("plant.sigma", f"{MONITOR}.sigma"), ("ref.sigma_d", f"{MONITOR}.sigma_d"),
-             ("ctrl.p", f"{MONITOR}.p"), ("ctrl.Pi_hat", f"{MONITOR}.Pi_hat")]
+    mon = block.name
+    wires = [("t", f"{mon}.t"), ("plant.q", f"{mon}.q"), ("ref.q_d", f"{mon}.q_d"),
+             ("plant.sigma", f"{mon}.sigma"), ("ref.sigma_d", f"{mon}.sigma_d"),
+             ("ctrl.p", f"{mon}.p"), ("ctrl.Pi_hat", f"{mon}.Pi_hat")]
     return block, wires
 
 
 @functools.lru_cache(maxsize=8)
-def _setup(model: str, rise: float, dt: float, exact_plant: bool):
-    """(arm, diagram with the monitor), once per process and group."""
+def _setup(model: str, rise: float, dt: float, exact_plant: bool, phases: tuple[int, ...]):
+    """(arm, diagram with the monitor of ``phases``), once per process and group."""
     from types import SimpleNamespace
     arm = pneumatic_arm(load_model(model))
     c = SimpleNamespace(rise=rise, exact_plant=exact_plant)
     return arm, S.diagram(arm, "theorem5", c, dt, exact_plant=exact_plant,
-                          monitor=monitor_block(arm, dt))
+                          monitor=monitor_block(arm, dt, phases))
 
 
-def _metrics(arm, d, acc: dict, stopped_at: float | None, complete: bool) -> Metrics:
-    """What ``case`` reports, from a run's final monitor state ``acc``."""
+def _metrics(arm, acc: dict, phases: tuple[int, ...], stopped_at: float | None,
+             complete: bool) -> Metrics:
+    """What ``case`` reports, from a run's final monitor state ``acc`` (the rms errors of
+    ``phases`` only)."""
     n = arm.n
     m = Metrics()
-    ratio = float(acc["pi_max"][0]) / np.linalg.norm(arm.Pi_nominal)
+    ratio = float(np.sqrt(acc["pi_max"][0])) / np.linalg.norm(arm.Pi_nominal)
     if complete:
         for q, key in zip(S.RMS, ("sq_q", "sq_s")):
             unit = "rad" if q == S.RMS[0] else "N m/rad"
-            for k in range(len(S.PHASES)):
-                count = acc["count"][k]
+            for j, k in enumerate(phases):
+                count = acc["count"][j]
                 if not count > 0:
-                    raise ValueError(f"phase {k + 1} {S.PHASES[k]} holds no samples")
+                    raise ValueError(f"phase {k} {S.PHASES[k - 1]} holds no samples")
                 for i in range(n):
-                    m.add(q, np.sqrt(acc[key][k * n + i] / count), unit, joint=i + 1,
-                          phase=k + 1)
+                    m.add(q, np.sqrt(acc[key][j * n + i] / count), unit, joint=i + 1,
+                          phase=k)
     m.add("parameter_estimate_max_ratio", ratio, "1")
     m.add("stopped_at", stopped_at, "s")
     m.add("position_max_abs_error", float(acc["emax_q"][0]), "rad")
@@ -156,12 +164,17 @@ def batch_case(configs, patterns: tuple[str, ...] = ()) -> list[Metrics | Except
     for i, c in enumerate(configs):
         groups.setdefault((c.model, c.rise, c.dt, c.exact_plant), []).append(i)
     for (model, rise, dt, exact), idx in groups.items():
-        arm, d = _setup(model, rise, dt, exact)
-        names = case_metric_names(arm.n)
+        n = _joints(model)
+        names = case_metric_names(n)
         wanted = [k for k in names if not patterns
                   or any(fnmatch.fnmatchcase(k, p) for p in patterns)]
-        if set(wanted) - set(streamed(arm.n)):
+        if set(wanted) - set(streamed(n)):
             return None
+        # Only the phases whose rms errors are asked for are accumulated in the loop.
+        phases = tuple(k for k in range(1, len(S.PHASES) + 1)
+                       if any(w.endswith(f"_phase{k}") for w in wanted))
+        arm, d = _setup(model, rise, dt, exact, phases)
+        mon = d.blocks[f"{MONITOR}{''.join(map(str, phases))}"].name
         cs = [configs[i] for i in idx]
         starts = [S.case_start(arm, "theorem5", c, dt, d) for c in cs]
         n_pres = {s[2] for s in starts}
@@ -172,13 +185,13 @@ def batch_case(configs, patterns: tuple[str, ...] = ()) -> list[Metrics | Except
                 out[i] = batch_case([configs[i]], patterns)[0]
             continue
         n_pre, n_run = n_pres.pop(), n_runs.pop()
-        stop = f"{MONITOR}.stop"
-        pre_params = [{**ctrl, f"{MONITOR}.stop_error": c.stop_error}
+        stop = f"{mon}.stop"
+        pre_params = [{**ctrl, f"{mon}.stop_error": c.stop_error}
                       for c, (_, ctrl, _, _) in zip(cs, starts)]
         pre = simulate_batch(d, n_pre, x0=[s[0] for s in starts], params=pre_params,
                              k0=-n_pre, stop=stop, label="ch10 theorem5 preset")
         go = [j for j in range(len(cs)) if pre.reason[j] is None]
-        zero = {f"{MONITOR}.{s.name}": np.zeros(s.size) for s in d.blocks[MONITOR].state}
+        zero = {f"{mon}.{s.name}": np.zeros(s.size) for s in d.blocks[mon].state}
         main = simulate_batch(
             d, n_run, x0=[{**pre.state(j, d), **zero} for j in go],
             params=[{**pre_params[j], "ctrl.kpi": cs[j].kpi} for j in go], k0=0, stop=stop,
@@ -191,8 +204,14 @@ def batch_case(configs, patterns: tuple[str, ...] = ()) -> list[Metrics | Except
             if r.error[row] is not None:
                 out[i] = r.error[row]
                 continue
-            acc = {k.removeprefix(f"{MONITOR}."): v for k, v in r.state(row, d).items()
-                   if k.startswith(f"{MONITOR}.")}
+            acc = {k.removeprefix(f"{mon}."): v for k, v in r.state(row, d).items()
+                   if k.startswith(f"{mon}.")}
             stopped = None if np.isnan(r.stopped_at[row]) else float(r.stopped_at[row])
-            out[i] = _metrics(arm, d, acc, stopped, complete=r is main and stopped is None)
+            out[i] = _metrics(arm, acc, phases, stopped,
+                              complete=r is main and stopped is None)
     return out
+
+
+@functools.lru_cache(maxsize=8)
+def _joints(model: str) -> int:
+    return load_model(model).dof
