@@ -333,11 +333,15 @@ def loops_for(model, seconds: dict | None = None) -> tuple[list[Loop], dict[str,
                      "encoders", f"bench_{name}_cascade_estimator_loop",
                      lambda: _cascade(model, s["cascade"], True))
     if got.get("electric_cascade", "") is None:
-        step = _motor_mode_step(model)
-        if step > MAX_MOTOR_MODE_STEP:
-            why = (f"{name}: the motors' spring mode is not resolved at 1 ms (ω·dt = "
-                   f"{step:.2f} > {MAX_MOTOR_MODE_STEP}: motor_inertia too small for the "
-                   "1 kHz cascade)")
+        try:
+            step = _motor_mode_step(model)
+            why = None if step <= MAX_MOTOR_MODE_STEP else (
+                f"{name}: the motors' spring mode is not resolved at 1 ms (ω·dt = "
+                f"{step:.2f} > {MAX_MOTOR_MODE_STEP}: motor_inertia too small for the "
+                "1 kHz cascade)")
+        except Exception as exc:   # noqa: BLE001 - the model's references: said, not raised
+            why = f"{name}: no feasible cascade references ({str(exc).splitlines()[0]})"
+        if why is not None:
             skipped[cascade.key] = skipped[estimator.key] = why
             return loops, skipped
     grant("electric_cascade", cascade)
@@ -530,9 +534,14 @@ def run_bench(*, models: list[str] | None = None, chains: bool = False, calls: i
               "clock": "CPU (thread CPU time; compiles: the compiler's CPU time)",
               "models": []}
     try:
-        for name in names:
-            result["models"].append(bench_model(name, calls=calls, stream=stream, flags=flags,
-                                                loop_seconds=loop_seconds))
+        for model in names:
+            try:
+                r = bench_model(model, calls=calls, stream=stream, flags=flags,
+                                loop_seconds=loop_seconds)
+            except Exception as exc:   # noqa: BLE001 - the next model is still measured
+                r = {"model": model.name, "functions": {}, "loops": {}, "failures": []}
+                _fail(r, "derivation", model.name, exc, stream)
+            result["models"].append(r)
         if chains:
             from softgen.app.chains import ROUTES, format_table, scaling_table
             rows = scaling_table(routes=tuple(ROUTES), max_explicit_n=20, calls=20000)
