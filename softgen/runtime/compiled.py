@@ -102,7 +102,12 @@ def _compile(name: str, functions: list[ca.Function], *,
             _warned = True
         return {f.name(): BundleFunction(f, signature(f)) for f in functions}, None, name
     docs = docs or {}
-    # Compiled on first use, once per machine: -O1 (see codegen.build.OPT_LEVELS).
+    # Compiled on first use, once per machine: -O1 (see codegen.build.OPT_LEVELS),
+    # measured again for the loops in issue 34 (benchmarks/function_levels.py --diagram,
+    # callgrind, load 8-13): -O3 saves 3 % of the machine instructions of a Theorem 5
+    # sample (20,704 against 21,369 per sample with libm), the 3D PCC Theorem 10 loop
+    # 1-2 % of its time and the chapter-11 cascade none, at 1.6-1.8x the compile CPU
+    # (3D loop 3.8 -> 6.9 s), which every first run and every fresh test session pays.
     spec = BundleSpec(name=name, functions=[Generated(f, docs.get(f.name(), "")) for f in functions],
                       optimization="-O1", loops=dict(loops or {}), batches=dict(batches or {}))
     files = render(spec)
