@@ -47,6 +47,7 @@ from softgen.experiments.registry import Experiment, get
 from softgen.studies import figures_pneumatic as F
 from softgen.studies.sweep import SweepPool, SweepSpec, run_sweep
 from softgen.studies.sweep.backends import default_workers
+from softgen.studies.pneumatic_batch import prepare
 from softgen.studies.pneumatic_robustness import (POS_TOL, RUNAWAY, STIFF_TOL, classify,
                                                   row_key)
 
@@ -137,6 +138,9 @@ def run(c: RobustnessConfig, out: Path) -> Metrics:
           max(nominal.per_joint("stiffness_rms_error", phase=3).values()), "N m/rad")
     results = {}
     wall = 0.0
+    # The sweeps' loop (plant errors as parameters, the metrics in the loop) set up here
+    # once: the pool's workers are forked from this process and inherit it.
+    prepare(target.config, METRICS)
     with SweepPool(c.workers or default_workers()) as pool:
         for name, spec in studies(c).items():
             # Resume a sweep this code already started here, else start over.

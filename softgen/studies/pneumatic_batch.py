@@ -151,6 +151,27 @@ def _metrics(arm, acc: dict, phases: tuple[int, ...], stopped_at: float | None,
                  float(acc["saturated"][0]) / samples if samples else float("nan"), "1")
 
 
+def _phases(n: int, patterns: tuple[str, ...]) -> tuple[int, ...] | None:
+    """The phases whose rms errors ``patterns`` ask for; None when they ask for a metric
+    the loop does not compute."""
+    wanted = [k for k in case_metric_names(n) if not patterns
+              or any(fnmatch.fnmatchcase(k, p) for p in patterns)]
+    if set(wanted) - set(streamed(n)):
+        return None
+    return tuple(k for k in range(1, len(S.PHASES) + 1)
+                 if any(w.endswith(f"_phase{k}") for w in wanted))
+
+
+def prepare(c, patterns: tuple[str, ...], *, exact_plant: bool = False) -> None:
+    """Build and compile (or load) the loop :func:`batch_case` will run for configs like
+    ``c`` (its model, rise and dt; ``exact_plant``) and ``patterns``, in this process:
+    a process pool forked afterwards inherits it instead of each worker setting it up."""
+    phases = _phases(_joints(c.model), tuple(patterns))
+    if phases is not None:
+        _, d = _setup(c.model, c.rise, c.dt, exact_plant, phases)
+        simulate_batch(d, 1, x0=[], params=[], stop=f"{MONITOR}{''.join(map(str, phases))}.stop")
+
+
 def batch_case(configs, patterns: tuple[str, ...] = ()) -> list[Metrics | Exception] | None:
     """``case`` of every config in ``configs``, in batches (one per group of configs
     that share a loop), metrics computed in the loop; a run that turns non-finite is
@@ -164,15 +185,10 @@ def batch_case(configs, patterns: tuple[str, ...] = ()) -> list[Metrics | Except
     for i, c in enumerate(configs):
         groups.setdefault((c.model, c.rise, c.dt, c.exact_plant), []).append(i)
     for (model, rise, dt, exact), idx in groups.items():
-        n = _joints(model)
-        names = case_metric_names(n)
-        wanted = [k for k in names if not patterns
-                  or any(fnmatch.fnmatchcase(k, p) for p in patterns)]
-        if set(wanted) - set(streamed(n)):
-            return None
         # Only the phases whose rms errors are asked for are accumulated in the loop.
-        phases = tuple(k for k in range(1, len(S.PHASES) + 1)
-                       if any(w.endswith(f"_phase{k}") for w in wanted))
+        phases = _phases(_joints(model), tuple(patterns))
+        if phases is None:
+            return None
         arm, d = _setup(model, rise, dt, exact, phases)
         mon = d.blocks[f"{MONITOR}{''.join(map(str, phases))}"].name
         cs = [configs[i] for i in idx]
