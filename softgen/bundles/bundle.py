@@ -23,7 +23,7 @@ import softgen.bundles.soft  # noqa: F401
 from softgen.bundles.common import (DEFAULT_OPTIONS, BundleOptions, identity_bytes, model_chain,
                                     model_file_path, model_source)
 from softgen.bundles.registry import REGISTRY, Capability, Context, merge
-from softgen.codegen.generate import BundleSpec, content_hash, write_bundle
+from softgen.codegen.generate import LARGE_FUNCTION, BundleSpec, content_hash, write_bundle
 from softgen.core.errors import BundleError, ModelError
 from softgen.core.paths import GENERATED_DIR
 from softgen.modelfile.model import MAX_NAME, RobotModel
@@ -70,19 +70,9 @@ def bundle_spec(model: RobotModel | SoftModel,
 #: their own diagrams at -O1 (runtime.compiled), so no metric depends on this choice.
 O1_CAPABILITIES = ("electric_cascade", "theorem10")
 STEP_LEVEL = "-O1"
-#: Functions of at least this many CasADi instructions are compiled at :data:`STEP_LEVEL`
-#: too, whatever their capability (issue 34: ``generate --all`` within 60 CPU-s of
-#: compiles). gcc's time grows faster than the size of one straight-line function, and
-#: at this size -O3 buys little: ``benchmarks/function_levels.py`` (each function alone,
-#: compiled at -O1 and -O3, timed in C on the thread CPU clock; load 9-13 on 2 CPUs, so
-#: read the run-time ratios to ±5 %), -O1 ÷ -O3: 3D PCC coriolis (13,447 instructions)
-#: time 1.03, compile 0.41; forward dynamics (12,539) 1.07, 0.49; plant (9,420) 1.05,
-#: 0.58; inverse dynamics (7,994) 0.99, 0.51; regressor (7,614) 1.06, 0.54; Panda
-#: Slotine-Li step (16,442) 1.07, 0.49; coriolis (13,952) 1.01, 0.53; RK4 plant (13,563)
-#: 1.07, 0.52. Below it the regressors and dynamics of the arms keep -O3 (10-30 % faster,
-#: each compiled in a fraction of a second). Experiments never call these bundle
-#: functions (they compile their own diagrams), so no metric depends on this choice.
-LARGE_FUNCTION = 5000
+#: Functions of at least :data:`~softgen.codegen.generate.LARGE_FUNCTION` CasADi
+#: instructions are compiled at :data:`STEP_LEVEL` too, whatever their capability
+#: (issue 34; the measurements are given there).
 
 
 @lru_cache(maxsize=8)

@@ -213,6 +213,22 @@ static int {fn}(const casadi_real** arg, casadi_real** res, casadi_int* iw, casa
     return (head + body + entry + f"  return {fn}(arg, res, iw, w, mem);" + nl + tail).encode()
 
 
+#: Functions of at least this many CasADi instructions are compiled at -O1 (model
+#: bundles: ``softgen.bundles.bundle``; batch drivers: ``softgen.runtime.compiled``),
+#: smaller ones at -O3 (issue 34: ``generate --all`` within 60 CPU-s of compiles). gcc's
+#: time grows faster than the size of one straight-line function, and at this size -O3
+#: buys little: ``benchmarks/function_levels.py`` (each function alone, compiled at -O1
+#: and -O3, timed in C on the thread CPU clock; load 9-13 on 2 CPUs, so read the run-time
+#: ratios to ±5 %), -O1 ÷ -O3: 3D PCC coriolis (13,447 instructions) time 1.03, compile
+#: 0.41; forward dynamics (12,539) 1.07, 0.49; plant (9,420) 1.05, 0.58; inverse dynamics
+#: (7,994) 0.99, 0.51; regressor (7,614) 1.06, 0.54; Panda Slotine-Li step (16,442) 1.07,
+#: 0.49; coriolis (13,952) 1.01, 0.53; RK4 plant (13,563) 1.07, 0.52. Below it the arms'
+#: regressors and dynamics gain 10-30 % at -O3 and the McKibben plants and Theorem 5 steps
+#: 12-14 %, each compiled in a fraction of a second; a Theorem 5 sweep sample (1,165
+#: instructions) runs 10 % fewer machine instructions at -O3 (callgrind: 2,677 against
+#: 2,982 per sample, libm included).
+LARGE_FUNCTION = 5000
+
 #: Per run, what :func:`batch_driver` writes into ``info``: samples run, why the run ended
 #: (:data:`BATCH_REASONS`), and the row of the first non-finite value (y rows first, then
 #: the state's after them; -1 when none).

@@ -33,8 +33,8 @@ from typing import Any
 import casadi as ca
 
 from softgen.codegen.build import LDLIBS, cflags, find_compiler
-from softgen.codegen.generate import (BundleSpec, Generated, batch_work, render, signature,
-                                     write_bundle)
+from softgen.codegen.generate import (LARGE_FUNCTION, BundleSpec, Generated, batch_work,
+                                     render, signature, write_bundle)
 from softgen.core.atomic import write_text
 from softgen.core.paths import cache_dir
 from softgen.runtime.library import Bundle, BundleFunction
@@ -73,7 +73,11 @@ def compile_batch(name: str, sample: ca.Function) -> BatchDriver | None:
     if find_compiler() is None:
         return None
     driver = f"softgen_batch_{name}"
-    _, bundle, owner = _compile(name, [sample], backend="c", batches={driver: sample})
+    # A batch runs hundreds of runs of thousands of samples: its compile is paid once
+    # for all of them, so it takes the bundles' rule (codegen.generate.LARGE_FUNCTION).
+    level = "-O3" if sample.n_instructions() < LARGE_FUNCTION else "-O1"
+    _, bundle, owner = _compile(name, [sample], backend="c", batches={driver: sample},
+                                optimization=level)
     lib = ctypes.CDLL(str(bundle.library))
     fn = getattr(lib, driver.replace(name, owner, 1))
     real, integer = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_longlong)
@@ -87,7 +91,7 @@ def compile_batch(name: str, sample: ca.Function) -> BatchDriver | None:
 def _compile(name: str, functions: list[ca.Function], *,
              docs: dict[str, str] | None = None, backend: str = "auto",
              loops: dict[str, ca.Function] | None = None,
-             batches: dict[str, ca.Function] | None = None
+             batches: dict[str, ca.Function] | None = None, optimization: str = "-O1"
              ) -> tuple[dict[str, BundleFunction], Any, str]:
     """:func:`compile_functions` (and ``batches``, ``BundleSpec.batches``): (functions by
     name, the Bundle they were loaded from (None: CasADi backend), the name its code was
@@ -104,12 +108,14 @@ def _compile(name: str, functions: list[ca.Function], *,
     docs = docs or {}
     # Compiled on first use, once per machine: -O1 (see codegen.build.OPT_LEVELS),
     # measured again for the loops in issue 34 (benchmarks/function_levels.py --diagram,
-    # callgrind, load 8-13): -O3 saves 3 % of the machine instructions of a Theorem 5
-    # sample (20,704 against 21,369 per sample with libm), the 3D PCC Theorem 10 loop
-    # 1-2 % of its time and the chapter-11 cascade none, at 1.6-1.8x the compile CPU
-    # (3D loop 3.8 -> 6.9 s), which every first run and every fresh test session pays.
+    # load 8-13): -O3 saves the 3D PCC Theorem 10 loop 1-2 % of its time and the
+    # chapter-11 cascade none, at 1.6-1.8x the compile CPU (3D loop 3.8 -> 6.9 s), which
+    # every first run and every fresh test session pays (70 loops in the default test
+    # suite). Batch drivers, whose compile serves a whole sweep, follow the bundles'
+    # rule instead (compile_batch).
     spec = BundleSpec(name=name, functions=[Generated(f, docs.get(f.name(), "")) for f in functions],
-                      optimization="-O1", loops=dict(loops or {}), batches=dict(batches or {}))
+                      optimization=optimization, loops=dict(loops or {}),
+                      batches=dict(batches or {}))
     files = render(spec)
     c_src = files[f"{name}.c"]
     spec.identity = c_src
