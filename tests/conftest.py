@@ -1,6 +1,10 @@
 """Shared fixtures: models written on the fly, and the C-compiler marker."""
 from __future__ import annotations
 
+import os
+import resource
+import time
+
 import pytest
 
 from softgen.codegen.build import find_compiler
@@ -101,3 +105,51 @@ def extra_models(tmp_path_factory):
 def need_compiler():
     if find_compiler() is None:
         pytest.skip("no C compiler found")
+
+
+@pytest.fixture(scope="session")
+def shipped_libraries():
+    """Every shipped bundle's library, compiled once for the session, on every CPU.
+
+    Tests that load every shipped bundle (tests/test_codegen.py) compiled them one after
+    another on first load, 110 CPU-s on one CPU of a fresh clone (issue 34). Here they
+    are built side by side, largest C first (the 3D PCC bundle alone is most of it), by
+    threads that each wait on a compiler process; a library already built (by `softgen
+    generate`, or earlier in the session) is only verified. Without a compiler: nothing.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from softgen.codegen.build import ensure_library
+    from softgen.core.paths import GENERATED_DIR
+    from softgen.modelfile.load import list_models
+    if find_compiler() is None:
+        return {}
+    names = sorted(list_models(), key=lambda n: -(GENERATED_DIR / n / f"{n}.c").stat().st_size)
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        libs = dict(zip(names, pool.map(lambda n: ensure_library(GENERATED_DIR / n)[0],
+                                        names)))
+    return libs
+
+
+# -- CPU accounting (issue 34: the default suite within 150 CPU-s) ---------------------
+# SOFTGEN_TEST_CPU=FILE writes one line per test phase: CPU seconds of this process and
+# of its finished children (compilers, subprocesses), wall seconds and the node id, so
+# that `sort -rn FILE | head` says where a fresh clone's test CPU goes. Off by default.
+_CPU_LOG = os.environ.get("SOFTGEN_TEST_CPU")
+
+
+def _cpu_now() -> tuple[float, float, float]:
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(
+        resource.RUSAGE_CHILDREN)
+    return (me.ru_utime + me.ru_stime, kids.ru_utime + kids.ru_stime, time.perf_counter())
+
+
+if _CPU_LOG:
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        a = _cpu_now()
+        yield
+        b = _cpu_now()
+        with open(_CPU_LOG, "a") as fh:
+            fh.write(f"{b[0] - a[0] + b[1] - a[1]:.3f} {b[0] - a[0]:.3f} {b[1] - a[1]:.3f} "
+                     f"{b[2] - a[2]:.3f} {item.nodeid}\n")

@@ -64,7 +64,7 @@ def test_manifest_contract(specs):
             assert fn["doc"] and "\n" not in fn["doc"]
 
 
-def test_regressor_identity_from_the_manifest_alone(need_compiler):
+def test_regressor_identity_from_the_manifest_alone(need_compiler, shipped_libraries):
     """Y(q, qd, qd_r, qdd_r) @ pi == inverse dynamics, read from the bundle only."""
     for name in list_models():
         b = load_bundle(name)
@@ -77,7 +77,7 @@ def test_regressor_identity_from_the_manifest_alone(need_compiler):
 
 
 @pytest.mark.compiler
-def test_compiled_library_equals_casadi_function(need_compiler, specs):
+def test_compiled_library_equals_casadi_function(need_compiler, specs, shipped_libraries):
     for name, spec in specs.items():
         b = load_bundle(name, backend="c")
         rng = np.random.default_rng(12)

@@ -100,7 +100,8 @@ def test_sweep_samples_over_the_limit(capsys, tmp_path):
 # -- pool submission and dead workers ---------------------------------------------------------
 
 def _ok(*args):
-    return {"status": "ok", "metrics": {}, "error": "", "warnings": 0, "wall_seconds": 0.0}
+    """evaluate_batch of a task of one sample (tasks are batches since issue 34)."""
+    return [{"status": "ok", "metrics": {}, "error": "", "warnings": 0, "wall_seconds": 0.0}]
 
 
 def _die(*args):
@@ -109,13 +110,13 @@ def _die(*args):
 
 def test_pool_submits_in_bounded_batches(monkeypatch):
     from softgen.studies.sweep import backends
-    monkeypatch.setattr(backends, "evaluate", _ok)      # forked workers inherit it
+    monkeypatch.setattr(backends, "evaluate_batch", _ok)      # forked workers inherit it
     taken = []
 
     def tasks():
         for i in range(200):
             taken.append(i)
-            yield i, ()
+            yield [i], ()
 
     it = backends.run_tasks(tasks(), workers=2, scheduler=None, count=200)
     next(it)
@@ -127,9 +128,9 @@ def test_pool_submits_in_bounded_batches(monkeypatch):
 def test_dead_pool_worker_is_one_line(monkeypatch):
     """Before: a BrokenProcessPool traceback."""
     from softgen.studies.sweep import backends
-    monkeypatch.setattr(backends, "evaluate", _die)
+    monkeypatch.setattr(backends, "evaluate_batch", _die)
     with pytest.raises(SoftgenError, match="a worker process died") as exc:
-        list(backends.run_tasks([(i, ()) for i in range(4)], workers=2, scheduler=None))
+        list(backends.run_tasks([([i], ()) for i in range(4)], workers=2, scheduler=None))
     assert "\n" not in str(exc.value)
 
 
@@ -143,13 +144,13 @@ def test_dask_submits_in_bounded_batches(monkeypatch):
     def in_process(**kw):                 # threads in this process see the patched evaluate
         return real(**{**kw, "processes": False})
     monkeypatch.setattr(distributed, "LocalCluster", in_process)
-    monkeypatch.setattr(backends, "evaluate", _ok)
+    monkeypatch.setattr(backends, "evaluate_batch", _ok)
     taken = []
 
     def tasks():
         for i in range(60):
             taken.append(i)
-            yield i, ()
+            yield [i], ()
 
     it = backends.run_tasks(tasks(), workers=2, scheduler="local", count=60)
     try:

@@ -77,7 +77,9 @@ def test_block_triangular_qdd_equals_ldl():
             assert np.max(np.abs(a - c)) <= 1e-9 * np.max(np.abs(a))
 
 
-@pytest.mark.parametrize("name", ["pcc_3d_4seg", "pcc_planar_4seg"])
+# The 3D body repeats the planar one's assertion at three times its size: -m slow.
+@pytest.mark.parametrize("name", [pytest.param("pcc_3d_4seg", marks=pytest.mark.slow),
+                                  "pcc_planar_4seg"])
 def test_closed_loop_trajectory_equals_the_previous_route(name):
     dyn = SoftDynamics(load_model(name))
     n, ns = dyn.model.dof, dyn.model.n_segments

@@ -3366,6 +3366,11 @@ CASADI_SYMBOL_EXPORT int panda_inertia_work_bytes(casadi_int *sz_arg, casadi_int
   return 0;
 }
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* panda_coriolis:(q[7],qd[7])->(C[7x7]) */
 static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -17454,6 +17459,9 @@ CASADI_SYMBOL_EXPORT int panda_coriolis_work_bytes(casadi_int *sz_arg, casadi_in
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 /* panda_gravity:(q[7])->(G[7]) */
 static int casadi_f2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
@@ -27758,6 +27766,11 @@ CASADI_SYMBOL_EXPORT int panda_tip_work_bytes(casadi_int *sz_arg, casadi_int* sz
   return 0;
 }
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* panda_plant_rk4:(x[14],tau[7],h)->(x_next[14]) */
 static int casadi_f10(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -41420,6 +41433,9 @@ CASADI_SYMBOL_EXPORT int panda_plant_rk4_work_bytes(casadi_int *sz_arg, casadi_i
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 /* panda_slotine_li:(pi_hat[43],q[7],qd[7],q_d[7],qd_d[7],qdd_d[7],lam[7],kd[7],kpi[43],dt)->(pi_hat_next[43],tau[7]) */
 static int casadi_f11(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
@@ -44580,6 +44596,11 @@ CASADI_SYMBOL_EXPORT int panda_slotine_li_work_bytes(casadi_int *sz_arg, casadi_
   return 0;
 }
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* panda_slotine_li_step:(x[57],p[57],k,e[21])->(x_next[57],y[65]) */
 static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -61141,6 +61162,9 @@ CASADI_SYMBOL_EXPORT int panda_slotine_li_step_work_bytes(casadi_int *sz_arg, ca
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 /* one_sample:(xa[58],p[57],e[21])->(xa_next[58],y[65]) */
 static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {

@@ -45822,6 +45822,11 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_loop_loop_work_bytes(
 #pragma GCC pop_options
 #endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* pcc_planar_4seg_plant:(x[8],tau[4],f_ext[12],noise[8],dt)->(x_next[8],y[8]) */
 static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -51819,6 +51824,9 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_plant_work_bytes(casadi_int *sz_arg, ca
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 
 #ifdef __cplusplus

@@ -25,7 +25,7 @@ from softgen.bundles.common import (DEFAULT_OPTIONS, BundleOptions, actuator_rec
                                     identity_bytes, model_chain, model_file_path, model_source)
 from softgen.bundles.registry import Capability, Context, Decision, merge
 from softgen.bundles.registry import decide as _decide
-from softgen.codegen.generate import BundleSpec, content_hash, write_bundle
+from softgen.codegen.generate import LARGE_FUNCTION, BundleSpec, content_hash, write_bundle
 from softgen.core.errors import BundleError, ModelError
 from softgen.core.paths import GENERATED_DIR
 from softgen.modelfile.model import MAX_NAME, RobotModel
@@ -79,6 +79,9 @@ def bundle_spec(model: RobotModel | SoftModel,
 #: their own diagrams at -O1 (runtime.compiled), so no metric depends on this choice.
 O1_CAPABILITIES = ("electric_cascade", "theorem10")
 STEP_LEVEL = "-O1"
+#: Functions of at least :data:`~softgen.codegen.generate.LARGE_FUNCTION` CasADi
+#: instructions are compiled at :data:`STEP_LEVEL` too, whatever their capability
+#: (issue 34; the measurements are given there).
 
 
 @lru_cache(maxsize=8)
@@ -130,7 +133,9 @@ def _assemble(model, options: BundleOptions) -> BundleSpec:
     for cap in caps:
         part = cap.build(ctx)
         fns += [replace(g, optimization=g.optimization or STEP_LEVEL)
-                if cap.name in O1_CAPABILITIES else g for g in part.functions]
+                if cap.name in O1_CAPABILITIES
+                or g.function.n_instructions() >= LARGE_FUNCTION else g
+                for g in part.functions]
         merge(extra, part.extra)
     if isinstance(dyn, RigidDynamics):
         # Recorded as each product is first built; the derivation is shared with the

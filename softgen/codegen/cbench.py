@@ -5,6 +5,12 @@ binding overhead, which is larger than the whole evaluation of small
 functions. Here a throw-away C harness calls each function in a tight loop and
 reports the median nanoseconds per call, so the number is what a C controller
 would pay.
+
+Every loop is timed on the thread's CPU clock (``CLOCK_THREAD_CPUTIME_ID``), as the
+peers' harness is (:mod:`softgen.app.peers`): on a machine shared with other jobs a
+wall clock also counts the time the harness waited for a CPU (issue 34: the bench's
+figures moved with the load). The compiler flags are the caller's choice
+(``flags``) and are returned with the figures' source, so a table can name them.
 """
 from __future__ import annotations
 
@@ -16,7 +22,12 @@ from pathlib import Path
 from softgen.core.errors import BuildError
 from softgen.codegen.build import require_compiler
 
-__all__ = ["time_in_c"]
+__all__ = ["time_in_c", "HARNESS_FLAGS"]
+
+#: Flags of a harness that compiles the C source itself (no ``library``): the bundle's
+#: own (:data:`softgen.codegen.build.CFLAGS` without ``-fPIC -shared``), so that a
+#: function is timed as ``softgen generate`` builds it unless the caller asks otherwise.
+HARNESS_FLAGS = ("-O3", "-fno-math-errno", "-fno-semantic-interposition")
 
 
 _HEAD = r"""/* Benchmark harness written by softgen.codegen.cbench; safe to delete. */
@@ -40,9 +51,10 @@ static void *xmalloc(size_t n) {{
   return p;
 }}
 
+/* The thread's CPU clock: time the machine gave this loop, not the wall clock. */
 static double now_ns(void) {{
   struct timespec t;
-  if (clock_gettime(CLOCK_MONOTONIC, &t) != 0) {{
+  if (clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t) != 0) {{
     fprintf(stderr, "clock_gettime failed\n"); exit(1);
   }}
   return (double)t.tv_sec * 1e9 + (double)t.tv_nsec;
@@ -168,8 +180,9 @@ def _harness(headers: list[Path], names: list[str], calls: int, repeats: int,
 
 
 def time_in_c(c_file: Path, names: list[str], *, calls: int = 200_000, repeats: int = 5,
-              cc: str | None = None, seed: int = 0, opt: str = "-O3",
-              extra_sources: list[Path] = (), library: Path | None = None) -> dict[str, float]:
+              cc: str | None = None, seed: int = 0, opt: str | None = None,
+              extra_sources: list[Path] = (), library: Path | None = None,
+              flags: tuple[str, ...] | list[str] | None = None) -> dict[str, float]:
     """Median nanoseconds per call of each named function, timed in a plain C loop.
 
     Parameters
@@ -186,7 +199,12 @@ def time_in_c(c_file: Path, names: list[str], *, calls: int = 200_000, repeats: 
     seed
         Seed of the pseudo-random inputs in [-1, 1].
     opt
-        Optimisation flag passed to the compiler.
+        Optimisation level of the harness (default ``-O3``); kept for callers that
+        only choose the level. ``flags`` replaces it.
+    flags
+        Every compiler flag of the harness and, without ``library``, of ``c_file``
+        (default :data:`HARNESS_FLAGS`, the bundle's own); e.g. ``("-O3",
+        "-march=native")``. Each must start with ``-``.
     extra_sources
         More C files (each with its header beside it, same calling convention) compiled
         into the same harness, e.g. a hand-written reference; their functions may be
@@ -217,6 +235,14 @@ def time_in_c(c_file: Path, names: list[str], *, calls: int = 200_000, repeats: 
             raise ValueError(f"names: {n!r} is not a C identifier")
     if calls < 1 or repeats < 1:
         raise ValueError(f"calls and repeats must be positive, got {calls} and {repeats}")
+    if flags is None:
+        flags = (opt,) if opt is not None else HARNESS_FLAGS
+    flags = tuple(flags)
+    for f in flags:
+        # Flags reach the compiler's argv (no shell); an input file or an output name
+        # among them would change what is timed.
+        if not (isinstance(f, str) and f.startswith("-") and f not in ("-o", "-c")):
+            raise ValueError(f"flags: expected compiler options starting with '-', got {f!r}")
     if not c_file.is_file():
         raise FileNotFoundError(f"{c_file}: no such C file")
     if not header.is_file():
@@ -234,7 +260,7 @@ def time_in_c(c_file: Path, names: list[str], *, calls: int = 200_000, repeats: 
             code = ([str(Path(library).resolve()),
                      f"-Wl,-rpath,{Path(library).resolve().parent}"] if library is not None
                     else [str(c_file)])
-            subprocess.run([compiler, opt, "-o", str(exe), str(harness), *code,
+            subprocess.run([compiler, *flags, "-o", str(exe), str(harness), *code,
                             *map(str, extra), "-lm"],
                            check=True, capture_output=True, text=True)
         except subprocess.CalledProcessError as exc:

@@ -58,6 +58,10 @@ class BundleSpec:
     #: Loop functions (``mapaccum`` of a per-sample function) to emit as a plain C loop:
     #: loop name -> the function it repeats (see :func:`_plain_loop`).
     loops: dict[str, ca.Function] = field(default_factory=dict)
+    #: Batch drivers to emit (plain C, not CasADi's calling convention): driver name ->
+    #: the per-sample function it repeats, which must be one of ``functions`` (see
+    #: :func:`batch_driver`).
+    batches: dict[str, ca.Function] = field(default_factory=dict)
 
 
 def content_hash(identity: bytes) -> str:
@@ -234,6 +238,110 @@ def _free_bytes(path: Path) -> int | None:
         return None
 
 
+#: Functions of at least this many CasADi instructions are compiled at -O1 (model
+#: bundles: ``softgen.bundles.bundle``; batch drivers: ``softgen.runtime.compiled``),
+#: smaller ones at -O3 (issue 34: ``generate --all`` within 60 CPU-s of compiles). gcc's
+#: time grows faster than the size of one straight-line function, and at this size -O3
+#: buys little: ``benchmarks/function_levels.py`` (each function alone, compiled at -O1
+#: and -O3, timed in C on the thread CPU clock; load 9-13 on 2 CPUs, so read the run-time
+#: ratios to ±5 %), -O1 ÷ -O3: 3D PCC coriolis (13,447 instructions) time 1.03, compile
+#: 0.41; forward dynamics (12,539) 1.07, 0.49; plant (9,420) 1.05, 0.58; inverse dynamics
+#: (7,994) 0.99, 0.51; regressor (7,614) 1.06, 0.54; Panda Slotine-Li step (16,442) 1.07,
+#: 0.49; coriolis (13,952) 1.01, 0.53; RK4 plant (13,563) 1.07, 0.52. Below it the arms'
+#: regressors and dynamics gain 10-30 % at -O3 and the McKibben plants and Theorem 5 steps
+#: 12-14 %, each compiled in a fraction of a second; a Theorem 5 sweep sample (1,165
+#: instructions) runs 10 % fewer machine instructions at -O3 (callgrind: 2,677 against
+#: 2,982 per sample, libm included).
+LARGE_FUNCTION = 5000
+
+#: Per run, what :func:`batch_driver` writes into ``info``: samples run, why the run ended
+#: (:data:`BATCH_REASONS`), and the row of the first non-finite value (y rows first, then
+#: the state's after them; -1 when none).
+BATCH_INFO = 3
+#: Why a batch run ended: it ran every sample, the stop row turned non-zero, or a value
+#: turned non-finite.
+BATCH_REASONS = ("end", "stop", "nonfinite")
+
+
+def batch_driver(name: str, sample: ca.Function) -> str:
+    """C of ``name``: many runs of the per-sample function ``sample``, one per column.
+
+    ``sample``: ``(xa = (x, k), p, e) -> (xa_next, y)`` as a diagram's
+    ``sample_fun`` (:meth:`softgen.blocks.ClosedLoop.sample_fun`). The driver (plain C,
+    called through ctypes by :func:`softgen.runtime.simulate.simulate_batch`)::
+
+        int name(const double *x0, const double *p, long long runs, double k0,
+                 long long steps, long long stop_row, const double *e,
+                 double *xf, double *info, long long *iw, double *w)
+
+    runs ``runs`` closed loops one after the other, run b from state column b of
+    ``x0`` (nx × runs) with parameter column b of ``p`` (np × runs), sample indices
+    k0, k0 + 1, ... and external inputs ``e`` (ne × steps, shared by the runs; NULL:
+    zeros). A run ends after ``steps`` samples, before the first sample at which row
+    ``stop_row`` of y is non-zero (``stop_row`` < 0: never), or at the first non-finite
+    value: in y at sample j (ended before it) or in the state after it (ended after
+    it), the checks in that order, as :func:`softgen.runtime.simulate.simulate` orders
+    them. Its state at the end goes to column b of ``xf``; :data:`BATCH_INFO` numbers
+    to ``info``. ``iw``, ``w``: work of ``sample`` plus 2 (nx + 1) + ny + ne doubles.
+    Each run starts afresh from its own columns, so its numbers do not depend on the
+    others in the batch: a run of a batch equals the same run alone, to the bit.
+    """
+    n_x = sample.sparsity_in(0).nnz() - 1
+    n_p, n_e = sample.sparsity_in(1).nnz(), sample.sparsity_in(2).nnz()
+    n_y = sample.sparsity_out(1).nnz()
+    if (sample.n_in(), sample.n_out()) != (3, 2) or \
+            not all(sample.sparsity_in(i).is_dense() for i in range(3)) or \
+            not all(sample.sparsity_out(i).is_dense() for i in range(2)) or \
+            sample.sparsity_out(0).nnz() != n_x + 1:
+        raise ValueError(f"batches: {sample.name()} is not a sample function "
+                         "(xa, p, e) -> (xa_next, y)")
+    n_a = n_x + 1
+    sz_arg, sz_res = max(sample.sz_arg(), 3), max(sample.sz_res(), 2)
+    return f"""
+/* {name}: runs of {sample.name()}, one per column of x0 and p (softgen batch driver). */
+CASADI_SYMBOL_EXPORT int {name}(const casadi_real* x0, const casadi_real* p, casadi_int runs,
+    casadi_real k0, casadi_int steps, casadi_int stop_row, const casadi_real* e,
+    casadi_real* xf, casadi_real* info, casadi_int* iw, casadi_real* w) {{
+  const casadi_real* arg[{sz_arg}];
+  casadi_real* res[{sz_res}];
+  casadi_real *xa, *xb, *t, *y = w + {2 * n_a}, *ez = w + {2 * n_a + n_y};
+  casadi_real *ws = w + {2 * n_a + n_y + n_e};
+  casadi_int b, i, j, reason, where;
+  for (i = 0; i < {n_e}; ++i) ez[i] = 0;
+  for (b = 0; b < runs; ++b) {{
+    xa = w; xb = w + {n_a};
+    for (i = 0; i < {n_x}; ++i) xa[i] = x0[b * {n_x} + i];
+    xa[{n_x}] = k0;
+    reason = 0; where = -1;
+    for (j = 0; j < steps; ++j) {{
+      arg[0] = xa; arg[1] = p + b * {n_p}; arg[2] = e ? e + j * {n_e} : ez;
+      res[0] = xb; res[1] = y;
+      if ({sample.name()}(arg, res, iw, ws, 0)) return 1;
+      for (i = 0; i < {n_y}; ++i) if (!isfinite(y[i])) {{ reason = 2; where = i; break; }}
+      if (reason) break;
+      if (stop_row >= 0 && y[stop_row] != 0) {{ reason = 1; break; }}
+      for (i = 0; i < {n_x}; ++i) if (!isfinite(xb[i])) {{ reason = 2; where = {n_y} + i; break; }}
+      t = xa; xa = xb; xb = t;
+      if (reason) {{ ++j; break; }}
+    }}
+    for (i = 0; i < {n_x}; ++i) xf[b * {n_x} + i] = xa[i];
+    info[b * {BATCH_INFO}] = (casadi_real)j;
+    info[b * {BATCH_INFO} + 1] = (casadi_real)reason;
+    info[b * {BATCH_INFO} + 2] = (casadi_real)where;
+  }}
+  return 0;
+}}
+"""
+
+
+def batch_work(sample: ca.Function) -> tuple[int, int]:
+    """(integers, doubles) of work a :func:`batch_driver` of ``sample`` needs."""
+    n_a = sample.sparsity_in(0).nnz()
+    return (max(1, sample.sz_iw()),
+            2 * n_a + sample.sparsity_out(1).nnz() + sample.sparsity_in(2).nnz()
+            + sample.sz_w())
+
+
 def render(spec: BundleSpec) -> dict[str, bytes]:
     """The bundle's files as bytes, keyed by file name (nothing is written)."""
     names = [g.function.name() for g in spec.functions]
@@ -255,6 +363,11 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
     levels = {g.function.name(): g.optimization for g in spec.functions
               if g.optimization not in (None, spec.optimization)}
     c_src = with_levels(c_src, names, levels)
+    for name, sample in spec.batches.items():
+        if sample.name() not in names:
+            raise ValueError(f"batches: {sample.name()} (of {name}) is not among the "
+                             f"functions of bundle {spec.name!r}")
+        c_src += batch_driver(name, sample).encode()
     digest = content_hash(spec.identity)
     manifest = {
         "model": spec.name,

@@ -42,6 +42,7 @@ from softgen.studies import pneumatic as S
 from softgen.studies.gains import SECTION_10_2, STIFFNESS_RATE
 from softgen.studies.indices import DRIFT, parameter_ratio
 from softgen.studies.pneumatic import COUPLING, PHASES, RMS
+from softgen.studies.pneumatic_batch import batch_case
 
 JOINTS = (1, 2)           # the two-link arm of section 10.2
 BOUNDED = ("parameter_estimate_max_ratio", "parameter_estimate_norm_drift")
@@ -255,7 +256,8 @@ EXPERIMENT = Experiment(
     not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS,
     id="ch10-pneumatic-adaptive",
     title="Decoupled adaptive position and stiffness control of a two-link McKibben arm",
-    section="10.2, Fig. 10.2-10.3", run=run, case=case, config=Ch10AdaptiveConfig().check(),
+    section="10.2, Fig. 10.2-10.3", run=run, case=case, batch=batch_case,
+    config=Ch10AdaptiveConfig().check(),
     quick={"compare_open_loop": False, "check_dt_halving": False,
            "compare_model_acceleration": False},
     findings=findings,

@@ -10,9 +10,8 @@ the model's:
 ``all``
     every uncertain inertial parameter (m, l, c, I of both links) and every actuator
     value (pulley radius R, muscle gain K_g, the length of each muscle) times an
-    independent U(1 − e, 1 + e), e = ``error`` (0.3), ``samples`` samples (48 by default,
-    200 for the full study: ``softgen reproduce ext-robustness-theorem5 --set samples=200
-    --set group_samples=40 --set length_samples=20``);
+    independent U(1 − e, 1 + e), e = ``error`` (0.3), ``samples`` samples (200: the study
+    of record, in the main job since the sweeps run in batches, issue 34);
 ``inertial``, ``gain_radius``, ``lengths``
     the same errors on one group only (``group_samples`` each): the decomposition that
     says which group the ``all`` result comes from;
@@ -28,6 +27,12 @@ the model's:
 
 The mechanism tested and the classification of samples:
 :mod:`softgen.studies.pneumatic_robustness`.
+
+Speed (issue 34): every study is a sweep whose samples go to the generated loop in
+batches, their metrics accumulated in the loop (:mod:`softgen.studies.pneumatic_batch`),
+a runaway ended where it leaves the band; the ten sweeps share one process pool
+(:class:`~softgen.studies.sweep.SweepPool`), whose workers set their loop up once.
+``samples_per_wall_second`` is the samples of all studies over the sweeps' wall time.
 """
 from __future__ import annotations
 
@@ -40,7 +45,9 @@ from softgen.core.config import Config
 from softgen.core.metrics import Metrics, finding, graded, not_checked, num
 from softgen.experiments.registry import Experiment, get
 from softgen.studies import figures_pneumatic as F
-from softgen.studies.sweep import SweepSpec, run_sweep
+from softgen.studies.sweep import SweepPool, SweepSpec, run_sweep
+from softgen.studies.sweep.backends import default_workers
+from softgen.studies.pneumatic_batch import prepare
 from softgen.studies.pneumatic_robustness import (POS_TOL, RUNAWAY, STIFF_TOL, classify,
                                                   row_key)
 
@@ -56,18 +63,18 @@ LENGTHS = (2, 3, 6, 7)
 @dataclass(frozen=True)
 class RobustnessConfig(Config):
     error: float = 0.3                  # relative half-width of every U(1 − e, 1 + e)
-    # Sized for the main job's time budget (issue 25: 406 runs took 97 CPU-seconds of
-    # its ~250); the study of record: --set samples=200 --set group_samples=40
-    # --set length_samples=20 (README).
-    samples: int = 48                   # the "all" study
-    group_samples: int = 16             # each one-group study
+    # The study of record (issue 34: cut to 48/16/16 by issue 25 to fit the main job,
+    # back at full size since the sweeps run in batches with in-loop metrics).
+    samples: int = 200                  # the "all" study
+    group_samples: int = 40             # each one-group study
     length_errors: tuple[float, ...] = (0.01, 0.03, 0.1)
-    length_samples: int = 16
+    length_samples: int = 20
     pair_error: float = 0.1
     radius_error: float = 0.2          # the pulley-radius grids
     rates: tuple[float, ...] = (1.0, 2.0, 4.0, 8.0)   # K_σ K_1 of the radius_rate grid, 1/s
     seed: int = 7
     workers: int = 0                    # 0: one per CPU this process may use (core.cpus)
+    batch: int = 0                      # samples per sweep task (0: the sweep's default)
     # Each study's own sweeps/<study>/sweep.png (histograms of its metrics): not in the
     # report, which shows robustness.png; 11.6 CPU-s for the ten (issue 25). True: drawn.
     sweep_plots: bool = False
@@ -86,6 +93,9 @@ class RobustnessConfig(Config):
                              f"{self.length_errors}")
         if self.workers < 0:
             raise ValueError(f"workers: expected 0 (one per CPU) or more, got {self.workers}")
+        if self.batch < 0:
+            raise ValueError(f"batch: expected 0 (the sweep's default) or more, got "
+                             f"{self.batch}")
 
 
 def _uniform(e: float) -> str:
@@ -128,13 +138,18 @@ def run(c: RobustnessConfig, out: Path) -> Metrics:
           max(nominal.per_joint("stiffness_rms_error", phase=3).values()), "N m/rad")
     results = {}
     wall = 0.0
-    for name, spec in studies(c).items():
-        # Resume a sweep this code already started here, else start over.
-        res = run_sweep(spec, out / "sweeps" / name, experiment=target,
-                        workers=c.workers or None, resume=True, force=True, progress=False,
-                        plot_figure=c.sweep_plots)
-        results[name] = res
-        wall += res.wall_seconds
+    # The sweeps' loop (plant errors as parameters, the metrics in the loop) set up here
+    # once: the pool's workers are forked from this process and inherit it.
+    prepare(target.config, METRICS)
+    with SweepPool(c.workers or default_workers()) as pool:
+        for name, spec in studies(c).items():
+            # Resume a sweep this code already started here, else start over.
+            res = run_sweep(spec, out / "sweeps" / name, experiment=target, pool=pool,
+                            resume=True, force=True, progress=False,
+                            plot_figure=c.sweep_plots, batch=c.batch or None)
+            results[name] = res
+            wall += res.wall_seconds
+    for name, res in results.items():
         cls = classify(res.rows)
         n = len(res.rows)
         m.add("samples", n, "1", suffix=name)
@@ -291,7 +306,9 @@ CAPTIONS = {"robustness.png": "Position and stiffness rms errors of Theorem 5 ov
 EXPERIMENT = Experiment(
     not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS,
     id="ext-robustness-theorem5",
-    cost=92.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
+    # CPU s (Experiment.cost): 34 measured at the study of record (406 runs in batches,
+    # load 6-8; issue 34), where 170 runs one by one took 92.
+    cost=34.0,
     title="Theorem 5 under ±30 % actuator and inertial errors (Monte Carlo)",
     section="softgen (beyond 10.2)",
     run=run,

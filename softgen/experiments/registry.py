@@ -70,6 +70,10 @@ class Experiment:
     # config -> metrics of one run, no files written: what a sweep evaluates per sample
     # (``softgen sweep``). Without it a sweep calls ``run`` into a scratch directory.
     case: Callable[[Config], Metrics | dict] | None = None
+    # (configs, metric patterns) -> per config what ``case`` gives (or the exception a
+    # run raised), computed in batches; None when it cannot give what the patterns ask
+    # for. A sweep then hands the generated loop many samples in one call (issue 34).
+    batch: Callable[[list, tuple[str, ...]], list | None] | None = None
     # CPU seconds of the default run, as a profile measured it (metrics.json's
     # ``cpu_seconds``): ``reproduce`` starts the costliest first so that the longest
     # experiment is not the one left running alone at the end. A scheduling hint only.

@@ -22,15 +22,19 @@ warning per process.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import hashlib
 import os
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import casadi as ca
 
 from softgen.codegen.build import LDLIBS, cflags, find_compiler
-from softgen.codegen.generate import BundleSpec, Generated, render, signature, write_bundle
+from softgen.codegen.generate import (LARGE_FUNCTION, BundleSpec, Generated, batch_work,
+                                     render, signature, write_bundle)
 from softgen.core.atomic import write_text
 from softgen.core.paths import cache_dir
 from softgen.runtime.library import Bundle, BundleFunction
@@ -48,6 +52,50 @@ def compile_functions(name: str, functions: list[ca.Function], *,
     ``"casadi"``. ``loops``: loop function name -> the per-sample function its
     ``mapaccum`` repeats, emitted as a plain C loop (``BundleSpec.loops``).
     """
+    return _compile(name, functions, docs=docs, backend=backend, loops=loops)[0]
+
+
+@dataclass(frozen=True)
+class BatchDriver:
+    """A compiled :func:`~softgen.codegen.generate.batch_driver`: the ctypes function, the
+    library it lives in (kept loaded) and the work it needs."""
+
+    function: Any
+    library: Path
+    iw: int
+    w: int
+
+
+def compile_batch(name: str, sample: ca.Function) -> BatchDriver | None:
+    """The batch driver of the per-sample function ``sample`` (named ``<name>_sample``),
+    compiled once per content like :func:`compile_functions` (same cache, -O1); None
+    without a C compiler (the caller runs the samples one by one instead)."""
+    if find_compiler() is None:
+        return None
+    driver = f"softgen_batch_{name}"
+    # A batch runs hundreds of runs of thousands of samples: its compile is paid once
+    # for all of them, so it takes the bundles' rule (codegen.generate.LARGE_FUNCTION).
+    level = "-O3" if sample.n_instructions() < LARGE_FUNCTION else "-O1"
+    _, bundle, owner = _compile(name, [sample], backend="c", batches={driver: sample},
+                                optimization=level)
+    lib = ctypes.CDLL(str(bundle.library))
+    fn = getattr(lib, driver.replace(name, owner, 1))
+    real, integer = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_longlong)
+    fn.argtypes = [real, real, ctypes.c_longlong, ctypes.c_double, ctypes.c_longlong,
+                   ctypes.c_longlong, real, real, real, integer, real]
+    fn.restype = ctypes.c_int
+    iw, w = batch_work(sample)
+    return BatchDriver(fn, Path(bundle.library), iw, w)
+
+
+def _compile(name: str, functions: list[ca.Function], *,
+             docs: dict[str, str] | None = None, backend: str = "auto",
+             loops: dict[str, ca.Function] | None = None,
+             batches: dict[str, ca.Function] | None = None, optimization: str = "-O1"
+             ) -> tuple[dict[str, BundleFunction], Any, str]:
+    """:func:`compile_functions` (and ``batches``, ``BundleSpec.batches``): (functions by
+    name, the Bundle they were loaded from (None: CasADi backend), the name its code was
+    first compiled under)."""
     global _warned
     if backend not in ("auto", "c", "casadi"):
         raise ValueError(f"backend: expected 'auto', 'c' or 'casadi', got {backend!r}")
@@ -56,11 +104,18 @@ def compile_functions(name: str, functions: list[ca.Function], *,
             warnings.warn("no C compiler found (install gcc or set CC): evaluating generated "
                           "loops with CasADi, much slower", RuntimeWarning, stacklevel=2)
             _warned = True
-        return {f.name(): BundleFunction(f, signature(f)) for f in functions}
+        return {f.name(): BundleFunction(f, signature(f)) for f in functions}, None, name
     docs = docs or {}
-    # Compiled on first use, once per machine: -O1 (see codegen.build.OPT_LEVELS).
+    # Compiled on first use, once per machine: -O1 (see codegen.build.OPT_LEVELS),
+    # measured again for the loops in issue 34 (benchmarks/function_levels.py --diagram,
+    # load 8-13): -O3 saves the 3D PCC Theorem 10 loop 1-2 % of its time and the
+    # chapter-11 cascade none, at 1.6-1.8x the compile CPU (3D loop 3.8 -> 6.9 s), which
+    # every first run and every fresh test session pays (70 loops in the default test
+    # suite). Batch drivers, whose compile serves a whole sweep, follow the bundles'
+    # rule instead (compile_batch).
     spec = BundleSpec(name=name, functions=[Generated(f, docs.get(f.name(), "")) for f in functions],
-                      optimization="-O1", loops=dict(loops or {}))
+                      optimization=optimization, loops=dict(loops or {}),
+                      batches=dict(batches or {}))
     files = render(spec)
     c_src = files[f"{name}.c"]
     spec.identity = c_src
@@ -78,15 +133,16 @@ def compile_functions(name: str, functions: list[ca.Function], *,
         owner = _owner(index / content)
         if owner is not None and owner != name:
             # Another diagram's name, same code: its functions under our names.
-            funcs = Bundle(cache_dir() / f"{owner}_{content}" / owner).functions
-            return {k.replace(owner, name, 1): v for k, v in funcs.items()}
+            bundle = Bundle(cache_dir() / f"{owner}_{content}" / owner)
+            return ({k.replace(owner, name, 1): v for k, v in bundle.functions.items()},
+                    bundle, owner)
         root = cache_dir() / f"{name}_{content}"
         if not (root / name / "manifest.json").is_file():
             write_bundle(spec, root)
-        funcs = Bundle(root / name).functions      # compiles it (once) if needed
+        bundle = Bundle(root / name)              # compiles it (once) if needed
         if owner is None:
             write_text(index / content, name + "\n")
-        return funcs
+        return bundle.functions, bundle, name
 
 
 def _owner(path: Path) -> str | None:

@@ -59,6 +59,10 @@ class Trace:
     wall_seconds: float = 0.0
     meta: dict = field(default_factory=dict)
     cpu_seconds: float = 0.0
+    #: Samples simulated (``t`` may hold fewer: a decimated trace, ``simulate(every=k)``).
+    steps: int | None = None
+    #: Every how many samples a row was kept (1: every sample).
+    every: int = 1
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name in self.signals:
@@ -116,7 +120,8 @@ class Trace:
 
     @property
     def simulated_seconds(self) -> float:
-        return float(self.t.size * self.meta.get("dt", 0.0))
+        n = self.t.size if self.steps is None else self.steps
+        return float(n * self.meta.get("dt", 0.0))
 
     @property
     def realtime_factor(self) -> float:
@@ -191,7 +196,7 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
              chunk: int = 1000, stop: Sequence[StopRule] = (),
              on_nonfinite: str = "raise", record: Sequence[str] | None = None,
              progress: bool | None = None, label: str | None = None,
-             backend: str = "auto") -> Trace:
+             backend: str = "auto", every: int = 1) -> Trace:
     """Run ``diagram`` for ``duration`` seconds (or ``steps`` samples) from sample ``k0``.
 
     Parameters
@@ -214,6 +219,14 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
         Signals to keep (default all); ``t`` is always kept.
     progress
         Lines on stderr every ~2 s; default: when stderr is a terminal.
+    every
+        Keep every ``every``-th sample of the recorded signals (and ``t``), counted from
+        the run's first sample: a decimated trace, as ``reproduce`` writes traces. The
+        loop then writes each chunk into one buffer reused for every chunk and only the
+        kept rows are copied out, so a long run neither allocates nor first-touches a
+        full trace (issue 34: a 60 s Theorem 5 run recording 7 signals spent half its
+        time first-touching a fresh 9.6 MB trace). Non-finite values and stop rules are
+        still checked on every sample. 1 (default): every sample, written in place.
     """
     if on_nonfinite not in ("raise", "stop"):
         raise ValueError(f"on_nonfinite: expected 'raise' or 'stop', got {on_nonfinite!r}")
@@ -227,6 +240,9 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
         raise ValueError(f"duration: expected at least one sample of {dt:g} s, got "
                          f"{duration if duration is not None else steps}")
     chunk = max(1, min(int(chunk), steps))
+    if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+        raise ValueError(f"every: expected a positive integer, got {every!r}")
+    every = int(every)
     label = label or diagram.name
     stop = [tuple(s_) for s_ in stop]
     for s_ in stop:
@@ -257,7 +273,14 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
     # (signals × samples) layout: each chunk writes straight into the trace, so nothing
     # is copied and no memory is touched twice.
     n_chunks = -(-steps // chunk)
-    Y = np.empty((n_chunks * chunk, rows.size))
+    if every == 1:
+        Y = np.empty((n_chunks * chunk, rows.size))
+    else:
+        # Kept rows only, and one chunk buffer the loop writes into, reused.
+        Y = np.empty((-(-steps // every), rows.size))
+        buf = np.empty((chunk, rows.size))
+        loop.bind_output(1, buf)
+    n_kept = 0
     if progress is None:
         progress = _PROGRESS["show"]
     show = sys.stderr.isatty() if progress is None else progress
@@ -275,8 +298,11 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
             e_buf[:, :n] = E[:, n_done:n_done + n]
             if n < chunk:
                 e_buf[:, n:] = E[:, n_done + n - 1:n_done + n]
-        block = Y[n_done:n_done + chunk]
-        loop.bind_output(1, block)
+        if every == 1:
+            block = Y[n_done:n_done + chunk]
+            loop.bind_output(1, block)
+        else:
+            block = buf
         loop.call()
         Xc, Yc = x_buf[:, :n], block[:n].T
         # One reduction finds out whether anything is non-finite (a NaN or an infinity
@@ -296,6 +322,13 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
                 if hit.size and hit[0] < cut:
                     cut, reason = int(hit[0]), why
         final = (X if cut == 0 else Xc[:, cut - 1]).copy()
+        if every > 1:
+            first = (-n_done) % every       # the chunk's first row on the global grid
+            kept = block[first:cut:every]
+            Y[n_kept:n_kept + kept.shape[0]] = kept
+            n_kept += kept.shape[0]
+        else:
+            n_kept += cut
         n_done += cut
         if cut < n or reason is not None:
             stopped_at = (k0 + n_done) * dt
@@ -309,13 +342,157 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
                   file=sys.stderr, flush=True)
     wall, cpu = time.perf_counter() - t_wall, time.thread_time() - t_cpu
     loop.release_output(1)      # the cached loop must not keep this trace alive
-    Y = Y[:n_done]
+    Y = Y[:n_kept]
     signals = {r.name: Y[:, rows.slice(r.name)] for r in rows}
     t = signals.pop(TIME)[:, 0].copy()
     return Trace(t=t, signals=signals, final_state=diagram.state.split(final),
                  next_k=k0 + n_done, stopped_at=stopped_at, stop_reason=reason,
                  wall_seconds=wall, meta={"dt": dt, "diagram": diagram.name},
-                 cpu_seconds=cpu)
+                 cpu_seconds=cpu, steps=n_done, every=every)
+
+
+@dataclass
+class BatchResult:
+    """What :func:`simulate_batch` gives per run (arrays with one row per run).
+
+    ``final_state`` (runs × nx) continues a run (``diagram.state.split(row)``);
+    ``steps`` the samples run; ``stopped_at`` the time of the sample the run ended
+    before (NaN: it ran every sample); ``reason`` None, ``"stop"`` or
+    ``"non-finite <signal>"``; ``error`` the :class:`DivergenceError` of a run that
+    turned non-finite (None otherwise), as :func:`simulate` would have raised it.
+    """
+
+    final_state: np.ndarray
+    steps: np.ndarray
+    stopped_at: np.ndarray
+    reason: list[str | None]
+    error: list[DivergenceError | None]
+    wall_seconds: float = 0.0
+    cpu_seconds: float = 0.0
+
+    def state(self, i: int, diagram: ClosedLoop) -> dict[str, np.ndarray]:
+        """Run ``i``'s final state by signal (``x0=`` of a following run)."""
+        return diagram.state.split(self.final_state[i])
+
+
+def simulate_batch(diagram: ClosedLoop, steps: int, *, x0: Sequence[Mapping | None],
+                   params: Sequence[Mapping | None], k0: int = 0, stop: str | None = None,
+                   record: Sequence[str] = (), externals: Mapping[str, np.ndarray] | None = None,
+                   label: str | None = None, backend: str = "auto") -> BatchResult:
+    """Run ``diagram`` once per pair of ``x0[i]`` and ``params[i]``, in one call.
+
+    The runs go to one generated C driver (:func:`softgen.codegen.generate.batch_driver`)
+    that loops over them, each ``steps`` samples from ``k0`` unless it ends first:
+    before the first sample at which the scalar signal ``stop`` is non-zero (the stop
+    rule of :func:`simulate`, computed in the loop), or at the first non-finite value of
+    the state or of the signals in ``record`` (which the driver keeps one sample of
+    only: nothing is recorded). What a run should report it accumulates in its own
+    states (a monitor block), read from ``final_state``. A run's numbers do not depend on
+    the batch it is in: the same run alone gives the same bits. Without a C compiler
+    (or ``backend="casadi"``) the runs go through :func:`simulate` one by one, with
+    the same stopping rules.
+    """
+    if len(x0) != len(params):
+        raise ValueError(f"simulate_batch: {len(x0)} initial states but {len(params)} "
+                         "parameter sets")
+    steps, runs = int(steps), len(x0)
+    if steps < 1:
+        raise ValueError(f"steps: expected at least one sample, got {steps}")
+    rec = list(dict.fromkeys([*record, *([stop] if stop else [])]))
+    rows = diagram.recorded(rec)
+    if stop is not None and rows.signal(stop).size != 1:
+        raise ValueError(f"stop: {stop} must be one value per sample")
+    label = label or diagram.name
+    X0 = np.array([diagram.initial_state(x) for x in x0]) if runs else \
+        np.zeros((0, diagram.state.size))
+    P = np.array([diagram.parameters(p) for p in params]) if runs else \
+        np.zeros((0, diagram.params.size))
+    E = _externals(diagram, externals or {}, steps)
+    key = ("batch", tuple(rec), backend)
+    if key not in diagram.compiled:
+        from softgen.runtime.compiled import compile_batch
+        stem = f"{diagram.loop_name(rec)}b"
+        diagram.compiled[key] = None if backend == "casadi" else \
+            compile_batch(stem, diagram.sample_fun(rec, name=f"{stem}_sample"))
+    driver = diagram.compiled[key]
+    t_wall, t_cpu = time.perf_counter(), time.thread_time()
+    if driver is None:
+        res = _batch_by_simulate(diagram, steps, X0, P, k0, stop, rec, externals, label,
+                                 backend)
+    else:
+        res = _batch_in_c(driver, diagram, rows, steps, X0, P, k0, stop, E, label)
+    res.wall_seconds, res.cpu_seconds = time.perf_counter() - t_wall, \
+        time.thread_time() - t_cpu
+    return res
+
+
+def _batch_in_c(driver, diagram: ClosedLoop, rows, steps: int, X0, P, k0: int, stop,
+                E, label: str) -> BatchResult:
+    import ctypes
+    from softgen.codegen.generate import BATCH_INFO, BATCH_REASONS
+    runs, nx, dt = X0.shape[0], diagram.state.size, diagram.dt
+    x0 = np.ascontiguousarray(X0, dtype=float)        # runs × nx: column b of nx × runs
+    p = np.ascontiguousarray(P, dtype=float)
+    e = None if E is None else np.asfortranarray(E, dtype=float)   # ne × steps, by column
+    xf = np.empty((runs, nx))
+    info = np.empty((runs, BATCH_INFO))
+    iw = np.zeros(driver.iw, dtype=np.int64)
+    w = np.zeros(driver.w)
+    real = ctypes.POINTER(ctypes.c_double)
+
+    def ptr(a):
+        return None if a is None else a.ctypes.data_as(real)
+    stop_row = rows.slice(stop).start if stop is not None else -1
+    ret = driver.function(ptr(x0), ptr(p), runs, float(k0), steps, stop_row, ptr(e),
+                          ptr(xf), ptr(info), iw.ctypes.data_as(ctypes.POINTER(
+                              ctypes.c_longlong)), ptr(w))
+    if ret != 0:
+        raise SoftgenError(f"{label}: the batch driver returned error code {ret}")
+    done = info[:, 0].astype(int)
+    stopped, reasons, errors = np.full(runs, np.nan), [], []
+    for b in range(runs):
+        why, where = BATCH_REASONS[int(info[b, 1])], int(info[b, 2])
+        if why == "end":
+            reasons.append(None)
+            errors.append(None)
+            continue
+        stopped[b] = (k0 + done[b]) * dt
+        if why == "stop":
+            reasons.append("stop")
+            errors.append(None)
+            continue
+        # y rows first, then the state's (codegen.generate.batch_driver).
+        name = _name_at(rows, where) if where < rows.size else \
+            f"state {_name_at(diagram.state, where - rows.size)}"
+        # simulate's time: the sample of a non-finite signal, the one after a state's.
+        reasons.append(f"non-finite {name}")
+        errors.append(DivergenceError(label, stopped[b], name))
+    return BatchResult(final_state=xf, steps=done, stopped_at=stopped, reason=reasons,
+                       error=errors)
+
+
+def _batch_by_simulate(diagram, steps, X0, P, k0, stop, rec, externals, label, backend
+                       ) -> BatchResult:
+    """:func:`simulate_batch` without the C driver: the runs one by one, same rules."""
+    rules = [("stop", lambda tr: tr[stop][:, 0] != 0)] if stop is not None else []
+    xf, done, stopped, reasons, errors = [], [], [], [], []
+    for x, p in zip(X0, P):
+        tr = simulate(diagram, steps=steps, x0=diagram.state.split(x),
+                      params=diagram.params.split(p), k0=k0, externals=externals,
+                      stop=rules, on_nonfinite="stop", record=rec, label=label,
+                      backend=backend, progress=False)
+        xf.append(diagram.state.join(tr.final_state) if diagram.state.size else np.zeros(0))
+        done.append(tr.next_k - k0)
+        stopped.append(np.nan if tr.stopped_at is None else tr.stopped_at)
+        reasons.append(tr.stop_reason)
+        err = None
+        if tr.stop_reason and tr.stop_reason.startswith("non-finite"):
+            name = tr.stop_reason.removeprefix("non-finite ")
+            err = DivergenceError(label, tr.stopped_at, name)
+        errors.append(err)
+    return BatchResult(final_state=np.array(xf).reshape(len(xf), diagram.state.size),
+                       steps=np.array(done, dtype=int), stopped_at=np.array(stopped),
+                       reason=reasons, error=errors)
 
 
 def _externals(diagram: ClosedLoop, given: Mapping, steps: int) -> np.ndarray | None:
@@ -376,4 +553,4 @@ def _chunk_trace(rows, k: int, Yc: np.ndarray, dt: float) -> Trace:
     return Trace(t=t, signals=sig, final_state={}, next_k=k, meta={"dt": dt})
 
 
-__all__ = ["DivergenceError", "Trace", "simulate", "EXT"]
+__all__ = ["DivergenceError", "Trace", "simulate", "simulate_batch", "BatchResult", "EXT"]

@@ -38,17 +38,21 @@ def steps(keys, rise: float) -> list[SmoothSteps]:
 
 
 def diagram(arm, kind: str, c, dt: float, *,
-            exact_plant: bool | None = None) -> ClosedLoop:
+            exact_plant: bool | None = None, monitor=None) -> ClosedLoop:
     """Smoothed-step references -> controller ``kind`` -> McKibben arm (ideal pressures);
-    with plant errors, the arm whose true values are parameters (one loop for all)."""
+    with plant errors, the arm whose true values are parameters (one loop for all).
+    ``monitor``: ``(block, wires)`` added to the loop (the in-loop metrics of
+    :mod:`softgen.studies.pneumatic_batch`)."""
     ref = stiffness_reference_block("ref", steps(("q1", "q2"), c.rise),
                                     steps(("s1", "s2"), c.rise))
     exact = c.exact_plant if exact_plant is None else exact_plant
     plant = plant_block(arm, dt) if exact else uncertain_plant_block(arm, dt)
-    tag = "" if exact else "_uncertain"
+    tag = ("" if exact else "_uncertain") + ("" if monitor is None else f"_{monitor[0].name}")
+    extra, wires = monitor if monitor is not None else (None, [])
     return ClosedLoop(f"ch10_{arm.name}_{kind}{tag}_{'_'.join(f'{dt:g}'.split('.'))}"
-                      .replace("-", "m"), [ref, controller_block(arm, kind, dt), plant],
-                      [("ctrl.p", "plant.p_cmd")])
+                      .replace("-", "m"), [ref, controller_block(arm, kind, dt), plant,
+                                           *([extra] if extra is not None else [])],
+                      [("ctrl.p", "plant.p_cmd"), *wires])
 
 
 def plant_values(arm, c) -> dict[str, np.ndarray]:
@@ -70,14 +74,21 @@ def plant_values(arm, c) -> dict[str, np.ndarray]:
 RECORD = ("ref.q_d", "ref.sigma_d", "plant.q", "plant.sigma", "ctrl.p", "ctrl.nu", "ctrl.Pi_hat")
 
 
-def run_case(arm, kind: str, c, dt: float, *,
-             d: ClosedLoop | None = None) -> Trace:
-    """Preset (K_π = 0, t < 0), then the three phases: one diagram, two driver calls (the
-    preset runs at negative times, ``k0``). ``d``: the diagram of ``(arm, kind, c, dt)`` if
-    already built (sweeps reuse it)."""
+def physical_gains(arm, c) -> tuple[np.ndarray, np.ndarray]:
+    """(K_d, K_π) of case ``c`` in the physical units of the arm's laws: the case holds
+    the thesis's numbers (chapter 10's K_d = 18, K_π = 35), converted by the one rule
+    :func:`softgen.studies.gains.thesis_to_physical`."""
+    return thesis_to_physical(arm.act.muscle_gain, np.full(arm.n, c.kd), c.kpi)
+
+
+def case_start(arm, kind: str, c, dt: float, d: ClosedLoop) -> tuple[dict, dict, int, int]:
+    """``(x0, params, preset samples, run samples)`` of :func:`run_case`: the preset's
+    state (the ν and pressures the actuator model gives σ_preset at rest, Π̂(0)), the
+    preset's parameters (K_π = 0; the run's take ``ctrl.kpi`` = ``c.kpi``) and the two
+    lengths in whole chunks. One home for the runs one by one and in batches
+    (:mod:`softgen.studies.pneumatic_batch`)."""
     n = arm.n
-    d = d or diagram(arm, kind, c, dt)
-    kd, kpi = thesis_to_physical(arm.act.muscle_gain, np.full(n, c.kd), c.kpi)
+    kd, _ = physical_gains(arm, c)
     gains = Theorem5Gains.from_stiffness_rate(c.stiffness_rate, lam=c.lam, kd=kd, kpi=0.0)
     pi0 = c.pi_hat0_ratio * arm.Pi_nominal
     # Preset inflation: the ν (and pressures) the actuator model gives σ_preset at rest.
@@ -89,7 +100,18 @@ def run_case(arm, kind: str, c, dt: float, *,
     chunk = int(c.chunk)
     n_pre = int(round(c.preset / dt / chunk)) * chunk
     n_run = int(round(c.duration / dt / chunk)) * chunk
-    ctrl = gains.params(d.params.names) | plant_values(arm, c)
+    return x0, gains.params(d.params.names) | plant_values(arm, c), n_pre, n_run
+
+
+def run_case(arm, kind: str, c, dt: float, *,
+             d: ClosedLoop | None = None) -> Trace:
+    """Preset (K_π = 0, t < 0), then the three phases: one diagram, two driver calls (the
+    preset runs at negative times, ``k0``). ``d``: the diagram of ``(arm, kind, c, dt)`` if
+    already built (sweeps reuse it)."""
+    d = d or diagram(arm, kind, c, dt)
+    x0, ctrl, n_pre, n_run = case_start(arm, kind, c, dt, d)
+    _, kpi = physical_gains(arm, c)
+    chunk = int(c.chunk)
     stop = [tracking_stop(c.stop_error, "plant.q", "ref.q_d", reason="runaway")
             ] if c.stop_error > 0 else []
     pre = simulate(d, steps=n_pre, k0=-n_pre, x0=x0, params=ctrl, chunk=chunk,

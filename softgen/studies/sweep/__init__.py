@@ -37,13 +37,14 @@ from softgen.core.atomic import check_dir, output_error, write_text
 from softgen.core.errors import SoftgenError
 from softgen.core.provenance import code_hash
 from softgen.core.stop import Stop, ignore_signals, interrupted, signal_name, stopping
-from softgen.studies.sweep.backends import DASK_HINT, dask_available, default_workers, run_tasks  # noqa: F401
+from softgen.studies.sweep.backends import (DASK_HINT, SweepPool, batch_size,  # noqa: F401
+                                            dask_available, default_workers, run_tasks)
 from softgen.studies.sweep.evaluate import SweepTarget, Target, base_config
 from softgen.studies.sweep.results import plot, summarise, write_summary, write_table
 from softgen.studies.sweep.spec import Vary, flat_inputs, input_columns, max_samples, parse_vary, plan
 
-__all__ = ["SweepSpec", "SweepResult", "SweepTarget", "run_sweep", "load_rows", "DASK_HINT",
-           "dask_available"]
+__all__ = ["SweepSpec", "SweepResult", "SweepTarget", "SweepPool", "run_sweep", "load_rows",
+           "DASK_HINT", "dask_available"]
 
 
 @dataclass(frozen=True)
@@ -250,11 +251,15 @@ PROGRESS_EVERY = 5.0
 def run_sweep(spec: SweepSpec, out: Path, *, experiment: SweepTarget,
               workers: int | None = None, scheduler: str | None = None,
               resume: bool = False, force: bool = False, fmt: str = "csv",
-              progress: bool | None = None, plot_figure: bool = True) -> SweepResult:
+              progress: bool | None = None, plot_figure: bool = True,
+              pool: SweepPool | None = None, batch: int | None = None) -> SweepResult:
     """Run (or finish) the sweep ``spec`` of ``experiment`` into ``out``; see the module
     docstring. ``experiment.id`` must be ``spec.experiment``. ``plot_figure=False``: no
     ``sweep.png`` (an experiment made of sweeps that draws its own figure; ~1 CPU-s
-    each, issue 25).
+    each, issue 25). ``pool``: a :class:`SweepPool` shared with other sweeps (its
+    workers; ``workers`` is then ignored). ``batch``: samples per task (default: one for
+    an experiment without ``batch``, else :func:`~softgen.studies.sweep.backends.batch_size`);
+    a sample's row does not depend on it.
 
     SIGINT and SIGTERM (main thread) stop it at any moment: the journal keeps every
     finished sample (each line is fsync'ed as it is written) and
@@ -264,7 +269,7 @@ def run_sweep(spec: SweepSpec, out: Path, *, experiment: SweepTarget,
         try:
             return _run_sweep(spec, Path(out), experiment, workers=workers, scheduler=scheduler,
                               resume=resume, force=force, fmt=fmt, progress=progress,
-                              plot_figure=plot_figure)
+                              plot_figure=plot_figure, pool=pool, batch=batch)
         except Stop as stop:
             ignore_signals()
             name = signal_name(stop.signum)
@@ -284,8 +289,12 @@ def load_rows_quietly(out: Path) -> dict[int, dict]:
 
 def _run_sweep(spec: SweepSpec, out: Path, exp: SweepTarget, *, workers: int | None,
                scheduler: str | None, resume: bool, force: bool, fmt: str,
-               progress: bool | None, plot_figure: bool = True) -> SweepResult:
+               progress: bool | None, plot_figure: bool = True,
+               pool: SweepPool | None = None, batch: int | None = None) -> SweepResult:
     spec.check()
+    if batch is not None and (isinstance(batch, bool) or not isinstance(batch, int)
+                              or batch < 1):
+        raise SoftgenError(f"sweep: --batch: expected a positive integer, got {batch!r}")
     # The id is what sweep.json records: a spec labelled with another experiment would
     # let a resume mix two experiments' samples in one journal.
     if exp.id != spec.experiment:
@@ -321,8 +330,12 @@ def _run_sweep(spec: SweepSpec, out: Path, exp: SweepTarget, *, workers: int | N
     show = sys.stderr.isatty() if progress is None else progress
     t0 = time.perf_counter()
     # Tasks are made as the backends take them: a long sweep holds no second copy.
-    tasks = ((s.index, (target, spec.quick, fixed, s.overrides, spec.metrics))
-             for s in todo)
+    n_workers = pool.workers if pool is not None else (workers or default_workers())
+    size = batch or batch_size(len(todo), n_workers, target.batch is not None)
+    tasks = (([s.index for s in todo[i:i + size]],
+              (target, spec.quick, fixed, [s.overrides for s in todo[i:i + size]],
+               spec.metrics))
+             for i in range(0, len(todo), size))
     by_index = {s.index: s for s in samples}
     failed = 0
     try:
@@ -333,8 +346,8 @@ def _run_sweep(spec: SweepSpec, out: Path, exp: SweepTarget, *, workers: int | N
         print(f"sweep {spec.experiment}: {len(todo)} sample(s) to run -> {out}",
               file=sys.stderr, flush=True)
     last_line = time.perf_counter()
-    results = run_tasks(tasks, workers=workers or default_workers(), scheduler=scheduler,
-                        count=len(todo))
+    results = run_tasks(tasks, workers=n_workers, scheduler=scheduler,
+                        count=-(-len(todo) // size), pool=pool)
     try:
         for k, (index, res) in enumerate(results, 1):
             s = by_index[index]

@@ -1,8 +1,12 @@
 """Where the samples run: this process, a local process pool, or a Dask cluster.
 
-Every backend maps :func:`softgen.studies.sweep.evaluate.evaluate` over the samples and yields
-``(index, result)`` as samples finish, in any order; the sweep writes each result to
-its journal as it arrives, so an interrupted sweep loses only the samples in flight.
+Every backend maps :func:`softgen.studies.sweep.evaluate.evaluate_batch` over batches of
+samples (a task is a list of sample indices and their arguments: one call of the
+generated loop for many samples when the experiment has a ``batch``, issue 34) and
+yields ``(index, result)`` per sample as batches finish, in any order; the sweep writes
+each result to its journal as it arrives, so an interrupted sweep loses only the
+batches in flight. A :class:`SweepPool` keeps one process pool across several sweeps
+(an experiment made of sweeps), so its workers start, import and set up their loop once.
 
 Dask (``dask.distributed``) is an optional extra (``pip install 'softgen[dask]'``):
 ``scheduler="local"`` starts a ``LocalCluster`` of ``workers`` single-threaded worker
@@ -21,30 +25,68 @@ from concurrent.futures.process import BrokenProcessPool
 from softgen.core.cpus import available_cpus
 from softgen.core.stop import signals_held, worker_init
 from softgen.core.errors import SoftgenError
-from softgen.studies.sweep.evaluate import evaluate
+from softgen.studies.sweep.evaluate import evaluate_batch
 
 DASK_HINT = "pip install 'softgen[dask]' (dask.distributed)"
 
 
-#: Samples in flight per worker: enough to keep every worker busy, few enough that a
+#: Batches in flight per worker: enough to keep every worker busy, few enough that a
 #: million-sample sweep never queues a million futures (process pool and Dask alike).
 IN_FLIGHT_PER_WORKER = 4
 
-Tasks = Iterable[tuple[int, tuple]]
+#: A task: the indices of a batch of samples and the arguments of evaluate_batch.
+Tasks = Iterable[tuple[list[int], tuple]]
 
 
 def _serial(tasks: Tasks) -> Iterator[tuple[int, dict]]:
-    for index, args in tasks:
-        yield index, evaluate(*args)
+    for indices, args in tasks:
+        yield from zip(indices, evaluate_batch(*args))
 
 
-
-def _pool(tasks: Tasks, workers: int) -> Iterator[tuple[int, dict]]:
+def _new_pool(workers: int) -> ProcessPoolExecutor:
     # Workers ignore SIGINT/SIGTERM (the main process stops them) and end when the main
     # process dies, even by SIGKILL (softgen.core.stop.watch_parent).
     with signals_held():
-        pool = ProcessPoolExecutor(max_workers=workers, initializer=worker_init,
+        return ProcessPoolExecutor(max_workers=workers, initializer=worker_init,
                                    initargs=(os.getpid(),))
+
+
+class SweepPool:
+    """A local process pool shared by the sweeps run inside the ``with`` block.
+
+    An experiment made of sweeps (``ext-robustness-theorem5``: ten of them) started a
+    pool per sweep, and every worker of every pool imported softgen and built its loop
+    before its first sample. Passed to :func:`softgen.studies.sweep.run_sweep`
+    (``pool=``), one pool serves them all; it is shut down when the block ends, and its
+    workers are killed if the block ends by an exception (an interrupt).
+    """
+
+    def __init__(self, workers: int):
+        if workers < 1:
+            raise SoftgenError(f"sweep: --workers: expected a positive integer, got {workers}")
+        self.workers = workers
+        self._pool: ProcessPoolExecutor | None = None
+
+    def executor(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            self._pool = _new_pool(self.workers)
+        return self._pool
+
+    def __enter__(self) -> SweepPool:
+        return self
+
+    def __exit__(self, kind, exc, tb) -> None:
+        if self._pool is not None:
+            if kind is None:
+                self._pool.shutdown(wait=True)
+            else:
+                _kill_pool(self._pool)
+            self._pool = None
+
+
+def _pool(tasks: Tasks, workers: int, shared: SweepPool | None = None
+          ) -> Iterator[tuple[int, dict]]:
+    pool = shared.executor() if shared is not None else _new_pool(workers)
     clean = False
     try:
         pending: dict = {}
@@ -55,7 +97,7 @@ def _pool(tasks: Tasks, workers: int) -> Iterator[tuple[int, dict]]:
             if nxt is None:
                 return False
             with signals_held():
-                pending[pool.submit(evaluate, *nxt[1])] = nxt[0]
+                pending[pool.submit(evaluate_batch, *nxt[1])] = nxt[0]
             return True
 
         while len(pending) < IN_FLIGHT_PER_WORKER * workers and submit():
@@ -63,18 +105,22 @@ def _pool(tasks: Tasks, workers: int) -> Iterator[tuple[int, dict]]:
         while pending:
             done, _ = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
             for fut in done:
-                index = pending.pop(fut)
+                indices = pending.pop(fut)
                 try:
                     res = fut.result()
                 except BrokenProcessPool:
                     raise SoftgenError("sweep: a worker process died (killed, or out of "
                                        "memory); the finished samples are in the journal: "
                                        "--resume to finish") from None
-                yield index, res
+                yield from zip(indices, res)
                 submit()
         clean = True
     finally:
-        if clean:
+        if shared is not None:
+            if not clean:                  # the owner's block ends by this exception
+                _kill_pool(pool)
+                shared._pool = None
+        elif clean:
             pool.shutdown(wait=True)
         else:
             _kill_pool(pool)
@@ -142,20 +188,21 @@ def _dask(tasks: Tasks, workers: int, scheduler: str) -> Iterator[tuple[int, dic
             nxt = next(it, None)
             if nxt is None:
                 return False
-            index, args = nxt
+            indices, args = nxt
             # pure=False: equal arguments are still separate runs (and keys stay unique).
-            fut = client.submit(evaluate, *args, pure=False, key=f"softgen-sample-{index}")
-            futures[fut] = index
+            fut = client.submit(evaluate_batch, *args, pure=False,
+                                key=f"softgen-samples-{indices[0]}-{indices[-1]}")
+            futures[fut] = indices
             queue.add(fut)
             return True
 
         while len(futures) < slots and submit():
             pass
         for fut in queue:
-            index = futures.pop(fut)
+            indices = futures.pop(fut)
             res = fut.result()
             fut.release()
-            yield index, res
+            yield from zip(indices, res)
             submit()
     finally:
         if client is not None:
@@ -167,17 +214,34 @@ def _dask(tasks: Tasks, workers: int, scheduler: str) -> Iterator[tuple[int, dic
 
 
 def run_tasks(tasks: Tasks, *, workers: int, scheduler: str | None,
-              count: int | None = None) -> Iterator[tuple[int, dict]]:
-    """``(index, result)`` of every task, as they finish; ``count`` is the number of
-    tasks when ``tasks`` is an iterator (default ``len(tasks)``)."""
+              count: int | None = None, pool: SweepPool | None = None
+              ) -> Iterator[tuple[int, dict]]:
+    """``(index, result)`` of every sample of every task, as tasks finish; ``count`` is
+    the number of tasks when ``tasks`` is an iterator (default ``len(tasks)``); ``pool``
+    a :class:`SweepPool` to run them on (its worker count) instead of a new pool."""
     if workers < 1:
         raise SoftgenError(f"sweep: --workers: expected a positive integer, got {workers}")
     n = len(tasks) if count is None else count       # type: ignore[arg-type]
     if scheduler is not None:
         return _dask(tasks, workers, scheduler)
+    if pool is not None and pool.workers > 1 and n > 1:
+        return _pool(tasks, pool.workers, pool)
     if workers == 1 or n <= 1:
         return _serial(tasks)
     return _pool(tasks, min(workers, n))
+
+
+#: Most samples per task of a batched sweep: a worker's batch is one call of the
+#: generated loop; more samples per call save little and balance the workers worse.
+MAX_BATCH = 32
+
+
+def batch_size(samples: int, workers: int, batched: bool) -> int:
+    """Samples per task: 1 for an experiment without ``batch``; else enough tasks to
+    keep ``workers`` busy to the end (4 per worker), at most :data:`MAX_BATCH`."""
+    if not batched:
+        return 1
+    return max(1, min(MAX_BATCH, -(-samples // (IN_FLIGHT_PER_WORKER * max(1, workers)))))
 
 
 def default_workers() -> int:

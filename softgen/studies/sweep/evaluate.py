@@ -37,6 +37,7 @@ class SweepTarget(Protocol):
     quick: dict
     run: Callable[[Config, Path], Any]
     case: Callable[[Config], Any] | None
+    # Optional: ``batch(configs, patterns)`` (``Experiment.batch``).
 
 
 @dataclass(frozen=True)
@@ -55,11 +56,12 @@ class Target:
     quick: dict
     run: Callable[[Config, Path], Any]
     case: Callable[[Config], Any] | None
+    batch: Callable[[list, tuple[str, ...]], list | None] | None = None
 
     @classmethod
     def of(cls, exp: SweepTarget) -> Target:
         return cls(id=exp.id, config=exp.config, quick=dict(exp.quick), run=exp.run,
-                   case=exp.case)
+                   case=exp.case, batch=getattr(exp, "batch", None))
 
 
 def base_config(exp: SweepTarget, quick: bool, fixed: dict | None = None) -> Config:
@@ -80,6 +82,53 @@ def select(metrics: dict, patterns: tuple[str, ...]) -> dict:
     return {k: v for k, v in metrics.items() if any(fnmatch.fnmatchcase(k, p) for p in patterns)}
 
 
+def _result(raw, patterns: tuple[str, ...]) -> tuple[str, str, dict]:
+    """(status, error, metrics) of what ``case`` (or ``batch``) gave, or raised."""
+    if isinstance(raw, DivergenceError):
+        return "diverged", str(raw).splitlines()[0], {}
+    if isinstance(raw, BaseException):
+        return "error", f"{type(raw).__name__}: {str(raw).splitlines()[0] if str(raw) else ''}", {}
+    flat = raw.flat() if isinstance(raw, Metrics) else dict(raw)
+    return "ok", "", {k: (float(v) if v is not None else math.nan)
+                      for k, v in select(flat, patterns).items()}
+
+
+def evaluate_batch(exp: SweepTarget, quick: bool, fixed: dict, overrides: list[dict],
+                   patterns: tuple[str, ...]) -> list[dict]:
+    """:func:`evaluate` of every sample in ``overrides``, as one call of the experiment's
+    ``batch`` when it has one (the generated loop runs them all: issue 34), else one by
+    one. Each sample's row is what :func:`evaluate` gives it alone (the batch computes
+    every sample on its own, to the bit), but for ``wall_seconds`` (the batch's share)
+    and ``warnings`` (counted on the batch's first row)."""
+    batch = getattr(exp, "batch", None)
+    if batch is None or not overrides:
+        return [evaluate(exp, quick, fixed, o, patterns) for o in overrides]
+    t0 = time.perf_counter()
+    rows: list[dict | None] = [None] * len(overrides)
+    configs, where = [], []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for i, o in enumerate(overrides):
+            try:
+                configs.append(base_config(exp, quick, fixed).replace(**o))
+                where.append(i)
+            except Exception as exc:  # noqa: BLE001 - a bad sample is a row, as alone
+                status, error, _ = _result(exc, patterns)
+                rows[i] = {"status": status, "metrics": {}, "error": error}
+        try:
+            raw = batch(configs, tuple(patterns)) if configs else []
+        except Exception:  # noqa: BLE001 - the samples one by one say what failed
+            raw = None
+    if raw is None:
+        return [evaluate(exp, quick, fixed, o, patterns) for o in overrides]
+    for i, r in zip(where, raw):
+        status, error, metrics = _result(r, patterns)
+        rows[i] = {"status": status, "metrics": metrics, "error": error}
+    share = (time.perf_counter() - t0) / len(overrides)
+    return [{**r, "warnings": len(caught) if k == 0 else 0, "wall_seconds": share}
+            for k, r in enumerate(rows)]
+
+
 def evaluate(exp: SweepTarget, quick: bool, fixed: dict, overrides: dict,
              patterns: tuple[str, ...]) -> dict:
     """Run one sample; ``{"status", "metrics", "error", "warnings", "wall_seconds"}``.
@@ -94,17 +143,21 @@ def evaluate(exp: SweepTarget, quick: bool, fixed: dict, overrides: dict,
         warnings.simplefilter("always")
         try:
             config = base_config(exp, quick, fixed).replace(**overrides)
-            if exp.case is not None:
+            batch = getattr(exp, "batch", None)
+            # The batch route alone when it serves these metrics: a sample gives the
+            # same row whether it runs alone or in a batch (issue 34).
+            raw = batch([config], tuple(patterns)) if batch is not None else None
+            if raw is not None:
+                raw = raw[0]
+                if isinstance(raw, BaseException):
+                    raise raw
+            elif exp.case is not None:
                 raw = exp.case(config)
             else:
                 with tempfile.TemporaryDirectory(prefix="softgen-sweep-") as tmp:
                     raw = exp.run(config, Path(tmp))
-            flat = raw.flat() if isinstance(raw, Metrics) else dict(raw)
-            metrics = {k: (float(v) if v is not None else math.nan)
-                       for k, v in select(flat, patterns).items()}
-        except DivergenceError as exc:
-            status, error = "diverged", str(exc).splitlines()[0]
+            status, error, metrics = _result(raw, patterns)
         except Exception as exc:  # noqa: BLE001 - recorded per sample, the sweep goes on
-            status, error = "error", f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+            status, error, metrics = _result(exc, patterns)
     return {"status": status, "metrics": metrics, "error": error,
             "warnings": len(caught), "wall_seconds": time.perf_counter() - t0}
