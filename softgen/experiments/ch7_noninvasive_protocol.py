@@ -38,7 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from softgen.studies.indices import mse, noise_records, window_mask
-from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
+from softgen.experiments.registry import (Config, Experiment, Metrics, banded, finding,
+                                          graded, not_checked, num)
 from softgen.plants.qbmove import Sinusoids
 from softgen.modelfile.load import load_model
 from softgen.studies.estimation import (ProtocolConfig, estimator, figures, measured_deflections,
@@ -61,6 +62,9 @@ class NoninvasiveProtocolConfig(ProtocolConfig):
     metric_window: tuple[float, float] | None = (200.0, 800.0)
     diagnostics: bool = True      # also the 1-DoF estimator on unquantised encoders
     lowpass: float = 0.5          # Hz: identical low-pass of target and regressor (issue 13)
+    # s: ends of the 20-s windows of the 2-DoF σ̂/σ_plant along the run (issue 32); those
+    # past the run's end are skipped (a quick run has the first only).
+    ratio_checkpoints: tuple[float, ...] = (80.0, 200.0, 400.0, 800.0)
 
 
 #: What the ideal-sensor variant reports (it separates the encoders from the estimator).
@@ -172,6 +176,15 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
             # datasheet's (the quick run's short phases leave the 2-DoF RLS unconverged).
             mh.add("stiffness_ratio_to_plant", float(np.mean(
                 head.sigma_hat[wh, i] / truth.sigma[wh, i])), "1", joint=i + 1)
+            # Along the run (issue 32): the same ratio over the 20 s before each of
+            # ``ratio_checkpoints`` that the run reaches: an unconverged RLS start shows
+            # as a ratio that still moves, a model error as one that stays.
+            if dof == 2:
+                for end in (e for e in c.ratio_checkpoints if e <= t[-1] + c.dt):
+                    win = (t >= end - 20.0) & (t < end)
+                    mh.add("stiffness_ratio_to_plant", float(np.mean(
+                        head.sigma_hat[win, i] / truth.sigma[win, i])), "1", joint=i + 1,
+                        suffix=f"until_{end:g}")
         m.extend(mh, prefix=pre)
         r.figure(out / f"{pre}protocol.png", updating)
     mask = window_mask(t, c.metric_window, res)
@@ -181,31 +194,47 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
     return m
 
 
+#: k of the band [1/k, k] section 7.4's indices are graded in: hardware numbers from one
+#: physical run, whose spring error, sensor noise and friction the emulation has only in
+#: kind; the widest band allowed (issue 32), 3.2× in the rms error.
+BAND = 10.0
+
+
+def _section74(m: Metrics, pre: str, variant: str, kind: str, note: str) -> dict | None:
+    dof = "1" if not pre else "2"
+    joints = (1,) if not pre else (1, 2)
+    keys = [f"{pre}{variant}stiffness_{i}_joint{j}" for i in ("mse", "msrep") for j in joints]
+    flat = dict(m.items())
+    if not any(k in flat for k in keys):
+        return None
+    printed = " / ".join(num(THESIS[f"{pre}stiffness_mse_joint{j}"]) for j in joints)
+    claim = f"Section 7.4 ({dof}-DoF): stiffness MSE {printed} and MSREP on hardware with " \
+            f"encoders, {note}"
+    if lost := [k for k in keys if k not in flat]:
+        return not_checked(claim, lost, kind=kind, band=BAND)
+    ok, ev = banded(flat, THESIS, keys, BAND)
+    g = {q: " / ".join(num(m.value(q, joint=j, prefix=pre)) for j in joints)
+         for q in ("vs_nominal_stiffness_mse", "datasheet_vs_plant_stiffness_mse")}
+    return finding(claim, graded(ok), ev + " against the emulated plant's springs; against "
+                   f"the datasheet springs, 20 % off by construction, MSE "
+                   f"{g['vs_nominal_stiffness_mse']}, of which the mismatch alone is "
+                   f"{g['datasheet_vs_plant_stiffness_mse']}", kind=kind, metrics=keys,
+                   band=BAND)
+
+
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Section 7.4: stiffness MSE 3.8e-5 (1-DoF) and 1.9e-4 / 3.8e-4 (2-DoF) on hardware,
-    here against the emulated plant's springs (threshold 100× the thesis's per joint)."""
+    here against the emulated plant's springs, in the band [1/10, 10]: Theorem 4 as printed
+    (kind "thesis") and with our low-pass filter (a variant)."""
     out = []
-    for pre, thesis in (("", (3.8e-5,)), ("dof2_", (1.9e-4, 3.8e-4))):
-        g = {label: list(m.per_joint(q, prefix=pre + p).values()) for label, q, p in (
-            ("stiffness_mse", "stiffness_mse", ""),
-            ("vs_nominal_stiffness_mse", "vs_nominal_stiffness_mse", ""),
-            ("datasheet_vs_plant_stiffness_mse", "datasheet_vs_plant_stiffness_mse", ""),
-            ("unfiltered_stiffness_mse", "stiffness_mse", "unfiltered_"))}
-        if not g["stiffness_mse"]:
-            continue
-        ok = [v < 100 * t for v, t in zip(g["stiffness_mse"], thesis)]
-        f = lambda k: " / ".join(num(v) for v in g[k])   # noqa: E731
-        out.append(finding(
-            f"Section 7.4 ({'1' if not pre else '2'}-DoF): stiffness MSE "
-            + " / ".join(num(t) for t in thesis) + " on hardware with encoders",
-            "reproduced" if all(ok) else "partly reproduced" if any(ok)
-            else "not reproduced",
-            f"filtered estimator ({num(m.value('lowpass_hz'))} Hz, target and regressor "
-            f"alike): MSE {f('stiffness_mse')} against the emulated plant's springs "
-            f"(threshold 100× the thesis's); against the datasheet springs, 20 % off by "
-            f"construction, {f('vs_nominal_stiffness_mse')}, of which the mismatch alone is "
-            f"{f('datasheet_vs_plant_stiffness_mse')}; unfiltered "
-            f"{f('unfiltered_stiffness_mse')}"))
+    for pre in ("", "dof2_"):
+        for variant, kind, note in (
+                ("unfiltered_", "thesis", "Theorem 4 as printed (no filter)"),
+                ("", "variant", "with our low-pass filter of target and regressor "
+                                f"({num(m.get('lowpass_hz') or 0)} Hz, issue 13)")):
+            f = _section74(m, pre, variant, kind, note)
+            if f is not None:
+                out.append(f)
     ideal = m.find("stiffness_mse", joint=1, prefix="ideal_sensors_")
     if ideal is not None:
         v = {(q, p): m.value(q, joint=1, prefix=p) for q, p in (
@@ -221,8 +250,46 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
             f"encoders: MSE {num(ideal.value)}, rotatum error "
             f"{num(v['rotatum_uio_rms_error', 'ideal_sensors_'])}; without the gate "
             f"{num(v['stiffness_mse', 'nostop_'])}, frozen {num(v['stiffness_mse', 'freeze_'])}"
-            ": neither stop helps"))
+            ": neither stop helps", kind="diagnostic",
+            metrics=["ideal_sensors_stiffness_mse_joint1", "rotatum_uio_rms_error_joint1",
+                     "rotatum_rms_joint1"]))
+    out += _rls_start(m)
     return out
+
+
+def _rls_start(m: Metrics) -> list[dict]:
+    """Issue 32: the 2-DoF estimate's ratio to the plant's springs early in a run is the
+    RLS's unconverged start, shown by the run itself: the ratio per window along it."""
+    got = {r.suffix: r for r in m if r.quantity == "stiffness_ratio_to_plant"
+           and r.prefix == "dof2_" and r.suffix.startswith("until_")}
+    if not got:
+        return []
+    ends = sorted(got, key=lambda s: float(s[len("until_"):]))
+    first, last = ends[0], ends[-1]
+    joints = sorted({r.joint for r in m if r.quantity == "stiffness_ratio_to_plant"
+                     and r.prefix == "dof2_" and r.suffix == first})
+    per = {s: [m.value("stiffness_ratio_to_plant", joint=j, prefix="dof2_", suffix=s)
+               for j in joints] for s in ends}
+    dev = {s: max(abs(x - 1) for x in per[s]) for s in ends}
+    claim = ("Cause (issue 32): the 2-DoF estimate's distance from the plant's springs early "
+             "in a run is the RLS's unconverged start, not the encoders: σ̂/σ climbs towards 1 "
+             "along the run")
+    if first == last:
+        return [finding(claim, "not checked", f"one window only in this run (σ̂/σ "
+                        f"{' / '.join(num(x) for x in per[first])} on the 20 s to "
+                        f"{first[len('until_'):]} s): a quick run is too short to show the "
+                        "trend", kind="diagnostic")]
+    ok = dev[last] < 0.05 and dev[last] < dev[first]
+    return [finding(claim, "reproduced" if ok else "not reproduced",
+                    "mean σ̂/σ_plant (joints " + "/".join(str(j) for j in joints) + ") over "
+                    "the 20 s before " + "; ".join(f"{s[len('until_'):]} s: "
+                                                   f"{' / '.join(num(x) for x in per[s])}"
+                                                   for s in ends)
+                    + f"; reproduced when the last is within 5 % of 1 and closer than the "
+                      "first (the quick run's 0.78 / 0.73 at 80 s was this start)",
+                    kind="diagnostic",
+                    metrics=[f"dof2_stiffness_ratio_to_plant_joint{j}_{s}" for s in (first, last)
+                             for j in joints])]
 
 
 EXPERIMENT = Experiment(
