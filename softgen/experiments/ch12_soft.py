@@ -43,7 +43,8 @@ from softgen.modelfile.load import load_model
 from softgen.studies.soft import SoftStudyConfig, run_cases, sampled_loop, tracking_loop
 # The claims and their thresholds live with the checks they use; re-exported here as the
 # experiments' documented findings and constants (ch12.findings_planar, ch12.BOUNDED, ...).
-from softgen.studies.soft_claims import (BOUNDED, CONVERGED, DRIFT, ROBUST,  # noqa: F401
+from softgen.studies.soft_claims import (BOUNDED, CONVERGED, DRIFT, FLOOR_FACTOR,  # noqa: F401
+                                         NOISE_FACTOR, ROBUST,
                                          CAPTIONS_3D, CAPTIONS_PENDULUM, CAPTIONS_PLANAR,
                                          DISCUSSION, NOT_IN_THESIS, findings_3d,
                                          findings_pendulum, findings_planar, records_of)
