@@ -5,7 +5,8 @@ from eq. 7.9, deflection rates from a second observer on the measured deflection
 RLS per joint on (φ̇_a φ_a^j, φ̇_b φ_b^j), j = 0, 2, 4, 6, Π̂(0) = 0,
 P(0) = diag(1, 10³, 10⁵, 10⁵, 1, 10³, 10⁵, 10⁵)) on the emulated qbmove hardware of
 ``ch6-electric-protocol`` (T = 5·10⁻³ s, 8192-count encoders, no torque sensor, springs
-20 % stiffer than the model the allocation uses, servos of 1000 rad/s), all variants
+off the datasheet model the allocation uses by 17 % RMSRE: 1.25 × wearing to 1.15 ×, with
+a Dahl hysteresis, issue 32; servos of 1000 rad/s), all variants
 in one diagram with the plant.
 
 1-DoF (``qbmove_1dof``): q_d = 0.4 + 0.2 sin(πt/4), σ_d = 2 + sin(πt/6) for t < 400 s,
@@ -22,7 +23,7 @@ in its step (:class:`~softgen.estimation.estimators.EstimatorConfig`), against t
 emulated plant's springs: the thesis compares with its model of its hardware, the best
 stiffness it had of the springs it estimated; here the springs estimated are the
 plant's, known exactly. ``vs_nominal_*`` are the same estimates against the datasheet
-springs the allocation uses (20 % softer than the plant's by construction:
+springs the allocation uses (off the plant's by construction, the emulation's spring error:
 ``datasheet_vs_plant_stiffness_mse_*`` is that mismatch alone), as every variant has
 them. Unfiltered (Theorem 4 as printed): ``unfiltered_*`` (gated), ``nostop_*``
 (none), ``freeze_*`` (RLS frozen at ``freeze_time`` = 200 s by zeroing the covariance,
@@ -89,7 +90,8 @@ NOT_IN_THESIS = {
     "*torque_*": "section 7.4 prints stiffness indices only",
     "nostop_*": "without any update stop: Fig. 7.5 shows the drift, no number",
     "ideal_sensors_*": "unquantised encoders: our diagnostic",
-    "*vs_nominal_*": "against the datasheet springs, 20 % softer than the emulated plant's "
+    "*vs_nominal_*": "against the datasheet springs, off the emulated plant's (wear, "
+                     "hysteresis) "
                      "by construction; the thesis compares with its best model of the "
                      "springs, here the plant's (module docstring)",
     "*datasheet_vs_plant_*": "the emulated model error alone, ours",
@@ -99,7 +101,9 @@ NOT_IN_THESIS = {
     "*update_fraction_phase*": "our share of samples with the RLS updating",
     "*achieved_over_desired_stiffness*": "our check of the emulated stiffness allocation",
     "*stiffness_ratio_to_plant_*": "our mean σ̂/σ_plant: whether the estimate lands on the "
-                                   "plant's springs (1) or the datasheet's (0.833)",
+                                   "plant's springs (1) or the datasheet's (below 1)",
+    "*spring_torque_rmsre": "the emulated springs' error against the datasheet (section "
+                            "6.2.4.1 measured about 20 % on hardware, no number per run)",
     "*estimator_seconds_per_step": "our timing",
     "lowpass_hz": "our filter setting (issue 13)",
     "metric_window_*": "the window the indices cover",
@@ -182,7 +186,8 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
             if dof == 2:
                 for end in (e for e in c.ratio_checkpoints if e <= t[-1] + c.dt):
                     win = (t >= end - 20.0) & (t < end)
-                    mh.add("stiffness_ratio_to_plant", float(np.mean(
+                    # nanmean: the last L samples of a run carry no estimate.
+                    mh.add("stiffness_ratio_to_plant", float(np.nanmean(
                         head.sigma_hat[win, i] / truth.sigma[win, i])), "1", joint=i + 1,
                         suffix=f"until_{end:g}")
         m.extend(mh, prefix=pre)
@@ -215,11 +220,11 @@ def _section74(m: Metrics, pre: str, variant: str, kind: str, note: str) -> dict
     ok, ev = banded(flat, THESIS, keys, BAND)
     g = {q: " / ".join(num(m.value(q, joint=j, prefix=pre)) for j in joints)
          for q in ("vs_nominal_stiffness_mse", "datasheet_vs_plant_stiffness_mse")}
-    return finding(claim, graded(ok), ev + " against the emulated plant's springs; against "
-                   f"the datasheet springs, 20 % off by construction, MSE "
-                   f"{g['vs_nominal_stiffness_mse']}, of which the mismatch alone is "
-                   f"{g['datasheet_vs_plant_stiffness_mse']}", kind=kind, metrics=keys,
-                   band=BAND)
+    return finding(claim, graded(ok), ev + " against the emulated plant's (backbone) springs; "
+                   f"against the datasheet springs (the emulation's spring error, "
+                   f"`spring_torque_rmsre`) MSE {g['vs_nominal_stiffness_mse']}, of which the "
+                   f"mismatch alone is {g['datasheet_vs_plant_stiffness_mse']}", kind=kind,
+                   metrics=keys, band=BAND)
 
 
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
@@ -241,18 +246,23 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
             ("rotatum_uio_rms_error", ""), ("rotatum_rms", ""),
             ("rotatum_uio_rms_error", "ideal_sensors_"), ("stiffness_mse", "nostop_"),
             ("stiffness_mse", "freeze_"))}
+        quantised = m.value("stiffness_mse", joint=1, prefix="unfiltered_")
         out.append(finding(
             "Diagnosis: without the filter the estimate fails because of the encoders' "
             "quantisation, differenced three times over T³, not the estimator",
-            "reproduced" if ideal.value < 1e-2 else "not reproduced",
+            # The encoders carry the failure when reading them exactly takes the error
+            # down by more than two orders of magnitude (the rest: the springs' hysteresis
+            # and wear, which no encoder removes).
+            "reproduced" if ideal.value < 1e-2 * quantised else "not reproduced",
             f"observer rotatum error {num(v['rotatum_uio_rms_error', ''])} N m/s rms against a "
             f"rotatum of {num(v['rotatum_rms', ''])}; the same run read by unquantised "
             f"encoders: MSE {num(ideal.value)}, rotatum error "
-            f"{num(v['rotatum_uio_rms_error', 'ideal_sensors_'])}; without the gate "
+            f"{num(v['rotatum_uio_rms_error', 'ideal_sensors_'])}, against {num(quantised)} "
+            "quantised (threshold: below 1e-2 × that); without the gate "
             f"{num(v['stiffness_mse', 'nostop_'])}, frozen {num(v['stiffness_mse', 'freeze_'])}"
             ": neither stop helps", kind="diagnostic",
-            metrics=["ideal_sensors_stiffness_mse_joint1", "rotatum_uio_rms_error_joint1",
-                     "rotatum_rms_joint1"]))
+            metrics=["ideal_sensors_stiffness_mse_joint1", "unfiltered_stiffness_mse_joint1",
+                     "rotatum_uio_rms_error_joint1", "rotatum_rms_joint1"]))
     out += _rls_start(m)
     return out
 
@@ -285,8 +295,8 @@ def _rls_start(m: Metrics) -> list[dict]:
                     "the 20 s before " + "; ".join(f"{s[len('until_'):]} s: "
                                                    f"{' / '.join(num(x) for x in per[s])}"
                                                    for s in ends)
-                    + f"; reproduced when the last is within 5 % of 1 and closer than the "
-                      "first (the quick run's 0.78 / 0.73 at 80 s was this start)",
+                    + "; reproduced when the last is within 5 % of 1 and closer than the "
+                      "first",
                     kind="diagnostic",
                     metrics=[f"dof2_stiffness_ratio_to_plant_joint{j}_{s}" for s in (first, last)
                              for j in joints])]
@@ -322,22 +332,14 @@ is then of the order of the ideal-sensor run. Against the datasheet springs
 **2-DoF: the plant's springs, not the datasheet's.** The estimator holds no spring model
 (eq. 7.9 uses only the link dynamics, which the plant shares), so it cannot take the
 datasheet's springs; `dof2_stiffness_ratio_to_plant_*` (mean σ̂/σ, 1 the plant's springs,
-1/1.2 = 0.833 the datasheet's) says where it lands. Full run: 0.978 / 0.970. The
-`--quick` run (40-s phases) reads 0.776 / 0.725, near the datasheet by chance: the RLS,
-without forgetting and with P₁, P₂ up to 10⁷, is thrown to −1.6 / −2.9 × the plant in
-the first 5 s and is still climbing at 80 s. Measured one change at a time on the same
-quick run (`benchmarks/ch7_dof2_probe.py`, σ̂/σ on [60, 80) s; as run 0.816 / 0.769):
-every encoder exact 0.989 / 0.988; exact link encoder, quantised motors 0.989 / 0.989;
-quantised link, exact motors 0.813 / 0.757 (the link encoder's quantisation enters both
-the target, through q⁽³⁾, and φ̇); P(0) = 10⁸ I 0.798 / 0.776; plant springs 1.0 or
-1.4 × the datasheet's 0.993 / 0.992, 0.978 / 0.970, each against its own plant. Starting
-the RLS later instead, at 2, 3.2, 4.155, 4.2, 4.23, 4.25, 5, 10 or 20 s, gives 0.938,
-0.913, 1.142, 1.044, 0.864, 1.105, 1.081, 1.024, 0.983 on joint 1: a shift of 20 ms
-(4.23 to 4.25 s) moves it by 0.24, across the plant: where a 40-s phase leaves it
-depends on which encoder noise its first seconds saw, and no start rule is a fix (the RLS
-started once the low-pass has settled to 1e-3, 4.23 s, was tried and left out: quick
-2-DoF 0.82 / 0.83, full 0.985 / 0.982, 1-DoF quick MSE 0.029 to 0.034). Over the full
-run the start costs 2-3 % (σ̂/σ on [600, 800) s: 0.982 / 0.974 as run, 0.999 / 0.996
-with exact encoders). The quick 2-DoF MSE is an unconverged start, not a model error.
+below 1 the datasheet's) says where it lands. A short run can land anywhere: the RLS,
+without forgetting and with P₁, P₂ up to 10⁷, starts far from the plant and is still
+moving at 80 s. What the run shows (issue 32, replacing an earlier attribution to the
+encoders' resolution, which quick runs at 4096 and 8200 counts contradicted: their ratios
+fell on both sides of 1): `dof2_stiffness_ratio_to_plant_joint*_until_<t>`, the ratio over
+the 20 s before t = 80, 200, 400 and 800 s of the same run, moves from its early value
+towards 1 as the RLS converges (the finding "Cause (issue 32)" grades it); the wear of the
+emulated springs then leaves the λ = 1 estimate a few per cent behind the plant late in
+the run.
 """,
 )
