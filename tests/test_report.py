@@ -222,10 +222,16 @@ def test_claims_group_by_the_thesis_table_or_figure_they_name():
 @pytest.mark.slow
 def test_quick_run_headline_recounts_and_grades_in_band(tmp_path):
     """A quick run of every experiment: no finding breaks the two-sided grading, every
-    thesis/variant comparison states its band, and the headline recounts from the rows."""
+    thesis/variant comparison states its band, the headline recounts from the rows, and
+    no figure has an axis without a unit or a legend over its data (``FigureWarning``s,
+    raised on the figure objects by ``studies.plotting.save``, are kept per experiment)."""
     from softgen.app.reproduce import reproduce
     results = reproduce(None, tmp_path, quick=True, jobs=2)
+    assert [r["experiment"] for r in results if "error" in r] == []
     assert [p for r in results if "error" not in r for p in band_problems(r)] == []
+    figs = [f"{r['experiment']}: {w}" for r in results for w in r.get("warnings", [])
+            if w.startswith("FigureWarning")]
+    assert figs == []
     text = (tmp_path / "report.md").read_text()
     assert recount(text) == headline(text)
     assert re.search(r"\*\*Claims checked\*\*: \d+", text)

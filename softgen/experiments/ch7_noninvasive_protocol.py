@@ -334,9 +334,12 @@ is then of the order of the ideal-sensor run. Against the datasheet springs
 datasheet's springs; `dof2_stiffness_ratio_to_plant_*` (mean σ̂/σ, 1 the plant's springs,
 below 1 the datasheet's) says where it lands. A short run can land anywhere: the RLS,
 without forgetting and with P₁, P₂ up to 10⁷, starts far from the plant and is still
-moving at 80 s. What the run shows (issue 32, replacing an earlier attribution to the
-encoders' resolution, which quick runs at 4096 and 8200 counts contradicted: their ratios
-fell on both sides of 1): `dof2_stiffness_ratio_to_plant_joint*_until_<t>`, the ratio over
+moving at 80 s. Measured (issue 32, replacing an earlier attribution to the encoders'
+resolution): quick runs, `softgen reproduce ch7-noninvasive-protocol --quick --set
+encoder_counts=N`, give σ̂/σ on [60, 80) s of 0.856 / 0.886 at N = 4096, 0.908 / 0.870 at
+8192 and 1.113 / 1.143 at 8200: a 0.1 % change of resolution moves it across 1, so it
+follows the noise the RLS's first seconds saw, not the resolution. And the full run's
+`dof2_stiffness_ratio_to_plant_joint*_until_<t>`, the ratio over
 the 20 s before t = 80, 200, 400 and 800 s of the same run, moves from its early value
 towards 1 as the RLS converges (the finding "Cause (issue 32)" grades it); the wear of the
 emulated springs then leaves the λ = 1 estimate a few per cent behind the plant late in
