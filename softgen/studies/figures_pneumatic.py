@@ -184,6 +184,7 @@ def robustness(path, errors: dict[str, dict[str, np.ndarray]], tolerances: dict[
         ax[k].axhline(tolerances[key], color="k", ls="--", lw=0.8, label="ch10 tolerance")
         ax[k].set_yscale("log")
         ax[k].set_xticks(range(len(names)), names, rotation=35, fontsize=7, ha="right")
+        ax[k].set_xlabel("study [name]", fontsize=8)
         ax[k].set_ylabel(label + " (bounded samples)", fontsize=8)
         ax[k].legend(fontsize=7)
     ax[2].plot(np.array(sizes) * 100, tracks, "o-", label="tracks (ch10 tolerance)")

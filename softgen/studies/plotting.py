@@ -231,13 +231,18 @@ def place_legends(fig: Figure) -> None:
 
 def figure_problems(fig: Figure) -> list[str]:
     """What a reader of ``fig`` cannot read: an axis with data but no label with a unit
-    in brackets (:data:`UNIT`; x only where its tick labels show), a legend covering data."""
+    in brackets (:data:`UNIT`; only where its tick labels show: a shared axis without
+    them reads its neighbour's), a legend covering data."""
     out = []
     for k, a in enumerate(fig.axes):
         if not (a.get_lines() or a.collections or a.images):
             continue
         where = f"axes {k + 1}" + (f" ({a.get_title()})" if a.get_title() else "")
-        axes = [("y", a.get_ylabel())]
+        axes = []
+        # An axis shared with its neighbour and drawn without tick labels needs no label.
+        yt = a.yaxis.get_tick_params()
+        if yt.get("labelleft", True) or yt.get("labelright", False) or a.get_ylabel():
+            axes.append(("y", a.get_ylabel()))
         if a.xaxis.get_tick_params().get("labelbottom", True) or a.get_xlabel():
             axes.append(("x", a.get_xlabel()))
         if a.name == "3d":
