@@ -361,8 +361,9 @@ def test_report_renders_summary_and_per_experiment_claims(tmp_path):
     assert summary < lines.index("## exp-a")
     assert text.index("**Claims checked**") < text.index(head)
     rows = [ln for ln in lines[summary:lines.index("## exp-a")] if ln.startswith("| exp-")]
-    assert rows == [r"| exp-a | A holds \| both ways | thesis | 1.5 rad | — | — | — | reproduced |",
-                    "| exp-a | B holds | thesis | 1.5 rad | — | — | — | partly reproduced |",
+    assert rows == [r"| exp-a | A holds \| both ways | thesis | `a_metric` 1.5 rad | — | — | — | "
+                    "reproduced |",
+                    "| exp-a | B holds | thesis | `a_metric` 1.5 rad | — | — | — | partly reproduced |",
                     "| exp-d | D holds | thesis | — | — | — | — | not checked |"]
     # Per experiment: the claims table comes before the metric table.
     a = text.split("## exp-a")[1].split("## exp-b")[0]

@@ -114,7 +114,8 @@ def _compared(res: dict, f: dict) -> tuple[str, str, str]:
     first metric and "—" (the thesis prints none)."""
     ours, thesis, units = res["metrics"], res.get("thesis", {}), res.get("units", {})
     keys = [k for k in f.get("metrics", []) if k in ours]
-    with_t = [k for k in keys if k in thesis]
+    # Only the thesis's claims compare with its numbers (a diagnostic may read them).
+    with_t = [k for k in keys if k in thesis] if f.get("kind") in ("thesis", "variant") else []
     if with_t:
         r = [ratio(ours[k], thesis[k]) for k in with_t]
         return ("; ".join(_fmt(ours[k]) for k in with_t),
@@ -123,7 +124,9 @@ def _compared(res: dict, f: dict) -> tuple[str, str, str]:
     if keys:
         k = keys[0]
         more = f" (+{len(keys) - 1})" if len(keys) > 1 else ""
-        return f"{_fmt(ours[k])} {units.get(k, '')}".strip() + more, "—", "—"
+        unit = units.get(k, "")
+        shown = _fmt(ours[k]) + ("" if unit in ("", "1") else f" {unit}")
+        return f"`{k}` {shown}{more}", "—", "—"
     return "—", "—", "—"
 
 
