@@ -479,3 +479,11 @@ def test_undefined_metrics_are_null_in_strict_json(tmp_path, monkeypatch):
     saved = json.loads(text, parse_constant=strict)          # no NaN/Infinity literals
     assert saved["metrics"] == {"x": 2.0, "nan": None, "inf": None}
     assert np.isnan(seen["nan"])
+
+
+def test_graded_passes_nothing_vacuously():
+    from softgen.core.metrics import graded
+    assert graded([]) == "not checked"
+    assert graded([True, True]) == "reproduced"
+    assert graded([True, False]) == "partly reproduced"
+    assert graded([False]) == "not reproduced"

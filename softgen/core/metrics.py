@@ -254,8 +254,11 @@ def not_checked(claim: str, missing: list[str], *, kind: str | None = None,
 
 
 def graded(passed: Iterable[bool]) -> str:
-    """"reproduced" if every part of a claim passed, "not reproduced" if none did."""
+    """"reproduced" if every part of a claim passed, "not reproduced" if none did;
+    "not checked" with no parts at all (nothing passed vacuously)."""
     parts = list(passed)
+    if not parts:
+        return "not checked"
     if all(parts):
         return "reproduced"
     return "partly reproduced" if any(parts) else "not reproduced"

@@ -323,7 +323,7 @@ def drift_probes(m: Metrics) -> list[dict]:
 
 
 EXPERIMENT = Experiment(
-    cost=13.0,  # CPU s, 2026-12-02 fresh clone (wall of a single-threaded run; issue 25)
+    cost=18.0,  # CPU s, issue-32 full run (the drift probes added), load ~8
     id="ch6-electric-protocol",
     title="Invasive electric estimator on emulated qbmove hardware: three-phase protocol "
           "with and without the RLS update stop",

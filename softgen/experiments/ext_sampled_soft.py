@@ -116,6 +116,9 @@ class SampledConfig(Config):
             if c.substeps < 1:
                 raise ValueError(f"cases[{c.tag}].substeps: expected a positive integer, "
                                  f"got {c.substeps}")
+        if unknown := sorted(set(self.only) - {c.tag for c in self.cases}):
+            raise ValueError(f"only: expected case tags among "
+                             f"{', '.join(c.tag for c in self.cases)}, got {', '.join(unknown)}")
         for g in self.grid:
             ModelScale(*g)         # each factor positive (one error line naming it)
 
@@ -301,7 +304,8 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
             f"(ratio {num(r.value)})" for t, r in got.items())
         out = [finding(claim, graded([r.value < cfg.target_ratio for r in got.values()]),
                        ev + " (rms of ‖q_d − q‖ over the last window, sampled vs continuous "
-                       f"with {cfg.substeps} ROS2 steps per sample).",
+                       "with " + ", ".join(f"{k.tag} {k.substeps}" for k in _selected(cfg))
+                       + " ROS2 steps per sample).",
                        metrics=[r.key for r in got.values()])]
     claim2 = ("The linearised check: wherever the continuous loop is stable at these gains "
               "(max |exp(dt λ)| < 1), sampling makes the zero-order-hold step unstable and "
