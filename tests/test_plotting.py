@@ -75,6 +75,7 @@ def test_log_tick_labels_are_plain_text_of_the_same_value(tmp_path):
     fig = Figure(figsize=(4, 3))
     a = fig.subplots()
     a.semilogy([0, 1, 2], [1e-3, 2e-2, 5e1])
+    a.set(xlabel="time [s]", ylabel="error [rad]")
     save(fig, tmp_path / "log.png", 90)
     labels = [t.get_text() for t in a.get_yticklabels() if t.get_text()]
     assert "10⁻²" in labels and "10¹" in labels, labels
