@@ -30,92 +30,125 @@ def test_noninvasive_verdict_follows_the_msrep_threshold(seed):
     assert ch7.findings(Metrics.from_flat(m.flat()))[0]["verdict"] == "not checked"
 
 
+def _grade(x):
+    x = list(x)
+    return "reproduced" if all(x) else "partly reproduced" if any(x) else "not reproduced"
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_protocol_drift_verdict(seed):
+    """Table 6.2: the drift rule (phase 2 or 3 above 3x phase 1, the stop below it in
+    phase 2) and both whole-run MSEs in the band [1/10, 10] of 0.53 and 0.026."""
     rng = np.random.default_rng(seed)
-    d, s = rng.uniform(0.01, 1.0, 3), rng.uniform(0.01, 1.0, 3)
+    d, s_ = rng.uniform(0.01, 1.0, 3), rng.uniform(0.01, 1.0, 3)
+    whole = {"drift": 0.5304 * 10 ** rng.uniform(-1.5, 1.5),
+             "stop": 0.0258 * 10 ** rng.uniform(-1.5, 1.5)}
     m = Metrics()
-    for tag, v in (("drift", d), ("stop", s)):
+    for tag, v in (("drift", d), ("stop", s_)):
         for k in (1, 2, 3):
             m.add("stiffness_mse", v[k - 1], "x", joint=1, phase=k, prefix=f"dof1_{tag}_")
+        m.add("stiffness_mse", whole[tag], "x", joint=1, prefix=f"dof1_{tag}_")
     m.add("update_fraction", 0.1, "1", phase=2, prefix="dof1_stop_")
     m.add("vs_nominal_stiffness_mse", 0.2, "x", joint=1, prefix="dof1_stop_")
     drift = d[1] > 3 * d[0] or d[2] > 3 * d[0]
-    (f,) = ch6_prot.findings(m)
-    assert f["verdict"] == ("reproduced" if drift and s[1] < d[1] else "not reproduced")
+    f = ch6_prot.findings(m)[0]
+    in_band = [1 / 10 <= whole[t] / ch6_prot.THESIS[f"dof1_{t}_stiffness_mse_joint1"] <= 10
+               for t in ("drift", "stop")]
+    assert f["verdict"] == _grade([drift and s_[1] < d[1], *in_band])
+    assert f["kind"] == "thesis" and f["band"] == 10.0
 
 
-def _invasive(rng) -> tuple[Metrics, np.ndarray]:
-    mse = np.array(ch6_inv.THESIS["stiffness_mse_joint1"]) * rng.uniform(1, 20, 2)
+def _invasive(rng) -> tuple[Metrics, dict]:
+    """Damped-run records of Table 6.1's indices, each 1/20-20 x the printed number."""
     m = Metrics().add("link_damping", 0.5, "N m s/rad").add("runaway_speed_bound", 20, "rad/s")
     m.add("nyquist_rad_s", 3141.6, "rad/s").add("max_abs_deflection", 0.1, "rad")
     m.add("motor_mode_max_rad_s", 600, "rad/s")
+    v = {}
     for j in (1, 2):
-        m.add("stiffness_mse", mse[j - 1], "x", joint=j).add("torque_mse", 1e-11, "x", joint=j)
+        for q in ("stiffness_mse", "stiffness_msrep", "torque_mse", "torque_msrep"):
+            v[f"{q}_joint{j}"] = ch6_inv.THESIS[f"{q}_joint{j}"] * 10 ** rng.uniform(-1.3, 1.3)
+            m.add(q, v[f"{q}_joint{j}"], "x", joint=j)
         m.add("max_link_speed", rng.uniform(0, 40), "rad/s", joint=j)
         m.add("max_abs_link_angle", 1.0, "rad", joint=j)
-    return m, mse
+    return m, v
 
 
 @pytest.mark.parametrize("seed", range(6))
 def test_invasive_table_and_runaway_verdicts(seed):
-    m, mse = _invasive(np.random.default_rng(seed))
+    """Table 6.1's stiffness and torque indices each in [1/3, 3] of the printed ones (its
+    MSREP read as fractions, held in percent), on the damped variant; runaway reported."""
+    m, v = _invasive(np.random.default_rng(seed))
     out = ch6_inv.findings(m)
-    thesis = np.array([ch6_inv.THESIS[f"stiffness_mse_joint{j}"] for j in (1, 2)])
-    ok = mse < 10 * thesis
-    assert out[0]["verdict"] == ("reproduced" if ok.all() else "partly reproduced" if ok.any()
-                                 else "not reproduced")
+    for f, q in zip(out[:2], ("stiffness", "torque")):
+        keys = [f"{q}_{i}_joint{j}" for i in ("mse", "msrep") for j in (1, 2)]
+        assert f["metrics"] == keys and f["kind"] == "variant" and f["band"] == ch6_inv.BAND
+        assert f["verdict"] == _grade(1 / 3 <= v[k] / ch6_inv.THESIS[k] <= 3 for k in keys)
     speeds = m.per_joint("max_link_speed")
-    assert out[1]["verdict"] == ("reproduced" if max(speeds.values()) < 20 else
+    assert out[2]["verdict"] == ("reproduced" if max(speeds.values()) < 20 else
                                  "not reproduced")
-    assert len(out) == 2                         # no undamped records: no undamped claims
+    assert out[2]["kind"] == "diagnostic"
+    assert len(out) == 3                         # no undamped records: no undamped claims
+    assert ch6_inv.THESIS["stiffness_msrep_joint1"] == pytest.approx(100 * 3.34e-7)
 
 
 def test_pneumatic_and_protocol_findings_need_their_records():
-    with pytest.raises(KeyError, match="stiffness_msrep"):
-        ch6_pn.findings(Metrics())
+    out = ch6_pn.findings(Metrics())
+    assert [f["verdict"] for f in out] == ["not checked"] * 3
+    assert "stiffness_msrep_joint1" in out[0]["evidence"]
     assert ch7_prot.findings(Metrics()) == []
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_protocol_offset_probe_verdict(seed):
-    """The second ch6-electric-protocol claim reads the dof1_offset_* records with the
-    drift rule of the first (phase 2 or 3 above 3x phase 1) and the stop below it."""
+def test_protocol_drift_probes_and_their_cause(seed):
+    """Each drift probe (issue 32) reads dof1_probe_<name>_* with the drift rule (phase 2
+    or 3 above 3x phase 1) and the stop below it; the cause finding grades the statement
+    that hysteresis and forgetting drift and are stopped, the others not."""
     rng = np.random.default_rng(seed)
     m = Metrics()
-    base = {"drift": rng.uniform(0.01, 1.0, 3), "stop": rng.uniform(0.01, 1.0, 3)}
-    probe = {"drift": rng.uniform(0.01, 1.0, 3), "stop": rng.uniform(0.01, 1.0, 3)}
-    for pre, vals in (("dof1_", base), ("dof1_offset_", probe)):
-        for tag, v in vals.items():
+    names = ("uniform", "wear", "hysteresis", "friction", "forgetting", "offset")
+    vals = {n: {t: rng.uniform(0.01, 1.0, 3) for t in ("drift", "stop")} for n in names}
+    for n in names:
+        for tag, v in vals[n].items():
             for k in (1, 2, 3):
-                m.add("stiffness_mse", v[k - 1], "x", joint=1, phase=k, prefix=f"{pre}{tag}_")
-    m.add("update_fraction", 0.1, "1", phase=2, prefix="dof1_stop_")
-    m.add("vs_nominal_stiffness_mse", 0.2, "x", joint=1, prefix="dof1_stop_")
-    m.add("offset_probe", 0.03, "N m")
-    d, s = probe["drift"], probe["stop"]
-    want = d[1] > 3 * d[0] or d[2] > 3 * d[0]
-    first, second = ch6_prot.findings(m)
-    assert second["verdict"] == ("reproduced" if want and max(s[1:]) < max(d[1:])
-                                 else "not reproduced")
-    assert "up to 0.0300 N m" in second["evidence"]
+                m.add("stiffness_mse", v[k - 1], "x", joint=1, phase=k,
+                      prefix=f"dof1_probe_{n}_{tag}_")
+        m.add("spring_torque_rmsre", 0.17, "1", prefix=f"dof1_probe_{n}_")
+    for tag in ("drift", "stop"):
+        for k in (1, 2, 3):
+            m.add("stiffness_mse", 0.1, "x", joint=1, phase=k, prefix=f"dof1_{tag}_")
+    out = ch6_prot.drift_probes(m)
+    assert len(out) == len(names) + 1 and all(f["kind"] == "diagnostic" for f in out)
+    got = {}
+    for n, f in zip(names, out):
+        d, s_ = vals[n]["drift"], vals[n]["stop"]
+        got[n] = (d[1] > 3 * d[0] or d[2] > 3 * d[0]) and max(s_[1:]) < max(d[1:])
+        assert f["verdict"] == ("reproduced" if got[n] else "not reproduced")
+    want = {"hysteresis": True, "forgetting": True, "uniform": False, "friction": False,
+            "offset": False}
+    assert out[-1]["verdict"] == _grade(got[n] == w for n, w in want.items())
 
 
 @pytest.mark.parametrize("seed", range(6))
 def test_noninvasive_protocol_headline_is_against_the_plant(seed):
-    """Section 7.4's verdict is per joint on ``stiffness_mse`` (the estimate against the
-    emulated plant's springs), 100x the thesis's MSE; the datasheet comparison
-    (``vs_nominal_*``) is reported, not judged."""
+    """Section 7.4, 2-DoF: Theorem 4 as printed (kind "thesis", ``dof2_unfiltered_*``) and
+    with our filter (a variant, headline names), each index in the band [1/10, 10] of the
+    printed one; against the emulated plant's springs (``vs_nominal_*`` reported, not
+    judged)."""
     rng = np.random.default_rng(seed)
-    thesis = (1.9e-4, 3.8e-4)
-    mse = np.array(thesis) * 100 * rng.uniform(0.3, 3, 2)
     m = Metrics().add("lowpass_hz", 0.5, "Hz")
-    for j, v in enumerate(mse, start=1):
-        m.add("stiffness_mse", v, "x", joint=j, prefix="dof2_")
+    v = {}
+    for j in (1, 2):
+        for pre in ("dof2_", "dof2_unfiltered_"):
+            for q in ("stiffness_mse", "stiffness_msrep"):
+                key = f"{pre}{q}_joint{j}"
+                v[key] = ch7_prot.THESIS[key] * 10 ** rng.uniform(-1.5, 1.5)
+                m.add(q, v[key], "x", joint=j, prefix=pre)
         m.add("vs_nominal_stiffness_mse", 1e-9, "x", joint=j, prefix="dof2_")  # not judged
         m.add("datasheet_vs_plant_stiffness_mse", 0.5, "x", joint=j, prefix="dof2_")
-        m.add("stiffness_mse", 1e4, "x", joint=j, prefix="dof2_unfiltered_")
-    ok = mse < 100 * np.array(thesis)
-    (f,) = ch7_prot.findings(m)
-    assert f["verdict"] == ("reproduced" if ok.all() else "partly reproduced" if ok.any()
-                            else "not reproduced")
-    assert "against the emulated plant's springs" in f["evidence"]
+    out = ch7_prot.findings(m)
+    assert [f["kind"] for f in out] == ["thesis", "variant"]
+    for f, pre in zip(out, ("dof2_unfiltered_", "dof2_")):
+        keys = [f"{pre}stiffness_{i}_joint{j}" for i in ("mse", "msrep") for j in (1, 2)]
+        assert f["metrics"] == keys and f["band"] == 10.0
+        assert f["verdict"] == _grade(0.1 <= v[k] / ch7_prot.THESIS[k] <= 10 for k in keys)
+        assert "against the emulated plant's" in f["evidence"]

@@ -92,8 +92,9 @@ def test_base_metrics_reproduce_every_claim(exp, base):
     out = exp.findings(base(), None)
     assert len(out) == 4
     for f in out:
-        assert set(f) == {"claim", "verdict", "evidence"}
+        assert set(f) == {"claim", "verdict", "evidence", "kind", "metrics", "band"}
         assert f["verdict"] == "reproduced", f
+        assert f["kind"] == "thesis" and f["metrics"] and all(k in base() for k in f["metrics"])
         assert re.search(r"(Fig\.|[Ss]ection) 10\.", f["claim"]), f["claim"]
 
 
@@ -274,7 +275,7 @@ def test_absent_metric_gives_not_checked(exp, base, key, k):
 # -- runner ------------------------------------------------------------------------------
 
 def _experiment(findings) -> Experiment:
-    return Experiment(id="fake", title="Fake", section="0.0", config={},
+    return Experiment(id="fake", title="Fake", section="softgen (fake)", config={},
                       run=lambda config, out: {"x": 2.0}, findings=findings)
 
 
@@ -286,12 +287,24 @@ def _boom(m, c):
     (_boom, "KeyError: 'no_such_metric'"),
     (lambda m, c: [{"claim": "c", "verdict": "maybe", "evidence": "e"}], "malformed finding"),
     (lambda m, c: [{"claim": "c", "verdict": "reproduced"}], "malformed finding"),
+    (lambda m, c: [{"claim": "c", "verdict": "reproduced", "evidence": "e", "kind": "maybe"}],
+     "malformed finding"),
     (lambda m, c: None, "TypeError"),
 ])
 def test_failing_findings_become_one_not_checked(bad, match):
     out = runner.check_findings(_experiment(bad), Metrics().add("x", 1.0, "1"), {})
     assert len(out) == 1 and out[0]["verdict"] == "not checked"
     assert match in out[0]["evidence"]
+
+
+def test_a_finding_without_kind_takes_the_experiments_or_is_malformed():
+    """softgen's own experiments default to "beyond"; the thesis's must say (issue 32)."""
+    f = [finding("c", "reproduced", "e")]
+    out = runner.check_findings(_experiment(lambda m, c: f), Metrics().add("x", 1.0, "1"), {})
+    assert out[0]["kind"] == "beyond" and out[0]["verdict"] == "reproduced"
+    thesis = dataclasses.replace(_experiment(lambda m, c: f), section="6.1.3")
+    out = runner.check_findings(thesis, Metrics().add("x", 1.0, "1"), {})
+    assert out[0]["verdict"] == "not checked" and "malformed" in out[0]["evidence"]
 
 
 def test_run_one_stores_findings_beside_the_metrics(tmp_path, monkeypatch):
@@ -328,11 +341,14 @@ def _results() -> list[dict]:
             r["findings"] = findings
         return r
 
-    return [res("exp-a", [finding("A holds | both ways", "reproduced", "a = 1.5\nsee table"),
-                          finding("B holds", "partly reproduced", "b = 3")]),
+    return [res("exp-a", [finding("A holds | both ways", "reproduced", "a = 1.5\nsee table",
+                                  kind="thesis", metrics=["a_metric"]),
+                          finding("B holds", "partly reproduced", "b = 3", kind="thesis",
+                                  metrics=["a_metric"])]),
             res("exp-b"),
             {"experiment": "exp-c", "error": "RuntimeError: boom", "traceback": ""},
-            res("exp-d", [finding("D holds", "not checked", "metrics absent: `d`")])]
+            res("exp-d", [finding("D holds", "not checked", "metrics absent: `d`",
+                                  kind="thesis")])]
 
 
 def test_report_renders_summary_and_per_experiment_claims(tmp_path):
@@ -340,30 +356,32 @@ def test_report_renders_summary_and_per_experiment_claims(tmp_path):
     write_report(_results(), path)
     text = path.read_text()
     lines = text.splitlines()
-    summary = lines.index("| experiment | claim | verdict |")
+    head = "| experiment | claim | kind | ours | thesis | ours / thesis | band | verdict |"
+    summary = lines.index(head)
     assert summary < lines.index("## exp-a")
-    assert lines[summary - 2].startswith("**Claims checked**")
-    assert lines[summary + 2:summary + 5] == [
-        r"| exp-a | A holds \| both ways | reproduced |",
-        "| exp-a | B holds | partly reproduced |",
-        "| exp-d | D holds | not checked |"]
+    assert text.index("**Claims checked**") < text.index(head)
+    rows = [ln for ln in lines[summary:lines.index("## exp-a")] if ln.startswith("| exp-")]
+    assert rows == [r"| exp-a | A holds \| both ways | thesis | `a_metric` 1.5 rad | — | — | — | "
+                    "reproduced |",
+                    "| exp-a | B holds | thesis | `a_metric` 1.5 rad | — | — | — | partly reproduced |",
+                    "| exp-d | D holds | thesis | — | — | — | — | not checked |"]
     # Per experiment: the claims table comes before the metric table.
     a = text.split("## exp-a")[1].split("## exp-b")[0]
-    assert a.index("**Claims checked**") < a.index("| claim | verdict | evidence |") \
+    assert a.index("**Claims checked**") < a.index("| claim | kind | verdict | evidence |") \
         < a.index("| metric | unit | ours | thesis | ours / thesis |")
-    assert r"| A holds \| both ways | reproduced | a = 1.5 see table |" in a
-    assert "| B holds | partly reproduced | b = 3 |" in a
+    assert r"| A holds \| both ways | thesis | reproduced | a = 1.5 see table |" in a
+    assert "| B holds | thesis | partly reproduced | b = 3 |" in a
     b = text.split("## exp-b")[1].split("## exp-c")[0]
     assert "Claims checked" not in b and "| a_metric | rad | 1.5 |" in b
     assert "**failed**: `RuntimeError: boom`" in text
-    assert text.count("| claim | verdict | evidence |") == 2
+    assert text.count("| claim | kind | verdict | evidence |") == 2
 
 
 def test_report_without_findings_has_no_summary(tmp_path):
     path = tmp_path / "report.md"
     write_report([r for r in _results() if "findings" not in r], path)
     text = path.read_text()
-    assert "Claims checked" not in text and "| experiment | claim | verdict |" not in text
+    assert "Claims checked" not in text and "| experiment | claim | kind |" not in text
 
 
 # -- the GioSte emulations (section 10.3) ------------------------------------------------------
@@ -461,3 +479,11 @@ def test_undefined_metrics_are_null_in_strict_json(tmp_path, monkeypatch):
     saved = json.loads(text, parse_constant=strict)          # no NaN/Infinity literals
     assert saved["metrics"] == {"x": 2.0, "nan": None, "inf": None}
     assert np.isnan(seen["nan"])
+
+
+def test_graded_passes_nothing_vacuously():
+    from softgen.core.metrics import graded
+    assert graded([]) == "not checked"
+    assert graded([True, True]) == "reproduced"
+    assert graded([True, False]) == "partly reproduced"
+    assert graded([False]) == "not reproduced"

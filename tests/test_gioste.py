@@ -94,8 +94,10 @@ def test_one_link_maps_as_printed():
 
 def test_encoder_quantisation_step(one_link):
     _, emu = one_link
-    step = 2 * math.pi / (500 * 4)                           # HEDS-5500 A12, quadrature
-    assert emu.encoder_step == pytest.approx(step)
+    # The thesis's printed 1.6e-3 rad (4000 counts; the HEDS-5500 A12 in quadrature would
+    # read 2000): issue 32, the emulation of what the thesis reports.
+    step = 2 * math.pi / 4000
+    assert emu.encoder_step == pytest.approx(step) and step == pytest.approx(1.6e-3, rel=0.02)
     enc = emu.sensor_blocks(1e-3)[0]
     q = np.random.default_rng(1).uniform(-1, 1, 200)
     qm = np.array([enc.eval([], [x])[1][0] for x in q])
@@ -204,6 +206,7 @@ def test_loop_is_the_composition_of_its_parts(one_link):
     qm, v, a = x0["vel.q_prev"], np.zeros(1), math.exp(-1e-3 / emu.hw.velocity_filter)
     ring = [tr["plant.p"][0]] * d
     z = tr["ctrl.Pi_hat"][0]
+    noise = gc.pressure_noise(emu.hw, ref.shape[0], emu.n)
     for k in range(60):
         qm_new = np.floor(x[:1] / emu.encoder_step + 0.5) * emu.encoder_step
         v = a * v + (1 - a) * (qm_new - qm) / 1e-3
@@ -216,7 +219,8 @@ def test_loop_is_the_composition_of_its_parts(one_link):
         np.testing.assert_allclose(p, tr["ctrl.p"][k], rtol=1e-10)
         V, tgt, _ = (np.array(a_).ravel() for a_ in valves(p))
         ring.append(tgt)
-        x = np.array(plant(x, ring.pop(0), 1e-3)).ravel()
+        # The regulators' ripple on the delayed target (seeded, HardwareConfig).
+        x = np.array(plant(x, ring.pop(0) + emu.hw.pressure_noise * noise[k], 1e-3)).ravel()
         np.testing.assert_allclose(x[:1], tr["plant.q"][k + 1], rtol=1e-10, atol=1e-13)
 
 

@@ -65,6 +65,15 @@ def test_loop_without_transport_delay_wires_the_valves_to_the_arm(emu):
     hw = dataclasses.replace(emu.hw, valve_delay=0.0)
     d = G.loop_diagram(G.GiosteEmulation(emu.arm, hw), "open_loop", DT)
     assert "delay" not in d.blocks
+    # The regulators' ripple sits between the valves and the arm (issue 32).
+    assert "reg" in d.blocks and d.externals.signal("pressure_noise").size == 2 * emu.n
+
+
+def test_regulator_noise_is_seeded_and_scaled(emu):
+    a, b = (G.pressure_noise(emu.hw, 1000, emu.n) for _ in range(2))
+    np.testing.assert_array_equal(a, b)
+    assert a.shape == (1000, 2 * emu.n) and abs(a.std() - 1) < 0.05
+    assert emu.hw.pressure_noise == 5e3 and emu.encoder_step == pytest.approx(2 * np.pi / 4000)
 
 
 def test_valve_interface_inverts_eq_10_10_within_clipping(emu):
@@ -121,7 +130,8 @@ def test_stop_trips_at_the_first_violating_sample(emu):
     g = S.controller_gains(emu, 12.0, 1.8, 45.0, [8.0], stiffness_rate=1.0)
     d = G.loop_diagram(emu, "theorem5", DT)
     x0 = S.initial_state(emu, "theorem5", ref[0], g, Pi_hat0=emu.arm.Pi_nominal, dt=DT)
-    kw = dict(steps=600, x0=x0, externals={"ref": ref}, chunk=64, on_nonfinite="stop",
+    kw = dict(steps=600, x0=x0, chunk=64, on_nonfinite="stop",
+              externals={"ref": ref, "pressure_noise": G.pressure_noise(emu.hw, 600, emu.n)},
               params=g.params(d.params.names))
     free = simulate(d, **kw)
     bound = 0.5 * float(np.max(np.abs(free["plant.q"] - free["ref.q_d"])))
@@ -145,7 +155,10 @@ def test_generated_gioste_loop_equals_python_stepped_blocks(emu):
     t = np.arange(40) * DT
     ref = G.reference_array([SmoothSteps((0.0, 0.0), (0.0, 0.2), 0.05)],
                             [SmoothSteps((0.0,), (7.0,), 1.0)], t)
-    d: ClosedLoop = G.loop_diagram(emu, "open_loop", DT)
+    import dataclasses
+    quiet = G.GiosteEmulation(emu.arm, dataclasses.replace(emu.hw, pressure_noise=0.0))
+    d: ClosedLoop = G.loop_diagram(quiet, "open_loop", DT)
+    assert "reg" not in d.blocks and "pressure_noise" not in d.externals
     k = emu.calibrated_gain([7.0])
     g = Theorem5Gains(lam=np.array([1.8]), kd=np.array([12.0]), kpi=0.0, ksigma=0.0, kinv=1 / k)
     x0 = S.initial_state(emu, "open_loop", ref[0], g, Pi_hat0=emu.arm.Pi_nominal, dt=DT)

@@ -75,7 +75,76 @@ def test_log_tick_labels_are_plain_text_of_the_same_value(tmp_path):
     fig = Figure(figsize=(4, 3))
     a = fig.subplots()
     a.semilogy([0, 1, 2], [1e-3, 2e-2, 5e1])
+    a.set(xlabel="time [s]", ylabel="error [rad]")
     save(fig, tmp_path / "log.png", 90)
     labels = [t.get_text() for t in a.get_yticklabels() if t.get_text()]
     assert "10⁻²" in labels and "10¹" in labels, labels
     assert not any("$" in s for s in labels)
+
+
+# -- issue 32: a figure a reader can read ------------------------------------------------
+
+def _crowded(tmp_path, legend_loc="upper left"):
+    fig = Figure(figsize=(6, 5))
+    ax = fig.subplots(2, 1, sharex=True)
+    t = np.linspace(0, 10, 800)
+    for k in range(8):
+        ax[0].plot(t, np.sin(t + k), label=f"curve {k}")
+    ax[0].legend(loc=legend_loc, fontsize=8)
+    ax[0].set_ylabel("q [rad]")
+    ax[1].plot(t, 0.1 * t)
+    ax[1].set_ylabel("σ [N m/rad]")
+    ax[1].set_xlabel("t [s]")
+    return fig
+
+
+def test_a_legend_over_data_is_moved_off_it(tmp_path):
+    from softgen.studies.plotting import covered
+    fig = _crowded(tmp_path)
+    fixed_layout(fig)
+    assert max(covered(fig).values()) > 0          # as drawn, it hides curves
+    with _no_figure_warning():
+        save(fig, tmp_path / "f.png", dpi=60)
+    assert all(n == 0 for n in covered(fig).values())
+    assert (tmp_path / "f.png").stat().st_size > 0
+
+
+class _no_figure_warning:
+    def __enter__(self):
+        import warnings
+        self._w = warnings.catch_warnings(record=True)
+        self.caught = self._w.__enter__()
+        warnings.simplefilter("always")
+        return self
+
+    def __exit__(self, *exc):
+        from softgen.studies.plotting import FigureWarning
+        self._w.__exit__(*exc)
+        assert not [w for w in self.caught if issubclass(w.category, FigureWarning)], \
+            [str(w.message) for w in self.caught]
+
+
+def test_an_axis_without_a_unit_is_a_figure_warning(tmp_path):
+    from softgen.studies.plotting import FigureWarning, figure_problems
+    fig = _crowded(tmp_path)
+    fig.axes[1].set_ylabel("stiffness")
+    assert any("y axis label 'stiffness' has no unit" in p for p in figure_problems(fig))
+    with pytest.warns(FigureWarning, match="no unit in brackets"):
+        save(fig, tmp_path / "g.png", dpi=60)
+    fig.axes[1].set_ylabel("stiffness [N m/rad]")
+    assert figure_problems(fig) == []
+
+
+def test_a_clipped_line_outside_the_axes_is_not_covered(tmp_path):
+    """Only the part of a line inside its axes is drawn; a legend outside it covers none."""
+    from softgen.studies.plotting import covered
+    fig = Figure(figsize=(5, 3))
+    ax = fig.subplots()
+    t = np.linspace(0, 1, 100)
+    ax.plot(t, 1e3 + t, label="far above")      # entirely clipped
+    ax.plot(t, -0.9 + 0.1 * t, label="low")     # drawn along the bottom
+    ax.set_ylim(-1, 1)
+    ax.set(xlabel="t [s]", ylabel="y [1]")
+    ax.legend(loc="upper left")
+    fixed_layout(fig)
+    assert covered(fig)[ax.get_legend()] == 0

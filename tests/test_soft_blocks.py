@@ -162,8 +162,10 @@ def test_tracking_records_and_convergence_time():
     e = np.exp(-t)[:, None] * np.array([[3.0, 4.0]])          # ‖e‖ = 5 e^{-t}
     pi = np.tile([3.0, 4.0], (t.size, 1))
     m = tracking_records(t, e, np.zeros_like(e), pi, -2 * np.ones((t.size, 1)), unit="rad",
-                         window=10.0, band=5e-2, initial=1.0, suffix="x").flat()
-    assert m["parameter_estimate_max_norm_x"] == 5.0 and m["input_max_abs_x"] == 2.0
+                         window=10.0, band=5e-2, initial=1.0, suffix="x",
+                         pi_true=np.array([0.0, 2.5])).flat()
+    # ‖π̂‖ = 5 against ‖π‖ = 2.5: one unit for parameters of several (issue 32).
+    assert m["parameter_estimate_max_ratio_x"] == 2.0 and m["input_max_abs_x"] == 2.0
     assert abs(m["convergence_time_x"] - np.log(100)) < 0.011
     assert m["position_max_error_final_x"] == pytest.approx(5 * np.exp(-(t[-1] - 10)), rel=0.01)
     assert convergence_time(t, np.ones(t.size), 0.5) == np.inf

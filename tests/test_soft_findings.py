@@ -15,8 +15,9 @@ SUFFIXES = ("", "lower_gains", "disturbed")
 def _planar(rng) -> tuple[Metrics, dict]:
     v = {(q, s): float(rng.uniform(*r)) for s in SUFFIXES for q, r in (
         ("position_rms_error", (0.001, 0.15)), ("convergence_time", (1, 10)),
-        ("position_rms_error_initial", (0.01, 1)), ("parameter_estimate_max_norm", (1, 150)),
+        ("position_rms_error_initial", (0.01, 1)), ("parameter_estimate_max_ratio", (0.1, 15)),
         ("parameter_estimate_norm_drift", (0.0, 0.1)))}
+    v["position_rms_error", "noise_only"] = float(10 ** rng.uniform(-3, -0.5))
     m = Metrics()
     for (q, s), x in v.items():
         m.add(q, x, "1", suffix=s)
@@ -33,9 +34,12 @@ def test_planar_verdicts_follow_thresholds(seed):
               v["position_rms_error_initial", ""] < v["position_rms_error_initial",
                                                         "lower_gains"]]
     # Bounded as a trend: the largest norm under BOUNDED and no scenario drifting.
-    bounded = [max(v["parameter_estimate_max_norm", s] for s in SUFFIXES) < ch12.BOUNDED,
+    bounded = [max(v["parameter_estimate_max_ratio", s] for s in SUFFIXES) < ch12.BOUNDED,
                *(v["parameter_estimate_norm_drift", s] < ch12.DRIFT for s in SUFFIXES)]
-    robust = v["position_rms_error", "disturbed"] < ch12.ROBUST["planar"]
+    # A noisy case against the noise alone on its own draw (issue 32): the claim's
+    # threshold, or NOISE_FACTOR x the noise-only run where that leaves more.
+    floor = ch12.NOISE_FACTOR * v["position_rms_error", "noise_only"]
+    robust = v["position_rms_error", "disturbed"] < max(ch12.ROBUST["planar"], floor)
 
     def grade(x):
         return "reproduced" if all(x) else "partly reproduced" if any(x) else "not reproduced"
@@ -48,6 +52,7 @@ def test_absent_variant_is_not_checked_and_names_the_record():
     m.records = [r for r in m.records if r.suffix != "disturbed"]
     out = ch12.findings_planar(m)
     assert [f["verdict"] for f in out][2:] == ["not checked", "not checked"]
+    assert all(f["kind"] == "thesis" for f in out)
     assert "disturbed" in out[-1]["evidence"]
 
 

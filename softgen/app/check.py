@@ -4,19 +4,23 @@ Builds the linearised sampled loop of a soft model (controller + the ROS2 plant 
 one sample, regulation about q = q_d = 0, π̂ frozen at 0 and at π) for the old
 zero-order-hold step and the linearly implicit one, and returns one
 :class:`~softgen.control.soft_sampled.Verdict` per law and gain pair
-(:func:`softgen.control.soft_sampled.check_sampled`).
+(:func:`softgen.control.soft_sampled.check_sampled`). ``plant_scale`` puts the plant off
+the model file the controller is built on (issue 32: the check covers model error):
+``--plant-scale mass=10 damping=2.5 stiffness=0.3``.
 """
 from __future__ import annotations
 
 from softgen.bundles.bundle import decide, derivation
-from softgen.control.soft_sampled import LAWS, Checker, StabilityCheckError, Verdict
+from softgen.control.soft_sampled import LAWS, Checker, ModelScale, StabilityCheckError, Verdict
 from softgen.modelfile.load import as_model
 from softgen.modelfile.soft import SoftModel
 
 
 def check_model(model_ref, dt: float, kd: list[float], lam: list[float],
-                laws: list[str] | tuple[str, ...] = LAWS, d_scale: float = 1.0) -> list[Verdict]:
-    """Verdicts for every law, Λ = λI and K_d = k_d I in ``lam`` x ``kd``."""
+                laws: list[str] | tuple[str, ...] = LAWS, d_scale: float = 1.0,
+                plant_scale: ModelScale | list[str] | str | None = None) -> list[Verdict]:
+    """Verdicts for every law, Λ = λI and K_d = k_d I in ``lam`` x ``kd``, on the plant
+    ``plant_scale`` off the model (a :class:`ModelScale` or its ``NAME=FACTOR`` words)."""
     model = as_model(model_ref)
     # The model's one capability decision (what info lists): no Theorem 10, no check.
     why = decide(model).why_not("theorem10")
@@ -26,5 +30,7 @@ def check_model(model_ref, dt: float, kd: list[float], lam: list[float],
     for law in laws:
         if law not in LAWS:
             raise StabilityCheckError(f"--law: expected one of {', '.join(LAWS)}, got {law!r}")
+    ps = plant_scale if isinstance(plant_scale, ModelScale) or plant_scale is None else \
+        ModelScale.parse(plant_scale)
     chk = Checker(derivation(model).dyn)
-    return [chk.check(law, dt, la, k, d_scale) for law in laws for la in lam for k in kd]
+    return [chk.check(law, dt, la, k, d_scale, ps) for law in laws for la in lam for k in kd]

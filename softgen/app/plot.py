@@ -8,6 +8,7 @@ one array per signal, the time in ``t``; ``block.signal`` names stored as
 """
 from __future__ import annotations
 
+import json
 import zipfile
 from pathlib import Path
 
@@ -73,6 +74,19 @@ def select(trace: dict[str, np.ndarray], signals: list[str] | None) -> list[str]
     return list(signals)
 
 
+def signal_units(trace: dict[str, np.ndarray]) -> dict[str, str]:
+    """The units a trace file records for its signals (``units``, JSON text written by
+    :meth:`softgen.runtime.simulate.Trace.save`); none for an older or hand-made file."""
+    from softgen.runtime.simulate import UNITS_KEY
+    if UNITS_KEY not in trace:
+        return {}
+    try:
+        got = json.loads(str(np.asarray(trace[UNITS_KEY])))
+    except ValueError:
+        return {}
+    return {str(k): str(v) for k, v in got.items()} if isinstance(got, dict) else {}
+
+
 def plot_trace(path: str | Path, signals: list[str] | None = None, *,
                out: str | Path | None = None, force: bool = False) -> Path:
     """Draw ``signals`` of the trace at ``path`` against time into ``out`` (PNG, atomic)."""
@@ -94,13 +108,14 @@ def plot_trace(path: str | Path, signals: list[str] | None = None, *,
     if not directory.is_dir():
         raise SoftgenError(f"--out {out}: directory {directory} does not exist")
     t = np.asarray(trace["t"]).ravel()
+    units = signal_units(trace)
     fig = Figure(figsize=(7.0, 1.9 * len(chosen) + 0.6))
     axes = fig.subplots(len(chosen), 1, sharex=True, squeeze=False)[:, 0]
     for ax, name in zip(axes, chosen):
         v = np.asarray(trace[name], dtype=float).reshape(t.size, -1)
         for j in range(v.shape[1]):
             ax.plot(t, v[:, j], lw=0.8, label=f"{name}[{j}]" if v.shape[1] > 1 else name)
-        ax.set_ylabel(name, fontsize=8)
+        ax.set_ylabel(f"{name} [{units.get(name, 'unit not recorded')}]", fontsize=8)
         if v.shape[1] > 1:
             ax.legend(fontsize=7, ncol=min(v.shape[1], 4), loc="upper right")
     axes[-1].set_xlabel("t [s]")

@@ -18,6 +18,9 @@ def add_arguments(p) -> None:
                         "(softgen.control.soft_sampled); default both")
     p.add_argument("--d-scale", type=float, default=1.0,
                    help="scale of the implicit step's predictor damping (a wrong model)")
+    p.add_argument("--plant-scale", nargs="+", default=None, metavar="NAME=FACTOR",
+                   help="the plant off the model file: factors on its masses, stiffnesses "
+                        "and dampings (e.g. mass=10 damping=2.5 stiffness=0.3)")
     add_chain_arguments(p)
 
 
@@ -25,7 +28,8 @@ def run(args) -> int:
     # Imported here, not at the top: the CLI imports every verb to build its parser, and
     # this one pulls CasADi and the symbolic layer.
     from softgen.app.check import check_model
-    verdicts = check_model(chain_model(args, args.model, "check"), args.dt, args.kd, args.lam, args.law, args.d_scale)
+    verdicts = check_model(chain_model(args, args.model, "check"), args.dt, args.kd, args.lam,
+                           args.law, args.d_scale, args.plant_scale)
     for v in verdicts:
         print(v.line())
     return 0 if all(v.stable for v in verdicts) else 1

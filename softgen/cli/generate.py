@@ -68,6 +68,28 @@ def _shipped_size(name: str, generated: Path) -> int:
     return c.stat().st_size if "/" not in str(name) and c.is_file() else 0
 
 
+class Progress:
+    """``[k/N]`` and the time left of ``generate --all`` (issue 32): elapsed wall time ×
+    the shipped C still to generate over the C generated so far (bundles cost about in
+    proportion to their C; one without shipped C counts as the smallest that has)."""
+
+    def __init__(self, names, generated: Path):
+        sizes = {str(n): _shipped_size(n, generated) for n in names}
+        floor = min((v for v in sizes.values() if v), default=1)
+        self.weight = {n: max(v, floor) for n, v in sizes.items()}
+        self.total, self.done, self.k = sum(self.weight.values()), 0, 0
+        self.t0 = time.perf_counter()
+
+    def line(self, name, msg: str) -> str:
+        self.k += 1
+        self.done += self.weight.get(str(name), 0)
+        elapsed = time.perf_counter() - self.t0
+        left = self.total - self.done
+        eta = (f", about {elapsed * left / self.done:.0f} s left" if left > 0 and self.done
+               else "")
+        return f"[{self.k}/{len(self.weight)}] {msg} ({elapsed:.0f} s elapsed{eta})"
+
+
 def run(args) -> int:
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
@@ -89,9 +111,10 @@ def run(args) -> int:
     if not args.no_build and not build:
         print("softgen: warning: no C compiler found; wrote sources only", file=sys.stderr)
     jobs = min(args.jobs or os.cpu_count() or 1, len(names))
+    progress = Progress(names, GENERATED_DIR)
     if jobs <= 1:
         for name in names:
-            _say(_generate_one(name, out, build, args.force))
+            _say(progress.line(name, _generate_one(name, out, build, args.force)))
         return 0
     # Bundles are independent: derive and compile them side by side, each reported as it
     # finishes (one slow compile holds nothing back); the first error stops the run.
@@ -103,10 +126,10 @@ def run(args) -> int:
     pool = ProcessPoolExecutor(max_workers=jobs, initializer=worker_init,
                                initargs=(os.getpid(),))
     try:
-        futures = [pool.submit(_generate_one, name, out, build, args.force)
-                   for name in sorted(names, key=lambda n: -_shipped_size(n, GENERATED_DIR))]
+        futures = {pool.submit(_generate_one, name, out, build, args.force): name
+                   for name in sorted(names, key=lambda n: -_shipped_size(n, GENERATED_DIR))}
         for fut in as_completed(futures):
-            _say(fut.result())
+            _say(progress.line(futures[fut], fut.result()))
     except BaseException:
         end_pool(pool)
         raise

@@ -282,12 +282,16 @@ def theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
                        THEOREM10_INPUTS, THEOREM10_OUTPUTS, FUNCTION_OPTS)
 
 
-def plant_rhs(dyn: SoftDynamics, *, route: str = "auto") -> ca.Function:
+def plant_rhs(dyn: SoftDynamics, *, route: str = "auto",
+              params: ca.SX | None = None) -> ca.Function:
     """ẋ = (q̇, q̈) of eq. 3.6 at nominal parameters, x = (q, q̇), u = (τ, f_ext).
 
     ``route``: ``"auto"`` takes q̈ from the block-triangular solve with the recursive pass
     where it applies (lumped pcc-3d, :func:`plant_qdd`; issue 25), else as ``"qr"``:
     B and the bias formed, ``casadi.solve`` (the route before issue 25; tests).
+    ``params``: the symbols ``dyn``'s body values hold besides numbers (a plant off its
+    model by runtime factors, :class:`softgen.control.soft_sampled.ScaledPlant`), a third
+    input ``plant_params``.
     """
     if route not in ("auto", "qr"):
         raise ValueError(f"route: expected 'auto' or 'qr', got {route!r}")
@@ -296,8 +300,10 @@ def plant_rhs(dyn: SoftDynamics, *, route: str = "auto") -> ca.Function:
     f_ext = ca.SX.sym("f_ext", 3 * dyn.model.n_segments)
     qdd = plant_qdd(b, tau, f_ext) if route == "auto" and _chain_applies(b) else \
         dyn.forward_dynamics_expr(tau, f_ext)
-    return ca.Function("rhs", [ca.vertcat(b.q, b.qd), ca.vertcat(tau, f_ext)],
-                       [ca.vertcat(b.qd, qdd)], ["x", "u"], ["xdot"])
+    extra = [] if params is None else [params]
+    return ca.Function("rhs", [ca.vertcat(b.q, b.qd), ca.vertcat(tau, f_ext), *extra],
+                       [ca.vertcat(b.qd, qdd)], ["x", "u"] + ["plant_params"] * len(extra),
+                       ["xdot"])
 
 
 #: γ of the ROS2 Rosenbrock/W-method (Verwer et al. 1999): L-stable, order 2.
@@ -339,7 +345,7 @@ def _ros2_step(dyn: SoftDynamics, rhs: ca.Function, x, u, h, *, chain: bool = Fa
 
 
 def plant_fun(dyn: SoftDynamics, *, substeps: int = 1, method: str = "ros2",
-              route: str = "auto") -> ca.Function:
+              route: str = "auto", params: ca.SX | None = None) -> ca.Function:
     """``<model>_plant``: ``substeps`` steps over one sample ``dt``, τ and f held.
 
     ``method`` is ``"ros2"`` (default: second-order, L-stable, see :func:`_ros2_step`)
@@ -350,6 +356,8 @@ def plant_fun(dyn: SoftDynamics, *, substeps: int = 1, method: str = "ros2",
 
     ``route`` (:func:`plant_rhs`): ``"auto"`` uses the recursive pass for q̈ and for the
     ROS2 W matrix's B where it applies (lumped pcc-3d), ``"qr"`` the route before issue 25.
+    ``params`` (:func:`plant_rhs`): symbols in the body's values, a last input
+    ``plant_params``.
     """
     if method not in ("ros2", "rk4"):
         raise ValueError(f"method: expected 'ros2' or 'rk4', got {method!r}")
@@ -358,7 +366,8 @@ def plant_fun(dyn: SoftDynamics, *, substeps: int = 1, method: str = "ros2",
     x, tau = ca.SX.sym("x", 2 * n), ca.SX.sym("tau", b.n_inputs)
     f_ext, noise = ca.SX.sym("f_ext", 3 * dyn.model.n_segments), ca.SX.sym("noise", 2 * n)
     dt = ca.SX.sym("dt")
-    rhs = plant_rhs(dyn, route=route)
+    rhs_f = plant_rhs(dyn, route=route, params=params)
+    rhs = rhs_f if params is None else (lambda xx, uu: rhs_f(xx, uu, params))
     chain = route == "auto" and _chain_applies(b)
     u = ca.vertcat(tau, f_ext)
     xn = x
@@ -366,8 +375,10 @@ def plant_fun(dyn: SoftDynamics, *, substeps: int = 1, method: str = "ros2",
         xn = rk4_steps(rhs, xn, u, dt / substeps, 1) if method == "rk4" else \
             _ros2_step(dyn, rhs, xn, u, dt / substeps, chain=chain)
     suffix = "plant" if method == "ros2" else "plant_rk4"
-    return ca.Function(f"{dyn.name}_{suffix}", [x, tau, f_ext, noise, dt], [xn, xn + noise],
-                       PLANT_INPUTS, PLANT_OUTPUTS, FUNCTION_OPTS)
+    extra = [] if params is None else [params]
+    return ca.Function(f"{dyn.name}_{suffix}", [x, tau, f_ext, noise, dt, *extra],
+                       [xn, xn + noise], PLANT_INPUTS + ["plant_params"] * len(extra),
+                       PLANT_OUTPUTS, FUNCTION_OPTS)
 
 
 CLOSED_LOOP_INPUTS = ["z", "ref0", "ref1", "lam", "kd", "kpi", "f_ext", "noise", "dt"]
@@ -515,7 +526,7 @@ def _projector(blocks: list):
 
 def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
                     ctl: ca.Function | None = None, *, forces=(),
-                    route: str = "auto") -> ca.Function:
+                    route: str = "auto", params: ca.SX | None = None) -> ca.Function:
     """``<model>_theorem10_closed_loop``: one step of Theorem 10 in continuous time.
 
     The controller acts continuously inside the ODE (as in the thesis's
@@ -542,9 +553,13 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     it applies (lumped pcc-3d, :func:`~softgen.symbolic.pcc_chain.chain_terms`), else as
     ``"jets"``, the same solve on the jets body (:func:`plant_qdd`); ``"ldl"``, B formed
     and factorised by LDLᵀ with CasADi's derivatives (the route before issue 25; tests).
+
+    ``params`` (:func:`plant_rhs`): symbols in the plant body's values, a last input
+    ``plant_params`` (pass ``ctl``, a controller built on the model itself).
     """
     lin = LinearRoute(dyn) if lin is None else lin
     groups = force_groups(dyn, forces)
+    extra = [] if params is None else [params]
     ctl = theorem10_fun(dyn, lin, forces=groups, route="auto" if route == "auto" else "linear") \
         if ctl is None else ctl
     n, r, ns = dyn.model.dof, lin.r, dyn.model.n_segments
@@ -554,8 +569,8 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     tau_s, f_s = ca.SX.sym("tau", b.n_inputs), ca.SX.sym("f_ext", 3 * ns)
     chain = route == "auto" and _chain_applies(b)
     bj = dyn.nominal_jets if route == "jets" or (route == "auto" and not chain) else b
-    qdd = ca.Function(f"{dyn.name}_cl_qdd", [bj.q, bj.qd, tau_s, f_s],
-                      bj.expand([plant_qdd(bj, tau_s, f_s, route=route)]), FUNCTION_OPTS)
+    qdd_f = ca.Function(f"{dyn.name}_cl_qdd", [bj.q, bj.qd, tau_s, f_s, *extra],
+                        bj.expand([plant_qdd(bj, tau_s, f_s, route=route)]), FUNCTION_OPTS)
     qm_s, kd_s, lam_s = ca.SX.sym("qm", n), ca.SX.sym("kd", n), ca.SX.sym("lam", n)
     h_s, v_s = ca.SX.sym("h"), ca.SX.sym("v", 2 * n)
     # B from the J of q̈'s first stage (cse shares it)
@@ -569,10 +584,17 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     square = all(A.shape[0] == A.shape[1] for A in b.actuation_blocks())
     solve = (spd_solve_scaled if chain else spd_solve) if square else ca.solve
     kv = solve(B + g * D + g * g * K, ca.mtimes(B, v_s[n:]) - g * ca.mtimes(K, v_s[:n]))
-    wsolve = ca.Function(f"{dyn.name}_cl_wsolve", [bj.q, qm_s, kd_s, lam_s, h_s, v_s],
-                         [ca.vertcat(v_s[:n] + g * kv, kv)], FUNCTION_OPTS)
+    wsolve_f = ca.Function(f"{dyn.name}_cl_wsolve", [bj.q, qm_s, kd_s, lam_s, h_s, v_s, *extra],
+                           [ca.vertcat(v_s[:n] + g * kv, kv)], FUNCTION_OPTS)
 
     z = ca.MX.sym("z", 2 * n + r + nf)
+    p_mx = [ca.MX.sym("plant_params", params.numel())] if params is not None else []
+
+    def qdd(*a):
+        return qdd_f(*a, *p_mx)
+
+    def wsolve(*a):
+        return wsolve_f(*a, *p_mx)
     ref0, ref1 = ca.MX.sym("ref0", 3 * n), ca.MX.sym("ref1", 3 * n)
     lam, kd, kpi = ca.MX.sym("lam", n), ca.MX.sym("kd", n), ca.MX.sym("kpi", r)
     kf = ca.MX.sym("kf", nf)
@@ -600,15 +622,16 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     f2, _, _ = rhs(z + dt * k1, ref1)
     k2 = W(f2 - 2 * k1)
     z_next = z + 1.5 * dt * k1 + 0.5 * dt * k2
+    more = ["plant_params"] * len(p_mx)
     if nf:
         return ca.Function(f"{dyn.name}_theorem10{_force_tag(groups)}_closed_loop",
-                           [z, ref0, ref1, lam, kd, kpi, kf, f_ext, noise, dt],
+                           [z, ref0, ref1, lam, kd, kpi, kf, f_ext, noise, dt, *p_mx],
                            [z_next, tau, sigma],
-                           CLOSED_LOOP_INPUTS[:6] + ["kf"] + CLOSED_LOOP_INPUTS[6:],
+                           CLOSED_LOOP_INPUTS[:6] + ["kf"] + CLOSED_LOOP_INPUTS[6:] + more,
                            CLOSED_LOOP_OUTPUTS)
     return ca.Function(f"{dyn.name}_theorem10_closed_loop",
-                       [z, ref0, ref1, lam, kd, kpi, f_ext, noise, dt],
-                       [z_next, tau, sigma], CLOSED_LOOP_INPUTS, CLOSED_LOOP_OUTPUTS)
+                       [z, ref0, ref1, lam, kd, kpi, f_ext, noise, dt, *p_mx],
+                       [z_next, tau, sigma], CLOSED_LOOP_INPUTS + more, CLOSED_LOOP_OUTPUTS)
 
 
 # --------------------------------------------------------------------------- blocks

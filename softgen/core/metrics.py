@@ -9,6 +9,7 @@ formatted from the numbers.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, ItemsView, Iterable, Iterator, KeysView, Mapping
 from typing import Any
 from dataclasses import dataclass
@@ -141,12 +142,102 @@ def _describe(quantity: str, where: dict[str, Any]) -> str:
 #: What a finding may conclude; "not checked" when the metrics could not decide it.
 VERDICTS = ("reproduced", "partly reproduced", "not reproduced", "not checked")
 
+#: What a finding checks (metrics.json ``findings[].kind``, issue 32): ``thesis``, a claim
+#: of the thesis in the thesis's setting (a hardware protocol: on its emulation);
+#: ``variant``, a claim of the thesis on a stated change of its setting (added damping, an
+#: Euler plant, a gain study, a filter the thesis does not have); ``beyond``, softgen's own
+#: claim; ``diagnostic``, a measured explanation of a difference. The headline counts them
+#: apart.
+KINDS = ("thesis", "variant", "beyond", "diagnostic")
 
-def finding(claim: str, verdict: str, evidence: str) -> dict[str, str]:
-    """One checked claim: the thesis's claim, our verdict, the run's numbers behind it."""
+#: The widest two-sided band [1/k, k] a finding may grade a thesis number with (issue 32):
+#: wider, and "reproduced" would say nothing.
+MAX_BAND = 10.0
+
+
+def finding(claim: str, verdict: str, evidence: str, *, kind: str | None = None,
+            metrics: Iterable[str] = (), band: float | None = None) -> dict[str, Any]:
+    """One checked claim: the claim, our verdict, the run's numbers behind it.
+
+    ``kind``: one of :data:`KINDS` (``None``: the experiment's default, decided by
+    ``reproduce``: "beyond" for softgen's own experiments); ``metrics``: the metrics.json
+    keys the verdict rests on; ``band``: k of the two-sided band [1/k, k] that
+    ``ours / thesis`` of each of those keys with a thesis number must lie in for
+    "reproduced" (:func:`band_problems` checks it), at most :data:`MAX_BAND`.
+    """
     if verdict not in VERDICTS:
         raise ValueError(f"verdict {verdict!r}: expected one of {', '.join(VERDICTS)}")
-    return {"claim": claim, "verdict": verdict, "evidence": evidence}
+    if kind is not None and kind not in KINDS:
+        raise ValueError(f"kind {kind!r}: expected one of {', '.join(KINDS)}")
+    if band is not None and not (1.0 < band <= MAX_BAND):
+        raise ValueError(f"band {band!r}: expected k in (1, {MAX_BAND:g}] (two-sided band "
+                         "[1/k, k] around the thesis's number)")
+    return {"claim": claim, "verdict": verdict, "evidence": evidence, "kind": kind,
+            "metrics": list(dict.fromkeys(metrics)), "band": band}
+
+
+def ratio(ours: float | None, thesis: float) -> float | None:
+    """``ours / thesis``, None where undefined (no value, a zero thesis number)."""
+    if ours is None or thesis == 0 or not math.isfinite(ours):
+        return None
+    return ours / thesis
+
+
+def in_band(ours: float | None, thesis: float, k: float) -> bool:
+    """``ours / thesis`` within [1/k, k] (same sign; an undefined ratio is outside)."""
+    r = ratio(ours, thesis)
+    return r is not None and 1.0 / k <= r <= k
+
+
+def banded(m: Mapping[str, Any] | Metrics, thesis: Mapping[str, float], keys: Iterable[str],
+           k: float) -> tuple[list[bool], str]:
+    """Each of ``keys`` against its thesis number in the band [1/k, k]: the pass/fail list
+    and the evidence ("key ours vs thesis (ratio×)", joined by "; ")."""
+    passed, parts = [], []
+    for key in keys:
+        ours, t = m.get(key), thesis[key]
+        ok = in_band(ours, t, k)
+        passed.append(ok)
+        r = ratio(ours, t)
+        parts.append(f"`{key}` {'—' if ours is None else num(ours)} vs {num(t)} "
+                     f"({'undefined' if r is None else num(r) + '×'}"
+                     f"{'' if ok else ', outside'})")
+    return passed, "; ".join(parts) + f" (band [1/{k:g}, {k:g}])"
+
+
+def band_problems(result: Mapping[str, Any]) -> list[str]:
+    """What breaks issue 32's grading in one experiment's result: a finding without a kind,
+    a band wider than :data:`MAX_BAND`, a thesis or variant finding that rests on a metric
+    with a thesis number but states no band, one "reproduced" with such a metric outside its band, a
+    metric key the run did not record. One line each; empty when the grading holds."""
+    out = []
+    exp, ours, thesis = result.get("experiment", "?"), result.get("metrics", {}), \
+        result.get("thesis", {})
+    for f in result.get("findings", []):
+        name = f"{exp}: {f.get('claim', '?')[:60]!r}"
+        if f.get("kind") not in KINDS:
+            out.append(f"{name}: kind {f.get('kind')!r} is not one of {', '.join(KINDS)}")
+        k = f.get("band")
+        if k is not None and not (1.0 < k <= MAX_BAND):
+            out.append(f"{name}: band {k!r} outside (1, {MAX_BAND:g}]")
+            continue
+        if f.get("verdict") == "not checked":
+            continue
+        keys = list(f.get("metrics", []))
+        if lost := [x for x in keys if x not in ours]:
+            out.append(f"{name}: rests on metrics the run did not record: {', '.join(lost)}")
+        # Diagnostics and softgen's own claims may read a metric that has a thesis number
+        # without comparing it with that number; the thesis's claims compare.
+        compared = [x for x in keys if x in thesis and x in ours] \
+            if f.get("kind") in ("thesis", "variant") else []
+        if compared and k is None:
+            out.append(f"{name}: rests on {', '.join(compared)} (thesis numbers) without a band")
+        elif compared and f.get("verdict") == "reproduced":
+            outside = [x for x in compared if not in_band(ours[x], thesis[x], k)]
+            if outside:
+                out.append(f"{name}: \"reproduced\" with {', '.join(outside)} outside its "
+                           f"band [1/{k:g}, {k:g}]")
+    return out
 
 
 def absent(m: Mapping[str, Any] | Metrics, keys: Iterable[str]) -> list[str]:
@@ -154,16 +245,20 @@ def absent(m: Mapping[str, Any] | Metrics, keys: Iterable[str]) -> list[str]:
     return [k for k in keys if k not in m]
 
 
-def not_checked(claim: str, missing: list[str]) -> dict[str, str]:
+def not_checked(claim: str, missing: list[str], *, kind: str | None = None,
+                band: float | None = None) -> dict[str, Any]:
     """The finding for a claim whose metrics this run did not compute."""
     shown = ", ".join(f"`{k}`" for k in missing[:4]) + (" ..." if len(missing) > 4 else "")
     return finding(claim, "not checked", f"metrics absent from this run (e.g. a quick run): "
-                                         f"{shown}")
+                                         f"{shown}", kind=kind, band=band)
 
 
 def graded(passed: Iterable[bool]) -> str:
-    """"reproduced" if every part of a claim passed, "not reproduced" if none did."""
+    """"reproduced" if every part of a claim passed, "not reproduced" if none did;
+    "not checked" with no parts at all (nothing passed vacuously)."""
     parts = list(passed)
+    if not parts:
+        return "not checked"
     if all(parts):
         return "reproduced"
     return "partly reproduced" if any(parts) else "not reproduced"

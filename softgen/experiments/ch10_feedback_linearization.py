@@ -179,11 +179,13 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
             if r is None:
                 raise KeyError(Metric(quantity, None, joint=i, phase=phase,
                                       prefix=f"{case}_").key)
+        read.extend(r.key for r in recs)
         return [r.value for r in recs]
 
     def steady(tag: str) -> float:
         if (r := m.find("steady_position_error", suffix=tag)) is None:
             raise KeyError(f"steady_position_error_{tag}")
+        read.append(r.key)
         return r.value
 
     def tracking():
@@ -240,13 +242,15 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
                 f"second half of the final hold (exact parameters {num(ex[1])}); threshold "
                 f"< {stiff_tol:g} N m/rad.")
 
-    out = []
+    out: list[dict] = []
+    read: list[str] = []          # the keys each judge reads: the metrics its verdict rests on
     for judge in (tracking, offset, untouched, stiffness):      # the claim is the docstring
         claim = "Fig. 10.14 " + " ".join(judge.__doc__.split())
+        read.clear()
         try:
-            out.append(finding(claim, *judge()))
+            out.append(finding(claim, *judge(), kind="thesis", metrics=list(read)))
         except KeyError as missing:                              # e.g. a quick run
-            out.append(not_checked(claim, [str(missing.args[0])]))
+            out.append(not_checked(claim, [str(missing.args[0])], kind="thesis"))
     return out
 
 #: Section 10.4 shows Fig. 10.14 and prints no number.

@@ -136,16 +136,20 @@ def run_2dof(c: TwoLinkConfig, out: Path) -> Metrics:
 # -- claims of section 10.3, checked against a run's metrics -------------------------------
 
 def _common_claims(m: Metrics, c: GiosteConfig, n: int, phases, sigma_min: float, track: str,
-                   decouple: str, params: str) -> list[dict]:
-    """Tracking and decoupling, for the printed gains and each gain-study scale run."""
+                   decouple: str, params: str, gains: str) -> list[dict]:
+    """Tracking and decoupling, for the printed gains (kind "thesis", ``gains`` named in the
+    claim) and each gain-study scale run (kind "variant", its own gains named: issue 32, a
+    claim is verdicted on the gains it names)."""
     # Each claim self-contained (issue 24: two rows read "The same with ..." for the
     # tracking and the decoupling claim, with different verdicts).
-    same = [(f"gain_study_inertial_kpi_x{s:g}_", f" (gain study: K_π of the inertial {params} "
-             f"scaled by {s:g})") for s in c.inertial_kpi_scales
-            if m.find("diverged_at", phase=phases[0], prefix=f"gain_study_inertial_kpi_x{s:g}_")]
-    return ([C.tracking_claim(m, p, n, phases, sigma_min, track + t)
-             for p, t in [("", ""), *same]]
-            + [C.decoupling_claim(m, p, decouple + t) for p, t in [("", ""), *same]])
+    runs = [("", f"with the printed {gains}", "thesis")] + [
+        (f"gain_study_inertial_kpi_x{s:g}_", f"on the variant K_π = {num(45 * s)} on the "
+         f"inertial {params} (45 × {s:g}; the other gains as printed: {gains})", "variant")
+        for s in c.inertial_kpi_scales
+        if m.find("diverged_at", phase=phases[0], prefix=f"gain_study_inertial_kpi_x{s:g}_")]
+    return ([C.tracking_claim(m, p, n, phases, sigma_min, f"{track}, {t}", kind=k)
+             for p, t, k in runs]
+            + [C.decoupling_claim(m, p, f"{decouple}, {t}", kind=k) for p, t, k in runs])
 
 
 def _study_claim(m: Metrics, c: OneLinkConfig) -> list[dict]:
@@ -165,7 +169,9 @@ def _study_claim(m: Metrics, c: OneLinkConfig) -> list[dict]:
         ev + (f". Tracks (settled within {C.TRACKED_COUNTS} counts = "
               f"{num(C.TRACKED_COUNTS * res)} rad): K_d = {kd.value:g}, K_π on gravity "
               f"{'/g²' if m.value('kpi_per_g2', prefix='tuned_') else 'as printed'}; its runs "
-              f"are `tuned_*`" if kd else ""))] if ev else []
+              f"are `tuned_*`" if kd else ""), kind="diagnostic",
+        metrics=[f"{t}settled_position_error" for _, _, t in tags
+                 if m.find("diverged_at", prefix=t)])] if ev else []
 
 
 def findings_1dof(m: Metrics, c: OneLinkConfig | None = None) -> list[dict]:
@@ -173,22 +179,23 @@ def findings_1dof(m: Metrics, c: OneLinkConfig | None = None) -> list[dict]:
     c = c or OneLinkConfig()
     out = _common_claims(
         m, c, 1, (1, 2, 3), 7.0,
-        "Fig. 10.6-10.8: with K_d = 2, Λ = 10, K_π = 45 position and stiffness are tracked "
-        "and the steady position error is of the order of the encoder resolution",
+        "Fig. 10.6-10.8: position and stiffness are tracked and the steady position error "
+        "is of the order of the encoder resolution",
         "Fig. 10.6-10.7: position steps leave the stiffness unchanged and stiffness steps "
-        "the position", "parameter")
+        "the position", "parameter", "K_d = 2, Λ = 10, K_π = 45")
     out += _study_claim(m, c)
     out += C.law_claims(m, "", "")
-    out += C.law_claims(m, "tuned_", " (on the loop that tracks: issue-13 gain study)")
+    out += C.law_claims(m, "tuned_", " (on the variant K_d of the issue-13 gain study that "
+                                     "tracks)", kind="variant")
     return out + [C.feasible(m, "Section 10.3.3 (one-link GioSte)")]
 
 
 def findings_2dof(m: Metrics, c: TwoLinkConfig | None = None) -> list[dict]:
     """Section 10.3.5's claims against a ``ch10-gioste-2dof`` run."""
     out = _common_claims(
-        m, c or TwoLinkConfig(), 2, (None,), 12.0, "Fig. 10.12: with K_d = diag(15, 2), "
-        "Λ = 8, K_π = 45 both joints track position and stiffness", "Fig. 10.12: no "
-        "significant mutual impact of position and stiffness control", "parameters")
+        m, c or TwoLinkConfig(), 2, (None,), 12.0, "Fig. 10.12: both joints track position "
+        "and stiffness", "Fig. 10.12: no significant mutual impact of position and stiffness "
+        "control", "parameters", "K_d = diag(15, 2), Λ = 8, K_π = 45")
     out.append(C.bounded_claim(m, "Fig. 10.13: the two-link parameter estimates remain "
                                   "bounded (no drift over the last phase)"))
     return out + [C.feasible(m, "Section 10.3.5 (two-link GioSte)")]

@@ -181,21 +181,22 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     lost = [Metric(q, None, joint=i, phase=k).key for q in RMS for i in JOINTS
             for k in range(1, len(PHASES) + 1) if m.find(q, joint=i, phase=k) is None]
     if lost:
-        out.append(not_checked(claim, lost))
+        out.append(not_checked(claim, lost, kind="thesis"))
     else:
         p, s = (max(recs[q], key=lambda r: r.value) for q in RMS)
         out.append(finding(claim, graded([p.value < pos_tol, s.value < stiff_tol]),
                            f"Largest rms error over the second half of a phase: position "
                            f"{num(p.value)} rad (joint {p.joint}, phase {p.phase}), stiffness "
                            f"{num(s.value)} N m/rad (joint {s.joint}, phase {s.phase}); "
-                           f"thresholds < {pos_tol:g} rad and < {stiff_tol:g} N m/rad."))
+                           f"thresholds < {pos_tol:g} rad and < {stiff_tol:g} N m/rad.",
+                           kind="thesis", metrics=[r.key for q in RMS for r in recs[q]]))
 
     claim = ("Fig. 10.2 (section 10.2): position commands have almost no influence on the "
              "stiffness, and stiffness commands almost none on the position.")
     idx = {q: m.per_joint(q) for q in COUPLING}
     if lost := [Metric(q, None, joint=i).key for q in COUPLING for i in JOINTS
                 if i not in idx[q]]:
-        out.append(not_checked(claim, lost))
+        out.append(not_checked(claim, lost, kind="thesis"))
     else:
         ol = {q: m.per_joint(q, prefix="open_loop_") for q in COUPLING}
 
@@ -211,12 +212,13 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
             f"position deviation per N m/rad of stiffness step {quote(COUPLING[1], 'rad')}"
             + ("" if all(ol.values()) else " (open-loop stiffness controller not run here)")
             + f"; thresholds < {tol[COUPLING[0]]:g} N m/rad per rad and < "
-            f"{tol[COUPLING[1]]:g} rad per N m/rad."))
+            f"{tol[COUPLING[1]]:g} rad per N m/rad.", kind="thesis",
+            metrics=[Metric(q, None, joint=i).key for q in COUPLING for i in JOINTS]))
 
     claim = ("Fig. 10.3 (section 10.2): the parameter estimates stay bounded (no drift "
              "over the last phase).")
     if lost := absent(m, BOUNDED):
-        out.append(not_checked(claim, lost))
+        out.append(not_checked(claim, lost, kind="thesis"))
     else:
         r, d = (m.value(k) for k in BOUNDED)
         # A trend, not only a maximum (issue 24): over the last phase, since each phase's
@@ -226,11 +228,11 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
                            f"of ‖Π̂‖ along its trend over the last phase (t ≥ "
                            f"{PHASES[-1][0]:g} s): "
                            + ("undefined" if d is None else num(d))
-                           + f"; threshold < {DRIFT:g}."))
+                           + f"; threshold < {DRIFT:g}.", kind="thesis", metrics=list(BOUNDED)))
 
     claim = "Section 10.2: the commanded pressures are feasible (within [0, p_max])."
     if lost := absent(m, ["pressure_violations"]):
-        out.append(not_checked(claim, lost))
+        out.append(not_checked(claim, lost, kind="thesis"))
     else:
         v = m.value("pressure_violations")
         lo, hi = m.find("pressure_min_pa"), m.find("pressure_max_pa")
@@ -238,7 +240,8 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
                 if lo and hi else "")
         out.append(finding(claim, graded([v == 0]),
                            f"{v:g} episode(s) of a commanded pressure outside [0, p_max]"
-                           f"{span}; required: 0."))
+                           f"{span}; required: 0.", kind="thesis",
+                           metrics=["pressure_violations"]))
     return out
 
 

@@ -18,8 +18,22 @@ the speeds reached); the thesis's motor parameters are kept. A link faster than
 
 The thesis does not say how long it ran nor over which interval Table 6.1 is
 computed; we run 60 s and compute the indices after the first 10 %. MSREP in
-percent (Table 6.1 labels its column [%]). Torque entries: the joint's total
+percent, ours and the thesis's alike (issue 32: one unit per quantity). Table 6.1 labels
+its MSREP column [%], but its numbers are fractions, as Tables 6.2-6.3's are: MSE/MSREP is
+the mean square of the truth, so the printed stiffness pair (1.84e-7, 3.34e-7) implies an
+rms stiffness of 0.74 N m/rad read as a fraction and 7.4 N m/rad read as percent, and the
+springs reach at most a k cosh(a φ) ≈ 1.04 N m/rad each at the 0.38-rad deflections that
+0.15 N m of motor torque produces (k sinh(a φ) = 0.15); the torque pair (1.49e-11,
+2.85e-9) likewise gives 0.072 N m against 0.72 N m, above the motor torque. So ``thesis``
+holds Table 6.1's MSREP × 100. Torque entries: the joint's total
 flexibility torque from the RLS models; stiffness: σ̂_a + σ̂_b.
+
+Grading (issue 32): Table 6.1 in the printed setting (``undamped_*``, kind "thesis") and
+on the damped variant (kind "variant"), each index in the band [1/3, 3] of the printed
+number: a simulation whose every number is printed but the link damping (which we choose)
+and the run's length and window (which we choose too); 3× in a mean square is 1.7× in the
+rms error, what those choices move (the T/2 and T/4 reruns of ch6-pneumatic-invasive move
+its MSE 3.5× per halving of T).
 """
 from __future__ import annotations
 
@@ -28,7 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from softgen.studies.indices import mse, msrep
-from softgen.experiments.registry import Config, Experiment, Metrics, finding, num, times
+from softgen.experiments.registry import (Config, Experiment, Metrics, banded, finding,
+                                          graded, not_checked, num)
 from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import save_traces
 from softgen.studies.estimation import (QbmoveStudyConfig, estimator, figures,
@@ -53,10 +68,13 @@ class ElectricInvasiveConfig(QbmoveStudyConfig):
     perturbation: float = 1e-12
 
 
+#: Table 6.1; its MSREP column is a fraction (module docstring), held here in percent.
 THESIS = {"stiffness_mse_joint1": 1.84e-7, "stiffness_mse_joint2": 1.92e-7,
-          "stiffness_msrep_joint1": 3.34e-7, "stiffness_msrep_joint2": 3.38e-7,
+          "stiffness_msrep_joint1": 100 * 3.34e-7, "stiffness_msrep_joint2": 100 * 3.38e-7,
           "torque_mse_joint1": 1.49e-11, "torque_mse_joint2": 1.62e-11,
-          "torque_msrep_joint1": 2.85e-9, "torque_msrep_joint2": 2.84e-9}
+          "torque_msrep_joint1": 100 * 2.85e-9, "torque_msrep_joint2": 100 * 2.84e-9}
+#: k of the band [1/k, k] Table 6.1's indices are graded in (module docstring).
+BAND = 3.0
 #: Table 6.1 beside every run of the same indices: the undamped runs are section 6.2.3
 #: taken literally, and the observer's torque is the other reading of "torque estimate".
 THESIS_ROWS = {
@@ -152,19 +170,31 @@ def _run(c: ElectricInvasiveConfig, out, beta, pre: str) -> Metrics:
     return m
 
 
+def _table61(m: Metrics, pre: str, quantity: str, where: str, kind: str) -> dict:
+    """Table 6.1's ``quantity`` indices (MSE and MSREP, both joints) of the run ``pre``,
+    each in the band [1/:data:`BAND`, :data:`BAND`] of the printed number."""
+    what = {"stiffness": "stiffness", "torque": "flexibility-torque"}[quantity]
+    printed = " / ".join(num(THESIS[f"{quantity}_mse_joint{j}"]) for j in (1, 2))
+    claim = f"Table 6.1: {what} MSE {printed} (joints 1/2) and MSREP under open-loop torques, {where}"
+    keys = [f"{pre}{quantity}_{i}_joint{j}" for i in ("mse", "msrep") for j in (1, 2)]
+    flat = dict(m.items())
+    if lost := [k for k in keys if k not in flat]:
+        return not_checked(claim, lost, kind=kind, band=BAND)
+    ok, ev = banded(flat, THESIS_ROWS, keys, BAND)
+    return finding(claim, graded(ok), ev + " (MSREP in %, Table 6.1's fractions × 100)",
+                   kind=kind, metrics=keys, band=BAND)
+
+
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
-    """Table 6.1 within 10× (damped run); runaway links reported (both runs)."""
-    mse_ = m.per_joint("stiffness_mse")
-    ok = [mse_[j] < 10 * THESIS[f"stiffness_mse_joint{j}"] for j in mse_]
-    tq = m.per_joint("torque_mse")
-    out = [finding(
-        "Table 6.1: stiffness MSE 1.8e-7 / 1.9e-7 (joints 1/2) under open-loop torques, on "
-        "the damped variant (link damping added, issue 13)",
-        "reproduced" if all(ok) else "partly reproduced" if any(ok) else "not reproduced",
-        f"with link damping {num(m.value('link_damping'))} N m s/rad: stiffness MSE "
-        + " / ".join(f"{num(v)} ({times(v, THESIS[f'stiffness_mse_joint{j}'])} the "
-                     "thesis's)" for j, v in mse_.items())
-        + "; threshold 10×; torque MSE " + " / ".join(num(v) for v in tq.values()))]
+    """Table 6.1 in the band [1/3, 3] (printed setting and damped variant); runaway links
+    reported (both runs)."""
+    out = []
+    if m.find("stiffness_mse", joint=1, prefix="undamped_") is not None:
+        out += [_table61(m, "undamped_", q, "in the printed setting (no link damping)",
+                         "thesis") for q in ("stiffness", "torque")]
+    beta = num(m.value("link_damping"))
+    out += [_table61(m, "", q, f"on the damped variant (link damping {beta} N m s/rad added, "
+                               "issue 13)", "variant") for q in ("stiffness", "torque")]
     bound = m.value("runaway_speed_bound")
     for pre in ("", "undamped_"):
         v = m.per_joint("max_link_speed", prefix=pre)
@@ -181,7 +211,8 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
             f"deflections up to {num(m.value('max_abs_deflection', prefix=pre))} rad, "
             f"fastest motor mode {num(m.value('motor_mode_max_rad_s', prefix=pre))} rad/s "
             f"(Nyquist {num(m.value('nyquist_rad_s'))}); stiffness MSE "
-            + " / ".join(num(x) for x in s.values())))
+            + " / ".join(num(x) for x in s.values()), kind="diagnostic",
+            metrics=[f"{pre}max_link_speed_joint{j}" for j in v]))
     got = [m.find(q, joint=j, prefix=p) for p in ("undamped_", "undamped_perturbed_")
            for q, j in (("stiffness_mse", 1), ("max_link_speed", 2))]
     if None not in got:
@@ -195,7 +226,8 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
             f"(relative) moves the undamped stiffness MSE of joint 1 from {num(a)} to {num(b)} "
             f"(relative change {num(change)}) and the peak speed of link 2 from {num(sp)} to "
             f"{num(sp2)} rad/s: the runaway is chaotic, its indices are orders of magnitude "
-            "only (threshold 1e-3 relative)"))
+            "only (threshold 1e-3 relative)", kind="diagnostic",
+            metrics=[r.key for r in got]))
     return out
 
 

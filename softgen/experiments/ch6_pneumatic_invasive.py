@@ -29,7 +29,8 @@ from softgen.studies.figures_pneumatic import pendulum_tracking as tracking_figu
 from softgen.runtime.simulate import simulate, save_traces
 from softgen.symbolic.actuators import McKibbenPairs
 from softgen.symbolic.rigid import RigidDynamics
-from softgen.experiments.registry import Config, Experiment, Metrics, finding, num, times
+from softgen.experiments.registry import (Config, Experiment, Metrics, banded, finding,
+                                          graded, not_checked, num, times)
 
 
 @dataclass(frozen=True)
@@ -149,35 +150,58 @@ def _run(c: PneumaticInvasiveConfig, out, *, figures: bool) -> Metrics:
     return m
 
 
+#: k of the band [1/k, k] section 6.1.3's indices are graded in: a simulation whose every
+#: number is printed but the window of its indices; 3× in a mean square is 1.7× in the rms
+#: error (halving T moves our MSE 3.5×: ``diagnostic_T_half_*``).
+BAND = 3.0
+
+
+def _indices(m: Metrics, claim: str, keys: list[str], kind: str, note: str) -> dict:
+    flat = dict(m.items())
+    if lost := [k for k in keys if k not in flat]:
+        return not_checked(claim, lost, kind=kind, band=BAND)
+    ok, ev = banded(flat, THESIS, keys, BAND)
+    return finding(claim, graded(ok), ev + note, kind=kind, metrics=keys, band=BAND)
+
+
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
-    """Fig. 6.2-6.3: the estimate converges; the printed MSEs need the Euler plant."""
-    msrep, mse = (m.value(q, joint=1) for q in ("stiffness_msrep", "stiffness_mse"))
-    out = [finding("Fig. 6.2-6.3: stiffness estimated with MSREP of the thesis's order "
-                   "(0.45 %)", "reproduced" if msrep < 4.5 else "not reproduced",
-                   f"stiffness MSREP {num(msrep)} % (threshold 10× the thesis's); MSE "
-                   f"{num(mse)} against 1.2e-5, {times(mse, 1.2e-5)}")]
-    diag = {tag: m.find("stiffness_mse", joint=1, prefix=f"diagnostic_{tag}_")
-            for tag in ("euler_plant", "T_half", "T_quarter")}
-    if None not in diag.values():
-        euler = diag["euler_plant"].value
-        obs = m.value("observer_torque_mse", joint=1, prefix="diagnostic_euler_plant_")
-        out.append(finding(
-            "Table of section 6.1.3: stiffness MSE 1.2e-5 (on the thesis's discrete model)",
-            "reproduced" if euler < 10 * 1.2e-5 else "not reproduced",
-            f"on the Euler plant (the observer's own model) MSE {num(euler)} "
-            f"({times(euler, 1.2e-5)} the thesis's), observer torque MSE {num(obs)}; on the "
-            f"continuous plant at T, T/2, T/4: {num(mse)}, {num(diag['T_half'].value)}, "
-            f"{num(diag['T_quarter'].value)} (O(T²))"))
-    v = {q: m.value(f"observer_error_{q}") for q in (
-        "fit_r2", "sigma_qd_rms", "tau_rate_rms", "tau_rate_coef", "sigma_qd_coef")}
+    """Section 6.1.3's indices in the band [1/3, 3], on the continuous plant (the thesis's
+    setting) and on the Euler plant (the observer's own discrete model, a variant)."""
+    obs = m.find("observer_torque_mse", joint=1)
+    out = [
+        _indices(m, "Fig. 6.2-6.3 (section 6.1.3): stiffness estimated with MSE 1.2e-5 and "
+                    "MSREP 0.45 %", ["stiffness_mse_joint1", "stiffness_msrep_joint1"],
+                 "thesis", "; the printed pair disagrees with itself: at σ ≈ 5 N m/rad an MSE "
+                           "of 1.2e-5 is an MSREP near 5e-5 %"),
+        _indices(m, "Section 6.1.3: flexibility torque estimated with MSE 1.7e-14 and MSREP "
+                    "1.6e-8 %", ["torque_mse_joint1", "torque_msrep_joint1"], "thesis",
+                 " (the RLS model's torque" + (f"; the observer's own: MSE {num(obs.value)})"
+                                               if obs is not None else ")"))]
+    if m.find("stiffness_mse", joint=1, prefix="diagnostic_euler_plant_") is not None:
+        cont = [m.value("stiffness_mse", joint=1, prefix=f"diagnostic_{t}_")
+                for t in ("T_half", "T_quarter")]
+        out.append(_indices(
+            m, "Section 6.1.3 on the thesis's discrete model (plant integrated by explicit "
+               "Euler at T, the observer's own model): stiffness and torque MSE 1.2e-5 and "
+               "1.7e-14", ["diagnostic_euler_plant_stiffness_mse_joint1",
+                           "diagnostic_euler_plant_torque_mse_joint1"], "variant",
+            f"; on the continuous plant at T, T/2, T/4: {num(m.value('stiffness_mse', joint=1))}"
+            f", {num(cont[0])}, {num(cont[1])} (O(T²)): the printed stiffness MSE lies between "
+            "the two plants' and matches neither"))
+    claim = ("Mechanism (issue 13): the observer's torque error is e ≈ −(T/2) τ̇ − (T/2) σ q̇, "
+             "the σ q̇ term larger")
+    names = ("fit_r2", "sigma_qd_rms", "tau_rate_rms", "tau_rate_coef", "sigma_qd_coef")
+    if lost := [f"observer_error_{q}" for q in names if m.find(f"observer_error_{q}") is None]:
+        return out + [not_checked(claim, lost, kind="diagnostic")]
+    v = {q: m.value(f"observer_error_{q}") for q in names}
     out.append(finding(
-        "Mechanism (issue 13): the observer's torque error is e ≈ −(T/2) τ̇ − (T/2) σ q̇, "
-        "the σ q̇ term larger", "reproduced" if v["fit_r2"] > 0.9 and
+        claim, "reproduced" if v["fit_r2"] > 0.9 and
         v["sigma_qd_rms"] > v["tau_rate_rms"] else "not reproduced",
         f"least squares on this run: coefficients {num(v['tau_rate_coef'])} and "
         f"{num(v['sigma_qd_coef'])} × (−T/2), R² {num(v['fit_r2'])}; rms of the σ q̇ term "
         f"{num(v['sigma_qd_rms'])} N m, {times(v['sigma_qd_rms'], v['tau_rate_rms'])} the "
-        f"τ̇ term's {num(v['tau_rate_rms'])}"))
+        f"τ̇ term's {num(v['tau_rate_rms'])}", kind="diagnostic",
+        metrics=[f"observer_error_{q}" for q in ("fit_r2", "sigma_qd_rms", "tau_rate_rms")]))
     return out
 
 
@@ -201,9 +225,10 @@ a, b close to −T/2 and the σ q̇ term (the muscle torque drifting with q whil
 pressures are held over a sample) larger than the τ̇ term (the lag of the second
 difference). On a plant integrated by explicit Euler at T, the thesis's own discrete
 model (`diagnostic_euler_plant_*`), the observer is exact to round-off and the MSEs
-drop to the thesis's order: its printed numbers are what this estimator gives on its
-own discrete model. With σ ≈ 5 N m/rad its stiffness MSE of 1.2e-5 means an MSREP
-near 5e-5 %, not the printed 0.45: the two disagree.
+fall far *below* the printed ones: the printed stiffness MSE lies between the two
+plants' and is reproduced by neither (graded in a two-sided band, issue 32). With
+σ ≈ 5 N m/rad its stiffness MSE of 1.2e-5 means an MSREP near 5e-5 %, not the printed
+0.45: the two printed numbers disagree with each other.
 """,
 
 )

@@ -5,7 +5,8 @@ from eq. 7.9, deflection rates from a second observer on the measured deflection
 RLS per joint on (φ̇_a φ_a^j, φ̇_b φ_b^j), j = 0, 2, 4, 6, Π̂(0) = 0,
 P(0) = diag(1, 10³, 10⁵, 10⁵, 1, 10³, 10⁵, 10⁵)) on the emulated qbmove hardware of
 ``ch6-electric-protocol`` (T = 5·10⁻³ s, 8192-count encoders, no torque sensor, springs
-20 % stiffer than the model the allocation uses, servos of 1000 rad/s), all variants
+off the datasheet model the allocation uses by 17 % RMSRE: 1.25 × wearing to 1.15 ×, with
+a Dahl hysteresis, issue 32; servos of 1000 rad/s), all variants
 in one diagram with the plant.
 
 1-DoF (``qbmove_1dof``): q_d = 0.4 + 0.2 sin(πt/4), σ_d = 2 + sin(πt/6) for t < 400 s,
@@ -22,7 +23,7 @@ in its step (:class:`~softgen.estimation.estimators.EstimatorConfig`), against t
 emulated plant's springs: the thesis compares with its model of its hardware, the best
 stiffness it had of the springs it estimated; here the springs estimated are the
 plant's, known exactly. ``vs_nominal_*`` are the same estimates against the datasheet
-springs the allocation uses (20 % softer than the plant's by construction:
+springs the allocation uses (off the plant's by construction, the emulation's spring error:
 ``datasheet_vs_plant_stiffness_mse_*`` is that mismatch alone), as every variant has
 them. Unfiltered (Theorem 4 as printed): ``unfiltered_*`` (gated), ``nostop_*``
 (none), ``freeze_*`` (RLS frozen at ``freeze_time`` = 200 s by zeroing the covariance,
@@ -38,7 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from softgen.studies.indices import mse, noise_records, window_mask
-from softgen.experiments.registry import Config, Experiment, Metrics, finding, num
+from softgen.experiments.registry import (Config, Experiment, Metrics, banded, finding,
+                                          graded, not_checked, num)
 from softgen.plants.qbmove import Sinusoids
 from softgen.modelfile.load import load_model
 from softgen.studies.estimation import (ProtocolConfig, estimator, figures, measured_deflections,
@@ -61,6 +63,9 @@ class NoninvasiveProtocolConfig(ProtocolConfig):
     metric_window: tuple[float, float] | None = (200.0, 800.0)
     diagnostics: bool = True      # also the 1-DoF estimator on unquantised encoders
     lowpass: float = 0.5          # Hz: identical low-pass of target and regressor (issue 13)
+    # s: ends of the 20-s windows of the 2-DoF σ̂/σ_plant along the run (issue 32); those
+    # past the run's end are skipped (a quick run has the first only).
+    ratio_checkpoints: tuple[float, ...] = (80.0, 200.0, 400.0, 800.0)
 
 
 #: What the ideal-sensor variant reports (it separates the encoders from the estimator).
@@ -85,7 +90,8 @@ NOT_IN_THESIS = {
     "*torque_*": "section 7.4 prints stiffness indices only",
     "nostop_*": "without any update stop: Fig. 7.5 shows the drift, no number",
     "ideal_sensors_*": "unquantised encoders: our diagnostic",
-    "*vs_nominal_*": "against the datasheet springs, 20 % softer than the emulated plant's "
+    "*vs_nominal_*": "against the datasheet springs, off the emulated plant's (wear, "
+                     "hysteresis) "
                      "by construction; the thesis compares with its best model of the "
                      "springs, here the plant's (module docstring)",
     "*datasheet_vs_plant_*": "the emulated model error alone, ours",
@@ -95,7 +101,9 @@ NOT_IN_THESIS = {
     "*update_fraction_phase*": "our share of samples with the RLS updating",
     "*achieved_over_desired_stiffness*": "our check of the emulated stiffness allocation",
     "*stiffness_ratio_to_plant_*": "our mean σ̂/σ_plant: whether the estimate lands on the "
-                                   "plant's springs (1) or the datasheet's (0.833)",
+                                   "plant's springs (1) or the datasheet's (below 1)",
+    "*spring_torque_rmsre": "the emulated springs' error against the datasheet (section "
+                            "6.2.4.1 measured about 20 % on hardware, no number per run)",
     "*estimator_seconds_per_step": "our timing",
     "lowpass_hz": "our filter setting (issue 13)",
     "metric_window_*": "the window the indices cover",
@@ -172,6 +180,16 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
             # datasheet's (the quick run's short phases leave the 2-DoF RLS unconverged).
             mh.add("stiffness_ratio_to_plant", float(np.mean(
                 head.sigma_hat[wh, i] / truth.sigma[wh, i])), "1", joint=i + 1)
+            # Along the run (issue 32): the same ratio over the 20 s before each of
+            # ``ratio_checkpoints`` that the run reaches: an unconverged RLS start shows
+            # as a ratio that still moves, a model error as one that stays.
+            if dof == 2:
+                for end in (e for e in c.ratio_checkpoints if e <= t[-1] + c.dt):
+                    win = (t >= end - 20.0) & (t < end)
+                    # nanmean: the last L samples of a run carry no estimate.
+                    mh.add("stiffness_ratio_to_plant", float(np.nanmean(
+                        head.sigma_hat[win, i] / truth.sigma[win, i])), "1", joint=i + 1,
+                        suffix=f"until_{end:g}")
         m.extend(mh, prefix=pre)
         r.figure(out / f"{pre}protocol.png", updating)
     mask = window_mask(t, c.metric_window, res)
@@ -181,48 +199,109 @@ def run(c: NoninvasiveProtocolConfig, out) -> Metrics:
     return m
 
 
+#: k of the band [1/k, k] section 7.4's indices are graded in: hardware numbers from one
+#: physical run, whose spring error, sensor noise and friction the emulation has only in
+#: kind; the widest band allowed (issue 32), 3.2× in the rms error.
+BAND = 10.0
+
+
+def _section74(m: Metrics, pre: str, variant: str, kind: str, note: str) -> dict | None:
+    dof = "1" if not pre else "2"
+    joints = (1,) if not pre else (1, 2)
+    keys = [f"{pre}{variant}stiffness_{i}_joint{j}" for i in ("mse", "msrep") for j in joints]
+    flat = dict(m.items())
+    if not any(k in flat for k in keys):
+        return None
+    printed = " / ".join(num(THESIS[f"{pre}stiffness_mse_joint{j}"]) for j in joints)
+    claim = f"Section 7.4 ({dof}-DoF): stiffness MSE {printed} and MSREP on hardware with " \
+            f"encoders, {note}"
+    if lost := [k for k in keys if k not in flat]:
+        return not_checked(claim, lost, kind=kind, band=BAND)
+    ok, ev = banded(flat, THESIS, keys, BAND)
+    g = {q: " / ".join(num(m.value(q, joint=j, prefix=pre)) for j in joints)
+         for q in ("vs_nominal_stiffness_mse", "datasheet_vs_plant_stiffness_mse")}
+    return finding(claim, graded(ok), ev + " against the emulated plant's (backbone) springs; "
+                   f"against the datasheet springs (the emulation's spring error, "
+                   f"`spring_torque_rmsre`) MSE {g['vs_nominal_stiffness_mse']}, of which the "
+                   f"mismatch alone is {g['datasheet_vs_plant_stiffness_mse']}", kind=kind,
+                   metrics=keys, band=BAND)
+
+
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
     """Section 7.4: stiffness MSE 3.8e-5 (1-DoF) and 1.9e-4 / 3.8e-4 (2-DoF) on hardware,
-    here against the emulated plant's springs (threshold 100× the thesis's per joint)."""
+    here against the emulated plant's springs, in the band [1/10, 10]: Theorem 4 as printed
+    (kind "thesis") and with our low-pass filter (a variant)."""
     out = []
-    for pre, thesis in (("", (3.8e-5,)), ("dof2_", (1.9e-4, 3.8e-4))):
-        g = {label: list(m.per_joint(q, prefix=pre + p).values()) for label, q, p in (
-            ("stiffness_mse", "stiffness_mse", ""),
-            ("vs_nominal_stiffness_mse", "vs_nominal_stiffness_mse", ""),
-            ("datasheet_vs_plant_stiffness_mse", "datasheet_vs_plant_stiffness_mse", ""),
-            ("unfiltered_stiffness_mse", "stiffness_mse", "unfiltered_"))}
-        if not g["stiffness_mse"]:
-            continue
-        ok = [v < 100 * t for v, t in zip(g["stiffness_mse"], thesis)]
-        f = lambda k: " / ".join(num(v) for v in g[k])   # noqa: E731
-        out.append(finding(
-            f"Section 7.4 ({'1' if not pre else '2'}-DoF): stiffness MSE "
-            + " / ".join(num(t) for t in thesis) + " on hardware with encoders",
-            "reproduced" if all(ok) else "partly reproduced" if any(ok)
-            else "not reproduced",
-            f"filtered estimator ({num(m.value('lowpass_hz'))} Hz, target and regressor "
-            f"alike): MSE {f('stiffness_mse')} against the emulated plant's springs "
-            f"(threshold 100× the thesis's); against the datasheet springs, 20 % off by "
-            f"construction, {f('vs_nominal_stiffness_mse')}, of which the mismatch alone is "
-            f"{f('datasheet_vs_plant_stiffness_mse')}; unfiltered "
-            f"{f('unfiltered_stiffness_mse')}"))
+    for pre in ("", "dof2_"):
+        for variant, kind, note in (
+                ("unfiltered_", "thesis", "Theorem 4 as printed (no filter)"),
+                ("", "variant", "with our low-pass filter of target and regressor "
+                                f"({num(m.get('lowpass_hz') or 0)} Hz, issue 13)")):
+            f = _section74(m, pre, variant, kind, note)
+            if f is not None:
+                out.append(f)
     ideal = m.find("stiffness_mse", joint=1, prefix="ideal_sensors_")
     if ideal is not None:
         v = {(q, p): m.value(q, joint=1, prefix=p) for q, p in (
             ("rotatum_uio_rms_error", ""), ("rotatum_rms", ""),
             ("rotatum_uio_rms_error", "ideal_sensors_"), ("stiffness_mse", "nostop_"),
             ("stiffness_mse", "freeze_"))}
+        quantised = m.value("stiffness_mse", joint=1, prefix="unfiltered_")
         out.append(finding(
             "Diagnosis: without the filter the estimate fails because of the encoders' "
             "quantisation, differenced three times over T³, not the estimator",
-            "reproduced" if ideal.value < 1e-2 else "not reproduced",
+            # The encoders carry the failure when reading them exactly takes the error
+            # down by more than two orders of magnitude (the rest: the springs' hysteresis
+            # and wear, which no encoder removes).
+            "reproduced" if ideal.value < 1e-2 * quantised else "not reproduced",
             f"observer rotatum error {num(v['rotatum_uio_rms_error', ''])} N m/s rms against a "
             f"rotatum of {num(v['rotatum_rms', ''])}; the same run read by unquantised "
             f"encoders: MSE {num(ideal.value)}, rotatum error "
-            f"{num(v['rotatum_uio_rms_error', 'ideal_sensors_'])}; without the gate "
+            f"{num(v['rotatum_uio_rms_error', 'ideal_sensors_'])}, against {num(quantised)} "
+            "quantised (threshold: below 1e-2 × that); without the gate "
             f"{num(v['stiffness_mse', 'nostop_'])}, frozen {num(v['stiffness_mse', 'freeze_'])}"
-            ": neither stop helps"))
+            ": neither stop helps", kind="diagnostic",
+            metrics=["ideal_sensors_stiffness_mse_joint1", "unfiltered_stiffness_mse_joint1",
+                     "rotatum_uio_rms_error_joint1", "rotatum_rms_joint1"]))
+    out += _rls_start(m)
     return out
+
+
+def _rls_start(m: Metrics) -> list[dict]:
+    """Issue 32: the 2-DoF estimate's ratio to the plant's springs early in a run is the
+    RLS's unconverged start, shown by the run itself: the ratio per window along it."""
+    got = {r.suffix: r for r in m if r.quantity == "stiffness_ratio_to_plant"
+           and r.prefix == "dof2_" and r.suffix.startswith("until_")}
+    if not got:
+        return []
+    ends = sorted(got, key=lambda s: float(s[len("until_"):]))
+    first, last = ends[0], ends[-1]
+    joints = sorted({r.joint for r in m if r.quantity == "stiffness_ratio_to_plant"
+                     and r.prefix == "dof2_" and r.suffix == first})
+    per = {s: [m.value("stiffness_ratio_to_plant", joint=j, prefix="dof2_", suffix=s)
+               for j in joints] for s in ends}
+    dev = {s: max(abs(x - 1) for x in per[s]) for s in ends}
+    claim = ("Cause (issue 32): the 2-DoF estimate's distance from the plant's springs early "
+             "in a run is the RLS's unconverged start, not the encoders: σ̂/σ comes within 5 % "
+             "of 1 later in the run, closer than at the first checkpoint")
+    if first == last:
+        return [finding(claim, "not checked", f"one window only in this run (σ̂/σ "
+                        f"{' / '.join(num(x) for x in per[first])} on the 20 s to "
+                        f"{first[len('until_'):]} s): a quick run is too short to show the "
+                        "trend", kind="diagnostic")]
+    best = min(ends[1:], key=lambda s: dev[s])
+    ok = dev[best] < 0.05 and dev[best] < dev[first]
+    return [finding(claim, "reproduced" if ok else "not reproduced",
+                    "mean σ̂/σ_plant (joints " + "/".join(str(j) for j in joints) + ") over "
+                    "the 20 s before " + "; ".join(f"{s[len('until_'):]} s: "
+                                                   f"{' / '.join(num(x) for x in per[s])}"
+                                                   for s in ends)
+                    + f"; closest to 1 after the first at {best[len('until_'):]} s "
+                      "(reproduced when within 5 % of 1 and closer than the first; later "
+                      "the λ = 1 estimate trails the wearing springs)",
+                    kind="diagnostic",
+                    metrics=[f"dof2_stiffness_ratio_to_plant_joint{j}_{s}" for s in ends
+                             for j in joints])]
 
 
 EXPERIMENT = Experiment(
@@ -255,22 +334,17 @@ is then of the order of the ideal-sensor run. Against the datasheet springs
 **2-DoF: the plant's springs, not the datasheet's.** The estimator holds no spring model
 (eq. 7.9 uses only the link dynamics, which the plant shares), so it cannot take the
 datasheet's springs; `dof2_stiffness_ratio_to_plant_*` (mean σ̂/σ, 1 the plant's springs,
-1/1.2 = 0.833 the datasheet's) says where it lands. Full run: 0.978 / 0.970. The
-`--quick` run (40-s phases) reads 0.776 / 0.725, near the datasheet by chance: the RLS,
-without forgetting and with P₁, P₂ up to 10⁷, is thrown to −1.6 / −2.9 × the plant in
-the first 5 s and is still climbing at 80 s. Measured one change at a time on the same
-quick run (`benchmarks/ch7_dof2_probe.py`, σ̂/σ on [60, 80) s; as run 0.816 / 0.769):
-every encoder exact 0.989 / 0.988; exact link encoder, quantised motors 0.989 / 0.989;
-quantised link, exact motors 0.813 / 0.757 (the link encoder's quantisation enters both
-the target, through q⁽³⁾, and φ̇); P(0) = 10⁸ I 0.798 / 0.776; plant springs 1.0 or
-1.4 × the datasheet's 0.993 / 0.992, 0.978 / 0.970, each against its own plant. Starting
-the RLS later instead, at 2, 3.2, 4.155, 4.2, 4.23, 4.25, 5, 10 or 20 s, gives 0.938,
-0.913, 1.142, 1.044, 0.864, 1.105, 1.081, 1.024, 0.983 on joint 1: a shift of 20 ms
-(4.23 to 4.25 s) moves it by 0.24, across the plant: where a 40-s phase leaves it
-depends on which encoder noise its first seconds saw, and no start rule is a fix (the RLS
-started once the low-pass has settled to 1e-3, 4.23 s, was tried and left out: quick
-2-DoF 0.82 / 0.83, full 0.985 / 0.982, 1-DoF quick MSE 0.029 to 0.034). Over the full
-run the start costs 2-3 % (σ̂/σ on [600, 800) s: 0.982 / 0.974 as run, 0.999 / 0.996
-with exact encoders). The quick 2-DoF MSE is an unconverged start, not a model error.
+below 1 the datasheet's) says where it lands. A short run can land anywhere: the RLS,
+without forgetting and with P₁, P₂ up to 10⁷, starts far from the plant and is still
+moving at 80 s. Measured (issue 32, replacing an earlier attribution to the encoders'
+resolution): quick runs, `softgen reproduce ch7-noninvasive-protocol --quick --set
+encoder_counts=N`, give σ̂/σ on [60, 80) s of 0.856 / 0.886 at N = 4096, 0.908 / 0.870 at
+8192 and 1.113 / 1.143 at 8200: a 0.1 % change of resolution moves it across 1, so it
+follows the noise the RLS's first seconds saw, not the resolution. And the full run's
+`dof2_stiffness_ratio_to_plant_joint*_until_<t>`, the ratio over
+the 20 s before t = 80, 200, 400 and 800 s of the same run, moves from its early value
+towards 1 as the RLS converges (the finding "Cause (issue 32)" grades it); the wear of the
+emulated springs then leaves the λ = 1 estimate a few per cent behind the plant late in
+the run.
 """,
 )

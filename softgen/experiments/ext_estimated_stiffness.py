@@ -153,38 +153,49 @@ def _value(m: Metrics, quantity: str, source: str = "", prefix: str = "") -> flo
 
 
 def findings(m: Metrics, c: Config | None = None) -> list[dict]:
-    """The extension's claims (thresholds in each evidence text)."""
-    out = []
+    """The extension's claims (thresholds in each evidence text); each finding's
+    ``metrics`` are the records its check read."""
+    out: list[dict] = []
+    seen: list[str] = []
+
+    def val(quantity: str, source: str = "", prefix: str = "") -> float | None:
+        r = m.find(quantity, suffix=source, prefix=prefix)
+        if r is not None:
+            seen.append(r.key)
+        return None if r is None else r.value
+
     claim = ("Beyond the thesis: the stiffness loop closed on an online estimate (the better "
              f"of the two) tracks within {RATIO:g}× the stiffness rms error of true-σ feedback.")
-    true = _value(m, "stiffness_rms_error", "true_feedback")
+    true = val("stiffness_rms_error", "true_feedback")
     if true is None:
         out.append(not_checked(claim, ["stiffness_rms_error (true_feedback)"]))
     else:
         kinds = ("invasive", "noninvasive")
         got = {k: x for k in kinds
-               if (x := _value(m, "stiffness_rms_error", f"estimated_feedback_{k}")) is not None}
+               if (x := val("stiffness_rms_error", f"estimated_feedback_{k}")) is not None}
         div = {k: x for k in kinds
-               if (x := _value(m, "divergence_time", f"estimated_feedback_{k}")) is not None}
+               if (x := val("divergence_time", f"estimated_feedback_{k}")) is not None}
         best = min(got, key=got.get) if got else None
         ev = [f"true σ {num(true)} N m/rad"]
         ev += [f"{k} estimate {num(v)} N m/rad ({num(v / true)}×)" for k, v in got.items()]
         ev += [f"{k} feedback diverged at t = {num(t)} s" for k, t in div.items()]
         ok = best is not None and got[best] < RATIO * true
         out.append(finding(claim, "reproduced" if ok else "not reproduced",
-                           "; ".join(ev) + f"; required < {RATIO:g}× true-σ feedback."))
+                           "; ".join(ev) + f"; required < {RATIO:g}× true-σ feedback.",
+                           metrics=list(seen)))
+    seen.clear()
     claim = ("Beyond the thesis: what limits the estimated loop is the estimate's error from "
              "quantised encoders, not the estimator's delay.")
     need = {"true": ("stiffness_rms_error", "true_feedback", ""),
             "delayed": ("stiffness_rms_error", "delayed_true_feedback", ""),
             "quantised": ("estimate_rms_error", "invasive", ""),
             "ideal": ("estimate_rms_error", "invasive", "ideal_encoders_")}
-    v = {k: _value(m, *w) for k, w in need.items()}
+    v = {k: val(*w) for k, w in need.items()}
     if lost := [f"{w[2]}{w[0]} ({w[1]})" for k, w in need.items() if v[k] is None]:
         out.append(not_checked(claim, lost))
     else:
-        non = (_value(m, "estimate_rms_error", "noninvasive"),
-               _value(m, "estimate_rms_error", "noninvasive", "ideal_encoders_"))
+        non = (val("estimate_rms_error", "noninvasive"),
+               val("estimate_rms_error", "noninvasive", "ideal_encoders_"))
         out.append(finding(claim, graded([abs(v["delayed"] - v["true"]) < 0.1 * v["true"],
                                           v["quantised"] > 10 * v["ideal"]]),
                            f"True σ delayed by L + 1 samples: stiffness rms {num(v['delayed'])} "
@@ -192,10 +203,12 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
                            f"invasive estimate rms error {num(v['quantised'])} N m/rad with "
                            f"8192-count encoders, {num(v['ideal'])} with ideal ones (required "
                            "> 10×)" + (f"; non-invasive {num(non[0])} against {num(non[1])}"
-                                       if None not in non else "") + "."))
+                                       if None not in non else "") + ".",
+                           metrics=list(seen)))
+    seen.clear()
     claim = ("Beyond the thesis: the estimate may close the loop only once the RLS has "
              "converged.")
-    div, ran = (_value(m, q, "estimated_feedback_invasive", "early_switch_")
+    div, ran = (val(q, "estimated_feedback_invasive", "early_switch_")
                 for q in ("divergence_time", "stiffness_rms_error"))
     if div is None and ran is None:
         out.append(not_checked(claim, ["early_switch_divergence_time (invasive)"]))
@@ -204,7 +217,7 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
                            "Switching to the invasive estimate at t_on_early " + (
                                f"diverged at t = {num(div)} s" if div is not None else
                                f"ran (stiffness rms {num(ran)} N m/rad)")
-                           + "; required: the early switch diverges."))
+                           + "; required: the early switch diverges.", metrics=list(seen)))
     return out
 
 

@@ -16,8 +16,9 @@ from collections.abc import Callable
 
 from softgen.core.config import Config
 from softgen.core.errors import ExperimentError
-from softgen.core.metrics import (VERDICTS, Metric, Metrics, absent, finding, graded,  # noqa: F401
-                       not_checked, num, times)
+from softgen.core.metrics import (KINDS, MAX_BAND, VERDICTS, Metric, Metrics,  # noqa: F401
+                                  absent, banded, finding, graded, in_band, not_checked, num,
+                                  ratio, times)
 
 #: id -> module (relative to this package); order is the order of ``softgen list``.
 _MODULES = {
@@ -63,9 +64,10 @@ class Experiment:
     # How to read ours against the thesis's (markdown; refers to metric names, never
     # to numbers, which come only from the run).
     discussion: str = ""
-    # metrics -> [{"claim", "verdict", "evidence"}]: the thesis's claims checked against
-    # the run. Verdicts follow thresholds written in the function, numbers in the
-    # evidence are formatted from the metrics passed in (see :func:`finding`).
+    # metrics -> [{"claim", "verdict", "evidence", "kind", "metrics", "band"}]: the
+    # thesis's claims checked against the run. Verdicts follow thresholds written in the
+    # function, numbers in the evidence are formatted from the metrics passed in (see
+    # :func:`finding`); a comparison with a thesis number grades in a two-sided band.
     findings: Callable[[Metrics, Config], list[dict]] | None = None
     # config -> metrics of one run, no files written: what a sweep evaluates per sample
     # (``softgen sweep``). Without it a sweep calls ``run`` into a scratch directory.

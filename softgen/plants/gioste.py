@@ -57,11 +57,18 @@ Links
     σ = 10 N m/rad) is damped only by the feedback, which in the controller's units
     is K_d K_1, a few hundredths of a N m s/rad.
 Encoders
-    HEDS-5500 A12: 500 cycles per revolution, read in quadrature (×4):
-    ``counts_per_rev`` = 2000, 3.1·10⁻³ rad per count. The thesis prints 1.6·10⁻³ rad
-    for the same encoder, which would take 4000 counts (2π/4000 = 1.57·10⁻³); we
-    follow the part number. The angle is rounded to the nearest count (the encoders
-    are zeroed against the vertical, so readings are absolute).
+    HEDS-5500 A12: 500 cycles per revolution, read in quadrature (×4), would be 2000
+    counts, 3.1·10⁻³ rad per count; the thesis prints 1.6·10⁻³ rad, 4000 counts
+    (2π/4000 = 1.57·10⁻³), and ``counts_per_rev`` = 4000 follows the thesis (issue 32:
+    the emulation of what the thesis reports; 2000 is the part number's reading). The
+    angle is rounded to the nearest count (the encoders are zeroed against the
+    vertical, so readings are absolute).
+Pressure regulators
+    Each valve's pressure target carries the regulator's ripple: seeded Gaussian noise
+    of ``pressure_noise`` Pa (default 5 kPa, 1 % of the 6 V pressure; the thesis gives no
+    figure) added to the target after the transport delay, filtered by the valve's lag
+    (``pressure_noise`` = 0: none). The noise is an external input of the loop,
+    ``pressure_noise`` (standard normal samples, :func:`pressure_noise`).
 Velocity
     A dirty derivative of the encoder reading: v_k = a v_{k−1} + (1 − a)(q_k −
     q_{k−1})/T, a = exp(−T/τ_f), τ_f = ``velocity_filter`` = 0.02 s (first-order
@@ -106,7 +113,7 @@ import casadi as ca
 import numpy as np
 
 from softgen.blocks import Block, ClosedLoop, Layout
-from softgen.blocks.sensors import delay_block, encoder_block
+from softgen.blocks.sensors import delay_block, encoder_block, noise_block
 from softgen.control.pneumatic import REFERENCE_BLOCKS, PneumaticArm
 from softgen.control.pneumatic_loop import controller_block
 from softgen.control.references import SmoothSteps, stiffness_reference_block
@@ -338,7 +345,9 @@ class HardwareConfig:
     valve_tau: float = 0.15          # s, first-order pressure response
     valve_delay: float = 0.01        # s, transport delay before the lag
     friction: float = 0.05           # N m s/rad, viscous, every joint
-    counts_per_rev: int = 2000       # HEDS-5500 A12: 500 cycles/rev, quadrature (x4) decoding
+    counts_per_rev: int = 4000       # the thesis's 1.6e-3 rad (module docstring)
+    pressure_noise: float = 5e3      # Pa, std of the regulators' target ripple (0: none)
+    noise_seed: int = 1003           # seed of the regulators' noise
     velocity_filter: float = 0.02    # s, dirty-derivative time constant
     substeps: int = 2                # RK4 steps of the plant per sample
     map_origin: str = "zero_pressure"  # how eq. 10.10 and 10.11 compose (map_voltage)
@@ -650,16 +659,28 @@ def loop_diagram(emu: GiosteEmulation, kind: str, dt: float, *,
               controller_block(emu.arm, kind, dt), emu.valve_block(), emu.plant_block(dt)]
     wires = [("enc.q_m", "ctrl.q"), ("vel.v", "ctrl.qd"), ("ref.ref", "ctrl.ref"),
              ("ctrl.p", "valves.p_cmd")]
+    target = "valves.p_target"
     if d:       # the valves' transport delay (state delay.p_target_line, oldest first)
         blocks.append(delay_block("delay", {"p_target": 2 * n}, d, dt=dt))
-        wires += [("valves.p_target", "delay.p_target"), ("delay.p_target_d", "plant.p_target")]
-    else:
-        wires.append(("valves.p_target", "plant.p_target"))
+        wires.append((target, "delay.p_target"))
+        target = "delay.p_target_d"
+    ext = {"ref": 6 * n} if reference is None else {}
+    if emu.hw.pressure_noise > 0:   # the regulators' ripple on the target
+        blocks.append(noise_block("reg", {"p_target": 2 * n}, emu.hw.pressure_noise))
+        wires += [(target, "reg.p_target"), ("ext.pressure_noise", "reg.p_target_noise")]
+        target = "reg.p_target_m"
+        ext["pressure_noise"] = 2 * n
+    wires.append((target, "plant.p_target"))
     if reference is None:
         wires.append(("ext.ref", "ref.u"))
     tag = f"{emu.name}_{emu.tag}_{kind}_dt{dt:.3e}".replace(".", "p").replace("-", "m")
-    return ClosedLoop(tag.replace("+", ""), blocks, wires,
-                      externals={"ref": 6 * n} if reference is None else None)
+    return ClosedLoop(tag.replace("+", ""), blocks, wires, externals=ext or None)
+
+
+def pressure_noise(hw: HardwareConfig, steps: int, n: int) -> np.ndarray:
+    """The regulators' standard normal samples (steps × 2n), seeded by ``hw.noise_seed``:
+    the same sequence for every run of a configuration (runs compare on one draw)."""
+    return np.random.default_rng(hw.noise_seed).standard_normal((steps, 2 * n))
 
 
 def emergency_stop(bound: float):

@@ -17,6 +17,7 @@ It returns a :class:`Trace` of named signals.
 """
 from __future__ import annotations
 
+import json
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -92,6 +93,11 @@ class Trace:
         """
         names = list(self.signals) if signals is None else list(signals)
         arrays = {"t": self.t, **{n.replace(".", "_"): self[n] for n in names}}
+        units = self.meta.get("units") or {}
+        if any(n in units for n in names):
+            # The signals' units (``softgen plot`` labels its axes with them), as JSON text.
+            arrays[UNITS_KEY] = np.array(json.dumps(
+                {n.replace(".", "_"): units[n] for n in names if n in units}, sort_keys=True))
         if self.stopped_at is not None:
             extra = {"stopped_at": np.array(self.stopped_at), **extra}
         save_traces(path, {**arrays, **extra}, every=every, full=full)
@@ -144,6 +150,9 @@ _PROGRESS: dict = {"show": None, "prefix": ""}
 
 
 _TRACES = {"full": False}
+
+#: The array of a saved trace that holds its signals' units (JSON text, name -> unit).
+UNITS_KEY = "units"
 
 
 def save_traces(path, arrays: Mapping[str, np.ndarray] | None = None, *,
@@ -347,7 +356,8 @@ def simulate(diagram: ClosedLoop, duration: float | None = None, *, steps: int |
     t = signals.pop(TIME)[:, 0].copy()
     return Trace(t=t, signals=signals, final_state=diagram.state.split(final),
                  next_k=k0 + n_done, stopped_at=stopped_at, stop_reason=reason,
-                 wall_seconds=wall, meta={"dt": dt, "diagram": diagram.name},
+                 wall_seconds=wall, meta={"dt": dt, "diagram": diagram.name,
+                                          "units": {r.name: r.unit for r in rows if r.unit}},
                  cpu_seconds=cpu, steps=n_done, every=every)
 
 

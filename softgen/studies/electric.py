@@ -315,10 +315,10 @@ def cascade_figure(path, tr: Trace, title: str, *, parameter_nominal=None,
             a.legend(loc="upper right", fontsize=7)
     if adaptive:
         ax[4, 0].plot(t, tr["ctrl.pi_hat"] / parameter_nominal, lw=1)
-        ax[4, 0].set_ylabel("π̂ / π (link)")
+        ax[4, 0].set_ylabel("π̂ / π (link) [1]")
         ax[4, 1].plot(t, tr["ctrl.pi_m_hat"][:, :2 * n] / motor_parameter_nominal[:2 * n],
                       lw=1)
-        ax[4, 1].set_ylabel("b̂ / b (motors)")
+        ax[4, 1].set_ylabel("b̂ / b (motors) [1]")
     for a in ax[-1]:
         a.set_xlabel("t [s]")
     fig.suptitle(title)
@@ -345,7 +345,7 @@ def feedback_figure(path, traces: Mapping[str, Trace], t_on: float) -> None:
         for k in ("inv", "non"):
             ax[1, j].plot(tr0.t, tr0[f"{k}.sigma_hat"][:, j], lw=0.8, label=f"σ̂ {k}")
         ax[0, j].set_ylabel(f"σ{j + 1} [N m/rad]")
-        ax[1, j].set_ylabel(f"σ̂{j + 1}, loop on true σ")
+        ax[1, j].set_ylabel(f"σ̂{j + 1}, loop on true σ [N m/rad]")
         ax[1, j].set_ylim(0, 2 * tr0["ref.sigma_d"][:, j].max())
         ax[1, j].set_xlabel("t [s]")
         for a in ax[:, j]:

@@ -14,7 +14,8 @@ from softgen.runtime.simulate import Trace
 from softgen.studies.plotting import envelope, save
 
 #: Panels of :func:`gioste_runs`: signal, y label.
-PANELS = {"q": "q [rad]", "sigma": "σ [N m/rad]", "nu": "ν", "Pi_hat": "Π̂", "V": "V [V]"}
+PANELS = {"q": "q [rad]", "sigma": "σ [N m/rad]", "nu": "ν [p per unit of Φ⊥]",
+          "Pi_hat": "Π̂ [each its own unit, Π = π/K₁]", "V": "V [V]"}
 
 
 def _save(fig: Figure, path, dpi: int) -> None:
@@ -89,7 +90,7 @@ def theorem5_tracking(out: Path, tr: Trace, Pi_nominal, parameter_names, phase_s
         ax[2, j].plot(t, p[:, 2 * j + 1] / 1e5, lw=1, label="p_b")
         ax[2, j].set_ylabel("pressure [bar]")
         ax[3, j].plot(t, tr["ctrl.nu"][:, j], lw=1)
-        ax[3, j].set_ylabel(f"ν{j + 1}")
+        ax[3, j].set_ylabel(f"ν{j + 1} [p per unit of Φ⊥]")
         ax[3, j].set_xlabel("t [s]")
         for a in ax[:3, j]:
             a.legend(loc="upper left", fontsize=7)
@@ -102,7 +103,7 @@ def theorem5_tracking(out: Path, tr: Trace, Pi_nominal, parameter_names, phase_s
     ax = fig.subplots()
     ax.plot(t, tr["ctrl.Pi_hat"] / Pi_nominal, lw=1)
     ax.legend(parameter_names, fontsize=7, loc="upper right")
-    ax.set(xlabel="t [s]", ylabel="Π̂ / Π", title="Parameter estimates (cf. Fig. 10.3)")
+    ax.set(xlabel="t [s]", ylabel="Π̂ / Π [1]", title="Parameter estimates (cf. Fig. 10.3)")
     _save(fig, out / "fig10_3_parameters.png", 110)
 
 
@@ -134,7 +135,7 @@ def fl_comparison(out: Path, traces: dict, titles: list[str], Pi_nominal, parame
         ax[2].set_prop_cycle(None)
         ax[2].plot(traces[name]["t"], traces[name]["Pi_hat"] / Pi_nominal, style, lw=0.8,
                    label=parameter_names if style == "-" else None)
-    ax[2].set_ylabel("Π̂ / Π (solid: Π̂(0) = 0.99 Π, dashed: Π̂(0) = Π)")
+    ax[2].set_ylabel("Π̂ / Π [1] (solid: Π̂(0) = 0.99 Π, dashed: Π̂(0) = Π)")
     for a in ax:
         a.set_xlabel("t [s]")
         a.legend(loc="upper right", fontsize=7)
@@ -155,10 +156,13 @@ def adaptive_tracking(out: Path, t, err, P, names, nominal) -> None:
     _save(fig, out / "tracking_error.png", 110)
     fig = Figure(figsize=(8, 4))
     ax = fig.subplots()
+    # Each estimate over its true value: one unit for parameters of several (issue 32).
+    scale = np.where(np.asarray(nominal, dtype=float) == 0, 1.0, np.asarray(nominal, dtype=float))
     for j, name in enumerate(names):
-        line, = ax.plot(t, P[:, j], lw=1, label=name)
-        ax.axhline(nominal[j], color=line.get_color(), ls=":", lw=1)
-    ax.set(xlabel="t [s]", ylabel="pi_hat", title="Base-parameter estimates (dotted: true values)")
+        ax.plot(t, P[:, j] / scale[j], lw=1, label=name)
+    ax.axhline(1.0, color="0.5", ls=":", lw=1)
+    ax.set(xlabel="t [s]", ylabel="π̂_i / π_i [1]",
+           title="Base-parameter estimates over their true values (dotted: 1)")
     ax.legend(fontsize=7, loc="upper right")
     _save(fig, out / "parameter_estimates.png", 110)
 
@@ -180,11 +184,12 @@ def robustness(path, errors: dict[str, dict[str, np.ndarray]], tolerances: dict[
         ax[k].axhline(tolerances[key], color="k", ls="--", lw=0.8, label="ch10 tolerance")
         ax[k].set_yscale("log")
         ax[k].set_xticks(range(len(names)), names, rotation=35, fontsize=7, ha="right")
+        ax[k].set_xlabel("study [name]", fontsize=8)
         ax[k].set_ylabel(label + " (bounded samples)", fontsize=8)
         ax[k].legend(fontsize=7)
     ax[2].plot(np.array(sizes) * 100, tracks, "o-", label="tracks (ch10 tolerance)")
     ax[2].plot(np.array(sizes) * 100, runaway, "s--", label="runaway (> 1 rad)")
-    ax[2].set(xscale="log", xlabel="muscle length error, ± %", ylabel="fraction of samples")
+    ax[2].set(xscale="log", xlabel="muscle length error [± %]", ylabel="fraction of samples [1]")
     ax[2].legend(fontsize=7)
     fig.suptitle(title)
     _save(fig, path, 110)

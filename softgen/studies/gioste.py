@@ -21,7 +21,7 @@ from softgen.modelfile.model import RobotModel
 from softgen.modelfile.load import load_model
 from softgen.plants.gioste import (STOP_SIGNALS, V_MAX, GiosteEmulation, HardwareConfig,
                                    delay_samples, emergency_stop, equilibrium, fitted_model,
-                                   kpi_vector, loop_diagram, reference_layout)
+                                   kpi_vector, loop_diagram, pressure_noise, reference_layout)
 from softgen.runtime.simulate import Trace
 from softgen.studies.gains import Theorem5Gains, thesis_to_physical
 from softgen.studies.scenario import Scenario
@@ -115,9 +115,12 @@ def scenario(emu: GiosteEmulation, kind: str, ref: np.ndarray, gains: Theorem5Ga
     if (kind, dt) not in emu.diagrams:
         emu.diagrams[kind, dt] = loop_diagram(emu, kind, dt)
     d = emu.diagrams[kind, dt]
+    ext = {"ref": ref}
+    if "pressure_noise" in d.externals:     # the regulators' ripple (HardwareConfig)
+        ext["pressure_noise"] = pressure_noise(emu.hw, ref.shape[0], emu.n)
     return Scenario(f"gioste {kind}", d, steps=ref.shape[0],
                     x0=initial_state(emu, kind, ref[0], gains, Pi_hat0=Pi_hat0, dt=dt),
-                    params=gains.params(d.params.names), externals={"ref": ref},
+                    params=gains.params(d.params.names), externals=ext,
                     stop=[emergency_stop(divergence)], record=record, on_nonfinite="stop",
                     chunk=chunk)
 

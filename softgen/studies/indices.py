@@ -215,13 +215,18 @@ def estimation_figure(path, t, truth_sigma, truth_tau, res: EstimationResult, *,
         ax[2, i].set_ylabel("|relative error| [%]")
         for r, th in theta.items():
             if int(r.rstrip("ab")[len("joint"):]) - 1 == i:
+                # Each parameter over its final value on a linear axis (issue 32: the
+                # symlog axis of the raw values, several units on one axis, was unreadable).
+                rows = np.all(np.isfinite(th), axis=1)
+                end = th[rows][-1] if rows.any() else np.ones(th.shape[1])
+                end = np.where(np.abs(end) > 0, end, 1.0)
                 for j in range(th.shape[1]):
-                    ax[3, i].plot(t, th[:, j], lw=0.8, label=f"{r} {names[r][j]}")
-        ax[3, i].set_ylabel("RLS parameters")
-        ax[3, i].set_yscale("symlog", linthresh=1e-3)
+                    ax[3, i].plot(t, th[:, j] / end[j], lw=0.8, label=f"{r} {names[r][j]}")
+        ax[3, i].set_ylabel("RLS Π̂_p / Π̂_p(end) [1]")
+        ax[3, i].set_ylim(-1.0, 3.0)
         ax[3, i].set_xlabel("t [s]")
         for a in ax[:, i]:
-            a.legend(fontsize=6, ncol=2, loc="upper left")
+            a.legend(fontsize=7, ncol=2, loc="upper left")
     save(fig, path, dpi=100)
 
 

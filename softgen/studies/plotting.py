@@ -9,6 +9,8 @@ bucket's first, smallest, largest and last sample so peaks stay visible.
 """
 from __future__ import annotations
 
+import re
+import warnings
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -38,9 +40,10 @@ def _grid(fig: Figure):
     return nrows, ncols, inner_x, titled
 
 
-def fixed_layout(fig: Figure) -> None:
+def fixed_layout(fig: Figure, extra_bottom: float = 0.0) -> None:
     """Place the subplots of ``fig`` with fixed margins computed from its grid shape
-    (rows, columns, shared x, titles, suptitle) rather than by measuring every label."""
+    (rows, columns, shared x, titles, suptitle) rather than by measuring every label;
+    ``extra_bottom`` inches more below (a figure legend's strip)."""
     w, h = fig.get_size_inches()
     nrows, ncols, inner_x, titled = _grid(fig)
     sup = fig.get_suptitle() != ""
@@ -48,8 +51,8 @@ def fixed_layout(fig: Figure) -> None:
     hgap = (XTICKS if inner_x else 0.12) + (TITLE if titled else 0.0)
     wgap = LEFT
     axw = (w - LEFT - RIGHT - wgap * (ncols - 1)) / ncols
-    axh = (h - BOTTOM - top - hgap * (nrows - 1)) / nrows
-    fig.subplots_adjust(left=LEFT / w, right=1 - RIGHT / w, bottom=BOTTOM / h,
+    axh = (h - BOTTOM - extra_bottom - top - hgap * (nrows - 1)) / nrows
+    fig.subplots_adjust(left=LEFT / w, right=1 - RIGHT / w, bottom=(BOTTOM + extra_bottom) / h,
                         top=1 - top / h, wspace=wgap / axw, hspace=hgap / axh)
 
 
@@ -114,12 +117,158 @@ def thin_ticks(fig: Figure) -> None:
                 axis.set_minor_formatter(_plain_log_formatter(axis.get_minor_formatter()))
 
 
+class FigureWarning(UserWarning):
+    """A figure a reader cannot read (issue 32): an axis without a label and a unit, or a
+    legend that covers data. ``reproduce`` keeps it in metrics.json and the report."""
+
+
+#: A unit in an axis label: ``[N m]``, ``[rad/s]``, ``[1]`` for a dimensionless quantity.
+UNIT = re.compile(r"\[[^\]]+\]")
+
+
+def _segments(ax) -> np.ndarray:
+    """Every drawn line segment and marker of axes ``ax`` in display coordinates, (k, 4)."""
+    out = []
+    for line in ax.get_lines():
+        if not line.get_visible():
+            continue
+        xy = line.get_transform().transform(np.asarray(line.get_xydata(), dtype=float))
+        xy = xy[np.all(np.isfinite(xy), axis=1)]
+        if len(xy) == 1:
+            xy = np.vstack([xy, xy])
+        if len(xy) >= 2:
+            out.append(np.hstack([xy[:-1], xy[1:]]))
+    for col in ax.collections:
+        off = np.asarray(col.get_offsets(), dtype=float)
+        if col.get_visible() and off.size:
+            xy = col.get_offset_transform().transform(off)
+            out.append(np.hstack([xy, xy]))
+    return np.vstack(out) if out else np.zeros((0, 4))
+
+
+def _crossing(seg: np.ndarray, box) -> int:
+    """How many segments (x0, y0, x1, y1) meet the rectangle ``box`` (Liang-Barsky)."""
+    if not len(seg):
+        return 0
+    x0, y0, x1, y1 = seg.T
+    dx, dy = x1 - x0, y1 - y0
+    t0, t1 = np.zeros(len(seg)), np.ones(len(seg))
+    ok = np.ones(len(seg), dtype=bool)
+    for p, q in ((-dx, x0 - box.x0), (dx, box.x1 - x0), (-dy, y0 - box.y0), (dy, box.y1 - y0)):
+        par = p == 0
+        ok &= ~(par & (q < 0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(par, 0.0, q / np.where(par, 1.0, p))
+        t0 = np.where(~par & (p < 0), np.maximum(t0, r), t0)
+        t1 = np.where(~par & (p > 0), np.minimum(t1, r), t1)
+    return int(np.count_nonzero(ok & (t0 <= t1)))
+
+
+def _renderer(fig: Figure):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    if not isinstance(fig.canvas, FigureCanvasAgg):
+        FigureCanvasAgg(fig)
+    return fig.canvas.get_renderer()
+
+
+def covered(fig: Figure) -> dict:
+    """``{legend: segments of data it covers}`` over every legend of ``fig`` (axes and
+    figure legends) against every axes' lines and markers, in display coordinates; only
+    the part of a segment inside its axes counts (the rest is clipped, not drawn)."""
+    from matplotlib.transforms import Bbox
+    r = _renderer(fig)
+    axes = [(a.get_window_extent(r), _segments(a)) for a in fig.axes
+            if a.name == "rectilinear"]
+    legends = [a.get_legend() for a in fig.axes if a.get_legend() is not None] + fig.legends
+    out = {}
+    for leg in legends:
+        box = leg.get_window_extent(r)
+        n = 0
+        for abox, seg in axes:
+            both = Bbox.intersection(box, abox)
+            if both is not None and both.width > 0 and both.height > 0:
+                n += _crossing(seg, both)
+        out[leg] = n
+    return out
+
+
+_INSIDE = ("upper right", "upper left", "lower right", "lower left", "center right",
+           "center left", "upper center", "lower center")
+
+
+def place_legends(fig: Figure) -> None:
+    """Move every axes legend that covers data to a corner of its axes where it covers
+    none, else into a strip below the figure (the figure grows by its height): a legend
+    never hides data (issue 32)."""
+    bad = [leg for leg, n in covered(fig).items() if n and leg.axes is not None]
+    strip = []
+    for leg in bad:
+        for loc in _INSIDE:
+            leg.set_loc(loc)
+            if covered(fig)[leg] == 0:
+                break
+        else:
+            strip.append(leg)
+    if not strip:
+        return
+    handles, labels = [], []
+    for leg in strip:
+        ax = leg.axes
+        for h, t in zip(leg.legend_handles, [t.get_text() for t in leg.get_texts()]):
+            if t not in labels:
+                handles.append(h)
+                labels.append(t)
+        ax.legend_ = None
+    w, h = fig.get_size_inches()
+    ncol = max(1, min(len(labels), int(w // 1.6)))
+    rows = -(-len(labels) // ncol)
+    extra = 0.22 * rows + 0.15
+    fig.set_size_inches(w, h + extra)
+    fixed_layout(fig, extra_bottom=extra)
+    fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=8, frameon=False,
+               bbox_to_anchor=(0.5, 0.0))
+
+
+def figure_problems(fig: Figure) -> list[str]:
+    """What a reader of ``fig`` cannot read: an axis with data but no label with a unit
+    in brackets (:data:`UNIT`; only where its tick labels show: a shared axis without
+    them reads its neighbour's), a legend covering data."""
+    out = []
+    for k, a in enumerate(fig.axes):
+        if not (a.get_lines() or a.collections or a.images):
+            continue
+        where = f"axes {k + 1}" + (f" ({a.get_title()})" if a.get_title() else "")
+        axes = []
+        # An axis shared with its neighbour and drawn without tick labels needs no label.
+        yt = a.yaxis.get_tick_params()
+        if yt.get("labelleft", True) or yt.get("labelright", False) or a.get_ylabel():
+            axes.append(("y", a.get_ylabel()))
+        if a.xaxis.get_tick_params().get("labelbottom", True) or a.get_xlabel():
+            axes.append(("x", a.get_xlabel()))
+        if a.name == "3d":
+            axes.append(("z", a.get_zlabel()))
+        for name, label in axes:
+            if not UNIT.search(label or ""):
+                out.append(f"{where}: {name} axis label {label!r} has no unit in brackets")
+    for leg, n in covered(fig).items():
+        if n:
+            where = "figure legend" if leg.axes is None else "legend"
+            out.append(f"{where} covers {n} data segments")
+    return out
+
+
 def save(fig: Figure, path, dpi: int) -> None:
-    """Lay ``fig`` out once (:func:`fixed_layout`, :func:`thin_ticks`) and write it as
-    PNG at ``dpi``, atomically (:func:`softgen.core.atomic.replacing`: a figure function
-    called outside ``reproduce``'s staging directory never leaves half a PNG)."""
+    """Lay ``fig`` out once (:func:`fixed_layout`, :func:`thin_ticks`), move legends off
+    the data (:func:`place_legends`) and write it as PNG at ``dpi``, atomically
+    (:func:`softgen.core.atomic.replacing`: a figure function called outside
+    ``reproduce``'s staging directory never leaves half a PNG). What still makes it
+    unreadable (:func:`figure_problems`) is a :class:`FigureWarning`."""
     fixed_layout(fig)
     thin_ticks(fig)
+    place_legends(fig)
+    for problem in figure_problems(fig):
+        warnings.warn(f"figure {getattr(path, 'name', path)}: {problem}", FigureWarning,
+                      stacklevel=2)
     with replacing(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")
 
@@ -156,4 +305,5 @@ def envelope(t, y, buckets: int = 1500):
     return ty, (out[:, 0] if flat else out)
 
 
-__all__ = ["save", "fixed_layout", "thin_ticks", "envelope"]
+__all__ = ["save", "fixed_layout", "thin_ticks", "envelope", "FigureWarning",
+           "figure_problems", "place_legends", "covered"]

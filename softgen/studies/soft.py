@@ -15,7 +15,11 @@ error (rad, or m for pcc-3d) of the true state:
 
 - ``position_rms_error``: rms of ‖e(t)‖₂ over the last ``window`` seconds;
 - ``position_max_error_final``: max of ‖e(t)‖₂ over the same window;
-- ``parameter_estimate_max_norm``: max over the run of ‖π̂(t)‖₂;
+- ``parameter_estimate_max_ratio``: max over the run of ‖π̂(t)‖₂ / ‖π‖₂, π the model's
+  true base parameters (a norm over parameters of different units, so relative to the
+  truth: one unit, "1"; issue 32);
+- ``parameter_estimate_norm_drift``: relative change of ‖π̂‖ along its trend over the
+  second half of the run;
 - ``input_max_abs``: max over the run and the actuators of |τ_i(t)|;
 - ``convergence_time``: the first time after which ‖e‖ stays below ``band``;
 - ``position_rms_error_initial``: rms of ‖e‖ over the first ``initial`` seconds;
@@ -197,8 +201,9 @@ def convergence_time(t: np.ndarray, err: np.ndarray, band: float) -> float:
 
 
 def tracking_records(t, q_d, q, pi_hat, tau, *, unit: str, window: float, band: float,
-                     initial: float, suffix: str = "") -> Metrics:
-    """The §12.2 records of one scenario (module docstring)."""
+                     initial: float, suffix: str = "", pi_true) -> Metrics:
+    """The §12.2 records of one scenario (module docstring); ``pi_true``: the plant's base
+    parameters π, what ‖π̂‖ is measured against."""
     e = np.linalg.norm(q_d - q, axis=1)
     last = t >= t[-1] - window
     first = t <= t[0] + initial
@@ -206,7 +211,8 @@ def tracking_records(t, q_d, q, pi_hat, tau, *, unit: str, window: float, band: 
     m.add("position_rms_error", np.sqrt(np.mean(e[last] ** 2)), unit, suffix=suffix)
     m.add("position_max_error_final", e[last].max(), unit, suffix=suffix)
     norm = np.linalg.norm(pi_hat, axis=1)
-    m.add("parameter_estimate_max_norm", norm.max(), "mixed", suffix=suffix)
+    m.add("parameter_estimate_max_ratio", norm.max() / np.linalg.norm(pi_true), "1",
+          suffix=suffix)
     m.add("parameter_estimate_norm_drift", norm_drift(t, norm), "1", suffix=suffix)
     m.add("input_max_abs", np.abs(tau).max(), "N m, N" if unit == "m" else "N m",
           suffix=suffix)
@@ -221,9 +227,11 @@ def shape_trace(dyn: SoftDynamics, Q: np.ndarray, per_segment: int = 8) -> np.nd
 
 
 def scenario_figure(t, q_d, q, pi_hat, tau, shapes, *, title: str, unit: str,
-                    three_d: bool = False, t_on: float | None = None) -> Figure:
+                    three_d: bool = False, t_on: float | None = None,
+                    pi_true=None) -> Figure:
     """Two rows like Fig. 12.2-12.7: configuration and reference (dashed), errors
-    θ̃ = q_d − q, estimates π̂; inputs τ, ‖θ̃‖ (log), shape trace (backbone drawn at
+    θ̃ = q_d − q, estimates π̂ (each over its true value ``pi_true`` when given: one unit
+    for parameters of many); inputs τ, ‖θ̃‖ (log), shape trace (backbone drawn at
     several instants, darker = later; 3D axes for pcc-3d)."""
     k = max(1, len(t) // 4000)           # enough points for a figure
     t, q_d, q, pi_hat, tau = (a[::k] for a in (t, q_d, q, pi_hat, tau))
@@ -238,8 +246,13 @@ def scenario_figure(t, q_d, q, pi_hat, tau, shapes, *, title: str, unit: str,
         axs[1].plot(t, q_d[:, i] - q[:, i], lw=0.8, color=colors[i])
     axs[0].set_ylabel(f"q, q_d [{unit}]")
     axs[1].set_ylabel(f"q_d - q [{unit}]")
-    axs[2].plot(t, pi_hat, lw=0.7)
-    axs[2].set_ylabel("pi_hat (base parameters)")
+    if pi_true is not None:
+        axs[2].plot(t, pi_hat / np.asarray(pi_true, dtype=float).ravel(), lw=0.7)
+        axs[2].axhline(1.0, color="0.5", lw=0.6, ls=":")
+        axs[2].set_ylabel("π̂_i / π_i [1] (base parameters)")
+    else:
+        axs[2].plot(t, pi_hat, lw=0.7)
+        axs[2].set_ylabel("π̂ [units of each base parameter]")
     axs[3].plot(t, tau, lw=0.7)
     axs[3].set_ylabel("tau [N m" + (", N]" if unit == "m" else "]"))
     axs[4].semilogy(t, np.maximum(np.linalg.norm(q_d - q, axis=1), 1e-12), lw=0.8, color="k")
@@ -284,9 +297,10 @@ def run_cases(loop: SoftLoop, cases: list[SoftCase], c: SoftStudyConfig, out: Pa
         wall += tr.wall_seconds
         q_d, q = tr["ref.q_d"], tr[f"{loop.plant}.q"]
         tau, pi_hat = tr[f"{loop.ctrl}.tau"], tr[f"{loop.ctrl}.pi_hat"]
+        pi_true = np.asarray(loop.dyn.parameter_nominal, dtype=float).ravel()
         m.extend(tracking_records(tr.t, q_d, q, pi_hat, tau, unit=unit, window=c.metric_window,
                                   band=c.convergence_band, initial=c.initial_window,
-                                  suffix=sc.suffix.lstrip("_")))
+                                  suffix=sc.suffix.lstrip("_"), pi_true=pi_true))
         # Shape trace: ``shapes`` instants over the last ``shape_window`` s (0: the run).
         t0 = tr.t[-1] - c.shape_window if c.shape_window > 0 else tr.t[0]
         rows = np.searchsorted(tr.t, np.linspace(max(t0, tr.t[0]), tr.t[-1], c.shapes))
@@ -295,7 +309,7 @@ def run_cases(loop: SoftLoop, cases: list[SoftCase], c: SoftStudyConfig, out: Pa
                                     f"K_π = {sc.kpi:g}, noise σ = {sc.noise_std:g}, "
                                     f"|f| = {np.linalg.norm(sc.force[:3]):g} N",
                               unit=unit, three_d=unit == "m",
-                              t_on=sc.t_on if any(sc.force) else None)
+                              t_on=sc.t_on if any(sc.force) else None, pi_true=pi_true)
         if loop.forces:    # the adapted forces at the end of the run (force columns)
             f_end = tr[f"{loop.ctrl}.f_hat"][-1]
             for nm, v in zip(loop.forces, f_end):

@@ -147,7 +147,7 @@ def plot(out: Path, rows: list[dict], summary: dict, grid_inputs: list[str],
                     ax.set_xscale("log")
                 else:
                     ax.hist(v, bins=30)
-            ax.set_ylabel("samples")
+            ax.set_ylabel("samples [count]")
         ax.set_title(m, fontsize=8)
     for ax in axes[len(metric_cols):]:
         ax.set_visible(False)
