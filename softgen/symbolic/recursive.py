@@ -339,3 +339,4 @@ def regressor_transpose_times(model: RobotModel, values: Values, q, qd, qd_r, qd
 
 
 _inertial_symbols = _tree.inertial_symbols
+
