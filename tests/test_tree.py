@@ -322,6 +322,29 @@ def test_free_flyer_rate_is_the_quaternion_derivative():
     assert np.allclose(qdot[:3], np.array(R(q)) @ v[:3], atol=1e-14)
 
 
+def test_free_flyer_integrate_equals_pinocchio_and_is_smooth_at_rest():
+    """M exp(v dt) as Pinocchio's integrate; at ω = 0 (and 1e-12, 1e-6, 1e-3) finite,
+    with finite derivatives, and continuous."""
+    pin = pytest.importorskip("pinocchio")
+    ff = T.FreeFlyer()
+    qs, vs, dt = ca.SX.sym("q", 7), ca.SX.sym("v", 6), ca.SX.sym("dt")
+    out = ff.integrate(qs, vs, dt)
+    f = ca.Function("f", [qs, vs, dt], [out, ca.jacobian(out, ca.vertcat(qs, vs))])
+    model = pin.Model()
+    model.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "ff")
+    rng = np.random.default_rng(12)
+    for scale in (1.0, 1e-3, 1e-6, 1e-12, 0.0):
+        quat = rng.normal(size=4)
+        q = np.r_[rng.normal(size=3), quat / np.linalg.norm(quat)]
+        v = np.r_[rng.normal(size=3), scale * rng.normal(size=3)]
+        got, J = (np.array(x) for x in f(q, v, 0.37))
+        ref = pin.integrate(model, q, v * 0.37)
+        if ref[6] * got[6, 0] < 0:
+            ref[3:] = -ref[3:]                       # the same rotation
+        assert np.allclose(got.ravel(), ref, rtol=1e-12, atol=1e-13)
+        assert np.all(np.isfinite(J))
+
+
 def test_tree_refuses_a_parent_after_its_child():
     with pytest.raises(ValueError, match="parent"):
         T.Tree([T.Node(T.Revolute(2, ca.DM.eye(3), ca.DM.zeros(3)), 1, (0,), (0,)),

@@ -559,6 +559,25 @@ class RigidDynamics(BaseParameterAPI):
         return named_function(f"{self.name}_tip", [m.q], ["q"], [p, J], ["p", "J"])
 
     @_cached_fun
+    def configuration_rate_fun(self) -> ca.Function:
+        """(q, v) -> q̇: the base position's rate R v_lin and the quaternion's ½ q ⊗ (ω, 0)
+        for a floating base; v itself for the joints."""
+        m = self.nominal
+        tree = m.tree.tree
+        return named_function(f"{self.name}_configuration_rate", [m.q, m.qd], ["q", "qd"],
+                              [tree.rate(m.q, m.qd)], ["q_dot"])
+
+    @_cached_fun
+    def integrate_fun(self) -> ca.Function:
+        """(q, v, dt) -> q after moving with the constant velocity v for dt: the base by
+        the exponential map M exp(v dt) (Pinocchio's ``integrate``; the quaternion stays
+        unit), the joints by q + v dt."""
+        m = self.nominal
+        dt = ca.SX.sym("dt")
+        return named_function(f"{self.name}_integrate", [m.q, m.qd, dt], ["q", "qd", "dt"],
+                              [m.tree.tree.integrate(m.q, m.qd, dt)], ["q_next"])
+
+    @_cached_fun
     def known_torque_fun(self) -> ca.Function | None:
         """Terms of the dynamics multiplying no uncertain parameter, if any."""
         if self.base.constant is None:

@@ -83,6 +83,7 @@ import casadi as ca
 import numpy as np
 
 from softgen.symbolic.frames import Inertial, axis_rotation
+from softgen.symbolic.smooth import cos_w, cosc_w, nu_w, sinc_w
 
 __all__ = ["Joint", "Revolute", "Prismatic", "FreeFlyer", "Fixed", "PlacementJoint", "Node",
            "Tree", "inverse_dynamics", "regressor_blocks", "mass_matrix", "gravity",
@@ -168,6 +169,11 @@ class Joint:
     def rate(self, qj, vj):
         """q̇_j from (q_j, v_j)."""
         return vj
+
+    def integrate(self, qj, vj, dt):
+        """q_j after moving with the constant velocity v_j for dt: q_j + v_j dt where q̇_j
+        = v_j (exact then), an explicit Euler step of ``rate`` otherwise."""
+        return qj + self.rate(qj, vj) * dt
 
     def motion_rate(self, qj, vj, w) -> Pair | None:
         """Ṡ w: S's rate of change along q̇_j = rate(q_j, v_j), times w (None if S is
@@ -278,6 +284,22 @@ class FreeFlyer(Joint):
         dv = 0.5 * (qw * w + ca.cross(qv, w))
         return ca.vertcat(ca.mtimes(E, u), dv, -0.5 * ca.dot(qv, w))
 
+    def integrate(self, qj, vj, dt):
+        """The pose after moving with the constant body twist v_j for dt, M exp(v_j dt)
+        (Pinocchio's ``integrate``): with φ = ω dt, θ = |φ|, the quaternion times
+        (φ/2 sinc(θ/2), cos(θ/2)) and the position plus R V(φ) u dt, V = 1 + (1 − cos θ)/θ²
+        [φ]× + (1 − sinc θ)/θ² [φ]×²; the sinc-like factors are entire functions of θ²
+        (:mod:`softgen.symbolic.smooth`), finite with finite derivatives at ω = 0."""
+        E, p = self.placement(qj)
+        phi, ut = vj[3:6] * dt, vj[0:3] * dt
+        w = ca.dot(phi, phi)
+        h = 0.5 * sinc_w(w / 4) * phi                    # vector part of exp(φ/2)
+        c = cos_w(w / 4)
+        qv, qw = qj[3:6], qj[6]
+        quat = ca.vertcat(qw * h + c * qv + ca.cross(qv, h), qw * c - ca.dot(qv, h))
+        V_u = ut + cosc_w(w) * ca.cross(phi, ut) + nu_w(w) * ca.cross(phi, ca.cross(phi, ut))
+        return ca.vertcat(p + ca.mtimes(E, V_u), quat)
+
 
 def _vee(W):
     return ca.vertcat(W[2, 1], W[0, 2], W[1, 0])
@@ -356,15 +378,25 @@ class Tree:
 
     def rate(self, q, v):
         """q̇ from (q, v): each coordinate's rate from the first node that reads it."""
+        return self._per_coordinate(q, lambda n, qj, vj: n.joint.rate(qj, vj), v)
+
+    def integrate(self, q, v, dt):
+        """q after moving with the constant velocity v for dt (each joint's
+        :meth:`Joint.integrate`; exact for revolute, prismatic and free-flyer joints)."""
+        return self._per_coordinate(q, lambda n, qj, vj: n.joint.integrate(qj, vj, dt), v,
+                                    default=lambda k: q[k])
+
+    def _per_coordinate(self, q, f, v, default=None):
         out: list = [None] * self.nq
         for n in self.nodes:
-            if not n.q:
+            if not n.q or all(out[k] is not None for k in n.q):
                 continue
-            d = n.joint.rate(_select(q, n.q), _select(v, n.v))
+            d = f(n, _select(q, n.q), _select(v, n.v))
             for r, k in enumerate(n.q):
                 if out[k] is None:
                     out[k] = d[r] if len(n.q) > 1 else d
-        return ca.vertcat(*[ca.SX(0) if x is None else x for x in out])
+        return ca.vertcat(*[(ca.SX(0) if default is None else default(k)) if x is None else x
+                            for k, x in enumerate(out)])
 
 
 @dataclass
@@ -385,7 +417,8 @@ def _frames(tree: Tree, q) -> list[_Frame]:
 
 
 def _forward(tree: Tree, frames: list[_Frame], v, vr, vdr, s=None):
-    """Per node (v, v_r, a_r, ψ) (module docstring, "Sweeps")."""
+    """Per node (v, v_r, a_r, ψ) (module docstring, "Sweeps"); ``vr`` None is v_r = v
+    (then v is propagated once and v_r is v)."""
     zero3 = ca.SX.zeros(3)
     root = ((zero3, zero3), (zero3, zero3), (zero3, -tree.gravity), (zero3, zero3))
     out: list[tuple] = []
@@ -393,13 +426,16 @@ def _forward(tree: Tree, frames: list[_Frame], v, vr, vdr, s=None):
         pv, pvr, par, ppsi = root if n.parent < 0 else out[n.parent]
         E, p, S = fr.E, fr.p, fr.S
         if not n.v:
-            out.append((_to_child(E, p, pv), _to_child(E, p, pvr), _to_child(E, p, par),
+            vi = _to_child(E, p, pv)
+            out.append((vi, vi if vr is None else _to_child(E, p, pvr), _to_child(E, p, par),
                         None if s is None else _to_child(E, p, ppsi)))
             continue
-        vj, vrj = _select(v, n.v), _select(vr, n.v)
-        Sv, Svr = _S_times(S, vj), _S_times(S, vrj)
+        vj = _select(v, n.v)
+        vrj = vj if vr is None else _select(vr, n.v)
+        Sv = _S_times(S, vj)
+        Svr = Sv if vr is None else _S_times(S, vrj)
         vi = _add(_to_child(E, p, pv), Sv)
-        vri = _add(_to_child(E, p, pvr), Svr)
+        vri = vi if vr is None else _add(_to_child(E, p, pvr), Svr)
         # J̇_i v_r + v_i × v_r,i (module docstring): X a_λ, S v̇_r, v_i × S v_r, Ṡ v_r.
         ari = _add(_add(_to_child(E, p, par), _S_times(S, _select(vdr, n.v))), _crm(vi, Svr))
         Sd = n.joint.motion_rate(fr.qj, vj, vrj)
@@ -420,6 +456,11 @@ def body_force(inert: Inertial, v: Pair, vr: Pair, ar: Pair) -> Pair:
     """
     (om, u), (omr, _), (al, alin) = v, vr, ar
     I, h, m = inert.I, inert.h, inert.m
+    if vr is v:
+        # v_r = v: w = 0, n = I_o α + ω × (I_o ω) + h × b, f = m b + α × h + ω × (ω × h).
+        b = alin + ca.cross(om, u)
+        n = ca.mtimes(I, al) + ca.cross(om, ca.mtimes(I, om)) + ca.cross(h, b)
+        return n, m * b + ca.cross(al, h) + ca.cross(om, ca.cross(om, h))
     w = ca.cross(om, omr)
     b = alin + ca.cross(omr, u)
     tr = 0.5 * (I[0, 0] + I[1, 1] + I[2, 2])
@@ -432,6 +473,9 @@ def inverse_dynamics(tree: Tree, inertials: Sequence[Inertial | None], q, v, vr,
     """τ = B(q) v̇_r + C(q, v) v_r + G(q), C Christoffel-consistent (module docstring).
 
     ``inertials[i]`` is node i's (m, h, I_o) in node coordinates (None: massless).
+    ``vr`` None: the classical inverse dynamics τ(q, v, v̇ = ``vdr``) (Pinocchio's
+    ``rnea``), v propagated once and the body force I a + v ×* I v in its short form
+    (:func:`body_force` at v_r = v: w = ω × ω = 0).
     """
     frames = _frames(tree, q)
     fw = _forward(tree, frames, v, vr, vdr)
@@ -458,7 +502,7 @@ def inverse_dynamics(tree: Tree, inertials: Sequence[Inertial | None], q, v, vr,
 def gravity(tree: Tree, inertials, q):
     """G(q): :func:`inverse_dynamics` at rest."""
     z = ca.SX.zeros(tree.nv)
-    return inverse_dynamics(tree, inertials, q, z, z, z)
+    return inverse_dynamics(tree, inertials, q, z, None, z)
 
 
 def inertial_symbols(inert: Inertial) -> ca.SX:

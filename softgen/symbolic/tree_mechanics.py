@@ -66,7 +66,12 @@ class RecursiveMechanics:
 
     def gravity(self) -> ca.SX:
         z = ca.SX.zeros(self.n)
-        return self._rnea(z, z, z)
+        return self._rnea(z, None, z)
+
+    def rnea(self, a: ca.SX) -> ca.SX:
+        """The classical inverse dynamics B(q) a + C(q, q̇) q̇ + G(q) + K q + D q̇ at
+        (q, q̇ = ``qd``, a): the recursion with q̇_r = q̇ in its short form."""
+        return self._rnea(self.qd, None, a) + self.spring() + self.damping()
 
     def _joint_vector(self, attr: str, x) -> ca.SX:
         m = self.model
