@@ -60,7 +60,8 @@ def identify_model(model_name, log: str | Path, *, out: str | Path | None = None
     out = Path(out) if out is not None else default_out(log, model)
     if out.exists() and not force:
         raise SoftgenError(f"--out {out}: exists; give --force to overwrite it")
-    data = read_identification_log(log, model.dof, torque_constant=torque_constant)
+    data = read_identification_log(log, model.dof, torque_constant=torque_constant,
+                                   floating=model.floating)
     res = identify_rigid(model, data, cutoff=cutoff, viscous=viscous, coulomb=coulomb)
     write_identified_model(res, out, log=log, force=force)
     return res, out
@@ -131,6 +132,9 @@ def excite(model_name, out: str | Path, *, harmonics: int = 5,
            force: bool = False) -> ExciteResult:
     """An optimised excitation trajectory for ``model`` written to ``out`` (CSV)."""
     model = _rigid(model_name)
+    if model.floating:
+        raise SoftgenError(f"{model.name}: --excite plans joint trajectories within joint "
+                           "limits for a fixed base; a floating base's motion is not commanded")
     out = Path(out)
     if out.exists() and not force:
         raise SoftgenError(f"--out {out}: exists; give --force to overwrite it")
