@@ -78,6 +78,7 @@ from softgen.core.errors import SoftgenError
 from softgen.modelfile.model import RobotModel
 from softgen.modelfile.load import load_model
 from softgen.modelfile.soft import SoftModel
+from softgen.plants.floating import floating_plant_block, joint_pd_block
 from softgen.studies import Scenario
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 from softgen.symbolic.rigid import RigidDynamics
@@ -108,6 +109,9 @@ GAINS = {
     # Theorem 10: the "higher" gains of the section 12.2.1 planar PCC study
     # (Λ = 5, K_d = 1, K_π = 1).
     "theorem10": dict(lam=5.0, kd=1.0, kpi=1.0),
+    # Floating base (issue 35): a joint PD moving to a posture, the robot dropped from
+    # 1 m: K_p = 200 N m/rad, K_d = 5 N m s/rad per joint (example values).
+    "floating": dict(kp=200.0, kd=5.0, height=1.0),
 }
 
 #: Slotine-Li references q_d,i = offset_i + a_i sin(2π f_i t), cycled over the joints.
@@ -167,6 +171,8 @@ def capability(model: RobotModel | SoftModel) -> str:
     """The example loop ``model`` supports: its kind of body and of actuator."""
     if isinstance(model, SoftModel):
         return "theorem10"
+    if model.floating:
+        return "floating"
     # Series-elastic and partly actuated arms: the loops that drive their actuators
     # (read from the registry's conditions, which say what the model is).
     if LINEAR_SEA(model) is None:
@@ -466,5 +472,31 @@ def _partial(model: RobotModel, steps: int) -> Example:
         "(softgen.bundles.rigid.PARTIAL_TRACKING_GAINS)")
 
 
-_BUILDERS = {"slotine_li": _slotine_li, "theorem5": _theorem5, "electric_pd": _electric_pd,
+def _floating(model: RobotModel, steps: int) -> Example:
+    """The floating base's dynamics: the robot dropped from rest at 1 m, level, joints at
+    0, a PD moving them to the posture of the Slotine–Li references' offsets; the base
+    falls freely (it touches nothing). The error pair is the joints' posture."""
+    dyn = RigidDynamics(model)
+    n, g = model.dof, GAINS["floating"]
+    posture = _cycle(RIGID_REFERENCE["offset"], n)
+    ref = Sinusoid((0.0,) * n, (0.0,) * n, offset=tuple(posture))
+    ctrl = joint_pd_block(model, DT).with_defaults(
+        p0={"kp": np.full(n, g["kp"]), "kd": np.full(n, g["kd"])})
+    d = ClosedLoop(f"{model.name}_loop", [sinusoid_block("ref", ref), ctrl,
+                                          floating_plant_block(dyn, DT)])
+    q0 = np.concatenate([[0.0, 0.0, g["height"], 0.0, 0.0, 0.0, 1.0], np.zeros(n)])
+    sc = Scenario(f"{model.name}_loop", d, steps=steps, x0={"plant.q": q0})
+    return Example(
+        "floating", "a floating-base robot moving its joints in free fall",
+        "The floating-base dynamics (q = [base position, quaternion x y z w, joints], "
+        "v = [base velocity in the base frame, joint rates], Pinocchio's free flyer): "
+        "semi-implicit Euler with the forward dynamics and the exponential map each "
+        "sample. The robot is released at rest 1 m up with its joints at 0, and a PD "
+        "moves them to a posture; nothing touches the base, which falls and turns in "
+        "reaction (its momentum about the centre of mass stays zero).",
+        sc, (("ref.q_d", "plant.q_joints", "rad"),),
+        "K_p = 200 N m/rad, K_d = 5 N m s/rad on every joint (example values)")
+
+
+_BUILDERS = {"floating": _floating, "slotine_li": _slotine_li, "theorem5": _theorem5, "electric_pd": _electric_pd,
              "theorem10": _theorem10, "sea_cascade": _sea_cascade, "partial": _partial}
