@@ -591,3 +591,50 @@ def test_floating_example_scenario(humanoid):
     assert np.max(np.abs(err)) < 0.02
     h = tr.signals["plant.base_height"].ravel()
     assert h[-1] < h[0] - 5.0            # 1.5 s of free fall: 11 m
+
+
+def _actuated_quadruped(tmp_path, floating: bool):
+    from test_identify_floating import quadruped_toml
+    text = quadruped_toml(floating=floating) + "".join(
+        f'\n[[actuators]]\njoint = "{leg}_{part}"\ntype = "sea"\nmotor_inertia = 0.01\n'
+        "motor_damping = 0.1\nk = 200.0\n"
+        for leg in ("lf", "rf", "lh", "rh") for part in ("thigh", "shank"))
+    path = tmp_path / f"sea_quad{'_floating' if floating else ''}.toml"
+    path.write_text(text)
+    return load_model(path)
+
+
+def test_series_elastic_quadruped(tmp_path):
+    """Actuators per joint on a tree (issue 35): a quadruped with an SEA on each joint;
+    on a fixed base its example is the SEA cascade, which tracks on every leg; on a
+    floating base the actuators are read and the bundle is the floating dynamics."""
+    from softgen.bundles.registry import REGISTRY
+    from softgen.export.scenarios import example_for
+    model = _actuated_quadruped(tmp_path, False)
+    assert [a.joint for a in model.actuators] == list(range(8))
+    assert REGISTRY["sea_cascade"].why_not(model) is None
+    ex = example_for(model, steps=2000)
+    tr = ex.scenario.run()
+    (ref, act, _), = ex.errors
+    assert np.max(np.abs(tr.signals[act][-500:] - tr.signals[ref][-500:])) < 0.01
+    fl = _actuated_quadruped(tmp_path, True)
+    assert len(fl.actuators) == 8 and fl.floating
+    assert [c.name for c in REGISTRY.applicable(fl)] == ["floating_dynamics"]
+
+
+def test_variable_stiffness_arm_on_a_humanoid(tmp_path, humanoid):
+    """qbmove VSAs on a humanoid's left arm, direct torques elsewhere, declared in a TOML
+    model referencing the URDF tree by joint names."""
+    from softgen.bundles.registry import REGISTRY
+    toml = tmp_path / "vsa.toml"
+    acts = "".join(
+        f'\n[[actuators]]\njoint = "{j}"\ntype = "qbmove"\na = 6.7\nk = 0.02\n'
+        "motor_inertia = 0.001\nmotor_damping = 0.01\n" if j in ("left_1", "left_2", "left_3")
+        else f'\n[[actuators]]\njoint = "{j}"\ntype = "direct"\n'
+        for j in load_model(humanoid).joint_names)
+    toml.write_text(f'[model]\nname = "vsa_humanoid"\n\n[urdf]\nfile = "{humanoid.name}"\n'
+                    + acts)
+    model = load_model(toml)
+    assert model.is_tree and len(model.actuators) == model.dof == 11
+    assert [model.actuators[i].type for i in (3, 4, 5)] == ["qbmove"] * 3
+    assert REGISTRY["slotine_li"].why_not(model) is None
