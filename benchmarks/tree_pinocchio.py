@@ -5,8 +5,9 @@ Pinocchio is optional (``pip install pin``: its ``cmeel.prefix`` has the headers
 URDF parser and the libraries). For each URDF file (vendor trees: Talos, ANYmal, ...):
 
 1. softgen loads it whole (``load_model(path, floating=...)``) and generates τ, the
-   bundle's ``inverse_dynamics`` (q, q̇, q̇_r, q̈_r; called at q̇_r = q̇) and the same τ
-   as a function of (q, v, a), with gcc -O3;
+   bundle's ``inverse_dynamics`` (q, q̇, q̇_r, q̈_r; called at q̇_r = q̇) and its classical
+   inverse dynamics ``rnea`` (q, v, a), at the flags of ``softgen generate``
+   (:data:`softgen.codegen.build.CFLAGS`; ``--cflags`` adds flags to both sides alike);
 2. Pinocchio's URDF parser (its Python bindings, a free-flyer root for a floating base)
    reads the same file; its model (joint types, placements, inertias, damping) is
    written out and rebuilt joint by joint in the C++ harness (the pip wheel ships no
@@ -38,6 +39,10 @@ import casadi as ca
 import numpy as np
 
 from softgen.app.peers import _CPP_HEAD, pinocchio_prefix, renamed
+from softgen.codegen.build import CFLAGS
+
+#: softgen's compiler flags without -shared (the harness links an object file).
+SOFTGEN_CFLAGS = [f for f in CFLAGS if f != "-shared"]
 from softgen.modelfile.load import load_model
 from softgen.symbolic.rigid import RigidDynamics
 
@@ -165,14 +170,6 @@ def coordinate_map(pm, model, name: str) -> tuple[list[int], list[int]]:
     return iq, iv
 
 
-def plain_inverse_dynamics(dyn: RigidDynamics) -> ca.Function:
-    """(q, v, a) -> τ: the bundle's τ at q̇_r = q̇, q̈_r = q̈, built as its own function."""
-    m = dyn.nominal
-    tau = ca.substitute(m.slotine_li(dyn.route), ca.vertcat(m.qd_r), ca.vertcat(m.qd))
-    return ca.Function("id3", [m.q, m.qd, m.qdd_r], [tau], ["q", "v", "a"], ["tau"],
-                       {"cse": True})
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("urdf", nargs="+", type=Path)
@@ -182,6 +179,8 @@ def main(argv=None) -> int:
     ap.add_argument("--pin-prefix", type=Path, default=None)
     ap.add_argument("--keep", type=Path, default=None, help="work in this directory and keep "
                     "it (the harness takes minutes of g++)")
+    ap.add_argument("--cflags", default="", help="extra flags for both compilers alike, e.g. "
+                    "'-march=native' (default: none, as softgen builds bundles)")
     args = ap.parse_args(argv)
     prefix = (args.pin_prefix or pinocchio_prefix())
     if prefix is None:
@@ -198,7 +197,7 @@ def main(argv=None) -> int:
             model = load_model(path, floating=args.floating)
             dyn = RigidDynamics(model)
             tau = dyn.inverse_dynamics_fun()
-            id3 = plain_inverse_dynamics(dyn)
+            id3 = dyn.rnea_fun()
             print(f"# {tag} = {path.name} ({'floating' if model.floating else 'fixed'}, nv "
                   f"{model.nv}): derived in {time.perf_counter() - t0:.1f} s; CasADi "
                   f"instructions: inverse_dynamics {tau.n_instructions()}, (q, v, a) "
@@ -218,15 +217,18 @@ def main(argv=None) -> int:
         text = (_CPP_HEAD + _HARNESS + "\nint main() {\n" + "\n".join(calls)
                 + "\n  return 0;\n}\n")
         t0 = time.perf_counter()
-        subprocess.run(["gcc", "-O3", "-fPIC", "-c", "-o", str(tmp / "softgen_fns.o"),
+        extra = args.cflags.split()
+        # softgen's C at the flags of `softgen generate` (softgen.codegen.build.CFLAGS).
+        subprocess.run(["gcc", *SOFTGEN_CFLAGS, *extra, "-c", "-o", str(tmp / "softgen_fns.o"),
                         str(tmp / "softgen_fns.c")], check=True)
         print(f"# gcc -O3 of softgen's C: {time.perf_counter() - t0:.1f} s", flush=True)
         defs = ["-DBOOST_MPL_LIMIT_LIST_SIZE=30", "-DBOOST_MPL_LIMIT_VECTOR_SIZE=30",
                 "-DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS", "-DBOOST_FUSION_INVOKE_MAX_ARITY=12"]
         t0 = time.perf_counter()
+        text += f"// flags: {' '.join(extra)}\n"
         if not (cpp.exists() and cpp.read_text() == text and (tmp / "harness.o").exists()):
             cpp.write_text(text)        # with --keep, compiled again only when it changed
-            subprocess.run(["g++", "-O3", "-DNDEBUG", "-std=c++17", *defs,
+            subprocess.run(["g++", "-O3", "-DNDEBUG", "-std=c++17", *extra, *defs,
                             f"-I{prefix}/include", f"-I{prefix}/include/eigen3", f"-I{tmp}",
                             "-c", "-o", str(tmp / "harness.o"), str(cpp)], check=True)
         subprocess.run(["g++", "-o", str(tmp / "harness"), str(tmp / "harness.o"),

@@ -527,6 +527,8 @@ def test_floating_bundle_functions_and_manifest(tmp_path, humanoid):
     rng = np.random.default_rng(8)
     q, v, a = _random_state(rng, model)
     tau = np.asarray(b[f"{name}_inverse_dynamics"](q, v, v, a)).ravel()
+    assert np.allclose(np.asarray(b[f"{name}_rnea"](q, v, a)).ravel(), tau, rtol=1e-12,
+                       atol=1e-12)
     assert np.allclose(np.asarray(b[f"{name}_forward_dynamics"](q, v, tau)).ravel(), a,
                        rtol=1e-9, atol=1e-9)
     q1 = np.asarray(b[f"{name}_integrate"](q, v, 0.01)).ravel()

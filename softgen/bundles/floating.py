@@ -51,12 +51,15 @@ def model_layout(model) -> dict:
 
 @REGISTRY.capability("floating_dynamics", layer="symbolic", needs=(FLOATING,),
                      doc="floating-base B, C, G, whole-body regressor (base-wrench rows "
-                         "included) and its products, inverse and forward dynamics, "
+                         "included) and its products, inverse (Slotine-Li and classical) "
+                         "and forward dynamics, "
                          "q-rate and exponential-map integration (Pinocchio's free flyer)")
 def floating_dynamics(ctx: Context) -> Part:
     part = rigid_dynamics(ctx)
     dyn = ctx.dyn
     part.functions += [
+        Generated(dyn.rnea_fun(), "classical inverse dynamics tau(q, qd, a) = B a + C qd + "
+                                  "G (+ K q + D qd), Pinocchio's rnea (+ D qd)"),
         Generated(dyn.configuration_rate_fun(), "q_dot(q, qd): base position rate R v, "
                                                 "quaternion rate q (x) (w, 0) / 2, joint rates"),
         Generated(dyn.integrate_fun(), "q after moving with the constant velocity qd for dt "

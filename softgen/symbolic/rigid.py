@@ -559,6 +559,19 @@ class RigidDynamics(BaseParameterAPI):
         return named_function(f"{self.name}_tip", [m.q], ["q"], [p, J], ["p", "J"])
 
     @_cached_fun
+    def rnea_fun(self) -> ca.Function:
+        """(q, v, a) -> τ = B(q) a + C(q, v) v + G(q) + K q + D v: the classical inverse
+        dynamics (Pinocchio's ``rnea`` + D v), the recursion with q̇_r = q̇ in its short
+        form (fewer instructions than :meth:`inverse_dynamics_fun` at q̇_r = q̇)."""
+        m = self.nominal
+        a = ca.SX.sym("a", self.model.nv)
+        tau = (m.rnea(a) if isinstance(m, RecursiveMechanics)
+               else ca.substitute(m.slotine_li(self.route), ca.vertcat(m.qd_r, m.qdd_r),
+                                  ca.vertcat(m.qd, a)))
+        return named_function(f"{self.name}_rnea", [m.q, m.qd, a], ["q", "qd", "a"], [tau],
+                              ["tau"])
+
+    @_cached_fun
     def configuration_rate_fun(self) -> ca.Function:
         """(q, v) -> q̇: the base position's rate R v_lin and the quaternion's ½ q ⊗ (ω, 0)
         for a floating base; v itself for the joints."""
