@@ -640,3 +640,55 @@ def test_variable_stiffness_arm_on_a_humanoid(tmp_path, humanoid):
     assert model.is_tree and len(model.actuators) == model.dof == 11
     assert [model.actuators[i].type for i in (3, 4, 5)] == ["qbmove"] * 3
     assert REGISTRY["slotine_li"].why_not(model) is None
+
+
+@pytest.mark.parametrize("floating", [False, True])
+def test_uncertain_placements_on_a_tree(tmp_path, floating):
+    """Uncertain joint placements (the symbolic base route): the structural regrouping
+    over the tree gives the same base parameters as factoring τ directly, and Y π + τ₀
+    is τ."""
+    text = (TOML_TREE.format(floating="floating = true" if floating else "",
+                             base_body=BASE_BODY if floating else "")
+            + '\n[parameters]\nuncertain = ["mass", "com", "inertia", "p2z", "p3y"]\n')
+    path = tmp_path / "tree_lengths.toml"
+    path.write_text(text)
+    model = load_model(path)
+    reg = RigidDynamics(model, base_method="regrouped", route="recursive")
+    sym = RigidDynamics(model, base_method="symbolic", route="recursive")
+    assert reg.parameter_names == sym.parameter_names
+    assert np.allclose(reg.parameter_nominal, sym.parameter_nominal, rtol=1e-12, atol=1e-14)
+    rng = np.random.default_rng(9)
+    for d in (reg, sym):
+        known = d.known_torque_fun()
+        for _ in range(3):
+            q, v, a = _random_state(rng, model)
+            x = (q, v, rng.normal(size=model.nv), a)
+            t0 = np.asarray(known(*x)).ravel() if known is not None else 0.0
+            tau = np.asarray(d.inverse_dynamics_fun()(*x)).ravel()
+            assert np.allclose(np.asarray(d.regressor_fun()(*x)) @ d.parameter_nominal + t0,
+                               tau, rtol=1e-11, atol=1e-11)
+
+
+def test_planar_tree_routes_agree(tmp_path):
+    """A planar tree (a torso with two arms, one with a prismatic joint): each joint at
+    the tip of its parent link; the recursion equals the energy routes."""
+    link = ('\n[[links]]\nname = "{n}"\n{par}joint = "{j}"\nlength = {l}\nmass = {m}\n'
+            "com = [{c}, 0.01]\ninertia = 0.004\n")
+    text = ('[model]\nname = "ptree"\nkind = "planar"\n\n[gravity]\ng = 9.81\n'
+            + link.format(n="torso", par="", j="revolute", l=0.5, m=3.0, c=0.25)
+            + link.format(n="l_arm", par="", j="revolute", l=0.3, m=1.0, c=0.15)
+            + link.format(n="l_hand", par="", j="prismatic", l=0.1, m=0.3, c=0.05)
+            + link.format(n="r_arm", par='parent = "torso"\n', j="revolute", l=0.3, m=1.2,
+                          c=0.12))
+    path = tmp_path / "ptree.toml"
+    path.write_text(text)
+    model = load_model(path)
+    assert [model.parent_of(i) for i in range(4)] == [-1, 0, 1, 0]
+    assert model.links[3].origin_xyz[0] == "l1"          # at the torso's tip
+    m = RigidDynamics(model).nominal
+    f = ca.Function("f", [m.q, m.qd, m.qd_r, m.qdd_r],
+                    [m.slotine_li(r) for r in ("recursive", "matrix-free", "explicit")])
+    rng = np.random.default_rng(10)
+    for _ in range(4):
+        outs = [np.array(o) for o in f(*rng.normal(size=(4, 4)))]
+        assert all(np.allclose(o, outs[0], rtol=1e-12, atol=1e-12) for o in outs[1:])
