@@ -27,16 +27,19 @@ USER = {
 EXPECTED = {
     "qbmove": {"rigid_dynamics", "nominal_plant", "slotine_li", "qbmove_actuators",
                "electric_cascade", "electric_stiffness_estimator",
-               "noninvasive_stiffness_estimator"},
+               "noninvasive_stiffness_estimator", "spring_pair_cascade"},
     "mckibben": {"rigid_dynamics", "nominal_plant", "slotine_li", "mckibben_actuators",
                  "pneumatic_control", "theorem5_loop", "feedback_linearization",
                  "pneumatic_stiffness_estimator"},
-    # A passive joint gets no torque: collocated control, not Slotine-Li (issue 22).
-    "partial": {"rigid_dynamics", "partial_collocated"},
-    "sea": {"rigid_dynamics", "nominal_plant", "slotine_li", "sea_cascade"},
+    # A passive joint gets no torque: collocated control, not Slotine-Li (issue 22); its
+    # spring-driven wrist gets both stiffness estimators (issue 31: by law, per joint).
+    "partial": {"rigid_dynamics", "partial_collocated", "electric_stiffness_estimator",
+                "noninvasive_stiffness_estimator"},
+    "sea": {"rigid_dynamics", "nominal_plant", "slotine_li", "sea_cascade",
+            "electric_stiffness_estimator", "noninvasive_stiffness_estimator"},
     "urdf": {"rigid_dynamics", "nominal_plant", "slotine_li", "qbmove_actuators",
              "electric_cascade", "electric_stiffness_estimator",
-             "noninvasive_stiffness_estimator"},
+             "noninvasive_stiffness_estimator", "spring_pair_cascade"},
 }
 
 

@@ -28,11 +28,15 @@ def springs2():
 
 
 def test_mckibben_elongations_and_stiffness_definition(pair):
-    """σ = −∂τ/∂q (eq. 2.3) against a central difference of τ = KΦp (eq. 2.2)."""
+    """σ = −∂τ/∂q (eq. 2.3) against a central difference of τ = Φp (eq. 2.2, the muscle
+    gain K_g R in Φ)."""
     f = _fn(pair.functions(), "_mckibben_torque")
     phi = _fn(pair.functions(), "_mckibben_phi")
     Phi0, _ = phi(0.0)
-    assert np.allclose(np.array(Phi0), [[0.36 ** 2 - 0.25 ** 2, -(0.36 ** 2 - 0.25 ** 2)]])
+    K = pair.muscle_gain[0, 0]
+    assert K == pytest.approx(0.14 * 0.016, rel=1e-15)        # K_g R of pendulum_1link
+    assert np.allclose(np.array(Phi0), [[K * (0.36 ** 2 - 0.25 ** 2),
+                                         -K * (0.36 ** 2 - 0.25 ** 2)]], rtol=1e-14, atol=0)
     h = 1e-6
     for _ in range(10):
         q, p = RNG.uniform(-0.5, 0.5), RNG.uniform(0, 4e5, 2)
@@ -43,7 +47,7 @@ def test_mckibben_elongations_and_stiffness_definition(pair):
         Phi, Phi_q = (np.array(v) for v in phi(q))
         fd_phi = (np.array(phi(q + h)[0]) - np.array(phi(q - h)[0])) / (2 * h)
         assert np.allclose(Phi_q, fd_phi, rtol=1e-7)
-        assert tau == pytest.approx(pair.K[0] * (Phi @ p).item(), rel=1e-12)
+        assert tau == pytest.approx((Phi @ p).item(), rel=1e-12)
 
 
 def test_mckibben_allocation_realises_torque_and_stiffness(pair):

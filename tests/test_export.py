@@ -25,7 +25,7 @@ from softgen.core.paths import GENERATED_DIR
 from softgen.export import project
 from softgen.export.example import python_loop
 from softgen.export.project import RECORD, bundle_files, export, summary
-from softgen.export.scenarios import capability, example_for
+from softgen.studies.examples import choose, example_for, motor_mode_step
 from softgen.core.paths import MODELS_DIR
 from softgen.modelfile.load import load_model
 from export_check import build_or_skip
@@ -119,23 +119,29 @@ def test_exported_program_equals_scenario_run(built, model, user_model, tmp_path
 
 def test_scenario_is_chosen_by_capability(tmp_path):
     """The loop follows the model's body and actuators, not its name: a renamed copy of
-    a shipped model gets the same loop; an electric arm whose motors are too light for
-    the 1 ms sample is run as a torque-driven rigid chain."""
-    want = {"planar_2link": "slotine_li", "planar_2link_mckibben": "theorem5",
-            "arm_2link_electric": "electric_pd", "pcc_planar_4seg": "theorem10",
-            "pendulum_1link": "theorem5", "pendulum_qbmove": "slotine_li",
-            "pcc_3d_4seg": "theorem10", "soft_pendulum": "theorem10"}
+    a shipped model gets the same loop. An electric arm is always run with its motors and
+    springs (never as a torque-driven rigid chain): one whose motors are too light for
+    1 ms gets a sample time that resolves their spring modes."""
+    want = {"planar_2link": "electric-pd", "planar_2link_mckibben": "theorem5",
+            "arm_2link_electric": "electric-pd", "pcc_planar_4seg": "theorem10",
+            "pendulum_1link": "theorem5", "pendulum_qbmove": "electric-pd",
+            "pcc_3d_4seg": "theorem10", "soft_pendulum": "theorem10", "panda": "slotine-li"}
     for m, kind in want.items():
-        assert capability(load_model(m)) == kind, m
+        assert choose(load_model(m)).id == kind, m
+        if m == "panda":
+            continue
         src = (MODELS_DIR / f"{m}.toml").read_text()
         path = tmp_path / f"renamed_{m}.toml"
         path.write_text(src.replace(f'name = "{m}"', f'name = "zz_{m}"'))
         assert load_model(path).name == f"zz_{m}"
-        assert capability(load_model(path)) == kind, m
+        assert choose(load_model(path)).id == kind, m
+    # b = 3e-6 kg m²: ω·dt = 1.35 at 1 ms; the example halves dt until ω·dt ≤ 0.5.
+    assert motor_mode_step(load_model("planar_2link")) == 2.5e-4
     heavy = (MODELS_DIR / "planar_2link.toml").read_text().replace(
         "motor_inertia = 3e-6", "motor_inertia = 1e-3")
     (tmp_path / "heavy.toml").write_text(heavy)
-    assert capability(load_model(tmp_path / "heavy.toml")) == "electric_pd"
+    assert choose(load_model(tmp_path / "heavy.toml")).id == "electric-pd"
+    assert motor_mode_step(load_model(tmp_path / "heavy.toml")) == 1e-3
 
 
 def test_export_imports_no_experiment():
@@ -268,12 +274,14 @@ def test_wrappers_refuse_mismatched_buffers_and_shapes(built, tmp_path):
     f = "planar_2link_loop_step"
     h = (res.out / "planar_2link_loop.h").read_text()
     sz_arg = re.search(rf"^#define {f}_SZ_ARG (\d+)$", h, re.M)[1]   # SX steps need no w
+    api = (res.out / "planar_2link_loop_api.c").read_text()
+    nx = re.search(rf"{f}_shape_in\[\] = {{(\d+), 1,", api)[1]       # the state's size
     for case, (name, old, new, message) in {
         "work": ("planar_2link_loop.h", f"#define {f}_SZ_ARG {sz_arg}",
                  f"#define {f}_SZ_ARG {int(sz_arg) - 1}",
                  "work buffers too small for the generated function"),
-        "shape": ("planar_2link_loop_api.c", f"{f}_shape_in[] = {{9, 1,",
-                  f"{f}_shape_in[] = {{1, 9,",
+        "shape": ("planar_2link_loop_api.c", f"{f}_shape_in[] = {{{nx}, 1,",
+                  f"{f}_shape_in[] = {{1, {nx},",
                   "an input or output is not dense of the expected shape"),
     }.items():
         d = tmp_path / case
@@ -303,8 +311,10 @@ def test_non_finite_state_stops_in_one_line(built, tmp_path):
     _run(["make", "-C", d])
     r = _run([d / "planar_2link_example", "--fast", "--steps", 50], ok=False)
     assert r.returncode == 1 and r.stderr.count("\n") == 1
-    assert re.fullmatch(r"error: non-finite \S+ at t = 0\.001 s \(sample 0\); "
-                        r"the loop diverged\n", r.stderr)
+    dt = float(re.search(r"#define SG_DT (\S+)", text)[1])       # the example's sample
+    m = re.fullmatch(r"error: non-finite \S+ at t = (\S+) s \(sample 0\); "
+                     r"the loop diverged\n", r.stderr)
+    assert m and float(m[1]) == pytest.approx(dt, rel=1e-5)
 
 
 @pytest.mark.compiler

@@ -131,9 +131,11 @@ def test_decoupling_matrix_invertible_and_control_solves_it(fl):
         pc, _, _, v, L, E = (np.array(o) for o in out)
         q = x[:n]
         phi_a, phi_b = (np.array(ca.evalf(e)).ravel() for e in act.elongations(ca.DM(q)))
-        dphi_a = -2 * act.R * (act.ln_a - q * act.R)
-        dphi_b = 2 * act.R * (act.ln_b + q * act.R)
-        blocks = act.K ** 2 * (phi_a * dphi_b - phi_b * dphi_a) / (tp[0::2] * tp[1::2])
+        # Φ carries each muscle's gain K_g R (N m/Pa): so do its slopes.
+        Ka, Kb = act.muscle_gain[:, 0], act.muscle_gain[:, 1]
+        dphi_a = -2 * Ka * act.R * (act.ln_a - q * act.R)
+        dphi_b = 2 * Kb * act.R * (act.ln_b + q * act.R)
+        blocks = (phi_a * dphi_b - phi_b * dphi_a) / (tp[0::2] * tp[1::2])
         assert np.all(phi_a * dphi_b - phi_b * dphi_a > 0)
         detM = np.linalg.det(fl.dyn.inertia(q))          # B(q) of the Mechanics, not M(π)
         assert abs(np.linalg.det(E)) == pytest.approx(np.prod(blocks) / detM, rel=1e-9)

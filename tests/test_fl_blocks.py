@@ -11,6 +11,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from softgen.studies.gains import thesis_to_physical
 from softgen.blocks import ClosedLoop
 from softgen.control.feedback_linearization import (GAIN_NAMES, feedback_linearization,
                                                     hurwitz_gains, valve_loop, valve_loop_signals,
@@ -203,7 +204,8 @@ def test_valve_loop_start_sets_every_block_and_rejects_bad_arguments(fl, arm):
     assert par["ctrl.T_p"] == par["plant.T_p"] == 0.07
     np.testing.assert_allclose(par["ctrl.pi"], 0.99 * fl.parameter_nominal)
     assert set(valve_loop_signals(d).values()) <= set(d.signals.names)
-    gains = {"lam": 1.0, "kd": 1.0, "kpi": 20.0, "ksigma": 0.1, "kinv": 1 / arm.act.K}
+    kd, kpi = thesis_to_physical(arm.act.muscle_gain, np.ones(2), 20.0)   # section 10.4
+    gains = {"lam": 1.0, "kd": kd, "kpi": kpi, "ksigma": 0.1, "kinv": np.ones(2)}
     for mode in ("continuous", "sampled"):
         d = valve_loop(fl, arm, ref, "theorem5", DT, mode=mode)
         x0, par = valve_loop_start(d, fl, arm, gains=gains, ratio=0.99)

@@ -13,7 +13,6 @@ from softgen.control.references import SmoothSteps
 from softgen.modelfile.load import load_model
 from softgen.plants import gioste as gc
 from softgen.studies import gioste as gs
-from softgen.studies.gains import Theorem5Gains
 
 
 @pytest.fixture(scope="module")
@@ -23,9 +22,10 @@ def one_link():
 
 
 def _gains(emu, arm, sigma):
-    k = emu.calibrated_gain([sigma])
-    return Theorem5Gains.from_stiffness_rate(1.0, k, k, lam=np.array([1.8]),
-                                             kd=np.array([12.0]), kpi=gc.kpi_vector(arm, 45.0))
+    """Section 10.3.4's printed gains (K_d = 12, Λ = 1.8, K_π = 45) as the experiments
+    set them (the library's one conversion), K_σ for a 1/s stiffness-error rate."""
+    del arm
+    return gs.controller_gains(emu, 12.0, 1.8, 45.0, [sigma], stiffness_rate=1.0)
 
 
 def _run(emu, kind, ref, g, divergence=0.5):
@@ -171,13 +171,14 @@ def test_kpi_vector_divides_gravity_parameters_by_g2():
 def test_matched_arm_has_only_the_feedback_stiffness():
     # With the controller's own muscles as the arm, Theorem 5's null-space pressures
     # cancel the muscles' stiffness and Π̂ = Π cancels gravity: what is left of
-    # −∂(τ − G)/∂q is the feedback K_d Λ K_1 (section 10.3.3, ∂τ_*/∂q = cos q Π̂_2 − K_d Λ).
+    # −∂(τ − G)/∂q is the feedback K_d Λ (section 10.3.3, ∂τ_*/∂q = cos q Π̂_2 − K_d Λ),
+    # K_d the printed 12 in physical units (K_1 = K_g R of the fitted muscles).
     arm = pneumatic_arm(load_model("gioste_1link"))
     emu = gc.GiosteEmulation(arm, actuator="model")
     g = _gains(emu, arm, 10.0)
     ref0 = np.array([0.1, 0, 0, 0, 10.0, 0])
     net = gs.static_net_stiffness(emu, "theorem5", ref0, g, Pi_hat0=arm.Pi_nominal)
-    assert net[0] == pytest.approx(12.0 * 1.8 * arm.K1, rel=1e-4)
+    assert net[0] == pytest.approx(12.0 * 1.8 * emu.arm.act.muscle_gain[0, 0], rel=1e-4)
 
 
 def test_loop_is_the_composition_of_its_parts(one_link):

@@ -118,9 +118,7 @@ def test_stop_trips_at_the_first_violating_sample(emu):
     t = np.arange(600) * DT
     ref = G.reference_array([SmoothSteps((0.0,), (0.1,), 1.0)],
                             [SmoothSteps((0.0,), (8.0,), 1.0)], t)
-    k = emu.calibrated_gain([8.0])
-    g = Theorem5Gains.from_stiffness_rate(1.0, k, k, lam=np.array([1.8]), kd=np.array([12.0]),
-                                          kpi=G.kpi_vector(emu.arm, 45.0))
+    g = S.controller_gains(emu, 12.0, 1.8, 45.0, [8.0], stiffness_rate=1.0)
     d = G.loop_diagram(emu, "theorem5", DT)
     x0 = S.initial_state(emu, "theorem5", ref[0], g, Pi_hat0=emu.arm.Pi_nominal, dt=DT)
     kw = dict(steps=600, x0=x0, externals={"ref": ref}, chunk=64, on_nonfinite="stop",

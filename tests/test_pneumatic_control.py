@@ -13,6 +13,7 @@ from softgen.control.pneumatic_loop import closed_loop
 from softgen.control.references import SmoothSteps
 from softgen.core.errors import ModelError
 from softgen.modelfile.load import load_model
+from softgen.studies.gains import thesis_to_physical
 
 SPECIAL = (0.0, 1e-12, 1e-6, 1e-3)
 
@@ -47,8 +48,10 @@ def test_pinv_and_null_space_identities(arm, derived):
         assert np.allclose(Phi @ N, 0, atol=1e-15)
         assert np.allclose(M, Phi_q @ N, atol=1e-15)
         assert np.allclose(M, np.diag(np.diag(M)))
-        # Never singular for l_n > l_min (NOTES section 2 item 5).
-        assert np.all(np.abs(np.diag(M)) > 1e-4)
+        # Never singular for l_n > l_min (NOTES section 2 item 5); Φ carries the muscle
+        # gain K (N m/Pa), so Φ_q Φ^⊥ scales with K².
+        K = arm.act.muscle_gain[:, 0]
+        assert np.all(np.abs(np.diag(M)) > 1e-4 * K ** 2)
 
 
 def test_chain_rule_rates_match_finite_differences(derived):
@@ -198,7 +201,8 @@ def test_steps_are_finite_at_and_near_zero(arm):
 
 
 def test_one_link_regressor_is_the_thesis_one(arm1):
-    """Section 10.3.3: Y_* = (q̈_1r, sin q_1), Π = ((I + m l²/4)/K, m g l/2/K)."""
+    """Section 10.3.3: Y_* = (q̈_1r, sin q_1), Π = (I + m l²/4, m g l/2) (the thesis
+    divides Π by K; softgen's Φ carries K, so Π is in physical units)."""
     q = ca.SX.sym("q")
     Y, known = arm1.regressor_star(q, ca.SX.sym("qd"), ca.SX.sym("qdr"), qddr := ca.SX.sym("a"))
     assert known is None
@@ -207,7 +211,7 @@ def test_one_link_regressor_is_the_thesis_one(arm1):
     I_joint = inertia + mass * com ** 2
     for qq, a in ((0.3, 1.2), (-1.0, -0.4)):
         y = np.array(f(qq, a)).ravel()
-        tau = y @ arm1.Pi_nominal * arm1.K1
+        tau = y @ arm1.Pi_nominal
         assert tau == pytest.approx(I_joint * a + mass * 9.81 * com * np.sin(qq),
                                     rel=1e-12)
 
@@ -226,13 +230,14 @@ def test_closed_loop_tracks_and_keeps_stiffness(arm):
     ref[8:10] = 2.5
     ol = arm.step_fun("open_loop")
     n = 2
-    lam, kd = np.full(n, 15.0), np.full(n, 18.0)
-    kinv = 1 / arm.act.K
+    # Section 10.2's printed K_d = 18, K_π = 35, in physical units.
+    kd, kpi = thesis_to_physical(arm.act.muscle_gain, np.full(n, 18.0), 35.0)
+    lam, kinv = np.full(n, 15.0), np.ones(n)
     out = ol(arm.Pi_nominal, np.zeros(n), np.zeros(n), ref[:, 0], lam, kd, np.zeros(5), kinv, dt)
     p0, nu0 = np.array(out[1]).ravel(), np.array(out[3]).ravel()
     x0 = d.initial_state({"ctrl.nu": nu0, "ctrl.Pi_hat": arm.Pi_nominal, "plant.p": p0})
-    p = d.parameters({"ctrl.lam": lam, "ctrl.kd": kd, "ctrl.kpi": 35.0,
-                      "ctrl.ksigma": 2 / arm.K1, "ctrl.kinv": kinv})
+    p = d.parameters({"ctrl.lam": lam, "ctrl.kd": kd, "ctrl.kpi": kpi,
+                      "ctrl.ksigma": 2.0, "ctrl.kinv": kinv})
     X, Y = (np.array(o) for o in f(x0, p, 0, ref))
     assert np.all(np.isfinite(X))
     assert abs(X[d.state.slice("plant.q"), -1][0] - 0.1) < 1e-3
@@ -285,20 +290,20 @@ def test_smooth_steps_derivatives_are_consistent():
 @pytest.mark.parametrize("seed", range(3))
 def test_preset_realises_the_stiffness_and_the_torque_at_rest(arm, seed):
     """PneumaticArm.preset: at rest at q with Π̂ = Π, the actuator model gives σ_d and the
-    pressures hold τ_* (K Φ p = τ_*, −K Φ_q p = σ_d), for seeded q and σ_d."""
+    pressures hold τ_* (Φ p = τ_*, −Φ_q p = σ_d), for seeded q and σ_d."""
     rng = np.random.default_rng(seed)
     n = arm.n
     q, sigma = rng.uniform(-0.4, 0.4, n), rng.uniform(1.5, 4.0, n)
     ref = np.concatenate([q, np.zeros(3 * n), sigma, np.zeros(n)])
-    p, nu = arm.preset(arm.Pi_nominal, q, ref, lam=np.full(n, 15.0), kd=np.full(n, 18.0),
-                       kinv=1 / arm.act.K, dt=1e-3)
+    p, nu = arm.preset(arm.Pi_nominal, q, ref, lam=np.full(n, 15.0), kd=np.full(n, 0.09),
+                       kinv=np.ones(n), dt=1e-3)
     qs = ca.SX.sym("q", n)
     f = ca.Function("f", [qs], [arm.act.torque(qs, ca.DM(p)), arm.act.stiffness(qs, ca.DM(p))])
     tau, sig = (np.array(v).ravel() for v in f(q))
     np.testing.assert_allclose(sig, sigma, rtol=1e-9)
-    tau_star = arm.step_fun("open_loop")(arm.Pi_nominal, q, np.zeros(n), ref, 15.0, 18.0,
-                                         np.zeros(arm.n_params), 1 / arm.act.K, 1e-3)[2]
-    np.testing.assert_allclose(tau / arm.K1, np.array(tau_star).ravel(), rtol=1e-9, atol=1e-12)
+    tau_star = arm.step_fun("open_loop")(arm.Pi_nominal, q, np.zeros(n), ref, 15.0, 0.09,
+                                         np.zeros(arm.n_params), 1.0, 1e-3)[2]
+    np.testing.assert_allclose(tau, np.array(tau_star).ravel(), rtol=1e-9, atol=1e-12)
     assert nu.shape == (n,)
 
 
@@ -306,10 +311,46 @@ def test_preset_realises_the_stiffness_and_the_torque_at_rest(arm, seed):
 def test_stiffness_rate_gain_set(seed):
     from softgen.studies.gains import Theorem5Gains
     rng = np.random.default_rng(seed)
-    rate, K = rng.uniform(0.5, 8.0), rng.uniform(1e-6, 1e-4, 2)
-    g = Theorem5Gains.from_stiffness_rate(rate, K[0], K, lam=1.0, kd=2.0, kpi=3.0)
-    assert g.ksigma * K[0] == pytest.approx(rate) and np.allclose(g.kinv * K, 1.0)
+    rate, khat = rng.uniform(0.5, 8.0), rng.uniform(0.5, 2.0, 2)
+    g = Theorem5Gains.from_stiffness_rate(rate, lam=1.0, kd=2.0, kpi=3.0)
+    assert g.ksigma == pytest.approx(rate) and np.allclose(g.kinv, 1.0)
+    g = Theorem5Gains.from_stiffness_rate(rate, lam=1.0, kd=2.0, kpi=3.0, khat=khat)
+    assert np.allclose(g.ksigma * khat, rate) and np.allclose(g.kinv * khat, 1.0)
     assert g.params(["ctrl.lam", "ctrl.kinv"]) == {"ctrl.lam": 1.0, "ctrl.kinv": g.kinv}
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_thesis_gains_convert_to_the_same_pressures(seed):
+    """The thesis's K⁻¹-scaled form (Prop. 11: Π = π/K_1, τ_* in units of K) with its
+    printed gains and softgen's physical form with the converted gains
+    (thesis_to_physical) command the same pressures: p = Φ_th^† τ_*,th with Φ_th = Φ/K
+    against p = Φ^† τ_* (section 10.2's arm, seeded states)."""
+    rng = np.random.default_rng(seed)
+    a = pneumatic_arm(load_model("arm_2link_pneumatic"))
+    n, K = a.n, a.act.muscle_gain[:, 0]
+    kd_th, kpi_th = rng.uniform(5, 30, n), rng.uniform(10, 50)
+    kd, kpi = thesis_to_physical(a.act.muscle_gain, kd_th, kpi_th)
+    np.testing.assert_allclose(kd, K * kd_th, rtol=1e-15)
+    assert kpi == pytest.approx(K[0] * kpi_th, rel=1e-15)
+    q, qd, ref = ca.SX.sym("q", n), ca.SX.sym("qd", n), ca.SX.sym("ref", 6 * n)
+    P, lam = ca.SX.sym("P", a.n_params), ca.SX.sym("lam", n)
+    tau, yts, _ = a.tracking(q, qd, P, ref, lam, ca.DM(kd))
+    f = ca.Function("f", [q, qd, ref, P, lam], [a.act.Phi_pinv(q) @ tau, yts])
+    x = [rng.uniform(-0.4, 0.4, n), rng.normal(size=n), rng.uniform(-1, 1, 6 * n),
+         a.Pi_nominal * rng.uniform(0.5, 1.5, a.n_params), rng.uniform(1, 20, n)]
+    p, d = (np.array(v).ravel() for v in f(*x))
+    # The thesis's form: Φ_th = Φ/K, Π_th = π/K_1, τ_*,th = Y Π_th + K_d,th s, dΠ_th/dt =
+    # K_π,th Yᵀ s (equal muscles, c = 1).
+    Y, _ = a.regressor_star(q, qd, ref[n:2 * n] + lam * (ref[:n] - q),
+                            ref[2 * n:3 * n] + lam * (ref[n:2 * n] - qd))
+    s = ref[n:2 * n] + lam * (ref[:n] - q) - qd
+    tau_th = Y @ (P / K[0]) + ca.DM(kd_th) * s
+    Phi_th = a.act.Phi(q) / ca.DM(K)
+    p_th = ca.pinv(Phi_th) @ tau_th
+    g = ca.Function("g", [q, qd, ref, P, lam], [p_th, kpi_th * Y.T @ s])
+    p2, d2 = (np.array(v).ravel() for v in g(*x))
+    np.testing.assert_allclose(p, p2, rtol=1e-9)
+    np.testing.assert_allclose(kpi * d, K[0] * d2, rtol=1e-9)     # dπ̂/dt = K_1 dΠ̂_th/dt
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -330,11 +371,11 @@ def test_sinusoid_block_equals_the_numpy_sinusoid(seed):
 
 @pytest.mark.parametrize("name", ["planar_2link_mckibben", "arm3_mckibben_unequal"])
 def test_adaptation_law_cancels_the_cross_term(name):
-    """Lyapunov identity of the position loop (Theorem 5 proof, Prop. 11) for muscles of
-    unequal K_i = K_1/c_i: with p = Φ^†τ_* + Φ^⊥ν unclipped, V = ½ sᵀB s/K_1 +
-    ½ Π̃ᵀK_π⁻¹Π̃ has V̇ = sᵀK(Y_*Π + τ_0 − τ_*)/K_1 − Π̃ᵀ(dΠ̂/dt)/K_π, which must equal
-    −sᵀ diag(1/c) K_d s at any state. The printed direction Y_*ᵀ s leaves the cross
-    term sᵀ(K/K_1 − I)Y_*Π̃ whenever the K_i differ."""
+    """Lyapunov identity of the position loop (Theorem 5 proof, Prop. 11), also for
+    muscles of unequal gains: with p = Φ^†τ_* + Φ^⊥ν unclipped (Φp = τ_*), V = ½ sᵀB s +
+    ½ π̃ᵀK_π⁻¹π̃ has V̇ = sᵀ(Yπ + τ_0 − τ_*) − π̃ᵀ(dπ̂/dt)/K_π, which must equal −sᵀK_d s at
+    any state. (The thesis's K⁻¹-scaled form needs diag(1/c) for unequal K_i; with the
+    gains in Φ the printed direction Yᵀ s is exact.)"""
     from pathlib import Path
     path = name if "unequal" not in name else str(
         Path(__file__).parent / "data" / "user_models" / f"{name}.toml")
@@ -343,25 +384,16 @@ def test_adaptation_law_cancels_the_cross_term(name):
     q, qd, ref = ca.SX.sym("q", n), ca.SX.sym("qd", n), ca.SX.sym("ref", 6 * n)
     Pi_hat, lam, kd = ca.SX.sym("P", k), ca.SX.sym("lam", n), ca.SX.sym("kd", n)
     tau_star, yts, s = a.tracking(q, qd, Pi_hat, ref, lam, kd)
-    e = a.gain_ratio
     Y, known = a.regressor_star(q, qd, ref[n:2 * n] + lam * (ref[:n] - q),
                                 ref[2 * n:3 * n] + lam * (ref[n:2 * n] - qd))
     model = Y @ a.Pi_nominal + (known if known is not None else 0)
-    w = ca.DM(1 / e)                                   # K / K_1
-    vdot = ca.dot(s, w * (model - tau_star)) - ca.dot(a.Pi_nominal - Pi_hat, yts)
-    printed = ca.dot(s, w * (model - tau_star)) - ca.dot(a.Pi_nominal - Pi_hat, Y.T @ s)
-    want = -ca.dot(s, w * kd * s)
-    f = ca.Function("f", [q, qd, ref, Pi_hat, lam, kd], [vdot, printed, want])
+    vdot = ca.dot(s, model - tau_star) - ca.dot(a.Pi_nominal - Pi_hat, yts)
+    want = -ca.dot(s, kd * s)
+    f = ca.Function("f", [q, qd, ref, Pi_hat, lam, kd], [vdot, want])
     rng = np.random.default_rng(11)
-    worst_printed = 0.0
     for _ in range(10):
         args = [rng.uniform(-0.5, 0.5, n), rng.uniform(-1, 1, n), rng.uniform(-1, 1, 6 * n),
                 a.Pi_nominal * rng.uniform(0.5, 1.5, k), rng.uniform(1, 20, n),
                 rng.uniform(1, 20, n)]
-        got, pr, ref_v = (float(x) for x in f(*args))
+        got, ref_v = (float(x) for x in f(*args))
         assert got == pytest.approx(ref_v, rel=1e-9, abs=1e-9 * abs(ref_v) + 1e-12)
-        worst_printed = max(worst_printed, abs(pr - ref_v) / abs(ref_v))
-    if np.all(e == 1):
-        assert worst_printed < 1e-9                    # the thesis's arm: eq. 10.2 as printed
-    else:
-        assert worst_printed > 1e-3                    # unequal K: the printed law misses

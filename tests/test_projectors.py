@@ -11,6 +11,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from softgen.studies.gains import thesis_to_physical
 from softgen.control.pneumatic import PneumaticArm
 from softgen.control.pneumatic_loop import closed_loop
 from softgen.control.references import SmoothSteps
@@ -185,7 +186,9 @@ def test_mckibben_finite_and_exact_where_one_elongation_is_small(mck, mck_proj, 
         q = _mckibben_special_q(mck, side, eps)
         out = [np.array(o) for o in f(q)]
         phi_a, phi_b = (np.array(v).ravel() for v in mck.elongations(ca.DM(q)))
-        assert np.allclose(phi_a if side == "a" else phi_b, eps, rtol=1e-6, atol=1e-15)
+        # Φ carries each muscle's gain K_g R: the geometric elongation is φ / (K_g R).
+        K = mck.muscle_gain[:, 0 if side == "a" else 1]
+        assert np.allclose((phi_a if side == "a" else phi_b) / K, eps, rtol=1e-6, atol=1e-15)
         _check_identities(*out, tol=1e-12)
         Pc = np.array(g(q))
         assert np.allclose(out[1], Pc, rtol=1e-12, atol=1e-12 * np.abs(Pc).max())
@@ -424,12 +427,13 @@ def test_generic_routes_close_the_loop_like_the_closed_form():
     out = {}
     for label, arm in _arms(load_model("planar_2link_mckibben")).items():
         d = closed_loop(arm, "theorem5", dt, plant="ideal")
-        lam, kd, kinv = np.full(n, 15.0), np.full(n, 18.0), 1 / arm.act.K
+        lam, kinv = np.full(n, 15.0), np.ones(n)
+        kd, kpi = thesis_to_physical(arm.act.muscle_gain, np.full(n, 18.0), 35.0)
         p0, nu0 = arm.preset(arm.Pi_nominal, np.zeros(n), ref[:, 0], lam=lam, kd=kd,
                              kinv=kinv, dt=dt)
         x0 = d.initial_state({"ctrl.nu": nu0, "ctrl.Pi_hat": arm.Pi_nominal, "plant.p": p0})
-        p = d.parameters({"ctrl.lam": lam, "ctrl.kd": kd, "ctrl.kpi": 35.0,
-                          "ctrl.ksigma": 2 / arm.K1, "ctrl.kinv": kinv})
+        p = d.parameters({"ctrl.lam": lam, "ctrl.kd": kd, "ctrl.kpi": kpi,
+                          "ctrl.ksigma": 2.0, "ctrl.kinv": kinv})
         X, Y = (np.array(o) for o in d.loop_fun(steps)(x0, p, 0, ref))
         out[label] = (X[d.state.slice("plant.q")], Y[d.signals.slice("plant.sigma")])
     qc, sc = out["closed"]
@@ -489,10 +493,13 @@ def test_compiled_generic_projectors_equal_casadi(need_compiler, mck, mck_proj):
 
 def _biarticular(act: McKibbenPairs):
     """Φ of the two McKibben pairs plus a fifth, biarticular muscle acting on both joints:
-    one dense-coupled 2 × 5 block (nullity 3), not one pair per joint."""
+    one dense-coupled 2 × 5 block (nullity 3), not one pair per joint. The fifth muscle
+    has the pairs' gain K_g R (Φ is in N m/Pa)."""
+    K = float(act.muscle_gain[0, 0])
+
     def build(q):
         Phi = act.Phi(q)
-        psi = (0.17 + 0.03 * (q[0] + q[1])) ** 2 - 0.14 ** 2
+        psi = K * ((0.17 + 0.03 * (q[0] + q[1])) ** 2 - 0.14 ** 2)
         return ca.horzcat(Phi, ca.vertcat(0.5 * psi, 0.8 * psi))
     return _fun("Phi_bi", 2, build)
 

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from softgen.studies.gains import thesis_to_physical
 from softgen.bundles.common import PLANT_SUBSTEPS
 from softgen.bundles.bundle import (GENERATED_DIR, BundleOptions, bundle_spec, capabilities,
                                     load_bundle)
@@ -216,8 +217,9 @@ def test_bundle_theorem5_closed_step_equals_the_diagram_step(need_compiler):
         x = d.initial_state({"plant.q": rng.uniform(-0.5, 0.5), "plant.qd": rng.normal(),
                              "plant.p": rng.uniform(1e4, 3e5, 2),
                              "ctrl.Pi_hat": arm.Pi_nominal * rng.uniform(0.8, 1.2, 2)})
-        p = d.parameters({"ctrl.lam": 15.0, "ctrl.kd": 18.0, "ctrl.kpi": 35.0,
-                          "ctrl.ksigma": 2 / arm.K1, "ctrl.kinv": 1 / arm.act.K})
+        kd, kpi = thesis_to_physical(arm.act.muscle_gain, np.full(arm.n, 18.0), 35.0)
+        p = d.parameters({"ctrl.lam": 15.0, "ctrl.kd": kd, "ctrl.kpi": kpi,
+                          "ctrl.ksigma": 2.0, "ctrl.kinv": 1.0})
         e = np.r_[rng.uniform(-0.3, 0.3, 4), rng.uniform(1, 3, 2)]
         args = (x, p, float(rng.integers(0, 1000)), e)
         for got, want in zip(b[f"{name}_theorem5_closed_step"](*args), step(*args)):

@@ -584,7 +584,7 @@ def test_floating_plant_keeps_the_centre_of_mass_in_zero_gravity(tmp_path, human
 def test_floating_example_scenario(humanoid):
     """The export's example of a floating base: the joints reach the posture while the
     robot falls, in the Python twin of the exported loop."""
-    from softgen.export.scenarios import example_for
+    from softgen.studies.examples import example_for
     model = load_model(humanoid, floating=True)
     ex = example_for(model, steps=1500)
     assert ex.kind == "floating"
@@ -611,7 +611,7 @@ def test_series_elastic_quadruped(tmp_path):
     on a fixed base its example is the SEA cascade, which tracks on every leg; on a
     floating base the actuators are read and the bundle is the floating dynamics."""
     from softgen.bundles.registry import REGISTRY
-    from softgen.export.scenarios import example_for
+    from softgen.studies.examples import example_for
     model = _actuated_quadruped(tmp_path, False)
     assert [a.joint for a in model.actuators] == list(range(8))
     assert REGISTRY["sea_cascade"].why_not(model) is None

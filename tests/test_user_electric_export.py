@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from softgen.control.electric import electric_arm
-from softgen.export.scenarios import example_for
+from softgen.studies.examples import example_for
 from softgen.modelfile.load import load_model
 from softgen.studies.electric import (GRID_RATE, STIFFNESS_MARGIN, THESIS_GAINS,
                                       THESIS_REFERENCES, least_stiffness_fun, model_gains,

@@ -15,8 +15,9 @@ import pytest
 from softgen.cli import main
 from softgen.control.feasibility import check_pressures, stiffness_range
 from softgen.control.pneumatic import pneumatic_arm
-from softgen.export.scenarios import (PNEUMATIC_SIGMA_STEPS, STIFFNESS_HEADROOM, example_for,
-                                      pneumatic_stiffness_steps)
+from softgen.studies.examples import Theorem5Config, example_for, pneumatic_stiffness_steps
+
+CFG = Theorem5Config()
 from softgen.modelfile.load import load_model
 from export_check import build_or_skip, csv_equals_python, run
 
@@ -61,16 +62,16 @@ def test_stiffness_range_edges_put_a_pressure_on_its_bound(name):
 def test_example_stiffness_steps_fit_the_muscles():
     """The thesis's arm keeps section 10.2's steps exactly; the user arm's light hand
     (3.28 N m/rad at most while held at 0.3 rad) gets its steps scaled so that the top
-    one uses :data:`STIFFNESS_HEADROOM` of its range."""
-    steps, note = pneumatic_stiffness_steps(_arm("planar_2link_mckibben"))
-    assert note == "" and all(s.values == PNEUMATIC_SIGMA_STEPS[1] for s in steps)
+    one uses the config's ``stiffness_headroom`` of its range."""
+    steps, note = pneumatic_stiffness_steps(_arm("planar_2link_mckibben"), CFG)
+    assert note == "" and all(s.values == CFG.sigma_values for s in steps)
     arm = _arm()
-    steps, note = pneumatic_stiffness_steps(arm)
-    assert [s.values for s in steps[:2]] == [PNEUMATIC_SIGMA_STEPS[1]] * 2
+    steps, note = pneumatic_stiffness_steps(arm, CFG)
+    assert [s.values for s in steps[:2]] == [CFG.sigma_values] * 2
     qs = np.repeat(np.linspace(0.0, 0.3, 31)[:, None], 3, axis=1)
     _, hi = stiffness_range(arm, qs)
     assert hi[2] == pytest.approx(3.28, abs=0.005)
-    assert max(steps[2].values) == pytest.approx(STIFFNESS_HEADROOM * hi[2], rel=1e-12)
+    assert max(steps[2].values) == pytest.approx(CFG.stiffness_headroom * hi[2], rel=1e-12)
     assert "joints 3 (x0.656" in note
 
 

@@ -15,7 +15,7 @@ from softgen.bundles.registry import (FULLY_TORQUE_ACTUATED, LINEAR_SEA, PARTLY_
 from softgen.control.partial import PartialArm
 from softgen.core.errors import ModelError
 from softgen.core.paths import MODELS_DIR
-from softgen.export.scenarios import capability
+from softgen.studies.examples import choose
 from softgen.modelfile.load import load_model
 from softgen.modelfile.model import RobotModel
 from export_check import build_or_skip, csv_equals_python, read_csv, run
@@ -53,7 +53,7 @@ def test_user_models_get_what_applies():
     assert not got & {"slotine_li", "nominal_plant", "sea_cascade"}
     why = REGISTRY["slotine_li"].why_not(partial)
     assert "arm3_partial.toml" in why and "fore passive" in why
-    assert capability(sea) == "sea_cascade" and capability(partial) == "partial"
+    assert choose(sea).id == "sea-cascade" and choose(partial).id == "partial"
 
 
 def test_passive_joint_without_damping_is_named(tmp_path):

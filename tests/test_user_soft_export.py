@@ -21,7 +21,7 @@ def test_user_pcc_export_builds_runs_and_tracks(tmp_path):
     res = build_or_skip(str(MODEL), tmp_path / "ex")
     csv_equals_python(res.binary, str(MODEL), 400, tmp_path)
     # 20 s from π̂ = 0: "tracks" is an rms error (whole run, start included) below an
-    # eighth of the smallest reference amplitude (π/8 rad, export.scenarios
+    # eighth of the smallest reference amplitude (π/8 rad, studies.examples
     # SOFT_REFERENCE). Measured on 2026-12-02: rms 0.013, 0.018, 0.017 rad.
     out = run([res.binary, "--fast", "--seconds", "20"]).stdout
     rms = [float(x) for x in re.findall(r"\[\d+\]: rms (\S+),", out)]

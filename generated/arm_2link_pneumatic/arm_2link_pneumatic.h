@@ -502,7 +502,7 @@ int arm_2link_pneumatic_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casa
 #define arm_2link_pneumatic_theorem5_closed_loop_SZ_ARG 20
 #define arm_2link_pneumatic_theorem5_closed_loop_SZ_RES 12
 #define arm_2link_pneumatic_theorem5_closed_loop_SZ_IW 0
-#define arm_2link_pneumatic_theorem5_closed_loop_SZ_W 99419
+#define arm_2link_pneumatic_theorem5_closed_loop_SZ_W 99420
 int arm_2link_pneumatic_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int arm_2link_pneumatic_feedback_linearization_checkout(void);
 void arm_2link_pneumatic_feedback_linearization_release(int mem);

@@ -502,7 +502,7 @@ int gioste_1link_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int*
 #define gioste_1link_theorem5_closed_loop_SZ_ARG 20
 #define gioste_1link_theorem5_closed_loop_SZ_RES 12
 #define gioste_1link_theorem5_closed_loop_SZ_IW 0
-#define gioste_1link_theorem5_closed_loop_SZ_W 48665
+#define gioste_1link_theorem5_closed_loop_SZ_W 48668
 int gioste_1link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int gioste_1link_feedback_linearization_checkout(void);
 void gioste_1link_feedback_linearization_release(int mem);

@@ -502,7 +502,7 @@ int pendulum_1link_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casadi_in
 #define pendulum_1link_theorem5_closed_loop_SZ_ARG 20
 #define pendulum_1link_theorem5_closed_loop_SZ_RES 12
 #define pendulum_1link_theorem5_closed_loop_SZ_IW 0
-#define pendulum_1link_theorem5_closed_loop_SZ_W 54002
+#define pendulum_1link_theorem5_closed_loop_SZ_W 54005
 int pendulum_1link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pendulum_1link_feedback_linearization_checkout(void);
 void pendulum_1link_feedback_linearization_release(int mem);

@@ -593,6 +593,60 @@ int pendulum_qbmove_noninvasive_estimator_step_work_bytes(casadi_int *sz_arg, ca
 #define pendulum_qbmove_noninvasive_estimator_step_SZ_RES 5
 #define pendulum_qbmove_noninvasive_estimator_step_SZ_IW 0
 #define pendulum_qbmove_noninvasive_estimator_step_SZ_W 0
+int pendulum_qbmove_spring_pair_cascade(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_qbmove_spring_pair_cascade_checkout(void);
+void pendulum_qbmove_spring_pair_cascade_release(int mem);
+void pendulum_qbmove_spring_pair_cascade_incref(void);
+void pendulum_qbmove_spring_pair_cascade_decref(void);
+casadi_int pendulum_qbmove_spring_pair_cascade_n_in(void);
+casadi_int pendulum_qbmove_spring_pair_cascade_n_out(void);
+casadi_real pendulum_qbmove_spring_pair_cascade_default_in(casadi_int i);
+const char* pendulum_qbmove_spring_pair_cascade_name_in(casadi_int i);
+const char* pendulum_qbmove_spring_pair_cascade_name_out(casadi_int i);
+const casadi_int* pendulum_qbmove_spring_pair_cascade_sparsity_in(casadi_int i);
+const casadi_int* pendulum_qbmove_spring_pair_cascade_sparsity_out(casadi_int i);
+int pendulum_qbmove_spring_pair_cascade_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_qbmove_spring_pair_cascade_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_qbmove_spring_pair_cascade_SZ_ARG 8
+#define pendulum_qbmove_spring_pair_cascade_SZ_RES 9
+#define pendulum_qbmove_spring_pair_cascade_SZ_IW 0
+#define pendulum_qbmove_spring_pair_cascade_SZ_W 0
+int pendulum_qbmove_spring_pair_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_qbmove_spring_pair_plant_checkout(void);
+void pendulum_qbmove_spring_pair_plant_release(int mem);
+void pendulum_qbmove_spring_pair_plant_incref(void);
+void pendulum_qbmove_spring_pair_plant_decref(void);
+casadi_int pendulum_qbmove_spring_pair_plant_n_in(void);
+casadi_int pendulum_qbmove_spring_pair_plant_n_out(void);
+casadi_real pendulum_qbmove_spring_pair_plant_default_in(casadi_int i);
+const char* pendulum_qbmove_spring_pair_plant_name_in(casadi_int i);
+const char* pendulum_qbmove_spring_pair_plant_name_out(casadi_int i);
+const casadi_int* pendulum_qbmove_spring_pair_plant_sparsity_in(casadi_int i);
+const casadi_int* pendulum_qbmove_spring_pair_plant_sparsity_out(casadi_int i);
+int pendulum_qbmove_spring_pair_plant_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_qbmove_spring_pair_plant_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_qbmove_spring_pair_plant_SZ_ARG 3
+#define pendulum_qbmove_spring_pair_plant_SZ_RES 1
+#define pendulum_qbmove_spring_pair_plant_SZ_IW 0
+#define pendulum_qbmove_spring_pair_plant_SZ_W 0
+int pendulum_qbmove_spring_pair_deflections(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pendulum_qbmove_spring_pair_deflections_checkout(void);
+void pendulum_qbmove_spring_pair_deflections_release(int mem);
+void pendulum_qbmove_spring_pair_deflections_incref(void);
+void pendulum_qbmove_spring_pair_deflections_decref(void);
+casadi_int pendulum_qbmove_spring_pair_deflections_n_in(void);
+casadi_int pendulum_qbmove_spring_pair_deflections_n_out(void);
+casadi_real pendulum_qbmove_spring_pair_deflections_default_in(casadi_int i);
+const char* pendulum_qbmove_spring_pair_deflections_name_in(casadi_int i);
+const char* pendulum_qbmove_spring_pair_deflections_name_out(casadi_int i);
+const casadi_int* pendulum_qbmove_spring_pair_deflections_sparsity_in(casadi_int i);
+const casadi_int* pendulum_qbmove_spring_pair_deflections_sparsity_out(casadi_int i);
+int pendulum_qbmove_spring_pair_deflections_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pendulum_qbmove_spring_pair_deflections_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pendulum_qbmove_spring_pair_deflections_SZ_ARG 3
+#define pendulum_qbmove_spring_pair_deflections_SZ_RES 4
+#define pendulum_qbmove_spring_pair_deflections_SZ_IW 0
+#define pendulum_qbmove_spring_pair_deflections_SZ_W 0
 void pendulum_qbmove_casadi_version(int* major, int* minor, int* patch);
 int pendulum_qbmove_casadi_int_size(void);
 int pendulum_qbmove_casadi_real_size(void);

@@ -502,7 +502,7 @@ int planar_2link_mckibben_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, ca
 #define planar_2link_mckibben_theorem5_closed_loop_SZ_ARG 20
 #define planar_2link_mckibben_theorem5_closed_loop_SZ_RES 12
 #define planar_2link_mckibben_theorem5_closed_loop_SZ_IW 0
-#define planar_2link_mckibben_theorem5_closed_loop_SZ_W 99419
+#define planar_2link_mckibben_theorem5_closed_loop_SZ_W 99420
 int planar_2link_mckibben_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int planar_2link_mckibben_feedback_linearization_checkout(void);
 void planar_2link_mckibben_feedback_linearization_release(int mem);

@@ -110,6 +110,7 @@ def _theorem5_loop_speed(model, seconds: float = 60.0) -> dict:
     from softgen.control.pneumatic import pneumatic_arm
     from softgen.control.pneumatic_loop import controller_block as t5_block
     from softgen.control.pneumatic_loop import plant_block as mck_plant
+    from softgen.studies.gains import thesis_to_physical
 
     arm = pneumatic_arm(model)
     n, dt = arm.n, 1e-3
@@ -119,8 +120,9 @@ def _theorem5_loop_speed(model, seconds: float = 60.0) -> dict:
                    [stiffness_reference_block("ref", steps_q, steps_s),
                     t5_block(arm, "theorem5", dt), mck_plant(arm, dt)],
                    [("ctrl.p", "plant.p_cmd")])
-    gains = {"ctrl.lam": 15.0, "ctrl.kd": 18.0, "ctrl.kpi": 35.0,
-             "ctrl.ksigma": 2.0 / arm.K1, "ctrl.kinv": 1 / arm.act.K}
+    kd, kpi = thesis_to_physical(arm.act.muscle_gain, np.full(n, 18.0), 35.0)
+    gains = {"ctrl.lam": 15.0, "ctrl.kd": kd, "ctrl.kpi": kpi, "ctrl.ksigma": 2.0,
+             "ctrl.kinv": 1.0}
     x0 = {"ctrl.Pi_hat": arm.Pi_nominal, "plant.p": 1e4}
     simulate(d, steps=1000, params=gains, x0=x0)           # compile (cached), warm up
     record = ["plant.q", "plant.sigma", "ctrl.p", "ctrl.nu", "ctrl.Pi_hat", "ref.q_d",

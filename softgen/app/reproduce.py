@@ -41,7 +41,7 @@ from softgen.app.report import caption_of, write_report
 from softgen.runtime.simulate import progress_context, set_full_traces, set_progress
 from softgen.core.config import Config
 from softgen.core.errors import SoftgenError
-from softgen.experiments.registry import Experiment, experiment_ids, get
+from softgen.experiments.registry import Experiment, experiment_ids, get, require_capabilities
 from softgen.core.metrics import VERDICTS, Metrics, finding
 
 #: Seconds to wait for killed workers before giving up on them.
@@ -120,6 +120,7 @@ def run_one(exp_id: str, out_root: Path, quick: bool, code: str | None = None,
     """Run one experiment in this process; write ``out_root/<id>/metrics.json``."""
     exp = get(exp_id)
     config = _config(exp, quick, sets)
+    require_capabilities(exp_id, config)      # the model's one decision, before any work
     config_dict = config.to_dict() if isinstance(config, Config) else config
     rhash = run_hash(exp_id, config_dict, quick, code or code_hash())
     out = Path(out_root) / exp_id

@@ -1,4 +1,4 @@
-"""Typed discrete-time blocks and closed-loop diagrams (DESIGN.md section 1).
+"""Typed discrete-time blocks and closed-loop diagrams (docs/design.md section 1).
 
 ``Block``: a step ``x_next, y = step(x, u, p)`` with a sample time and named
 layouts. ``ClosedLoop``: blocks wired by signal name, checked, generated as one

@@ -1,4 +1,4 @@
-"""The typed discrete-time block (DESIGN.md section 1, "Closed loops").
+"""The typed discrete-time block (docs/design.md section 1, "Closed loops").
 
 Every plant, sensor, estimator, controller and reference generator of softgen is a
 :class:`Block`: a name, a sample time ``dt``, named layouts for its state, inputs,

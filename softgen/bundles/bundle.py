@@ -21,10 +21,12 @@ import numpy as np
 import softgen.bundles.floating  # noqa: F401
 import softgen.bundles.rigid  # noqa: F401
 import softgen.bundles.soft  # noqa: F401
+import softgen.bundles.spring_pair  # noqa: F401
+from softgen.bundles.common import (DEFAULT_OPTIONS, BundleOptions, actuator_record,
+                                    identity_bytes, model_chain, model_file_path, model_source)
 from softgen.bundles.floating import model_layout
-from softgen.bundles.common import (DEFAULT_OPTIONS, BundleOptions, identity_bytes, model_chain,
-                                    model_file_path, model_source)
-from softgen.bundles.registry import REGISTRY, Capability, Context, merge
+from softgen.bundles.registry import Capability, Context, Decision, merge
+from softgen.bundles.registry import decide as _decide
 from softgen.codegen.generate import BundleSpec, content_hash, write_bundle
 from softgen.core.errors import BundleError, ModelError
 from softgen.core.paths import GENERATED_DIR
@@ -37,9 +39,16 @@ from softgen.symbolic.rigid import RigidDynamics
 from softgen.modelfile.limits import check_expression_size
 
 
+def decide(model) -> Decision:
+    """The one capability decision for ``model`` (:class:`~softgen.bundles.registry.Decision`):
+    what ``info`` lists, ``generate`` builds, ``export`` and ``bench`` run. Every builder
+    module is imported above, so the registry is complete."""
+    return _decide(model)
+
+
 def capabilities(model) -> list[tuple[Capability, str | None]]:
     """Every registered capability with None (``model`` gets it) or why it does not."""
-    return REGISTRY.evaluate(model)
+    return list(decide(model).results)
 
 
 def bundle_spec(model: RobotModel | SoftModel,
@@ -80,23 +89,58 @@ def _cached_soft_spec(text: str, path, options: BundleOptions, model: SoftModel)
     return _assemble(model, options)
 
 
+#: Derivations kept per process (:func:`derivation`), most recent last.
+_DERIVATIONS: dict[tuple, Context] = {}
+_DERIVATIONS_KEPT = 8
+
+
+def derivation(model: RobotModel | SoftModel,
+               options: BundleOptions = DEFAULT_OPTIONS) -> Context:
+    """The model's symbolic derivation (dynamics, actuators, routes: a
+    :class:`~softgen.bundles.registry.Context`), made once per model content and options
+    in a process and shared by the bundle, the examples and the experiments' loops (a
+    closed loop takes the model's functions from the same derivation as its bundle,
+    never from a second one). Keyed by the bundle's identity (model source and options),
+    the chain and the file's path; a model built in memory (no file) by the object."""
+    if getattr(model, "path", None) is None:
+        key: tuple = ("object", id(model), options)
+    else:
+        key = (identity_bytes(model.source_text(), options), str(model.path),
+               getattr(model, "chain", None), model.name)
+    ctx = _DERIVATIONS.pop(key, None)
+    if ctx is None or (key[0] == "object" and ctx.model is not model):
+        dyn = SoftDynamics(model, route=options.route) if isinstance(model, SoftModel) \
+            else RigidDynamics(model, route=options.route)
+        ctx = Context(model, options, dyn)
+    _DERIVATIONS[key] = ctx
+    while len(_DERIVATIONS) > _DERIVATIONS_KEPT:
+        _DERIVATIONS.pop(next(iter(_DERIVATIONS)))
+    return ctx
+
+
 def _assemble(model, options: BundleOptions) -> BundleSpec:
-    dyn = SoftDynamics(model, route=options.route) if isinstance(model, SoftModel) \
-        else RigidDynamics(model, route=options.route)
-    ctx = Context(model, options, dyn)
+    ctx = derivation(model, options)
+    dyn = ctx.dyn
     extra = {"dof": model.dof, **model_source(model), **model_layout(model),
              "options": dict(options.__dict__), "route": dyn.route,
              "full_parameter_count": dyn.base.full_rank}
     if isinstance(dyn, RigidDynamics):
         # Which route built each product, and the instruction counts it chose by.
         extra["route_detail"] = dyn.route_detail
-    fns, caps = [], REGISTRY.applicable(model)
+    decision = decide(model)
+    fns, caps = [], decision.granted
     for cap in caps:
         part = cap.build(ctx)
         fns += [replace(g, optimization=g.optimization or STEP_LEVEL)
                 if cap.name in O1_CAPABILITIES else g for g in part.functions]
         merge(extra, part.extra)
-    extra["capabilities"] = [c.name for c in caps]
+    if isinstance(dyn, RigidDynamics):
+        # Recorded as each product is first built; the derivation is shared with the
+        # examples and experiments of the process (derivation), so the order in which
+        # they asked varies: sorted, the manifest is the same bytes whatever ran first.
+        extra["route_detail"] = dict(sorted(dyn.route_detail.items()))
+    extra.update(decision.manifest())
+    extra["actuators"] = actuator_record(model)
     if getattr(model, "original_name", ""):
         # The file's own name, when it had to be sanitised into a C identifier (a URDF
         # <robot name="ur5-e">): users search the manifest for the name they wrote.

@@ -77,6 +77,25 @@ def model_source(model) -> dict:
     return source
 
 
+def actuator_record(model) -> list[dict]:
+    """The manifest's ``actuators``: per declared actuator its joint, type, drive, each
+    side's law (text, constants) with the properties judged once at load, and the pair's
+    stiffness range under its input limits (:mod:`softgen.modelfile.laws`)."""
+    out = []
+    links = getattr(model, "links", None)
+    for a in getattr(model, "actuators", ()) or ():
+        rec: dict = {"joint": links[a.joint].name if links else a.joint, "type": a.type,
+                     "drive": a.drive, "family": a.family}
+        if a.sides:
+            rec["sides"] = [{"side": sd.name, "law": sd.text,
+                             "constants": dict(sd.constants),
+                             "properties": sd.law.properties.as_dict()} for sd in a.sides]
+        if a.pair is not None:
+            rec["pair"] = a.pair.as_dict()
+        out.append(rec)
+    return out
+
+
 def model_chain(manifest: dict) -> dict:
     """``root=`` and ``tip=`` of :func:`softgen.modelfile.load.load_model` for the
     manifest's model (empty unless it is a chain cut out of a URDF file)."""

@@ -22,6 +22,8 @@ def _floating(model) -> str | None:
     if isinstance(model, RobotModel) and model.floating:
         return None
     where = getattr(model, "path", None) or model.name
+    if not isinstance(model, RobotModel):
+        return f"{where}: a soft body (model.kind = {model.kind!r}), not a rigid model"
     return f"{where}: a fixed base (a floating one: --floating, or floating = true)"
 
 

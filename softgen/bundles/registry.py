@@ -30,8 +30,7 @@ import casadi as ca
 import numpy as np
 
 from softgen.codegen.generate import Generated
-from softgen.modelfile.expr import parse_law, spring_c, spring_derivatives
-from softgen.modelfile.model import RobotModel, pressure_linear, sinh_constants
+from softgen.modelfile.model import RobotModel
 from softgen.modelfile.soft import SoftModel
 from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
 from softgen.symbolic.pcc import LinearRoute
@@ -121,7 +120,7 @@ def _pairs(model, drive: str, what: str, law_why) -> str | None:
                     f"{model.links[a.joint].name}, drive {a.drive}; needs {what})")
         for side in a.sides:
             if (bad := law_why(side)) is not None:
-                return f"{_where(model)}: {key}.{side.name}.law = {side.law!r}{bad}"
+                return f"{_where(model)}: {key}.{side.name}.law = {side.text!r}{bad}"
     return None
 
 
@@ -129,9 +128,9 @@ def _sinh_spring_pairs(model) -> str | None:
     """Every joint an antagonistic spring pair whose laws satisfy tau'' = c tau with
     c > 0 and tau(0) = 0 (k sinh(a phi), c = a^2; eq. 6.6): the chapter-11 cascade
     inverts them in closed form (eq. 11.3) and the electric estimators differentiate
-    them. Decided on the laws by CasADi (``Actuator.sinh``, :func:`sinh_constants`)."""
+    them. Decided on the laws' properties, judged once at load (``side.law.spring.c``)."""
     return _pairs(model, "spring", "an antagonistic spring pair with tau'' = c tau, c > 0",
-                  lambda side: None if sinh_constants(side) is not None else
+                  lambda side: None if side.law.spring.sinh is not None else
                   ": no constant c > 0 with tau'' = c tau and tau(0) = 0 (needs "
                   "k sinh(a phi))")
 
@@ -140,7 +139,7 @@ def _pressure_pairs(model) -> str | None:
     """Every joint a pressure-driven antagonistic pair whose laws are linear in p
     (tau = Phi(q) p, eq. 2.2; checked by CasADi: d law/dp independent of p)."""
     return _pairs(model, "pressure", "a pressure-driven antagonistic pair linear in p",
-                  lambda side: None if pressure_linear(side) else
+                  lambda side: None if side.law.pressure.linear_in_p else
                   " is not linear in p (needs tau = phi(q) p)")
 
 
@@ -159,10 +158,8 @@ def _linear_sea(model) -> str | None:
             return (f"{_where(model)}: actuators.type = {a.type!r} ({key}, joint "
                     f"{model.links[a.joint].name}, drive {a.drive}; needs {what})")
         side = a.sides[0]
-        consts = dict(side.constants)
-        law = parse_law(side.law, ("phi", *consts), f"{key}.law")
-        if spring_c(spring_derivatives(law, consts)) != 0.0:
-            return (f"{_where(model)}: {key}.law = {side.law!r} is not linear in phi "
+        if not side.law.spring.linear:
+            return (f"{_where(model)}: {key}.law = {side.text!r} is not linear in phi "
                     "(needs k*phi)")
     return _motor_dynamics(model)
 
@@ -206,26 +203,26 @@ FULLY_TORQUE_ACTUATED = Condition("a torque on every joint (an actuator on each 
 
 
 def _partly_actuated(model) -> str | None:
-    """At least one passive joint, each with positive stiffness and damping (it settles
-    by itself), and every actuated joint's torque reachable with
-    motors that have dynamics: a direct torque, or a spring (SEA or antagonistic pair)
-    whose law is invertible near 0 (τ_e'(0) > 0 summed over its sides, so the
-    deflection giving a wanted torque exists: :meth:`Actuation.deflection`) driven by
-    motors with inertia and damping. Pressure drives are not covered (the
-    collocated controller of :mod:`softgen.control.partial` commands motors or
-    torques)."""
+    """At least one passive joint whose zero dynamics settle, and every actuated joint's
+    torque reachable with motors that have dynamics.
+
+    Passive joints (:func:`softgen.control.partial.zero_dynamics_problem`, derived there):
+    each damped (damping > 0: without it the passive motion conserves energy and never
+    settles), and held at a strict minimum of gravity and stiffness (the Hessian of the
+    potential in the passive joints positive definite at their equilibrium, checked on
+    the model for actuated set-points over ±1 rad): stiffness is not needed where gravity
+    holds them (an arm hanging down), and does not suffice where gravity overturns it.
+    Actuated joints: a direct torque, or a spring (SEA or antagonistic pair) whose law is
+    invertible near 0 (τ_e'(0) > 0 summed over its sides, so the deflection giving a
+    wanted torque exists: :meth:`Actuation.deflection`) driven by motors with inertia and
+    damping. Pressure drives are not covered (the collocated controller of
+    :mod:`softgen.control.partial` commands motors or torques)."""
+    from softgen.control.partial import zero_dynamics_problem   # control sits above
     acts = _acts(model)
     passive = sorted(set(range(model.dof)) - {a.joint for a in acts})
     if not acts or not passive:
         return (f"{_where(model)}: actuators: no passive joint (needs at least one "
                 "passive joint and an actuator on another)")
-    for j in passive:
-        link = model.links[j]
-        for k in ("stiffness", "damping"):
-            v = model.resolve(getattr(link, k), model.nominal)
-            if not float(v) > 0:
-                return (f"{_where(model)}: links ({link.name}).{k}: a passive joint needs "
-                        f"a positive {k} to settle, got {getattr(link, k)!r}")
     for i, a in enumerate(acts):
         key = f"actuators[{i}]"
         if a.drive == "torque":
@@ -234,11 +231,7 @@ def _partly_actuated(model) -> str | None:
             return (f"{_where(model)}: {key}.drive = {a.drive!r} (joint "
                     f"{model.links[a.joint].name}; needs a direct torque or a spring "
                     "drive with motors)")
-        slope = 0.0
-        for side in a.sides:
-            consts = dict(side.constants)
-            law = parse_law(side.law, ("phi", *consts), f"{key}.{side.name or 'law'}")
-            slope += float(spring_derivatives(law, consts)(0.0)[1])
+        slope = sum(side.law.spring.slope0 for side in a.sides)
         if not slope > 0:
             return (f"{_where(model)}: {key} (joint {model.links[a.joint].name}): spring "
                     f"slope at phi = 0 is {slope:g} (needs > 0 to reach any torque)")
@@ -247,13 +240,14 @@ def _partly_actuated(model) -> str | None:
             if v is None or not all(x > 0 for x in v):
                 return (f"{_where(model)}: {key} (joint {model.links[a.joint].name}).{k}: "
                         f"needs positive values, got {v!r}")
-    return None
+    return zero_dynamics_problem(model)
 
 
-PARTLY_ACTUATED = Condition("partly actuated: at least one passive joint (stiffness and "
-                            "damping > 0), every actuated "
-                            "joint a direct torque or a spring drive (SEA or pair) with "
-                            "slope > 0 at phi = 0 and motor dynamics", _partly_actuated)
+PARTLY_ACTUATED = Condition("partly actuated: at least one passive joint, each damped and "
+                            "held at a strict minimum of gravity and stiffness (stable zero "
+                            "dynamics), every actuated joint a direct torque or a spring "
+                            "drive (SEA or pair) with slope > 0 at phi = 0 and motor "
+                            "dynamics", _partly_actuated)
 
 
 def _motor_dynamics(model) -> str | None:
@@ -326,6 +320,13 @@ class Capability:
     doc: str
     needs: tuple[Condition, ...]
     build: Callable[[Context], Part]
+    #: Whether the capability models the declared actuators (their laws, motors or
+    #: pressures); a model whose non-torque actuators no granted capability models is
+    #: warned about (:class:`Decision`).
+    uses_actuators: bool = False
+    #: The drive of the actuators it models ("spring", "pressure"; "" any): which
+    #: capability's reason a warning about unused actuators quotes.
+    drive: str = ""
 
     def why_not(self, model) -> str | None:
         """None if every condition holds, else the first failed condition's reason."""
@@ -342,8 +343,10 @@ class Registry:
     def __init__(self):
         self._caps: dict[str, Capability] = {}
 
-    def capability(self, name: str, *, layer: str, needs: tuple[Condition, ...], doc: str):
-        """Decorator registering ``build(ctx) -> Part`` under ``name``."""
+    def capability(self, name: str, *, layer: str, needs: tuple[Condition, ...], doc: str,
+                   uses_actuators: bool = False, drive: str = ""):
+        """Decorator registering ``build(ctx) -> Part`` under ``name`` (``uses_actuators``,
+        ``drive``: see :class:`Capability`)."""
         if layer not in LAYERS:
             raise ValueError(f"capability {name}: layer: expected one of {', '.join(LAYERS)}, "
                              f"got {layer!r}")
@@ -351,7 +354,8 @@ class Registry:
         def register(build: Callable[[Context], Part]):
             if name in self._caps:
                 raise ValueError(f"capability {name!r} registered twice")
-            self._caps[name] = Capability(name, layer, doc, tuple(needs), build)
+            self._caps[name] = Capability(name, layer, doc, tuple(needs), build,
+                                          uses_actuators, drive)
             return build
         return register
 
@@ -374,6 +378,89 @@ class Registry:
 
 #: The one registry; :mod:`softgen.bundles.rigid` and :mod:`softgen.bundles.soft` fill it.
 REGISTRY = Registry()
+
+
+# --------------------------------------------------------------------------- the decision
+
+@dataclass(frozen=True)
+class Decision:
+    """What a model gets, decided once from its laws' properties (issue 31).
+
+    ``results`` holds every registered capability with None (granted) or why not, in
+    registration order; ``warnings`` what a user should know although nothing is refused
+    (a declared actuator that no granted capability models). ``info``, ``generate``,
+    ``export``, ``bench``, ``check`` and the experiments all read this one object
+    (:func:`decide`), so they cannot disagree.
+    """
+
+    model: str
+    results: tuple[tuple[Capability, str | None], ...]
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def granted(self) -> list[Capability]:
+        return [c for c, why in self.results if why is None]
+
+    @property
+    def granted_names(self) -> list[str]:
+        return [c.name for c in self.granted]
+
+    def why_not(self, name: str) -> str | None:
+        """None if the model gets capability ``name``, else why not."""
+        for c, why in self.results:
+            if c.name == name:
+                return why
+        raise KeyError(f"no capability {name!r} (registered: "
+                       f"{', '.join(c.name for c, _ in self.results)})")
+
+    def gets(self, name: str) -> bool:
+        return self.why_not(name) is None
+
+    def manifest(self) -> dict:
+        """The manifest's record of the decision: granted names (``capabilities``, as
+        before), the refused ones with their reasons, and the warnings."""
+        return {"capabilities": self.granted_names,
+                "capabilities_refused": {c.name: why for c, why in self.results
+                                         if why is not None},
+                "warnings": list(self.warnings)}
+
+
+def _unused_actuators(model, results) -> tuple[str, ...]:
+    """Warnings for declared actuators (other than direct torques) that no granted
+    capability models: their laws are in the file, but nothing generated uses them."""
+    acts = [a for a in _acts(model) if a.drive != "torque"]
+    if not acts or any(c.uses_actuators and why is None for c, why in results):
+        return ()
+    drives = {a.drive for a in acts}
+    reason = next((why for c, why in results if c.uses_actuators and why is not None
+                   and c.layer == "control" and c.drive in drives), None)
+    names = ", ".join(f"{model.links[a.joint].name} ({a.type}"
+                      f"{', ' + a.drive if a.type == 'antagonistic' else ''})" for a in acts)
+    return (f"{_where(model)}: actuators of joints {names} are declared but no capability "
+            "models them: the bundle holds the rigid dynamics only"
+            + (f" (first reason: {reason})" if reason else ""),)
+
+
+_DECISION_ATTR = "_softgen_decision"
+
+
+def decide(model) -> Decision:
+    """The capability decision for ``model`` over the capabilities registered so far, made
+    once per model object (the conditions read the laws' properties judged at load;
+    nothing is parsed again). Callers use :func:`softgen.bundles.bundle.decide`, which
+    imports every builder module first so that the registry is complete."""
+    cached = getattr(model, _DECISION_ATTR, None)
+    if isinstance(cached, Decision) and len(cached.results) == len(REGISTRY.names()):
+        return cached
+    results = tuple(REGISTRY.evaluate(model))
+    d = Decision(model.name, results, _unused_actuators(model, results))
+    try:
+        # Frozen dataclasses: the decision is a function of the model's content, kept on
+        # the object (dataclasses.replace makes a new model, which decides anew).
+        object.__setattr__(model, _DECISION_ATTR, d)
+    except (AttributeError, TypeError):
+        pass
+    return d
 
 
 def merge(into: dict, extra: dict, where: str = "") -> dict:

@@ -1,6 +1,6 @@
 """Capabilities of soft bodies (thesis ch. 3 and 12), registered in the registry.
 
-The soft-body contract of DESIGN.md section 2: the rigid functions (inertia,
+The soft-body contract of docs/design.md section 2: the rigid functions (inertia,
 coriolis, gravity, regressor, regressor_times, regressor_transpose_times,
 inverse_dynamics, forward_dynamics with A(q) τ), ``_actuation``, ``_backbone``,
 for pcc-3d ``_augmented_map`` and ``_augmented_jacobian``, and

@@ -6,7 +6,7 @@ One module per verb (``softgen/cli/<verb>.py``), each with ``HELP``,
 :mod:`softgen.app`, :mod:`softgen.bundles` and :mod:`softgen.export`.
 
 Exit status 0 on success; on bad input one line ``softgen: error: ...`` on stderr
-and status 2 (DESIGN.md section 2). A result that is not finite (``estimate`` on a
+and status 2 (docs/design.md section 2). A result that is not finite (``estimate`` on a
 log that makes the estimator diverge) gives one such line and status 1; an
 interrupted ``reproduce`` (SIGINT, SIGTERM) status 130, after writing
 ``report.md`` marked incomplete.

@@ -84,8 +84,9 @@ def add_arguments(p) -> None:
                    help="header row; time column t (or time) and the estimator's "
                         "measurement columns; uniform sampling")
     p.add_argument("--method", choices=("invasive", "noninvasive"), default="invasive",
-                   help="invasive: pneumatic (McKibben) or electric (qbmove), chapter 6; "
-                        "noninvasive: qbmove, chapter 7 (default: invasive)")
+                   help="invasive: pressure pairs (pneumatic) or spring drives with "
+                        "motors (electric), chapter 6; noninvasive: spring drives, chapter "
+                        "7; any declared law (default: invasive)")
     p.add_argument("--out", metavar="OUT.csv",
                    help="estimates (default: <log stem>_estimate.csv beside the log; for the "
                         "shipped sample log, in the current directory)")

@@ -20,6 +20,12 @@ def add_arguments(p) -> None:
                    help="also build the project (make, with the C compiler of --cc or $CC)")
     p.add_argument("--cc", metavar="CC", help="C compiler for --build (default $CC, cc, gcc, "
                    "clang)")
+    p.add_argument("--example", metavar="ID",
+                   help="the registered example to export (default: the first the model's "
+                        "capabilities grant; `softgen info MODEL` lists them)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="a value of the example's typed config (gains, references, dt), "
+                        "checked before anything is written; repeatable")
     add_chain_arguments(p)
 
 
@@ -27,7 +33,13 @@ def run(args) -> int:
     # Imported here: every verb's module is imported to build the parser, and this one
     # pulls in CasADi and the control library (start-up cost of every other verb).
     from softgen.export.project import export, summary
-    res = export(chain_model(args, args.model, "export"), args.out, force=args.force, build=args.build, cc=args.cc)
+    from softgen.modelfile.load import load_model
+    from softgen.studies.examples import choose, parse_overrides
+    model = chain_model(args, args.model, "export")
+    loaded = model if not isinstance(model, str) else load_model(model)
+    overrides = parse_overrides(choose(loaded, args.example), args.set)
+    res = export(loaded if not isinstance(model, str) else model, args.out, force=args.force,
+                 build=args.build, cc=args.cc, example=args.example, overrides=overrides)
     for line in summary(res):
         print(line)
     return 0

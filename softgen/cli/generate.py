@@ -36,12 +36,15 @@ def _generate_one(model, out: Path, build: bool, force: bool = False) -> str:
     """Generate (and compile) one bundle; the line ``generate`` prints for it. Each phase
     (derive and write, compile) is announced as it starts, from whichever worker runs
     it, so a long compile is never silent."""
-    from softgen.bundles.bundle import generate, up_to_date
+    from softgen.bundles.bundle import decide, generate, up_to_date
     from softgen.codegen.build import ensure_library
     from softgen.modelfile.load import load_model
     t0 = time.perf_counter()
     name = getattr(model, "name", model)      # a loaded URDF chain (--root/--tip)
     loaded = load_model(model) if isinstance(model, (str, Path)) else model
+    for w in decide(loaded).warnings:         # what `info` warns about, generate says too
+        sys.stderr.write(f"softgen: warning: {w}\n")
+        sys.stderr.flush()
     if not force and up_to_date(loaded, out / loaded.name):
         # The shipped bundles of a fresh clone: deriving them again gives the same bytes.
         bundle = out / loaded.name

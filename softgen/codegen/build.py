@@ -4,7 +4,7 @@ The library's file name carries the hash of the C source it is built from
 (acados ``hash_class_instance`` convention), and the C source's sha256 is checked
 against the manifest before building, so a stale library is never loaded and a
 hand-edited source is caught. Compilers run through ``subprocess.run`` and
-failures raise :class:`BuildError` with the compiler's stderr (DESIGN.md section
+failures raise :class:`BuildError` with the compiler's stderr (docs/design.md section
 3 item 5).
 
 The compiled library is verified before it is used (issue 16). A file name is

@@ -3,8 +3,8 @@
 This module knows nothing of robots: it takes a bundle name, the functions with
 one-line docs, the parameter vector they use, and the bytes that identify what
 produced them, and writes the bundle in one pass (acados ``GenerateContext``
-convention, DESIGN.md section 3 item 3). The manifest is the contract of
-DESIGN.md section 2; it is extended (never changed) with ``source_sha256``,
+convention, docs/design.md section 3 item 3). The manifest is the contract of
+docs/design.md section 2; it is extended (never changed) with ``source_sha256``,
 ``instructions``, ``parameters.expressions`` and ``softgen_version``.
 """
 from __future__ import annotations

@@ -7,7 +7,7 @@ checks every key the code relies on, its type and shape, and that every number
 anywhere in the manifest is finite; the first problem raises one
 :class:`~softgen.core.errors.BundleError` naming the file and the key.
 
-The schema is the contract of DESIGN.md section 2 plus softgen's extensions
+The schema is the contract of docs/design.md section 2 plus softgen's extensions
 (``source_sha256``, ``instructions``, ``can_fail``, ``parameters.expressions``,
 ...). Keys it does not know are allowed (the contract is extended, never
 changed), but their numbers must still be finite. A *model bundle* (one with

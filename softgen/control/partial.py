@@ -1,12 +1,36 @@
-"""Collocated set-point control of a partly actuated rigid arm (issue 22).
+"""Collocated control of a partly actuated rigid arm (issues 22 and 31).
 
 An arm whose joints are split into actuated ones A (a direct torque, or a spring — an
 SEA or an antagonistic spring pair — driven by motors with dynamics) and passive ones P
-(no actuator; their own stiffness K_P > 0 and damping D_P > 0, eq. 2.1's K q + D q̇).
+(no actuator; their own damping D_P and, if declared, stiffness K_P, eq. 2.1's K q + D q̇).
 Nothing can command the passive joints, so no law tracks a trajectory on every joint
 (Slotine–Li, Prop. 10, needs a torque on each); what the math allows is **collocated
-regulation**: the actuated joints are driven to set-points q_A,d, the passive joints
-settle where the model puts them.
+control**: the actuated joints are driven to set-points q_A,d or along q_A,d(t), the
+passive joints follow their **zero dynamics**.
+
+**When the zero dynamics allow it** (derived, :func:`zero_dynamics_problem`). With the
+actuated joints held (q_A = q_A,d constant, q̇_A = q̈_A = 0), the passive rows of eq. 2.1
+are B_PP(q) q̈_P + C_PP(q, q̇) q̇_P + ∂U/∂q_P + D_P q̇_P = 0, U = U_g + ½ qᵀK q: a
+mechanical system in q_P with potential U(q_A,d, ·) and dissipation D_P. Its energy
+E = ½ q̇_Pᵀ B_PP q̇_P + U has Ė = −q̇_Pᵀ D_P q̇_P (Ḃ − 2C skew). So:
+
+- if some passive joint has no damping (D_P not positive definite, D diagonal here), the
+  energy of that joint's motion is not dissipated: the zero dynamics do not settle
+  (Lyapunov stable at best, not asymptotically) — **refused**;
+- with D_P ≻ 0, an equilibrium q̄_P (∂U/∂q_P = 0) is asymptotically stable if it is a
+  **strict local minimum** of U in q_P, i.e. the Hessian H_PP = ∂²U/∂q_P² = ∂S_P/∂q_P
+  is positive definite there (E is then a strict Lyapunov function near q̄_P and LaSalle
+  gives q̇_P → 0, q_P → q̄_P); at a non-degenerate saddle or maximum it is unstable.
+  Stiffness K_P > 0 or gravity can provide the minimum: a passive joint without
+  stiffness still settles when gravity holds it (an arm hanging down), and is
+  **refused** where nothing holds it (no gravity along it, an arm balanced upright).
+
+The Hessian is checked numerically on the model at q̄_P(q_A) for actuated set-points
+on a grid over ±:data:`ACTUATED_RANGE` rad (the examples' references lie inside), q̄_P
+found by Newton from q_P = 0 as the controller does. A moving reference q_A,d(t) drives
+the zero dynamics through q̈_A (B_PA q̈_A on the passive rows): near a strict minimum with
+damping they stay bounded for a moderate drive (input-to-state stable locally), which is
+what a run shows, not a bound claimed here.
 
 **The link-level law.** With S(q) = G(q) + K q the static torque (eq. 2.1 at q̇ = q̈ = 0,
 derived by CasADi from the model's Slotine–Li expression), let q̄ = (q_A,d, q̄_P) with
@@ -26,7 +50,12 @@ forces q̇ = 0, so S + ... = 0), **q converges to the critical points of W**; wh
 Hessian ∂S/∂q + diag(K_p on A) is positive definite at q̄ (checked by
 :meth:`PartialArm.hessian_min_eig` and reported), q̄ is a strict local minimum and
 asymptotically stable: the passive joints converge to q̄_P, the equilibrium the model
-gives. Nothing is claimed about tracking a moving reference.
+gives. Without passive stiffness W is not radially unbounded in q_P, so the bound is
+local: q̄ is asymptotically stable (H_PP ≻ 0 and K_p large make the whole Hessian
+positive definite, Schur complement), with the sublevel sets of V around q̄ that hold no
+other critical point as its region of attraction (measured in
+tests/test_partial_zero_dynamics.py). Nothing is claimed about tracking a moving
+reference.
 
 **Realising τ_A.** A direct joint gets τ_A as its torque. A spring joint needs the
 deflection φ_d with Σ_sides −τ_e(φ_d) = τ_A (both motors of a pair at the same
@@ -58,8 +87,129 @@ NEWTON_STEPS = 20
 GAIN_NAMES = ("kp", "kd", "kp_m", "kd_m")
 
 
+#: Half-width (rad) of the grid of actuated set-points on which the passive joints'
+#: restoring potential is checked (:func:`zero_dynamics_problem`); the examples'
+#: references (bundles.rigid.PARTIAL_REFERENCE, PARTIAL_SETPOINTS) lie inside.
+ACTUATED_RANGE = 1.0
+#: Grid points per actuated joint (at most :data:`MAX_SAMPLES` set-points; beyond, that
+#: many seeded random ones).
+GRID_POINTS = 5
+MAX_SAMPLES = 125
+
+
+def static_torque(dyn: RigidDynamics, q) -> ca.SX:
+    """S(q) = G(q) + K q: eq. 2.1's torque at rest (the Slotine–Li expression at
+    q̇ = q̇_r = q̈_r = 0, derived by CasADi); S = ∂U/∂q."""
+    m, z = dyn.nominal, ca.SX.zeros(dyn.model.dof)
+    return ca.substitute(m.slotine_li(dyn.route), ca.vertcat(m.q, m.qd, m.qd_r, m.qdd_r),
+                         ca.vertcat(q, z, z, z))
+
+
+def passive_equilibrium(dyn: RigidDynamics, actuated, passive, q_ad) -> tuple[ca.SX, ca.SX]:
+    """q̄ = (q_A,d, q̄_P) with S_P(q̄) = 0 by :data:`NEWTON_STEPS` Newton steps from q_P = 0,
+    and the residual S_P(q̄)."""
+    n = dyn.model.dof
+    qp = ca.SX.sym("qp", len(passive))
+    qbar = ca.SX.zeros(n)
+    for i, j in enumerate(actuated):
+        qbar[j] = q_ad[i]
+    for i, j in enumerate(passive):
+        qbar[j] = qp[i]
+    r = static_torque(dyn, qbar)[passive]
+    newton = ca.Function("newton", [qp, q_ad], [qp - ca.solve(ca.jacobian(r, qp), r)])
+    res = ca.Function("res", [qp, q_ad], [r])
+    x = ca.SX.zeros(len(passive))
+    for _ in range(NEWTON_STEPS):
+        x = newton(x, q_ad)
+    out = ca.SX.zeros(n)
+    for i, j in enumerate(actuated):
+        out[j] = q_ad[i]
+    for i, j in enumerate(passive):
+        out[j] = x[i]
+    return out, res(x, q_ad)
+
+
+def actuated_samples(na: int) -> np.ndarray:
+    """Set-points of the actuated joints (K × na) for :func:`zero_dynamics_problem`: the
+    grid of :data:`GRID_POINTS` per joint over ±:data:`ACTUATED_RANGE`, or
+    :data:`MAX_SAMPLES` seeded random points in that box (its corners and centre first)."""
+    g = np.linspace(-ACTUATED_RANGE, ACTUATED_RANGE, GRID_POINTS)
+    if GRID_POINTS ** na <= MAX_SAMPLES:
+        return np.array(np.meshgrid(*[g] * na, indexing="ij")).reshape(na, -1).T
+    rng = np.random.default_rng(0)
+    pts = [np.zeros(na)] + [ACTUATED_RANGE * rng.choice([-1.0, 1.0], na)
+                            for _ in range(min(2 ** na, MAX_SAMPLES // 4))]
+    pts += list(rng.uniform(-ACTUATED_RANGE, ACTUATED_RANGE, (MAX_SAMPLES - len(pts), na)))
+    return np.array(pts)
+
+
+def zero_dynamics_problem(model: RobotModel, *, dyn: RigidDynamics | None = None,
+                          q_a: np.ndarray | None = None) -> str | None:
+    """Why the passive joints' zero dynamics do not settle (module docstring), or None:
+    a passive joint without damping, or, at some actuated set-point of ``q_a`` (K × na;
+    default :func:`actuated_samples`), no strict minimum of gravity and stiffness in the
+    passive joints where Newton finds their equilibrium (residual not at rounding, or
+    least eigenvalue of H_PP = ∂S_P/∂q_P not above 1e-9 of the largest seen). One line
+    naming the joints and the model file's fields to declare."""
+    where = str(model.path) if model.path is not None else model.name
+    actuated = sorted({a.joint for a in model.actuators})
+    passive = [j for j in range(model.dof) if j not in actuated]
+    if not passive or not actuated:
+        return (f"{where}: actuators: the collocated controller needs at least one passive "
+                "and one actuated joint")
+
+    def value(j: int, key: str) -> float:
+        return float(model.resolve(getattr(model.links[j], key), model.nominal))
+
+    def joints(js) -> tuple[str, str, str]:
+        names = ", ".join(model.links[j].name for j in js)
+        return names, ("joints " if len(js) > 1 else "joint ") + names, \
+            ("them" if len(js) > 1 else "it")
+
+    undamped = [j for j in passive if not value(j, "damping") > 0]
+    if undamped:
+        names, these, them = joints(undamped)
+        if all(not value(j, "stiffness") > 0 for j in undamped):
+            return (f"{where}: {these} passive without stiffness or damping: no controller "
+                    f"applies; declare links ({names}).damping and stiffness, or an "
+                    f"actuator on {them}")
+        return (f"{where}: links ({names}).damping: passive {these} without damping: the "
+                "zero dynamics conserve energy and never settle; declare a positive "
+                f"damping, or an actuator on {them}")
+    dyn = dyn or RigidDynamics(model)
+    qs = ca.SX.sym("q_a", len(actuated))
+    qbar, res = passive_equilibrium(dyn, actuated, passive, qs)
+    z = ca.SX.sym("z", model.dof)
+    H = ca.jacobian(static_torque(dyn, z)[passive], z[passive])
+    H = ca.substitute(H, z, qbar)
+    samples = actuated_samples(len(actuated)) if q_a is None else np.atleast_2d(q_a)
+    f = ca.Function("zero_dynamics", [qs], [ca.vec(H), res, qbar]).map(samples.shape[0])
+    Hs, rs, qb = (np.array(v, float) for v in f(samples.T))
+    npas = len(passive)
+    eig = np.array([np.linalg.eigvalsh(0.5 * (M + M.T)) if np.all(np.isfinite(M))
+                    else np.full(npas, np.nan)
+                    for M in Hs.T.reshape(-1, npas, npas)])
+    scale = max(float(np.nanmax(np.abs(eig))) if np.any(np.isfinite(eig)) else 0.0, 1e-300)
+    tol_res = 1e-9 * (1 + np.abs(Hs[np.isfinite(Hs)]).max(initial=0.0))
+    bad = ~(np.isfinite(rs).all(axis=0) & (np.abs(rs).max(axis=0) <= tol_res)
+            & (eig.min(axis=1) > 1e-9 * scale))
+    if np.any(bad):
+        k = int(np.flatnonzero(bad)[0])
+        names, these, them = joints(passive)
+        at = np.round(samples[k], 4).tolist()
+        what = (f"least Hessian eigenvalue {eig[k].min():.3g} N m/rad at q_P = "
+                f"{np.round(qb[passive, k], 4).tolist()}" if np.isfinite(eig[k]).all()
+                else "no equilibrium found")
+        return (f"{where}: {these} passive: gravity and stiffness hold {them} at no "
+                f"strict minimum with the actuated joints at {at} rad ({what}): the zero "
+                f"dynamics do not settle; declare links ({names}).stiffness, or an actuator "
+                f"on {them}")
+    return None
+
+
 class PartialArm:
-    """A rigid chain with passive joints and direct or spring-driven actuated joints."""
+    """A rigid chain with passive joints (damped, held at a strict minimum of gravity and
+    stiffness: :func:`zero_dynamics_problem`) and direct or spring-driven actuated joints."""
 
     def __init__(self, model: RobotModel, *, dyn: RigidDynamics | None = None):
         where = str(model.path) if model.path is not None else model.name
@@ -76,14 +226,10 @@ class PartialArm:
                 raise ModelError(f"{where}: actuators (joint {model.links[a.joint].name}): "
                                  "the collocated controller needs a direct torque or a "
                                  "spring drive with motor_inertia and motor_damping")
-        for j in self.passive:
-            link = model.links[j]
-            for key in ("stiffness", "damping"):
-                v = model.resolve(getattr(link, key), model.nominal)
-                if not float(v) > 0:
-                    raise ModelError(f"{where}: links ({link.name}).{key}: a passive joint "
-                                     f"needs a positive {key} to settle, got {v!r}")
         self.dyn = dyn or RigidDynamics(model)
+        why = zero_dynamics_problem(model, dyn=self.dyn)
+        if why is not None:
+            raise ModelError(why)
         # Motor variables (spring drives) and their inertia/damping, in the order of u.
         self.motor = [k for k, (j, _, _) in enumerate(self.act.variables)
                       if model.actuator_of(j).drive == "spring"]
@@ -102,9 +248,7 @@ class PartialArm:
     def static_torque(self, q) -> ca.SX:
         """S(q) = G(q) + K q: eq. 2.1's torque at rest (the Slotine–Li expression at
         q̇ = q̇_r = q̈_r = 0, derived by CasADi)."""
-        m, z = self.dyn.nominal, ca.SX.zeros(self.n)
-        return ca.substitute(m.slotine_li(self.dyn.route), ca.vertcat(m.q, m.qd, m.qd_r, m.qdd_r),
-                             ca.vertcat(q, z, z, z))
+        return static_torque(self.dyn, q)
 
     def _u_full(self, tau, th) -> ca.SX:
         """The actuator vector of :class:`Actuation` (m): torques at direct slots, motor
@@ -120,25 +264,7 @@ class PartialArm:
 
     def equilibrium(self, q_ad) -> tuple[ca.SX, ca.SX]:
         """q̄ = (q_A,d, q̄_P) with S_P(q̄) = 0 (Newton from q_P = 0) and the residual."""
-        A, P = self.actuated, self.passive
-        qp = ca.SX.sym("qp", len(P))
-        qbar = ca.SX.zeros(self.n)
-        for i, j in enumerate(A):
-            qbar[j] = q_ad[i]
-        for i, j in enumerate(P):
-            qbar[j] = qp[i]
-        r = self.static_torque(qbar)[P]
-        newton = ca.Function("newton", [qp, q_ad], [qp - ca.solve(ca.jacobian(r, qp), r)])
-        res = ca.Function("res", [qp, q_ad], [r])
-        x = ca.SX.zeros(len(P))
-        for _ in range(NEWTON_STEPS):
-            x = newton(x, q_ad)
-        out = ca.SX.zeros(self.n)
-        for i, j in enumerate(A):
-            out[j] = q_ad[i]
-        for i, j in enumerate(P):
-            out[j] = x[i]
-        return out, res(x, q_ad)
+        return passive_equilibrium(self.dyn, self.actuated, self.passive, q_ad)
 
     def _deflection(self, j: int, tau_j) -> ca.SX:
         """φ_d with Σ_sides −τ_e(φ_d) = τ_j on joint j (Newton from τ_j/slope)."""
@@ -329,11 +455,12 @@ class PartialArm:
 
 # -- blocks and the closed loop ---------------------------------------------------------
 
-def _gain_defaults(arm: PartialArm, gains: dict | None) -> dict | None:
+def gain_vectors(gains: dict | None, sizes: dict[str, int]) -> dict | None:
+    """``gains`` (``kp, kd, kp_m, kd_m``: a number or one value per entry) as positive
+    vectors of ``sizes`` (link gains per actuated joint, motor gains per motor): a block's
+    defaults, or one ValueError naming the gain (also the spring-pair cascade's)."""
     if gains is None:
         return None
-    sizes = {"kp": len(arm.actuated), "kd": len(arm.actuated), "kp_m": arm.nm,
-             "kd_m": arm.nm}
     p0 = {}
     for g in GAIN_NAMES:
         v = np.broadcast_to(np.asarray(gains[g], float), (sizes[g],)).copy()
@@ -341,6 +468,11 @@ def _gain_defaults(arm: PartialArm, gains: dict | None) -> dict | None:
             raise ValueError(f"gains.{g}: expected positive values, got {v.tolist()}")
         p0[g] = v
     return p0
+
+
+def _gain_defaults(arm: PartialArm, gains: dict | None) -> dict | None:
+    na = len(arm.actuated)
+    return gain_vectors(gains, {"kp": na, "kd": na, "kp_m": arm.nm, "kd_m": arm.nm})
 
 
 def controller_block(arm: PartialArm, dt: float, *, gains: dict | None = None,

@@ -17,10 +17,17 @@ Four generated discrete-time steps share one symbolic core, :class:`PneumaticArm
 ``<model>_corollary2``  (Corollary 2, eq. 10.7)
     Theorem 5 with σ̇_d = 0: no K̂⁻¹ input at all.
 
-Regressor and parameters (Prop. 11): the dynamics B q̈ + C q̇ + G = K Φ p become
-K⁻¹ Y π = Φ p. With K_i = K_1 / c_i, Y_* = diag(c) Y and Π = π / K_1, where the
-ratios c_i = K_1/K_i are taken as known from the model file (1 for the thesis's
-equal muscles, for which Y_* = Y, eq. 10.9). Π̂ is in units of π / K_1 with p in Pa.
+Regressor and parameters (Prop. 11): the dynamics B q̈ + C q̇ + G = Φ p, with the
+actuator gains folded into Φ(q) (N m/Pa, :class:`~softgen.symbolic.actuators.McKibbenPairs`:
+the same Φ whether the pairs are written as ``type = "mckibben"`` or as laws). So the
+parameters are the physical base parameters π, τ_* is a torque and every gain is
+physical: Λ in 1/s, K_d in N m s/rad, K_π on π, K_σ the stiffness error's decay rate in
+1/s and K̂⁻¹ the σ̇_d feed-forward factor (1 for the model's own gains). The thesis writes
+the same laws in units of the muscle gain K (Π = π/K_1, τ_* = K⁻¹τ); its printed gains
+convert exactly, K_d → K K_d, K_π → K_1 K_π, K_σ → K K_σ, K̂⁻¹ → K K̂⁻¹
+(:meth:`softgen.studies.gains.Theorem5Gains.thesis`); with unequal muscle gains the
+physical form needs no diag(c) in the adaptation law (V = ½ sᵀB s + ½ π̃ᵀK_π⁻¹π̃ gives
+V̇ = −sᵀK_d s).
 
 Time derivatives (Remark 8) are taken by the chain rule with ``jtimes`` along every
 signal whose rate the controller knows without measuring it: q (rate q̇), Π̂ (its
@@ -131,9 +138,6 @@ class PneumaticArm(McKibbenRobot):
                     ca.Function(f"{self.name}_Phi_q", [q], [self.act.Phi_q(q)], ["q"],
                                 ["Phi_q"]))
             self.proj = projectors
-        # c_i = K_1 / K_i: assumed known (same muscles, known pulley radii).
-        self.gain_ratio = self.act.K[0] / self.act.K
-        self.K1 = float(self.act.K[0])
 
     @cached_property
     def n_nu(self) -> int:
@@ -144,7 +148,7 @@ class PneumaticArm(McKibbenRobot):
 
     @property
     def parameter_names(self) -> list[str]:
-        return [f"{n}/K1" for n in self.dyn.base.names]
+        return list(self.dyn.base.names)
 
     def preset(self, Pi_hat, q, ref, *, lam, kd, kinv, dt: float
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -161,34 +165,30 @@ class PneumaticArm(McKibbenRobot):
 
     @cached_property
     def Pi_nominal(self) -> np.ndarray:
-        """Π = π / K_1 at the model's nominal values (Prop. 11)."""
-        return self.dyn.parameter_nominal / self.K1
+        """π at the model's nominal values (Prop. 11's Π in physical units)."""
+        return self.dyn.parameter_nominal
 
     def regressor_star(self, q, qd, qd_r, qdd_r) -> tuple[ca.SX, ca.SX | None]:
-        """(Y_*, K_1⁻¹ diag(c) τ_0): Y_* Π + the known part = K⁻¹(B q̈_r + C q̇_r + G)."""
+        """(Y, τ_0): Y π + the known part = B q̈_r + C q̇_r + G (Prop. 11's Y_*, with the
+        actuator gains in Φ: module docstring)."""
         m = self.dyn.nominal
         base = self.dyn.base
         frm, to = [m.q, m.qd, m.qd_r, m.qdd_r], [q, qd, qd_r, qdd_r]
-        c = ca.DM(self.gain_ratio)
-        Y = ca.diag(c) @ ca.substitute([base.Y], frm, to)[0]
+        Y = ca.substitute([base.Y], frm, to)[0]
         known = None
         if base.constant is not None:
-            # Terms of the dynamics that multiply no uncertain parameter need K: the
-            # nominal K_1 is used (Prop. 11 assumes every term is uncertain).
-            known = ca.diag(c) @ ca.substitute([base.constant], frm, to)[0] / self.K1
+            # Terms of the dynamics that multiply no uncertain parameter.
+            known = ca.substitute([base.constant], frm, to)[0]
         return Y, known
 
     def tracking(self, q, qd, Pi_hat, ref, lam, kd):
-        """τ_* (eq. 10.4), the adaptation direction Y_*ᵀ diag(1/c) s (eq. 10.2, see
-        below) and s for the references ``ref`` (6n).
+        """τ_* (eq. 10.4), the adaptation direction Yᵀ s (eq. 10.2) and s for the
+        references ``ref`` (6n).
 
-        Eq. 10.2 prints Y_*ᵀ s, from V = ½ sᵀK⁻¹B s, whose derivative is
-        sᵀK⁻¹(Bṡ + ½Ḃs) only when K⁻¹B is symmetric: when every K_i is the same (the
-        thesis's arm). With K_i = K_1/c_i the closed loop is
-        B ṡ + C s = K_1 (Y Π̃ − diag(1/c) K_d s), and V = ½ sᵀB s/K_1 + ½ Π̃ᵀK_π⁻¹Π̃
-        gives V̇ = −sᵀ diag(1/c) K_d s with dΠ̂/dt = K_π Yᵀ s = K_π Y_*ᵀ diag(1/c) s
-        (tests/test_pneumatic_control.py checks the identity). For equal muscles
-        (c = 1) this is eq. 10.2 as printed, and the generated C is unchanged.
+        With the gains in Φ the closed loop is B ṡ + C s = Y π̃ − K_d s, and
+        V = ½ sᵀB s + ½ π̃ᵀK_π⁻¹π̃ gives V̇ = −sᵀK_d s with dπ̂/dt = K_π Yᵀ s, for equal
+        or unequal muscles (the thesis's K⁻¹-scaled form needs diag(1/c) when the
+        muscle gains differ; module docstring).
         """
         n = self.n
         q_d, qd_d, qdd_d = ref[:n], ref[n:2 * n], ref[2 * n:3 * n]
@@ -200,15 +200,14 @@ class PneumaticArm(McKibbenRobot):
         tau_star = Y @ Pi_hat + kd * s
         if known is not None:
             tau_star = tau_star + known
-        c = self.gain_ratio
-        return tau_star, Y.T @ (s if np.all(c == 1) else s / ca.DM(c)), s
+        return tau_star, Y.T @ s, s
 
     def model_acceleration(self, q, qd, Pi_hat, tau_star):
         """q̈ the adapted model predicts under τ_* (see :data:`ACCELERATION`)."""
         a = ca.SX.sym("a", self.n)
         Y, known = self.regressor_star(q, qd, qd, a)
         lhs = Y @ Pi_hat + (known if known is not None else 0)
-        M = ca.jacobian(lhs, a)                      # K⁻¹ B̂(q): lhs is affine in q̈
+        M = ca.jacobian(lhs, a)                      # B̂(q): lhs is affine in q̈
         bias = ca.substitute(lhs, a, ca.DM.zeros(self.n))
         return ca.solve(M, tau_star - bias)
 

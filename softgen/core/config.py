@@ -1,4 +1,4 @@
-"""Typed configurations: frozen dataclasses with ``check()`` (DESIGN.md section 3 item 2).
+"""Typed configurations: frozen dataclasses with ``check()`` (docs/design.md section 3 item 2).
 
 Every experiment (and every study over one, such as a sweep) is configured by a
 subclass of :class:`Config`. Unknown keys and values of the wrong type raise one
@@ -22,7 +22,7 @@ class Config:
     :meth:`replace` and :meth:`from_dict` raise ``ValueError`` naming an unknown key;
     :meth:`check` checks every field against its annotation (numbers finite, tuples of
     the declared element type) and then :meth:`validate`, which subclasses extend with
-    their own rules (DESIGN.md section 3 item 2).
+    their own rules (docs/design.md section 3 item 2).
     """
 
     def replace(self, **changes: Any) -> Config:

@@ -1,7 +1,7 @@
 """Project exceptions.
 
 Each subclasses a built-in so that callers may catch the generic kind
-(python-control ``exception.py`` convention, DESIGN.md section 3 item 7).
+(python-control ``exception.py`` convention, docs/design.md section 3 item 7).
 """
 
 

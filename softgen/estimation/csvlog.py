@@ -2,9 +2,11 @@
 
 A log has one header row, a time column named ``t`` (or ``time``) in seconds and
 one column per measurement of the estimator (``StiffnessEstimator.measurements``:
-``q1 p1a p1b`` for the pneumatic estimator of thesis section 6.1, ``q* qa* qb*
+``q* p*a p*b`` for the pneumatic estimator of thesis section 6.1, ``q* qa* qb*
 tau_a* tau_b*`` for the electric one of section 6.2, ``q* qa* qb*`` for the
-non-invasive one of chapter 7). Other columns are ignored; column order is free.
+non-invasive one of chapter 7; an SEA's motor is ``qm*``, ``tau_m*``; numbered by
+joint: on a partly actuated arm the motor columns of the joints that have them). Other
+columns are ignored; column order is free.
 
 The estimators are discrete-time with a fixed sample time T, so the log must be
 uniformly sampled: T is the median time step, and every step must lie within
@@ -182,15 +184,16 @@ def _number(path: Path, line: int, name: str, cell: str) -> float:
 def estimate_columns(est: StiffnessEstimator) -> list[str]:
     """Header of :func:`write_estimates`.
 
-    ``t, sigma_hat1..n, tau_hat1..n, tau_uio1..n``; for the non-invasive estimator
-    (chapter 7) the torque columns are rotatum estimates, named
+    ``t, sigma_hat1..n, tau_hat1..n, tau_uio1..n``, numbered by joint: on a partly
+    actuated arm only the estimated joints (``est.joints``) have columns; for the
+    non-invasive estimator (chapter 7) the torque columns are rotatum estimates, named
     ``rotatum_hat{i}`` and ``rotatum_uio{i}``.
     """
-    n = est.n_out
+    joints = [j + 1 for j in est.joints]
     torque = "rotatum" if est.config.method == "noninvasive" else "tau"
-    return (["t"] + [f"sigma_hat{i + 1}" for i in range(n)]
-            + [f"{torque}_hat{i + 1}" for i in range(n)]
-            + [f"{torque}_uio{i + 1}" for i in range(n)])
+    return (["t"] + [f"sigma_hat{j}" for j in joints]
+            + [f"{torque}_hat{j}" for j in joints]
+            + [f"{torque}_uio{j}" for j in joints])
 
 
 def write_estimates(path: str | Path, t: np.ndarray, result: EstimationResult,

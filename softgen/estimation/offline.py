@@ -26,9 +26,9 @@ from softgen.estimation.estimators import EstimatorBase
 class EstimationResult:
     """Estimates aligned with the measurement samples (row k = sample k)."""
 
-    sigma_hat: np.ndarray       # (K, n) joint stiffness
-    tau_hat: np.ndarray         # (K, n) RLS model torque (rotatum for "noninvasive")
-    tau_uio: np.ndarray         # (K, n) observer reconstruction before the RLS
+    sigma_hat: np.ndarray       # (K, n_out) stiffness of each estimated joint (est.joints)
+    tau_hat: np.ndarray         # (K, n_out) RLS model torque (rotatum for "noninvasive")
+    tau_uio: np.ndarray         # (K, n_out) observer reconstruction before the RLS
     updating: np.ndarray        # (K, n_rls) 1 where the RLS updated
     theta: dict[str, np.ndarray]  # RLS instance -> (K, n_par) parameters after sample k
     delay: int
@@ -92,8 +92,8 @@ def estimation_result(est: EstimatorBase, trace, name: str = "est", *,
         return out
 
     th = shift(trace[f"{name}.theta"], np.nan)
-    n_par = est.n_parameters
-    theta = {r: th[:, i * n_par:(i + 1) * n_par] for i, r in enumerate(est.rls_names)}
+    ends = np.cumsum([0] + [est.rls_sizes[r] for r in est.rls_names])
+    theta = {r: th[:, ends[i]:ends[i + 1]] for i, r in enumerate(est.rls_names)}
     return EstimationResult(shift(trace[f"{name}.sigma_hat"], np.nan),
                             shift(trace[f"{name}.tau_hat"], np.nan),
                             shift(trace[f"{name}.tau_uio"], np.nan),

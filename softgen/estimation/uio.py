@@ -26,7 +26,7 @@ invertibility matrix ``H^L`` (block lower-triangular Toeplitz in ``D, CB, CAB,
 and it runs ``L`` samples behind the plant: at time ``k + L`` it returns the
 estimates of ``X_k`` and ``U_k``.
 
-Conventions (where the printed thesis is wrong; ``/work/shared/thesis/NOTES.md``
+Conventions (where the printed thesis is wrong; ``docs/thesis-notes.md``
 section 2):
 
 * **Forward stacking** (NOTES item 1). The history is ``(Y_k, ..., Y_{k+L})``,

@@ -39,7 +39,7 @@ from softgen.experiments.registry import Experiment
 from softgen.modelfile.load import load_model
 from softgen.studies import figures_pneumatic as F
 from softgen.studies import pneumatic as S
-from softgen.studies.gains import SECTION_10_2
+from softgen.studies.gains import SECTION_10_2, STIFFNESS_RATE
 from softgen.studies.indices import DRIFT, parameter_ratio
 from softgen.studies.pneumatic import COUPLING, PHASES, RMS
 
@@ -59,7 +59,7 @@ class Ch10AdaptiveConfig(Config):
     lam: float = SECTION_10_2.lam
     kd: float = SECTION_10_2.kd
     kpi: float = SECTION_10_2.kpi
-    stiffness_rate: float = 2.0         # 1/s: K_σ = rate / K_1 (not printed in the thesis)
+    stiffness_rate: float = STIFFNESS_RATE  # 1/s: K_σ = rate (not printed in the thesis)
     sigma_preset: float = 2.0           # N m/rad
     pi_hat0_ratio: float = 0.9          # Π̂(0) = ratio · Π
     adaptation_settle: float = 40.0     # s before the coupling windows count

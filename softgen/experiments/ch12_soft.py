@@ -40,6 +40,7 @@ from pathlib import Path
 from softgen.control.soft import reference_block
 from softgen.experiments.registry import Experiment, Metrics
 from softgen.modelfile.load import load_model
+from softgen.studies.gains import PLANAR_PCC_HIGHER_GAINS, PLANAR_PCC_REFERENCE
 from softgen.studies.soft import SoftStudyConfig, run_cases, sampled_loop, tracking_loop
 # The claims and their thresholds live with the checks they use; re-exported here as the
 # experiments' documented findings and constants (ch12.findings_planar, ch12.BOUNDED, ...).
@@ -57,10 +58,10 @@ class PlanarConfig(SoftStudyConfig):
     model: str = "pcc_planar_4seg"
     dt: float = 1e-3
     duration: float = 50.0
-    amplitude: tuple[float, ...] = (PI / 8, PI / 6, PI / 3, PI / 2)     # M, rad
-    phase: tuple[float, ...] = (0.0, PI / 2, PI / 3, PI)                 # φ, rad
-    omega: float = 1.0                                                   # rad/s
-    higher: tuple[float, float, float] = (5.0, 1.0, 1.0)                 # Λ, K_d, K_π
+    amplitude: tuple[float, ...] = PLANAR_PCC_REFERENCE["amplitude"]     # M, rad
+    phase: tuple[float, ...] = PLANAR_PCC_REFERENCE["phase"]             # φ, rad
+    omega: float = PLANAR_PCC_REFERENCE["omega"]                         # rad/s
+    higher: tuple[float, float, float] = PLANAR_PCC_HIGHER_GAINS         # Λ, K_d, K_π
     lower: tuple[float, float, float] = (2.0, 0.5, 1.0)
     gains_reason: str = (
         "not printed (Fig. 12.2 says 'lower and higher'). Λ and K_d differ, K_π is shared. "

@@ -1,4 +1,4 @@
-"""Registry of reproducible experiments, keyed by the ids of thesis/NOTES.md.
+"""Registry of reproducible experiments, keyed by the ids of docs/thesis-notes.md.
 
 An experiment is a module exposing ``EXPERIMENT``, an :class:`Experiment` whose
 ``run(config, out_dir)`` simulates, draws its figures into ``out_dir`` and returns
@@ -74,6 +74,46 @@ class Experiment:
     # ``cpu_seconds``): ``reproduce`` starts the costliest first so that the longest
     # experiment is not the one left running alone at the end. A scheduling hint only.
     cost: float = 0.0
+
+
+#: The capability each experiment runs (what ``softgen info`` must grant its models, read
+#: from the one decision before anything runs: :func:`require_capabilities`).
+CAPABILITIES = {
+    "rigid-2link-adaptive": "slotine_li",
+    "ch6-pneumatic-invasive": "pneumatic_stiffness_estimator",
+    "ch6-electric-invasive": "electric_stiffness_estimator",
+    "ch7-noninvasive-1dof": "noninvasive_stiffness_estimator",
+    "ch7-noninvasive-2dof": "noninvasive_stiffness_estimator",
+    "ch6-electric-protocol": "electric_stiffness_estimator",
+    "ch7-noninvasive-protocol": "noninvasive_stiffness_estimator",
+    "ch10-pneumatic-adaptive": "theorem5_loop",
+    "ch10-feedback-linearization": "feedback_linearization",
+    "ch10-gioste-1dof": "pneumatic_control",
+    "ch10-gioste-2dof": "pneumatic_control",
+    "ch11-electric-pd": "electric_cascade",
+    "ch11-electric-adaptive": "electric_cascade",
+    "ch12-planar-pcc": "theorem10",
+    "ch12-affine-pendulum": "theorem10",
+    "ch12-3d-pcc": "theorem10",
+    "ext-estimated-stiffness-feedback": "electric_cascade",
+    "ext-robustness-theorem5": "theorem5_loop",
+    "ext-sampled-soft": "theorem10",
+}
+
+
+def require_capabilities(exp_id: str, config: Config | dict) -> None:
+    """Refuse, in one line, an experiment whose model(s) the capability decision does not
+    grant its capability (``config`` names them in ``model`` or ``models``; an experiment
+    whose models are fixed in its code checks nothing here)."""
+    from softgen.bundles.bundle import decide
+    from softgen.modelfile.load import load_model
+    cap = CAPABILITIES.get(exp_id)
+    d = config.to_dict() if isinstance(config, Config) else dict(config)
+    names = [d["model"]] if isinstance(d.get("model"), str) else list(d.get("models") or ())
+    for name in names if cap else ():
+        why = decide(load_model(name)).why_not(cap)
+        if why is not None:
+            raise ExperimentError(f"{exp_id}: {name} does not get {cap}: {why}")
 
 
 def experiment_ids() -> list[str]:

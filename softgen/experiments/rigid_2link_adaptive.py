@@ -23,8 +23,12 @@ from softgen.core.metrics import Metrics, finding, graded, not_checked, num
 from softgen.experiments.registry import Experiment
 from softgen.modelfile.load import load_model
 from softgen.studies import Scenario
+from softgen.studies.examples import SlotineLiConfig
 from softgen.studies import figures_pneumatic as F
 from softgen.symbolic.rigid import RigidDynamics
+
+
+EX = SlotineLiConfig()
 
 
 @dataclass(frozen=True)
@@ -32,14 +36,16 @@ class RigidAdaptiveConfig(Config):
     model: str = "planar_2link"
     duration: float = 60.0                       # s
     dt: float = 1e-3                             # controller sample = RK4 step
-    lam: tuple[float, ...] = (10.0, 10.0)        # Λ
-    kd: tuple[float, ...] = (0.2, 0.2)           # K_d, N m s/rad
-    kpi: tuple[float, ...] = (0.05,) * 5         # K_π
+    # The Slotine-Li example's gains and references (studies.examples.SlotineLiConfig:
+    # their one home), per joint of the 2-link arm.
+    lam: tuple[float, ...] = (EX.lam,) * 2       # Λ
+    kd: tuple[float, ...] = (EX.kd,) * 2         # K_d, N m s/rad
+    kpi: tuple[float, ...] = (EX.kpi,) * 5       # K_π
     pi_hat0: tuple[float, ...] = (0.0,) * 5
-    q0: tuple[float, ...] = (0.0, 0.3)           # on the reference: the error is adaptation
-    amplitude: tuple[float, ...] = (0.6, 0.5)    # rad
-    frequency: tuple[float, ...] = (0.25, 0.4)   # Hz
-    offset: tuple[float, ...] = (0.0, 0.3)       # rad
+    q0: tuple[float, ...] = EX.offset            # on the reference: the error is adaptation
+    amplitude: tuple[float, ...] = EX.amplitude  # rad
+    frequency: tuple[float, ...] = EX.frequency  # Hz
+    offset: tuple[float, ...] = EX.offset        # rad
     metric_window: float = 10.0                  # RMS over the last 10 s
 
     def validate(self) -> None:

@@ -25,7 +25,7 @@ import numpy as np
 
 from softgen.blocks import ClosedLoop
 from softgen.core.errors import SoftgenError
-from softgen.export.scenarios import Example, example_for
+from softgen.studies.examples import Example, example_for
 from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import Trace
 
@@ -78,15 +78,16 @@ def trajectory(trace: Trace, loop: ClosedLoop) -> np.ndarray:
 
 
 def python_loop(model: str | Path, steps: int = 1000, *, root: str | None = None,
-                tip: str | None = None) -> tuple[list[str], np.ndarray]:
+                tip: str | None = None, example: str | None = None,
+                overrides: dict | None = None) -> tuple[list[str], np.ndarray]:
     """``(columns, rows)`` of the example of ``softgen export MODEL`` (``--root``/``--tip``:
-    ``root``, ``tip``) run by the one driver (``scenario.run()``): rows as the exported
-    program's ``--csv`` writes them."""
+    ``root``, ``tip``; ``--example``, ``--set``: ``example``, ``overrides``) run by the one
+    driver (``scenario.run()``): rows as the exported program's ``--csv`` writes them."""
     if not (isinstance(steps, int) and not isinstance(steps, bool) and steps >= 1):
         raise SoftgenError(f"steps: expected a positive integer, got {steps!r}")
     if root is not None or tip is not None:
         model = load_model(model, root=root, tip=tip)
-    ex = example_for(model, steps=steps)
+    ex = example_for(model, steps=steps, example=example, overrides=overrides)
     tr = ex.scenario.run(progress=False)
     return columns(ex.loop), trajectory(tr, ex.loop)
 

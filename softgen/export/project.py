@@ -9,8 +9,10 @@ by CasADi's CodeGenerator), typed wrappers of both emitted from their manifests
 the generated ``scenario.h`` it reads (:mod:`softgen.export.example`), a ``Makefile``, a
 ``CMakeLists.txt`` (C99, ``-O2``, ``-lm``) and a README.
 
-The scenario is chosen by what the model is (:mod:`softgen.export.scenarios`), and its
-Python twin is ``scenario.run()``. The export is deterministic: the same model gives
+The scenario is the model's registered example (:mod:`softgen.studies.examples`: the one
+the capability decision grants, or ``--example ID``, with ``--set KEY=VALUE`` on its typed
+config), and its Python twin is ``scenario.run()``. A model no example serves is refused
+in one line before anything is written. The export is deterministic: the same model gives
 the same bytes. Every file is written atomically (a temporary file in the same
 directory, fsync, rename), and ``softgen_export.json`` records what was written with
 each file's sha256, sealed by a hash of the record itself: ``--force`` removes a file
@@ -41,7 +43,7 @@ from softgen.core.errors import BuildError, BundleError, SoftgenError
 from softgen.core.paths import GENERATED_DIR, output_dir, writable
 from softgen.export.api import api_header, api_source
 from softgen.export.example import example_text, python_loop, scenario_header
-from softgen.export.scenarios import DT, Example, example_for
+from softgen.studies.examples import Example, example_for
 from softgen.core.paths import MODELS_DIR
 from softgen.modelfile.load import load_model, model_path
 from softgen.modelfile.model import RobotModel
@@ -212,6 +214,7 @@ class ExportResult:
     kept: list[str]              # files of an earlier export left in place (see export)
     build_seconds: float | None = None
     binary: Path | None = None
+    dt: float = 1e-3             # the example's sample time, s
 
 
 def _check_out_dir(out: Path, force: bool) -> None:
@@ -282,7 +285,8 @@ def previous_files(out: Path) -> dict[str, str]:
 
 
 def export(model, out: Path | str, *, force: bool = False, build: bool = False,
-           cc: str | None = None, generated_root: Path | None = None) -> ExportResult:
+           cc: str | None = None, generated_root: Path | None = None,
+           example: str | None = None, overrides: dict | None = None) -> ExportResult:
     """Write the C project of ``model`` to ``out`` (see the module docstring).
 
     ``out`` must be new or empty unless ``force``: then the files of this export are
@@ -300,7 +304,7 @@ def export(model, out: Path | str, *, force: bool = False, build: bool = False,
         if compiler is None:
             raise SoftgenError("--build: no C compiler found" + (f" ({cc or 'CC'} not on PATH)"
                                if cc else "") + "; install gcc or clang, set CC, or drop --build")
-    ex = example_for(model)
+    ex = example_for(model, example=example, overrides=overrides)
     with bundle_files(model, generated_root) as (bundle, manifest, note):
         m = manifest["model"]
         files = render(manifest, *((bundle / f).read_bytes() for f in
@@ -322,7 +326,7 @@ def export(model, out: Path | str, *, force: bool = False, build: bool = False,
     write_atomic(out / RECORD, files[RECORD])    # last: it vouches for the files above
     _fsync_dir(out)
     res = ExportResult(out=out, model=m, files=sorted(files), example=ex.kind, note=note,
-                       kept=kept)
+                       kept=kept, dt=ex.dt)
     if build:
         res.build_seconds, res.binary = build_project(out, m, compiler)
     return res
@@ -361,6 +365,6 @@ def summary(res: ExportResult) -> list[str]:
     if res.build_seconds is not None:
         lines.append(f"built with make in {res.build_seconds:.1f} s")
     lines.append(f"run:   {o}/{res.model}_example [--fast] [--steps N | --seconds S] "
-                 f"[--csv FILE] [--rt] [--check]   ({res.example}, {1 / DT:g} Hz; see "
+                 f"[--csv FILE] [--rt] [--check]   ({res.example}, {1 / res.dt:g} Hz; see "
                  f"{o}/README.md)")
     return lines

@@ -47,7 +47,7 @@ nominal plant, as a chain), a floating base as 2.2 nv³ + 7 nv p (the LU of B an
 whole-body regressor; accurate for the large ones, which the limit is about).
 
 Rigid chains grow as n (n + p) (n joints, p uncertain parameters: the matrix-free
-route, DESIGN.md); soft chains as s³ (dof + p) times the quadrature points (every
+route, docs/design.md); soft chains as s³ (dof + p) times the quadrature points (every
 point's position depends on every earlier segment, and the inertia sums over them;
 an 8-segment planar PCC model did not finish deriving in 150 s). The default limit,
 250,000 operations, is about a minute of derivation and compilation: 26 planar or 14

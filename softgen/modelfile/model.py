@@ -6,7 +6,7 @@ A model file is data: a serial chain of revolute or prismatic joints with the
 inertial and geometric values of each link, gravity, optional viscous damping and
 joint stiffness, and the list of parameters treated as uncertain. Loading checks
 everything before any symbolic work happens and raises one :class:`ModelError`
-naming the file and the key (DESIGN.md section 3, items 2 and 8).
+naming the file and the key (docs/design.md section 3, items 2 and 8).
 
 Two kinds of chain are accepted:
 
@@ -55,8 +55,10 @@ from typing import Any
 import numpy as np
 
 from softgen.core.errors import ModelError
-from softgen.modelfile.expr import (CONSTANTS, FUNCTIONS, finite_at, linear_in, parse_law,
-                                    spring_c, spring_derivatives)
+from softgen.modelfile.expr import CONSTANTS, FUNCTIONS, finite_at, parse_law
+from softgen.modelfile.laws import (DEFAULT_DEFLECTION_MAX, LAW_VARIABLES, ActuatorLaw,
+                                    PairProperties, pressure_pair_properties,
+                                    spring_pair_properties)
 
 #: A scalar of the model: either a number (fixed) or the name of a parameter.
 Scalar = float | str
@@ -195,23 +197,22 @@ _ACTUATOR_KEYS = {
                  {"pressure_max"}),
     # qbmove-style electric VSA, thesis sections 2.2 and 6.2: tau^e = k sinh(a phi)
     # per spring, two motors with inertia b and viscous damping d.
-    "qbmove": ({"joint", "type", "a", "k", "motor_inertia", "motor_damping"}, set()),
+    "qbmove": ({"joint", "type", "a", "k", "motor_inertia", "motor_damping"},
+               {"deflection_max"}),
     # Declared laws (issue 22). A torque motor on the joint: input tau.
     "direct": ({"joint", "type"}, set()),
     # Series elastic: one motor (inertia, damping) through a spring of declared law over
     # phi = q - theta (default k*phi); every other key is a constant of the law.
-    "sea": ({"joint", "type", "motor_inertia", "motor_damping"}, {"law"}),
+    "sea": ({"joint", "type", "motor_inertia", "motor_damping"}, {"law", "deflection_max"}),
     # Antagonistic pair: sides a and b (tables with a law and its constants), driven by
     # springs from two motors (drive = "spring") or by pressures (drive = "pressure").
     "antagonistic": ({"joint", "type", "drive", "a", "b"},
-                     {"motor_inertia", "motor_damping", "pressure_max"}),
+                     {"motor_inertia", "motor_damping", "pressure_max", "deflection_max"}),
 }
-_PAIRED = {"nominal_length", "min_length", "a", "k", "motor_inertia", "motor_damping"}
-
-#: What each drive's laws are written over: spring laws over the deflection phi = q -
-#: theta (theta the motor position), pressure laws over the joint angle q and the side's
-#: pressure p.
-LAW_VARIABLES = {"spring": ("phi",), "pressure": ("q", "p")}
+#: Keys given per side as ``[a, b]`` (or one number for both). A McKibben pair's muscles
+#: may differ in gain as in length (issue 31).
+_PAIRED = {"nominal_length", "min_length", "gain", "a", "k", "motor_inertia",
+           "motor_damping"}
 
 #: The two shipped instances as declared laws (thesis eq. 2.2 with the chapter-2
 #: elongations, NOTES section 2 item 5; eq. 6.6): (law of side a, law of side b).
@@ -222,13 +223,22 @@ LINEAR_SPRING_LAW = "k*phi"
 
 @dataclass(frozen=True)
 class Side:
-    """One declared law of an actuator: ``law`` over :data:`LAW_VARIABLES` [``drive``]
-    with ``constants`` (name, value). ``name`` is ``"a"``/``"b"`` for a pair, ``""`` for
-    the one spring of an SEA."""
+    """One declared law of an actuator, parsed once at load: ``law`` is the typed
+    :class:`~softgen.modelfile.laws.ActuatorLaw` over :data:`LAW_VARIABLES` [drive] with its
+    constants and properties. ``name`` is ``"a"``/``"b"`` for a pair, ``""`` for the one
+    spring of an SEA."""
 
     name: str
-    law: str
-    constants: tuple[tuple[str, float], ...]
+    law: ActuatorLaw
+
+    @property
+    def text(self) -> str:
+        """The law as the model file wrote it."""
+        return self.law.text
+
+    @property
+    def constants(self) -> tuple[tuple[str, float], ...]:
+        return self.law.constants
 
 
 @dataclass(frozen=True)
@@ -243,7 +253,9 @@ class Actuator:
     ``family`` is ``"qbmove"`` for any spring pair whose two laws are k sinh(a phi)
     (tau'' = c tau, c > 0, tau(0) = 0) with motor dynamics, ``"mckibben"`` for McKibben
     pairs and any pressure pair whose laws are linear in p (tau = phi(q) p, eq. 2.2's
-    form), else the type; ``sinh`` holds (k, a) per side when the laws are sinh.
+    form), else the type; ``sinh`` holds (k, a) per side when the laws are sinh. Both
+    are read off the laws' properties (:mod:`softgen.modelfile.laws`), judged once at
+    load; ``pair`` is the pair's stiffness range under its input limits.
     """
 
     type: str                           # mckibben | qbmove | direct | sea | antagonistic
@@ -253,6 +265,7 @@ class Actuator:
     sides: tuple[Side, ...] = ()
     family: str = ""
     sinh: tuple[tuple[float, float], ...] = ()
+    pair: PairProperties | None = None
 
     def __getitem__(self, key: str) -> Any:
         return dict(self.values)[key]
@@ -782,16 +795,43 @@ class _Parser(FileReader):
                 if not ln > lm:
                     raise self.fail(f"{key}.nominal_length", f"side {side}: nominal "
                                     f"length {ln} must exceed min_length {lm}")
-            K = act["gain"] * act["radius"]
-            sides = tuple(Side(s, law, (("K", K), ("R", act["radius"]), ("ln", ln),
-                                        ("lm", lm)))
-                          for s, law, ln, lm in zip("ab", MCKIBBEN_LAWS, act["nominal_length"],
-                                                    act["min_length"]))
-            return dataclasses.replace(act, drive="pressure", sides=sides, family="mckibben")
-        sides = tuple(Side(s, SINH_LAW, (("k", k), ("a", a)))
+            # K = K_g R per muscle (eq. 2.2): the gains may differ between the sides.
+            sides = tuple(self.side(law, {"K": g * act["radius"], "R": act["radius"],
+                                          "ln": ln, "lm": lm}, f"{key}", "pressure", s,
+                                    named=True)
+                          for s, law, g, ln, lm in zip("ab", MCKIBBEN_LAWS, act["gain"],
+                                                       act["nominal_length"],
+                                                       act["min_length"]))
+            return self.finish(dataclasses.replace(act, drive="pressure", sides=sides), key)
+        dmax = self.deflection_max(table, key)
+        sides = tuple(self.side(SINH_LAW, {"k": k, "a": a}, key, "spring", s, named=True,
+                                deflection_max=dmax)
                       for s, k, a in zip("ab", act["k"], act["a"]))
-        return dataclasses.replace(act, drive="spring", sides=sides, family="qbmove",
-                                   sinh=tuple(zip(act["k"], act["a"])))
+        return self.finish(dataclasses.replace(act, drive="spring", sides=sides), key)
+
+    def deflection_max(self, table: dict, key: str) -> float:
+        """``deflection_max`` (rad): the deflections a spring law is judged on."""
+        if "deflection_max" not in table:
+            return DEFAULT_DEFLECTION_MAX
+        return self.number(table["deflection_max"], f"{key}.deflection_max", positive=True)
+
+    def finish(self, act: Actuator, key: str) -> Actuator:
+        """``family``, ``sinh`` and ``pair`` read off the sides' properties (judged once)."""
+        family, sinh, pair = act.type, (), None
+        if act.drive == "spring" and len(act.sides) == 2:
+            pair = spring_pair_properties(act.sides[0].law, act.sides[1].law)
+            ks = [sd.law.spring.sinh for sd in act.sides]
+            if act.has_motor_dynamics and all(x is not None for x in ks):
+                # A qbmove table's own numbers are kept exactly (k = τ'(0)/√c loses bits).
+                family = "qbmove"
+                sinh = tuple(zip(act["k"], act["a"])) if act.type == "qbmove" else \
+                    tuple(x for x in ks if x is not None)
+        elif act.drive == "pressure":
+            pair = pressure_pair_properties(act.sides[0].law, act.sides[1].law,
+                                            act.get("pressure_max"))
+            if all(sd.law.pressure.linear_in_p for sd in act.sides):
+                family = "mckibben"
+        return dataclasses.replace(act, family=family, sinh=sinh, pair=pair)
 
     def pair(self, v: Any, key: str) -> tuple[float, float]:
         """A positive value per side: one number for both, or ``[a, b]``."""
@@ -805,8 +845,9 @@ class _Parser(FileReader):
         return (pair[0], pair[1])
 
     def declared_actuator(self, table: dict, key: str, kind: str, j: int) -> Actuator:
-        """A ``direct``, ``sea`` or ``antagonistic`` actuator: its laws parsed (safe
-        parser, :mod:`softgen.modelfile.expr`), finite with a finite slope at rest."""
+        """A ``direct``, ``sea`` or ``antagonistic`` actuator: its laws parsed once (safe
+        parser, :mod:`softgen.modelfile.expr`), finite with a finite slope at rest, and
+        judged (:mod:`softgen.modelfile.laws`)."""
         if kind == "direct":
             return Actuator(type=kind, joint=j, values=(), drive="torque", family=kind)
         values: list[tuple[str, Any]] = []
@@ -815,14 +856,16 @@ class _Parser(FileReader):
                 x = self.number(table[field_], f"{key}.{field_}", positive=True)
                 values.append((field_, (x,)))
             consts = {k: v for k, v in table.items()
-                      if k not in ("joint", "type", "law", "motor_inertia", "motor_damping")}
+                      if k not in ("joint", "type", "law", "motor_inertia", "motor_damping",
+                                   "deflection_max")}
             law = table.get("law", LINEAR_SPRING_LAW)
             if "law" not in table and "k" not in table:
                 raise self.fail(f"{key}.k", f"missing required field (the default law is "
                                 f"{LINEAR_SPRING_LAW!r}; or give law = \"...\")")
-            side = self.side(law, consts, key, "spring", "")
-            return Actuator(type=kind, joint=j, values=tuple(values), drive="spring",
-                            sides=(side,), family=kind)
+            side = self.side(law, consts, key, "spring", "",
+                             deflection_max=self.deflection_max(table, key))
+            return self.finish(Actuator(type=kind, joint=j, values=tuple(values),
+                                        drive="spring", sides=(side,)), key)
         drive = self.choice(table["drive"], f"{key}.drive", tuple(LAW_VARIABLES))
         if drive == "spring":
             given = [f for f in ("motor_inertia", "motor_damping") if f in table]
@@ -835,13 +878,14 @@ class _Parser(FileReader):
             if "pressure_max" in table:
                 raise self.fail(f"{key}.pressure_max", "only for drive = \"pressure\"")
         else:
-            for field_ in ("motor_inertia", "motor_damping"):
+            for field_ in ("motor_inertia", "motor_damping", "deflection_max"):
                 if field_ in table:
                     raise self.fail(f"{key}.{field_}", "only for drive = \"spring\"")
             if "pressure_max" in table:
                 values.append(("pressure_max", self.number(table["pressure_max"],
                                                            f"{key}.pressure_max",
                                                            positive=True)))
+        dmax = self.deflection_max(table, key) if drive == "spring" else DEFAULT_DEFLECTION_MAX
         sides = []
         for s in "ab":
             sub = table[s]
@@ -851,40 +895,41 @@ class _Parser(FileReader):
             if "law" not in sub:
                 raise self.fail(f"{key}.{s}.law", "missing required field")
             consts = {k: v for k, v in sub.items() if k != "law"}
-            sides.append(self.side(sub["law"], consts, f"{key}.{s}", drive, s))
-        act = Actuator(type=kind, joint=j, values=tuple(values), drive=drive,
-                       sides=tuple(sides), family=kind)
-        if drive == "spring" and act.has_motor_dynamics:
-            sinh = [sinh_constants(sd) for sd in sides]
-            if all(x is not None for x in sinh):
-                act = dataclasses.replace(act, family="qbmove", sinh=tuple(sinh))
-        if drive == "pressure" and all(pressure_linear(sd) for sd in sides):
-            act = dataclasses.replace(act, family="mckibben")
-        return act
+            sides.append(self.side(sub["law"], consts, f"{key}.{s}", drive, s,
+                                   deflection_max=dmax))
+        return self.finish(Actuator(type=kind, joint=j, values=tuple(values), drive=drive,
+                                    sides=tuple(sides)), key)
 
-    def side(self, law: Any, consts: dict, key: str, drive: str, name: str) -> Side:
-        """One declared law: constants checked (numbers, names free), law parsed over
-        the drive's variables and the constants, every constant used, value and slope
-        finite at rest (phi = 0, or q = p = 0)."""
+    def side(self, law: Any, consts: dict, key: str, drive: str, name: str, *,
+             named: bool = False, deflection_max: float = DEFAULT_DEFLECTION_MAX) -> Side:
+        """One declared law, parsed once: constants checked (numbers, names free), law
+        parsed over the drive's variables and the constants, every constant used, value
+        and slope finite at rest (phi = 0, or q = p = 0). ``named``: the expansion of a
+        ``mckibben``/``qbmove`` table, whose constants were checked as its keys."""
         variables = LAW_VARIABLES[drive]
         reserved = set(variables) | set(FUNCTIONS) | set(CONSTANTS)
         values: dict[str, float] = {}
         for c, v in consts.items():
+            if named:
+                values[c] = float(v)
+                continue
             if not (isinstance(c, str) and c.isidentifier() and c.isascii()) or c in reserved:
                 raise self.fail(f"{key}.{c}", "not a constant name (an identifier other than "
                                 f"{', '.join(sorted(reserved))})")
             values[c] = self.number(v, f"{key}.{c}")
-        where = f"{self.path}: {key}.law" if self._key_name is None else \
-            f"{self.path}: {self._key_name(key + '.law')}"
+        lkey = f"{key}.law" if not named else f"{key} ({name or 'law'})"
+        where = f"{self.path}: {lkey}" if self._key_name is None else \
+            f"{self.path}: {self._key_name(lkey)}"
         parsed = parse_law(law, (*variables, *values), where)
         unused = sorted(set(values) - parsed.used)
-        if unused:
+        if unused and not named:
             raise self.fail(f"{key}.{unused[0]}", f"constant not used by the law {law!r} "
                             "(a misspelt name?)")
         if drive == "pressure" and "p" not in parsed.used:
             raise self.fail(f"{key}.law", f"a pressure law must depend on p: {law!r}")
         finite_at(parsed, values, variables, where)
-        return Side(name, law, tuple(values.items()))
+        return Side(name, ActuatorLaw(text=law, drive=drive, constants=tuple(values.items()),
+                                      parsed=parsed, deflection_max=deflection_max))
 
     def gravity(self, g: Any, kind: str) -> tuple[tuple[float, float, float], float]:
         g = self.keys(g, "gravity", _GRAVITY_KEYS, set())
@@ -1019,25 +1064,19 @@ class _Parser(FileReader):
         return tuple(n for n in nominal if n in chosen)
 
 
-def sinh_constants(side: Side) -> tuple[float, float] | None:
-    """(k, a) when the spring law of ``side`` is k sinh(a phi): tau'' = c tau with
-    c > 0 and tau(0) = 0 (checked by CasADi on samples, :func:`spring_c`), a = sqrt(c),
-    k = tau'(0)/a. None for any other law (linear springs have c = 0)."""
-    consts = dict(side.constants)
-    f = spring_derivatives(parse_law(side.law, ("phi", *consts), "law"), consts)
-    c = spring_c(f)
-    if c is None or c <= 0:
-        return None
-    a = math.sqrt(c)
-    return (float(f(0.0)[1]) / a, a)
-
-
-def pressure_linear(side: Side) -> bool:
-    """Whether a pressure law is linear in p (tau = phi(q) p, the form of eq. 2.2 the
-    pneumatic controllers are written for): d law/dp independent of p, by CasADi."""
-    consts = dict(side.constants)
-    law = parse_law(side.law, (*LAW_VARIABLES["pressure"], *consts), "law")
-    return linear_in(law, consts, LAW_VARIABLES["pressure"], "p")
+def replace_actuator_values(model: RobotModel, act: Actuator, **changes: Any) -> Actuator:
+    """``act`` (a ``mckibben`` or ``qbmove`` table of ``model``) with some of its model-file
+    values changed (``radius=0.03``, ``nominal_length=(0.17, 0.18)``), expanded into its
+    laws and judged again: a new actuator, as if the file had said so (the laws are the
+    truth downstream; editing ``values`` alone would leave them stale)."""
+    if act.type not in ("mckibben", "qbmove"):
+        raise ModelError(f"{model.name}: actuators: values of type {act.type!r} are laws; "
+                         "only mckibben and qbmove tables have values to replace")
+    table: dict[str, Any] = {"joint": model.links[act.joint].name, "type": act.type}
+    for k, v in (*act.values, *changes.items()):
+        table[k] = list(v) if isinstance(v, tuple) else v
+    return _Parser(model.path or Path(model.name)).named_actuator(
+        table, f"actuators (joint {model.links[act.joint].name})", act.type, act.joint)
 
 
 def _group_of(name: str) -> str:

@@ -110,7 +110,7 @@ from softgen.blocks.sensors import delay_block, encoder_block
 from softgen.control.pneumatic import REFERENCE_BLOCKS, PneumaticArm
 from softgen.control.pneumatic_loop import controller_block
 from softgen.control.references import SmoothSteps, stiffness_reference_block
-from softgen.modelfile.model import RobotModel
+from softgen.modelfile.model import RobotModel, replace_actuator_values
 from softgen.plants.hardware import dirty_derivative_block, tracking_stop
 from softgen.symbolic.actuated import rk4_steps
 from softgen.symbolic.rigid import FUNCTION_OPTS
@@ -300,10 +300,9 @@ def fitted_model(model: RobotModel, *, origin: str = "zero_pressure") -> RobotMo
     acts = []
     for a, jm in zip(model.actuators, joint_maps(model.dof)):
         fit = fit_muscles(jm, (a["nominal_length"][0], a["min_length"][0]), origin=origin)
-        vals = dict(a.values)
-        vals.update(radius=fit["radius"], gain=fit["gain"],
-                    nominal_length=fit["nominal_length"], min_length=fit["min_length"])
-        acts.append(dataclasses.replace(a, values=tuple(sorted(vals.items()))))
+        acts.append(replace_actuator_values(
+            model, a, radius=fit["radius"], gain=fit["gain"],
+            nominal_length=fit["nominal_length"], min_length=fit["min_length"]))
     return dataclasses.replace(model, name=f"{model.name}_fitted", actuators=tuple(acts))
 
 

@@ -1,6 +1,6 @@
 """Generic emulated-hardware blocks and stops: a dirty-derivative velocity, an emergency stop.
 
-Each block is a :class:`~softgen.blocks.Block` (DESIGN.md section 1, "Closed loops") that
+Each block is a :class:`~softgen.blocks.Block` (docs/design.md section 1, "Closed loops") that
 any diagram can use between a plant and a controller; the GioSte emulation
 (:mod:`softgen.plants.gioste`) is built from them and from the generic sensors of
 :mod:`softgen.blocks.sensors` (encoders, delay lines).

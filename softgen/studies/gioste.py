@@ -23,7 +23,7 @@ from softgen.plants.gioste import (STOP_SIGNALS, V_MAX, GiosteEmulation, Hardwar
                                    delay_samples, emergency_stop, equilibrium, fitted_model,
                                    kpi_vector, loop_diagram, reference_layout)
 from softgen.runtime.simulate import Trace
-from softgen.studies.gains import Theorem5Gains
+from softgen.studies.gains import Theorem5Gains, thesis_to_physical
 from softgen.studies.scenario import Scenario
 
 #: Signals a run records: the stop's, and what metrics and figures read.
@@ -33,14 +33,17 @@ RECORD = (*STOP_SIGNALS, "ref.sigma_d", "stiff.sigma", "plant.sigma_physical", "
 
 def controller_gains(emu: GiosteEmulation, kd, lam, kpi: float, sigma_range, *,
                      stiffness_rate: float, per_g2: bool = True) -> Theorem5Gains:
-    """Theorem 5's gains on GioSte: K_d, Λ per joint, K_π by
-    :func:`~softgen.plants.gioste.kpi_vector`, and K̂ calibrated over ``sigma_range``
-    (:meth:`GiosteEmulation.calibrated_gain`) in K_σ = rate/K̂ and K̂⁻¹."""
+    """Theorem 5's gains on GioSte: the printed K_d, Λ per joint and K_π (by
+    :func:`~softgen.plants.gioste.kpi_vector`) in physical units
+    (:func:`~softgen.studies.gains.thesis_to_physical`, the fitted muscles' K_g R), and K̂
+    calibrated over ``sigma_range`` (:meth:`GiosteEmulation.calibrated_gain`) in
+    K_σ = rate/K̂ and K̂⁻¹."""
     khat = emu.calibrated_gain(sigma_range)
     vec = lambda v: np.broadcast_to(np.asarray(v, dtype=float), (emu.n,)).copy()  # noqa: E731
-    return Theorem5Gains.from_stiffness_rate(stiffness_rate, khat, khat, lam=vec(lam),
-                                             kd=vec(kd), kpi=kpi_vector(emu.arm, kpi,
-                                                                        per_g2=per_g2))
+    kd_phys, kpi_phys = thesis_to_physical(emu.arm.act.muscle_gain, vec(kd),
+                                           kpi_vector(emu.arm, kpi, per_g2=per_g2))
+    return Theorem5Gains.from_stiffness_rate(stiffness_rate, lam=vec(lam), kd=kd_phys,
+                                             kpi=kpi_phys, khat=khat)
 
 
 def initial_state(emu: GiosteEmulation, kind: str, ref0: np.ndarray, gains: Theorem5Gains, *,

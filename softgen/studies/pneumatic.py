@@ -14,7 +14,7 @@ from softgen.control.references import SmoothSteps, stiffness_reference_block
 from softgen.core.metrics import Metrics
 from softgen.plants.hardware import tracking_stop
 from softgen.runtime.simulate import Trace, simulate
-from softgen.studies.gains import Theorem5Gains
+from softgen.studies.gains import Theorem5Gains, thesis_to_physical
 from softgen.studies.indices import (POSITION_TO_STIFFNESS, STIFFNESS_TO_POSITION,
                                      coupling_records, norm_drift, parameter_ratio,
                                      phase_rms_records, windows)
@@ -77,13 +77,13 @@ def run_case(arm, kind: str, c, dt: float, *,
     already built (sweeps reuse it)."""
     n = arm.n
     d = d or diagram(arm, kind, c, dt)
-    gains = Theorem5Gains.from_stiffness_rate(c.stiffness_rate, arm.K1, arm.act.K, lam=c.lam,
-                                              kd=c.kd, kpi=0.0)
+    kd, kpi = thesis_to_physical(arm.act.muscle_gain, np.full(n, c.kd), c.kpi)
+    gains = Theorem5Gains.from_stiffness_rate(c.stiffness_rate, lam=c.lam, kd=kd, kpi=0.0)
     pi0 = c.pi_hat0_ratio * arm.Pi_nominal
     # Preset inflation: the ν (and pressures) the actuator model gives σ_preset at rest.
     ref0 = np.array(d.blocks["ref"].eval(u=[0.0])[1][:6 * n])
     ref0[4 * n:5 * n] = c.sigma_preset
-    p0, nu0 = arm.preset(pi0, np.zeros(n), ref0, lam=np.full(n, c.lam), kd=np.full(n, c.kd),
+    p0, nu0 = arm.preset(pi0, np.zeros(n), ref0, lam=np.full(n, c.lam), kd=kd,
                          kinv=gains.kinv, dt=dt)
     x0 = {"plant.p": p0, "ctrl.Pi_hat": pi0} | ({"ctrl.nu": nu0} if kind == "theorem5" else {})
     chunk = int(c.chunk)
@@ -97,7 +97,7 @@ def run_case(arm, kind: str, c, dt: float, *,
     if pre.stop_reason is not None:
         pre.meta["preset_steps"] = n_pre
         return pre
-    tr = simulate(d, steps=n_run, k0=0, x0=pre.final_state, params={**ctrl, "ctrl.kpi": c.kpi},
+    tr = simulate(d, steps=n_run, k0=0, x0=pre.final_state, params={**ctrl, "ctrl.kpi": kpi},
                   chunk=chunk, record=RECORD, label=f"ch10 {kind}", stop=stop)
     tr.wall_seconds += pre.wall_seconds
     tr.meta["preset_steps"] = n_pre

@@ -18,7 +18,7 @@ from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.references import SmoothSteps, stiffness_reference_block
 from softgen.core.metrics import Metrics
 from softgen.modelfile.load import load_model
-from softgen.studies.gains import Theorem5Gains
+from softgen.studies.gains import Theorem5Gains, thesis_to_physical
 from softgen.studies.indices import (POSITION_TO_STIFFNESS, STIFFNESS_TO_POSITION,
                                      coupling_records, phase_rms_records, windows)
 from softgen.studies.scenario import Scenario
@@ -58,12 +58,14 @@ def _loop(model: str, rise: float, substeps: int, law: str, dt: float, mode: str
 
 
 def gains(c, law: str) -> dict:
-    """FL's gains (every pole as configured) or Theorem 5's (K_σ = rate/K_1)."""
+    """FL's gains (every pole as configured) or Theorem 5's (K_σ = rate; the printed K_d,
+    K_π of section 10.4 in physical units, :func:`~softgen.studies.gains.thesis_to_physical`)."""
     fl, arm = models(c.model)
     if law == "fl":
         return hurwitz_gains(fl.n, c.poles_q, c.pole_sigma)
-    return Theorem5Gains.from_stiffness_rate(c.stiffness_rate, arm.K1, arm.act.K, lam=c.lam,
-                                             kd=c.kd, kpi=c.kpi).as_dict()
+    kd, kpi = thesis_to_physical(arm.act.muscle_gain, np.full(arm.n, c.kd), c.kpi)
+    return Theorem5Gains.from_stiffness_rate(c.stiffness_rate, lam=c.lam, kd=kd,
+                                             kpi=kpi).as_dict()
 
 
 def scenario(c, case, dt: float, mode: str = "continuous",

@@ -9,6 +9,10 @@ Electric (eq. 2.6 / 2.10): x = (q, q̇, q_a, q̇_a, q_b, q̇_b), input the motor
 The springs may differ from the nominal model by a factor per spring
 (``spring_scale``), to emulate the 20 % mismatch of section 6.2.4.1.
 
+Any spring drive with motors (SEA or antagonistic pair of declared laws, eq. 2.6-2.7):
+x = (q, q̇, θ, θ̇), :func:`spring_motor_plant_fun`, through
+:class:`~softgen.symbolic.actuation.Actuation`.
+
 Each plant is one generated step: ``substeps`` classical RK4 steps over one sample
 with the input held (zero-order hold).
 """
@@ -17,6 +21,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from softgen.symbolic.actuation import Actuation
 from softgen.symbolic.actuators import McKibbenPairs, QbmoveSprings
 from softgen.symbolic.rigid import FUNCTION_OPTS, RigidDynamics
 
@@ -97,6 +102,38 @@ def electric_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: 
 
     return ca.Function(f"{dyn.name}_electric_plant", ins, [rk4_steps(f, x, u, h, substeps)],
                        names, ["x_next"], FUNCTION_OPTS)
+
+
+def spring_motor_plant_fun(dyn: RigidDynamics, act: Actuation, b, d, *, substeps: int,
+                           name: str) -> ca.Function:
+    """``<model>_<name>``: one sample of eq. 2.6 for springs of any declared law.
+
+    Every actuator variable of ``act`` (:class:`~softgen.symbolic.actuation.Actuation`)
+    must be a motor position θ driving its joint through a spring (an SEA, or each side
+    of an antagonistic spring pair): x = (q, q̇, θ, θ̇), θ in the order of
+    ``act.variables`` (joint by joint, side a then b), input the motor torques u held
+    over the sample, and
+
+        B q̈ + C q̇ + G (+ K q + D q̇) = τ(q, θ),      b θ̈ + d θ̇ − τ_e(q − θ) = u,
+
+    τ(q, θ) = −Σ τ_e of each joint's springs (eq. 2.7) and τ_e the spring's torque on its
+    motor (eq. 2.6), both from the declared laws by :class:`Actuation`. ``b``, ``d``:
+    motor inertia and damping per variable. ``substeps`` classical RK4 steps.
+    (:func:`electric_plant_fun` is the same physics written for k sinh(aφ) springs with
+    the a-side motors first; it is kept as it is for the chapter-11 models.)
+    """
+    n, m = dyn.model.dof, act.m
+    b, d = ca.DM(np.asarray(b, float).ravel()), ca.DM(np.asarray(d, float).ravel())
+    xs, us = ca.SX.sym("xs", 2 * n + 2 * m), ca.SX.sym("us", m)
+    q, qd, th, thd = xs[:n], xs[n:2 * n], xs[2 * n:2 * n + m], xs[2 * n + m:]
+    mn = dyn.nominal
+    qdd = ca.substitute(dyn.forward_dynamics_expr(act.torque(q, th)),
+                        ca.vertcat(mn.q, mn.qd), ca.vertcat(q, qd))
+    thdd = (us - d * thd + act.motor_torque(q, th)) / b
+    rhs = ca.Function("rhs", [xs, us], [ca.vertcat(qd, qdd, thd, thdd)])
+    x, u, h = ca.SX.sym("x", 2 * n + 2 * m), ca.SX.sym("u", m), ca.SX.sym("h")
+    return ca.Function(f"{dyn.name}_{name}", [x, u, h], [rk4_steps(rhs, x, u, h, substeps)],
+                       ["x", "u", "h"], ["x_next"], FUNCTION_OPTS)
 
 
 def servo_plant_fun(dyn: RigidDynamics, springs: QbmoveSprings, *, substeps: int,

@@ -34,9 +34,8 @@ import casadi as ca
 import numpy as np
 
 from softgen.core.errors import ModelError
-from softgen.modelfile.expr import (Law, linear_in, parse_law, spring_c,
-                                    spring_derivatives)
-from softgen.modelfile.model import LAW_VARIABLES, RobotModel, Side
+from softgen.modelfile.laws import ActuatorLaw
+from softgen.modelfile.model import RobotModel, Side
 
 #: Newton steps of the deflection of a spring law with no closed form. From the linear
 #: guess a monotone law with a slope bounded away from 0 converges quadratically; 30
@@ -46,37 +45,35 @@ NEWTON_STEPS = 30
 
 @dataclass(frozen=True)
 class DeclaredLaw:
-    """One side of one joint's actuator, parsed: ``law`` over its drive's variables."""
+    """One side of one joint's actuator: its typed law (parsed once at load,
+    :class:`~softgen.modelfile.laws.ActuatorLaw`), with the joint and side it drives."""
 
     joint: int
     side: str
     drive: str                       # "spring" | "pressure"
-    law: Law
-    constants: dict
+    law: ActuatorLaw
 
     def __call__(self, **variables) -> ca.SX:
-        return self.law({**self.constants, **variables})
+        return self.law(**variables)
+
+    @property
+    def constants(self) -> dict:
+        return self.law.constant_values
 
     @property
     def linear_in_p(self) -> bool | None:
         """For a pressure law: ∂law/∂p independent of p (CasADi); None for springs."""
-        if self.drive != "pressure":
-            return None
-        return linear_in(self.law, self.constants, LAW_VARIABLES["pressure"], "p")
+        return self.law.pressure.linear_in_p if self.drive == "pressure" else None
 
     @property
     def c(self) -> float | None:
         """For a spring law: c with τ'' = cτ and τ(0) = 0 (None if there is none)."""
-        if self.drive != "spring":
-            return None
-        return spring_c(spring_derivatives(self.law, self.constants))
+        return self.law.spring.c if self.drive == "spring" else None
 
 
-def declared_law(joint: int, drive: str, side: Side, where: str = "") -> DeclaredLaw:
-    consts = dict(side.constants)
-    law = parse_law(side.law, (*LAW_VARIABLES[drive], *consts),
-                    where or f"actuators (joint {joint + 1}).{side.name or 'law'}")
-    return DeclaredLaw(joint, side.name, drive, law, consts)
+def declared_law(joint: int, drive: str, side: Side) -> DeclaredLaw:
+    """The typed law of ``side`` (of joint ``joint``), as the symbolic layer uses it."""
+    return DeclaredLaw(joint, side.name, drive, side.law)
 
 
 @dataclass(frozen=True)
@@ -190,8 +187,7 @@ class Actuation:
         if law.drive != "spring":
             raise ModelError(f"{self.model.name}: actuators (joint {law.joint + 1}): a "
                              "deflection is defined for spring laws only")
-        f = spring_derivatives(law.law, law.constants)
-        slope0 = float(f(0.0)[1])
+        slope0 = law.law.spring.slope0
         if not slope0 > 0:
             raise ModelError(f"{self.model.name}: actuators (joint {law.joint + 1})."
                              f"{law.side or 'law'}: spring slope tau'(0) = {slope0:g} (needs "
@@ -246,7 +242,7 @@ class Actuation:
         out = []
         for law in self.laws:
             d = {"joint": law.joint + 1, "side": law.side, "drive": law.drive,
-                 "law": law.law.text}
+                 "law": law.law.text, **law.law.properties.as_dict()}
             if law.drive == "pressure":
                 d["linear_in_p"] = law.linear_in_p
             else:

@@ -4,20 +4,21 @@ Two families, each built from a :class:`~softgen.modelfile.model.RobotModel` who
 ``[[actuators]]`` put one actuator of the family on every joint:
 
 :class:`McKibbenPairs` (section 2.1)
-    Muscle elongations φ_a = (l_n,a − qR)² − l_min,a², φ_b = (l_n,b + qR)² − l_min,b²;
-    Φ(q) (n × 2n), Φ_q(q) = ∂Φ/∂q entry by entry, torque τ = KΦp (eq. 2.2),
-    stiffness σ = −∂τ/∂q = −KΦ_q p (eq. 2.3) and σ̇ (eq. 2.4), with K = diag(K_g R).
-    NOTES section 2 item 5: the two muscles have different elongations; a per-joint
-    null-space basis of Φ is (φ_b, φ_a)ᵀ.
+    Muscle elongations φ_a = (l_n,a − qR)² − l_min,a², φ_b = (l_n,b + qR)² − l_min,b²
+    times each muscle's gain K_g R (eq. 2.2, folded into Φ so that a pair written as laws
+    is the same pair); Φ(q) (n × 2n), Φ_q(q) = ∂Φ/∂q entry by entry, torque τ = Φp,
+    stiffness σ = −∂τ/∂q = −Φ_q p (eq. 2.3) and σ̇ (eq. 2.4). NOTES section 2 item 5: the
+    two muscles have different elongations; a per-joint null-space basis of Φ is
+    (φ_b, φ_a)ᵀ.
 :class:`QbmoveSprings` (sections 2.2 and 6.2)
     Per joint two springs τ^e_j = k_j sinh(a_j φ_j), φ_j = q − q_j (eq. 6.6),
     σ_j = ∂τ^e_j/∂φ_j (eq. 2.8), joint totals (eq. 2.7, 2.9), σ̇ (eq. 2.9) and the
     deflection giving a wanted spring torque, φ = asinh(τ/k)/a (eq. 11.3, with k for
     the printed k_g: NOTES section 2 item 12).
 
-Both are built from the model's declared laws where the model file declares them rather
-than naming the type: McKibbenPairs from any pressure pair linear in p (Φ(q) = ∂τ/∂p,
-K = 1), QbmoveSprings from any spring pair whose laws satisfy τ'' = cτ, c > 0, τ(0) = 0
+Both are built from the model's declared laws, whether the model file names the type or
+writes the laws: McKibbenPairs from any pressure pair linear in p (Φ(q) = ∂τ/∂p, in
+N m/Pa), QbmoveSprings from any spring pair whose laws satisfy τ'' = cτ, c > 0, τ(0) = 0
 (a = √c, k = τ'(0)/a). The generic derivations for every declared law are in
 :mod:`softgen.symbolic.actuation`; tests/test_actuation.py checks the two agree.
 
@@ -32,7 +33,6 @@ import numpy as np
 
 from softgen.core.errors import ModelError
 from softgen.modelfile.model import RobotModel
-from softgen.symbolic.actuation import declared_law
 
 
 def _require(model: RobotModel, kind: str) -> None:
@@ -57,45 +57,62 @@ def _sinh_pair(model: RobotModel, which: int) -> tuple[np.ndarray, np.ndarray]:
     return vals[:, 0], vals[:, 1]
 
 
-def _column(v) -> ca.SX | ca.DM:
-    """A vector of numbers (as DM) or of symbols (as is)."""
-    return v if isinstance(v, (ca.SX, ca.MX)) else ca.DM(v)
-
-
 def _diag_jacobian(f: ca.SX, x: ca.SX) -> ca.SX:
     """∂f_i/∂x_i for an element-wise map f(x) (each f_i depends on x_i only)."""
     return ca.diag(ca.jacobian(f, x))
 
 
 class McKibbenPairs:
-    """Antagonistic McKibben pairs, one per joint (thesis section 2.1)."""
+    """Antagonistic pressure pairs linear in p, one per joint (thesis section 2.1).
+
+    Φ(q) is derived from the declared laws (Φ_side = ∂τ_side/∂p_side, by CasADi), for
+    ``type = "mckibben"`` (whose laws are eq. 2.2's, K_g R ((l_n ∓ qR)² − l_min²) p per
+    muscle) exactly as for a pair written as laws: the same physics gives the same Φ, in
+    N m/Pa, and the same controllers (issue 31). So the torque is τ = Φ(q) p and the
+    actuator gain K of eq. 2.2 is folded into Φ: :attr:`K` is 1 for every joint, and the
+    controllers' gains are physical (N m s/rad for K_d, 1/s for the stiffness rate).
+    :attr:`muscle_gain` keeps K_g R per muscle of a ``mckibben`` table: the scale the
+    thesis's printed gains are written in (Prop. 11: Π = π/K_1), used only to convert
+    them (:mod:`softgen.studies.gains`).
+    """
+
+    #: Constants of the McKibben law of each side (:data:`MCKIBBEN_LAWS`) that
+    #: :meth:`with_values` may replace, from the muscle values R, K_g, l_n, l_min.
+    _MUSCLE = ("K", "R", "ln", "lm")
 
     def __init__(self, model: RobotModel):
         _require(model, "mckibben")
         self.model = model
         self.n = model.dof
-        #: Declared pressure laws (``type = "antagonistic"``, ``drive = "pressure"``,
-        #: linear in p): Φ(q) is derived from them (∂τ_side/∂p_side) with K = 1, and the
-        #: muscle constants (R, K_g, l_n, l_min) do not exist.
+        #: Pairs declared as laws (``type = "antagonistic"``, ``drive = "pressure"``):
+        #: they have no muscle values to vary (:meth:`with_values`).
         self.declared = any(act.type != "mckibben" for act in model.actuators)
         self.pressure_max = np.array([act.get("pressure_max", np.inf)
                                       for act in model.actuators])
+        self.K = np.ones(self.n)
+        #: Per joint, the constants each side's law is evaluated with (numbers, or SX
+        #: symbols after :meth:`with_values`).
+        self._constants = [[dict(side.constants) for side in act.sides]
+                           for act in model.actuators]
         if self.declared:
-            self.K = np.ones(self.n)
+            self.muscle_gain = None
             return
         self.R = np.array([act["radius"] for act in model.actuators])
-        self.Kg = np.array([act["gain"] for act in model.actuators])
-        self.K = self.Kg * self.R                        # K_i = K_g,i R_i
+        self.Kg_a, self.Kg_b = _pair(model, "gain")
+        self.Kg = self.Kg_a if np.array_equal(self.Kg_a, self.Kg_b) else None
+        #: K_g R of each muscle, (side a, side b) per joint: eq. 2.2's gain.
+        self.muscle_gain = np.column_stack([self.Kg_a * self.R, self.Kg_b * self.R])
         self.ln_a, self.ln_b = _pair(model, "nominal_length")
         self.lm_a, self.lm_b = _pair(model, "min_length")
 
     def with_values(self, *, R=None, Kg=None, ln_a=None, ln_b=None, lm_a=None,
                     lm_b=None) -> McKibbenPairs:
-        """A copy with some values replaced, numbers or CasADi symbols (n each).
+        """A copy with some muscle values replaced, numbers or CasADi symbols (n each;
+        ``Kg`` sets both muscles of a joint).
 
         A plant whose muscles differ from the controller's model (a robustness study)
-        is the same expressions with other values; symbols make those values
-        parameters of one generated function instead of one build per sample.
+        is the same laws with other constants; symbols make those values parameters of
+        one generated function instead of one build per sample.
         """
         if self.declared:
             raise ModelError(f"{self.model.name}: actuators: with_values needs McKibben "
@@ -107,28 +124,30 @@ class McKibbenPairs:
                 if not isinstance(v, (ca.SX, ca.MX)):
                     v = np.asarray(v, dtype=float).reshape(self.n)
                 setattr(out, key, v)
-        out.K = out.Kg * out.R
+        if Kg is not None:
+            out.Kg_a = out.Kg_b = out.Kg
+        # Side a then b, as the laws of each joint (MCKIBBEN_LAWS).
+        out._constants = [[{"K": kg[i] * out.R[i], "R": out.R[i], "ln": ln[i], "lm": lm[i]}
+                           for kg, ln, lm in ((out.Kg_a, out.ln_a, out.lm_a),
+                                              (out.Kg_b, out.ln_b, out.lm_b))]
+                          for i in range(self.n)]
         return out
 
     # -- expressions ---------------------------------------------------------------
     def elongations(self, q: ca.SX) -> tuple[ca.SX, ca.SX]:
-        """(φ_a(q), φ_b(q)), n each (section 2.1); for declared pressure laws
-        φ_a = ∂τ_a/∂p_a and φ_b = −∂τ_b/∂p_b, by CasADi."""
-        if self.declared:
-            return self._declared_elongations(q)
-        phi_a = (self.ln_a - q * self.R) ** 2 - self.lm_a ** 2
-        phi_b = (self.ln_b + q * self.R) ** 2 - self.lm_b ** 2
-        return phi_a, phi_b
-
-    def _declared_elongations(self, q: ca.SX) -> tuple[ca.SX, ca.SX]:
+        """(φ_a(q), φ_b(q)), n each: φ_a = ∂τ_a/∂p_a and φ_b = −∂τ_b/∂p_b of the
+        declared laws, by CasADi (for McKibben muscles K_g R ((l_n ∓ qR)² − l_min²),
+        section 2.1 with eq. 2.2's gain)."""
         p = ca.SX.sym("p")
         cols: dict[str, list] = {"a": [], "b": []}
-        for act in self.model.actuators:
-            for side, sign in zip(act.sides, (1.0, -1.0)):
-                law = declared_law(act.joint, "pressure", side)
-                slope = ca.jacobian(law(q=q[act.joint], p=p), p)
-                cols[side.name].append(sign * slope)   # independent of p (linear law)
-        return ca.vertcat(*cols["a"]), ca.vertcat(*cols["b"])
+        for act, consts in zip(self.model.actuators, self._constants):
+            for side, sign, c in zip(act.sides, (1.0, -1.0), consts):
+                tau = side.law.parsed({**c, "q": q[act.joint], "p": p})
+                cols[side.name].append(sign * ca.jacobian(tau, p))   # linear in p
+        a, b = ca.vertcat(*cols["a"]), ca.vertcat(*cols["b"])
+        if not isinstance(q, (ca.SX, ca.MX)):       # numbers in, numbers out
+            return ca.evalf(a), ca.evalf(b)
+        return a, b
 
     def Phi(self, q: ca.SX) -> ca.SX:
         """Muscle elongation matrix Φ(q), n × 2n, rows (… φ_i,a, −φ_i,b …)."""
@@ -179,22 +198,22 @@ class McKibbenPairs:
         return M
 
     def torque(self, q: ca.SX, p: ca.SX) -> ca.SX:
-        """τ = K Φ(q) p (eq. 2.2); p = (p_1a, p_1b, …, p_na, p_nb)."""
-        return ca.diag(_column(self.K)) @ self.Phi(q) @ p
+        """τ = Φ(q) p (eq. 2.2, K folded into Φ); p = (p_1a, p_1b, …, p_na, p_nb)."""
+        return self.Phi(q) @ p
 
     def stiffness(self, q: ca.SX, p: ca.SX) -> ca.SX:
-        """σ = −K Φ_q(q) p (eq. 2.3), positive for positive pressures."""
-        return -(ca.diag(_column(self.K)) @ self.Phi_q(q) @ p)
+        """σ = −Φ_q(q) p (eq. 2.3), positive for positive pressures."""
+        return -(self.Phi_q(q) @ p)
 
     def stiffness_rate(self, q, qd, p, pd) -> ca.SX:
-        """σ̇ = −K Φ̇_q p − K Φ_q ṗ (eq. 2.4), by the chain rule."""
+        """σ̇ = −Φ̇_q p − Φ_q ṗ (eq. 2.4), by the chain rule."""
         sigma = self.stiffness(q, p)
         return ca.jtimes(sigma, ca.vertcat(q, p), ca.vertcat(qd, pd))
 
     def allocation(self, q: ca.SX, tau: ca.SX, sigma: ca.SX) -> ca.SX:
         """Pressures giving torque ``tau`` and stiffness ``sigma`` at ``q`` (exact model).
 
-        Per joint the 2 × 2 system (τ_i, σ_i) = K_i (φ_a p_a − φ_b p_b,
+        Per joint the 2 × 2 system (τ_i, σ_i) = (φ_a p_a − φ_b p_b,
         −φ_a,q p_a + φ_b,q p_b) is solved; it is singular only where
         φ_a φ_b,q = φ_b φ_a,q, which the elongations of section 2.1 never meet for
         l_n > l_min (both φ positive, slopes of opposite sign).
@@ -202,8 +221,8 @@ class McKibbenPairs:
         Phi, Phi_q = self.Phi(q), self.Phi_q(q)
         p = []
         for i in range(self.n):
-            M = self.K[i] * ca.vertcat(ca.horzcat(Phi[i, 2 * i], Phi[i, 2 * i + 1]),
-                                       ca.horzcat(-Phi_q[i, 2 * i], -Phi_q[i, 2 * i + 1]))
+            M = ca.vertcat(ca.horzcat(Phi[i, 2 * i], Phi[i, 2 * i + 1]),
+                           ca.horzcat(-Phi_q[i, 2 * i], -Phi_q[i, 2 * i + 1]))
             p.append(ca.solve(M, ca.vertcat(tau[i], sigma[i])))
         return ca.vertcat(*p)
 
@@ -218,7 +237,8 @@ class McKibbenPairs:
             (ca.Function(f"{name}_mckibben_torque", [q, p],
                          [self.torque(q, p), self.stiffness(q, p)], ["q", "p"],
                          ["tau", "sigma"], opts),
-             "McKibben pairs: torque K Phi(q) p (eq. 2.2), stiffness -K Phi_q(q) p (eq. 2.3)"),
+             "McKibben pairs: torque Phi(q) p (eq. 2.2, gains in Phi), stiffness -Phi_q(q) p "
+             "(eq. 2.3)"),
             (ca.Function(f"{name}_mckibben_phi", [q],
                          [ca.densify(self.Phi(q)), ca.densify(self.Phi_q(q))], ["q"],
                          ["Phi", "Phi_q"], opts),
@@ -226,7 +246,7 @@ class McKibbenPairs:
             (ca.Function(f"{name}_mckibben_stiffness_rate", [q, qd, p, pd],
                          [self.stiffness_rate(q, qd, p, pd)], ["q", "qd", "p", "pd"],
                          ["sigma_dot"], opts),
-             "stiffness rate -K Phi_q_dot p - K Phi_q p_dot (eq. 2.4)"),
+             "stiffness rate -Phi_q_dot p - Phi_q p_dot (eq. 2.4)"),
             (ca.Function(f"{name}_mckibben_allocation", [q, tau, sigma],
                          [self.allocation(q, tau, sigma)], ["q", "tau", "sigma"], ["p"], opts),
              "pressures realising a torque and a stiffness at q (exact model)"),

@@ -1,6 +1,6 @@
 """Everything derived from a rigid-chain model, as named casadi.Functions.
 
-Paired API (adam convention, DESIGN.md section 3 item 1): ``inertia_fun()``
+Paired API (adam convention, docs/design.md section 3 item 1): ``inertia_fun()``
 returns the named ``casadi.Function``; ``inertia(q)`` evaluates it. Function
 names are ``<model>_<quantity>``; outputs are dense so that a compiled library
 writes every entry (no sparsity bookkeeping in the runtime). Each ``x_fun()`` is

@@ -20,6 +20,7 @@ from pathlib import Path
 from softgen.core.errors import SoftgenError
 import numpy as np
 
+from softgen.modelfile.laws import DEFAULT_DEFLECTION_MAX
 from softgen.modelfile.model import MAX_NAME, RobotModel
 from softgen.core.atomic import atomic_open, write_text
 from softgen.studies.excitation import FourierTrajectory
@@ -111,18 +112,23 @@ def _actuator_table(a, names: list[str]) -> dict:
     (``mckibben``, ``qbmove``) by their keys, declared laws (``sea``, ``antagonistic``)
     with their law and constants, ``[actuators.a]``/``[actuators.b]`` for a pair."""
     t: dict = {"joint": names[a.joint], "type": a.type}
-    if a.type in ("mckibben", "qbmove"):
-        return {**t, **{k: (list(x) if isinstance(x, tuple) else x) for k, x in a.values}}
     if a.type == "direct":
         return t
+    # A declared deflection range of spring laws (default 1 rad) is kept.
+    dmax = {d for sd in a.sides if sd.law.drive == "spring"
+            and (d := sd.law.deflection_max) != DEFAULT_DEFLECTION_MAX}
+    if dmax:
+        t["deflection_max"] = dmax.pop()
+    if a.type in ("mckibben", "qbmove"):
+        return {**t, **{k: (list(x) if isinstance(x, tuple) else x) for k, x in a.values}}
     # SEA motor values are stored as 1-tuples, a pair's as (a side, b side).
     values = {k: (x[0] if isinstance(x, tuple) and len(x) == 1 else
                   list(x) if isinstance(x, tuple) else x) for k, x in a.values}
     if a.type == "sea":
         (side,) = a.sides
-        return {**t, **values, "law": side.law, **dict(side.constants)}
+        return {**t, **values, "law": side.text, **dict(side.constants)}
     return {**t, "drive": a.drive, **values,
-            **{sd.name: {"law": sd.law, **dict(sd.constants)} for sd in a.sides}}
+            **{sd.name: {"law": sd.text, **dict(sd.constants)} for sd in a.sides}}
 
 
 def _value(x) -> str:
