@@ -182,8 +182,9 @@ BAD_CASES = [
     ("planar-com-3-entries", PLANAR, "com = 0.045", "com = [0.045, 0.0, 0.0]", "links[0].com"),
     ("spatial-inertia-not-positive-definite", SPATIAL, LINK0_INERTIA_3X3,
      "inertia = [[0.01, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, -0.002]]", "links[0].inertia"),
-    ("spatial-inertia-singular", SPATIAL, LINK0_INERTIA_3X3,
-     "inertia = [[0.01, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, 0.0]]", "links[0].inertia"),
+    # A thin rod (diag(0.01, 0.01, 0)) is a body; a negative principal moment is not.
+    ("spatial-inertia-indefinite", SPATIAL, LINK0_INERTIA_3X3,
+     "inertia = [[0.01, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, -1e-4]]", "links[0].inertia"),
     ("spatial-inertia-6list-not-positive-definite", SPATIAL,
      "inertia = [0.001, 0.004, 0.004, 0.0, 0.0, 0.0]",
      "inertia = [0.001, 0.004, 0.004, 0.01, 0.0, 0.0]", "links[1].inertia"),

@@ -368,8 +368,6 @@ REFUSALS = [
      "joint 'j2' type: a planar joint"),
     ("unknown-type", _swap('type="prismatic"', 'type="ball"'),
      "joint 'j2' type: expected revolute, continuous, prismatic or fixed, got 'ball'"),
-    ("mimic", _swap('<dynamics damping="0.2"', '<mimic joint="j1"/><dynamics damping="0.2"'),
-     "joint 'j2' <mimic>"),
     ("no-parent", _swap('<parent link="l1"/>', ""), "joint 'j2': has no <parent> element"),
     ("undefined", _swap('<child link="l2"/>', '<child link="l9"/>'),
      "joint 'j2' <child>: link 'l9' is not defined"),
@@ -383,8 +381,6 @@ REFUSALS = [
      "not reachable from the root link 'base'"),
     ("two-roots", _urdf('\n  <link name="stray"/>'), "<robot>: several root links ('base', "
      "'stray')"),
-    ("tree", _urdf(_LEAF.format(j="j3", t="revolute", p="l1", c="finger")),
-     "link 'l1': branches into movable joints on 2 branches ('j2', 'j3')"),
     ("nothing-moves", _swap('type="revolute"', 'type="fixed"').replace(
         'type="prismatic"', 'type="fixed"'), "<robot>: no revolute, continuous or prismatic"),
     ("not-a-number", _swap('<mass value="0.5"/>', '<mass value="half"/>'),
@@ -409,8 +405,11 @@ REFUSALS = [
      "link 'l1' <inertial> <mass> value: expected a non-negative number"),
     ("triangle", _swap('izz="0.004"', 'izz="0.04"'),
      "link 'l2' <inertial> <inertia>: principal moments"),
+    # A fixed leaf is judged with the body it is merged into; when that body is no body,
+    # the refusal names the part that is none on its own.
     ("bad-leaf", _urdf(_LEAF.format(j="tool", t="fixed", p="l2", c="gripper").replace(
-        'izz="1e-4"', 'izz="1e-3"')), "link 'gripper' <inertial> <inertia>: principal moments"),
+        'izz="1e-4"', 'izz="1"')), "link 'gripper' <inertial> <inertia> (merged into link "
+     "'l2'): principal moments"),
     ("flat-body", _swap('ixx="0.01"', 'ixx="0.001"'),
      "link 'l1' <inertial> <inertia>: principal moments"),
     ("indefinite", _swap('izz="0.015"', 'izz="-0.015"'),
@@ -434,6 +433,22 @@ def test_bad_urdf_gives_one_line_naming_the_element(tmp_path, text, match):
     msg = str(exc.value)
     assert "\n" not in msg and msg.startswith(f"{path}: "), msg
     assert match in msg, msg
+
+
+def test_mimic_joints_load_and_a_mimic_of_no_joint_moves_on_its_own(tmp_path):
+    """A mimic joint is a body driven by its master's coordinate (issue 35); a mimic tag
+    naming no joint of the model (a vendor's typo) leaves the joint moving on its own, as
+    Pinocchio's parser reads it, and the description says so."""
+    path = tmp_path / "m.urdf"
+    path.write_text(_swap('<dynamics damping="0.2"', '<mimic joint="j1" multiplier="-2"/>'
+                          '<dynamics damping="0.2"'))
+    model = load_model(path)
+    assert model.dof == 1 and [m.mimic for m in model.mimics] == [(0, -2.0, 0.0)]
+    path.write_text(_swap('<dynamics damping="0.2"', '<mimic joint="j9"/><dynamics damping="0.2"'))
+    model = load_model(path)
+    assert model.dof == 2 and not model.mimics
+    assert "mimic tag naming no joint of the model (moving on their own): j2 (follows 'j9')" \
+        in model.description
 
 
 def test_expanded_xacro_output_with_its_namespace_declaration_loads(tmp_path):

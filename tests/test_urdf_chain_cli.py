@@ -90,12 +90,12 @@ def _matches_newton_euler(bundle, path, root, tip, k=5):
 
 
 def test_panda_without_fingers_by_tip_through_generate(panda_hand, tmp_path, capsys):
-    """The file is a tree (two finger joints on the hand): refused with the way out;
-    ``--tip panda_hand`` is the 7-DoF arm with the hand merged and the fingers left out,
-    and the generated bundle loads (its manifest names the chain) and is that arm."""
-    assert main(["info", str(panda_hand)]) == 2
-    assert "a tree; choose the serial chain with a tip link (--tip LINK" in \
-        _one_error_line(capsys)
+    """The file is a tree (two finger joints on the hand, the second a mimic of the
+    first): it loads whole (8 coordinates, issue 35); ``--tip panda_hand`` is the 7-DoF
+    arm with the hand merged and the fingers left out, and the generated bundle loads (its
+    manifest names the chain) and is that arm."""
+    assert main(["info", str(panda_hand)]) == 0
+    assert "(spatial, 8 dof)" in capsys.readouterr().out
     out = tmp_path / "gen"
     # The file's robot is called "panda": its chain must not replace the shipped bundle.
     assert main(["generate", str(panda_hand), "--tip", "panda_hand", "--no-build"]) == 2
@@ -198,7 +198,7 @@ def test_every_verb_refuses_a_bad_chain_in_one_line(verb, root, tip, match, huma
 @pytest.mark.parametrize("argv,match", [
     (["info", "planar_2link", "--tip", "link2"], "root/tip choose a chain of a URDF file"),
     (["generate", "{h}", "{h}", "--tip", "left_3_link", "--out", "{tmp}"],
-     "generate: --root/--tip choose the chain of one URDF MODEL; got 2 models"),
+     "generate: --root/--tip/--floating choose the part and base of one MODEL; got 2 models"),
     (["bench", "{h}", "--tip", "left_3_link", "--peers"], "bench: --peers compares whole"),
     (["identify", "--actuator", "sinh", "--log", "x.csv", "--tip", "a"],
      "identify: --actuator takes no MODEL, --excite, --root or --tip"),

@@ -149,9 +149,16 @@ def humanoid(tmp_path):
     return p
 
 
-def test_expanded_xacro_output_loads_and_a_tree_asks_for_a_tip(humanoid):
-    with pytest.raises(ModelError, match=r"a tree; choose the serial chain with a tip link"):
-        load_model(humanoid)
+def test_expanded_xacro_output_loads_whole_as_a_tree(humanoid):
+    """Without a tip the whole tree loads (issue 35): one coordinate per moving joint,
+    depth first in file order, the mimic finger driven by its master."""
+    model = load_model(humanoid)
+    assert model.is_tree and not model.floating
+    assert model.joint_names == ("leg_1", "torso_1", "torso_2", "left_1", "left_2", "left_3",
+                                 "left_finger_1", "right_1", "right_2", "right_3",
+                                 "right_finger_1")
+    assert [m.joint_name for m in model.mimics] == ["left_finger_2", "right_finger_2"]
+    assert [m.mimic for m in model.mimics] == [(6, 1.0, 0.0), (10, 1.0, 0.0)]
 
 
 @pytest.mark.parametrize("root,tip,dof", [

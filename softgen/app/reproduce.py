@@ -257,7 +257,7 @@ def check_findings(exp: Experiment, metrics: Metrics, config) -> list[dict]:
                         f"findings raised {type(exc).__name__}: {exc}", kind=kind or "thesis")]
 
 
-#: The keys of one metrics.json finding (DESIGN.md section 2).
+#: The keys of one metrics.json finding (docs/design.md section 2).
 FINDING_KEYS = {"claim", "verdict", "evidence", "kind", "metrics", "band"}
 
 

@@ -18,11 +18,13 @@ from pathlib import Path
 import numpy as np
 
 # The builder modules register their capabilities on import; nothing else is used here.
+import softgen.bundles.floating  # noqa: F401
 import softgen.bundles.rigid  # noqa: F401
 import softgen.bundles.soft  # noqa: F401
 import softgen.bundles.spring_pair  # noqa: F401
 from softgen.bundles.common import (DEFAULT_OPTIONS, BundleOptions, actuator_record,
                                     identity_bytes, model_chain, model_file_path, model_source)
+from softgen.bundles.floating import model_layout
 from softgen.bundles.registry import Capability, Context, Decision, merge
 from softgen.bundles.registry import decide as _decide
 from softgen.codegen.generate import LARGE_FUNCTION, BundleSpec, content_hash, write_bundle
@@ -122,7 +124,7 @@ def derivation(model: RobotModel | SoftModel,
 def _assemble(model, options: BundleOptions) -> BundleSpec:
     ctx = derivation(model, options)
     dyn = ctx.dyn
-    extra = {"dof": model.dof, **model_source(model),
+    extra = {"dof": model.dof, **model_source(model), **model_layout(model),
              "options": dict(options.__dict__), "route": dyn.route,
              "full_parameter_count": dyn.base.full_rank}
     if isinstance(dyn, RigidDynamics):
@@ -245,6 +247,9 @@ def check_inertia_positive_definite(model: RobotModel, inertia_fun, *,
         def draw():
             q = rng.uniform(-np.pi, np.pi, model.dof)
             q[prismatic] = rng.uniform(-scale, scale, int(prismatic.sum()))
+            if model.floating:          # a base pose first: position, unit quaternion
+                quat = rng.normal(size=4)
+                q = np.r_[rng.uniform(-scale, scale, 3), quat / np.linalg.norm(quat), q]
             return q
     for _ in range(samples):
         q = draw()
@@ -256,8 +261,10 @@ def check_inertia_positive_definite(model: RobotModel, inertia_fun, *,
         lam = np.linalg.eigvalsh(0.5 * (B + B.T))
         if not lam.min() > 1e-12 * max(abs(lam).max(), 1e-300):
             j = int(np.argmin(np.abs(np.diag(B))))
-            what = f"joint {j + 1} ({links[j].name})" if links is not None else \
-                f"configuration variable {j + 1}"
+            base = 6 if getattr(model, "floating", False) else 0
+            what = (f"configuration variable {j + 1}" if links is None else
+                    f"the floating base's velocity {j + 1}" if j < base else
+                    f"joint {j + 1 - base} ({links[j - base].name})")
             raise ModelError(f"{where}: B(q) is not positive definite at q = "
                              f"{np.round(q, 4).tolist()} (smallest eigenvalue {lam.min():.3g}); "
                              f"{what} moves no mass or inertia")

@@ -72,6 +72,8 @@ def model_source(model) -> dict:
         # A URDF chain cut with --root/--tip: the file alone is the whole tree, so the
         # staleness check and the no-compiler fallback must cut the same chain again.
         source["model_chain"] = {"root": chain[0], "tip": chain[1]}
+        if len(chain) > 2 and chain[2]:
+            source["model_chain"]["floating"] = True        # --floating (issue 35)
     return source
 
 
@@ -98,7 +100,10 @@ def model_chain(manifest: dict) -> dict:
     """``root=`` and ``tip=`` of :func:`softgen.modelfile.load.load_model` for the
     manifest's model (empty unless it is a chain cut out of a URDF file)."""
     chain = manifest.get("model_chain") or {}
-    return {"root": chain.get("root"), "tip": chain.get("tip")} if chain else {}
+    out = {"root": chain.get("root"), "tip": chain.get("tip")} if chain else {}
+    if chain.get("floating"):
+        out["floating"] = True
+    return out
 
 
 def model_file_path(manifest: dict) -> Path:

@@ -60,8 +60,12 @@ def _where(model) -> str:
 
 
 def _rigid(model) -> str | None:
-    if isinstance(model, RobotModel):
+    if isinstance(model, RobotModel) and not model.floating:
         return None
+    if isinstance(model, RobotModel):
+        # Issue 35: a floating base gets softgen.bundles.floating's capability instead.
+        return (f"{_where(model)}: a floating base (q = [position, quaternion, joints]); "
+                "the fixed-base capabilities do not apply")
     return f"{_where(model)}: a soft body (model.kind = {model.kind!r}), not a rigid chain"
 
 
@@ -71,7 +75,8 @@ def _soft(model) -> str | None:
     return f"{_where(model)}: a rigid chain (model.kind = {model.kind!r}), not a soft body"
 
 
-RIGID = Condition("rigid chain (model.kind planar or spatial, or a URDF)", _rigid)
+RIGID = Condition("rigid chain or tree on a fixed base (model.kind planar or spatial, or a "
+                  "URDF)", _rigid)
 SOFT = Condition("soft body (PCC or affine curvature)", _soft)
 
 

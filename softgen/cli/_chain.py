@@ -1,10 +1,15 @@
-"""``--root LINK`` and ``--tip LINK``: the serial chain of a URDF tree, for every verb
-that takes a model (issue 24).
+"""``--root LINK``, ``--tip LINK`` and ``--floating``: the part of a URDF tree and its
+base, for every verb that takes a model (issues 24, 35).
 
-Without them a verb passes the model's name or path on as before; with them it loads
-the chain (:func:`softgen.modelfile.load.load_model`, the same cut as a TOML model's
-``[urdf]`` table) and hands the loaded model to the application layer. An unknown link,
-a tip not below the root, or the flags on a TOML model are one ``softgen: error:`` line.
+Without them a verb passes the model's name or path on as before (a URDF loads whole,
+as a tree); with them it loads the model (:func:`softgen.modelfile.load.load_model`, the
+same as a TOML model's ``[urdf]`` table) and hands the loaded model to the application
+layer: ``--tip`` cuts the serial chain from ``--root`` (default: the file's root link),
+``--root`` alone the tree below it, ``--floating`` puts the model on a floating base (a
+free flyer: q = [base position, quaternion x y z w, joints], v = [base linear, angular
+velocity in the base frame, joint rates], as Pinocchio's). An unknown link, a tip not
+below the root, root/tip on a TOML model, or ``--floating`` on a verb that works on
+fixed bases only are one ``softgen: error:`` line.
 """
 from __future__ import annotations
 
@@ -18,10 +23,17 @@ def add_chain_arguments(p) -> None:
                    "not modelled (default: the file's root link)")
     g.add_argument("--tip", metavar="LINK", help="the last link of the chain; moving joints "
                    "off the root->tip path (fingers, other limbs) are left out")
+    g.add_argument("--floating", action="store_true", help="a floating base: the root link "
+                   "(and what is fixed to it) is a free body, q = [position, quaternion x y z "
+                   "w, joints], v = [base linear, angular velocity (base frame), joint rates]")
+
+
+#: Verbs that take a floating base (the others work on fixed-base models).
+FLOATING_VERBS = ("generate", "info", "export", "identify", "bench")
 
 
 def has_chain(args) -> bool:
-    return args.root is not None or args.tip is not None
+    return args.root is not None or args.tip is not None or getattr(args, "floating", False)
 
 
 def chain_model(args, ref, verb: str):
@@ -39,9 +51,14 @@ def chain_model(args, ref, verb: str):
         if ref is not None:
             check_expression_size(load_model(ref))
         return ref
+    floating = getattr(args, "floating", False)
+    if floating and verb not in FLOATING_VERBS:
+        raise SoftgenError(f"{verb}: --floating: {verb} works on fixed-base models; a "
+                           f"floating base is for {', '.join(FLOATING_VERBS)}")
     if ref is None:
-        raise SoftgenError(f"{verb}: --root/--tip choose a chain of a URDF MODEL; give one")
-    model = load_model(ref, root=args.root, tip=args.tip)
+        raise SoftgenError(f"{verb}: --root/--tip/--floating choose a part of a URDF MODEL "
+                           "or its base; give one")
+    model = load_model(ref, root=args.root, tip=args.tip, floating=floating)
     check_expression_size(model)
     return model
 
@@ -49,5 +66,5 @@ def chain_model(args, ref, verb: str):
 def single_model(args, models: list[str], verb: str) -> None:
     """``--root``/``--tip`` cut one file's chain: refuse them with several MODELs."""
     if has_chain(args) and len(models) != 1:
-        raise SoftgenError(f"{verb}: --root/--tip choose the chain of one URDF MODEL; "
-                           f"got {len(models)} models")
+        raise SoftgenError(f"{verb}: --root/--tip/--floating choose the part and base of one "
+                           f"MODEL; got {len(models)} models")

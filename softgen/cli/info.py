@@ -45,7 +45,7 @@ def run(args) -> int:
     from softgen.bundles.bundle import GENERATED_DIR, BundleOptions, bundle_spec
     from softgen.modelfile.limits import check_expression_size
     from softgen.modelfile.load import load_model
-    model = load_model(args.model, root=args.root, tip=args.tip)
+    model = load_model(args.model, root=args.root, tip=args.tip, floating=args.floating)
     check_expression_size(model)          # a model too large is refused before the line
     # The derivation takes seconds on a large model (issue 23: `info` on a 60-DoF URDF
     # was silent for minutes): say so on stderr, keeping stdout (and --json) clean.

@@ -203,7 +203,8 @@ def validate_manifest(manifest: Any, path: Path | str = "manifest.json") -> dict
         c.string(c.get(m, "model_file", ""), "model_file", re.compile(r".+\.(toml|urdf)$"),
                  "the path of a .toml or .urdf model file")
         c.string(c.get(m, "model_sha256", ""), "model_sha256", _HEX64, "64 hexadecimal digits")
-        c.integer(c.get(m, "dof", ""), "dof", 1)
+        # A single free body (a floating base without joints) has no joint coordinate.
+        c.integer(c.get(m, "dof", ""), "dof", 0 if "floating_base" in m else 1)
         if "options" in m:
             c.table(m["options"], "options")
     c.finite_everywhere(m, "")

@@ -81,8 +81,8 @@ def bundle_files(model, generated_root: Path | None = None):
     if isinstance(model, (RobotModel, SoftModel)):
         with tempfile.TemporaryDirectory(prefix="softgen-export-") as tmp:
             bundle = generate(model, Path(tmp))
-            chain = f" (the chain {model.chain[0] or 'root'} -> {model.chain[1]} of " \
-                    f"{model.path})" if getattr(model, "chain", None) else ""
+            chain = f" ({_part_text(model.chain)} of {model.path})" \
+                if getattr(model, "chain", None) else ""
             yield bundle, read_manifest(bundle), \
                 f"generated {model.name}{chain} in a temporary directory"
         return
@@ -115,9 +115,19 @@ def bundle_files(model, generated_root: Path | None = None):
 # -- rendering ---------------------------------------------------------------------------
 
 def _chain_text(manifest: dict) -> str:
-    """`` --root R --tip T`` of a bundle of a URDF chain (empty for a whole file)."""
+    """`` --root R --tip T --floating`` of a bundle of a URDF chain or tree (empty for a
+    whole file on a fixed base)."""
     chain = manifest.get("model_chain") or {}
-    return "".join(f" --{k} {chain[k]}" for k in ("root", "tip") if chain.get(k))
+    return ("".join(f" --{k} {chain[k]}" for k in ("root", "tip") if chain.get(k))
+            + (" --floating" if chain.get("floating") else ""))
+
+
+def _part_text(chain: tuple) -> str:
+    """What ``load_model(..., root=, tip=, floating=)`` took of a URDF file, in words."""
+    root, tip = chain[0], chain[1]
+    part = (f"the chain {root or 'root'} -> {tip}" if tip else
+            f"the tree below {root}" if root else "the whole tree")
+    return part + (" on a floating base" if len(chain) > 2 and chain[2] else "")
 
 
 def _template(name: str, values: dict[str, str]) -> str:

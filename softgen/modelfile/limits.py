@@ -26,6 +26,26 @@ pcc-3d, 4 seg.      12           16          118,519       118,272
 affine, 1 seg., 8   2            4           20,329        20,160
 ==================  ===========  ==========  ============  ==========
 
+Trees (issue 35) take the recursive route, the composite-rigid-body B and a symbolic LU
+of B for the forward dynamics; measured on whole vendor trees (``bundle_spec``, the sum
+of ``n_instructions()``, 2027-01):
+
+==========================  ====  ====  ============  ==========
+model                       nv    p     measured ops  estimate
+==========================  ====  ====  ============  ==========
+ANYmal C, fixed base        12    120   39,865        47,520
+Baxter, fixed base          17    207   128,448       114,240
+Talos (reduced), fixed      32    340   324,816       357,120
+Solo 12, floating           18    130   40,719        29,210
+ANYmal C, floating          18    130   49,682        29,210
+simple humanoid, floating   35    300   168,254       167,825
+Talos (reduced), floating   38    350   219,992       213,818
+==========================  ====  ====  ============  ==========
+
+so a fixed-base tree is estimated as 30 n (n + p) (it gets the Slotine–Li loop and the
+nominal plant, as a chain), a floating base as 2.2 nv³ + 7 nv p (the LU of B and the
+whole-body regressor; accurate for the large ones, which the limit is about).
+
 Rigid chains grow as n (n + p) (n joints, p uncertain parameters: the matrix-free
 route, docs/design.md); soft chains as s³ (dof + p) times the quadrature points (every
 point's position depends on every earlier segment, and the inertia sums over them;
@@ -48,6 +68,9 @@ ENV_VAR = "SOFTGEN_MAX_EXPRESSION_SIZE"
 #: Operations per unit of the size measure, by model kind (fits of the table above).
 _RIGID = {"planar": 90.0, "spatial": 105.0}
 _SOFT = {"pcc-planar": 25.0, "pcc-3d": 66.0, "affine-planar": 420.0}
+#: Fixed-base trees, n (n + p); floating bases, (nv³, nv p) (the trees' table above).
+_TREE = 30.0
+_FLOATING = (2.2, 7.0)
 
 
 def expression_size(model) -> int:
@@ -60,6 +83,11 @@ def expression_size(model) -> int:
         c = _SOFT.get(model.kind, max(_SOFT.values()))
         return int(c * s ** 3 * (model.dof + p) * points)
     n = len(model.links)
+    if getattr(model, "floating", False):
+        nv = model.nv
+        return int(_FLOATING[0] * nv ** 3 + _FLOATING[1] * nv * p)
+    if getattr(model, "is_tree", False):
+        return int(_TREE * n * (n + p))
     c = _RIGID.get(model.kind, max(_RIGID.values()))
     return int(c * n * (n + p))
 

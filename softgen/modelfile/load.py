@@ -58,12 +58,17 @@ def list_models() -> list[str]:
     return sorted({p.stem for suffix in MODEL_SUFFIXES for p in MODELS_DIR.glob(f"*{suffix}")})
 
 def load_model(name_or_path: str | Path, *, root: str | None = None,
-               tip: str | None = None) -> RobotModel:
+               tip: str | None = None, floating: bool = False) -> RobotModel:
     """Load and validate a model file.
 
-    ``root`` and ``tip`` choose the serial chain between two links of a URDF file
-    (joints off it are ignored, fixed links on it merged); a TOML model gives them in
-    its ``[urdf]`` table instead.
+    A URDF file loads whole: its tree, fixed joints merged, mimic joints as bodies driven
+    by their masters. ``root`` and ``tip`` choose the serial chain between two links of
+    a URDF file (joints off it are ignored, fixed links on it merged); ``root`` alone the
+    tree below that link; a TOML model gives them in its ``[urdf]`` table instead.
+    ``floating`` puts the model on a floating base (a free flyer: the root link and what
+    is fixed to it are the base body), as ``floating = true`` in a TOML model's
+    ``[model]`` (which then needs the base's ``[base]`` mass, com and inertia) or
+    ``[urdf]`` table.
 
     Raises
     ------
@@ -74,11 +79,14 @@ def load_model(name_or_path: str | Path, *, root: str | None = None,
     path = model_path(name_or_path)
     text = read_model_text(path)
     if path.suffix.lower() == ".urdf":
-        model = parse_urdf(path, text, root=root, tip=tip)
-        if root is None and tip is None:
+        model = parse_urdf(path, text, root=root, tip=tip, floating=floating)
+        if root is None and tip is None and not floating:
             return model
-        return dataclasses.replace(model, source_extra=f"[chain] root={root} tip={tip}",
-                                   chain=(root, tip))
+        # The file alone does not say which part or which base: the bundle records it
+        # (model.chain) and its hash covers it (source_extra).
+        extra = f"[chain] root={root} tip={tip}" + (" floating" if floating else "")
+        chain = (root, tip, True) if floating else (root, tip)
+        return dataclasses.replace(model, source_extra=extra, chain=chain)
     if root is not None or tip is not None:
         raise ModelError(f"{path}: root/tip choose a chain of a URDF file; for a TOML model "
                          "give them in its [urdf] table")
@@ -89,9 +97,17 @@ def load_model(name_or_path: str | Path, *, root: str | None = None,
     except RecursionError:           # arrays or tables nested thousands deep (issue 36)
         raise ModelError(f"{path}: not valid TOML (nested too deeply)") from None
     if isinstance(data, dict) and "urdf" in data:
-        return _urdf_reference(path, data)
+        return _urdf_reference(path, data, floating)
     if is_soft(data):
+        if floating:
+            raise ModelError(f"{path}: --floating puts a rigid model on a floating base; "
+                             "this is a soft-body model")
         return parse_soft_model(path, data)
+    if floating and isinstance(data, dict) and isinstance(data.get("model"), dict):
+        if data["model"].get("floating") is not True:
+            raise ModelError(f"{path}: model.floating: --floating on a TOML model needs the "
+                             "file to declare its base body: floating = true in [model] and "
+                             "[base] mass, com and inertia")
     return _Parser(path).parse(data)
 
 def as_model(ref):
@@ -99,14 +115,18 @@ def as_model(ref):
     ``--root``/``--tip``) as it is; a name or path through :func:`load_model`."""
     return ref if isinstance(ref, (RobotModel, SoftModel)) else load_model(ref)
 
-def _urdf_reference(path: Path, data: dict) -> RobotModel:
-    """A TOML model that is a URDF file's chain: ``[urdf] file, root, tip``, an
-    optional ``[model] name, description`` and optional ``[[actuators]]`` (as in a TOML
-    model; ``joint`` names a URDF joint or its child link)."""
+def _urdf_reference(path: Path, data: dict, floating: bool = False) -> RobotModel:
+    """A TOML model that is a URDF file's tree or chain: ``[urdf] file, root, tip,
+    floating``, an optional ``[model] name, description`` and optional ``[[actuators]]``
+    (as in a TOML model; ``joint`` names a URDF joint or its child link)."""
     r = FileReader(path)
     r.keys(data, "", {"model", "urdf", "actuators"}, {"urdf"})
     model = r.keys(data.get("model", {}), "model", {"name", "description"}, set())
-    table = r.keys(data["urdf"], "urdf", {"file", "root", "tip"}, {"file"})
+    table = r.keys(data["urdf"], "urdf", {"file", "root", "tip", "floating"}, {"file"})
+    fl = table.pop("floating", False)
+    if not isinstance(fl, bool):
+        raise r.fail("urdf.floating", f"expected true or false, got {fl!r}")
+    floating = floating or fl
     for k, v in [*table.items(), *model.items()]:
         if not isinstance(v, str) or not v:
             raise r.fail(f"urdf.{k}" if k in table else f"model.{k}",
@@ -122,7 +142,7 @@ def _urdf_reference(path: Path, data: dict) -> RobotModel:
         raise r.fail("model.name", f"expected a C identifier of at most {MAX_NAME} "
                      f"characters, got {name!r}")
     m = parse_urdf(urdf, text, root=table.get("root"), tip=table.get("tip"), name=name,
-                   description=model.get("description"))
+                   description=model.get("description"), floating=floating)
     actuators = m.actuators
     if "actuators" in data:
         # URDF joint names become their child links' names (the model's link names);
@@ -140,5 +160,7 @@ def _urdf_reference(path: Path, data: dict) -> RobotModel:
                    if isinstance(t, dict) and isinstance(t.get("joint"), str) else t
                    for t in raw]
         actuators = _Parser(path).actuators(raw, list(m.links))
+    extra = f"[urdf file] {urdf.name}\n{text}" + ("\n[floating]" if floating and not fl else "")
     return dataclasses.replace(m, path=path, source=str(path.name), actuators=actuators,
-                               source_extra=f"[urdf file] {urdf.name}\n{text}")
+                               source_extra=extra,
+                               chain=(None, None, True) if floating and not fl else None)

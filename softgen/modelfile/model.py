@@ -140,14 +140,19 @@ _GROUPS = {
 }
 _DEFAULT_UNCERTAIN = ("mass", "com", "inertia", "damping", "stiffness")
 
-_TOP_KEYS = {"model", "gravity", "links", "parameters", "actuators"}
-_MODEL_KEYS = {"name", "kind", "description", "source", "base_angle_deg"}
+_TOP_KEYS = {"model", "gravity", "links", "parameters", "actuators", "base"}
+_MODEL_KEYS = {"name", "kind", "description", "source", "base_angle_deg", "floating"}
+#: ``[base]``: its name (what ``parent`` names) and, for a floating base, its body.
+_BASE_KEYS = {"name", "mass", "com", "inertia", "inertia_about"}
+_MIMIC_KEYS = {"joint", "multiplier", "offset"}
+#: The base's name when ``[base]`` gives none.
+DEFAULT_BASE_NAME = "base"
 _GRAVITY_KEYS = {"g", "vector"}
 _PARAM_KEYS = {"uncertain"}
 _PLANAR_LINK_KEYS = {"name", "joint", "length", "mass", "com", "inertia", "inertia_about",
-                     "damping", "stiffness"}
+                     "damping", "stiffness", "parent"}
 _SPATIAL_LINK_KEYS = {"name", "joint", "axis", "origin_xyz", "origin_rpy", "mass", "com",
-                      "inertia", "inertia_about", "damping", "stiffness"}
+                      "inertia", "inertia_about", "damping", "stiffness", "parent", "mimic"}
 
 
 @dataclass(frozen=True)
@@ -170,6 +175,17 @@ class Link:
     inertia_about: str                 # "com" | "joint"
     damping: Scalar | None = None
     stiffness: Scalar | None = None
+    #: The body this link hangs from: an index into :attr:`RobotModel.bodies`, -1 for
+    #: the base; None for a serial chain's default (the previous link, the base for the
+    #: first).
+    parent: int | None = None
+    #: A mimic joint (URDF ``<mimic>``): (index of the master joint's coordinate,
+    #: multiplier, offset); its angle is multiplier * q_master + offset. Only for the
+    #: links of :attr:`RobotModel.mimics`, which own no coordinate.
+    mimic: tuple[int, float, float] | None = None
+    #: The joint's own name where the file gives one apart from the link's (URDF); a
+    #: label, not part of the model's physics (not compared).
+    joint_name: str = field(default="", compare=False)
 
 
 #: Actuator types and their keys: name -> (required, optional). A value given as a
@@ -333,7 +349,17 @@ class RobotModel(ParameterTable):
     #: The ``(root, tip)`` links a URDF file's chain was cut with by
     #: ``load_model(path, root=, tip=)`` (``--root``/``--tip``), ``None`` otherwise: the
     #: file alone does not say which chain, so a bundle's manifest records them.
-    chain: tuple[str | None, str | None] | None = None
+    #: ``(root, tip, True)`` when ``load_model(..., floating=True)`` (``--floating``) put it
+    #: on a floating base the file does not declare.
+    chain: tuple[str | None, str | None] | tuple[str | None, str | None, bool] | None = None
+
+    #: Bodies of a tree driven by mimic joints (no coordinate of their own), after
+    #: ``links`` in :attr:`bodies`.
+    mimics: tuple[Link, ...] = ()
+
+    #: The floating base body (``--floating``, ``floating = true``): its inertial data
+    #: (``joint`` is ``"floating"``, parameters m0, c0x.., I0xx..); None for a fixed base.
+    base: Link | None = None
 
     @property
     def actuator_type(self) -> str | None:
@@ -354,7 +380,50 @@ class RobotModel(ParameterTable):
 
     @property
     def dof(self) -> int:
+        """Joint coordinates (the base's six are not counted)."""
         return len(self.links)
+
+    @property
+    def floating(self) -> bool:
+        return self.base is not None
+
+    @property
+    def nq(self) -> int:
+        """Size of q: [base position, base quaternion (x, y, z, w)] + joints if floating."""
+        return self.dof + (7 if self.floating else 0)
+
+    @property
+    def nv(self) -> int:
+        """Size of v (and of τ): [base linear, angular velocity] + joint rates if floating."""
+        return self.dof + (6 if self.floating else 0)
+
+    @property
+    def bodies(self) -> tuple[Link, ...]:
+        """Every moving body hung from the base: the links (one per coordinate) then the
+        mimic-driven ones. :attr:`Link.parent` indexes this."""
+        return self.links + self.mimics
+
+    @property
+    def inertial_bodies(self) -> tuple[Link, ...]:
+        """The bodies whose inertia acts: the floating base first, then :attr:`bodies`."""
+        return ((self.base,) if self.base is not None else ()) + self.bodies
+
+    def parent_of(self, i: int) -> int:
+        """The parent of body ``i`` (index into :attr:`bodies`; -1 the base)."""
+        p = self.bodies[i].parent
+        return i - 1 if p is None else p
+
+    @property
+    def is_tree(self) -> bool:
+        """Whether the bodies are not one serial chain hanging from a fixed base."""
+        return (self.floating or bool(self.mimics)
+                or any(self.parent_of(i) != i - 1 for i in range(len(self.links))))
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """The names of the joints in the order of q's joint coordinates (the file's
+        joint names, for a URDF; the link names for a TOML model)."""
+        return tuple(link.joint_name or link.name for link in self.links)
 
     def has_damping(self) -> bool:
         return any(link.damping is not None for link in self.links)
@@ -422,26 +491,52 @@ class FileReader:
             raise self.fail(key, f"expected a list of {n} numbers, got {v!r}")
         return tuple(self.number(x, f"{key}[{i}]") for i, x in enumerate(v))
 
-    def physical_inertia(self, m: np.ndarray, key: str, *, point_mass_ok: bool = False) -> None:
-        """A 3x3 inertia tensor a body can have: positive definite (semi-definite with
-        ``point_mass_ok``) and principal moments satisfying the triangle inequality."""
-        lam = np.linalg.eigvalsh(m)     # ascending
-        if point_mass_ok:
-            if lam[0] < -1e-12 * max(abs(lam).max(), 1e-300):
-                raise self.fail(key, "inertia not positive semi-definite (eigenvalues "
-                                f"{np.round(lam, 12).tolist()})")
-        elif lam.min() <= 0:
-            raise self.fail(key, f"inertia not positive definite (eigenvalues "
-                            f"{np.round(lam, 12).tolist()})")
-        if lam[0] + lam[1] < lam[2] * (1 - 1e-9):
-            raise self.fail(key, f"principal moments {np.round(lam, 12).tolist()} violate the "
-                            "triangle inequality (each at most the sum of the other two)")
+    def physical_inertia(self, m: np.ndarray, key: str, *, mass: float = 0.0,
+                         size: float = 0.0) -> None:
+        """A 3x3 inertia tensor a body can have: positive semi-definite, its principal
+        moments satisfying the triangle inequality, both to a tolerance relative to the
+        body's mass and size, :func:`inertia_tolerance` (round-off in the file's digits,
+        such as a 1.34 kg point mass written with a 2.4e-35 product of inertia, is no
+        defect). A zero tensor is a point mass; a body moving nothing is refused later by
+        the B(q) check."""
+        problem = inertia_problem(m, mass, size)
+        if problem:
+            raise self.fail(key, problem)
 
     def choice(self, v: Any, key: str, options: tuple[str, ...]) -> str:
         if v not in options:
             raise self.fail(key, f"expected one of {', '.join(map(repr, options))}, got {v!r}")
         return v
 
+
+
+#: Relative tolerance of the inertia checks (:func:`inertia_tolerance`).
+INERTIA_RTOL = 1e-12
+#: Smallest size a body is given in the inertia tolerance (1 mm).
+MIN_BODY_SIZE = 1e-3
+
+
+def inertia_tolerance(lam: np.ndarray, mass: float, size: float) -> float:
+    """What an inertia check forgives: :data:`INERTIA_RTOL` of the larger of the largest
+    principal moment and m ℓ², ℓ = max(``size``, :data:`MIN_BODY_SIZE`) the body's size
+    (the larger of its centre-of-mass offset and its joint's offset): round-off of the
+    file's digits, not a physical quantity (1e-12 of a 1 kg, 1 m body is the inertia of a
+    1 kg point spread over 1 micrometre)."""
+    return INERTIA_RTOL * max(float(np.max(np.abs(lam))), mass * max(size, MIN_BODY_SIZE) ** 2)
+
+
+def inertia_problem(m: np.ndarray, mass: float = 0.0, size: float = 0.0) -> str | None:
+    """Why ``m`` is not the inertia of a body of ``mass`` and ``size`` (positive
+    semi-definite, principal moments within the triangle inequality, to
+    :func:`inertia_tolerance`), or None."""
+    lam = np.linalg.eigvalsh(m)     # ascending
+    tol = inertia_tolerance(lam, mass, size)
+    if lam[0] < -tol:
+        return f"inertia not positive semi-definite (eigenvalues {np.round(lam, 12).tolist()})"
+    if lam[0] + lam[1] < lam[2] * (1 - 1e-9) - tol:
+        return (f"principal moments {np.round(lam, 12).tolist()} violate the triangle "
+                "inequality (each at most the sum of the other two)")
+    return None
 
 
 def _short(v: Any) -> str:
@@ -493,10 +588,18 @@ class _Parser(FileReader):
             raise self.fail("model.name", problem)
         kind = self.choice(meta["kind"], "model.kind", ("planar", "spatial"))
         links_raw = data["links"]
-        if not isinstance(links_raw, list) or not links_raw:
+        # A floating base alone (one free body) has no links.
+        if not isinstance(links_raw, list) or not (links_raw or meta.get("floating") is True):
             raise self.fail("links", "expected a non-empty array of tables [[links]]")
 
         nominal: dict[str, float] = {}
+        floating = meta.get("floating", False)
+        if not isinstance(floating, bool):
+            raise self.fail("model.floating", f"expected true or false, got {_short(floating)}")
+        if floating and kind != "spatial":
+            raise self.fail("model.floating", "a floating base needs kind = \"spatial\"")
+        base_name, base = self.base_table(data.get("base", {}), floating, nominal)
+        self._base_name = base_name
         if kind == "planar":
             links = self.planar_links(links_raw, nominal)
             base_angle = self.number(meta.get("base_angle_deg", -90.0), "model.base_angle_deg")
@@ -511,22 +614,133 @@ class _Parser(FileReader):
         gdir, gmag = self.gravity(data.get("gravity", {}), kind)
         nominal["g"] = gmag
         uncertain = check_uncertain(self, self.uncertain(data.get("parameters", {}), nominal))
-        self.moving_mass(links, nominal)
-        actuators = self.actuators(data.get("actuators", []), links)
+        parents = self.parents(links_raw, links, base_name)
+        self.moving_mass(links, parents, nominal)
+        coords, mimics = self.tree(links_raw, links, parents)
+        actuators = self.actuators(data.get("actuators", []), coords)
         return RobotModel(name=name, kind=kind, description=str(meta.get("description", "")),
-                          source=str(meta.get("source", "")), links=tuple(links),
+                          source=str(meta.get("source", "")), links=tuple(coords),
                           gravity_direction=gdir, base_rpy=base_rpy, nominal=nominal,
-                          uncertain=uncertain, path=self.path, actuators=actuators)
+                          uncertain=uncertain, path=self.path, actuators=actuators,
+                          mimics=tuple(mimics), base=base)
 
-    def moving_mass(self, links: list[Link], nominal: dict) -> None:
-        """A prismatic joint carries the mass of every link after it: it must be positive
+    # -- trees (issue 35) ----------------------------------------------------------------
+    def base_table(self, raw: Any, floating: bool, nominal: dict) -> tuple[str, Link | None]:
+        """``[base]``: its ``name`` (default :data:`DEFAULT_BASE_NAME`), and for a floating
+        base its body (``mass``, ``com``, ``inertia``; parameters m0, c0x.., I0xx..)."""
+        required = {"mass", "com", "inertia"} if floating else set()
+        t = self.keys(raw, "base", _BASE_KEYS, required)
+        name = t.get("name", DEFAULT_BASE_NAME)
+        if not isinstance(name, str) or not name:
+            raise self.fail("base.name", f"expected a non-empty string, got {_short(name)}")
+        if not floating:
+            extra = sorted(set(t) - {"name"})
+            if extra:
+                raise self.fail(f"base.{extra[0]}", "only for a floating base (floating = true "
+                                "in [model]); a fixed base's inertia does not act")
+            return name, None
+        com = self.vector(t["com"], "base.com", 3)
+        nominal["m0"] = self.number(t["mass"], "base.mass", nonneg=True)
+        for ax, v in zip("xyz", com):
+            nominal[f"c0{ax}"] = v
+        inertia = self.inertia3(t["inertia"], "base.inertia", mass=nominal["m0"],
+                                size=float(np.linalg.norm(com)))
+        names = ("xx", "yy", "zz", "xy", "xz", "yz")
+        for n, v in zip(names, inertia):
+            nominal[f"I0{n}"] = v
+        about = self.choice(t.get("inertia_about", "com"), "base.inertia_about", ("com", "joint"))
+        return name, Link(name=name, joint="floating", origin_xyz=(0.0, 0.0, 0.0),
+                          origin_rpy=(0.0, 0.0, 0.0), axis=(1.0, 0.0, 0.0), mass="m0",
+                          com=("c0x", "c0y", "c0z"),
+                          inertia=tuple(f"I0{n}" for n in names),  # type: ignore[arg-type]
+                          inertia_about=about)
+
+    def parents(self, links_raw: list, links: list[Link], base_name: str) -> list[int] | None:
+        """Each link's parent as an index into the file's links (-1 the base), or None
+        for a serial chain (no ``parent`` and no ``mimic`` key anywhere). ``parent`` names
+        an earlier link or the base; omitted, the link before (the base for the first)."""
+        if not any("parent" in r or "mimic" in r for r in links_raw):
+            return None
+        index = {link.name: i for i, link in enumerate(links)}
+        if base_name in index:
+            raise self.fail(f"links[{index[base_name]}].name", f"{base_name!r} names the base "
+                            "([base] name); give the link another name")
+        out = []
+        for i, raw in enumerate(links_raw):
+            if "parent" not in raw:
+                out.append(i - 1)
+                continue
+            par = raw["parent"]
+            if par == base_name:
+                out.append(-1)
+            elif isinstance(par, str) and index.get(par, i) < i:
+                out.append(index[par])
+            else:
+                earlier = ", ".join(repr(lk.name) for lk in links[:i][-6:])
+                raise self.fail(f"links[{i}].parent", f"expected the base {base_name!r} or an "
+                                f"earlier link ({earlier or 'none yet'}), got {_short(par)}")
+        return out
+
+    def tree(self, links_raw: list, links: list[Link], parents: list[int] | None
+             ) -> tuple[list[Link], list[Link]]:
+        """The links that own a coordinate and the mimic-driven ones (``mimic = {joint,
+        multiplier, offset}``: angle = multiplier * q_joint + offset), with ``parent`` as
+        an index into the two lists one after the other (:attr:`RobotModel.bodies`)."""
+        if parents is None:
+            return links, []
+        mimic_of: dict[int, tuple[int, float, float]] = {}
+        index = {link.name: i for i, link in enumerate(links)}
+        for i, raw in enumerate(links_raw):
+            if "mimic" not in raw:
+                continue
+            key = f"links[{i}].mimic"
+            t = self.keys(raw["mimic"], key, _MIMIC_KEYS, {"joint"})
+            master = t["joint"]
+            if master not in index or master == links[i].name:
+                raise self.fail(f"{key}.joint", f"expected the name of another link, got "
+                                f"{_short(master)}")
+            for k in ("damping", "stiffness"):
+                if k in raw:
+                    raise self.fail(f"links[{i}].{k}", "not on a mimic joint (it has no "
+                                    "coordinate of its own)")
+            mimic_of[i] = (index[master], self.number(t.get("multiplier", 1.0),
+                                                      f"{key}.multiplier"),
+                           self.number(t.get("offset", 0.0), f"{key}.offset"))
+        # A mimic of a mimic follows the chain to a joint with a coordinate.
+        coord_links = [i for i in range(len(links)) if i not in mimic_of]
+        coord = {i: k for k, i in enumerate(coord_links)}
+        resolved: dict[int, tuple[int, float, float]] = {}
+        for i, (m, a, b) in mimic_of.items():
+            seen = {i}
+            while m in mimic_of:
+                if m in seen:
+                    raise self.fail(f"links[{i}].mimic.joint", "mimic joints drive each other "
+                                    "in a loop")
+                seen.add(m)
+                m2, a2, b2 = mimic_of[m]
+                m, a, b = m2, a * a2, a * b2 + b
+            resolved[i] = (coord[m], a, b)
+        order = coord_links + sorted(mimic_of)
+        where = {i: k for k, i in enumerate(order)}
+        out = [dataclasses.replace(links[i], parent=-1 if parents[i] < 0 else where[parents[i]],
+                                   mimic=resolved.get(i)) for i in order]
+        return out[:len(coord_links)], out[len(coord_links):]
+
+    def moving_mass(self, links: list[Link], parents: list[int] | None, nominal: dict) -> None:
+        """A prismatic joint carries the mass of every link below it: it must be positive
         (a massless prismatic tip gave forward_dynamics = inf)."""
+        n = len(links)
+        par = parents if parents is not None else list(range(-1, n - 1))
+        carried = [nominal[f"m{j + 1}"] for j in range(n)]
+        for j in reversed(range(n)):
+            if par[j] >= 0:
+                carried[par[j]] += carried[j]
         for i, link in enumerate(links):
-            if link.joint == "prismatic" and \
-                    not sum(nominal[f"m{j + 1}"] for j in range(i, len(links))) > 0:
+            if link.joint == "prismatic" and not carried[i] > 0:
+                below = (f"links {i}..{n - 1} have zero mass" if parents is None
+                         else "it and the links below it have zero mass")
                 raise self.fail(f"links[{i}].mass", "expected a positive mass: prismatic joint "
-                                f"{link.name!r} moves no mass (links {i}..{len(links) - 1} "
-                                "have zero mass)")
+                                f"{link.name!r} moves no mass ({below})")
 
     def actuators(self, raw: Any, links: list[Link]) -> tuple[Actuator, ...]:
         """``[[actuators]]``: at most one actuator per joint, of any type; joints without
@@ -754,7 +968,13 @@ class _Parser(FileReader):
     def planar_links(self, links_raw: list, nominal: dict) -> list[Link]:
         links = []
         prev_length: str | None = None
+        lengths: dict[str, str] = {}
         for i, raw in enumerate(links_raw, start=1):
+            if isinstance(raw, dict) and "parent" in raw:
+                # A planar tree: the joint sits at the tip of its parent link (checked
+                # with the tree: an earlier link or the base).
+                prev_length = lengths.get(raw["parent"]) if isinstance(raw["parent"], str) \
+                    else None
             key = f"links[{i - 1}]"
             self.keys(raw, key, _PLANAR_LINK_KEYS, {"joint", "length", "mass", "com", "inertia"})
             common = self.link_common(raw, key, i, nominal)
@@ -775,6 +995,7 @@ class _Parser(FileReader):
             links.append(Link(origin_xyz=origin, origin_rpy=(0.0, 0.0, 0.0), axis=axis,
                               com=com_s, inertia=(0.0, 0.0, f"I{i}", 0.0, 0.0, 0.0), **common))
             prev_length = f"l{i}"
+            lengths[common["name"]] = prev_length
         return links
 
     def spatial_links(self, links_raw: list, nominal: dict) -> list[Link]:
@@ -794,7 +1015,9 @@ class _Parser(FileReader):
             com = self.vector(raw["com"], f"{key}.com", 3)
             for ax, v in zip("xyz", com):
                 nominal[f"c{i}{ax}"] = v
-            inertia = self.inertia3(raw["inertia"], f"{key}.inertia")
+            inertia = self.inertia3(raw["inertia"], f"{key}.inertia", mass=nominal[f"m{i}"],
+                                    size=max(float(np.linalg.norm(com)),
+                                             float(np.linalg.norm(origin))))
             names = ("xx", "yy", "zz", "xy", "xz", "yz")
             for n, v in zip(names, inertia):
                 nominal[f"I{i}{n}"] = v
@@ -804,7 +1027,8 @@ class _Parser(FileReader):
                               inertia=tuple(f"I{i}{n}" for n in names), **common))
         return links
 
-    def inertia3(self, v: Any, key: str) -> tuple[float, ...]:
+    def inertia3(self, v: Any, key: str, *, mass: float = 0.0,
+                 size: float = 0.0) -> tuple[float, ...]:
         if isinstance(v, list) and len(v) == 3 and all(isinstance(r, list) for r in v):
             rows = [self.vector(r, f"{key}[{j}]", 3) for j, r in enumerate(v)]
             m = np.array(rows)
@@ -818,8 +1042,7 @@ class _Parser(FileReader):
                             f"got {v!r}")
         # A zero tensor (a point mass, or a massless frame link of a URDF) is a body too;
         # a chain it leaves without inertia is refused by the B(q) check before generation.
-        # Any other tensor must be positive definite.
-        self.physical_inertia(m, key, point_mass_ok=not m.any())
+        self.physical_inertia(m, key, mass=mass, size=size)
         return (m[0, 0], m[1, 1], m[2, 2], m[0, 1], m[0, 2], m[1, 2])
 
     def uncertain(self, table: Any, nominal: dict) -> tuple[str, ...]:

@@ -81,8 +81,8 @@ import numpy as np
 
 from softgen.core.errors import ModelError
 from softgen.modelfile.geometry import rpy as rpy_matrix
-from softgen.modelfile.model import (MAX_MAGNITUDE, FileReader, RobotModel, parse_rigid,
-                                     sanitise_name)
+from softgen.modelfile.model import (MAX_MAGNITUDE, FileReader, RobotModel, inertia_problem,
+                                     parse_rigid, sanitise_name)
 
 #: A decimal number as URDF writes it (no ``nan``, ``inf`` or ``1_000``, which
 #: Python's ``float`` would accept).
@@ -114,6 +114,9 @@ class _Body:
     damping: float | None
     parts: list[_Inertial] = field(default_factory=list)
     merged: list[str] = field(default_factory=list)       # fixed links merged into it
+    part_links: list[str] = field(default_factory=list)   # the link of each part
+    parent: int = -1                    # index of the parent body (-1: the base)
+    mimic: tuple[str, float, float] | None = None        # (master joint, multiplier, offset)
 
 
 class _Reader(FileReader):
@@ -347,24 +350,25 @@ class _Urdf(_Reader):
             self.numbers(self.attr(in_el, a, f"{where} <inertia>"), 1, f"{where} <inertia> {a}")[0]
             for a in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"))
         inertia = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
-        # Each link is a physical body, also one merged into another or into the base:
-        # non-negative mass, and a tensor that is zero (a point mass) or positive
-        # semi-definite with the triangle inequality. The body it joins is checked again.
+        # A mass is never negative. The tensor is judged on the body the link is merged
+        # into (judge_body): a foot with moments [0, 0, 3e-6] fixed to a shank is part of a
+        # valid body, and a link fixed to a fixed base is not judged at all.
         if mass < 0:
             raise self.fail(f"{where} <mass> value", f"expected a non-negative number, got {mass}")
-        self.physical_inertia(inertia, f"{where} <inertia>", point_mass_ok=True)
         Rb = R @ Ro
         return _Inertial(mass, p + R @ po, Rb @ inertia @ Rb.T)
 
     def merge_link(self, body: _Body | None, link: str, R: np.ndarray, p: np.ndarray,
                    fixed: bool) -> None:
         """Add ``link`` (placed at (R, p) in the body frame) to ``body``; None is the base."""
+        if body is None:
+            return                      # the fixed base: not modelled, not judged
         part = self.inertial(link, R, p)
-        if body is not None:
-            if part is not None:
-                body.parts.append(part)
-            if fixed:
-                body.merged.append(link)
+        if part is not None:
+            body.parts.append(part)
+            body.part_links.append(link)
+        if fixed:
+            body.merged.append(link)
 
     def merge_fixed_branch(self, body: _Body | None, joint: str, R: np.ndarray,
                            p: np.ndarray) -> None:
@@ -383,7 +387,106 @@ class _Urdf(_Reader):
             self.merge_link(body, link, R2, p2, fixed=True)
             stack += [(c, R2, p2) for c in reversed(self.children[link])]
 
-    def chain(self, root: str | None = None, tip: str | None = None) -> list[_Body]:
+    def joint_body(self, j: str, link: str, R2: np.ndarray, p2: np.ndarray,
+                   rpy: tuple[float, ...], identity: bool, parent: int) -> _Body:
+        """The body a movable joint ``j`` starts (its child ``link``), placed at (R2, p2)
+        in the parent body's frame."""
+        el, where = self.joints[j], f"joint {j!r}"
+        axis_el = el.find("axis")          # optional; its xyz is required
+        axis = (1.0, 0.0, 0.0) if axis_el is None else \
+            self.vector(axis_el, "xyz", f"{where} <axis>")
+        dyn = el.find("dynamics")
+        damping = None
+        if dyn is not None and dyn.get("damping") is not None:
+            (damping,) = self.numbers(dyn.get("damping"), 1, f"{where} <dynamics> damping")
+            damping = damping or None            # 0 (the default) adds no term
+        mimic = None
+        mel = el.find("mimic")
+        if mel is not None:
+            master = self.attr(mel, "joint", f"{where} <mimic>")
+            mult = self.numbers(mel.get("multiplier", "1"), 1, f"{where} <mimic> multiplier")[0]
+            off = self.numbers(mel.get("offset", "0"), 1, f"{where} <mimic> offset")[0]
+            mimic = (master, mult, off)
+        return _Body(joint=j, child=link, kind=_MOVABLE[el.get("type").strip()],
+                     xyz=tuple(float(x) for x in p2),
+                     # Keep the rpy as written when no fixed rotation precedes it.
+                     rpy=rpy if identity else matrix_to_rpy(R2), axis=axis,
+                     damping=damping, parent=parent, mimic=mimic)
+
+    def tree(self, root: str | None = None, floating: bool = False
+             ) -> tuple[_Body | None, list[_Body]]:
+        """The whole tree below ``root`` (default: the file's root link): one body per
+        movable joint, depth first with children in file order (every subtree contiguous),
+        fixed links merged into the body they hang from. The root link and the links fixed
+        to it are the base: with ``floating`` its body (merged the same way), else not
+        modelled and not judged. Mimic joints are bodies whose ``mimic`` names their master."""
+        tree_root = self.root_link()
+        start = root or tree_root
+        if start not in self.links:
+            self.joints_between(start, start)          # names the unknown link
+        self.ignored = []
+        self.unmatched_mimic: list[str] = []
+        base = None
+        if floating:
+            base = _Body(joint="", child=start, kind="floating", xyz=(0.0, 0.0, 0.0),
+                         rpy=(0.0, 0.0, 0.0), axis=(1.0, 0.0, 0.0), damping=None)
+            self.merge_link(base, start, np.eye(3), np.zeros(3), fixed=False)
+        bodies: list[_Body] = []
+        # (joint, parent body, parent link's frame in that body, whether it is exactly I);
+        # iterative: vendor files chain 1,000s of fixed joints.
+        stack = [(j, -1, np.eye(3), np.zeros(3), True) for j in reversed(self.children[start])]
+        while stack:
+            j, b, R, p, identity = stack.pop()
+            Rj, pj, rpy = self.origin(self.joints[j], f"joint {j!r}")
+            R2, p2 = R @ Rj, p + R @ pj
+            link = self.child(j)
+            if not self.is_movable(j):
+                self.merge_link(base if b < 0 else bodies[b], link, R2, p2, fixed=True)
+                stack += [(c, b, R2, p2, identity and rpy == (0.0, 0.0, 0.0))
+                          for c in reversed(self.children[link])]
+                continue
+            kind = self.joints[j].get("type").strip()
+            if kind in _REFUSED_TYPES:
+                raise self.fail(f"joint {j!r} type", f"{_REFUSED_TYPES[kind]} inside the tree; "
+                                "expected revolute, continuous, prismatic or fixed (a floating "
+                                "base is the root link's: --floating, or floating = true)")
+            bodies.append(self.joint_body(j, link, R2, p2, rpy, identity, b))
+            self.merge_link(bodies[-1], link, np.eye(3), np.zeros(3), fixed=False)
+            stack += [(c, len(bodies) - 1, np.eye(3), np.zeros(3), True)
+                      for c in reversed(self.children[link])]
+        if not bodies and not floating:
+            raise self.fail("<robot>", "no revolute, continuous or prismatic joint: "
+                            "nothing moves (a single free body is a floating base: "
+                            "--floating)")
+        # A mimic tag naming no joint of the model (a vendor's typo, or a master cut off by
+        # root): the joint moves on its own, as Pinocchio's parser reads it; said in the
+        # description.
+        names = {b.joint for b in bodies}
+        for b in bodies:
+            if b.mimic is not None and b.mimic[0] not in names:
+                self.unmatched_mimic.append(f"{b.joint} (follows {b.mimic[0]!r})")
+                b.mimic = None
+        return base, bodies
+
+    def judge_body(self, b: _Body, where: str, size: float) -> _Inertial:
+        """The body's merged inertial data, judged as one body (inertia positive
+        semi-definite with the triangle inequality, to a tolerance relative to its mass and
+        size). A refusal names the link at fault: a part that is no body on its own, else
+        the merged body (``where``)."""
+        body = combine(b.parts) if b.parts else _Inertial(0.0, np.zeros(3), np.zeros((3, 3)))
+        size = max(size, float(np.linalg.norm(body.com)))
+        problem = inertia_problem(body.inertia, body.mass, size)
+        if problem is None:
+            return body
+        for part, link in zip(b.parts, b.part_links):
+            own = inertia_problem(part.inertia, part.mass, size)
+            if own is not None:
+                into = "" if link == b.child else f" (merged into link {b.child!r})"
+                raise self.fail(f"link {link!r} <inertial> <inertia>{into}", own)
+        raise self.fail(f"{where} <inertia>", problem)
+
+    def chain(self, root: str | None = None, tip: str | None = None,
+              base: _Body | None = None) -> list[_Body]:
         """Walk from the root along the chain, merging fixed branches into its bodies.
 
         Without ``tip`` the chain is the one branch that moves (a tree is refused, naming
@@ -392,8 +495,10 @@ class _Urdf(_Reader):
         joints off the chain are ignored with everything below them (:attr:`ignored`).
         """
         tree_root = self.root_link()
-        link, body = root or tree_root, None
+        link, body = root or tree_root, base
         wanted = None if tip is None else self.joints_between(link, tip)
+        if base is not None:
+            self.merge_link(base, link, np.eye(3), np.zeros(3), fixed=False)
         if root is not None and root not in self.links:
             self.joints_between(root, root)          # names the unknown link
         R, p = np.eye(3), np.zeros(3)               # link frame in the body frame
@@ -428,20 +533,7 @@ class _Urdf(_Reader):
                 R, p, identity = R2, p2, identity and rpy == (0.0, 0.0, 0.0)
                 self.merge_link(body, link, R, p, fixed=True)
                 continue
-            where = f"joint {j!r}"
-            axis_el = el.find("axis")          # optional; its xyz is required
-            axis = (1.0, 0.0, 0.0) if axis_el is None else \
-                self.vector(axis_el, "xyz", f"{where} <axis>")
-            dyn = el.find("dynamics")
-            damping = None
-            if dyn is not None and dyn.get("damping") is not None:
-                (damping,) = self.numbers(dyn.get("damping"), 1, f"{where} <dynamics> damping")
-                damping = damping or None            # 0 (the default) adds no term
-            body = _Body(joint=j, child=link, kind=_MOVABLE[el.get("type").strip()],
-                         xyz=tuple(float(x) for x in p2),
-                         # Keep the rpy as written when no fixed rotation precedes it.
-                         rpy=rpy if identity else matrix_to_rpy(R2), axis=axis,
-                         damping=damping)
+            body = self.joint_body(j, link, R2, p2, rpy, identity, len(bodies) - 1)
             bodies.append(body)
             R, p, identity = np.eye(3), np.zeros(3), True
             self.merge_link(body, link, R, p, fixed=False)
@@ -451,68 +543,123 @@ class _Urdf(_Reader):
         return bodies
 
 
+def _select(urdf: _Urdf, root: str | None, tip: str | None, floating: bool
+            ) -> tuple[_Body | None, list[_Body]]:
+    """The bodies a load takes: the chain from ``root`` to ``tip`` when a tip is given,
+    else the whole tree below ``root`` (default: the file's root link)."""
+    if tip is not None:
+        base = None
+        if floating:
+            base = _Body(joint="", child=root or urdf.root_link(), kind="floating",
+                         xyz=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0), axis=(1.0, 0.0, 0.0),
+                         damping=None)
+        return base, urdf.chain(root, tip, base)
+    return urdf.tree(root, floating)
+
+
+def _inertial_table(body: _Inertial) -> dict:
+    I = body.inertia
+    return {"mass": float(body.mass), "com": [float(x) for x in body.com],
+            "inertia": [float(I[0, 0]), float(I[1, 1]), float(I[2, 2]),
+                        float(I[0, 1]), float(I[0, 2]), float(I[1, 2])]}
+
+
+def _merged(b: _Body) -> str:
+    return (f" (merged with fixed link{'s' if len(b.merged) > 1 else ''} "
+            f"{', '.join(map(repr, b.merged))})") if b.merged else ""
+
+
 def urdf_tables(path: Path, text: str, *, root: str | None = None,
-                tip: str | None = None) -> tuple[dict, dict[str, str]]:
+                tip: str | None = None, floating: bool = False) -> tuple[dict, dict[str, str]]:
     """The spatial model tables of a URDF document (the chain from ``root`` to ``tip``
-    when given), and the URDF name of each key."""
+    when a tip is given, else the tree below ``root``; a floating base with
+    ``floating``), and the URDF name of each key."""
     urdf = _Urdf(path, text)
-    bodies = urdf.chain(root, tip)
+    base, bodies = _select(urdf, root, tip, floating)
+    base_name = root or urdf.root_link()
     links, names = [], {"model.name": "<robot name>"}
+    tree = tip is None and (any(b.parent != i - 1 for i, b in enumerate(bodies))
+                            or any(b.mimic for b in bodies))
+    by_joint = {b.joint: b for b in bodies}
     for i, b in enumerate(bodies):
         # A link without <inertial> (an intermediate frame of a vendor file) is massless:
         # accepted, because B(q) is checked positive definite before anything is
         # generated (softgen.bundles.bundle.check_inertia_positive_definite), which
-        # refuses a chain where it leaves a joint moving nothing.
-        body = combine(b.parts) if b.parts else _Inertial(0.0, np.zeros(3), np.zeros((3, 3)))
-        I = body.inertia
+        # refuses a model where it leaves a joint moving nothing.
+        link = f"link {b.child!r} <inertial>{_merged(b)}"
+        body = urdf.judge_body(b, link, float(np.linalg.norm(b.xyz)))
         table = {"name": b.child, "joint": b.kind, "axis": list(b.axis),
-                 "origin_xyz": list(b.xyz), "origin_rpy": list(b.rpy),
-                 "mass": float(body.mass), "com": [float(x) for x in body.com],
-                 "inertia": [float(I[0, 0]), float(I[1, 1]), float(I[2, 2]),
-                             float(I[0, 1]), float(I[0, 2]), float(I[1, 2])]}
-        if b.damping is not None:
+                 "origin_xyz": list(b.xyz), "origin_rpy": list(b.rpy), **_inertial_table(body)}
+        joint = f"joint {b.joint!r}"
+        if tree:
+            table["parent"] = base_name if b.parent < 0 else bodies[b.parent].child
+        if b.mimic is not None:         # its master is a body of the tree (tree())
+            master = by_joint[b.mimic[0]]
+            table["mimic"] = {"joint": master.child, "multiplier": b.mimic[1],
+                              "offset": b.mimic[2]}
+        elif b.damping is not None:
             table["damping"] = b.damping
         links.append(table)
-        link = f"link {b.child!r} <inertial>"
-        if b.merged:
-            link += f" (merged with fixed link{'s' if len(b.merged) > 1 else ''} " \
-                    f"{', '.join(map(repr, b.merged))})"
-        joint = f"joint {b.joint!r}"
         names.update({f"links[{i}].name": f"link {b.child!r}",
                       f"links[{i}].joint": f"{joint} type",
                       f"links[{i}].axis": f"{joint} <axis>",
                       f"links[{i}].origin_xyz": f"{joint} <origin> xyz",
                       f"links[{i}].origin_rpy": f"{joint} <origin> rpy",
                       f"links[{i}].damping": f"{joint} <dynamics> damping",
+                      f"links[{i}].parent": f"{joint} <parent>",
+                      f"links[{i}].mimic": f"{joint} <mimic>",
                       f"links[{i}].mass": f"{link} <mass>",
                       f"links[{i}].com": f"{link} <origin>",
                       f"links[{i}].inertia": f"{link} <inertia>"})
-    chain = f" from {root or urdf.root_link()!r} to {tip!r}" if tip else ""
+    shape = "serial chain" if not tree else "tree"
+    chain = f" from {base_name!r} to {tip!r}" if tip else (
+        f" below {root!r}" if root else "")
     ignored = f"; ignored: joint{'s' if len(urdf.ignored) > 1 else ''} " \
         f"{', '.join(urdf.ignored[:6])}{' ...' if len(urdf.ignored) > 6 else ''}" \
         if urdf.ignored else ""
-    data = {"model": {"name": urdf.name, "kind": "spatial",
-                      "description": f"serial chain{chain} from {path.name}{ignored}",
-                      "source": str(path.name)},
-            "gravity": {"vector": [0.0, 0.0, -9.81]},
-            "links": links}
+    unmatched = getattr(urdf, "unmatched_mimic", [])
+    if unmatched:
+        ignored += (f"; mimic tag{'s' if len(unmatched) > 1 else ''} naming no joint of the "
+                    f"model (moving on their own): {', '.join(unmatched[:4])}"
+                    f"{' ...' if len(unmatched) > 4 else ''}")
+    data: dict = {"model": {"name": urdf.name, "kind": "spatial",
+                            "description": f"{'floating-base ' if floating else ''}{shape}"
+                                           f"{chain} from {path.name}{ignored}",
+                            "source": str(path.name)},
+                  "gravity": {"vector": [0.0, 0.0, -9.81]},
+                  "links": links}
+    if tree or floating:
+        data["base"] = {"name": base_name}
+    if floating:
+        assert base is not None
+        where = f"link {base_name!r} <inertial>{_merged(base)}"
+        data["model"]["floating"] = True
+        data["base"].update(_inertial_table(urdf.judge_body(base, where, 0.0)))
+        names.update({"base.mass": f"{where} <mass>", "base.com": f"{where} <origin>",
+                      "base.inertia": f"{where} <inertia>"})
     names["__original__"] = urdf.original_name
+    names["__joints__"] = "\n".join(b.joint for b in bodies if b.mimic is None)
+    names["__mimics__"] = "\n".join(b.joint for b in bodies if b.mimic is not None)
     return data, names
 
 
 def chain_joints(path: Path, text: str, *, root: str | None = None,
                  tip: str | None = None) -> dict[str, str]:
-    """URDF joint name -> child link name of each moving joint on the chain (the link
-    names of the model), so that a TOML file's ``[[actuators]]`` may name either."""
-    return {b.joint: b.child for b in _Urdf(path, text).chain(root, tip)}
+    """URDF joint name -> child link name of each moving joint of the model (the chain,
+    or the tree; mimic joints, which own no coordinate, left out), so that a TOML file's
+    ``[[actuators]]`` may name either."""
+    _, bodies = _select(_Urdf(path, text), root, tip, False)
+    return {b.joint: b.child for b in bodies if b.mimic is None}
 
 
 def parse_urdf(path: Path, text: str, *, root: str | None = None, tip: str | None = None,
-               name: str | None = None, description: str | None = None) -> RobotModel:
+               name: str | None = None, description: str | None = None,
+               floating: bool = False) -> RobotModel:
     """A validated :class:`~softgen.modelfile.model.RobotModel` from the URDF document
-    ``text``: its serial chain, or the chain from link ``root`` to link ``tip``.
+    ``text``: its tree (fixed joints merged), the tree below link ``root``, or the chain
+    from ``root`` to ``tip``; on a floating base with ``floating``.
     ``name``/``description`` replace the file's (a TOML model that references it)."""
-    data, names = urdf_tables(path, text, root=root, tip=tip)
+    data, names = urdf_tables(path, text, root=root, tip=tip, floating=floating)
     if name is not None:
         data["model"]["name"] = name
     if description is not None:
@@ -520,10 +667,14 @@ def parse_urdf(path: Path, text: str, *, root: str | None = None, tip: str | Non
 
     def key_name(key: str) -> str:
         # "links[2].inertia[1]" -> the element of "links[2].inertia".
-        m = re.match(r"(links\[\d+\]\.\w+|model\.name)", key)
+        m = re.match(r"(links\[\d+\]\.\w+|model\.name|base\.\w+)", key)
         return names.get(m.group(1), key) if m else key
 
     model = parse_rigid(path, data, key_name)
+    named = [tuple(dataclasses.replace(link, joint_name=j)
+                   for link, j in zip(links, names[key].split("\n")))
+             for links, key in ((model.links, "__joints__"), (model.mimics, "__mimics__"))]
+    model = dataclasses.replace(model, links=named[0], mimics=named[1])
     if name is None and data["model"]["name"] != names.get("__original__"):
         model = dataclasses.replace(model, original_name=names["__original__"])
     return model

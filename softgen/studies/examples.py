@@ -70,6 +70,7 @@ from softgen.core.errors import SoftgenError
 from softgen.modelfile.load import load_model
 from softgen.modelfile.model import RobotModel
 from softgen.modelfile.soft import SoftModel
+from softgen.plants.floating import floating_plant_block, joint_pd_block
 from softgen.studies.electric import (MODE_RATIO, STIFFNESS_MARGIN, THESIS_GAINS,
                                       THESIS_REFERENCES, model_gains, model_references,
                                       sinusoid_references)
@@ -80,7 +81,7 @@ from softgen.studies.scenario import Scenario
 __all__ = ["DT", "DEFAULT_SECONDS", "Example", "ExampleSpec", "EXAMPLES", "choose",
            "example_for", "applicable", "parse_overrides", "motor_mode_step",
            "SlotineLiConfig", "Theorem5Config", "ElectricPdConfig", "SeaCascadeConfig",
-           "PartialConfig", "Theorem10Config", "SpringPairExample"]
+           "PartialConfig", "Theorem10Config", "SpringPairExample", "FloatingConfig"]
 
 #: Sample time of the example loops (s), unless a config sets its own, and their length.
 DT = 1e-3
@@ -723,6 +724,46 @@ def _spring_pair(ctx: Context, c: SpringPairExample, steps: int) -> Example:
 
 # --------------------------------------------------------------------------- registration
 
+# --------------------------------------------------------------------------- floating base
+
+@dataclass(frozen=True)
+class FloatingConfig(Config):
+    """A floating-base robot's dynamics (issue 35): released at rest ``height`` (m) above
+    the origin, level, joints at 0, a joint PD (gains ``kp`` N m/rad, ``kd`` N m s/rad,
+    example values) moving them to a posture (``posture``, rad, cycled over the joints);
+    nothing touches the base, which falls and turns in reaction."""
+
+    kp: float = 200.0
+    kd: float = 5.0
+    posture: tuple[float, ...] = (0.0, 0.3)
+    height: float = 1.0
+    dt: float | None = None                         # s (None: 1 ms)
+
+
+def _floating(ctx: Context, c: FloatingConfig, steps: int) -> Example:
+    model, dyn = ctx.model, ctx.dyn
+    n, dt = model.dof, float(c.dt or DT)
+    posture = _cycle(c.posture, n)
+    ref = Sinusoid((0.0,) * n, (0.0,) * n, offset=tuple(posture))
+    ctrl = joint_pd_block(model, dt).with_defaults(
+        p0={"kp": np.full(n, c.kp), "kd": np.full(n, c.kd)})
+    d = ClosedLoop(f"{model.name}_loop", [sinusoid_block("ref", ref), ctrl,
+                                          floating_plant_block(dyn, dt)])
+    q0 = np.concatenate([[0.0, 0.0, c.height, 0.0, 0.0, 0.0, 1.0], np.zeros(n)])
+    sc = Scenario(f"{model.name}_loop", d, steps=steps, x0={"plant.q": q0})
+    return Example(
+        "floating", "a floating-base robot moving its joints in free fall",
+        "The floating-base dynamics (q = [base position, quaternion x y z w, joints], "
+        "v = [base velocity in the base frame, joint rates], Pinocchio's free flyer): "
+        "semi-implicit Euler with the forward dynamics and the exponential map each "
+        f"sample. The robot is released at rest {c.height:g} m up with its joints at 0, "
+        "and a PD moves them to a posture; nothing touches the base, which falls and "
+        "turns in reaction (its momentum about the centre of mass stays zero).",
+        sc, (("ref.q_d", "plant.q_joints", "rad"),),
+        f"K_p = {c.kp:g} N m/rad, K_d = {c.kd:g} N m s/rad on every joint (FloatingConfig: "
+        "example values)", c)
+
+
 register("theorem10", capability="theorem10", title="Theorem 10 on the soft robot",
          config=Theorem10Config, build=_theorem10)
 register("theorem5", capability="theorem5_loop", title="Theorem 5 on the McKibben arm",
@@ -741,3 +782,6 @@ register("partial", capability="partial_collocated",
          build=_partial)
 register("slotine-li", capability="slotine_li", title="Slotine-Li (Prop. 10) on the rigid arm",
          config=SlotineLiConfig, build=_slotine_li, serves=_torque_driven)
+register("floating", capability="floating_dynamics",
+         title="a floating-base robot moving its joints in free fall", config=FloatingConfig,
+         build=_floating)

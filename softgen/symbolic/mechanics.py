@@ -37,6 +37,7 @@ from softgen.modelfile.model import RobotModel
 # re-exported here, where they were first defined.
 from softgen.symbolic.frames import (Inertial, Values, axis_rotation,  # noqa: F401
                                      physical_inertials, rpy, simplify_const)
+from softgen.symbolic.recursive import _topological
 from softgen.symbolic.recursive import slotine_li as recursive_slotine_li
 
 
@@ -60,43 +61,53 @@ class LinkState:
 
 
 def forward_kinematics(model: RobotModel, q: ca.SX, qd: ca.SX, values: Values) -> list[LinkState]:
-    """One forward recursion over the chain: frames, origins, velocities.
+    """One forward recursion over the bodies (``model.bodies``, a chain or a fixed-base
+    tree): frames, origins, velocities, in the order of ``model.bodies``.
 
     Cost is linear in the number of links because each link's expressions reuse
-    the previous link's (CasADi's SX graph shares them).
+    its parent's (CasADi's SX graph shares them). A mimic joint's angle is
+    multiplier * q_master + offset. A floating base is the recursive route's only
+    (:mod:`softgen.symbolic.tree`): its velocity is not the rate of its coordinates.
     """
-    R = simplify_const(rpy(*model.base_rpy))
-    o = ca.SX.zeros(3)
-    omega = ca.SX.zeros(3)
-    v = ca.SX.zeros(3)
-    states = []
-    for i, link in enumerate(model.links):
+    if model.floating:
+        raise ValueError("the energy routes are for fixed bases; a floating base takes the "
+                         "recursive route")
+    R0 = simplify_const(rpy(*model.base_rpy))
+    zero = ca.SX.zeros(3)
+    base = (R0, zero, zero, zero)
+    states: list[LinkState | None] = [None] * len(model.bodies)
+    # Parents before children (the order of softgen.symbolic.recursive's tree).
+    for i in _topological(model):
+        link = model.bodies[i]
+        par = model.parent_of(i)
+        R, o, omega, v = base if par < 0 else (states[par].R, states[par].origin,  # type: ignore[union-attr]
+                                               states[par].omega, states[par].v_origin)  # type: ignore[union-attr]
+        if link.mimic is None:
+            qi, qdi = q[i], qd[i]
+        else:
+            k, mult, off = link.mimic
+            qi, qdi = mult * q[k] + off, mult * qd[k]
         placement = simplify_const(rpy(*link.origin_rpy))
         offset = ca.vertcat(*[model.resolve(x, values) for x in link.origin_xyz])
         o_new = o + ca.mtimes(R, offset)
         R_joint = ca.mtimes(R, placement)
         axis_world = ca.mtimes(R_joint, ca.DM(link.axis))
         if link.joint == "revolute":
-            R_new = ca.mtimes(R_joint, axis_rotation(link.axis, q[i]))
+            R_new = ca.mtimes(R_joint, axis_rotation(link.axis, qi))
             v_new = v + ca.cross(omega, o_new - o)
-            omega_new = omega + axis_world * qd[i]
+            omega_new = omega + axis_world * qdi
         else:
             R_new = R_joint
-            o_new = o_new + axis_world * q[i]
+            o_new = o_new + axis_world * qi
             # The slide axis turns with the parent link: the whole lever o_new - o,
             # the joint displacement included, moves with ω.
-            v_new = v + ca.cross(omega, o_new - o) + axis_world * qd[i]
+            v_new = v + ca.cross(omega, o_new - o) + axis_world * qdi
             omega_new = omega
         c_local = ca.vertcat(*[model.resolve(x, values) for x in link.com])
         c_world = ca.mtimes(R_new, c_local)
-        states.append(LinkState(R=R_new, origin=o_new, com=o_new + c_world, omega=omega_new,
-                                v_origin=v_new, v_com=v_new + ca.cross(omega_new, c_world)))
-        R, o, omega, v = R_new, o_new, omega_new, v_new
-    return states
-
-
-
-
+        states[i] = LinkState(R=R_new, origin=o_new, com=o_new + c_world, omega=omega_new,
+                              v_origin=v_new, v_com=v_new + ca.cross(omega_new, c_world))
+    return states  # type: ignore[return-value]
 
 
 def kinetic_energy(model: RobotModel, q: ca.SX, qd: ca.SX, values: Values,
@@ -219,7 +230,7 @@ class Mechanics:
         x axis); for spatial chains it is the origin of the last joint frame.
         """
         states = forward_kinematics(self.model, self.q, self.qd, self.values)
-        last = states[-1]
+        last = states[self.model.dof - 1]       # the last joint coordinate's link
         if self.model.kind == "planar":
             n = self.model.dof
             offset = ca.vertcat(self.model.resolve(f"l{n}", self.values), 0, 0)

@@ -21,6 +21,7 @@ from softgen.symbolic.recursive import slotine_li as recursive_slotine_li
 from softgen.symbolic.regressor import (BaseParameters, NumericBase, base_from_coefficients, base_parameters,
                         expand_in, factor_polynomial, numeric_base_parameters)
 from softgen.symbolic.regroup import regroup
+from softgen.symbolic.tree_mechanics import RecursiveMechanics
 
 #: Routes for τ = B q̈_r + C q̇_r + G, in the order preferred on equal counts.
 ROUTES = ("recursive", "matrix-free", "explicit")
@@ -40,6 +41,15 @@ REGROUP_MIN_DOF = 5
 #: CasADi options for every generated function: common-subexpression elimination
 #: shrinks the regressor several-fold (measured in ``softgen bench``).
 FUNCTION_OPTS = {"cse": True}
+
+
+def _mechanics(model: RobotModel, values, inertials=None) -> Mechanics | RecursiveMechanics:
+    """The energy routes' :class:`Mechanics` for a serial chain; the recursion's
+    :class:`~softgen.symbolic.recursive.RecursiveMechanics` for trees and floating bases
+    (B by the composite-rigid-body algorithm, C and G from the recursive τ)."""
+    if model.is_tree:
+        return RecursiveMechanics(model, values, inertials)
+    return Mechanics(model, values, inertials)
 
 
 def named_function(name: str, ins: list[ca.SX], in_names: list[str], outs: list[ca.SX],
@@ -132,7 +142,7 @@ class RigidDynamics(BaseParameterAPI):
                              f"'symbolic', got {base_method!r}")
         self.model = model
         self.base_method = base_method
-        self.nominal = Mechanics(model, model.nominal)
+        self.nominal = _mechanics(model, model.nominal)
         #: How each product was built and why (recorded in the bundle manifest).
         self.route_detail: dict = {"requested": route}
         if route == "auto":
@@ -154,6 +164,12 @@ class RigidDynamics(BaseParameterAPI):
         a long chain just to reject it would dominate generation time.
         """
         counts: dict[str, int] = {}
+        if self.model.is_tree:
+            # Trees and floating bases: the recursion (O(n) in bodies, and the only route
+            # for a floating base); the energy routes stay available on request.
+            counts["recursive"] = self._tau_instructions("recursive")
+            self.route_detail["tau_instructions"] = counts
+            return "recursive"
         for route in ("recursive", "matrix-free"):
             counts[route] = self._tau_instructions(route)
         m = self.nominal
@@ -169,9 +185,9 @@ class RigidDynamics(BaseParameterAPI):
 
     # -- regressor ---------------------------------------------------------------
     @cached_property
-    def _symbolic(self) -> tuple[Mechanics, ca.SX]:
+    def _symbolic(self) -> tuple[Mechanics | RecursiveMechanics, ca.SX]:
         values, p = symbolic_values(self.model)
-        return Mechanics(self.model, values), p
+        return _mechanics(self.model, values), p
 
     @cached_property
     def _linear(self) -> dict | None:
@@ -183,7 +199,7 @@ class RigidDynamics(BaseParameterAPI):
         polynomials of the uncertain parameters p (e.g. m c, I_c + m c²).
         """
         model = self.model
-        moving = {x for link in model.links for x in link.origin_xyz if isinstance(x, str)}
+        moving = {x for link in model.bodies for x in link.origin_xyz if isinstance(x, str)}
         if (moving | {"g"}) & set(model.uncertain):
             return None
         mech_p, _ = self._symbolic
@@ -191,7 +207,8 @@ class RigidDynamics(BaseParameterAPI):
         phys = physical_inertials(model, mech_p.values)
         values = dict(model.nominal)
         syms, of_p, inertials = [], [], []
-        for i, (link, ph) in enumerate(zip(model.links, phys), start=1):
+        first = 0 if model.floating else 1         # the floating base is body 0
+        for i, (link, ph) in enumerate(zip(model.inertial_bodies, phys), start=first):
             z = ca.SX(0)
             sy = {f: ca.SX.sym(f"{f}{i}") for f in fields}
             h = ca.vertcat(sy["hx"], sy["hy"], sy.get("hz", z))
@@ -228,17 +245,22 @@ class RigidDynamics(BaseParameterAPI):
         m = self.nominal
         _, p = self._symbolic
         ins = [m.q, m.qd, m.qd_r, m.qdd_r]
-        y_delta = ca.Function("Y_delta", ins, [ca.jacobian(lin["tau"], lin["delta"])],
-                              FUNCTION_OPTS)
+        Yd = ca.jacobian(lin["tau"], lin["delta"])
+        if self.model.floating:
+            # Samples are uniform in (−π, π): the base quaternion is normalised inside, so
+            # that every sample is a rotation.
+            quat = m.q[3:7] / ca.norm_2(m.q[3:7])
+            Yd = ca.substitute(Yd, m.q, ca.vertcat(m.q[0:3], quat, m.q[7:]))
+        y_delta = ca.Function("Y_delta", ins, [Yd], FUNCTION_OPTS)
         return numeric_base_parameters(lin["of_p"], p, self.model.uncertain, y_delta,
-                                       [(self.model.dof, 1)] * 4)
+                                       [(self.model.nq, 1)] + [(self.model.nv, 1)] * 3)
 
     def _tau_delta(self, route: str) -> ca.SX:
         """τ(x, δ) by ``route``, in the nominal symbols x."""
         lin = self._linear
         if route == "recursive":
             return lin["tau"]
-        mech = Mechanics(self.model, lin["values"], lin["inertials"])
+        mech = _mechanics(self.model, lin["values"], lin["inertials"])
         m = self.nominal
         return ca.substitute([mech.slotine_li(route)], [mech.q, mech.qd, mech.qd_r, mech.qdd_r],
                              [m.q, m.qd, m.qd_r, m.qdd_r])[0]
@@ -303,7 +325,9 @@ class RigidDynamics(BaseParameterAPI):
         mech_p, p = self._symbolic
         values = mech_p.values
         fields = inertial_fields(model)
-        deltas = [{f: ca.SX.sym(f"{f}{j}") for f in fields} for j in range(1, model.dof + 1)]
+        first = 0 if model.floating else 1
+        deltas = [{f: ca.SX.sym(f"{f}{j}") for f in fields}
+                  for j in range(first, first + len(model.inertial_bodies))]
         phys = physical_inertials(model, values)
         d_syms, d_of_p = [], []
         for d, ph in zip(deltas, phys):
@@ -316,7 +340,7 @@ class RigidDynamics(BaseParameterAPI):
         reg = regroup(model, values, deltas, fields)
         rho, rho_names, rho_expr, inertials = [], [], [], []
         zero = ca.SX(0)
-        for j, r in enumerate(reg, start=1):
+        for j, r in enumerate(reg, start=first):
             sy = {}
             for f in fields:
                 if f in r:
@@ -360,8 +384,9 @@ class RigidDynamics(BaseParameterAPI):
     def _numerically_zero(self, expr: ca.SX) -> bool:
         f = ca.Function("z", self._x(), [expr])
         rng = np.random.default_rng(0)
+        sizes = [self.model.nq] + [self.model.nv] * 3
         return all(float(np.max(np.abs(np.array(
-            f(*[rng.uniform(-np.pi, np.pi, self.model.dof) for _ in range(4)]))))) <= 1e-14
+            f(*[rng.uniform(-np.pi, np.pi, k) for k in sizes]))))) <= 1e-14
             for _ in range(3))
 
 
@@ -433,7 +458,7 @@ class RigidDynamics(BaseParameterAPI):
         """
         m = self.nominal
         name = f"{self.name}_regressor_transpose_times"
-        s = ca.SX.sym("s", self.model.dof)
+        s = ca.SX.sym("s", self.model.nv)
         args = ([m.q, m.qd, m.qd_r, m.qdd_r, s], ["q", "qd", "qd_r", "qdd_r", "s"])
         cands = {"formed": lambda: named_function(name, *args, [ca.mtimes(self.base.Y.T, s)], ["Yts"])}
         if self._recursive_products():
@@ -449,12 +474,18 @@ class RigidDynamics(BaseParameterAPI):
                 blocks = regressor_transpose_times(self.model, lin["values"], m.q, m.qd,
                                                    m.qd_r, m.qdd_r, s, lin["inertials"])
                 parts = []
-                for i, link in enumerate(self.model.links):
-                    parts.append(blocks[i])
-                    if link.damping is not None:
-                        parts.append(s[i] * m.qd[i])
-                    if link.stiffness is not None:
-                        parts.append(s[i] * m.q[i])
+                mdl = self.model
+                oq, ov = (7, 6) if mdl.floating else (0, 0)
+                first = 1 if mdl.floating else 0
+                for b, blk in enumerate(blocks):
+                    parts.append(blk)
+                    i = b - first               # the joint coordinate of body b, if any
+                    if not 0 <= i < mdl.dof:
+                        continue
+                    if mdl.links[i].damping is not None:
+                        parts.append(s[ov + i] * m.qd[ov + i])
+                    if mdl.links[i].stiffness is not None:
+                        parts.append(s[ov + i] * m.q[oq + i])
                 return named_function(name, *args, [ca.mtimes(At, ca.vertcat(*parts))], ["Yts"])
 
             cands["reverse"] = reverse
@@ -517,7 +548,7 @@ class RigidDynamics(BaseParameterAPI):
     @_cached_fun
     def forward_dynamics_fun(self) -> ca.Function:
         m = self.nominal
-        tau = ca.SX.sym("tau", self.model.dof)
+        tau = ca.SX.sym("tau", self.model.nv)
         return named_function(f"{self.name}_forward_dynamics", [m.q, m.qd, tau], ["q", "qd", "tau"],
                     [self.forward_dynamics_expr(tau)], ["qdd"])
 
@@ -526,6 +557,38 @@ class RigidDynamics(BaseParameterAPI):
         m = self.nominal
         p, J = m.tip()
         return named_function(f"{self.name}_tip", [m.q], ["q"], [p, J], ["p", "J"])
+
+    @_cached_fun
+    def rnea_fun(self) -> ca.Function:
+        """(q, v, a) -> τ = B(q) a + C(q, v) v + G(q) + K q + D v: the classical inverse
+        dynamics (Pinocchio's ``rnea`` + D v), the recursion with q̇_r = q̇ in its short
+        form (fewer instructions than :meth:`inverse_dynamics_fun` at q̇_r = q̇)."""
+        m = self.nominal
+        a = ca.SX.sym("a", self.model.nv)
+        tau = (m.rnea(a) if isinstance(m, RecursiveMechanics)
+               else ca.substitute(m.slotine_li(self.route), ca.vertcat(m.qd_r, m.qdd_r),
+                                  ca.vertcat(m.qd, a)))
+        return named_function(f"{self.name}_rnea", [m.q, m.qd, a], ["q", "qd", "a"], [tau],
+                              ["tau"])
+
+    @_cached_fun
+    def configuration_rate_fun(self) -> ca.Function:
+        """(q, v) -> q̇: the base position's rate R v_lin and the quaternion's ½ q ⊗ (ω, 0)
+        for a floating base; v itself for the joints."""
+        m = self.nominal
+        tree = m.tree.tree
+        return named_function(f"{self.name}_configuration_rate", [m.q, m.qd], ["q", "qd"],
+                              [tree.rate(m.q, m.qd)], ["q_dot"])
+
+    @_cached_fun
+    def integrate_fun(self) -> ca.Function:
+        """(q, v, dt) -> q after moving with the constant velocity v for dt: the base by
+        the exponential map M exp(v dt) (Pinocchio's ``integrate``; the quaternion stays
+        unit), the joints by q + v dt."""
+        m = self.nominal
+        dt = ca.SX.sym("dt")
+        return named_function(f"{self.name}_integrate", [m.q, m.qd, dt], ["q", "qd", "dt"],
+                              [m.tree.tree.integrate(m.q, m.qd, dt)], ["q_next"])
 
     @_cached_fun
     def known_torque_fun(self) -> ca.Function | None:

@@ -65,7 +65,8 @@ def identify_model(model_name, log: str | Path, *, out: str | Path | None = None
     out = Path(out) if out is not None else default_out(log, model)
     if out.exists() and not force:
         raise SoftgenError(f"--out {out}: exists; give --force to overwrite it")
-    data = read_identification_log(log, model.dof, torque_constant=torque_constant)
+    data = read_identification_log(log, model.dof, torque_constant=torque_constant,
+                                   floating=model.floating)
     check_log(data, model)
     options = {"cutoff": cutoff, "viscous": viscous, "coulomb": coulomb}
     res = identify_rigid(model, data, **options)
@@ -193,6 +194,9 @@ def excite(model_name, out: str | Path, *, harmonics: int = 5,
     check_excitation_options(harmonics=harmonics, period=period, dt=dt, periods=periods,
                              maxiter=maxiter)
     model = _rigid(model_name)
+    if model.floating:
+        raise SoftgenError(f"{model.name}: --excite plans joint trajectories within joint "
+                           "limits for a fixed base; a floating base's motion is not commanded")
     out = Path(out)
     if out.exists() and not force:
         raise SoftgenError(f"--out {out}: exists; give --force to overwrite it")

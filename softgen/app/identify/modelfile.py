@@ -36,9 +36,18 @@ def model_tables(model: RobotModel, values: dict[str, float], *,
 
     meta = {"name": name or model.name, "kind": model.kind,
             "description": model.description, "source": model.source}
+    if model.floating:
+        meta["floating"] = True
     links = []
-    for i, link in enumerate(model.links, start=1):
+    # A tree's bodies in the order of the file they came from (their parameter names
+    # m<i> number them so): parents first, and the same canonical names when read back.
+    bodies = _file_order(model)
+    base = model.base.name if model.base is not None else "base"
+    for i, link in enumerate(bodies, start=1):
         t: dict = {"name": link.name, "joint": link.joint}
+        if model.is_tree:
+            par = model.parent_of(model.bodies.index(link))
+            t["parent"] = base if par < 0 else model.bodies[par].name
         if model.kind == "planar":
             t["length"] = v(f"l{i}")
             t["mass"] = v(link.mass)
@@ -53,7 +62,11 @@ def model_tables(model: RobotModel, values: dict[str, float], *,
             t["inertia"] = [v(x) for x in link.inertia]
         if link.inertia_about != "com":
             t["inertia_about"] = link.inertia_about
-        d = damping.get(i - 1)
+        if link.mimic is not None:
+            k, mult, off = link.mimic
+            t["mimic"] = {"joint": model.links[k].name, "multiplier": mult, "offset": off}
+        coord = model.links.index(link) if link in model.links else None
+        d = damping.get(coord) if coord is not None else None
         if link.damping is not None or d is not None:
             t["damping"] = (v(link.damping) if link.damping is not None else 0.0) + (d or 0.0)
         if link.stiffness is not None:
@@ -66,12 +79,32 @@ def model_tables(model: RobotModel, values: dict[str, float], *,
     else:
         g = values.get("g", model.nominal["g"])
         data["gravity"] = {"vector": [g * c for c in model.gravity_direction]}
+    if model.is_tree or model.floating:
+        data["base"] = {"name": base}
+        if model.base is not None:
+            b = model.base
+            data["base"].update({"mass": v(b.mass), "com": [v(x) for x in b.com],
+                                 "inertia": [v(x) for x in b.inertia]})
+            if b.inertia_about != "com":
+                data["base"]["inertia_about"] = b.inertia_about
     data["links"] = links
     if model.actuators:
         names = [link.name for link in model.links]
         data["actuators"] = [_actuator_table(a, names) for a in model.actuators]
     data["parameters"] = {"uncertain": list(model.uncertain)}
     return data
+
+
+def _file_order(model: RobotModel) -> list:
+    """``model.bodies`` in the order of their file (the index in their mass parameter's
+    name, m<i>); the model's order when a mass is not a parameter name."""
+    def index(link):
+        m = link.mass
+        return int(m[1:]) if isinstance(m, str) and m[1:].isdigit() else None
+    keys = [index(link) for link in model.bodies]
+    if any(k is None for k in keys):
+        return list(model.bodies)
+    return [link for _, link in sorted(zip(keys, model.bodies), key=lambda x: x[0])]
 
 
 def _actuator_table(a, names: list[str]) -> dict:

@@ -40,6 +40,16 @@ filtering of Gautier 1997 and Swevers et al. 1997):
    fitted to π̂ by least squares; no SDP solver needed) and the misfit of the
    projected values, max |π(p) − π̂|/σ, is reported beside the original violations.
    The base-parameter estimates themselves are never altered.
+
+Floating bases (issue 35). The log then also holds the base pose in the world,
+``base_x, base_y, base_z, base_qx, base_qy, base_qz, base_qw`` (a unit quaternion, x y z
+w), and the measured wrench on the base in the base frame, ``base_fx, base_fy, base_fz,
+base_mx, base_my, base_mz`` (contact or support forces; a log without these columns is
+contact-free: the wrench is zero, as in flight or in orbit, and the joint torques alone
+scale the parameters). The pose is filtered like q (the quaternion renormalised after),
+the base velocity v = (Rᵀ ṗ, ω) with ω = 2 Im(q̄ ⊗ q̇) in the base frame, and v̇ its
+derivative, as Pinocchio's free flyer; the regressor is the whole-body one, six base
+rows and one per joint (:class:`FloatingRegressor`), friction on the joints only.
 """
 from __future__ import annotations
 
@@ -83,7 +93,9 @@ TORQUE_RATIO = 30.0
 
 @dataclass
 class IdentificationLog:
-    """A log read and checked: time, positions and torques (K × n)."""
+    """A log read and checked: time, positions and torques (K × n; on a floating base q
+    is K × (7 + n), [base position, quaternion, joints], and τ K × (6 + n), [base wrench,
+    joint torques])."""
 
     path: Path
     t: np.ndarray
@@ -91,6 +103,11 @@ class IdentificationLog:
     tau: np.ndarray
     dt: float
     torque_source: str          # "tau" or "current x K_t"
+
+
+#: The log columns of a floating base's pose and of the wrench measured on it.
+BASE_POSE_COLUMNS = ["base_x", "base_y", "base_z", "base_qx", "base_qy", "base_qz", "base_qw"]
+BASE_WRENCH_COLUMNS = ["base_fx", "base_fy", "base_fz", "base_mx", "base_my", "base_mz"]
 
 
 @dataclass
@@ -142,8 +159,10 @@ class RigidIdentification:
 
 
 def read_identification_log(path: str | Path, n: int, *,
-                            torque_constant: list[float] | None = None) -> IdentificationLog:
-    """Read ``t, q1..qn`` and ``tau1..taun`` (or ``i1..in`` with a torque constant).
+                            torque_constant: list[float] | None = None,
+                            floating: bool = False) -> IdentificationLog:
+    """Read ``t, q1..qn`` and ``tau1..taun`` (or ``i1..in`` with a torque constant); with
+    ``floating`` also the base pose and, when logged, the base wrench (module docstring).
 
     Errors (one line, :class:`~softgen.estimation.csvlog.LogError`): missing column
     (named), non-numeric or NaN cell (row and column), time not increasing or not
@@ -151,6 +170,8 @@ def read_identification_log(path: str | Path, n: int, *,
     """
     path = Path(path)
     header = read_header(path)
+    if floating:
+        return _read_floating_log(path, header, n, torque_constant)
     q_cols = [f"q{i + 1}" for i in range(n)]
     tau_cols = [f"tau{i + 1}" for i in range(n)]
     cur_cols = [f"i{i + 1}" for i in range(n)]
@@ -171,6 +192,108 @@ def read_identification_log(path: str | Path, n: int, *,
     if torque_constant is not None:
         tau = tau * np.asarray(torque_constant, dtype=float)[None, :]
     return IdentificationLog(path, t, q, tau, dt, source)
+
+
+def _read_floating_log(path: Path, header: list[str], n: int,
+                       torque_constant: list[float] | None) -> IdentificationLog:
+    joints = read_identification_log(path, n, torque_constant=torque_constant)
+    wrench = [c for c in BASE_WRENCH_COLUMNS if c in header]
+    if wrench and len(wrench) != 6:
+        missing = next(c for c in BASE_WRENCH_COLUMNS if c not in header)
+        raise LogError(f"{path}: column {missing!r} missing (a measured base wrench needs "
+                       f"all of {', '.join(BASE_WRENCH_COLUMNS)}; none for a contact-free log)")
+    t, Y, _ = read_log(path, BASE_POSE_COLUMNS + wrench, min_rows=10)
+    quat = Y[:, 3:7]
+    norm = np.linalg.norm(quat, axis=1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > 1e-3)
+    if bad.size:
+        raise LogError(f"{path}: row {int(bad[0]) + 2}: base_qx..base_qw is not a unit "
+                       f"quaternion (norm {norm[bad[0]]:.6g})")
+    # A quaternion and its negative are one rotation: keep the sign continuous.
+    quat = quat / norm[:, None]
+    for k in range(1, quat.shape[0]):
+        if quat[k] @ quat[k - 1] < 0:
+            quat[k] = -quat[k]
+    q = np.hstack([Y[:, :3], quat, joints.q])
+    base = Y[:, 7:13] if wrench else np.zeros((Y.shape[0], 6))
+    source = joints.torque_source + (", measured base wrench" if wrench else
+                                     ", contact-free (base wrench 0)")
+    return IdentificationLog(path, t, q, np.hstack([base, joints.tau]), joints.dt, source)
+
+
+def quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a ⊗ b for K × 4 arrays of quaternions (x, y, z, w)."""
+    av, aw, bv, bw = a[:, :3], a[:, 3:], b[:, :3], b[:, 3:]
+    return np.hstack([aw * bv + bw * av + np.cross(av, bv),
+                      aw * bw - np.sum(av * bv, axis=1, keepdims=True)])
+
+
+def base_velocity(p: np.ndarray, quat: np.ndarray, dt: float) -> np.ndarray:
+    """The free flyer's velocity (Rᵀ ṗ, ω) from K samples of the base pose: ṗ and q̇ by
+    central differences, ω = 2 Im(q̄ ⊗ q̇) (base frame)."""
+    pd = np.gradient(p, dt, axis=0)
+    qd = np.gradient(quat, dt, axis=0)
+    conj = quat * np.array([-1.0, -1.0, -1.0, 1.0])
+    w = 2.0 * quaternion_product(conj, qd)[:, :3]
+    x, y, z, s = quat.T
+    # Rᵀ ṗ, R of each quaternion (rows of R are the columns of Rᵀ).
+    R = np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * s), 2 * (x * z + y * s)], -1),
+                  np.stack([2 * (x * y + z * s), 1 - 2 * (x * x + z * z), 2 * (y * z - x * s)], -1),
+                  np.stack([2 * (x * z - y * s), 2 * (y * z + x * s), 1 - 2 * (x * x + y * y)], -1)],
+                 axis=1)
+    u = np.einsum("kji,kj->ki", R, pd)
+    return np.hstack([u, w])
+
+
+class FloatingRegressor:
+    """The whole-body regressor of a floating base, τ = Y(q, v, v̇) θ + τ₀ with θ = (base
+    parameters, joint friction), τ = [base wrench, joint torques]: the interface of
+    :class:`~softgen.studies.excitation.IdentificationRegressor` (``n`` the rows per
+    sample, 6 + joints)."""
+
+    def __init__(self, model: RobotModel, *, viscous: bool = True, coulomb: bool = True,
+                 dyn=None):
+        from softgen.symbolic.friction import friction_columns
+        from softgen.symbolic.rigid import RigidDynamics
+        self.model = model
+        self.dyn = dyn if dyn is not None else RigidDynamics(model)
+        self.n = model.nv
+        base = self.dyn.base
+        m = self.dyn.nominal
+        vd = ca.SX.sym("vd", model.nv)
+        Yb = ca.substitute([base.Y], [m.qd_r, m.qdd_r], [m.qd, vd])[0]
+        tau0 = (ca.substitute([base.constant], [m.qd_r, m.qdd_r], [m.qd, vd])[0]
+                if base.constant is not None else ca.SX.zeros(model.nv, 1))
+        damped = tuple(link.damping is not None and link.damping in model.uncertain
+                       for link in model.links)
+        Yf, fnames = friction_columns(m.qd[6:], viscous=tuple(viscous and not d for d in damped),
+                                      coulomb=coulomb)
+        Yf = ca.vertcat(ca.SX.zeros(6, Yf.shape[1]), Yf)
+        self.base_names = list(base.names)
+        self.friction_names = fnames
+        self.names = self.base_names + fnames
+        self.expressions = list(base.expressions) + [
+            ("viscous friction of joint " if f.startswith("fv") else "Coulomb friction of joint ")
+            + f[2:] for f in fnames]
+        self.n_base = len(base.names)
+        self.p = len(self.names)
+        self._fun = ca.Function("floating_regressor", [m.q, m.qd, vd],
+                                [ca.densify(ca.horzcat(Yb, Yf)), ca.densify(tau0)],
+                                ["q", "v", "vd"], ["Y", "tau0"], {"cse": True})
+
+    @property
+    def nominal(self) -> np.ndarray:
+        return np.concatenate([self.dyn.parameter_nominal, np.zeros(len(self.friction_names))])
+
+    def physical_to_base(self, p: np.ndarray) -> np.ndarray:
+        return np.asarray(self.dyn.physical_to_base_fun(p)).ravel()
+
+    def evaluate(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray):
+        """(Y, τ₀) at K samples: Y is K × (6 + n) × p, τ₀ K × (6 + n)."""
+        K = q.shape[0]
+        f = self._fun.map(K)
+        Y, t0 = f(q.T, v.T, vd.T)
+        return (Y.full().reshape(self.n, K, self.p).transpose(1, 0, 2), t0.full().T)
 
 
 def motion_band(q: np.ndarray, dt: float, energy: float = BAND_ENERGY) -> float:
@@ -229,7 +352,12 @@ def filter_and_differentiate(reg: IdentificationRegressor, q: np.ndarray, tau: n
                            f"dt = {dt:.6g} s (need more than {2 * trim + 20}); log longer or "
                            "raise --cutoff")
     qf = filtfilt(b, a, q, axis=0, padlen=padlen)
-    qd = np.gradient(qf, dt, axis=0)
+    if getattr(reg.model, "floating", False):
+        qf[:, 3:7] /= np.linalg.norm(qf[:, 3:7], axis=1)[:, None]
+        qd = np.hstack([base_velocity(qf[:, :3], qf[:, 3:7], dt),
+                        np.gradient(qf[:, 7:], dt, axis=0)])
+    else:
+        qd = np.gradient(qf, dt, axis=0)
     qdd = np.gradient(qd, dt, axis=0)
     W, tau0 = reg.evaluate(qf, qd, qdd)
     W = filtfilt(b, a, W, axis=0, padlen=padlen)
@@ -274,10 +402,14 @@ def identify_rigid(model: RobotModel, log: IdentificationLog, *, cutoff: float |
                    viscous: bool = True, coulomb: bool = True,
                    regressor: IdentificationRegressor | None = None) -> RigidIdentification:
     """Steps 2-5 of the module docstring on a log already read."""
-    reg = regressor if regressor is not None else IdentificationRegressor(
-        model, viscous=viscous, coulomb=coulomb)
-    if log.q.shape[1] != reg.n:
-        raise SoftgenError(f"log: {log.q.shape[1]} joints, model {model.name} has {reg.n}")
+    if regressor is not None:
+        reg = regressor
+    elif model.floating:
+        reg = FloatingRegressor(model, viscous=viscous, coulomb=coulomb)
+    else:
+        reg = IdentificationRegressor(model, viscous=viscous, coulomb=coulomb)
+    if log.tau.shape[1] != reg.n:
+        raise SoftgenError(f"log: {log.tau.shape[1]} torques, model {model.name} has {reg.n}")
     fil = filter_and_differentiate(reg, log.q, log.tau, log.dt, cutoff)
     W = fil.W
     if W.shape[0] * reg.n < MIN_ROWS_PER_PARAMETER * reg.p:
@@ -403,7 +535,7 @@ def consistent_parameters(reg: IdentificationRegressor, pi_hat: np.ndarray,
     names = list(model.uncertain)
     index = {k: j for j, k in enumerate(names)}
     links = []
-    for link in model.links:
+    for link in model.inertial_bodies:
         fields = _link_fields(link)
         if fields is None:
             return None
@@ -472,7 +604,8 @@ def consistent_parameters(reg: IdentificationRegressor, pi_hat: np.ndarray,
 def consistency_violations(model: RobotModel, values: dict[str, float]) -> list[str]:
     """Step 5's check of every link at ``values`` (parameter name -> value)."""
     out = []
-    for i, link in enumerate(model.links, start=1):
+    first = 0 if model.floating else 1          # the floating base is body 0
+    for i, link in enumerate(model.inertial_bodies, start=first):
         m = float(model.resolve(link.mass, values))
         if not m > 0:
             out.append(f"link {i} ({link.name}): mass {m:.6g} kg is not positive")
