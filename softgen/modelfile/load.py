@@ -14,6 +14,7 @@ from softgen.core.errors import ModelError
 from softgen.core.paths import MODEL_SUFFIXES, MODELS_DIR  # noqa: F401  (re-exported)
 from softgen.modelfile.model import (MAX_NAME, FileReader, RobotModel, _Parser,
                                      read_model_text)
+from softgen.modelfile.cosserat import CosseratModel, is_cosserat, parse_cosserat_model
 from softgen.modelfile.soft import SoftModel, is_soft, parse_soft_model
 from softgen.modelfile.urdf import chain_joints, parse_urdf
 
@@ -90,12 +91,14 @@ def load_model(name_or_path: str | Path, *, root: str | None = None,
         return _urdf_reference(path, data)
     if is_soft(data):
         return parse_soft_model(path, data)
+    if is_cosserat(data):
+        return parse_cosserat_model(path, data)
     return _Parser(path).parse(data)
 
 def as_model(ref):
-    """A loaded model (``RobotModel`` or ``SoftModel``, e.g. a URDF chain cut by
-    ``--root``/``--tip``) as it is; a name or path through :func:`load_model`."""
-    return ref if isinstance(ref, (RobotModel, SoftModel)) else load_model(ref)
+    """A loaded model (``RobotModel``, ``SoftModel`` or ``CosseratModel``, e.g. a URDF
+    chain cut by ``--root``/``--tip``) as it is; a name or path through :func:`load_model`."""
+    return ref if isinstance(ref, (RobotModel, SoftModel, CosseratModel)) else load_model(ref)
 
 def _urdf_reference(path: Path, data: dict) -> RobotModel:
     """A TOML model that is a URDF file's chain: ``[urdf] file, root, tip``, an
