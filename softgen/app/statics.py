@@ -78,8 +78,9 @@ def check_loads(model: CosseratModel, loads: Loads, kinds: dict[str, str]) -> No
         if not math.isfinite(value):
             raise ModelError(f"{opt} {name}={value}: expected a finite number")
         if a.one_sided and value < 0:
-            raise ModelError(f"{opt} {name}={value:g}: a {a.type} only pulls or pushes one "
-                             "way; expected a value >= 0")
+            what = "a tendon only pulls: expected a tension" if a.type == "tendon" else \
+                "a chamber only pushes: expected a gauge pressure"
+            raise ModelError(f"{opt} {name}={value:g}: {what} >= 0")
         if a.max is not None and abs(value) > a.max:
             raise ModelError(f"{opt} {name}={value:g}: above the declared max = {a.max:g}")
     for what, vec in (("--tip-force", loads.tip_force), ("--tip-torque", loads.tip_torque)):
