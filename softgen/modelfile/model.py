@@ -168,6 +168,16 @@ class Link:
     inertia_about: str                 # "com" | "joint"
     damping: Scalar | None = None
     stiffness: Scalar | None = None
+    #: The body this link hangs from: an index into :attr:`RobotModel.bodies`, -1 for
+    #: the base; None for a serial chain's default (the previous link, the base for the
+    #: first).
+    parent: int | None = None
+    #: A mimic joint (URDF ``<mimic>``): (index of the master joint's coordinate,
+    #: multiplier, offset); its angle is multiplier * q_master + offset. Only for the
+    #: links of :attr:`RobotModel.mimics`, which own no coordinate.
+    mimic: tuple[int, float, float] | None = None
+    #: The joint's own name where the file gives one apart from the link's (URDF).
+    joint_name: str = ""
 
 
 #: Actuator types and their keys: name -> (required, optional). A value given as a
@@ -322,6 +332,14 @@ class RobotModel(ParameterTable):
     #: file alone does not say which chain, so a bundle's manifest records them.
     chain: tuple[str | None, str | None] | None = None
 
+    #: Bodies of a tree driven by mimic joints (no coordinate of their own), after
+    #: ``links`` in :attr:`bodies`.
+    mimics: tuple[Link, ...] = ()
+
+    #: The floating base body (``--floating``, ``floating = true``): its inertial data
+    #: (``joint`` is ``"floating"``, parameters m0, c0x.., I0xx..); None for a fixed base.
+    base: Link | None = None
+
     @property
     def actuator_type(self) -> str | None:
         """The actuator family every joint shares: ``"mckibben"`` (also a declared
@@ -341,7 +359,50 @@ class RobotModel(ParameterTable):
 
     @property
     def dof(self) -> int:
+        """Joint coordinates (the base's six are not counted)."""
         return len(self.links)
+
+    @property
+    def floating(self) -> bool:
+        return self.base is not None
+
+    @property
+    def nq(self) -> int:
+        """Size of q: [base position, base quaternion (x, y, z, w)] + joints if floating."""
+        return self.dof + (7 if self.floating else 0)
+
+    @property
+    def nv(self) -> int:
+        """Size of v (and of τ): [base linear, angular velocity] + joint rates if floating."""
+        return self.dof + (6 if self.floating else 0)
+
+    @property
+    def bodies(self) -> tuple[Link, ...]:
+        """Every moving body hung from the base: the links (one per coordinate) then the
+        mimic-driven ones. :attr:`Link.parent` indexes this."""
+        return self.links + self.mimics
+
+    @property
+    def inertial_bodies(self) -> tuple[Link, ...]:
+        """The bodies whose inertia acts: the floating base first, then :attr:`bodies`."""
+        return ((self.base,) if self.base is not None else ()) + self.bodies
+
+    def parent_of(self, i: int) -> int:
+        """The parent of body ``i`` (index into :attr:`bodies`; -1 the base)."""
+        p = self.bodies[i].parent
+        return i - 1 if p is None else p
+
+    @property
+    def is_tree(self) -> bool:
+        """Whether the bodies are not one serial chain hanging from a fixed base."""
+        return (self.floating or bool(self.mimics)
+                or any(self.parent_of(i) != i - 1 for i in range(len(self.links))))
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """The names of the joints in the order of q's joint coordinates (the file's
+        joint names, for a URDF; the link names for a TOML model)."""
+        return tuple(link.joint_name or link.name for link in self.links)
 
     def has_damping(self) -> bool:
         return any(link.damping is not None for link in self.links)

@@ -1,4 +1,4 @@
-"""Frames and rigid-body inertias of a serial chain, shared by the Lagrangian routes
+"""Frames and rigid-body inertias of a chain or tree, shared by the Lagrangian routes
 (:mod:`softgen.symbolic.mechanics`) and the recursive one
 (:mod:`softgen.symbolic.recursive`): joint rotations, constant placements with exact
 structural zeros, and each link's inertial data as the model's parameters give them.
@@ -66,13 +66,15 @@ class Inertial:
 
 
 def physical_inertials(model: RobotModel, values: Values) -> list[Inertial]:
-    """(m, h, I_o) of every link from its mass, centre of mass and inertia.
+    """(m, h, I_o) of every body from its mass, centre of mass and inertia, in the
+    order of ``model.inertial_bodies`` (the floating base first, the links, the
+    mimic-driven bodies; for a chain, the links).
 
     An inertia about the centre of mass is moved to the joint origin by the
     parallel-axis theorem, I_o = I_c + m (cᵀc 1 − c cᵀ).
     """
     out = []
-    for link in model.links:
+    for link in model.inertial_bodies:
         m = model.resolve(link.mass, values)
         c = ca.vertcat(*[model.resolve(x, values) for x in link.com])
         xx, yy, zz, xy, xz, yz = [model.resolve(x, values) for x in link.inertia]

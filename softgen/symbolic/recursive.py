@@ -98,10 +98,11 @@ import casadi as ca
 import numpy as np
 
 from softgen.modelfile.model import RobotModel
-from softgen.symbolic.frames import (Inertial, Values, axis_rotation, physical_inertials, rpy,
-                                     simplify_const)
+from softgen.symbolic import tree as _tree
+from softgen.symbolic.frames import Inertial, Values, physical_inertials, rpy, simplify_const
 
-__all__ = ["slotine_li", "regressor_transpose_times", "inertial_fields", "INERTIAL_FIELDS"]
+__all__ = ["slotine_li", "regressor_transpose_times", "mass_matrix", "model_tree",
+           "ModelTree", "inertial_fields", "INERTIAL_FIELDS"]
 
 #: Inertial parameters per link that act in the plane (planar chains) or in space.
 INERTIAL_FIELDS = {"planar": ("m", "hx", "hy", "Izz"),
@@ -110,19 +111,6 @@ INERTIAL_FIELDS = {"planar": ("m", "hx", "hy", "Izz"),
 
 def inertial_fields(model: RobotModel) -> tuple[str, ...]:
     return INERTIAL_FIELDS["planar" if model.kind == "planar" else "spatial"]
-
-
-# -- spatial algebra on (angular, linear) pairs of 3-vectors -------------------------
-# Pairs rather than 6-vectors: CasADi SX drops products with structural zeros, so a
-# planar chain costs planar arithmetic without a separate planar code path.
-
-def _crm(v, m):
-    """Motion cross product v × m."""
-    return ca.cross(v[0], m[0]), ca.cross(v[0], m[1]) + ca.cross(v[1], m[0])
-
-
-def _add(a, b):
-    return a[0] + b[0], a[1] + b[1]
 
 
 # -- joint frames (module docstring, "Joint frames") ---------------------------------
@@ -192,39 +180,92 @@ def _fold_offset(C: np.ndarray, k: int) -> tuple[np.ndarray, float]:
 
 
 @dataclass
-class _Joint:
-    E: ca.SX        # child rotation in parent coordinates (aligned frames)
-    p: ca.SX        # child origin in parent coordinates (aligned frames)
-    S: tuple        # motion subspace (angular, linear) in child coordinates: e_k
-    Q: np.ndarray   # link frame -> aligned frame (columns: aligned axes in link coordinates)
+class ModelTree:
+    """A model's tree (:class:`~softgen.symbolic.tree.Tree`) in aligned node frames.
+
+    ``Q[i]`` turns node i's link frame into its aligned frame (columns: aligned axes in
+    link coordinates); ``body[i]`` is the node's index in ``model.inertial_bodies``;
+    ``link_node[j]`` the node of ``model.bodies[j]``.
+    """
+
+    tree: _tree.Tree
+    Q: list[np.ndarray]
+    body: list[int]
+    link_node: list[int]
+
+    def inertials(self, per_body: list[Inertial]) -> list[Inertial]:
+        """Bodies' (m, h, I_o) in link frames -> nodes' in aligned frames."""
+        return [_aligned(per_body[b], Q) for b, Q in zip(self.body, self.Q)]
 
 
-def _joints(model: RobotModel, q: ca.SX, values: Values) -> list[_Joint]:
-    """Joint transforms between aligned link frames (module docstring, "Joint frames")."""
-    out = []
-    Q_parent = np.eye(3)
-    for i, link in enumerate(model.links):
+def _topological(model: RobotModel) -> list[int]:
+    """Bodies in an order where parents come first: the model's order when it already is
+    (chains, and trees as the readers write them), else a stable depth-first order."""
+    n = len(model.bodies)
+    parents = [model.parent_of(i) for i in range(n)]
+    if all(p < i for i, p in enumerate(parents)):
+        return list(range(n))
+    kids: list[list[int]] = [[] for _ in range(n + 1)]
+    for i, p in enumerate(parents):
+        kids[p + 1 if p >= 0 else 0].append(i)
+    order, stack = [], list(reversed(kids[0]))
+    while stack:
+        i = stack.pop()
+        order.append(i)
+        stack += reversed(kids[i + 1])
+    return order
+
+
+def model_tree(model: RobotModel, values: Values) -> ModelTree:
+    """The recursion's tree of a model (module docstring, "Joint frames"): a free-flyer
+    node for a floating base, then one node per body, joints between aligned frames.
+
+    Coordinates: a fixed base's joint j reads q[j] and v[j]; a floating base reads
+    q[0:7], v[0:6] and its joints q[7 + j], v[6 + j]; a mimic joint reads its master's.
+    """
+    nodes: list[_tree.Node] = []
+    Qs: list[np.ndarray] = []
+    body: list[int] = []
+    oq, ov = (7, 6) if model.floating else (0, 0)
+    if model.floating:
+        nodes.append(_tree.Node(_tree.FreeFlyer(), -1, tuple(range(7)), tuple(range(6)),
+                                model.base.name))
+        Qs.append(np.eye(3))
+        body.append(0)
+    base_node = 0 if model.floating else -1
+    link_node = [-1] * len(model.bodies)
+    first = 1 if model.floating else 0
+    for b in _topological(model):
+        link = model.bodies[b]
+        par = model.parent_of(b)
+        pnode = base_node if par < 0 else link_node[par]
+        Q_parent = np.eye(3) if pnode < 0 else Qs[pnode]
         P = np.asarray(simplify_const(rpy(*link.origin_rpy)))
         Q, k = _aligning(link.axis)
         C = Q_parent.T @ P @ Q
         offset = ca.vertcat(*[model.resolve(x, values) for x in link.origin_xyz])
         p = ca.mtimes(simplify_const(Q_parent.T, _SNAP), offset)
-        b = ca.DM.zeros(3)
-        b[k] = 1.0
-        zero = ca.DM.zeros(3)
-        axis = tuple(float(x) for x in np.eye(3)[k])
+        if link.mimic is None:
+            coord, scale, extra = b, 1.0, 0.0
+        else:
+            coord, scale, extra = link.mimic
+        joint: _tree.Joint
         if link.joint == "revolute":
             C2, theta0 = _fold_offset(C, k)
-            angle = q[i] + theta0 if theta0 != 0.0 else q[i]
-            E = ca.mtimes(ca.DM(C2), axis_rotation(axis, angle))
-            S = (b, zero)
+            joint = _tree.Revolute(k, C2, p, offset=theta0 + extra, scale=scale)
         else:
             # A prismatic joint slides along its axis, fixed in the parent frame.
-            C2 = simplify_const(C, _SNAP)
-            E, p, S = C2, p + C2[:, k] * q[i], (zero, b)
-        out.append(_Joint(E=E, p=p, S=S, Q=Q))
-        Q_parent = Q
-    return out
+            joint = _tree.Prismatic(k, simplify_const(C, _SNAP), p, offset=extra, scale=scale)
+        link_node[b] = len(nodes)
+        nodes.append(_tree.Node(joint, pnode, (oq + coord,), (ov + coord,), link.name))
+        Qs.append(Q)
+        body.append(first + b)
+    if model.floating:
+        g = model.resolve("g", values) * ca.DM(model.gravity_direction)
+    else:
+        g = _gravity_base(model, values)
+    tree = _tree.Tree(nodes, nq=model.nq, nv=model.nv, gravity=g)
+    return ModelTree(tree=tree, Q=Qs, body=body, link_node=link_node)
 
 
 def _aligned(inert: Inertial, Q: np.ndarray) -> Inertial:
@@ -236,26 +277,6 @@ def _aligned(inert: Inertial, Q: np.ndarray) -> Inertial:
                     I=ca.mtimes(Qd.T, ca.mtimes(inert.I, Qd)))
 
 
-def _to_child(j: _Joint, v):
-    """Motion vector from parent to child coordinates (origin moved to the child's)."""
-    w, u = v
-    return ca.mtimes(j.E.T, w), ca.mtimes(j.E.T, u + ca.cross(w, j.p))
-
-
-def _to_parent(j: _Joint, f):
-    """Force vector from child to parent coordinates."""
-    n = ca.mtimes(j.E, f[1])
-    return ca.mtimes(j.E, f[0]) + ca.cross(j.p, n), n
-
-
-def _scale(S, x):
-    return S[0] * x, S[1] * x
-
-
-def _dot(a, b):
-    return ca.dot(a[0], b[0]) + ca.dot(a[1], b[1])
-
-
 def _gravity_base(model: RobotModel, values: Values) -> ca.SX:
     """Gravity in base-frame coordinates (the base frame is rotated by ``base_rpy``)."""
     R0 = rpy(*model.base_rpy)
@@ -263,54 +284,15 @@ def _gravity_base(model: RobotModel, values: Values) -> ca.SX:
     return g * simplify_const(R0.T @ np.asarray(model.gravity_direction, dtype=float))
 
 
-def _forward(model, q, qd, qd_r, qdd_r, values, s=None):
-    """Velocities v (q̇), v_r (q̇_r), accelerations a_r and, with ``s``, ψ = J s per link.
-
-    Gravity enters as a fictitious base acceleration −g (Featherstone), which gives
-    G from the same sweep.
-    """
-    zero3 = ca.SX.zeros(3)
-    v = (zero3, zero3)
-    vr = (zero3, zero3)
-    ar = (zero3, -_gravity_base(model, values))
-    psi = (zero3, zero3)
-    joints = _joints(model, q, values)
-    out = []
-    for i, j in enumerate(joints):
-        Sqd = _scale(j.S, qd[i])
-        Sqdr = _scale(j.S, qd_r[i])
-        v = _add(_to_child(j, v), Sqd)
-        vr = _add(_to_child(j, vr), Sqdr)
-        # J̇_i q̇_r: the joint axis moves with the link, d/dt S = v × S.
-        ar = _add(_add(_to_child(j, ar), _scale(j.S, qdd_r[i])), _crm(v, Sqdr))
-        if s is not None:
-            psi = _add(_to_child(j, psi), _scale(j.S, s[i]))
-        out.append((v, vr, ar, psi))
-    return joints, out
-
-
-def _body_force(inert: Inertial, v, vr, ar):
-    """f = I a_r + 𝔅(I, v) v_r, the Christoffel-consistent body force, expanded in
-    (m, h, I_o) (module docstring, "Body force in (m, h, I_o)"): with w = ω × ω_r and
-    b = a_lin + ω_r × u,
-
-        n = I_o (α − w) + ½ tr(I_o) w + ω_r × (I_o ω) + h × b,
-        f = m b + α × h + ω_r × (ω × h).
-    """
-    (om, u), (omr, _), (al, alin) = v, vr, ar
-    I, h, m = inert.I, inert.h, inert.m
-    w = ca.cross(om, omr)
-    b = alin + ca.cross(omr, u)
-    tr = 0.5 * (I[0, 0] + I[1, 1] + I[2, 2])
-    n = (ca.mtimes(I, al - w) + tr * w + ca.cross(omr, ca.mtimes(I, om)) + ca.cross(h, b))
-    f = m * b + ca.cross(al, h) + ca.cross(omr, ca.cross(om, h))
-    return n, f
-
-
-def _joint_terms(model: RobotModel, q, qd, values: Values) -> ca.SX:
+def _joint_terms(model: RobotModel, q, qd, values: Values) -> ca.SX | None:
+    """K q + D q̇ on the joint coordinates (zero on a floating base's six), or None."""
+    if not (model.has_damping() or model.has_stiffness()) and model.floating:
+        return None
+    oq, ov = (7, 6) if model.floating else (0, 0)
     k = [model.resolve(link.stiffness, values) for link in model.links]
     d = [model.resolve(link.damping, values) for link in model.links]
-    return ca.vertcat(*[k[i] * q[i] + d[i] * qd[i] for i in range(model.dof)])
+    terms = [k[i] * q[oq + i] + d[i] * qd[ov + i] for i in range(model.dof)]
+    return ca.vertcat(*([ca.SX(0)] * ov + terms))
 
 
 def slotine_li(model: RobotModel, values: Values, q, qd, qd_r, qdd_r,
@@ -318,45 +300,42 @@ def slotine_li(model: RobotModel, values: Values, q, qd, qd_r, qdd_r,
     """B q̈_r + C q̇_r + G + K q + D q̇ by recursion, C of Christoffel symbols (eq. 9.1).
 
     ``values`` resolves the model's named scalars (numbers or SX symbols);
-    ``inertials`` overrides each link's (m, h, I_o) (e.g. by symbols δ, in which
-    the result is linear: then it is Y δ without Y).
+    ``inertials`` overrides each body's (m, h, I_o) (``model.inertial_bodies`` order;
+    e.g. by symbols δ, in which the result is linear: then it is Y δ without Y). For a
+    floating base q̇, q̇_r, q̈_r are velocities v (size ``model.nv``).
     """
     inertials = physical_inertials(model, values) if inertials is None else inertials
-    joints, fw = _forward(model, q, qd, qd_r, qdd_r, values)
-    n = model.dof
-    tau = [None] * n
-    f_child = None
-    for i in reversed(range(n)):
-        v, vr, ar, _ = fw[i]
-        f = _body_force(_aligned(inertials[i], joints[i].Q), v, vr, ar)
-        if f_child is not None:
-            f = _add(f, _to_parent(joints[i + 1], f_child))
-        tau[i] = _dot(joints[i].S, f)
-        f_child = f
-    return ca.vertcat(*tau) + _joint_terms(model, q, qd, values)
+    mt = model_tree(model, values)
+    tau = _tree.inverse_dynamics(mt.tree, mt.inertials(inertials), q, qd, qd_r, qdd_r)
+    terms = _joint_terms(model, q, qd, values)
+    return tau if terms is None else tau + terms
+
+
+def mass_matrix(model: RobotModel, values: Values, q,
+                inertials: list[Inertial] | None = None) -> ca.SX:
+    """B(q) by the composite-rigid-body algorithm over the model's tree."""
+    inertials = physical_inertials(model, values) if inertials is None else inertials
+    mt = model_tree(model, values)
+    return _tree.mass_matrix(mt.tree, mt.inertials(inertials), q)
 
 
 def regressor_transpose_times(model: RobotModel, values: Values, q, qd, qd_r, qdd_r, s,
                               delta: list[Inertial]) -> list[ca.SX]:
-    """Blocks ∂(sᵀ τ)/∂δ_i of Yᵀ s, one per link, by one forward sweep (module docstring).
+    """Blocks ∂(sᵀ τ)/∂δ_i of Yᵀ s, one per body (``model.inertial_bodies``), by one
+    forward sweep (module docstring).
 
-    ``delta`` holds each link's inertial parameters as SX symbols; the blocks do not
+    ``delta`` holds each body's inertial parameters as SX symbols; the blocks do not
     depend on them (τ is linear in δ). Damping and stiffness columns (s_i q̇_i,
     s_i q_i) are the caller's: they do not go through the recursion.
     """
-    joints, fw = _forward(model, q, qd, qd_r, qdd_r, values, s=s)
-    out = []
-    for i, inert in enumerate(delta):
-        v, vr, ar, psi = fw[i]
-        syms = _inertial_symbols(inert)
-        e = _dot(psi, _body_force(_aligned(inert, joints[i].Q), v, vr, ar))
-        g = ca.gradient(e, syms)
-        out.append(ca.substitute(g, syms, ca.DM.zeros(syms.shape)))
+    mt = model_tree(model, values)
+    blocks = _tree.regressor_blocks(mt.tree, mt.inertials(delta),
+                                    [_tree.inertial_symbols(delta[b]) for b in mt.body],
+                                    q, qd, qd_r, qdd_r, s)
+    out: list = [None] * len(delta)
+    for node, b in enumerate(mt.body):
+        out[b] = blocks[node]
     return out
 
 
-def _inertial_symbols(inert: Inertial) -> ca.SX:
-    """The distinct symbols of one link's δ, in the order of the fields present."""
-    cand = [inert.m, inert.h[0], inert.h[1], inert.h[2], inert.I[0, 0], inert.I[1, 1],
-            inert.I[2, 2], inert.I[0, 1], inert.I[0, 2], inert.I[1, 2]]
-    return ca.vertcat(*[c for c in cand if isinstance(c, ca.SX) and c.is_symbolic()])
+_inertial_symbols = _tree.inertial_symbols

@@ -51,7 +51,8 @@ import casadi as ca
 import numpy as np
 
 from softgen.modelfile.model import RobotModel
-from softgen.symbolic.recursive import _joints
+from softgen.symbolic.recursive import model_tree
+from softgen.symbolic.tree import FreeFlyer
 
 #: The ten inertial parameters of a link about its joint origin, link coordinates.
 FIELDS = ("m", "hx", "hy", "hz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
@@ -119,34 +120,48 @@ def regroup(model: RobotModel, values, deltas: list[dict], fields: tuple[str, ..
     expressions of the inputs and of the geometry. τ computed with these in place
     of ``deltas`` (eliminated fields zero) is the same τ.
     """
-    n = model.dof
-    joints = _joints(model, ca.SX.zeros(n), values)
-    incoming: dict | None = None
-    out: list[dict] = [{} for _ in range(n)]
-    for j in reversed(range(n)):
-        x = dict(deltas[j])
-        if incoming is not None:
+    mt = model_tree(model, values)
+    nodes = mt.tree.nodes
+    frames = [nd.joint.placement(ca.SX.zeros(nd.joint.nq)) for nd in nodes]
+    # Node j's parameters are those of body mt.body[j] (model.inertial_bodies order).
+    nb = len(deltas)
+    incoming: list[dict | None] = [None] * len(nodes)
+    out: list[dict] = [{} for _ in range(nb)]
+    for j in reversed(range(len(nodes))):
+        b = mt.body[j]
+        x = dict(deltas[b])
+        for inc in ([] if incoming[j] is None else [incoming[j]]):
             for f in fields:
-                x[f] = x.get(f, 0) + incoming[f]
-        link = model.links[j]
+                x[f] = x.get(f, 0) + inc[f]
+        node = nodes[j]
         pushed = {f: ca.SX(0) for f in FIELDS}
-        for elim, v in virtual_bodies(link.joint, link.axis):
+        if isinstance(node.joint, FreeFlyer):
+            directions: list = []       # a free body: no virtual body moves with it unseen
+        else:
+            link = model.inertial_bodies[b]
+            directions = virtual_bodies(link.joint, link.axis)
+        for elim, v in directions:
             if elim not in fields or any(f not in fields for f in v):
-                continue        # a direction this chain's parameters cannot express
+                continue        # a direction this model's parameters cannot express
             alpha = x[elim] / v[elim]
             for f, c in v.items():
                 x[f] = x[f] - alpha * c if f != elim else ca.SX(0)
                 pushed[f] = pushed[f] + alpha * c
             x.pop(elim)
-        out[j] = x
-        if j > 0:
+        out[b] = x
+        par = node.parent
+        if par >= 0:
             # The image in the parent at q_j = 0 (by invariance, at every q_j). The
             # recursion's joint transforms are between joint-aligned frames (link frame
             # times Q, softgen.symbolic.recursive): the parameters here are in the link
             # frames, so the transform is taken back to them, Q_parent E Qᵀ and Q_parent p.
-            J, Qp = joints[j], ca.DM(joints[j - 1].Q)
-            E = ca.mtimes(ca.mtimes(Qp, J.E), ca.DM(J.Q).T)
-            incoming = to_parent(pushed, E, ca.mtimes(Qp, J.p))
-        else:
-            incoming = None     # pushed into the fixed base: acts on nothing
+            E, p = frames[j]
+            Qp = ca.DM(mt.Q[par])
+            E = ca.mtimes(ca.mtimes(Qp, E), ca.DM(mt.Q[j]).T)
+            img = to_parent(pushed, E, ca.mtimes(Qp, p))
+            if incoming[par] is None:
+                incoming[par] = img
+            else:
+                incoming[par] = {f: incoming[par][f] + img[f] for f in FIELDS}
+        # else: pushed into the fixed base, where it acts on nothing
     return out
