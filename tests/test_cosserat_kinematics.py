@@ -271,9 +271,9 @@ def test_jacobians_and_gravity_agree_with_differentiation(tmp_path, scale):
     m = _load(tmp_path, ROD)
     body = CosseratBody(m, m.nominal)
     U = 0
-    for nd, (Rk, ok) in zip(body.nodes, body.world_poses()):
-        if nd.inertia is not None:
-            U -= ca.dot(body.gravity_vector(), nd.inertia.m * ok + ca.mtimes(Rk, nd.inertia.h))
+    for inert, (Rk, ok) in zip(body.inertials, body.world_poses()):
+        if inert is not None:
+            U -= ca.dot(body.gravity_vector(), inert.m * ok + ca.mtimes(Rk, inert.h))
     R, o = body.tip_pose()
     w = ca.SX.sym("w", m.dof)
     W = ca.mtimes(ca.reshape(ca.jtimes(ca.vec(R), body.q, w), 3, 3), R.T)

@@ -57,14 +57,16 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from softgen.modelfile.cosserat import STRAINS, CosseratModel, Rigid, Rod
+from softgen.modelfile.cosserat import CosseratModel, Rigid, Rod
+from softgen.symbolic import tree as T
 from softgen.symbolic.frames import Inertial, axis_rotation, rpy, simplify_const
 from softgen.symbolic.pcc import gauss_legendre
 from softgen.symbolic.se3 import ad, exp_se3, hat as _hat, tangent
 
 Values = Mapping[str, "ca.SX | float"]
 
-__all__ = ["CosseratBody", "Node", "legendre", "strain_basis", "XI_REF"]
+__all__ = ["CosseratBody", "RodJoint", "RigidJoint", "legendre", "strain_basis", "XI_REF",
+           "magnus_step", "statics_functions"]
 
 #: Reference strain ξ*: straight, unstretched, unsheared (DESIGN.md).
 XI_REF = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0)
@@ -93,18 +95,79 @@ def strain_basis(rod: Rod, X: float) -> np.ndarray:
     return Phi
 
 
-@dataclass
-class Node:
-    """One node of the chain (the recursion's joint interface, module docstring)."""
+class RodJoint(T.Joint):
+    """A node of a rod: g = exp(Ω(q_j)) for the Magnus step over [X0, X1], after a
+    constant placement ``pre`` (the segment's origin, first node only); S = T(Ω) ∂Ω/∂q_j
+    in closed form (module docstring)."""
 
-    parent: int                 # index of the parent node, −1: the base
-    body: int                   # index of the body (segment) in the model
-    coords: tuple[int, int]     # [start, stop) of the coordinates it reads in q
-    E: ca.SX                    # rotation in the parent node's frame
-    p: ca.SX                    # origin in the parent node's frame
-    S: ca.SX                    # 6 × (stop − start) motion subspace, node coordinates
-    inertia: Inertial | None    # (m, h, I_o) in node coordinates; None: massless
-    X: float                    # arc length along its rod (0 for a rigid link)
+    constant_motion = False
+
+    def __init__(self, rod: Rod, X0: float, X1: float, pre=None):
+        self.rod, self.X0, self.X1, self.pre = rod, X0, X1, pre
+        self.nq = self.nv = rod.dof
+
+    def step(self, qj):
+        """(Ω, ∂Ω/∂q_j) of the Magnus step (module docstring)."""
+        return magnus_step(self.rod, qj, self.X0, self.X1)
+
+    def placement(self, qj):
+        Omega, _ = self.step(qj)
+        E, p = exp_se3(Omega)
+        if self.pre is not None:
+            E0, p0 = ca.DM(self.pre[0]), ca.DM(self.pre[1])
+            E, p = ca.mtimes(E0, E), p0 + ca.mtimes(E0, p)
+        return E, p
+
+    def motion(self, qj):
+        Omega, dOmega = self.step(qj)
+        S = ca.mtimes(tangent(Omega), dOmega)
+        return S[:3, :], S[3:, :]
+
+
+class RigidJoint(T.Joint):
+    """A rigid link's joint about (revolute) or along (prismatic) a unit ``axis`` of the
+    link frame, after the constant rotation P and origin: E = P Rot(axis, q) or
+    p = origin + P axis q; S = (axis, 0) or (0, axis), constant."""
+
+    nq = nv = 1
+
+    def __init__(self, kind: str, axis, P, origin):
+        self.kind, self.axis, self.P, self.origin = kind, tuple(axis), P, origin
+        a, z = ca.DM(self.axis), ca.DM.zeros(3)
+        self.S = (a, z) if kind == "revolute" else (z, a)
+
+    def placement(self, qj):
+        if self.kind == "revolute":
+            return ca.mtimes(self.P, axis_rotation(self.axis, qj)), self.origin
+        return self.P, self.origin + ca.mtimes(self.P, ca.DM(self.axis)) * qj
+
+    def motion(self, qj):
+        return self.S
+
+
+def magnus_step(rod: Rod, qj, X0: float, X1: float):
+    """(Ω, ∂Ω/∂q_j) of the fourth-order Magnus step of g′ = g ξ̂ from X0 to X1 (module
+    docstring); exact h ξ for PCS."""
+    h = X1 - X0
+    if rod.order == 0:
+        Phi = ca.DM(strain_basis(rod, X0))
+        return h * (ca.DM(XI_REF) + ca.mtimes(Phi, qj)), h * Phi
+    a, b = X0 + h * (0.5 - _SQRT3 / 6), X0 + h * (0.5 + _SQRT3 / 6)
+    Pa, Pb = ca.DM(strain_basis(rod, a)), ca.DM(strain_basis(rod, b))
+    xa = ca.DM(XI_REF) + ca.mtimes(Pa, qj)
+    xb = ca.DM(XI_REF) + ca.mtimes(Pb, qj)
+    c = _SQRT3 / 12 * h * h
+    Omega = h / 2 * (xa + xb) + c * ca.mtimes(ad(xa), xb)
+    dOmega = h / 2 * (Pa + Pb) + c * (ca.mtimes(ad(xa), Pb) - ca.mtimes(ad(xb), Pa))
+    return Omega, dOmega
+
+
+@dataclass
+class NodeInfo:
+    """Where a tree node sits in the model: its body and arc length along its rod."""
+
+    body: int
+    X: float
 
 
 def _placement(rpy_, xyz) -> tuple[np.ndarray, np.ndarray] | None:
@@ -115,11 +178,14 @@ def _placement(rpy_, xyz) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 class CosseratBody:
-    """Symbolic kinematics and static terms of a :class:`CosseratModel`.
+    """Symbolic kinematics and static terms of a :class:`CosseratModel`, on the shared
+    tree recursion (:mod:`softgen.symbolic.tree`).
 
     ``values`` maps every parameter name to a number or an SX symbol (symbols make the
     expressions functions of those parameters, for the regressor). ``q`` (default a new
-    symbol) is the configuration.
+    symbol) is the configuration. ``tree`` holds the nodes (root frame: the base
+    frame), ``inertials`` their (m, h, I_o), ``info`` their body and arc length,
+    ``ends`` the last node of each body.
     """
 
     def __init__(self, model: CosseratModel, values: Values, q=None):
@@ -127,11 +193,34 @@ class CosseratBody:
         self.values = dict(values)
         self.n = model.dof
         self.q = ca.SX.sym("q", self.n) if q is None else q
-        self.nodes: list[Node] = []
+        self._nodes: list[T.Node] = []
+        self.inertials: list[Inertial | None] = []
+        self.info: list[NodeInfo] = []
         self.ends: list[int] = []           # last node of each body
         self._build()
+        R0, _ = self.base_frame()
+        self.tree = T.Tree(self._nodes, nq=self.n, nv=self.n,
+                           gravity=ca.mtimes(R0.T, self.gravity_vector()))
+        self.frames = [self._frame(nd) for nd in self._nodes]
+
+    def _frame(self, nd: T.Node):
+        """(E, p, S) of a node at ``self.q``; S as one 6 × n_j matrix."""
+        qj = ca.vertcat(*[self.q[k] for k in nd.q])
+        E, p = nd.joint.placement(qj)
+        Sw, Su = nd.joint.motion(qj)
+        return E, p, ca.vertcat(Sw, Su)
+
+    @property
+    def nodes(self) -> list[T.Node]:
+        return self._nodes
 
     # -- construction ----------------------------------------------------------------
+    def _add(self, joint, parent: int, coords: range, inertia, info: NodeInfo) -> int:
+        self._nodes.append(T.Node(joint, parent, q=tuple(coords), v=tuple(coords)))
+        self.inertials.append(inertia)
+        self.info.append(info)
+        return len(self._nodes) - 1
+
     def _build(self) -> None:
         model = self.model
         parent = -1
@@ -146,9 +235,9 @@ class CosseratBody:
             m = model.resolve(name, self.values)
             c = ca.DM(off)
             pay = Inertial(m=m, h=m * c, I=m * (ca.dot(c, c) * ca.DM.eye(3) - ca.mtimes(c, c.T)))
-            last = self.nodes[parent]
-            last.inertia = pay if last.inertia is None else Inertial(
-                m=last.inertia.m + pay.m, h=last.inertia.h + pay.h, I=last.inertia.I + pay.I)
+            last = self.inertials[parent]
+            self.inertials[parent] = pay if last is None else Inertial(
+                m=last.m + pay.m, h=last.h + pay.h, I=last.I + pay.I)
 
     def strain(self, j: int, X: float):
         """ξ(X) of rod j (6 × 1 SX)."""
@@ -157,22 +246,6 @@ class CosseratBody:
         o = self.model.offsets()[j]
         Phi = strain_basis(rod, X)
         return ca.DM(XI_REF) + ca.mtimes(ca.DM(Phi), self.q[o:o + rod.dof])
-
-    def _step(self, j: int, rod: Rod, o: int, X0: float, X1: float):
-        """(Ω, ∂Ω/∂q_j) of the Magnus step from X0 to X1 (module docstring)."""
-        h = X1 - X0
-        qj = self.q[o:o + rod.dof]
-        if rod.order == 0:
-            Phi = ca.DM(strain_basis(rod, X0))
-            return h * (ca.DM(XI_REF) + ca.mtimes(Phi, qj)), h * Phi
-        a, b = X0 + h * (0.5 - _SQRT3 / 6), X0 + h * (0.5 + _SQRT3 / 6)
-        Pa, Pb = ca.DM(strain_basis(rod, a)), ca.DM(strain_basis(rod, b))
-        xa = ca.DM(XI_REF) + ca.mtimes(Pa, qj)
-        xb = ca.DM(XI_REF) + ca.mtimes(Pb, qj)
-        c = _SQRT3 / 12 * h * h
-        Omega = h / 2 * (xa + xb) + c * ca.mtimes(ad(xa), xb)
-        dOmega = h / 2 * (Pa + Pb) + c * (ca.mtimes(ad(xa), Pb) - ca.mtimes(ad(xb), Pa))
-        return Omega, dOmega
 
     def _rod_nodes(self, j: int, rod: Rod, o: int, parent: int) -> int:
         nodes, weights = gauss_legendre(rod.quadrature)
@@ -183,18 +256,11 @@ class CosseratBody:
         pre = _placement(rod.origin_rpy, rod.origin_xyz)
         points = [(x * L, w * L) for x, w in zip(nodes, weights)] + [(L, None)]
         for X, w in points:
-            Omega, dOmega = self._step(j, rod, o, X_prev, X)
-            E, p = exp_se3(Omega)
-            S = ca.mtimes(tangent(Omega), dOmega)
-            if pre is not None:
-                E0, p0 = ca.DM(pre[0]), ca.DM(pre[1])
-                E, p = ca.mtimes(E0, E), p0 + ca.mtimes(E0, p)
-                pre = None
             inert = None if w is None else Inertial(
                 m=rho * A * w, h=ca.DM.zeros(3), I=rho * w * ca.diag(ca.DM([2 * I, I, I])))
-            self.nodes.append(Node(parent=parent, body=j, coords=(o, o + rod.dof), E=E, p=p,
-                                   S=S, inertia=inert, X=X))
-            parent = len(self.nodes) - 1
+            parent = self._add(RodJoint(rod, X_prev, X, pre), parent, range(o, o + rod.dof),
+                               inert, NodeInfo(body=j, X=X))
+            pre = None
             X_prev = X
         return parent
 
@@ -202,22 +268,14 @@ class CosseratBody:
         link, model, v = body.link, self.model, self.values
         P = ca.DM(np.asarray(simplify_const(rpy(*link.origin_rpy))))
         origin = ca.vertcat(*[model.resolve(x, v) for x in link.origin_xyz])
-        axis = ca.DM(link.axis)
-        zero = ca.DM.zeros(3)
-        if link.joint == "revolute":
-            E = ca.mtimes(P, axis_rotation(tuple(link.axis), self.q[o]))
-            p, S = origin, ca.vertcat(axis, zero)
-        else:
-            E, p, S = P, origin + ca.mtimes(P, axis) * self.q[o], ca.vertcat(zero, axis)
         m = model.resolve(link.mass, v)
         c = ca.vertcat(*[model.resolve(x, v) for x in link.com])
         xx, yy, zz, xy, xz, yz = [model.resolve(x, v) for x in link.inertia]
         Ic = ca.vertcat(ca.horzcat(xx, xy, xz), ca.horzcat(xy, yy, yz), ca.horzcat(xz, yz, zz))
         Io = Ic + m * (ca.dot(c, c) * ca.DM.eye(3) - ca.mtimes(c, c.T)) \
             if link.inertia_about == "com" else Ic
-        self.nodes.append(Node(parent=parent, body=j, coords=(o, o + 1), E=E, p=p, S=S,
-                               inertia=Inertial(m=m, h=m * c, I=Io), X=0.0))
-        return len(self.nodes) - 1
+        return self._add(RigidJoint(link.joint, link.axis, P, origin), parent, range(o, o + 1),
+                         Inertial(m=m, h=m * c, I=Io), NodeInfo(body=j, X=0.0))
 
     # -- kinematics ------------------------------------------------------------------
     def base_frame(self) -> tuple[ca.DM, ca.DM]:
@@ -238,9 +296,9 @@ class CosseratBody:
     def _world_poses(self) -> list[tuple[ca.SX, ca.SX]]:
         R0, p0 = self.base_frame()
         out: list[tuple[ca.SX, ca.SX]] = []
-        for nd in self.nodes:
+        for nd, (E, p, _) in zip(self.nodes, self.frames):
             Rp, op = (R0, p0) if nd.parent < 0 else out[nd.parent]
-            out.append((ca.mtimes(Rp, nd.E), op + ca.mtimes(Rp, nd.p)))
+            out.append((ca.mtimes(Rp, E), op + ca.mtimes(Rp, p)))
         return out
 
     def tip_pose(self) -> tuple[ca.SX, ca.SX]:
@@ -263,14 +321,15 @@ class CosseratBody:
         J = ca.SX.zeros(6, self.n)
         for i in reversed(path):
             nd = self.nodes[i]
-            Et = nd.E.T
+            E, p, S = self.frames[i]
+            Et = E.T
             w, v = J[:3, :], J[3:, :]
             w2 = ca.mtimes(Et, w)
             # child linear velocity: Eᵀ (v + ω × p), column by column
-            v2 = ca.mtimes(Et, v - ca.mtimes(_hat(nd.p), w))
+            v2 = ca.mtimes(Et, v - ca.mtimes(_hat(p), w))
             J = ca.vertcat(w2, v2)
-            a, b = nd.coords
-            J[:, a:b] = J[:, a:b] + nd.S
+            for c, k in enumerate(nd.v):
+                J[:, k] = J[:, k] + S[:, c]
         return J
 
     def backbone_points(self, per_segment: int = 8) -> list:
@@ -290,7 +349,7 @@ class CosseratBody:
                 X_prev = 0.0
                 for i in range(1, per_segment + 1):
                     X = body.length * i / per_segment
-                    Omega, _ = self._step(j, body, off, X_prev, X)
+                    Omega, _ = magnus_step(body, self.q[off:off + body.dof], X_prev, X)
                     E, p = exp_se3(Omega)
                     o = o + ca.mtimes(R, p)
                     R = ca.mtimes(R, E)
@@ -314,14 +373,14 @@ class CosseratBody:
             if W[k] is None:
                 continue
             nd = self.nodes[k]
-            a, b = nd.coords
-            tau = ca.mtimes(nd.S.T, ca.vertcat(*W[k]))
-            for i in range(a, b):
-                Q[i] = Q[i] + tau[i - a]
+            E, p, S = self.frames[k]
+            tau = ca.mtimes(S.T, ca.vertcat(*W[k]))
+            for c, i in enumerate(nd.v):
+                Q[i] = Q[i] + tau[c]
             if nd.parent >= 0:
                 mom, f = W[k]
-                fp = ca.mtimes(nd.E, f)
-                wp = (ca.mtimes(nd.E, mom) + ca.cross(nd.p, fp), fp)
+                fp = ca.mtimes(E, f)
+                wp = (ca.mtimes(E, mom) + ca.cross(p, fp), fp)
                 prev = W[nd.parent]
                 W[nd.parent] = wp if prev is None else (prev[0] + wp[0], prev[1] + wp[1])
         return ca.vertcat(*Q)
@@ -333,11 +392,11 @@ class CosseratBody:
         g = self.gravity_vector(values)
         wrenches: dict[int, tuple] = {}
         if gravity:
-            for k, nd in enumerate(self.nodes):
-                if nd.inertia is None:
+            for k, inert in enumerate(self.inertials):
+                if inert is None:
                     continue
-                f = nd.inertia.m * ca.mtimes(poses[k][0].T, g)
-                wrenches[k] = (ca.cross(nd.inertia.h, ca.mtimes(poses[k][0].T, g)), f)
+                gk = ca.mtimes(poses[k][0].T, g)
+                wrenches[k] = (ca.cross(inert.h, gk), inert.m * gk)
         if wrench is not None:
             k = len(self.nodes) - 1
             Rt = poses[k][0].T
@@ -407,10 +466,6 @@ class CosseratBody:
 
     def coordinate_names(self) -> list[str]:
         return self.model.joint_names
-
-
-def strain_names() -> tuple[str, ...]:
-    return STRAINS
 
 
 def statics_functions(body: CosseratBody, name: str) -> tuple[ca.Function, ca.Function]:
