@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 # The builder modules register their capabilities on import; nothing else is used here.
+import softgen.bundles.cosserat  # noqa: F401
 import softgen.bundles.rigid  # noqa: F401
 import softgen.bundles.soft  # noqa: F401
 from softgen.bundles.common import (DEFAULT_OPTIONS, BundleOptions, identity_bytes, model_chain,
@@ -28,8 +29,10 @@ from softgen.core.errors import BundleError, ModelError
 from softgen.core.paths import GENERATED_DIR
 from softgen.modelfile.model import MAX_NAME, RobotModel
 from softgen.modelfile.load import list_models, load_model, shipped_model_file
+from softgen.modelfile.cosserat import CosseratModel
 from softgen.modelfile.soft import SoftModel
 from softgen.runtime.library import Bundle
+from softgen.symbolic.cosserat_dynamics import CosseratDynamics
 from softgen.symbolic.pcc import SoftDynamics
 from softgen.symbolic.rigid import RigidDynamics
 from softgen.modelfile.limits import check_expression_size
@@ -52,7 +55,7 @@ def bundle_spec(model: RobotModel | SoftModel,
     # Refuse, in microseconds and one line, a model whose derivation would run for many
     # minutes and gigabytes (a 60-link chain, a 40-segment PCC body; issue 23).
     check_expression_size(model)
-    if isinstance(model, SoftModel):
+    if isinstance(model, (SoftModel, CosseratModel)):
         return _cached_soft_spec(model.source_text(), model.path, options, model)
     return _assemble(model, options)
 
@@ -80,6 +83,7 @@ def _cached_soft_spec(text: str, path, options: BundleOptions, model: SoftModel)
 
 def _assemble(model, options: BundleOptions) -> BundleSpec:
     dyn = SoftDynamics(model, route=options.route) if isinstance(model, SoftModel) \
+        else CosseratDynamics(model) if isinstance(model, CosseratModel) \
         else RigidDynamics(model, route=options.route)
     ctx = Context(model, options, dyn)
     extra = {"dof": model.dof, **model_source(model),
@@ -225,7 +229,7 @@ def generate(name_or_path: str | Path | RobotModel | SoftModel,
     refused for the shipped ``generated/`` (it would replace that bundle), and so is a
     chain cut out of a shipped file; write it elsewhere with ``out_root``.
     """
-    model = name_or_path if isinstance(name_or_path, (RobotModel, SoftModel)) \
+    model = name_or_path if isinstance(name_or_path, (RobotModel, SoftModel, CosseratModel)) \
         else load_model(name_or_path)
     out_root = Path(out_root)
     shipped = shipped_model_file(model.name)

@@ -28,9 +28,10 @@ directly (each overrides the value from E, G; shear without a correction factor)
 ``damping`` (Pa·s, default 0: a Kelvin–Voigt viscosity η, the section's damping
 matrix η·diag(J, I, I, A, A, A)), ``strains`` (the active strains by name, at least
 one), ``order`` (0: PCS, default; up to :data:`MAX_ORDER`: GVS), ``quadrature``
-(Gauss–Legendre points per segment for the mass, gravity and tendon integrals, default
-``order + 3``), ``origin_xyz``, ``origin_rpy_deg`` (placement of the segment's base in
-the previous body's end frame, default 0), ``name``.
+(Gauss–Legendre points per segment for the mass, gravity and tendon integrals; default
+2 for PCS, exact for polynomials of degree 3, and ``order + 3`` for GVS, whose Magnus
+steps run between these points), ``origin_xyz``, ``origin_rpy_deg`` (placement of the
+segment's base in the previous body's end frame, default 0), ``name``.
 
 A rigid ``[[segments]]`` (a link of today's spatial model files): ``joint``
 (``"revolute"`` or ``"prismatic"``), ``axis``, ``origin_xyz``, ``origin_rpy``
@@ -294,7 +295,7 @@ class _CosseratParser(_Parser):
         if isinstance(order, bool) or not isinstance(order, int) or not 0 <= order <= MAX_ORDER:
             raise self.fail(f"{key}.order", f"expected an integer in [0, {MAX_ORDER}] (0: "
                             f"piecewise constant strain), got {order!r}")
-        quad = raw.get("quadrature", order + 3)
+        quad = raw.get("quadrature", 2 if order == 0 else order + 3)
         if isinstance(quad, bool) or not isinstance(quad, int) or \
                 not 1 <= quad <= MAX_QUADRATURE:
             raise self.fail(f"{key}.quadrature", f"expected an integer in [1, "
