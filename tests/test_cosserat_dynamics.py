@@ -148,6 +148,21 @@ def test_christoffel_symbols_of_B(dyn, funs):
     assert np.abs(Cx @ y - Cy @ x).max() < 1e-12 * max(1.0, np.abs(Cx).max())
 
 
+def test_coriolis_is_the_lagrangian_of_B(dyn):
+    """C q̇ = Ḃ q̇ − ½ ∂(q̇ᵀ B q̇)/∂q with B from the composite-rigid-body algorithm (an
+    independent route: C comes from the recursion's body forces)."""
+    d = dyn
+    B = d.inertia()
+    ref = ca.jtimes(ca.mtimes(B, d.qd), d.q, d.qd) - 0.5 * ca.gradient(
+        ca.dot(d.qd, ca.mtimes(B, d.qd)), d.q)
+    f = ca.Function("c", [d.q, d.qd], [ca.mtimes(d.coriolis(), d.qd) - ref, ref])
+    rng = np.random.default_rng(4)
+    for s in NEAR_ZERO + (0.5,):
+        e, r = (np.array(v) for v in f(rng.normal(size=d.model.dof) * s,
+                                       rng.normal(size=d.model.dof)))
+        assert np.abs(e).max() < 1e-12 * max(1.0, np.abs(r).max())
+
+
 @pytest.mark.parametrize("scale", NEAR_ZERO + (0.3,))
 def test_forward_dynamics_by_articulated_solve(dyn, funs, scale):
     rng = np.random.default_rng(5)
