@@ -62,6 +62,7 @@ from softgen.symbolic import tree as T
 from softgen.symbolic.frames import Inertial, axis_rotation, rpy, simplify_const
 from softgen.symbolic.pcc import gauss_legendre
 from softgen.symbolic.se3 import ad, exp_se3, hat as _hat, tangent
+from softgen.symbolic.tree_aba import applied_forces
 
 Values = Mapping[str, "ca.SX | float"]
 
@@ -362,28 +363,8 @@ class CosseratBody:
 
     # -- static and elastic terms ------------------------------------------------------
     def _backward(self, wrenches: dict[int, tuple]) -> ca.SX:
-        """Σ_k S_kᵀ W_k with W_k the sum of the given node wrenches (moment, force; node
-        frame) of node k and everything after it."""
-        n = len(self.nodes)
-        W: list = [None] * n
-        for k, w in wrenches.items():
-            W[k] = w
-        Q = [ca.SX(0)] * self.n
-        for k in reversed(range(n)):
-            if W[k] is None:
-                continue
-            nd = self.nodes[k]
-            E, p, S = self.frames[k]
-            tau = ca.mtimes(S.T, ca.vertcat(*W[k]))
-            for c, i in enumerate(nd.v):
-                Q[i] = Q[i] + tau[c]
-            if nd.parent >= 0:
-                mom, f = W[k]
-                fp = ca.mtimes(E, f)
-                wp = (ca.mtimes(E, mom) + ca.cross(p, fp), fp)
-                prev = W[nd.parent]
-                W[nd.parent] = wp if prev is None else (prev[0] + wp[0], prev[1] + wp[1])
-        return ca.vertcat(*Q)
+        """Σ_k J_kᵀ W_k for wrenches (moment, force) at node origins, node frames."""
+        return applied_forces(self.tree, self.q, wrenches)
 
     def statics_terms(self, wrench=None, *, gravity: bool = True, values: Values | None = None):
         """Σ_k J_kᵀ (weights) + J_tipᵀ w: the generalised force of gravity and of a tip

@@ -36,6 +36,9 @@ e.g. γhD + γ²h²K of an implicit step, or rotor inertias) enters D only.
 
 D is symmetric positive definite (B + Δ is): LDLᵀ without pivoting, one factorisation
 per group for its d + 6 right-hand sides. Cost O(Σ_groups N d (d + 6)) = O(n).
+
+:func:`applied_forces` gives Σ_k J_kᵀ W_k for wrenches applied at nodes (tip loads,
+point forces) by one backward sweep.
 """
 from __future__ import annotations
 
@@ -47,7 +50,7 @@ from softgen.symbolic.frames import Inertial
 from softgen.symbolic.se3 import hat
 from softgen.symbolic.tree import Tree
 
-__all__ = ["articulated_solve", "groups", "spatial_matrix"]
+__all__ = ["articulated_solve", "groups", "spatial_matrix", "applied_forces"]
 
 
 def spatial_matrix(inert: Inertial) -> ca.SX:
@@ -203,3 +206,30 @@ def articulated_solve(tree: Tree, inertials: Sequence[Inertial | None], q, r,
                 a = a + ca.mtimes(S, xdd)
             acc[i] = a
     return ca.vertcat(*[ca.SX(0) if e is None else e for e in x])
+
+
+def applied_forces(tree: Tree, q, wrenches: dict) -> ca.SX:
+    """Σ_k J_kᵀ W_k: the generalised force of wrenches W_k = (moment, force) applied at node
+    k's origin, in node k's coordinates, by one backward sweep (O(n))."""
+    nodes = tree.nodes
+    W: list = [None] * len(nodes)
+    for k, w in wrenches.items():
+        W[k] = (ca.SX(w[0]), ca.SX(w[1]))
+    Q = [ca.SX(0)] * tree.nv
+    for k in reversed(range(len(nodes))):
+        if W[k] is None:
+            continue
+        nd = nodes[k]
+        qj = ca.vertcat(*[q[i] for i in nd.q]) if nd.q else ca.SX(0, 1)
+        E, p = nd.joint.placement(qj)
+        if nd.v:
+            Sw, Su = nd.joint.motion(qj)
+            t = ca.mtimes(ca.SX(Sw).T, W[k][0]) + ca.mtimes(ca.SX(Su).T, W[k][1])
+            for c, i in enumerate(nd.v):
+                Q[i] = Q[i] + t[c]
+        if nd.parent >= 0:
+            fp = ca.mtimes(E, W[k][1])
+            wp = (ca.mtimes(E, W[k][0]) + ca.cross(p, fp), fp)
+            prev = W[nd.parent]
+            W[nd.parent] = wp if prev is None else (prev[0] + wp[0], prev[1] + wp[1])
+    return ca.vertcat(*Q)
