@@ -9,7 +9,8 @@ and the known torque. ``cosserat_statics``: the statics residual and its Jacobia
 """
 from __future__ import annotations
 
-from softgen.bundles.registry import REGISTRY, Condition, Context, Part
+from softgen.bundles.registry import (HAS_REGRESSOR, REGISTRY, Condition, Context, Part,
+                                      diagram_functions, diagram_manifest)
 from softgen.codegen.generate import Generated
 from softgen.modelfile.cosserat import STRAINS, CosseratModel, Rod
 
@@ -89,3 +90,39 @@ def cosserat_statics(ctx: Context) -> Part:
                  Generated(jac, "dr/dq and dr/dlam of the statics residual (Newton with load "
                                 "continuation)")],
                 {"cosserat": {"statics": {"residual": res.name(), "jacobian": jac.name()}}})
+
+
+def _has_inputs(model) -> str | None:
+    if getattr(model, "actuators", ()):
+        return None
+    where = getattr(model, "path", None) or model.name
+    return f"{where}: no [[actuators]] (needs tendons, chambers or joint torques)"
+
+
+HAS_INPUTS = Condition("actuated (tendons, chambers or joint torques in [[actuators]])",
+                       _has_inputs)
+
+
+@REGISTRY.capability("cosserat_tip_control", layer="control",
+                     needs=(COSSERAT, HAS_INPUTS, HAS_REGRESSOR),
+                     doc="task-space adaptive tip control (Theorem 10's law with sigma = J+ s) "
+                         "with one-sided allocation, the plant (ROS2), and their sampled loop "
+                         "as a diagram (issue 33)")
+def cosserat_tip_control(ctx: Context) -> Part:
+    from softgen.control.cosserat import closed_loop, plant_fun, tip_adaptive_fun
+    dyn, opts = ctx.dyn, ctx.options
+    step = tip_adaptive_fun(dyn)
+    plant = plant_fun(dyn, substeps=opts.loop_substeps)
+    d = closed_loop(dyn, dt=opts.loop_dt)
+    steps = opts.loop_steps
+    fns = [Generated(step, "one sample of the task-space adaptive tip law: pi_hat update, "
+                           "one-sided input allocation (feasible = 1 when the positive "
+                           "null-space offset exists)"),
+           Generated(plant, f"{opts.loop_substeps} ROS2 step(s) of the rod over dt, inputs "
+                            "and tip wrench held")]
+    fns += diagram_functions(d, steps, "tip control (controller + plant)")
+    return Part(fns, {"closed_loops": {"tip_control": diagram_manifest(d, steps)},
+                      "cosserat": {"tip_control": {"step": step.name(),
+                                                    "inputs": step.name_in(),
+                                                    "outputs": step.name_out(),
+                                                    "plant": plant.name()}}})

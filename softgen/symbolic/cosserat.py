@@ -61,7 +61,7 @@ from softgen.modelfile.cosserat import CosseratModel, Rigid, Rod
 from softgen.symbolic import tree as T
 from softgen.symbolic.frames import Inertial, axis_rotation, rpy, simplify_const
 from softgen.symbolic.pcc import gauss_legendre
-from softgen.symbolic.se3 import ad, exp_se3, hat as _hat, tangent
+from softgen.symbolic.se3 import ad, exp_se3, exp_tangent_scaled, hat as _hat, tangent
 from softgen.symbolic.tree_aba import applied_forces
 
 Values = Mapping[str, "ca.SX | float"]
@@ -111,9 +111,17 @@ class RodJoint(T.Joint):
         """(Ω, ∂Ω/∂q_j) of the Magnus step (module docstring)."""
         return magnus_step(self.rod, qj, self.X0, self.X1)
 
+    def _pcs(self, qj):
+        """PCS: (R, p, T) with ξ's matrices shared by the segment's nodes."""
+        Phi = ca.DM(strain_basis(self.rod, self.X0))
+        return exp_tangent_scaled(self.X1 - self.X0, ca.DM(XI_REF) + ca.mtimes(Phi, qj))
+
     def placement(self, qj):
-        Omega, _ = self.step(qj)
-        E, p = exp_se3(Omega)
+        if self.rod.order == 0:
+            E, p, _ = self._pcs(qj)
+        else:
+            Omega, _ = self.step(qj)
+            E, p = exp_se3(Omega)
         if self.pre is not None:
             E0, p0 = ca.DM(self.pre[0]), ca.DM(self.pre[1])
             E, p = ca.mtimes(E0, E), p0 + ca.mtimes(E0, p)
@@ -121,7 +129,8 @@ class RodJoint(T.Joint):
 
     def motion(self, qj):
         Omega, dOmega = self.step(qj)
-        S = ca.mtimes(tangent(Omega), dOmega)
+        Tm = self._pcs(qj)[2] if self.rod.order == 0 else tangent(Omega)
+        S = ca.mtimes(Tm, dOmega)
         return S[:3, :], S[3:, :]
 
 

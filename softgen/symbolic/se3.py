@@ -100,3 +100,33 @@ def tangent(Omega) -> ca.SX:
            + 2 * ca.dot(om, v) * (-c["dcosc"] * W + c["dnu"] * W2))
     Z = ca.SX.zeros(3, 3)
     return ca.vertcat(ca.horzcat(Tw, Z), ca.horzcat(Tvw, Tw))
+
+
+def exp_tangent_scaled(h: float, xi) -> tuple[ca.SX, ca.SX, ca.SX]:
+    """(R, p, T) of exp(h ξ) and T(h ξ) for a constant h, the matrices of ξ factored out.
+
+    The same values as :func:`exp_se3` and :func:`tangent` at Ω = h ξ, written so that
+    every node of a piecewise-constant-strain segment (the same ξ, its own h) shares Ŵ,
+    Ŵ², V̂ and ŴV̂ + V̂Ŵ of ξ and forms only scalar coefficients (powers of h times the
+    smooth functions of w = h²|ω|²): CasADi's common-subexpression elimination then
+    builds the matrices once per segment instead of once per node.
+    """
+    om, v = xi[:3], xi[3:]
+    w = h * h * ca.dot(om, om)
+    c = coefficients(w, derivatives=True)
+    W, V = hat(om), hat(v)
+    W2 = ca.mtimes(W, W)
+    WV = ca.mtimes(W, V)
+    WVs = WV + WV.T
+    Wv = ca.cross(om, v)
+    W2v = ca.cross(om, Wv)
+    I3 = ca.SX.eye(3)
+    R = I3 + (h * c["sinc"]) * W + (h * h * c["cosc"]) * W2
+    p = h * v + (h * h * c["cosc"]) * Wv + (h ** 3 * c["nu"]) * W2v
+    Tw = I3 - (h * c["cosc"]) * W + (h * h * c["nu"]) * W2
+    ov = 2 * h * h * ca.dot(om, v)
+    Tvw = (-(h * c["cosc"]) * V + (h * h * c["nu"]) * WVs
+           + ov * (-(h * c["dcosc"]) * W + (h * h * c["dnu"]) * W2))
+    Z = ca.SX.zeros(3, 3)
+    return R, p, ca.vertcat(ca.horzcat(Tw, Z), ca.horzcat(Tvw, Tw))
+
