@@ -135,8 +135,11 @@ def test_identify_stiffness_from_static_log(rod6):
 
 @pytest.mark.slow
 def test_identify_from_a_dynamic_log(rod6):
-    """A simulated log of the rod under sinusoidal tensions (ROS2 at 1 ms): the bending
-    stiffnesses back to a few percent after filtering and differentiation."""
+    """A simulated log of the rod under sinusoidal tensions (ROS2 at 1 ms), filtered at
+    30 Hz and differentiated: the section stiffnesses and densities back to a few
+    percent (measured: EI, EA within 0.3 %, GA, GJ within 2.5 %, ρ within 1.2 %). The
+    viscosities are barely excited by these slow tensions (off by up to 16 %) and not
+    checked."""
     d = rod6
     steps = 3000
     t = np.arange(steps) * 1e-3
@@ -146,6 +149,9 @@ def test_identify_from_a_dynamic_log(rod6):
                                         np.zeros((6, steps)), 1e-3)).T
     ident = identify(d, t, X[:, :d.model.dof], U, cutoff=30.0)
     pi = np.asarray(d.parameter_nominal)
+    tol = {"EI": 0.01, "EA": 0.01, "GA": 0.04, "GJ": 0.04, "rho": 0.03}
     for k, nm in enumerate(ident.names):
-        if nm.startswith("EI"):
-            assert abs(ident.pi_hat[k] / pi[k] - 1) < 0.05, (nm, ident.pi_hat[k] / pi[k])
+        for prefix, bound in tol.items():
+            if nm.startswith(prefix):
+                assert abs(ident.pi_hat[k] / pi[k] - 1) < bound, (nm, ident.pi_hat[k] / pi[k])
+    assert ident.residual < 0.01

@@ -9,7 +9,7 @@ so a log of q and u (sampled at dt) gives π by least squares once q̇ and q̈ a
 As the rigid identification (:mod:`softgen.app.identify.rigid`) does, both sides are
 filtered by the same zero-phase Butterworth filter (``filtfilt``, order 4) so that the
 filter's delay and attenuation cancel, and q̇, q̈ are central differences of the filtered
-q. Rows are scaled per coordinate by the spread of the right-hand side (a stretch
+q. Rows are scaled per coordinate by the size of its regressor rows (a stretch
 coordinate's forces are 1e4 times a bend's), and the columns by their norm before the
 solve (densities ~1e3 beside EI ~1e-2). A static log (held inputs, the rod at rest) is
 the special case q̇ = q̈ = 0: stiffness and gravity columns only, for which
@@ -56,8 +56,14 @@ def _functions(dyn: CosseratDynamics):
 def _solve(dyn, W, y, samples) -> Identification:
     n = dyn.model.dof
     Wm, ym = W.reshape(-1, W.shape[-1]), y.reshape(-1)
-    # rows: per coordinate, by the spread of its right-hand side
-    scale = np.std(y.reshape(-1, n), axis=0) + 1e-300
+    # rows: per coordinate, by the size of its forces (the columns' scales taken out
+    # first: a column's unit must not weigh a coordinate); a coordinate no force acts
+    # on (a torsion the tendons do not twist) still holds its elastic balance.
+    cs = np.linalg.norm(Wm, axis=0)
+    cs[cs == 0] = 1.0
+    rows = np.linalg.norm(Wm / cs, axis=1).reshape(-1, n)
+    scale = np.sqrt(np.mean(rows ** 2, axis=0))
+    scale[scale == 0] = 1.0
     rs = np.tile(1.0 / scale, len(ym) // n)
     Wm, ym = Wm * rs[:, None], ym * rs
     cn = np.linalg.norm(Wm, axis=0)
