@@ -16,8 +16,8 @@ Sections (``--only NAME`` runs one):
              per call), side by side in one run. Needs jax and jsrm (skipped otherwise).
 
 Times are the median over repeats of the thread CPU time per call
-(``CLOCK_THREAD_CPUTIME_ID``; JAX: ``time.thread_time`` around each call, which includes
-its dispatch), at -O3, inputs from a realistic state (not random), with the load average
+(``CLOCK_THREAD_CPUTIME_ID``; JAX: the process CPU time around each call, which includes
+its dispatch, ``time.process_time``: every thread of the process, XLA's too), at -O3, inputs from a realistic state (not random), with the load average
 printed beside them. Run on an idle machine for final figures:
 
     .venv/bin/python benchmarks/cosserat_speed.py [--only control|scaling|jsrm]
@@ -108,7 +108,8 @@ def time_c(f: ca.Function, inputs: list, *, calls: int = 2000, repeats: int = 7,
 
 
 def load() -> str:
-    return "load average %.2f %.2f %.2f" % os.getloadavg()
+    a, b, c = os.getloadavg()
+    return f"load average {a:.2f} {b:.2f} {c:.2f}"
 
 
 # --------------------------------------------------------------------------- sections
@@ -237,14 +238,14 @@ def jsrm() -> None:
     fd(y).block_until_ready()                    # compile
     times = []
     for _ in range(7):
-        t0 = time.thread_time()
+        t0 = time.process_time()         # every thread of the process: XLA's too
         for _ in range(200):
             fd(y).block_until_ready()
-        times.append((time.thread_time() - t0) / 200)
+        times.append((time.process_time() - t0) / 200)
     t_jsrm = float(np.median(times)) * 1e9
     print(f"## jsrm: planar PCS, 3 segments, 9 DoF, forward dynamics ({load()})")
     print(f"softgen C: {f.n_instructions()} instructions, {t_ours / 1000:.2f} µs per call")
-    print(f"jsrm jax.jit CPU: {t_jsrm / 1000:.1f} µs per call (thread CPU time, with "
+    print(f"jsrm jax.jit CPU: {t_jsrm / 1000:.1f} µs per call (process CPU time, with "
           f"dispatch); ratio {t_jsrm / t_ours:.0f}x")
 
 

@@ -9,6 +9,8 @@ and the known torque. ``cosserat_statics``: the statics residual and its Jacobia
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 from softgen.bundles.registry import (HAS_REGRESSOR, REGISTRY, Condition, Context, Part,
                                       diagram_functions, diagram_manifest)
 from softgen.codegen.generate import Generated
@@ -21,6 +23,10 @@ def _cosserat(model) -> str | None:
     where = getattr(model, "path", None) or model.name
     return f"{where}: model.kind = {model.kind!r}, not a Cosserat rod (kind = \"cosserat\")"
 
+
+#: Compiler level of the functions no loop calls per sample (formed matrices, statics
+#: Jacobian, diagnostics) and of the loop's step: they are most of the compile time.
+O1 = "-O1"
 
 COSSERAT = Condition("Cosserat rod or hybrid rod/rigid chain (model.kind = cosserat)",
                      _cosserat)
@@ -48,14 +54,14 @@ def cosserat_dynamics(ctx: Context) -> Part:
     dyn = ctx.dyn
     fns = [
         Generated(dyn.inertia_fun(), "inertia matrix B(q) by the composite-rigid-body "
-                                     "algorithm over the rods' quadrature nodes"),
+                                     "algorithm over the rods' quadrature nodes", O1),
         Generated(dyn.coriolis_fun(), "Coriolis matrix C(q, qd), Christoffel (Bdot - 2C "
-                                      "skew)"),
+                                      "skew)", O1),
         Generated(dyn.gravity_fun(), "gravity vector G(q) (gravity only, no elastic term)"),
         Generated(dyn.elastic_fun(), "elastic and damping forces K q and D qd (Legendre "
                                      "strain basis: diagonal)"),
         Generated(dyn.regressor_fun(), "regressor: Y pi = B qdd_r + C qd_r + G + K q + D qd "
-                                       "(minus the known torque)"),
+                                       "(minus the known torque)", O1),
         Generated(dyn.regressor_times_fun(), "Y pi without forming Y (the recursion at "
                                              "delta = A pi)"),
         Generated(dyn.regressor_transpose_times_fun(), "Y^T s without forming Y (forward psi "
@@ -68,9 +74,10 @@ def cosserat_dynamics(ctx: Context) -> Part:
         Generated(dyn.actuation_fun(), "actuation matrix A(q): tendons -dl/dq, chambers "
                                        "area dl/dq, joint torques e_j"),
         Generated(dyn.tip_fun(), "tip position p, rotation R and 6 x n world Jacobian J "
-                                 "(angular rows, then the tip point's linear velocity)"),
-        Generated(dyn.backbone_fun(), "backbone points (3 x N): base, 8 per rod, link origins"),
-        Generated(dyn.energy_fun(), "kinetic and potential (gravity + elastic) energy"),
+                                 "(angular rows, then the tip point's linear velocity)", O1),
+        Generated(dyn.backbone_fun(), "backbone points (3 x N): base, 8 per rod, link origins",
+                  O1),
+        Generated(dyn.energy_fun(), "kinetic and potential (gravity + elastic) energy", O1),
         Generated(dyn.physical_to_base_fun, "map from the uncertain physical parameters "
                                             f"({', '.join(ctx.model.uncertain)}) to pi"),
     ]
@@ -88,7 +95,7 @@ def cosserat_statics(ctx: Context) -> Part:
     return Part([Generated(res, "statics residual r = K q + lam (G(q) - A(q) u - J(q)^T w), "
                                 "w = (force, moment) on the tip, world frame"),
                  Generated(jac, "dr/dq and dr/dlam of the statics residual (Newton with load "
-                                "continuation)")],
+                                "continuation)", O1)],
                 {"cosserat": {"statics": {"residual": res.name(), "jacobian": jac.name()}}})
 
 
@@ -120,7 +127,10 @@ def cosserat_tip_control(ctx: Context) -> Part:
                            "null-space offset exists)"),
            Generated(plant, f"{opts.loop_substeps} ROS2 step(s) of the rod over dt, inputs "
                             "and tip wrench held")]
-    fns += diagram_functions(d, steps, "tip control (controller + plant)")
+    # The loop's step at -O1, as the PCC bundles' Theorem 10 loops (bundle.O1_CAPABILITIES):
+    # it is most of the bundle's compile time.
+    fns += [replace(g, optimization=O1)
+            for g in diagram_functions(d, steps, "tip control (controller + plant)")]
     return Part(fns, {"closed_loops": {"tip_control": diagram_manifest(d, steps)},
                       "cosserat": {"tip_control": {"step": step.name(),
                                                     "inputs": step.name_in(),

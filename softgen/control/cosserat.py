@@ -48,7 +48,6 @@ The plant (:func:`plant_fun`)
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import casadi as ca
@@ -160,7 +159,7 @@ def tip_adaptive_fun(dyn: CosseratDynamics, axes: tuple[int, ...] | None = None
     :data:`TIP_OUTPUTS` (``s`` the task sliding variable, ``x`` the tip, ``feasible`` 1
     where the one-sided allocation exists)."""
     axes = task_axes(dyn) if axes is None else tuple(axes)
-    k, n, r = len(axes), dyn.model.dof, len(dyn.parameter_names)
+    k, r = len(axes), len(dyn.parameter_names)
     x, J, Jd_qd = tip_task(dyn, axes)
     q, qd = dyn.q, dyn.qd
     pi_hat, kpi = ca.SX.sym("pi_hat", r), ca.SX.sym("kpi", r)
