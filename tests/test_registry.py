@@ -23,6 +23,8 @@ from softgen.control.pneumatic import pneumatic_arm
 from softgen.control.pneumatic_loop import closed_loop
 from softgen.core.errors import BundleError
 from softgen.modelfile.model import RobotModel
+from softgen.modelfile.cosserat import CosseratModel
+from softgen.modelfile.soft import SoftModel
 from softgen.modelfile.load import list_models, load_model
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 from softgen.symbolic.rigid import RigidDynamics
@@ -72,7 +74,10 @@ def test_shipped_models_get_what_their_files_declare():
         rigid = isinstance(m, RobotModel)
         kind = m.actuator_type if rigid else None
         assert ("rigid_dynamics" in got) == ("slotine_li" in got) == rigid, name
-        assert ("soft_dynamics" in got) == ("theorem10" in got) == (not rigid), name
+        soft = isinstance(m, SoftModel)
+        assert ("soft_dynamics" in got) == ("theorem10" in got) == soft, name
+        assert ("cosserat_dynamics" in got) == ("cosserat_statics" in got) == \
+            isinstance(m, CosseratModel), name
         assert ("augmented_map" in got) == (m.kind == "pcc-3d"), name
         for cap in ("mckibben_actuators", "pneumatic_control", "feedback_linearization"):
             assert (cap in got) == (kind == "mckibben"), (name, cap)

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 # The builder modules register their capabilities on import; nothing else is used here.
+import softgen.bundles.cosserat  # noqa: F401
 import softgen.bundles.floating  # noqa: F401
 import softgen.bundles.rigid  # noqa: F401
 import softgen.bundles.soft  # noqa: F401
@@ -32,8 +33,10 @@ from softgen.core.errors import BundleError, ModelError
 from softgen.core.paths import GENERATED_DIR
 from softgen.modelfile.model import MAX_NAME, RobotModel
 from softgen.modelfile.load import list_models, load_model, shipped_model_file
+from softgen.modelfile.cosserat import CosseratModel
 from softgen.modelfile.soft import SoftModel
 from softgen.runtime.library import Bundle
+from softgen.symbolic.cosserat_dynamics import CosseratDynamics
 from softgen.symbolic.pcc import SoftDynamics
 from softgen.symbolic.rigid import RigidDynamics
 from softgen.modelfile.limits import check_expression_size
@@ -63,7 +66,7 @@ def bundle_spec(model: RobotModel | SoftModel,
     # Refuse, in microseconds and one line, a model whose derivation would run for many
     # minutes and gigabytes (a 60-link chain, a 40-segment PCC body; issue 23).
     check_expression_size(model)
-    if isinstance(model, SoftModel):
+    if isinstance(model, (SoftModel, CosseratModel)):
         return _cached_soft_spec(model.source_text(), model.path, options, model)
     return _assemble(model, options)
 
@@ -113,6 +116,7 @@ def derivation(model: RobotModel | SoftModel,
     ctx = _DERIVATIONS.pop(key, None)
     if ctx is None or (key[0] == "object" and ctx.model is not model):
         dyn = SoftDynamics(model, route=options.route) if isinstance(model, SoftModel) \
+            else CosseratDynamics(model) if isinstance(model, CosseratModel) \
             else RigidDynamics(model, route=options.route)
         ctx = Context(model, options, dyn)
     _DERIVATIONS[key] = ctx
@@ -281,7 +285,7 @@ def generate(name_or_path: str | Path | RobotModel | SoftModel,
     refused for the shipped ``generated/`` (it would replace that bundle), and so is a
     chain cut out of a shipped file; write it elsewhere with ``out_root``.
     """
-    model = name_or_path if isinstance(name_or_path, (RobotModel, SoftModel)) \
+    model = name_or_path if isinstance(name_or_path, (RobotModel, SoftModel, CosseratModel)) \
         else load_model(name_or_path)
     out_root = Path(out_root)
     shipped = shipped_model_file(model.name)

@@ -81,8 +81,13 @@ def actuator_record(model) -> list[dict]:
     """The manifest's ``actuators``: per declared actuator its joint, type, drive, each
     side's law (text, constants) with the properties judged once at load, and the pair's
     stiffness range under its input limits (:mod:`softgen.modelfile.laws`)."""
-    out = []
+    out: list[dict] = []
     links = getattr(model, "links", None)
+    if links is None:
+        # A Cosserat rod's tendons, chambers and torques (their input map is part of the
+        # rod's dynamics: no law to record).
+        return [{"name": a.name, "type": a.type, "one_sided": a.one_sided,
+                 "max": a.max} for a in getattr(model, "actuators", ()) or ()]
     for a in getattr(model, "actuators", ()) or ():
         rec: dict = {"joint": links[a.joint].name if links else a.joint, "type": a.type,
                      "drive": a.drive, "family": a.family}

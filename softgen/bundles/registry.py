@@ -427,7 +427,11 @@ class Decision:
 
 def _unused_actuators(model, results) -> tuple[str, ...]:
     """Warnings for declared actuators (other than direct torques) that no granted
-    capability models: their laws are in the file, but nothing generated uses them."""
+    capability models: their laws are in the file, but nothing generated uses them.
+    A Cosserat rod's tendons and chambers are its input map A(q), part of its dynamics:
+    never unused."""
+    if not hasattr(model, "links"):
+        return ()
     acts = [a for a in _acts(model) if a.drive != "torque"]
     if not acts or any(c.uses_actuators and why is None for c, why in results):
         return ()

@@ -26,7 +26,7 @@ from softgen.core.stop import Stop, exit_status, stopping
 VERBS = {"list": "list", "generate": "generate", "info": "info", "reproduce": "reproduce",
          "bench": "bench", "estimate": "estimate", "export": "export", "sweep": "sweep",
          "identify": "identify",
-         "plot": "plot", "observer": "observer", "check": "check"}
+         "plot": "plot", "observer": "observer", "check": "check", "statics": "statics"}
 
 
 def build_parser() -> argparse.ArgumentParser:

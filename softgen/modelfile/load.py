@@ -14,6 +14,7 @@ from softgen.core.errors import ModelError
 from softgen.core.paths import MODEL_SUFFIXES, MODELS_DIR  # noqa: F401  (re-exported)
 from softgen.modelfile.model import (MAX_NAME, FileReader, RobotModel, _Parser,
                                      read_model_text)
+from softgen.modelfile.cosserat import CosseratModel, is_cosserat, parse_cosserat_model
 from softgen.modelfile.soft import SoftModel, is_soft, parse_soft_model
 from softgen.modelfile.urdf import chain_joints, parse_urdf
 
@@ -108,12 +109,14 @@ def load_model(name_or_path: str | Path, *, root: str | None = None,
             raise ModelError(f"{path}: model.floating: --floating on a TOML model needs the "
                              "file to declare its base body: floating = true in [model] and "
                              "[base] mass, com and inertia")
+    if is_cosserat(data):
+        return parse_cosserat_model(path, data)
     return _Parser(path).parse(data)
 
 def as_model(ref):
-    """A loaded model (``RobotModel`` or ``SoftModel``, e.g. a URDF chain cut by
-    ``--root``/``--tip``) as it is; a name or path through :func:`load_model`."""
-    return ref if isinstance(ref, (RobotModel, SoftModel)) else load_model(ref)
+    """A loaded model (``RobotModel``, ``SoftModel`` or ``CosseratModel``, e.g. a URDF
+    chain cut by ``--root``/``--tip``) as it is; a name or path through :func:`load_model`."""
+    return ref if isinstance(ref, (RobotModel, SoftModel, CosseratModel)) else load_model(ref)
 
 def _urdf_reference(path: Path, data: dict, floating: bool = False) -> RobotModel:
     """A TOML model that is a URDF file's tree or chain: ``[urdf] file, root, tip,

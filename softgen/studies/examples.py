@@ -198,6 +198,9 @@ def _missing(model, results) -> str:
     why = dict((s.id, w) for s, w in results)
     if isinstance(model, SoftModel):
         return why.get("theorem10") or "no soft-body example applies"
+    if not hasattr(model, "links"):            # a Cosserat rod: its tip-control example
+        return why.get("cosserat-tip") or next((w for _, w in results if w),
+                                               "no rod example applies")
     acts = tuple(getattr(model, "actuators", ()) or ())
     passive = sorted(set(range(model.dof)) - {a.joint for a in acts}) if acts else []
     drives = {a.drive for a in acts}

@@ -1,5 +1,5 @@
 """One recursion for kinematic trees of generic joints: rigid trees, floating bases and
-soft segments (issues 33 and 35; /work/coord/recursion.md).
+soft segments (issues 33 and 35; docs/design.md section 4).
 
 A :class:`Tree` is a list of nodes i = 0..N−1, each attached to its parent λ(i) < i
 (−1: the root frame, a fixed base or the inertial frame of a floating one) by a
