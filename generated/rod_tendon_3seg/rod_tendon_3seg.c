@@ -40078,6 +40078,11 @@ CASADI_SYMBOL_EXPORT int rod_tendon_3seg_inverse_dynamics_work_bytes(casadi_int 
   return 0;
 }
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* rod_tendon_3seg_forward_dynamics:(q[9],qd[9],u[4],w[6])->(qdd[9]) */
 static int casadi_f8(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -53876,6 +53881,9 @@ CASADI_SYMBOL_EXPORT int rod_tendon_3seg_forward_dynamics_work_bytes(casadi_int 
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 /* rod_tendon_3seg_actuation:(q[9])->(A[9x4]) */
 static int casadi_f9(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
@@ -77321,6 +77329,11 @@ CASADI_SYMBOL_EXPORT int rod_tendon_3seg_statics_jacobian_work_bytes(casadi_int 
 #pragma GCC pop_options
 #endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* rod_tendon_3seg_tip_adaptive_step:(pi_hat[12],q[9],qd[9],x_d[2],xd_d[2],xdd_d[2],lam,kd,kpi[12],u_min,dt)->(pi_hat_next[12],u[4],s[2],x[2],feasible) */
 static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -89702,6 +89715,9 @@ CASADI_SYMBOL_EXPORT int rod_tendon_3seg_tip_adaptive_step_work_bytes(casadi_int
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 /* stage1:(i0[9],i1[9],i2[4],i3[6],i4)->(o0[18]) */
 static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
