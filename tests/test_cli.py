@@ -33,7 +33,7 @@ def test_info(capsys):
     # Capabilities from the registry: qbmove on every joint gives the chapter-11 cascade;
     # what the model does not get comes with the failed condition.
     assert "\n  + electric_cascade " in out
-    assert "- theorem10" in out and "not a soft body" in out
+    assert "- theorem10" in out and "not a PCC or affine soft body" in out
 
 
 def test_info_json(capsys):

@@ -170,7 +170,7 @@ def test_info_lists_capabilities_and_why_not(capsys, tmp_path):
     caps = {c["name"]: c for c in json.loads(capsys.readouterr().out)["capabilities"]}
     assert set(caps) == set(REGISTRY.names())
     assert caps["electric_cascade"]["gets"] and caps["electric_cascade"]["why_not"] is None
-    assert not caps["theorem10"]["gets"] and "not a soft body" in caps["theorem10"]["why_not"]
+    assert not caps["theorem10"]["gets"] and "not a PCC or affine soft body" in caps["theorem10"]["why_not"]
     assert caps["electric_cascade"]["needs"] == [c.text for c in
                                                  REGISTRY["electric_cascade"].needs]
 

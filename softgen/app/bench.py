@@ -50,7 +50,6 @@ from softgen.control.slotine_li import controller_block, plant_block
 from softgen.core.paths import GENERATED_DIR
 from softgen.modelfile.load import as_model, list_models
 from softgen.runtime.simulate import simulate
-from softgen.symbolic.rigid import RigidDynamics
 
 #: Hand-written C references kept under benchmarks/: model -> (function, source).
 #: ``softgen bench`` reports generated ÷ hand-written time for the model's regressor.
@@ -60,7 +59,8 @@ HAND_WRITTEN = {
 }
 
 #: Simulated seconds of each timed loop run (after a warm-up call of the same loop).
-LOOP_SECONDS = {"slotine_li": 60.0, "theorem10": 20.0, "theorem5": 60.0, "cascade": 20.0}
+LOOP_SECONDS = {"slotine_li": 60.0, "theorem10": 20.0, "theorem5": 60.0, "cascade": 20.0,
+                "cosserat_tip": 10.0}
 #: Samples per generated call in the timed loops: the driver's work between calls (a
 #: few tens of µs: buffers, the finiteness check) is then under 1 % of a 300 ns sample's
 #: loop, which is what is measured here; the numbers do not depend on it.
@@ -125,13 +125,16 @@ def _timed_loop(d: ClosedLoop, seconds: float, *, warmup: dict | None = None, **
 def slotine_li_diagram(model) -> tuple[ClosedLoop, dict]:
     """Prop. 10 on the model at 1 ms with sinusoidal references: (diagram, simulate
     keywords)."""
-    dyn = RigidDynamics(model)
+    from softgen.bundles.bundle import derivation
+    from softgen.studies.examples import SlotineLiConfig
+    c = SlotineLiConfig()             # the slotine-li example's gains: their one home
+    dyn = derivation(model).dyn
     n = model.dof
     dt = 1e-3
     ref = Sinusoid(amplitude=(0.5,) * n, frequency=(0.25,) * n)
     d = ClosedLoop(f"bench_{model.name}_slotine_li",
                    [sinusoid_block("ref", ref), controller_block(dyn, dt), plant_block(dyn, dt)])
-    return d, {"params": {"ctrl.lam": 10.0, "ctrl.kd": 0.2, "ctrl.kpi": 0.05},
+    return d, {"params": {"ctrl.lam": c.lam, "ctrl.kd": c.kd, "ctrl.kpi": c.kpi},
                "record": ["plant.q"]}
 
 
@@ -155,12 +158,14 @@ def theorem10_diagram(model, steps: int = 1000) -> tuple[ClosedLoop, dict]:
     and sinusoidal references, noise-free for ``steps`` samples."""
     from softgen.control.soft import reference_block
     from softgen.studies.soft import tracking_loop
-    from softgen.symbolic.pcc import SoftDynamics
 
-    dyn, n = SoftDynamics(model), model.dof
+    from softgen.bundles.bundle import derivation
+    dyn, n = derivation(model).dyn, model.dof
     ref = reference_block("ref", 1e-3, (0.2,) * n, 1.0, np.linspace(0, 3, n))
     loop = tracking_loop(f"bench_{model.name}_theorem10", dyn, ref, 1e-3)
-    params = {"loop.lam": 5.0, "loop.kd": 1.0, "loop.kpi": 0.5, "dist.t_on": 1e9}
+    from softgen.studies.examples import Theorem10Config
+    c = Theorem10Config()             # the theorem10 example's gains: their one home
+    params = {"loop.lam": c.lam, "loop.kd": c.kd, "loop.kpi": c.kpi, "dist.t_on": 1e9}
     return loop.diagram, {"params": params, "record": list(loop.record),
                           "externals": {"noise": np.zeros((steps, 2 * n))}}
 
@@ -170,6 +175,25 @@ def _theorem10(model, seconds: float) -> dict:
     d, kw = theorem10_diagram(model, steps)
     _, warm = theorem10_diagram(model, min(LOOP_CHUNK, steps))
     return _timed_loop(d, seconds, warmup=warm, **kw)
+
+
+def cosserat_tip_diagram(model) -> tuple[ClosedLoop, dict]:
+    """A Cosserat rod's task-space adaptive tip control (the plant, one ROS2 step per 1 ms
+    sample, and the sampled law with one-sided allocation): the loop its bundle ships
+    (``closed_loops.tip_control``), from the shared derivation, recording the tip."""
+    from softgen.bundles.bundle import derivation
+    from softgen.control.cosserat import closed_loop
+    d = closed_loop(derivation(model).dyn, dt=1e-3, name=f"bench_{model.name}_cosserat_tip")
+    return d, {"record": ["plant.tip"]}
+
+
+def _cosserat_tip(model, seconds: float) -> dict:
+    d, kw = cosserat_tip_diagram(model)
+    steps = int(round(seconds / d.dt))
+    # No tip wrench (the loop's ext.w disturbance input held at zero).
+    return _timed_loop(d, seconds, externals={"w": np.zeros((steps, 6))},
+                       warmup={**kw, "externals": {"w": np.zeros((min(LOOP_CHUNK, steps), 6))}},
+                       **kw)
 
 
 #: What the Theorem 5 loop records: the signals ch10-pneumatic-adaptive's figures read.
@@ -183,7 +207,7 @@ def theorem5_diagram(model) -> tuple[ClosedLoop, dict]:
     from softgen.control.pneumatic import pneumatic_arm
     from softgen.control.pneumatic_loop import controller_block as t5_block
     from softgen.control.pneumatic_loop import plant_block as mck_plant
-    from softgen.studies.gains import thesis_to_physical
+    from softgen.studies.gains import SECTION_10_2, STIFFNESS_RATE, thesis_to_physical
 
     arm = pneumatic_arm(model)
     n, dt = arm.n, 1e-3
@@ -193,11 +217,12 @@ def theorem5_diagram(model) -> tuple[ClosedLoop, dict]:
                    [stiffness_reference_block("ref", steps_q, steps_s),
                     t5_block(arm, "theorem5", dt), mck_plant(arm, dt)],
                    [("ctrl.p", "plant.p_cmd")])
-    # The thesis's Theorem 5 gains in the physical units of the arm's laws (one home:
-    # studies.gains.thesis_to_physical, as the theorem5 example and ch10 use them).
-    kd, kpi = thesis_to_physical(arm.act.muscle_gain, np.full(n, 18.0), 35.0)
-    gains = {"ctrl.lam": 15.0, "ctrl.kd": kd, "ctrl.kpi": kpi, "ctrl.ksigma": 2.0,
-             "ctrl.kinv": 1.0}
+    # Section 10.2's printed gains (their one home, studies.gains.SECTION_10_2) in the
+    # physical units of the arm's laws, as the theorem5 example and ch10 use them.
+    g = SECTION_10_2
+    kd, kpi = thesis_to_physical(arm.act.muscle_gain, np.full(n, g.kd), g.kpi)
+    gains = {"ctrl.lam": g.lam, "ctrl.kd": kd, "ctrl.kpi": kpi,
+             "ctrl.ksigma": STIFFNESS_RATE, "ctrl.kinv": 1.0}
     return d, {"params": gains, "x0": {"ctrl.Pi_hat": arm.Pi_nominal, "plant.p": 1e4},
                "record": list(THEOREM5_RECORD)}
 
@@ -266,7 +291,8 @@ def _cascade(model, seconds: float, with_estimator: bool) -> dict:
 
 #: bench's closed-loop diagrams by kind: model -> (diagram, simulate keywords).
 DIAGRAMS = {"slotine_li": slotine_li_diagram, "theorem10": theorem10_diagram,
-            "theorem5": theorem5_diagram, "cascade": cascade_diagram}
+            "theorem5": theorem5_diagram, "cascade": cascade_diagram,
+            "cosserat_tip": cosserat_tip_diagram}
 
 
 @dataclass(frozen=True)
@@ -300,6 +326,10 @@ def loops_for(model, seconds: dict | None = None) -> tuple[list[Loop], dict[str,
     grant("slotine_li", Loop("slotine_li", "Slotine-Li closed loop (RK4 1 ms, driver)",
                              f"bench_{name}_slotine_li",
                              lambda: _slotine_li(model, s["slotine_li"])))
+    grant("cosserat_tip_control", Loop("cosserat_tip", "Cosserat tip control closed loop "
+                                       "(sampled law + rod, one ROS2 step per 1 ms sample)",
+                                       f"bench_{name}_cosserat_tip",
+                                       lambda: _cosserat_tip(model, s["cosserat_tip"])))
     grant("theorem10", Loop("theorem10", "Theorem 10 closed loop (continuous time, one ROS2 "
                             "step per 1 ms sample)", f"bench_{name}_theorem10",
                             lambda: _theorem10(model, s["theorem10"])))

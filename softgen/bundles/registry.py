@@ -66,13 +66,23 @@ def _rigid(model) -> str | None:
         # Issue 35: a floating base gets softgen.bundles.floating's capability instead.
         return (f"{_where(model)}: a floating base (q = [position, quaternion, joints]); "
                 "the fixed-base capabilities do not apply")
-    return f"{_where(model)}: a soft body (model.kind = {model.kind!r}), not a rigid chain"
+    return f"{_where(model)}: {_what(model)}, not a rigid chain"
+
+
+def _what(model) -> str:
+    """What a model is, in the words of the refusals."""
+    kind = getattr(model, "kind", "")
+    if isinstance(model, SoftModel):
+        return f"a soft body (model.kind = {kind!r})"
+    if kind == "cosserat":
+        return "a Cosserat rod (model.kind = 'cosserat')"
+    return f"a rigid chain (model.kind = {kind!r})"
 
 
 def _soft(model) -> str | None:
     if isinstance(model, SoftModel):
         return None
-    return f"{_where(model)}: a rigid chain (model.kind = {model.kind!r}), not a soft body"
+    return f"{_where(model)}: {_what(model)}, not a PCC or affine soft body"
 
 
 RIGID = Condition("rigid chain or tree on a fixed base (model.kind planar or spatial, or a "

@@ -1266,7 +1266,10 @@ def sigma_feedback_block(n: int, delay: int, *, name: str = "sw") -> Block:
         src, on = p["source"], u["t"] >= p["t_on"]
         est = ca.if_else(src == 1, held_inv, ca.if_else(src == 2, held_non, late))
         out = ca.if_else(ca.logic_and(on, src > 0), est, u["sigma"])
-        return ({"line": ca.vertcat(x["line"][n:], u["sigma"]),
+        # The delay line shifted by one sample. Sliced by index: ``x[n:]`` of a 1 x 1
+        # symbol (one joint, one sample of delay) is not empty in CasADi.
+        rest = x["line"][range(n, d * n)] if d > 1 else ca.SX(0, 1)
+        return ({"line": ca.vertcat(rest, u["sigma"]),
                  "held": ca.vertcat(u["sigma_inv"], u["sigma_non"])}, {"sigma_fb": out})
 
     return Block.define(name, dt=None, state=[("line", d * n), ("held", 2 * n)],
