@@ -340,27 +340,7 @@ class _CosseratParser(_Parser):
 
     def rigid(self, raw: dict, key: str, j: int, nominal: dict) -> Rigid:
         self.keys(raw, key, _RIGID_KEYS, _RIGID_REQUIRED)
-        common = self.link_common(raw, key, j, nominal)
-        axis = np.array(self.vector(raw["axis"], f"{key}.axis", 3))
-        norm = float(np.linalg.norm(axis))
-        if norm < 1e-12:
-            raise self.fail(f"{key}.axis", "expected a non-zero vector")
-        origin = self.vector(raw.get("origin_xyz", [0.0, 0.0, 0.0]), f"{key}.origin_xyz", 3)
-        rpy = self.vector(raw.get("origin_rpy", [0.0, 0.0, 0.0]), f"{key}.origin_rpy", 3)
-        for ax, v in zip("xyz", origin):
-            nominal[f"p{j}{ax}"] = v
-        com = self.vector(raw["com"], f"{key}.com", 3)
-        for ax, v in zip("xyz", com):
-            nominal[f"c{j}{ax}"] = v
-        inertia = self.inertia3(raw["inertia"], f"{key}.inertia")
-        names = ("xx", "yy", "zz", "xy", "xz", "yz")
-        for n, v in zip(names, inertia):
-            nominal[f"I{j}{n}"] = v
-        link = Link(origin_xyz=tuple(f"p{j}{a}" for a in "xyz"),  # type: ignore[arg-type]
-                    origin_rpy=rpy, axis=tuple(float(a) for a in axis / norm),  # type: ignore
-                    com=tuple(f"c{j}{a}" for a in "xyz"),  # type: ignore[arg-type]
-                    inertia=tuple(f"I{j}{n}" for n in names), **common)  # type: ignore
-        return Rigid(link)
+        return Rigid(self.spatial_link(raw, key, j, nominal))
 
     # -- the rest ------------------------------------------------------------------
     def gravity3(self, g: Any) -> tuple[tuple[float, float, float], float]:

@@ -1003,29 +1003,35 @@ class _Parser(FileReader):
         for i, raw in enumerate(links_raw, start=1):
             key = f"links[{i - 1}]"
             self.keys(raw, key, _SPATIAL_LINK_KEYS, {"joint", "axis", "mass", "com", "inertia"})
-            common = self.link_common(raw, key, i, nominal)
-            axis = np.array(self.vector(raw["axis"], f"{key}.axis", 3))
-            norm = float(np.linalg.norm(axis))
-            if norm < 1e-12:
-                raise self.fail(f"{key}.axis", "expected a non-zero vector")
-            origin = self.vector(raw.get("origin_xyz", [0.0, 0.0, 0.0]), f"{key}.origin_xyz", 3)
-            rpy = self.vector(raw.get("origin_rpy", [0.0, 0.0, 0.0]), f"{key}.origin_rpy", 3)
-            for ax, v in zip("xyz", origin):
-                nominal[f"p{i}{ax}"] = v
-            com = self.vector(raw["com"], f"{key}.com", 3)
-            for ax, v in zip("xyz", com):
-                nominal[f"c{i}{ax}"] = v
-            inertia = self.inertia3(raw["inertia"], f"{key}.inertia", mass=nominal[f"m{i}"],
-                                    size=max(float(np.linalg.norm(com)),
-                                             float(np.linalg.norm(origin))))
-            names = ("xx", "yy", "zz", "xy", "xz", "yz")
-            for n, v in zip(names, inertia):
-                nominal[f"I{i}{n}"] = v
-            links.append(Link(origin_xyz=tuple(f"p{i}{a}" for a in "xyz"), origin_rpy=rpy,
-                              axis=tuple(float(a) for a in axis / norm),
-                              com=tuple(f"c{i}{a}" for a in "xyz"),
-                              inertia=tuple(f"I{i}{n}" for n in names), **common))
+            links.append(self.spatial_link(raw, key, i, nominal))
         return links
+
+    def spatial_link(self, raw: dict, key: str, i: int, nominal: dict) -> Link:
+        """Link ``i`` of a spatial file (its keys already checked): axis, origin, centre of
+        mass and inertia into ``nominal`` as p/c/I symbols. Also a Cosserat file's rigid
+        segments (:mod:`softgen.modelfile.cosserat`)."""
+        common = self.link_common(raw, key, i, nominal)
+        axis = np.array(self.vector(raw["axis"], f"{key}.axis", 3))
+        norm = float(np.linalg.norm(axis))
+        if norm < 1e-12:
+            raise self.fail(f"{key}.axis", "expected a non-zero vector")
+        origin = self.vector(raw.get("origin_xyz", [0.0, 0.0, 0.0]), f"{key}.origin_xyz", 3)
+        rpy = self.vector(raw.get("origin_rpy", [0.0, 0.0, 0.0]), f"{key}.origin_rpy", 3)
+        for ax, v in zip("xyz", origin):
+            nominal[f"p{i}{ax}"] = v
+        com = self.vector(raw["com"], f"{key}.com", 3)
+        for ax, v in zip("xyz", com):
+            nominal[f"c{i}{ax}"] = v
+        inertia = self.inertia3(raw["inertia"], f"{key}.inertia", mass=nominal[f"m{i}"],
+                                size=max(float(np.linalg.norm(com)),
+                                         float(np.linalg.norm(origin))))
+        names = ("xx", "yy", "zz", "xy", "xz", "yz")
+        for n, v in zip(names, inertia):
+            nominal[f"I{i}{n}"] = v
+        return Link(origin_xyz=tuple(f"p{i}{a}" for a in "xyz"), origin_rpy=rpy,
+                    axis=tuple(float(a) for a in axis / norm),
+                    com=tuple(f"c{i}{a}" for a in "xyz"),
+                    inertia=tuple(f"I{i}{n}" for n in names), **common)
 
     def inertia3(self, v: Any, key: str, *, mass: float = 0.0,
                  size: float = 0.0) -> tuple[float, ...]:

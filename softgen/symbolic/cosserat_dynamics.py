@@ -37,7 +37,8 @@ from softgen.modelfile.cosserat import CosseratModel, Rigid, Rod
 from softgen.symbolic import tree as T
 from softgen.symbolic.cosserat import CosseratBody, statics_functions
 from softgen.symbolic.frames import Inertial
-from softgen.symbolic.regressor import BaseParameters, NumericBase, numeric_base_parameters
+from softgen.symbolic.regressor import (BaseParameters, NumericBase, numeric_base_parameters,
+                                        sparse_constant)
 from softgen.symbolic.rigid import FUNCTION_OPTS, BaseParameterAPI, named_function
 from softgen.symbolic.tree_aba import articulated_solve, spatial_matrix
 
@@ -202,9 +203,7 @@ class CosseratDynamics(BaseParameterAPI):
 
     @cached_property
     def _A(self) -> ca.DM:
-        A = self._numeric_base.A
-        r, c = np.nonzero(A)
-        return ca.DM.triplet(r.tolist(), c.tolist(), A[r, c].tolist(), A.shape[0], A.shape[1])
+        return sparse_constant(self._numeric_base.A)
 
     @cached_property
     def base(self) -> BaseParameters:

@@ -490,6 +490,13 @@ class NumericBase:
     full_rank: int
 
 
+def sparse_constant(A: np.ndarray) -> ca.DM:
+    """``A`` as a sparse CasADi constant: its zeros stay structural, so products such as
+    Y_b = Y_δ A emit no code for them."""
+    r, c = np.nonzero(A)
+    return ca.DM.triplet(r.tolist(), c.tolist(), A[r, c].tolist(), A.shape[0], A.shape[1])
+
+
 def numeric_base_parameters(delta_of_p: ca.SX, params: ca.SX, names: tuple[str, ...],
                             y_delta: ca.Function, n_inputs: list[tuple[int, int]], *,
                             seed: int = 0, n_samples: int = 40, tol: float = 1e-8

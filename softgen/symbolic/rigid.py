@@ -19,7 +19,8 @@ from softgen.symbolic.mechanics import Inertial, Mechanics, physical_inertials, 
 from softgen.symbolic.recursive import inertial_fields, regressor_transpose_times
 from softgen.symbolic.recursive import slotine_li as recursive_slotine_li
 from softgen.symbolic.regressor import (BaseParameters, NumericBase, base_from_coefficients, base_parameters,
-                        expand_in, factor_polynomial, numeric_base_parameters)
+                        expand_in, factor_polynomial, numeric_base_parameters,
+                        sparse_constant)
 from softgen.symbolic.regroup import regroup
 from softgen.symbolic.tree_mechanics import RecursiveMechanics
 
@@ -268,9 +269,7 @@ class RigidDynamics(BaseParameterAPI):
     @cached_property
     def _A(self) -> ca.DM:
         """Y_b = Y_δ A, as a sparse constant (zeros stay structural: no code for them)."""
-        A = self._numeric_base.A
-        r, c = np.nonzero(A)
-        return ca.DM.triplet(r.tolist(), c.tolist(), A[r, c].tolist(), A.shape[0], A.shape[1])
+        return sparse_constant(self._numeric_base.A)
 
     @cached_property
     def base(self) -> BaseParameters:
