@@ -360,7 +360,7 @@ def _estimate_log(model_name, log: Path, out: Path, *, method: str, dt: float | 
     P0 = est.initial_state()
     covariance = {r: (P0[est.layout[f"P_{r}"]].reshape(n, n),
                       np.asarray(trace.final_state[f"est.P_{r}"], dtype=float).reshape(n, n))
-                  for r in est.rls_names for n in [est.n_parameters]}
+                  for r in est.rls_names for n in [est.rls_sizes[r]]}
     default_p0 = EstimatorConfig(kind).resolved().p0
     return EstimateRun(len(t), est.config.dt, kind, est.config.delay, out,
                        time.perf_counter() - t0, lowpass,

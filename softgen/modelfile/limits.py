@@ -133,7 +133,9 @@ def check_expression_size(model, limit: int | None = None) -> int:
     size = expression_size(model)
     limit = expression_limit() if limit is None else limit
     if size > limit:
-        parts = (f"{len(model.bodies)} segments" if hasattr(model, "bodies")
+        # A rigid chain or tree also has bodies (the shared recursion): name what the
+        # user wrote, links for a rigid model, segments (rods) for a soft one.
+        parts = (f"{len(model.bodies)} segments" if model.kind == "cosserat"
                  else f"{len(model.segments)} segments" if hasattr(model, "segments")
                  else f"{len(model.links)} links")
         where = model.path if getattr(model, "path", None) is not None else model.name
