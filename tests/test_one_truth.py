@@ -33,9 +33,12 @@ def test_info_generate_and_export_agree(model):
     caps = capability_table(m)
     spec = bundle_spec(m)
     assert [c["name"] for c in caps if c["gets"]] == spec.extra["capabilities"]
-    assert {c["name"]: c["why_not"] for c in caps if not c["gets"]} == \
+    # The manifest names the model file by its file name (portable bytes), info by its
+    # path: the same reasons otherwise.
+    d = decide(m)
+    assert {c["name"]: d.portable(c["why_not"]) for c in caps if not c["gets"]} == \
         spec.extra["capabilities_refused"]
-    assert list(decide(m).warnings) == spec.extra["warnings"]
+    assert [d.portable(w) for w in d.warnings] == spec.extra["warnings"]
     rows = example_table(m)
     first = [r["id"] for r in rows if r["exported"]]
     if first:
@@ -55,7 +58,7 @@ def test_an_exported_loop_holds_the_declared_actuators(model):
         spec = E.choose(m)
     except Exception:
         return
-    drives = {a.drive for a in getattr(m, "actuators", ()) or ()}
+    drives = {getattr(a, "drive", None) for a in getattr(m, "actuators", ()) or ()}
     if spec.id == "slotine-li":
         assert drives <= {"torque"}
     if "pressure" in drives:

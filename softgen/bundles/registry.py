@@ -22,6 +22,8 @@ assembler imports them), so the builders can import the registry without a cycle
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -406,6 +408,8 @@ class Decision:
     model: str
     results: tuple[tuple[Capability, str | None], ...]
     warnings: tuple[str, ...] = ()
+    #: The model file's path as the reasons name it (None: a model built in code).
+    source: str | None = None
 
     @property
     def granted(self) -> list[Capability]:
@@ -430,9 +434,17 @@ class Decision:
         """The manifest's record of the decision: granted names (``capabilities``, as
         before), the refused ones with their reasons, and the warnings."""
         return {"capabilities": self.granted_names,
-                "capabilities_refused": {c.name: why for c, why in self.results
-                                         if why is not None},
-                "warnings": list(self.warnings)}
+                "capabilities_refused": {c.name: self.portable(why)
+                                         for c, why in self.results if why is not None},
+                "warnings": [self.portable(w) for w in self.warnings]}
+
+    def portable(self, text: str) -> str:
+        """``text`` with the model file's absolute path cut to its file name: the same
+        model gives the same manifest bytes wherever the repository or the file lies
+        (``generated/`` is compared byte for byte on a clean clone)."""
+        if not self.source:
+            return text
+        return text.replace(self.source, Path(self.source).name)
 
 
 def _unused_actuators(model, results) -> tuple[str, ...]:
@@ -467,7 +479,9 @@ def decide(model) -> Decision:
     if isinstance(cached, Decision) and len(cached.results) == len(REGISTRY.names()):
         return cached
     results = tuple(REGISTRY.evaluate(model))
-    d = Decision(model.name, results, _unused_actuators(model, results))
+    path = getattr(model, "path", None)
+    d = Decision(model.name, results, _unused_actuators(model, results),
+                 str(path) if path is not None else None)
     try:
         # Frozen dataclasses: the decision is a function of the model's content, kept on
         # the object (dataclasses.replace makes a new model, which decides anew).

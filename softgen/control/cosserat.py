@@ -87,6 +87,10 @@ class TipGains:
 #: The example's gains (one home): the tendon-driven 3-segment rod of ``models/``.
 GAINS = TipGains()
 
+#: The example's tip reference (one home): a Lissajous figure about the straight rod's
+#: tip, amplitudes (m) and angular frequencies (rad/s) along the two task axes.
+TIP_REFERENCE = {"amplitude": (0.02, 0.02), "omega": (1.0, 2.0)}
+
 TIP_INPUTS = ["pi_hat", "q", "qd", "x_d", "xd_d", "xdd_d", "lam", "kd", "kpi", "u_min", "dt"]
 TIP_OUTPUTS = ["pi_hat_next", "u", "s", "x", "feasible"]
 
@@ -308,8 +312,8 @@ def reference_block(name: str, dt: float, *, amplitude=(0.02, 0.02), omega=(1.0,
 
 
 def closed_loop(dyn: CosseratDynamics, *, dt: float = 1e-3, gains: TipGains = GAINS,
-                axes=None, amplitude=(0.02, 0.02), omega=(1.0, 2.0),
-                name: str | None = None) -> ClosedLoop:
+                axes=None, amplitude=TIP_REFERENCE["amplitude"],
+                omega=TIP_REFERENCE["omega"], name: str | None = None) -> ClosedLoop:
     """The example loop: references, the sampled controller reading the plant, the plant
     (``ext.w`` a tip wrench disturbance). Starts from rest, straight, π̂ = 0; the
     references start at the straight rod's tip (zero offset, sines from 0)."""

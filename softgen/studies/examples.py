@@ -44,6 +44,9 @@ from softgen.bundles.rigid import (PARTIAL_TRACKING_GAINS, SEA_GAINS, partial_re
                                    partial_tracking_gains)
 from softgen.bundles.spring_pair import SpringPairExample
 from softgen.bundles.spring_pair import example_loop as spring_pair_loop
+from softgen.control.cosserat import GAINS as COSSERAT_GAINS
+from softgen.control.cosserat import TIP_REFERENCE, TipGains
+from softgen.control.cosserat import closed_loop as cosserat_tip_loop
 from softgen.control.electric import (ElectricArm, cascade_block, initial_plant_state,
                                       plant_block as electric_plant_block)
 from softgen.control.feasibility import stiffness_range
@@ -67,6 +70,7 @@ from softgen.control.soft_sampled import sampled_controller_block
 from softgen.control.spring_pair import SpringPairArm
 from softgen.core.config import Config
 from softgen.core.errors import SoftgenError
+from softgen.modelfile.cosserat import CosseratModel
 from softgen.modelfile.load import load_model
 from softgen.modelfile.model import RobotModel
 from softgen.modelfile.soft import SoftModel
@@ -249,7 +253,7 @@ def example_for(model, *, example: str | None = None, steps: int | None = None,
     """The example of ``model`` (a shipped name, a model file or a loaded model): the
     registered scenario :func:`choose` picks (or ``example``), built from its typed config
     with ``overrides``, ``steps`` samples long (default :data:`DEFAULT_SECONDS`)."""
-    if not isinstance(model, (RobotModel, SoftModel)):
+    if not isinstance(model, (RobotModel, SoftModel, CosseratModel)):
         model = load_model(model)
     spec = choose(model, example)
     try:
@@ -767,6 +771,68 @@ def _floating(ctx: Context, c: FloatingConfig, steps: int) -> Example:
         "example values)", c)
 
 
+# --------------------------------------------------------------------------- Cosserat rods
+
+@dataclass(frozen=True)
+class CosseratTipConfig(Config):
+    """Task-space adaptive tip control of a Cosserat rod (issue 33; Theorem 10's law with
+    σ = J⁺ s, one-sided input allocation): gains Λ (1/s), K_d (N s/m), K_π (relative to
+    each nominal π² when ``kpi_relative``), the pretension u_min (the inputs' unit), and
+    the Lissajous tip reference about the straight rod's tip (``amplitude`` m, ``omega``
+    rad/s per task axis). Defaults: :data:`softgen.control.cosserat.GAINS` and
+    :data:`~softgen.control.cosserat.TIP_REFERENCE`, their one home."""
+
+    lam: float = COSSERAT_GAINS.lam
+    kd: float = COSSERAT_GAINS.kd
+    kpi: float = COSSERAT_GAINS.kpi
+    kpi_relative: bool = COSSERAT_GAINS.kpi_relative
+    u_min: float = COSSERAT_GAINS.u_min
+    amplitude: tuple[float, ...] = TIP_REFERENCE["amplitude"]
+    omega: tuple[float, ...] = TIP_REFERENCE["omega"]
+    dt: float | None = None                         # s (None: 1 ms)
+
+    def validate(self) -> None:
+        for k in ("lam", "kd", "kpi"):
+            if getattr(self, k) <= 0:
+                raise ValueError(f"CosseratTipConfig.{k}: expected a positive number, "
+                                 f"got {getattr(self, k)!r}")
+        if self.u_min < 0:
+            raise ValueError(f"CosseratTipConfig.u_min: expected a number >= 0, "
+                             f"got {self.u_min!r}")
+        for k in ("amplitude", "omega"):
+            if len(getattr(self, k)) != 2:
+                raise ValueError(f"CosseratTipConfig.{k}: expected two numbers (one per "
+                                 f"task axis), got {getattr(self, k)!r}")
+        if self.dt is not None and not 0 < self.dt <= 0.1:
+            raise ValueError(f"CosseratTipConfig.dt: expected a sample time in (0, 0.1] s, "
+                             f"got {self.dt!r}")
+
+
+def _cosserat_tip(ctx: Context, c: CosseratTipConfig, steps: int) -> Example:
+    model, dt = ctx.model, float(c.dt or DT)
+    gains = TipGains(lam=c.lam, kd=c.kd, kpi=c.kpi, kpi_relative=c.kpi_relative,
+                     u_min=c.u_min)
+    d = cosserat_tip_loop(ctx.dyn, dt=dt, gains=gains, amplitude=c.amplitude,
+                          omega=c.omega, name=f"{model.name}_loop")
+    # The tip wrench disturbance stays an external input of the diagram, zero here.
+    sc = Scenario(f"{model.name}_loop", d, steps=steps,
+                  externals={"w": np.zeros((steps, 6))})
+    return Example(
+        "cosserat_tip", "task-space adaptive tip control of the Cosserat rod",
+        "task-space adaptive control of the rod's tip (Theorem 10's law with σ = J⁺ s, "
+        "softgen.control.cosserat) sampled at "
+        f"{dt * 1e3:g} ms: the controller adapts π̂ from 0 and allocates its inputs one-"
+        "sidedly (tendons pull: every input at least u_min, the least-tension solution in "
+        "the actuation's null space; `feasible` is 0 where no positive offset exists), the "
+        "plant is one ROS2 step per sample; the tip tracks a Lissajous figure about the "
+        "straight rod's tip from rest; no tip wrench (the external input `w` is held at "
+        "zero).",
+        sc, (("ref.x_d", "ctrl.x", "m"),),
+        f"Λ = {c.lam:g}, K_d = {c.kd:g}, K_π = {c.kpi:g}"
+        f"{' × π²' if c.kpi_relative else ''}, u_min = {c.u_min:g} (CosseratTipConfig: "
+        "control.cosserat.GAINS)", c)
+
+
 register("theorem10", capability="theorem10", title="Theorem 10 on the soft robot",
          config=Theorem10Config, build=_theorem10)
 register("theorem5", capability="theorem5_loop", title="Theorem 5 on the McKibben arm",
@@ -788,3 +854,6 @@ register("slotine-li", capability="slotine_li", title="Slotine-Li (Prop. 10) on 
 register("floating", capability="floating_dynamics",
          title="a floating-base robot moving its joints in free fall", config=FloatingConfig,
          build=_floating)
+register("cosserat-tip", capability="cosserat_tip_control",
+         title="task-space adaptive tip control of the Cosserat rod", config=CosseratTipConfig,
+         build=_cosserat_tip)
