@@ -530,7 +530,14 @@ def _body_force_classical(inert: Inertial, om, omr, al, b, same: bool) -> Pair:
     """:func:`body_force` from b = a_lin + ω_r × u (``same``: v_r = v)."""
     I, h, m = inert.I, inert.h, inert.m
     if same:
-        n = ca.mtimes(I, al) + ca.cross(om, ca.mtimes(I, om)) + ca.cross(h, b)
+        # ω × (I ω) = ω × ((I − λ 1) ω): a constant I shifted by one of its diagonal
+        # entries saves a product.
+        Iw = I
+        if isinstance(I, ca.DM) or (isinstance(I, ca.SX) and I.is_constant()):
+            d = [float(ca.DM(I[k, k])) for k in range(3)]
+            if any(d):
+                Iw = ca.SX(I) - next(x for x in d if x) * ca.SX.eye(3)
+        n = ca.mtimes(I, al) + ca.cross(om, ca.mtimes(Iw, om)) + ca.cross(h, b)
         return n, m * b + ca.mtimes(_acc_operator(al, om, om), h)
     w = ca.cross(om, omr)
     tr = 0.5 * (I[0, 0] + I[1, 1] + I[2, 2])
