@@ -7,7 +7,10 @@ URDF parser and the libraries). For each URDF file (vendor trees: Talos, ANYmal,
 1. softgen loads it whole (``load_model(path, floating=...)``) and generates τ, the
    bundle's ``inverse_dynamics`` (q, q̇, q̇_r, q̈_r; called at q̇_r = q̇) and its classical
    inverse dynamics ``rnea`` (q, v, a), at the flags of ``softgen generate``
-   (:data:`softgen.codegen.build.CFLAGS`; ``--cflags`` adds flags to both sides alike);
+   (:data:`softgen.codegen.build.CFLAGS`; ``--cflags`` adds flags to both sides alike)
+   and at the level a bundle compiles each at (-O1 from
+   :data:`softgen.codegen.generate.LARGE_FUNCTION` CasADi instructions on, else -O3;
+   ``--level O3``: all at -O3);
 2. Pinocchio's URDF parser (its Python bindings, a free-flyer root for a floating base)
    reads the same file; its model (joint types, placements, inertias, damping) is
    written out and rebuilt joint by joint in the C++ harness (the pip wheel ships no
@@ -45,6 +48,7 @@ import numpy as np
 
 from softgen.app.peers import _CPP_HEAD, pinocchio_prefix, renamed
 from softgen.codegen.build import CFLAGS
+from softgen.codegen.generate import LARGE_FUNCTION
 
 #: softgen's compiler flags without -shared (the harness links an object file).
 SOFTGEN_CFLAGS = [f for f in CFLAGS if f != "-shared"]
@@ -193,6 +197,9 @@ def main(argv=None) -> int:
                     "it (the harness takes minutes of g++)")
     ap.add_argument("--callgrind", action="store_true", help="also count each function's "
                     "instructions per call under valgrind's callgrind (robust to the load)")
+    ap.add_argument("--level", choices=("bundle", "O3"), default="bundle",
+                    help="compile each function at the level its bundle does (-O1 from "
+                    "LARGE_FUNCTION CasADi instructions on; default) or all at -O3")
     ap.add_argument("--cflags", default="", help="extra flags for both compilers alike, e.g. "
                     "'-march=native' (default: none, as softgen builds bundles)")
     args = ap.parse_args(argv)
@@ -203,7 +210,19 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="softgen-tree-pin-") as tmp_:
         tmp = Path(tmp_) if args.keep is None else args.keep.resolve()
         tmp.mkdir(parents=True, exist_ok=True)
-        gen = ca.CodeGenerator("softgen_fns.c", {"with_header": True})
+        # One C file per compiler level: a bundle compiles each function at -O3, or at
+        # -O1 from LARGE_FUNCTION CasADi instructions on (softgen.bundles.bundle);
+        # --level O3 compiles all at -O3.
+        gens = {lv: ca.CodeGenerator(f"softgen_fns{suffix}.c", {"with_header": True})
+                for lv, suffix in (("-O3", ""), ("-O1", "_o1"))}
+        used: set[str] = set()
+
+        def add(fn, name):
+            lv = "-O1" if args.level == "bundle" and fn.n_instructions() >= LARGE_FUNCTION \
+                else "-O3"
+            used.add(lv)
+            gens[lv].add(renamed(fn, name))
+            return lv
         calls = []
         for k, path in enumerate(args.urdf):
             tag = f"m{k}"
@@ -215,19 +234,21 @@ def main(argv=None) -> int:
             print(f"# {tag} = {path.name} ({'floating' if model.floating else 'fixed'}, nv "
                   f"{model.nv}): derived in {time.perf_counter() - t0:.1f} s; CasADi "
                   f"instructions: inverse_dynamics {tau.n_instructions()}, (q, v, a) "
-                  f"{id3.n_instructions()}", flush=True)
+                  f"{id3.n_instructions()}; compiled at {add(tau, f'tau_{tag}')} and "
+                  f"{add(id3, f'id3_{tag}')}", flush=True)
             desc, pm = pinocchio_description(path, model.floating)
             (tmp / f"{tag}.txt").write_text(desc)
             iq, iv = coordinate_map(pm, model, path.name)
             (tmp / f"{tag}.map").write_text(f"{model.nq} {model.nv}\n{' '.join(map(str, iq))}\n"
                                             f"{' '.join(map(str, iv))}\n")
-            gen.add(renamed(tau, f"tau_{tag}"))
-            gen.add(renamed(id3, f"id3_{tag}"))
             calls.append(f'  if (only < 0 || only == {k}) bench_tree("{tag}", '
                          f'"{tmp / (tag + ".txt")}", {int(model.floating)}, '
                          f'"{tmp / (tag + ".map")}", tau_{tag}, tau_{tag}_work, id3_{tag}, '
                          f"id3_{tag}_work, calls, repeats);")
-        gen.generate(str(tmp) + "/")
+        for g in gens.values():
+            g.generate(str(tmp) + "/")
+        with open(tmp / "softgen_fns.h", "a") as fh:      # the harness includes this one
+            fh.write('\n#include "softgen_fns_o1.h"\n')
         cpp = tmp / "harness.cpp"
         # harness [calls [repeats [model]]]: the defaults, or a few calls of one model
         # (under callgrind).
@@ -239,9 +260,12 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         extra = args.cflags.split()
         # softgen's C at the flags of `softgen generate` (softgen.codegen.build.CFLAGS).
-        subprocess.run(["gcc", *SOFTGEN_CFLAGS, *extra, "-c", "-o", str(tmp / "softgen_fns.o"),
-                        str(tmp / "softgen_fns.c")], check=True)
-        print(f"# gcc -O3 of softgen's C: {time.perf_counter() - t0:.1f} s", flush=True)
+        objs = []
+        for lv, suffix in (("-O3", ""), ("-O1", "_o1")):
+            objs.append(str(tmp / f"softgen_fns{suffix}.o"))
+            subprocess.run(["gcc", lv, *SOFTGEN_CFLAGS[1:], *extra, "-c", "-o", objs[-1],
+                            str(tmp / f"softgen_fns{suffix}.c")], check=True)
+        print(f"# gcc of softgen's C: {time.perf_counter() - t0:.1f} s", flush=True)
         defs = ["-DBOOST_MPL_LIMIT_LIST_SIZE=30", "-DBOOST_MPL_LIMIT_VECTOR_SIZE=30",
                 "-DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS", "-DBOOST_FUSION_INVOKE_MAX_ARITY=12"]
         t0 = time.perf_counter()
@@ -252,7 +276,7 @@ def main(argv=None) -> int:
                             f"-I{prefix}/include", f"-I{prefix}/include/eigen3", f"-I{tmp}",
                             "-c", "-o", str(tmp / "harness.o"), str(cpp)], check=True)
         subprocess.run(["g++", "-o", str(tmp / "harness"), str(tmp / "harness.o"),
-                        str(tmp / "softgen_fns.o"), f"-L{prefix}/lib", "-lpinocchio_default",
+                        *objs, f"-L{prefix}/lib", "-lpinocchio_default",
                         f"-Wl,-rpath,{prefix}/lib", "-lm"], check=True)
         print(f"# g++ -O3 of the Pinocchio harness: {time.perf_counter() - t0:.1f} s",
               flush=True)
