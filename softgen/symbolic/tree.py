@@ -463,6 +463,18 @@ def _forward(tree: Tree, frames: list[_Frame], v, vr, vdr, s=None):
     return out
 
 
+def _psi_sweep(tree: Tree, frames: list[_Frame], s) -> list[Pair]:
+    """ψ_i = X_i ψ_λ + S_i s_j: each node's twist when the joints move with s."""
+    out: list[Pair] = []
+    for n, fr in zip(tree.nodes, frames):
+        psi = None if n.parent < 0 else _to_child(fr.E, fr.p, out[n.parent])
+        if n.v:
+            Ss = _S_times(fr.S, _select(s, n.v))
+            psi = Ss if psi is None else _add(psi, Ss)
+        out.append((ca.SX.zeros(3), ca.SX.zeros(3)) if psi is None else psi)
+    return out
+
+
 def _forward_classical(tree: Tree, frames: list[_Frame], v, vr, vdr) -> list[tuple]:
     """Per node (ω, ω_r, α_r, b_r) with b_r = a_r,lin + ω_r × u (module docstring,
     "Classical sweep"): the same body forces as :func:`_forward` without the linear
@@ -621,15 +633,16 @@ def regressor_blocks(tree: Tree, inertials: Sequence[Inertial | None], symbols, 
     blocks do not depend on them. A node with ``symbols[i]`` empty gets an empty block.
     """
     frames = _frames(tree, q)
-    fw = _forward(tree, frames, v, vr, vdr, s=s)
+    fw = _forward_classical(tree, frames, v, None if vr is v else vr, vdr)
+    psis = _psi_sweep(tree, frames, s)
     out = []
     for i, inert in enumerate(inertials):
         syms = symbols[i]
         if inert is None or syms.shape[0] == 0:
             out.append(ca.SX(0, 1))
             continue
-        vi, vri, ari, psi = fw[i]
-        f = body_force(inert, vi, vri, ari)
+        psi = psis[i]
+        f = _body_force_classical(inert, *fw[i], same=vr is v)
         e = ca.dot(psi[0], f[0]) + ca.dot(psi[1], f[1])
         g = ca.gradient(e, syms)
         out.append(ca.substitute(g, syms, ca.DM.zeros(syms.shape)))
