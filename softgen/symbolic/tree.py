@@ -586,7 +586,8 @@ def inverse_dynamics(tree: Tree, inertials: Sequence[Inertial | None], q, v, vr,
     ``inertials[i]`` is node i's (m, h, I_o) in node coordinates (None: massless).
     ``vr`` None: the classical inverse dynamics τ(q, v, v̇ = ``vdr``) (Pinocchio's
     ``rnea``), v propagated once and the body force I a + v ×* I v in its short form
-    (:func:`body_force` at v_r = v: w = ω × ω = 0).
+    (:func:`body_force` at v_r = v: w = ω × ω = 0). Both by the classical sweep (module
+    docstring, "Classical sweep"): no linear velocities, one M per node.
     """
     frames = _frames(tree, q)
     fw = _forward_classical(tree, frames, v, vr, vdr)
