@@ -10,7 +10,7 @@ URDF parser and the libraries). For each URDF file (vendor trees: Talos, ANYmal,
    (:data:`softgen.codegen.build.CFLAGS`; ``--cflags`` adds flags to both sides alike)
    and at the level a bundle compiles each at (-O1 from
    :data:`softgen.codegen.generate.LARGE_FUNCTION` CasADi instructions on, else -O3;
-   ``--level O3``: all at -O3);
+   a floating bundle's ``rnea`` always -O3; ``--level O3``: all at -O3);
 2. Pinocchio's URDF parser (its Python bindings, a free-flyer root for a floating base)
    reads the same file; its model (joint types, placements, inertias, damping) is
    written out and rebuilt joint by joint in the C++ harness (the pip wheel ships no
@@ -217,9 +217,9 @@ def main(argv=None) -> int:
                 for lv, suffix in (("-O3", ""), ("-O1", "_o1"))}
         used: set[str] = set()
 
-        def add(fn, name):
-            lv = "-O1" if args.level == "bundle" and fn.n_instructions() >= LARGE_FUNCTION \
-                else "-O3"
+        def add(fn, name, keep_o3=False):
+            lv = "-O1" if args.level == "bundle" and not keep_o3 and \
+                fn.n_instructions() >= LARGE_FUNCTION else "-O3"
             used.add(lv)
             gens[lv].add(renamed(fn, name))
             return lv
@@ -235,7 +235,7 @@ def main(argv=None) -> int:
                   f"{model.nv}): derived in {time.perf_counter() - t0:.1f} s; CasADi "
                   f"instructions: inverse_dynamics {tau.n_instructions()}, (q, v, a) "
                   f"{id3.n_instructions()}; compiled at {add(tau, f'tau_{tag}')} and "
-                  f"{add(id3, f'id3_{tag}')}", flush=True)
+                  f"{add(id3, f'id3_{tag}', keep_o3=model.floating)}", flush=True)
             desc, pm = pinocchio_description(path, model.floating)
             (tmp / f"{tag}.txt").write_text(desc)
             iq, iv = coordinate_map(pm, model, path.name)

@@ -697,3 +697,15 @@ def test_planar_tree_routes_agree(tmp_path):
     for _ in range(4):
         outs = [np.array(o) for o in f(*rng.normal(size=(4, 4)))]
         assert all(np.allclose(o, outs[0], rtol=1e-12, atol=1e-12) for o in outs[1:])
+
+
+def test_floating_rnea_keeps_o3_when_large(humanoid, monkeypatch):
+    """A floating bundle compiles its classical rnea at -O3 whatever its size; other
+    functions from LARGE_FUNCTION CasADi instructions on at -O1 (issue 34's rule)."""
+    import softgen.bundles.bundle as bundle_mod
+    monkeypatch.setattr(bundle_mod, "LARGE_FUNCTION", 50)
+    model = load_model(humanoid, floating=True)
+    spec = bundle_mod._assemble(model, bundle_mod.DEFAULT_OPTIONS)
+    levels = {g.function.name(): g.optimization for g in spec.functions}
+    assert levels[f"{model.name}_rnea"] == "-O3"
+    assert levels[f"{model.name}_inverse_dynamics"] == "-O1"
