@@ -493,7 +493,7 @@ def _forward_classical(tree: Tree, frames: list[_Frame], v, vr, vdr) -> list[tup
             wrp = wp if vr is None else ca.mtimes(Et, pwr)
             alp = ca.mtimes(Et, pal)
             # The parent's α_r × p + ω_r × (ω × p): its acceleration carried to this origin.
-            bp = ca.mtimes(Et, pb + ca.mtimes(_acc_operator(pal, pw, pwr), p))
+            bp = ca.mtimes(Et, pb + _acc_operator(pal, pw, pwr)(p))
         if not n.v:
             z = ca.SX.zeros(3)
             out.append((z if wp is None else wp, z if wrp is None else wrp,
@@ -520,22 +520,28 @@ def _forward_classical(tree: Tree, frames: list[_Frame], v, vr, vdr) -> list[tup
 
 
 def _acc_operator(al, w, wr):
-    """M with M x = α × x + ω_r × (ω × x) = ([α]× + ω ω_rᵀ − (ω_r·ω) 1) x."""
+    """x ↦ M x = α × x + ω_r × (ω × x) = ([α]× + ω ω_rᵀ − (ω_r·ω) 1) x, M's entries formed
+    once (CasADi keeps those a sparse x reads). The diagonal ω_i ω_r,i − ω_r·ω is minus
+    the other two products' sum, subtracted in place."""
     if wr is w:                        # ω ωᵀ is symmetric: each product once
         P = [[None] * 3 for _ in range(3)]
         for i in range(3):
             for j in range(i, 3):
                 P[i][j] = P[j][i] = w[i] * w[j]
-        d = P[0][0] + P[1][1] + P[2][2]
-        return ca.vertcat(
-            ca.horzcat(P[0][0] - d, P[0][1] - al[2], P[0][2] + al[1]),
-            ca.horzcat(P[1][0] + al[2], P[1][1] - d, P[1][2] - al[0]),
-            ca.horzcat(P[2][0] - al[1], P[2][1] + al[0], P[2][2] - d))
-    d = ca.dot(wr, w)
-    return ca.vertcat(
-        ca.horzcat(w[0] * wr[0] - d, w[0] * wr[1] - al[2], w[0] * wr[2] + al[1]),
-        ca.horzcat(w[1] * wr[0] + al[2], w[1] * wr[1] - d, w[1] * wr[2] - al[0]),
-        ca.horzcat(w[2] * wr[0] - al[1], w[2] * wr[1] + al[0], w[2] * wr[2] - d))
+    else:
+        P = [[w[i] * wr[j] for j in range(3)] for i in range(3)]
+    neg = [P[1][1] + P[2][2], P[0][0] + P[2][2], P[0][0] + P[1][1]]
+    off = [[None, P[0][1] - al[2], P[0][2] + al[1]],
+           [P[1][0] + al[2], None, P[1][2] - al[0]],
+           [P[2][0] - al[1], P[2][1] + al[0], None]]
+
+    def apply(x):
+        rows = []
+        for r in range(3):
+            j, k = (r + 1) % 3, (r + 2) % 3
+            rows.append(off[r][j] * x[j] + off[r][k] * x[k] - neg[r] * x[r])
+        return ca.vertcat(*rows)
+    return apply
 
 
 def _body_force_classical(inert: Inertial, om, omr, al, b, same: bool) -> Pair:
@@ -550,11 +556,11 @@ def _body_force_classical(inert: Inertial, om, omr, al, b, same: bool) -> Pair:
             if any(d):
                 Iw = ca.SX(I) - next(x for x in d if x) * ca.SX.eye(3)
         n = ca.mtimes(I, al) + ca.cross(om, ca.mtimes(Iw, om)) + ca.cross(h, b)
-        return n, m * b + ca.mtimes(_acc_operator(al, om, om), h)
+        return n, m * b + _acc_operator(al, om, om)(h)
     w = ca.cross(om, omr)
     tr = 0.5 * (I[0, 0] + I[1, 1] + I[2, 2])
     n = (ca.mtimes(I, al - w) + tr * w + ca.cross(omr, ca.mtimes(I, om)) + ca.cross(h, b))
-    return n, m * b + ca.mtimes(_acc_operator(al, om, omr), h)
+    return n, m * b + _acc_operator(al, om, omr)(h)
 
 
 def body_force(inert: Inertial, v: Pair, vr: Pair, ar: Pair) -> Pair:
