@@ -66,8 +66,8 @@ b = Eᵀ(−g), ω = α = 0. M is applied in place, its diagonal ω_i ω_r,i −
 minus the other two products' sum. A constant I enters ω × (I ω) and ω_r × (I ω)
 shifted by a diagonal entry (:func:`_body_force_classical`). On the floating Talos
 (38 DoF) these took the classical τ (``rnea``) from 5,976 to 5,163 CasADi instructions
-and the Slotine–Li τ from 6,867 to 5,943 (callgrind, -O3: 15,005 to 13,258 and 17,025
-to 15,288 machine instructions per call, libm's sincos included).
+and the Slotine–Li τ from 6,867 to 5,943 (callgrind, -O3: 15,019 to 13,272 and 17,017
+to 15,188 machine instructions per call, libm's sincos included; benchmarks/README.md).
 
 * :func:`inverse_dynamics`: τ as above; at v_r = v, v̇_r = v̇ it is the classical
   Newton–Euler inverse dynamics (Pinocchio's ``rnea``), at v = v_r = v̇_r = 0 gravity.
