@@ -7,7 +7,10 @@ URDF parser and the libraries). For each URDF file (vendor trees: Talos, ANYmal,
 1. softgen loads it whole (``load_model(path, floating=...)``) and generates τ, the
    bundle's ``inverse_dynamics`` (q, q̇, q̇_r, q̈_r; called at q̇_r = q̇) and its classical
    inverse dynamics ``rnea`` (q, v, a), at the flags of ``softgen generate``
-   (:data:`softgen.codegen.build.CFLAGS`; ``--cflags`` adds flags to both sides alike);
+   (:data:`softgen.codegen.build.CFLAGS`; ``--cflags`` adds flags to both sides alike)
+   and at the level a bundle compiles each at (-O1 from
+   :data:`softgen.codegen.generate.LARGE_FUNCTION` CasADi instructions on, else -O3;
+   a floating bundle's ``rnea`` always -O3; ``--level O3``: all at -O3);
 2. Pinocchio's URDF parser (its Python bindings, a free-flyer root for a floating base)
    reads the same file; its model (joint types, placements, inertias, damping) is
    written out and rebuilt joint by joint in the C++ harness (the pip wheel ships no
@@ -17,6 +20,10 @@ URDF parser and the libraries). For each URDF file (vendor trees: Talos, ANYmal,
    and softgen's functions interleaved in rounds (the first dropped), each loop on
    ``CLOCK_THREAD_CPUTIME_ID``, and prints median [min-max] ns per call and the ratio
    Pinocchio ÷ softgen (above 1: softgen faster).
+
+``--callgrind`` also runs the harness under valgrind's callgrind, a few calls of each
+model, and prints each function's instructions per call (inclusive: libm's sin and cos
+count), a figure the machine's load does not move.
 
 A mimic joint is an independent joint to Pinocchio's parser: files with mimic joints are
 refused here (compare like for like: talos_reduced, not talos_full_v2).
@@ -30,6 +37,7 @@ machine still shares caches.
 from __future__ import annotations
 
 import argparse
+import re
 import subprocess
 import tempfile
 import time
@@ -40,6 +48,7 @@ import numpy as np
 
 from softgen.app.peers import _CPP_HEAD, pinocchio_prefix, renamed
 from softgen.codegen.build import CFLAGS
+from softgen.codegen.generate import LARGE_FUNCTION
 
 #: softgen's compiler flags without -shared (the harness links an object file).
 SOFTGEN_CFLAGS = [f for f in CFLAGS if f != "-shared"]
@@ -86,6 +95,13 @@ static Model build_tree(const char *path, Eigen::Vector3d &g) {
   return m;
 }
 
+// Out of line, so that callgrind counts each call's instructions under one name (the
+// CasADi functions are their own symbols already; their sin/cos are counted inside them).
+__attribute__((noinline)) static void call_rnea(const Model &m, Data &d, const Eigen::VectorXd &q,
+                                                const Eigen::VectorXd &v, const Eigen::VectorXd &a) {
+  rnea(m, d, q, v, a);
+}
+
 static void bench_tree(const char *tag, const char *desc, int floating, const char *map,
                        casadi_fn tau, work_fn tau_w, casadi_fn id3, work_fn id3_w,
                        long calls, int repeats) {
@@ -108,14 +124,14 @@ static void bench_tree(const char *tag, const char *desc, int floating, const ch
   CFun ftau(tau, tau_w, {q.data(), v.data(), v.data(), a.data()}, out.data());
   CFun fid3(id3, id3_w, {q.data(), v.data(), a.data()}, out3.data());
   ftau(); fid3();
-  rnea(m, d, qp, vp, ap);
+  call_rnea(m, d, qp, vp, ap);
   Eigen::VectorXd ref = d.tau + m.damping.cwiseProduct(vp), ours(nv);
   for (int k = 0; k < nv; ++k) ours[k] = ref[iv[k]];
   double s = std::max(1.0, ours.cwiseAbs().maxCoeff());
   double err = (ours - out).cwiseAbs().maxCoeff() / s, err3 = (ours - out3).cwiseAbs().maxCoeff() / s;
   std::vector<double> t_rnea, t_tau, t_id3;
   for (int r = 0; r < repeats + 1; ++r) {     // the first round warms up and is dropped
-    double a1 = time_ns([&] { rnea(m, d, qp, vp, ap); sink += d.tau[0]; }, calls);
+    double a1 = time_ns([&] { call_rnea(m, d, qp, vp, ap); sink += d.tau[0]; }, calls);
     double a2 = time_ns([&] { ftau(); sink += out[0]; }, calls);
     double a3 = time_ns([&] { fid3(); sink += out3[0]; }, calls);
     if (r == 0) continue;
@@ -179,6 +195,11 @@ def main(argv=None) -> int:
     ap.add_argument("--pin-prefix", type=Path, default=None)
     ap.add_argument("--keep", type=Path, default=None, help="work in this directory and keep "
                     "it (the harness takes minutes of g++)")
+    ap.add_argument("--callgrind", action="store_true", help="also count each function's "
+                    "instructions per call under valgrind's callgrind (robust to the load)")
+    ap.add_argument("--level", choices=("bundle", "O3"), default="bundle",
+                    help="compile each function at the level its bundle does (-O1 from "
+                    "LARGE_FUNCTION CasADi instructions on; default) or all at -O3")
     ap.add_argument("--cflags", default="", help="extra flags for both compilers alike, e.g. "
                     "'-march=native' (default: none, as softgen builds bundles)")
     args = ap.parse_args(argv)
@@ -189,7 +210,19 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="softgen-tree-pin-") as tmp_:
         tmp = Path(tmp_) if args.keep is None else args.keep.resolve()
         tmp.mkdir(parents=True, exist_ok=True)
-        gen = ca.CodeGenerator("softgen_fns.c", {"with_header": True})
+        # One C file per compiler level: a bundle compiles each function at -O3, or at
+        # -O1 from LARGE_FUNCTION CasADi instructions on (softgen.bundles.bundle);
+        # --level O3 compiles all at -O3.
+        gens = {lv: ca.CodeGenerator(f"softgen_fns{suffix}.c", {"with_header": True})
+                for lv, suffix in (("-O3", ""), ("-O1", "_o1"))}
+        used: set[str] = set()
+
+        def add(fn, name, keep_o3=False):
+            lv = "-O1" if args.level == "bundle" and not keep_o3 and \
+                fn.n_instructions() >= LARGE_FUNCTION else "-O3"
+            used.add(lv)
+            gens[lv].add(renamed(fn, name))
+            return lv
         calls = []
         for k, path in enumerate(args.urdf):
             tag = f"m{k}"
@@ -201,27 +234,38 @@ def main(argv=None) -> int:
             print(f"# {tag} = {path.name} ({'floating' if model.floating else 'fixed'}, nv "
                   f"{model.nv}): derived in {time.perf_counter() - t0:.1f} s; CasADi "
                   f"instructions: inverse_dynamics {tau.n_instructions()}, (q, v, a) "
-                  f"{id3.n_instructions()}", flush=True)
+                  f"{id3.n_instructions()}; compiled at {add(tau, f'tau_{tag}')} and "
+                  f"{add(id3, f'id3_{tag}', keep_o3=model.floating)}", flush=True)
             desc, pm = pinocchio_description(path, model.floating)
             (tmp / f"{tag}.txt").write_text(desc)
             iq, iv = coordinate_map(pm, model, path.name)
             (tmp / f"{tag}.map").write_text(f"{model.nq} {model.nv}\n{' '.join(map(str, iq))}\n"
                                             f"{' '.join(map(str, iv))}\n")
-            gen.add(renamed(tau, f"tau_{tag}"))
-            gen.add(renamed(id3, f"id3_{tag}"))
-            calls.append(f'  bench_tree("{tag}", "{tmp / (tag + ".txt")}", {int(model.floating)}, '
+            calls.append(f'  if (only < 0 || only == {k}) bench_tree("{tag}", '
+                         f'"{tmp / (tag + ".txt")}", {int(model.floating)}, '
                          f'"{tmp / (tag + ".map")}", tau_{tag}, tau_{tag}_work, id3_{tag}, '
-                         f"id3_{tag}_work, {args.calls}, {args.repeats});")
-        gen.generate(str(tmp) + "/")
+                         f"id3_{tag}_work, calls, repeats);")
+        for g in gens.values():
+            g.generate(str(tmp) + "/")
+        with open(tmp / "softgen_fns.h", "a") as fh:      # the harness includes this one
+            fh.write('\n#include "softgen_fns_o1.h"\n')
         cpp = tmp / "harness.cpp"
-        text = (_CPP_HEAD + _HARNESS + "\nint main() {\n" + "\n".join(calls)
+        # harness [calls [repeats [model]]]: the defaults, or a few calls of one model
+        # (under callgrind).
+        text = (_CPP_HEAD + _HARNESS + "\nint main(int argc, char **argv) {\n"
+                + f"  long calls = argc > 1 ? atol(argv[1]) : {args.calls};\n"
+                + f"  int repeats = argc > 2 ? atoi(argv[2]) : {args.repeats};\n"
+                + "  int only = argc > 3 ? atoi(argv[3]) : -1;\n" + "\n".join(calls)
                 + "\n  return 0;\n}\n")
         t0 = time.perf_counter()
         extra = args.cflags.split()
         # softgen's C at the flags of `softgen generate` (softgen.codegen.build.CFLAGS).
-        subprocess.run(["gcc", *SOFTGEN_CFLAGS, *extra, "-c", "-o", str(tmp / "softgen_fns.o"),
-                        str(tmp / "softgen_fns.c")], check=True)
-        print(f"# gcc -O3 of softgen's C: {time.perf_counter() - t0:.1f} s", flush=True)
+        objs = []
+        for lv, suffix in (("-O3", ""), ("-O1", "_o1")):
+            objs.append(str(tmp / f"softgen_fns{suffix}.o"))
+            subprocess.run(["gcc", lv, *SOFTGEN_CFLAGS[1:], *extra, "-c", "-o", objs[-1],
+                            str(tmp / f"softgen_fns{suffix}.c")], check=True)
+        print(f"# gcc of softgen's C: {time.perf_counter() - t0:.1f} s", flush=True)
         defs = ["-DBOOST_MPL_LIMIT_LIST_SIZE=30", "-DBOOST_MPL_LIMIT_VECTOR_SIZE=30",
                 "-DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS", "-DBOOST_FUSION_INVOKE_MAX_ARITY=12"]
         t0 = time.perf_counter()
@@ -232,7 +276,7 @@ def main(argv=None) -> int:
                             f"-I{prefix}/include", f"-I{prefix}/include/eigen3", f"-I{tmp}",
                             "-c", "-o", str(tmp / "harness.o"), str(cpp)], check=True)
         subprocess.run(["g++", "-o", str(tmp / "harness"), str(tmp / "harness.o"),
-                        str(tmp / "softgen_fns.o"), f"-L{prefix}/lib", "-lpinocchio_default",
+                        *objs, f"-L{prefix}/lib", "-lpinocchio_default",
                         f"-Wl,-rpath,{prefix}/lib", "-lm"], check=True)
         print(f"# g++ -O3 of the Pinocchio harness: {time.perf_counter() - t0:.1f} s",
               flush=True)
@@ -240,6 +284,8 @@ def main(argv=None) -> int:
         if run.returncode != 0:
             raise SystemExit(f"harness failed ({run.returncode}): {run.stderr[-2000:]}")
         out = run.stdout
+        counted = ([callgrind_counts(tmp, k, f"m{k}") for k in range(len(args.urdf))]
+                   if args.callgrind else [])
     print(f"{'model':<6} {'nv':>3} {'|τ-rnea|':>9} {'|id-rnea|':>9}  {'Pinocchio rnea ns':>22}  "
           f"{'softgen τ ns':>22} {'÷':>5}  {'softgen (q,v,a) ns':>22} {'÷':>5}")
     for line in out.splitlines():
@@ -249,7 +295,41 @@ def main(argv=None) -> int:
         print(f"{f[0]:<6} {f[1]:>3} {float(f[2]):9.1e} {float(f[3]):9.1e}  {cell(v[0]):>22}  "
               f"{cell(v[1]):>22} {v[0, 0] / v[1, 0]:5.2f}  {cell(v[2]):>22} "
               f"{v[0, 0] / v[2, 0]:5.2f}")
+    for k, c in enumerate(counted):
+        if c is None:
+            continue
+        print(f"callgrind m{k}: instructions per call (libm's sin/cos included): Pinocchio "
+              f"rnea {c['rnea']:,.0f}, softgen τ {c['tau']:,.0f} (÷ {c['rnea'] / c['tau']:.2f}), "
+              f"softgen (q,v,a) {c['id3']:,.0f} (÷ {c['rnea'] / c['id3']:.2f})")
     return 0
+
+
+#: Calls of each function per model in the callgrind run: the check, then 2 rounds of 30.
+_CG_CALLS, _CG_REPEATS = 30, 1
+
+
+def callgrind_counts(tmp: Path, k: int, tag: str) -> dict[str, float] | None:
+    """Instructions per call of Pinocchio's rnea and softgen's two functions of model k,
+    counted by callgrind (``valgrind --tool=callgrind``; inclusive: callees such as libm's
+    sin and cos count), which does not depend on the machine's load."""
+    out = tmp / f"callgrind.{tag}.out"
+    run = subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}",
+                          str(tmp / "harness"), str(_CG_CALLS), str(_CG_REPEATS), str(k)],
+                         capture_output=True, text=True)
+    if run.returncode != 0:
+        # e.g. SIGILL: valgrind does not know every instruction of -march=native builds.
+        print(f"# callgrind {tag}: failed ({run.returncode}): {run.stderr.strip()[-300:]}")
+        return None
+    ann = subprocess.run(["callgrind_annotate", "--inclusive=yes", str(out)],
+                         check=True, capture_output=True, text=True).stdout
+    n = 1 + (_CG_REPEATS + 1) * _CG_CALLS
+    got = {}
+    for key, sym in (("rnea", "call_rnea"), ("tau", f"tau_{tag}"), ("id3", f"id3_{tag}")):
+        m = re.search(rf"^\s*([\d,]+) .*[:\s]{sym}\b", ann, re.MULTILINE)
+        if m is None:
+            raise SystemExit(f"callgrind: no count for {sym} in {out}")
+        got[key] = int(m.group(1).replace(",", "")) / n
+    return got
 
 
 if __name__ == "__main__":

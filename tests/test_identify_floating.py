@@ -180,3 +180,25 @@ def test_floating_log_needs_the_base_pose_and_a_whole_wrench(tmp_path):
         csv.writer(fh).writerows([header] + rows.tolist())
     with pytest.raises(LogError, match="column 'base_fy' missing"):
         identify_model(path, log, out=tmp_path / "x.toml")
+
+
+def test_floating_log_checks_read_the_joint_columns(tmp_path):
+    """check_log on a floating base's log judges the joints' q and τ (after the base pose
+    and wrench), names them tau<j>/q<j>, and takes a contact-free log's zero wrench."""
+    from softgen.app.identify.rigid import check_log, read_identification_log
+    from softgen.core.errors import SoftgenError
+    path = tmp_path / "quad.toml"
+    path.write_text(quadruped_toml())
+    model = load_model(path)
+    log_path = _write_log(tmp_path / "quad_log.csv", model, T=1.0, wrench=False)
+    log = read_identification_log(log_path, model.dof, floating=True)
+    assert log.q.shape[1] == 7 + model.dof and log.tau.shape[1] == 6 + model.dof
+    assert np.all(log.tau[:, :6] == 0.0)
+    check_log(log, model)                       # contact-free: the wrench columns are 0
+    log.tau[:, 6 + 2] = 1.5
+    with pytest.raises(SoftgenError, match=r"tau3 constant \(1\.5\)"):
+        check_log(log, model)
+    log = read_identification_log(log_path, model.dof, floating=True)
+    log.q[:, 7 + 4] = 0.25
+    with pytest.raises(SoftgenError, match="q5 never moves"):
+        check_log(log, model)

@@ -106,14 +106,16 @@ def test_tree_equals_pinocchio(seed, n, floating):
                                        ca.horzcat(s[8], s[9], s[6]))) for s in syms]
     tau_d = T.inverse_dynamics(tree, sym_inert, q, v, vr, a)
     delta = ca.vertcat(*syms)
+    # τ twice: the Slotine–Li form at v_r = v and the short classical form (v_r None).
     f = ca.Function("f", [q, v, a], [T.inverse_dynamics(tree, inert, q, v, v, a),
                                      T.mass_matrix(tree, inert, q),
-                                     ca.substitute(ca.jacobian(tau_d, delta), vr, v)])
+                                     ca.substitute(ca.jacobian(tau_d, delta), vr, v),
+                                     T.inverse_dynamics(tree, inert, q, v, None, a)])
     rng = np.random.default_rng(seed + 100)
     worst = 0.0
     for _ in range(5):
         qn, vn, an = _random_q(rng, tree, floating), rng.normal(size=tree.nv), rng.normal(size=tree.nv)
-        tau, B, Y = (np.array(x) for x in f(qn, vn, an))
+        tau, B, Y, tau_short = (np.array(x) for x in f(qn, vn, an))
         tp = pin.rnea(pmodel, pdata, qn, vn, an)
         Bp = pin.crba(pmodel, pdata, qn)
         Bp = np.triu(Bp) + np.triu(Bp, 1).T
@@ -122,7 +124,7 @@ def test_tree_equals_pinocchio(seed, n, floating):
         # joint frame's origin); ours: m, h, Ixx, Iyy, Izz, Ixy, Ixz, Iyz.
         perm = [0, 1, 2, 3, 4, 6, 9, 5, 7, 8]
         Yp = np.hstack([Yp[:, 10 * b:10 * b + 10][:, perm] for b in range(len(tree.nodes))])
-        for ours, theirs in ((tau.ravel(), tp), (B, Bp), (Y, Yp)):
+        for ours, theirs in ((tau.ravel(), tp), (tau_short.ravel(), tp), (B, Bp), (Y, Yp)):
             worst = max(worst, _rel(ours, theirs))
     assert worst <= 1e-10, worst
 
@@ -259,6 +261,8 @@ def test_custom_joints_equal_lagrangian():
     q, v, vr, a = (ca.SX.sym(x, 7) for x in ("q", "v", "vr", "a"))
     rec = ca.Function("rec", [q, v, vr, a], [T.inverse_dynamics(tree, inert, q, v, vr, a),
                                              T.mass_matrix(tree, inert, q)])
+    # The short classical form (v_r = v, its Ṡ term included) against the Lagrangian's.
+    short = ca.Function("short", [q, v, vr, a], [T.inverse_dynamics(tree, inert, q, v, None, a)])
     lag = _lagrangian(tree, bodies, g)
     rng = np.random.default_rng(9)
     states = [[rng.uniform(-2, 2, 7)] + [rng.normal(size=7) for _ in range(3)] for _ in range(6)]
@@ -268,6 +272,9 @@ def test_custom_joints_equal_lagrangian():
         (t1, B1), (t2, B2) = ([np.array(o) for o in fn(*x)] for fn in (rec, lag))
         assert _rel(t1, t2) <= 1e-12 and _rel(B1, B2) <= 1e-12
         assert np.all(np.isfinite(t1))
+        t3 = np.array(short(*x))
+        t4 = np.array(lag(x[0], x[1], x[1], x[3])[0])
+        assert _rel(t3, t4) <= 1e-12
 
 
 class _Universal(T.Joint):

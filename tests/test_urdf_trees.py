@@ -133,16 +133,18 @@ def worst_errors(path, model, k: int = 5, regressor: bool = True) -> dict[str, f
     """Largest relative differences to Pinocchio over ``k`` random states."""
     twin = PinocchioTwin(path, model)
     d = RigidDynamics(model)
-    tau, B = d.inverse_dynamics_fun(), d.inertia_fun()
+    tau, B, rnea = d.inverse_dynamics_fun(), d.inertia_fun(), d.rnea_fun()
     Yd, keep = _y_delta(d) if regressor else (None, [])
     rng = np.random.default_rng(3)
-    worst = {"tau": 0.0, "B": 0.0, "Y": 0.0}
+    worst = {"tau": 0.0, "rnea": 0.0, "B": 0.0, "Y": 0.0}
 
     def rel(a, b):
         return float(np.max(np.abs(a - b)) / max(1.0, np.max(np.abs(b))))
     for _ in range(k):
         q, v, a = _random_state(rng, model)
-        worst["tau"] = max(worst["tau"], rel(np.array(tau(q, v, v, a)).ravel(), twin.tau(q, v, a)))
+        ref = twin.tau(q, v, a)
+        worst["tau"] = max(worst["tau"], rel(np.array(tau(q, v, v, a)).ravel(), ref))
+        worst["rnea"] = max(worst["rnea"], rel(np.array(rnea(q, v, a)).ravel(), ref))
         worst["B"] = max(worst["B"], rel(np.array(B(q)), twin.inertia(q)))
         if Yd is not None:
             worst["Y"] = max(worst["Y"], rel(np.array(Yd(q, v, a))[:, keep],
@@ -463,7 +465,10 @@ def test_a_single_free_body_is_a_floating_base(tmp_path):
 VENDOR_TREES = ["talos_full_v2.urdf", "talos_reduced.urdf", "anymal_c.urdf", "anymal_b.urdf",
                 "solo12.urdf", "hyq_no_sensors.urdf", "go2.urdf", "a1.urdf", "icub.urdf",
                 "baxter.urdf", "pr2.urdf", "tiago_pro.urdf", "alex_psyonic_hands.urdf",
-                "simple_humanoid.urdf", "panda.urdf", "ur5_robot.urdf"]
+                "simple_humanoid.urdf", "panda.urdf", "ur5_robot.urdf",
+                # a dual arm with mimic fingers (OrebroUniversity/yumi), a quadruped with an
+                # arm, a hand on a humanoid torso
+                "yumi.urdf", "anymal-kinova.urdf", "b1-z1.urdf", "alex_sake_hands.urdf"]
 
 
 @pytest.mark.slow
@@ -692,3 +697,15 @@ def test_planar_tree_routes_agree(tmp_path):
     for _ in range(4):
         outs = [np.array(o) for o in f(*rng.normal(size=(4, 4)))]
         assert all(np.allclose(o, outs[0], rtol=1e-12, atol=1e-12) for o in outs[1:])
+
+
+def test_floating_rnea_keeps_o3_when_large(humanoid, monkeypatch):
+    """A floating bundle compiles its classical rnea at -O3 whatever its size; other
+    functions from LARGE_FUNCTION CasADi instructions on at -O1 (issue 34's rule)."""
+    import softgen.bundles.bundle as bundle_mod
+    monkeypatch.setattr(bundle_mod, "LARGE_FUNCTION", 50)
+    model = load_model(humanoid, floating=True)
+    spec = bundle_mod._assemble(model, bundle_mod.DEFAULT_OPTIONS)
+    levels = {g.function.name(): g.optimization for g in spec.functions}
+    assert levels[f"{model.name}_rnea"] == "-O3"
+    assert levels[f"{model.name}_inverse_dynamics"] == "-O1"

@@ -60,8 +60,15 @@ def floating_dynamics(ctx: Context) -> Part:
     part = rigid_dynamics(ctx)
     dyn = ctx.dyn
     part.functions += [
+        # Kept at -O3 whatever its size (bundle.py compiles functions of LARGE_FUNCTION
+        # CasADi instructions or more at -O1): on the floating Talos (5,197 instructions)
+        # -O1 runs 3 % more instructions (callgrind 13,578 against 13,175 per call) and,
+        # both sides at -march=native, 16 % more time (1,188 against 1,023 ns, thread CPU
+        # clock; benchmarks/tree_pinocchio.py --level bundle|O3). No shipped model has a
+        # floating base, so `generate --all` compiles nothing more.
         Generated(dyn.rnea_fun(), "classical inverse dynamics tau(q, qd, a) = B a + C qd + "
-                                  "G (+ K q + D qd), Pinocchio's rnea (+ D qd)"),
+                                  "G (+ K q + D qd), Pinocchio's rnea (+ D qd)",
+                  optimization="-O3"),
         Generated(dyn.configuration_rate_fun(), "q_dot(q, qd): base position rate R v, "
                                                 "quaternion rate q (x) (w, 0) / 2, joint rates"),
         Generated(dyn.integrate_fun(), "q after moving with the constant velocity qd for dt "

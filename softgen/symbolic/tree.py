@@ -48,6 +48,27 @@ This holds for any body Jacobian J_i(q), which is why q-dependent S (soft segmen
 need only the Ṡ term. The expansion of the body force in (m, h = m c, I_o) is
 :func:`body_force` (derived in :mod:`softgen.symbolic.recursive`).
 
+Classical sweep
+---------------
+The body force reads u (the linear velocity) only in b = a_r,lin + ω_r × u, so
+:func:`inverse_dynamics` propagates b instead of (u, a_r,lin) (Featherstone's
+"classical" acceleration, generalised to v_r). With ω_p = Eᵀ ω_λ (the parent's
+rotation seen in node coordinates), s = S_u v_j, s_r = S_u v_r,j, expanding b_i over the
+recursion cancels every u:
+
+    b_i = Eᵀ (b_λ + M_λ p) + S_u v̇_r,j + ω_i × s_r + ω_r,p × s (+ Ṡ's linear part),
+    M x = α_r × x + ω_r × (ω × x) = ([α_r]× + ω ω_rᵀ − (ω_r·ω) 1) x,
+
+and the body force's α × h + ω_r × (ω × h) is M_i h. M is formed once per node and
+applied to h and to every child's p (CasADi keeps only the columns a sparse p reads);
+revolute joints have s = s_r = 0, so b_i = Eᵀ (b_λ + M_λ p). The root starts at
+b = Eᵀ(−g), ω = α = 0. M is applied in place, its diagonal ω_i ω_r,i − ω_r·ω being
+minus the other two products' sum. A constant I enters ω × (I ω) and ω_r × (I ω)
+shifted by a diagonal entry (:func:`_body_force_classical`). On the floating Talos
+(38 DoF) these took the classical τ (``rnea``) from 5,976 to 5,163 CasADi instructions
+and the Slotine–Li τ from 6,867 to 5,943 (callgrind, -O3: 15,019 to 13,272 and 17,017
+to 15,188 machine instructions per call, libm's sincos included; benchmarks/README.md).
+
 * :func:`inverse_dynamics`: τ as above; at v_r = v, v̇_r = v̇ it is the classical
   Newton–Euler inverse dynamics (Pinocchio's ``rnea``), at v = v_r = v̇_r = 0 gravity.
 * :func:`regressor_blocks`: ∂(sᵀ τ)/∂δ_i, the blocks of Yᵀ s, by the forward ψ sweep
@@ -446,6 +467,112 @@ def _forward(tree: Tree, frames: list[_Frame], v, vr, vdr, s=None):
     return out
 
 
+def _psi_sweep(tree: Tree, frames: list[_Frame], s) -> list[Pair]:
+    """ψ_i = X_i ψ_λ + S_i s_j: each node's twist when the joints move with s."""
+    out: list[Pair] = []
+    for n, fr in zip(tree.nodes, frames):
+        psi = None if n.parent < 0 else _to_child(fr.E, fr.p, out[n.parent])
+        if n.v:
+            Ss = _S_times(fr.S, _select(s, n.v))
+            psi = Ss if psi is None else _add(psi, Ss)
+        out.append((ca.SX.zeros(3), ca.SX.zeros(3)) if psi is None else psi)
+    return out
+
+
+def _forward_classical(tree: Tree, frames: list[_Frame], v, vr, vdr) -> list[tuple]:
+    """Per node (ω, ω_r, α_r, b_r) with b_r = a_r,lin + ω_r × u (module docstring,
+    "Classical sweep"): the same body forces as :func:`_forward` without the linear
+    velocities u. ``vr`` None is v_r = v."""
+    root_b = -tree.gravity
+    out: list[tuple] = []
+    for n, fr in zip(tree.nodes, frames):
+        E, p, S = fr.E, fr.p, fr.S
+        Et = E.T
+        if n.parent < 0:               # the root frame: at rest, accelerating by −g
+            wp = wrp = alp = None
+            bp = ca.mtimes(Et, root_b)
+        else:
+            pw, pwr, pal, pb = out[n.parent]
+            wp = ca.mtimes(Et, pw)
+            wrp = wp if vr is None else ca.mtimes(Et, pwr)
+            alp = ca.mtimes(Et, pal)
+            # The parent's α_r × p + ω_r × (ω × p): its acceleration carried to this origin.
+            bp = ca.mtimes(Et, pb + _acc_operator(pal, pw, pwr)(p))
+        if not n.v:
+            z = ca.SX.zeros(3)
+            out.append((z if wp is None else wp, z if wrp is None else wrp,
+                        z if alp is None else alp, bp))
+            continue
+        vj = _select(v, n.v)
+        vrj = vj if vr is None else _select(vr, n.v)
+        wj, sj = _S_times(S, vj)
+        wrj, srj = (wj, sj) if vr is None else _S_times(S, vrj)
+        wi = wj if wp is None else wp + wj
+        wri = wi if vr is None else (wrj if wrp is None else wrp + wrj)
+        dw, ds = _S_times(S, _select(vdr, n.v))
+        # a_r = X a_r,λ + S v̇_r + v × S v_r (+ Ṡ v_r); b_r = a_r,lin + ω_r × u expands to
+        # the parent's part above + S_u v̇_r + ω × s_r + ω_r,parent × s.
+        al = dw + ca.cross(wi, wrj) if alp is None else alp + dw + ca.cross(wi, wrj)
+        b = bp + ds + ca.cross(wi, srj)
+        if wrp is not None:
+            b = b + ca.cross(wrp, sj)
+        Sd = n.joint.motion_rate(fr.qj, vj, vrj)
+        if Sd is not None:
+            al, b = al + Sd[0], b + Sd[1]
+        out.append((wi, wri, al, b))
+    return out
+
+
+def _acc_operator(al, w, wr):
+    """x ↦ M x = α × x + ω_r × (ω × x) = ([α]× + ω ω_rᵀ − (ω_r·ω) 1) x, M's entries formed
+    once (CasADi keeps those a sparse x reads). The diagonal ω_i ω_r,i − ω_r·ω is minus
+    the other two products' sum, subtracted in place."""
+    if wr is w:                        # ω ωᵀ is symmetric: each product once
+        P = [[None] * 3 for _ in range(3)]
+        for i in range(3):
+            for j in range(i, 3):
+                P[i][j] = P[j][i] = w[i] * w[j]
+    else:
+        P = [[w[i] * wr[j] for j in range(3)] for i in range(3)]
+    neg = [P[1][1] + P[2][2], P[0][0] + P[2][2], P[0][0] + P[1][1]]
+    off = [[None, P[0][1] - al[2], P[0][2] + al[1]],
+           [P[1][0] + al[2], None, P[1][2] - al[0]],
+           [P[2][0] - al[1], P[2][1] + al[0], None]]
+
+    def apply(x):
+        rows = []
+        for r in range(3):
+            j, k = (r + 1) % 3, (r + 2) % 3
+            rows.append(off[r][j] * x[j] + off[r][k] * x[k] - neg[r] * x[r])
+        return ca.vertcat(*rows)
+    return apply
+
+
+def _diagonal_shift(I) -> float:
+    """λ, a non-zero diagonal entry of a constant I (0.0 if I is symbolic or has none):
+    I − λ 1 has one product fewer (used where λ 1 drops out or folds into a constant)."""
+    if isinstance(I, ca.DM) or (isinstance(I, ca.SX) and I.is_constant()):
+        return next((x for x in (float(ca.DM(I[k, k])) for k in range(3)) if x), 0.0)
+    return 0.0
+
+
+def _body_force_classical(inert: Inertial, om, omr, al, b, same: bool) -> Pair:
+    """:func:`body_force` from b = a_lin + ω_r × u (``same``: v_r = v).
+
+    With λ = :func:`_diagonal_shift` and I' = I − λ 1: ω × (I ω) = ω × (I' ω), and
+    ω_r × (I ω) = ω_r × (I' ω) − λ w (w = ω × ω_r), so −λ w joins ½ tr(I) w."""
+    I, h, m = inert.I, inert.h, inert.m
+    lam = _diagonal_shift(I)
+    Is = ca.SX(I) - lam * ca.SX.eye(3) if lam else I
+    if same:
+        n = ca.mtimes(I, al) + ca.cross(om, ca.mtimes(Is, om)) + ca.cross(h, b)
+        return n, m * b + _acc_operator(al, om, om)(h)
+    w = ca.cross(om, omr)
+    tr = 0.5 * (I[0, 0] + I[1, 1] + I[2, 2]) - lam
+    n = (ca.mtimes(I, al - w) + tr * w + ca.cross(omr, ca.mtimes(Is, om)) + ca.cross(h, b))
+    return n, m * b + _acc_operator(al, om, omr)(h)
+
+
 def body_force(inert: Inertial, v: Pair, vr: Pair, ar: Pair) -> Pair:
     """f = I a_r + 𝔅_b(I, v) v_r, the Christoffel-consistent body force, expanded in
     (m, h, I_o) (derivation in :mod:`softgen.symbolic.recursive`): with w = ω × ω_r and
@@ -475,16 +602,17 @@ def inverse_dynamics(tree: Tree, inertials: Sequence[Inertial | None], q, v, vr,
     ``inertials[i]`` is node i's (m, h, I_o) in node coordinates (None: massless).
     ``vr`` None: the classical inverse dynamics τ(q, v, v̇ = ``vdr``) (Pinocchio's
     ``rnea``), v propagated once and the body force I a + v ×* I v in its short form
-    (:func:`body_force` at v_r = v: w = ω × ω = 0).
+    (:func:`body_force` at v_r = v: w = ω × ω = 0). Both by the classical sweep (module
+    docstring, "Classical sweep"): no linear velocities, one M per node.
     """
     frames = _frames(tree, q)
-    fw = _forward(tree, frames, v, vr, vdr)
+    fw = _forward_classical(tree, frames, v, vr, vdr)
     tau: list = [None] * tree.nv
     pending: list[list] = [[] for _ in tree.nodes]
     for i in reversed(range(len(tree.nodes))):
         n, fr = tree.nodes[i], frames[i]
-        vi, vri, ari, _ = fw[i]
-        f = None if inertials[i] is None else body_force(inertials[i], vi, vri, ari)
+        f = None if inertials[i] is None else _body_force_classical(inertials[i], *fw[i],
+                                                                      same=vr is None)
         for g in reversed(pending[i]):         # children in ascending order
             f = g if f is None else _add(f, g)
         if f is None:
@@ -522,15 +650,16 @@ def regressor_blocks(tree: Tree, inertials: Sequence[Inertial | None], symbols, 
     blocks do not depend on them. A node with ``symbols[i]`` empty gets an empty block.
     """
     frames = _frames(tree, q)
-    fw = _forward(tree, frames, v, vr, vdr, s=s)
+    fw = _forward_classical(tree, frames, v, None if vr is v else vr, vdr)
+    psis = _psi_sweep(tree, frames, s)
     out = []
     for i, inert in enumerate(inertials):
         syms = symbols[i]
         if inert is None or syms.shape[0] == 0:
             out.append(ca.SX(0, 1))
             continue
-        vi, vri, ari, psi = fw[i]
-        f = body_force(inert, vi, vri, ari)
+        psi = psis[i]
+        f = _body_force_classical(inert, *fw[i], same=vr is v)
         e = ca.dot(psi[0], f[0]) + ca.dot(psi[1], f[1])
         g = ca.gradient(e, syms)
         out.append(ca.substitute(g, syms, ca.DM.zeros(syms.shape)))

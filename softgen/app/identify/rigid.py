@@ -645,14 +645,18 @@ def check_log(log: IdentificationLog, model: RobotModel) -> None:
         raise SoftgenError(f"identify: {log.path}: median time step {log.dt:.6g} s: an "
                            f"identification log needs q'' of the motion, so a sample time "
                            f"between {lo:g} and {hi:g} s; {unit}")
-    n = log.q.shape[1]
-    flat_tau = [f"tau{j + 1}" for j in range(n) if np.ptp(log.tau[:, j]) == 0]
+    # A floating base's log has the base pose (7) before q and the base wrench (6) before
+    # τ: the joints' columns are judged here (a contact-free log's wrench is 0 throughout).
+    oq, ov = (7, 6) if model.floating else (0, 0)
+    n = log.q.shape[1] - oq
+    q, tau = log.q[:, oq:], log.tau[:, ov:]
+    flat_tau = [f"tau{j + 1}" for j in range(n) if np.ptp(tau[:, j]) == 0]
     if flat_tau:
-        value = float(log.tau[0, int(flat_tau[0][3:]) - 1])
+        value = float(tau[0, int(flat_tau[0][3:]) - 1])
         raise SoftgenError(f"identify: {log.path}: {', '.join(flat_tau)} constant "
                            f"({value:g}) over the whole log: no torque was logged (or the "
                            "wrong column)")
-    still = [f"q{j + 1}" for j in range(n) if np.ptp(log.q[:, j]) == 0]
+    still = [f"q{j + 1}" for j in range(n) if np.ptp(q[:, j]) == 0]
     if still:
         raise SoftgenError(f"identify: {log.path}: {', '.join(still)} never moves: the log "
                            "does not excite those joints (softgen identify MODEL --excite "
@@ -665,8 +669,9 @@ def unit_hints(log: IdentificationLog, model: RobotModel, res: RigidIdentificati
     a revolute joint spanning more than a turn (degrees), a torque far from what the
     model file predicts along the same motion (mN·m, kN·m, currents)."""
     hints = []
+    oq = 7 if model.floating else 0                 # a floating base's pose comes first
     for j, link in enumerate(model.links):
-        span = float(np.ptp(log.q[:, j]))
+        span = float(np.ptp(log.q[:, oq + j]))
         if link.joint == "revolute" and span > 2 * math.pi:
             hints.append(f"q{j + 1} spans {span:.4g}, more than a turn (2 pi rad): is q in "
                          "degrees?")
