@@ -268,7 +268,7 @@ int arm_2link_electric_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int
 #define arm_2link_electric_slotine_li_loop_SZ_ARG 20
 #define arm_2link_electric_slotine_li_loop_SZ_RES 12
 #define arm_2link_electric_slotine_li_loop_SZ_IW 0
-#define arm_2link_electric_slotine_li_loop_SZ_W 47231
+#define arm_2link_electric_slotine_li_loop_SZ_W 47232
 int arm_2link_electric_qbmove_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int arm_2link_electric_qbmove_torque_checkout(void);
 void arm_2link_electric_qbmove_torque_release(int mem);

@@ -268,7 +268,7 @@ int planar_2link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_r
 #define planar_2link_slotine_li_loop_SZ_ARG 20
 #define planar_2link_slotine_li_loop_SZ_RES 12
 #define planar_2link_slotine_li_loop_SZ_IW 0
-#define planar_2link_slotine_li_loop_SZ_W 47231
+#define planar_2link_slotine_li_loop_SZ_W 47232
 int planar_2link_qbmove_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int planar_2link_qbmove_torque_checkout(void);
 void planar_2link_qbmove_torque_release(int mem);

@@ -340,7 +340,7 @@ int rod_tendon_3seg_plant_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, cas
 #define rod_tendon_3seg_plant_SZ_ARG 11
 #define rod_tendon_3seg_plant_SZ_RES 2
 #define rod_tendon_3seg_plant_SZ_IW 0
-#define rod_tendon_3seg_plant_SZ_W 587
+#define rod_tendon_3seg_plant_SZ_W 586
 int rod_tendon_3seg_tip_loop_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int rod_tendon_3seg_tip_loop_step_checkout(void);
 void rod_tendon_3seg_tip_loop_step_release(int mem);
