@@ -107,6 +107,58 @@ def need_compiler():
         pytest.skip("no C compiler found")
 
 
+#: The shipped bundles whose compile is most of what a fresh clone's default test run
+#: paid for libraries: gcc at their flags took rod_tendon_3seg 33 CPU-s and pcc_3d_4seg
+#: 25 CPU-s, of 106 CPU-s for all fourteen (load 2-6 on 2 CPUs). Tests that compile them
+#: are marked slow; the default run checks the same generated functions on their
+#: one-segment versions (:func:`small_bodies`: 6 CPU-s for both, derived and compiled;
+#: C 0.66 and 0.31 MB against 3.4 and 3.1 MB) (issue 34).
+LARGE_BUNDLES = ("rod_tendon_3seg", "pcc_3d_4seg")
+
+
+def one_segment(text: str, old: str, new: str) -> str:
+    """The model file ``text`` with its first ``[[segments]]`` only, renamed ``new``.
+
+    Everything else (gravity, base, actuators, parameters) is kept: the bundle has the
+    same functions, at one segment."""
+    import re
+    blocks = re.split(r"(?m)^(?=\[)", text)
+    kept, seen = [], False
+    for b in blocks:
+        if b.startswith("[[segments]]"):
+            if seen:
+                continue
+            seen = True
+        kept.append(b)
+    assert seen, "no [[segments]]"
+    out = "".join(kept).replace(f'name = "{old}"', f'name = "{new}"')
+    assert f'name = "{new}"' in out
+    return out
+
+
+@pytest.fixture(scope="session")
+def small_bodies(tmp_path_factory):
+    """One-segment versions of :data:`LARGE_BUNDLES`, generated and compiled once for
+    the session: name -> (model file, bundle directory, the shipped model it cuts).
+    Without a compiler the bundles are written but not built."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from softgen.bundles.bundle import generate
+    from softgen.codegen.build import ensure_library
+    from softgen.core.paths import MODELS_DIR
+    d = tmp_path_factory.mktemp("small_bodies")
+    out = {}
+    for big in LARGE_BUNDLES:
+        name = big.rsplit("_", 1)[0] + "_1seg"
+        path = d / f"{name}.toml"
+        path.write_text(one_segment((MODELS_DIR / f"{big}.toml").read_text(), big, name))
+        out[name] = (path, generate(path, d / "generated"), big)
+    if find_compiler() is not None:
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            list(pool.map(lambda v: ensure_library(v[1]), out.values()))
+    return out
+
+
 @pytest.fixture(scope="session")
 def shipped_libraries():
     """Every shipped bundle's library, compiled once for the session, on every CPU.
@@ -116,6 +168,7 @@ def shipped_libraries():
     are built side by side, largest C first (the 3D PCC bundle alone is most of it), by
     threads that each wait on a compiler process; a library already built (by `softgen
     generate`, or earlier in the session) is only verified. Without a compiler: nothing.
+    :data:`LARGE_BUNDLES` are left to the (slow) tests that load them.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -124,7 +177,7 @@ def shipped_libraries():
     from softgen.modelfile.load import list_models
     if find_compiler() is None:
         return {}
-    names = sorted(list_models(), key=lambda n: -(GENERATED_DIR / n / f"{n}.c").stat().st_size)
+    names = sorted((n for n in list_models() if n not in LARGE_BUNDLES), key=lambda n: -(GENERATED_DIR / n / f"{n}.c").stat().st_size)
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         libs = dict(zip(names, pool.map(lambda n: ensure_library(GENERATED_DIR / n)[0],
                                         names)))
