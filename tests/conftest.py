@@ -101,6 +101,23 @@ def extra_models(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="session")
+def bundle_specs():
+    """``bundle_specs(model)``: the bundle spec of a model (a shipped name or a file path),
+    derived once for the session. Several files check every shipped and held-out model's
+    spec (test_codegen, test_one_truth, test_pcc_bundle, test_actuation_user_models): each
+    derived them again, the 3D arm and the rod ~6 CPU-s each (issue 34)."""
+    from softgen.bundles.bundle import bundle_spec
+    cache = {}
+
+    def get(model):
+        key = str(model)
+        if key not in cache:
+            cache[key] = bundle_spec(load_model(model))
+        return cache[key]
+    return get
+
+
 @pytest.fixture
 def need_compiler():
     if find_compiler() is None:

@@ -24,8 +24,8 @@ from conftest import LARGE_BUNDLES
 
 
 @pytest.fixture(scope="module")
-def specs():
-    return {name: bundle_spec(load_model(name)) for name in list_models()}
+def specs(bundle_specs):
+    return {name: bundle_specs(name) for name in list_models()}
 
 
 def test_generated_dir_matches_generate_all(specs):

@@ -23,8 +23,8 @@ CHECKED = ("soft_pendulum", "pcc_planar_4seg", pytest.param("pcc_3d_4seg", marks
 
 
 @pytest.fixture(scope="module")
-def specs():
-    return {n: bundle_spec(load_model(n)) for n in MODELS}
+def specs(bundle_specs):
+    return {n: bundle_specs(n) for n in MODELS}
 
 
 def _spec(specs, small_bodies, name):
