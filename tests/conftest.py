@@ -128,8 +128,8 @@ def need_compiler():
 #: paid for libraries: gcc at their flags took rod_tendon_3seg 33 CPU-s and pcc_3d_4seg
 #: 25 CPU-s, of 106 CPU-s for all fourteen (load 2-6 on 2 CPUs). Tests that compile them
 #: are marked slow; the default run checks the same generated functions on their
-#: one-segment versions (:func:`small_bodies`: 6 CPU-s for both, derived and compiled;
-#: C 0.66 and 0.31 MB against 3.4 and 3.1 MB) (issue 34).
+#: one-segment versions (:func:`small_bodies`: C of 0.66 and 0.31 MB against 3.4 and
+#: 3.1 MB, 8 CPU-s for both derived and compiled, 2 CPU-s once compiled) (issue 34).
 LARGE_BUNDLES = ("rod_tendon_3seg", "pcc_3d_4seg")
 
 
@@ -154,22 +154,29 @@ def one_segment(text: str, old: str, new: str) -> str:
 
 
 @pytest.fixture(scope="session")
-def small_bodies(tmp_path_factory):
-    """One-segment versions of :data:`LARGE_BUNDLES`, generated and compiled once for
-    the session: name -> (model file, bundle directory, the shipped model it cuts).
-    Without a compiler the bundles are written but not built."""
+def small_bodies():
+    """One-segment versions of :data:`LARGE_BUNDLES`, generated and compiled once: name ->
+    (model file, bundle directory, the shipped model it cuts). They live in the user cache
+    (``softgen.core.paths.cache_dir() / "test-bodies"``) like the run-time loops, so a
+    later session derives them again (the tests need the derivation as their reference)
+    and rewrites only changed files, and compiles only a C source whose hash changed
+    (codegen.build). Without a compiler the bundles are written but not built."""
     from concurrent.futures import ThreadPoolExecutor
 
     from softgen.bundles.bundle import generate
     from softgen.codegen.build import ensure_library
-    from softgen.core.paths import MODELS_DIR
-    d = tmp_path_factory.mktemp("small_bodies")
+    from softgen.core.atomic import write_text
+    from softgen.core.paths import MODELS_DIR, cache_dir
+    root = cache_dir() / "test-bodies"
+    root.mkdir(parents=True, exist_ok=True)
     out = {}
     for big in LARGE_BUNDLES:
         name = big.rsplit("_", 1)[0] + "_1seg"
-        path = d / f"{name}.toml"
-        path.write_text(one_segment((MODELS_DIR / f"{big}.toml").read_text(), big, name))
-        out[name] = (path, generate(path, d / "generated"), big)
+        path = root / f"{name}.toml"
+        text = one_segment((MODELS_DIR / f"{big}.toml").read_text(), big, name)
+        if not path.is_file() or path.read_text() != text:
+            write_text(path, text)
+        out[name] = (path, generate(path, root / "generated"), big)
     if find_compiler() is not None:
         with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
             list(pool.map(lambda v: ensure_library(v[1]), out.values()))
