@@ -20,7 +20,7 @@ from softgen.modelfile.load import list_models, load_model
 from softgen.runtime import library
 from softgen.bundles.bundle import load_bundle
 
-from conftest import LARGE_BUNDLES
+from conftest import COVERED_BUNDLES, LARGE_BUNDLES, SLOW_BUNDLES
 
 
 @pytest.fixture(scope="module")
@@ -66,11 +66,31 @@ def test_manifest_contract(specs):
             assert fn["doc"] and "\n" not in fn["doc"]
 
 
-#: Every shipped bundle, the two largest with -m slow (their compile is most of a fresh
-#: clone's test time), and their one-segment versions (conftest.small_bodies), which have
-#: the same functions, by default.
-BUNDLES = [pytest.param(n, marks=pytest.mark.slow) if n in LARGE_BUNDLES else n
+#: Every shipped bundle, those of conftest.SLOW_BUNDLES with -m slow (their compile was
+#: most of a fresh clone's test time), and the one-segment versions of the two largest
+#: (conftest.small_bodies), which have the same functions, by default.
+BUNDLES = [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_BUNDLES else n
            for n in list_models()] + [n.rsplit("_", 1)[0] + "_1seg" for n in LARGE_BUNDLES]
+
+
+def _kinds(bundle: Path) -> set[str]:
+    """The bundle's generated functions, each by its name after the model's."""
+    m = json.loads((bundle / "manifest.json").read_text())
+    return {f.removeprefix(m["model"] + "_") for f in m["functions"]}
+
+
+def test_default_run_compiles_every_kind_of_function(small_bodies):
+    """What the default run leaves to -m slow is covered by kind: a one-segment body has
+    exactly the functions of the shipped body it cuts, and every function of the other
+    slow bundles has a namesake in a bundle compiled by default (so compiled == CasADi
+    is checked by default on every kind of generated function)."""
+    for name, (_, bundle, big) in small_bodies.items():
+        assert _kinds(bundle) == _kinds(GENERATED_DIR / big), name
+    default = set().union(*(_kinds(GENERATED_DIR / n) for n in list_models()
+                            if n not in SLOW_BUNDLES))
+    for name in COVERED_BUNDLES:
+        assert _kinds(GENERATED_DIR / name) <= default, \
+            (name, sorted(_kinds(GENERATED_DIR / name) - default))
 
 
 def _bundle(name, small_bodies, **kwargs):
