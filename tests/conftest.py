@@ -128,7 +128,7 @@ def need_compiler():
 #: paid for libraries: gcc at their flags took rod_tendon_3seg 33 CPU-s and pcc_3d_4seg
 #: 25 CPU-s, of 106 CPU-s for all fourteen (load 2-6 on 2 CPUs). Tests that compile them
 #: are marked slow; the default run checks the same generated functions on their
-#: one-segment versions (:func:`small_bodies`: C of 0.66 and 0.31 MB against 3.4 and
+#: one-segment versions (:func:`small_bodies`: C of 0.63 and 0.31 MB against 3.4 and
 #: 3.1 MB, 8 CPU-s for both derived and compiled, 2 CPU-s once compiled) (issue 34).
 LARGE_BUNDLES = ("rod_tendon_3seg", "pcc_3d_4seg")
 #: Shipped bundles that no default test loads but test_codegen's every-bundle checks, and
