@@ -101,10 +101,104 @@ def extra_models(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="session")
+def bundle_specs():
+    """``bundle_specs(model)``: the bundle spec of a model (a shipped name or a file path),
+    derived once for the session. Several files check every shipped and held-out model's
+    spec (test_codegen, test_one_truth, test_pcc_bundle, test_actuation_user_models): each
+    derived them again, the 3D arm and the rod ~6 CPU-s each (issue 34)."""
+    from softgen.bundles.bundle import bundle_spec
+    cache = {}
+
+    def get(model):
+        key = str(model)
+        if key not in cache:
+            cache[key] = bundle_spec(load_model(model))
+        return cache[key]
+    return get
+
+
 @pytest.fixture
 def need_compiler():
     if find_compiler() is None:
         pytest.skip("no C compiler found")
+
+
+#: The shipped bundles whose compile is most of what a fresh clone's default test run
+#: paid for libraries: gcc at their flags took rod_tendon_3seg 33 CPU-s and pcc_3d_4seg
+#: 25 CPU-s, of 106 CPU-s for all fourteen (load 2-6 on 2 CPUs). Tests that compile them
+#: are marked slow; the default run checks the same generated functions on their
+#: one-segment versions (:func:`small_bodies`: C of 0.63 and 0.31 MB against 3.4 and
+#: 3.1 MB, 8 CPU-s for both derived and compiled, 2 CPU-s once compiled) (issue 34).
+LARGE_BUNDLES = ("rod_tendon_3seg", "pcc_3d_4seg")
+#: Shipped bundles that no default test loads but test_codegen's every-bundle checks, and
+#: whose every generated function has its kind (the name after the model's) in a bundle
+#: the default run compiles (test_codegen checks this): compiled only with -m slow. gcc
+#: at their flags (load 2-3 on 2 CPUs): panda 7.8, arm_2link_electric 4.7,
+#: planar_2link_mckibben 3.3, gioste_2link 3.2, pendulum_qbmove 2.1 CPU-s (issue 34).
+COVERED_BUNDLES = ("panda", "arm_2link_electric", "planar_2link_mckibben", "gioste_2link",
+                   "pendulum_qbmove")
+#: Every shipped bundle compiled only by slow tests.
+SLOW_BUNDLES = LARGE_BUNDLES + COVERED_BUNDLES
+
+
+def one_segment(text: str, old: str, new: str, *, whole_length: bool = False) -> str:
+    """The model file ``text`` with its first ``[[segments]]`` only, renamed ``new``;
+    with ``whole_length`` that segment is as long as all of them together.
+
+    Everything else (gravity, base, actuators, parameters) is kept: the bundle has the
+    same functions, at one segment."""
+    import re
+    import tomllib
+    blocks = re.split(r"(?m)^(?=\[)", text)
+    kept, seen = [], False
+    for b in blocks:
+        if b.startswith("[[segments]]"):
+            if seen:
+                continue
+            seen = True
+            if whole_length:
+                total = sum(s["length"] for s in tomllib.loads(text)["segments"])
+                b, n = re.subn(r"(?m)^length = .*$", f"length = {round(total, 12)!r}", b)
+                assert n == 1, "no length in the first [[segments]]"
+        kept.append(b)
+    assert seen, "no [[segments]]"
+    out = "".join(kept).replace(f'name = "{old}"', f'name = "{new}"')
+    assert f'name = "{new}"' in out
+    return out
+
+
+@pytest.fixture(scope="session")
+def small_bodies():
+    """One-segment versions of :data:`LARGE_BUNDLES`, generated and compiled once: name ->
+    (model file, bundle directory, the shipped model it cuts). They live in the user cache
+    (``softgen.core.paths.cache_dir() / "test-bodies"``) like the run-time loops, so a
+    later session derives them again (the tests need the derivation as their reference)
+    and rewrites only changed files, and compiles only a C source whose hash changed
+    (codegen.build). Without a compiler the bundles are written but not built."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from softgen.bundles.bundle import generate
+    from softgen.codegen.build import ensure_library
+    from softgen.core.atomic import write_text
+    from softgen.core.paths import MODELS_DIR, cache_dir
+    root = cache_dir() / "test-bodies"
+    root.mkdir(parents=True, exist_ok=True)
+    out = {}
+    for big in LARGE_BUNDLES:
+        name = big.rsplit("_", 1)[0] + "_1seg"
+        path = root / f"{name}.toml"
+        # The rod in one segment of its whole length: its tip-control loop stays finite
+        # from its default state (a single 0.1 m segment of it diverged within 0.5 s).
+        text = one_segment((MODELS_DIR / f"{big}.toml").read_text(), big, name,
+                           whole_length=big.startswith("rod_"))
+        if not path.is_file() or path.read_text() != text:
+            write_text(path, text)
+        out[name] = (path, generate(path, root / "generated"), big)
+    if find_compiler() is not None:
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            list(pool.map(lambda v: ensure_library(v[1]), out.values()))
+    return out
 
 
 @pytest.fixture(scope="session")
@@ -116,6 +210,7 @@ def shipped_libraries():
     are built side by side, largest C first (the 3D PCC bundle alone is most of it), by
     threads that each wait on a compiler process; a library already built (by `softgen
     generate`, or earlier in the session) is only verified. Without a compiler: nothing.
+    :data:`SLOW_BUNDLES` are left to the (slow) tests that load them.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -124,7 +219,7 @@ def shipped_libraries():
     from softgen.modelfile.load import list_models
     if find_compiler() is None:
         return {}
-    names = sorted(list_models(), key=lambda n: -(GENERATED_DIR / n / f"{n}.c").stat().st_size)
+    names = sorted((n for n in list_models() if n not in SLOW_BUNDLES), key=lambda n: -(GENERATED_DIR / n / f"{n}.c").stat().st_size)
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
         libs = dict(zip(names, pool.map(lambda n: ensure_library(GENERATED_DIR / n)[0],
                                         names)))

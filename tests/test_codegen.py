@@ -20,10 +20,12 @@ from softgen.modelfile.load import list_models, load_model
 from softgen.runtime import library
 from softgen.bundles.bundle import load_bundle
 
+from conftest import COVERED_BUNDLES, LARGE_BUNDLES, SLOW_BUNDLES
+
 
 @pytest.fixture(scope="module")
-def specs():
-    return {name: bundle_spec(load_model(name)) for name in list_models()}
+def specs(bundle_specs):
+    return {name: bundle_specs(name) for name in list_models()}
 
 
 def test_generated_dir_matches_generate_all(specs):
@@ -81,66 +83,104 @@ def test_manifest_contract(specs):
             assert fn["doc"] and "\n" not in fn["doc"]
 
 
-def test_regressor_identity_from_the_manifest_alone(need_compiler, shipped_libraries):
+#: Every shipped bundle, those of conftest.SLOW_BUNDLES with -m slow (their compile was
+#: most of a fresh clone's test time), and the one-segment versions of the two largest
+#: (conftest.small_bodies), which have the same functions, by default.
+BUNDLES = [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_BUNDLES else n
+           for n in list_models()] + [n.rsplit("_", 1)[0] + "_1seg" for n in LARGE_BUNDLES]
+
+
+def _kinds(bundle: Path) -> set[str]:
+    """The bundle's generated functions, each by its name after the model's."""
+    m = json.loads((bundle / "manifest.json").read_text())
+    return {f.removeprefix(m["model"] + "_") for f in m["functions"]}
+
+
+def test_default_run_compiles_every_kind_of_function(small_bodies):
+    """What the default run leaves to -m slow is covered by kind: a one-segment body has
+    exactly the functions of the shipped body it cuts, and every function of the other
+    slow bundles has a namesake in a bundle compiled by default (so compiled == CasADi
+    is checked by default on every kind of generated function)."""
+    for name, (_, bundle, big) in small_bodies.items():
+        assert _kinds(bundle) == _kinds(GENERATED_DIR / big), name
+    default = set().union(*(_kinds(GENERATED_DIR / n) for n in list_models()
+                            if n not in SLOW_BUNDLES))
+    for name in COVERED_BUNDLES:
+        assert _kinds(GENERATED_DIR / name) <= default, \
+            (name, sorted(_kinds(GENERATED_DIR / name) - default))
+
+
+def _bundle(name, small_bodies, **kwargs):
+    """The compiled bundle ``name`` and its spec: a shipped one, or a one-segment body."""
+    if name in small_bodies:
+        path, d, _ = small_bodies[name]
+        return load_bundle(d, **kwargs), (lambda: bundle_spec(load_model(path)))
+    return load_bundle(name, **kwargs), None
+
+
+@pytest.mark.parametrize("name", BUNDLES)
+def test_regressor_identity_from_the_manifest_alone(need_compiler, shipped_libraries,
+                                                    small_bodies, name):
     """Y(q, qd, qd_r, qdd_r) @ pi == inverse dynamics, read from the bundle only."""
-    for name in list_models():
-        b = load_bundle(name)
-        rng = np.random.default_rng(11)
-        n = b.manifest["dof"]
-        for _ in range(20):
-            x = [rng.uniform(-3, 3, n) for _ in range(4)]
-            assert np.allclose(b.regressor(*x) @ b.parameter_nominal, b.inverse_dynamics(*x),
-                               rtol=1e-12, atol=1e-14)
+    b, _ = _bundle(name, small_bodies)
+    rng = np.random.default_rng(11)
+    n = b.manifest["dof"]
+    for _ in range(20):
+        x = [rng.uniform(-3, 3, n) for _ in range(4)]
+        assert np.allclose(b.regressor(*x) @ b.parameter_nominal, b.inverse_dynamics(*x),
+                           rtol=1e-12, atol=1e-14)
 
 
 @pytest.mark.compiler
-def test_compiled_library_equals_casadi_function(need_compiler, specs, shipped_libraries):
-    for name, spec in specs.items():
-        b = load_bundle(name, backend="c")
-        rng = np.random.default_rng(12)
-        # Closed-loop diagrams (x, p, k, e): near their default state, gains 1 to 1.5
-        # times their defaults and small external inputs, so that 1000 samples stay finite
-        # (smaller gains or 0.1 of measurement noise diverge on the stiff 3D PCC model; an
-        # absolute +1.5 takes the rod's tip-loop kd from 0.5 to 2, past its sampled
-        # stability limit at 1 ms: NaN in CasADi and C alike; a white tip torque of
-        # 0.01 N m per sample drives the rod's adaptive tip law into parameter drift,
-        # u ~ 1e26 by 0.9 s, while the plant alone under it stays bounded).
-        diagrams = {d[role]: d for d in spec.extra.get("closed_loops", {}).values()
-                    for role in ("step", "loop")}
-        for g in spec.functions:
-            f = g.function
-            cf = b[f.name()]
-            for _ in range(3):
-                args = [rng.uniform(-1, 1, f.size_in(i)) for i in range(f.n_in())]
-                if f.name() in diagrams:
-                    d = diagrams[f.name()]
-                    args = [np.array(d["x0"]).reshape(-1, 1) + 0.01 * args[0],
-                            np.array(d["p0"]).reshape(-1, 1) * (1 + 0.5 * np.abs(args[1])),
-                            np.abs(args[2]) * 100, 0.001 * args[3]]
-                # Sample times, step lengths and gains must be positive (a random
-                # negative gain makes the 1000-sample closed loop diverge to NaN).
-                # A random pi_hat0 may hold negative inertias: start the loop from 0.
-                # Actuated plants: small states (spring deflections of a few hundredths
-                # of a radian) and positive spring factors keep RK4 inside its stability
-                # region at h = 1e-3.
-                scale = {"dt": 1e-3, "h": 1e-3, "lam": 5.0, "kd": 0.1, "kpi": 0.01,
-                         "pi_hat0": 0.0, "ref": 0.1, "spring_scale": 1.0}
-                if f.name().endswith("_plant"):
-                    scale["x"] = 0.05
-                args = [np.abs(a) * scale[f.name_in(i)] if f.name_in(i) in scale else a
-                        for i, a in enumerate(args)]
-                # Valve time constants: positive and not stiffer than the RK4 substep.
-                args = [0.05 + np.abs(a) if f.name_in(i) == "T_p" else a
-                        for i, a in enumerate(args)]
-                ref = f(*args)
-                ref = [ref] if f.n_out() == 1 else ref
-                got = cf(*[a.ravel() if a.shape[1] == 1 else a for a in args])
-                got = [got] if f.n_out() == 1 else got
-                for r, o in zip(ref, got):
-                    r = np.array(r)
-                    r = r.ravel() if r.shape[1] == 1 else r
-                    assert np.all(np.isfinite(r)), f.name()
-                    assert np.allclose(o, r, rtol=1e-12, atol=1e-12), f.name()
+@pytest.mark.parametrize("name", BUNDLES)
+def test_compiled_library_equals_casadi_function(need_compiler, specs, shipped_libraries,
+                                                 small_bodies, name):
+    b, spec_of = _bundle(name, small_bodies, backend="c")
+    spec = spec_of() if spec_of else specs[name]
+    rng = np.random.default_rng(12)
+    # Closed-loop diagrams (x, p, k, e): near their default state, gains 1 to 1.5
+    # times their defaults and small external inputs, so that 1000 samples stay finite
+    # (smaller gains or 0.1 of measurement noise diverge on the stiff 3D PCC model; an
+    # absolute +1.5 takes the rod's tip-loop kd from 0.5 to 2, past its sampled
+    # stability limit at 1 ms: NaN in CasADi and C alike; a white tip torque of
+    # 0.01 N m per sample drives the rod's adaptive tip law into parameter drift,
+    # u ~ 1e26 by 0.9 s, while the plant alone under it stays bounded).
+    diagrams = {d[role]: d for d in spec.extra.get("closed_loops", {}).values()
+                for role in ("step", "loop")}
+    for g in spec.functions:
+        f = g.function
+        cf = b[f.name()]
+        for _ in range(3):
+            args = [rng.uniform(-1, 1, f.size_in(i)) for i in range(f.n_in())]
+            if f.name() in diagrams:
+                d = diagrams[f.name()]
+                args = [np.array(d["x0"]).reshape(-1, 1) + 0.01 * args[0],
+                        np.array(d["p0"]).reshape(-1, 1) * (1 + 0.5 * np.abs(args[1])),
+                        np.abs(args[2]) * 100, 0.001 * args[3]]
+            # Sample times, step lengths and gains must be positive (a random
+            # negative gain makes the 1000-sample closed loop diverge to NaN).
+            # A random pi_hat0 may hold negative inertias: start the loop from 0.
+            # Actuated plants: small states (spring deflections of a few hundredths
+            # of a radian) and positive spring factors keep RK4 inside its stability
+            # region at h = 1e-3.
+            scale = {"dt": 1e-3, "h": 1e-3, "lam": 5.0, "kd": 0.1, "kpi": 0.01,
+                     "pi_hat0": 0.0, "ref": 0.1, "spring_scale": 1.0}
+            if f.name().endswith("_plant"):
+                scale["x"] = 0.05
+            args = [np.abs(a) * scale[f.name_in(i)] if f.name_in(i) in scale else a
+                    for i, a in enumerate(args)]
+            # Valve time constants: positive and not stiffer than the RK4 substep.
+            args = [0.05 + np.abs(a) if f.name_in(i) == "T_p" else a
+                    for i, a in enumerate(args)]
+            ref = f(*args)
+            ref = [ref] if f.n_out() == 1 else ref
+            got = cf(*[a.ravel() if a.shape[1] == 1 else a for a in args])
+            got = [got] if f.n_out() == 1 else got
+            for r, o in zip(ref, got):
+                r = np.array(r)
+                r = r.ravel() if r.shape[1] == 1 else r
+                assert np.all(np.isfinite(r)), f.name()
+                assert np.allclose(o, r, rtol=1e-12, atol=1e-12), f.name()
 
 
 @pytest.mark.compiler

@@ -163,8 +163,18 @@ def test_coriolis_is_the_lagrangian_of_B(dyn):
         assert np.abs(e).max() < 1e-12 * max(1.0, np.abs(r).max())
 
 
+@pytest.fixture(scope="module")
+def fd_jacobian(dyn):
+    """The Jacobian of forward dynamics in (q, q̇), formed once per model (issue 34: it was
+    formed again for each of the five scales, ~0.9 CPU-s each for the rod)."""
+    d = dyn
+    uu, ww = ca.SX.sym("u", d.model.n_inputs), ca.SX.sym("w", 6)
+    e = d.forward_dynamics_expr(uu, ww)
+    return ca.Function("j", [d.q, d.qd, uu, ww], [ca.jacobian(e, ca.vertcat(d.q, d.qd))])
+
+
 @pytest.mark.parametrize("scale", NEAR_ZERO + (0.3,))
-def test_forward_dynamics_by_articulated_solve(dyn, funs, scale):
+def test_forward_dynamics_by_articulated_solve(dyn, funs, fd_jacobian, scale):
     rng = np.random.default_rng(5)
     q, qd = rng.normal(size=dyn.model.dof) * scale, rng.normal(size=dyn.model.dof)
     u, w = rng.uniform(0, 1, dyn.model.n_inputs), rng.normal(size=6)
@@ -175,11 +185,7 @@ def test_forward_dynamics_by_articulated_solve(dyn, funs, scale):
     Jw = np.vstack([J[3:], J[:3]]).T @ w          # w = (force, moment), J = (ang; lin)
     assert np.abs(tau.ravel() - A @ u - Jw).max() < 1e-11 * max(1.0, np.abs(tau).max())
     # derivatives finite at and near zero strain
-    d = dyn
-    uu, ww = ca.SX.sym("u", d.model.n_inputs), ca.SX.sym("w", 6)
-    e = d.forward_dynamics_expr(uu, ww)
-    jf = ca.Function("j", [d.q, d.qd, uu, ww], [ca.jacobian(e, ca.vertcat(d.q, d.qd))])
-    assert np.all(np.isfinite(np.array(jf(q, qd, u, w))))
+    assert np.all(np.isfinite(np.array(fd_jacobian(q, qd, u, w))))
 
 
 def test_power_balance(dyn):

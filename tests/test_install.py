@@ -25,7 +25,10 @@ def test_wheel_installs_and_runs_from_another_directory(tmp_path, need_compiler)
           str(ROOT), "-w", str(wheels)], tmp_path, os.environ.copy())
     wheel = next(wheels.glob("softgen-*.whl"))
     venv = tmp_path / "venv"
-    _run([sys.executable, "-m", "venv", str(venv)], tmp_path, os.environ.copy())
+    # Without pip of its own (ensurepip is ~4 CPU-s): this interpreter's pip installs
+    # into it with --python (issue 34).
+    _run([sys.executable, "-m", "venv", "--without-pip", str(venv)], tmp_path,
+         os.environ.copy())
     py = venv / "bin" / "python"
     site = Path(_run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                      tmp_path, os.environ.copy()).strip())
@@ -33,8 +36,8 @@ def test_wheel_installs_and_runs_from_another_directory(tmp_path, need_compiler)
     # path added by a .pth file does not run that directory's own .pth files, so the
     # checkout's editable install stays out of the fresh venv.
     (site / "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    _run([str(py), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)],
-         tmp_path, os.environ.copy())
+    _run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-deps",
+          "--no-index", str(wheel)], tmp_path, os.environ.copy())
     work = tmp_path / "elsewhere"
     work.mkdir()
     env = {k: v for k, v in os.environ.items() if not k.startswith("SOFTGEN_")}

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from softgen.bundles.bundle import bundle_spec, decide
+from softgen.bundles.bundle import decide
 from softgen.cli import main
 from softgen.cli.info import capability_table, example_table
 from softgen.export.example import python_loop
@@ -26,12 +26,12 @@ USER = sorted(str(p) for p in DATA.glob("*.toml"))
 
 
 @pytest.mark.parametrize("model", [*list_models(), *USER])
-def test_info_generate_and_export_agree(model):
+def test_info_generate_and_export_agree(model, bundle_specs):
     """The capability table `info` prints is the bundle's manifest; the example `info`
     marks as exported is the one export builds; no example, then export refuses."""
     m = load_model(model)
     caps = capability_table(m)
-    spec = bundle_spec(m)
+    spec = bundle_specs(model)
     assert [c["name"] for c in caps if c["gets"]] == spec.extra["capabilities"]
     # The manifest names the model file by its file name (portable bytes), info by its
     # path: the same reasons otherwise.

@@ -15,9 +15,21 @@ EPS = (1e-12, 1e-8, 1e-6, 1e-3)
 NO_LIMIT = ("_augmented_map", "_augmented_jacobian")
 
 
+#: The checks on every function: the shipped 3D arm with -m slow (its bundle's compile is
+#: 25 CPU-s of a fresh clone), its one-segment version (conftest.small_bodies: the same
+#: functions, the same straight-configuration singularity of each segment) by default.
+CHECKED = ("soft_pendulum", "pcc_planar_4seg", pytest.param("pcc_3d_4seg", marks=pytest.mark.slow),
+           "pcc_3d_1seg")
+
+
 @pytest.fixture(scope="module")
-def specs():
-    return {n: bundle_spec(load_model(n)) for n in MODELS}
+def specs(bundle_specs):
+    return {n: bundle_specs(n) for n in MODELS}
+
+
+def _spec(specs, small_bodies, name):
+    return bundle_spec(load_model(small_bodies[name][0])) if name in small_bodies \
+        else specs[name]
 
 
 def _inputs(f, rng):
@@ -64,12 +76,12 @@ def test_soft_contract(specs):
         assert spec.extra["soft"]["n_segments"] == load_model(name).n_segments
 
 
-@pytest.mark.parametrize("name", MODELS)
-def test_finite_and_continuous_at_the_straight_configuration(specs, name):
+@pytest.mark.parametrize("name", CHECKED)
+def test_finite_and_continuous_at_the_straight_configuration(specs, small_bodies, name):
     """Every function at q = 0 exactly and at 1e-12, 1e-8, 1e-6, 1e-3 in random directions:
     values and derivatives (Jacobian in q) finite, and both continuous."""
     rng = np.random.default_rng(21)
-    for g in specs[name].functions:
+    for g in _spec(specs, small_bodies, name).functions:
         f = g.function
         key = _config_input(f)
         if key is None:
@@ -139,29 +151,31 @@ def test_pendulum_theorem10_adaptive_from_zero_estimates(specs):
 
 
 @pytest.mark.compiler
-def test_compiled_library_equals_casadi_function_at_singular_points(need_compiler, specs):
+@pytest.mark.parametrize("name", CHECKED)
+def test_compiled_library_equals_casadi_function_at_singular_points(need_compiler, specs,
+                                                                    small_bodies, name):
     from softgen.bundles.bundle import load_bundle
     rng = np.random.default_rng(22)
-    for name, spec in specs.items():
-        b = load_bundle(name, backend="c")
-        for g in spec.functions:
-            f = g.function
-            key = _config_input(f)
-            args = _inputs(f, rng)
-            for eps in (0.0, 1e-12, 1e-6):
-                if key is not None:
-                    n = f.size_in(f.index_in(key))[0]
-                    args[key] = eps * rng.normal(size=(n, 1))
-                vals = [args[f.name_in(i)] for i in range(f.n_in())]
-                ref = f(*vals)
-                ref = [ref] if f.n_out() == 1 else ref
-                got = b[f.name()](*[v.ravel() if v.shape[1] == 1 else v for v in vals])
-                got = [got] if f.n_out() == 1 else got
-                for r, o in zip(ref, got):
-                    r = np.array(r)
-                    r = r.ravel() if r.shape[1] == 1 else r
-                    assert np.all(np.isfinite(o)), f.name()
-                    assert np.allclose(o, r, rtol=1e-12, atol=1e-12), f.name()
+    spec = _spec(specs, small_bodies, name)
+    b = load_bundle(small_bodies[name][1] if name in small_bodies else name, backend="c")
+    for g in spec.functions:
+        f = g.function
+        key = _config_input(f)
+        args = _inputs(f, rng)
+        for eps in (0.0, 1e-12, 1e-6):
+            if key is not None:
+                n = f.size_in(f.index_in(key))[0]
+                args[key] = eps * rng.normal(size=(n, 1))
+            vals = [args[f.name_in(i)] for i in range(f.n_in())]
+            ref = f(*vals)
+            ref = [ref] if f.n_out() == 1 else ref
+            got = b[f.name()](*[v.ravel() if v.shape[1] == 1 else v for v in vals])
+            got = [got] if f.n_out() == 1 else got
+            for r, o in zip(ref, got):
+                r = np.array(r)
+                r = r.ravel() if r.shape[1] == 1 else r
+                assert np.all(np.isfinite(o)), f.name()
+                assert np.allclose(o, r, rtol=1e-12, atol=1e-12), f.name()
 
 
 @pytest.mark.parametrize("name", MODELS)
