@@ -127,6 +127,11 @@ def test_example_values_live_in_one_place():
     assert p.higher == (t.lam, t.kd, t.kpi) == gains.PLANAR_PCC_HIGHER_GAINS
     assert p.amplitude == t.amplitude and p.phase == t.phase
     assert E.Theorem5Config().stiffness_rate == gains.STIFFNESS_RATE
+    from softgen.control.cosserat import GAINS, TIP_REFERENCE
+    r = E.CosseratTipConfig()
+    assert (r.lam, r.kd, r.kpi, r.kpi_relative, r.u_min) == \
+        (GAINS.lam, GAINS.kd, GAINS.kpi, GAINS.kpi_relative, GAINS.u_min)
+    assert (r.amplitude, r.omega) == (TIP_REFERENCE["amplitude"], TIP_REFERENCE["omega"])
     # No module of the export keeps gains of its own (the hand copy of issue 31).
     root = Path(E.__file__).parents[1] / "export"
     for f in root.glob("*.py"):
