@@ -306,7 +306,11 @@ def test_any_verb_stops_with_one_line(tmp_path, sig, status):
            "sys.argv[0] = 'softgen'; sys.exit(main(['generate', 'pcc_3d_4seg', "
            f"'--out', {str(tmp_path / 'out')!r}, '--no-build']))"]
     proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
-    time.sleep(1.5)          # inside the derivation (about 10 s for pcc_3d_4seg)
+    # Inside the derivation (about 4 s for pcc_3d_4seg): after its first line, not after
+    # a fixed sleep, which a loaded machine spent still importing.
+    first = proc.stderr.readline()
+    assert "deriving" in first, first
+    time.sleep(0.3)
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == status, err
