@@ -305,10 +305,10 @@ def test_any_verb_stops_with_one_line(tmp_path, sig, status):
     cmd = [sys.executable, "-c", "import sys, time; from softgen.cli import main; "
            "sys.argv[0] = 'softgen'; sys.exit(main(['generate', 'pcc_3d_4seg', "
            f"'--out', {str(tmp_path / 'out')!r}, '--no-build']))"]
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
-    # Inside the derivation (about 4 s for pcc_3d_4seg): after its first line, not after
-    # a fixed sleep, which a loaded machine spent still importing.
-    first = proc.stderr.readline()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # Inside the derivation (about 4 s for pcc_3d_4seg): after its first line on stdout,
+    # not after a fixed sleep, which a loaded machine spent still importing.
+    first = proc.stdout.readline()
     assert "deriving" in first, first
     time.sleep(0.3)
     proc.send_signal(sig)
