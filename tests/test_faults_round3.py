@@ -1,0 +1,141 @@
+"""Issue 36, round three: faults of the verbs and model classes added after the second
+campaign (Cosserat rods, floating bases, statics, bench, export --set, identify), each
+test first naming the symptom found on main, then asserting the promise: no status 0 with
+a wrong or unloadable result, nothing lost, no orphan, no traceback, no silent minute.
+
+Fast cases run by default; those that need a compiler are marked.
+"""
+from __future__ import annotations
+
+import hashlib
+import random
+from pathlib import Path
+
+import pytest
+
+from softgen.cli import main
+from softgen.core.paths import MODELS_DIR
+
+ROD = MODELS_DIR / "rod_tendon_3seg.toml"
+
+
+def _cli(capsys, argv) -> tuple[int, str, list[str]]:
+    status = main([str(a) for a in argv])
+    cap = capsys.readouterr()
+    return status, cap.out, [x for x in cap.err.splitlines() if x.strip()]
+
+
+def _refused(capsys, argv, *words, status=(2,)) -> str:
+    """Bad input: a non-zero status and one ``softgen: error:`` line naming ``words``."""
+    st, out, err = _cli(capsys, argv)
+    errors = [x for x in err if x.startswith("softgen: error:")]
+    assert st in status, (st, out, err)
+    assert len(errors) == 1 and not any("Traceback" in x for x in err), err
+    for w in words:
+        assert w in errors[0], (w, errors[0])
+    assert len(errors[0]) < 600, errors[0][:200]
+    return errors[0]
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+# -- statics ----------------------------------------------------------------------------------
+
+def test_statics_refuses_to_write_over_its_model(capsys, tmp_path):
+    """Before: ``statics rod.toml --json rod.toml --force`` replaced the model by the
+    result (an input overwritten by its own output)."""
+    rod = tmp_path / "rod.toml"
+    rod.write_text(ROD.read_text())
+    before = _sha(rod)
+    _refused(capsys, ["statics", rod, "--json", tmp_path / "." / "rod.toml", "--force"],
+             "--json", "input")
+    assert _sha(rod) == before
+
+
+@pytest.mark.parametrize("target", ["dir", "missing_dir", "fifo"])
+def test_statics_output_is_checked_before_solving(capsys, tmp_path, target):
+    """Before: a --json that is a directory or in a missing directory failed only after
+    the solve; a FIFO (or, as root, a device such as /dev/full) was replaced by a file."""
+    import os
+    out = {"dir": tmp_path, "missing_dir": tmp_path / "no" / "x.json",
+           "fifo": tmp_path / "f"}[target]
+    if target == "fifo":
+        os.mkfifo(out)
+    st, stdout, err = _cli(capsys, ["statics", ROD, "--json", out, "--force"])
+    assert st == 2 and stdout == "", (st, stdout)        # nothing solved, nothing printed
+    assert len(err) == 1 and err[0].startswith("softgen: error: --json"), err
+    if target == "fifo":
+        assert not Path(out).is_file()
+
+
+def test_statics_writes_a_loadable_result(capsys, tmp_path):
+    import json
+    out = tmp_path / "s.json"
+    st, stdout, err = _cli(capsys, ["statics", ROD, "--tendon", "t1=0.3", "--json", out])
+    assert st == 0 and not err, err
+    data = json.loads(out.read_text())
+    assert data["model"] == "rod_tendon_3seg" and len(data["q"]) == 9
+
+
+def _rod_with_segments(tmp_path: Path, n: int) -> Path:
+    text = ROD.read_text()
+    head, rest = text.split("[[segments]]", 1)
+    segment = "[[segments]]" + rest.split("[[segments]]")[0]
+    actuators = text[text.index("[[actuators]]"):]
+    body = "".join(segment.replace('"s1"', f'"s{i}"') for i in range(n))
+    p = tmp_path / f"rod{n}.toml"
+    p.write_text(head + body + actuators)
+    return p
+
+
+def test_statics_checks_the_model_size_first(capsys, tmp_path):
+    """Before: ``statics`` on a 200-segment rod derived for minutes without a line (and,
+    inside CasADi, without honouring SIGTERM); every other verb refused it in 1 s."""
+    import time
+    t0 = time.monotonic()
+    _refused(capsys, ["statics", _rod_with_segments(tmp_path, 200)], "too large",
+             "SOFTGEN_MAX_EXPRESSION_SIZE")
+    assert time.monotonic() - t0 < 10
+
+
+# -- bench ------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("calls", [0, -3, 10**11])
+def test_bench_calls_out_of_range_is_refused_first(capsys, calls):
+    """Before: ``bench --calls 0`` built the bundle, then failed with "1 measurement(s)
+    failed: pendulum_1link: pendulum_1link.c"."""
+    _refused(capsys, ["bench", "pendulum_1link", "--calls", calls], "--calls")
+
+
+def test_bench_json_output_is_checked_before_timing(capsys, tmp_path):
+    _refused(capsys, ["bench", "pendulum_1link", "--calls", "10", "--json", tmp_path],
+             "--json", "directory")
+
+
+def test_check_output_file_property(tmp_path):
+    """Seeded: whatever mix of existing file, directory, missing parent and input, the
+    check refuses exactly the unsafe outputs and never touches the file system."""
+    from softgen.core.atomic import OutputError, check_output_file
+    rng = random.Random(36)
+    src = tmp_path / "in.txt"
+    src.write_text("x")
+    for i in range(40):
+        kind = rng.choice(["new", "exists", "dir", "input", "noparent"])
+        force = rng.random() < 0.5
+        p = {"new": tmp_path / f"n{i}.json", "exists": tmp_path / f"e{i}.json",
+             "dir": tmp_path / f"d{i}", "input": src,
+             "noparent": tmp_path / f"x{i}" / "o.json"}[kind]
+        if kind == "exists":
+            p.write_text("old")
+        if kind == "dir":
+            p.mkdir()
+        before = sorted(x.name for x in tmp_path.iterdir())
+        ok = kind == "new" or (kind == "exists" and force)
+        if ok:
+            assert check_output_file(p, "--out", force=force, inputs=(src,)) == p
+        else:
+            with pytest.raises(OutputError, match="--out"):
+                check_output_file(p, "--out", force=force, inputs=(src,))
+        assert sorted(x.name for x in tmp_path.iterdir()) == before
