@@ -139,3 +139,32 @@ def test_check_output_file_property(tmp_path):
             with pytest.raises(OutputError, match="--out"):
                 check_output_file(p, "--out", force=force, inputs=(src,))
         assert sorted(x.name for x in tmp_path.iterdir()) == before
+
+
+# -- floating bases ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("n", [8, 64])
+def test_generate_floating_with_a_long_name(capsys, tmp_path, monkeypatch, n):
+    """Before: ``generate X.urdf --floating`` (a loaded model object, not a name) took the
+    object's repr for a shipped model's name, a path too long for the OS: ``OSError: File
+    name too long`` traceback (a URDF given without a directory, as from its folder)."""
+    import re
+    from softgen.codegen.build import read_manifest
+    name = "a" * n
+    text = (Path(__file__).parent / "data" / "arm3.urdf").read_text()
+    (tmp_path / "arm.urdf").write_text(re.sub(r'<robot name="[^"]*"', f'<robot name="{name}"',
+                                              text, count=1))
+    monkeypatch.chdir(tmp_path)
+    st, out, err = _cli(capsys, ["generate", "arm.urdf", "--floating", "--out", "g",
+                                 "--no-build"])
+    assert st == 0 and not any("Traceback" in x for x in err), err
+    assert read_manifest(tmp_path / "g" / name)["model"] == name
+
+
+def test_shipped_size_of_anything_is_a_number(tmp_path):
+    from softgen.cli.generate import _shipped_size
+    rng = random.Random(36)
+    for _ in range(30):
+        name = "".join(rng.choice("ab/_.") for _ in range(rng.randint(1, 400)))
+        assert _shipped_size(name, tmp_path) == 0
+    assert _shipped_size(object(), tmp_path) == 0
