@@ -168,3 +168,58 @@ def test_shipped_size_of_anything_is_a_number(tmp_path):
         name = "".join(rng.choice("ab/_.") for _ in range(rng.randint(1, 400)))
         assert _shipped_size(name, tmp_path) == 0
     assert _shipped_size(object(), tmp_path) == 0
+
+
+# -- export --set -----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("model, item, words", [
+    ("arm_2link_pneumatic", "substeps=100000000", ("substeps", "100")),
+    ("arm_2link_pneumatic", "substeps=0", ("substeps",)),
+    ("arm_2link_electric", "dt=1e-12", ("dt", "1e-06")),
+    ("arm_2link_electric", "stiffness_margin=-1", ("stiffness_margin", "> 1")),
+    ("arm_2link_pneumatic", "lam=-1", ("lam", "positive")),
+])
+def test_export_set_out_of_range_is_one_line_before_writing(capsys, tmp_path, model, item,
+                                                            words):
+    """Before: ``--set substeps=100000000`` derived silently for minutes (killed at 90 s);
+    ``substeps=0``, ``dt=1e-12`` (a 1e12 Hz program of 1e13 default samples) and
+    ``stiffness_margin=-1`` were exported with status 0."""
+    out = tmp_path / "p"
+    _refused(capsys, ["export", model, "--out", out, "--set", item], "--set", *words)
+    assert not out.exists()
+
+
+def test_example_configs_refuse_exactly_what_is_out_of_range():
+    """Seeded: every example config accepts values inside its documented ranges and
+    refuses (ValueError naming the field) each value outside them."""
+    import dataclasses
+    from softgen.studies import examples as ex
+    rng = random.Random(36)
+    configs = [c for c in vars(ex).values() if isinstance(c, type)
+               and issubclass(c, ex.ExampleConfig) and c is not ex.ExampleConfig]
+    assert len(configs) == 7
+    lo, hi = ex.DT_RANGE
+    for cls in configs:
+        fields = {f.name for f in dataclasses.fields(cls)}
+        for _ in range(20):
+            if "dt" in fields:
+                good = 10 ** rng.uniform(-6, -1)
+                bad = rng.choice([0.0, -good, hi * 10 ** rng.uniform(0.01, 9),
+                                  lo * 10 ** -rng.uniform(0.01, 9)])
+                cls().replace(dt=good)
+                with pytest.raises(ValueError, match=r"\.dt"):
+                    cls().replace(dt=bad)
+            if "substeps" in fields:
+                cls().replace(substeps=rng.randint(1, ex.MAX_SUBSTEPS))
+                with pytest.raises(ValueError, match="substeps"):
+                    cls().replace(substeps=rng.choice([0, -1, ex.MAX_SUBSTEPS + 1, 10**8]))
+            for name in fields & set(ex._POSITIVE + ex._NONNEGATIVE):
+                with pytest.raises(ValueError, match=name):
+                    cls().replace(**{name: -10 ** rng.uniform(-3, 3)})
+
+
+def test_example_loop_samples_are_bounded():
+    from softgen.core.errors import SoftgenError
+    from softgen.studies.examples import MAX_LOOP_SAMPLES, example_for
+    with pytest.raises(SoftgenError, match="steps"):
+        example_for("planar_2link", steps=MAX_LOOP_SAMPLES + 1)
