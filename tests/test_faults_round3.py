@@ -223,3 +223,64 @@ def test_example_loop_samples_are_bounded():
     from softgen.studies.examples import MAX_LOOP_SAMPLES, example_for
     with pytest.raises(SoftgenError, match="steps"):
         example_for("planar_2link", steps=MAX_LOOP_SAMPLES + 1)
+
+
+# -- identify on a floating base --------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def quad(tmp_path_factory):
+    from test_identify_floating import quadruped_toml
+    from softgen.modelfile.load import load_model
+    p = tmp_path_factory.mktemp("quad") / "quad.toml"
+    p.write_text(quadruped_toml())
+    return load_model(p)
+
+
+def _floating_log(model, rows: int, rng):
+    import numpy as np
+    from softgen.app.identify.rigid import IdentificationLog
+    n = model.dof
+    quat = rng.normal(size=(rows, 4))
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+    q = np.hstack([rng.normal(size=(rows, 3)), quat, rng.uniform(-1, 1, size=(rows, n))])
+    tau = np.hstack([rng.normal(size=(rows, 6)), rng.normal(size=(rows, n))])
+    return IdentificationLog(path=Path("log.csv"), t=np.arange(rows) * 0.005, q=q, tau=tau,
+                             dt=0.005, torque_source="tau")
+
+
+def test_identify_checks_of_a_floating_log_read_the_joint_columns(quad):
+    """Before: check_log indexed the base pose and wrench columns as joints: every
+    floating-base log, even the simulated one issue 35 identifies, ended in ``IndexError:
+    index 14 is out of bounds`` (a traceback, no model)."""
+    import numpy as np
+    from softgen.app.identify.rigid import check_log, joint_columns, unit_hints
+    from softgen.core.errors import SoftgenError
+    rng = np.random.default_rng(36)
+    for _ in range(10):
+        log = _floating_log(quad, int(rng.integers(20, 200)), rng)
+        check_log(log, quad)                   # a moving log passes
+        assert unit_hints(log, quad, None) == []
+        q, tau = joint_columns(log, quad)
+        assert q.shape[1] == tau.shape[1] == quad.dof
+        j = int(rng.integers(quad.dof))
+        log.tau[:, 6 + j] = 0.0                # a joint's torque never logged
+        with pytest.raises(SoftgenError, match=f"tau{j + 1} constant"):
+            check_log(log, quad)
+        log.tau[:, 6 + j] = rng.normal(size=len(log.t))
+        log.q[:, 7 + j] = 1.0                  # a joint that never moves
+        with pytest.raises(SoftgenError, match=f"q{j + 1} never moves"):
+            check_log(log, quad)
+        log.q[:, 7 + j] = rng.uniform(-1, 1, size=len(log.t))
+        log.tau[:, :6] = 0.0                   # contact-free: a zero base wrench is data
+        check_log(log, quad)
+
+
+@pytest.mark.slow          # one floating identification: ~30 s
+def test_identify_cli_on_a_floating_log(capsys, tmp_path, quad):
+    from test_identify_floating import _write_log
+    from softgen.modelfile.load import load_model
+    log = _write_log(tmp_path / "quad_log.csv", quad)
+    out = tmp_path / "quad_id.toml"
+    st, stdout, err = _cli(capsys, ["identify", quad.path, "--log", log, "--out", out])
+    assert st == 0 and not any("Traceback" in x for x in err), err
+    assert load_model(out).floating

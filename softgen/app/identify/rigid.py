@@ -634,6 +634,15 @@ def consistency_violations(model: RobotModel, values: dict[str, float]) -> list[
 
 # -- plausibility before success (issue 36) -------------------------------------------------
 
+def joint_columns(log: IdentificationLog, model: RobotModel) -> tuple[np.ndarray, np.ndarray]:
+    """(q, τ) of the joints alone (K × n): a floating base's log puts its pose (7
+    columns) before q and its wrench (6) before τ (issue 36: the checks below indexed the
+    base's columns as joints, an IndexError on every floating log)."""
+    if model.floating:
+        return log.q[:, 7:], log.tau[:, 6:]
+    return log.q, log.tau
+
+
 def check_log(log: IdentificationLog, model: RobotModel) -> None:
     """Refuse a log whose sample time or signals rule an identification out: a time
     step outside :data:`DT_RANGE` (the time column in ms), a τ column that never
@@ -645,14 +654,15 @@ def check_log(log: IdentificationLog, model: RobotModel) -> None:
         raise SoftgenError(f"identify: {log.path}: median time step {log.dt:.6g} s: an "
                            f"identification log needs q'' of the motion, so a sample time "
                            f"between {lo:g} and {hi:g} s; {unit}")
-    n = log.q.shape[1]
-    flat_tau = [f"tau{j + 1}" for j in range(n) if np.ptp(log.tau[:, j]) == 0]
+    q, tau = joint_columns(log, model)
+    n = q.shape[1]
+    flat_tau = [f"tau{j + 1}" for j in range(n) if np.ptp(tau[:, j]) == 0]
     if flat_tau:
-        value = float(log.tau[0, int(flat_tau[0][3:]) - 1])
+        value = float(tau[0, int(flat_tau[0][3:]) - 1])
         raise SoftgenError(f"identify: {log.path}: {', '.join(flat_tau)} constant "
                            f"({value:g}) over the whole log: no torque was logged (or the "
                            "wrong column)")
-    still = [f"q{j + 1}" for j in range(n) if np.ptp(log.q[:, j]) == 0]
+    still = [f"q{j + 1}" for j in range(n) if np.ptp(q[:, j]) == 0]
     if still:
         raise SoftgenError(f"identify: {log.path}: {', '.join(still)} never moves: the log "
                            "does not excite those joints (softgen identify MODEL --excite "
@@ -665,8 +675,9 @@ def unit_hints(log: IdentificationLog, model: RobotModel, res: RigidIdentificati
     a revolute joint spanning more than a turn (degrees), a torque far from what the
     model file predicts along the same motion (mN·m, kN·m, currents)."""
     hints = []
+    q, _ = joint_columns(log, model)
     for j, link in enumerate(model.links):
-        span = float(np.ptp(log.q[:, j]))
+        span = float(np.ptp(q[:, j]))
         if link.joint == "revolute" and span > 2 * math.pi:
             hints.append(f"q{j + 1} spans {span:.4g}, more than a turn (2 pi rad): is q in "
                          "degrees?")
