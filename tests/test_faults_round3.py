@@ -284,3 +284,32 @@ def test_identify_cli_on_a_floating_log(capsys, tmp_path, quad):
     st, stdout, err = _cli(capsys, ["identify", quad.path, "--log", log, "--out", out])
     assert st == 0 and not any("Traceback" in x for x in err), err
     assert load_model(out).floating
+
+
+# -- series-elastic actuators -----------------------------------------------------------------
+
+_SEA = ('[model]\nname = "sea1"\nkind = "planar"\n\n[[links]]\nname = "j1"\n'
+        'joint = "revolute"\nlength = 0.5\nmass = 1.0\ncom = 0.25\ninertia = 0.02\n\n'
+        '[[actuators]]\njoint = "j1"\ntype = "sea"\nmotor_inertia = 0.1\nmotor_damping = 0.1\n')
+
+
+def test_sea_spring_must_be_stiff_at_rest(tmp_path):
+    """Before: an SEA with k = 0 or k = -5 (or law = "-k*phi") was loaded and granted the
+    SEA cascade, whose motor reference then pulls the link away. Seeded: τ'(0) > 0 is
+    accepted, τ'(0) <= 0 refused naming the key."""
+    from softgen.core.errors import ModelError
+    from softgen.modelfile.load import load_model
+    rng = random.Random(36)
+    p = tmp_path / "sea.toml"
+    for _ in range(12):
+        k = rng.choice([0.0, -1.0, 1.0]) * 10 ** rng.uniform(-3, 3)
+        law = rng.choice([None, "k*phi", "k*sinh(phi)", "k*phi + phi**3"])
+        p.write_text(_SEA + f"k = {k!r}\n" + (f'law = "{law}"\n' if law else ""))
+        if k > 0:
+            assert load_model(p).actuators[0].sides[0].law.spring.slope0 > 0
+        else:
+            with pytest.raises(ModelError, match=r"actuators\[0\]\.(k|law): .*k > 0"):
+                load_model(p)
+    p.write_text(_SEA + 'k = 2.0\nlaw = "k*phi**3"\n')
+    with pytest.raises(ModelError, match="stiff at rest"):
+        load_model(p)

@@ -864,6 +864,13 @@ class _Parser(FileReader):
                                 f"{LINEAR_SPRING_LAW!r}; or give law = \"...\")")
             side = self.side(law, consts, key, "spring", "",
                              deflection_max=self.deflection_max(table, key))
+            slope0 = side.law.spring.slope0
+            if not slope0 > 0:
+                # One spring in series with the motor: with τ'(0) <= 0 it never pushes the
+                # link back (issue 36: k = 0 and k = -5 were loaded and got the cascade).
+                what = f"{key}.k" if "law" not in table else f"{key}.law"
+                raise self.fail(what, f"a series-elastic spring must be stiff at rest: "
+                                f"expected tau'(0) > 0 (k > 0), got {slope0:g} N m/rad")
             return self.finish(Actuator(type=kind, joint=j, values=tuple(values),
                                         drive="spring", sides=(side,)), key)
         drive = self.choice(table["drive"], f"{key}.drive", tuple(LAW_VARIABLES))
