@@ -8,6 +8,7 @@ Fast cases run by default; those that need a compiler are marked.
 from __future__ import annotations
 
 import hashlib
+import os
 import random
 from pathlib import Path
 
@@ -58,7 +59,6 @@ def test_statics_refuses_to_write_over_its_model(capsys, tmp_path):
 def test_statics_output_is_checked_before_solving(capsys, tmp_path, target):
     """Before: a --json that is a directory or in a missing directory failed only after
     the solve; a FIFO (or, as root, a device such as /dev/full) was replaced by a file."""
-    import os
     out = {"dir": tmp_path, "missing_dir": tmp_path / "no" / "x.json",
            "fifo": tmp_path / "f"}[target]
     if target == "fifo":
@@ -313,3 +313,32 @@ def test_sea_spring_must_be_stiff_at_rest(tmp_path):
     p.write_text(_SEA + 'k = 2.0\nlaw = "k*phi**3"\n')
     with pytest.raises(ModelError, match="stiff at rest"):
         load_model(p)
+
+
+# -- a closed stdout pipe ---------------------------------------------------------------------
+
+@pytest.mark.parametrize("argv", [["list"], ["statics", str(ROD)]])
+def test_a_closed_stdout_pipe_exits_141_quietly(argv):
+    """Before: ``softgen list | head -c 10`` ended in a BrokenPipeError traceback,
+    status 1."""
+    import subprocess
+    import sys
+    r, w = os.pipe()
+    os.close(r)                      # the reader is gone before any write
+    proc = subprocess.run([sys.executable, "-c", "import sys; from softgen.cli import main; "
+                           "sys.exit(main(sys.argv[1:]))", *argv], stdout=w,
+                          stderr=subprocess.PIPE, text=True, timeout=120)
+    os.close(w)
+    assert proc.returncode == 141, (proc.returncode, proc.stderr[-500:])
+    assert proc.stderr.count("Traceback") == 0 and "Exception ignored" not in proc.stderr
+
+
+def test_a_broken_pipe_that_is_not_stdout_is_one_line(capsys, monkeypatch):
+    """A BrokenPipeError from another pipe (a child the verb feeds) is not a quiet 141."""
+    from softgen.cli import list as list_verb
+
+    def broken(args):
+        raise BrokenPipeError(32, "Broken pipe")
+    monkeypatch.setattr(list_verb, "run", broken)
+    st, out, err = _cli(capsys, ["list"])
+    assert st == 1 and len(err) == 1 and err[0].startswith("softgen: error: Broken pipe"), err

@@ -14,7 +14,10 @@ interrupted ``reproduce`` (SIGINT, SIGTERM) status 130, after writing
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
+import select
 import signal
 import sys
 
@@ -55,10 +58,34 @@ def main(argv: list[str] | None = None) -> int:
         signum = getattr(exc, "signum", signal.SIGINT)
         print(f"softgen: error: stopped by {signal.Signals(signum).name}", file=sys.stderr)
         return exit_status(signum)
+    except BrokenPipeError as exc:
+        if _stdout_closed():
+            # ``softgen list | head -1``: the reader has what it wanted. Quiet, and the
+            # status of a process ended by SIGPIPE as shells report it (issue 36: a
+            # traceback). Later writes (the interpreter's final flush) go nowhere.
+            with contextlib.suppress(OSError):
+                null = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(null, sys.__stdout__.fileno())     # type: ignore[union-attr]
+            return 128 + signal.SIGPIPE
+        print(f"softgen: error: {exc.strerror or 'broken pipe'} writing to "
+              f"{exc.filename or 'a pipe'}", file=sys.stderr)
+        return 1
     except (SoftgenError, ValueError, FileNotFoundError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"softgen: error: {msg}", file=sys.stderr)
         return getattr(exc, "exit_status", 2)
+
+
+def _stdout_closed() -> bool:
+    """Whether the process's standard output is a pipe whose reader has gone (poll says
+    POLLERR on its write end), as opposed to another pipe a verb wrote to."""
+    try:
+        fd = sys.__stdout__.fileno()                        # type: ignore[union-attr]
+        poll = select.poll()
+        poll.register(fd, select.POLLOUT)
+        return any(ev & (select.POLLERR | select.POLLHUP) for _, ev in poll.poll(0))
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 if __name__ == "__main__":
