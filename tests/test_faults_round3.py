@@ -342,3 +342,49 @@ def test_a_broken_pipe_that_is_not_stdout_is_one_line(capsys, monkeypatch):
     monkeypatch.setattr(list_verb, "run", broken)
     st, out, err = _cli(capsys, ["list"])
     assert st == 1 and len(err) == 1 and err[0].startswith("softgen: error: Broken pipe"), err
+
+
+# -- a heartbeat on the terminal --------------------------------------------------------------
+
+class _Tty:
+    def __init__(self, tty: bool):
+        self.lines: list[str] = []
+        self.tty = tty
+
+    def write(self, text):
+        self.lines.append(text)
+        return len(text)
+
+    def flush(self):
+        pass
+
+    def isatty(self):
+        return self.tty
+
+
+@pytest.mark.parametrize("tty", [True, False])
+def test_heartbeat_speaks_only_after_quiet_stretches_on_a_terminal(monkeypatch, tty):
+    """Before: ``identify`` of a floating base's log ran 28 s before its first line (no
+    progress at a terminal). Now a quiet stretch of ``every`` seconds gets one line, output
+    of the verb itself resets the clock, and a non-terminal sees only the verb's output."""
+    import sys
+    import time
+    from softgen.core.heartbeat import heartbeat
+    err, out = _Tty(tty), _Tty(tty)
+    monkeypatch.setattr(sys, "stderr", err)
+    monkeypatch.setattr(sys, "stdout", out)
+    with heartbeat("verb", every=0.2):
+        time.sleep(0.5)                              # quiet: about two beats
+        beats = [x for x in err.lines if "working" in x]
+        for _ in range(6):                           # talking: no beat
+            print("line", file=sys.stdout)
+            time.sleep(0.05)
+        talking = [x for x in err.lines if "working" in x][len(beats):]
+    assert sys.stderr is err and sys.stdout is out
+    if tty:
+        assert 1 <= len(beats) <= 3 and all(x.startswith("softgen: verb: working (") for x in
+                                            beats), beats
+        assert talking == []
+    else:
+        assert beats == [] and err.lines == []
+    assert out.lines.count("line") == 6

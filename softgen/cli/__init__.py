@@ -23,6 +23,7 @@ import sys
 
 from softgen import __version__
 from softgen.core.errors import SoftgenError
+from softgen.core.heartbeat import heartbeat
 from softgen.core.stop import Stop, exit_status, stopping
 
 #: Verb -> module under softgen.cli, in the order ``softgen --help`` lists them.
@@ -53,7 +54,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with stopping():
             args = build_parser().parse_args(argv)
-            return args.func(args)
+            # A line on the terminal after each quiet stretch (core.heartbeat).
+            with heartbeat(args.command):
+                return args.func(args)
     except (KeyboardInterrupt, Stop) as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
         print(f"softgen: error: stopped by {signal.Signals(signum).name}", file=sys.stderr)
