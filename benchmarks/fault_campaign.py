@@ -31,7 +31,9 @@ An attempt is **unclean** when any of these holds (else clean):
 ``crash``      ended by a signal the campaign did not send, or a non-zero status
                without a ``softgen: error:`` line.
 
-The attempts are in ``benchmarks/fault_attempts.py``. Adding a verb: write a generator
+The attempts are in ``benchmarks/fault_attempts.py`` and (the verbs and model classes of
+issues 33 and 35: Cosserat rods, statics, floating bases, bench, export --set)
+``benchmarks/fault_attempts_round3.py``. Adding a verb: write a generator
 ``def attempts(rng, ctx) -> Iterable[Attempt]`` decorated with ``@generator("verb")``
 there, or in a module given with ``--plugin`` (imported before the campaign; it may use
 everything both modules define). A verb the CLI has and no generator covers still gets
@@ -439,7 +441,7 @@ def main(argv: list[str] | None = None) -> int:
     # The attempts' modules import this one by name: make that this very module.
     sys.modules.setdefault("fault_campaign", sys.modules[__name__])
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    for mod in ["fault_attempts", *args.plugin]:
+    for mod in ["fault_attempts", "fault_attempts_round3", *args.plugin]:
         importlib.import_module(mod)
     from fault_attempts import Context
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="softgen-campaign-"))

@@ -388,3 +388,27 @@ def test_heartbeat_speaks_only_after_quiet_stretches_on_a_terminal(monkeypatch, 
     else:
         assert beats == [] and err.lines == []
     assert out.lines.count("line") == 6
+
+
+def test_a_signal_inside_an_import_is_the_stop(capsys, monkeypatch):
+    """Before (found by tests/test_faults_signals.py under load): a SIGTERM while scipy's
+    HiGHS extension initialised became ``ImportError: initialization failed`` caused by
+    the Stop, a traceback with status 1 instead of one line and 143."""
+    import signal
+    from softgen.cli import list as list_verb
+    from softgen.core.stop import Stop
+
+    def importing(args):
+        try:
+            raise Stop(signal.SIGTERM)
+        except Stop as exc:
+            raise ImportError("initialization failed") from exc
+    monkeypatch.setattr(list_verb, "run", importing)
+    st, out, err = _cli(capsys, ["list"])
+    assert st == 143 and err == ["softgen: error: stopped by SIGTERM"], (st, err)
+
+    def plain(args):
+        raise ImportError("no module named x")
+    monkeypatch.setattr(list_verb, "run", plain)
+    with pytest.raises(ImportError):
+        main(["list"])

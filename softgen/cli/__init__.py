@@ -77,6 +77,27 @@ def main(argv: list[str] | None = None) -> int:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"softgen: error: {msg}", file=sys.stderr)
         return getattr(exc, "exit_status", 2)
+    except Exception as exc:
+        # A signal inside a C extension's import (scipy's HiGHS) surfaces as an
+        # ImportError caused by the Stop: it is the stop, not a fault (issue 36).
+        cause = _interrupt_of(exc)
+        if cause is None:
+            raise
+        signum = getattr(cause, "signum", signal.SIGINT)
+        print(f"softgen: error: stopped by {signal.Signals(signum).name}", file=sys.stderr)
+        return exit_status(signum)
+
+
+def _interrupt_of(exc: BaseException) -> BaseException | None:
+    """The Stop or KeyboardInterrupt ``exc`` was raised from or during, if any."""
+    seen = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, (KeyboardInterrupt, Stop)):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
 
 
 def _stdout_closed() -> bool:
