@@ -412,3 +412,15 @@ def test_a_signal_inside_an_import_is_the_stop(capsys, monkeypatch):
     monkeypatch.setattr(list_verb, "run", plain)
     with pytest.raises(ImportError):
         main(["list"])
+
+
+def test_bench_refuses_to_write_its_figures_over_its_model(capsys, tmp_path):
+    """Found by the round-3 campaign's generator: ``bench m.toml --json m.toml`` timed the
+    model, then replaced the model file by the figures."""
+    m = tmp_path / "m.toml"
+    m.write_text((MODELS_DIR / "pendulum_1link.toml").read_text()
+                 .replace('"pendulum_1link"', '"pend_copy"'))
+    before = _sha(m)
+    _refused(capsys, ["bench", m, "--calls", "10", "--json", tmp_path / "." / "m.toml"],
+             "--json", "input")
+    assert _sha(m) == before

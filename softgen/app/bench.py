@@ -534,10 +534,11 @@ def run_bench(*, models: list[str] | None = None, chains: bool = False, calls: i
     if not 1 <= calls <= MAX_CALLS:
         raise SoftgenError(f"bench: --calls {calls}: expected 1 to {MAX_CALLS:,} calls per "
                            "timing loop")
-    if json_out is not None:        # before anything is timed (it is written at the end)
-        check_output_file(json_out, "--json", force=True)
     # Unknown model names fail before anything is timed.
     names = [as_model(n) for n in models or list_models()]
+    if json_out is not None:        # before anything is timed (it is written at the end)
+        check_output_file(json_out, "--json", force=True,
+                          inputs=tuple(m.path for m in names if getattr(m, "path", None)))
     result = {"machine": {"platform": platform.platform(), "processor": platform.processor(),
                           "python": platform.python_version(), "cpus": _cpu_count()},
               "clock": "CPU (thread CPU time; compiles: the compiler's CPU time)",
