@@ -276,11 +276,15 @@ def bench_new_attempts(rng, ctx):
                   ["bench", "pendulum_1link", "--calls", "10", "--json", "no/b.json"])
     yield Attempt("bench", "--flags junk", ["bench", "pendulum_1link", "--flags", "O3; rm"])
     yield Attempt("bench", "--flags empty", ["bench", "pendulum_1link", "--flags", ""])
-    yield Attempt("bench", "a Cosserat rod", ["bench", "r.toml", "--calls", "100", "--json",
-                                              "b.json"], put("r.toml", ROD),
-                  outputs=(("b.json", "json"),), timeout=150)
-    yield Attempt("bench", "URDF --floating", ["bench", "a.urdf", "--floating", "--calls", "100",
-                                               "--json", "b.json"], put("a.urdf", URDF),
+    # A whole bench of a rod or a floating arm is minutes of compiles and timed loops
+    # (heartbeat lines meanwhile): interrupted after a while, it must end cleanly, with
+    # what was measured in --json.
+    yield Attempt("bench", "a Cosserat rod, SIGINT after 40 s",
+                  ["bench", "r.toml", "--calls", "100", "--json", "b.json"], put("r.toml", ROD),
+                  signal=(signal.SIGINT, 40.0), outputs=(("b.json", "json"),), timeout=150)
+    yield Attempt("bench", "URDF --floating, SIGTERM after 30 s",
+                  ["bench", "a.urdf", "--floating", "--calls", "100", "--json", "b.json"],
+                  put("a.urdf", URDF), signal=(signal.SIGTERM, 30.0),
                   outputs=(("b.json", "json"),), timeout=150)
     yield Attempt("bench", "--peers --root", ["bench", "--peers", "--root", "x"])
     yield Attempt("bench", "two models --floating", ["bench", "a", "b", "--floating"])

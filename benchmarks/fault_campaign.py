@@ -85,6 +85,9 @@ class Attempt:
     outputs: tuple[tuple[str, str], ...] = ()
     #: Pre-existing paths (files or directories) the command may change.
     may_change: tuple[str, ...] = ()
+    #: Pre-existing paths it may change only when it succeeds (an output given --force,
+    #: of an attempt whose signal may come after the run ended).
+    may_change_on_success: tuple[str, ...] = ()
     #: Bytes left on the sandbox's ``disk/`` directory (None: no limit).
     disk: int | None = None
     #: (signal, seconds after start) sent to the command's process.
@@ -227,7 +230,8 @@ def run_attempt(a: Attempt, ctx, root: Path, index: int, cache: Path) -> Run:
                **{k: v.replace("{d}", str(sandbox)) for k, v in a.env.items()}}
         run = _execute(a, cfg, sandbox, env)
         after = _snapshot(sandbox)
-        allowed = [m.replace("{d}", str(sandbox)) for m in a.may_change]
+        allowed = [m.replace("{d}", str(sandbox)) for m in a.may_change
+                   + (a.may_change_on_success if run.status == 0 else ())]
         run.changed = [k for k, v in before.items() if after.get(k) != v and
                        not any(k == m or k.startswith(m.rstrip("/") + "/") for m in allowed)]
         _judge(run, sandbox)

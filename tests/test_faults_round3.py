@@ -424,3 +424,21 @@ def test_bench_refuses_to_write_its_figures_over_its_model(capsys, tmp_path):
     _refused(capsys, ["bench", m, "--calls", "10", "--json", tmp_path / "." / "m.toml"],
              "--json", "input")
     assert _sha(m) == before
+
+
+@pytest.mark.parametrize("argv", [["observer", "--model", "{q}"], ["check", "{q}"],
+                                  ["estimate", "{q}", "--log", "x.csv"]])
+def test_a_floating_file_follows_the_floating_rule(capsys, tmp_path, quad, argv):
+    """Found by the round-3 campaign: ``observer --model quad.toml`` (floating = true in
+    the file, no --floating) ended in ``RuntimeError: Dimension mismatch for (x-y), x is
+    8x1, while y is 14x1``: the rule of --floating (fixed-base verbs refuse it) now holds
+    for a file that declares its floating base too."""
+    _refused(capsys, [a.replace("{q}", str(quad.path)) for a in argv], "floating base",
+             "fixed-base")
+
+
+def test_observer_library_refuses_a_floating_model(quad):
+    from softgen.app.observer import linearise_model
+    from softgen.core.errors import SoftgenError
+    with pytest.raises(SoftgenError, match="floating base"):
+        linearise_model(quad)
