@@ -442,3 +442,38 @@ def test_observer_library_refuses_a_floating_model(quad):
     from softgen.core.errors import SoftgenError
     with pytest.raises(SoftgenError, match="floating base"):
         linearise_model(quad)
+
+
+# -- Cosserat moduli ---------------------------------------------------------------------------
+
+def test_cosserat_moduli_are_bounded_by_their_own_limit(tmp_path):
+    """A steel (2e11 Pa) or nitinol (5e10 Pa) rod was refused by the general bound on
+    model numbers (1e9); a modulus beyond diamond's (MAX_MODULUS, 1e12 Pa) is one line
+    naming the key. Seeded over both moduli and the whole range."""
+    import re
+    from softgen.core.errors import ModelError
+    from softgen.modelfile.cosserat import MAX_MODULUS
+    from softgen.modelfile.load import load_model
+    rng = random.Random(36)
+    p = tmp_path / "rod.toml"
+    for _ in range(16):
+        key = rng.choice(["youngs_modulus", "shear_modulus"])
+        value = 10 ** rng.uniform(3, 15)
+        text = re.sub(r"^youngs_modulus = .*$", f"{key} = {value!r}" +
+                      ("\nyoungs_modulus = 1e6" if key == "shear_modulus" else ""),
+                      ROD.read_text(), count=1, flags=re.M)
+        p.write_text(text)
+        if value <= MAX_MODULUS:
+            assert load_model(p).kind == "cosserat"
+        else:
+            with pytest.raises(ModelError, match=rf"segments\[0\]\.{key}: .*1e\+12"):
+                load_model(p)
+
+
+def test_a_steel_rod_has_a_static_shape(capsys, tmp_path):
+    import re
+    p = tmp_path / "steel.toml"
+    p.write_text(re.sub(r"^youngs_modulus = .*$", "youngs_modulus = 2e11", ROD.read_text(),
+                        flags=re.M).replace("density = 1100", "density = 7850"))
+    st, out, err = _cli(capsys, ["statics", p, "--tendon", "t1=5"])
+    assert st == 0 and "tip position" in out, err

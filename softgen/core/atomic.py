@@ -155,7 +155,7 @@ def check_output_file(path: str | os.PathLike[str], option: str, *, force: bool 
     if (out.exists() or out.is_symlink()) and not out.is_file():
         raise OutputError(f"{option} {out}: is not a regular file; give a file name")
     if out.exists() and not force:
-        raise OutputError(f"{option} {out}: exists; add --force to overwrite it")
+        raise OutputError(f"{option} {out}: exists; use --force to overwrite it")
     directory = out.parent
     if not directory.is_dir():
         raise OutputError(f"{option} {out}: no directory {directory}")
