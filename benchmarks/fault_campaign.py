@@ -31,7 +31,9 @@ An attempt is **unclean** when any of these holds (else clean):
 ``crash``      ended by a signal the campaign did not send, or a non-zero status
                without a ``softgen: error:`` line.
 
-The attempts are in ``benchmarks/fault_attempts.py``. Adding a verb: write a generator
+The attempts are in ``benchmarks/fault_attempts.py`` and (the verbs and model classes of
+issues 33 and 35: Cosserat rods, statics, floating bases, bench, export --set)
+``benchmarks/fault_attempts_round3.py``. Adding a verb: write a generator
 ``def attempts(rng, ctx) -> Iterable[Attempt]`` decorated with ``@generator("verb")``
 there, or in a module given with ``--plugin`` (imported before the campaign; it may use
 everything both modules define). A verb the CLI has and no generator covers still gets
@@ -83,6 +85,9 @@ class Attempt:
     outputs: tuple[tuple[str, str], ...] = ()
     #: Pre-existing paths (files or directories) the command may change.
     may_change: tuple[str, ...] = ()
+    #: Pre-existing paths it may change only when it succeeds (an output given --force,
+    #: of an attempt whose signal may come after the run ended).
+    may_change_on_success: tuple[str, ...] = ()
     #: Bytes left on the sandbox's ``disk/`` directory (None: no limit).
     disk: int | None = None
     #: (signal, seconds after start) sent to the command's process.
@@ -225,7 +230,8 @@ def run_attempt(a: Attempt, ctx, root: Path, index: int, cache: Path) -> Run:
                **{k: v.replace("{d}", str(sandbox)) for k, v in a.env.items()}}
         run = _execute(a, cfg, sandbox, env)
         after = _snapshot(sandbox)
-        allowed = [m.replace("{d}", str(sandbox)) for m in a.may_change]
+        allowed = [m.replace("{d}", str(sandbox)) for m in a.may_change
+                   + (a.may_change_on_success if run.status == 0 else ())]
         run.changed = [k for k, v in before.items() if after.get(k) != v and
                        not any(k == m or k.startswith(m.rstrip("/") + "/") for m in allowed)]
         _judge(run, sandbox)
@@ -439,7 +445,7 @@ def main(argv: list[str] | None = None) -> int:
     # The attempts' modules import this one by name: make that this very module.
     sys.modules.setdefault("fault_campaign", sys.modules[__name__])
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    for mod in ["fault_attempts", *args.plugin]:
+    for mod in ["fault_attempts", "fault_attempts_round3", *args.plugin]:
         importlib.import_module(mod)
     from fault_attempts import Context
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="softgen-campaign-"))

@@ -47,6 +47,7 @@ from softgen.codegen.generate import render, write_bundle
 from softgen.control.references import SmoothSteps, Sinusoid, sinusoid_block, \
     stiffness_reference_block
 from softgen.control.slotine_li import controller_block, plant_block
+from softgen.core.errors import SoftgenError
 from softgen.core.paths import GENERATED_DIR
 from softgen.modelfile.load import as_model, list_models
 from softgen.runtime.simulate import simulate
@@ -517,16 +518,27 @@ def _bench_functions(out: dict, model, spec, files, *, calls, flags, stream, pyt
                   flush=True)
 
 
+#: Calls per C timing loop: at least one (0 timed nothing and failed late, issue 36), at
+#: most about a minute of the slowest timed loop.
+MAX_CALLS = 10_000_000
+
+
 def run_bench(*, models: list[str] | None = None, chains: bool = False, calls: int = 200_000,
               json_out: Path | None = None, stream=None, flags: tuple[str, ...] | None = None,
               loop_seconds: dict | None = None) -> dict:
     """Measure and print; return everything measured (also written to ``json_out``, also
     when a measurement failed: the failures are records in it)."""
     import sys
-    from softgen.core.atomic import write_text
+    from softgen.core.atomic import check_output_file, write_text
     stream = stream or sys.stdout
+    if not 1 <= calls <= MAX_CALLS:
+        raise SoftgenError(f"bench: --calls {calls}: expected 1 to {MAX_CALLS:,} calls per "
+                           "timing loop")
     # Unknown model names fail before anything is timed.
     names = [as_model(n) for n in models or list_models()]
+    if json_out is not None:        # before anything is timed (it is written at the end)
+        check_output_file(json_out, "--json", force=True,
+                          inputs=tuple(m.path for m in names if getattr(m, "path", None)))
     result = {"machine": {"platform": platform.platform(), "processor": platform.processor(),
                           "python": platform.python_version(), "cpus": _cpu_count()},
               "clock": "CPU (thread CPU time; compiles: the compiler's CPU time)",

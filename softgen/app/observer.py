@@ -306,6 +306,11 @@ def linearise_model(model: RobotModel | str, *, q0: str | None = None,
         raise SoftgenError(f"observer: --model {model.name}: a soft body; the linearisation "
                            f"is implemented for rigid chains (McKibben, qbmove or torque-"
                            f"driven)")
+    if model.floating:
+        # Its q holds a quaternion and v the base twist (7 + n against 6 + n): the joint-
+        # space linearisation below does not apply (issue 36: a CasADi dimension traceback).
+        raise SoftgenError(f"observer: --model {model.name}: a floating base; the "
+                           "linearisation is implemented for fixed-base chains and trees")
     if integrator not in ("euler", "rk4"):
         raise SoftgenError(f"observer: --integrator: expected euler or rk4, got {integrator!r}")
     lo, hi = DT_RANGE

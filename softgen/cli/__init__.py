@@ -14,12 +14,16 @@ interrupted ``reproduce`` (SIGINT, SIGTERM) status 130, after writing
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import os
+import select
 import signal
 import sys
 
 from softgen import __version__
 from softgen.core.errors import SoftgenError
+from softgen.core.heartbeat import heartbeat
 from softgen.core.stop import Stop, exit_status, stopping
 
 #: Verb -> module under softgen.cli, in the order ``softgen --help`` lists them.
@@ -50,15 +54,62 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with stopping():
             args = build_parser().parse_args(argv)
-            return args.func(args)
+            # A line on the terminal after each quiet stretch (core.heartbeat).
+            with heartbeat(args.command):
+                return args.func(args)
     except (KeyboardInterrupt, Stop) as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
         print(f"softgen: error: stopped by {signal.Signals(signum).name}", file=sys.stderr)
         return exit_status(signum)
+    except BrokenPipeError as exc:
+        if _stdout_closed():
+            # ``softgen list | head -1``: the reader has what it wanted. Quiet, and the
+            # status of a process ended by SIGPIPE as shells report it (issue 36: a
+            # traceback). Later writes (the interpreter's final flush) go nowhere.
+            with contextlib.suppress(OSError):
+                null = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(null, sys.__stdout__.fileno())     # type: ignore[union-attr]
+            return 128 + signal.SIGPIPE
+        print(f"softgen: error: {exc.strerror or 'broken pipe'} writing to "
+              f"{exc.filename or 'a pipe'}", file=sys.stderr)
+        return 1
     except (SoftgenError, ValueError, FileNotFoundError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"softgen: error: {msg}", file=sys.stderr)
         return getattr(exc, "exit_status", 2)
+    except Exception as exc:
+        # A signal inside a C extension's import (scipy's HiGHS) surfaces as an
+        # ImportError caused by the Stop: it is the stop, not a fault (issue 36).
+        cause = _interrupt_of(exc)
+        if cause is None:
+            raise
+        signum = getattr(cause, "signum", signal.SIGINT)
+        print(f"softgen: error: stopped by {signal.Signals(signum).name}", file=sys.stderr)
+        return exit_status(signum)
+
+
+def _interrupt_of(exc: BaseException) -> BaseException | None:
+    """The Stop or KeyboardInterrupt ``exc`` was raised from or during, if any."""
+    seen = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, (KeyboardInterrupt, Stop)):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
+
+
+def _stdout_closed() -> bool:
+    """Whether the process's standard output is a pipe whose reader has gone (poll says
+    POLLERR on its write end), as opposed to another pipe a verb wrote to."""
+    try:
+        fd = sys.__stdout__.fileno()                        # type: ignore[union-attr]
+        poll = select.poll()
+        poll.register(fd, select.POLLOUT)
+        return any(ev & (select.POLLERR | select.POLLHUP) for _, ev in poll.poll(0))
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 if __name__ == "__main__":

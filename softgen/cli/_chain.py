@@ -49,7 +49,14 @@ def chain_model(args, ref, verb: str):
     from softgen.modelfile.load import load_model
     if not has_chain(args):
         if ref is not None:
-            check_expression_size(load_model(ref))
+            model = load_model(ref)
+            check_expression_size(model)
+            if getattr(model, "floating", False) and verb not in FLOATING_VERBS:
+                # floating = true in the file: the same rule as --floating (issue 36:
+                # observer --model of such a file ended in a CasADi dimension traceback).
+                raise SoftgenError(f"{verb}: {ref}: a floating base (floating = true); "
+                                   f"{verb} works on fixed-base models; a floating base is "
+                                   f"for {', '.join(FLOATING_VERBS)}")
         return ref
     floating = getattr(args, "floating", False)
     if floating and verb not in FLOATING_VERBS:

@@ -63,9 +63,16 @@ def _generate_one(model, out: Path, build: bool, force: bool = False) -> str:
 
 
 def _shipped_size(name: str, generated: Path) -> int:
-    """Bytes of the shipped C of model ``name`` (0 for a path or a model not shipped)."""
-    c = generated / str(name) / f"{name}.c"
-    return c.stat().st_size if "/" not in str(name) and c.is_file() else 0
+    """Bytes of the shipped C of model ``name`` (0 for a path, a loaded model object, or
+    a model not shipped; issue 36: the repr of a ``--floating`` model object was taken
+    for a name, a file name too long for the OS when the model's name was long)."""
+    if not isinstance(name, str) or "/" in name:
+        return 0
+    try:
+        c = generated / name / f"{name}.c"
+        return c.stat().st_size if c.is_file() else 0
+    except OSError:
+        return 0
 
 
 class Progress:

@@ -46,16 +46,19 @@ def _assignments(items: list[str], option: str) -> dict[str, float]:
 
 
 def run(args) -> int:
+    from softgen.core.atomic import check_output_file
+    from softgen.modelfile.limits import check_expression_size
     from softgen.app.statics import Loads, Statics, check_loads, write_json
     from softgen.modelfile.cosserat import CosseratModel
     from softgen.modelfile.load import load_model
-    from pathlib import Path
 
     if args.per_segment < 1 or args.per_segment > 1000:
         raise SoftgenError(f"--per-segment: expected 1..1000, got {args.per_segment}")
-    if args.json and Path(args.json).exists() and not args.force:
-        raise SoftgenError(f"{args.json} exists; use --force to overwrite it")
     model = load_model(args.model)
+    check_expression_size(model)      # before deriving (issue 36: 200 segments ran silent)
+    if args.json:
+        inputs = (model.path,) if model.path else ()
+        check_output_file(args.json, "--json", force=args.force, inputs=inputs)
     if not isinstance(model, CosseratModel):
         raise SoftgenError(f"{model.path or model.name}: model.kind = {model.kind!r}: statics "
                            "needs a kind = \"cosserat\" model")

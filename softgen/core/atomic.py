@@ -70,6 +70,10 @@ def replacing(path: str | os.PathLike[str], *, mode: int | None = None) -> Itera
     For writers that want a file name (``numpy.savez``, ``Figure.savefig``).
     """
     path = Path(path)
+    if path.exists() and not path.is_file():
+        # A directory, device or FIFO: the rename would replace the node itself (as root,
+        # ``--json /dev/full --force`` replaced the device, issue 36).
+        raise OutputError(f"cannot write {path}: not a regular file; give a file name")
     tmp = temp_path(path)
     try:
         try:
@@ -134,6 +138,30 @@ def check_dir(directory: str | os.PathLike[str], what: str = "output directory")
     if not os.access(base, os.W_OK | os.X_OK):
         raise OutputError(f"{what} {d}: {base} is not writable")
     return d
+
+
+def check_output_file(path: str | os.PathLike[str], option: str, *, force: bool = False,
+                      inputs: tuple[str | os.PathLike[str], ...] = ()) -> Path:
+    """Before long work: the output file ``path`` (given as ``option``) is none of the
+    ``inputs``, not a directory or device, exists only with ``force``, and its directory
+    exists and is writable; else one line naming ``option``."""
+    out = Path(path)
+    for src in inputs:
+        if Path(src).exists() and out.exists() and out.resolve() == Path(src).resolve():
+            raise OutputError(f"{option} {out}: is an input of this command; give another "
+                              "file name")
+    if out.is_dir():
+        raise OutputError(f"{option} {out}: is a directory; give a file name")
+    if (out.exists() or out.is_symlink()) and not out.is_file():
+        raise OutputError(f"{option} {out}: is not a regular file; give a file name")
+    if out.exists() and not force:
+        raise OutputError(f"{option} {out}: exists; use --force to overwrite it")
+    directory = out.parent
+    if not directory.is_dir():
+        raise OutputError(f"{option} {out}: no directory {directory}")
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise OutputError(f"{option} {out}: directory {directory} is not writable")
+    return out
 
 
 def write_set(directory: str | os.PathLike[str], files: dict[str, bytes], *,

@@ -73,6 +73,11 @@ from softgen.modelfile.model import Link, ParameterTable, _Parser, check_uncerta
 
 #: The strain twist's components, in order (docs/design.md section 4): angular (ω) first, then ν.
 STRAINS = ("torsion", "bend_y", "bend_z", "stretch", "shear_y", "shear_z")
+#: Largest Young's or shear modulus (Pa): about diamond's, the stiffest solid; steel
+#: (2e11) and nitinol (5e10) rods fit, which the model files' general bound on numbers
+#: (model.MAX_MAGNITUDE, 1e9) refused (issue 36).
+MAX_MODULUS = 1e12
+
 #: The section stiffness multiplying each strain (circular section: one EI for both bends).
 STIFFNESS_OF = ("GJ", "EI", "EI", "EA", "GA", "GA")
 #: Highest GVS polynomial order, and most quadrature points per segment.
@@ -304,10 +309,11 @@ class _CosseratParser(_Parser):
         A, I = math.pi * radius ** 2, math.pi * radius ** 4 / 4
         geometry = {"EI": ("youngs_modulus", I), "GJ": ("shear_modulus", 2 * I),
                     "EA": ("youngs_modulus", A), "GA": ("shear_modulus", A)}
-        E = self.number(raw["youngs_modulus"], f"{key}.youngs_modulus", positive=True) \
-            if "youngs_modulus" in raw else None
-        G = self.number(raw["shear_modulus"], f"{key}.shear_modulus", positive=True) \
-            if "shear_modulus" in raw else (E / 3 if E is not None else None)
+        E = self.number(raw["youngs_modulus"], f"{key}.youngs_modulus", positive=True,
+                        limit=MAX_MODULUS) if "youngs_modulus" in raw else None
+        G = self.number(raw["shear_modulus"], f"{key}.shear_modulus", positive=True,
+                        limit=MAX_MODULUS) if "shear_modulus" in raw else \
+            (E / 3 if E is not None else None)
         moduli = {"youngs_modulus": E, "shear_modulus": G}
         stiffness: list[str | None] = [None] * 6
         for a in active:

@@ -470,16 +470,20 @@ class FileReader:
                 raise self.fail(f"{where}.{k}" if where else k, "missing required field")
         return table
 
-    def number(self, v: Any, key: str, *, positive=False, nonneg=False) -> float:
+    def number(self, v: Any, key: str, *, positive=False, nonneg=False,
+               limit: float = MAX_MAGNITUDE) -> float:
+        """A finite number of magnitude at most ``limit`` (default :data:`MAX_MAGNITUDE`;
+        a quantity whose unit makes larger values ordinary passes its own, e.g. a
+        modulus in Pa)."""
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise self.fail(key, f"expected a number, got {_short(v)}")
         try:
             x = float(v)
         except OverflowError:           # an integer of hundreds of digits
             x = math.inf
-        if not math.isfinite(x) or abs(x) > MAX_MAGNITUDE:
+        if not math.isfinite(x) or abs(x) > limit:
             raise self.fail(key, f"expected a finite number of magnitude at most "
-                            f"{MAX_MAGNITUDE:g}, got {_short(v)}")
+                            f"{limit:g}, got {_short(v)}")
         if positive and not x > 0:
             raise self.fail(key, f"expected a positive number, got {v!r}")
         if nonneg and x < 0:
@@ -864,6 +868,13 @@ class _Parser(FileReader):
                                 f"{LINEAR_SPRING_LAW!r}; or give law = \"...\")")
             side = self.side(law, consts, key, "spring", "",
                              deflection_max=self.deflection_max(table, key))
+            slope0 = side.law.spring.slope0
+            if not slope0 > 0:
+                # One spring in series with the motor: with τ'(0) <= 0 it never pushes the
+                # link back (issue 36: k = 0 and k = -5 were loaded and got the cascade).
+                what = f"{key}.k" if "law" not in table else f"{key}.law"
+                raise self.fail(what, f"a series-elastic spring must be stiff at rest: "
+                                f"expected tau'(0) > 0 (k > 0), got {slope0:g} N m/rad")
             return self.finish(Actuator(type=kind, joint=j, values=tuple(values),
                                         drive="spring", sides=(side,)), key)
         drive = self.choice(table["drive"], f"{key}.drive", tuple(LAW_VARIABLES))

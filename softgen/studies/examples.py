@@ -93,6 +93,41 @@ DEFAULT_SECONDS = 10.0
 #: Largest ω·dt of a motor spring mode the electric example integrates with one RK4 step
 #: per sample (:func:`motor_mode_step`).
 MAX_MODE_STEP = 0.5
+#: What an example's config may set (issue 36: ``export --set substeps=100000000`` ran
+#: silently for minutes, ``substeps=0``, ``dt=1e-12`` and a negative stiffness margin
+#: were exported with status 0): the sample time (s), RK4 substeps per sample and the
+#: samples of one run (the exported program's default length, DEFAULT_SECONDS / dt).
+DT_RANGE = (1e-6, 0.1)
+MAX_SUBSTEPS = 100
+MAX_LOOP_SAMPLES = 10_000_000
+#: Gains of the example configs that must be positive, and those that may be zero.
+_POSITIVE = ("lam", "kp", "kp_m", "stiffness_rate", "mode_ratio", "omega", "rise")
+_NONNEGATIVE = ("kd", "kpi", "kd_m")
+
+
+class ExampleConfig(Config):
+    """The checks every example config shares (by field name: ``dt``, ``substeps`` and
+    the gains of :data:`_POSITIVE` and :data:`_NONNEGATIVE`), before anything is built."""
+
+    def validate(self) -> None:
+        owner = type(self).__name__
+        dt = getattr(self, "dt", None)
+        lo, hi = DT_RANGE
+        if dt is not None and not lo <= dt <= hi:
+            raise ValueError(f"{owner}.dt: expected a sample time between {lo:g} and {hi:g} "
+                             f"s, got {dt!r}")
+        substeps = getattr(self, "substeps", None)
+        if substeps is not None and not 1 <= substeps <= MAX_SUBSTEPS:
+            raise ValueError(f"{owner}.substeps: expected 1 to {MAX_SUBSTEPS} RK4 steps per "
+                             f"sample, got {substeps!r}")
+        for name in _POSITIVE + _NONNEGATIVE:
+            v = getattr(self, name, None)
+            values = v if isinstance(v, tuple) else (v,)     # per-axis gains: each one
+            if v is not None and not all(x > 0 if name in _POSITIVE else x >= 0
+                                         for x in values):
+                raise ValueError(f"{owner}.{name}: expected a "
+                                 f"{'positive' if name in _POSITIVE else 'non-negative'} "
+                                 f"number, got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -264,8 +299,9 @@ def example_for(model, *, example: str | None = None, steps: int | None = None,
     dt = _dt(cfg, model)
     if steps is None:
         steps = int(round(DEFAULT_SECONDS / dt))
-    if not (isinstance(steps, int) and not isinstance(steps, bool) and steps >= 1):
-        raise SoftgenError(f"steps: expected a positive integer, got {steps!r}")
+    if not (isinstance(steps, int) and not isinstance(steps, bool)
+            and 1 <= steps <= MAX_LOOP_SAMPLES):
+        raise SoftgenError(f"steps: expected 1 to {MAX_LOOP_SAMPLES:,} samples, got {steps!r}")
     return spec.build(ctx, cfg, steps)
 
 
@@ -323,7 +359,7 @@ def motor_mode_step(model) -> float:
 # --------------------------------------------------------------------------- Slotine–Li
 
 @dataclass(frozen=True)
-class SlotineLiConfig(Config):
+class SlotineLiConfig(ExampleConfig):
     """Slotine–Li (Prop. 10) on the torque-driven arm: gains Λ (1/s), K_d (N m s/rad) and
     K_π (per base parameter), cycled over the joints, and references q_d,i = o_i + a_i
     sin(2π f_i t). The values of the ``rigid-2link-adaptive`` experiment, which takes its
@@ -364,7 +400,7 @@ def _slotine_li(ctx: Context, c: SlotineLiConfig, steps: int) -> Example:
 # --------------------------------------------------------------------------- Theorem 5
 
 @dataclass(frozen=True)
-class Theorem5Config(Config):
+class Theorem5Config(ExampleConfig):
     """Theorem 5 (section 10.2) on an arm of pressure pairs linear in p. Physical gains
     (softgen.control.pneumatic): Λ in 1/s; K_d in N m s/rad and K_π on the physical base
     parameters, ``None`` for section 10.2's printed K_d = 18, K_π = 35 converted with the
@@ -497,7 +533,7 @@ def pneumatic_stiffness_steps(arm: PneumaticArm, c: Theorem5Config
 # --------------------------------------------------------------------------- chapter 11
 
 @dataclass(frozen=True)
-class ElectricPdConfig(Config):
+class ElectricPdConfig(ExampleConfig):
     """The chapter-11 PD cascade (eq. 11.4-11.6) on an arm of sinh spring pairs with
     motors: section 11.2's references and PD gains (studies.electric: THESIS_REFERENCES,
     THESIS_GAINS["pd"], their one home), each joint's stiffness raised to
@@ -509,6 +545,13 @@ class ElectricPdConfig(Config):
     stiffness_margin: float = STIFFNESS_MARGIN
     mode_ratio: float = MODE_RATIO
     dt: float | None = None
+
+    def validate(self) -> None:
+        super().validate()
+        # At 1 the references touch the springs' zero co-contraction (STIFFNESS_MARGIN).
+        if not self.stiffness_margin > 1:
+            raise ValueError(f"ElectricPdConfig.stiffness_margin: expected a number > 1 (the "
+                             f"stiffness over what holds the arm), got {self.stiffness_margin!r}")
 
 
 def _electric_pd(ctx: Context, c: ElectricPdConfig, steps: int) -> Example:
@@ -556,7 +599,7 @@ def _electric_pd(ctx: Context, c: ElectricPdConfig, steps: int) -> Example:
 # --------------------------------------------------------------------------- SEA, partial
 
 @dataclass(frozen=True)
-class SeaCascadeConfig(Config):
+class SeaCascadeConfig(ExampleConfig):
     """The PD cascade for linear series-elastic joints (control.sea): link PD k_p, k_d
     and motor PD k_p,m, k_d,m (the bundle's sea_cascade defaults, SEA_GAINS: their one
     home), references as Slotine–Li's, RK4 substeps per sample."""
@@ -600,7 +643,7 @@ def _sea_cascade(ctx: Context, c: SeaCascadeConfig, steps: int) -> Example:
 
 
 @dataclass(frozen=True)
-class PartialConfig(Config):
+class PartialConfig(ExampleConfig):
     """Collocated partial feedback linearisation of a partly actuated arm
     (control.partial): link gains k_p, k_d (1/s², 1/s) and motor gains k_p,m, k_d,m of
     spring-driven joints (PARTIAL_TRACKING_GAINS, their one home), references of the
@@ -649,7 +692,7 @@ def _partial(ctx: Context, c: PartialConfig, steps: int) -> Example:
 # --------------------------------------------------------------------------- Theorem 10
 
 @dataclass(frozen=True)
-class Theorem10Config(Config):
+class Theorem10Config(ExampleConfig):
     """Theorem 10 (section 12.1) sampled at 1 ms on a soft body: the "higher" gains of the
     section 12.2.1 study (Λ, K_d, K_π; studies.soft.PLANAR_PCC_HIGHER_GAINS, their one
     home) and its sinusoids q_d,i = M_i sin(ω t + φ_i) (PLANAR_PCC_REFERENCE, rad),
@@ -734,7 +777,7 @@ def _spring_pair(ctx: Context, c: SpringPairExample, steps: int) -> Example:
 # --------------------------------------------------------------------------- floating base
 
 @dataclass(frozen=True)
-class FloatingConfig(Config):
+class FloatingConfig(ExampleConfig):
     """A floating-base robot's dynamics (issue 35): released at rest ``height`` (m) above
     the origin, level, joints at 0, a joint PD (gains ``kp`` N m/rad, ``kd`` N m s/rad,
     example values) moving them to a posture (``posture``, rad, cycled over the joints);
@@ -774,7 +817,7 @@ def _floating(ctx: Context, c: FloatingConfig, steps: int) -> Example:
 # --------------------------------------------------------------------------- Cosserat rods
 
 @dataclass(frozen=True)
-class CosseratTipConfig(Config):
+class CosseratTipConfig(ExampleConfig):
     """Task-space adaptive tip control of a Cosserat rod (issue 33; Theorem 10's law with
     σ = J⁺ s, one-sided input allocation): gains Λ (1/s), K_d (N s/m), K_π (relative to
     each nominal π² when ``kpi_relative``), the pretension u_min (the inputs' unit), and
@@ -792,20 +835,18 @@ class CosseratTipConfig(Config):
     dt: float | None = None                         # s (None: 1 ms)
 
     def validate(self) -> None:
-        for k in ("lam", "kd", "kpi"):
-            if getattr(self, k) <= 0:
-                raise ValueError(f"CosseratTipConfig.{k}: expected a positive number, "
-                                 f"got {getattr(self, k)!r}")
+        for k in ("amplitude", "omega"):                # before the shared gain checks
+            v = getattr(self, k)
+            if not isinstance(v, tuple | list) or len(v) != 2:
+                raise ValueError(f"CosseratTipConfig.{k}: expected two numbers (one per "
+                                 f"task axis), got {getattr(self, k)!r}")
+        super().validate()                          # dt, lam, kd, kpi, omega (ExampleConfig)
+        if self.kd <= 0:                            # a rod's tip loop needs damping
+            raise ValueError(f"CosseratTipConfig.kd: expected a positive number, "
+                             f"got {self.kd!r}")
         if self.u_min < 0:
             raise ValueError(f"CosseratTipConfig.u_min: expected a number >= 0, "
                              f"got {self.u_min!r}")
-        for k in ("amplitude", "omega"):
-            if len(getattr(self, k)) != 2:
-                raise ValueError(f"CosseratTipConfig.{k}: expected two numbers (one per "
-                                 f"task axis), got {getattr(self, k)!r}")
-        if self.dt is not None and not 0 < self.dt <= 0.1:
-            raise ValueError(f"CosseratTipConfig.dt: expected a sample time in (0, 0.1] s, "
-                             f"got {self.dt!r}")
 
 
 def _cosserat_tip(ctx: Context, c: CosseratTipConfig, steps: int) -> Example:

@@ -27,8 +27,9 @@ import numpy as np
 from softgen.app.identify.actuator import ActuatorFit, identify_actuator
 from softgen.app.identify.modelfile import (identified_name, model_tables, to_toml,
                                             write_text_atomic, write_trajectory_csv)
-from softgen.app.identify.rigid import (MIN_EXPLAINED, RigidIdentification, check_log,
-                                        identify_rigid, read_identification_log, unit_hints)
+from softgen.app.identify.rigid import (BASE_WRENCH_COLUMNS, MIN_EXPLAINED,
+                                        RigidIdentification, check_log, identify_rigid,
+                                        read_identification_log, unit_hints)
 from softgen.core.errors import ModelError, SoftgenError
 from softgen.modelfile.model import RobotModel
 from softgen.modelfile.limits import HARMONICS, LOG_ROWS
@@ -85,8 +86,12 @@ def implausible(res: RigidIdentification) -> str | None:
     too little of the torque, or physical values that no model file may hold."""
     worst = int(np.argmin(res.explained)) if res.explained.size else 0
     if res.explained.size and not res.explained[worst] >= MIN_EXPLAINED:
-        return (f"the model explains {100 * max(res.explained[worst], 0.0):.1f} % of joint "
-                f"{worst + 1}'s torque (at least {100 * MIN_EXPLAINED:.0f} % expected): q and "
+        # A floating base's rows are its wrench (fx..mz) and then the joints' torques.
+        what = (f"joint {worst + 1}'s torque" if not res.model.floating else
+                f"the base wrench's {BASE_WRENCH_COLUMNS[worst]}" if worst < 6 else
+                f"joint {worst - 5}'s torque")
+        return (f"the model explains {100 * max(res.explained[worst], 0.0):.1f} % of {what} "
+                f"(at least {100 * MIN_EXPLAINED:.0f} % expected): q and "
                 "tau do not belong together (noise, swapped columns, or another robot's log)")
     if res.violations:
         return (f"the identified values are not physical ({res.violations[0]}"
@@ -97,7 +102,9 @@ def implausible(res: RigidIdentification) -> str | None:
 
 def swap_hint(model: RobotModel, data, res: RigidIdentification, options: dict) -> list[str]:
     """``["... swapped ..."]`` when the log identifies clearly better with its q and tau
-    columns exchanged, else ``[]``."""
+    columns exchanged, else ``[]`` (also on a floating base: its q and τ differ in size)."""
+    if model.floating:
+        return []
     swapped = replace(data, q=data.tau, tau=data.q)
     try:
         check_log(swapped, model)

@@ -634,6 +634,15 @@ def consistency_violations(model: RobotModel, values: dict[str, float]) -> list[
 
 # -- plausibility before success (issue 36) -------------------------------------------------
 
+def joint_columns(log: IdentificationLog, model: RobotModel) -> tuple[np.ndarray, np.ndarray]:
+    """(q, τ) of the joints alone (K × n): a floating base's log puts its pose (7
+    columns) before q and its wrench (6) before τ (issue 36: the checks below indexed the
+    base's columns as joints, an IndexError on every floating log)."""
+    if model.floating:
+        return log.q[:, 7:], log.tau[:, 6:]
+    return log.q, log.tau
+
+
 def check_log(log: IdentificationLog, model: RobotModel) -> None:
     """Refuse a log whose sample time or signals rule an identification out: a time
     step outside :data:`DT_RANGE` (the time column in ms), a τ column that never
@@ -645,11 +654,8 @@ def check_log(log: IdentificationLog, model: RobotModel) -> None:
         raise SoftgenError(f"identify: {log.path}: median time step {log.dt:.6g} s: an "
                            f"identification log needs q'' of the motion, so a sample time "
                            f"between {lo:g} and {hi:g} s; {unit}")
-    # A floating base's log has the base pose (7) before q and the base wrench (6) before
-    # τ: the joints' columns are judged here (a contact-free log's wrench is 0 throughout).
-    oq, ov = (7, 6) if model.floating else (0, 0)
-    n = log.q.shape[1] - oq
-    q, tau = log.q[:, oq:], log.tau[:, ov:]
+    q, tau = joint_columns(log, model)
+    n = q.shape[1]
     flat_tau = [f"tau{j + 1}" for j in range(n) if np.ptp(tau[:, j]) == 0]
     if flat_tau:
         value = float(tau[0, int(flat_tau[0][3:]) - 1])
@@ -669,9 +675,9 @@ def unit_hints(log: IdentificationLog, model: RobotModel, res: RigidIdentificati
     a revolute joint spanning more than a turn (degrees), a torque far from what the
     model file predicts along the same motion (mN·m, kN·m, currents)."""
     hints = []
-    oq = 7 if model.floating else 0                 # a floating base's pose comes first
+    q, _ = joint_columns(log, model)
     for j, link in enumerate(model.links):
-        span = float(np.ptp(log.q[:, oq + j]))
+        span = float(np.ptp(q[:, j]))
         if link.joint == "revolute" and span > 2 * math.pi:
             hints.append(f"q{j + 1} spans {span:.4g}, more than a turn (2 pi rad): is q in "
                          "degrees?")
