@@ -59,7 +59,7 @@ A plant off the predictor's model (issue 32)
     its K_d by h K_d / B_p samples). No fixed predictor covers plants 100 × apart in
     mass and 250 × in damping, and π̂ learns too slowly to move it at the start.
     Measured (``benchmarks/sampled_predictor.py``): the grid's lower corner as a fixed
-    predictor is stable on every grid plant by the check but tracks 1.3-319 × worse than
+    predictor is stable on every grid plant by the check but tracks 1.19-319 × worse than
     the continuous loop (the law is timid, π̂ drifts); the three factors identified
     online by RLS from the implicit-Euler balance of each sample reach the plant's
     within about 1 s and track every damping ×2.5 plant, 18 of 29 grid plants against
