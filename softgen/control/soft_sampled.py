@@ -58,14 +58,16 @@ A plant off the predictor's model (issue 32)
     the opposite holds (a predictor lighter than the plant makes the law timid and lags
     its K_d by h K_d / B_p samples). No fixed predictor covers plants 100 × apart in
     mass and 250 × in damping, and π̂ learns too slowly to move it at the start.
-    Measured (``benchmarks/sampled_predictor.py``): the grid's lower corner as a fixed
-    predictor is stable on every grid plant by the check but tracks 1.19-319 × worse than
-    the continuous loop (the law is timid, π̂ drifts); the three factors identified
-    online by RLS from the implicit-Euler balance of each sample reach the plant's
-    within about 1 s and track every damping ×2.5 plant, 18 of 29 grid plants against
-    16 of 29 here. The lightly damped plants (×0.01) fail with the exact predictor too
-    (153 × on ``pcc_planar_4seg`` at mass ×0.1, stiffness ×0.3): their cause is not the
-    predictor, and is open (issue 32).
+    Measured (``benchmarks/sampled_predictor.py``, its docstring has the table): the
+    grid's lower corner as a fixed predictor is stable on every grid plant by the check
+    but timid (13 of 29 plants within 2x of the continuous loop against 16 of 29 here);
+    without adaptation this step tracks the lightly damped plants as the continuous loop
+    does, so what fails there is the start: the balance with the last force (none
+    before the first sample) kicks a plant whose slowest mode is underdamped, and Yᵀσ
+    read at the sampled q̇ aliases its fast modes. The three factors identified online,
+    the balance taken from that model and the adaptation on the sample's mean velocity
+    track 24 of 29; the stiff, lightly damped plants (stiffness ×3, damping ×0.01) stay
+    open (issue 32).
     ``predictor`` (:class:`ModelScale`) builds the law on a predictor off the model
     file; the check and the blocks take the plant off it (:class:`ScaledPlant`,
     :func:`scaled_plant_block`, :func:`scaled_closed_loop_block`, a runtime parameter:
