@@ -46,8 +46,8 @@ planar,3d,pendulum,user_3seg OPTIONS):
 ==========================================================  ======  ======================
 OPTIONS                                                     tracks  fails
 ==========================================================  ======  ======================
-``--predictor fixed:1,1,1`` (the shipped step, as the        16/29   every mass ×0.1 plant
-report's ``ext-sampled-soft``: the same 13 fail)                    but one; damping ×0.01
+``--predictor fixed:1,1,1`` (the shipped step, as the        16/29   12 with mass ×0.1 or
+report's ``ext-sampled-soft``: the same 13 fail)                    damping ×0.01, one other
 ``--predictor fixed:0.1,0.3,0.01`` (the lower corner)        13/29   timid: 2.25-319x
 (none)                                                      19/29   damping ×0.01 only
 ``--mean-velocity``                                         18/29   damping ×0.01, one ×2.5
