@@ -77,6 +77,7 @@ class ClosedLoop:
                                  .prefixed(bn)])
         self._step: ca.Function | None = None
         self._loops: dict[tuple[int, tuple[str, ...] | None], ca.Function] = {}
+        self._samples: dict[tuple[tuple[str, ...] | None, str | None], ca.Function] = {}
         #: Compiled loops of this diagram, filled by the driver (one build per process).
         self.compiled: dict[str, Any] = {}
 
@@ -251,6 +252,13 @@ class ClosedLoop:
         The driver's compiled loop calls it once per sample (``codegen.generate``,
         ``BundleSpec.loops``).
         """
+        key = (None if record is None else tuple(record), name)
+        if key in self._samples:
+            # One object per (record, name): the loop's mapaccum and the driver's plain C
+            # loop then share one copy of the sample's C (CasADi's code generator adds a
+            # function once per object; two equal objects were two copies, half the C of
+            # every run-time loop and of its compile time).
+            return self._samples[key]
         rows = self.recorded(record)
         f = self.step_fun()
         nx = self.state.size
@@ -259,9 +267,10 @@ class ClosedLoop:
         xn, y = f(Xa[:nx], P, Xa[nx], E)
         if record is not None:
             y = ca.vertcat(*[y[self.signals.slice(r.name)] for r in rows])
-        return ca.Function(name or f"{self.loop_name(record)}_sample", [Xa, P, E],
-                           [ca.vertcat(xn, Xa[nx] + 1), y], ["xa", "p", "e"],
-                           ["xa_next", "y"])
+        self._samples[key] = ca.Function(name or f"{self.loop_name(record)}_sample",
+                                         [Xa, P, E], [ca.vertcat(xn, Xa[nx] + 1), y],
+                                         ["xa", "p", "e"], ["xa_next", "y"])
+        return self._samples[key]
 
     def loop_fun(self, steps: int, record: Sequence[str] | None = None) -> ca.Function:
         """``<name>_loop``: ``steps`` samples of the whole diagram in one function.
@@ -277,7 +286,7 @@ class ClosedLoop:
         if key in self._loops:
             return self._loops[key]
         nx = self.state.size
-        one = self.sample_fun(record, name="one_sample")
+        one = self.sample_fun(record)       # the driver's sample (simulate), one C copy
         acc = one.mapaccum("acc", steps, [0], [0])
         X0, Pm, k0 = ca.MX.sym("x0", nx), ca.MX.sym("p", self.params.size), ca.MX.sym("k0")
         Em = ca.MX.sym("e", self.externals.size, steps)
