@@ -266,3 +266,14 @@ def test_bad_construction_is_refused(toy):
         with pytest.raises((ValueError, TypeError)):
             m.FastCall(addr, None, 0, threading.get_ident(), (bad,), (good,), (good,), 1, 1,
                        None, None, print, None, ())
+
+
+def test_damaged_cache_entry_is_rebuilt(monkeypatch, tmp_path):
+    if not _can_build():
+        pytest.skip("no C compiler or no Python headers")
+    monkeypatch.setenv("SOFTGEN_CACHE_DIR", str(tmp_path))
+    lib = fastcall._target()[0]
+    lib.parent.mkdir(parents=True)
+    lib.write_bytes(b"not a shared library")
+    mod = fastcall._load()
+    assert mod is not None and hasattr(mod, "FastCall") and lib.stat().st_size > 1000

@@ -338,37 +338,60 @@ def _load():
     if os.environ.get("SOFTGEN_FASTCALL", "1") == "0":
         return None
     try:
-        import numpy as np
-
-        from softgen.codegen.build import find_compiler
-        from softgen.core import children
-        from softgen.core.paths import cache_dir
-        cc = find_compiler(None)
-        include = sysconfig.get_paths().get("include")
-        suffix = sysconfig.get_config_var("EXT_SUFFIX") or ".so"
-        if cc is None or not include or not (Path(include) / "Python.h").is_file():
+        where = _target()
+        if where is None:
             return None
-        tag = hashlib.sha256("\0".join([SOURCE, sys.version, np.__version__, np.get_include(),
-                                        str(cc)]).encode()).hexdigest()[:16]
-        d = cache_dir() / "fastcall"
-        lib = d / f"_fastcall_{tag}{suffix}"
-        if not lib.is_file():
-            d.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory(dir=d) as tmp:
-                src = Path(tmp) / "_fastcall.c"
-                src.write_text(SOURCE)
-                out = Path(tmp) / lib.name
-                proc = children.run([str(cc), "-O2", "-fPIC", "-shared", "-I", include,
-                                     "-I", np.get_include(), "-o", str(out), str(src)],
-                                    timeout=120)
-                if proc.returncode != 0:
+        lib, cc, include, np_include = where
+        for attempt in range(2):
+            if attempt or not lib.is_file():
+                if not _build(lib, cc, include, np_include):
                     return None
-                os.replace(out, lib)
-        spec = importlib.util.spec_from_file_location("_fastcall", lib)
-        if spec is None or spec.loader is None:
-            return None
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        return mod
+            try:
+                return _import(lib)
+            except ImportError:         # a damaged cache entry: build it again, once
+                continue
+        return None
     except Exception:      # noqa: BLE001 - any failure: the Python entry stays
         return None
+
+
+def _target() -> tuple[Path, str, str, str] | None:
+    """Where the extension for this Python and NumPy is cached, and what builds it:
+    (library, compiler, Python headers, NumPy headers); None without any of them."""
+    import numpy as np
+
+    from softgen.codegen.build import find_compiler
+    from softgen.core.paths import cache_dir
+    cc = find_compiler(None)
+    include = sysconfig.get_paths().get("include")
+    suffix = sysconfig.get_config_var("EXT_SUFFIX") or ".so"
+    if cc is None or not include or not (Path(include) / "Python.h").is_file():
+        return None
+    tag = hashlib.sha256("\0".join([SOURCE, sys.version, np.__version__, np.get_include(),
+                                    str(cc)]).encode()).hexdigest()[:16]
+    return cache_dir() / "fastcall" / f"_fastcall_{tag}{suffix}", cc, include, np.get_include()
+
+
+def _build(lib: Path, cc: str, include: str, np_include: str) -> bool:
+    """Compile :data:`SOURCE` into ``lib`` (atomically: concurrent builds are fine)."""
+    from softgen.core import children
+    lib.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
+        src = Path(tmp) / "_fastcall.c"
+        src.write_text(SOURCE)
+        out = Path(tmp) / lib.name
+        proc = children.run([cc, "-O2", "-fPIC", "-shared", "-I", include, "-I", np_include,
+                             "-o", str(out), str(src)], timeout=120)
+        if proc.returncode != 0:
+            return False
+        os.replace(out, lib)
+    return True
+
+
+def _import(lib: Path):
+    spec = importlib.util.spec_from_file_location("_fastcall", lib)
+    if spec is None or spec.loader is None:
+        raise ImportError(f"{lib}: not loadable")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
