@@ -5,6 +5,7 @@ from __future__ import annotations
 import gc
 import sysconfig
 import threading
+import time
 import weakref
 from pathlib import Path
 
@@ -216,20 +217,43 @@ def toy(tmp_path_factory):
     (d / "toy.c").write_text(
         "int toy(const double** arg, double** res, long long* iw, double* w, int mem) {\n"
         "  for (int i = 0; i < 2; i++) res[0][i] = 2.0 * arg[0][i];\n"
-        "  return (int) arg[0][1];\n}\n")
+        "  return (int) arg[0][1];\n}\n"
+        "int wait(const double** arg, double** res, long long* iw, double* w, int mem) {\n"
+        "  volatile const double* flag = arg[0];\n"
+        "  for (long long i = 0; i < 3000000000LL; i++)\n"
+        "    if (flag[1] != 0.0) { res[0][0] = flag[1]; return 0; }\n"
+        "  return 1;\n}\n")
     proc = children.run([find_compiler(), "-O1", "-fPIC", "-shared", "-o", str(d / "toy.so"),
                          str(d / "toy.c")])
     assert proc.returncode == 0, proc.stderr
     return ctypes.CDLL(str(d / "toy.so"))
 
 
-def _toy_call(toy, on_error, fallback=lambda *a: ("fallback", a)):
+def _toy_call(toy, on_error, fallback=lambda *a: ("fallback", a), name="toy", inp=None):
     import ctypes
-    inp, out = np.zeros(2), np.zeros(2)
-    addr = ctypes.cast(toy.toy, ctypes.c_void_p).value
+    inp, out = np.zeros(2) if inp is None else inp, np.zeros(2)
+    addr = ctypes.cast(getattr(toy, name), ctypes.c_void_p).value
     return fastcall.module().FastCall(addr, None, 0, threading.get_ident(), (inp,), (out,),
                                       (out,), 1, 1, None, None, fallback, on_error,
                                       (toy, inp, out)), out
+
+
+def test_other_threads_run_during_the_call(toy):
+    """As in CasADi's evaluator, the C runs without the GIL: here it waits for another
+    Python thread to write into its input buffer (with the GIL held it would time out)."""
+    def on_error(code):
+        raise BundleError(f"wait returned error code {code}")
+    inp = np.zeros(2)
+    fc, _ = _toy_call(toy, on_error, name="wait", inp=inp)
+
+    def release() -> None:
+        time.sleep(0.05)
+        inp[1] = 5.0
+    t = threading.Thread(target=release)
+    t.start()
+    out = fc(np.zeros(2))
+    t.join()
+    assert out[0] == 5.0
 
 
 def test_nonzero_code_raises_through_on_error(toy):

@@ -15,7 +15,8 @@ refuses is the Python path's in every case.
 On that common case it does what the Python path does, in the same order: copy each
 argument into the input buffer the library reads, call the compiled function (the
 same pointers CasADi's evaluator passes: input buffers, output buffers, the
-function's own work arrays, a memory slot checked out once), raise through
+function's own work arrays, a memory slot checked out once; without the GIL, as
+CasADi's evaluator, so other threads run during a long call), raise through
 ``on_error(code)`` when a function that can fail returns non-zero, and return
 ``out.copy()`` of each output buffer view (C order, as ``ndarray.copy``).
 
@@ -84,7 +85,12 @@ fc_vectorcall(FastCall *self, PyObject *const *args, size_t nargsf, PyObject *kw
     for (i = 0; i < n; i++)
         memcpy(self->arg[i], PyArray_DATA((PyArrayObject *)args[i]), self->in_bytes[i]);
     {
-        int ret = self->fn((const double **)self->arg, self->res, self->iw, self->w, self->mem);
+        int ret;
+        /* Other threads run meanwhile, as during CasADi's evaluator: a long loop must not
+           stop them. The inputs are copied already; the buffers are this thread's. */
+        Py_BEGIN_ALLOW_THREADS
+        ret = self->fn((const double **)self->arg, self->res, self->iw, self->w, self->mem);
+        Py_END_ALLOW_THREADS
         if (ret != 0 && self->on_error != Py_None) {
             PyObject *code = PyLong_FromLong(ret), *r;
             if (code == NULL) return NULL;
