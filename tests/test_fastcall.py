@@ -3,6 +3,7 @@ it returns, writes and refuses exactly what the Python entry does."""
 from __future__ import annotations
 
 import gc
+import os
 import sysconfig
 import threading
 import time
@@ -21,7 +22,8 @@ from softgen.runtime import fastcall
 
 def _can_build() -> bool:
     include = sysconfig.get_paths().get("include")
-    return find_compiler() is not None and bool(include) and (Path(include) / "Python.h").is_file()
+    return (os.environ.get("SOFTGEN_FASTCALL", "1") != "0" and find_compiler() is not None
+            and bool(include) and (Path(include) / "Python.h").is_file())
 
 
 @pytest.fixture(scope="module")

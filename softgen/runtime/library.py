@@ -31,6 +31,7 @@ CasADi's own evaluation of the same functions, with a warning.
 from __future__ import annotations
 
 import ctypes
+import functools
 import threading
 import warnings
 from pathlib import Path
@@ -314,7 +315,7 @@ def entry({params}, *rest):
         except (ValueError, TypeError):
             pass
         else:
-            call()
+            {call}
             return result()
     return checked(tuple(a for a in ({args},) if a is not NO) + rest)
 """
@@ -340,12 +341,21 @@ def _fast_call(st: _ThreadState, owner: int, checked):
             return tuple(o.copy() for o in outs)
     n = len(mv)
     names = [f"a{i}" for i in range(n)]
+    call = st.call
+    # CasADi's evaluator is a partial of a builtin and its handle: called directly it
+    # saves the partial's layer; a prebuilt slice saves building one per copy (~85 ns
+    # of the 1.1 µs Panda τ together).
+    direct = (isinstance(call, functools.partial) and len(call.args) == 1
+              and not call.keywords)
     src = _ENTRY.format(params=", ".join(f"{a}=NO" for a in names),
-                        copies="\n".join(f"            m{i}[:] = a{i}" for i in range(n)),
-                        args=", ".join(names))
+                        copies="\n".join(f"            m{i}[ALL] = a{i}" for i in range(n)),
+                        args=", ".join(names),
+                        call="ev(handle)" if direct else "call()")
     scope = {f"m{i}": m for i, m in enumerate(mv)}
-    scope.update(get_ident=_get_ident, owner=owner, call=st.call, result=result,
-                 checked=checked, NO=_NO)
+    scope.update(get_ident=_get_ident, owner=owner, call=call, result=result,
+                 checked=checked, NO=_NO, ALL=slice(None))
+    if direct:
+        scope.update(ev=call.func, handle=call.args[0])
     exec(compile(src, f"<softgen fast call, {n} inputs>", "exec"), scope)
     return scope["entry"]
 
