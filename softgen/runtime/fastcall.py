@@ -73,6 +73,10 @@ static PyObject *
 fc_vectorcall(FastCall *self, PyObject *const *args, size_t nargsf, PyObject *kwnames)
 {
     Py_ssize_t n = PyVectorcall_NARGS(nargsf), i;
+    if (self->fallback == NULL) {          /* cleared by the garbage collector */
+        PyErr_SetString(PyExc_RuntimeError, "bundle function called after it was freed");
+        return NULL;
+    }
     if (kwnames != NULL || n != self->n_in || PyThread_get_thread_ident() != self->owner)
         goto fallback;
     for (i = 0; i < n; i++) {
