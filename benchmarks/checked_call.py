@@ -1,6 +1,7 @@
 """Python call latency of the Panda's generated τ (issue 31 item 6): the bundle's
-checked call ``f(q, qd, qd_r, qdd_r)`` (shapes and dtypes checked, fresh output) against
-Pinocchio's ``pin.rnea(model, data, q, v, a)`` from Python on the same URDF, timed
+checked call ``f(q, qd, qd_r, qdd_r)`` (shapes and dtypes checked, fresh output; its
+compiled entry, :mod:`softgen.runtime.fastcall`, and the Python entry it falls back on)
+against Pinocchio's ``pin.rnea(model, data, q, v, a)`` from Python on the same URDF, timed
 interleaved on the thread's CPU clock (best of rounds). Needs ``pip install pin``.
 
     .venv/bin/python benchmarks/checked_call.py [--rounds 15] [--number 20000]
@@ -38,12 +39,15 @@ def main() -> None:
     err = float(np.max(np.abs(ours - theirs)) / np.max(np.abs(theirs)))
     calls = {"softgen checked call": lambda: tau(q, v, v, a),
              "pin.rnea": lambda: pin.rnea(model, data, q, v, a)}
+    if tau.fast_path == "c":     # the Python entry, which takes what the C entry does not
+        calls["  its Python entry"] = lambda: tau._fast(q, v, v, a)
     best = {k: float("inf") for k in calls}
     for _ in range(args.rounds):
         for k, f in calls.items():
             t = timeit.timeit(f, number=args.number, timer=time.thread_time)
             best[k] = min(best[k], t / args.number * 1e9)
-    print(f"panda tau, relative difference to pin.rnea: {err:.1e}; load {os.getloadavg()}")
+    print(f"panda tau, relative difference to pin.rnea: {err:.1e}; load {os.getloadavg()}; "
+          f"entry {tau.fast_path!r}")
     for k, ns in best.items():
         print(f"  {k:<22} {ns:7.0f} ns per call (thread CPU clock, best of {args.rounds})")
     print(f"  ratio pin.rnea / softgen: {best['pin.rnea'] / best['softgen checked call']:.2f}")
