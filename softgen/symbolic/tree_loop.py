@@ -172,6 +172,34 @@ def _add_cols(a, b):
     return a[0] + b[0], a[1] + b[1]
 
 
+def _sym(A, B):
+    """A B for a product known to be symmetric (a congruence X^T I X with I symmetric,
+    S^T I S, M D^-1 M^T): the upper triangle formed, the lower its mirror (CasADi forms
+    every entry of a product; the inertias here are 6 x 6)."""
+    n = A.shape[0]
+    M = [[None] * n for _ in range(n)]
+    for i in range(n):
+        for j in range(i, n):
+            M[i][j] = M[j][i] = ca.dot(A[i, :].T, B[:, j])
+    return ca.blockcat(M)
+
+
+def _triu(M):
+    """The upper triangle of a symmetric 6 x 6, by columns (21 entries)."""
+    return ca.vertcat(*[M[i, j] for j in range(6) for i in range(j + 1)])
+
+
+def _from_triu(x):
+    """The symmetric 6 x 6 of :func:`_triu`'s 21 entries."""
+    M = [[None] * 6 for _ in range(6)]
+    k = 0
+    for j in range(6):
+        for i in range(j + 1):
+            M[i][j] = M[j][i] = x[k]
+            k += 1
+    return ca.blockcat(M)
+
+
 def _group_backward(patterns, d: int, inertials: Sequence[Inertial | None]) -> list:
     """The SX inputs and outputs of ``B`` (module docstring); ``patterns``: the
     sparsities of ``A``'s frames and J_N."""
@@ -180,7 +208,8 @@ def _group_backward(patterns, d: int, inertials: Sequence[Inertial | None]) -> l
     fr_in = []
     Etot, ptot = ca.SX.sym("E", 3, 3), ca.SX.sym("p", 3)
     tau_own, phi_own, phi_c = ca.SX.sym("tau", d), ca.SX.sym("phi", 6), ca.SX.sym("phic", 6)
-    r0, IAc, pAc = ca.SX.sym("r0", d), ca.SX.sym("IAc", 6, 6), ca.SX.sym("pAc", 6)
+    r0, IAc_in, pAc = ca.SX.sym("r0", d), ca.SX.sym("IAc", 21), ca.SX.sym("pAc", 6)
+    IAc = _from_triu(IAc_in)
     frames = []
     for k, sps in enumerate(pattern):
         (E, e_in), (p, p_in) = _from_nz(None, sps[0], f"E{k}"), _from_nz(None, sps[1], f"p{k}")
@@ -215,11 +244,11 @@ def _group_backward(patterns, d: int, inertials: Sequence[Inertial | None]) -> l
         Ic[k], pc[k] = Inode[k], pnode[k]
         if k + 1 < N:
             Xn = frames[k + 1][0]
-            Ic[k] = Ic[k] + ca.mtimes([Xn.T, Ic[k + 1], Xn])
+            Ic[k] = Ic[k] + _sym(Xn.T, ca.mtimes(Ic[k + 1], Xn))
             pc[k] = pc[k] + ca.mtimes(Xn.T, pc[k + 1])
         if d:
             F = ca.mtimes(Ic[k], S)
-            Mqq += ca.mtimes(S.T, F)
+            Mqq += _sym(S.T, F)
             if k + 1 < N:
                 H = ca.mtimes([S.T, frames[k + 1][0].T, G[k + 1]])
                 Mqq += H + H.T
@@ -228,20 +257,20 @@ def _group_backward(patterns, d: int, inertials: Sequence[Inertial | None]) -> l
                 G[k] = F
             bq += ca.mtimes(S.T, pc[k])
     X1 = frames[0][0]
-    Maa = ca.mtimes([X1.T, Ic[0], X1])
+    Maa = _sym(X1.T, ca.mtimes(Ic[0], X1))
     ba = ca.mtimes(X1.T, pc[0])
     if d:
         Maq = ca.mtimes(X1.T, G[0])
         L, Dg = _ldl(Mqq, d)
         u = r - bq
         Wm = _solve_cols(L, Dg, Maq.T)
-        IA = Maa - ca.mtimes(Maq, Wm)
+        IA = Maa - _sym(Maq, Wm)
         pA = ba + ca.mtimes(Maq, _ldl_solve(L, Dg, u))
         y = _ldl_solve(L, Dg, u)
     else:
         IA, pA, y, Wm = Maa, ba, ca.SX(0, 1), ca.SX(0, 6)
-    ins = [fr, JN_in, ca.vec(Etot), ptot, tau_own, phi_own, phi_c, r0, ca.vec(IAc), pAc]
-    outs = [phi, ca.vec(IA), pA, y, ca.vec(Wm)]
+    ins = [fr, JN_in, ca.vec(Etot), ptot, tau_own, phi_own, phi_c, r0, IAc_in, pAc]
+    outs = [phi, _triu(IA), pA, y, ca.vec(Wm)]
     return ins, [ca.densify(x) for x in outs]
 
 
@@ -330,7 +359,7 @@ def looped_forward_dynamics(name: str, tree: Tree, inertials: Sequence[Inertial 
         fw.append(res)
         pats.append(pat)
     # Backward: B per group.
-    tip = {6: ca.DM.zeros(6), 8: ca.DM.zeros(36), 9: ca.DM.zeros(6)}
+    tip = {6: ca.DM.zeros(6), 8: ca.DM.zeros(21), 9: ca.DM.zeros(6)}
     phi_c = IAc = pAc = None
     bw: list = [None] * len(grs)
     for gi in reversed(range(len(grs))):
