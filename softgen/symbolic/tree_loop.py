@@ -46,9 +46,10 @@ from collections.abc import Callable, Sequence
 import casadi as ca
 
 from softgen.symbolic.frames import Inertial
-from softgen.symbolic.tree import (Node, Tree, _acc_operator, _body_force_classical,
-                                   _frames, _S_times, _S_transpose_times, _to_child,
-                                   _to_parent)
+from softgen.symbolic.tree import (Node, Tree, _acc_operator, _add_inertial,
+                                   _body_force_classical, _force_to_parent_cols, _frames,
+                                   _inertial_to_parent, _S_times, _S_transpose_times,
+                                   _to_child, _to_parent)
 from softgen.symbolic.tree_aba import (_ldl, _ldl_solve, _motion_transform, _solve_cols,
                                        groups, spatial_matrix)
 
@@ -102,10 +103,12 @@ def _group_forward(sub: Tree, d: int, inertials: Sequence[Inertial | None]) -> l
     Wm, Wf = ca.SX.sym("Wm", 3), ca.SX.sym("Wf", 3)
     frames = _frames(sub, qg)
     state = (w, al, b)
-    out_frames = []
     forces = []
     Etot, ptot = None, None
     J = None
+    # The group's own nodes' share of B's blocks (module docstring, "B").
+    Mqq, Maq = ca.SX.zeros(d, d), ca.SX.zeros(6, d)
+    comp: Inertial | None = None
     for k, (nd, fr) in enumerate(zip(sub.nodes, frames)):
         E, p, S = ca.SX(fr.E), ca.SX(fr.p), (ca.SX(fr.S[0]), ca.SX(fr.S[1]))
         pw, pal, pb = state
@@ -131,7 +134,14 @@ def _group_forward(sub: Tree, d: int, inertials: Sequence[Inertial | None]) -> l
         if d:
             Jw, Ju = (S[0], S[1]) if J is None else _add_cols(_to_child_cols(E, p, J), S)
             J = (Jw, Ju)
-        out_frames.append([E, p] + ([ca.vertcat(S[0], S[1])] if d else []))
+        if inert is not None:
+            if d:
+                Jk = ca.vertcat(J[0], J[1])
+                IJ = ca.mtimes(spatial_matrix(inert), Jk)
+                Mqq = Mqq + _sym(Jk.T, IJ)
+                up = _force_to_parent_cols(Etot, ptot, (IJ[:3, :], IJ[3:, :]))
+                Maq = Maq + ca.vertcat(up[0], up[1])
+            comp = _add_inertial(comp, _inertial_to_parent(inert, Etot, ptot))
     # The world wrench at N, in N's coordinates, joins N's force with a minus sign.
     RN = ca.mtimes(RP, Etot)
     ext = (-ca.mtimes(RN.T, Wm), -ca.mtimes(RN.T, Wf))
@@ -152,12 +162,12 @@ def _group_forward(sub: Tree, d: int, inertials: Sequence[Inertial | None]) -> l
     fr0 = frames[0]
     phi = _to_parent(ca.SX(fr0.E), ca.SX(fr0.p), f)
     JN = ca.vertcat(J[0], J[1]) if d else ca.SX(6, 0)
+    Maa = ca.SX.zeros(6, 6) if comp is None else spatial_matrix(comp)
     ins = [qg, vg, ca.vertcat(w, al, b), ca.vec(RP), ca.vertcat(Wm, Wf)]
-    pattern = [[x.sparsity() for x in fr] for fr in out_frames]
     outs = [ca.densify(o) for o in (ca.vertcat(*state), ca.vec(RN), tau, ca.vertcat(*phi))]
     outs += [_nz(JN), ca.densify(ca.vec(Etot)), ca.densify(ptot),
-             ca.vertcat(*[_nz(x) for fr in out_frames for x in fr])]
-    return ins, outs, (pattern, JN.sparsity())
+             ca.densify(_triu(Mqq)), ca.densify(ca.vec(Maq)), ca.densify(_triu(Maa))]
+    return ins, outs, JN.sparsity()
 
 
 def _to_child_cols(E, p, J):
@@ -185,91 +195,61 @@ def _sym(A, B):
 
 
 def _triu(M):
-    """The upper triangle of a symmetric 6 x 6, by columns (21 entries)."""
-    return ca.vertcat(*[M[i, j] for j in range(6) for i in range(j + 1)])
+    """The upper triangle of a symmetric n x n, by columns (n (n + 1) / 2 entries)."""
+    n = M.shape[0]
+    return ca.vertcat(*[M[i, j] for j in range(n) for i in range(j + 1)]) if n \
+        else ca.SX(0, 1)
 
 
-def _from_triu(x):
-    """The symmetric 6 x 6 of :func:`_triu`'s 21 entries."""
-    M = [[None] * 6 for _ in range(6)]
+def _from_triu(x, n: int = 6):
+    """The symmetric n x n of :func:`_triu`'s entries."""
+    if n == 0:
+        return ca.SX(0, 0)
+    M = [[None] * n for _ in range(n)]
     k = 0
-    for j in range(6):
+    for j in range(n):
         for i in range(j + 1):
             M[i][j] = M[j][i] = x[k]
             k += 1
     return ca.blockcat(M)
 
 
-def _group_backward(patterns, d: int, inertials: Sequence[Inertial | None]) -> list:
-    """The SX inputs and outputs of ``B`` (module docstring); ``patterns``: the
-    sparsities of ``A``'s frames and J_N."""
-    pattern, sp_J = patterns
+def _group_backward(sp_J: ca.Sparsity, d: int) -> list:
+    """The SX inputs and outputs of ``B`` (module docstring): the group's step of
+    :func:`~softgen.symbolic.tree_aba.articulated_solve`, its blocks the own nodes' (from
+    ``A``) plus the next group's articulated inertia I^A_c and bias p^A_c at N:
+    M_qq += J_Nᵀ I^A_c J_N, M_aq += X_gNᵀ I^A_c J_N, M_aa += X_gNᵀ I^A_c X_gN,
+    b_q = J_Nᵀ p^A_c, b_a = X_gNᵀ p^A_c (``sp_J``: J_N's sparsity)."""
     JN, JN_in = _from_nz(None, sp_J, "JN")
-    fr_in = []
     Etot, ptot = ca.SX.sym("E", 3, 3), ca.SX.sym("p", 3)
     tau_own, phi_own, phi_c = ca.SX.sym("tau", d), ca.SX.sym("phi", 6), ca.SX.sym("phic", 6)
     r0, IAc_in, pAc = ca.SX.sym("r0", d), ca.SX.sym("IAc", 21), ca.SX.sym("pAc", 6)
+    Mqq_in, Maq_in = ca.SX.sym("Mqq", d * (d + 1) // 2), ca.SX.sym("Maq", 6 * d)
+    Maa_in = ca.SX.sym("Maa", 21)
     IAc = _from_triu(IAc_in)
-    frames = []
-    for k, sps in enumerate(pattern):
-        (E, e_in), (p, p_in) = _from_nz(None, sps[0], f"E{k}"), _from_nz(None, sps[1], f"p{k}")
-        fr_in += [e_in, p_in]
-        if d:
-            S, s_in = _from_nz(None, sps[2], f"S{k}")
-            fr_in.append(s_in)
-        else:
-            S = ca.SX(6, 0)
-        frames.append((_motion_transform(E, p), S))
-    fr = ca.vertcat(*fr_in)
-    n_nodes = len(pattern)
     # The bias sweep across the boundary.
-    fc = (phi_c[:3], phi_c[3:])
     tau = tau_own + (ca.mtimes(JN.T, phi_c) if d else ca.SX(0, 1))
-    up = _to_parent(Etot, ptot, fc)
+    up = _to_parent(Etot, ptot, (phi_c[:3], phi_c[3:]))
     phi = phi_own + ca.vertcat(*up)
     r = r0 - tau
-    # The group's articulated-body step (tree_aba.articulated_solve, one group).
-    Inode = [spatial_matrix(x) if x is not None else ca.SX.zeros(6, 6) for x in inertials]
-    Inode[-1] = Inode[-1] + IAc
-    pnode = [ca.SX.zeros(6) for _ in inertials]
-    pnode[-1] = pAc
-    N = n_nodes
-    Ic: list = [None] * N
-    pc: list = [None] * N
-    G: list = [None] * N
-    Mqq = ca.SX.zeros(d, d)
-    bq = ca.SX.zeros(d)
-    for k in reversed(range(N)):
-        X, S = frames[k]
-        Ic[k], pc[k] = Inode[k], pnode[k]
-        if k + 1 < N:
-            Xn = frames[k + 1][0]
-            Ic[k] = Ic[k] + _sym(Xn.T, ca.mtimes(Ic[k + 1], Xn))
-            pc[k] = pc[k] + ca.mtimes(Xn.T, pc[k + 1])
-        if d:
-            F = ca.mtimes(Ic[k], S)
-            Mqq += _sym(S.T, F)
-            if k + 1 < N:
-                H = ca.mtimes([S.T, frames[k + 1][0].T, G[k + 1]])
-                Mqq += H + H.T
-                G[k] = F + ca.mtimes(frames[k + 1][0].T, G[k + 1])
-            else:
-                G[k] = F
-            bq += ca.mtimes(S.T, pc[k])
-    X1 = frames[0][0]
-    Maa = _sym(X1.T, ca.mtimes(Ic[0], X1))
-    ba = ca.mtimes(X1.T, pc[0])
+    Xt = _motion_transform(Etot, ptot)
+    Maa = _from_triu(Maa_in) + _sym(Xt.T, ca.mtimes(IAc, Xt))
+    ba = ca.mtimes(Xt.T, pAc)
     if d:
-        Maq = ca.mtimes(X1.T, G[0])
+        IJ = ca.mtimes(IAc, JN)
+        Mqq = _from_triu(Mqq_in, d) + _sym(JN.T, IJ)
+        Maq = ca.reshape(Maq_in, 6, d) + ca.mtimes(Xt.T, IJ)
+        bq = ca.mtimes(JN.T, pAc)
         L, Dg = _ldl(Mqq, d)
         u = r - bq
         Wm = _solve_cols(L, Dg, Maq.T)
-        IA = Maa - _sym(Maq, Wm)
-        pA = ba + ca.mtimes(Maq, _ldl_solve(L, Dg, u))
         y = _ldl_solve(L, Dg, u)
+        IA = Maa - _sym(Maq, Wm)
+        pA = ba + ca.mtimes(Maq, y)
     else:
         IA, pA, y, Wm = Maa, ba, ca.SX(0, 1), ca.SX(0, 6)
-    ins = [fr, JN_in, ca.vec(Etot), ptot, tau_own, phi_own, phi_c, r0, IAc_in, pAc]
+    ins = [JN_in, ca.vec(Etot), ptot, tau_own, phi_own, phi_c, r0, IAc_in, pAc, Mqq_in,
+           Maq_in, Maa_in]
     outs = [phi, _triu(IA), pA, y, ca.vec(Wm)]
     return ins, [ca.densify(x) for x in outs]
 
@@ -359,20 +339,19 @@ def looped_forward_dynamics(name: str, tree: Tree, inertials: Sequence[Inertial 
         fw.append(res)
         pats.append(pat)
     # Backward: B per group.
-    tip = {6: ca.DM.zeros(6), 8: ca.DM.zeros(21), 9: ca.DM.zeros(6)}
+    tip = {5: ca.DM.zeros(6), 7: ca.DM.zeros(21), 8: ca.DM.zeros(6)}
     phi_c = IAc = pAc = None
     bw: list = [None] * len(grs)
     for gi in reversed(range(len(grs))):
         g = grs[gi]
         d = len(tree.nodes[g[0]].v)
         v = tree.nodes[g[0]].v
-        _, _, tau_own, phi_own, JN, Etot, ptot, frames = fw[gi]
+        _, _, tau_own, phi_own, JN, Etot, ptot, Mqq, Maq, Maa = fw[gi]
         last = gi == len(grs) - 1
-        fb = shared.get("B", *_group_backward(pats[gi], d, [inertials[i] for i in g]),
-                        fixed=tip if last else None)
+        fb = shared.get("B", *_group_backward(pats[gi], d), fixed=tip if last else None)
         r0g = ca.vertcat(*[r0[k] for k in v]) if d else ca.MX(0, 1)
-        args = [frames, JN, Etot, ptot, tau_own, phi_own, r0g] if last else \
-            [frames, JN, Etot, ptot, tau_own, phi_own, phi_c, r0g, IAc, pAc]
+        args = [JN, Etot, ptot, tau_own, phi_own, r0g, Mqq, Maq, Maa] if last else \
+            [JN, Etot, ptot, tau_own, phi_own, phi_c, r0g, IAc, pAc, Mqq, Maq, Maa]
         phi_c, IAc, pAc, y, Wm = fb(*args)
         bw[gi] = (y, Wm)
     # Forward: C per group.
@@ -380,8 +359,8 @@ def looped_forward_dynamics(name: str, tree: Tree, inertials: Sequence[Inertial 
     x: list = [None] * nv
     for gi, g in enumerate(grs):
         d = len(tree.nodes[g[0]].v)
-        _, _, _, _, JN, Etot, ptot, _ = fw[gi]
-        fc = shared.get("C", *_group_accel(d, pats[gi][1]), fixed={5: ca.DM.zeros(6)} if gi == 0 else None)
+        _, _, _, _, JN, Etot, ptot, _, _, _ = fw[gi]
+        fc = shared.get("C", *_group_accel(d, pats[gi]), fixed={5: ca.DM.zeros(6)} if gi == 0 else None)
         xdd, a = fc(bw[gi][0], bw[gi][1], Etot, ptot, JN) if gi == 0 else \
             fc(bw[gi][0], bw[gi][1], Etot, ptot, JN, a)
         for c, k in enumerate(tree.nodes[g[0]].v):
