@@ -269,12 +269,13 @@ def _pcc(ns: int):
     return load_model(p)
 
 
-def _executed(f: ca.Function) -> int:
-    """CasADi instructions an evaluation of ``f`` runs: an SX function's count; for an MX
-    function, its own instructions plus, per call, the called function's (recursively)."""
+def executed_instructions(f: ca.Function) -> int:
+    """CasADi instructions one evaluation of ``f`` runs: an SX function's count; for an MX
+    function (the looped routes), its own instructions plus, per call, the called
+    function's (recursively)."""
     if f.is_a("SXFunction"):
         return f.n_instructions()
-    return sum(_executed(f.instruction_MX(i).which_function())
+    return sum(executed_instructions(f.instruction_MX(i).which_function())
                if f.instruction_id(i) == ca.OP_CALL else 1 for i in range(f.n_instructions()))
 
 
@@ -295,7 +296,7 @@ def scaling() -> None:
         f = d.forward_dynamics_fun()
         f = ca.Function(f"fd_rod_loop{ns}", [f.mx_in(0), f.mx_in(1)],
                         [f(f.mx_in(0), f.mx_in(1), ca.DM.zeros(0), ca.DM.zeros(6))])
-        rows.append(("Cosserat PCS, 6 strains", "looped", ns, _executed(f), f, x))
+        rows.append(("Cosserat PCS, 6 strains", "looped", ns, executed_instructions(f), f, x))
     for ns in (4, 8, 16):
         m = _pcc(ns)
         b = SoftDynamics(m).nominal
@@ -307,7 +308,7 @@ def scaling() -> None:
                         [forward_dynamics(b, pt, tau, fx)], {"cse": True})
         rows.append(("PCC 3D", "tree, SX", ns, f.n_instructions(), f, x))
         f = forward_dynamics_function(b, pt, f"fd_pcc_tree_loop{ns}")
-        rows.append(("PCC 3D", "tree, looped", ns, _executed(f), f, x))
+        rows.append(("PCC 3D", "tree, looped", ns, executed_instructions(f), f, x))
         f = ca.Function(f"fd_pcc_chain{ns}", [b.q, b.qd, tau, fx], [plant_qdd(b, tau, fx)],
                         {"cse": True})
         rows.append(("PCC 3D", "chain (bundles)", ns, f.n_instructions(), f, x))
