@@ -9,7 +9,15 @@ Sections (``--only NAME`` runs one):
 ``scaling``  CasADi instructions and µs per call of the forward dynamics at 4, 8 and 16
              segments: a 3D PCS rod (6 strains) and the 3D PCC arm (``pcc_3d_4seg``'s
              segment), the PCC by the tree route (:mod:`softgen.symbolic.pcc_tree`) and by
-             the chain route the PCC bundles use (:func:`softgen.control.soft.plant_qdd`).
+             the chain route the PCC bundles use (:func:`softgen.control.soft.plant_qdd`);
+             the rod and the PCC tree each as one straight-line SX function ("SX") and
+             as the looped function (:mod:`softgen.symbolic.tree_loop`: the rod's
+             ``forward_dynamics_fun``, ``pcc_tree.forward_dynamics_function``), whose C
+             calls one function per distinct segment (instructions: what its C runs, the
+             called functions' CasADi instructions summed over the calls). Every size's
+             functions are compiled first, then timed round-robin in one process
+             (``--repeats`` rounds, the median per function), so the 16/4 ratios are
+             read under one load; the ratios are printed.
 ``jsrm``     a planar PCS forward dynamics (3 segments, bend/shear/axial, 5 Gauss points:
              ``tests/test_cosserat_jsrm.py``'s rod) in softgen's generated C against jsrm's
              ``forward_dynamics`` under ``jax.jit`` on the CPU (``block_until_ready``
@@ -107,6 +115,100 @@ def time_c(f: ca.Function, inputs: list, *, calls: int = 2000, repeats: int = 7,
         return float(out.stdout.strip())
 
 
+_MANY = r"""
+#define _POSIX_C_SOURCE 199309L
+#include <stdio.h>
+#include <stdlib.h>
+#include <time.h>
+#define casadi_real double
+#define casadi_int long long int
+static double cpu_ns(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t);
+  return t.tv_sec * 1e9 + t.tv_nsec;
+}
+static int cmp(const void *a, const void *b) {
+  double x = *(const double *)a, y = *(const double *)b;
+  return (x > y) - (x < y);
+}
+typedef int (*fn_t)(const casadi_real **, casadi_real **, casadi_int *, casadi_real *, int);
+typedef int (*work_t)(casadi_int *, casadi_int *, casadi_int *, casadi_int *);
+%(decl)s
+int main(int argc, char **argv) {
+  long calls = atol(argv[1]);
+  int repeats = atoi(argv[2]);
+  if (repeats > 1000) repeats = 1000;
+  enum { NF = %(nf)d };
+  fn_t fn[NF] = {%(fns)s};
+  work_t wk[NF] = {%(wks)s};
+  const casadi_real **arg[NF]; casadi_real **res[NF]; casadi_int *iw[NF]; casadi_real *w[NF];
+  static double t[NF][1000];
+  volatile double sink = 0;
+  for (int k = 0; k < NF; ++k) {
+    casadi_int sz_arg, sz_res, sz_iw, sz_w;
+    wk[k](&sz_arg, &sz_res, &sz_iw, &sz_w);
+    arg[k] = malloc(sizeof(casadi_real *) * (sz_arg + 1));
+    res[k] = malloc(sizeof(casadi_real *) * (sz_res + 1));
+    iw[k] = malloc(sizeof(casadi_int) * (sz_iw + 1));
+    w[k] = malloc(sizeof(casadi_real) * (sz_w + 1));
+  }
+%(bind)s
+  for (int r = 0; r <= repeats; ++r)      /* round-robin: every function in every round */
+    for (int k = 0; k < NF; ++k) {
+      double t0 = cpu_ns();
+      for (long c = 0; c < calls; ++c) { fn[k](arg[k], res[k], iw[k], w[k], 0); sink += res[k][0][0]; }
+      if (r > 0) t[k][r - 1] = (cpu_ns() - t0) / calls;
+    }
+  for (int k = 0; k < NF; ++k) {
+    qsort(t[k], repeats, sizeof(double), cmp);
+    printf("%%.1f\n", t[k][repeats / 2]);
+  }
+  return 0;
+}
+"""
+
+
+def time_c_many(items: list, *, calls: int = 2000, repeats: int = 7,
+                opt: str = "-O3") -> list[float]:
+    """Median thread-CPU ns per call of the generated C of each (f, inputs) of ``items``,
+    all in one process, timed round-robin (every function once per round), so that
+    their ratios are read under the same load. Names must be distinct."""
+    with tempfile.TemporaryDirectory(prefix="cosserat-speed-") as tmp:
+        tmp = Path(tmp)
+        decl, bind, objs = [], [], []
+        for k, (f, inputs) in enumerate(items):
+            nm = f.name()
+            cg = ca.CodeGenerator(f"{nm}.c", {"with_header": True})
+            cg.add(f)
+            cg.generate(str(tmp) + "/")
+            obj = tmp / f"{nm}.o"
+            subprocess.run(["gcc", opt, "-c", "-o", str(obj), str(tmp / f"{nm}.c")],
+                           check=True, capture_output=True)
+            objs.append(str(obj))
+            decl.append(f"int {nm}(const casadi_real **, casadi_real **, casadi_int *, "
+                        f"casadi_real *, int);\nint {nm}_work(casadi_int *, casadi_int *, "
+                        "casadi_int *, casadi_int *);")
+            for i, v in enumerate(inputs):
+                v = np.atleast_1d(np.asarray(v, dtype=float)).ravel(order="F")
+                decl.append(f"static casadi_real in{k}_{i}[] = {{"
+                            f"{', '.join(repr(float(x)) for x in v)}{', ' if len(v) else ''}0}};")
+                bind.append(f"  arg[{k}][{i}] = in{k}_{i};")
+            for o in range(f.n_out()):
+                decl.append(f"static casadi_real out{k}_{o}[{max(f.nnz_out(o), 1)}];")
+                bind.append(f"  res[{k}][{o}] = out{k}_{o};")
+        names = [f.name() for f, _ in items]
+        src = tmp / "harness.c"
+        src.write_text(_MANY % {"decl": "\n".join(decl), "bind": "\n".join(bind),
+                                "nf": len(items), "fns": ", ".join(names),
+                                "wks": ", ".join(f"{n}_work" for n in names)})
+        exe = tmp / "harness"
+        subprocess.run(["gcc", "-O2", "-o", str(exe), str(src), *objs, "-lm"], check=True,
+                       capture_output=True)
+        out = subprocess.run([str(exe), str(calls), str(repeats)], check=True,
+                             capture_output=True, text=True)
+        return [float(x) for x in out.stdout.split()]
+
+
 def load() -> str:
     a, b, c = os.getloadavg()
     return f"load average {a:.2f} {b:.2f} {c:.2f}"
@@ -167,33 +269,63 @@ def _pcc(ns: int):
     return load_model(p)
 
 
+def executed_instructions(f: ca.Function) -> int:
+    """CasADi instructions one evaluation of ``f`` runs: an SX function's count; for an MX
+    function (the looped routes), its own instructions plus, per call, the called
+    function's (recursively)."""
+    if f.is_a("SXFunction"):
+        return f.n_instructions()
+    return sum(executed_instructions(f.instruction_MX(i).which_function())
+               if f.instruction_id(i) == ca.OP_CALL else 1 for i in range(f.n_instructions()))
+
+
 def scaling() -> None:
     from softgen.control.soft import plant_qdd
     from softgen.symbolic.cosserat_dynamics import CosseratDynamics
     from softgen.symbolic.pcc import SoftDynamics
-    from softgen.symbolic.pcc_tree import forward_dynamics, pcc_tree
+    from softgen.symbolic.pcc_tree import forward_dynamics, forward_dynamics_function, pcc_tree
     os.environ.setdefault("SOFTGEN_MAX_EXPRESSION_SIZE", "100000000")
-    print(f"## scaling: forward dynamics, instructions and µs per call ({load()})")
-    print("| model | segments | instructions | µs |")
-    print("|---|---:|---:|---:|")
     rng = np.random.default_rng(0)
+    rows = []               # (model, route, segments, instructions, function, inputs)
     for ns in (4, 8, 16):
         d = CosseratDynamics(_rod(ns))
-        f = ca.Function("fd_rod", [d.q, d.qd], [d.forward_dynamics_expr(ca.DM.zeros(0))],
-                        {"cse": True})
-        t = time_c(f, [rng.normal(size=d.model.dof) * 0.1, rng.normal(size=d.model.dof)])
-        print(f"| Cosserat PCS, 6 strains | {ns} | {f.n_instructions()} | {t / 1000:.2f} |")
+        x = [rng.normal(size=d.model.dof) * 0.1, rng.normal(size=d.model.dof)]
+        f = ca.Function(f"fd_rod_sx{ns}", [d.q, d.qd],
+                        [d.forward_dynamics_expr(ca.DM.zeros(0))], {"cse": True})
+        rows.append(("Cosserat PCS, 6 strains", "SX", ns, f.n_instructions(), f, x))
+        f = d.forward_dynamics_fun()
+        f = ca.Function(f"fd_rod_loop{ns}", [f.mx_in(0), f.mx_in(1)],
+                        [f(f.mx_in(0), f.mx_in(1), ca.DM.zeros(0), ca.DM.zeros(6))])
+        rows.append(("Cosserat PCS, 6 strains", "looped", ns, executed_instructions(f), f, x))
     for ns in (4, 8, 16):
         m = _pcc(ns)
         b = SoftDynamics(m).nominal
         tau, fx = ca.SX.sym("tau", b.n_inputs), ca.SX.sym("f", 3 * ns)
         x = [rng.normal(size=m.dof) * 0.1, rng.normal(size=m.dof), np.zeros(b.n_inputs),
              np.zeros(3 * ns)]
-        for route, e in (("tree", lambda: forward_dynamics(b, pcc_tree(b), tau, fx)),
-                         ("chain", lambda: plant_qdd(b, tau, fx))):
-            f = ca.Function(f"fd_pcc_{route}", [b.q, b.qd, tau, fx], [e()], {"cse": True})
-            t = time_c(f, x)
-            print(f"| PCC 3D, {route} route | {ns} | {f.n_instructions()} | {t / 1000:.2f} |")
+        pt = pcc_tree(b)
+        f = ca.Function(f"fd_pcc_tree_sx{ns}", [b.q, b.qd, tau, fx],
+                        [forward_dynamics(b, pt, tau, fx)], {"cse": True})
+        rows.append(("PCC 3D", "tree, SX", ns, f.n_instructions(), f, x))
+        f = forward_dynamics_function(b, pt, f"fd_pcc_tree_loop{ns}")
+        rows.append(("PCC 3D", "tree, looped", ns, executed_instructions(f), f, x))
+        f = ca.Function(f"fd_pcc_chain{ns}", [b.q, b.qd, tau, fx], [plant_qdd(b, tau, fx)],
+                        {"cse": True})
+        rows.append(("PCC 3D", "chain (bundles)", ns, f.n_instructions(), f, x))
+    before = load()
+    times = time_c_many([(r[4], r[5]) for r in rows])
+    print(f"## scaling: forward dynamics, instructions and µs per call (before the timing "
+          f"{before}; after it {load()})")
+    print("| model | route | segments | instructions | µs |")
+    print("|---|---|---:|---:|---:|")
+    for r, t in zip(rows, times):
+        print(f"| {r[0]} | {r[1]} | {r[2]} | {r[3]} | {t / 1000:.2f} |")
+    print("\n16 segments over 4, same run:")
+    by = {(r[0], r[1], r[2]): (r[3], t) for r, t in zip(rows, times)}
+    for (model, route, ns), (ins16, t16) in by.items():
+        if ns == 16:
+            ins4, t4 = by[(model, route, 4)]
+            print(f"- {model}, {route}: time {t16 / t4:.2f}x, instructions {ins16 / ins4:.2f}x")
 
 
 def jsrm() -> None:

@@ -41,6 +41,7 @@ from softgen.symbolic.regressor import (BaseParameters, NumericBase, numeric_bas
                                         sparse_constant)
 from softgen.symbolic.rigid import FUNCTION_OPTS, BaseParameterAPI, named_function
 from softgen.symbolic.tree_aba import articulated_solve, spatial_matrix
+from softgen.symbolic.tree_loop import chain_groups, looped_forward_dynamics
 
 __all__ = ["CosseratDynamics"]
 
@@ -285,10 +286,28 @@ class CosseratDynamics(BaseParameterAPI):
                            [self.slotine_li()], ["tau"])
 
     def forward_dynamics_fun(self):
+        """q̈(q, q̇, u, w) of :meth:`forward_dynamics_expr`, as a function whose C calls one
+        generated function per distinct segment (:mod:`softgen.symbolic.tree_loop`: the
+        code does not grow with the number of segments, so neither does the time per
+        segment); the straight-line SX function for a tree that is not a chain."""
         u = ca.SX.sym("u", self.model.n_inputs)
         w = ca.SX.sym("w", 6)
-        return self._named("forward_dynamics", [self.q, self.qd, u, w], ["q", "qd", "u", "w"],
-                           [self.forward_dynamics_expr(u, w)], ["qdd"])
+        b = self.nominal
+        grs = chain_groups(b.tree)
+        if grs is None:
+            return self._named("forward_dynamics", [self.q, self.qd, u, w],
+                               ["q", "qd", "u", "w"], [self.forward_dynamics_expr(u, w)],
+                               ["qdd"])
+
+        def generalized(q, qd, u, w):
+            r = -(b._diagonal("k") * q + b._diagonal("d") * qd)
+            return r + ca.mtimes(b.actuation(), u) if self.model.n_inputs else r
+
+        def wrenches(q, qd, u, w):          # w = (f, m) at the tip, world frame
+            return {len(grs) - 1: (w[3:], w[:3])}
+        return looped_forward_dynamics(f"{self.name}_forward_dynamics", b.tree, b.inertials,
+                                       [self.q, self.qd, u, w], ["q", "qd", "u", "w"],
+                                       generalized, wrenches, root_rotation=b.base_frame()[0])
 
     def regressor_fun(self):
         return self._named("regressor", self._x(), ["q", "qd", "qd_r", "qdd_r"],

@@ -28,8 +28,9 @@ from softgen.symbolic import tree as T
 from softgen.symbolic.frames import Inertial
 from softgen.symbolic.pcc import SoftBody, gauss_legendre
 from softgen.symbolic.tree_aba import applied_forces, articulated_solve
+from softgen.symbolic.tree_loop import looped_forward_dynamics
 
-__all__ = ["PccTree", "pcc_tree", "forward_dynamics"]
+__all__ = ["PccTree", "pcc_tree", "forward_dynamics", "forward_dynamics_function"]
 
 
 @dataclass
@@ -100,3 +101,20 @@ def forward_dynamics(body: SoftBody, pt: PccTree, tau, f_ext=None):
               for i, t in enumerate(pt.tips)}
         rhs = rhs + applied_forces(pt.tree, q, wr)
     return articulated_solve(pt.tree, pt.inertials, q, rhs)
+
+
+def forward_dynamics_function(body: SoftBody, pt: PccTree, name: str = "pcc_fd") -> ca.Function:
+    """``name(q, qd, tau, f) -> qdd``: :func:`forward_dynamics` as a function whose C
+    calls one generated function per distinct segment
+    (:func:`~softgen.symbolic.tree_loop.looped_forward_dynamics`): its code does not
+    grow with the number of segments. Same results (``tests/test_tree_loop.py``)."""
+    ns = len(body.model.segments)
+    tau, fx = ca.SX.sym("tau", body.n_inputs), ca.SX.sym("f", 3 * ns)
+
+    def generalized(q, qd, tau, fx):
+        return ca.mtimes(body.actuation(), tau) - body.spring() - body.damping()
+
+    def wrenches(q, qd, tau, fx):
+        return {i: (ca.SX.zeros(3), fx[3 * i:3 * i + 3]) for i in range(ns)}
+    return looped_forward_dynamics(name, pt.tree, pt.inertials, [body.q, body.qd, tau, fx],
+                                   ["q", "qd", "tau", "f"], generalized, wrenches)
