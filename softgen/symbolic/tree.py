@@ -596,7 +596,8 @@ def body_force(inert: Inertial, v: Pair, vr: Pair, ar: Pair) -> Pair:
     return n, f
 
 
-def inverse_dynamics(tree: Tree, inertials: Sequence[Inertial | None], q, v, vr, vdr):
+def inverse_dynamics(tree: Tree, inertials: Sequence[Inertial | None], q, v, vr, vdr,
+                     order: list | None = None):
     """τ = B(q) v̇_r + C(q, v) v_r + G(q), C Christoffel-consistent (module docstring).
 
     ``inertials[i]`` is node i's (m, h, I_o) in node coordinates (None: massless).
@@ -604,27 +605,58 @@ def inverse_dynamics(tree: Tree, inertials: Sequence[Inertial | None], q, v, vr,
     ``rnea``), v propagated once and the body force I a + v ×* I v in its short form
     (:func:`body_force` at v_r = v: w = ω × ω = 0). Both by the classical sweep (module
     docstring, "Classical sweep"): no linear velocities, one M per node.
+
+    ``order``: a list to which the evaluation order of the generated C is appended
+    (:mod:`softgen.codegen.schedule`): in the tree's preorder, each node's body force,
+    then its subtree, then its total force and the force it passes to its parent.
     """
     frames = _frames(tree, q)
     fw = _forward_classical(tree, frames, v, vr, vdr)
     tau: list = [None] * tree.nv
     pending: list[list] = [[] for _ in tree.nodes]
+    own: list = [None] * len(tree.nodes)
+    total: list = [None] * len(tree.nodes)
+    passed: list = [None] * len(tree.nodes)
     for i in reversed(range(len(tree.nodes))):
         n, fr = tree.nodes[i], frames[i]
         f = None if inertials[i] is None else _body_force_classical(inertials[i], *fw[i],
                                                                       same=vr is None)
+        own[i] = f
         for g in reversed(pending[i]):         # children in ascending order
             f = g if f is None else _add(f, g)
         if f is None:
             continue
+        total[i] = f
         if n.v:
             t = _S_transpose_times(fr.S, f)
             for r, k in enumerate(n.v):
                 tk = t[r] if len(n.v) > 1 else t
                 tau[k] = tk if tau[k] is None else tau[k] + tk
         if n.parent >= 0:
-            pending[n.parent].append(_to_parent(fr.E, fr.p, f))
+            passed[i] = _to_parent(fr.E, fr.p, f)
+            pending[n.parent].append(passed[i])
+    if order is not None:
+        order.extend(_push_order(tree, (own, total, passed)))
     return ca.vertcat(*[ca.SX(0) if t is None else t for t in tau])
+
+
+def _push_order(tree: Tree, per_node: tuple[list, ...]) -> list:
+    """Anchors of :mod:`softgen.codegen.schedule` for the backward sweep: in preorder,
+    node i's body force (``per_node[0][i]``) on entering it, its total and passed
+    forces (``per_node[1:]``) on leaving it; each a pair, given as one column."""
+    children = tree.children
+    out: list = []
+    stack = [(i, False) for i in reversed(range(len(tree.nodes)))
+             if tree.nodes[i].parent < 0]
+    while stack:
+        i, leaving = stack.pop()
+        for x in (per_node[1:] if leaving else per_node[:1]):
+            if x[i] is not None:
+                out.append(ca.vertcat(x[i][0], x[i][1]))
+        if not leaving:
+            stack.append((i, True))
+            stack.extend((c, False) for c in reversed(children[i]))
+    return out
 
 
 def gravity(tree: Tree, inertials, q):
