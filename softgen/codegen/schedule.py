@@ -72,7 +72,8 @@ def ordered_body(fn: ca.Function, order: ca.Function) -> str | None:
     ``fn`` computing its values in the order of ``order`` (module docstring), or None
     when this emitter does not apply: ``fn`` is not an SX function, has an operation
     outside :data:`_BINARY`/:data:`_UNARY` or a non-finite constant, ``order`` does not
-    take ``fn``'s inputs, or the anchors are not all values ``fn`` computes."""
+    take ``fn``'s inputs, or the values ``fn``'s outputs need, with the anchors merged
+    in, are not exactly ``fn``'s operations. Anchors ``fn`` does not need are skipped."""
     if not fn.is_a("SXFunction") or order.n_in() != fn.n_in() or any(
             order.sparsity_in(i) != fn.sparsity_in(i) for i in range(fn.n_in())):
         return None
@@ -97,8 +98,9 @@ def ordered_body(fn: ca.Function, order: ca.Function) -> str | None:
             continue
         needed.add(k)
         stack.extend(where[v] for v in algo[k][1])
-    if any(where[algo[k][1][0]] not in needed for k in anchors):
-        return None
+    # An anchor fn does not need (a structural zero, a force that reaches no output)
+    # orders nothing.
+    anchors = [k for k in anchors if where[algo[k][1][0]] in needed]
     own = _instructions(fn)
     if sorted(x[0] for x in own) != sorted(algo[k][0] for k in needed):
         return None                                  # the same operations, no more
