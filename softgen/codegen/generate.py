@@ -28,7 +28,9 @@ from softgen.core.errors import SoftgenError
 #: Bumped whenever the generated code for the same model would change.
 # 2: issue 22 (declared actuators, sampled Theorem 10, multi-DoF UIO)
 # 3: issue 25 (per-function compiler levels, Generated.optimization)
-CODEGEN_VERSION = "3"
+# 4: issue 35 (the recursion's Slotine-Li tau carries beta = alpha - omega x omega_r;
+#    trees' tau in push order, Generated.order)
+CODEGEN_VERSION = "4"
 
 CODEGEN_OPTS = {"with_header": True}
 
