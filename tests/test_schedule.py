@@ -42,7 +42,10 @@ def test_tree_tau_in_push_order_has_the_same_operations_and_fewer_live_values(hu
         assert order is not None, fn.name()
         body = ordered_body(fn, order)
         assert body is not None
-        statements = [s for s in body.splitlines() if "=" in s and "casadi_real" not in s]
+        # One statement per instruction (sines and cosines read from the batch), after
+        # the batch's angles (sg_x).
+        statements = [s for s in body.splitlines() if "=" in s and "casadi_real" not in s
+                      and not s.lstrip().startswith("sg_x[")]
         writes = [s for s in statements if s.lstrip().startswith("if (res[")]
         assert len(writes) == fn.sparsity_out(0).nnz()
         assert len(statements) - len(writes) == fn.n_instructions() - len(writes)
@@ -65,8 +68,9 @@ def test_chain_functions_keep_casadi_order():
 
 
 def test_floating_bundle_c_equals_casadi(tmp_path, humanoid):
-    """The compiled bundle (ordered C) and CasADi's evaluation of the same functions agree
-    to 1e-13 relative on random states; the bundle's C holds the ordered bodies."""
+    """The compiled bundle (ordered C, batched sines) and CasADi's evaluation of the same
+    functions (libm's sines) agree to 1e-13 relative on random states; the bundle's C
+    holds the ordered bodies."""
     from softgen.bundles.bundle import generate, load_bundle
     model = load_model(humanoid, floating=True)
     out = generate(model, tmp_path / "gen")
@@ -74,11 +78,16 @@ def test_floating_bundle_c_equals_casadi(tmp_path, humanoid):
     c_src = (out / f"{model.name}.c").read_text()
     for fn in (dyn.inverse_dynamics_fun(), dyn.rnea_fun()):
         assert ordered_body(fn, dyn.codegen_order(fn)) in c_src
+    assert "softgen_sincos(sg_x, sg_s, sg_c," in c_src    # the joints' sines, batched
     b_c = load_bundle(out, backend="c")
     b_ca = load_bundle(out, backend="casadi")
     rng = np.random.default_rng(35)
-    for _ in range(5):
+    # Joint angles of every size: the batch's reduction, its libm fallback beyond
+    # 823,549 rad, and -0.0.
+    for scale in (1.0, 1.0, 30.0, 1e3, 1e5, 3e6):
         q, v, a = _random_state(rng, model)
+        q[7:] *= scale
+        q[7] = -0.0
         vr = rng.normal(size=model.nv)
         for name, args in ((f"{model.name}_rnea", (q, v, a)),
                            (f"{model.name}_inverse_dynamics", (q, v, vr, a))):
