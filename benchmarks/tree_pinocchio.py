@@ -21,6 +21,10 @@ URDF parser and the libraries). For each URDF file (vendor trees: Talos, ANYmal,
    ``CLOCK_THREAD_CPUTIME_ID``, and prints median [min-max] ns per call and the ratio
    Pinocchio ÷ softgen (above 1: softgen faster).
 
+softgen's C is written as a bundle writes it: CasADi's, with the recursion's τ and
+``rnea`` in the order of :meth:`~softgen.symbolic.rigid.RigidDynamics.codegen_order`
+(:mod:`softgen.codegen.schedule`); ``--casadi-order`` keeps CasADi's order, to compare.
+
 ``--callgrind`` also runs the harness under valgrind's callgrind, a few calls of each
 model, and prints each function's instructions per call (inclusive: libm's sin and cos
 count), a figure the machine's load does not move.
