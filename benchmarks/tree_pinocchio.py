@@ -21,6 +21,10 @@ URDF parser and the libraries). For each URDF file (vendor trees: Talos, ANYmal,
    ``CLOCK_THREAD_CPUTIME_ID``, and prints median [min-max] ns per call and the ratio
    Pinocchio ÷ softgen (above 1: softgen faster).
 
+softgen's C is written as a bundle writes it: CasADi's, with the recursion's τ and
+``rnea`` in the order of :meth:`~softgen.symbolic.rigid.RigidDynamics.codegen_order`
+(:mod:`softgen.codegen.schedule`); ``--casadi-order`` keeps CasADi's order, to compare.
+
 ``--callgrind`` also runs the harness under valgrind's callgrind, a few calls of each
 model, and prints each function's instructions per call (inclusive: libm's sin and cos
 count), a figure the machine's load does not move.
@@ -49,6 +53,7 @@ import numpy as np
 from softgen.app.peers import _CPP_HEAD, pinocchio_prefix, renamed
 from softgen.codegen.build import CFLAGS
 from softgen.codegen.generate import LARGE_FUNCTION
+from softgen.codegen.schedule import apply_orders
 
 #: softgen's compiler flags without -shared (the harness links an object file).
 SOFTGEN_CFLAGS = [f for f in CFLAGS if f != "-shared"]
@@ -200,6 +205,8 @@ def main(argv=None) -> int:
     ap.add_argument("--level", choices=("bundle", "O3"), default="bundle",
                     help="compile each function at the level its bundle does (-O1 from "
                     "LARGE_FUNCTION CasADi instructions on; default) or all at -O3")
+    ap.add_argument("--casadi-order", action="store_true", help="softgen's C in CasADi's "
+                    "order (before issue 35's softgen.codegen.schedule), for comparison")
     ap.add_argument("--cflags", default="", help="extra flags for both compilers alike, e.g. "
                     "'-march=native' (default: none, as softgen builds bundles)")
     args = ap.parse_args(argv)
@@ -216,12 +223,16 @@ def main(argv=None) -> int:
         gens = {lv: ca.CodeGenerator(f"softgen_fns{suffix}.c", {"with_header": True})
                 for lv, suffix in (("-O3", ""), ("-O1", "_o1"))}
         used: set[str] = set()
+        orders: dict[str, dict] = {"-O3": {}, "-O1": {}}
 
-        def add(fn, name, keep_o3=False):
+        def add(fn, name, keep_o3=False, order=None):
             lv = "-O1" if args.level == "bundle" and not keep_o3 and \
                 fn.n_instructions() >= LARGE_FUNCTION else "-O3"
             used.add(lv)
-            gens[lv].add(renamed(fn, name))
+            f = renamed(fn, name)
+            gens[lv].add(f)
+            if order is not None and not args.casadi_order:
+                orders[lv][name] = (f, order)
             return lv
         calls = []
         for k, path in enumerate(args.urdf):
@@ -234,8 +245,10 @@ def main(argv=None) -> int:
             print(f"# {tag} = {path.name} ({'floating' if model.floating else 'fixed'}, nv "
                   f"{model.nv}): derived in {time.perf_counter() - t0:.1f} s; CasADi "
                   f"instructions: inverse_dynamics {tau.n_instructions()}, (q, v, a) "
-                  f"{id3.n_instructions()}; compiled at {add(tau, f'tau_{tag}')} and "
-                  f"{add(id3, f'id3_{tag}', keep_o3=model.floating)}", flush=True)
+                  f"{id3.n_instructions()}; compiled at "
+                  f"{add(tau, f'tau_{tag}', order=dyn.codegen_order(tau))} and "
+                  f"{add(id3, f'id3_{tag}', keep_o3=model.floating, order=dyn.codegen_order(id3))}",
+                  flush=True)
             desc, pm = pinocchio_description(path, model.floating)
             (tmp / f"{tag}.txt").write_text(desc)
             iq, iv = coordinate_map(pm, model, path.name)
@@ -245,8 +258,11 @@ def main(argv=None) -> int:
                          f'"{tmp / (tag + ".txt")}", {int(model.floating)}, '
                          f'"{tmp / (tag + ".map")}", tau_{tag}, tau_{tag}_work, id3_{tag}, '
                          f"id3_{tag}_work, calls, repeats);")
-        for g in gens.values():
+        for lv, g in gens.items():
             g.generate(str(tmp) + "/")
+            c = tmp / f"softgen_fns{'' if lv == '-O3' else '_o1'}.c"
+            # As a bundle writes it: the recursion's C in the order of codegen_order.
+            c.write_bytes(apply_orders(c.read_bytes(), orders[lv]))
         with open(tmp / "softgen_fns.h", "a") as fh:      # the harness includes this one
             fh.write('\n#include "softgen_fns_o1.h"\n')
         cpp = tmp / "harness.cpp"

@@ -68,7 +68,7 @@ def floating_dynamics(ctx: Context) -> Part:
         # floating base, so `generate --all` compiles nothing more.
         Generated(dyn.rnea_fun(), "classical inverse dynamics tau(q, qd, a) = B a + C qd + "
                                   "G (+ K q + D qd), Pinocchio's rnea (+ D qd)",
-                  optimization="-O3"),
+                  optimization="-O3", order=dyn.codegen_order(dyn.rnea_fun())),
         Generated(dyn.configuration_rate_fun(), "q_dot(q, qd): base position rate R v, "
                                                 "quaternion rate q (x) (w, 0) / 2, joint rates"),
         Generated(dyn.integrate_fun(), "q after moving with the constant velocity qd for dt "

@@ -51,7 +51,8 @@ def rigid_dynamics(ctx: Context) -> Part:
         Generated(dyn.regressor_times_fun(), "Y(q, qd, qd_r, qdd_r) pi"),
         Generated(dyn.regressor_transpose_times_fun(), "Y(q, qd, qd_r, qdd_r)^T s"),
         Generated(dyn.inverse_dynamics_fun(), "nominal B qdd_r + C qd_r + G (+ K q + D qd), "
-                                              "computed directly"),
+                                              "computed directly",
+                  order=dyn.codegen_order(dyn.inverse_dynamics_fun())),
         Generated(dyn.forward_dynamics_fun(), "nominal forward dynamics qdd = B^-1 (tau - C qd "
                                               "- G - K q - D qd)"),
         Generated(dyn.physical_to_base_fun, "map from the uncertain physical parameters "

@@ -21,13 +21,16 @@ from pathlib import Path
 import casadi as ca
 
 from softgen.codegen.build import clean_orphans, library_name
+from softgen.codegen.schedule import apply_orders
 from softgen.core.atomic import OutputError, write_set
 from softgen.core.errors import SoftgenError
 
 #: Bumped whenever the generated code for the same model would change.
 # 2: issue 22 (declared actuators, sampled Theorem 10, multi-DoF UIO)
 # 3: issue 25 (per-function compiler levels, Generated.optimization)
-CODEGEN_VERSION = "3"
+# 4: issue 35 (the recursion's Slotine-Li tau carries beta = alpha - omega x omega_r;
+#    trees' tau in push order, Generated.order)
+CODEGEN_VERSION = "4"
 
 CODEGEN_OPTS = {"with_header": True}
 
@@ -37,12 +40,14 @@ class Generated:
     """One function to emit: the casadi.Function and a one-line description.
 
     ``optimization``: the compiler level of this function's C when it differs from
-    the bundle's (None: the bundle's).
+    the bundle's (None: the bundle's). ``order``: the order in which its C computes its
+    values (:mod:`softgen.codegen.schedule`; None: CasADi's).
     """
 
     function: ca.Function
     doc: str
     optimization: str | None = None
+    order: ca.Function | None = None
 
 
 @dataclass
@@ -356,6 +361,8 @@ def render(spec: BundleSpec) -> dict[str, bytes]:
         raise ValueError(f"loops: {', '.join(sorted(set(spec.loops) - set(loops)))} "
                          f"not among the functions of bundle {spec.name!r}")
     c_src, h_src = _emit(spec)
+    c_src = apply_orders(c_src, {g.function.name(): (g.function, g.order)
+                                 for g in spec.functions if g.order is not None})
     for name, f in loops.items():
         c_src = _plain_loop(c_src, f, spec.loops[name])
     # Functions at their own level (chosen by the bundle from measurements, never by

@@ -296,17 +296,18 @@ def _joint_terms(model: RobotModel, q, qd, values: Values) -> ca.SX | None:
 
 
 def slotine_li(model: RobotModel, values: Values, q, qd, qd_r, qdd_r,
-               inertials: list[Inertial] | None = None) -> ca.SX:
+               inertials: list[Inertial] | None = None, order: list | None = None) -> ca.SX:
     """B q̈_r + C q̇_r + G + K q + D q̇ by recursion, C of Christoffel symbols (eq. 9.1).
 
     ``values`` resolves the model's named scalars (numbers or SX symbols);
     ``inertials`` overrides each body's (m, h, I_o) (``model.inertial_bodies`` order;
     e.g. by symbols δ, in which the result is linear: then it is Y δ without Y). For a
-    floating base q̇, q̇_r, q̈_r are velocities v (size ``model.nv``).
+    floating base q̇, q̇_r, q̈_r are velocities v (size ``model.nv``). ``order``: as
+    :func:`softgen.symbolic.tree.inverse_dynamics`'s.
     """
     inertials = physical_inertials(model, values) if inertials is None else inertials
     mt = model_tree(model, values)
-    tau = _tree.inverse_dynamics(mt.tree, mt.inertials(inertials), q, qd, qd_r, qdd_r)
+    tau = _tree.inverse_dynamics(mt.tree, mt.inertials(inertials), q, qd, qd_r, qdd_r, order)
     terms = _joint_terms(model, q, qd, values)
     return tau if terms is None else tau + terms
 

@@ -497,8 +497,28 @@ class RigidDynamics(BaseParameterAPI):
     def inverse_dynamics_fun(self) -> ca.Function:
         """Nominal B q̈_r + C q̇_r + G + K q + D q̇ (direct, not through Y)."""
         m = self.nominal
-        return named_function(f"{self.name}_inverse_dynamics", [m.q, m.qd, m.qd_r, m.qdd_r],
-                    ["q", "qd", "qd_r", "qdd_r"], [m.slotine_li(self.route)], ["tau"])
+        ins = [m.q, m.qd, m.qd_r, m.qdd_r]
+        if isinstance(m, RecursiveMechanics) and self.route == "recursive":
+            order: list = []
+            tau = m.slotine_li(self.route, order)
+        else:
+            order, tau = [], m.slotine_li(self.route)
+        fn = named_function(f"{self.name}_inverse_dynamics", ins,
+                            ["q", "qd", "qd_r", "qdd_r"], [tau], ["tau"])
+        self._set_order(fn, ins, order)
+        return fn
+
+    def _set_order(self, fn: ca.Function, ins: list, order: list) -> None:
+        if order:
+            self.__dict__.setdefault("_orders", {})[fn.name()] = ca.Function(
+                f"{fn.name()}_order", ins, [ca.vertcat(*order)], FUNCTION_OPTS)
+
+    def codegen_order(self, fn: ca.Function) -> ca.Function | None:
+        """The order in which ``fn``'s generated C computes its values
+        (:mod:`softgen.codegen.schedule`: ``Generated.order``), for this object's τ
+        functions of a tree or a floating base (:meth:`inverse_dynamics_fun`,
+        :meth:`rnea_fun`); None for others (CasADi's order)."""
+        return self.__dict__.get("_orders", {}).get(fn.name())
 
     def forward_dynamics_expr(self, tau: ca.SX) -> ca.SX:
         """q̈ = B⁻¹ (τ − C q̇ − G − K q − D q̇) at nominal parameters (eq. 2.5 solved for q̈).
@@ -564,11 +584,14 @@ class RigidDynamics(BaseParameterAPI):
         form (fewer instructions than :meth:`inverse_dynamics_fun` at q̇_r = q̇)."""
         m = self.nominal
         a = ca.SX.sym("a", self.model.nv)
-        tau = (m.rnea(a) if isinstance(m, RecursiveMechanics)
+        order: list = []
+        tau = (m.rnea(a, order) if isinstance(m, RecursiveMechanics)
                else ca.substitute(m.slotine_li(self.route), ca.vertcat(m.qd_r, m.qdd_r),
                                   ca.vertcat(m.qd, a)))
-        return named_function(f"{self.name}_rnea", [m.q, m.qd, a], ["q", "qd", "a"], [tau],
-                              ["tau"])
+        fn = named_function(f"{self.name}_rnea", [m.q, m.qd, a], ["q", "qd", "a"], [tau],
+                            ["tau"])
+        self._set_order(fn, [m.q, m.qd, a], order)
+        return fn
 
     @_cached_fun
     def configuration_rate_fun(self) -> ca.Function:

@@ -59,7 +59,12 @@ recursion cancels every u:
     b_i = Eᵀ (b_λ + M_λ p) + S_u v̇_r,j + ω_i × s_r + ω_r,p × s (+ Ṡ's linear part),
     M x = α_r × x + ω_r × (ω × x) = ([α_r]× + ω ω_rᵀ − (ω_r·ω) 1) x,
 
-and the body force's α × h + ω_r × (ω × h) is M_i h. M is formed once per node and
+and the body force's α × h + ω_r × (ω × h) is M_i h. With v_r ≠ v the sweep carries
+β = α_r − ω × ω_r instead of α_r: β_i = Eᵀ β_λ + S_ω v̇_r,j − (S_ω v_j) × Eᵀ ω_r,λ (the
+cross products ω × ω_r cancel along the recursion), M x = β × x + ω_r (ω·x) − (ω_r·ω) x
+(the same M), and the moment I_o (α − w) + ½ tr(I_o) w + ω_r × (I_o ω) (w = ω × ω_r)
+is I_o β + ω_r × (I'' ω) with I'' = I_o − ½ tr(I_o) 1: no w, the classical body force's
+shape. M is formed once per node and
 applied to h and to every child's p (CasADi keeps only the columns a sparse p reads);
 revolute joints have s = s_r = 0, so b_i = Eᵀ (b_λ + M_λ p). The root starts at
 b = Eᵀ(−g), ω = α = 0. M is applied in place, its diagonal ω_i ω_r,i − ω_r·ω being
@@ -67,7 +72,8 @@ minus the other two products' sum. A constant I enters ω × (I ω) and ω_r × 
 shifted by a diagonal entry (:func:`_body_force_classical`). On the floating Talos
 (38 DoF) these took the classical τ (``rnea``) from 5,976 to 5,163 CasADi instructions
 and the Slotine–Li τ from 6,867 to 5,943 (callgrind, -O3: 15,019 to 13,272 and 17,017
-to 15,188 machine instructions per call, libm's sincos included; benchmarks/README.md).
+to 15,188 machine instructions per call, libm's sincos included; benchmarks/README.md),
+and β the Slotine–Li τ from 5,943 to 5,613.
 
 * :func:`inverse_dynamics`: τ as above; at v_r = v, v̇_r = v̇ it is the classical
   Newton–Euler inverse dynamics (Pinocchio's ``rnea``), at v = v_r = v̇_r = 0 gravity.
@@ -480,9 +486,9 @@ def _psi_sweep(tree: Tree, frames: list[_Frame], s) -> list[Pair]:
 
 
 def _forward_classical(tree: Tree, frames: list[_Frame], v, vr, vdr) -> list[tuple]:
-    """Per node (ω, ω_r, α_r, b_r) with b_r = a_r,lin + ω_r × u (module docstring,
-    "Classical sweep"): the same body forces as :func:`_forward` without the linear
-    velocities u. ``vr`` None is v_r = v."""
+    """Per node (ω, ω_r, β_r, b_r) with b_r = a_r,lin + ω_r × u and β_r = α_r − ω × ω_r
+    (module docstring, "Classical sweep"; β_r = α_r when ``vr`` is None, v_r = v): the
+    same body forces as :func:`_forward` without the linear velocities u."""
     root_b = -tree.gravity
     out: list[tuple] = []
     for n, fr in zip(tree.nodes, frames):
@@ -497,7 +503,8 @@ def _forward_classical(tree: Tree, frames: list[_Frame], v, vr, vdr) -> list[tup
             wrp = wp if vr is None else ca.mtimes(Et, pwr)
             alp = ca.mtimes(Et, pal)
             # The parent's α_r × p + ω_r × (ω × p): its acceleration carried to this origin.
-            bp = ca.mtimes(Et, pb + _acc_operator(pal, pw, pwr)(p))
+            M = _acc_operator(pal, pw, pw) if vr is None else _acc_operator(pal, pwr, pw)
+            bp = ca.mtimes(Et, pb + M(p))
         if not n.v:
             z = ca.SX.zeros(3)
             out.append((z if wp is None else wp, z if wrp is None else wrp,
@@ -512,7 +519,13 @@ def _forward_classical(tree: Tree, frames: list[_Frame], v, vr, vdr) -> list[tup
         dw, ds = _S_times(S, _select(vdr, n.v))
         # a_r = X a_r,λ + S v̇_r + v × S v_r (+ Ṡ v_r); b_r = a_r,lin + ω_r × u expands to
         # the parent's part above + S_u v̇_r + ω × s_r + ω_r,parent × s.
-        al = dw + ca.cross(wi, wrj) if alp is None else alp + dw + ca.cross(wi, wrj)
+        if vr is None:
+            al = dw + ca.cross(wi, wrj) if alp is None else alp + dw + ca.cross(wi, wrj)
+        else:
+            # β_r = α_r − ω × ω_r = Eᵀ β_r,λ + S_ω v̇_r − (S_ω v) × ω_r,parent (+ Ṡ v_r).
+            al = dw if alp is None else alp + dw
+            if wrp is not None:
+                al = al - ca.cross(wj, wrp)
         b = bp + ds + ca.cross(wi, srj)
         if wrp is not None:
             b = b + ca.cross(wrp, sj)
@@ -524,9 +537,10 @@ def _forward_classical(tree: Tree, frames: list[_Frame], v, vr, vdr) -> list[tup
 
 
 def _acc_operator(al, w, wr):
-    """x ↦ M x = α × x + ω_r × (ω × x) = ([α]× + ω ω_rᵀ − (ω_r·ω) 1) x, M's entries formed
-    once (CasADi keeps those a sparse x reads). The diagonal ω_i ω_r,i − ω_r·ω is minus
-    the other two products' sum, subtracted in place."""
+    """x ↦ M x = ([α]× + ω ω_rᵀ − (ω_r·ω) 1) x, M's entries formed once (CasADi keeps
+    those a sparse x reads). The diagonal ω_i ω_r,i − ω_r·ω is minus the other two
+    products' sum, subtracted in place. With (α, ω, ω_r) it is α × x + ω_r × (ω × x);
+    with (β, ω_r, ω), β = α − ω × ω_r, the same (module docstring, "Classical sweep")."""
     if wr is w:                        # ω ωᵀ is symmetric: each product once
         P = [[None] * 3 for _ in range(3)]
         for i in range(3):
@@ -557,20 +571,22 @@ def _diagonal_shift(I) -> float:
 
 
 def _body_force_classical(inert: Inertial, om, omr, al, b, same: bool) -> Pair:
-    """:func:`body_force` from b = a_lin + ω_r × u (``same``: v_r = v).
+    """:func:`body_force` from b = a_lin + ω_r × u and ``al`` = β = α − ω × ω_r
+    (``same``: v_r = v, β = α).
 
-    With λ = :func:`_diagonal_shift` and I' = I − λ 1: ω × (I ω) = ω × (I' ω), and
-    ω_r × (I ω) = ω_r × (I' ω) − λ w (w = ω × ω_r), so −λ w joins ½ tr(I) w."""
+    ``same``: with λ = :func:`_diagonal_shift` and I' = I − λ 1, ω × (I ω) = ω × (I' ω).
+    Otherwise n = I_o (α − w) + ½ tr(I_o) w + ω_r × (I_o ω) + h × b (w = ω × ω_r) is
+    I_o β + ω_r × (I'' ω) + h × b with I'' = I_o − ½ tr(I_o) 1, since ½ tr(I_o) w =
+    ω_r × (−½ tr(I_o) ω): no w (module docstring, "Classical sweep")."""
     I, h, m = inert.I, inert.h, inert.m
-    lam = _diagonal_shift(I)
-    Is = ca.SX(I) - lam * ca.SX.eye(3) if lam else I
     if same:
+        lam = _diagonal_shift(I)
+        Is = ca.SX(I) - lam * ca.SX.eye(3) if lam else I
         n = ca.mtimes(I, al) + ca.cross(om, ca.mtimes(Is, om)) + ca.cross(h, b)
         return n, m * b + _acc_operator(al, om, om)(h)
-    w = ca.cross(om, omr)
-    tr = 0.5 * (I[0, 0] + I[1, 1] + I[2, 2]) - lam
-    n = (ca.mtimes(I, al - w) + tr * w + ca.cross(omr, ca.mtimes(Is, om)) + ca.cross(h, b))
-    return n, m * b + _acc_operator(al, om, omr)(h)
+    Ic = ca.SX(I) - (0.5 * (I[0, 0] + I[1, 1] + I[2, 2])) * ca.SX.eye(3)
+    n = ca.mtimes(I, al) + ca.cross(omr, ca.mtimes(Ic, om)) + ca.cross(h, b)
+    return n, m * b + _acc_operator(al, omr, om)(h)
 
 
 def body_force(inert: Inertial, v: Pair, vr: Pair, ar: Pair) -> Pair:
@@ -596,7 +612,8 @@ def body_force(inert: Inertial, v: Pair, vr: Pair, ar: Pair) -> Pair:
     return n, f
 
 
-def inverse_dynamics(tree: Tree, inertials: Sequence[Inertial | None], q, v, vr, vdr):
+def inverse_dynamics(tree: Tree, inertials: Sequence[Inertial | None], q, v, vr, vdr,
+                     order: list | None = None):
     """τ = B(q) v̇_r + C(q, v) v_r + G(q), C Christoffel-consistent (module docstring).
 
     ``inertials[i]`` is node i's (m, h, I_o) in node coordinates (None: massless).
@@ -604,27 +621,58 @@ def inverse_dynamics(tree: Tree, inertials: Sequence[Inertial | None], q, v, vr,
     ``rnea``), v propagated once and the body force I a + v ×* I v in its short form
     (:func:`body_force` at v_r = v: w = ω × ω = 0). Both by the classical sweep (module
     docstring, "Classical sweep"): no linear velocities, one M per node.
+
+    ``order``: a list to which the evaluation order of the generated C is appended
+    (:mod:`softgen.codegen.schedule`): in the tree's preorder, each node's body force,
+    then its subtree, then its total force and the force it passes to its parent.
     """
     frames = _frames(tree, q)
     fw = _forward_classical(tree, frames, v, vr, vdr)
     tau: list = [None] * tree.nv
     pending: list[list] = [[] for _ in tree.nodes]
+    own: list = [None] * len(tree.nodes)
+    total: list = [None] * len(tree.nodes)
+    passed: list = [None] * len(tree.nodes)
     for i in reversed(range(len(tree.nodes))):
         n, fr = tree.nodes[i], frames[i]
         f = None if inertials[i] is None else _body_force_classical(inertials[i], *fw[i],
                                                                       same=vr is None)
+        own[i] = f
         for g in reversed(pending[i]):         # children in ascending order
             f = g if f is None else _add(f, g)
         if f is None:
             continue
+        total[i] = f
         if n.v:
             t = _S_transpose_times(fr.S, f)
             for r, k in enumerate(n.v):
                 tk = t[r] if len(n.v) > 1 else t
                 tau[k] = tk if tau[k] is None else tau[k] + tk
         if n.parent >= 0:
-            pending[n.parent].append(_to_parent(fr.E, fr.p, f))
+            passed[i] = _to_parent(fr.E, fr.p, f)
+            pending[n.parent].append(passed[i])
+    if order is not None:
+        order.extend(_push_order(tree, (own, total, passed)))
     return ca.vertcat(*[ca.SX(0) if t is None else t for t in tau])
+
+
+def _push_order(tree: Tree, per_node: tuple[list, ...]) -> list:
+    """Anchors of :mod:`softgen.codegen.schedule` for the backward sweep: in preorder,
+    node i's body force (``per_node[0][i]``) on entering it, its total and passed
+    forces (``per_node[1:]``) on leaving it; each a pair, given as one column."""
+    children = tree.children
+    out: list = []
+    stack = [(i, False) for i in reversed(range(len(tree.nodes)))
+             if tree.nodes[i].parent < 0]
+    while stack:
+        i, leaving = stack.pop()
+        for x in (per_node[1:] if leaving else per_node[:1]):
+            if x[i] is not None:
+                out.append(ca.vertcat(x[i][0], x[i][1]))
+        if not leaving:
+            stack.append((i, True))
+            stack.extend((c, False) for c in reversed(children[i]))
+    return out
 
 
 def gravity(tree: Tree, inertials, q):

@@ -48,10 +48,10 @@ class RecursiveMechanics:
     def tree(self) -> ModelTree:
         return self._tree
 
-    def _rnea(self, qd, qd_r, qdd_r) -> ca.SX:
+    def _rnea(self, qd, qd_r, qdd_r, order: list | None = None) -> ca.SX:
         mt = self._tree
         return _tree.inverse_dynamics(mt.tree, mt.inertials(self.inertials), self.q, qd, qd_r,
-                                      qdd_r)
+                                      qdd_r, order)
 
     def inertia(self) -> ca.SX:
         mt = self._tree
@@ -68,10 +68,11 @@ class RecursiveMechanics:
         z = ca.SX.zeros(self.n)
         return self._rnea(z, None, z)
 
-    def rnea(self, a: ca.SX) -> ca.SX:
+    def rnea(self, a: ca.SX, order: list | None = None) -> ca.SX:
         """The classical inverse dynamics B(q) a + C(q, q̇) q̇ + G(q) + K q + D q̇ at
-        (q, q̇ = ``qd``, a): the recursion with q̇_r = q̇ in its short form."""
-        return self._rnea(self.qd, None, a) + self.spring() + self.damping()
+        (q, q̇ = ``qd``, a): the recursion with q̇_r = q̇ in its short form. ``order``: as
+        :func:`softgen.symbolic.tree.inverse_dynamics`'s."""
+        return self._rnea(self.qd, None, a, order) + self.spring() + self.damping()
 
     def _joint_vector(self, attr: str, x) -> ca.SX:
         m = self.model
@@ -88,13 +89,14 @@ class RecursiveMechanics:
         """D q̇ on the joint coordinates (zero on a floating base's)."""
         return self._joint_vector("damping", self.qd)
 
-    def slotine_li(self, route: str = "recursive") -> ca.SX:
+    def slotine_li(self, route: str = "recursive", order: list | None = None) -> ca.SX:
         """B q̈_r + C q̇_r + G + K q + D q̇ (eq. 9.1); ``route`` other than ``"recursive"``
         by the energy routes of :class:`~softgen.symbolic.mechanics.Mechanics` (fixed
-        bases only), in this object's symbols."""
+        bases only), in this object's symbols. ``order`` (recursive route): as
+        :func:`softgen.symbolic.tree.inverse_dynamics`'s."""
         if route == "recursive":
             return recursive_slotine_li(self.model, self.values, self.q, self.qd, self.qd_r, self.qdd_r,
-                              self.inertials)
+                              self.inertials, order)
         if route not in ("matrix-free", "explicit"):
             raise ValueError(f"route: expected 'matrix-free', 'explicit' or 'recursive', "
                              f"got {route!r}")
