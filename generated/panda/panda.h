@@ -268,7 +268,7 @@ int panda_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, cas
 #define panda_slotine_li_loop_SZ_ARG 20
 #define panda_slotine_li_loop_SZ_RES 12
 #define panda_slotine_li_loop_SZ_IW 0
-#define panda_slotine_li_loop_SZ_W 268232
+#define panda_slotine_li_loop_SZ_W 268235
 void panda_casadi_version(int* major, int* minor, int* patch);
 int panda_casadi_int_size(void);
 int panda_casadi_real_size(void);

@@ -175,10 +175,10 @@ const casadi_int* rod_tendon_3seg_forward_dynamics_sparsity_in(casadi_int i);
 const casadi_int* rod_tendon_3seg_forward_dynamics_sparsity_out(casadi_int i);
 int rod_tendon_3seg_forward_dynamics_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int rod_tendon_3seg_forward_dynamics_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define rod_tendon_3seg_forward_dynamics_SZ_ARG 4
-#define rod_tendon_3seg_forward_dynamics_SZ_RES 1
+#define rod_tendon_3seg_forward_dynamics_SZ_ARG 16
+#define rod_tendon_3seg_forward_dynamics_SZ_RES 11
 #define rod_tendon_3seg_forward_dynamics_SZ_IW 0
-#define rod_tendon_3seg_forward_dynamics_SZ_W 0
+#define rod_tendon_3seg_forward_dynamics_SZ_W 548
 int rod_tendon_3seg_actuation(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int rod_tendon_3seg_actuation_checkout(void);
 void rod_tendon_3seg_actuation_release(int mem);
