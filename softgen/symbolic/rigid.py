@@ -22,6 +22,7 @@ from softgen.symbolic.regressor import (BaseParameters, NumericBase, base_from_c
                         expand_in, factor_polynomial, numeric_base_parameters,
                         sparse_constant)
 from softgen.symbolic.regroup import regroup
+from softgen.symbolic.tree_aba import _ldl, _ldl_solve
 from softgen.symbolic.tree_mechanics import RecursiveMechanics
 
 #: Routes for τ = B q̈_r + C q̇_r + G, in the order preferred on equal counts.
@@ -42,6 +43,10 @@ REGROUP_MIN_DOF = 5
 #: CasADi options for every generated function: common-subexpression elimination
 #: shrinks the regressor several-fold (measured in ``softgen bench``).
 FUNCTION_OPTS = {"cse": True}
+#: From this many velocities on, the forward dynamics' solve is a separate LDLᵀ function
+#: (:meth:`RigidDynamics.forward_dynamics_fun`); below it, the whole expression is one SX
+#: function (every shipped rigid model: nv ≤ 7, generated/ unchanged).
+COMPOSED_SOLVE_NV = 13
 
 
 def _mechanics(model: RobotModel, values, inertials=None) -> Mechanics | RecursiveMechanics:
@@ -566,10 +571,27 @@ class RigidDynamics(BaseParameterAPI):
 
     @_cached_fun
     def forward_dynamics_fun(self) -> ca.Function:
+        """q̈ = B⁻¹ (τ − bias) (:meth:`forward_dynamics_expr`). From :data:`COMPOSED_SOLVE_NV`
+        velocities on, B(q) and the bias are one SX function and the solve a second one,
+        an LDLᵀ of a symbolic SPD matrix (n³/6 operations), composed by MX: CasADi's
+        symbolic solve of the whole expression was 2.7 MB of C for the floating Talos
+        (nv 38), whose gcc ran over 10 minutes at 7.8 GB without finishing (issue 35)."""
         m = self.nominal
-        tau = ca.SX.sym("tau", self.model.nv)
-        return named_function(f"{self.name}_forward_dynamics", [m.q, m.qd, tau], ["q", "qd", "tau"],
-                    [self.forward_dynamics_expr(tau)], ["qdd"])
+        nv = self.model.nv
+        name = f"{self.name}_forward_dynamics"
+        tau = ca.SX.sym("tau", nv)
+        if nv < COMPOSED_SOLVE_NV:
+            return named_function(name, [m.q, m.qd, tau], ["q", "qd", "tau"],
+                                  [self.forward_dynamics_expr(tau)], ["qdd"])
+        B, bias = self._forward_parts
+        parts = named_function(f"{self.name}_forward_parts", [m.q, m.qd], ["q", "qd"],
+                               [B, bias], ["B", "bias"])
+        Bs, r = ca.SX.sym("B", nv, nv), ca.SX.sym("r", nv)
+        solve = named_function(f"{self.name}_spd_solve", [Bs, r], ["B", "r"],
+                               [_ldl_solve(*_ldl(Bs, nv), r)], ["x"])
+        q, qd, t = (ca.MX.sym(n, k) for n, k in (("q", m.q.numel()), ("qd", nv), ("tau", nv)))
+        Bq, bq = parts(q, qd)
+        return ca.Function(name, [q, qd, t], [solve(Bq, t - bq)], ["q", "qd", "tau"], ["qdd"])
 
     @_cached_fun
     def tip_fun(self) -> ca.Function:
