@@ -95,17 +95,17 @@ from softgen.symbolic.pcc_chain import chain_terms, inertia_from_blocks
 from softgen.symbolic.rigid import FUNCTION_OPTS
 
 GROUPS = ("mass", "stiffness", "damping")
-FULL_BALANCE = LEARN_FIRST = False
-WARMUP = 0
 STATE = {"pi_hat": "pi_hat_next", "u_prev": "u_next", "qd_prev": "qd_prev_next",
          "q_prev": "q_prev_next", "s_hat": "s_next", "R": "R_next", "started": "started_next"}
 
 
 def identified_step(dyn: SoftDynamics, lin: LinearRoute, *, forget: float,
                     mean_velocity: bool, fixed: ModelScale | None,
-                    implicit_adaptation: bool = False) -> ca.Function:
+                    implicit_adaptation: bool = False, full_balance: bool = False,
+                    warmup: int = 0, learn_first_sample: bool = False) -> ca.Function:
     """The linearly implicit sampled Theorem 10 (as the library's step) with the
-    predictor's factors a state identified by RLS (or ``fixed``)."""
+    predictor's factors a state identified by RLS (or ``fixed``); the switches are the
+    command line's options of the same names (module docstring)."""
     b = dyn.nominal
     n, r = dyn.model.dof, lin.r
     chain = _chain_applies(b)
@@ -142,7 +142,7 @@ def identified_step(dyn: SoftDynamics, lin: LinearRoute, *, forget: float,
                               ca.vertcat(q, qd, qd, (qd - qd_prev) / h))
     Phi = ca.horzcat(mass_term, ca.mtimes(K, q), ca.mtimes(D, qd))
     # Before the first sample no force was applied: nothing to learn from (started = 0).
-    if not LEARN_FIRST:
+    if not learn_first_sample:
         Phi = ca.if_else(started > 0.5, 1.0, 0.0) * Phi
     R_next = forget * R + ca.mtimes(Phi.T, Phi)
     s_ls = s_hat + ca.solve(R_next + 1e-30 * ca.SX.eye(3),
@@ -154,16 +154,16 @@ def identified_step(dyn: SoftDynamics, lin: LinearRoute, *, forget: float,
     M = s[0] * B + h * s[2] * D + h * h * s[1] * K
     tau_e = tau0 + h * ca.mtimes(J_q, qd)
     u_last = u_prev
-    if FULL_BALANCE:
+    if full_balance:
         # The force the plant's model says it is in balance with now (implicit Euler of
         # B q̈ + C q̇ + G + K q + D q̇ = u): the predictor's own model, not u_prev.
         bias = ca.substitute(rigid, ca.vertcat(b.q, b.qd, b.qd_r, b.qdd_r),
                              ca.vertcat(q, qd, qd, ca.SX.zeros(n)))
         u_model = s[0] * bias + s[1] * ca.mtimes(K, q + h * qd) + s[2] * ca.mtimes(D, qd)
-        # Until WARMUP samples have taught the factors, the timid predictor: the lower
+        # Until ``warmup`` samples have taught the factors, the timid predictor: the lower
         # corner with the measured balance (u_prev).
         lower = [UNCERTAINTY[g][0] for g in GROUPS]
-        learnt = started >= WARMUP
+        learnt = started >= warmup
         M = ca.if_else(learnt, M, lower[0] * B + h * lower[2] * D + h * h * lower[1] * K)
         u_last = ca.if_else(learnt, u_model, u_last)
     w = ca.solve(M - h * ca.mtimes(P, J), ca.mtimes(P, tau_e) - u_last)
@@ -215,8 +215,6 @@ def main() -> None:
     ap.add_argument("--kpi-scale", type=float, default=1.0,
                     help="K_pi of both loops times this (0: no adaptation, pi_hat = 0)")
     a = ap.parse_args()
-    global FULL_BALANCE, WARMUP, LEARN_FIRST
-    FULL_BALANCE, WARMUP, LEARN_FIRST = a.full_balance, a.warmup, a.learn_first_sample
     fixed = None if a.predictor == "identified" else \
         ModelScale(*map(float, a.predictor.removeprefix("fixed:").split(",")))
     c = E.SampledConfig()
@@ -232,7 +230,9 @@ def main() -> None:
         ref = E.reference_block("ref", c.dt, case.amplitude, case.omega, case.phase,
                                 unit=case.unit)
         f = identified_step(dyn, lin, forget=a.forget, mean_velocity=a.mean_velocity,
-                            fixed=fixed, implicit_adaptation=a.implicit_adaptation)
+                            fixed=fixed, implicit_adaptation=a.implicit_adaptation,
+                            full_balance=a.full_balance, warmup=a.warmup,
+                            learn_first_sample=a.learn_first_sample)
         ctrl = Block.wrap("ctrl", f, dt=c.dt, state=STATE, params=["lam", "kd", "kpi"],
                           constants={"dt": c.dt},
                           x0={"s_hat": lower, "R": a.prior * np.eye(3).ravel()},

@@ -16,26 +16,11 @@ import pytest
 
 from softgen.cli import main
 from softgen.core.paths import MODELS_DIR
+# The bad-input promise and its CLI runner: one home, round 2's (stricter: no NUL).
+from test_faults_round2 import _cli, _refused
 
 ROD = MODELS_DIR / "rod_tendon_3seg.toml"
 
-
-def _cli(capsys, argv) -> tuple[int, str, list[str]]:
-    status = main([str(a) for a in argv])
-    cap = capsys.readouterr()
-    return status, cap.out, [x for x in cap.err.splitlines() if x.strip()]
-
-
-def _refused(capsys, argv, *words, status=(2,)) -> str:
-    """Bad input: a non-zero status and one ``softgen: error:`` line naming ``words``."""
-    st, out, err = _cli(capsys, argv)
-    errors = [x for x in err if x.startswith("softgen: error:")]
-    assert st in status, (st, out, err)
-    assert len(errors) == 1 and not any("Traceback" in x for x in err), err
-    for w in words:
-        assert w in errors[0], (w, errors[0])
-    assert len(errors[0]) < 600, errors[0][:200]
-    return errors[0]
 
 
 def _sha(path: Path) -> str:
