@@ -355,10 +355,10 @@ const casadi_int* rod_tendon_3seg_tip_loop_step_sparsity_in(casadi_int i);
 const casadi_int* rod_tendon_3seg_tip_loop_step_sparsity_out(casadi_int i);
 int rod_tendon_3seg_tip_loop_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int rod_tendon_3seg_tip_loop_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define rod_tendon_3seg_tip_loop_step_SZ_ARG 4
-#define rod_tendon_3seg_tip_loop_step_SZ_RES 2
+#define rod_tendon_3seg_tip_loop_step_SZ_ARG 15
+#define rod_tendon_3seg_tip_loop_step_SZ_RES 7
 #define rod_tendon_3seg_tip_loop_step_SZ_IW 0
-#define rod_tendon_3seg_tip_loop_step_SZ_W 0
+#define rod_tendon_3seg_tip_loop_step_SZ_W 902
 int rod_tendon_3seg_tip_loop_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int rod_tendon_3seg_tip_loop_loop_checkout(void);
 void rod_tendon_3seg_tip_loop_loop_release(int mem);
@@ -373,10 +373,10 @@ const casadi_int* rod_tendon_3seg_tip_loop_loop_sparsity_in(casadi_int i);
 const casadi_int* rod_tendon_3seg_tip_loop_loop_sparsity_out(casadi_int i);
 int rod_tendon_3seg_tip_loop_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int rod_tendon_3seg_tip_loop_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define rod_tendon_3seg_tip_loop_loop_SZ_ARG 20
-#define rod_tendon_3seg_tip_loop_loop_SZ_RES 12
+#define rod_tendon_3seg_tip_loop_loop_SZ_ARG 31
+#define rod_tendon_3seg_tip_loop_loop_SZ_RES 17
 #define rod_tendon_3seg_tip_loop_loop_SZ_IW 0
-#define rod_tendon_3seg_tip_loop_loop_SZ_W 186308
+#define rod_tendon_3seg_tip_loop_loop_SZ_W 186444
 void rod_tendon_3seg_casadi_version(int* major, int* minor, int* patch);
 int rod_tendon_3seg_casadi_int_size(void);
 int rod_tendon_3seg_casadi_real_size(void);

@@ -76,6 +76,10 @@ class Block:
     meta: Mapping[str, Any] = field(default_factory=dict)   # free-form facts (e.g. the model name)
     #: ``{param: "positive" | "nonnegative"}``, checked whenever values are given.
     rules: Mapping[str, str] = field(default_factory=dict)
+    #: The ``body`` the block was defined by: a composing diagram
+    #: (``ClosedLoop(compose=True)``) evaluates it on MX symbols, so that the functions it
+    #: calls stay calls (one copy of their C) instead of being inlined into :attr:`step`.
+    body: Callable[..., Any] | None = field(default=None, compare=False, repr=False)
 
     @classmethod
     def define(cls, name: str, *, dt: float | None, outputs: Any, body: Callable[..., Any],
@@ -117,7 +121,18 @@ class Block:
                    step=step, x0=_defaults(lay["state"], x0, f"block {name}: x0"),
                    p0=_defaults(lay["params"], p0, f"block {name}: p0"),
                    depends=depends, doc=doc, meta=dict(meta or {}),
-                   rules=_check_rules(dict(rules or {}), lay["params"], name))
+                   rules=_check_rules(dict(rules or {}), lay["params"], name), body=body)
+
+    def call(self, x: Any, u: Any, p: Any, *, compose: bool = False) -> tuple[Any, Any]:
+        """``(x_next, y)`` columns at ``x, u, p``: :attr:`step` called, or with ``compose``
+        (MX arguments) the block's ``body`` evaluated on them, so that a generated function
+        the body calls is a call in the caller's C, shared with every other caller."""
+        if not compose or self.body is None:
+            return self.step(x, u, p)
+        xn, y = self.body(self.state.split(x), self.inputs.split(u), self.params.split(p))
+        kind = type(x)
+        return (self.state.join(xn) if self.state.size else kind(0, 1),
+                self.outputs.join(y) if self.outputs.size else kind(0, 1))
 
     @classmethod
     def wrap(cls, name: str, f: ca.Function, *, dt: float | None, state: Mapping[str, str] | None = None,

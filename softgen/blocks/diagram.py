@@ -49,13 +49,20 @@ class ClosedLoop:
         external input of that name; none or several such candidates is an error.
     externals
         Layout of the external inputs, ``{name: size}``.
+    compose
+        Build the step on MX symbols from the blocks' bodies (:meth:`Block.call`): the
+        functions the blocks call (a controller's step, the plant) stay calls, so a bundle
+        that also exports them holds their C once. The default inlines every block into
+        one SX function (cross-block common subexpressions shared: the faster loop, which
+        run-time loops, ``bench`` and ``export`` use).
     """
 
     def __init__(self, name: str, blocks: Iterable[Block], wires: Iterable[tuple[Any, ...]] = (),
-                 *, externals: Mapping[str, int] | Layout | None = None):
+                 *, externals: Mapping[str, int] | Layout | None = None, compose: bool = False):
         if not isinstance(name, str) or not name.isidentifier():
             raise ValueError(f"diagram name: expected an identifier, got {name!r}")
         self.name = name
+        self.compose = bool(compose)
         self.blocks: dict[str, Block] = {}
         for b in blocks:
             if not isinstance(b, Block):
@@ -188,38 +195,52 @@ class ClosedLoop:
         """
         if self._step is not None:
             return self._step
-        X, P = ca.SX.sym("x", self.state.size), ca.SX.sym("p", self.params.size)
-        k, E = ca.SX.sym("k"), ca.SX.sym("e", self.externals.size)
+        S: Any = ca.MX if self.compose else ca.SX
+        X, P = S.sym("x", self.state.size), S.sym("p", self.params.size)
+        k, E = S.sym("k"), S.sym("e", self.externals.size)
         xs, ps = self.state.split(X), self.params.split(P)
-        values: dict[str, ca.SX] = {TIME: k * self.dt}
+        values: dict[str, Any] = {TIME: k * self.dt}
         values.update({f"{EXT}.{n}": v for n, v in self.externals.split(E).items()})
+        # Composing, a block whose inputs were all known when its outputs were computed is
+        # evaluated once: in MX two calls with equal arguments would both run (SX merges
+        # them by cse).
+        done: dict[str, tuple[Any, Any]] = {}
 
-        def block_args(b: Block, *, partial: bool) -> tuple[Any, Any, Any]:
+        def block_args(b: Block, *, partial: bool) -> tuple[Any, Any, Any, bool]:
             x = b.state.join({s.name: xs[f"{b.name}.{s.name}"] for s in b.state}) \
-                if b.state.size else ca.SX(0, 1)
+                if b.state.size else S(0, 1)
             p = b.params.join({s.name: ps[f"{b.name}.{s.name}"] for s in b.params}) \
-                if b.params.size else ca.SX(0, 1)
-            parts = {}
+                if b.params.size else S(0, 1)
+            parts, complete = {}, True
             for i in b.inputs:
                 src = self.sources[f"{b.name}.{i.name}"]
                 # Inputs no output depends on are not known yet while outputs are
                 # computed; zeros stand in (they do not reach y, by `depends`).
+                if src not in values:
+                    complete = False
                 parts[i.name] = values[src] if src in values else (
-                    ca.SX.zeros(i.size) if partial else None)
-            u = b.inputs.join(parts) if b.inputs.size else ca.SX(0, 1)
-            return x, u, p
+                    S.zeros(i.size) if partial else None)
+            u = b.inputs.join(parts) if b.inputs.size else S(0, 1)
+            return x, u, p, complete
 
         for bn in self.order:
             b = self.blocks[bn]
-            _, y = b.step(*block_args(b, partial=True))
-            for name, v in b.outputs.split(ca.SX(y)).items():
+            x, u, p, complete = block_args(b, partial=True)
+            res = b.call(x, u, p, compose=self.compose)
+            if complete and self.compose:
+                done[bn] = res
+            for name, v in b.outputs.split(S(res[1])).items():
                 values[f"{bn}.{name}"] = v
         nxt = []
         for b in self.blocks.values():
             if b.state.size:
-                xn, _ = b.step(*block_args(b, partial=False))
-                nxt.append(ca.SX(xn))
-        Xn = ca.vertcat(*nxt) if nxt else ca.SX(0, 1)
+                if b.name in done:
+                    xn = done[b.name][0]
+                else:
+                    x, u, p, _ = block_args(b, partial=False)
+                    xn, _ = b.call(x, u, p, compose=self.compose)
+                nxt.append(S(xn))
+        Xn = ca.vertcat(*nxt) if nxt else S(0, 1)
         Y = ca.vertcat(*[values[s.name] for s in self.signals])
         self._step = ca.Function(f"{self.name}_step", [X, P, k, E], [Xn, Y],
                                  ["x", "p", "k", "e"], ["x_next", "y"], STEP_OPTS)
@@ -262,8 +283,9 @@ class ClosedLoop:
         rows = self.recorded(record)
         f = self.step_fun()
         nx = self.state.size
-        Xa, P, E = ca.SX.sym("xa", nx + 1), ca.SX.sym("p", self.params.size), \
-            ca.SX.sym("e", self.externals.size)
+        S: Any = ca.MX if self.compose else ca.SX     # MX: the sample calls the step
+        Xa, P, E = S.sym("xa", nx + 1), S.sym("p", self.params.size), \
+            S.sym("e", self.externals.size)
         xn, y = f(Xa[:nx], P, Xa[nx], E)
         if record is not None:
             y = ca.vertcat(*[y[self.signals.slice(r.name)] for r in rows])

@@ -120,7 +120,8 @@ def cosserat_tip_control(ctx: Context) -> Part:
     dyn, opts = ctx.dyn, ctx.options
     step = tip_adaptive_fun(dyn)
     plant = plant_fun(dyn, substeps=opts.loop_substeps)
-    d = closed_loop(dyn, dt=opts.loop_dt)
+    # Composed: the loop's step calls the exported law and plant (one copy of their C).
+    d = closed_loop(dyn, dt=opts.loop_dt, controller=step, plant=plant, compose=True)
     steps = opts.loop_steps
     fns = [Generated(step, "one sample of the task-space adaptive tip law: pi_hat update, "
                            "one-sided input allocation (feasible = 1 when the positive "

@@ -306,6 +306,14 @@ class Context:
     def lin(self):
         return LinearRoute(self.dyn)
 
+    def shared(self, key: str, make):
+        """One object per ``key`` for this model: a function that two capabilities use
+        (one exports it, another's composed loop calls it) is then one copy in the C."""
+        cache = self.__dict__.setdefault("_shared", {})
+        if key not in cache:
+            cache[key] = make()
+        return cache[key]
+
     @cached_property
     def mckibben(self):
         return McKibbenPairs(self.model)

@@ -97,21 +97,26 @@ def theorem10_diagram(dyn: SoftDynamics, lin: LinearRoute, options) -> ClosedLoo
 
 
 def theorem10_sampled_diagram(dyn: SoftDynamics, lin: LinearRoute, options,
-                              fun: ca.Function | None = None) -> ClosedLoop:
+                              fun: ca.Function | None = None,
+                              plant: ca.Function | None = None) -> ClosedLoop:
     """The linearly implicit sampled Theorem 10 and the plant as two blocks (a real
     embedded loop: τ held over the sample), every ``loop_dt``.
 
     The controller (:func:`softgen.control.soft_sampled.sampled_controller_block`) reads
     the plant's measurement; the references (q_d, q̇_d, q̈_d at the sample), the tip forces
     and the measurement noise are external inputs. Named ``<model>_theorem10_sampled_loop``.
+    Composed (``ClosedLoop(compose=True)``): its step calls ``fun`` and ``plant``, the
+    bundle's own ``_theorem10_sampled_step`` and ``_plant``, instead of a second, inlined
+    copy of both (the largest function of the 3D bundle, most of its compile time).
     """
     n, ns = dyn.model.dof, dyn.model.n_segments
     return ClosedLoop(f"{dyn.name}_theorem10_sampled_loop",
                       [sampled_controller_block(dyn, options.loop_dt, lin=lin, fun=fun),
-                       plant_block(dyn, options.loop_dt, substeps=options.loop_substeps)],
+                       plant_block(dyn, options.loop_dt, substeps=options.loop_substeps,
+                                   fun=plant)],
                       [("plant.q_meas", "ctrl.q"), ("plant.qd_meas", "ctrl.qd")],
                       externals=[("q_d", n), ("qd_d", n), ("qdd_d", n), ("f_ext", 3 * ns, "N"),
-                                 ("noise", 2 * n)])
+                                 ("noise", 2 * n)], compose=True)
 
 
 @REGISTRY.capability("theorem10", layer="control", needs=(SOFT, HAS_REGRESSOR),
@@ -122,7 +127,7 @@ def theorem10(ctx: Context) -> Part:
     ctl = theorem10_fun(ctx.dyn, ctx.lin)
     d = theorem10_diagram(ctx.dyn, ctx.lin, ctx.options)
     sctl = sampled_theorem10_fun(ctx.dyn, ctx.lin)
-    ds = theorem10_sampled_diagram(ctx.dyn, ctx.lin, ctx.options, sctl)
+    ds = theorem10_sampled_diagram(ctx.dyn, ctx.lin, ctx.options, sctl, _plant(ctx))
     steps = ctx.options.loop_steps
     step = d.step_fun()
     block = d.blocks["loop"]
@@ -158,13 +163,19 @@ def theorem10(ctx: Context) -> Part:
                      doc="the soft plant over one sample (ROS2), tip forces and measurement "
                          "noise")
 def soft_plant(ctx: Context) -> Part:
-    f = plant_fun(ctx.dyn, substeps=ctx.options.loop_substeps)
+    f = _plant(ctx)
     return Part([Generated(f, f"{ctx.options.loop_substeps} ROS2 step(s) (L-stable, order 2) "
                               "of eq. 3.6 over dt, tau and tip forces held; y = x_next + noise")],
                 {"soft": {"plant": {
                     "step": f.name(), "inputs": f.name_in(), "outputs": f.name_out(),
                     "state_layout": ["q", "qd"],
                     "f_ext_layout": "3 per segment tip (world x, y, z), segment 1 first"}}})
+
+
+def _plant(ctx: Context) -> ca.Function:
+    """``<model>_plant``, one object for the bundle (exported, and called by the sampled
+    loop)."""
+    return ctx.shared("plant", lambda: plant_fun(ctx.dyn, substeps=ctx.options.loop_substeps))
 
 
 def _renamed(lin: LinearRoute, dyn: SoftDynamics, which: str):

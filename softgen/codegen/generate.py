@@ -110,7 +110,9 @@ def with_levels(c_src: bytes, names: list[str], levels: dict[str, str]) -> bytes
     exported wrapper and its work functions) is wrapped in ``#pragma GCC
     push_options``/``optimize``/``pop_options``; compilers other than gcc skip the
     pragmas (guarded), so the file stays standalone C. ``names``: every exported
-    function of the file, in the order they were added to the code generator.
+    function of the file, in the order they were added to the code generator. A function
+    an earlier one calls (a composed loop's plant) was emitted as that one's helper, at
+    its level; its own stretch holds only its wrappers, left as they are.
     """
     out, pos = [], 0
     for name in names:
@@ -120,10 +122,8 @@ def with_levels(c_src: bytes, names: list[str], levels: dict[str, str]) -> bytes
             raise ValueError(f"{name}: no {name}_work_bytes in the generated C")
         end = c_src.index(b"\n}\n", pos + m.end()) + 3
         level = levels.get(name)
-        if level is not None:
-            head = _HEADING.search(c_src, pos, end)
-            if head is None:
-                raise ValueError(f"{name}: no function heading in the generated C")
+        head = _HEADING.search(c_src, pos, end) if level is not None else None
+        if level is not None and head is not None:
             start = head.start()
             out += [c_src[pos:start],
                     b"/* softgen: compiled at " + level.encode() + b" (Generated.optimization)"

@@ -275,11 +275,12 @@ def controller_block(dyn: CosseratDynamics, dt: float, *, axes=None, gains: TipG
 
 
 def plant_block(dyn: CosseratDynamics, dt: float, *, substeps: int = 1, method: str = "ros2",
-                name: str = "plant") -> Block:
+                name: str = "plant", fun: ca.Function | None = None) -> Block:
     """The rod over one sample (:func:`plant_fun`): state and outputs ``q, qd``; inputs
-    ``u`` (held) and ``w`` (tip wrench, world frame); outputs also ``tip``."""
+    ``u`` (held) and ``w`` (tip wrench, world frame); outputs also ``tip``. ``fun``: that
+    plant function already built (shared with a bundle that exports it)."""
     n = dyn.model.dof
-    f = plant_fun(dyn, substeps=substeps, method=method)
+    f = plant_fun(dyn, substeps=substeps, method=method) if fun is None else fun
     tip = ca.Function("tip", [dyn.q], [dyn.nominal.tip_pose()[1]])
 
     def body(x, u, p):
@@ -313,21 +314,25 @@ def reference_block(name: str, dt: float, *, amplitude=(0.02, 0.02), omega=(1.0,
 
 def closed_loop(dyn: CosseratDynamics, *, dt: float = 1e-3, gains: TipGains = GAINS,
                 axes=None, amplitude=TIP_REFERENCE["amplitude"],
-                omega=TIP_REFERENCE["omega"], name: str | None = None) -> ClosedLoop:
+                omega=TIP_REFERENCE["omega"], name: str | None = None,
+                controller: ca.Function | None = None, plant: ca.Function | None = None,
+                compose: bool = False) -> ClosedLoop:
     """The example loop: references, the sampled controller reading the plant, the plant
     (``ext.w`` a tip wrench disturbance). Starts from rest, straight, π̂ = 0; the
-    references start at the straight rod's tip (zero offset, sines from 0)."""
+    references start at the straight rod's tip (zero offset, sines from 0).
+    ``controller``/``plant``: the law's step and the plant already built; with
+    ``compose`` the loop's step calls them (a bundle exporting both holds their C once)."""
     axes = task_axes(dyn) if axes is None else tuple(axes)
     x0 = np.array(ca.evalf(ca.substitute(tip_task(dyn, axes)[0], dyn.q,
                                          ca.DM.zeros(dyn.model.dof)))).ravel()
     ref = reference_block("ref", dt, amplitude=amplitude, omega=omega, offset=tuple(x0))
     return ClosedLoop(name or f"{dyn.name}_tip_loop",
-                      [ref, controller_block(dyn, dt, axes=axes, gains=gains),
-                       plant_block(dyn, dt)],
+                      [ref, controller_block(dyn, dt, axes=axes, gains=gains, fun=controller),
+                       plant_block(dyn, dt, fun=plant)],
                       [("plant.q", "ctrl.q"), ("plant.qd", "ctrl.qd"), ("ref.x_d", "ctrl.x_d"),
                        ("ref.xd_d", "ctrl.xd_d"), ("ref.xdd_d", "ctrl.xdd_d"),
                        ("ctrl.u", "plant.u")],
-                      externals=[("w", 6, "N")])
+                      externals=[("w", 6, "N")], compose=compose)
 
 
 

@@ -713,20 +713,21 @@ def controller_block(dyn: SoftDynamics, dt: float, *, lin: LinearRoute | None = 
 
 
 def plant_block(dyn: SoftDynamics, dt: float, *, substeps: int = 1, method: str = "ros2",
-                name: str = "plant") -> Block:
+                name: str = "plant", fun: ca.Function | None = None) -> Block:
     """Eq. 3.6 at nominal parameters over one sample (:func:`plant_fun`), τ and f held.
 
     State and outputs ``q, qd`` (true, at the sample); outputs ``q_meas, qd_meas``
     = (q, q̇) + ``noise`` (input, 2n): what a controller reads. Input ``f_ext``:
-    3 per segment tip, world frame.
+    3 per segment tip, world frame. ``fun``: that plant function already built (a bundle
+    exporting it and a composed loop calling it then share one copy of its C).
     """
     n = dyn.model.dof
-    f = plant_fun(dyn, substeps=substeps, method=method)
+    f = plant_fun(dyn, substeps=substeps, method=method) if fun is None else fun
     uq, uv = _units(dyn)
 
     def body(x, u, p):
         z = ca.vertcat(x["q"], x["qd"])
-        zn, _ = f(z, u["tau"], u["f_ext"], ca.SX.zeros(2 * n), dt)
+        zn, _ = f(z, u["tau"], u["f_ext"], ca.DM.zeros(2 * n), dt)
         return {"q": zn[:n], "qd": zn[n:]}, {
             "q": x["q"], "qd": x["qd"], "q_meas": x["q"] + u["noise"][:n],
             "qd_meas": x["qd"] + u["noise"][n:]}
