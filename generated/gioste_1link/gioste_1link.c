@@ -1326,100 +1326,83 @@ CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_work_bytes(casadi_int *sz_arg, 
 
 /* gioste_1link_slotine_li_step:(x[4],p[4],k,e[3])->(x_next[4],y[6]) */
 static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=1.0000000000000000e-03;
-  a02=arg[1]? arg[1][2] : 0;
-  a02=(a01*a02);
-  a03=arg[3]? arg[3][2] : 0;
-  a04=arg[1]? arg[1][0] : 0;
-  a05=arg[3]? arg[3][1] : 0;
-  a06=arg[0]? arg[0][3] : 0;
-  a07=(a05-a06);
-  a07=(a04*a07);
-  a03=(a03+a07);
-  a07=arg[3]? arg[3][0] : 0;
-  a08=arg[0]? arg[0][2] : 0;
-  a07=(a07-a08);
-  a04=(a04*a07);
-  a05=(a05+a04);
-  a05=(a05-a06);
-  a04=(a03*a05);
-  a02=(a02*a04);
-  a02=(a00+a02);
-  if (res[0]!=0) res[0][0]=a02;
-  a02=arg[0]? arg[0][1] : 0;
-  a04=arg[1]? arg[1][3] : 0;
-  a04=(a01*a04);
-  a07=-9.8100000000000005e+00;
-  a09=sin(a08);
-  a07=(a07*a09);
-  a10=(a07*a05);
-  a04=(a04*a10);
-  a04=(a02-a04);
-  if (res[0]!=0) res[0][1]=a04;
-  a04=1.6666666666666666e-04;
-  a10=5.0000000000000001e-04;
-  a03=(a03*a00);
-  a07=(a07*a02);
-  a03=(a03-a07);
-  a07=arg[1]? arg[1][1] : 0;
-  a07=(a07*a05);
-  a03=(a03+a07);
-  a07=-7.1220600000000001e-01;
-  a09=(a07*a09);
-  a09=(a03+a09);
-  a05=1.5979000000000000e-02;
-  a09=(a09/a05);
-  a11=(a10*a09);
-  a11=(a06+a11);
-  a12=(2.*a11);
-  a12=(a06+a12);
-  a13=(a10*a06);
-  a13=(a08+a13);
-  a13=sin(a13);
-  a13=(a07*a13);
-  a13=(a03+a13);
-  a13=(a13/a05);
-  a14=(a10*a13);
-  a14=(a06+a14);
-  a15=(2.*a14);
-  a12=(a12+a15);
-  a10=(a10*a11);
-  a10=(a08+a10);
-  a10=sin(a10);
-  a10=(a07*a10);
-  a10=(a03+a10);
-  a10=(a10/a05);
-  a11=(a01*a10);
-  a11=(a06+a11);
-  a12=(a12+a11);
-  a12=(a04*a12);
-  a12=(a08+a12);
-  if (res[0]!=0) res[0][2]=a12;
-  a13=(2.*a13);
-  a09=(a09+a13);
-  a10=(2.*a10);
-  a09=(a09+a10);
-  a14=(a01*a14);
-  a14=(a08+a14);
-  a14=sin(a14);
-  a07=(a07*a14);
-  a07=(a03+a07);
-  a07=(a07/a05);
-  a09=(a09+a07);
-  a04=(a04*a09);
-  a04=(a06+a04);
-  if (res[0]!=0) res[0][3]=a04;
-  a04=arg[2]? arg[2][0] : 0;
-  a01=(a01*a04);
-  if (res[1]!=0) res[1][0]=a01;
-  if (res[1]!=0) res[1][1]=a08;
-  if (res[1]!=0) res[1][2]=a06;
-  if (res[1]!=0) res[1][3]=a03;
-  if (res[1]!=0) res[1][4]=a00;
-  if (res[1]!=0) res[1][5]=a02;
+  casadi_real **res1=res+2, *rr, *w00=w+14, *w01=w+18, w02, w03, *w04=w+20, w05, w06, w07, w08, w09;
+  casadi_real *w10=w+23, w11, *w12=w+25, w13;
+  const casadi_real **arg1=arg+4, *cs;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 4, w00);
+  /* #1: @1 = @0[:2] */
+  for (rr=w01, cs=w00+0; cs!=w00+2; cs+=1) *rr++ = *cs;
+  /* #2: @2 = @0[2] */
+  for (rr=(&w02), cs=w00+2; cs!=w00+3; cs+=1) *rr++ = *cs;
+  /* #3: @3 = @0[3] */
+  for (rr=(&w03), cs=w00+3; cs!=w00+4; cs+=1) *rr++ = *cs;
+  /* #4: @4 = input[3][0] */
+  casadi_copy(arg[3], 3, w04);
+  /* #5: @5 = @4[0] */
+  for (rr=(&w05), cs=w04+0; cs!=w04+1; cs+=1) *rr++ = *cs;
+  /* #6: @6 = @4[1] */
+  for (rr=(&w06), cs=w04+1; cs!=w04+2; cs+=1) *rr++ = *cs;
+  /* #7: @7 = @4[2] */
+  for (rr=(&w07), cs=w04+2; cs!=w04+3; cs+=1) *rr++ = *cs;
+  /* #8: @0 = input[1][0] */
+  casadi_copy(arg[1], 4, w00);
+  /* #9: @8 = @0[0] */
+  for (rr=(&w08), cs=w00+0; cs!=w00+1; cs+=1) *rr++ = *cs;
+  /* #10: @9 = @0[1] */
+  for (rr=(&w09), cs=w00+1; cs!=w00+2; cs+=1) *rr++ = *cs;
+  /* #11: @10 = @0[2:4] */
+  for (rr=w10, cs=w00+2; cs!=w00+4; cs+=1) *rr++ = *cs;
+  /* #12: @11 = 0.001 */
+  w11 = 1.0000000000000000e-03;
+  /* #13: {@12, @13} = gioste_1link_slotine_li(@1, @2, @3, @5, @6, @7, @8, @9, @10, @11) */
+  arg1[0]=w01;
+  arg1[1]=(&w02);
+  arg1[2]=(&w03);
+  arg1[3]=(&w05);
+  arg1[4]=(&w06);
+  arg1[5]=(&w07);
+  arg1[6]=(&w08);
+  arg1[7]=(&w09);
+  arg1[8]=w10;
+  arg1[9]=(&w11);
+  res1[0]=w12;
+  res1[1]=(&w13);
+  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][0] = @12 */
+  casadi_copy(w12, 2, res[0]);
+  /* #15: @12 = vertcat(@2, @3) */
+  rr=w12;
+  *rr++ = w02;
+  *rr++ = w03;
+  /* #16: @10 = gioste_1link_plant_rk4(@12, @13, @11) */
+  arg1[0]=w12;
+  arg1[1]=(&w13);
+  arg1[2]=(&w11);
+  res1[0]=w10;
+  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
+  /* #17: @5 = @10[0] */
+  for (rr=(&w05), cs=w10+0; cs!=w10+1; cs+=1) *rr++ = *cs;
+  /* #18: output[0][1] = @5 */
+  if (res[0]) res[0][2] = w05;
+  /* #19: @5 = @10[1] */
+  for (rr=(&w05), cs=w10+1; cs!=w10+2; cs+=1) *rr++ = *cs;
+  /* #20: output[0][2] = @5 */
+  if (res[0]) res[0][3] = w05;
+  /* #21: @5 = input[2][0] */
+  w05 = arg[2] ? arg[2][0] : 0;
+  /* #22: @11 = (@11*@5) */
+  w11 *= w05;
+  /* #23: output[1][0] = @11 */
+  if (res[1]) res[1][0] = w11;
+  /* #24: output[1][1] = @2 */
+  if (res[1]) res[1][1] = w02;
+  /* #25: output[1][2] = @3 */
+  if (res[1]) res[1][2] = w03;
+  /* #26: output[1][3] = @13 */
+  if (res[1]) res[1][3] = w13;
+  /* #27: output[1][4] = @1 */
+  if (res[1]) casadi_copy(w01, 2, res[1]+4);
   return 0;
 }
 
@@ -1487,24 +1470,24 @@ CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_slotine_li_step_sparsity_out
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 4;
-  if (sz_res) *sz_res = 2;
+  if (sz_arg) *sz_arg = 14;
+  if (sz_res) *sz_res = 4;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 27;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 27*sizeof(casadi_real);
   return 0;
 }
 
 /* one_sample:(xa[5],p[4],e[3])->(xa_next[5],y[6]) */
 static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *rr, *w0=w+16, *w1=w+21, *w2=w+25, w3, *w4=w+29, *w5=w+32, *w6=w+36, w7;
+  casadi_real **res1=res+2, *rr, *w0=w+36, *w1=w+41, *w2=w+45, w3, *w4=w+49, *w5=w+52, *w6=w+56, w7;
   const casadi_real **arg1=arg+3, *cs;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 5, w0);
@@ -1541,8 +1524,8 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10:(xa[5],p[4x10],e[3x10])->(xa_next[5x10],y[6x10]) */
 static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+44, *w01=w+49, *w02=w+53, *w03=w+56, *w04=w+61, *w05=w+67, *w06=w+73, *w07=w+79, *w08=w+85, *w09=w+91, *w10=w+97;
-  casadi_real *w11=w+103, *w12=w+109, *w13=w+115;
+  casadi_real **res1=res+2, *w00=w+64, *w01=w+69, *w02=w+73, *w03=w+76, *w04=w+81, *w05=w+87, *w06=w+93, *w07=w+99, *w08=w+105, *w09=w+111, *w10=w+117;
+  casadi_real *w11=w+123, *w12=w+129, *w13=w+135;
   const casadi_real **arg1=arg+3;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 5, w00);
@@ -1701,8 +1684,8 @@ static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10_acc10:(xa[5],p[4x100],e[3x100])->(xa_next[5x100],y[6x100]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+121, *w03=w+126, *w04=w+176, *w05=w+236, *w06=w+296, *w07=w+356, *w08=w+416, *w09=w+476, *w10=w+536, *w11=w+596, *w12=w+656;
-  casadi_real *w13=w+716;
+  casadi_real **res1=res+2, *w00=w+141, *w03=w+146, *w04=w+196, *w05=w+256, *w06=w+316, *w07=w+376, *w08=w+436, *w09=w+496, *w10=w+556, *w11=w+616, *w12=w+676;
+  casadi_real *w13=w+736;
   const casadi_real **arg1=arg+3, *wr01, *wr02;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 5, w00);
@@ -1879,8 +1862,8 @@ static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10_acc10_acc10:(xa[5],p[4x1000],e[3x1000])->(xa_next[5x1000],y[6x1000]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+846, *w03=w+851, *w04=w+1351, *w05=w+1951, *w06=w+2551, *w07=w+3151, *w08=w+3751, *w09=w+4351, *w10=w+4951, *w11=w+5551, *w12=w+6151;
-  casadi_real *w13=w+6751;
+  casadi_real **res1=res+2, *w00=w+866, *w03=w+871, *w04=w+1371, *w05=w+1971, *w06=w+2571, *w07=w+3171, *w08=w+3771, *w09=w+4371, *w10=w+4971, *w11=w+5571, *w12=w+6171;
+  casadi_real *w13=w+6771;
   const casadi_real **arg1=arg+3, *wr01, *wr02;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 5, w00);
@@ -2058,7 +2041,7 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
 /* gioste_1link_slotine_li_loop:(x0[4],p[4],k0,e[3x1000])->(x[4x1000],y[6x1000]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, *w0=w+8051, w1, *w2=w+8055, *w3=w+8060, *w5=w+12060, *w6=w+17060;
+  casadi_real **res1=res+2, *rr, *w0=w+8071, w1, *w2=w+8075, *w3=w+8080, *w5=w+12080, *w6=w+17080;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr4;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 4, w0);
@@ -2156,18 +2139,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* gioste_1link_slotine_li_loop_sparsity_out
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20;
-  if (sz_res) *sz_res = 12;
+  if (sz_arg) *sz_arg = 30;
+  if (sz_res) *sz_res = 14;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 23060;
+  if (sz_w) *sz_w = 23080;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int gioste_1link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 12*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 30*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 23060*sizeof(casadi_real);
+  if (sz_w) *sz_w = 23080*sizeof(casadi_real);
   return 0;
 }
 

@@ -247,10 +247,10 @@ const casadi_int* panda_slotine_li_step_sparsity_in(casadi_int i);
 const casadi_int* panda_slotine_li_step_sparsity_out(casadi_int i);
 int panda_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int panda_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define panda_slotine_li_step_SZ_ARG 4
-#define panda_slotine_li_step_SZ_RES 2
+#define panda_slotine_li_step_SZ_ARG 14
+#define panda_slotine_li_step_SZ_RES 4
 #define panda_slotine_li_step_SZ_IW 0
-#define panda_slotine_li_step_SZ_W 0
+#define panda_slotine_li_step_SZ_W 413
 int panda_slotine_li_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int panda_slotine_li_loop_checkout(void);
 void panda_slotine_li_loop_release(int mem);
@@ -265,10 +265,10 @@ const casadi_int* panda_slotine_li_loop_sparsity_in(casadi_int i);
 const casadi_int* panda_slotine_li_loop_sparsity_out(casadi_int i);
 int panda_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int panda_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define panda_slotine_li_loop_SZ_ARG 20
-#define panda_slotine_li_loop_SZ_RES 12
+#define panda_slotine_li_loop_SZ_ARG 30
+#define panda_slotine_li_loop_SZ_RES 14
 #define panda_slotine_li_loop_SZ_IW 0
-#define panda_slotine_li_loop_SZ_W 268235
+#define panda_slotine_li_loop_SZ_W 268416
 void panda_casadi_version(int* major, int* minor, int* patch);
 int panda_casadi_int_size(void);
 int panda_casadi_real_size(void);

@@ -1377,119 +1377,83 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_work_bytes(casadi_int *sz_ar
 
 /* pendulum_qbmove_slotine_li_step:(x[5],p[5],k,e[3])->(x_next[5],y[7]) */
 static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=1.0000000000000000e-03;
-  a02=arg[1]? arg[1][2] : 0;
-  a02=(a01*a02);
-  a03=arg[0]? arg[0][4] : 0;
-  a04=arg[3]? arg[3][1] : 0;
-  a05=arg[1]? arg[1][0] : 0;
-  a06=arg[3]? arg[3][0] : 0;
-  a07=arg[0]? arg[0][3] : 0;
-  a06=(a06-a07);
-  a06=(a05*a06);
-  a06=(a04+a06);
-  a06=(a06-a03);
-  a08=(a03*a06);
-  a02=(a02*a08);
-  a02=(a00+a02);
-  if (res[0]!=0) res[0][0]=a02;
-  a02=arg[0]? arg[0][1] : 0;
-  a08=arg[1]? arg[1][3] : 0;
-  a08=(a01*a08);
-  a09=arg[3]? arg[3][2] : 0;
-  a04=(a04-a03);
-  a05=(a05*a04);
-  a09=(a09+a05);
-  a05=(a09*a06);
-  a08=(a08*a05);
-  a08=(a02+a08);
-  if (res[0]!=0) res[0][1]=a08;
-  a08=arg[0]? arg[0][2] : 0;
-  a05=arg[1]? arg[1][4] : 0;
-  a05=(a01*a05);
-  a04=-9.8100000000000005e+00;
-  a10=sin(a07);
-  a04=(a04*a10);
-  a11=(a04*a06);
-  a05=(a05*a11);
-  a05=(a08-a05);
-  if (res[0]!=0) res[0][2]=a05;
-  a05=1.6666666666666666e-04;
-  a11=5.0000000000000001e-04;
-  a12=(a03*a00);
-  a09=(a09*a02);
-  a12=(a12+a09);
-  a04=(a04*a08);
-  a12=(a12-a04);
-  a04=arg[1]? arg[1][1] : 0;
-  a04=(a04*a06);
-  a12=(a12+a04);
-  a04=9.9999999999999995e-08;
-  a06=(a04*a03);
-  a09=-1.1772000000000000e+00;
-  a10=(a09*a10);
-  a06=(a06-a10);
-  a06=(a12-a06);
-  a10=1.4999999999999999e-02;
-  a06=(a06/a10);
-  a13=(a11*a06);
-  a13=(a03+a13);
-  a14=(2.*a13);
-  a14=(a03+a14);
-  a15=(a04*a13);
-  a16=(a11*a03);
-  a16=(a07+a16);
-  a16=sin(a16);
-  a16=(a09*a16);
-  a15=(a15-a16);
-  a15=(a12-a15);
-  a15=(a15/a10);
-  a16=(a11*a15);
-  a16=(a03+a16);
-  a17=(2.*a16);
-  a14=(a14+a17);
-  a17=(a04*a16);
-  a11=(a11*a13);
-  a11=(a07+a11);
-  a11=sin(a11);
-  a11=(a09*a11);
-  a17=(a17-a11);
-  a17=(a12-a17);
-  a17=(a17/a10);
-  a11=(a01*a17);
-  a11=(a03+a11);
-  a14=(a14+a11);
-  a14=(a05*a14);
-  a14=(a07+a14);
-  if (res[0]!=0) res[0][3]=a14;
-  a15=(2.*a15);
-  a06=(a06+a15);
-  a17=(2.*a17);
-  a06=(a06+a17);
-  a04=(a04*a11);
-  a16=(a01*a16);
-  a16=(a07+a16);
-  a16=sin(a16);
-  a09=(a09*a16);
-  a04=(a04-a09);
-  a04=(a12-a04);
-  a04=(a04/a10);
-  a06=(a06+a04);
-  a05=(a05*a06);
-  a05=(a03+a05);
-  if (res[0]!=0) res[0][4]=a05;
-  a05=arg[2]? arg[2][0] : 0;
-  a01=(a01*a05);
-  if (res[1]!=0) res[1][0]=a01;
-  if (res[1]!=0) res[1][1]=a07;
-  if (res[1]!=0) res[1][2]=a03;
-  if (res[1]!=0) res[1][3]=a12;
-  if (res[1]!=0) res[1][4]=a00;
-  if (res[1]!=0) res[1][5]=a02;
-  if (res[1]!=0) res[1][6]=a08;
+  casadi_real **res1=res+2, *rr, *w00=w+15, *w01=w+20, w02, w03, *w04=w+23, w05, w06, w07, w08, w09;
+  casadi_real w10, *w11=w+26, w12, *w13=w+29, *w14=w+31;
+  const casadi_real **arg1=arg+4, *cs;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w00);
+  /* #1: @1 = @0[:3] */
+  for (rr=w01, cs=w00+0; cs!=w00+3; cs+=1) *rr++ = *cs;
+  /* #2: @2 = @0[3] */
+  for (rr=(&w02), cs=w00+3; cs!=w00+4; cs+=1) *rr++ = *cs;
+  /* #3: @3 = @0[4] */
+  for (rr=(&w03), cs=w00+4; cs!=w00+5; cs+=1) *rr++ = *cs;
+  /* #4: @4 = input[3][0] */
+  casadi_copy(arg[3], 3, w04);
+  /* #5: @5 = @4[0] */
+  for (rr=(&w05), cs=w04+0; cs!=w04+1; cs+=1) *rr++ = *cs;
+  /* #6: @6 = @4[1] */
+  for (rr=(&w06), cs=w04+1; cs!=w04+2; cs+=1) *rr++ = *cs;
+  /* #7: @7 = @4[2] */
+  for (rr=(&w07), cs=w04+2; cs!=w04+3; cs+=1) *rr++ = *cs;
+  /* #8: @0 = input[1][0] */
+  casadi_copy(arg[1], 5, w00);
+  /* #9: @8 = @0[0] */
+  for (rr=(&w08), cs=w00+0; cs!=w00+1; cs+=1) *rr++ = *cs;
+  /* #10: @9 = @0[1] */
+  for (rr=(&w09), cs=w00+1; cs!=w00+2; cs+=1) *rr++ = *cs;
+  /* #11: @4 = @0[2:5] */
+  for (rr=w04, cs=w00+2; cs!=w00+5; cs+=1) *rr++ = *cs;
+  /* #12: @10 = 0.001 */
+  w10 = 1.0000000000000000e-03;
+  /* #13: {@11, @12} = pendulum_qbmove_slotine_li(@1, @2, @3, @5, @6, @7, @8, @9, @4, @10) */
+  arg1[0]=w01;
+  arg1[1]=(&w02);
+  arg1[2]=(&w03);
+  arg1[3]=(&w05);
+  arg1[4]=(&w06);
+  arg1[5]=(&w07);
+  arg1[6]=(&w08);
+  arg1[7]=(&w09);
+  arg1[8]=w04;
+  arg1[9]=(&w10);
+  res1[0]=w11;
+  res1[1]=(&w12);
+  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][0] = @11 */
+  casadi_copy(w11, 3, res[0]);
+  /* #15: @13 = vertcat(@2, @3) */
+  rr=w13;
+  *rr++ = w02;
+  *rr++ = w03;
+  /* #16: @14 = pendulum_qbmove_plant_rk4(@13, @12, @10) */
+  arg1[0]=w13;
+  arg1[1]=(&w12);
+  arg1[2]=(&w10);
+  res1[0]=w14;
+  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
+  /* #17: @5 = @14[0] */
+  for (rr=(&w05), cs=w14+0; cs!=w14+1; cs+=1) *rr++ = *cs;
+  /* #18: output[0][1] = @5 */
+  if (res[0]) res[0][3] = w05;
+  /* #19: @5 = @14[1] */
+  for (rr=(&w05), cs=w14+1; cs!=w14+2; cs+=1) *rr++ = *cs;
+  /* #20: output[0][2] = @5 */
+  if (res[0]) res[0][4] = w05;
+  /* #21: @5 = input[2][0] */
+  w05 = arg[2] ? arg[2][0] : 0;
+  /* #22: @10 = (@10*@5) */
+  w10 *= w05;
+  /* #23: output[1][0] = @10 */
+  if (res[1]) res[1][0] = w10;
+  /* #24: output[1][1] = @2 */
+  if (res[1]) res[1][1] = w02;
+  /* #25: output[1][2] = @3 */
+  if (res[1]) res[1][2] = w03;
+  /* #26: output[1][3] = @12 */
+  if (res[1]) res[1][3] = w12;
+  /* #27: output[1][4] = @1 */
+  if (res[1]) casadi_copy(w01, 3, res[1]+4);
   return 0;
 }
 
@@ -1557,24 +1521,24 @@ CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_slotine_li_step_sparsity_
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 4;
-  if (sz_res) *sz_res = 2;
+  if (sz_arg) *sz_arg = 14;
+  if (sz_res) *sz_res = 4;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 33;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 33*sizeof(casadi_real);
   return 0;
 }
 
 /* one_sample:(xa[6],p[5],e[3])->(xa_next[6],y[7]) */
 static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *rr, *w0=w+18, *w1=w+24, *w2=w+29, w3, *w4=w+34, *w5=w+37, *w6=w+42, w7;
+  casadi_real **res1=res+2, *rr, *w0=w+42, *w1=w+48, *w2=w+53, w3, *w4=w+58, *w5=w+61, *w6=w+66, w7;
   const casadi_real **arg1=arg+3, *cs;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 6, w0);
@@ -1611,8 +1575,8 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10:(xa[6],p[5x10],e[3x10])->(xa_next[6x10],y[7x10]) */
 static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+51, *w01=w+57, *w02=w+62, *w03=w+65, *w04=w+71, *w05=w+78, *w06=w+85, *w07=w+92, *w08=w+99, *w09=w+106, *w10=w+113;
-  casadi_real *w11=w+120, *w12=w+127, *w13=w+134;
+  casadi_real **res1=res+2, *w00=w+75, *w01=w+81, *w02=w+86, *w03=w+89, *w04=w+95, *w05=w+102, *w06=w+109, *w07=w+116, *w08=w+123, *w09=w+130, *w10=w+137;
+  casadi_real *w11=w+144, *w12=w+151, *w13=w+158;
   const casadi_real **arg1=arg+3;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 6, w00);
@@ -1771,8 +1735,8 @@ static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10_acc10:(xa[6],p[5x100],e[3x100])->(xa_next[6x100],y[7x100]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+141, *w03=w+147, *w04=w+207, *w05=w+277, *w06=w+347, *w07=w+417, *w08=w+487, *w09=w+557, *w10=w+627, *w11=w+697, *w12=w+767;
-  casadi_real *w13=w+837;
+  casadi_real **res1=res+2, *w00=w+165, *w03=w+171, *w04=w+231, *w05=w+301, *w06=w+371, *w07=w+441, *w08=w+511, *w09=w+581, *w10=w+651, *w11=w+721, *w12=w+791;
+  casadi_real *w13=w+861;
   const casadi_real **arg1=arg+3, *wr01, *wr02;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 6, w00);
@@ -1949,8 +1913,8 @@ static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10_acc10_acc10:(xa[6],p[5x1000],e[3x1000])->(xa_next[6x1000],y[7x1000]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+987, *w03=w+993, *w04=w+1593, *w05=w+2293, *w06=w+2993, *w07=w+3693, *w08=w+4393, *w09=w+5093, *w10=w+5793, *w11=w+6493, *w12=w+7193;
-  casadi_real *w13=w+7893;
+  casadi_real **res1=res+2, *w00=w+1011, *w03=w+1017, *w04=w+1617, *w05=w+2317, *w06=w+3017, *w07=w+3717, *w08=w+4417, *w09=w+5117, *w10=w+5817, *w11=w+6517, *w12=w+7217;
+  casadi_real *w13=w+7917;
   const casadi_real **arg1=arg+3, *wr01, *wr02;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 6, w00);
@@ -2128,7 +2092,7 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
 /* pendulum_qbmove_slotine_li_loop:(x0[5],p[5],k0,e[3x1000])->(x[5x1000],y[7x1000]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, *w0=w+9393, w1, *w2=w+9398, *w3=w+9404, *w5=w+14404, *w6=w+20404;
+  casadi_real **res1=res+2, *rr, *w0=w+9417, w1, *w2=w+9422, *w3=w+9428, *w5=w+14428, *w6=w+20428;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr4;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 5, w0);
@@ -2226,18 +2190,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_slotine_li_loop_sparsity_
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20;
-  if (sz_res) *sz_res = 12;
+  if (sz_arg) *sz_arg = 30;
+  if (sz_res) *sz_res = 14;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 27404;
+  if (sz_w) *sz_w = 27428;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 12*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 30*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 27404*sizeof(casadi_real);
+  if (sz_w) *sz_w = 27428*sizeof(casadi_real);
   return 0;
 }
 

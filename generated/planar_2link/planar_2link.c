@@ -2022,346 +2022,83 @@ CASADI_SYMBOL_EXPORT int planar_2link_slotine_li_work_bytes(casadi_int *sz_arg, 
 
 /* planar_2link_slotine_li_step:(x[9],p[9],k,e[6])->(x_next[9],y[12]) */
 static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
-  casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
-  casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
-  casadi_real a36, a37, a38, a39;
-  a00=arg[0]? arg[0][0] : 0;
-  a01=1.0000000000000000e-03;
-  a02=arg[1]? arg[1][4] : 0;
-  a02=(a01*a02);
-  a03=arg[3]? arg[3][4] : 0;
-  a04=arg[1]? arg[1][0] : 0;
-  a05=arg[3]? arg[3][2] : 0;
-  a06=arg[0]? arg[0][7] : 0;
-  a07=(a05-a06);
-  a07=(a04*a07);
-  a03=(a03+a07);
-  a07=arg[3]? arg[3][0] : 0;
-  a08=arg[0]? arg[0][5] : 0;
-  a07=(a07-a08);
-  a04=(a04*a07);
-  a05=(a05+a04);
-  a04=(a05-a06);
-  a07=(a03*a04);
-  a02=(a02*a07);
-  a02=(a00+a02);
-  if (res[0]!=0) res[0][0]=a02;
-  a02=arg[0]? arg[0][1] : 0;
-  a07=arg[1]? arg[1][5] : 0;
-  a07=(a01*a07);
-  a09=arg[3]? arg[3][5] : 0;
-  a10=arg[1]? arg[1][1] : 0;
-  a11=arg[3]? arg[3][3] : 0;
-  a12=arg[0]? arg[0][8] : 0;
-  a13=(a11-a12);
-  a13=(a10*a13);
-  a09=(a09+a13);
-  a09=(a03+a09);
-  a13=(a09*a04);
-  a14=arg[3]? arg[3][1] : 0;
-  a15=arg[0]? arg[0][6] : 0;
-  a14=(a14-a15);
-  a10=(a10*a14);
-  a11=(a11+a10);
-  a10=(a11-a12);
-  a14=(a09*a10);
-  a13=(a13+a14);
-  a07=(a07*a13);
-  a07=(a02+a07);
-  if (res[0]!=0) res[0][1]=a07;
-  a07=arg[0]? arg[0][2] : 0;
-  a13=arg[1]? arg[1][6] : 0;
-  a13=(a01*a13);
-  a14=-9.8100000000000005e+00;
-  a16=sin(a08);
-  a17=(a14*a16);
-  a18=(a17*a04);
-  a13=(a13*a18);
-  a13=(a07-a13);
-  if (res[0]!=0) res[0][2]=a13;
-  a13=arg[0]? arg[0][3] : 0;
-  a18=arg[1]? arg[1][7] : 0;
-  a18=(a01*a18);
-  a19=cos(a15);
-  a20=(a19*a17);
-  a21=sin(a15);
-  a22=cos(a08);
-  a22=(a14*a22);
-  a22=(a21*a22);
-  a20=(a20+a22);
-  a22=(a20*a04);
-  a23=(a20*a10);
-  a22=(a22+a23);
-  a18=(a18*a22);
-  a18=(a13-a18);
-  if (res[0]!=0) res[0][3]=a18;
-  a18=arg[0]? arg[0][4] : 0;
-  a22=arg[1]? arg[1][8] : 0;
-  a22=(a01*a22);
-  a23=(a19*a03);
-  a24=(a05*a06);
-  a24=(a21*a24);
-  a23=(a23+a24);
-  a24=(a19*a09);
-  a05=(a05+a11);
-  a11=(a06+a12);
-  a05=(a05*a11);
-  a05=(a21*a05);
-  a24=(a24-a05);
-  a24=(a23+a24);
-  a05=(a24*a04);
-  a25=(a23*a10);
-  a05=(a05+a25);
-  a22=(a22*a05);
-  a22=(a18+a22);
-  if (res[0]!=0) res[0][4]=a22;
-  a22=1.6666666666666666e-04;
-  a05=5.0000000000000001e-04;
-  a25=2.6264999999999999e-03;
-  a26=7.3589999999999992e-03;
-  a27=2.1059999999999998e-03;
-  a28=(a27*a19);
-  a28=(a26+a28);
-  a29=(a25*a28);
-  a30=1.0529999999999999e-03;
-  a19=(a30*a19);
-  a19=(a25+a19);
-  a31=casadi_sq(a19);
-  a29=(a29-a31);
-  a31=(a25/a29);
-  a03=(a03*a00);
-  a09=(a09*a02);
-  a03=(a03+a09);
-  a17=(a17*a07);
-  a03=(a03-a17);
-  a17=(a20*a13);
-  a03=(a03-a17);
-  a24=(a24*a18);
-  a03=(a03+a24);
-  a24=arg[1]? arg[1][2] : 0;
-  a24=(a24*a04);
-  a03=(a03+a24);
-  a24=casadi_sq(a06);
-  a24=(a21*a24);
-  a11=casadi_sq(a11);
-  a21=(a21*a11);
-  a21=(a24-a21);
-  a21=(a30*a21);
-  a11=-3.4433100000000000e-01;
-  a16=(a11*a16);
-  a04=1.1700000000000000e-02;
-  a20=(a04*a20);
-  a16=(a16+a20);
-  a21=(a21-a16);
-  a21=(a03-a21);
-  a31=(a31*a21);
-  a19=(a19/a29);
-  a09=(a09-a17);
-  a23=(a23*a18);
-  a09=(a09+a23);
-  a23=arg[1]? arg[1][3] : 0;
-  a23=(a23*a10);
-  a09=(a09+a23);
-  a24=(a30*a24);
-  a24=(a24-a20);
-  a24=(a09-a24);
-  a20=(a19*a24);
-  a31=(a31-a20);
-  a20=(a05*a31);
-  a20=(a06+a20);
-  a23=(2.*a20);
-  a23=(a06+a23);
-  a10=(a05*a12);
-  a10=(a15+a10);
-  a17=cos(a10);
-  a16=(a27*a17);
-  a16=(a26+a16);
-  a32=(a25*a16);
-  a33=(a30*a17);
-  a33=(a25+a33);
-  a34=casadi_sq(a33);
-  a32=(a32-a34);
-  a34=(a25/a32);
-  a10=sin(a10);
-  a35=casadi_sq(a20);
-  a35=(a10*a35);
-  a28=(a28/a29);
-  a28=(a28*a24);
-  a19=(a19*a21);
-  a28=(a28-a19);
-  a19=(a05*a28);
-  a19=(a12+a19);
-  a21=(a20+a19);
-  a21=casadi_sq(a21);
-  a21=(a10*a21);
-  a21=(a35-a21);
-  a21=(a30*a21);
-  a24=(a05*a06);
-  a24=(a08+a24);
-  a29=sin(a24);
-  a36=(a11*a29);
-  a29=(a14*a29);
-  a17=(a17*a29);
-  a24=cos(a24);
-  a24=(a14*a24);
-  a10=(a10*a24);
-  a17=(a17+a10);
-  a17=(a04*a17);
-  a36=(a36+a17);
-  a21=(a21-a36);
-  a21=(a03-a21);
-  a34=(a34*a21);
-  a33=(a33/a32);
-  a35=(a30*a35);
-  a35=(a35-a17);
-  a35=(a09-a35);
-  a17=(a33*a35);
-  a34=(a34-a17);
-  a17=(a05*a34);
-  a17=(a06+a17);
-  a36=(2.*a17);
-  a23=(a23+a36);
-  a36=(a05*a19);
-  a36=(a15+a36);
-  a10=cos(a36);
-  a24=(a27*a10);
-  a24=(a26+a24);
-  a29=(a25*a24);
-  a37=(a30*a10);
-  a37=(a25+a37);
-  a38=casadi_sq(a37);
-  a29=(a29-a38);
-  a38=(a25/a29);
-  a36=sin(a36);
-  a39=casadi_sq(a17);
-  a39=(a36*a39);
-  a16=(a16/a32);
-  a16=(a16*a35);
-  a33=(a33*a21);
-  a16=(a16-a33);
-  a33=(a05*a16);
-  a33=(a12+a33);
-  a21=(a17+a33);
-  a21=casadi_sq(a21);
-  a21=(a36*a21);
-  a21=(a39-a21);
-  a21=(a30*a21);
-  a05=(a05*a20);
-  a05=(a08+a05);
-  a20=sin(a05);
-  a35=(a11*a20);
-  a20=(a14*a20);
-  a10=(a10*a20);
-  a05=cos(a05);
-  a05=(a14*a05);
-  a36=(a36*a05);
-  a10=(a10+a36);
-  a10=(a04*a10);
-  a35=(a35+a10);
-  a21=(a21-a35);
-  a21=(a03-a21);
-  a38=(a38*a21);
-  a37=(a37/a29);
-  a39=(a30*a39);
-  a39=(a39-a10);
-  a39=(a09-a39);
-  a10=(a37*a39);
-  a38=(a38-a10);
-  a10=(a01*a38);
-  a10=(a06+a10);
-  a23=(a23+a10);
-  a23=(a22*a23);
-  a23=(a08+a23);
-  if (res[0]!=0) res[0][5]=a23;
-  a19=(2.*a19);
-  a19=(a12+a19);
-  a23=(2.*a33);
-  a19=(a19+a23);
-  a24=(a24/a29);
-  a24=(a24*a39);
-  a37=(a37*a21);
-  a24=(a24-a37);
-  a37=(a01*a24);
-  a37=(a12+a37);
-  a19=(a19+a37);
-  a19=(a22*a19);
-  a19=(a15+a19);
-  if (res[0]!=0) res[0][6]=a19;
-  a34=(2.*a34);
-  a31=(a31+a34);
-  a38=(2.*a38);
-  a31=(a31+a38);
-  a33=(a01*a33);
-  a33=(a15+a33);
-  a38=cos(a33);
-  a27=(a27*a38);
-  a26=(a26+a27);
-  a27=(a25*a26);
-  a34=(a30*a38);
-  a34=(a25+a34);
-  a19=casadi_sq(a34);
-  a27=(a27-a19);
-  a25=(a25/a27);
-  a33=sin(a33);
-  a19=casadi_sq(a10);
-  a19=(a33*a19);
-  a10=(a10+a37);
-  a10=casadi_sq(a10);
-  a10=(a33*a10);
-  a10=(a19-a10);
-  a10=(a30*a10);
-  a17=(a01*a17);
-  a17=(a08+a17);
-  a37=sin(a17);
-  a11=(a11*a37);
-  a37=(a14*a37);
-  a38=(a38*a37);
-  a17=cos(a17);
-  a14=(a14*a17);
-  a33=(a33*a14);
-  a38=(a38+a33);
-  a04=(a04*a38);
-  a11=(a11+a04);
-  a10=(a10-a11);
-  a10=(a03-a10);
-  a25=(a25*a10);
-  a34=(a34/a27);
-  a30=(a30*a19);
-  a30=(a30-a04);
-  a30=(a09-a30);
-  a04=(a34*a30);
-  a25=(a25-a04);
-  a31=(a31+a25);
-  a31=(a22*a31);
-  a31=(a06+a31);
-  if (res[0]!=0) res[0][7]=a31;
-  a16=(2.*a16);
-  a28=(a28+a16);
-  a24=(2.*a24);
-  a28=(a28+a24);
-  a26=(a26/a27);
-  a26=(a26*a30);
-  a34=(a34*a10);
-  a26=(a26-a34);
-  a28=(a28+a26);
-  a22=(a22*a28);
-  a22=(a12+a22);
-  if (res[0]!=0) res[0][8]=a22;
-  a22=arg[2]? arg[2][0] : 0;
-  a01=(a01*a22);
-  if (res[1]!=0) res[1][0]=a01;
-  if (res[1]!=0) res[1][1]=a08;
-  if (res[1]!=0) res[1][2]=a15;
-  if (res[1]!=0) res[1][3]=a06;
-  if (res[1]!=0) res[1][4]=a12;
-  if (res[1]!=0) res[1][5]=a03;
-  if (res[1]!=0) res[1][6]=a09;
-  if (res[1]!=0) res[1][7]=a00;
-  if (res[1]!=0) res[1][8]=a02;
-  if (res[1]!=0) res[1][9]=a07;
-  if (res[1]!=0) res[1][10]=a13;
-  if (res[1]!=0) res[1][11]=a18;
+  casadi_int i;
+  casadi_real **res1=res+2, *rr, *w04=w+35, *w05=w+41, *w06=w+43, *w07=w+45, w11, *w12=w+47, *w13=w+52, *w14=w+54, *w15=w+58, w16;
+  const casadi_real **arg1=arg+4, *cs, *wr00, *wr01, *wr02, *wr03, *wr08, *wr09, *wr10;
+  /* #0: @0 = input[0][0] */
+  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = @0[:5] */
+  wr01 = wr00+0;
+  /* #2: @2 = @0[5:7] */
+  wr02 = wr00+5;
+  /* #3: @3 = @0[7:9] */
+  wr03 = wr00+7;
+  /* #4: @4 = input[3][0] */
+  casadi_copy(arg[3], 6, w04);
+  /* #5: @5 = @4[:2] */
+  for (rr=w05, cs=w04+0; cs!=w04+2; cs+=1) *rr++ = *cs;
+  /* #6: @6 = @4[2:4] */
+  for (rr=w06, cs=w04+2; cs!=w04+4; cs+=1) *rr++ = *cs;
+  /* #7: @7 = @4[4:6] */
+  for (rr=w07, cs=w04+4; cs!=w04+6; cs+=1) *rr++ = *cs;
+  /* #8: @0 = input[1][0] */
+  wr00 = arg[1] ? arg[1] : casadi_zeros;
+  /* #9: @8 = @0[:2] */
+  wr08 = wr00+0;
+  /* #10: @9 = @0[2:4] */
+  wr09 = wr00+2;
+  /* #11: @10 = @0[4:9] */
+  wr10 = wr00+4;
+  /* #12: @11 = 0.001 */
+  w11 = 1.0000000000000000e-03;
+  /* #13: {@12, @13} = planar_2link_slotine_li(@1, @2, @3, @5, @6, @7, @8, @9, @10, @11) */
+  arg1[0]=wr01;
+  arg1[1]=wr02;
+  arg1[2]=wr03;
+  arg1[3]=w05;
+  arg1[4]=w06;
+  arg1[5]=w07;
+  arg1[6]=wr08;
+  arg1[7]=wr09;
+  arg1[8]=wr10;
+  arg1[9]=(&w11);
+  res1[0]=w12;
+  res1[1]=w13;
+  if (casadi_f11(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][0] = @12 */
+  casadi_copy(w12, 5, res[0]);
+  /* #15: @14 = vertcat(@2, @3) */
+  rr=w14;
+  for (i=0, cs=wr02; i<2; ++i) *rr++ = *cs++;
+  for (i=0, cs=wr03; i<2; ++i) *rr++ = *cs++;
+  /* #16: @15 = planar_2link_plant_rk4(@14, @13, @11) */
+  arg1[0]=w14;
+  arg1[1]=w13;
+  arg1[2]=(&w11);
+  res1[0]=w15;
+  if (casadi_f10(arg1, res1, iw, w, 0)) return 1;
+  /* #17: @5 = @15[:2] */
+  for (rr=w05, cs=w15+0; cs!=w15+2; cs+=1) *rr++ = *cs;
+  /* #18: output[0][1] = @5 */
+  if (res[0]) casadi_copy(w05, 2, res[0]+5);
+  /* #19: @5 = @15[2:4] */
+  for (rr=w05, cs=w15+2; cs!=w15+4; cs+=1) *rr++ = *cs;
+  /* #20: output[0][2] = @5 */
+  if (res[0]) casadi_copy(w05, 2, res[0]+7);
+  /* #21: @16 = input[2][0] */
+  w16 = arg[2] ? arg[2][0] : 0;
+  /* #22: @11 = (@11*@16) */
+  w11 *= w16;
+  /* #23: output[1][0] = @11 */
+  if (res[1]) res[1][0] = w11;
+  /* #24: output[1][1] = @2 */
+  if (res[1]) casadi_copy(wr02, 2, res[1]+1);
+  /* #25: output[1][2] = @3 */
+  if (res[1]) casadi_copy(wr03, 2, res[1]+3);
+  /* #26: output[1][3] = @13 */
+  if (res[1]) casadi_copy(w13, 2, res[1]+5);
+  /* #27: output[1][4] = @1 */
+  if (res[1]) casadi_copy(wr01, 5, res[1]+7);
   return 0;
 }
 
@@ -2429,24 +2166,24 @@ CASADI_SYMBOL_EXPORT const casadi_int* planar_2link_slotine_li_step_sparsity_out
 }
 
 CASADI_SYMBOL_EXPORT int planar_2link_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 4;
-  if (sz_res) *sz_res = 2;
+  if (sz_arg) *sz_arg = 14;
+  if (sz_res) *sz_res = 4;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 0;
+  if (sz_w) *sz_w = 62;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int planar_2link_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 2*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 14*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 4*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 0*sizeof(casadi_real);
+  if (sz_w) *sz_w = 62*sizeof(casadi_real);
   return 0;
 }
 
 /* one_sample:(xa[10],p[9],e[6])->(xa_next[10],y[12]) */
 static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, w3, *w4=w+40, *w5=w+46, *w6=w+55, w7;
+  casadi_real **res1=res+2, w3, *w4=w+91, *w5=w+97, *w6=w+106, w7;
   const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
@@ -2483,8 +2220,8 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10:(xa[10],p[9x10],e[6x10])->(xa_next[10x10],y[12x10]) */
 static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+97, *w02=w+107, *w03=w+113, *w04=w+123, *w05=w+135, *w06=w+147, *w07=w+159, *w08=w+171, *w09=w+183, *w10=w+195, *w11=w+207;
-  casadi_real *w12=w+219, *w13=w+231;
+  casadi_real **res1=res+2, *w00=w+148, *w02=w+158, *w03=w+164, *w04=w+174, *w05=w+186, *w06=w+198, *w07=w+210, *w08=w+222, *w09=w+234, *w10=w+246, *w11=w+258;
+  casadi_real *w12=w+270, *w13=w+282;
   const casadi_real **arg1=arg+3, *wr00, *wr01;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
@@ -2643,8 +2380,8 @@ static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10_acc10:(xa[10],p[9x100],e[6x100])->(xa_next[10x100],y[12x100]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+252, *w03=w+262, *w04=w+362, *w05=w+482, *w06=w+602, *w07=w+722, *w08=w+842, *w09=w+962, *w10=w+1082, *w11=w+1202, *w12=w+1322;
-  casadi_real *w13=w+1442;
+  casadi_real **res1=res+2, *w00=w+303, *w03=w+313, *w04=w+413, *w05=w+533, *w06=w+653, *w07=w+773, *w08=w+893, *w09=w+1013, *w10=w+1133, *w11=w+1253, *w12=w+1373;
+  casadi_real *w13=w+1493;
   const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
@@ -2821,8 +2558,8 @@ static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw
 
 /* one_sample_acc10_acc10_acc10:(xa[10],p[9x1000],e[6x1000])->(xa_next[10x1000],y[12x1000]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+1712, *w03=w+1722, *w04=w+2722, *w05=w+3922, *w06=w+5122, *w07=w+6322, *w08=w+7522, *w09=w+8722, *w10=w+9922, *w11=w+11122, *w12=w+12322;
-  casadi_real *w13=w+13522;
+  casadi_real **res1=res+2, *w00=w+1763, *w03=w+1773, *w04=w+2773, *w05=w+3973, *w06=w+5173, *w07=w+6373, *w08=w+7573, *w09=w+8773, *w10=w+9973, *w11=w+11173, *w12=w+12373;
+  casadi_real *w13=w+13573;
   const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
@@ -3000,7 +2737,7 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
 /* planar_2link_slotine_li_loop:(x0[9],p[9],k0,e[6x1000])->(x[9x1000],y[12x1000]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, w1, *w2=w+16222, *w3=w+16232, *w5=w+25232, *w6=w+35232;
+  casadi_real **res1=res+2, *rr, w1, *w2=w+16273, *w3=w+16283, *w5=w+25283, *w6=w+35283;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr0, *wr4;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
@@ -3098,18 +2835,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* planar_2link_slotine_li_loop_sparsity_out
 }
 
 CASADI_SYMBOL_EXPORT int planar_2link_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20;
-  if (sz_res) *sz_res = 12;
+  if (sz_arg) *sz_arg = 30;
+  if (sz_res) *sz_res = 14;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 47232;
+  if (sz_w) *sz_w = 47283;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int planar_2link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 12*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 30*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 47232*sizeof(casadi_real);
+  if (sz_w) *sz_w = 47283*sizeof(casadi_real);
   return 0;
 }
 

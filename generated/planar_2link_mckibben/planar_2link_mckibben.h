@@ -247,10 +247,10 @@ const casadi_int* planar_2link_mckibben_slotine_li_step_sparsity_in(casadi_int i
 const casadi_int* planar_2link_mckibben_slotine_li_step_sparsity_out(casadi_int i);
 int planar_2link_mckibben_slotine_li_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int planar_2link_mckibben_slotine_li_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define planar_2link_mckibben_slotine_li_step_SZ_ARG 4
-#define planar_2link_mckibben_slotine_li_step_SZ_RES 2
+#define planar_2link_mckibben_slotine_li_step_SZ_ARG 14
+#define planar_2link_mckibben_slotine_li_step_SZ_RES 4
 #define planar_2link_mckibben_slotine_li_step_SZ_IW 0
-#define planar_2link_mckibben_slotine_li_step_SZ_W 0
+#define planar_2link_mckibben_slotine_li_step_SZ_W 62
 int planar_2link_mckibben_slotine_li_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int planar_2link_mckibben_slotine_li_loop_checkout(void);
 void planar_2link_mckibben_slotine_li_loop_release(int mem);
@@ -265,10 +265,10 @@ const casadi_int* planar_2link_mckibben_slotine_li_loop_sparsity_in(casadi_int i
 const casadi_int* planar_2link_mckibben_slotine_li_loop_sparsity_out(casadi_int i);
 int planar_2link_mckibben_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int planar_2link_mckibben_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define planar_2link_mckibben_slotine_li_loop_SZ_ARG 20
-#define planar_2link_mckibben_slotine_li_loop_SZ_RES 12
+#define planar_2link_mckibben_slotine_li_loop_SZ_ARG 30
+#define planar_2link_mckibben_slotine_li_loop_SZ_RES 14
 #define planar_2link_mckibben_slotine_li_loop_SZ_IW 0
-#define planar_2link_mckibben_slotine_li_loop_SZ_W 47232
+#define planar_2link_mckibben_slotine_li_loop_SZ_W 47283
 int planar_2link_mckibben_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int planar_2link_mckibben_mckibben_torque_checkout(void);
 void planar_2link_mckibben_mckibben_torque_release(int mem);

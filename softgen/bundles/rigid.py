@@ -68,23 +68,33 @@ def rigid_dynamics(ctx: Context) -> Part:
 @REGISTRY.capability("nominal_plant", layer="symbolic", needs=(RIGID, FULLY_TORQUE_ACTUATED),
                      doc="one RK4 step of the nominal rigid robot, tau held")
 def nominal_plant(ctx: Context) -> Part:
-    return Part([Generated(plant_step_fun(ctx.dyn), "one RK4 step of the nominal plant, "
+    return Part([Generated(_plant_rk4(ctx), "one RK4 step of the nominal plant, "
                                                     "x = (q, qd), tau held")])
 
 
-def slotine_li_diagram(dyn, options) -> ClosedLoop:
+def _plant_rk4(ctx: Context):
+    """``<model>_plant_rk4``, one object for the bundle (exported, called by the loop)."""
+    return ctx.shared("plant_rk4", lambda: plant_step_fun(ctx.dyn))
+
+
+def slotine_li_diagram(dyn, options, controller=None, plant_step=None) -> ClosedLoop:
     """Prop. 10 on the nominal plant: the library blocks wired by signal name.
 
     The controller reads the plant's q, q̇ and the external references q_d, q̇_d, q̈_d
     (one column per sample); the plant integrates ``loop_substeps`` RK4 steps per
     sample with τ held. Named ``<model>_slotine_li``: its functions are
-    ``<model>_slotine_li_step`` and ``<model>_slotine_li_loop``.
+    ``<model>_slotine_li_step`` and ``<model>_slotine_li_loop``. Composed
+    (``ClosedLoop(compose=True)``): the step calls ``controller`` and ``plant_step``, the
+    bundle's ``<model>_slotine_li`` and ``<model>_plant_rk4`` (one copy of their C; the
+    Panda's loop step was the bundle's largest function).
     """
     n, dt = dyn.model.dof, options.loop_dt
-    plant = plant_block(dyn, dt, substeps=options.loop_substeps)
+    plant = plant_block(dyn, dt, substeps=options.loop_substeps, fun=plant_step)
     uq, uv = plant.outputs.signal("q").unit, plant.outputs.signal("qd").unit
-    return ClosedLoop(f"{dyn.name}_slotine_li", [controller_block(dyn, dt), plant],
-                      externals=[("q_d", n, uq), ("qd_d", n, uv), ("qdd_d", n, f"{uv}/s")])
+    return ClosedLoop(f"{dyn.name}_slotine_li", [controller_block(dyn, dt, fun=controller),
+                                                 plant],
+                      externals=[("q_d", n, uq), ("qd_d", n, uv), ("qdd_d", n, f"{uv}/s")],
+                      compose=True)
 
 
 @REGISTRY.capability("slotine_li", layer="control",
@@ -92,9 +102,10 @@ def slotine_li_diagram(dyn, options) -> ClosedLoop:
                      doc="Slotine-Li adaptive control (Prop. 10): the controller step and "
                          "its closed loop with the nominal plant as a diagram")
 def slotine_li(ctx: Context) -> Part:
-    d = slotine_li_diagram(ctx.dyn, ctx.options)
+    ctl = controller_fun(ctx.dyn)
+    d = slotine_li_diagram(ctx.dyn, ctx.options, ctl, _plant_rk4(ctx))
     steps = ctx.options.loop_steps
-    fns = [Generated(controller_fun(ctx.dyn), "one sample of Slotine-Li adaptive control "
+    fns = [Generated(ctl, "one sample of Slotine-Li adaptive control "
                                               "(Prop. 10), Euler update of pi_hat")]
     fns += diagram_functions(d, steps, "Slotine-Li closed-loop")
     return Part(fns, {"closed_loops": {"slotine_li": diagram_manifest(d, steps)}})

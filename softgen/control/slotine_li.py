@@ -69,32 +69,38 @@ def plant_step_fun(dyn: RigidDynamics) -> ca.Function:
                        ["x", "tau", "h"], ["x_next"], FUNCTION_OPTS)
 
 
-def controller_block(dyn: RigidDynamics, dt: float, *, name: str = "ctrl") -> Block:
+def controller_block(dyn: RigidDynamics, dt: float, *, name: str = "ctrl",
+                     fun: ca.Function | None = None) -> Block:
     """Prop. 10 as a block: reads q, q̇ and (q_d, q̇_d, q̈_d); emits τ; state π̂.
 
     Gains ``lam`` (Λ), ``kd`` (K_d) and ``kpi`` (K_π) are parameters (diagonals).
+    ``fun``: :func:`controller_fun` already built (shared with a bundle exporting it).
     """
-    return Block.wrap(name, controller_fun(dyn), dt=dt, state={"pi_hat": "pi_hat_next"},
+    return Block.wrap(name, controller_fun(dyn) if fun is None else fun, dt=dt, state={"pi_hat": "pi_hat_next"},
                       params=["lam", "kd", "kpi"], constants={"dt": dt},
                       rules={"lam": "positive", "kd": "positive", "kpi": "nonnegative"},
                       doc="Slotine-Li adaptive control (Prop. 10)", meta={"model": dyn.name})
 
 
 def plant_block(dyn: RigidDynamics, dt: float, *, substeps: int = 1,
-                name: str = "plant") -> Block:
+                name: str = "plant", fun: ca.Function | None = None) -> Block:
     """The nominal rigid robot over one sample: ``substeps`` RK4 steps with τ held.
 
-    State and outputs (q, q̇).
+    State and outputs (q, q̇). ``fun``: :func:`plant_step_fun` already built, called once
+    per substep (the same RK4 step; a composed loop then shares the bundle's copy).
     """
     n = dyn.model.dof
     if not isinstance(substeps, int) or substeps < 1:
         raise ValueError(f"substeps: expected a positive integer, got {substeps!r}")
     rhs = plant_rhs(dyn)
 
+    def step(z, tau, h):
+        return rk4_steps(rhs, z, tau, h, 1) if fun is None else fun(z, tau, h)
+
     def body(x, u, p):
         z = ca.vertcat(x["q"], x["qd"])
         for _ in range(substeps):
-            z = rk4_steps(rhs, z, u["tau"], dt / substeps, 1)
+            z = step(z, u["tau"], dt / substeps)
         return {"q": z[:n], "qd": z[n:]}, {"q": x["q"], "qd": x["qd"]}
 
     return Block.define(name, dt=dt, state=[("q", n, "rad"), ("qd", n, "rad/s")],
