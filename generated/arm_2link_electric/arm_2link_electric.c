@@ -63,7 +63,14 @@ extern "C" {
 #define casadi_f36 CASADI_PREFIX(f36)
 #define casadi_f37 CASADI_PREFIX(f37)
 #define casadi_f38 CASADI_PREFIX(f38)
+#define casadi_f39 CASADI_PREFIX(f39)
 #define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f40 CASADI_PREFIX(f40)
+#define casadi_f41 CASADI_PREFIX(f41)
+#define casadi_f42 CASADI_PREFIX(f42)
+#define casadi_f43 CASADI_PREFIX(f43)
+#define casadi_f44 CASADI_PREFIX(f44)
+#define casadi_f45 CASADI_PREFIX(f45)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
 #define casadi_f7 CASADI_PREFIX(f7)
@@ -2182,7 +2189,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_slotine_li_step_work_bytes(casadi_in
 }
 
 /* one_sample:(xa[10],p[9],e[6])->(xa_next[10],y[12]) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w4=w+91, *w5=w+97, *w6=w+106, w7;
   const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
@@ -2218,356 +2225,386 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* one_sample_acc10:(xa[10],p[9x10],e[6x10])->(xa_next[10x10],y[12x10]) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+148, *w02=w+158, *w03=w+164, *w04=w+174, *w05=w+186, *w06=w+198, *w07=w+210, *w08=w+222, *w09=w+234, *w10=w+246, *w11=w+258;
-  casadi_real *w12=w+270, *w13=w+282;
-  const casadi_real **arg1=arg+3, *wr00, *wr01;
+/* one_sample_acc2:(xa[10],p[9x2],e[6x2])->(xa_next[10x2],y[12x2]) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+148, *w2=w+158, *w3=w+164, *w4=w+174, *w5=w+186;
+  const casadi_real **arg1=arg+3, *wr0, *wr1;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  casadi_copy(arg[2], 6, w02);
+  casadi_copy(arg[2], 6, w2);
   /* #3: {@3, @4} = one_sample(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=w2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 10, res[0]);
+  casadi_copy(w3, 10, res[0]);
   /* #5: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+9 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+9 : casadi_zeros;
   /* #6: @2 = input[2][1] */
-  casadi_copy(arg[2] ? arg[2]+6 : 0, 6, w02);
+  casadi_copy(arg[2] ? arg[2]+6 : 0, 6, w2);
   /* #7: {@0, @5} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w05;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w3;
+  arg1[1]=wr1;
+  arg1[2]=w2;
+  res1[0]=w0;
+  res1[1]=w5;
+  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 10, res[0]+10);
-  /* #9: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+18 : casadi_zeros;
-  /* #10: @2 = input[2][2] */
-  casadi_copy(arg[2] ? arg[2]+12 : 0, 6, w02);
-  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 10, res[0]+20);
-  /* #13: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+27 : casadi_zeros;
-  /* #14: @2 = input[2][3] */
-  casadi_copy(arg[2] ? arg[2]+18 : 0, 6, w02);
-  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w07;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #16: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 10, res[0]+30);
-  /* #17: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+36 : casadi_zeros;
-  /* #18: @2 = input[2][4] */
-  casadi_copy(arg[2] ? arg[2]+24 : 0, 6, w02);
-  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #20: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 10, res[0]+40);
-  /* #21: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+45 : casadi_zeros;
-  /* #22: @2 = input[2][5] */
-  casadi_copy(arg[2] ? arg[2]+30 : 0, 6, w02);
-  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w09;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 10, res[0]+50);
-  /* #25: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+54 : casadi_zeros;
-  /* #26: @2 = input[2][6] */
-  casadi_copy(arg[2] ? arg[2]+36 : 0, 6, w02);
-  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 10, res[0]+60);
-  /* #29: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+63 : casadi_zeros;
-  /* #30: @2 = input[2][7] */
-  casadi_copy(arg[2] ? arg[2]+42 : 0, 6, w02);
-  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w11;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 10, res[0]+70);
-  /* #33: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+72 : casadi_zeros;
-  /* #34: @2 = input[2][8] */
-  casadi_copy(arg[2] ? arg[2]+48 : 0, 6, w02);
-  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #36: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 10, res[0]+80);
-  /* #37: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+81 : casadi_zeros;
-  /* #38: @2 = input[2][9] */
-  casadi_copy(arg[2] ? arg[2]+54 : 0, 6, w02);
-  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w13;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #40: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 10, res[0]+90);
-  /* #41: output[1][0] = @4 */
-  casadi_copy(w04, 12, res[1]);
-  /* #42: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 12, res[1]+12);
-  /* #43: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 12, res[1]+24);
-  /* #44: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 12, res[1]+36);
-  /* #45: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 12, res[1]+48);
-  /* #46: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 12, res[1]+60);
-  /* #47: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 12, res[1]+72);
-  /* #48: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 12, res[1]+84);
-  /* #49: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 12, res[1]+96);
-  /* #50: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 12, res[1]+108);
+  if (res[0]) casadi_copy(w0, 10, res[0]+10);
+  /* #9: output[1][0] = @4 */
+  casadi_copy(w4, 12, res[1]);
+  /* #10: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 12, res[1]+12);
   return 0;
 }
 
-/* one_sample_acc10_acc10:(xa[10],p[9x100],e[6x100])->(xa_next[10x100],y[12x100]) */
+/* one_sample_acc2_acc2:(xa[10],p[9x4],e[6x4])->(xa_next[10x4],y[12x4]) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+207, *w3=w+217, *w4=w+237, *w5=w+261;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 20, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+10, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+18 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+12 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 20, res[0]+20);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 24, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 24, res[1]+24);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2:(xa[10],p[9x8],e[6x8])->(xa_next[10x8],y[12x8]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+303, *w03=w+313, *w04=w+413, *w05=w+533, *w06=w+653, *w07=w+773, *w08=w+893, *w09=w+1013, *w10=w+1133, *w11=w+1253, *w12=w+1373;
-  casadi_real *w13=w+1493;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w0=w+315, *w3=w+325, *w4=w+365, *w5=w+413;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
   if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 100, res[0]);
+  casadi_copy(w3, 40, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
+  casadi_copy(w3+30, 10, w0);
   /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+90 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+36 : casadi_zeros;
   /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
+  wr2 = arg[2] ? arg[2]+24 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
   if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
   /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+100);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+180 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+120 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+200);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+270 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+180 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+300);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+360 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+240 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+400);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+450 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+500);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+540 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+360 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+600);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+630 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+420 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+700);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+720 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+480 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+800);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+810 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+540 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+900);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 120, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 120, res[1]+120);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 120, res[1]+240);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 120, res[1]+360);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 120, res[1]+480);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 120, res[1]+600);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 120, res[1]+720);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 120, res[1]+840);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 120, res[1]+960);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 120, res[1]+1080);
+  if (res[0]) casadi_copy(w3, 40, res[0]+40);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 48, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 48, res[1]+48);
   return 0;
 }
 
-/* one_sample_acc10_acc10_acc10:(xa[10],p[9x1000],e[6x1000])->(xa_next[10x1000],y[12x1000]) */
+/* one_sample_acc2_acc2_acc2_acc2:(xa[10],p[9x16],e[6x16])->(xa_next[10x16],y[12x16]) */
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+521, *w3=w+531, *w4=w+611, *w5=w+707;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 80, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+70, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+72 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+48 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 80, res[0]+80);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 96, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 96, res[1]+96);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2:(xa[10],p[9x32],e[6x32])->(xa_next[10x32],y[12x32]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+923, *w3=w+933, *w4=w+1093, *w5=w+1285;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 160, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+150, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+144 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+96 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 160, res[0]+160);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 192, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 192, res[1]+192);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2:(xa[10],p[9x64],e[6x64])->(xa_next[10x64],y[12x64]) */
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1717, *w3=w+1727, *w4=w+2047, *w5=w+2431;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 320, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+310, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+288 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+192 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 320, res[0]+320);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 384, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 384, res[1]+384);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[10],p[9x128],e[6x128])->(xa_next[10x128],y[12x128]) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+3295, *w3=w+3305, *w4=w+3945, *w5=w+4713;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 640, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+630, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+576 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+384 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 640, res[0]+640);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 768, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 768, res[1]+768);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[10],p[9x256],e[6x256])->(xa_next[10x256],y[12x256]) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+6441, *w3=w+6451, *w4=w+7731, *w5=w+9267;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 1280, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+1270, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+1152 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+768 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 1280, res[0]+1280);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 1536, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 1536, res[1]+1536);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[10],p[9x512],e[6x512])->(xa_next[10x512],y[12x512]) */
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+12723, *w3=w+12733, *w4=w+15293, *w5=w+18365;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 2560, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+2550, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+2304 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+1536 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 2560, res[0]+2560);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 3072, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 3072, res[1]+3072);
+  return 0;
+}
+
+/* acc:(xa[10],p[9x1000],e[6x1000])->(xa_next[10x1000],y[12x1000]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+1763, *w03=w+1773, *w04=w+2773, *w05=w+3973, *w06=w+5173, *w07=w+6373, *w08=w+7573, *w09=w+8773, *w10=w+9973, *w11=w+11173, *w12=w+12373;
-  casadi_real *w13=w+13573;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w00=w+25277, *w03=w+25287, *w04=w+25367, *w07=w+25463, *w08=w+25783, *w11=w+26167, *w12=w+26807, *w15=w+27575, *w16=w+28855, *w19=w+30391, *w20=w+32951;
+  casadi_real *w23=w+36023, *w24=w+41143;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02, *wr05, *wr06, *wr09, *wr10, *wr13, *wr14, *wr17, *wr18;
+  const casadi_real *wr21, *wr22;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
   wr01 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
   wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
   arg1[0]=wr00;
   arg1[1]=wr01;
   arg1[2]=wr02;
@@ -2575,169 +2612,101 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[1]=w04;
   if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 1000, res[0]);
+  casadi_copy(w03, 80, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+900 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  casadi_copy(w03+70, 10, w00);
+  /* #6: @5 = input[1][1] */
+  wr05 = arg[1] ? arg[1]+72 : casadi_zeros;
+  /* #7: @6 = input[2][1] */
+  wr06 = arg[2] ? arg[2]+48 : casadi_zeros;
+  /* #8: {@7, @8} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @5, @6) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+1000);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+1800 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+1200 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+2000);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+2700 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+1800 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+3000);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+3600 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+2400 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr05;
+  arg1[2]=wr06;
+  res1[0]=w07;
   res1[1]=w08;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+4000);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+4500 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+3000 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @7 */
+  if (res[0]) casadi_copy(w07, 320, res[0]+80);
+  /* #10: {NULL, @0} = horzsplit(@7) */
+  casadi_copy(w07+310, 10, w00);
+  /* #11: @9 = input[1][2] */
+  wr09 = arg[1] ? arg[1]+360 : casadi_zeros;
+  /* #12: @10 = input[2][2] */
+  wr10 = arg[2] ? arg[2]+240 : casadi_zeros;
+  /* #13: {@11, @12} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @9, @10) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+5000);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+5400 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+3600 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+6000);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+6300 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+4200 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+7000);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+7200 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+4800 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr09;
+  arg1[2]=wr10;
+  res1[0]=w11;
   res1[1]=w12;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+8000);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+8100 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+5400 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @11 */
+  if (res[0]) casadi_copy(w11, 640, res[0]+400);
+  /* #15: {NULL, @0} = horzsplit(@11) */
+  casadi_copy(w11+630, 10, w00);
+  /* #16: @13 = input[1][3] */
+  wr13 = arg[1] ? arg[1]+936 : casadi_zeros;
+  /* #17: @14 = input[2][3] */
+  wr14 = arg[2] ? arg[2]+624 : casadi_zeros;
+  /* #18: {@15, @16} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @13, @14) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+9000);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 1200, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 1200, res[1]+1200);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 1200, res[1]+2400);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 1200, res[1]+3600);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 1200, res[1]+4800);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 1200, res[1]+6000);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 1200, res[1]+7200);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 1200, res[1]+8400);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 1200, res[1]+9600);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 1200, res[1]+10800);
+  arg1[1]=wr13;
+  arg1[2]=wr14;
+  res1[0]=w15;
+  res1[1]=w16;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @15 */
+  if (res[0]) casadi_copy(w15, 1280, res[0]+1040);
+  /* #20: {NULL, @0} = horzsplit(@15) */
+  casadi_copy(w15+1270, 10, w00);
+  /* #21: @17 = input[1][4] */
+  wr17 = arg[1] ? arg[1]+2088 : casadi_zeros;
+  /* #22: @18 = input[2][4] */
+  wr18 = arg[2] ? arg[2]+1392 : casadi_zeros;
+  /* #23: {@19, @20} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @17, @18) */
+  arg1[0]=w00;
+  arg1[1]=wr17;
+  arg1[2]=wr18;
+  res1[0]=w19;
+  res1[1]=w20;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @19 */
+  if (res[0]) casadi_copy(w19, 2560, res[0]+2320);
+  /* #25: {NULL, @0} = horzsplit(@19) */
+  casadi_copy(w19+2550, 10, w00);
+  /* #26: @21 = input[1][5] */
+  wr21 = arg[1] ? arg[1]+4392 : casadi_zeros;
+  /* #27: @22 = input[2][5] */
+  wr22 = arg[2] ? arg[2]+2928 : casadi_zeros;
+  /* #28: {@23, @24} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @21, @22) */
+  arg1[0]=w00;
+  arg1[1]=wr21;
+  arg1[2]=wr22;
+  res1[0]=w23;
+  res1[1]=w24;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @23 */
+  if (res[0]) casadi_copy(w23, 5120, res[0]+4880);
+  /* #30: output[1][0] = @4 */
+  casadi_copy(w04, 96, res[1]);
+  /* #31: output[1][1] = @8 */
+  if (res[1]) casadi_copy(w08, 384, res[1]+96);
+  /* #32: output[1][2] = @12 */
+  if (res[1]) casadi_copy(w12, 768, res[1]+480);
+  /* #33: output[1][3] = @16 */
+  if (res[1]) casadi_copy(w16, 1536, res[1]+1248);
+  /* #34: output[1][4] = @20 */
+  if (res[1]) casadi_copy(w20, 3072, res[1]+2784);
+  /* #35: output[1][5] = @24 */
+  if (res[1]) casadi_copy(w24, 6144, res[1]+5856);
   return 0;
 }
 
 /* arm_2link_electric_slotine_li_loop:(x0[9],p[9],k0,e[6x1000])->(x[9x1000],y[12x1000]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, w1, *w2=w+16273, *w3=w+16283, *w5=w+25283, *w6=w+35283;
+  casadi_real **res1=res+2, *rr, w1, *w2=w+62287, *w3=w+62297, *w5=w+71297, *w6=w+81297;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr0, *wr4;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
@@ -2755,7 +2724,7 @@ static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }
   /* #5: @4 = input[3][0] */
   wr4 = arg[3] ? arg[3] : casadi_zeros;
-  /* #6: {@5, @6} = one_sample_acc10_acc10_acc10(@2, @3, @4) */
+  /* #6: {@5, @6} = acc(@2, @3, @4) */
   arg1[0]=w2;
   arg1[1]=w3;
   arg1[2]=wr4;
@@ -2835,23 +2804,23 @@ CASADI_SYMBOL_EXPORT const casadi_int* arm_2link_electric_slotine_li_loop_sparsi
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 30;
-  if (sz_res) *sz_res = 14;
+  if (sz_arg) *sz_arg = 51;
+  if (sz_res) *sz_res = 28;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 47283;
+  if (sz_w) *sz_w = 93297;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 30*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 51*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 28*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 47283*sizeof(casadi_real);
+  if (sz_w) *sz_w = 93297*sizeof(casadi_real);
   return 0;
 }
 
 /* arm_2link_electric_qbmove_torque:(q[2],qa[2],qb[2])->(tau_a[2],tau_b[2],tau_e[2],sigma_a[2],sigma_b[2],sigma[2]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10;
   a00=2.2700000000000001e-02;
   a01=6.7328000000000001e+00;
@@ -2909,7 +2878,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_qbmove_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f18(arg, res, iw, w, mem);
+  return casadi_f25(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_qbmove_torque_checkout(void) {
@@ -2994,7 +2963,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_qbmove_torque_work_bytes(casadi_int 
 }
 
 /* arm_2link_electric_qbmove_stiffness_rate:(q[2],qa[2],qb[2],qd[2],qad[2],qbd[2])->(sigma_dot[2]) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=1.5283456000000001e-01;
   a1=6.7328000000000001e+00;
@@ -3048,7 +3017,7 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_qbmove_stiffness_rate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f19(arg, res, iw, w, mem);
+  return casadi_f26(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_qbmove_stiffness_rate_checkout(void) {
@@ -3129,7 +3098,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_qbmove_stiffness_rate_work_bytes(cas
 }
 
 /* arm_2link_electric_qbmove_deflection:(tau[2])->(phi_a[2],phi_b[2]) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2;
   a0=arg[0]? arg[0][0] : 0;
   a1=2.2700000000000001e-02;
@@ -3151,7 +3120,7 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_qbmove_deflection(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f20(arg, res, iw, w, mem);
+  return casadi_f27(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_qbmove_deflection_checkout(void) {
@@ -3224,7 +3193,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_qbmove_deflection_work_bytes(casadi_
 }
 
 /* arm_2link_electric_electric_plant:(x[12],u[4],spring_scale[4],h)->(x_next[12]) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -7812,7 +7781,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_plant_checkout(void) {
@@ -7894,7 +7863,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_plant_work_bytes(casadi_int
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_pd:(z[0],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],dt)->(z_next[0],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -9034,7 +9003,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f29(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_checkout(void) {
@@ -9145,7 +9114,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_work_bytes(casad
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_pd_integral:(z[2],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],ki[2],dt)->(z_next[2],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -10307,7 +10276,7 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f23(arg, res, iw, w, mem);
+  return casadi_f30(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral_checkout(void) {
@@ -10420,7 +10389,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral_work_by
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_adaptive:(z[13],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],dt)->(z_next[13],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -11892,7 +11861,7 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f24(arg, res, iw, w, mem);
+  return casadi_f31(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_checkout(void) {
@@ -12007,7 +11976,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_work_bytes
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_adaptive_integral:(z[15],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],ki[2],dt)->(z_next[15],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -13501,7 +13470,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f32(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral_checkout(void) {
@@ -13618,7 +13587,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral_w
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_pd_measured_acceleration:(z[2],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],dt)->(z_next[2],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -14644,7 +14613,7 @@ static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f26(arg, res, iw, w, mem);
+  return casadi_f33(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_measured_acceleration_checkout(void) {
@@ -14755,7 +14724,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_measured_acceler
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_pd_integral_measured_acceleration:(z[4],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],ki[2],dt)->(z_next[4],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -15805,7 +15774,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f27(arg, res, iw, w, mem);
+  return casadi_f34(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral_measured_acceleration_checkout(void) {
@@ -15918,7 +15887,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral_measure
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_adaptive_measured_acceleration:(z[15],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],dt)->(z_next[15],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -17216,7 +17185,7 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f28(arg, res, iw, w, mem);
+  return casadi_f35(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_measured_acceleration_checkout(void) {
@@ -17331,7 +17300,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_measured_a
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_adaptive_integral_measured_acceleration:(z[17],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],ki[2],dt)->(z_next[17],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -18652,7 +18621,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f36(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral_measured_acceleration_checkout(void) {
@@ -18769,7 +18738,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral_m
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_pd_filter:(z[8],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],omega_f,dt)->(z_next[8],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -19098,7 +19067,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f30(arg, res, iw, w, mem);
+  return casadi_f37(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_filter_checkout(void) {
@@ -19211,7 +19180,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_filter_work_byte
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_pd_integral_filter:(z[10],x[12],ref[18],kp_m[4],kd_m[4],kp[2],kd[2],ksigma[2],delta[2],ki[2],omega_f,dt)->(z_next[10],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -19554,7 +19523,7 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f31(arg, res, iw, w, mem);
+  return casadi_f38(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral_filter_checkout(void) {
@@ -19669,7 +19638,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_pd_integral_filter_
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_adaptive_filter:(z[21],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],omega_f,dt)->(z_next[21],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -20098,7 +20067,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f32(arg, res, iw, w, mem);
+  return casadi_f39(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_filter_checkout(void) {
@@ -20215,7 +20184,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_filter_wor
 #pragma GCC optimize ("O1")
 #endif
 /* arm_2link_electric_electric_cascade_adaptive_integral_filter:(z[23],x[12],ref[18],lam_m[4],k_m[4],kpi_m[8],lam[2],k[2],kpi[5],ksigma[2],delta[2],ki[2],omega_f,dt)->(z_next[23],tau_m[4],q_m_ref[4],qd_m_ref[4],qdd_m_ref[4],tau_e_ref[4],sigma[2],det[2]) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -20658,7 +20627,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f33(arg, res, iw, w, mem);
+  return casadi_f40(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral_filter_checkout(void) {
@@ -20772,7 +20741,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_cascade_adaptive_integral_f
 #endif
 
 /* arm_2link_electric_electric_estimator_step:(state[117],y[10])->(state_next[117],sigma_hat[2],tau_hat[2],tau_uio[2],updating[4]) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -22946,7 +22915,7 @@ static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f34(arg, res, iw, w, mem);
+  return casadi_f41(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_estimator_step_checkout(void) {
@@ -23027,7 +22996,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_electric_estimator_step_work_bytes(c
 }
 
 /* arm_2link_electric_noninvasive_estimator_step:(state[129],y[6])->(state_next[129],sigma_hat[2],tau_hat[2],tau_uio[2],updating[2]) */
-static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -25998,7 +25967,7 @@ static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_noninvasive_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f35(arg, res, iw, w, mem);
+  return casadi_f42(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_noninvasive_estimator_step_checkout(void) {
@@ -26079,7 +26048,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_noninvasive_estimator_step_work_byte
 }
 
 /* arm_2link_electric_spring_pair_cascade:(x[12],phi_prev[4],ref[18],kp[2],kd[2],kp_m[4],kd_m[4],dt)->(phi[4],u[4],theta_d[4],theta_d_dot[4],theta_d_ddot[4],tau_d[2],tau_residual[2],sigma_residual[2],det[2]) */
-static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -27326,7 +27295,7 @@ static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_spring_pair_cascade(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f36(arg, res, iw, w, mem);
+  return casadi_f43(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_spring_pair_cascade_checkout(void) {
@@ -27427,7 +27396,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_spring_pair_cascade_work_bytes(casad
 }
 
 /* arm_2link_electric_spring_pair_plant:(x[12],u[4],h)->(x_next[12]) */
-static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f44(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -32007,7 +31976,7 @@ static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_spring_pair_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f37(arg, res, iw, w, mem);
+  return casadi_f44(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_spring_pair_plant_checkout(void) {
@@ -32082,7 +32051,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_electric_spring_pair_plant_work_bytes(casadi_
 }
 
 /* arm_2link_electric_spring_pair_deflections:(tau[2],sigma[2],phi_prev[4])->(phi[4],tau_residual[2],sigma_residual[2],det[2]) */
-static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f45(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32;
@@ -33275,7 +33244,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_spring_pair_deflections(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f38(arg, res, iw, w, mem);
+  return casadi_f45(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_electric_spring_pair_deflections_checkout(void) {

@@ -62,8 +62,22 @@ extern "C" {
 #define casadi_f35 CASADI_PREFIX(f35)
 #define casadi_f36 CASADI_PREFIX(f36)
 #define casadi_f37 CASADI_PREFIX(f37)
+#define casadi_f38 CASADI_PREFIX(f38)
+#define casadi_f39 CASADI_PREFIX(f39)
 #define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f40 CASADI_PREFIX(f40)
+#define casadi_f41 CASADI_PREFIX(f41)
+#define casadi_f42 CASADI_PREFIX(f42)
+#define casadi_f43 CASADI_PREFIX(f43)
+#define casadi_f44 CASADI_PREFIX(f44)
+#define casadi_f45 CASADI_PREFIX(f45)
+#define casadi_f46 CASADI_PREFIX(f46)
+#define casadi_f47 CASADI_PREFIX(f47)
+#define casadi_f48 CASADI_PREFIX(f48)
+#define casadi_f49 CASADI_PREFIX(f49)
 #define casadi_f5 CASADI_PREFIX(f5)
+#define casadi_f50 CASADI_PREFIX(f50)
+#define casadi_f51 CASADI_PREFIX(f51)
 #define casadi_f6 CASADI_PREFIX(f6)
 #define casadi_f7 CASADI_PREFIX(f7)
 #define casadi_f8 CASADI_PREFIX(f8)
@@ -2170,7 +2184,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_slotine_li_step_work_bytes(casadi_i
 }
 
 /* one_sample:(xa[10],p[9],e[6])->(xa_next[10],y[12]) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w4=w+92, *w5=w+98, *w6=w+107, w7;
   const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
@@ -2206,356 +2220,386 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* one_sample_acc10:(xa[10],p[9x10],e[6x10])->(xa_next[10x10],y[12x10]) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+149, *w02=w+159, *w03=w+165, *w04=w+175, *w05=w+187, *w06=w+199, *w07=w+211, *w08=w+223, *w09=w+235, *w10=w+247, *w11=w+259;
-  casadi_real *w12=w+271, *w13=w+283;
-  const casadi_real **arg1=arg+3, *wr00, *wr01;
+/* one_sample_acc2:(xa[10],p[9x2],e[6x2])->(xa_next[10x2],y[12x2]) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+149, *w2=w+159, *w3=w+165, *w4=w+175, *w5=w+187;
+  const casadi_real **arg1=arg+3, *wr0, *wr1;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  casadi_copy(arg[2], 6, w02);
+  casadi_copy(arg[2], 6, w2);
   /* #3: {@3, @4} = one_sample(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=w2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 10, res[0]);
+  casadi_copy(w3, 10, res[0]);
   /* #5: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+9 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+9 : casadi_zeros;
   /* #6: @2 = input[2][1] */
-  casadi_copy(arg[2] ? arg[2]+6 : 0, 6, w02);
+  casadi_copy(arg[2] ? arg[2]+6 : 0, 6, w2);
   /* #7: {@0, @5} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w05;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w3;
+  arg1[1]=wr1;
+  arg1[2]=w2;
+  res1[0]=w0;
+  res1[1]=w5;
+  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 10, res[0]+10);
-  /* #9: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+18 : casadi_zeros;
-  /* #10: @2 = input[2][2] */
-  casadi_copy(arg[2] ? arg[2]+12 : 0, 6, w02);
-  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 10, res[0]+20);
-  /* #13: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+27 : casadi_zeros;
-  /* #14: @2 = input[2][3] */
-  casadi_copy(arg[2] ? arg[2]+18 : 0, 6, w02);
-  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w07;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #16: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 10, res[0]+30);
-  /* #17: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+36 : casadi_zeros;
-  /* #18: @2 = input[2][4] */
-  casadi_copy(arg[2] ? arg[2]+24 : 0, 6, w02);
-  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #20: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 10, res[0]+40);
-  /* #21: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+45 : casadi_zeros;
-  /* #22: @2 = input[2][5] */
-  casadi_copy(arg[2] ? arg[2]+30 : 0, 6, w02);
-  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w09;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 10, res[0]+50);
-  /* #25: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+54 : casadi_zeros;
-  /* #26: @2 = input[2][6] */
-  casadi_copy(arg[2] ? arg[2]+36 : 0, 6, w02);
-  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 10, res[0]+60);
-  /* #29: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+63 : casadi_zeros;
-  /* #30: @2 = input[2][7] */
-  casadi_copy(arg[2] ? arg[2]+42 : 0, 6, w02);
-  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w11;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 10, res[0]+70);
-  /* #33: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+72 : casadi_zeros;
-  /* #34: @2 = input[2][8] */
-  casadi_copy(arg[2] ? arg[2]+48 : 0, 6, w02);
-  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #36: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 10, res[0]+80);
-  /* #37: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+81 : casadi_zeros;
-  /* #38: @2 = input[2][9] */
-  casadi_copy(arg[2] ? arg[2]+54 : 0, 6, w02);
-  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w13;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #40: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 10, res[0]+90);
-  /* #41: output[1][0] = @4 */
-  casadi_copy(w04, 12, res[1]);
-  /* #42: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 12, res[1]+12);
-  /* #43: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 12, res[1]+24);
-  /* #44: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 12, res[1]+36);
-  /* #45: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 12, res[1]+48);
-  /* #46: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 12, res[1]+60);
-  /* #47: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 12, res[1]+72);
-  /* #48: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 12, res[1]+84);
-  /* #49: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 12, res[1]+96);
-  /* #50: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 12, res[1]+108);
+  if (res[0]) casadi_copy(w0, 10, res[0]+10);
+  /* #9: output[1][0] = @4 */
+  casadi_copy(w4, 12, res[1]);
+  /* #10: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 12, res[1]+12);
   return 0;
 }
 
-/* one_sample_acc10_acc10:(xa[10],p[9x100],e[6x100])->(xa_next[10x100],y[12x100]) */
+/* one_sample_acc2_acc2:(xa[10],p[9x4],e[6x4])->(xa_next[10x4],y[12x4]) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+208, *w3=w+218, *w4=w+238, *w5=w+262;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 20, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+10, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+18 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+12 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 20, res[0]+20);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 24, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 24, res[1]+24);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2:(xa[10],p[9x8],e[6x8])->(xa_next[10x8],y[12x8]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+304, *w03=w+314, *w04=w+414, *w05=w+534, *w06=w+654, *w07=w+774, *w08=w+894, *w09=w+1014, *w10=w+1134, *w11=w+1254, *w12=w+1374;
-  casadi_real *w13=w+1494;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w0=w+316, *w3=w+326, *w4=w+366, *w5=w+414;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
   if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 100, res[0]);
+  casadi_copy(w3, 40, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
+  casadi_copy(w3+30, 10, w0);
   /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+90 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+36 : casadi_zeros;
   /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
+  wr2 = arg[2] ? arg[2]+24 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
   if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
   /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+100);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+180 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+120 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+200);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+270 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+180 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+300);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+360 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+240 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+400);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+450 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+500);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+540 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+360 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+600);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+630 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+420 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+700);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+720 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+480 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+800);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+90, 10, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+810 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+540 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 100, res[0]+900);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 120, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 120, res[1]+120);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 120, res[1]+240);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 120, res[1]+360);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 120, res[1]+480);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 120, res[1]+600);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 120, res[1]+720);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 120, res[1]+840);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 120, res[1]+960);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 120, res[1]+1080);
+  if (res[0]) casadi_copy(w3, 40, res[0]+40);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 48, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 48, res[1]+48);
   return 0;
 }
 
-/* one_sample_acc10_acc10_acc10:(xa[10],p[9x1000],e[6x1000])->(xa_next[10x1000],y[12x1000]) */
+/* one_sample_acc2_acc2_acc2_acc2:(xa[10],p[9x16],e[6x16])->(xa_next[10x16],y[12x16]) */
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+522, *w3=w+532, *w4=w+612, *w5=w+708;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 80, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+70, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+72 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+48 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 80, res[0]+80);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 96, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 96, res[1]+96);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2:(xa[10],p[9x32],e[6x32])->(xa_next[10x32],y[12x32]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+924, *w3=w+934, *w4=w+1094, *w5=w+1286;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 160, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+150, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+144 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+96 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 160, res[0]+160);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 192, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 192, res[1]+192);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2:(xa[10],p[9x64],e[6x64])->(xa_next[10x64],y[12x64]) */
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1718, *w3=w+1728, *w4=w+2048, *w5=w+2432;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 320, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+310, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+288 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+192 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 320, res[0]+320);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 384, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 384, res[1]+384);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[10],p[9x128],e[6x128])->(xa_next[10x128],y[12x128]) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+3296, *w3=w+3306, *w4=w+3946, *w5=w+4714;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 640, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+630, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+576 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+384 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 640, res[0]+640);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 768, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 768, res[1]+768);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[10],p[9x256],e[6x256])->(xa_next[10x256],y[12x256]) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+6442, *w3=w+6452, *w4=w+7732, *w5=w+9268;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 1280, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+1270, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+1152 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+768 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 1280, res[0]+1280);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 1536, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 1536, res[1]+1536);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[10],p[9x512],e[6x512])->(xa_next[10x512],y[12x512]) */
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+12724, *w3=w+12734, *w4=w+15294, *w5=w+18366;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 2560, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+2550, 10, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+2304 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+1536 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 2560, res[0]+2560);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 3072, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 3072, res[1]+3072);
+  return 0;
+}
+
+/* acc:(xa[10],p[9x1000],e[6x1000])->(xa_next[10x1000],y[12x1000]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+1764, *w03=w+1774, *w04=w+2774, *w05=w+3974, *w06=w+5174, *w07=w+6374, *w08=w+7574, *w09=w+8774, *w10=w+9974, *w11=w+11174, *w12=w+12374;
-  casadi_real *w13=w+13574;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w00=w+25278, *w03=w+25288, *w04=w+25368, *w07=w+25464, *w08=w+25784, *w11=w+26168, *w12=w+26808, *w15=w+27576, *w16=w+28856, *w19=w+30392, *w20=w+32952;
+  casadi_real *w23=w+36024, *w24=w+41144;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02, *wr05, *wr06, *wr09, *wr10, *wr13, *wr14, *wr17, *wr18;
+  const casadi_real *wr21, *wr22;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
   wr01 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
   wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
   arg1[0]=wr00;
   arg1[1]=wr01;
   arg1[2]=wr02;
@@ -2563,169 +2607,101 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[1]=w04;
   if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 1000, res[0]);
+  casadi_copy(w03, 80, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+900 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  casadi_copy(w03+70, 10, w00);
+  /* #6: @5 = input[1][1] */
+  wr05 = arg[1] ? arg[1]+72 : casadi_zeros;
+  /* #7: @6 = input[2][1] */
+  wr06 = arg[2] ? arg[2]+48 : casadi_zeros;
+  /* #8: {@7, @8} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @5, @6) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+1000);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+1800 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+1200 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+2000);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+2700 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+1800 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+3000);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+3600 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+2400 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr05;
+  arg1[2]=wr06;
+  res1[0]=w07;
   res1[1]=w08;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+4000);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+4500 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+3000 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @7 */
+  if (res[0]) casadi_copy(w07, 320, res[0]+80);
+  /* #10: {NULL, @0} = horzsplit(@7) */
+  casadi_copy(w07+310, 10, w00);
+  /* #11: @9 = input[1][2] */
+  wr09 = arg[1] ? arg[1]+360 : casadi_zeros;
+  /* #12: @10 = input[2][2] */
+  wr10 = arg[2] ? arg[2]+240 : casadi_zeros;
+  /* #13: {@11, @12} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @9, @10) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+5000);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+5400 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+3600 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+6000);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+6300 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+4200 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+7000);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+7200 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+4800 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr09;
+  arg1[2]=wr10;
+  res1[0]=w11;
   res1[1]=w12;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+8000);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+990, 10, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+8100 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+5400 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @11 */
+  if (res[0]) casadi_copy(w11, 640, res[0]+400);
+  /* #15: {NULL, @0} = horzsplit(@11) */
+  casadi_copy(w11+630, 10, w00);
+  /* #16: @13 = input[1][3] */
+  wr13 = arg[1] ? arg[1]+936 : casadi_zeros;
+  /* #17: @14 = input[2][3] */
+  wr14 = arg[2] ? arg[2]+624 : casadi_zeros;
+  /* #18: {@15, @16} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @13, @14) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 1000, res[0]+9000);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 1200, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 1200, res[1]+1200);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 1200, res[1]+2400);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 1200, res[1]+3600);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 1200, res[1]+4800);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 1200, res[1]+6000);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 1200, res[1]+7200);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 1200, res[1]+8400);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 1200, res[1]+9600);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 1200, res[1]+10800);
+  arg1[1]=wr13;
+  arg1[2]=wr14;
+  res1[0]=w15;
+  res1[1]=w16;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @15 */
+  if (res[0]) casadi_copy(w15, 1280, res[0]+1040);
+  /* #20: {NULL, @0} = horzsplit(@15) */
+  casadi_copy(w15+1270, 10, w00);
+  /* #21: @17 = input[1][4] */
+  wr17 = arg[1] ? arg[1]+2088 : casadi_zeros;
+  /* #22: @18 = input[2][4] */
+  wr18 = arg[2] ? arg[2]+1392 : casadi_zeros;
+  /* #23: {@19, @20} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @17, @18) */
+  arg1[0]=w00;
+  arg1[1]=wr17;
+  arg1[2]=wr18;
+  res1[0]=w19;
+  res1[1]=w20;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @19 */
+  if (res[0]) casadi_copy(w19, 2560, res[0]+2320);
+  /* #25: {NULL, @0} = horzsplit(@19) */
+  casadi_copy(w19+2550, 10, w00);
+  /* #26: @21 = input[1][5] */
+  wr21 = arg[1] ? arg[1]+4392 : casadi_zeros;
+  /* #27: @22 = input[2][5] */
+  wr22 = arg[2] ? arg[2]+2928 : casadi_zeros;
+  /* #28: {@23, @24} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @21, @22) */
+  arg1[0]=w00;
+  arg1[1]=wr21;
+  arg1[2]=wr22;
+  res1[0]=w23;
+  res1[1]=w24;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @23 */
+  if (res[0]) casadi_copy(w23, 5120, res[0]+4880);
+  /* #30: output[1][0] = @4 */
+  casadi_copy(w04, 96, res[1]);
+  /* #31: output[1][1] = @8 */
+  if (res[1]) casadi_copy(w08, 384, res[1]+96);
+  /* #32: output[1][2] = @12 */
+  if (res[1]) casadi_copy(w12, 768, res[1]+480);
+  /* #33: output[1][3] = @16 */
+  if (res[1]) casadi_copy(w16, 1536, res[1]+1248);
+  /* #34: output[1][4] = @20 */
+  if (res[1]) casadi_copy(w20, 3072, res[1]+2784);
+  /* #35: output[1][5] = @24 */
+  if (res[1]) casadi_copy(w24, 6144, res[1]+5856);
   return 0;
 }
 
 /* arm_2link_pneumatic_slotine_li_loop:(x0[9],p[9],k0,e[6x1000])->(x[9x1000],y[12x1000]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, w1, *w2=w+16274, *w3=w+16284, *w5=w+25284, *w6=w+35284;
+  casadi_real **res1=res+2, *rr, w1, *w2=w+62288, *w3=w+62298, *w5=w+71298, *w6=w+81298;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr0, *wr4;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
@@ -2743,7 +2719,7 @@ static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }
   /* #5: @4 = input[3][0] */
   wr4 = arg[3] ? arg[3] : casadi_zeros;
-  /* #6: {@5, @6} = one_sample_acc10_acc10_acc10(@2, @3, @4) */
+  /* #6: {@5, @6} = acc(@2, @3, @4) */
   arg1[0]=w2;
   arg1[1]=w3;
   arg1[2]=wr4;
@@ -2823,23 +2799,23 @@ CASADI_SYMBOL_EXPORT const casadi_int* arm_2link_pneumatic_slotine_li_loop_spars
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 30;
-  if (sz_res) *sz_res = 14;
+  if (sz_arg) *sz_arg = 51;
+  if (sz_res) *sz_res = 28;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 47284;
+  if (sz_w) *sz_w = 93298;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 30*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 51*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 28*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 47284*sizeof(casadi_real);
+  if (sz_w) *sz_w = 93298*sizeof(casadi_real);
   return 0;
 }
 
 /* arm_2link_pneumatic_mckibben_torque:(q[2],p[4])->(tau[2],sigma[2]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10;
   a00=4.7999999999999996e-03;
   a01=1.7000000000000001e-01;
@@ -2897,7 +2873,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f18(arg, res, iw, w, mem);
+  return casadi_f25(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_torque_checkout(void) {
@@ -2972,7 +2948,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_torque_work_bytes(casadi_i
 }
 
 /* arm_2link_pneumatic_mckibben_phi:(q[2])->(Phi[2x4],Phi_q[2x4]) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6, a7, a8, a9;
   a0=4.7999999999999996e-03;
   a1=1.7000000000000001e-01;
@@ -3025,7 +3001,7 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_phi(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f19(arg, res, iw, w, mem);
+  return casadi_f26(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_phi_checkout(void) {
@@ -3098,7 +3074,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_phi_work_bytes(casadi_int 
 }
 
 /* arm_2link_pneumatic_mckibben_stiffness_rate:(q[2],qd[2],p[4],pd[4])->(sigma_dot[2]) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5, a6, a7;
   a0=-2.8799999999999995e-04;
   a1=1.7000000000000001e-01;
@@ -3150,7 +3126,7 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_stiffness_rate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f20(arg, res, iw, w, mem);
+  return casadi_f27(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_stiffness_rate_checkout(void) {
@@ -3227,7 +3203,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_stiffness_rate_work_bytes(
 }
 
 /* arm_2link_pneumatic_mckibben_allocation:(q[2],tau[2],sigma[2])->(p[4]) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12;
   a00=-2.8799999999999995e-04;
@@ -3300,7 +3276,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_allocation(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_allocation_checkout(void) {
@@ -3375,7 +3351,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_mckibben_allocation_work_bytes(casa
 }
 
 /* arm_2link_pneumatic_pneumatic_plant:(x[4],p[4],h)->(x_next[4]) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -6495,7 +6471,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_pneumatic_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f29(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_pneumatic_plant_checkout(void) {
@@ -6570,7 +6546,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_pneumatic_plant_work_bytes(casadi_i
 }
 
 /* arm_2link_pneumatic_valve_plant:(x[8],p_c[4],T_p[4],h)->(x_next[8]) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -10554,7 +10530,7 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_valve_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f23(arg, res, iw, w, mem);
+  return casadi_f30(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_valve_plant_checkout(void) {
@@ -10631,7 +10607,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_valve_plant_work_bytes(casadi_int *
 }
 
 /* arm_2link_pneumatic_null_space:(q[2],qd[2])->(Phi_pinv[4x2],Phi_perp[4x2],Phi_q_Phi_perp[2x2],Phi_pinv_dot[4x2],Phi_perp_dot[4x2],Phi_q_dot[2x4]) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   a00=4.7999999999999996e-03;
@@ -10786,7 +10762,7 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_null_space(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f24(arg, res, iw, w, mem);
+  return casadi_f31(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_null_space_checkout(void) {
@@ -10869,7 +10845,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_null_space_work_bytes(casadi_int *s
 }
 
 /* arm_2link_pneumatic_pneumatic_slotine_li:(z[5],q[2],qd[2],ref[12],lam[2],kd[2],kpi[5],dt)->(z_next[5],p[4],tau_star[2],nu[2]) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22;
   a00=arg[0]? arg[0][0] : 0;
@@ -11030,7 +11006,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_pneumatic_slotine_li(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f32(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_pneumatic_slotine_li_checkout(void) {
@@ -11121,7 +11097,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_pneumatic_slotine_li_work_bytes(cas
 }
 
 /* arm_2link_pneumatic_open_loop_stiffness:(z[5],q[2],qd[2],ref[12],lam[2],kd[2],kpi[5],kinv[2],dt)->(z_next[5],p[4],tau_star[2],nu[2]) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24;
@@ -11319,7 +11295,7 @@ static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_open_loop_stiffness(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f26(arg, res, iw, w, mem);
+  return casadi_f33(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_open_loop_stiffness_checkout(void) {
@@ -11412,7 +11388,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_open_loop_stiffness_work_bytes(casa
 }
 
 /* arm_2link_pneumatic_theorem5:(z[7],q[2],qd[2],sigma[2],ref[12],lam[2],kd[2],kpi[5],ksigma[2],kinv[2],dt)->(z_next[7],p[4],tau_star[2],nu[2]) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -11778,7 +11754,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_theorem5(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f27(arg, res, iw, w, mem);
+  return casadi_f34(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_theorem5_checkout(void) {
@@ -11875,7 +11851,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_theorem5_work_bytes(casadi_int *sz_
 }
 
 /* arm_2link_pneumatic_corollary2:(z[7],q[2],qd[2],sigma[2],ref[12],lam[2],kd[2],kpi[5],ksigma[2],dt)->(z_next[7],p[4],tau_star[2],nu[2]) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -12233,7 +12209,7 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_corollary2(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f28(arg, res, iw, w, mem);
+  return casadi_f35(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_corollary2_checkout(void) {
@@ -12328,7 +12304,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_corollary2_work_bytes(casadi_int *s
 }
 
 /* arm_2link_pneumatic_theorem5_closed_step:(x[15],p[13],k,e[12])->(x_next[15],y[24]) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -15802,7 +15778,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_theorem5_closed_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f36(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_theorem5_closed_step_checkout(void) {
@@ -15881,7 +15857,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_theorem5_closed_step_work_bytes(cas
 }
 
 /* one_sample:(xa[16],p[13],e[12])->(xa_next[16],y[24]) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w5=w+68, *w6=w+83, w7;
   const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2, *wr4;
   /* #0: @0 = input[0][0] */
@@ -15901,7 +15877,7 @@ static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[3]=wr4;
   res1[0]=w5;
   res1[1]=w6;
-  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
   /* #6: output[0][0] = @5 */
   casadi_copy(w5, 15, res[0]);
   /* #7: @3 = 1 */
@@ -15917,526 +15893,488 @@ static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* one_sample_acc10:(xa[16],p[13x10],e[12x10])->(xa_next[16x10],y[24x10]) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+165, *w03=w+181, *w04=w+197, *w05=w+221, *w06=w+245, *w07=w+269, *w08=w+293, *w09=w+317, *w10=w+341, *w11=w+365, *w12=w+389;
-  casadi_real *w13=w+413;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+/* one_sample_acc2:(xa[16],p[13x2],e[12x2])->(xa_next[16x2],y[24x2]) */
+static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+165, *w3=w+181, *w4=w+197, *w5=w+221;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
   /* #3: {@3, @4} = one_sample(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f42(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 16, res[0]);
+  casadi_copy(w3, 16, res[0]);
   /* #5: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+13 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+13 : casadi_zeros;
   /* #6: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+12 : casadi_zeros;
+  wr2 = arg[2] ? arg[2]+12 : casadi_zeros;
   /* #7: {@0, @5} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w05;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w3;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w0;
+  res1[1]=w5;
+  if (casadi_f42(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 16, res[0]+16);
-  /* #9: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+26 : casadi_zeros;
-  /* #10: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+24 : casadi_zeros;
-  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 16, res[0]+32);
-  /* #13: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+39 : casadi_zeros;
-  /* #14: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+36 : casadi_zeros;
-  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w07;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
-  /* #16: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 16, res[0]+48);
-  /* #17: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+52 : casadi_zeros;
-  /* #18: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+48 : casadi_zeros;
-  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
-  /* #20: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 16, res[0]+64);
-  /* #21: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+65 : casadi_zeros;
-  /* #22: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
-  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w09;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 16, res[0]+80);
-  /* #25: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+78 : casadi_zeros;
-  /* #26: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+72 : casadi_zeros;
-  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 16, res[0]+96);
-  /* #29: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+91 : casadi_zeros;
-  /* #30: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+84 : casadi_zeros;
-  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w11;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 16, res[0]+112);
-  /* #33: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+104 : casadi_zeros;
-  /* #34: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+96 : casadi_zeros;
-  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
-  /* #36: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 16, res[0]+128);
-  /* #37: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+117 : casadi_zeros;
-  /* #38: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+108 : casadi_zeros;
-  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w13;
-  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
-  /* #40: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 16, res[0]+144);
-  /* #41: output[1][0] = @4 */
-  casadi_copy(w04, 24, res[1]);
-  /* #42: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 24, res[1]+24);
-  /* #43: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 24, res[1]+48);
-  /* #44: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 24, res[1]+72);
-  /* #45: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 24, res[1]+96);
-  /* #46: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 24, res[1]+120);
-  /* #47: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 24, res[1]+144);
-  /* #48: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 24, res[1]+168);
-  /* #49: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 24, res[1]+192);
-  /* #50: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 24, res[1]+216);
+  if (res[0]) casadi_copy(w0, 16, res[0]+16);
+  /* #9: output[1][0] = @4 */
+  casadi_copy(w4, 24, res[1]);
+  /* #10: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 24, res[1]+24);
   return 0;
 }
 
-/* one_sample_acc10_acc10:(xa[16],p[13x100],e[12x100])->(xa_next[16x100],y[24x100]) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+462, *w03=w+478, *w04=w+638, *w05=w+878, *w06=w+1118, *w07=w+1358, *w08=w+1598, *w09=w+1838, *w10=w+2078, *w11=w+2318, *w12=w+2558;
-  casadi_real *w13=w+2798;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+/* one_sample_acc2_acc2:(xa[16],p[13x4],e[12x4])->(xa_next[16x4],y[24x4]) */
+static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+270, *w3=w+286, *w4=w+318, *w5=w+366;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f41(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 32, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+16, 16, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+26 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+24 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f41(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 32, res[0]+32);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 48, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 48, res[1]+48);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2:(xa[16],p[13x8],e[12x8])->(xa_next[16x8],y[24x8]) */
+static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+464, *w3=w+480, *w4=w+544, *w5=w+640;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 64, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+48, 16, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+52 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+48 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 64, res[0]+64);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 96, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 96, res[1]+96);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2:(xa[16],p[13x16],e[12x16])->(xa_next[16x16],y[24x16]) */
+static int casadi_f44(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+836, *w3=w+852, *w4=w+980, *w5=w+1172;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 128, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+112, 16, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+104 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+96 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 128, res[0]+128);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 192, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 192, res[1]+192);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2:(xa[16],p[13x32],e[12x32])->(xa_next[16x32],y[24x32]) */
+static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1564, *w3=w+1580, *w4=w+1836, *w5=w+2220;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f44(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 256, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+240, 16, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+208 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+192 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f44(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 256, res[0]+256);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 384, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 384, res[1]+384);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2:(xa[16],p[13x64],e[12x64])->(xa_next[16x64],y[24x64]) */
+static int casadi_f45(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+3004, *w3=w+3020, *w4=w+3532, *w5=w+4300;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f43(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 512, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+496, 16, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+416 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+384 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f43(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 512, res[0]+512);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 768, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 768, res[1]+768);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[16],p[13x128],e[12x128])->(xa_next[16x128],y[24x128]) */
+static int casadi_f46(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+5868, *w3=w+5884, *w4=w+6908, *w5=w+8444;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f45(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 1024, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+1008, 16, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+832 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+768 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f45(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 1024, res[0]+1024);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 1536, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 1536, res[1]+1536);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[16],p[13x256],e[12x256])->(xa_next[16x256],y[24x256]) */
+static int casadi_f47(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+11580, *w3=w+11596, *w4=w+13644, *w5=w+16716;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f46(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 2048, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+2032, 16, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+1664 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+1536 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f46(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 2048, res[0]+2048);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 3072, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 3072, res[1]+3072);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[16],p[13x512],e[12x512])->(xa_next[16x512],y[24x512]) */
+static int casadi_f48(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+22988, *w3=w+23004, *w4=w+27100, *w5=w+33244;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f47(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 4096, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+4080, 16, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+3328 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+3072 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f47(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 4096, res[0]+4096);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 6144, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 6144, res[1]+6144);
+  return 0;
+}
+
+/* acc:(xa[16],p[13x1000],e[12x1000])->(xa_next[16x1000],y[24x1000]) */
+static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+45788, *w03=w+45804, *w04=w+45932, *w07=w+46124, *w08=w+46636, *w11=w+47404, *w12=w+48428, *w15=w+49964, *w16=w+52012, *w19=w+55084, *w20=w+59180;
+  casadi_real *w23=w+65324, *w24=w+73516;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02, *wr05, *wr06, *wr09, *wr10, *wr13, *wr14, *wr17, *wr18;
+  const casadi_real *wr21, *wr22;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
   wr01 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
   wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
   arg1[0]=wr00;
   arg1[1]=wr01;
   arg1[2]=wr02;
   res1[0]=w03;
   res1[1]=w04;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 160, res[0]);
+  casadi_copy(w03, 128, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+144, 16, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+130 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+120 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
+  casadi_copy(w03+112, 16, w00);
+  /* #6: @5 = input[1][1] */
+  wr05 = arg[1] ? arg[1]+104 : casadi_zeros;
+  /* #7: @6 = input[2][1] */
+  wr06 = arg[2] ? arg[2]+96 : casadi_zeros;
+  /* #8: {@7, @8} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @5, @6) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 160, res[0]+160);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+144, 16, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+260 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+240 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 160, res[0]+320);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+144, 16, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+390 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+360 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 160, res[0]+480);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+144, 16, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+520 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+480 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr05;
+  arg1[2]=wr06;
+  res1[0]=w07;
   res1[1]=w08;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 160, res[0]+640);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+144, 16, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+650 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
+  if (casadi_f43(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @7 */
+  if (res[0]) casadi_copy(w07, 512, res[0]+128);
+  /* #10: {NULL, @0} = horzsplit(@7) */
+  casadi_copy(w07+496, 16, w00);
+  /* #11: @9 = input[1][2] */
+  wr09 = arg[1] ? arg[1]+520 : casadi_zeros;
+  /* #12: @10 = input[2][2] */
+  wr10 = arg[2] ? arg[2]+480 : casadi_zeros;
+  /* #13: {@11, @12} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @9, @10) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 160, res[0]+800);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+144, 16, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+780 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+720 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 160, res[0]+960);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+144, 16, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+910 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+840 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 160, res[0]+1120);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+144, 16, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+1040 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+960 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr09;
+  arg1[2]=wr10;
+  res1[0]=w11;
   res1[1]=w12;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 160, res[0]+1280);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+144, 16, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+1170 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+1080 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
+  if (casadi_f45(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @11 */
+  if (res[0]) casadi_copy(w11, 1024, res[0]+640);
+  /* #15: {NULL, @0} = horzsplit(@11) */
+  casadi_copy(w11+1008, 16, w00);
+  /* #16: @13 = input[1][3] */
+  wr13 = arg[1] ? arg[1]+1352 : casadi_zeros;
+  /* #17: @14 = input[2][3] */
+  wr14 = arg[2] ? arg[2]+1248 : casadi_zeros;
+  /* #18: {@15, @16} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @13, @14) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 160, res[0]+1440);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 240, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 240, res[1]+240);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 240, res[1]+480);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 240, res[1]+720);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 240, res[1]+960);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 240, res[1]+1200);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 240, res[1]+1440);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 240, res[1]+1680);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 240, res[1]+1920);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 240, res[1]+2160);
-  return 0;
-}
-
-/* one_sample_acc10_acc10_acc10:(xa[16],p[13x1000],e[12x1000])->(xa_next[16x1000],y[24x1000]) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+3288, *w03=w+3304, *w04=w+4904, *w05=w+7304, *w06=w+9704, *w07=w+12104, *w08=w+14504, *w09=w+16904, *w10=w+19304, *w11=w+21704, *w12=w+24104;
-  casadi_real *w13=w+26504;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
-  /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 1600, res[0]);
-  /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1584, 16, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+1300 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+1200 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[1]=wr13;
+  arg1[2]=wr14;
+  res1[0]=w15;
+  res1[1]=w16;
+  if (casadi_f46(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @15 */
+  if (res[0]) casadi_copy(w15, 2048, res[0]+1664);
+  /* #20: {NULL, @0} = horzsplit(@15) */
+  casadi_copy(w15+2032, 16, w00);
+  /* #21: @17 = input[1][4] */
+  wr17 = arg[1] ? arg[1]+3016 : casadi_zeros;
+  /* #22: @18 = input[2][4] */
+  wr18 = arg[2] ? arg[2]+2784 : casadi_zeros;
+  /* #23: {@19, @20} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @17, @18) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 1600, res[0]+1600);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1584, 16, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+2600 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+2400 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[1]=wr17;
+  arg1[2]=wr18;
+  res1[0]=w19;
+  res1[1]=w20;
+  if (casadi_f47(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @19 */
+  if (res[0]) casadi_copy(w19, 4096, res[0]+3712);
+  /* #25: {NULL, @0} = horzsplit(@19) */
+  casadi_copy(w19+4080, 16, w00);
+  /* #26: @21 = input[1][5] */
+  wr21 = arg[1] ? arg[1]+6344 : casadi_zeros;
+  /* #27: @22 = input[2][5] */
+  wr22 = arg[2] ? arg[2]+5856 : casadi_zeros;
+  /* #28: {@23, @24} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @21, @22) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 1600, res[0]+3200);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1584, 16, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+3900 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+3600 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 1600, res[0]+4800);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1584, 16, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+5200 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+4800 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 1600, res[0]+6400);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1584, 16, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+6500 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+6000 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 1600, res[0]+8000);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1584, 16, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+7800 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+7200 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 1600, res[0]+9600);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1584, 16, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+9100 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+8400 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 1600, res[0]+11200);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1584, 16, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+10400 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+9600 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 1600, res[0]+12800);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1584, 16, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+11700 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+10800 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 1600, res[0]+14400);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 2400, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 2400, res[1]+2400);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 2400, res[1]+4800);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 2400, res[1]+7200);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 2400, res[1]+9600);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 2400, res[1]+12000);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 2400, res[1]+14400);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 2400, res[1]+16800);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 2400, res[1]+19200);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 2400, res[1]+21600);
+  arg1[1]=wr21;
+  arg1[2]=wr22;
+  res1[0]=w23;
+  res1[1]=w24;
+  if (casadi_f48(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @23 */
+  if (res[0]) casadi_copy(w23, 8192, res[0]+7808);
+  /* #30: output[1][0] = @4 */
+  casadi_copy(w04, 192, res[1]);
+  /* #31: output[1][1] = @8 */
+  if (res[1]) casadi_copy(w08, 768, res[1]+192);
+  /* #32: output[1][2] = @12 */
+  if (res[1]) casadi_copy(w12, 1536, res[1]+960);
+  /* #33: output[1][3] = @16 */
+  if (res[1]) casadi_copy(w16, 3072, res[1]+2496);
+  /* #34: output[1][4] = @20 */
+  if (res[1]) casadi_copy(w20, 6144, res[1]+5568);
+  /* #35: output[1][5] = @24 */
+  if (res[1]) casadi_copy(w24, 12288, res[1]+11712);
   return 0;
 }
 
 /* arm_2link_pneumatic_theorem5_closed_loop:(x0[15],p[13],k0,e[12x1000])->(x[15x1000],y[24x1000]) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, w1, *w2=w+31404, *w4=w+31420, *w6=w+44420, *w7=w+60420, *w8=w+84420;
+  casadi_real **res1=res+2, *rr, w1, *w2=w+110804, *w4=w+110820, *w6=w+123820, *w7=w+139820, *w8=w+163820;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr0, *wr3, *wr5;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
@@ -16454,13 +16392,13 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }
   /* #5: @5 = input[3][0] */
   wr5 = arg[3] ? arg[3] : casadi_zeros;
-  /* #6: {@6, @7} = one_sample_acc10_acc10_acc10(@2, @4, @5) */
+  /* #6: {@6, @7} = acc(@2, @4, @5) */
   arg1[0]=w2;
   arg1[1]=w4;
   arg1[2]=wr5;
   res1[0]=w6;
   res1[1]=w7;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
   /* #7: @8 = @6[:16000:16;:15] */
   for (rr=w8, cs=w6+0; cs!=w6+16000; cs+=16) for (ct=cs+0; ct!=cs+15; ct+=1) *rr++ = *ct;
   /* #8: output[0][0] = @8 */
@@ -16471,7 +16409,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_theorem5_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f30(arg, res, iw, w, mem);
+  return casadi_f37(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_theorem5_closed_loop_checkout(void) {
@@ -16534,23 +16472,23 @@ CASADI_SYMBOL_EXPORT const casadi_int* arm_2link_pneumatic_theorem5_closed_loop_
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_theorem5_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20;
-  if (sz_res) *sz_res = 12;
+  if (sz_arg) *sz_arg = 41;
+  if (sz_res) *sz_res = 26;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 99420;
+  if (sz_w) *sz_w = 178820;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 12*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 41*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 26*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 99420*sizeof(casadi_real);
+  if (sz_w) *sz_w = 178820*sizeof(casadi_real);
   return 0;
 }
 
 /* arm_2link_pneumatic_feedback_linearization:(x[8],ref[12],pi[5],K[2],T_p[4],kq0[2],kq1[2],kq2[2],ks0[2])->(p_c[4],qdd[2],sigma[2],v[4],L[4],E[4x4]) */
-static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f49(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -16918,7 +16856,7 @@ static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f35(arg, res, iw, w, mem);
+  return casadi_f49(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_feedback_linearization_checkout(void) {
@@ -17015,7 +16953,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_feedback_linearization_work_bytes(c
 }
 
 /* arm_2link_pneumatic_fl_lie:(x[8],p_c[4],pi[5],K[2],T_p[4])->(L[4],E[4x4],y_rate[4]) */
-static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f50(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -17315,7 +17253,7 @@ static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_fl_lie(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f36(arg, res, iw, w, mem);
+  return casadi_f50(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_fl_lie_checkout(void) {
@@ -17398,7 +17336,7 @@ CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_fl_lie_work_bytes(casadi_int *sz_ar
 }
 
 /* arm_2link_pneumatic_pneumatic_estimator_step:(state[105],y[6])->(state_next[105],sigma_hat[2],tau_hat[2],tau_uio[2],updating[2]) */
-static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f51(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -20276,7 +20214,7 @@ static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_pneumatic_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f37(arg, res, iw, w, mem);
+  return casadi_f51(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int arm_2link_pneumatic_pneumatic_estimator_step_checkout(void) {

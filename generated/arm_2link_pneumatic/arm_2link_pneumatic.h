@@ -265,10 +265,10 @@ const casadi_int* arm_2link_pneumatic_slotine_li_loop_sparsity_in(casadi_int i);
 const casadi_int* arm_2link_pneumatic_slotine_li_loop_sparsity_out(casadi_int i);
 int arm_2link_pneumatic_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int arm_2link_pneumatic_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define arm_2link_pneumatic_slotine_li_loop_SZ_ARG 30
-#define arm_2link_pneumatic_slotine_li_loop_SZ_RES 14
+#define arm_2link_pneumatic_slotine_li_loop_SZ_ARG 51
+#define arm_2link_pneumatic_slotine_li_loop_SZ_RES 28
 #define arm_2link_pneumatic_slotine_li_loop_SZ_IW 0
-#define arm_2link_pneumatic_slotine_li_loop_SZ_W 47284
+#define arm_2link_pneumatic_slotine_li_loop_SZ_W 93298
 int arm_2link_pneumatic_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int arm_2link_pneumatic_mckibben_torque_checkout(void);
 void arm_2link_pneumatic_mckibben_torque_release(int mem);
@@ -499,10 +499,10 @@ const casadi_int* arm_2link_pneumatic_theorem5_closed_loop_sparsity_in(casadi_in
 const casadi_int* arm_2link_pneumatic_theorem5_closed_loop_sparsity_out(casadi_int i);
 int arm_2link_pneumatic_theorem5_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int arm_2link_pneumatic_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define arm_2link_pneumatic_theorem5_closed_loop_SZ_ARG 20
-#define arm_2link_pneumatic_theorem5_closed_loop_SZ_RES 12
+#define arm_2link_pneumatic_theorem5_closed_loop_SZ_ARG 41
+#define arm_2link_pneumatic_theorem5_closed_loop_SZ_RES 26
 #define arm_2link_pneumatic_theorem5_closed_loop_SZ_IW 0
-#define arm_2link_pneumatic_theorem5_closed_loop_SZ_W 99420
+#define arm_2link_pneumatic_theorem5_closed_loop_SZ_W 178820
 int arm_2link_pneumatic_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int arm_2link_pneumatic_feedback_linearization_checkout(void);
 void arm_2link_pneumatic_feedback_linearization_release(int mem);

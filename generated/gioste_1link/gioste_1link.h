@@ -265,10 +265,10 @@ const casadi_int* gioste_1link_slotine_li_loop_sparsity_in(casadi_int i);
 const casadi_int* gioste_1link_slotine_li_loop_sparsity_out(casadi_int i);
 int gioste_1link_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int gioste_1link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define gioste_1link_slotine_li_loop_SZ_ARG 30
-#define gioste_1link_slotine_li_loop_SZ_RES 14
+#define gioste_1link_slotine_li_loop_SZ_ARG 51
+#define gioste_1link_slotine_li_loop_SZ_RES 28
 #define gioste_1link_slotine_li_loop_SZ_IW 0
-#define gioste_1link_slotine_li_loop_SZ_W 23080
+#define gioste_1link_slotine_li_loop_SZ_W 45387
 int gioste_1link_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int gioste_1link_mckibben_torque_checkout(void);
 void gioste_1link_mckibben_torque_release(int mem);
@@ -499,10 +499,10 @@ const casadi_int* gioste_1link_theorem5_closed_loop_sparsity_in(casadi_int i);
 const casadi_int* gioste_1link_theorem5_closed_loop_sparsity_out(casadi_int i);
 int gioste_1link_theorem5_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int gioste_1link_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define gioste_1link_theorem5_closed_loop_SZ_ARG 20
-#define gioste_1link_theorem5_closed_loop_SZ_RES 12
+#define gioste_1link_theorem5_closed_loop_SZ_ARG 41
+#define gioste_1link_theorem5_closed_loop_SZ_RES 26
 #define gioste_1link_theorem5_closed_loop_SZ_IW 0
-#define gioste_1link_theorem5_closed_loop_SZ_W 48668
+#define gioste_1link_theorem5_closed_loop_SZ_W 87668
 int gioste_1link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int gioste_1link_feedback_linearization_checkout(void);
 void gioste_1link_feedback_linearization_release(int mem);

@@ -40,7 +40,14 @@ extern "C" {
 #define casadi_f15 CASADI_PREFIX(f15)
 #define casadi_f16 CASADI_PREFIX(f16)
 #define casadi_f17 CASADI_PREFIX(f17)
+#define casadi_f18 CASADI_PREFIX(f18)
+#define casadi_f19 CASADI_PREFIX(f19)
 #define casadi_f2 CASADI_PREFIX(f2)
+#define casadi_f20 CASADI_PREFIX(f20)
+#define casadi_f21 CASADI_PREFIX(f21)
+#define casadi_f22 CASADI_PREFIX(f22)
+#define casadi_f23 CASADI_PREFIX(f23)
+#define casadi_f24 CASADI_PREFIX(f24)
 #define casadi_f3 CASADI_PREFIX(f3)
 #define casadi_f4 CASADI_PREFIX(f4)
 #define casadi_f5 CASADI_PREFIX(f5)
@@ -119,7 +126,7 @@ static const casadi_int casadi_s12[3] = {21, 1000, 1};
 static const casadi_int casadi_s13[3] = {57, 1000, 1};
 static const casadi_int casadi_s14[3] = {65, 1000, 1};
 
-static const casadi_real casadi_zeros[21000] = 
+static const casadi_real casadi_zeros[29184] = 
   {0.};
 
 /* panda_inertia:(q[7])->(B[7x7]) */
@@ -43219,7 +43226,7 @@ CASADI_SYMBOL_EXPORT int panda_slotine_li_step_work_bytes(casadi_int *sz_arg, ca
 }
 
 /* one_sample:(xa[58],p[57],e[21])->(xa_next[58],y[65]) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w5=w+621, *w6=w+678, w7;
   const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2, *wr4;
   /* #0: @0 = input[0][0] */
@@ -43255,356 +43262,386 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* one_sample_acc10:(xa[58],p[57x10],e[21x10])->(xa_next[58x10],y[65x10]) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+938, *w03=w+996, *w04=w+1054, *w05=w+1119, *w06=w+1184, *w07=w+1249, *w08=w+1314, *w09=w+1379, *w10=w+1444, *w11=w+1509, *w12=w+1574;
-  casadi_real *w13=w+1639;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+/* one_sample_acc2:(xa[58],p[57x2],e[21x2])->(xa_next[58x2],y[65x2]) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+938, *w3=w+996, *w4=w+1054, *w5=w+1119;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
   /* #3: {@3, @4} = one_sample(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 58, res[0]);
+  casadi_copy(w3, 58, res[0]);
   /* #5: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+57 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+57 : casadi_zeros;
   /* #6: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+21 : casadi_zeros;
+  wr2 = arg[2] ? arg[2]+21 : casadi_zeros;
   /* #7: {@0, @5} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w05;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w3;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w0;
+  res1[1]=w5;
+  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 58, res[0]+58);
-  /* #9: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+114 : casadi_zeros;
-  /* #10: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+42 : casadi_zeros;
-  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 58, res[0]+116);
-  /* #13: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+171 : casadi_zeros;
-  /* #14: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+63 : casadi_zeros;
-  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w07;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #16: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 58, res[0]+174);
-  /* #17: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+228 : casadi_zeros;
-  /* #18: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+84 : casadi_zeros;
-  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #20: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 58, res[0]+232);
-  /* #21: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+285 : casadi_zeros;
-  /* #22: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+105 : casadi_zeros;
-  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w09;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 58, res[0]+290);
-  /* #25: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+342 : casadi_zeros;
-  /* #26: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+126 : casadi_zeros;
-  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 58, res[0]+348);
-  /* #29: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+399 : casadi_zeros;
-  /* #30: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+147 : casadi_zeros;
-  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w11;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 58, res[0]+406);
-  /* #33: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+456 : casadi_zeros;
-  /* #34: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+168 : casadi_zeros;
-  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #36: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 58, res[0]+464);
-  /* #37: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+513 : casadi_zeros;
-  /* #38: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+189 : casadi_zeros;
-  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w13;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #40: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 58, res[0]+522);
-  /* #41: output[1][0] = @4 */
-  casadi_copy(w04, 65, res[1]);
-  /* #42: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 65, res[1]+65);
-  /* #43: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 65, res[1]+130);
-  /* #44: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 65, res[1]+195);
-  /* #45: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 65, res[1]+260);
-  /* #46: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 65, res[1]+325);
-  /* #47: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 65, res[1]+390);
-  /* #48: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 65, res[1]+455);
-  /* #49: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 65, res[1]+520);
-  /* #50: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 65, res[1]+585);
+  if (res[0]) casadi_copy(w0, 58, res[0]+58);
+  /* #9: output[1][0] = @4 */
+  casadi_copy(w4, 65, res[1]);
+  /* #10: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 65, res[1]+65);
   return 0;
 }
 
-/* one_sample_acc10_acc10:(xa[58],p[57x100],e[21x100])->(xa_next[58x100],y[65x100]) */
+/* one_sample_acc2_acc2:(xa[58],p[57x4],e[21x4])->(xa_next[58x4],y[65x4]) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1262, *w3=w+1320, *w4=w+1436, *w5=w+1566;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 116, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+58, 58, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+114 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+42 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 116, res[0]+116);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 130, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 130, res[1]+130);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2:(xa[58],p[57x8],e[21x8])->(xa_next[58x8],y[65x8]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+1782, *w03=w+1840, *w04=w+2420, *w05=w+3070, *w06=w+3720, *w07=w+4370, *w08=w+5020, *w09=w+5670, *w10=w+6320, *w11=w+6970, *w12=w+7620;
-  casadi_real *w13=w+8270;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w0=w+1852, *w3=w+1910, *w4=w+2142, *w5=w+2402;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
   if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 580, res[0]);
+  casadi_copy(w3, 232, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+522, 58, w00);
+  casadi_copy(w3+174, 58, w0);
   /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+570 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+228 : casadi_zeros;
   /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+210 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
+  wr2 = arg[2] ? arg[2]+84 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
   if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
   /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 580, res[0]+580);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+522, 58, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+1140 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+420 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 580, res[0]+1160);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+522, 58, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+1710 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+630 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 580, res[0]+1740);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+522, 58, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+2280 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+840 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 580, res[0]+2320);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+522, 58, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+2850 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+1050 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 580, res[0]+2900);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+522, 58, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+3420 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+1260 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 580, res[0]+3480);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+522, 58, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+3990 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+1470 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 580, res[0]+4060);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+522, 58, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+4560 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+1680 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 580, res[0]+4640);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+522, 58, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+5130 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+1890 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 580, res[0]+5220);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 650, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 650, res[1]+650);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 650, res[1]+1300);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 650, res[1]+1950);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 650, res[1]+2600);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 650, res[1]+3250);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 650, res[1]+3900);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 650, res[1]+4550);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 650, res[1]+5200);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 650, res[1]+5850);
+  if (res[0]) casadi_copy(w3, 232, res[0]+232);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 260, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 260, res[1]+260);
   return 0;
 }
 
-/* one_sample_acc10_acc10_acc10:(xa[58],p[57x1000],e[21x1000])->(xa_next[58x1000],y[65x1000]) */
+/* one_sample_acc2_acc2_acc2_acc2:(xa[58],p[57x16],e[21x16])->(xa_next[58x16],y[65x16]) */
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+2974, *w3=w+3032, *w4=w+3496, *w5=w+4016;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 464, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+406, 58, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+456 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+168 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 464, res[0]+464);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 520, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 520, res[1]+520);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2:(xa[58],p[57x32],e[21x32])->(xa_next[58x32],y[65x32]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+5160, *w3=w+5218, *w4=w+6146, *w5=w+7186;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 928, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+870, 58, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+912 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+336 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 928, res[0]+928);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 1040, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 1040, res[1]+1040);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2:(xa[58],p[57x64],e[21x64])->(xa_next[58x64],y[65x64]) */
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+9474, *w3=w+9532, *w4=w+11388, *w5=w+13468;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 1856, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+1798, 58, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+1824 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+672 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 1856, res[0]+1856);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 2080, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 2080, res[1]+2080);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[58],p[57x128],e[21x128])->(xa_next[58x128],y[65x128]) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+18044, *w3=w+18102, *w4=w+21814, *w5=w+25974;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 3712, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+3654, 58, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+3648 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+1344 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 3712, res[0]+3712);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 4160, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 4160, res[1]+4160);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[58],p[57x256],e[21x256])->(xa_next[58x256],y[65x256]) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+35126, *w3=w+35184, *w4=w+42608, *w5=w+50928;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 7424, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+7366, 58, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+7296 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+2688 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 7424, res[0]+7424);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 8320, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 8320, res[1]+8320);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[58],p[57x512],e[21x512])->(xa_next[58x512],y[65x512]) */
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+69232, *w3=w+69290, *w4=w+84138, *w5=w+100778;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 14848, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+14790, 58, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+14592 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+5376 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 14848, res[0]+14848);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 16640, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 16640, res[1]+16640);
+  return 0;
+}
+
+/* acc:(xa[58],p[57x1000],e[21x1000])->(xa_next[58x1000],y[65x1000]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+9700, *w03=w+9758, *w04=w+15558, *w05=w+22058, *w06=w+28558, *w07=w+35058, *w08=w+41558, *w09=w+48058, *w10=w+54558, *w11=w+61058, *w12=w+67558;
-  casadi_real *w13=w+74058;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w00=w+137386, *w03=w+137444, *w04=w+137908, *w07=w+138428, *w08=w+140284, *w11=w+142364, *w12=w+146076, *w15=w+150236, *w16=w+157660, *w19=w+165980, *w20=w+180828;
+  casadi_real *w23=w+197468, *w24=w+227164;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02, *wr05, *wr06, *wr09, *wr10, *wr13, *wr14, *wr17, *wr18;
+  const casadi_real *wr21, *wr22;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
   wr01 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
   wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
   arg1[0]=wr00;
   arg1[1]=wr01;
   arg1[2]=wr02;
@@ -43612,169 +43649,101 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[1]=w04;
   if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 5800, res[0]);
+  casadi_copy(w03, 464, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+5742, 58, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+5700 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+2100 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  casadi_copy(w03+406, 58, w00);
+  /* #6: @5 = input[1][1] */
+  wr05 = arg[1] ? arg[1]+456 : casadi_zeros;
+  /* #7: @6 = input[2][1] */
+  wr06 = arg[2] ? arg[2]+168 : casadi_zeros;
+  /* #8: {@7, @8} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @5, @6) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 5800, res[0]+5800);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+5742, 58, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+11400 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+4200 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 5800, res[0]+11600);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+5742, 58, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+17100 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+6300 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 5800, res[0]+17400);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+5742, 58, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+22800 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+8400 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr05;
+  arg1[2]=wr06;
+  res1[0]=w07;
   res1[1]=w08;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 5800, res[0]+23200);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+5742, 58, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+28500 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+10500 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @7 */
+  if (res[0]) casadi_copy(w07, 1856, res[0]+464);
+  /* #10: {NULL, @0} = horzsplit(@7) */
+  casadi_copy(w07+1798, 58, w00);
+  /* #11: @9 = input[1][2] */
+  wr09 = arg[1] ? arg[1]+2280 : casadi_zeros;
+  /* #12: @10 = input[2][2] */
+  wr10 = arg[2] ? arg[2]+840 : casadi_zeros;
+  /* #13: {@11, @12} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @9, @10) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 5800, res[0]+29000);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+5742, 58, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+34200 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+12600 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 5800, res[0]+34800);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+5742, 58, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+39900 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+14700 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 5800, res[0]+40600);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+5742, 58, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+45600 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+16800 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr09;
+  arg1[2]=wr10;
+  res1[0]=w11;
   res1[1]=w12;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 5800, res[0]+46400);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+5742, 58, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+51300 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+18900 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @11 */
+  if (res[0]) casadi_copy(w11, 3712, res[0]+2320);
+  /* #15: {NULL, @0} = horzsplit(@11) */
+  casadi_copy(w11+3654, 58, w00);
+  /* #16: @13 = input[1][3] */
+  wr13 = arg[1] ? arg[1]+5928 : casadi_zeros;
+  /* #17: @14 = input[2][3] */
+  wr14 = arg[2] ? arg[2]+2184 : casadi_zeros;
+  /* #18: {@15, @16} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @13, @14) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 5800, res[0]+52200);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 6500, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 6500, res[1]+6500);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 6500, res[1]+13000);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 6500, res[1]+19500);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 6500, res[1]+26000);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 6500, res[1]+32500);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 6500, res[1]+39000);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 6500, res[1]+45500);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 6500, res[1]+52000);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 6500, res[1]+58500);
+  arg1[1]=wr13;
+  arg1[2]=wr14;
+  res1[0]=w15;
+  res1[1]=w16;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @15 */
+  if (res[0]) casadi_copy(w15, 7424, res[0]+6032);
+  /* #20: {NULL, @0} = horzsplit(@15) */
+  casadi_copy(w15+7366, 58, w00);
+  /* #21: @17 = input[1][4] */
+  wr17 = arg[1] ? arg[1]+13224 : casadi_zeros;
+  /* #22: @18 = input[2][4] */
+  wr18 = arg[2] ? arg[2]+4872 : casadi_zeros;
+  /* #23: {@19, @20} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @17, @18) */
+  arg1[0]=w00;
+  arg1[1]=wr17;
+  arg1[2]=wr18;
+  res1[0]=w19;
+  res1[1]=w20;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @19 */
+  if (res[0]) casadi_copy(w19, 14848, res[0]+13456);
+  /* #25: {NULL, @0} = horzsplit(@19) */
+  casadi_copy(w19+14790, 58, w00);
+  /* #26: @21 = input[1][5] */
+  wr21 = arg[1] ? arg[1]+27816 : casadi_zeros;
+  /* #27: @22 = input[2][5] */
+  wr22 = arg[2] ? arg[2]+10248 : casadi_zeros;
+  /* #28: {@23, @24} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @21, @22) */
+  arg1[0]=w00;
+  arg1[1]=wr21;
+  arg1[2]=wr22;
+  res1[0]=w23;
+  res1[1]=w24;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @23 */
+  if (res[0]) casadi_copy(w23, 29696, res[0]+28304);
+  /* #30: output[1][0] = @4 */
+  casadi_copy(w04, 520, res[1]);
+  /* #31: output[1][1] = @8 */
+  if (res[1]) casadi_copy(w08, 2080, res[1]+520);
+  /* #32: output[1][2] = @12 */
+  if (res[1]) casadi_copy(w12, 4160, res[1]+2600);
+  /* #33: output[1][3] = @16 */
+  if (res[1]) casadi_copy(w16, 8320, res[1]+6760);
+  /* #34: output[1][4] = @20 */
+  if (res[1]) casadi_copy(w20, 16640, res[1]+15080);
+  /* #35: output[1][5] = @24 */
+  if (res[1]) casadi_copy(w24, 33280, res[1]+31720);
   return 0;
 }
 
 /* panda_slotine_li_loop:(x0[57],p[57],k0,e[21x1000])->(x[57x1000],y[65x1000]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, w1, *w2=w+88358, *w3=w+88416, *w5=w+145416, *w6=w+203416;
+  casadi_real **res1=res+2, *rr, w1, *w2=w+338444, *w3=w+338502, *w5=w+395502, *w6=w+453502;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr0, *wr4;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
@@ -43792,7 +43761,7 @@ static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }
   /* #5: @4 = input[3][0] */
   wr4 = arg[3] ? arg[3] : casadi_zeros;
-  /* #6: {@5, @6} = one_sample_acc10_acc10_acc10(@2, @3, @4) */
+  /* #6: {@5, @6} = acc(@2, @3, @4) */
   arg1[0]=w2;
   arg1[1]=w3;
   arg1[2]=wr4;
@@ -43872,18 +43841,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* panda_slotine_li_loop_sparsity_out(casadi
 }
 
 CASADI_SYMBOL_EXPORT int panda_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 30;
-  if (sz_res) *sz_res = 14;
+  if (sz_arg) *sz_arg = 51;
+  if (sz_res) *sz_res = 28;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 268416;
+  if (sz_w) *sz_w = 518502;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int panda_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 30*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 51*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 28*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 268416*sizeof(casadi_real);
+  if (sz_w) *sz_w = 518502*sizeof(casadi_real);
   return 0;
 }
 

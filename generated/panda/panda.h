@@ -265,10 +265,10 @@ const casadi_int* panda_slotine_li_loop_sparsity_in(casadi_int i);
 const casadi_int* panda_slotine_li_loop_sparsity_out(casadi_int i);
 int panda_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int panda_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define panda_slotine_li_loop_SZ_ARG 30
-#define panda_slotine_li_loop_SZ_RES 14
+#define panda_slotine_li_loop_SZ_ARG 51
+#define panda_slotine_li_loop_SZ_RES 28
 #define panda_slotine_li_loop_SZ_IW 0
-#define panda_slotine_li_loop_SZ_W 268416
+#define panda_slotine_li_loop_SZ_W 518502
 void panda_casadi_version(int* major, int* minor, int* patch);
 int panda_casadi_int_size(void);
 int panda_casadi_real_size(void);

@@ -52,8 +52,22 @@ extern "C" {
 #define casadi_f25 CASADI_PREFIX(f25)
 #define casadi_f26 CASADI_PREFIX(f26)
 #define casadi_f27 CASADI_PREFIX(f27)
+#define casadi_f28 CASADI_PREFIX(f28)
+#define casadi_f29 CASADI_PREFIX(f29)
 #define casadi_f3 CASADI_PREFIX(f3)
+#define casadi_f30 CASADI_PREFIX(f30)
+#define casadi_f31 CASADI_PREFIX(f31)
+#define casadi_f32 CASADI_PREFIX(f32)
+#define casadi_f33 CASADI_PREFIX(f33)
+#define casadi_f34 CASADI_PREFIX(f34)
+#define casadi_f35 CASADI_PREFIX(f35)
+#define casadi_f36 CASADI_PREFIX(f36)
+#define casadi_f37 CASADI_PREFIX(f37)
+#define casadi_f38 CASADI_PREFIX(f38)
+#define casadi_f39 CASADI_PREFIX(f39)
 #define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f40 CASADI_PREFIX(f40)
+#define casadi_f41 CASADI_PREFIX(f41)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
 #define casadi_f7 CASADI_PREFIX(f7)
@@ -28641,7 +28655,7 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_closed_step_work_bytes(casadi
 #pragma GCC optimize ("O1")
 #endif
 /* one_sample:(xa[40],p[39],e[44])->(xa_next[40],y[48]) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w5=w+417, *w6=w+456, w7;
   const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2, *wr4;
   /* #0: @0 = input[0][0] */
@@ -28677,356 +28691,386 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* one_sample_acc10:(xa[40],p[39x10],e[44x10])->(xa_next[40x10],y[48x10]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+668, *w03=w+708, *w04=w+748, *w05=w+796, *w06=w+844, *w07=w+892, *w08=w+940, *w09=w+988, *w10=w+1036, *w11=w+1084, *w12=w+1132;
-  casadi_real *w13=w+1180;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+/* one_sample_acc2:(xa[40],p[39x2],e[44x2])->(xa_next[40x2],y[48x2]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+668, *w3=w+708, *w4=w+748, *w5=w+796;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
   /* #3: {@3, @4} = one_sample(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 40, res[0]);
+  casadi_copy(w3, 40, res[0]);
   /* #5: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+39 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+39 : casadi_zeros;
   /* #6: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+44 : casadi_zeros;
+  wr2 = arg[2] ? arg[2]+44 : casadi_zeros;
   /* #7: {@0, @5} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w05;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w3;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w0;
+  res1[1]=w5;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 40, res[0]+40);
-  /* #9: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+78 : casadi_zeros;
-  /* #10: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+88 : casadi_zeros;
-  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 40, res[0]+80);
-  /* #13: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+117 : casadi_zeros;
-  /* #14: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+132 : casadi_zeros;
-  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w07;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #16: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 40, res[0]+120);
-  /* #17: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+156 : casadi_zeros;
-  /* #18: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+176 : casadi_zeros;
-  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #20: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 40, res[0]+160);
-  /* #21: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+195 : casadi_zeros;
-  /* #22: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+220 : casadi_zeros;
-  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w09;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 40, res[0]+200);
-  /* #25: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+234 : casadi_zeros;
-  /* #26: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+264 : casadi_zeros;
-  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 40, res[0]+240);
-  /* #29: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+273 : casadi_zeros;
-  /* #30: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+308 : casadi_zeros;
-  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w11;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 40, res[0]+280);
-  /* #33: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+312 : casadi_zeros;
-  /* #34: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+352 : casadi_zeros;
-  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #36: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 40, res[0]+320);
-  /* #37: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+351 : casadi_zeros;
-  /* #38: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+396 : casadi_zeros;
-  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w13;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #40: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 40, res[0]+360);
-  /* #41: output[1][0] = @4 */
-  casadi_copy(w04, 48, res[1]);
-  /* #42: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 48, res[1]+48);
-  /* #43: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 48, res[1]+96);
-  /* #44: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 48, res[1]+144);
-  /* #45: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 48, res[1]+192);
-  /* #46: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 48, res[1]+240);
-  /* #47: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 48, res[1]+288);
-  /* #48: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 48, res[1]+336);
-  /* #49: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 48, res[1]+384);
-  /* #50: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 48, res[1]+432);
+  if (res[0]) casadi_copy(w0, 40, res[0]+40);
+  /* #9: output[1][0] = @4 */
+  casadi_copy(w4, 48, res[1]);
+  /* #10: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 48, res[1]+48);
   return 0;
 }
 
-/* one_sample_acc10_acc10:(xa[40],p[39x100],e[44x100])->(xa_next[40x100],y[48x100]) */
+/* one_sample_acc2_acc2:(xa[40],p[39x4],e[44x4])->(xa_next[40x4],y[48x4]) */
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+927, *w3=w+967, *w4=w+1047, *w5=w+1143;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 80, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+40, 40, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+78 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+88 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 80, res[0]+80);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 96, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 96, res[1]+96);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2:(xa[40],p[39x8],e[44x8])->(xa_next[40x8],y[48x8]) */
 static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+1311, *w03=w+1351, *w04=w+1751, *w05=w+2231, *w06=w+2711, *w07=w+3191, *w08=w+3671, *w09=w+4151, *w10=w+4631, *w11=w+5111, *w12=w+5591;
-  casadi_real *w13=w+6071;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w0=w+1405, *w3=w+1445, *w4=w+1605, *w5=w+1797;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
   if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 400, res[0]);
+  casadi_copy(w3, 160, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+360, 40, w00);
+  casadi_copy(w3+120, 40, w0);
   /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+390 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+156 : casadi_zeros;
   /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+440 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
+  wr2 = arg[2] ? arg[2]+176 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
   if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 400, res[0]+400);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+360, 40, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+780 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+880 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 400, res[0]+800);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+360, 40, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+1170 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+1320 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 400, res[0]+1200);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+360, 40, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+1560 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+1760 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 400, res[0]+1600);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+360, 40, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+1950 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+2200 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 400, res[0]+2000);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+360, 40, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+2340 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+2640 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 400, res[0]+2400);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+360, 40, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+2730 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+3080 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 400, res[0]+2800);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+360, 40, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+3120 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+3520 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 400, res[0]+3200);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+360, 40, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+3510 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+3960 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 400, res[0]+3600);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 480, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 480, res[1]+480);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 480, res[1]+960);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 480, res[1]+1440);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 480, res[1]+1920);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 480, res[1]+2400);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 480, res[1]+2880);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 480, res[1]+3360);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 480, res[1]+3840);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 480, res[1]+4320);
+  if (res[0]) casadi_copy(w3, 160, res[0]+160);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 192, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 192, res[1]+192);
   return 0;
 }
 
-/* one_sample_acc10_acc10_acc10:(xa[40],p[39x1000],e[44x1000])->(xa_next[40x1000],y[48x1000]) */
+/* one_sample_acc2_acc2_acc2_acc2:(xa[40],p[39x16],e[44x16])->(xa_next[40x16],y[48x16]) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+2321, *w3=w+2361, *w4=w+2681, *w5=w+3065;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 320, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+280, 40, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+312 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+352 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 320, res[0]+320);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 384, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 384, res[1]+384);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2:(xa[40],p[39x32],e[44x32])->(xa_next[40x32],y[48x32]) */
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+4113, *w3=w+4153, *w4=w+4793, *w5=w+5561;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 640, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+600, 40, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+624 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+704 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 640, res[0]+640);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 768, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 768, res[1]+768);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2:(xa[40],p[39x64],e[44x64])->(xa_next[40x64],y[48x64]) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+7657, *w3=w+7697, *w4=w+8977, *w5=w+10513;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 1280, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+1240, 40, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+1248 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+1408 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 1280, res[0]+1280);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 1536, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 1536, res[1]+1536);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[40],p[39x128],e[44x128])->(xa_next[40x128],y[48x128]) */
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+14705, *w3=w+14745, *w4=w+17305, *w5=w+20377;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 2560, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+2520, 40, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+2496 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+2816 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 2560, res[0]+2560);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 3072, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 3072, res[1]+3072);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[40],p[39x256],e[44x256])->(xa_next[40x256],y[48x256]) */
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+28761, *w3=w+28801, *w4=w+33921, *w5=w+40065;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 5120, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+5080, 40, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+4992 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+5632 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 5120, res[0]+5120);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 6144, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 6144, res[1]+6144);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[40],p[39x512],e[44x512])->(xa_next[40x512],y[48x512]) */
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+56833, *w3=w+56873, *w4=w+67113, *w5=w+79401;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 10240, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+10200, 40, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+9984 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+11264 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 10240, res[0]+10240);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 12288, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 12288, res[1]+12288);
+  return 0;
+}
+
+/* acc:(xa[40],p[39x1000],e[44x1000])->(xa_next[40x1000],y[48x1000]) */
 static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+7381, *w03=w+7421, *w04=w+11421, *w05=w+16221, *w06=w+21021, *w07=w+25821, *w08=w+30621, *w09=w+35421, *w10=w+40221, *w11=w+45021, *w12=w+49821;
-  casadi_real *w13=w+54621;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w00=w+112937, *w03=w+112977, *w04=w+113297, *w07=w+113681, *w08=w+114961, *w11=w+116497, *w12=w+119057, *w15=w+122129, *w16=w+127249, *w19=w+133393, *w20=w+143633;
+  casadi_real *w23=w+155921, *w24=w+176401;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02, *wr05, *wr06, *wr09, *wr10, *wr13, *wr14, *wr17, *wr18;
+  const casadi_real *wr21, *wr22;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
   wr01 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
   wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
   arg1[0]=wr00;
   arg1[1]=wr01;
   arg1[2]=wr02;
@@ -29034,169 +29078,101 @@ static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[1]=w04;
   if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 4000, res[0]);
+  casadi_copy(w03, 320, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3960, 40, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+3900 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+4400 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  casadi_copy(w03+280, 40, w00);
+  /* #6: @5 = input[1][1] */
+  wr05 = arg[1] ? arg[1]+312 : casadi_zeros;
+  /* #7: @6 = input[2][1] */
+  wr06 = arg[2] ? arg[2]+352 : casadi_zeros;
+  /* #8: {@7, @8} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @5, @6) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 4000, res[0]+4000);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3960, 40, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+7800 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+8800 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 4000, res[0]+8000);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3960, 40, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+11700 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+13200 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 4000, res[0]+12000);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3960, 40, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+15600 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+17600 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr05;
+  arg1[2]=wr06;
+  res1[0]=w07;
   res1[1]=w08;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 4000, res[0]+16000);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3960, 40, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+19500 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+22000 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @7 */
+  if (res[0]) casadi_copy(w07, 1280, res[0]+320);
+  /* #10: {NULL, @0} = horzsplit(@7) */
+  casadi_copy(w07+1240, 40, w00);
+  /* #11: @9 = input[1][2] */
+  wr09 = arg[1] ? arg[1]+1560 : casadi_zeros;
+  /* #12: @10 = input[2][2] */
+  wr10 = arg[2] ? arg[2]+1760 : casadi_zeros;
+  /* #13: {@11, @12} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @9, @10) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 4000, res[0]+20000);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3960, 40, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+23400 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+26400 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 4000, res[0]+24000);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3960, 40, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+27300 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+30800 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 4000, res[0]+28000);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3960, 40, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+31200 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+35200 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr09;
+  arg1[2]=wr10;
+  res1[0]=w11;
   res1[1]=w12;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 4000, res[0]+32000);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3960, 40, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+35100 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+39600 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @11 */
+  if (res[0]) casadi_copy(w11, 2560, res[0]+1600);
+  /* #15: {NULL, @0} = horzsplit(@11) */
+  casadi_copy(w11+2520, 40, w00);
+  /* #16: @13 = input[1][3] */
+  wr13 = arg[1] ? arg[1]+4056 : casadi_zeros;
+  /* #17: @14 = input[2][3] */
+  wr14 = arg[2] ? arg[2]+4576 : casadi_zeros;
+  /* #18: {@15, @16} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @13, @14) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 4000, res[0]+36000);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 4800, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 4800, res[1]+4800);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 4800, res[1]+9600);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 4800, res[1]+14400);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 4800, res[1]+19200);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 4800, res[1]+24000);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 4800, res[1]+28800);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 4800, res[1]+33600);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 4800, res[1]+38400);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 4800, res[1]+43200);
+  arg1[1]=wr13;
+  arg1[2]=wr14;
+  res1[0]=w15;
+  res1[1]=w16;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @15 */
+  if (res[0]) casadi_copy(w15, 5120, res[0]+4160);
+  /* #20: {NULL, @0} = horzsplit(@15) */
+  casadi_copy(w15+5080, 40, w00);
+  /* #21: @17 = input[1][4] */
+  wr17 = arg[1] ? arg[1]+9048 : casadi_zeros;
+  /* #22: @18 = input[2][4] */
+  wr18 = arg[2] ? arg[2]+10208 : casadi_zeros;
+  /* #23: {@19, @20} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @17, @18) */
+  arg1[0]=w00;
+  arg1[1]=wr17;
+  arg1[2]=wr18;
+  res1[0]=w19;
+  res1[1]=w20;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @19 */
+  if (res[0]) casadi_copy(w19, 10240, res[0]+9280);
+  /* #25: {NULL, @0} = horzsplit(@19) */
+  casadi_copy(w19+10200, 40, w00);
+  /* #26: @21 = input[1][5] */
+  wr21 = arg[1] ? arg[1]+19032 : casadi_zeros;
+  /* #27: @22 = input[2][5] */
+  wr22 = arg[2] ? arg[2]+21472 : casadi_zeros;
+  /* #28: {@23, @24} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @21, @22) */
+  arg1[0]=w00;
+  arg1[1]=wr21;
+  arg1[2]=wr22;
+  res1[0]=w23;
+  res1[1]=w24;
+  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @23 */
+  if (res[0]) casadi_copy(w23, 20480, res[0]+19520);
+  /* #30: output[1][0] = @4 */
+  casadi_copy(w04, 384, res[1]);
+  /* #31: output[1][1] = @8 */
+  if (res[1]) casadi_copy(w08, 1536, res[1]+384);
+  /* #32: output[1][2] = @12 */
+  if (res[1]) casadi_copy(w12, 3072, res[1]+1920);
+  /* #33: output[1][3] = @16 */
+  if (res[1]) casadi_copy(w16, 6144, res[1]+4992);
+  /* #34: output[1][4] = @20 */
+  if (res[1]) casadi_copy(w20, 12288, res[1]+11136);
+  /* #35: output[1][5] = @24 */
+  if (res[1]) casadi_copy(w24, 24576, res[1]+23424);
   return 0;
 }
 
 /* pcc_planar_4seg_theorem10_closed_loop:(x0[39],p[39],k0,e[44x1000])->(x[39x1000],y[48x1000]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, w1, *w2=w+67721, *w3=w+67761, *w5=w+106761, *w6=w+146761;
+  casadi_real **res1=res+2, *rr, w1, *w2=w+283977, *w3=w+284017, *w5=w+323017, *w6=w+363017;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr0, *wr4;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
@@ -29214,7 +29190,7 @@ static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }
   /* #5: @4 = input[3][0] */
   wr4 = arg[3] ? arg[3] : casadi_zeros;
-  /* #6: {@5, @6} = one_sample_acc10_acc10_acc10(@2, @3, @4) */
+  /* #6: {@5, @6} = acc(@2, @3, @4) */
   arg1[0]=w2;
   arg1[1]=w3;
   arg1[2]=wr4;
@@ -29294,18 +29270,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* pcc_planar_4seg_theorem10_closed_loop_spa
 }
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20;
-  if (sz_res) *sz_res = 12;
+  if (sz_arg) *sz_arg = 41;
+  if (sz_res) *sz_res = 26;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 194761;
+  if (sz_w) *sz_w = 411017;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 12*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 41*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 26*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 194761*sizeof(casadi_real);
+  if (sz_w) *sz_w = 411017*sizeof(casadi_real);
   return 0;
 }
 #if defined(__GNUC__) && !defined(__clang__)
@@ -29318,7 +29294,7 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_closed_loop_work_bytes(casadi
 #pragma GCC optimize ("O1")
 #endif
 /* pcc_planar_4seg_theorem10_sampled_step:(pi_hat[31],u_prev[4],q[4],qd[4],q_d[4],qd_d[4],qdd_d[4],lam[4],kd[4],kpi[31],dt)->(pi_hat_next[31],u_next[4],tau[4],sigma[4]) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -34197,7 +34173,7 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f20(arg, res, iw, w, mem);
+  return casadi_f27(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_step_checkout(void) {
@@ -34302,7 +34278,7 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_step_work_bytes(casad
 #pragma GCC optimize ("O1")
 #endif
 /* pcc_planar_4seg_plant:(x[8],tau[4],f_ext[12],noise[8],dt)->(x_next[8],y[8]) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -40219,7 +40195,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* pcc_planar_4seg_theorem10_sampled_loop_step:(x[43],p[39],k,e[32])->(x_next[43],y[60]) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+2, *rr, *w05=w+311, *w07=w+315, w15, *w16=w+319, *w17=w+350, *w18=w+354, *w19=w+358, *w20=w+362, *w22=w+370, *w23=w+378;
   casadi_real w24;
@@ -40277,7 +40253,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[1]=w17;
   res1[2]=w18;
   res1[3]=w19;
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
   /* #19: output[0][0] = @16 */
   casadi_copy(w16, 31, res[0]);
   /* #20: output[0][1] = @17 */
@@ -40298,7 +40274,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[4]=(&w15);
   res1[0]=w23;
   res1[1]=0;
-  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
   /* #25: @17 = @23[:4] */
   for (rr=w17, cs=w23+0; cs!=w23+4; cs+=1) *rr++ = *cs;
   /* #26: output[0][2] = @17 */
@@ -40333,7 +40309,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_loop_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_loop_step_checkout(void) {
@@ -40420,7 +40396,7 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_loop_step_work_bytes(
 #pragma GCC optimize ("O1")
 #endif
 /* one_sample:(xa[44],p[39],e[32])->(xa_next[44],y[60]) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w5=w+608, *w6=w+651, w7;
   const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2, *wr4;
   /* #0: @0 = input[0][0] */
@@ -40440,7 +40416,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[3]=wr4;
   res1[0]=w5;
   res1[1]=w6;
-  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
   /* #6: output[0][0] = @5 */
   casadi_copy(w5, 43, res[0]);
   /* #7: @3 = 1 */
@@ -40456,526 +40432,488 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* one_sample_acc10:(xa[44],p[39x10],e[32x10])->(xa_next[44x10],y[60x10]) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+871, *w03=w+915, *w04=w+959, *w05=w+1019, *w06=w+1079, *w07=w+1139, *w08=w+1199, *w09=w+1259, *w10=w+1319, *w11=w+1379, *w12=w+1439;
-  casadi_real *w13=w+1499;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+/* one_sample_acc2:(xa[44],p[39x2],e[32x2])->(xa_next[44x2],y[60x2]) */
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+871, *w3=w+915, *w4=w+959, *w5=w+1019;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
   /* #3: {@3, @4} = one_sample(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 44, res[0]);
+  casadi_copy(w3, 44, res[0]);
   /* #5: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+39 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+39 : casadi_zeros;
   /* #6: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+32 : casadi_zeros;
+  wr2 = arg[2] ? arg[2]+32 : casadi_zeros;
   /* #7: {@0, @5} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w05;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w3;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w0;
+  res1[1]=w5;
+  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 44, res[0]+44);
-  /* #9: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+78 : casadi_zeros;
-  /* #10: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+64 : casadi_zeros;
-  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 44, res[0]+88);
-  /* #13: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+117 : casadi_zeros;
-  /* #14: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+96 : casadi_zeros;
-  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w07;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #16: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 44, res[0]+132);
-  /* #17: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+156 : casadi_zeros;
-  /* #18: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+128 : casadi_zeros;
-  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #20: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 44, res[0]+176);
-  /* #21: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+195 : casadi_zeros;
-  /* #22: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+160 : casadi_zeros;
-  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w09;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 44, res[0]+220);
-  /* #25: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+234 : casadi_zeros;
-  /* #26: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+192 : casadi_zeros;
-  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 44, res[0]+264);
-  /* #29: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+273 : casadi_zeros;
-  /* #30: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+224 : casadi_zeros;
-  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w11;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 44, res[0]+308);
-  /* #33: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+312 : casadi_zeros;
-  /* #34: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+256 : casadi_zeros;
-  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #36: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 44, res[0]+352);
-  /* #37: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+351 : casadi_zeros;
-  /* #38: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+288 : casadi_zeros;
-  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w13;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #40: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 44, res[0]+396);
-  /* #41: output[1][0] = @4 */
-  casadi_copy(w04, 60, res[1]);
-  /* #42: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 60, res[1]+60);
-  /* #43: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 60, res[1]+120);
-  /* #44: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 60, res[1]+180);
-  /* #45: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 60, res[1]+240);
-  /* #46: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 60, res[1]+300);
-  /* #47: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 60, res[1]+360);
-  /* #48: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 60, res[1]+420);
-  /* #49: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 60, res[1]+480);
-  /* #50: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 60, res[1]+540);
+  if (res[0]) casadi_copy(w0, 44, res[0]+44);
+  /* #9: output[1][0] = @4 */
+  casadi_copy(w4, 60, res[1]);
+  /* #10: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 60, res[1]+60);
   return 0;
 }
 
-/* one_sample_acc10_acc10:(xa[44],p[39x100],e[32x100])->(xa_next[44x100],y[60x100]) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+1630, *w03=w+1674, *w04=w+2114, *w05=w+2714, *w06=w+3314, *w07=w+3914, *w08=w+4514, *w09=w+5114, *w10=w+5714, *w11=w+6314, *w12=w+6914;
-  casadi_real *w13=w+7514;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+/* one_sample_acc2_acc2:(xa[44],p[39x4],e[32x4])->(xa_next[44x4],y[60x4]) */
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1150, *w3=w+1194, *w4=w+1282, *w5=w+1402;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 88, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+44, 44, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+78 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+64 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 88, res[0]+88);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 120, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 120, res[1]+120);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2:(xa[44],p[39x8],e[32x8])->(xa_next[44x8],y[60x8]) */
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1664, *w3=w+1708, *w4=w+1884, *w5=w+2124;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 176, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+132, 44, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+156 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+128 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 176, res[0]+176);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 240, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 240, res[1]+240);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2:(xa[44],p[39x16],e[32x16])->(xa_next[44x16],y[60x16]) */
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+2648, *w3=w+2692, *w4=w+3044, *w5=w+3524;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 352, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+308, 44, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+312 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+256 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 352, res[0]+352);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 480, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 480, res[1]+480);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2:(xa[44],p[39x32],e[32x32])->(xa_next[44x32],y[60x32]) */
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+4572, *w3=w+4616, *w4=w+5320, *w5=w+6280;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 704, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+660, 44, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+624 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+512 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 704, res[0]+704);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 960, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 960, res[1]+960);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2:(xa[44],p[39x64],e[32x64])->(xa_next[44x64],y[60x64]) */
+static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+8376, *w3=w+8420, *w4=w+9828, *w5=w+11748;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 1408, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+1364, 44, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+1248 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+1024 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 1408, res[0]+1408);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 1920, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 1920, res[1]+1920);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[44],p[39x128],e[32x128])->(xa_next[44x128],y[60x128]) */
+static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+15940, *w3=w+15984, *w4=w+18800, *w5=w+22640;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 2816, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+2772, 44, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+2496 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+2048 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 2816, res[0]+2816);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 3840, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 3840, res[1]+3840);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[44],p[39x256],e[32x256])->(xa_next[44x256],y[60x256]) */
+static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+31024, *w3=w+31068, *w4=w+36700, *w5=w+44380;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 5632, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+5588, 44, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+4992 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+4096 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 5632, res[0]+5632);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 7680, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 7680, res[1]+7680);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[44],p[39x512],e[32x512])->(xa_next[44x512],y[60x512]) */
+static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+61148, *w3=w+61192, *w4=w+72456, *w5=w+87816;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 11264, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+11220, 44, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+9984 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+8192 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 11264, res[0]+11264);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 15360, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 15360, res[1]+15360);
+  return 0;
+}
+
+/* acc:(xa[44],p[39x1000],e[32x1000])->(xa_next[44x1000],y[60x1000]) */
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+121352, *w03=w+121396, *w04=w+121748, *w07=w+122228, *w08=w+123636, *w11=w+125556, *w12=w+128372, *w15=w+132212, *w16=w+137844, *w19=w+145524, *w20=w+156788;
+  casadi_real *w23=w+172148, *w24=w+194676;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02, *wr05, *wr06, *wr09, *wr10, *wr13, *wr14, *wr17, *wr18;
+  const casadi_real *wr21, *wr22;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
   wr01 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
   wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
   arg1[0]=wr00;
   arg1[1]=wr01;
   arg1[2]=wr02;
   res1[0]=w03;
   res1[1]=w04;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 440, res[0]);
+  casadi_copy(w03, 352, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+396, 44, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+390 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+320 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
+  casadi_copy(w03+308, 44, w00);
+  /* #6: @5 = input[1][1] */
+  wr05 = arg[1] ? arg[1]+312 : casadi_zeros;
+  /* #7: @6 = input[2][1] */
+  wr06 = arg[2] ? arg[2]+256 : casadi_zeros;
+  /* #8: {@7, @8} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @5, @6) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 440, res[0]+440);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+396, 44, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+780 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+640 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 440, res[0]+880);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+396, 44, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+1170 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+960 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 440, res[0]+1320);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+396, 44, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+1560 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+1280 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr05;
+  arg1[2]=wr06;
+  res1[0]=w07;
   res1[1]=w08;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 440, res[0]+1760);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+396, 44, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+1950 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+1600 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @7 */
+  if (res[0]) casadi_copy(w07, 1408, res[0]+352);
+  /* #10: {NULL, @0} = horzsplit(@7) */
+  casadi_copy(w07+1364, 44, w00);
+  /* #11: @9 = input[1][2] */
+  wr09 = arg[1] ? arg[1]+1560 : casadi_zeros;
+  /* #12: @10 = input[2][2] */
+  wr10 = arg[2] ? arg[2]+1280 : casadi_zeros;
+  /* #13: {@11, @12} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @9, @10) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 440, res[0]+2200);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+396, 44, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+2340 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+1920 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 440, res[0]+2640);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+396, 44, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+2730 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+2240 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 440, res[0]+3080);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+396, 44, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+3120 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+2560 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr09;
+  arg1[2]=wr10;
+  res1[0]=w11;
   res1[1]=w12;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 440, res[0]+3520);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+396, 44, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+3510 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+2880 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @11 */
+  if (res[0]) casadi_copy(w11, 2816, res[0]+1760);
+  /* #15: {NULL, @0} = horzsplit(@11) */
+  casadi_copy(w11+2772, 44, w00);
+  /* #16: @13 = input[1][3] */
+  wr13 = arg[1] ? arg[1]+4056 : casadi_zeros;
+  /* #17: @14 = input[2][3] */
+  wr14 = arg[2] ? arg[2]+3328 : casadi_zeros;
+  /* #18: {@15, @16} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @13, @14) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 440, res[0]+3960);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 600, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 600, res[1]+600);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 600, res[1]+1200);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 600, res[1]+1800);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 600, res[1]+2400);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 600, res[1]+3000);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 600, res[1]+3600);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 600, res[1]+4200);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 600, res[1]+4800);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 600, res[1]+5400);
-  return 0;
-}
-
-/* one_sample_acc10_acc10_acc10:(xa[44],p[39x1000],e[32x1000])->(xa_next[44x1000],y[60x1000]) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+8824, *w03=w+8868, *w04=w+13268, *w05=w+19268, *w06=w+25268, *w07=w+31268, *w08=w+37268, *w09=w+43268, *w10=w+49268, *w11=w+55268, *w12=w+61268;
-  casadi_real *w13=w+67268;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
-  /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 4400, res[0]);
-  /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+4356, 44, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+3900 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+3200 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[1]=wr13;
+  arg1[2]=wr14;
+  res1[0]=w15;
+  res1[1]=w16;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @15 */
+  if (res[0]) casadi_copy(w15, 5632, res[0]+4576);
+  /* #20: {NULL, @0} = horzsplit(@15) */
+  casadi_copy(w15+5588, 44, w00);
+  /* #21: @17 = input[1][4] */
+  wr17 = arg[1] ? arg[1]+9048 : casadi_zeros;
+  /* #22: @18 = input[2][4] */
+  wr18 = arg[2] ? arg[2]+7424 : casadi_zeros;
+  /* #23: {@19, @20} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @17, @18) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 4400, res[0]+4400);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+4356, 44, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+7800 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+6400 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[1]=wr17;
+  arg1[2]=wr18;
+  res1[0]=w19;
+  res1[1]=w20;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @19 */
+  if (res[0]) casadi_copy(w19, 11264, res[0]+10208);
+  /* #25: {NULL, @0} = horzsplit(@19) */
+  casadi_copy(w19+11220, 44, w00);
+  /* #26: @21 = input[1][5] */
+  wr21 = arg[1] ? arg[1]+19032 : casadi_zeros;
+  /* #27: @22 = input[2][5] */
+  wr22 = arg[2] ? arg[2]+15616 : casadi_zeros;
+  /* #28: {@23, @24} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @21, @22) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 4400, res[0]+8800);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+4356, 44, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+11700 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+9600 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 4400, res[0]+13200);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+4356, 44, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+15600 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+12800 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 4400, res[0]+17600);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+4356, 44, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+19500 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+16000 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 4400, res[0]+22000);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+4356, 44, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+23400 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+19200 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 4400, res[0]+26400);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+4356, 44, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+27300 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+22400 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 4400, res[0]+30800);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+4356, 44, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+31200 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+25600 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 4400, res[0]+35200);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+4356, 44, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+35100 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+28800 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 4400, res[0]+39600);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 6000, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 6000, res[1]+6000);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 6000, res[1]+12000);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 6000, res[1]+18000);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 6000, res[1]+24000);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 6000, res[1]+30000);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 6000, res[1]+36000);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 6000, res[1]+42000);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 6000, res[1]+48000);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 6000, res[1]+54000);
+  arg1[1]=wr21;
+  arg1[2]=wr22;
+  res1[0]=w23;
+  res1[1]=w24;
+  if (casadi_f41(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @23 */
+  if (res[0]) casadi_copy(w23, 22528, res[0]+21472);
+  /* #30: output[1][0] = @4 */
+  casadi_copy(w04, 480, res[1]);
+  /* #31: output[1][1] = @8 */
+  if (res[1]) casadi_copy(w08, 1920, res[1]+480);
+  /* #32: output[1][2] = @12 */
+  if (res[1]) casadi_copy(w12, 3840, res[1]+2400);
+  /* #33: output[1][3] = @16 */
+  if (res[1]) casadi_copy(w16, 7680, res[1]+6240);
+  /* #34: output[1][4] = @20 */
+  if (res[1]) casadi_copy(w20, 15360, res[1]+13920);
+  /* #35: output[1][5] = @24 */
+  if (res[1]) casadi_copy(w24, 30720, res[1]+29280);
   return 0;
 }
 
 /* pcc_planar_4seg_theorem10_sampled_loop_loop:(x0[43],p[39],k0,e[32x1000])->(x[43x1000],y[60x1000]) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, w1, *w2=w+80368, *w4=w+80412, *w6=w+119412, *w7=w+163412, *w8=w+223412;
+  casadi_real **res1=res+2, *rr, w1, *w2=w+296396, *w4=w+296440, *w6=w+335440, *w7=w+379440, *w8=w+439440;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr0, *wr3, *wr5;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
@@ -40993,13 +40931,13 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }
   /* #5: @5 = input[3][0] */
   wr5 = arg[3] ? arg[3] : casadi_zeros;
-  /* #6: {@6, @7} = one_sample_acc10_acc10_acc10(@2, @4, @5) */
+  /* #6: {@6, @7} = acc(@2, @4, @5) */
   arg1[0]=w2;
   arg1[1]=w4;
   arg1[2]=wr5;
   res1[0]=w6;
   res1[1]=w7;
-  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
   /* #7: @8 = @6[:44000:44;:43] */
   for (rr=w8, cs=w6+0; cs!=w6+44000; cs+=44) for (ct=cs+0; ct!=cs+43; ct+=1) *rr++ = *ct;
   /* #8: output[0][0] = @8 */
@@ -41010,7 +40948,7 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_loop_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f23(arg, res, iw, w, mem);
+  return casadi_f30(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_loop_loop_checkout(void) {
@@ -41073,18 +41011,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* pcc_planar_4seg_theorem10_sampled_loop_lo
 }
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_loop_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31;
-  if (sz_res) *sz_res = 16;
+  if (sz_arg) *sz_arg = 52;
+  if (sz_res) *sz_res = 30;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 266412;
+  if (sz_w) *sz_w = 482440;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_loop_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 16*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 52*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 30*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 266412*sizeof(casadi_real);
+  if (sz_w) *sz_w = 482440*sizeof(casadi_real);
   return 0;
 }
 #if defined(__GNUC__) && !defined(__clang__)
@@ -41092,7 +41030,7 @@ CASADI_SYMBOL_EXPORT int pcc_planar_4seg_theorem10_sampled_loop_loop_work_bytes(
 #endif
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f29(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pcc_planar_4seg_plant_checkout(void) {

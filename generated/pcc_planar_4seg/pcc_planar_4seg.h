@@ -301,10 +301,10 @@ const casadi_int* pcc_planar_4seg_theorem10_closed_loop_sparsity_in(casadi_int i
 const casadi_int* pcc_planar_4seg_theorem10_closed_loop_sparsity_out(casadi_int i);
 int pcc_planar_4seg_theorem10_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int pcc_planar_4seg_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pcc_planar_4seg_theorem10_closed_loop_SZ_ARG 20
-#define pcc_planar_4seg_theorem10_closed_loop_SZ_RES 12
+#define pcc_planar_4seg_theorem10_closed_loop_SZ_ARG 41
+#define pcc_planar_4seg_theorem10_closed_loop_SZ_RES 26
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_IW 0
-#define pcc_planar_4seg_theorem10_closed_loop_SZ_W 194761
+#define pcc_planar_4seg_theorem10_closed_loop_SZ_W 411017
 int pcc_planar_4seg_theorem10_sampled_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_theorem10_sampled_step_checkout(void);
 void pcc_planar_4seg_theorem10_sampled_step_release(int mem);
@@ -355,10 +355,10 @@ const casadi_int* pcc_planar_4seg_theorem10_sampled_loop_loop_sparsity_in(casadi
 const casadi_int* pcc_planar_4seg_theorem10_sampled_loop_loop_sparsity_out(casadi_int i);
 int pcc_planar_4seg_theorem10_sampled_loop_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int pcc_planar_4seg_theorem10_sampled_loop_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_ARG 31
-#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_RES 16
+#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_ARG 52
+#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_RES 30
 #define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_IW 0
-#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_W 266412
+#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_W 482440
 int pcc_planar_4seg_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_plant_checkout(void);
 void pcc_planar_4seg_plant_release(int mem);

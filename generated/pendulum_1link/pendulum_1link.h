@@ -265,10 +265,10 @@ const casadi_int* pendulum_1link_slotine_li_loop_sparsity_in(casadi_int i);
 const casadi_int* pendulum_1link_slotine_li_loop_sparsity_out(casadi_int i);
 int pendulum_1link_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int pendulum_1link_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pendulum_1link_slotine_li_loop_SZ_ARG 30
-#define pendulum_1link_slotine_li_loop_SZ_RES 14
+#define pendulum_1link_slotine_li_loop_SZ_ARG 51
+#define pendulum_1link_slotine_li_loop_SZ_RES 28
 #define pendulum_1link_slotine_li_loop_SZ_IW 0
-#define pendulum_1link_slotine_li_loop_SZ_W 27428
+#define pendulum_1link_slotine_li_loop_SZ_W 50574
 int pendulum_1link_mckibben_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pendulum_1link_mckibben_torque_checkout(void);
 void pendulum_1link_mckibben_torque_release(int mem);
@@ -499,10 +499,10 @@ const casadi_int* pendulum_1link_theorem5_closed_loop_sparsity_in(casadi_int i);
 const casadi_int* pendulum_1link_theorem5_closed_loop_sparsity_out(casadi_int i);
 int pendulum_1link_theorem5_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int pendulum_1link_theorem5_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pendulum_1link_theorem5_closed_loop_SZ_ARG 20
-#define pendulum_1link_theorem5_closed_loop_SZ_RES 12
+#define pendulum_1link_theorem5_closed_loop_SZ_ARG 41
+#define pendulum_1link_theorem5_closed_loop_SZ_RES 26
 #define pendulum_1link_theorem5_closed_loop_SZ_IW 0
-#define pendulum_1link_theorem5_closed_loop_SZ_W 54005
+#define pendulum_1link_theorem5_closed_loop_SZ_W 96724
 int pendulum_1link_feedback_linearization(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pendulum_1link_feedback_linearization_checkout(void);
 void pendulum_1link_feedback_linearization_release(int mem);

@@ -63,7 +63,14 @@ extern "C" {
 #define casadi_f36 CASADI_PREFIX(f36)
 #define casadi_f37 CASADI_PREFIX(f37)
 #define casadi_f38 CASADI_PREFIX(f38)
+#define casadi_f39 CASADI_PREFIX(f39)
 #define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f40 CASADI_PREFIX(f40)
+#define casadi_f41 CASADI_PREFIX(f41)
+#define casadi_f42 CASADI_PREFIX(f42)
+#define casadi_f43 CASADI_PREFIX(f43)
+#define casadi_f44 CASADI_PREFIX(f44)
+#define casadi_f45 CASADI_PREFIX(f45)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
 #define casadi_f7 CASADI_PREFIX(f7)
@@ -1537,7 +1544,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_step_work_bytes(casadi_int *
 }
 
 /* one_sample:(xa[6],p[5],e[3])->(xa_next[6],y[7]) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, *rr, *w0=w+42, *w1=w+48, *w2=w+53, w3, *w4=w+58, *w5=w+61, *w6=w+66, w7;
   const casadi_real **arg1=arg+3, *cs;
   /* #0: @0 = input[0][0] */
@@ -1573,356 +1580,386 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* one_sample_acc10:(xa[6],p[5x10],e[3x10])->(xa_next[6x10],y[7x10]) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+75, *w01=w+81, *w02=w+86, *w03=w+89, *w04=w+95, *w05=w+102, *w06=w+109, *w07=w+116, *w08=w+123, *w09=w+130, *w10=w+137;
-  casadi_real *w11=w+144, *w12=w+151, *w13=w+158;
+/* one_sample_acc2:(xa[6],p[5x2],e[3x2])->(xa_next[6x2],y[7x2]) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+75, *w1=w+81, *w2=w+86, *w3=w+89, *w4=w+95, *w5=w+102;
   const casadi_real **arg1=arg+3;
   /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 6, w00);
+  casadi_copy(arg[0], 6, w0);
   /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 5, w01);
+  casadi_copy(arg[1], 5, w1);
   /* #2: @2 = input[2][0] */
-  casadi_copy(arg[2], 3, w02);
+  casadi_copy(arg[2], 3, w2);
   /* #3: {@3, @4} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w0;
+  arg1[1]=w1;
+  arg1[2]=w2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 6, res[0]);
+  casadi_copy(w3, 6, res[0]);
   /* #5: @1 = input[1][1] */
-  casadi_copy(arg[1] ? arg[1]+5 : 0, 5, w01);
+  casadi_copy(arg[1] ? arg[1]+5 : 0, 5, w1);
   /* #6: @2 = input[2][1] */
-  casadi_copy(arg[2] ? arg[2]+3 : 0, 3, w02);
+  casadi_copy(arg[2] ? arg[2]+3 : 0, 3, w2);
   /* #7: {@0, @5} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w05;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w3;
+  arg1[1]=w1;
+  arg1[2]=w2;
+  res1[0]=w0;
+  res1[1]=w5;
+  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 6, res[0]+6);
-  /* #9: @1 = input[1][2] */
-  casadi_copy(arg[1] ? arg[1]+10 : 0, 5, w01);
-  /* #10: @2 = input[2][2] */
-  casadi_copy(arg[2] ? arg[2]+6 : 0, 3, w02);
-  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 6, res[0]+12);
-  /* #13: @1 = input[1][3] */
-  casadi_copy(arg[1] ? arg[1]+15 : 0, 5, w01);
-  /* #14: @2 = input[2][3] */
-  casadi_copy(arg[2] ? arg[2]+9 : 0, 3, w02);
-  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w07;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #16: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 6, res[0]+18);
-  /* #17: @1 = input[1][4] */
-  casadi_copy(arg[1] ? arg[1]+20 : 0, 5, w01);
-  /* #18: @2 = input[2][4] */
-  casadi_copy(arg[2] ? arg[2]+12 : 0, 3, w02);
-  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #20: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 6, res[0]+24);
-  /* #21: @1 = input[1][5] */
-  casadi_copy(arg[1] ? arg[1]+25 : 0, 5, w01);
-  /* #22: @2 = input[2][5] */
-  casadi_copy(arg[2] ? arg[2]+15 : 0, 3, w02);
-  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w09;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 6, res[0]+30);
-  /* #25: @1 = input[1][6] */
-  casadi_copy(arg[1] ? arg[1]+30 : 0, 5, w01);
-  /* #26: @2 = input[2][6] */
-  casadi_copy(arg[2] ? arg[2]+18 : 0, 3, w02);
-  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 6, res[0]+36);
-  /* #29: @1 = input[1][7] */
-  casadi_copy(arg[1] ? arg[1]+35 : 0, 5, w01);
-  /* #30: @2 = input[2][7] */
-  casadi_copy(arg[2] ? arg[2]+21 : 0, 3, w02);
-  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w11;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 6, res[0]+42);
-  /* #33: @1 = input[1][8] */
-  casadi_copy(arg[1] ? arg[1]+40 : 0, 5, w01);
-  /* #34: @2 = input[2][8] */
-  casadi_copy(arg[2] ? arg[2]+24 : 0, 3, w02);
-  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #36: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 6, res[0]+48);
-  /* #37: @1 = input[1][9] */
-  casadi_copy(arg[1] ? arg[1]+45 : 0, 5, w01);
-  /* #38: @2 = input[2][9] */
-  casadi_copy(arg[2] ? arg[2]+27 : 0, 3, w02);
-  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w13;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #40: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 6, res[0]+54);
-  /* #41: output[1][0] = @4 */
-  casadi_copy(w04, 7, res[1]);
-  /* #42: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 7, res[1]+7);
-  /* #43: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 7, res[1]+14);
-  /* #44: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 7, res[1]+21);
-  /* #45: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 7, res[1]+28);
-  /* #46: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 7, res[1]+35);
-  /* #47: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 7, res[1]+42);
-  /* #48: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 7, res[1]+49);
-  /* #49: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 7, res[1]+56);
-  /* #50: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 7, res[1]+63);
+  if (res[0]) casadi_copy(w0, 6, res[0]+6);
+  /* #9: output[1][0] = @4 */
+  casadi_copy(w4, 7, res[1]);
+  /* #10: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 7, res[1]+7);
   return 0;
 }
 
-/* one_sample_acc10_acc10:(xa[6],p[5x100],e[3x100])->(xa_next[6x100],y[7x100]) */
+/* one_sample_acc2_acc2:(xa[6],p[5x4],e[3x4])->(xa_next[6x4],y[7x4]) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+109, *w2=w+115, *w3=w+121, *w4=w+133, *w5=w+147;
+  const casadi_real **arg1=arg+3, *wr1;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 6, w2);
+  /* #3: {@3, @4} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=w2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 12, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+6, 6, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+10 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  casadi_copy(arg[2] ? arg[2]+6 : 0, 6, w2);
+  /* #8: {@3, @5} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=w2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 12, res[0]+12);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 14, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 14, res[1]+14);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2:(xa[6],p[5x8],e[3x8])->(xa_next[6x8],y[7x8]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+165, *w03=w+171, *w04=w+231, *w05=w+301, *w06=w+371, *w07=w+441, *w08=w+511, *w09=w+581, *w10=w+651, *w11=w+721, *w12=w+791;
-  casadi_real *w13=w+861;
-  const casadi_real **arg1=arg+3, *wr01, *wr02;
+  casadi_real **res1=res+2, *w0=w+171, *w3=w+177, *w4=w+201, *w5=w+229;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 6, w00);
+  casadi_copy(arg[0], 6, w0);
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
   if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 60, res[0]);
+  casadi_copy(w3, 24, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+54, 6, w00);
+  casadi_copy(w3+18, 6, w0);
   /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+50 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+20 : casadi_zeros;
   /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+30 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
+  wr2 = arg[2] ? arg[2]+12 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
   if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
   /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 60, res[0]+60);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+54, 6, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+100 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 60, res[0]+120);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+54, 6, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+150 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+90 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 60, res[0]+180);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+54, 6, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+200 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+120 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 60, res[0]+240);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+54, 6, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+250 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+150 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 60, res[0]+300);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+54, 6, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+300 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+180 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 60, res[0]+360);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+54, 6, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+350 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+210 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 60, res[0]+420);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+54, 6, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+400 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+240 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 60, res[0]+480);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+54, 6, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+450 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+270 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 60, res[0]+540);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 70, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 70, res[1]+70);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 70, res[1]+140);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 70, res[1]+210);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 70, res[1]+280);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 70, res[1]+350);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 70, res[1]+420);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 70, res[1]+490);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 70, res[1]+560);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 70, res[1]+630);
+  if (res[0]) casadi_copy(w3, 24, res[0]+24);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 28, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 28, res[1]+28);
   return 0;
 }
 
-/* one_sample_acc10_acc10_acc10:(xa[6],p[5x1000],e[3x1000])->(xa_next[6x1000],y[7x1000]) */
+/* one_sample_acc2_acc2_acc2_acc2:(xa[6],p[5x16],e[3x16])->(xa_next[6x16],y[7x16]) */
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+289, *w3=w+295, *w4=w+343, *w5=w+399;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 48, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+42, 6, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+40 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+24 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 48, res[0]+48);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 56, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 56, res[1]+56);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2:(xa[6],p[5x32],e[3x32])->(xa_next[6x32],y[7x32]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+519, *w3=w+525, *w4=w+621, *w5=w+733;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 96, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+90, 6, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+80 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+48 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 96, res[0]+96);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 112, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 112, res[1]+112);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2:(xa[6],p[5x64],e[3x64])->(xa_next[6x64],y[7x64]) */
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+973, *w3=w+979, *w4=w+1171, *w5=w+1395;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 192, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+186, 6, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+160 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+96 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 192, res[0]+192);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 224, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 224, res[1]+224);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[6],p[5x128],e[3x128])->(xa_next[6x128],y[7x128]) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1875, *w3=w+1881, *w4=w+2265, *w5=w+2713;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 384, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+378, 6, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+320 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+192 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 384, res[0]+384);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 448, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 448, res[1]+448);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[6],p[5x256],e[3x256])->(xa_next[6x256],y[7x256]) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+3673, *w3=w+3679, *w4=w+4447, *w5=w+5343;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 768, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+762, 6, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+640 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+384 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 768, res[0]+768);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 896, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 896, res[1]+896);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[6],p[5x512],e[3x512])->(xa_next[6x512],y[7x512]) */
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+7263, *w3=w+7269, *w4=w+8805, *w5=w+10597;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 6, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 1536, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+1530, 6, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+1280 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+768 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 1536, res[0]+1536);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 1792, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 1792, res[1]+1792);
+  return 0;
+}
+
+/* acc:(xa[6],p[5x1000],e[3x1000])->(xa_next[6x1000],y[7x1000]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+1011, *w03=w+1017, *w04=w+1617, *w05=w+2317, *w06=w+3017, *w07=w+3717, *w08=w+4417, *w09=w+5117, *w10=w+5817, *w11=w+6517, *w12=w+7217;
-  casadi_real *w13=w+7917;
-  const casadi_real **arg1=arg+3, *wr01, *wr02;
+  casadi_real **res1=res+2, *w00=w+14437, *w03=w+14443, *w04=w+14491, *w07=w+14547, *w08=w+14739, *w10=w+14963, *w11=w+15347, *w13=w+15795, *w14=w+16563, *w16=w+17459, *w17=w+18995;
+  casadi_real *w19=w+20787, *w20=w+23859;
+  const casadi_real **arg1=arg+3, *wr01, *wr02, *wr05, *wr06, *wr07, *wr09, *wr10, *wr12, *wr13, *wr15, *wr16;
+  const casadi_real *wr18;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 6, w00);
   /* #1: @1 = input[1][0] */
   wr01 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
   wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
   arg1[0]=w00;
   arg1[1]=wr01;
   arg1[2]=wr02;
@@ -1930,169 +1967,101 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[1]=w04;
   if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 600, res[0]);
+  casadi_copy(w03, 48, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+594, 6, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+500 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  casadi_copy(w03+42, 6, w00);
+  /* #6: @5 = input[1][1] */
+  wr05 = arg[1] ? arg[1]+40 : casadi_zeros;
+  /* #7: @6 = input[2][1] */
+  wr06 = arg[2] ? arg[2]+24 : casadi_zeros;
+  /* #8: {@7, @8} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @5, @6) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 600, res[0]+600);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+594, 6, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+1000 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 600, res[0]+1200);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+594, 6, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+1500 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+900 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 600, res[0]+1800);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+594, 6, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+2000 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+1200 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr05;
+  arg1[2]=wr06;
+  res1[0]=w07;
   res1[1]=w08;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 600, res[0]+2400);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+594, 6, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+2500 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+1500 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @7 */
+  if (res[0]) casadi_copy(w07, 192, res[0]+48);
+  /* #10: {NULL, @0} = horzsplit(@7) */
+  casadi_copy(w07+186, 6, w00);
+  /* #11: @9 = input[1][2] */
+  wr09 = arg[1] ? arg[1]+200 : casadi_zeros;
+  /* #12: @7 = input[2][2] */
+  wr07 = arg[2] ? arg[2]+120 : casadi_zeros;
+  /* #13: {@10, @11} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @9, @7) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 600, res[0]+3000);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+594, 6, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+3000 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+1800 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 600, res[0]+3600);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+594, 6, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+3500 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+2100 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr09;
+  arg1[2]=wr07;
+  res1[0]=w10;
   res1[1]=w11;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 600, res[0]+4200);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+594, 6, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+4000 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+2400 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @10 */
+  if (res[0]) casadi_copy(w10, 384, res[0]+240);
+  /* #15: {NULL, @0} = horzsplit(@10) */
+  casadi_copy(w10+378, 6, w00);
+  /* #16: @12 = input[1][3] */
+  wr12 = arg[1] ? arg[1]+520 : casadi_zeros;
+  /* #17: @10 = input[2][3] */
+  wr10 = arg[2] ? arg[2]+312 : casadi_zeros;
+  /* #18: {@13, @14} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @12, @10) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 600, res[0]+4800);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+594, 6, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+4500 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+2700 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[1]=wr12;
+  arg1[2]=wr10;
+  res1[0]=w13;
+  res1[1]=w14;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @13 */
+  if (res[0]) casadi_copy(w13, 768, res[0]+624);
+  /* #20: {NULL, @0} = horzsplit(@13) */
+  casadi_copy(w13+762, 6, w00);
+  /* #21: @15 = input[1][4] */
+  wr15 = arg[1] ? arg[1]+1160 : casadi_zeros;
+  /* #22: @13 = input[2][4] */
+  wr13 = arg[2] ? arg[2]+696 : casadi_zeros;
+  /* #23: {@16, @17} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @15, @13) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 600, res[0]+5400);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 700, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 700, res[1]+700);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 700, res[1]+1400);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 700, res[1]+2100);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 700, res[1]+2800);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 700, res[1]+3500);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 700, res[1]+4200);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 700, res[1]+4900);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 700, res[1]+5600);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 700, res[1]+6300);
+  arg1[1]=wr15;
+  arg1[2]=wr13;
+  res1[0]=w16;
+  res1[1]=w17;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @16 */
+  if (res[0]) casadi_copy(w16, 1536, res[0]+1392);
+  /* #25: {NULL, @0} = horzsplit(@16) */
+  casadi_copy(w16+1530, 6, w00);
+  /* #26: @18 = input[1][5] */
+  wr18 = arg[1] ? arg[1]+2440 : casadi_zeros;
+  /* #27: @16 = input[2][5] */
+  wr16 = arg[2] ? arg[2]+1464 : casadi_zeros;
+  /* #28: {@19, @20} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @18, @16) */
+  arg1[0]=w00;
+  arg1[1]=wr18;
+  arg1[2]=wr16;
+  res1[0]=w19;
+  res1[1]=w20;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @19 */
+  if (res[0]) casadi_copy(w19, 3072, res[0]+2928);
+  /* #30: output[1][0] = @4 */
+  casadi_copy(w04, 56, res[1]);
+  /* #31: output[1][1] = @8 */
+  if (res[1]) casadi_copy(w08, 224, res[1]+56);
+  /* #32: output[1][2] = @11 */
+  if (res[1]) casadi_copy(w11, 448, res[1]+280);
+  /* #33: output[1][3] = @14 */
+  if (res[1]) casadi_copy(w14, 896, res[1]+728);
+  /* #34: output[1][4] = @17 */
+  if (res[1]) casadi_copy(w17, 1792, res[1]+1624);
+  /* #35: output[1][5] = @20 */
+  if (res[1]) casadi_copy(w20, 3584, res[1]+3416);
   return 0;
 }
 
 /* pendulum_qbmove_slotine_li_loop:(x0[5],p[5],k0,e[3x1000])->(x[5x1000],y[7x1000]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, *w0=w+9417, w1, *w2=w+9422, *w3=w+9428, *w5=w+14428, *w6=w+20428;
+  casadi_real **res1=res+2, *rr, *w0=w+32563, w1, *w2=w+32568, *w3=w+32574, *w5=w+37574, *w6=w+43574;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr4;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 5, w0);
@@ -2110,7 +2079,7 @@ static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }
   /* #5: @4 = input[3][0] */
   wr4 = arg[3] ? arg[3] : casadi_zeros;
-  /* #6: {@5, @6} = one_sample_acc10_acc10_acc10(@2, @3, @4) */
+  /* #6: {@5, @6} = acc(@2, @3, @4) */
   arg1[0]=w2;
   arg1[1]=w3;
   arg1[2]=wr4;
@@ -2190,23 +2159,23 @@ CASADI_SYMBOL_EXPORT const casadi_int* pendulum_qbmove_slotine_li_loop_sparsity_
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 30;
-  if (sz_res) *sz_res = 14;
+  if (sz_arg) *sz_arg = 51;
+  if (sz_res) *sz_res = 28;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 27428;
+  if (sz_w) *sz_w = 50574;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 30*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 51*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 28*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 27428*sizeof(casadi_real);
+  if (sz_w) *sz_w = 50574*sizeof(casadi_real);
   return 0;
 }
 
 /* pendulum_qbmove_qbmove_torque:(q,qa,qb)->(tau_a,tau_b,tau_e,sigma_a,sigma_b,sigma) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=2.2700000000000001e-02;
   a1=6.7328000000000001e+00;
@@ -2241,7 +2210,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f18(arg, res, iw, w, mem);
+  return casadi_f25(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_torque_checkout(void) {
@@ -2326,7 +2295,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_torque_work_bytes(casadi_int *sz
 }
 
 /* pendulum_qbmove_qbmove_stiffness_rate:(q,qa,qb,qd,qad,qbd)->(sigma_dot) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=1.5283456000000001e-01;
   a1=6.7328000000000001e+00;
@@ -2358,7 +2327,7 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_stiffness_rate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f19(arg, res, iw, w, mem);
+  return casadi_f26(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_stiffness_rate_checkout(void) {
@@ -2439,7 +2408,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_stiffness_rate_work_bytes(casadi
 }
 
 /* pendulum_qbmove_qbmove_deflection:(tau)->(phi_a,phi_b) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2;
   a0=arg[0]? arg[0][0] : 0;
   a1=2.2700000000000001e-02;
@@ -2458,7 +2427,7 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_deflection(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f20(arg, res, iw, w, mem);
+  return casadi_f27(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_deflection_checkout(void) {
@@ -2531,7 +2500,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_qbmove_deflection_work_bytes(casadi_int
 }
 
 /* pendulum_qbmove_electric_plant:(x[6],u[2],spring_scale[2],h)->(x_next[6]) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -4293,7 +4262,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_plant_checkout(void) {
@@ -4375,7 +4344,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_plant_work_bytes(casadi_int *s
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_pd:(z[0],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,dt)->(z_next[0],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -4877,7 +4846,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f29(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_checkout(void) {
@@ -4988,7 +4957,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_work_bytes(casadi_i
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_pd_integral:(z,x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,dt)->(z_next,tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -5501,7 +5470,7 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f23(arg, res, iw, w, mem);
+  return casadi_f30(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_checkout(void) {
@@ -5614,7 +5583,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_work_bytes
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_adaptive:(z[7],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,dt)->(z_next[7],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -6267,7 +6236,7 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f24(arg, res, iw, w, mem);
+  return casadi_f31(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_checkout(void) {
@@ -6382,7 +6351,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_work_bytes(ca
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_adaptive_integral:(z[8],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,ki,dt)->(z_next[8],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -7046,7 +7015,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f32(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_checkout(void) {
@@ -7163,7 +7132,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_work
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_pd_measured_acceleration:(z,x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,dt)->(z_next,tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -7640,7 +7609,7 @@ static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f26(arg, res, iw, w, mem);
+  return casadi_f33(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_measured_acceleration_checkout(void) {
@@ -7751,7 +7720,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_measured_accelerati
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration:(z[2],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,dt)->(z_next[2],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -8239,7 +8208,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f27(arg, res, iw, w, mem);
+  return casadi_f34(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_measured_acceleration_checkout(void) {
@@ -8352,7 +8321,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_measured_a
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_adaptive_measured_acceleration:(z[8],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,dt)->(z_next[8],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -8970,7 +8939,7 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f28(arg, res, iw, w, mem);
+  return casadi_f35(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_measured_acceleration_checkout(void) {
@@ -9085,7 +9054,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_measured_acce
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration:(z[9],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,ki,dt)->(z_next[9],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -9714,7 +9683,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f36(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_measured_acceleration_checkout(void) {
@@ -9831,7 +9800,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_meas
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_pd_filter:(z[4],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,omega_f,dt)->(z_next[4],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   a00=arg[0]? arg[0][0] : 0;
@@ -9993,7 +9962,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f30(arg, res, iw, w, mem);
+  return casadi_f37(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_filter_checkout(void) {
@@ -10106,7 +10075,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_filter_work_bytes(c
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_pd_integral_filter:(z[5],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,omega_f,dt)->(z_next[5],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   a00=arg[0]? arg[0][0] : 0;
@@ -10275,7 +10244,7 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f31(arg, res, iw, w, mem);
+  return casadi_f38(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_filter_checkout(void) {
@@ -10390,7 +10359,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_pd_integral_filter_wor
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_adaptive_filter:(z[11],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,omega_f,dt)->(z_next[11],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31;
@@ -10606,7 +10575,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f32(arg, res, iw, w, mem);
+  return casadi_f39(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_filter_checkout(void) {
@@ -10723,7 +10692,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_filter_work_b
 #pragma GCC optimize ("O1")
 #endif
 /* pendulum_qbmove_electric_cascade_adaptive_integral_filter:(z[12],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[3],ksigma,delta,ki,omega_f,dt)->(z_next[12],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31;
@@ -10946,7 +10915,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f33(arg, res, iw, w, mem);
+  return casadi_f40(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_filter_checkout(void) {
@@ -11060,7 +11029,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_cascade_adaptive_integral_filt
 #endif
 
 /* pendulum_qbmove_electric_estimator_step:(state[59],y[5])->(state_next[59],sigma_hat,tau_hat,tau_uio,updating[2]) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -12163,7 +12132,7 @@ static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f34(arg, res, iw, w, mem);
+  return casadi_f41(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_estimator_step_checkout(void) {
@@ -12244,7 +12213,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_electric_estimator_step_work_bytes(casa
 }
 
 /* pendulum_qbmove_noninvasive_estimator_step:(state[65],y[3])->(state_next[65],sigma_hat,tau_hat,tau_uio,updating) */
-static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -13713,7 +13682,7 @@ static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_noninvasive_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f35(arg, res, iw, w, mem);
+  return casadi_f42(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_noninvasive_estimator_step_checkout(void) {
@@ -13794,7 +13763,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_noninvasive_estimator_step_work_bytes(c
 }
 
 /* pendulum_qbmove_spring_pair_cascade:(x[6],phi_prev[2],ref[9],kp,kd,kp_m[2],kd_m[2],dt)->(phi[2],u[2],theta_d[2],theta_d_dot[2],theta_d_ddot[2],tau_d,tau_residual,sigma_residual,det) */
-static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -14333,7 +14302,7 @@ static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_spring_pair_cascade(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f36(arg, res, iw, w, mem);
+  return casadi_f43(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_spring_pair_cascade_checkout(void) {
@@ -14434,7 +14403,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_spring_pair_cascade_work_bytes(casadi_i
 }
 
 /* pendulum_qbmove_spring_pair_plant:(x[6],u[2],h)->(x_next[6]) */
-static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f44(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -16192,7 +16161,7 @@ static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_spring_pair_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f37(arg, res, iw, w, mem);
+  return casadi_f44(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_spring_pair_plant_checkout(void) {
@@ -16267,7 +16236,7 @@ CASADI_SYMBOL_EXPORT int pendulum_qbmove_spring_pair_plant_work_bytes(casadi_int
 }
 
 /* pendulum_qbmove_spring_pair_deflections:(tau,sigma,phi_prev[2])->(phi[2],tau_residual,sigma_residual,det) */
-static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f45(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26;
@@ -16879,7 +16848,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_spring_pair_deflections(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f38(arg, res, iw, w, mem);
+  return casadi_f45(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int pendulum_qbmove_spring_pair_deflections_checkout(void) {

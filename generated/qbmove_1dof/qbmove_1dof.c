@@ -63,7 +63,14 @@ extern "C" {
 #define casadi_f36 CASADI_PREFIX(f36)
 #define casadi_f37 CASADI_PREFIX(f37)
 #define casadi_f38 CASADI_PREFIX(f38)
+#define casadi_f39 CASADI_PREFIX(f39)
 #define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f40 CASADI_PREFIX(f40)
+#define casadi_f41 CASADI_PREFIX(f41)
+#define casadi_f42 CASADI_PREFIX(f42)
+#define casadi_f43 CASADI_PREFIX(f43)
+#define casadi_f44 CASADI_PREFIX(f44)
+#define casadi_f45 CASADI_PREFIX(f45)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
 #define casadi_f7 CASADI_PREFIX(f7)
@@ -1503,7 +1510,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_slotine_li_step_work_bytes(casadi_int *sz_a
 }
 
 /* one_sample:(xa[5],p[4],e[3])->(xa_next[5],y[6]) */
-static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, *rr, *w0=w+36, *w1=w+41, *w2=w+45, w3, *w4=w+49, *w5=w+52, *w6=w+56, w7;
   const casadi_real **arg1=arg+3, *cs;
   /* #0: @0 = input[0][0] */
@@ -1539,356 +1546,386 @@ static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* one_sample_acc10:(xa[5],p[4x10],e[3x10])->(xa_next[5x10],y[6x10]) */
-static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+64, *w01=w+69, *w02=w+73, *w03=w+76, *w04=w+81, *w05=w+87, *w06=w+93, *w07=w+99, *w08=w+105, *w09=w+111, *w10=w+117;
-  casadi_real *w11=w+123, *w12=w+129, *w13=w+135;
+/* one_sample_acc2:(xa[5],p[4x2],e[3x2])->(xa_next[5x2],y[6x2]) */
+static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+64, *w1=w+69, *w2=w+73, *w3=w+76, *w4=w+81, *w5=w+87;
   const casadi_real **arg1=arg+3;
   /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 5, w00);
+  casadi_copy(arg[0], 5, w0);
   /* #1: @1 = input[1][0] */
-  casadi_copy(arg[1], 4, w01);
+  casadi_copy(arg[1], 4, w1);
   /* #2: @2 = input[2][0] */
-  casadi_copy(arg[2], 3, w02);
+  casadi_copy(arg[2], 3, w2);
   /* #3: {@3, @4} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w0;
+  arg1[1]=w1;
+  arg1[2]=w2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 5, res[0]);
+  casadi_copy(w3, 5, res[0]);
   /* #5: @1 = input[1][1] */
-  casadi_copy(arg[1] ? arg[1]+4 : 0, 4, w01);
+  casadi_copy(arg[1] ? arg[1]+4 : 0, 4, w1);
   /* #6: @2 = input[2][1] */
-  casadi_copy(arg[2] ? arg[2]+3 : 0, 3, w02);
+  casadi_copy(arg[2] ? arg[2]+3 : 0, 3, w2);
   /* #7: {@0, @5} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w05;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w3;
+  arg1[1]=w1;
+  arg1[2]=w2;
+  res1[0]=w0;
+  res1[1]=w5;
+  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+5);
-  /* #9: @1 = input[1][2] */
-  casadi_copy(arg[1] ? arg[1]+8 : 0, 4, w01);
-  /* #10: @2 = input[2][2] */
-  casadi_copy(arg[2] ? arg[2]+6 : 0, 3, w02);
-  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 5, res[0]+10);
-  /* #13: @1 = input[1][3] */
-  casadi_copy(arg[1] ? arg[1]+12 : 0, 4, w01);
-  /* #14: @2 = input[2][3] */
-  casadi_copy(arg[2] ? arg[2]+9 : 0, 3, w02);
-  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w07;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #16: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+15);
-  /* #17: @1 = input[1][4] */
-  casadi_copy(arg[1] ? arg[1]+16 : 0, 4, w01);
-  /* #18: @2 = input[2][4] */
-  casadi_copy(arg[2] ? arg[2]+12 : 0, 3, w02);
-  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #20: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 5, res[0]+20);
-  /* #21: @1 = input[1][5] */
-  casadi_copy(arg[1] ? arg[1]+20 : 0, 4, w01);
-  /* #22: @2 = input[2][5] */
-  casadi_copy(arg[2] ? arg[2]+15 : 0, 3, w02);
-  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w09;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+25);
-  /* #25: @1 = input[1][6] */
-  casadi_copy(arg[1] ? arg[1]+24 : 0, 4, w01);
-  /* #26: @2 = input[2][6] */
-  casadi_copy(arg[2] ? arg[2]+18 : 0, 3, w02);
-  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 5, res[0]+30);
-  /* #29: @1 = input[1][7] */
-  casadi_copy(arg[1] ? arg[1]+28 : 0, 4, w01);
-  /* #30: @2 = input[2][7] */
-  casadi_copy(arg[2] ? arg[2]+21 : 0, 3, w02);
-  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w11;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+35);
-  /* #33: @1 = input[1][8] */
-  casadi_copy(arg[1] ? arg[1]+32 : 0, 4, w01);
-  /* #34: @2 = input[2][8] */
-  casadi_copy(arg[2] ? arg[2]+24 : 0, 3, w02);
-  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #36: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 5, res[0]+40);
-  /* #37: @1 = input[1][9] */
-  casadi_copy(arg[1] ? arg[1]+36 : 0, 4, w01);
-  /* #38: @2 = input[2][9] */
-  casadi_copy(arg[2] ? arg[2]+27 : 0, 3, w02);
-  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=w01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w13;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #40: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 5, res[0]+45);
-  /* #41: output[1][0] = @4 */
-  casadi_copy(w04, 6, res[1]);
-  /* #42: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 6, res[1]+6);
-  /* #43: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 6, res[1]+12);
-  /* #44: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 6, res[1]+18);
-  /* #45: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 6, res[1]+24);
-  /* #46: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 6, res[1]+30);
-  /* #47: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 6, res[1]+36);
-  /* #48: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 6, res[1]+42);
-  /* #49: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 6, res[1]+48);
-  /* #50: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 6, res[1]+54);
+  if (res[0]) casadi_copy(w0, 5, res[0]+5);
+  /* #9: output[1][0] = @4 */
+  casadi_copy(w4, 6, res[1]);
+  /* #10: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 6, res[1]+6);
   return 0;
 }
 
-/* one_sample_acc10_acc10:(xa[5],p[4x100],e[3x100])->(xa_next[5x100],y[6x100]) */
+/* one_sample_acc2_acc2:(xa[5],p[4x4],e[3x4])->(xa_next[5x4],y[6x4]) */
+static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+93, *w2=w+98, *w3=w+104, *w4=w+114, *w5=w+126;
+  const casadi_real **arg1=arg+3, *wr1;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  casadi_copy(arg[2], 6, w2);
+  /* #3: {@3, @4} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=w2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 10, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+5, 5, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+8 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  casadi_copy(arg[2] ? arg[2]+6 : 0, 6, w2);
+  /* #8: {@3, @5} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=w2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 10, res[0]+10);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 12, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 12, res[1]+12);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2:(xa[5],p[4x8],e[3x8])->(xa_next[5x8],y[6x8]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+141, *w03=w+146, *w04=w+196, *w05=w+256, *w06=w+316, *w07=w+376, *w08=w+436, *w09=w+496, *w10=w+556, *w11=w+616, *w12=w+676;
-  casadi_real *w13=w+736;
-  const casadi_real **arg1=arg+3, *wr01, *wr02;
+  casadi_real **res1=res+2, *w0=w+146, *w3=w+151, *w4=w+171, *w5=w+195;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  casadi_copy(arg[0], 5, w00);
+  casadi_copy(arg[0], 5, w0);
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
   if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 50, res[0]);
+  casadi_copy(w3, 20, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+45, 5, w00);
+  casadi_copy(w3+15, 5, w0);
   /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+40 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+16 : casadi_zeros;
   /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+30 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
+  wr2 = arg[2] ? arg[2]+12 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
   if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
   /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 50, res[0]+50);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+45, 5, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+80 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 50, res[0]+100);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+45, 5, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+120 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+90 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 50, res[0]+150);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+45, 5, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+160 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+120 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 50, res[0]+200);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+45, 5, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+200 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+150 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 50, res[0]+250);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+45, 5, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+240 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+180 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 50, res[0]+300);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+45, 5, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+280 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+210 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 50, res[0]+350);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+45, 5, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+320 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+240 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 50, res[0]+400);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+45, 5, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+360 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+270 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f16(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 50, res[0]+450);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 60, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 60, res[1]+60);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 60, res[1]+120);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 60, res[1]+180);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 60, res[1]+240);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 60, res[1]+300);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 60, res[1]+360);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 60, res[1]+420);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 60, res[1]+480);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 60, res[1]+540);
+  if (res[0]) casadi_copy(w3, 20, res[0]+20);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 24, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 24, res[1]+24);
   return 0;
 }
 
-/* one_sample_acc10_acc10_acc10:(xa[5],p[4x1000],e[3x1000])->(xa_next[5x1000],y[6x1000]) */
+/* one_sample_acc2_acc2_acc2_acc2:(xa[5],p[4x16],e[3x16])->(xa_next[5x16],y[6x16]) */
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+247, *w3=w+252, *w4=w+292, *w5=w+340;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 40, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+35, 5, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+32 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+24 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 40, res[0]+40);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 48, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 48, res[1]+48);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2:(xa[5],p[4x32],e[3x32])->(xa_next[5x32],y[6x32]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+444, *w3=w+449, *w4=w+529, *w5=w+625;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 80, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+75, 5, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+64 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+48 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 80, res[0]+80);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 96, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 96, res[1]+96);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2:(xa[5],p[4x64],e[3x64])->(xa_next[5x64],y[6x64]) */
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+833, *w3=w+838, *w4=w+998, *w5=w+1190;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 160, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+155, 5, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+128 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+96 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 160, res[0]+160);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 192, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 192, res[1]+192);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[5],p[4x128],e[3x128])->(xa_next[5x128],y[6x128]) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1606, *w3=w+1611, *w4=w+1931, *w5=w+2315;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 320, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+315, 5, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+256 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+192 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 320, res[0]+320);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 384, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 384, res[1]+384);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[5],p[4x256],e[3x256])->(xa_next[5x256],y[6x256]) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+3147, *w3=w+3152, *w4=w+3792, *w5=w+4560;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 640, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+635, 5, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+512 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+384 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 640, res[0]+640);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 768, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 768, res[1]+768);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[5],p[4x512],e[3x512])->(xa_next[5x512],y[6x512]) */
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+6224, *w3=w+6229, *w4=w+7509, *w5=w+9045;
+  const casadi_real **arg1=arg+3, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  casadi_copy(arg[0], 5, w0);
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 1280, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+1275, 5, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+1024 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+768 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 1280, res[0]+1280);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 1536, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 1536, res[1]+1536);
+  return 0;
+}
+
+/* acc:(xa[5],p[4x1000],e[3x1000])->(xa_next[5x1000],y[6x1000]) */
 static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+866, *w03=w+871, *w04=w+1371, *w05=w+1971, *w06=w+2571, *w07=w+3171, *w08=w+3771, *w09=w+4371, *w10=w+4971, *w11=w+5571, *w12=w+6171;
-  casadi_real *w13=w+6771;
-  const casadi_real **arg1=arg+3, *wr01, *wr02;
+  casadi_real **res1=res+2, *w00=w+12373, *w03=w+12378, *w04=w+12418, *w07=w+12466, *w08=w+12626, *w11=w+12818, *w12=w+13138, *w15=w+13522, *w16=w+14162, *w19=w+14930, *w20=w+16210;
+  casadi_real *w23=w+17746, *w24=w+20306;
+  const casadi_real **arg1=arg+3, *wr01, *wr02, *wr05, *wr06, *wr09, *wr10, *wr13, *wr14, *wr17, *wr18, *wr21;
+  const casadi_real *wr22;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 5, w00);
   /* #1: @1 = input[1][0] */
   wr01 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
   wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
   arg1[0]=w00;
   arg1[1]=wr01;
   arg1[2]=wr02;
@@ -1896,169 +1933,101 @@ static int casadi_f14(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[1]=w04;
   if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 500, res[0]);
+  casadi_copy(w03, 40, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+495, 5, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+400 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  casadi_copy(w03+35, 5, w00);
+  /* #6: @5 = input[1][1] */
+  wr05 = arg[1] ? arg[1]+32 : casadi_zeros;
+  /* #7: @6 = input[2][1] */
+  wr06 = arg[2] ? arg[2]+24 : casadi_zeros;
+  /* #8: {@7, @8} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @5, @6) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 500, res[0]+500);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+495, 5, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+800 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 500, res[0]+1000);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+495, 5, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+1200 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+900 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 500, res[0]+1500);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+495, 5, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+1600 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+1200 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr05;
+  arg1[2]=wr06;
+  res1[0]=w07;
   res1[1]=w08;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 500, res[0]+2000);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+495, 5, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+2000 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+1500 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @7 */
+  if (res[0]) casadi_copy(w07, 160, res[0]+40);
+  /* #10: {NULL, @0} = horzsplit(@7) */
+  casadi_copy(w07+155, 5, w00);
+  /* #11: @9 = input[1][2] */
+  wr09 = arg[1] ? arg[1]+160 : casadi_zeros;
+  /* #12: @10 = input[2][2] */
+  wr10 = arg[2] ? arg[2]+120 : casadi_zeros;
+  /* #13: {@11, @12} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @9, @10) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 500, res[0]+2500);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+495, 5, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+2400 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+1800 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 500, res[0]+3000);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+495, 5, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+2800 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+2100 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 500, res[0]+3500);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+495, 5, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+3200 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+2400 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr09;
+  arg1[2]=wr10;
+  res1[0]=w11;
   res1[1]=w12;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 500, res[0]+4000);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+495, 5, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+3600 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+2700 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @11 */
+  if (res[0]) casadi_copy(w11, 320, res[0]+200);
+  /* #15: {NULL, @0} = horzsplit(@11) */
+  casadi_copy(w11+315, 5, w00);
+  /* #16: @13 = input[1][3] */
+  wr13 = arg[1] ? arg[1]+416 : casadi_zeros;
+  /* #17: @14 = input[2][3] */
+  wr14 = arg[2] ? arg[2]+312 : casadi_zeros;
+  /* #18: {@15, @16} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @13, @14) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f15(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 500, res[0]+4500);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 600, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 600, res[1]+600);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 600, res[1]+1200);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 600, res[1]+1800);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 600, res[1]+2400);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 600, res[1]+3000);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 600, res[1]+3600);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 600, res[1]+4200);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 600, res[1]+4800);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 600, res[1]+5400);
+  arg1[1]=wr13;
+  arg1[2]=wr14;
+  res1[0]=w15;
+  res1[1]=w16;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @15 */
+  if (res[0]) casadi_copy(w15, 640, res[0]+520);
+  /* #20: {NULL, @0} = horzsplit(@15) */
+  casadi_copy(w15+635, 5, w00);
+  /* #21: @17 = input[1][4] */
+  wr17 = arg[1] ? arg[1]+928 : casadi_zeros;
+  /* #22: @18 = input[2][4] */
+  wr18 = arg[2] ? arg[2]+696 : casadi_zeros;
+  /* #23: {@19, @20} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @17, @18) */
+  arg1[0]=w00;
+  arg1[1]=wr17;
+  arg1[2]=wr18;
+  res1[0]=w19;
+  res1[1]=w20;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @19 */
+  if (res[0]) casadi_copy(w19, 1280, res[0]+1160);
+  /* #25: {NULL, @0} = horzsplit(@19) */
+  casadi_copy(w19+1275, 5, w00);
+  /* #26: @21 = input[1][5] */
+  wr21 = arg[1] ? arg[1]+1952 : casadi_zeros;
+  /* #27: @22 = input[2][5] */
+  wr22 = arg[2] ? arg[2]+1464 : casadi_zeros;
+  /* #28: {@23, @24} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @21, @22) */
+  arg1[0]=w00;
+  arg1[1]=wr21;
+  arg1[2]=wr22;
+  res1[0]=w23;
+  res1[1]=w24;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @23 */
+  if (res[0]) casadi_copy(w23, 2560, res[0]+2440);
+  /* #30: output[1][0] = @4 */
+  casadi_copy(w04, 48, res[1]);
+  /* #31: output[1][1] = @8 */
+  if (res[1]) casadi_copy(w08, 192, res[1]+48);
+  /* #32: output[1][2] = @12 */
+  if (res[1]) casadi_copy(w12, 384, res[1]+240);
+  /* #33: output[1][3] = @16 */
+  if (res[1]) casadi_copy(w16, 768, res[1]+624);
+  /* #34: output[1][4] = @20 */
+  if (res[1]) casadi_copy(w20, 1536, res[1]+1392);
+  /* #35: output[1][5] = @24 */
+  if (res[1]) casadi_copy(w24, 3072, res[1]+2928);
   return 0;
 }
 
 /* qbmove_1dof_slotine_li_loop:(x0[4],p[4],k0,e[3x1000])->(x[4x1000],y[6x1000]) */
 static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, *w0=w+8071, w1, *w2=w+8075, *w3=w+8080, *w5=w+12080, *w6=w+17080;
+  casadi_real **res1=res+2, *rr, *w0=w+30378, w1, *w2=w+30382, *w3=w+30387, *w5=w+34387, *w6=w+39387;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr4;
   /* #0: @0 = input[0][0] */
   casadi_copy(arg[0], 4, w0);
@@ -2076,7 +2045,7 @@ static int casadi_f13(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }
   /* #5: @4 = input[3][0] */
   wr4 = arg[3] ? arg[3] : casadi_zeros;
-  /* #6: {@5, @6} = one_sample_acc10_acc10_acc10(@2, @3, @4) */
+  /* #6: {@5, @6} = acc(@2, @3, @4) */
   arg1[0]=w2;
   arg1[1]=w3;
   arg1[2]=wr4;
@@ -2156,23 +2125,23 @@ CASADI_SYMBOL_EXPORT const casadi_int* qbmove_1dof_slotine_li_loop_sparsity_out(
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 30;
-  if (sz_res) *sz_res = 14;
+  if (sz_arg) *sz_arg = 51;
+  if (sz_res) *sz_res = 28;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 23080;
+  if (sz_w) *sz_w = 45387;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 30*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 14*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 51*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 28*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 23080*sizeof(casadi_real);
+  if (sz_w) *sz_w = 45387*sizeof(casadi_real);
   return 0;
 }
 
 /* qbmove_1dof_qbmove_torque:(q,qa,qb)->(tau_a,tau_b,tau_e,sigma_a,sigma_b,sigma) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=2.2700000000000001e-02;
   a1=6.7328000000000001e+00;
@@ -2204,7 +2173,7 @@ static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_qbmove_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f18(arg, res, iw, w, mem);
+  return casadi_f25(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_qbmove_torque_checkout(void) {
@@ -2289,7 +2258,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_qbmove_torque_work_bytes(casadi_int *sz_arg
 }
 
 /* qbmove_1dof_qbmove_stiffness_rate:(q,qa,qb,qd,qad,qbd)->(sigma_dot) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1, a2, a3, a4, a5;
   a0=1.5283456000000001e-01;
   a1=6.7328000000000001e+00;
@@ -2319,7 +2288,7 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_qbmove_stiffness_rate(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f19(arg, res, iw, w, mem);
+  return casadi_f26(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_qbmove_stiffness_rate_checkout(void) {
@@ -2400,7 +2369,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_qbmove_stiffness_rate_work_bytes(casadi_int
 }
 
 /* qbmove_1dof_qbmove_deflection:(tau)->(phi_a,phi_b) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a0, a1;
   a0=arg[0]? arg[0][0] : 0;
   a1=2.2700000000000001e-02;
@@ -2414,7 +2383,7 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_qbmove_deflection(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f20(arg, res, iw, w, mem);
+  return casadi_f27(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_qbmove_deflection_checkout(void) {
@@ -2487,7 +2456,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_qbmove_deflection_work_bytes(casadi_int *sz
 }
 
 /* qbmove_1dof_electric_plant:(x[6],u[2],spring_scale[2],h)->(x_next[6]) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34;
@@ -4146,7 +4115,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_plant_checkout(void) {
@@ -4228,7 +4197,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_plant_work_bytes(casadi_int *sz_ar
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_pd:(z[0],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,dt)->(z_next[0],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -4699,7 +4668,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f29(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_checkout(void) {
@@ -4810,7 +4779,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_work_bytes(casadi_int *
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_pd_integral:(z,x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,dt)->(z_next,tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -5292,7 +5261,7 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f23(arg, res, iw, w, mem);
+  return casadi_f30(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral_checkout(void) {
@@ -5405,7 +5374,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral_work_bytes(cas
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_adaptive:(z[6],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,dt)->(z_next[6],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -6011,7 +5980,7 @@ static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f24(arg, res, iw, w, mem);
+  return casadi_f31(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_checkout(void) {
@@ -6126,7 +6095,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_work_bytes(casadi
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_adaptive_integral:(z[7],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,ki,dt)->(z_next[7],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -6743,7 +6712,7 @@ static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f25(arg, res, iw, w, mem);
+  return casadi_f32(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral_checkout(void) {
@@ -6860,7 +6829,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral_work_byt
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_pd_measured_acceleration:(z,x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,dt)->(z_next,tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -7313,7 +7282,7 @@ static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f26(arg, res, iw, w, mem);
+  return casadi_f33(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_measured_acceleration_checkout(void) {
@@ -7424,7 +7393,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_measured_acceleration_w
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_pd_integral_measured_acceleration:(z[2],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,dt)->(z_next[2],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -7888,7 +7857,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f27(arg, res, iw, w, mem);
+  return casadi_f34(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral_measured_acceleration_checkout(void) {
@@ -8001,7 +7970,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral_measured_accel
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_adaptive_measured_acceleration:(z[7],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,dt)->(z_next[7],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -8577,7 +8546,7 @@ static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f28(arg, res, iw, w, mem);
+  return casadi_f35(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_measured_acceleration_checkout(void) {
@@ -8692,7 +8661,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_measured_accelera
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_adaptive_integral_measured_acceleration:(z[8],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,ki,dt)->(z_next[8],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -9279,7 +9248,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral_measured_acceleration(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f29(arg, res, iw, w, mem);
+  return casadi_f36(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral_measured_acceleration_checkout(void) {
@@ -9396,7 +9365,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral_measured
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_pd_filter:(z[4],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,omega_f,dt)->(z_next[4],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22;
   a00=arg[0]? arg[0][0] : 0;
@@ -9551,7 +9520,7 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f30(arg, res, iw, w, mem);
+  return casadi_f37(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_filter_checkout(void) {
@@ -9664,7 +9633,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_filter_work_bytes(casad
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_pd_integral_filter:(z[5],x[6],ref[9],kp_m[2],kd_m[2],kp,kd,ksigma,delta,ki,omega_f,dt)->(z_next[5],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22;
   a00=arg[0]? arg[0][0] : 0;
@@ -9826,7 +9795,7 @@ static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f31(arg, res, iw, w, mem);
+  return casadi_f38(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral_filter_checkout(void) {
@@ -9941,7 +9910,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_pd_integral_filter_work_by
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_adaptive_filter:(z[10],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,omega_f,dt)->(z_next[10],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29;
@@ -10144,7 +10113,7 @@ static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f32(arg, res, iw, w, mem);
+  return casadi_f39(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_filter_checkout(void) {
@@ -10261,7 +10230,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_filter_work_bytes
 #pragma GCC optimize ("O1")
 #endif
 /* qbmove_1dof_electric_cascade_adaptive_integral_filter:(z[11],x[6],ref[9],lam_m[2],k_m[2],kpi_m[4],lam,k,kpi[2],ksigma,delta,ki,omega_f,dt)->(z_next[11],tau_m[2],q_m_ref[2],qd_m_ref[2],qdd_m_ref[2],tau_e_ref[2],sigma,det) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29;
@@ -10471,7 +10440,7 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral_filter(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f33(arg, res, iw, w, mem);
+  return casadi_f40(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral_filter_checkout(void) {
@@ -10585,7 +10554,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_cascade_adaptive_integral_filter_w
 #endif
 
 /* qbmove_1dof_electric_estimator_step:(state[59],y[5])->(state_next[59],sigma_hat,tau_hat,tau_uio,updating[2]) */
-static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -11688,7 +11657,7 @@ static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f34(arg, res, iw, w, mem);
+  return casadi_f41(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_estimator_step_checkout(void) {
@@ -11769,7 +11738,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_electric_estimator_step_work_bytes(casadi_i
 }
 
 /* qbmove_1dof_noninvasive_estimator_step:(state[65],y[3])->(state_next[65],sigma_hat,tau_hat,tau_uio,updating) */
-static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f42(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -13235,7 +13204,7 @@ static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_noninvasive_estimator_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f35(arg, res, iw, w, mem);
+  return casadi_f42(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_noninvasive_estimator_step_checkout(void) {
@@ -13316,7 +13285,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_noninvasive_estimator_step_work_bytes(casad
 }
 
 /* qbmove_1dof_spring_pair_cascade:(x[6],phi_prev[2],ref[9],kp,kd,kp_m[2],kd_m[2],dt)->(phi[2],u[2],theta_d[2],theta_d_dot[2],theta_d_ddot[2],tau_d,tau_residual,sigma_residual,det) */
-static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f43(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33, a34, a35;
@@ -13834,7 +13803,7 @@ static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_spring_pair_cascade(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f36(arg, res, iw, w, mem);
+  return casadi_f43(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_spring_pair_cascade_checkout(void) {
@@ -13935,7 +13904,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_spring_pair_cascade_work_bytes(casadi_int *
 }
 
 /* qbmove_1dof_spring_pair_plant:(x[6],u[2],h)->(x_next[6]) */
-static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f44(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   casadi_real a24, a25, a26, a27, a28, a29, a30, a31, a32, a33;
@@ -15590,7 +15559,7 @@ static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_spring_pair_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f37(arg, res, iw, w, mem);
+  return casadi_f44(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_spring_pair_plant_checkout(void) {
@@ -15665,7 +15634,7 @@ CASADI_SYMBOL_EXPORT int qbmove_1dof_spring_pair_plant_work_bytes(casadi_int *sz
 }
 
 /* qbmove_1dof_spring_pair_deflections:(tau,sigma,phi_prev[2])->(phi[2],tau_residual,sigma_residual,det) */
-static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f45(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a00, a01, a02, a03, a04, a05, a06, a07, a08, a09, a10, a11;
   casadi_real a12, a13, a14, a15, a16, a17, a18, a19, a20, a21, a22, a23;
   a00=0.;
@@ -16269,7 +16238,7 @@ static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_spring_pair_deflections(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f38(arg, res, iw, w, mem);
+  return casadi_f45(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int qbmove_1dof_spring_pair_deflections_checkout(void) {

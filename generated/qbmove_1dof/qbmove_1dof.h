@@ -265,10 +265,10 @@ const casadi_int* qbmove_1dof_slotine_li_loop_sparsity_in(casadi_int i);
 const casadi_int* qbmove_1dof_slotine_li_loop_sparsity_out(casadi_int i);
 int qbmove_1dof_slotine_li_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int qbmove_1dof_slotine_li_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define qbmove_1dof_slotine_li_loop_SZ_ARG 30
-#define qbmove_1dof_slotine_li_loop_SZ_RES 14
+#define qbmove_1dof_slotine_li_loop_SZ_ARG 51
+#define qbmove_1dof_slotine_li_loop_SZ_RES 28
 #define qbmove_1dof_slotine_li_loop_SZ_IW 0
-#define qbmove_1dof_slotine_li_loop_SZ_W 23080
+#define qbmove_1dof_slotine_li_loop_SZ_W 45387
 int qbmove_1dof_qbmove_torque(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int qbmove_1dof_qbmove_torque_checkout(void);
 void qbmove_1dof_qbmove_torque_release(int mem);

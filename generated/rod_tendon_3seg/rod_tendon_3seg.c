@@ -61,7 +61,14 @@ extern "C" {
 #define casadi_f31 CASADI_PREFIX(f31)
 #define casadi_f32 CASADI_PREFIX(f32)
 #define casadi_f33 CASADI_PREFIX(f33)
+#define casadi_f34 CASADI_PREFIX(f34)
+#define casadi_f35 CASADI_PREFIX(f35)
+#define casadi_f36 CASADI_PREFIX(f36)
+#define casadi_f37 CASADI_PREFIX(f37)
+#define casadi_f38 CASADI_PREFIX(f38)
+#define casadi_f39 CASADI_PREFIX(f39)
 #define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f40 CASADI_PREFIX(f40)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
 #define casadi_f7 CASADI_PREFIX(f7)
@@ -183,7 +190,7 @@ static const casadi_real casadi_c0[2] = {1., 2.};
 static const casadi_real casadi_c1[2] = {2.0000000000000000e-02, 4.0000000000000001e-02};
 static const casadi_real casadi_c2[2] = {-2.0000000000000000e-02, -8.0000000000000002e-02};
 
-static const casadi_real casadi_zeros[6000] = 
+static const casadi_real casadi_zeros[7680] = 
   {0.};
 
 /* softgen: compiled at -O1 (Generated.optimization) */
@@ -120654,7 +120661,7 @@ CASADI_SYMBOL_EXPORT int rod_tendon_3seg_tip_loop_step_work_bytes(casadi_int *sz
 #pragma GCC optimize ("O1")
 #endif
 /* one_sample:(xa[31],p[15],e[6])->(xa_next[31],y[49]) */
-static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w4=w+995, *w5=w+1001, *w6=w+1031, w7;
   const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
@@ -120690,356 +120697,386 @@ static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* one_sample_acc10:(xa[31],p[15x10],e[6x10])->(xa_next[31x10],y[49x10]) */
-static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+1158, *w02=w+1189, *w03=w+1195, *w04=w+1226, *w05=w+1275, *w06=w+1324, *w07=w+1373, *w08=w+1422, *w09=w+1471, *w10=w+1520, *w11=w+1569;
-  casadi_real *w12=w+1618, *w13=w+1667;
-  const casadi_real **arg1=arg+3, *wr00, *wr01;
+/* one_sample_acc2:(xa[31],p[15x2],e[6x2])->(xa_next[31x2],y[49x2]) */
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1158, *w2=w+1189, *w3=w+1195, *w4=w+1226, *w5=w+1275;
+  const casadi_real **arg1=arg+3, *wr0, *wr1;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  casadi_copy(arg[2], 6, w02);
+  casadi_copy(arg[2], 6, w2);
   /* #3: {@3, @4} = one_sample(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=w2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 31, res[0]);
+  casadi_copy(w3, 31, res[0]);
   /* #5: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+15 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+15 : casadi_zeros;
   /* #6: @2 = input[2][1] */
-  casadi_copy(arg[2] ? arg[2]+6 : 0, 6, w02);
+  casadi_copy(arg[2] ? arg[2]+6 : 0, 6, w2);
   /* #7: {@0, @5} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w05;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w3;
+  arg1[1]=wr1;
+  arg1[2]=w2;
+  res1[0]=w0;
+  res1[1]=w5;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 31, res[0]+31);
-  /* #9: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+30 : casadi_zeros;
-  /* #10: @2 = input[2][2] */
-  casadi_copy(arg[2] ? arg[2]+12 : 0, 6, w02);
-  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 31, res[0]+62);
-  /* #13: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+45 : casadi_zeros;
-  /* #14: @2 = input[2][3] */
-  casadi_copy(arg[2] ? arg[2]+18 : 0, 6, w02);
-  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w07;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #16: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 31, res[0]+93);
-  /* #17: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+60 : casadi_zeros;
-  /* #18: @2 = input[2][4] */
-  casadi_copy(arg[2] ? arg[2]+24 : 0, 6, w02);
-  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #20: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 31, res[0]+124);
-  /* #21: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+75 : casadi_zeros;
-  /* #22: @2 = input[2][5] */
-  casadi_copy(arg[2] ? arg[2]+30 : 0, 6, w02);
-  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w09;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 31, res[0]+155);
-  /* #25: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+90 : casadi_zeros;
-  /* #26: @2 = input[2][6] */
-  casadi_copy(arg[2] ? arg[2]+36 : 0, 6, w02);
-  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 31, res[0]+186);
-  /* #29: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+105 : casadi_zeros;
-  /* #30: @2 = input[2][7] */
-  casadi_copy(arg[2] ? arg[2]+42 : 0, 6, w02);
-  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w11;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 31, res[0]+217);
-  /* #33: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+120 : casadi_zeros;
-  /* #34: @2 = input[2][8] */
-  casadi_copy(arg[2] ? arg[2]+48 : 0, 6, w02);
-  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #36: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 31, res[0]+248);
-  /* #37: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+135 : casadi_zeros;
-  /* #38: @2 = input[2][9] */
-  casadi_copy(arg[2] ? arg[2]+54 : 0, 6, w02);
-  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=w02;
-  res1[0]=w00;
-  res1[1]=w13;
-  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
-  /* #40: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 31, res[0]+279);
-  /* #41: output[1][0] = @4 */
-  casadi_copy(w04, 49, res[1]);
-  /* #42: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 49, res[1]+49);
-  /* #43: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 49, res[1]+98);
-  /* #44: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 49, res[1]+147);
-  /* #45: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 49, res[1]+196);
-  /* #46: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 49, res[1]+245);
-  /* #47: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 49, res[1]+294);
-  /* #48: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 49, res[1]+343);
-  /* #49: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 49, res[1]+392);
-  /* #50: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 49, res[1]+441);
+  if (res[0]) casadi_copy(w0, 31, res[0]+31);
+  /* #9: output[1][0] = @4 */
+  casadi_copy(w4, 49, res[1]);
+  /* #10: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 49, res[1]+49);
   return 0;
 }
 
-/* one_sample_acc10_acc10:(xa[31],p[15x100],e[6x100])->(xa_next[31x100],y[49x100]) */
+/* one_sample_acc2_acc2:(xa[31],p[15x4],e[6x4])->(xa_next[31x4],y[49x4]) */
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1339, *w3=w+1370, *w4=w+1432, *w5=w+1530;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 62, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+31, 31, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+30 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+12 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 62, res[0]+62);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 98, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 98, res[1]+98);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2:(xa[31],p[15x8],e[6x8])->(xa_next[31x8],y[49x8]) */
 static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+1731, *w03=w+1762, *w04=w+2072, *w05=w+2562, *w06=w+3052, *w07=w+3542, *w08=w+4032, *w09=w+4522, *w10=w+5012, *w11=w+5502, *w12=w+5992;
-  casadi_real *w13=w+6482;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w0=w+1670, *w3=w+1701, *w4=w+1825, *w5=w+2021;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
   if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 310, res[0]);
+  casadi_copy(w3, 124, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+279, 31, w00);
+  casadi_copy(w3+93, 31, w0);
   /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+150 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+60 : casadi_zeros;
   /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+60 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
+  wr2 = arg[2] ? arg[2]+24 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
   if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
   /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 310, res[0]+310);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+279, 31, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+300 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+120 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 310, res[0]+620);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+279, 31, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+450 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+180 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 310, res[0]+930);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+279, 31, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+600 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+240 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 310, res[0]+1240);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+279, 31, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+750 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+300 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 310, res[0]+1550);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+279, 31, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+900 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+360 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 310, res[0]+1860);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+279, 31, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+1050 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+420 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 310, res[0]+2170);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+279, 31, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+1200 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+480 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 310, res[0]+2480);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+279, 31, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+1350 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+540 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 310, res[0]+2790);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 490, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 490, res[1]+490);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 490, res[1]+980);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 490, res[1]+1470);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 490, res[1]+1960);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 490, res[1]+2450);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 490, res[1]+2940);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 490, res[1]+3430);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 490, res[1]+3920);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 490, res[1]+4410);
+  if (res[0]) casadi_copy(w3, 124, res[0]+124);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 196, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 196, res[1]+196);
   return 0;
 }
 
-/* one_sample_acc10_acc10_acc10:(xa[31],p[15x1000],e[6x1000])->(xa_next[31x1000],y[49x1000]) */
+/* one_sample_acc2_acc2_acc2_acc2:(xa[31],p[15x16],e[6x16])->(xa_next[31x16],y[49x16]) */
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+2301, *w3=w+2332, *w4=w+2580, *w5=w+2972;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 248, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+217, 31, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+120 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+48 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 248, res[0]+248);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 392, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 392, res[1]+392);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2:(xa[31],p[15x32],e[6x32])->(xa_next[31x32],y[49x32]) */
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+3532, *w3=w+3563, *w4=w+4059, *w5=w+4843;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 496, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+465, 31, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+240 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+96 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 496, res[0]+496);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 784, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 784, res[1]+784);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2:(xa[31],p[15x64],e[6x64])->(xa_next[31x64],y[49x64]) */
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+5963, *w3=w+5994, *w4=w+6986, *w5=w+8554;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 992, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+961, 31, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+480 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+192 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 992, res[0]+992);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 1568, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 1568, res[1]+1568);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[31],p[15x128],e[6x128])->(xa_next[31x128],y[49x128]) */
+static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+10794, *w3=w+10825, *w4=w+12809, *w5=w+15945;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 1984, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+1953, 31, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+960 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+384 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 1984, res[0]+1984);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 3136, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 3136, res[1]+3136);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[31],p[15x256],e[6x256])->(xa_next[31x256],y[49x256]) */
+static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+20425, *w3=w+20456, *w4=w+24424, *w5=w+30696;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 3968, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+3937, 31, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+1920 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+768 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 3968, res[0]+3968);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 6272, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 6272, res[1]+6272);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[31],p[15x512],e[6x512])->(xa_next[31x512],y[49x512]) */
+static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+39656, *w3=w+39687, *w4=w+47623, *w5=w+60167;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 7936, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+7905, 31, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+3840 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+1536 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 7936, res[0]+7936);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 12544, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 12544, res[1]+12544);
+  return 0;
+}
+
+/* acc:(xa[31],p[15x1000],e[6x1000])->(xa_next[31x1000],y[49x1000]) */
 static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+7182, *w03=w+7213, *w04=w+10313, *w05=w+15213, *w06=w+20113, *w07=w+25013, *w08=w+29913, *w09=w+34813, *w10=w+39713, *w11=w+44613, *w12=w+49513;
-  casadi_real *w13=w+54413;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w00=w+78087, *w03=w+78118, *w04=w+78366, *w07=w+78758, *w08=w+79750, *w11=w+81318, *w12=w+83302, *w15=w+86438, *w16=w+90406, *w19=w+96678, *w20=w+104614;
+  casadi_real *w23=w+117158, *w24=w+133030;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02, *wr05, *wr06, *wr09, *wr10, *wr13, *wr14, *wr17, *wr18;
+  const casadi_real *wr21, *wr22;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
   wr01 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
   wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
   arg1[0]=wr00;
   arg1[1]=wr01;
   arg1[2]=wr02;
@@ -121047,169 +121084,101 @@ static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[1]=w04;
   if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 3100, res[0]);
+  casadi_copy(w03, 248, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3069, 31, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+1500 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+600 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  casadi_copy(w03+217, 31, w00);
+  /* #6: @5 = input[1][1] */
+  wr05 = arg[1] ? arg[1]+120 : casadi_zeros;
+  /* #7: @6 = input[2][1] */
+  wr06 = arg[2] ? arg[2]+48 : casadi_zeros;
+  /* #8: {@7, @8} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @5, @6) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 3100, res[0]+3100);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3069, 31, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+3000 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+1200 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 3100, res[0]+6200);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3069, 31, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+4500 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+1800 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 3100, res[0]+9300);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3069, 31, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+6000 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+2400 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr05;
+  arg1[2]=wr06;
+  res1[0]=w07;
   res1[1]=w08;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 3100, res[0]+12400);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3069, 31, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+7500 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+3000 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @7 */
+  if (res[0]) casadi_copy(w07, 992, res[0]+248);
+  /* #10: {NULL, @0} = horzsplit(@7) */
+  casadi_copy(w07+961, 31, w00);
+  /* #11: @9 = input[1][2] */
+  wr09 = arg[1] ? arg[1]+600 : casadi_zeros;
+  /* #12: @10 = input[2][2] */
+  wr10 = arg[2] ? arg[2]+240 : casadi_zeros;
+  /* #13: {@11, @12} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @9, @10) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 3100, res[0]+15500);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3069, 31, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+9000 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+3600 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 3100, res[0]+18600);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3069, 31, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+10500 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+4200 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 3100, res[0]+21700);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3069, 31, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+12000 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+4800 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr09;
+  arg1[2]=wr10;
+  res1[0]=w11;
   res1[1]=w12;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 3100, res[0]+24800);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+3069, 31, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+13500 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+5400 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @11 */
+  if (res[0]) casadi_copy(w11, 1984, res[0]+1240);
+  /* #15: {NULL, @0} = horzsplit(@11) */
+  casadi_copy(w11+1953, 31, w00);
+  /* #16: @13 = input[1][3] */
+  wr13 = arg[1] ? arg[1]+1560 : casadi_zeros;
+  /* #17: @14 = input[2][3] */
+  wr14 = arg[2] ? arg[2]+624 : casadi_zeros;
+  /* #18: {@15, @16} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @13, @14) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 3100, res[0]+27900);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 4900, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 4900, res[1]+4900);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 4900, res[1]+9800);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 4900, res[1]+14700);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 4900, res[1]+19600);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 4900, res[1]+24500);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 4900, res[1]+29400);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 4900, res[1]+34300);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 4900, res[1]+39200);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 4900, res[1]+44100);
+  arg1[1]=wr13;
+  arg1[2]=wr14;
+  res1[0]=w15;
+  res1[1]=w16;
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @15 */
+  if (res[0]) casadi_copy(w15, 3968, res[0]+3224);
+  /* #20: {NULL, @0} = horzsplit(@15) */
+  casadi_copy(w15+3937, 31, w00);
+  /* #21: @17 = input[1][4] */
+  wr17 = arg[1] ? arg[1]+3480 : casadi_zeros;
+  /* #22: @18 = input[2][4] */
+  wr18 = arg[2] ? arg[2]+1392 : casadi_zeros;
+  /* #23: {@19, @20} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @17, @18) */
+  arg1[0]=w00;
+  arg1[1]=wr17;
+  arg1[2]=wr18;
+  res1[0]=w19;
+  res1[1]=w20;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @19 */
+  if (res[0]) casadi_copy(w19, 7936, res[0]+7192);
+  /* #25: {NULL, @0} = horzsplit(@19) */
+  casadi_copy(w19+7905, 31, w00);
+  /* #26: @21 = input[1][5] */
+  wr21 = arg[1] ? arg[1]+7320 : casadi_zeros;
+  /* #27: @22 = input[2][5] */
+  wr22 = arg[2] ? arg[2]+2928 : casadi_zeros;
+  /* #28: {@23, @24} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @21, @22) */
+  arg1[0]=w00;
+  arg1[1]=wr21;
+  arg1[2]=wr22;
+  res1[0]=w23;
+  res1[1]=w24;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @23 */
+  if (res[0]) casadi_copy(w23, 15872, res[0]+15128);
+  /* #30: output[1][0] = @4 */
+  casadi_copy(w04, 392, res[1]);
+  /* #31: output[1][1] = @8 */
+  if (res[1]) casadi_copy(w08, 1568, res[1]+392);
+  /* #32: output[1][2] = @12 */
+  if (res[1]) casadi_copy(w12, 3136, res[1]+1960);
+  /* #33: output[1][3] = @16 */
+  if (res[1]) casadi_copy(w16, 6272, res[1]+5096);
+  /* #34: output[1][4] = @20 */
+  if (res[1]) casadi_copy(w20, 12544, res[1]+11368);
+  /* #35: output[1][5] = @24 */
+  if (res[1]) casadi_copy(w24, 25088, res[1]+23912);
   return 0;
 }
 
 /* rod_tendon_3seg_tip_loop_loop:(x0[30],p[15],k0,e[6x1000])->(x[30x1000],y[49x1000]) */
 static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, w1, *w2=w+61413, *w4=w+61444, *w6=w+76444, *w7=w+107444, *w8=w+156444;
+  casadi_real **res1=res+2, *rr, w1, *w2=w+179118, *w4=w+179149, *w6=w+194149, *w7=w+225149, *w8=w+274149;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr0, *wr3, *wr5;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
@@ -121227,7 +121196,7 @@ static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }
   /* #5: @5 = input[3][0] */
   wr5 = arg[3] ? arg[3] : casadi_zeros;
-  /* #6: {@6, @7} = one_sample_acc10_acc10_acc10(@2, @4, @5) */
+  /* #6: {@6, @7} = acc(@2, @4, @5) */
   arg1[0]=w2;
   arg1[1]=w4;
   arg1[2]=wr5;
@@ -121307,18 +121276,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* rod_tendon_3seg_tip_loop_loop_sparsity_ou
 }
 
 CASADI_SYMBOL_EXPORT int rod_tendon_3seg_tip_loop_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31;
-  if (sz_res) *sz_res = 17;
+  if (sz_arg) *sz_arg = 52;
+  if (sz_res) *sz_res = 31;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 186444;
+  if (sz_w) *sz_w = 304149;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int rod_tendon_3seg_tip_loop_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 17*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 52*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 31*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 186444*sizeof(casadi_real);
+  if (sz_w) *sz_w = 304149*sizeof(casadi_real);
   return 0;
 }
 #if defined(__GNUC__) && !defined(__clang__)

@@ -373,10 +373,10 @@ const casadi_int* rod_tendon_3seg_tip_loop_loop_sparsity_in(casadi_int i);
 const casadi_int* rod_tendon_3seg_tip_loop_loop_sparsity_out(casadi_int i);
 int rod_tendon_3seg_tip_loop_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int rod_tendon_3seg_tip_loop_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define rod_tendon_3seg_tip_loop_loop_SZ_ARG 31
-#define rod_tendon_3seg_tip_loop_loop_SZ_RES 17
+#define rod_tendon_3seg_tip_loop_loop_SZ_ARG 52
+#define rod_tendon_3seg_tip_loop_loop_SZ_RES 31
 #define rod_tendon_3seg_tip_loop_loop_SZ_IW 0
-#define rod_tendon_3seg_tip_loop_loop_SZ_W 186444
+#define rod_tendon_3seg_tip_loop_loop_SZ_W 304149
 void rod_tendon_3seg_casadi_version(int* major, int* minor, int* patch);
 int rod_tendon_3seg_casadi_int_size(void);
 int rod_tendon_3seg_casadi_real_size(void);

@@ -52,8 +52,22 @@ extern "C" {
 #define casadi_f25 CASADI_PREFIX(f25)
 #define casadi_f26 CASADI_PREFIX(f26)
 #define casadi_f27 CASADI_PREFIX(f27)
+#define casadi_f28 CASADI_PREFIX(f28)
+#define casadi_f29 CASADI_PREFIX(f29)
 #define casadi_f3 CASADI_PREFIX(f3)
+#define casadi_f30 CASADI_PREFIX(f30)
+#define casadi_f31 CASADI_PREFIX(f31)
+#define casadi_f32 CASADI_PREFIX(f32)
+#define casadi_f33 CASADI_PREFIX(f33)
+#define casadi_f34 CASADI_PREFIX(f34)
+#define casadi_f35 CASADI_PREFIX(f35)
+#define casadi_f36 CASADI_PREFIX(f36)
+#define casadi_f37 CASADI_PREFIX(f37)
+#define casadi_f38 CASADI_PREFIX(f38)
+#define casadi_f39 CASADI_PREFIX(f39)
 #define casadi_f4 CASADI_PREFIX(f4)
+#define casadi_f40 CASADI_PREFIX(f40)
+#define casadi_f41 CASADI_PREFIX(f41)
 #define casadi_f5 CASADI_PREFIX(f5)
 #define casadi_f6 CASADI_PREFIX(f6)
 #define casadi_f7 CASADI_PREFIX(f7)
@@ -26656,7 +26670,7 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_closed_step_work_bytes(casadi_i
 #pragma GCC optimize ("O1")
 #endif
 /* one_sample:(xa[9],p[8],e[19])->(xa_next[9],y[12]) */
-static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w5=w+608, *w6=w+616, w7;
   const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2, *wr4;
   /* #0: @0 = input[0][0] */
@@ -26692,356 +26706,386 @@ static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* one_sample_acc10:(xa[9],p[8x10],e[19x10])->(xa_next[9x10],y[12x10]) */
-static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+674, *w03=w+683, *w04=w+692, *w05=w+704, *w06=w+716, *w07=w+728, *w08=w+740, *w09=w+752, *w10=w+764, *w11=w+776, *w12=w+788;
-  casadi_real *w13=w+800;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+/* one_sample_acc2:(xa[9],p[8x2],e[19x2])->(xa_next[9x2],y[12x2]) */
+static int casadi_f19(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+674, *w3=w+683, *w4=w+692, *w5=w+704;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
   /* #3: {@3, @4} = one_sample(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 9, res[0]);
+  casadi_copy(w3, 9, res[0]);
   /* #5: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+8 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+8 : casadi_zeros;
   /* #6: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+19 : casadi_zeros;
+  wr2 = arg[2] ? arg[2]+19 : casadi_zeros;
   /* #7: {@0, @5} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w05;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w3;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w0;
+  res1[1]=w5;
+  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 9, res[0]+9);
-  /* #9: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+16 : casadi_zeros;
-  /* #10: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+38 : casadi_zeros;
-  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 9, res[0]+18);
-  /* #13: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+24 : casadi_zeros;
-  /* #14: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+57 : casadi_zeros;
-  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w07;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #16: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 9, res[0]+27);
-  /* #17: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+32 : casadi_zeros;
-  /* #18: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+76 : casadi_zeros;
-  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #20: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 9, res[0]+36);
-  /* #21: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+40 : casadi_zeros;
-  /* #22: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+95 : casadi_zeros;
-  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w09;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 9, res[0]+45);
-  /* #25: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+48 : casadi_zeros;
-  /* #26: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+114 : casadi_zeros;
-  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 9, res[0]+54);
-  /* #29: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+56 : casadi_zeros;
-  /* #30: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+133 : casadi_zeros;
-  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w11;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 9, res[0]+63);
-  /* #33: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+64 : casadi_zeros;
-  /* #34: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+152 : casadi_zeros;
-  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #36: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 9, res[0]+72);
-  /* #37: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+72 : casadi_zeros;
-  /* #38: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+171 : casadi_zeros;
-  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w13;
-  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
-  /* #40: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 9, res[0]+81);
-  /* #41: output[1][0] = @4 */
-  casadi_copy(w04, 12, res[1]);
-  /* #42: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 12, res[1]+12);
-  /* #43: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 12, res[1]+24);
-  /* #44: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 12, res[1]+36);
-  /* #45: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 12, res[1]+48);
-  /* #46: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 12, res[1]+60);
-  /* #47: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 12, res[1]+72);
-  /* #48: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 12, res[1]+84);
-  /* #49: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 12, res[1]+96);
-  /* #50: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 12, res[1]+108);
+  if (res[0]) casadi_copy(w0, 9, res[0]+9);
+  /* #9: output[1][0] = @4 */
+  casadi_copy(w4, 12, res[1]);
+  /* #10: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 12, res[1]+12);
   return 0;
 }
 
-/* one_sample_acc10_acc10:(xa[9],p[8x100],e[19x100])->(xa_next[9x100],y[12x100]) */
+/* one_sample_acc2_acc2:(xa[9],p[8x4],e[19x4])->(xa_next[9x4],y[12x4]) */
+static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+743, *w3=w+752, *w4=w+770, *w5=w+794;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 18, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+9, 9, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+16 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+38 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f19(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 18, res[0]+18);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 24, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 24, res[1]+24);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2:(xa[9],p[8x8],e[19x8])->(xa_next[9x8],y[12x8]) */
 static int casadi_f17(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+839, *w03=w+848, *w04=w+938, *w05=w+1058, *w06=w+1178, *w07=w+1298, *w08=w+1418, *w09=w+1538, *w10=w+1658, *w11=w+1778, *w12=w+1898;
-  casadi_real *w13=w+2018;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w0=w+872, *w3=w+881, *w4=w+917, *w5=w+965;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
   if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 90, res[0]);
+  casadi_copy(w3, 36, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+81, 9, w00);
+  casadi_copy(w3+27, 9, w0);
   /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+80 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+32 : casadi_zeros;
   /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+190 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
+  wr2 = arg[2] ? arg[2]+76 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
   if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
   /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 90, res[0]+90);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+81, 9, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+160 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+380 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 90, res[0]+180);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+81, 9, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+240 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+570 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 90, res[0]+270);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+81, 9, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+320 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+760 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 90, res[0]+360);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+81, 9, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+400 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+950 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 90, res[0]+450);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+81, 9, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+480 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+1140 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 90, res[0]+540);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+81, 9, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+560 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+1330 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 90, res[0]+630);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+81, 9, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+640 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+1520 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 90, res[0]+720);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+81, 9, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+720 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+1710 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f18(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 90, res[0]+810);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 120, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 120, res[1]+120);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 120, res[1]+240);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 120, res[1]+360);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 120, res[1]+480);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 120, res[1]+600);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 120, res[1]+720);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 120, res[1]+840);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 120, res[1]+960);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 120, res[1]+1080);
+  if (res[0]) casadi_copy(w3, 36, res[0]+36);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 48, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 48, res[1]+48);
   return 0;
 }
 
-/* one_sample_acc10_acc10_acc10:(xa[9],p[8x1000],e[19x1000])->(xa_next[9x1000],y[12x1000]) */
+/* one_sample_acc2_acc2_acc2_acc2:(xa[9],p[8x16],e[19x16])->(xa_next[9x16],y[12x16]) */
+static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1121, *w3=w+1130, *w4=w+1202, *w5=w+1298;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 72, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+63, 9, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+64 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+152 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 72, res[0]+72);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 96, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 96, res[1]+96);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2:(xa[9],p[8x32],e[19x32])->(xa_next[9x32],y[12x32]) */
+static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1610, *w3=w+1619, *w4=w+1763, *w5=w+1955;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 144, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+135, 9, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+128 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+304 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 144, res[0]+144);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 192, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 192, res[1]+192);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2:(xa[9],p[8x64],e[19x64])->(xa_next[9x64],y[12x64]) */
+static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+2579, *w3=w+2588, *w4=w+2876, *w5=w+3260;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 288, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+279, 9, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+256 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+608 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 288, res[0]+288);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 384, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 384, res[1]+384);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[9],p[8x128],e[19x128])->(xa_next[9x128],y[12x128]) */
+static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+4508, *w3=w+4517, *w4=w+5093, *w5=w+5861;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 576, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+567, 9, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+512 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+1216 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 576, res[0]+576);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 768, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 768, res[1]+768);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[9],p[8x256],e[19x256])->(xa_next[9x256],y[12x256]) */
+static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+8357, *w3=w+8366, *w4=w+9518, *w5=w+11054;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 1152, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+1143, 9, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+1024 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+2432 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 1152, res[0]+1152);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 1536, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 1536, res[1]+1536);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[9],p[8x512],e[19x512])->(xa_next[9x512],y[12x512]) */
+static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+16046, *w3=w+16055, *w4=w+18359, *w5=w+21431;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 2304, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+2295, 9, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+2048 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+4864 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 2304, res[0]+2304);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 3072, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 3072, res[1]+3072);
+  return 0;
+}
+
+/* acc:(xa[9],p[8x1000],e[19x1000])->(xa_next[9x1000],y[12x1000]) */
 static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+2408, *w03=w+2417, *w04=w+3317, *w05=w+4517, *w06=w+5717, *w07=w+6917, *w08=w+8117, *w09=w+9317, *w10=w+10517, *w11=w+11717, *w12=w+12917;
-  casadi_real *w13=w+14117;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+  casadi_real **res1=res+2, *w00=w+31415, *w03=w+31424, *w04=w+31496, *w07=w+31592, *w08=w+31880, *w11=w+32264, *w12=w+32840, *w15=w+33608, *w16=w+34760, *w19=w+36296, *w20=w+38600;
+  casadi_real *w23=w+41672, *w24=w+46280;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02, *wr05, *wr06, *wr09, *wr10, *wr13, *wr14, *wr17, *wr18;
+  const casadi_real *wr21, *wr22;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
   wr01 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
   wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
   arg1[0]=wr00;
   arg1[1]=wr01;
   arg1[2]=wr02;
@@ -27049,169 +27093,101 @@ static int casadi_f16(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[1]=w04;
   if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 900, res[0]);
+  casadi_copy(w03, 72, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+891, 9, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+800 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+1900 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  casadi_copy(w03+63, 9, w00);
+  /* #6: @5 = input[1][1] */
+  wr05 = arg[1] ? arg[1]+64 : casadi_zeros;
+  /* #7: @6 = input[2][1] */
+  wr06 = arg[2] ? arg[2]+152 : casadi_zeros;
+  /* #8: {@7, @8} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @5, @6) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 900, res[0]+900);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+891, 9, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+1600 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+3800 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 900, res[0]+1800);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+891, 9, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+2400 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+5700 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 900, res[0]+2700);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+891, 9, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+3200 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+7600 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr05;
+  arg1[2]=wr06;
+  res1[0]=w07;
   res1[1]=w08;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 900, res[0]+3600);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+891, 9, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+4000 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+9500 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @7 */
+  if (res[0]) casadi_copy(w07, 288, res[0]+72);
+  /* #10: {NULL, @0} = horzsplit(@7) */
+  casadi_copy(w07+279, 9, w00);
+  /* #11: @9 = input[1][2] */
+  wr09 = arg[1] ? arg[1]+320 : casadi_zeros;
+  /* #12: @10 = input[2][2] */
+  wr10 = arg[2] ? arg[2]+760 : casadi_zeros;
+  /* #13: {@11, @12} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @9, @10) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 900, res[0]+4500);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+891, 9, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+4800 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+11400 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 900, res[0]+5400);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+891, 9, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+5600 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+13300 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 900, res[0]+6300);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+891, 9, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+6400 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+15200 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr09;
+  arg1[2]=wr10;
+  res1[0]=w11;
   res1[1]=w12;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 900, res[0]+7200);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+891, 9, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+7200 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+17100 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
+  if (casadi_f23(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @11 */
+  if (res[0]) casadi_copy(w11, 576, res[0]+360);
+  /* #15: {NULL, @0} = horzsplit(@11) */
+  casadi_copy(w11+567, 9, w00);
+  /* #16: @13 = input[1][3] */
+  wr13 = arg[1] ? arg[1]+832 : casadi_zeros;
+  /* #17: @14 = input[2][3] */
+  wr14 = arg[2] ? arg[2]+1976 : casadi_zeros;
+  /* #18: {@15, @16} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @13, @14) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f17(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 900, res[0]+8100);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 1200, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 1200, res[1]+1200);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 1200, res[1]+2400);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 1200, res[1]+3600);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 1200, res[1]+4800);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 1200, res[1]+6000);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 1200, res[1]+7200);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 1200, res[1]+8400);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 1200, res[1]+9600);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 1200, res[1]+10800);
+  arg1[1]=wr13;
+  arg1[2]=wr14;
+  res1[0]=w15;
+  res1[1]=w16;
+  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @15 */
+  if (res[0]) casadi_copy(w15, 1152, res[0]+936);
+  /* #20: {NULL, @0} = horzsplit(@15) */
+  casadi_copy(w15+1143, 9, w00);
+  /* #21: @17 = input[1][4] */
+  wr17 = arg[1] ? arg[1]+1856 : casadi_zeros;
+  /* #22: @18 = input[2][4] */
+  wr18 = arg[2] ? arg[2]+4408 : casadi_zeros;
+  /* #23: {@19, @20} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @17, @18) */
+  arg1[0]=w00;
+  arg1[1]=wr17;
+  arg1[2]=wr18;
+  res1[0]=w19;
+  res1[1]=w20;
+  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @19 */
+  if (res[0]) casadi_copy(w19, 2304, res[0]+2088);
+  /* #25: {NULL, @0} = horzsplit(@19) */
+  casadi_copy(w19+2295, 9, w00);
+  /* #26: @21 = input[1][5] */
+  wr21 = arg[1] ? arg[1]+3904 : casadi_zeros;
+  /* #27: @22 = input[2][5] */
+  wr22 = arg[2] ? arg[2]+9272 : casadi_zeros;
+  /* #28: {@23, @24} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @21, @22) */
+  arg1[0]=w00;
+  arg1[1]=wr21;
+  arg1[2]=wr22;
+  res1[0]=w23;
+  res1[1]=w24;
+  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @23 */
+  if (res[0]) casadi_copy(w23, 4608, res[0]+4392);
+  /* #30: output[1][0] = @4 */
+  casadi_copy(w04, 96, res[1]);
+  /* #31: output[1][1] = @8 */
+  if (res[1]) casadi_copy(w08, 384, res[1]+96);
+  /* #32: output[1][2] = @12 */
+  if (res[1]) casadi_copy(w12, 768, res[1]+480);
+  /* #33: output[1][3] = @16 */
+  if (res[1]) casadi_copy(w16, 1536, res[1]+1248);
+  /* #34: output[1][4] = @20 */
+  if (res[1]) casadi_copy(w20, 3072, res[1]+2784);
+  /* #35: output[1][5] = @24 */
+  if (res[1]) casadi_copy(w24, 6144, res[1]+5856);
   return 0;
 }
 
 /* soft_pendulum_theorem10_closed_loop:(x0[8],p[8],k0,e[19x1000])->(x[8x1000],y[12x1000]) */
 static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, w1, *w2=w+18017, *w3=w+18026, *w5=w+26026, *w6=w+35026;
+  casadi_real **res1=res+2, *rr, w1, *w2=w+79424, *w3=w+79433, *w5=w+87433, *w6=w+96433;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr0, *wr4;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
@@ -27229,7 +27205,7 @@ static int casadi_f15(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }
   /* #5: @4 = input[3][0] */
   wr4 = arg[3] ? arg[3] : casadi_zeros;
-  /* #6: {@5, @6} = one_sample_acc10_acc10_acc10(@2, @3, @4) */
+  /* #6: {@5, @6} = acc(@2, @3, @4) */
   arg1[0]=w2;
   arg1[1]=w3;
   arg1[2]=wr4;
@@ -27309,18 +27285,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* soft_pendulum_theorem10_closed_loop_spars
 }
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20;
-  if (sz_res) *sz_res = 12;
+  if (sz_arg) *sz_arg = 41;
+  if (sz_res) *sz_res = 26;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 47026;
+  if (sz_w) *sz_w = 108433;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 20*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 12*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 41*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 26*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 47026*sizeof(casadi_real);
+  if (sz_w) *sz_w = 108433*sizeof(casadi_real);
   return 0;
 }
 #if defined(__GNUC__) && !defined(__clang__)
@@ -27333,7 +27309,7 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_closed_loop_work_bytes(casadi_i
 #pragma GCC optimize ("O1")
 #endif
 /* soft_pendulum_theorem10_sampled_step:(pi_hat[4],u_prev[2],q[2],qd[2],q_d[2],qd_d[2],qdd_d[2],lam[2],kd[2],kpi[4],dt)->(pi_hat_next[4],u_next[2],tau,sigma[2]) */
-static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -33390,7 +33366,7 @@ static int casadi_f20(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f20(arg, res, iw, w, mem);
+  return casadi_f27(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_step_checkout(void) {
@@ -33495,7 +33471,7 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_step_work_bytes(casadi_
 #pragma GCC optimize ("O1")
 #endif
 /* soft_pendulum_plant:(x[4],tau,f_ext[3],noise[4],dt)->(x_next[4],y[4]) */
-static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f29(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
   casadi_real a012, a013, a014, a015, a016, a017, a018, a019, a020, a021, a022, a023;
   casadi_real a024, a025, a026, a027, a028, a029, a030, a031, a032, a033, a034, a035;
@@ -37170,7 +37146,7 @@ static int casadi_f22(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 /* soft_pendulum_theorem10_sampled_loop_step:(x[10],p[8],k,e[13])->(x_next[10],y[18]) */
-static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f28(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
   casadi_real **res1=res+2, *rr, *w05=w+451, *w07=w+453, *w14=w+455, w15, *w16=w+459, *w17=w+463, w18, *w19=w+465, *w21=w+467, w22;
   const casadi_real **arg1=arg+4, *cr, *cs, *wr00, *wr01, *wr02, *wr03, *wr04, *wr05, *wr06, *wr07, *wr08;
@@ -37227,7 +37203,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
   res1[1]=w17;
   res1[2]=(&w18);
   res1[3]=w19;
-  if (casadi_f20(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
   /* #19: output[0][0] = @16 */
   casadi_copy(w16, 4, res[0]);
   /* #20: output[0][1] = @17 */
@@ -37248,7 +37224,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[4]=(&w15);
   res1[0]=w21;
   res1[1]=0;
-  if (casadi_f22(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f29(arg1, res1, iw, w, 0)) return 1;
   /* #25: @17 = @21[:2] */
   for (rr=w17, cs=w21+0; cs!=w21+2; cs+=1) *rr++ = *cs;
   /* #26: output[0][2] = @17 */
@@ -37283,7 +37259,7 @@ static int casadi_f21(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_loop_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f21(arg, res, iw, w, mem);
+  return casadi_f28(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_loop_step_checkout(void) {
@@ -37370,7 +37346,7 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_loop_step_work_bytes(ca
 #pragma GCC optimize ("O1")
 #endif
 /* one_sample:(xa[11],p[8],e[13])->(xa_next[11],y[18]) */
-static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f35(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w5=w+528, *w6=w+538, w7;
   const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2, *wr4;
   /* #0: @0 = input[0][0] */
@@ -37390,7 +37366,7 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
   arg1[3]=wr4;
   res1[0]=w5;
   res1[1]=w6;
-  if (casadi_f21(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f28(arg1, res1, iw, w, 0)) return 1;
   /* #6: output[0][0] = @5 */
   casadi_copy(w5, 10, res[0]);
   /* #7: @3 = 1 */
@@ -37406,526 +37382,488 @@ static int casadi_f27(const casadi_real** arg, casadi_real** res, casadi_int* iw
   return 0;
 }
 
-/* one_sample_acc10:(xa[11],p[8x10],e[13x10])->(xa_next[11x10],y[18x10]) */
-static int casadi_f26(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+600, *w03=w+611, *w04=w+622, *w05=w+640, *w06=w+658, *w07=w+676, *w08=w+694, *w09=w+712, *w10=w+730, *w11=w+748, *w12=w+766;
-  casadi_real *w13=w+784;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+/* one_sample_acc2:(xa[11],p[8x2],e[13x2])->(xa_next[11x2],y[18x2]) */
+static int casadi_f34(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+600, *w3=w+611, *w4=w+622, *w5=w+640;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
   /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
   /* #3: {@3, @4} = one_sample(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 11, res[0]);
+  casadi_copy(w3, 11, res[0]);
   /* #5: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+8 : casadi_zeros;
+  wr1 = arg[1] ? arg[1]+8 : casadi_zeros;
   /* #6: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+13 : casadi_zeros;
+  wr2 = arg[2] ? arg[2]+13 : casadi_zeros;
   /* #7: {@0, @5} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w05;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
+  arg1[0]=w3;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w0;
+  res1[1]=w5;
+  if (casadi_f35(arg1, res1, iw, w, 0)) return 1;
   /* #8: output[0][1] = @0 */
-  if (res[0]) casadi_copy(w00, 11, res[0]+11);
-  /* #9: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+16 : casadi_zeros;
-  /* #10: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+26 : casadi_zeros;
-  /* #11: {@3, @6} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #12: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 11, res[0]+22);
-  /* #13: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+24 : casadi_zeros;
-  /* #14: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+39 : casadi_zeros;
-  /* #15: {@0, @7} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w07;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #16: output[0][3] = @0 */
-  if (res[0]) casadi_copy(w00, 11, res[0]+33);
-  /* #17: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+32 : casadi_zeros;
-  /* #18: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+52 : casadi_zeros;
-  /* #19: {@3, @8} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #20: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 11, res[0]+44);
-  /* #21: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+40 : casadi_zeros;
-  /* #22: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+65 : casadi_zeros;
-  /* #23: {@0, @9} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w09;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][5] = @0 */
-  if (res[0]) casadi_copy(w00, 11, res[0]+55);
-  /* #25: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+48 : casadi_zeros;
-  /* #26: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+78 : casadi_zeros;
-  /* #27: {@3, @10} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #28: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 11, res[0]+66);
-  /* #29: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+56 : casadi_zeros;
-  /* #30: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+91 : casadi_zeros;
-  /* #31: {@0, @11} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w11;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #32: output[0][7] = @0 */
-  if (res[0]) casadi_copy(w00, 11, res[0]+77);
-  /* #33: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+64 : casadi_zeros;
-  /* #34: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+104 : casadi_zeros;
-  /* #35: {@3, @12} = one_sample(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #36: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 11, res[0]+88);
-  /* #37: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+72 : casadi_zeros;
-  /* #38: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+117 : casadi_zeros;
-  /* #39: {@0, @13} = one_sample(@3, @1, @2) */
-  arg1[0]=w03;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w00;
-  res1[1]=w13;
-  if (casadi_f27(arg1, res1, iw, w, 0)) return 1;
-  /* #40: output[0][9] = @0 */
-  if (res[0]) casadi_copy(w00, 11, res[0]+99);
-  /* #41: output[1][0] = @4 */
-  casadi_copy(w04, 18, res[1]);
-  /* #42: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 18, res[1]+18);
-  /* #43: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 18, res[1]+36);
-  /* #44: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 18, res[1]+54);
-  /* #45: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 18, res[1]+72);
-  /* #46: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 18, res[1]+90);
-  /* #47: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 18, res[1]+108);
-  /* #48: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 18, res[1]+126);
-  /* #49: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 18, res[1]+144);
-  /* #50: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 18, res[1]+162);
+  if (res[0]) casadi_copy(w0, 11, res[0]+11);
+  /* #9: output[1][0] = @4 */
+  casadi_copy(w4, 18, res[1]);
+  /* #10: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 18, res[1]+18);
   return 0;
 }
 
-/* one_sample_acc10_acc10:(xa[11],p[8x100],e[13x100])->(xa_next[11x100],y[18x100]) */
-static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+823, *w03=w+834, *w04=w+944, *w05=w+1124, *w06=w+1304, *w07=w+1484, *w08=w+1664, *w09=w+1844, *w10=w+2024, *w11=w+2204, *w12=w+2384;
-  casadi_real *w13=w+2564;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
+/* one_sample_acc2_acc2:(xa[11],p[8x4],e[13x4])->(xa_next[11x4],y[18x4]) */
+static int casadi_f33(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+679, *w3=w+690, *w4=w+712, *w5=w+748;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 22, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+11, 11, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+16 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+26 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f34(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 22, res[0]+22);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 36, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 36, res[1]+36);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2:(xa[11],p[8x8],e[13x8])->(xa_next[11x8],y[18x8]) */
+static int casadi_f32(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+826, *w3=w+837, *w4=w+881, *w5=w+953;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 44, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+33, 11, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+32 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+52 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f33(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 44, res[0]+44);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 72, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 72, res[1]+72);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2:(xa[11],p[8x16],e[13x16])->(xa_next[11x16],y[18x16]) */
+static int casadi_f37(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1109, *w3=w+1120, *w4=w+1208, *w5=w+1352;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 88, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+77, 11, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+64 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+104 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 88, res[0]+88);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 144, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 144, res[1]+144);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2:(xa[11],p[8x32],e[13x32])->(xa_next[11x32],y[18x32]) */
+static int casadi_f36(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+1664, *w3=w+1675, *w4=w+1851, *w5=w+2139;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 176, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+165, 11, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+128 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+208 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f37(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 176, res[0]+176);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 288, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 288, res[1]+288);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2:(xa[11],p[8x64],e[13x64])->(xa_next[11x64],y[18x64]) */
+static int casadi_f38(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+2763, *w3=w+2774, *w4=w+3126, *w5=w+3702;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 352, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+341, 11, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+256 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+416 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 352, res[0]+352);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 576, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 576, res[1]+576);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[11],p[8x128],e[13x128])->(xa_next[11x128],y[18x128]) */
+static int casadi_f39(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+4950, *w3=w+4961, *w4=w+5665, *w5=w+6817;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 704, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+693, 11, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+512 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+832 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 704, res[0]+704);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 1152, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 1152, res[1]+1152);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[11],p[8x256],e[13x256])->(xa_next[11x256],y[18x256]) */
+static int casadi_f40(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+9313, *w3=w+9324, *w4=w+10732, *w5=w+13036;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 1408, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+1397, 11, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+1024 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+1664 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 1408, res[0]+1408);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 2304, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 2304, res[1]+2304);
+  return 0;
+}
+
+/* one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2:(xa[11],p[8x512],e[13x512])->(xa_next[11x512],y[18x512]) */
+static int casadi_f41(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w0=w+18028, *w3=w+18039, *w4=w+20855, *w5=w+25463;
+  const casadi_real **arg1=arg+3, *wr0, *wr1, *wr2;
+  /* #0: @0 = input[0][0] */
+  wr0 = arg[0] ? arg[0] : casadi_zeros;
+  /* #1: @1 = input[1][0] */
+  wr1 = arg[1] ? arg[1] : casadi_zeros;
+  /* #2: @2 = input[2][0] */
+  wr2 = arg[2] ? arg[2] : casadi_zeros;
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=wr0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w4;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  /* #4: output[0][0] = @3 */
+  casadi_copy(w3, 2816, res[0]);
+  /* #5: {NULL, @0} = horzsplit(@3) */
+  casadi_copy(w3+2805, 11, w0);
+  /* #6: @1 = input[1][1] */
+  wr1 = arg[1] ? arg[1]+2048 : casadi_zeros;
+  /* #7: @2 = input[2][1] */
+  wr2 = arg[2] ? arg[2]+3328 : casadi_zeros;
+  /* #8: {@3, @5} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @1, @2) */
+  arg1[0]=w0;
+  arg1[1]=wr1;
+  arg1[2]=wr2;
+  res1[0]=w3;
+  res1[1]=w5;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @3 */
+  if (res[0]) casadi_copy(w3, 2816, res[0]+2816);
+  /* #10: output[1][0] = @4 */
+  casadi_copy(w4, 4608, res[1]);
+  /* #11: output[1][1] = @5 */
+  if (res[1]) casadi_copy(w5, 4608, res[1]+4608);
+  return 0;
+}
+
+/* acc:(xa[11],p[8x1000],e[13x1000])->(xa_next[11x1000],y[18x1000]) */
+static int casadi_f31(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  casadi_real **res1=res+2, *w00=w+35447, *w03=w+35458, *w04=w+35546, *w07=w+35690, *w08=w+36042, *w11=w+36618, *w12=w+37322, *w15=w+38474, *w16=w+39882, *w19=w+42186, *w20=w+45002;
+  casadi_real *w23=w+49610, *w24=w+55242;
+  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02, *wr05, *wr06, *wr09, *wr10, *wr13, *wr14, *wr17, *wr18;
+  const casadi_real *wr21, *wr22;
   /* #0: @0 = input[0][0] */
   wr00 = arg[0] ? arg[0] : casadi_zeros;
   /* #1: @1 = input[1][0] */
   wr01 = arg[1] ? arg[1] : casadi_zeros;
   /* #2: @2 = input[2][0] */
   wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10(@0, @1, @2) */
+  /* #3: {@3, @4} = one_sample_acc2_acc2_acc2(@0, @1, @2) */
   arg1[0]=wr00;
   arg1[1]=wr01;
   arg1[2]=wr02;
   res1[0]=w03;
   res1[1]=w04;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f32(arg1, res1, iw, w, 0)) return 1;
   /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 110, res[0]);
+  casadi_copy(w03, 88, res[0]);
   /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+99, 11, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+80 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+130 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10(@0, @1, @2) */
+  casadi_copy(w03+77, 11, w00);
+  /* #6: @5 = input[1][1] */
+  wr05 = arg[1] ? arg[1]+64 : casadi_zeros;
+  /* #7: @6 = input[2][1] */
+  wr06 = arg[2] ? arg[2]+104 : casadi_zeros;
+  /* #8: {@7, @8} = one_sample_acc2_acc2_acc2_acc2_acc2(@0, @5, @6) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 110, res[0]+110);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+99, 11, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+160 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+260 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 110, res[0]+220);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+99, 11, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+240 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+390 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 110, res[0]+330);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+99, 11, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+320 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+520 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr05;
+  arg1[2]=wr06;
+  res1[0]=w07;
   res1[1]=w08;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 110, res[0]+440);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+99, 11, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+400 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+650 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10(@0, @1, @2) */
+  if (casadi_f36(arg1, res1, iw, w, 0)) return 1;
+  /* #9: output[0][1] = @7 */
+  if (res[0]) casadi_copy(w07, 352, res[0]+88);
+  /* #10: {NULL, @0} = horzsplit(@7) */
+  casadi_copy(w07+341, 11, w00);
+  /* #11: @9 = input[1][2] */
+  wr09 = arg[1] ? arg[1]+320 : casadi_zeros;
+  /* #12: @10 = input[2][2] */
+  wr10 = arg[2] ? arg[2]+520 : casadi_zeros;
+  /* #13: {@11, @12} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2(@0, @9, @10) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 110, res[0]+550);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+99, 11, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+480 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+780 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 110, res[0]+660);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+99, 11, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+560 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+910 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 110, res[0]+770);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+99, 11, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+640 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+1040 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
+  arg1[1]=wr09;
+  arg1[2]=wr10;
+  res1[0]=w11;
   res1[1]=w12;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 110, res[0]+880);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+99, 11, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+720 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+1170 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10(@0, @1, @2) */
+  if (casadi_f38(arg1, res1, iw, w, 0)) return 1;
+  /* #14: output[0][2] = @11 */
+  if (res[0]) casadi_copy(w11, 704, res[0]+440);
+  /* #15: {NULL, @0} = horzsplit(@11) */
+  casadi_copy(w11+693, 11, w00);
+  /* #16: @13 = input[1][3] */
+  wr13 = arg[1] ? arg[1]+832 : casadi_zeros;
+  /* #17: @14 = input[2][3] */
+  wr14 = arg[2] ? arg[2]+1352 : casadi_zeros;
+  /* #18: {@15, @16} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @13, @14) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f26(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 110, res[0]+990);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 180, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 180, res[1]+180);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 180, res[1]+360);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 180, res[1]+540);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 180, res[1]+720);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 180, res[1]+900);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 180, res[1]+1080);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 180, res[1]+1260);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 180, res[1]+1440);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 180, res[1]+1620);
-  return 0;
-}
-
-/* one_sample_acc10_acc10_acc10:(xa[11],p[8x1000],e[13x1000])->(xa_next[11x1000],y[18x1000]) */
-static int casadi_f24(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
-  casadi_real **res1=res+2, *w00=w+2954, *w03=w+2965, *w04=w+4065, *w05=w+5865, *w06=w+7665, *w07=w+9465, *w08=w+11265, *w09=w+13065, *w10=w+14865, *w11=w+16665, *w12=w+18465;
-  casadi_real *w13=w+20265;
-  const casadi_real **arg1=arg+3, *wr00, *wr01, *wr02;
-  /* #0: @0 = input[0][0] */
-  wr00 = arg[0] ? arg[0] : casadi_zeros;
-  /* #1: @1 = input[1][0] */
-  wr01 = arg[1] ? arg[1] : casadi_zeros;
-  /* #2: @2 = input[2][0] */
-  wr02 = arg[2] ? arg[2] : casadi_zeros;
-  /* #3: {@3, @4} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=wr00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w04;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #4: output[0][0] = @3 */
-  casadi_copy(w03, 1100, res[0]);
-  /* #5: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1089, 11, w00);
-  /* #6: @1 = input[1][1] */
-  wr01 = arg[1] ? arg[1]+800 : casadi_zeros;
-  /* #7: @2 = input[2][1] */
-  wr02 = arg[2] ? arg[2]+1300 : casadi_zeros;
-  /* #8: {@3, @5} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[1]=wr13;
+  arg1[2]=wr14;
+  res1[0]=w15;
+  res1[1]=w16;
+  if (casadi_f39(arg1, res1, iw, w, 0)) return 1;
+  /* #19: output[0][3] = @15 */
+  if (res[0]) casadi_copy(w15, 1408, res[0]+1144);
+  /* #20: {NULL, @0} = horzsplit(@15) */
+  casadi_copy(w15+1397, 11, w00);
+  /* #21: @17 = input[1][4] */
+  wr17 = arg[1] ? arg[1]+1856 : casadi_zeros;
+  /* #22: @18 = input[2][4] */
+  wr18 = arg[2] ? arg[2]+3016 : casadi_zeros;
+  /* #23: {@19, @20} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @17, @18) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w05;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #9: output[0][1] = @3 */
-  if (res[0]) casadi_copy(w03, 1100, res[0]+1100);
-  /* #10: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1089, 11, w00);
-  /* #11: @1 = input[1][2] */
-  wr01 = arg[1] ? arg[1]+1600 : casadi_zeros;
-  /* #12: @2 = input[2][2] */
-  wr02 = arg[2] ? arg[2]+2600 : casadi_zeros;
-  /* #13: {@3, @6} = one_sample_acc10_acc10(@0, @1, @2) */
+  arg1[1]=wr17;
+  arg1[2]=wr18;
+  res1[0]=w19;
+  res1[1]=w20;
+  if (casadi_f40(arg1, res1, iw, w, 0)) return 1;
+  /* #24: output[0][4] = @19 */
+  if (res[0]) casadi_copy(w19, 2816, res[0]+2552);
+  /* #25: {NULL, @0} = horzsplit(@19) */
+  casadi_copy(w19+2805, 11, w00);
+  /* #26: @21 = input[1][5] */
+  wr21 = arg[1] ? arg[1]+3904 : casadi_zeros;
+  /* #27: @22 = input[2][5] */
+  wr22 = arg[2] ? arg[2]+6344 : casadi_zeros;
+  /* #28: {@23, @24} = one_sample_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2_acc2(@0, @21, @22) */
   arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w06;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #14: output[0][2] = @3 */
-  if (res[0]) casadi_copy(w03, 1100, res[0]+2200);
-  /* #15: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1089, 11, w00);
-  /* #16: @1 = input[1][3] */
-  wr01 = arg[1] ? arg[1]+2400 : casadi_zeros;
-  /* #17: @2 = input[2][3] */
-  wr02 = arg[2] ? arg[2]+3900 : casadi_zeros;
-  /* #18: {@3, @7} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w07;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #19: output[0][3] = @3 */
-  if (res[0]) casadi_copy(w03, 1100, res[0]+3300);
-  /* #20: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1089, 11, w00);
-  /* #21: @1 = input[1][4] */
-  wr01 = arg[1] ? arg[1]+3200 : casadi_zeros;
-  /* #22: @2 = input[2][4] */
-  wr02 = arg[2] ? arg[2]+5200 : casadi_zeros;
-  /* #23: {@3, @8} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w08;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #24: output[0][4] = @3 */
-  if (res[0]) casadi_copy(w03, 1100, res[0]+4400);
-  /* #25: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1089, 11, w00);
-  /* #26: @1 = input[1][5] */
-  wr01 = arg[1] ? arg[1]+4000 : casadi_zeros;
-  /* #27: @2 = input[2][5] */
-  wr02 = arg[2] ? arg[2]+6500 : casadi_zeros;
-  /* #28: {@3, @9} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w09;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #29: output[0][5] = @3 */
-  if (res[0]) casadi_copy(w03, 1100, res[0]+5500);
-  /* #30: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1089, 11, w00);
-  /* #31: @1 = input[1][6] */
-  wr01 = arg[1] ? arg[1]+4800 : casadi_zeros;
-  /* #32: @2 = input[2][6] */
-  wr02 = arg[2] ? arg[2]+7800 : casadi_zeros;
-  /* #33: {@3, @10} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w10;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #34: output[0][6] = @3 */
-  if (res[0]) casadi_copy(w03, 1100, res[0]+6600);
-  /* #35: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1089, 11, w00);
-  /* #36: @1 = input[1][7] */
-  wr01 = arg[1] ? arg[1]+5600 : casadi_zeros;
-  /* #37: @2 = input[2][7] */
-  wr02 = arg[2] ? arg[2]+9100 : casadi_zeros;
-  /* #38: {@3, @11} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w11;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #39: output[0][7] = @3 */
-  if (res[0]) casadi_copy(w03, 1100, res[0]+7700);
-  /* #40: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1089, 11, w00);
-  /* #41: @1 = input[1][8] */
-  wr01 = arg[1] ? arg[1]+6400 : casadi_zeros;
-  /* #42: @2 = input[2][8] */
-  wr02 = arg[2] ? arg[2]+10400 : casadi_zeros;
-  /* #43: {@3, @12} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w12;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #44: output[0][8] = @3 */
-  if (res[0]) casadi_copy(w03, 1100, res[0]+8800);
-  /* #45: {NULL, @0} = horzsplit(@3) */
-  casadi_copy(w03+1089, 11, w00);
-  /* #46: @1 = input[1][9] */
-  wr01 = arg[1] ? arg[1]+7200 : casadi_zeros;
-  /* #47: @2 = input[2][9] */
-  wr02 = arg[2] ? arg[2]+11700 : casadi_zeros;
-  /* #48: {@3, @13} = one_sample_acc10_acc10(@0, @1, @2) */
-  arg1[0]=w00;
-  arg1[1]=wr01;
-  arg1[2]=wr02;
-  res1[0]=w03;
-  res1[1]=w13;
-  if (casadi_f25(arg1, res1, iw, w, 0)) return 1;
-  /* #49: output[0][9] = @3 */
-  if (res[0]) casadi_copy(w03, 1100, res[0]+9900);
-  /* #50: output[1][0] = @4 */
-  casadi_copy(w04, 1800, res[1]);
-  /* #51: output[1][1] = @5 */
-  if (res[1]) casadi_copy(w05, 1800, res[1]+1800);
-  /* #52: output[1][2] = @6 */
-  if (res[1]) casadi_copy(w06, 1800, res[1]+3600);
-  /* #53: output[1][3] = @7 */
-  if (res[1]) casadi_copy(w07, 1800, res[1]+5400);
-  /* #54: output[1][4] = @8 */
-  if (res[1]) casadi_copy(w08, 1800, res[1]+7200);
-  /* #55: output[1][5] = @9 */
-  if (res[1]) casadi_copy(w09, 1800, res[1]+9000);
-  /* #56: output[1][6] = @10 */
-  if (res[1]) casadi_copy(w10, 1800, res[1]+10800);
-  /* #57: output[1][7] = @11 */
-  if (res[1]) casadi_copy(w11, 1800, res[1]+12600);
-  /* #58: output[1][8] = @12 */
-  if (res[1]) casadi_copy(w12, 1800, res[1]+14400);
-  /* #59: output[1][9] = @13 */
-  if (res[1]) casadi_copy(w13, 1800, res[1]+16200);
+  arg1[1]=wr21;
+  arg1[2]=wr22;
+  res1[0]=w23;
+  res1[1]=w24;
+  if (casadi_f41(arg1, res1, iw, w, 0)) return 1;
+  /* #29: output[0][5] = @23 */
+  if (res[0]) casadi_copy(w23, 5632, res[0]+5368);
+  /* #30: output[1][0] = @4 */
+  casadi_copy(w04, 144, res[1]);
+  /* #31: output[1][1] = @8 */
+  if (res[1]) casadi_copy(w08, 576, res[1]+144);
+  /* #32: output[1][2] = @12 */
+  if (res[1]) casadi_copy(w12, 1152, res[1]+720);
+  /* #33: output[1][3] = @16 */
+  if (res[1]) casadi_copy(w16, 2304, res[1]+1872);
+  /* #34: output[1][4] = @20 */
+  if (res[1]) casadi_copy(w20, 4608, res[1]+4176);
+  /* #35: output[1][5] = @24 */
+  if (res[1]) casadi_copy(w24, 9216, res[1]+8784);
   return 0;
 }
 
 /* soft_pendulum_theorem10_sampled_loop_loop:(x0[10],p[8],k0,e[13x1000])->(x[10x1000],y[18x1000]) */
-static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+static int casadi_f30(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
-  casadi_real **res1=res+2, *rr, w1, *w2=w+24165, *w4=w+24176, *w6=w+32176, *w7=w+43176, *w8=w+61176;
+  casadi_real **res1=res+2, *rr, w1, *w2=w+85458, *w4=w+85469, *w6=w+93469, *w7=w+104469, *w8=w+122469;
   const casadi_real **arg1=arg+4, *cs, *ct, *wr0, *wr3, *wr5;
   /* #0: @0 = input[0][0] */
   wr0 = arg[0] ? arg[0] : casadi_zeros;
@@ -37943,13 +37881,13 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
   }
   /* #5: @5 = input[3][0] */
   wr5 = arg[3] ? arg[3] : casadi_zeros;
-  /* #6: {@6, @7} = one_sample_acc10_acc10_acc10(@2, @4, @5) */
+  /* #6: {@6, @7} = acc(@2, @4, @5) */
   arg1[0]=w2;
   arg1[1]=w4;
   arg1[2]=wr5;
   res1[0]=w6;
   res1[1]=w7;
-  if (casadi_f24(arg1, res1, iw, w, 0)) return 1;
+  if (casadi_f31(arg1, res1, iw, w, 0)) return 1;
   /* #7: @8 = @6[:11000:11;:10] */
   for (rr=w8, cs=w6+0; cs!=w6+11000; cs+=11) for (ct=cs+0; ct!=cs+10; ct+=1) *rr++ = *ct;
   /* #8: output[0][0] = @8 */
@@ -37960,7 +37898,7 @@ static int casadi_f23(const casadi_real** arg, casadi_real** res, casadi_int* iw
 }
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_loop_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f23(arg, res, iw, w, mem);
+  return casadi_f30(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_loop_loop_checkout(void) {
@@ -38023,18 +37961,18 @@ CASADI_SYMBOL_EXPORT const casadi_int* soft_pendulum_theorem10_sampled_loop_loop
 }
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_loop_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31;
-  if (sz_res) *sz_res = 16;
+  if (sz_arg) *sz_arg = 52;
+  if (sz_res) *sz_res = 30;
   if (sz_iw) *sz_iw = 0;
-  if (sz_w) *sz_w = 71176;
+  if (sz_w) *sz_w = 132469;
   return 0;
 }
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_loop_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 31*sizeof(const casadi_real*);
-  if (sz_res) *sz_res = 16*sizeof(casadi_real*);
+  if (sz_arg) *sz_arg = 52*sizeof(const casadi_real*);
+  if (sz_res) *sz_res = 30*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
-  if (sz_w) *sz_w = 71176*sizeof(casadi_real);
+  if (sz_w) *sz_w = 132469*sizeof(casadi_real);
   return 0;
 }
 #if defined(__GNUC__) && !defined(__clang__)
@@ -38042,7 +37980,7 @@ CASADI_SYMBOL_EXPORT int soft_pendulum_theorem10_sampled_loop_loop_work_bytes(ca
 #endif
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem){
-  return casadi_f22(arg, res, iw, w, mem);
+  return casadi_f29(arg, res, iw, w, mem);
 }
 
 CASADI_SYMBOL_EXPORT int soft_pendulum_plant_checkout(void) {

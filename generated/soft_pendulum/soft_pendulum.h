@@ -301,10 +301,10 @@ const casadi_int* soft_pendulum_theorem10_closed_loop_sparsity_in(casadi_int i);
 const casadi_int* soft_pendulum_theorem10_closed_loop_sparsity_out(casadi_int i);
 int soft_pendulum_theorem10_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int soft_pendulum_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define soft_pendulum_theorem10_closed_loop_SZ_ARG 20
-#define soft_pendulum_theorem10_closed_loop_SZ_RES 12
+#define soft_pendulum_theorem10_closed_loop_SZ_ARG 41
+#define soft_pendulum_theorem10_closed_loop_SZ_RES 26
 #define soft_pendulum_theorem10_closed_loop_SZ_IW 0
-#define soft_pendulum_theorem10_closed_loop_SZ_W 47026
+#define soft_pendulum_theorem10_closed_loop_SZ_W 108433
 int soft_pendulum_theorem10_sampled_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int soft_pendulum_theorem10_sampled_step_checkout(void);
 void soft_pendulum_theorem10_sampled_step_release(int mem);
@@ -355,10 +355,10 @@ const casadi_int* soft_pendulum_theorem10_sampled_loop_loop_sparsity_in(casadi_i
 const casadi_int* soft_pendulum_theorem10_sampled_loop_loop_sparsity_out(casadi_int i);
 int soft_pendulum_theorem10_sampled_loop_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int soft_pendulum_theorem10_sampled_loop_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define soft_pendulum_theorem10_sampled_loop_loop_SZ_ARG 31
-#define soft_pendulum_theorem10_sampled_loop_loop_SZ_RES 16
+#define soft_pendulum_theorem10_sampled_loop_loop_SZ_ARG 52
+#define soft_pendulum_theorem10_sampled_loop_loop_SZ_RES 30
 #define soft_pendulum_theorem10_sampled_loop_loop_SZ_IW 0
-#define soft_pendulum_theorem10_sampled_loop_loop_SZ_W 71176
+#define soft_pendulum_theorem10_sampled_loop_loop_SZ_W 132469
 int soft_pendulum_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int soft_pendulum_plant_checkout(void);
 void soft_pendulum_plant_release(int mem);

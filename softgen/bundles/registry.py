@@ -31,6 +31,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
+from softgen.blocks.diagram import MAPACCUM_OPTS
 from softgen.codegen.generate import Generated
 from softgen.modelfile.model import RobotModel
 from softgen.modelfile.soft import SoftModel
@@ -554,7 +555,7 @@ def loop_calling_step(diagram, steps: int) -> ca.Function:
     xn, y = f(xa[:nx], p, xa[nx], e)
     one = ca.Function("one_sample", [xa, p, e], [ca.vertcat(xn, xa[nx] + 1), y],
                       ["xa", "p", "e"], ["xa_next", "y"])
-    acc = one.mapaccum("acc", int(steps), [0], [0])
+    acc = one.mapaccum("acc", int(steps), [0], [0], MAPACCUM_OPTS)
     x0, pm, k0 = ca.MX.sym("x0", nx), ca.MX.sym("p", n_p), ca.MX.sym("k0")
     em = ca.MX.sym("e", ne, int(steps))
     XA, Y = acc(ca.vertcat(x0, k0), pm, em)
