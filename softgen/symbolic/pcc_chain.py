@@ -27,8 +27,12 @@ from dataclasses import dataclass
 import casadi as ca
 
 from softgen.modelfile.soft import SoftModel
-from softgen.symbolic.pcc import SoftBody
-from softgen.symbolic.smooth import cosc_w, jet_values_from_nu, nu_w, sinc_w
+from softgen.symbolic.pcc import (SoftBody, _rot_z, gauss_legendre, pcc3d_centroid,
+                                  pcc3d_point, pcc3d_rotation, pcc_planar_centroid,
+                                  pcc_planar_point)
+from softgen.symbolic.smooth import Jets, cosc_w, jet_values_from_nu, nu_w, sinc_w
+from softgen.symbolic.tree_aba import _ldl
+from softgen.symbolic.tree_loop import _Shared
 
 
 def _cross(a, b):
@@ -327,3 +331,394 @@ def chain_regressor_products(lin, model: SoftModel, mu, base_frame, K, D):
     psi = psi + ca.dot(sigma, ca.mtimes(K, q) + ca.mtimes(D, qd))
     yts = ca.jacobian(psi, lin.pi).T
     return tau, yts
+
+
+# --------------------------------------------------------------------------- forward dynamics
+
+#: Segments per generated function of the looped route (:func:`chain_forward_dynamics_function`).
+LOOP_BLOCK = 2
+
+
+def applies(body: SoftBody) -> bool:
+    """:func:`chain_forward_dynamics` covers ``body``'s model: the PCC kinds (planar and 3D,
+    lumped or distributed masses)."""
+    return body.model.kind in ("pcc-planar", "pcc-3d")
+
+
+def _segment_maps(body: SoftBody, i: int, x, sm):
+    """Segment i's point masses [(m, c(x))], tip t(x) and rotation E(x) in its base frame,
+    by the body's own maps (:mod:`~softgen.symbolic.pcc`) with the smooth functions ``sm``."""
+    model, seg = body.model, body.model.segments[i]
+    L0 = model.resolve(seg.length, body.values)
+    m = model.resolve(seg.mass, body.values)
+    if model.kind == "pcc-planar":
+        def point(s):
+            return pcc_planar_point(x[0], L0, s, sm)
+        centroid = pcc_planar_centroid(x[0], L0, sm)
+        E = _rot_z(x[0])
+    else:
+        def point(s):
+            return pcc3d_point(x, L0 + x[2], s, seg.radius, sm)
+        centroid = pcc3d_centroid(x, L0 + x[2], seg.radius, sm)
+        E = pcc3d_rotation(x, seg.radius, sm)
+    if seg.mass_model == "lumped":
+        points = [(m, centroid)]
+    else:
+        xs, ws = gauss_legendre(seg.quadrature_order)
+        points = [(m * w, point(s)) for s, w in zip(xs, ws)]
+    return points, point(1), E
+
+
+def _vee(W):
+    return ca.vertcat(W[2, 1], W[0, 2], W[1, 0])
+
+
+@dataclass
+class SegmentKinematics:
+    """One segment's share of the passes, world axes, origin at the segment's base o:
+    mass points (m_j, u_j = R c_j, J_j = R ∂c_j/∂x, β_j), the tip's offset d = R t, its
+    Jacobian J_N = [R J_ω; R ∂t/∂x] (6 × k) and bias β_N = (β_α, β_o) (at ẍ = 0 and the
+    base at rest in acceleration)."""
+
+    masses: list
+    u: list
+    Jc: list
+    beta: list
+    d: ca.SX
+    JN: ca.SX
+    betaN: ca.SX
+
+
+def _segment_local(body: SoftBody, i: int) -> tuple[ca.Function, list]:
+    """Segment i in its base frame, (x, ẋ) → E, and per point and for the tip the position,
+    ∂/∂x and the second rate at ẍ = 0; J_ω (Ė Eᵀ = [J_ω ẋ]×) and its rate at ẍ = 0.
+    Derived by CasADi from the body's maps, through the smooth functions by
+    :class:`~softgen.symbolic.smooth.Jets` (finite and exact at Δ = 0); with the masses."""
+    k = body.model.dofs_per_segment
+    model, seg = body.model, body.model.segments[i]
+    if model.kind == "pcc-3d" and seg.mass_model == "lumped":    # the closed forms
+        f = _local_fun(model, i, body.values)
+        x, xd = ca.MX.sym("x", 3), ca.MX.sym("xd", 3)
+        outs = f(x, xd)
+        R, t, c, Jw, Dt, Dc, al, td, tdd, cd, cdd = outs
+        g = ca.Function(f"seg{i}", [x, xd], [R, Jw, al, c, Dc, cdd, t, Dt, tdd])
+        return g.expand(), [model.resolve(seg.mass, body.values)]
+    x, xd = ca.SX.sym("x", k), ca.SX.sym("xd", k)
+    jets = Jets()
+    points, t, E = _segment_maps(body, i, x, jets)
+    dE = jets.jacobian(ca.vec(E), x)
+    Jw = ca.horzcat(*[_vee(ca.mtimes(ca.reshape(dE[:, c], 3, 3), E.T)) for c in range(k)])
+    outs = [E, Jw, jets.jtimes(ca.mtimes(Jw, xd), x, xd)]
+    for p in [c for _, c in points] + [t]:
+        Dp = jets.jacobian(p, x)
+        outs += [p, Dp, jets.jtimes(ca.mtimes(Dp, xd), x, xd)]
+    outs = jets.expand(outs)
+    return ca.Function(f"seg{i}", [x, xd], outs, {"cse": True}), [m for m, _ in points]
+
+
+def _forward(local, masses, x, xd, R, w):
+    """Pass 1 for one segment: its :class:`SegmentKinematics` and the next base's (R, ω)."""
+    out = local(x, xd)
+    E, Jw_l, al_l = out[0], out[1], out[2]
+    Jw = ca.mtimes(R, Jw_l)
+    wl = ca.mtimes(Jw, xd)
+
+    def point(c, Dc, cdd):
+        u, J = ca.mtimes(R, c), ca.mtimes(R, Dc)
+        ud = ca.mtimes(J, xd)
+        return u, J, _cross(w, _cross(w, u)) + 2 * _cross(w, ud) + ca.mtimes(R, cdd)
+    pts = [point(*out[3 + 3 * j:6 + 3 * j]) for j in range(len(masses))]
+    d, Jt, bo = point(*out[-3:])
+    kin = SegmentKinematics(masses, [p[0] for p in pts], [p[1] for p in pts],
+                            [p[2] for p in pts], d, ca.vertcat(Jw, Jt),
+                            ca.vertcat(_cross(w, wl) + ca.mtimes(R, al_l), bo))
+    return kin, ca.mtimes(R, E), w + wl
+
+
+def _shift_cols(d, Z):
+    """X_Nᵀ Z for X_N = [[I, 0], [−[d]×, I]] (the tip's motion from the base's): the
+    wrenches at the tip (columns of Z, (moment, force)) as wrenches at the base."""
+    return ca.vertcat(Z[:3, :] + _cross_mat(d, Z[3:, :]), Z[3:, :])
+
+
+def _sym_part(M):
+    """M known symmetric: the upper triangle, mirrored (the lower is never computed)."""
+    n = M.shape[0]
+    return ca.blockcat([[M[min(r, c), max(r, c)] for c in range(n)] for r in range(n)])
+
+
+def _backward(kin: SegmentKinematics, IA, pA, r):
+    """Pass 2 for one segment (the group elimination of :mod:`~softgen.symbolic.tree_loop`,
+    for point masses): the child's articulated inertia IA and bias pA at the tip (6 × 6,
+    6; (moment, force) against (α, ö)) to the base's, and what pass 3 needs.
+    ``r``: the segment's generalised forces besides inertia and gravity."""
+    k = kin.JN.shape[1]
+    pA2 = ca.mtimes(IA, kin.betaN) + pA
+    IJ = ca.mtimes(IA, kin.JN)
+    Mqq = ca.mtimes(kin.JN.T, IJ)
+    Maq = _shift_cols(kin.d, IJ)
+    bq = ca.mtimes(kin.JN.T, pA2)
+    ba = _shift_cols(kin.d, pA2)
+    mt, h, Io = 0, ca.SX.zeros(3), ca.SX.zeros(3, 3)
+    for m, u, J, b in zip(kin.masses, kin.u, kin.Jc, kin.beta):
+        Mqq = Mqq + m * ca.mtimes(J.T, J)
+        Maq = Maq + m * ca.vertcat(_cross_mat(u, J), J)
+        bq = bq + m * ca.mtimes(J.T, b)
+        ba = ba + m * ca.vertcat(_cross(u, b), b)
+        mt, h = mt + m, h + m * u
+        Io = Io - m * ca.mtimes(_skew(u), _skew(u))
+    T = _shift_cols(kin.d, IA)                       # X_Nᵀ IA
+    Maa = _shift_cols(kin.d, T.T).T + ca.blockcat([[Io, _skew(h)],
+                                                   [-_skew(h), mt * ca.SX.eye(3)]])
+    # M_qq = L D Lᵀ; with U = M_aq L⁻ᵀ and z = L⁻¹ (r − b_q): M_aq M_qq⁻¹ M_aqᵀ = U D⁻¹ Uᵀ,
+    # M_aq M_qq⁻¹ (r − b_q) = U D⁻¹ z, and ẍ = L⁻ᵀ D⁻¹ (z − Uᵀ a_base) (pass 3).
+    L, Dg = _ldl(_sym_part(Mqq), k)
+    z = _forward_sub(L, r - bq)
+    U = _forward_sub(L, Maq.T).T
+    Dinv = ca.vertcat(*[1 / e for e in Dg])
+    V = U * ca.repmat(Dinv.T, 6, 1)
+    Lt = ca.vertcat(*[L[i][j] for i in range(k) for j in range(i)]) if k > 1 else ca.SX(0, 1)
+    return (_sym_part(Maa - ca.mtimes(V, U.T)), ba + ca.mtimes(V, z),
+            (z, U, Dinv, Lt))
+
+
+def _forward_sub(L, B):
+    """L⁻¹ B for the unit lower triangular L (lists, :func:`~softgen.symbolic.tree_aba._ldl`)."""
+    rows: list = []
+    for i in range(len(L)):
+        rows.append(B[i, :] - sum((L[i][j] * rows[j] for j in range(i)), ca.SX.zeros(1, B.shape[1])))
+    return ca.vertcat(*rows)
+
+
+def _back_sub_t(Lt, k: int, b):
+    """L⁻ᵀ b, L's strict lower entries row by row in ``Lt``."""
+    L = [[None] * k for _ in range(k)]
+    n = 0
+    for i in range(k):
+        for j in range(i):
+            L[i][j] = Lt[n]
+            n += 1
+    x: list = [None] * k
+    for i in reversed(range(k)):
+        x[i] = b[i] - sum((L[j][i] * x[j] for j in range(i + 1, k)), ca.SX(0))
+    return ca.vertcat(*x)
+
+
+def _accel(kin: SegmentKinematics, elim, a):
+    """Pass 3 for one segment: ẍ = L⁻ᵀ D⁻¹ (z − Uᵀ a) (``elim`` = (z, U, D⁻¹, L) of
+    :func:`_backward`) and the tip's (α, ö) from the base's ``a``."""
+    z, U, Dinv, Lt = elim
+    xdd = _back_sub_t(Lt, z.shape[0], Dinv * (z - ca.mtimes(U.T, a)))
+    aN = ca.vertcat(a[:3], a[3:] + _cross(a[:3], kin.d)) + ca.mtimes(kin.JN, xdd) + kin.betaN
+    return xdd, aN
+
+
+def _generalised(body: SoftBody):
+    """Per segment i, (x, ẋ, τ_i) → A_i τ_i − K_i x − D_i ẋ (the body's A_i, K, D)."""
+    k = body.model.dofs_per_segment
+    A, K, D = body.actuation_blocks(), body._quadratic_form("k"), body._quadratic_form("d")
+
+    def r(i, x, xd, tau_i):
+        sl = slice(k * i, k * (i + 1))
+        return ca.mtimes(ca.substitute(A[i], body.q[sl], x), tau_i) \
+            - ca.mtimes(K[sl, sl], x) - ca.mtimes(D[sl, sl], xd)
+    return r
+
+
+def _root(body: SoftBody):
+    """The base's rotation, angular velocity and (α, ö) = (0, −g) (gravity by accelerating
+    the base)."""
+    g = body.values["g"] * ca.DM(body.model.gravity_direction)
+    return ca.SX(body.base_frame()), ca.SX.zeros(3), ca.vertcat(ca.SX.zeros(3), -g)
+
+
+def chain_forward_dynamics(body: SoftBody, q, qd, tau, f_ext=None):
+    """q̈ of eq. 3.6 with tip forces (3 per segment tip, world) by three passes over the
+    segments, O(n) (issue 33; the articulated-body method with each segment a k-DoF joint).
+
+    Pass 1 (base to tip) carries the base's rotation R and angular velocity ω and gives
+    each segment's point Jacobians and biases in world axes (:func:`_forward`,
+    :class:`SegmentKinematics`); pass 2 (tip to base) eliminates each segment's ẍ
+    against the articulated inertia beyond it (:func:`_backward`):
+    M_qq = Σ m_j J_jᵀJ_j + J_Nᵀ I^A J_N, M_aq = Σ m_j X_jᵀ J_j + X_Nᵀ I^A J_N,
+    M_aa = Σ m_j X_jᵀX_j + X_Nᵀ I^A X_N, I^A_base = M_aa − M_aq M_qq⁻¹ M_aqᵀ (the same with
+    the biases), X_j = [−[u_j]×, I] the point's acceleration from the base's (α, ö);
+    pass 3 (base to tip) gives ẍ = y − W a_base and the next base's (α, ö)
+    (:func:`_accel`). The tip force f_i enters as −(0, f_i) in the bias at tip i.
+    The same B, C, G, K, D and A as :class:`~softgen.symbolic.pcc.SoftBody` (tests)."""
+    if not applies(body):
+        raise ValueError(f"chain_forward_dynamics: pcc-planar or pcc-3d models only, "
+                         f"got {body.model.kind!r}")
+    k, ns = body.model.dofs_per_segment, body.model.n_segments
+    nu = body.n_inputs // ns
+    R, w, a = _root(body)
+    kins = []
+    for i in range(ns):
+        local, masses = _segment_local(body, i)
+        sl = slice(k * i, k * (i + 1))
+        kin, R, w = _forward(local, masses, q[sl], qd[sl], R, w)
+        kins.append(kin)
+    gen = _generalised(body)
+    IA, pA = ca.SX.zeros(6, 6), ca.SX.zeros(6)
+    yw: list = [None] * ns
+    for i in reversed(range(ns)):
+        sl = slice(k * i, k * (i + 1))
+        if f_ext is not None:
+            pA = pA - ca.vertcat(ca.SX.zeros(3), f_ext[3 * i:3 * i + 3])
+        r = gen(i, q[sl], qd[sl], tau[nu * i:nu * (i + 1)])
+        IA, pA, yw[i] = _backward(kins[i], IA, pA, r)
+    out = []
+    for i in range(ns):
+        xdd, a = _accel(kins[i], yw[i], a)
+        out.append(xdd)
+    return ca.vertcat(*out)
+
+
+# --------------------------------------------------------------------------- looped route
+
+def _packed(exprs: list):
+    """The entries of ``exprs`` (SX, any shapes) that are not the constant 0, as one column,
+    and their layout for :func:`_unpacked` (a planar chain's out-of-plane zeros do not cross
+    a function boundary, so the next function folds them again)."""
+    flat = ca.vertcat(*[ca.vec(ca.densify(ca.SX(e))) for e in exprs]) if exprs else ca.SX(0, 1)
+    keep = [j for j in range(flat.numel()) if not flat[j].is_zero()]
+    col = ca.vertcat(*[flat[j] for j in keep]) if keep else ca.SX(0, 1)
+    return col, (tuple(keep), tuple(ca.SX(e).shape for e in exprs), flat.numel())
+
+
+def _unpacked(col, layout) -> list:
+    keep, shapes, n = layout
+    full = [ca.SX(0)] * n
+    for s, j in enumerate(keep):
+        full[j] = col[s]
+    out, pos = [], 0
+    for r, c in shapes:
+        out.append(ca.reshape(ca.vertcat(*full[pos:pos + r * c]), r, c) if r * c
+                   else ca.SX(r, c))
+        pos += r * c
+    return out
+
+
+def _kin_list(kin: SegmentKinematics) -> list:
+    return [*kin.u, *kin.Jc, *kin.beta, kin.d, kin.JN, kin.betaN]
+
+
+def _kin_from(masses, parts: list) -> SegmentKinematics:
+    nm = len(masses)
+    return SegmentKinematics(masses, parts[:nm], parts[nm:2 * nm], parts[2 * nm:3 * nm],
+                             parts[3 * nm], parts[3 * nm + 1], parts[3 * nm + 2])
+
+
+def _triu_list(M) -> list:
+    return [M[r, c] for c in range(M.shape[0]) for r in range(c + 1)]
+
+
+def _from_triu6(v):
+    M = [[None] * 6 for _ in range(6)]
+    n = 0
+    for c in range(6):
+        for r in range(c + 1):
+            M[r][c] = M[c][r] = v[n]
+            n += 1
+    return ca.blockcat(M)
+
+
+def chain_forward_dynamics_function(body: SoftBody, name: str) -> ca.Function:
+    """``name(q, qd, tau, f) -> qdd``: :func:`chain_forward_dynamics` with each pass's work on
+    :data:`LOOP_BLOCK` segments generated once as an SX function and the chain composed by
+    MX (as :mod:`~softgen.symbolic.tree_loop` does for the tree route): identical blocks
+    share one function, so the C's size does not grow with the segments and the cost per
+    segment stays what it is at 4. The same arithmetic (tests to 1e-12)."""
+    if not applies(body):
+        raise ValueError(f"chain_forward_dynamics_function: pcc-planar or pcc-3d models only, "
+                         f"got {body.model.kind!r}")
+    k, ns = body.model.dofs_per_segment, body.model.n_segments
+    nu = body.n_inputs // ns
+    shared = _Shared(name)
+    gen = _generalised(body)
+    locs = [_segment_local(body, i) for i in range(ns)]
+    blocks = [list(range(s, min(s + LOOP_BLOCK, ns))) for s in range(0, ns, LOOP_BLOCK)]
+    q, qd = ca.MX.sym("q", body.n), ca.MX.sym("qd", body.n)
+    tau, f = ca.MX.sym("tau", body.n_inputs), ca.MX.sym("f", 3 * ns)
+
+    def sl(v, seg, width):
+        return v[width * seg[0]:width * (seg[-1] + 1)]
+
+    R0, w0, a0 = _root(body)
+    # pass 1
+    state_sx, state_lay = _packed([R0, w0])
+    state = None
+    kins: list = []
+    for bi, seg in enumerate(blocks):
+        x, xd = ca.SX.sym("x", k * len(seg)), ca.SX.sym("xd", k * len(seg))
+        s_in = ca.SX.sym("s", state_sx.numel())
+        R, w = (R0, w0) if bi == 0 else _unpacked(s_in, state_lay)
+        parts = []
+        for j, i in enumerate(seg):
+            kin, R, w = _forward(*locs[i], x[k * j:k * (j + 1)], xd[k * j:k * (j + 1)], R, w)
+            parts += _kin_list(kin)
+        kin_sx, kin_lay = _packed(parts)
+        state_sx, lay = _packed([R, w])
+        ins = [x, xd] + ([] if bi == 0 else [s_in])
+        fa = shared.get("A", ins, [kin_sx, state_sx])
+        state_lay = lay
+        args = [sl(q, seg, k), sl(qd, seg, k)] + ([] if bi == 0 else [state])
+        kin_mx, state = fa(*args)
+        kins.append((kin_mx, kin_lay))
+    # pass 2
+    elims: list = [None] * len(blocks)
+    art_mx, art_lay = None, None
+    for bi in reversed(range(len(blocks))):
+        seg = blocks[bi]
+        kin_mx, kin_lay = kins[bi]
+        kin_in = ca.SX.sym("kin", kin_mx.numel())
+        x, xd = ca.SX.sym("x", k * len(seg)), ca.SX.sym("xd", k * len(seg))
+        tb, fb = ca.SX.sym("tau", nu * len(seg)), ca.SX.sym("f", 3 * len(seg))
+        last = bi == len(blocks) - 1
+        a_in = ca.SX.sym("art", 0 if last else art_mx.numel())
+        if last:
+            IA, pA = ca.SX.zeros(6, 6), ca.SX.zeros(6)
+        else:
+            tri, pA = _unpacked(a_in, art_lay)
+            IA = _from_triu6(tri)
+        parts = _unpacked(kin_in, kin_lay)
+        nk = len(parts) // len(seg)
+        el_parts = []
+        for j in reversed(range(len(seg))):
+            i = seg[j]
+            pA = pA - ca.vertcat(ca.SX.zeros(3), fb[3 * j:3 * j + 3])
+            r = gen(i, x[k * j:k * (j + 1)], xd[k * j:k * (j + 1)], tb[nu * j:nu * (j + 1)])
+            IA, pA, el = _backward(_kin_from(locs[i][1], parts[nk * j:nk * (j + 1)]), IA, pA, r)
+            el_parts = list(el) + el_parts
+        el_sx, el_lay = _packed(el_parts)
+        art_sx, lay = _packed([ca.vertcat(*_triu_list(IA)), pA])
+        ins = [kin_in, x, xd, tb, fb] + ([] if last else [a_in])
+        fb_ = shared.get("B", ins, [el_sx, art_sx])
+        args = [kin_mx, sl(q, seg, k), sl(qd, seg, k), sl(tau, seg, nu), sl(f, seg, 3)]
+        el_mx, art_mx = fb_(*(args + ([] if last else [art_mx])))
+        art_lay = lay
+        elims[bi] = (el_mx, el_lay)
+    # pass 3
+    out = []
+    acc_mx, acc_lay = None, None
+    for bi, seg in enumerate(blocks):
+        kin_mx, kin_lay = kins[bi]
+        el_mx, el_lay = elims[bi]
+        kin_in, el_in = ca.SX.sym("kin", kin_mx.numel()), ca.SX.sym("el", el_mx.numel())
+        a_in = ca.SX.sym("a", 0 if bi == 0 else acc_mx.numel())
+        a = a0 if bi == 0 else _unpacked(a_in, acc_lay)[0]
+        parts, els = _unpacked(kin_in, kin_lay), _unpacked(el_in, el_lay)
+        nk = len(parts) // len(seg)
+        xdds = []
+        for j, i in enumerate(seg):
+            kin = _kin_from(locs[i][1], parts[nk * j:nk * (j + 1)])
+            xdd, a = _accel(kin, tuple(els[4 * j:4 * j + 4]), a)
+            xdds.append(xdd)
+        acc_sx, lay = _packed([a])
+        ins = [kin_in, el_in] + ([] if bi == 0 else [a_in])
+        fc = shared.get("C", ins, [ca.vertcat(*xdds), acc_sx])
+        xdd_mx, acc_mx = fc(*([kin_mx, el_mx] + ([] if bi == 0 else [acc_mx])))
+        acc_lay = lay
+        out.append(xdd_mx)
+    return ca.Function(name, [q, qd, tau, f], [ca.vertcat(*out)], ["q", "qd", "tau", "f"],
+                       ["qdd"])
