@@ -375,18 +375,51 @@ def _vee(W):
 
 @dataclass
 class SegmentKinematics:
-    """One segment's share of the passes, world axes, origin at the segment's base o:
-    mass points (m_j, u_j = R c_j, J_j = R ∂c_j/∂x, β_j), the tip's offset d = R t, its
-    Jacobian J_N = [R J_ω; R ∂t/∂x] (6 × k) and bias β_N = (β_α, β_o) (at ẍ = 0 and the
-    base at rest in acceleration)."""
+    """One segment's share of the passes, origin at the segment's base o, world axes
+    unless "local" (the base frame, rotation R): mass points (m_j, u_j = R c_j, local
+    ∂c_j/∂x, β_j), the tip's offset d = R t, its local Jacobian J_N = [J_ω; ∂t/∂x]
+    (6 × k) and bias β_N = (β_α, β_o) (at ẍ = 0 and the base at rest in acceleration);
+    ``Dc_inv`` = (∂c/∂x)⁻¹ where the segment has one mass point and 3 coordinates
+    (:func:`_backward`), else None."""
 
     masses: list
+    R: ca.SX
     u: list
-    Jc: list
+    Dc: list
     beta: list
     d: ca.SX
-    JN: ca.SX
+    JN_l: ca.SX
     betaN: ca.SX
+    Dc_inv: ca.SX | None = None
+
+    @property
+    def JN(self):
+        """J_N in world axes."""
+        return ca.vertcat(ca.mtimes(self.R, self.JN_l[:3, :]), ca.mtimes(self.R, self.JN_l[3:, :]))
+
+    def to_list(self) -> list:
+        """What crosses a function boundary (:func:`chain_forward_dynamics_function`)."""
+        if self.Dc_inv is not None:
+            return [self.R, *self.u, *self.beta, self.d, self.JN_l, self.betaN, self.Dc_inv]
+        return [self.R, *self.u, *self.Dc, *self.beta, self.d, self.JN_l, self.betaN]
+
+    @staticmethod
+    def from_list(masses, square: bool, parts: list) -> "SegmentKinematics":
+        nm = len(masses)
+        if square:
+            R, u, beta, d, JN, bN, Di = parts
+            return SegmentKinematics(masses, R, [u], [], [beta], d, JN, bN, Di)
+        return SegmentKinematics(masses, parts[0], parts[1:1 + nm], parts[1 + nm:1 + 2 * nm],
+                                 parts[1 + 2 * nm:1 + 3 * nm], *parts[1 + 3 * nm:])
+
+
+def _inv3(A):
+    """A⁻¹ of a 3 × 3 SX matrix by its adjugate."""
+    cof = [[A[(i + 1) % 3, (j + 1) % 3] * A[(i + 2) % 3, (j + 2) % 3]
+            - A[(i + 1) % 3, (j + 2) % 3] * A[(i + 2) % 3, (j + 1) % 3] for j in range(3)]
+           for i in range(3)]
+    det = A[0, 0] * cof[0][0] + A[0, 1] * cof[0][1] + A[0, 2] * cof[0][2]
+    return ca.vertcat(*[ca.horzcat(*[cof[j][i] for j in range(3)]) for i in range(3)]) / det
 
 
 def _segment_local(body: SoftBody, i: int) -> tuple[ca.Function, list]:
@@ -416,22 +449,28 @@ def _segment_local(body: SoftBody, i: int) -> tuple[ca.Function, list]:
     return ca.Function(f"seg{i}", [x, xd], outs, {"cse": True}), [m for m, _ in points]
 
 
-def _forward(local, masses, x, xd, R, w):
-    """Pass 1 for one segment: its :class:`SegmentKinematics` and the next base's (R, ω)."""
+def _square(masses, k: int) -> bool:
+    """One mass point and 3 coordinates: ∂c/∂x square (invertible where B is)."""
+    return len(masses) == 1 and k == 3
+
+
+def _forward(local, masses, x, xd, R, w, square: bool):
+    """Pass 1 for one segment: its :class:`SegmentKinematics` and the next base's (R, ω);
+    ``square``: the segment and every one beyond it are :func:`_square` (pass 2 keeps
+    IA = 0 there)."""
     out = local(x, xd)
     E, Jw_l, al_l = out[0], out[1], out[2]
-    Jw = ca.mtimes(R, Jw_l)
-    wl = ca.mtimes(Jw, xd)
+    wl = ca.mtimes(R, ca.mtimes(Jw_l, xd))
 
     def point(c, Dc, cdd):
-        u, J = ca.mtimes(R, c), ca.mtimes(R, Dc)
-        ud = ca.mtimes(J, xd)
-        return u, J, _cross(w, _cross(w, u)) + 2 * _cross(w, ud) + ca.mtimes(R, cdd)
+        u, ud = ca.mtimes(R, c), ca.mtimes(R, ca.mtimes(Dc, xd))
+        return u, Dc, _cross(w, _cross(w, u)) + 2 * _cross(w, ud) + ca.mtimes(R, cdd)
     pts = [point(*out[3 + 3 * j:6 + 3 * j]) for j in range(len(masses))]
-    d, Jt, bo = point(*out[-3:])
-    kin = SegmentKinematics(masses, [p[0] for p in pts], [p[1] for p in pts],
-                            [p[2] for p in pts], d, ca.vertcat(Jw, Jt),
-                            ca.vertcat(_cross(w, wl) + ca.mtimes(R, al_l), bo))
+    d, Dt, bo = point(*out[-3:])
+    kin = SegmentKinematics(masses, R, [p[0] for p in pts], [p[1] for p in pts],
+                            [p[2] for p in pts], d, ca.vertcat(Jw_l, Dt),
+                            ca.vertcat(_cross(w, wl) + ca.mtimes(R, al_l), bo),
+                            _inv3(pts[0][1]) if square else None)
     return kin, ca.mtimes(R, E), w + wl
 
 
@@ -447,20 +486,42 @@ def _sym_part(M):
     return ca.blockcat([[M[min(r, c), max(r, c)] for c in range(n)] for r in range(n)])
 
 
+def _is_zero(M) -> bool:
+    return all(M[i].is_zero() for i in range(M.numel()))
+
+
 def _backward(kin: SegmentKinematics, IA, pA, r):
     """Pass 2 for one segment (the group elimination of :mod:`~softgen.symbolic.tree_loop`,
     for point masses): the child's articulated inertia IA and bias pA at the tip (6 × 6,
     6; (moment, force) against (α, ö)) to the base's, and what pass 3 needs.
-    ``r``: the segment's generalised forces besides inertia and gravity."""
-    k = kin.JN.shape[1]
+    ``r``: the segment's generalised forces besides inertia and gravity.
+
+    Where the segment is square (one mass point, ∂c/∂x = D_c invertible, J_c = R D_c) and
+    IA = 0, the elimination gives I^A_base = m X_jᵀX_j − m X_jᵀ J_c (J_cᵀJ_c)⁻¹ J_cᵀ X_j = 0
+    (the coordinates can hold the mass still whatever the base does), so IA stays 0 from
+    the tip down a chain of such segments (lumped pcc-3d) and only the bias crosses:
+    y = J_c⁻ᵀ (r − J_Nᵀ pA) (the force the mass takes), p^A_base = X_Nᵀ pA + X_jᵀ y, and
+    pass 3 gives ẍ = J_c⁻¹ (y/m − β − X_j a_base)."""
+    k = kin.JN_l.shape[1]
+    if kin.Dc_inv is not None:
+        if not _is_zero(IA):
+            raise ValueError("internal: a square segment before a non-square one")
+        R = kin.R
+        nl, fl = ca.mtimes(R.T, pA[:3]), ca.mtimes(R.T, pA[3:])
+        g = r - ca.mtimes(kin.JN_l[:3, :].T, nl) - ca.mtimes(kin.JN_l[3:, :].T, fl)
+        y = ca.mtimes(R, ca.mtimes(kin.Dc_inv.T, g))
+        pB = ca.vertcat(pA[:3] + _cross(kin.d, pA[3:]) + _cross(kin.u[0], y), pA[3:] + y)
+        return ca.SX.zeros(6, 6), pB, (y,)
+    JN = kin.JN
     pA2 = ca.mtimes(IA, kin.betaN) + pA
-    IJ = ca.mtimes(IA, kin.JN)
-    Mqq = ca.mtimes(kin.JN.T, IJ)
+    IJ = ca.mtimes(IA, JN)
+    Mqq = ca.mtimes(JN.T, IJ)
     Maq = _shift_cols(kin.d, IJ)
-    bq = ca.mtimes(kin.JN.T, pA2)
+    bq = ca.mtimes(JN.T, pA2)
     ba = _shift_cols(kin.d, pA2)
     mt, h, Io = 0, ca.SX.zeros(3), ca.SX.zeros(3, 3)
-    for m, u, J, b in zip(kin.masses, kin.u, kin.Jc, kin.beta):
+    for m, u, Dc, b in zip(kin.masses, kin.u, kin.Dc, kin.beta):
+        J = ca.mtimes(kin.R, Dc)
         Mqq = Mqq + m * ca.mtimes(J.T, J)
         Maq = Maq + m * ca.vertcat(_cross_mat(u, J), J)
         bq = bq + m * ca.mtimes(J.T, b)
@@ -505,12 +566,19 @@ def _back_sub_t(Lt, k: int, b):
 
 
 def _accel(kin: SegmentKinematics, elim, a):
-    """Pass 3 for one segment: ẍ = L⁻ᵀ D⁻¹ (z − Uᵀ a) (``elim`` = (z, U, D⁻¹, L) of
-    :func:`_backward`) and the tip's (α, ö) from the base's ``a``."""
-    z, U, Dinv, Lt = elim
-    xdd = _back_sub_t(Lt, z.shape[0], Dinv * (z - ca.mtimes(U.T, a)))
-    aN = ca.vertcat(a[:3], a[3:] + _cross(a[:3], kin.d)) + ca.mtimes(kin.JN, xdd) + kin.betaN
-    return xdd, aN
+    """Pass 3 for one segment: ẍ from the base's ``a`` = (α, ö) and ``elim`` of
+    :func:`_backward` (square: (y,), ẍ = D_c⁻¹ Rᵀ (y/m − β − ö − α × u); else (z, U, D⁻¹,
+    L): ẍ = L⁻ᵀ D⁻¹ (z − Uᵀ a)), and the tip's (α, ö)."""
+    R = kin.R
+    if len(elim) == 1:
+        v = elim[0] / kin.masses[0] - kin.beta[0] - a[3:] - _cross(a[:3], kin.u[0])
+        xdd = ca.mtimes(kin.Dc_inv, ca.mtimes(R.T, v))
+    else:
+        z, U, Dinv, Lt = elim
+        xdd = _back_sub_t(Lt, z.shape[0], Dinv * (z - ca.mtimes(U.T, a)))
+    aN = ca.vertcat(a[:3] + ca.mtimes(R, ca.mtimes(kin.JN_l[:3, :], xdd)),
+                    a[3:] + _cross(a[:3], kin.d) + ca.mtimes(R, ca.mtimes(kin.JN_l[3:, :], xdd)))
+    return xdd, aN + kin.betaN
 
 
 def _generalised(body: SoftBody):
@@ -523,6 +591,15 @@ def _generalised(body: SoftBody):
         return ca.mtimes(ca.substitute(A[i], body.q[sl], x), tau_i) \
             - ca.mtimes(K[sl, sl], x) - ca.mtimes(D[sl, sl], xd)
     return r
+
+
+def _squares(body: SoftBody, locs) -> list[bool]:
+    """Per segment: it and every segment beyond it :func:`_square`."""
+    k, out, ok = body.model.dofs_per_segment, [], True
+    for _, masses in reversed(locs):
+        ok = ok and _square(masses, k)
+        out.append(ok)
+    return out[::-1]
 
 
 def _root(body: SoftBody):
@@ -553,10 +630,11 @@ def chain_forward_dynamics(body: SoftBody, q, qd, tau, f_ext=None):
     nu = body.n_inputs // ns
     R, w, a = _root(body)
     kins = []
+    locs = [_segment_local(body, i) for i in range(ns)]
+    sq = _squares(body, locs)
     for i in range(ns):
-        local, masses = _segment_local(body, i)
         sl = slice(k * i, k * (i + 1))
-        kin, R, w = _forward(local, masses, q[sl], qd[sl], R, w)
+        kin, R, w = _forward(*locs[i], q[sl], qd[sl], R, w, sq[i])
         kins.append(kin)
     gen = _generalised(body)
     IA, pA = ca.SX.zeros(6, 6), ca.SX.zeros(6)
@@ -599,16 +677,6 @@ def _unpacked(col, layout) -> list:
     return out
 
 
-def _kin_list(kin: SegmentKinematics) -> list:
-    return [*kin.u, *kin.Jc, *kin.beta, kin.d, kin.JN, kin.betaN]
-
-
-def _kin_from(masses, parts: list) -> SegmentKinematics:
-    nm = len(masses)
-    return SegmentKinematics(masses, parts[:nm], parts[nm:2 * nm], parts[2 * nm:3 * nm],
-                             parts[3 * nm], parts[3 * nm + 1], parts[3 * nm + 2])
-
-
 def _triu_list(M) -> list:
     return [M[r, c] for c in range(M.shape[0]) for r in range(c + 1)]
 
@@ -621,6 +689,13 @@ def _from_triu6(v):
             M[r][c] = M[c][r] = v[n]
             n += 1
     return ca.blockcat(M)
+
+
+def _kin_at(locs, sq, seg, nparts, parts, j) -> SegmentKinematics:
+    """Segment ``seg[j]``'s :class:`SegmentKinematics` from a block's unpacked parts."""
+    i = seg[j]
+    p0 = sum(nparts[seg[0]:i])
+    return SegmentKinematics.from_list(locs[i][1], sq[i], parts[p0:p0 + nparts[i]])
 
 
 def chain_forward_dynamics_function(body: SoftBody, name: str) -> ca.Function:
@@ -637,6 +712,7 @@ def chain_forward_dynamics_function(body: SoftBody, name: str) -> ca.Function:
     shared = _Shared(name)
     gen = _generalised(body)
     locs = [_segment_local(body, i) for i in range(ns)]
+    sq = _squares(body, locs)
     blocks = [list(range(s, min(s + LOOP_BLOCK, ns))) for s in range(0, ns, LOOP_BLOCK)]
     q, qd = ca.MX.sym("q", body.n), ca.MX.sym("qd", body.n)
     tau, f = ca.MX.sym("tau", body.n_inputs), ca.MX.sym("f", 3 * ns)
@@ -649,14 +725,17 @@ def chain_forward_dynamics_function(body: SoftBody, name: str) -> ca.Function:
     state_sx, state_lay = _packed([R0, w0])
     state = None
     kins: list = []
+    nparts, nel = [0] * ns, [0] * ns
     for bi, seg in enumerate(blocks):
         x, xd = ca.SX.sym("x", k * len(seg)), ca.SX.sym("xd", k * len(seg))
         s_in = ca.SX.sym("s", state_sx.numel())
         R, w = (R0, w0) if bi == 0 else _unpacked(s_in, state_lay)
         parts = []
         for j, i in enumerate(seg):
-            kin, R, w = _forward(*locs[i], x[k * j:k * (j + 1)], xd[k * j:k * (j + 1)], R, w)
-            parts += _kin_list(kin)
+            kin, R, w = _forward(*locs[i], x[k * j:k * (j + 1)], xd[k * j:k * (j + 1)], R, w,
+                                 sq[i])
+            nparts[i] = len(kin.to_list())
+            parts += kin.to_list()
         kin_sx, kin_lay = _packed(parts)
         state_sx, lay = _packed([R, w])
         ins = [x, xd] + ([] if bi == 0 else [s_in])
@@ -682,13 +761,13 @@ def chain_forward_dynamics_function(body: SoftBody, name: str) -> ca.Function:
             tri, pA = _unpacked(a_in, art_lay)
             IA = _from_triu6(tri)
         parts = _unpacked(kin_in, kin_lay)
-        nk = len(parts) // len(seg)
         el_parts = []
         for j in reversed(range(len(seg))):
             i = seg[j]
             pA = pA - ca.vertcat(ca.SX.zeros(3), fb[3 * j:3 * j + 3])
             r = gen(i, x[k * j:k * (j + 1)], xd[k * j:k * (j + 1)], tb[nu * j:nu * (j + 1)])
-            IA, pA, el = _backward(_kin_from(locs[i][1], parts[nk * j:nk * (j + 1)]), IA, pA, r)
+            IA, pA, el = _backward(_kin_at(locs, sq, seg, nparts, parts, j), IA, pA, r)
+            nel[i] = len(el)
             el_parts = list(el) + el_parts
         el_sx, el_lay = _packed(el_parts)
         art_sx, lay = _packed([ca.vertcat(*_triu_list(IA)), pA])
@@ -708,11 +787,11 @@ def chain_forward_dynamics_function(body: SoftBody, name: str) -> ca.Function:
         a_in = ca.SX.sym("a", 0 if bi == 0 else acc_mx.numel())
         a = a0 if bi == 0 else _unpacked(a_in, acc_lay)[0]
         parts, els = _unpacked(kin_in, kin_lay), _unpacked(el_in, el_lay)
-        nk = len(parts) // len(seg)
         xdds = []
         for j, i in enumerate(seg):
-            kin = _kin_from(locs[i][1], parts[nk * j:nk * (j + 1)])
-            xdd, a = _accel(kin, tuple(els[4 * j:4 * j + 4]), a)
+            kin = _kin_at(locs, sq, seg, nparts, parts, j)
+            e0 = sum(nel[seg[0]:i])
+            xdd, a = _accel(kin, tuple(els[e0:e0 + nel[i]]), a)
             xdds.append(xdd)
         acc_sx, lay = _packed([a])
         ins = [kin_in, el_in] + ([] if bi == 0 else [a_in])
