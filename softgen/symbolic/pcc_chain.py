@@ -698,8 +698,10 @@ def _kin_at(locs, sq, seg, nparts, parts, j) -> SegmentKinematics:
     return SegmentKinematics.from_list(locs[i][1], sq[i], parts[p0:p0 + nparts[i]])
 
 
-def chain_forward_dynamics_function(body: SoftBody, name: str) -> ca.Function:
-    """``name(q, qd, tau, f) -> qdd``: :func:`chain_forward_dynamics` with each pass's work on
+def chain_forward_dynamics_function(body: SoftBody, name: str, *,
+                                    tip_forces: bool = True) -> ca.Function:
+    """``name(q, qd, tau, f) -> qdd`` (without ``f`` if not ``tip_forces``):
+    :func:`chain_forward_dynamics` with each pass's work on
     :data:`LOOP_BLOCK` segments generated once as an SX function and the chain composed by
     MX (as :mod:`~softgen.symbolic.tree_loop` does for the tree route): identical blocks
     share one function, so the C's size does not grow with the segments and the cost per
@@ -752,7 +754,8 @@ def chain_forward_dynamics_function(body: SoftBody, name: str) -> ca.Function:
         kin_mx, kin_lay = kins[bi]
         kin_in = ca.SX.sym("kin", kin_mx.numel())
         x, xd = ca.SX.sym("x", k * len(seg)), ca.SX.sym("xd", k * len(seg))
-        tb, fb = ca.SX.sym("tau", nu * len(seg)), ca.SX.sym("f", 3 * len(seg))
+        tb = ca.SX.sym("tau", nu * len(seg))
+        fb = ca.SX.sym("f", 3 * len(seg)) if tip_forces else ca.SX.zeros(3 * len(seg))
         last = bi == len(blocks) - 1
         a_in = ca.SX.sym("art", 0 if last else art_mx.numel())
         if last:
@@ -771,9 +774,10 @@ def chain_forward_dynamics_function(body: SoftBody, name: str) -> ca.Function:
             el_parts = list(el) + el_parts
         el_sx, el_lay = _packed(el_parts)
         art_sx, lay = _packed([ca.vertcat(*_triu_list(IA)), pA])
-        ins = [kin_in, x, xd, tb, fb] + ([] if last else [a_in])
+        ins = [kin_in, x, xd, tb] + ([fb] if tip_forces else []) + ([] if last else [a_in])
         fb_ = shared.get("B", ins, [el_sx, art_sx])
-        args = [kin_mx, sl(q, seg, k), sl(qd, seg, k), sl(tau, seg, nu), sl(f, seg, 3)]
+        args = [kin_mx, sl(q, seg, k), sl(qd, seg, k), sl(tau, seg, nu)] + \
+            ([sl(f, seg, 3)] if tip_forces else [])
         el_mx, art_mx = fb_(*(args + ([] if last else [art_mx])))
         art_lay = lay
         elims[bi] = (el_mx, el_lay)
@@ -799,5 +803,16 @@ def chain_forward_dynamics_function(body: SoftBody, name: str) -> ca.Function:
         xdd_mx, acc_mx = fc(*([kin_mx, el_mx] + ([] if bi == 0 else [acc_mx])))
         acc_lay = lay
         out.append(xdd_mx)
-    return ca.Function(name, [q, qd, tau, f], [ca.vertcat(*out)], ["q", "qd", "tau", "f"],
-                       ["qdd"])
+    ins, names = ([q, qd, tau, f], ["q", "qd", "tau", "f"]) if tip_forces else \
+        ([q, qd, tau], ["q", "qd", "tau"])
+    return ca.Function(name, ins, [ca.vertcat(*out)], names, ["qdd"])
+
+
+def forward_dynamics_fun(dyn) -> ca.Function:
+    """``<model>_forward_dynamics(q, qd, tau) -> qdd``, the bundles' route: the looped O(n)
+    passes (:func:`chain_forward_dynamics_function`) where they apply, else the body's
+    :meth:`~softgen.symbolic.pcc.SoftDynamics.forward_dynamics_fun` (B formed, QR)."""
+    if not applies(dyn.nominal):
+        return dyn.forward_dynamics_fun()
+    return chain_forward_dynamics_function(dyn.nominal, f"{dyn.name}_forward_dynamics",
+                                           tip_forces=False)
