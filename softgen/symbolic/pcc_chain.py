@@ -404,7 +404,7 @@ class SegmentKinematics:
         return [self.R, *self.u, *self.Dc, *self.beta, self.d, self.JN_l, self.betaN]
 
     @staticmethod
-    def from_list(masses, square: bool, parts: list) -> "SegmentKinematics":
+    def from_list(masses, square: bool, parts: list) -> SegmentKinematics:
         nm = len(masses)
         if square:
             R, u, beta, d, JN, bN, Di = parts
