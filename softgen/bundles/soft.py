@@ -51,8 +51,10 @@ def soft_dynamics(ctx: Context) -> Part:
         Generated(dyn.inverse_dynamics_fun(), f"nominal B qdd_r + C qd_r + G + {elastic}, "
                                               "computed directly"),
         Generated(pcc_chain.forward_dynamics_fun(dyn), f"nominal qdd = B^-1 (A(q) tau - C qd - "
-                                                       f"G - {elastic}) (eq. 3.6), by O(n) "
-                                                       "passes over the segments for PCC"),
+                                                       f"G - {elastic}) (eq. 3.6)" + (
+                                                           ", by O(n) passes over the segments"
+                                                           if pcc_chain.applies(dyn.nominal)
+                                                           else "")),
         Generated(dyn.actuation_fun(), "actuation matrix A(q) of eq. 3.6 (generalized forces "
                                        "of the segments' actuators)"),
         Generated(dyn.backbone_fun(), "world position of the backbone at s in [0, n_segments] "
