@@ -386,42 +386,41 @@ def _vee(W):
 
 @dataclass
 class SegmentKinematics:
-    """One segment's share of the passes, origin at the segment's base o, world axes
-    unless "local" (the base frame, rotation R): mass points (m_j, u_j = R c_j, local
-    ∂c_j/∂x, β_j), the tip's offset d = R t, its local Jacobian J_N = [J_ω; ∂t/∂x]
-    (6 × k) and bias β_N = (β_α, β_o) (at ẍ = 0 and the base at rest in acceleration);
-    ``Dc_inv`` = (∂c/∂x)⁻¹ where the segment has one mass point and 3 coordinates
-    (:func:`_backward`), else None."""
+    """One segment's share of the passes, in its base frame (origin o, axes of the world
+    rotation R): mass points (m_j, c_j, ∂c_j/∂x, β_j), the tip's rotation E and position t,
+    its Jacobian J_N = [J_ω; ∂t/∂x] (6 × k) and bias β_N = (β_α, β_o) (β: the
+    accelerations at ẍ = 0 with the base at rest in acceleration); ``Dc_inv`` =
+    (∂c/∂x)⁻¹ where the segment has one mass point and 3 coordinates (:func:`_backward`),
+    else None. R only turns the world tip forces into the base frame."""
 
     masses: list
-    R: ca.SX
+    R: ca.SX | None
+    E: ca.SX
     u: list
     Dc: list
     beta: list
     d: ca.SX
-    JN_l: ca.SX
+    JN: ca.SX
     betaN: ca.SX
     Dc_inv: ca.SX | None = None
 
-    @property
-    def JN(self):
-        """J_N in world axes."""
-        return ca.vertcat(ca.mtimes(self.R, self.JN_l[:3, :]), ca.mtimes(self.R, self.JN_l[3:, :]))
-
     def to_list(self) -> list:
         """What crosses a function boundary (:func:`chain_forward_dynamics_function`)."""
+        head = [self.E] if self.R is None else [self.E, self.R]
         if self.Dc_inv is not None:
-            return [self.R, *self.u, *self.beta, self.d, self.JN_l, self.betaN, self.Dc_inv]
-        return [self.R, *self.u, *self.Dc, *self.beta, self.d, self.JN_l, self.betaN]
+            return head + [*self.u, *self.beta, self.d, self.JN, self.betaN, self.Dc_inv]
+        return head + [*self.u, *self.Dc, *self.beta, self.d, self.JN, self.betaN]
 
     @staticmethod
-    def from_list(masses, square: bool, parts: list) -> SegmentKinematics:
+    def from_list(masses, square: bool, with_R: bool, parts: list) -> SegmentKinematics:
+        E, R = parts[0], (parts[1] if with_R else None)
+        parts = parts[1 + with_R:]
         nm = len(masses)
         if square:
-            R, u, beta, d, JN, bN, Di = parts
-            return SegmentKinematics(masses, R, [u], [], [beta], d, JN, bN, Di)
-        return SegmentKinematics(masses, parts[0], parts[1:1 + nm], parts[1 + nm:1 + 2 * nm],
-                                 parts[1 + 2 * nm:1 + 3 * nm], *parts[1 + 3 * nm:])
+            u, beta, d, JN, bN, Di = parts
+            return SegmentKinematics(masses, R, E, [u], [], [beta], d, JN, bN, Di)
+        return SegmentKinematics(masses, R, E, parts[:nm], parts[nm:2 * nm],
+                                 parts[2 * nm:3 * nm], *parts[3 * nm:])
 
 
 def _inv3(A):
@@ -466,23 +465,22 @@ def _square(masses, k: int) -> bool:
 
 
 def _forward(local, masses, x, xd, R, w, square: bool):
-    """Pass 1 for one segment: its :class:`SegmentKinematics` and the next base's (R, ω);
-    ``square``: the segment and every one beyond it are :func:`_square` (pass 2 keeps
-    IA = 0 there)."""
+    """Pass 1 for one segment, ω in its base frame: its :class:`SegmentKinematics` and
+    the next base's (R, ω) (R None: not carried); ``square``: the segment and every one
+    beyond it are :func:`_square` (pass 2 keeps IA = 0 there)."""
     out = local(x, xd)
-    E, Jw_l, al_l = out[0], out[1], out[2]
-    wl = ca.mtimes(R, ca.mtimes(Jw_l, xd))
+    E, Jw, al = out[0], out[1], out[2]
+    wl = ca.mtimes(Jw, xd)
 
     def point(c, Dc, cdd):
-        u, ud = ca.mtimes(R, c), ca.mtimes(R, ca.mtimes(Dc, xd))
-        return u, Dc, _cross(w, _cross(w, u)) + 2 * _cross(w, ud) + ca.mtimes(R, cdd)
+        return c, Dc, _cross(w, _cross(w, c)) + 2 * _cross(w, ca.mtimes(Dc, xd)) + cdd
     pts = [point(*out[3 + 3 * j:6 + 3 * j]) for j in range(len(masses))]
-    d, Dt, bo = point(*out[-3:])
-    kin = SegmentKinematics(masses, R, [p[0] for p in pts], [p[1] for p in pts],
-                            [p[2] for p in pts], d, ca.vertcat(Jw_l, Dt),
-                            ca.vertcat(_cross(w, wl) + ca.mtimes(R, al_l), bo),
+    t, Dt, bo = point(*out[-3:])
+    kin = SegmentKinematics(masses, R, E, [p[0] for p in pts], [p[1] for p in pts],
+                            [p[2] for p in pts], t, ca.vertcat(Jw, Dt),
+                            ca.vertcat(_cross(w, wl) + al, bo),
                             _inv3(pts[0][1]) if square else None)
-    return kin, ca.mtimes(R, E), w + wl
+    return kin, None if R is None else ca.mtimes(R, E), ca.mtimes(E.T, w + wl)
 
 
 def _shift_cols(d, Z):
@@ -501,11 +499,25 @@ def _is_zero(M) -> bool:
     return all(M[i].is_zero() for i in range(M.numel()))
 
 
-def _backward(kin: SegmentKinematics, IA, pA, r):
+def _rotate_in(E, IA, pA):
+    """The child's (IA, pA) from its base's axes (the tip frame) to this base's: with
+    X = diag(E, E), X IA Xᵀ and X pA."""
+    pA = ca.vertcat(ca.mtimes(E, pA[:3]), ca.mtimes(E, pA[3:]))
+    if _is_zero(IA):
+        return IA, pA
+    T = ca.vertcat(ca.horzcat(ca.mtimes(E, IA[:3, :3]), ca.mtimes(E, IA[:3, 3:])),
+                   ca.horzcat(ca.mtimes(E, IA[3:, :3]), ca.mtimes(E, IA[3:, 3:])))
+    Tt = T.T
+    return _sym_part(ca.vertcat(ca.horzcat(ca.mtimes(E, Tt[:3, :3]), ca.mtimes(E, Tt[:3, 3:])),
+                                ca.horzcat(ca.mtimes(E, Tt[3:, :3]), ca.mtimes(E, Tt[3:, 3:])))), pA
+
+
+def _backward(kin: SegmentKinematics, IA, pA, r, f=None):
     """Pass 2 for one segment (the group elimination of :mod:`~softgen.symbolic.tree_loop`,
     for point masses): the child's articulated inertia IA and bias pA at the tip (6 × 6,
     6; (moment, force) against (α, ö)) to the base's, and what pass 3 needs.
-    ``r``: the segment's generalised forces besides inertia and gravity.
+    ``r``: the segment's generalised forces besides inertia and gravity; ``f``: the world
+    force on its tip (or None). IA, pA come in the tip frame's axes and leave in the base's.
 
     Where the segment is square (one mass point, ∂c/∂x = D_c invertible, J_c = R D_c) and
     IA = 0, the elimination gives I^A_base = m X_jᵀX_j − m X_jᵀ J_c (J_cᵀJ_c)⁻¹ J_cᵀ X_j = 0
@@ -513,17 +525,18 @@ def _backward(kin: SegmentKinematics, IA, pA, r):
     the tip down a chain of such segments (lumped pcc-3d) and only the bias crosses:
     y = J_c⁻ᵀ (r − J_Nᵀ pA) (the force the mass takes), p^A_base = X_Nᵀ pA + X_jᵀ y, and
     pass 3 gives ẍ = J_c⁻¹ (y/m − β − X_j a_base)."""
-    k = kin.JN_l.shape[1]
+    k = kin.JN.shape[1]
+    IA, pA = _rotate_in(kin.E, IA, pA)
+    if f is not None:
+        pA = pA - ca.vertcat(ca.SX.zeros(3), ca.mtimes(kin.R.T, f))
+    JN = kin.JN
     if kin.Dc_inv is not None:
         if not _is_zero(IA):
             raise ValueError("internal: a square segment before a non-square one")
-        R = kin.R
-        nl, fl = ca.mtimes(R.T, pA[:3]), ca.mtimes(R.T, pA[3:])
-        g = r - ca.mtimes(kin.JN_l[:3, :].T, nl) - ca.mtimes(kin.JN_l[3:, :].T, fl)
-        y = ca.mtimes(R, ca.mtimes(kin.Dc_inv.T, g))
+        g = r - ca.mtimes(JN.T, pA)
+        y = ca.mtimes(kin.Dc_inv.T, g)
         pB = ca.vertcat(pA[:3] + _cross(kin.d, pA[3:]) + _cross(kin.u[0], y), pA[3:] + y)
         return ca.SX.zeros(6, 6), pB, (y,)
-    JN = kin.JN
     pA2 = ca.mtimes(IA, kin.betaN) + pA
     IJ = ca.mtimes(IA, JN)
     Mqq = ca.mtimes(JN.T, IJ)
@@ -531,8 +544,7 @@ def _backward(kin: SegmentKinematics, IA, pA, r):
     bq = ca.mtimes(JN.T, pA2)
     ba = _shift_cols(kin.d, pA2)
     mt, h, Io = 0, ca.SX.zeros(3), ca.SX.zeros(3, 3)
-    for m, u, Dc, b in zip(kin.masses, kin.u, kin.Dc, kin.beta):
-        J = ca.mtimes(kin.R, Dc)
+    for m, u, J, b in zip(kin.masses, kin.u, kin.Dc, kin.beta):
         Mqq = Mqq + m * ca.mtimes(J.T, J)
         Maq = Maq + m * ca.vertcat(_cross_mat(u, J), J)
         bq = bq + m * ca.mtimes(J.T, b)
@@ -577,19 +589,17 @@ def _back_sub_t(Lt, k: int, b):
 
 
 def _accel(kin: SegmentKinematics, elim, a):
-    """Pass 3 for one segment: ẍ from the base's ``a`` = (α, ö) and ``elim`` of
-    :func:`_backward` (square: (y,), ẍ = D_c⁻¹ Rᵀ (y/m − β − ö − α × u); else (z, U, D⁻¹,
-    L): ẍ = L⁻ᵀ D⁻¹ (z − Uᵀ a)), and the tip's (α, ö)."""
-    R = kin.R
+    """Pass 3 for one segment: ẍ from the base's ``a`` = (α, ö) (base axes) and ``elim``
+    of :func:`_backward` (square: (y,), ẍ = D_c⁻¹ (y/m − β − ö − α × c); else
+    (z, U, D⁻¹, L): ẍ = L⁻ᵀ D⁻¹ (z − Uᵀ a)), and the tip's (α, ö) in its own axes."""
     if len(elim) == 1:
         v = elim[0] / kin.masses[0] - kin.beta[0] - a[3:] - _cross(a[:3], kin.u[0])
-        xdd = ca.mtimes(kin.Dc_inv, ca.mtimes(R.T, v))
+        xdd = ca.mtimes(kin.Dc_inv, v)
     else:
         z, U, Dinv, Lt = elim
         xdd = _back_sub_t(Lt, z.shape[0], Dinv * (z - ca.mtimes(U.T, a)))
-    aN = ca.vertcat(a[:3] + ca.mtimes(R, ca.mtimes(kin.JN_l[:3, :], xdd)),
-                    a[3:] + _cross(a[:3], kin.d) + ca.mtimes(R, ca.mtimes(kin.JN_l[3:, :], xdd)))
-    return xdd, aN + kin.betaN
+    aN = ca.vertcat(a[:3], a[3:] + _cross(a[:3], kin.d)) + ca.mtimes(kin.JN, xdd) + kin.betaN
+    return xdd, ca.vertcat(ca.mtimes(kin.E.T, aN[:3]), ca.mtimes(kin.E.T, aN[3:]))
 
 
 def _generalised(body: SoftBody):
@@ -614,25 +624,28 @@ def _squares(body: SoftBody, locs) -> list[bool]:
 
 
 def _root(body: SoftBody):
-    """The base's rotation, angular velocity and (α, ö) = (0, −g) (gravity by accelerating
-    the base)."""
+    """The base's rotation, angular velocity and (α, ö) = (0, −g) in its axes (gravity by
+    accelerating the base)."""
+    R0 = ca.SX(body.base_frame())
     g = body.values["g"] * ca.DM(body.model.gravity_direction)
-    return ca.SX(body.base_frame()), ca.SX.zeros(3), ca.vertcat(ca.SX.zeros(3), -g)
+    return R0, ca.SX.zeros(3), ca.vertcat(ca.SX.zeros(3), -ca.mtimes(R0.T, g))
 
 
 def chain_forward_dynamics(body: SoftBody, q, qd, tau, f_ext=None):
     """q̈ of eq. 3.6 with tip forces (3 per segment tip, world) by three passes over the
     segments, O(n) (issue 33; the articulated-body method with each segment a k-DoF joint).
 
-    Pass 1 (base to tip) carries the base's rotation R and angular velocity ω and gives
-    each segment's point Jacobians and biases in world axes (:func:`_forward`,
+    Every segment's quantities are in its base frame. Pass 1 (base to tip) carries the
+    angular velocity ω (and the world rotation R for the tip forces) and gives each
+    segment's point Jacobians and biases (:func:`_forward`,
     :class:`SegmentKinematics`); pass 2 (tip to base) eliminates each segment's ẍ
     against the articulated inertia beyond it (:func:`_backward`):
     M_qq = Σ m_j J_jᵀJ_j + J_Nᵀ I^A J_N, M_aq = Σ m_j X_jᵀ J_j + X_Nᵀ I^A J_N,
     M_aa = Σ m_j X_jᵀX_j + X_Nᵀ I^A X_N, I^A_base = M_aa − M_aq M_qq⁻¹ M_aqᵀ (the same with
     the biases), X_j = [−[u_j]×, I] the point's acceleration from the base's (α, ö);
     pass 3 (base to tip) gives ẍ = y − W a_base and the next base's (α, ö)
-    (:func:`_accel`). The tip force f_i enters as −(0, f_i) in the bias at tip i.
+    (:func:`_accel`); (I^A, p^A) and (α, ö) cross a segment's tip by its rotation E. The
+    tip force f_i enters as −(0, Rᵀ f_i) in the bias at tip i.
     The same B, C, G, K, D and A as :class:`~softgen.symbolic.pcc.SoftBody` (tests)."""
     if not applies(body):
         raise ValueError(f"chain_forward_dynamics: pcc-planar or pcc-3d models only, "
@@ -652,10 +665,9 @@ def chain_forward_dynamics(body: SoftBody, q, qd, tau, f_ext=None):
     yw: list = [None] * ns
     for i in reversed(range(ns)):
         sl = slice(k * i, k * (i + 1))
-        if f_ext is not None:
-            pA = pA - ca.vertcat(ca.SX.zeros(3), f_ext[3 * i:3 * i + 3])
         r = gen(i, q[sl], qd[sl], tau[nu * i:nu * (i + 1)])
-        IA, pA, yw[i] = _backward(kins[i], IA, pA, r)
+        IA, pA, yw[i] = _backward(kins[i], IA, pA, r,
+                                  None if f_ext is None else f_ext[3 * i:3 * i + 3])
     out = []
     for i in range(ns):
         xdd, a = _accel(kins[i], yw[i], a)
@@ -702,11 +714,11 @@ def _from_triu6(v):
     return ca.blockcat(M)
 
 
-def _kin_at(locs, sq, seg, nparts, parts, j) -> SegmentKinematics:
+def _kin_at(locs, sq, with_R, seg, nparts, parts, j) -> SegmentKinematics:
     """Segment ``seg[j]``'s :class:`SegmentKinematics` from a block's unpacked parts."""
     i = seg[j]
     p0 = sum(nparts[seg[0]:i])
-    return SegmentKinematics.from_list(locs[i][1], sq[i], parts[p0:p0 + nparts[i]])
+    return SegmentKinematics.from_list(locs[i][1], sq[i], with_R, parts[p0:p0 + nparts[i]])
 
 
 def chain_forward_dynamics_function(body: SoftBody, name: str, *,
@@ -735,14 +747,19 @@ def chain_forward_dynamics_function(body: SoftBody, name: str, *,
 
     R0, w0, a0 = _root(body)
     # pass 1
-    state_sx, state_lay = _packed([R0, w0])
+    R0 = R0 if tip_forces else None
+    state_sx, state_lay = _packed([R0, w0] if tip_forces else [w0])
     state = None
     kins: list = []
     nparts, nel = [0] * ns, [0] * ns
     for bi, seg in enumerate(blocks):
         x, xd = ca.SX.sym("x", k * len(seg)), ca.SX.sym("xd", k * len(seg))
         s_in = ca.SX.sym("s", state_sx.numel())
-        R, w = (R0, w0) if bi == 0 else _unpacked(s_in, state_lay)
+        if bi == 0:
+            R, w = R0, w0
+        else:
+            st = _unpacked(s_in, state_lay)
+            R, w = (st[0], st[1]) if tip_forces else (None, st[0])
         parts = []
         for j, i in enumerate(seg):
             kin, R, w = _forward(*locs[i], x[k * j:k * (j + 1)], xd[k * j:k * (j + 1)], R, w,
@@ -750,7 +767,7 @@ def chain_forward_dynamics_function(body: SoftBody, name: str, *,
             nparts[i] = len(kin.to_list())
             parts += kin.to_list()
         kin_sx, kin_lay = _packed(parts)
-        state_sx, lay = _packed([R, w])
+        state_sx, lay = _packed([R, w] if tip_forces else [w])
         ins = [x, xd] + ([] if bi == 0 else [s_in])
         fa = shared.get("A", ins, [kin_sx, state_sx])
         state_lay = lay
@@ -778,9 +795,9 @@ def chain_forward_dynamics_function(body: SoftBody, name: str, *,
         el_parts = []
         for j in reversed(range(len(seg))):
             i = seg[j]
-            pA = pA - ca.vertcat(ca.SX.zeros(3), fb[3 * j:3 * j + 3])
             r = gen(i, x[k * j:k * (j + 1)], xd[k * j:k * (j + 1)], tb[nu * j:nu * (j + 1)])
-            IA, pA, el = _backward(_kin_at(locs, sq, seg, nparts, parts, j), IA, pA, r)
+            IA, pA, el = _backward(_kin_at(locs, sq, tip_forces, seg, nparts, parts, j),
+                                   IA, pA, r, fb[3 * j:3 * j + 3] if tip_forces else None)
             nel[i] = len(el)
             el_parts = list(el) + el_parts
         el_sx, el_lay = _packed(el_parts)
@@ -804,7 +821,7 @@ def chain_forward_dynamics_function(body: SoftBody, name: str, *,
         parts, els = _unpacked(kin_in, kin_lay), _unpacked(el_in, el_lay)
         xdds = []
         for j, i in enumerate(seg):
-            kin = _kin_at(locs, sq, seg, nparts, parts, j)
+            kin = _kin_at(locs, sq, tip_forces, seg, nparts, parts, j)
             e0 = sum(nel[seg[0]:i])
             xdd, a = _accel(kin, tuple(els[e0:e0 + nel[i]]), a)
             xdds.append(xdd)
