@@ -519,7 +519,7 @@ def _backward(kin: SegmentKinematics, IA, pA, r, f=None):
     ``r``: the segment's generalised forces besides inertia and gravity; ``f``: the world
     force on its tip (or None). IA, pA come in the tip frame's axes and leave in the base's.
 
-    Where the segment is square (one mass point, ∂c/∂x = D_c invertible, J_c = R D_c) and
+    Where the segment is square (one mass point, J_c = ∂c/∂x = D_c invertible) and
     IA = 0, the elimination gives I^A_base = m X_jᵀX_j − m X_jᵀ J_c (J_cᵀJ_c)⁻¹ J_cᵀ X_j = 0
     (the coordinates can hold the mass still whatever the base does), so IA stays 0 from
     the tip down a chain of such segments (lumped pcc-3d) and only the bias crosses:
