@@ -28,8 +28,8 @@ pcc-3d, lumped or distributed masses, derived by CasADi from the body's segment 
 :data:`LOOP_BLOCK` segments and composed by MX (the bundles' ``forward_dynamics``,
 :func:`forward_dynamics_fun`). For the lumped pcc-3d chain the articulated inertia is 0
 (each segment's 3 coordinates move its mass point freely), so only a 6-vector bias
-crosses each segment: measured (valgrind, x86-64 Ir per call of the -O3 C) 6.8k, 14.9k,
-31.1k at 4, 8, 16 segments (the block solve of issue 25: 5.9k, 15.1k, 39.1k).
+crosses each segment: measured (valgrind, x86-64 Ir per call of the -O3 C) 6.1k, 13.0k,
+26.7k at 4, 8, 16 segments (the block solve of issue 25: 5.9k, 15.1k, 39.1k).
 """
 from __future__ import annotations
 
