@@ -8,16 +8,19 @@ Sections (``--only NAME`` runs one):
              linearly implicit Euler), µs per call; real-time factor = 1 ms / loop step.
 ``scaling``  CasADi instructions and µs per call of the forward dynamics at 4, 8 and 16
              segments: a 3D PCS rod (6 strains) and the 3D PCC arm (``pcc_3d_4seg``'s
-             segment), the PCC by the tree route (:mod:`softgen.symbolic.pcc_tree`) and by
-             the chain route the PCC bundles use (:func:`softgen.control.soft.plant_qdd`);
-             the rod and the PCC tree each as one straight-line SX function ("SX") and
-             as the looped function (:mod:`softgen.symbolic.tree_loop`: the rod's
-             ``forward_dynamics_fun``, ``pcc_tree.forward_dynamics_function``), whose C
-             calls one function per distinct segment (instructions: what its C runs, the
-             called functions' CasADi instructions summed over the calls). Every size's
-             functions are compiled first, then timed round-robin in one process
-             (``--repeats`` rounds, the median per function), so the 16/4 ratios are
-             read under one load; the ratios are printed.
+             segment). The rod as one straight-line SX function ("SX") and as the looped
+             function (:mod:`softgen.symbolic.tree_loop`, the rod's
+             ``forward_dynamics_fun``); the PCC by the routes the PCC bundles use, the O(n)
+             passes over the segments (:mod:`softgen.symbolic.pcc_chain`): looped
+             (``pcc_chain.forward_dynamics_fun``, the bundles' ``forward_dynamics``) and
+             straight-line (:func:`softgen.control.soft.plant_qdd`, the bundles' plant),
+             beside the issue-25 block solve (``plant_qdd(route="blocks")``, O(n²)) and
+             the tree route (:mod:`softgen.symbolic.pcc_tree`, SX and looped). A looped
+             function's C calls one function per distinct block of segments
+             (instructions: what its C runs, the called functions' CasADi instructions
+             summed over the calls). Every size's functions are compiled first, then timed
+             round-robin in one process (7 rounds, the median per function), so the 16/4
+             ratios are read under one load; the ratios are printed.
 ``jsrm``     a planar PCS forward dynamics (3 segments, bend/shear/axial, 5 Gauss points:
              ``tests/test_cosserat_jsrm.py``'s rod) in softgen's generated C against jsrm's
              ``forward_dynamics`` under ``jax.jit`` on the CPU (``block_until_ready``
@@ -281,6 +284,7 @@ def executed_instructions(f: ca.Function) -> int:
 
 def scaling() -> None:
     from softgen.control.soft import plant_qdd
+    from softgen.symbolic import pcc_chain
     from softgen.symbolic.cosserat_dynamics import CosseratDynamics
     from softgen.symbolic.pcc import SoftDynamics
     from softgen.symbolic.pcc_tree import forward_dynamics, forward_dynamics_function, pcc_tree
@@ -299,19 +303,28 @@ def scaling() -> None:
         rows.append(("Cosserat PCS, 6 strains", "looped", ns, executed_instructions(f), f, x))
     for ns in (4, 8, 16):
         m = _pcc(ns)
-        b = SoftDynamics(m).nominal
+        dyn = SoftDynamics(m)
+        b = dyn.nominal
         tau, fx = ca.SX.sym("tau", b.n_inputs), ca.SX.sym("f", 3 * ns)
         x = [rng.normal(size=m.dof) * 0.1, rng.normal(size=m.dof), np.zeros(b.n_inputs),
              np.zeros(3 * ns)]
+        f = pcc_chain.forward_dynamics_fun(dyn)
+        f = ca.Function(f"fd_pcc_passes_loop{ns}", f.mx_in(), f.call(f.mx_in()))
+        rows.append(("PCC 3D", "O(n) passes, looped (bundles' forward_dynamics)", ns,
+                     executed_instructions(f), f, x[:3]))
+        f = ca.Function(f"fd_pcc_passes_sx{ns}", [b.q, b.qd, tau, fx], [plant_qdd(b, tau, fx)],
+                        {"cse": True})
+        rows.append(("PCC 3D", "O(n) passes, SX (bundles' plant)", ns, f.n_instructions(),
+                     f, x))
+        f = ca.Function(f"fd_pcc_blocks{ns}", [b.q, b.qd, tau, fx],
+                        [plant_qdd(b, tau, fx, route="blocks")], {"cse": True})
+        rows.append(("PCC 3D", "blocks (issue 25)", ns, f.n_instructions(), f, x))
         pt = pcc_tree(b)
         f = ca.Function(f"fd_pcc_tree_sx{ns}", [b.q, b.qd, tau, fx],
                         [forward_dynamics(b, pt, tau, fx)], {"cse": True})
         rows.append(("PCC 3D", "tree, SX", ns, f.n_instructions(), f, x))
         f = forward_dynamics_function(b, pt, f"fd_pcc_tree_loop{ns}")
         rows.append(("PCC 3D", "tree, looped", ns, executed_instructions(f), f, x))
-        f = ca.Function(f"fd_pcc_chain{ns}", [b.q, b.qd, tau, fx], [plant_qdd(b, tau, fx)],
-                        {"cse": True})
-        rows.append(("PCC 3D", "chain (bundles)", ns, f.n_instructions(), f, x))
     before = load()
     times = time_c_many([(r[4], r[5]) for r in rows])
     print(f"## scaling: forward dynamics, instructions and µs per call (before the timing "

@@ -175,10 +175,10 @@ const casadi_int* pcc_planar_4seg_forward_dynamics_sparsity_in(casadi_int i);
 const casadi_int* pcc_planar_4seg_forward_dynamics_sparsity_out(casadi_int i);
 int pcc_planar_4seg_forward_dynamics_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int pcc_planar_4seg_forward_dynamics_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pcc_planar_4seg_forward_dynamics_SZ_ARG 3
-#define pcc_planar_4seg_forward_dynamics_SZ_RES 1
+#define pcc_planar_4seg_forward_dynamics_SZ_ARG 8
+#define pcc_planar_4seg_forward_dynamics_SZ_RES 3
 #define pcc_planar_4seg_forward_dynamics_SZ_IW 0
-#define pcc_planar_4seg_forward_dynamics_SZ_W 0
+#define pcc_planar_4seg_forward_dynamics_SZ_W 213
 int pcc_planar_4seg_actuation(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_actuation_checkout(void);
 void pcc_planar_4seg_actuation_release(int mem);
@@ -304,7 +304,7 @@ int pcc_planar_4seg_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_ARG 41
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_RES 26
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_IW 0
-#define pcc_planar_4seg_theorem10_closed_loop_SZ_W 411017
+#define pcc_planar_4seg_theorem10_closed_loop_SZ_W 411053
 int pcc_planar_4seg_theorem10_sampled_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_theorem10_sampled_step_checkout(void);
 void pcc_planar_4seg_theorem10_sampled_step_release(int mem);
@@ -340,7 +340,7 @@ int pcc_planar_4seg_theorem10_sampled_loop_step_work_bytes(casadi_int *sz_arg, c
 #define pcc_planar_4seg_theorem10_sampled_loop_step_SZ_ARG 15
 #define pcc_planar_4seg_theorem10_sampled_loop_step_SZ_RES 6
 #define pcc_planar_4seg_theorem10_sampled_loop_step_SZ_IW 0
-#define pcc_planar_4seg_theorem10_sampled_loop_step_SZ_W 386
+#define pcc_planar_4seg_theorem10_sampled_loop_step_SZ_W 379
 int pcc_planar_4seg_theorem10_sampled_loop_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_theorem10_sampled_loop_loop_checkout(void);
 void pcc_planar_4seg_theorem10_sampled_loop_loop_release(int mem);
@@ -358,7 +358,7 @@ int pcc_planar_4seg_theorem10_sampled_loop_loop_work_bytes(casadi_int *sz_arg, c
 #define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_ARG 52
 #define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_RES 30
 #define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_IW 0
-#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_W 482440
+#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_W 482433
 int pcc_planar_4seg_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_plant_checkout(void);
 void pcc_planar_4seg_plant_release(int mem);

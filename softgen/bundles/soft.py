@@ -21,6 +21,7 @@ from softgen.bundles.registry import (HAS_REGRESSOR, REGISTRY, SOFT, SPATIAL, Co
 from softgen.codegen.generate import Generated
 from softgen.control.soft import closed_loop_block, plant_block, plant_fun, theorem10_fun
 from softgen.control.soft_sampled import sampled_controller_block, sampled_theorem10_fun
+from softgen.symbolic import pcc_chain
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 
 
@@ -49,8 +50,11 @@ def soft_dynamics(ctx: Context) -> Part:
                                                          "forming Y"),
         Generated(dyn.inverse_dynamics_fun(), f"nominal B qdd_r + C qd_r + G + {elastic}, "
                                               "computed directly"),
-        Generated(dyn.forward_dynamics_fun(), f"nominal qdd = B^-1 (A(q) tau - C qd - G - "
-                                              f"{elastic}) (eq. 3.6)"),
+        Generated(pcc_chain.forward_dynamics_fun(dyn), f"nominal qdd = B^-1 (A(q) tau - C qd - "
+                                                       f"G - {elastic}) (eq. 3.6)" + (
+                                                           ", by O(n) passes over the segments"
+                                                           if pcc_chain.applies(dyn.nominal)
+                                                           else "")),
         Generated(dyn.actuation_fun(), "actuation matrix A(q) of eq. 3.6 (generalized forces "
                                        "of the segments' actuators)"),
         Generated(dyn.backbone_fun(), "world position of the backbone at s in [0, n_segments] "

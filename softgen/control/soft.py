@@ -79,6 +79,7 @@ from softgen.blocks import Block
 from softgen.core.errors import ModelError
 from softgen.symbolic.rigid import FUNCTION_OPTS
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
+from softgen.symbolic import pcc_chain
 from softgen.symbolic.pcc_chain import (chain_regressor_products, chain_terms,
                                        inertia_from_blocks)
 from softgen.symbolic.actuated import rk4_steps
@@ -286,8 +287,8 @@ def plant_rhs(dyn: SoftDynamics, *, route: str = "auto",
               params: ca.SX | None = None) -> ca.Function:
     """ẋ = (q̇, q̈) of eq. 3.6 at nominal parameters, x = (q, q̇), u = (τ, f_ext).
 
-    ``route``: ``"auto"`` takes q̈ from the block-triangular solve with the recursive pass
-    where it applies (lumped pcc-3d, :func:`plant_qdd`; issue 25), else as ``"qr"``:
+    ``route``: ``"auto"`` takes q̈ from the O(n) passes over the segments where they apply
+    (pcc-planar and pcc-3d, :func:`plant_qdd`; issues 25 and 33), else as ``"qr"``:
     B and the bias formed, ``casadi.solve`` (the route before issue 25; tests).
     ``params``: the symbols ``dyn``'s body values hold besides numbers (a plant off its
     model by runtime factors, :class:`softgen.control.soft_sampled.ScaledPlant`), a third
@@ -298,7 +299,7 @@ def plant_rhs(dyn: SoftDynamics, *, route: str = "auto",
     b = dyn.nominal
     tau = ca.SX.sym("tau", b.n_inputs)
     f_ext = ca.SX.sym("f_ext", 3 * dyn.model.n_segments)
-    qdd = plant_qdd(b, tau, f_ext) if route == "auto" and _chain_applies(b) else \
+    qdd = plant_qdd(b, tau, f_ext) if route == "auto" and pcc_chain.applies(b) else \
         dyn.forward_dynamics_expr(tau, f_ext)
     extra = [] if params is None else [params]
     return ca.Function("rhs", [ca.vertcat(b.q, b.qd), ca.vertcat(tau, f_ext), *extra],
@@ -474,20 +475,26 @@ def _triangular_qdd(J, a0, masses, rhs):
 def plant_qdd(b, tau, f_ext, *, route: str = "auto"):
     """q̈ of eq. 3.6 with tip forces at nominal parameters, B q̈ = A τ + Σ J_iᵀ f_i − bias.
 
-    For point masses B = Jᵀ M J (J: the point Jacobians stacked, M = diag(m_j I₃)) and
-    bias = Jᵀ M (J̇ q̇ − g) + K q + D q̇ (:meth:`~softgen.symbolic.pcc.SoftBody.bias_pm`).
-    Where J is square and block lower triangular (one lumped mass per 3-DoF segment,
-    pcc-3d: mass j moves with segments 1..j only; J invertible as B is SPD),
+    ``route``: ``"auto"``, where it applies (pcc-planar and pcc-3d), by the O(n) passes
+    over the segments (:func:`~softgen.symbolic.pcc_chain.chain_forward_dynamics`, issue
+    33: B is never formed), elsewhere as ``"jets"``. The earlier routes, the same values
+    (tests): for point masses B = Jᵀ M J (J: the point Jacobians stacked,
+    M = diag(m_j I₃)) and bias = Jᵀ M (J̇ q̇ − g) + K q + D q̇
+    (:meth:`~softgen.symbolic.pcc.SoftBody.bias_pm`); where J is square and block lower
+    triangular (one lumped mass per 3-DoF segment, pcc-3d: mass j moves with segments
+    1..j only; J invertible as B is SPD),
     q̈ = J⁻¹ (M⁻¹ J⁻ᵀ (A τ + Σ J_iᵀ f_i − K q − D q̇) − (J̇ q̇ − g)) by block back- and
-    forward-substitution with 3 × 3 adjugate inverses: B is never formed or factorised
-    (cond J = √cond B). ``route``: ``"auto"`` takes J, J̇ q̇, Σ J_iᵀ f_i and A τ from the
-    recursive pass (:func:`~softgen.symbolic.pcc_chain.chain_terms`, lumped pcc-3d;
-    issue 25), else as ``"jets"``: from the body's derivatives (``b`` a jets body: pass
-    the result through ``b.expand``); elsewhere, or with ``route="ldl"``, B⁻¹ by LDLᵀ
-    (:func:`spd_solve`; B is SPD) and J_iᵀ f_i with the tip Jacobians formed.
+    forward-substitution with 3 × 3 adjugate inverses (cond J = √cond B), O(n²):
+    ``"blocks"`` takes J, J̇ q̇, Σ J_iᵀ f_i and A τ from the recursive pass
+    (:func:`~softgen.symbolic.pcc_chain.chain_terms`, lumped pcc-3d; issue 25), ``"jets"``
+    from the body's derivatives (``b`` a jets body: pass the result through
+    ``b.expand``); elsewhere, or with ``route="ldl"``, B⁻¹ by LDLᵀ (:func:`spd_solve`;
+    B is SPD) and J_iᵀ f_i with the tip Jacobians formed.
     """
-    if route not in ("auto", "jets", "ldl"):
-        raise ValueError(f"route: expected 'auto', 'jets' or 'ldl', got {route!r}")
+    if route not in ("auto", "blocks", "jets", "ldl"):
+        raise ValueError(f"route: expected 'auto', 'blocks', 'jets' or 'ldl', got {route!r}")
+    if route == "auto" and pcc_chain.applies(b):
+        return pcc_chain.chain_forward_dynamics(b, b.q, b.qd, tau, f_ext)
     if route == "ldl":
         rhs = ca.mtimes(b.actuation(), tau) - b.bias_pm()
         for i, J in enumerate(b.tip_jacobians()):
@@ -495,7 +502,7 @@ def plant_qdd(b, tau, f_ext, *, route: str = "auto"):
         return spd_solve(b.inertia_pm(), rhs)
     g = b.values["g"] * ca.DM(b.model.gravity_direction)
     masses = [m for m, _ in b.mass_points]
-    if route == "auto" and _chain_applies(b):
+    if route == "blocks" and _chain_applies(b):
         ct = chain_terms(b, b.q, b.qd, tau, f_ext)
         rhs = ct.act + ct.tip_force - b.spring() - b.damping()
         return _triangular_qdd(ct.J, [a - g for a in ct.a0], masses, rhs)
@@ -548,11 +555,13 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     ``z = (q, q̇, π̂, f̂)`` and the extra input ``kf`` after ``kpi``. f̂, like π̂, is
     integrated explicitly (outside the W matrix): it is slow, not stiff.
 
-    ``route``: how q̈ and W's B are computed (the same values): ``"auto"``, the
-    block-triangular solve with J, J̇ q̇, Σ J_iᵀ f_i and A τ from the recursive pass where
-    it applies (lumped pcc-3d, :func:`~softgen.symbolic.pcc_chain.chain_terms`), else as
-    ``"jets"``, the same solve on the jets body (:func:`plant_qdd`); ``"ldl"``, B formed
-    and factorised by LDLᵀ with CasADi's derivatives (the route before issue 25; tests).
+    ``route``: how q̈ and W's B are computed (the same values): ``"auto"``, q̈ by the O(n)
+    passes where they apply (pcc-planar and pcc-3d, :func:`plant_qdd`) and W's B from the
+    J of the recursive pass where it applies (lumped pcc-3d,
+    :func:`~softgen.symbolic.pcc_chain.chain_terms`), else as ``"jets"``;
+    ``"blocks"``, q̈ by the block-triangular solve with that J (issue 25); ``"jets"``, the
+    same solve on the jets body (:func:`plant_qdd`); ``"ldl"``, B formed and factorised
+    by LDLᵀ with CasADi's derivatives (the route before issue 25; tests).
 
     ``params`` (:func:`plant_rhs`): symbols in the plant body's values, a last input
     ``plant_params`` (pass ``ctl``, a controller built on the model itself).
@@ -567,8 +576,9 @@ def closed_loop_fun(dyn: SoftDynamics, lin: LinearRoute | None = None,
     b = dyn.nominal
     # SX pieces, called twice each from an MX graph so that the C holds them once.
     tau_s, f_s = ca.SX.sym("tau", b.n_inputs), ca.SX.sym("f_ext", 3 * ns)
-    chain = route == "auto" and _chain_applies(b)
-    bj = dyn.nominal_jets if route == "jets" or (route == "auto" and not chain) else b
+    chain = route in ("auto", "blocks") and _chain_applies(b)
+    bj = dyn.nominal_jets if route == "jets" or (route == "auto" and not pcc_chain.applies(b)) \
+        else b
     qdd_f = ca.Function(f"{dyn.name}_cl_qdd", [bj.q, bj.qd, tau_s, f_s, *extra],
                         bj.expand([plant_qdd(bj, tau_s, f_s, route=route)]), FUNCTION_OPTS)
     qm_s, kd_s, lam_s = ca.SX.sym("qm", n), ca.SX.sym("kd", n), ca.SX.sym("lam", n)
