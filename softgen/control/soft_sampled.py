@@ -496,6 +496,9 @@ class Verdict:
     d_scale: float = 1.0
     plant_scale: ModelScale = ModelScale()
     predictor: ModelScale | None = None
+    # The identified law (:mod:`softgen.control.soft_identified`): rho_zero / rho_true are
+    # at the learnt factors, this at π̂ = 0 and the factors the identification starts from.
+    rho_initial: float = float("nan")
 
     @property
     def stable(self) -> bool:
@@ -529,7 +532,10 @@ class Verdict:
             f", plant {self.plant_scale.text()}"
         return (f"{self.model}: {self.law} dt={self.dt:g} s lam={self.lam:g} kd={self.kd:g}"
                 f"{worse}{plant}: {self.word} (spectral radius {self.rho_zero:.4g} at "
-                f"pi_hat=0, {self.rho_true:.4g} at pi_hat=pi; continuous loop "
+                f"pi_hat=0, {self.rho_true:.4g} at pi_hat=pi"
+                + ("" if math.isnan(self.rho_initial) else
+                   f" with the learnt factors, {self.rho_initial:.4g} at the starting ones")
+                + "; continuous loop "
                 f"{self.rho_cont_zero:.4g}, {self.rho_cont_true:.4g})")
 
 
@@ -545,12 +551,16 @@ class Checker:
         self._jac: dict[tuple[str, float], ca.Function] = {}
         self._cont: ca.Function | None = None
 
-    def jacobian(self, law: str, d_scale: float = 1.0) -> ca.Function:
-        key = (law, d_scale)
+    def cached(self, key: tuple[str, float], make) -> ca.Function:
+        """The transition-matrix Function under ``key`` (law, d_scale), made once."""
         if key not in self._jac:
-            self._jac[key] = loop_jacobian(self.dyn, law, self.lin, d_scale=d_scale,
-                                           predictor=self.predictor, plant_scale=True)
+            self._jac[key] = make()
         return self._jac[key]
+
+    def jacobian(self, law: str, d_scale: float = 1.0) -> ca.Function:
+        return self.cached((law, d_scale), lambda: loop_jacobian(
+            self.dyn, law, self.lin, d_scale=d_scale, predictor=self.predictor,
+            plant_scale=True))
 
     def radius_continuous(self, dt: float, lam: float, kd: float, pi_hat,
                           plant_scale: ModelScale | None = None) -> float:

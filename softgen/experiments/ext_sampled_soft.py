@@ -30,9 +30,9 @@ import numpy as np
 
 from softgen.blocks import ClosedLoop
 from softgen.control.soft import reference_block, tip_force_block
+from softgen.control.soft_identified import check_identified, identified_controller_block
 from softgen.control.soft_sampled import (UNCERTAINTY, Checker, ModelScale,
-                                          sampled_controller_block, scaled_closed_loop_block,
-                                          scaled_plant_block)
+                                          scaled_closed_loop_block, scaled_plant_block)
 from softgen.experiments.ch12_soft import (EXPERIMENT_3D, EXPERIMENT_PENDULUM,
                                            EXPERIMENT_PLANAR, PendulumConfig, PlanarConfig,
                                            Soft3DConfig)
@@ -125,14 +125,15 @@ class SampledConfig(Config):
 
 def sampled_soft_loop(name: str, dyn: SoftDynamics, ref, dt: float,
                       lin: LinearRoute | None = None) -> SoftLoop:
-    """References → linearly implicit sampled Theorem 10 → plant (ROS2), τ held; the
-    controller reads the plant's measurement ``q_meas``/``qd_meas``; the plant is
-    :func:`~softgen.control.soft_sampled.scaled_plant_block` (parameter ``plant.scale``,
-    1 = the model file)."""
+    """References → the sampled Theorem 10 with its predictor identified online
+    (:func:`~softgen.control.soft_identified.identified_controller_block`) → plant (ROS2),
+    τ held; the controller reads the plant's measurement ``q_meas``/``qd_meas``; the plant
+    is :func:`~softgen.control.soft_sampled.scaled_plant_block` (parameter
+    ``plant.scale``, 1 = the model file)."""
     lin = LinearRoute(dyn) if lin is None else lin
     n = dyn.model.dof
     d = ClosedLoop(name, [ref, tip_force_block("dist", dyn.model.n_segments),
-                          sampled_controller_block(dyn, dt, lin=lin),
+                          identified_controller_block(dyn, dt, lin=lin),
                           scaled_plant_block(dyn, dt)],
                    [("plant.q_meas", "ctrl.q"), ("plant.qd_meas", "ctrl.qd")],
                    externals={"noise": 2 * n})
@@ -235,12 +236,14 @@ def run_case(case: Case, c: SampledConfig) -> tuple[Metrics, dict]:
             m.add("position_rms_error", got[kind], case.unit, suffix=f"{sfx}_{kind}")
         m.add("rms_ratio_sampled_to_continuous", _ratio(got["sampled"], got["continuous"]),
               "1", suffix=sfx)
-        v = chk.check("implicit", c.dt, lam, kd, plant_scale=ps)
-        # At π̂ = 0, where a run from π̂ = 0 starts (the one its 20-60 s reach: the
-        # estimates are far from π at the end), and at π̂ = π.
+        v = check_identified(chk, c.dt, lam, kd, plant_scale=ps)
+        # The identified law at the learnt factors: at π̂ = 0, where a run from π̂ = 0
+        # starts (the one its 20-60 s reach: the estimates are far from π at the end),
+        # and at π̂ = π; and at π̂ = 0 with the factors the identification starts from.
+        m.add("spectral_radius", v.rho_initial, "1", suffix=f"{sfx}_identified_initial")
         for end, (rs, rc) in (("start", (v.rho_zero, v.rho_cont_zero)),
                               ("converged", (v.rho_true, v.rho_cont_true))):
-            m.add("spectral_radius", rs, "1", suffix=f"{sfx}_implicit_{end}")
+            m.add("spectral_radius", rs, "1", suffix=f"{sfx}_identified_{end}")
             m.add("spectral_radius", rc, "1", suffix=f"{sfx}_continuous_{end}")
             m.add("sampling_adds_instability",
                   float(rs >= 1.0 and rs > max(rc, 1.0) + v.TOLERANCE), "1",
