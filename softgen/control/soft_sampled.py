@@ -64,10 +64,10 @@ A plant off the predictor's model (issue 32)
     without adaptation this step tracks the lightly damped plants as the continuous loop
     does, so what fails there is the start: the balance with the last force (none
     before the first sample) kicks a plant whose slowest mode is underdamped, and Yᵀσ
-    read at the sampled q̇ aliases its fast modes. The three factors identified online,
-    the balance taken from that model and the adaptation on the sample's mean velocity
-    track 24 of 29; the stiff, lightly damped plants (stiffness ×3, damping ×0.01) stay
-    open (issue 32).
+    read at the sampled q̇ aliases its fast modes. The law that covers the grid is
+    :mod:`softgen.control.soft_identified`: the three factors identified online, the
+    balance taken from that model, the adaptation on the sample's mean velocity and
+    gated while the factors are learnt (``ext-sampled-soft`` states its count).
     ``predictor`` (:class:`ModelScale`) builds the law on a predictor off the model
     file; the check and the blocks take the plant off it (:class:`ScaledPlant`,
     :func:`scaled_plant_block`, :func:`scaled_closed_loop_block`, a runtime parameter:
