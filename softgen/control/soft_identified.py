@@ -123,10 +123,12 @@ def identified_theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, 
     h = ca.SX.sym("dt")
     B, K, D, blocks = predictor_terms(dyn, q, chain)
     # (a) The regression of the sample just ended: B, C, G scale with the mass factor.
+    # C q̇ + G once (the Slotine-Li form at q̇_r = q̇, q̈_r = 0), shared with (b).
     rigid = b.slotine_li_pm() - b.spring() - b.damping()
-    at = lambda qd_r, qdd_r: ca.substitute(                      # noqa: E731
-        rigid, ca.vertcat(b.q, b.qd, b.qd_r, b.qdd_r), ca.vertcat(q, qd, qd_r, qdd_r))
-    Phi = ca.horzcat(at(qd, (qd - qd_prev) / h), ca.mtimes(K, q), ca.mtimes(D, qd))
+    bias = ca.substitute(rigid, ca.vertcat(b.q, b.qd, b.qd_r, b.qdd_r),
+                         ca.vertcat(q, qd, qd, ca.SX.zeros(n)))
+    Phi = ca.horzcat(ca.mtimes(B, qd - qd_prev) / h + bias, ca.mtimes(K, q),
+                     ca.mtimes(D, qd))
     norm2 = ca.sumsqr(Phi)
     w = ca.if_else(ca.logic_and(count >= 1, norm2 > 0), 1.0 / norm2, 0.0)
     R = ca.reshape(R_in, 3, 3)
@@ -139,7 +141,7 @@ def identified_theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, 
     s = ca.fmin(ca.fmax(s_ls, ca.DM(lo)), ca.DM(hi))
     # (b) The predictor and the plant's balance from the identified model.
     M = s[0] * B + h * s[2] * D + h * h * s[1] * K
-    u_model = s[0] * at(qd, ca.SX.zeros(n)) + s[1] * ca.mtimes(K, q + h * qd) + \
+    u_model = s[0] * bias + s[1] * ca.mtimes(K, q + h * qd) + \
         s[2] * ca.mtimes(D, qd)
     tau0, sigma, _ = _law(dyn, lin, pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd, chain)
     u_next, tau = implicit_torque(tau0, sigma, q, qd, kd, h, M, u_model, blocks, chain)
