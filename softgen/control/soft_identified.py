@@ -45,6 +45,20 @@ The step (:func:`identified_theorem10_fun`), per sample k at h = dt
     ratio 1.0 → 3.7x), an information threshold instead of the sample count as the gate
     (19/29).
 
+Open: a singular solve while π̂ adapts (measured, issue 32)
+    On a damping-dominated (light) mode the solve's matrix M − h P J is about
+    h (s_d D + K_d − D̂): singular when an adapted damping estimate D̂ crosses the
+    identified plant damping plus K_d, which Theorem 10's adaptation from π̂ = 0 can do
+    (the continuous loop's net damping on that mode, D + K_d − D̂, vanishes there too).
+    On ``pcc_planar_4seg`` with mass ×10, stiffness ×3, damping ×2.5 (Λ = 5, K_d = 1,
+    ext-sampled-soft's planar case) d̂_4 hovers at 1.26-1.41 around s_d d_4 + K_d = 1.25
+    from 1 s on; the run from the reference tracks (rms 0.0420 vs 0.0248 rad over the
+    last 10 s, ratio 1.69; 0.975 before a change of the law's rounding only), with
+    1e-9 or 1e-6 rad of initial error 0.0242 rad (0.98), with 1e-12 rad the crossing
+    lands on a sample: τ 7.8 → 369 N m in one sample at 1.191 s, |π̂| 1.8 → 1.7e3, rms
+    1.61 rad. The grid's count therefore rests on runs that pass near this singularity
+    on that plant.
+
 The check (:func:`identified_loop_jacobian`, :func:`check_identified`)
     The loop of this step and the ROS2 plant off the model, linearised about the
     regulated equilibrium (q = q_d = 0) with π̂ frozen (at 0 and at π) and s frozen: at

@@ -534,7 +534,7 @@ class Verdict:
                 f"{worse}{plant}: {self.word} (spectral radius {self.rho_zero:.4g} at "
                 f"pi_hat=0, {self.rho_true:.4g} at pi_hat=pi"
                 + ("" if math.isnan(self.rho_initial) else
-                   f" with the learnt factors, {self.rho_initial:.4g} at the starting ones")
+                   f" with the learnt factors, {self.rho_initial:.6g} at the starting ones")
                 + "; continuous loop "
                 f"{self.rho_cont_zero:.4g}, {self.rho_cont_true:.4g})")
 
