@@ -53,8 +53,9 @@ Open: a singular solve while π̂ adapts (measured, issue 32)
     On ``pcc_planar_4seg`` with mass ×10, stiffness ×3, damping ×2.5 (Λ = 5, K_d = 1,
     ext-sampled-soft's planar case) d̂_4 hovers at 1.26-1.41 around s_d d_4 + K_d = 1.25
     from 1 s on (the continuous loop's d̂_4 too: 1.275 at 1.0 s, 1.1-1.27 to 1.3 s, so
-    that loop is itself at the edge on this plant); the run from the reference tracks (rms 0.0420 vs 0.0248 rad over the
-    last 10 s, ratio 1.69; 0.975 before a change of the law's rounding only), with
+    that loop is itself at the edge on this plant); the run from the reference tracks
+    (rms 0.0420 vs 0.0248 rad over the last 10 s, ratio 1.69; 0.975 before a change of
+    the law's rounding only), with
     1e-9 or 1e-6 rad of initial error 0.0242 rad (0.98), with 1e-12 rad the crossing
     lands on a sample: τ 7.8 → 369 N m in one sample at 1.191 s, |π̂| 1.8 → 1.7e3, rms
     1.61 rad. On the whole grid with 1e-12 rad of initial error on every coordinate,
