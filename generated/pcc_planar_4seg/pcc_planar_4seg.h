@@ -358,7 +358,7 @@ int pcc_planar_4seg_theorem10_identified_loop_loop_work_bytes(casadi_int *sz_arg
 #define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_ARG 20
 #define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_RES 12
 #define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_IW 0
-#define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_W 355024
+#define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_W 355037
 int pcc_planar_4seg_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_plant_checkout(void);
 void pcc_planar_4seg_plant_release(int mem);

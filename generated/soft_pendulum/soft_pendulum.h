@@ -358,7 +358,7 @@ int soft_pendulum_theorem10_identified_loop_loop_work_bytes(casadi_int *sz_arg, 
 #define soft_pendulum_theorem10_identified_loop_loop_SZ_ARG 20
 #define soft_pendulum_theorem10_identified_loop_loop_SZ_RES 12
 #define soft_pendulum_theorem10_identified_loop_loop_SZ_IW 0
-#define soft_pendulum_theorem10_identified_loop_loop_SZ_W 143230
+#define soft_pendulum_theorem10_identified_loop_loop_SZ_W 143234
 int soft_pendulum_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int soft_pendulum_plant_checkout(void);
 void soft_pendulum_plant_release(int mem);
