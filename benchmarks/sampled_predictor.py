@@ -1,9 +1,13 @@
-"""Issue 32, item 2 (open): a sampled Theorem 10 whose predictor learns the plant.
+"""Issue 32, item 2: a sampled Theorem 10 whose predictor learns the plant (the study).
 
-A study, not a library law: the shipped sampled step
+The study that led to the library law :mod:`softgen.control.soft_identified` (the
+options ``--full-balance --forget 0.999 --mean-velocity`` with each sample's rows
+weighted 1/‖Φ‖² and the adaptation gated for the first 20 samples, which this script
+does not have: ``ext-sampled-soft`` runs the library law and states its count). The
+fixed-predictor sampled step
 (:func:`softgen.control.soft_sampled.sampled_theorem10_fun`) predicts the plant's answer
 within a sample with the model file's B, D, K and takes the plant to be in balance with
-the force it applied last sample (``u_prev``); ``ext-sampled-soft`` measures that from
+the force it applied last sample (``u_prev``); ``ext-sampled-soft`` measured with it that from
 π̂ = 0 it tracks within 2x the continuous loop on 16 of the 29 grid plants that have a
 continuous reference (mass ×0.1-×10, stiffness ×0.3-×3, damping ×0.01-×2.5). The same
 diagrams and plants as that experiment, with the step changed one option at a time:

@@ -16,11 +16,11 @@ from conftest import one_segment
 from softgen.blocks import ClosedLoop
 from softgen.bundles.common import BundleOptions
 from softgen.bundles.rigid import slotine_li_diagram
-from softgen.bundles.soft import theorem10_sampled_diagram
+from softgen.bundles.soft import theorem10_identified_diagram
 from softgen.control import cosserat
 from softgen.control.slotine_li import controller_fun, plant_step_fun
 from softgen.control.soft import plant_fun
-from softgen.control.soft_sampled import sampled_theorem10_fun
+from softgen.control.soft_identified import identified_theorem10_fun
 from softgen.core.paths import MODELS_DIR
 from softgen.modelfile.load import load_model
 from softgen.symbolic.cosserat_dynamics import CosseratDynamics
@@ -40,8 +40,8 @@ def inlined(d: ClosedLoop) -> ClosedLoop:
 def _soft():
     dyn = SoftDynamics(load_model(USER))
     lin = LinearRoute(dyn)
-    ctl, plant = sampled_theorem10_fun(dyn, lin), plant_fun(dyn)
-    return ctl, plant, theorem10_sampled_diagram(dyn, lin, BundleOptions(), ctl, plant)
+    ctl, plant = identified_theorem10_fun(dyn, lin), plant_fun(dyn)
+    return ctl, plant, theorem10_identified_diagram(dyn, lin, BundleOptions(), ctl, plant)
 
 
 def _rigid():
@@ -61,8 +61,8 @@ def _rod(tmp_path_factory):
 
 @pytest.fixture(scope="module", params=["soft", "rigid", "rod"])
 def sampled_loop(request, tmp_path_factory):
-    """(controller, plant, the bundle's composed loop): the sampled Theorem 10 on a user's
-    3-segment body, Slotine-Li on a user's 3-link arm (two RK4 substeps per sample), the
+    """(controller, plant, the bundle's composed loop): the sampled Theorem 10 (predictor
+    identified online) on a user's 3-segment body, Slotine-Li on a user's 3-link arm (two RK4 substeps per sample), the
     tendon rod's tip control (one segment of the shipped rod's length)."""
     if request.param == "rod":
         return _rod(tmp_path_factory)

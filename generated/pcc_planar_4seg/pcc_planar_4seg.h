@@ -305,60 +305,60 @@ int pcc_planar_4seg_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_RES 26
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_IW 0
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_W 411053
-int pcc_planar_4seg_theorem10_sampled_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int pcc_planar_4seg_theorem10_sampled_step_checkout(void);
-void pcc_planar_4seg_theorem10_sampled_step_release(int mem);
-void pcc_planar_4seg_theorem10_sampled_step_incref(void);
-void pcc_planar_4seg_theorem10_sampled_step_decref(void);
-casadi_int pcc_planar_4seg_theorem10_sampled_step_n_in(void);
-casadi_int pcc_planar_4seg_theorem10_sampled_step_n_out(void);
-casadi_real pcc_planar_4seg_theorem10_sampled_step_default_in(casadi_int i);
-const char* pcc_planar_4seg_theorem10_sampled_step_name_in(casadi_int i);
-const char* pcc_planar_4seg_theorem10_sampled_step_name_out(casadi_int i);
-const casadi_int* pcc_planar_4seg_theorem10_sampled_step_sparsity_in(casadi_int i);
-const casadi_int* pcc_planar_4seg_theorem10_sampled_step_sparsity_out(casadi_int i);
-int pcc_planar_4seg_theorem10_sampled_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int pcc_planar_4seg_theorem10_sampled_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pcc_planar_4seg_theorem10_sampled_step_SZ_ARG 11
-#define pcc_planar_4seg_theorem10_sampled_step_SZ_RES 4
-#define pcc_planar_4seg_theorem10_sampled_step_SZ_IW 0
-#define pcc_planar_4seg_theorem10_sampled_step_SZ_W 0
-int pcc_planar_4seg_theorem10_sampled_loop_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int pcc_planar_4seg_theorem10_sampled_loop_step_checkout(void);
-void pcc_planar_4seg_theorem10_sampled_loop_step_release(int mem);
-void pcc_planar_4seg_theorem10_sampled_loop_step_incref(void);
-void pcc_planar_4seg_theorem10_sampled_loop_step_decref(void);
-casadi_int pcc_planar_4seg_theorem10_sampled_loop_step_n_in(void);
-casadi_int pcc_planar_4seg_theorem10_sampled_loop_step_n_out(void);
-casadi_real pcc_planar_4seg_theorem10_sampled_loop_step_default_in(casadi_int i);
-const char* pcc_planar_4seg_theorem10_sampled_loop_step_name_in(casadi_int i);
-const char* pcc_planar_4seg_theorem10_sampled_loop_step_name_out(casadi_int i);
-const casadi_int* pcc_planar_4seg_theorem10_sampled_loop_step_sparsity_in(casadi_int i);
-const casadi_int* pcc_planar_4seg_theorem10_sampled_loop_step_sparsity_out(casadi_int i);
-int pcc_planar_4seg_theorem10_sampled_loop_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int pcc_planar_4seg_theorem10_sampled_loop_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pcc_planar_4seg_theorem10_sampled_loop_step_SZ_ARG 15
-#define pcc_planar_4seg_theorem10_sampled_loop_step_SZ_RES 6
-#define pcc_planar_4seg_theorem10_sampled_loop_step_SZ_IW 0
-#define pcc_planar_4seg_theorem10_sampled_loop_step_SZ_W 379
-int pcc_planar_4seg_theorem10_sampled_loop_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int pcc_planar_4seg_theorem10_sampled_loop_loop_checkout(void);
-void pcc_planar_4seg_theorem10_sampled_loop_loop_release(int mem);
-void pcc_planar_4seg_theorem10_sampled_loop_loop_incref(void);
-void pcc_planar_4seg_theorem10_sampled_loop_loop_decref(void);
-casadi_int pcc_planar_4seg_theorem10_sampled_loop_loop_n_in(void);
-casadi_int pcc_planar_4seg_theorem10_sampled_loop_loop_n_out(void);
-casadi_real pcc_planar_4seg_theorem10_sampled_loop_loop_default_in(casadi_int i);
-const char* pcc_planar_4seg_theorem10_sampled_loop_loop_name_in(casadi_int i);
-const char* pcc_planar_4seg_theorem10_sampled_loop_loop_name_out(casadi_int i);
-const casadi_int* pcc_planar_4seg_theorem10_sampled_loop_loop_sparsity_in(casadi_int i);
-const casadi_int* pcc_planar_4seg_theorem10_sampled_loop_loop_sparsity_out(casadi_int i);
-int pcc_planar_4seg_theorem10_sampled_loop_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int pcc_planar_4seg_theorem10_sampled_loop_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_ARG 52
-#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_RES 30
-#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_IW 0
-#define pcc_planar_4seg_theorem10_sampled_loop_loop_SZ_W 482433
+int pcc_planar_4seg_theorem10_identified_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pcc_planar_4seg_theorem10_identified_step_checkout(void);
+void pcc_planar_4seg_theorem10_identified_step_release(int mem);
+void pcc_planar_4seg_theorem10_identified_step_incref(void);
+void pcc_planar_4seg_theorem10_identified_step_decref(void);
+casadi_int pcc_planar_4seg_theorem10_identified_step_n_in(void);
+casadi_int pcc_planar_4seg_theorem10_identified_step_n_out(void);
+casadi_real pcc_planar_4seg_theorem10_identified_step_default_in(casadi_int i);
+const char* pcc_planar_4seg_theorem10_identified_step_name_in(casadi_int i);
+const char* pcc_planar_4seg_theorem10_identified_step_name_out(casadi_int i);
+const casadi_int* pcc_planar_4seg_theorem10_identified_step_sparsity_in(casadi_int i);
+const casadi_int* pcc_planar_4seg_theorem10_identified_step_sparsity_out(casadi_int i);
+int pcc_planar_4seg_theorem10_identified_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pcc_planar_4seg_theorem10_identified_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pcc_planar_4seg_theorem10_identified_step_SZ_ARG 16
+#define pcc_planar_4seg_theorem10_identified_step_SZ_RES 9
+#define pcc_planar_4seg_theorem10_identified_step_SZ_IW 0
+#define pcc_planar_4seg_theorem10_identified_step_SZ_W 0
+int pcc_planar_4seg_theorem10_identified_loop_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pcc_planar_4seg_theorem10_identified_loop_step_checkout(void);
+void pcc_planar_4seg_theorem10_identified_loop_step_release(int mem);
+void pcc_planar_4seg_theorem10_identified_loop_step_incref(void);
+void pcc_planar_4seg_theorem10_identified_loop_step_decref(void);
+casadi_int pcc_planar_4seg_theorem10_identified_loop_step_n_in(void);
+casadi_int pcc_planar_4seg_theorem10_identified_loop_step_n_out(void);
+casadi_real pcc_planar_4seg_theorem10_identified_loop_step_default_in(casadi_int i);
+const char* pcc_planar_4seg_theorem10_identified_loop_step_name_in(casadi_int i);
+const char* pcc_planar_4seg_theorem10_identified_loop_step_name_out(casadi_int i);
+const casadi_int* pcc_planar_4seg_theorem10_identified_loop_step_sparsity_in(casadi_int i);
+const casadi_int* pcc_planar_4seg_theorem10_identified_loop_step_sparsity_out(casadi_int i);
+int pcc_planar_4seg_theorem10_identified_loop_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pcc_planar_4seg_theorem10_identified_loop_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pcc_planar_4seg_theorem10_identified_loop_step_SZ_ARG 20
+#define pcc_planar_4seg_theorem10_identified_loop_step_SZ_RES 11
+#define pcc_planar_4seg_theorem10_identified_loop_step_SZ_IW 0
+#define pcc_planar_4seg_theorem10_identified_loop_step_SZ_W 469
+int pcc_planar_4seg_theorem10_identified_loop_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int pcc_planar_4seg_theorem10_identified_loop_loop_checkout(void);
+void pcc_planar_4seg_theorem10_identified_loop_loop_release(int mem);
+void pcc_planar_4seg_theorem10_identified_loop_loop_incref(void);
+void pcc_planar_4seg_theorem10_identified_loop_loop_decref(void);
+casadi_int pcc_planar_4seg_theorem10_identified_loop_loop_n_in(void);
+casadi_int pcc_planar_4seg_theorem10_identified_loop_loop_n_out(void);
+casadi_real pcc_planar_4seg_theorem10_identified_loop_loop_default_in(casadi_int i);
+const char* pcc_planar_4seg_theorem10_identified_loop_loop_name_in(casadi_int i);
+const char* pcc_planar_4seg_theorem10_identified_loop_loop_name_out(casadi_int i);
+const casadi_int* pcc_planar_4seg_theorem10_identified_loop_loop_sparsity_in(casadi_int i);
+const casadi_int* pcc_planar_4seg_theorem10_identified_loop_loop_sparsity_out(casadi_int i);
+int pcc_planar_4seg_theorem10_identified_loop_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int pcc_planar_4seg_theorem10_identified_loop_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_ARG 57
+#define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_RES 35
+#define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_IW 0
+#define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_W 620073
 int pcc_planar_4seg_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_plant_checkout(void);
 void pcc_planar_4seg_plant_release(int mem);

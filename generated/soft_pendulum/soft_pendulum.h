@@ -305,60 +305,60 @@ int soft_pendulum_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_in
 #define soft_pendulum_theorem10_closed_loop_SZ_RES 26
 #define soft_pendulum_theorem10_closed_loop_SZ_IW 0
 #define soft_pendulum_theorem10_closed_loop_SZ_W 108433
-int soft_pendulum_theorem10_sampled_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int soft_pendulum_theorem10_sampled_step_checkout(void);
-void soft_pendulum_theorem10_sampled_step_release(int mem);
-void soft_pendulum_theorem10_sampled_step_incref(void);
-void soft_pendulum_theorem10_sampled_step_decref(void);
-casadi_int soft_pendulum_theorem10_sampled_step_n_in(void);
-casadi_int soft_pendulum_theorem10_sampled_step_n_out(void);
-casadi_real soft_pendulum_theorem10_sampled_step_default_in(casadi_int i);
-const char* soft_pendulum_theorem10_sampled_step_name_in(casadi_int i);
-const char* soft_pendulum_theorem10_sampled_step_name_out(casadi_int i);
-const casadi_int* soft_pendulum_theorem10_sampled_step_sparsity_in(casadi_int i);
-const casadi_int* soft_pendulum_theorem10_sampled_step_sparsity_out(casadi_int i);
-int soft_pendulum_theorem10_sampled_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int soft_pendulum_theorem10_sampled_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define soft_pendulum_theorem10_sampled_step_SZ_ARG 11
-#define soft_pendulum_theorem10_sampled_step_SZ_RES 4
-#define soft_pendulum_theorem10_sampled_step_SZ_IW 0
-#define soft_pendulum_theorem10_sampled_step_SZ_W 0
-int soft_pendulum_theorem10_sampled_loop_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int soft_pendulum_theorem10_sampled_loop_step_checkout(void);
-void soft_pendulum_theorem10_sampled_loop_step_release(int mem);
-void soft_pendulum_theorem10_sampled_loop_step_incref(void);
-void soft_pendulum_theorem10_sampled_loop_step_decref(void);
-casadi_int soft_pendulum_theorem10_sampled_loop_step_n_in(void);
-casadi_int soft_pendulum_theorem10_sampled_loop_step_n_out(void);
-casadi_real soft_pendulum_theorem10_sampled_loop_step_default_in(casadi_int i);
-const char* soft_pendulum_theorem10_sampled_loop_step_name_in(casadi_int i);
-const char* soft_pendulum_theorem10_sampled_loop_step_name_out(casadi_int i);
-const casadi_int* soft_pendulum_theorem10_sampled_loop_step_sparsity_in(casadi_int i);
-const casadi_int* soft_pendulum_theorem10_sampled_loop_step_sparsity_out(casadi_int i);
-int soft_pendulum_theorem10_sampled_loop_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int soft_pendulum_theorem10_sampled_loop_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define soft_pendulum_theorem10_sampled_loop_step_SZ_ARG 15
-#define soft_pendulum_theorem10_sampled_loop_step_SZ_RES 6
-#define soft_pendulum_theorem10_sampled_loop_step_SZ_IW 0
-#define soft_pendulum_theorem10_sampled_loop_step_SZ_W 471
-int soft_pendulum_theorem10_sampled_loop_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
-int soft_pendulum_theorem10_sampled_loop_loop_checkout(void);
-void soft_pendulum_theorem10_sampled_loop_loop_release(int mem);
-void soft_pendulum_theorem10_sampled_loop_loop_incref(void);
-void soft_pendulum_theorem10_sampled_loop_loop_decref(void);
-casadi_int soft_pendulum_theorem10_sampled_loop_loop_n_in(void);
-casadi_int soft_pendulum_theorem10_sampled_loop_loop_n_out(void);
-casadi_real soft_pendulum_theorem10_sampled_loop_loop_default_in(casadi_int i);
-const char* soft_pendulum_theorem10_sampled_loop_loop_name_in(casadi_int i);
-const char* soft_pendulum_theorem10_sampled_loop_loop_name_out(casadi_int i);
-const casadi_int* soft_pendulum_theorem10_sampled_loop_loop_sparsity_in(casadi_int i);
-const casadi_int* soft_pendulum_theorem10_sampled_loop_loop_sparsity_out(casadi_int i);
-int soft_pendulum_theorem10_sampled_loop_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-int soft_pendulum_theorem10_sampled_loop_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define soft_pendulum_theorem10_sampled_loop_loop_SZ_ARG 52
-#define soft_pendulum_theorem10_sampled_loop_loop_SZ_RES 30
-#define soft_pendulum_theorem10_sampled_loop_loop_SZ_IW 0
-#define soft_pendulum_theorem10_sampled_loop_loop_SZ_W 132469
+int soft_pendulum_theorem10_identified_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int soft_pendulum_theorem10_identified_step_checkout(void);
+void soft_pendulum_theorem10_identified_step_release(int mem);
+void soft_pendulum_theorem10_identified_step_incref(void);
+void soft_pendulum_theorem10_identified_step_decref(void);
+casadi_int soft_pendulum_theorem10_identified_step_n_in(void);
+casadi_int soft_pendulum_theorem10_identified_step_n_out(void);
+casadi_real soft_pendulum_theorem10_identified_step_default_in(casadi_int i);
+const char* soft_pendulum_theorem10_identified_step_name_in(casadi_int i);
+const char* soft_pendulum_theorem10_identified_step_name_out(casadi_int i);
+const casadi_int* soft_pendulum_theorem10_identified_step_sparsity_in(casadi_int i);
+const casadi_int* soft_pendulum_theorem10_identified_step_sparsity_out(casadi_int i);
+int soft_pendulum_theorem10_identified_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int soft_pendulum_theorem10_identified_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define soft_pendulum_theorem10_identified_step_SZ_ARG 16
+#define soft_pendulum_theorem10_identified_step_SZ_RES 9
+#define soft_pendulum_theorem10_identified_step_SZ_IW 0
+#define soft_pendulum_theorem10_identified_step_SZ_W 0
+int soft_pendulum_theorem10_identified_loop_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int soft_pendulum_theorem10_identified_loop_step_checkout(void);
+void soft_pendulum_theorem10_identified_loop_step_release(int mem);
+void soft_pendulum_theorem10_identified_loop_step_incref(void);
+void soft_pendulum_theorem10_identified_loop_step_decref(void);
+casadi_int soft_pendulum_theorem10_identified_loop_step_n_in(void);
+casadi_int soft_pendulum_theorem10_identified_loop_step_n_out(void);
+casadi_real soft_pendulum_theorem10_identified_loop_step_default_in(casadi_int i);
+const char* soft_pendulum_theorem10_identified_loop_step_name_in(casadi_int i);
+const char* soft_pendulum_theorem10_identified_loop_step_name_out(casadi_int i);
+const casadi_int* soft_pendulum_theorem10_identified_loop_step_sparsity_in(casadi_int i);
+const casadi_int* soft_pendulum_theorem10_identified_loop_step_sparsity_out(casadi_int i);
+int soft_pendulum_theorem10_identified_loop_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int soft_pendulum_theorem10_identified_loop_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define soft_pendulum_theorem10_identified_loop_step_SZ_ARG 20
+#define soft_pendulum_theorem10_identified_loop_step_SZ_RES 11
+#define soft_pendulum_theorem10_identified_loop_step_SZ_IW 0
+#define soft_pendulum_theorem10_identified_loop_step_SZ_W 567
+int soft_pendulum_theorem10_identified_loop_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int soft_pendulum_theorem10_identified_loop_loop_checkout(void);
+void soft_pendulum_theorem10_identified_loop_loop_release(int mem);
+void soft_pendulum_theorem10_identified_loop_loop_incref(void);
+void soft_pendulum_theorem10_identified_loop_loop_decref(void);
+casadi_int soft_pendulum_theorem10_identified_loop_loop_n_in(void);
+casadi_int soft_pendulum_theorem10_identified_loop_loop_n_out(void);
+casadi_real soft_pendulum_theorem10_identified_loop_loop_default_in(casadi_int i);
+const char* soft_pendulum_theorem10_identified_loop_loop_name_in(casadi_int i);
+const char* soft_pendulum_theorem10_identified_loop_loop_name_out(casadi_int i);
+const casadi_int* soft_pendulum_theorem10_identified_loop_loop_sparsity_in(casadi_int i);
+const casadi_int* soft_pendulum_theorem10_identified_loop_loop_sparsity_out(casadi_int i);
+int soft_pendulum_theorem10_identified_loop_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+int soft_pendulum_theorem10_identified_loop_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
+#define soft_pendulum_theorem10_identified_loop_loop_SZ_ARG 57
+#define soft_pendulum_theorem10_identified_loop_loop_SZ_RES 35
+#define soft_pendulum_theorem10_identified_loop_loop_SZ_IW 0
+#define soft_pendulum_theorem10_identified_loop_loop_SZ_W 243912
 int soft_pendulum_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int soft_pendulum_plant_checkout(void);
 void soft_pendulum_plant_release(int mem);

@@ -7,9 +7,14 @@ for pcc-3d ``_augmented_map`` and ``_augmented_jacobian``, and
 ``_theorem10_step``; besides them the base-parameter map, the tip positions and
 Jacobians, the elastic and damping forces, the plant step with tip forces and
 measurement noise, Theorem 10's continuous-time closed loop as a diagram
-(``_theorem10_closed_step`` / ``_theorem10_closed_loop``), and the linearly implicit
-sampled Theorem 10 (``_theorem10_sampled_step``) with its sampled loop, controller and
-plant as two blocks (``_theorem10_sampled_loop_step`` / ``_theorem10_sampled_loop_loop``).
+(``_theorem10_closed_step`` / ``_theorem10_closed_loop``), and the sampled Theorem 10
+whose predictor is identified online (``_theorem10_identified_step``,
+:mod:`softgen.control.soft_identified`) with its sampled loop, controller and plant as
+two blocks (``_theorem10_identified_loop_step`` / ``_theorem10_identified_loop_loop``).
+The fixed-predictor step (:func:`~softgen.control.soft_sampled.sampled_theorem10_fun`)
+is not generated: the identified one reduces to it at unit factors with the adaptation
+gated (tested) and is what tracks a plant off the model (issue 32); one sampled law
+keeps the 3D bundle's compile small (issue 34).
 """
 from __future__ import annotations
 
@@ -20,7 +25,8 @@ from softgen.bundles.registry import (HAS_REGRESSOR, REGISTRY, SOFT, SPATIAL, Co
                                       diagram_functions, diagram_manifest)
 from softgen.codegen.generate import Generated
 from softgen.control.soft import closed_loop_block, plant_block, plant_fun, theorem10_fun
-from softgen.control.soft_sampled import sampled_controller_block, sampled_theorem10_fun
+from softgen.control.soft_identified import (IDENTIFIED_STATE, identified_controller_block,
+                                             identified_theorem10_fun)
 from softgen.symbolic import pcc_chain
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 
@@ -100,22 +106,23 @@ def theorem10_diagram(dyn: SoftDynamics, lin: LinearRoute, options) -> ClosedLoo
                                  ("noise", 2 * n)])
 
 
-def theorem10_sampled_diagram(dyn: SoftDynamics, lin: LinearRoute, options,
-                              fun: ca.Function | None = None,
-                              plant: ca.Function | None = None) -> ClosedLoop:
-    """The linearly implicit sampled Theorem 10 and the plant as two blocks (a real
-    embedded loop: τ held over the sample), every ``loop_dt``.
+def theorem10_identified_diagram(dyn: SoftDynamics, lin: LinearRoute, options,
+                                 fun: ca.Function | None = None,
+                                 plant: ca.Function | None = None) -> ClosedLoop:
+    """The sampled Theorem 10 with its predictor identified online and the plant as two
+    blocks (a real embedded loop: τ held over the sample), every ``loop_dt``.
 
-    The controller (:func:`softgen.control.soft_sampled.sampled_controller_block`) reads
-    the plant's measurement; the references (q_d, q̇_d, q̈_d at the sample), the tip forces
-    and the measurement noise are external inputs. Named ``<model>_theorem10_sampled_loop``.
-    Composed (``ClosedLoop(compose=True)``): its step calls ``fun`` and ``plant``, the
-    bundle's own ``_theorem10_sampled_step`` and ``_plant``, instead of a second, inlined
-    copy of both (the largest function of the 3D bundle, most of its compile time).
+    The controller (:func:`softgen.control.soft_identified.identified_controller_block`)
+    reads the plant's measurement; the references (q_d, q̇_d, q̈_d at the sample), the tip
+    forces and the measurement noise are external inputs. Named
+    ``<model>_theorem10_identified_loop``. Composed (``ClosedLoop(compose=True)``): its
+    step calls ``fun`` and ``plant``, the bundle's own ``_theorem10_identified_step`` and
+    ``_plant``, instead of a second, inlined copy of both (the largest function of the 3D
+    bundle, most of its compile time).
     """
     n, ns = dyn.model.dof, dyn.model.n_segments
-    return ClosedLoop(f"{dyn.name}_theorem10_sampled_loop",
-                      [sampled_controller_block(dyn, options.loop_dt, lin=lin, fun=fun),
+    return ClosedLoop(f"{dyn.name}_theorem10_identified_loop",
+                      [identified_controller_block(dyn, options.loop_dt, lin=lin, fun=fun),
                        plant_block(dyn, options.loop_dt, substeps=options.loop_substeps,
                                    fun=plant)],
                       [("plant.q_meas", "ctrl.q"), ("plant.qd_meas", "ctrl.qd")],
@@ -124,14 +131,15 @@ def theorem10_sampled_diagram(dyn: SoftDynamics, lin: LinearRoute, options,
 
 
 @REGISTRY.capability("theorem10", layer="control", needs=(SOFT, HAS_REGRESSOR),
-                     doc="Theorem 10 adaptive control: the zero-order-hold and the linearly "
-                         "implicit sampled steps, the sampled loop (controller and plant) and "
-                         "the continuous-time closed loop as diagrams")
+                     doc="Theorem 10 adaptive control: the zero-order-hold step, the sampled "
+                         "step with its predictor identified online, its sampled loop "
+                         "(controller and plant) and the continuous-time closed loop as "
+                         "diagrams")
 def theorem10(ctx: Context) -> Part:
     ctl = theorem10_fun(ctx.dyn, ctx.lin)
     d = theorem10_diagram(ctx.dyn, ctx.lin, ctx.options)
-    sctl = sampled_theorem10_fun(ctx.dyn, ctx.lin)
-    ds = theorem10_sampled_diagram(ctx.dyn, ctx.lin, ctx.options, sctl, _plant(ctx))
+    sctl = identified_theorem10_fun(ctx.dyn, ctx.lin)
+    ds = theorem10_identified_diagram(ctx.dyn, ctx.lin, ctx.options, sctl, _plant(ctx))
     steps = ctx.options.loop_steps
     step = d.step_fun()
     block = d.blocks["loop"]
@@ -139,21 +147,24 @@ def theorem10(ctx: Context) -> Part:
                           "update of pi_hat (zero-order hold: unstable on damping-dominated "
                           "modes once |D_hat - K_d| > D)")]
     fns += diagram_functions(d, steps, "Theorem 10 continuous-time closed-loop")
-    fns.append(Generated(sctl, "one sample of Theorem 10, linearly "
-                         "implicit: tau solved so that the law holds at the predicted end of "
-                         "the sample (M = B + dt D + dt^2 K nominal); u_next = A tau"))
-    fns += diagram_functions(ds, steps, "Theorem 10 sampled (controller + plant)")
+    fns.append(Generated(sctl, "one sample of Theorem 10, linearly implicit, its predictor "
+                         "identified online: RLS of the (mass, stiffness, damping) factors "
+                         "s on the implicit-Euler balance, M = s_m B + dt s_d D + dt^2 s_k K "
+                         "and the model's balance force; pi_hat adapted on the mean "
+                         "velocity after 20 samples; u_next = A tau"))
+    fns += diagram_functions(ds, steps, "Theorem 10 sampled, identified (controller + "
+                                        "plant)")
     return Part(fns, {
         "closed_loops": {"theorem10": diagram_manifest(d, steps),
-                         "theorem10_sampled": diagram_manifest(ds, steps)},
+                         "theorem10_identified": diagram_manifest(ds, steps)},
         "soft": {
             "theorem10": {"step": ctl.name(), "inputs": ctl.name_in(),
                           "outputs": ctl.name_out(),
                           "state_layout": [nm for nm in ctl.name_in() if nm == "pi_hat"]},
-            "theorem10_sampled": {"step": sctl.name(), "inputs": sctl.name_in(),
-                                  "outputs": sctl.name_out(),
-                                  "state_layout": ["pi_hat", "u_prev"],
-                                  "loop": ds.name},
+            "theorem10_identified": {"step": sctl.name(), "inputs": sctl.name_in(),
+                                     "outputs": sctl.name_out(),
+                                     "state_layout": list(IDENTIFIED_STATE),
+                                     "loop": ds.name},
             # The closed loop is now a diagram (closed_loops.theorem10 has its layouts);
             # this entry keeps the keys earlier readers used.
             "closed_loop": {"step": step.name(), "loop": d.loop_fun(steps).name(),

@@ -14,8 +14,10 @@ def add_arguments(p) -> None:
     p.add_argument("--lam", type=float, nargs="+", default=[5.0],
                    help="Lambda = lam I (several values: one verdict each)")
     p.add_argument("--law", nargs="+", default=["zoh", "implicit"],
-                   help="zoh (tau held, softgen.control.soft) and/or implicit "
-                        "(softgen.control.soft_sampled); default both")
+                   help="zoh (tau held, softgen.control.soft), implicit "
+                        "(softgen.control.soft_sampled) and/or identified (its predictor "
+                        "identified online, softgen.control.soft_identified); default zoh "
+                        "implicit")
     p.add_argument("--d-scale", type=float, default=1.0,
                    help="scale of the implicit step's predictor damping (a wrong model)")
     p.add_argument("--plant-scale", nargs="+", default=None, metavar="NAME=FACTOR",

@@ -64,10 +64,10 @@ A plant off the predictor's model (issue 32)
     without adaptation this step tracks the lightly damped plants as the continuous loop
     does, so what fails there is the start: the balance with the last force (none
     before the first sample) kicks a plant whose slowest mode is underdamped, and Yᵀσ
-    read at the sampled q̇ aliases its fast modes. The three factors identified online,
-    the balance taken from that model and the adaptation on the sample's mean velocity
-    track 24 of 29; the stiff, lightly damped plants (stiffness ×3, damping ×0.01) stay
-    open (issue 32).
+    read at the sampled q̇ aliases its fast modes. The law that covers the grid is
+    :mod:`softgen.control.soft_identified`: the three factors identified online, the
+    balance taken from that model, the adaptation on the sample's mean velocity and
+    gated while the factors are learnt (``ext-sampled-soft`` states its count).
     ``predictor`` (:class:`ModelScale`) builds the law on a predictor off the model
     file; the check and the blocks take the plant off it (:class:`ScaledPlant`,
     :func:`scaled_plant_block`, :func:`scaled_closed_loop_block`, a runtime parameter:
@@ -220,6 +220,46 @@ def _law(dyn: SoftDynamics, lin: LinearRoute, pi_hat, q, qd, q_d, qd_d, qdd_d, l
     return tau0, sigma, yt_s
 
 
+def predictor_terms(dyn: SoftDynamics, q, chain: bool):
+    """The model file's B(q), K, D and actuation blocks A_i(q) at the symbols ``q``: what
+    the predictor M = B + h D + h² K is made of (``chain``: B and A_i from the recursive
+    pass, :func:`~softgen.control.soft._chain_applies`)."""
+    b, n = dyn.nominal, dyn.model.dof
+    sub = lambda e: ca.substitute(e, b.q, q)        # noqa: E731
+    if chain:      # square A_i (P = I), closed-form A_i and B from the one pass
+        ct = chain_terms(b, q, ca.SX.zeros(n))
+        B = inertia_from_blocks(ct.J, [m for m, _ in b.mass_points])
+        blocks = ct.A
+    else:
+        B = sub(b.inertia_pm())
+        blocks = [sub(A) for A in b.actuation_blocks()]
+    return B, sub(b._quadratic_form("k")), sub(b._quadratic_form("d")), blocks
+
+
+def implicit_torque(tau0, sigma, q, qd, kd, h, M, u_last, blocks, chain: bool):
+    """(u_next = P τ*, τ) of the linearly implicit step (module docstring).
+
+    τ* = τ_e + h J w with (M − h P J) w = P τ_e − u_last, τ_e = τ⁰ + h J_q q̇: the law
+    τ⁰ (with σ and the gain K_d) holding at the end of the sample predicted by one
+    implicit-Euler step of the predictor M, the plant taken in balance with ``u_last``."""
+    # K_d σ is linear in (q, q̇) and is evaluated at the predicted end state exactly;
+    # Y π̂ is linearised in q̇ only (its damping, Coriolis and B̂ Λ terms: the fast
+    # ones). Its q-dependence (gravity, elasticity) stays explicit: h K̂ ≪ D, and its
+    # Jacobian would double the 3D step's code (60k instructions measured).
+    J_q = ca.jacobian(kd * sigma, q)
+    J = ca.jacobian(tau0, qd) + h * J_q
+    P = _projector(blocks)
+    # With w = M⁻¹ (P τ* − u_last) (so Δq̇ = h w), τ* = τ_e + h J w, τ_e = τ⁰ + h J_q q̇,
+    # and M w = P τ_e + h P J w − u_last: one n × n solve instead of inverting M.
+    tau_e = tau0 + h * ca.mtimes(J_q, qd)
+    w = ca.solve(M - h * ca.mtimes(P, J), ca.mtimes(P, tau_e) - u_last)
+    tau_star = tau_e + h * ca.mtimes(J, w)
+    tau = ca.vertcat(*[ca.mtimes(_inv3(A_i), tau_star[3 * i:3 * i + 3])
+                       for i, A_i in enumerate(blocks)]) if chain else \
+        apply_pinv(blocks, tau_star)
+    return ca.mtimes(P, tau_star), tau
+
+
 def sampled_theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
                           d_scale: float = 1.0, route: str = "auto",
                           predictor: ModelScale | None = None) -> ca.Function:
@@ -251,40 +291,17 @@ def sampled_theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
                                         ("q", "qd", "q_d", "qd_d", "qdd_d", "lam", "kd"))
     h = ca.SX.sym("dt")
     tau0, sigma, yt_s = _law(dyn, lin, pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd, chain)
-    # K_d σ is linear in (q, q̇) and is evaluated at the predicted end state exactly;
-    # Y π̂ is linearised in q̇ only (its damping, Coriolis and B̂ Λ terms: the fast
-    # ones). Its q-dependence (gravity, elasticity) stays explicit: h K̂ ≪ D, and its
-    # Jacobian would double the 3D step's code (60k instructions measured).
-    J_q = ca.jacobian(kd * sigma, q)
-    J = ca.jacobian(tau0, qd) + h * J_q
-    sub = lambda e: ca.substitute(e, b.q, q)        # noqa: E731
-    if chain:      # square A_i (P = I), closed-form A_i and B from the one pass
-        ct = chain_terms(b, q, ca.SX.zeros(n))
-        B = inertia_from_blocks(ct.J, [m for m, _ in b.mass_points])
-        blocks = ct.A
-    else:
-        B = sub(b.inertia_pm())
-        blocks = [sub(A) for A in b.actuation_blocks()]
     if not (predictor is None or isinstance(predictor, ModelScale)):
         raise ValueError(f"predictor: expected a ModelScale or None, got {predictor!r}")
+    B, K, D, blocks = predictor_terms(dyn, q, chain)
     s_m, s_k, s_d = (predictor or ModelScale()).array()
-    K = sub(b._quadratic_form("k"))
-    D = d_scale * sub(b._quadratic_form("d"))
+    D = d_scale * D
     # Only a factor other than 1 enters the expressions (the generated C of the model
     # file's own predictor stays byte-identical).
     B, K, D = (B if s_m == 1 else s_m * B, K if s_k == 1 else s_k * K,
                D if s_d == 1 else s_d * D)
-    P = _projector(blocks)
-    M = B + h * D + h * h * K
-    # With w = M⁻¹ (P τ* − u_prev) (so Δq̇ = h w), τ* = τ_e + h J w, τ_e = τ⁰ + h J_q q̇,
-    # and M w = P τ_e + h P J w − u_prev: one n × n solve instead of inverting M.
-    tau_e = tau0 + h * ca.mtimes(J_q, qd)
-    w = ca.solve(M - h * ca.mtimes(P, J), ca.mtimes(P, tau_e) - u_prev)
-    tau_star = tau_e + h * ca.mtimes(J, w)
-    u_next = ca.mtimes(P, tau_star)
-    tau = ca.vertcat(*[ca.mtimes(_inv3(A_i), tau_star[3 * i:3 * i + 3])
-                       for i, A_i in enumerate(blocks)]) if chain else \
-        apply_pinv(blocks, tau_star)
+    u_next, tau = implicit_torque(tau0, sigma, q, qd, kd, h, B + h * D + h * h * K, u_prev,
+                                  blocks, chain)
     return ca.Function(f"{dyn.name}_theorem10_sampled_step",
                        [pi_hat, u_prev, q, qd, q_d, qd_d, qdd_d, lam, kd, kpi, h],
                        [pi_hat + h * kpi * yt_s, u_next, tau, sigma],
@@ -479,6 +496,9 @@ class Verdict:
     d_scale: float = 1.0
     plant_scale: ModelScale = ModelScale()
     predictor: ModelScale | None = None
+    # The identified law (:mod:`softgen.control.soft_identified`): rho_zero / rho_true are
+    # at the learnt factors, this at π̂ = 0 and the factors the identification starts from.
+    rho_initial: float = float("nan")
 
     @property
     def stable(self) -> bool:
@@ -512,7 +532,10 @@ class Verdict:
             f", plant {self.plant_scale.text()}"
         return (f"{self.model}: {self.law} dt={self.dt:g} s lam={self.lam:g} kd={self.kd:g}"
                 f"{worse}{plant}: {self.word} (spectral radius {self.rho_zero:.4g} at "
-                f"pi_hat=0, {self.rho_true:.4g} at pi_hat=pi; continuous loop "
+                f"pi_hat=0, {self.rho_true:.4g} at pi_hat=pi"
+                + ("" if math.isnan(self.rho_initial) else
+                   f" with the learnt factors, {self.rho_initial:.6g} at the starting ones")
+                + "; continuous loop "
                 f"{self.rho_cont_zero:.4g}, {self.rho_cont_true:.4g})")
 
 
@@ -528,12 +551,16 @@ class Checker:
         self._jac: dict[tuple[str, float], ca.Function] = {}
         self._cont: ca.Function | None = None
 
-    def jacobian(self, law: str, d_scale: float = 1.0) -> ca.Function:
-        key = (law, d_scale)
+    def cached(self, key: tuple[str, float], make) -> ca.Function:
+        """The transition-matrix Function under ``key`` (law, d_scale), made once."""
         if key not in self._jac:
-            self._jac[key] = loop_jacobian(self.dyn, law, self.lin, d_scale=d_scale,
-                                           predictor=self.predictor, plant_scale=True)
+            self._jac[key] = make()
         return self._jac[key]
+
+    def jacobian(self, law: str, d_scale: float = 1.0) -> ca.Function:
+        return self.cached((law, d_scale), lambda: loop_jacobian(
+            self.dyn, law, self.lin, d_scale=d_scale, predictor=self.predictor,
+            plant_scale=True))
 
     def radius_continuous(self, dt: float, lam: float, kd: float, pi_hat,
                           plant_scale: ModelScale | None = None) -> float:
