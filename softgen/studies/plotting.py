@@ -147,13 +147,24 @@ def _segments(ax) -> np.ndarray:
 
 
 def _crossing(seg: np.ndarray, box) -> int:
-    """How many segments (x0, y0, x1, y1) meet the rectangle ``box`` (Liang-Barsky)."""
+    """How many segments (x0, y0, x1, y1) meet the rectangle ``box`` (Liang-Barsky).
+
+    Segments whose bounding box misses ``box`` grown by one display unit are dropped
+    first (most of a trace lies outside a legend), so the clipping runs on the few that
+    may meet it; the margin keeps every segment the clipping alone would count, rounding
+    included."""
     if not len(seg):
         return 0
     x0, y0, x1, y1 = seg.T
+    near = ((np.minimum(x0, x1) <= box.x1 + 1.0) & (np.maximum(x0, x1) >= box.x0 - 1.0)
+            & (np.minimum(y0, y1) <= box.y1 + 1.0) & (np.maximum(y0, y1) >= box.y0 - 1.0))
+    if not near.any():
+        return 0
+    x0, y0, x1, y1 = seg[near].T
     dx, dy = x1 - x0, y1 - y0
-    t0, t1 = np.zeros(len(seg)), np.ones(len(seg))
-    ok = np.ones(len(seg), dtype=bool)
+    k = len(x0)
+    t0, t1 = np.zeros(k), np.ones(k)
+    ok = np.ones(k, dtype=bool)
     for p, q in ((-dx, x0 - box.x0), (dx, box.x1 - x0), (-dy, y0 - box.y0), (dy, box.y1 - y0)):
         par = p == 0
         ok &= ~(par & (q < 0))
@@ -171,46 +182,60 @@ def _renderer(fig: Figure):
     return fig.canvas.get_renderer()
 
 
+def _axes_segments(fig: Figure, r) -> list:
+    """``(window box, segments)`` of every rectilinear axes of ``fig``: what legends are
+    checked against (unchanged while legends move, so computed once per layout)."""
+    return [(a.get_window_extent(r), _segments(a)) for a in fig.axes if a.name == "rectilinear"]
+
+
+def _legend_covers(leg, axes, r) -> int:
+    """Segments of ``axes`` (:func:`_axes_segments`) that legend ``leg`` covers."""
+    from matplotlib.transforms import Bbox
+    box = leg.get_window_extent(r)
+    n = 0
+    for abox, seg in axes:
+        both = Bbox.intersection(box, abox)
+        if both is not None and both.width > 0 and both.height > 0:
+            n += _crossing(seg, both)
+    return n
+
+
 def covered(fig: Figure) -> dict:
     """``{legend: segments of data it covers}`` over every legend of ``fig`` (axes and
     figure legends) against every axes' lines and markers, in display coordinates; only
     the part of a segment inside its axes counts (the rest is clipped, not drawn)."""
-    from matplotlib.transforms import Bbox
     r = _renderer(fig)
-    axes = [(a.get_window_extent(r), _segments(a)) for a in fig.axes
-            if a.name == "rectilinear"]
+    axes = _axes_segments(fig, r)
     legends = [a.get_legend() for a in fig.axes if a.get_legend() is not None] + fig.legends
-    out = {}
-    for leg in legends:
-        box = leg.get_window_extent(r)
-        n = 0
-        for abox, seg in axes:
-            both = Bbox.intersection(box, abox)
-            if both is not None and both.width > 0 and both.height > 0:
-                n += _crossing(seg, both)
-        out[leg] = n
-    return out
+    return {leg: _legend_covers(leg, axes, r) for leg in legends}
 
 
 _INSIDE = ("upper right", "upper left", "lower right", "lower left", "center right",
            "center left", "upper center", "lower center")
 
 
-def place_legends(fig: Figure) -> None:
+def place_legends(fig: Figure) -> dict | None:
     """Move every axes legend that covers data to a corner of its axes where it covers
     none, else into a strip below the figure (the figure grows by its height): a legend
-    never hides data (issue 32)."""
-    bad = [leg for leg, n in covered(fig).items() if n and leg.axes is not None]
+    never hides data (issue 32). Returns :func:`covered` of the result when the layout
+    did not change (no strip), else None."""
+    cover = covered(fig)
+    bad = [leg for leg, n in cover.items() if n and leg.axes is not None]
     strip = []
+    # The axes' segments do not move with a legend: computed once, each trial position
+    # of a legend is checked against them (was every legend against every axes per trial).
+    r = _renderer(fig)
+    axes = _axes_segments(fig, r) if bad else []
     for leg in bad:
         for loc in _INSIDE:
             leg.set_loc(loc)
-            if covered(fig)[leg] == 0:
+            cover[leg] = _legend_covers(leg, axes, r)
+            if cover[leg] == 0:
                 break
         else:
             strip.append(leg)
     if not strip:
-        return
+        return cover
     handles, labels = [], []
     for leg in strip:
         ax = leg.axes
@@ -227,12 +252,14 @@ def place_legends(fig: Figure) -> None:
     fixed_layout(fig, extra_bottom=extra)
     fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=8, frameon=False,
                bbox_to_anchor=(0.5, 0.0))
+    return None
 
 
-def figure_problems(fig: Figure) -> list[str]:
+def figure_problems(fig: Figure, cover: dict | None = None) -> list[str]:
     """What a reader of ``fig`` cannot read: an axis with data but no label with a unit
     in brackets (:data:`UNIT`; only where its tick labels show: a shared axis without
-    them reads its neighbour's), a legend covering data."""
+    them reads its neighbour's), a legend covering data (``cover``: :func:`covered` of
+    ``fig`` when already known)."""
     out = []
     for k, a in enumerate(fig.axes):
         if not (a.get_lines() or a.collections or a.images):
@@ -250,7 +277,7 @@ def figure_problems(fig: Figure) -> list[str]:
         for name, label in axes:
             if not UNIT.search(label or ""):
                 out.append(f"{where}: {name} axis label {label!r} has no unit in brackets")
-    for leg, n in covered(fig).items():
+    for leg, n in (covered(fig) if cover is None else cover).items():
         if n:
             where = "figure legend" if leg.axes is None else "legend"
             out.append(f"{where} covers {n} data segments")
@@ -265,8 +292,8 @@ def save(fig: Figure, path, dpi: int) -> None:
     unreadable (:func:`figure_problems`) is a :class:`FigureWarning`."""
     fixed_layout(fig)
     thin_ticks(fig)
-    place_legends(fig)
-    for problem in figure_problems(fig):
+    cover = place_legends(fig)
+    for problem in figure_problems(fig, cover):
         warnings.warn(f"figure {getattr(path, 'name', path)}: {problem}", FigureWarning,
                       stacklevel=2)
     with replacing(path) as tmp:
