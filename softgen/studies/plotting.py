@@ -188,10 +188,26 @@ def _axes_segments(fig: Figure, r) -> list:
     return [(a.get_window_extent(r), _segments(a)) for a in fig.axes if a.name == "rectilinear"]
 
 
-def _legend_covers(leg, axes, r) -> int:
-    """Segments of ``axes`` (:func:`_axes_segments`) that legend ``leg`` covers."""
+def _legend_box(leg, r, size=None):
+    """Window extent of legend ``leg``; with ``size`` (its content box from an earlier
+    call, :func:`_legend_size`) only the offset of its current location is computed:
+    what ``Legend.get_window_extent`` does, without laying its texts out again (that
+    layout was most of :func:`place_legends`' cost, one per corner tried)."""
+    if size is None:
+        return leg.get_window_extent(r)
+    return size.translated(*leg._legend_box.get_offset(size, r))
+
+
+def _legend_size(leg, r):
+    """The content box of legend ``leg`` (independent of its location)."""
+    return leg._legend_box.get_bbox(r)
+
+
+def _legend_covers(leg, axes, r, size=None) -> int:
+    """Segments of ``axes`` (:func:`_axes_segments`) that legend ``leg`` covers (``size``:
+    see :func:`_legend_box`)."""
     from matplotlib.transforms import Bbox
-    box = leg.get_window_extent(r)
+    box = _legend_box(leg, r, size)
     n = 0
     for abox, seg in axes:
         both = Bbox.intersection(box, abox)
@@ -227,9 +243,10 @@ def place_legends(fig: Figure) -> dict | None:
     r = _renderer(fig)
     axes = _axes_segments(fig, r) if bad else []
     for leg in bad:
+        size = _legend_size(leg, r)
         for loc in _INSIDE:
             leg.set_loc(loc)
-            cover[leg] = _legend_covers(leg, axes, r)
+            cover[leg] = _legend_covers(leg, axes, r, size)
             if cover[leg] == 0:
                 break
         else:
