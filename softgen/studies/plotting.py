@@ -332,17 +332,26 @@ def envelope(t, y, buckets: int = 1500):
     v = y[:, None] if flat else y.reshape(n, -1)
     m = -(-n // buckets)                 # samples per bucket; the last one padded
     nb = -(-n // m)
-    idx = np.minimum(np.arange(nb * m), n - 1).reshape(nb, m)   # padding repeats the end
-    w = v[idx]                                                  # (buckets, m, columns)
-    nan = np.isnan(w)
-    imin = np.argmin(np.where(nan, np.inf, w), axis=1)[:, None, :]
-    imax = np.argmax(np.where(nan, -np.inf, w), axis=1)[:, None, :]
+    pad = nb * m - n                     # padding repeats the end
+    w = (v if not pad else np.concatenate([v, np.repeat(v[-1:], pad, axis=0)])
+         ).reshape(nb, m, v.shape[1])    # (buckets, m, columns)
+    # argmin/argmax return a bucket's first NaN if it holds one: only then are the NaNs
+    # masked (rare; the masking was a third of the time on NaN-free traces).
+    imin = np.argmin(w, axis=1)[:, None, :]
+    imax = np.argmax(w, axis=1)[:, None, :]
     vmin = np.take_along_axis(w, imin, axis=1)[:, 0]
     vmax = np.take_along_axis(w, imax, axis=1)[:, 0]
+    if np.isnan(vmin).any() or np.isnan(vmax).any():
+        nan = np.isnan(w)
+        imin = np.argmin(np.where(nan, np.inf, w), axis=1)[:, None, :]
+        imax = np.argmax(np.where(nan, -np.inf, w), axis=1)[:, None, :]
+        vmin = np.take_along_axis(w, imin, axis=1)[:, 0]
+        vmax = np.take_along_axis(w, imax, axis=1)[:, 0]
     first_min = imin[:, 0] <= imax[:, 0]     # the extremes in their time order
     a = np.where(first_min, vmin, vmax)
     b = np.where(first_min, vmax, vmin)
-    lo, hi = idx[:, 0], idx[:, -1]
+    lo = np.arange(nb) * m
+    hi = np.minimum(lo + m - 1, n - 1)
     ty = np.stack([t[lo], t[lo] + (t[hi] - t[lo]) / 3, t[lo] + 2 * (t[hi] - t[lo]) / 3, t[hi]],
                   axis=1).reshape(-1)
     out = np.stack([v[lo], a, b, v[hi]], axis=1).reshape(-1, v.shape[1])
