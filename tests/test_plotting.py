@@ -171,3 +171,17 @@ def test_a_legend_moved_by_offset_has_the_extent_matplotlib_lays_out(seed):
             leg.set_loc(loc)
             np.testing.assert_array_equal(_legend_box(leg, r, size).get_points(),
                                           leg.get_window_extent(r).get_points())
+
+
+def test_saved_png_has_the_pixels_of_matplotlibs_default_encoding(tmp_path):
+    """save's zlib level (PNG_LEVEL) changes the encoding's cost, not the image."""
+    from PIL import Image
+    fig = Figure(figsize=(4, 3))
+    ax = fig.subplots()
+    ax.plot(np.sin(np.linspace(0, 20, 5000)), label="sin")
+    ax.set_xlabel("sample [1]")
+    ax.set_ylabel("y [m]")
+    save(fig, tmp_path / "a.png", dpi=80)
+    fig.savefig(tmp_path / "b.png", dpi=80, format="png")
+    a, b = (np.asarray(Image.open(tmp_path / n)) for n in ("a.png", "b.png"))
+    np.testing.assert_array_equal(a, b)
