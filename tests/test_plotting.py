@@ -148,3 +148,40 @@ def test_a_clipped_line_outside_the_axes_is_not_covered(tmp_path):
     ax.legend(loc="upper left")
     fixed_layout(fig)
     assert covered(fig)[ax.get_legend()] == 0
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_legend_moved_by_offset_has_the_extent_matplotlib_lays_out(seed):
+    """place_legends tries corners from the legend's content box and each corner's offset
+    (no text layout per corner): the box equals matplotlib's own extent at every corner."""
+    from softgen.studies.plotting import _INSIDE, _legend_box, _legend_size, _renderer
+    rng = np.random.default_rng(seed)
+    fig = Figure(figsize=tuple(rng.uniform(3, 9, 2)))
+    ax = fig.subplots(int(rng.integers(1, 3)), 1, squeeze=False)[:, 0]
+    for a in ax:
+        for k in range(int(rng.integers(1, 6))):
+            a.plot(rng.standard_normal(20), label="x" * int(rng.integers(1, 12)) + str(k))
+        a.legend(fontsize=float(rng.uniform(6, 11)), ncol=int(rng.integers(1, 3)))
+    fixed_layout(fig)
+    r = _renderer(fig)
+    for a in ax:
+        leg = a.get_legend()
+        size = _legend_size(leg, r)
+        for loc in _INSIDE:
+            leg.set_loc(loc)
+            np.testing.assert_array_equal(_legend_box(leg, r, size).get_points(),
+                                          leg.get_window_extent(r).get_points())
+
+
+def test_saved_png_has_the_pixels_of_matplotlibs_default_encoding(tmp_path):
+    """save's zlib level (PNG_LEVEL) changes the encoding's cost, not the image."""
+    from PIL import Image
+    fig = Figure(figsize=(4, 3))
+    ax = fig.subplots()
+    ax.plot(np.sin(np.linspace(0, 20, 5000)), label="sin")
+    ax.set_xlabel("sample [1]")
+    ax.set_ylabel("y [m]")
+    save(fig, tmp_path / "a.png", dpi=80)
+    fig.savefig(tmp_path / "b.png", dpi=80, format="png")
+    a, b = (np.asarray(Image.open(tmp_path / n)) for n in ("a.png", "b.png"))
+    np.testing.assert_array_equal(a, b)

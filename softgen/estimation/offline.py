@@ -86,9 +86,10 @@ def estimation_result(est: EstimatorBase, trace, name: str = "est", *,
     def shift(v, fill):
         v = np.asarray(v, dtype=float)
         K = v.shape[0] if samples is None else samples
-        out = np.full((K, v.shape[1]), fill)
+        out = np.empty((K, v.shape[1]))        # each row written once (no fill pass)
         n = max(min(v.shape[0], K) - L, 0)
         out[:n] = v[L:L + n]
+        out[n:] = fill
         return out
 
     th = shift(trace[f"{name}.theta"], np.nan)

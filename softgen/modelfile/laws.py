@@ -288,22 +288,23 @@ def spring_pair_properties(a: ActuatorLaw, b: ActuatorLaw) -> PairProperties | N
     fa, fb = a.derivatives, b.derivatives
     rb = pb.monotone_range
     lo_b, hi_b = float(fb(-rb)[0]), float(fb(rb)[0])
-    sig = []
-    for phi_a in np.linspace(0.0, pa.monotone_range, 41):
-        ta, sa = (float(v) for v in fa(phi_a)[:2])
-        target = -ta                            # τ_a + τ_b = 0
-        if not lo_b <= target <= hi_b:
-            break
-        x0, x1 = -rb, rb
-        for _ in range(80):                     # bisection: τ_b is increasing on ±rb
-            xm = 0.5 * (x0 + x1)
-            if float(fb(xm)[0]) < target:
-                x0 = xm
-            else:
-                x1 = xm
-        sig.append(sa + float(fb(0.5 * (x0 + x1))[1]))
-    if not sig:
+    # Every φ_a at once (one mapped call per bisection step rather than one call per
+    # φ_a and step): the φ_a up to the first whose target τ_b is out of reach.
+    phi_a = np.linspace(0.0, pa.monotone_range, 41)
+    ta, sa = (np.array(v).ravel() for v in fa.map(len(phi_a))(phi_a[None, :])[:2])
+    target = -ta                                # τ_a + τ_b = 0
+    reach = (lo_b <= target) & (target <= hi_b)
+    k = len(phi_a) if reach.all() else int(np.argmin(reach))
+    if k == 0:
         return None
+    target, sa = target[:k], sa[:k]
+    fbk = fb.map(k)
+    x0, x1 = np.full(k, -rb), np.full(k, rb)
+    for _ in range(80):                         # bisection: τ_b is increasing on ±rb
+        xm = 0.5 * (x0 + x1)
+        below = np.array(fbk(xm[None, :])[0]).ravel() < target
+        x0, x1 = np.where(below, xm, x0), np.where(below, x1, xm)
+    sig = sa + np.array(fbk((0.5 * (x0 + x1))[None, :])[1]).ravel()
     return PairProperties(float(min(sig)), float(max(sig)),
                           "deflection range (deflection_max, monotone range of the laws)")
 

@@ -26,6 +26,7 @@ from softgen.blocks.sensors import encoder_block, noise_block
 from softgen.modelfile.model import RobotModel
 from softgen.symbolic.actuators import QbmoveSprings
 from softgen.symbolic.rigid import RigidDynamics
+from softgen.symbolic.samplewise import samplewise
 
 
 def sinusoid(t, offset: float, amplitude: float, omega: float):
@@ -67,8 +68,7 @@ def motor_references(model: RobotModel, q_d, qd_d, qdd_d, sigma_d) -> np.ndarray
     """(K, 2n) motor position references for link references (n, K) and σ_d (n, K)."""
     springs = QbmoveSprings(model)
     h = RigidDynamics(model).inverse_dynamics_fun()
-    K = q_d.shape[1]
-    tau_link = np.array(h.map(K)(q_d, qd_d, qd_d, qdd_d))     # B q̈ + C q̇ + G (+ D q̇)
+    tau_link = samplewise(h, q_d, qd_d, qd_d, qdd_d)[0]     # B q̈ + C q̇ + G (+ D q̇)
     phi_a, phi_b = springs.preset(-tau_link.T, np.asarray(sigma_d).T)   # (K, n) each
     return np.hstack([q_d.T - phi_a, q_d.T - phi_b])
 

@@ -31,6 +31,7 @@ from softgen.studies.scenario import Scenario
 from softgen.symbolic.actuated import QBMOVE_STATE, electric_plant_block, servo_plant_block
 from softgen.symbolic.actuators import QbmoveSprings
 from softgen.symbolic.rigid import RigidDynamics
+from softgen.symbolic.samplewise import samplewise
 
 
 @dataclass
@@ -56,7 +57,7 @@ def qbmove_truth(model: RobotModel, x: Mapping[str, np.ndarray], spring_scale) -
     f = QbmoveSprings(model).functions()[0][0]
     q, qd, qa, qad, qb, qbd = (np.asarray(x[s]) for s in
                                ("q", "qd", "qa", "qad", "qb", "qbd"))
-    ta, tb, _, sa, sb, _ = (np.array(v).T for v in f.map(q.shape[0])(q.T, qa.T, qb.T))
+    ta, tb, _, sa, sb, _ = (v.T for v in samplewise(f, q.T, qa.T, qb.T))
     scale = np.broadcast_to(np.asarray(spring_scale, dtype=float), (q.shape[0], 2 * n))
     sca, scb = scale[:, :n], scale[:, n:]
     za, zb = (np.asarray(x[s]) if s in x else np.zeros_like(q) for s in ("za", "zb"))
