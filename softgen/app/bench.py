@@ -41,7 +41,7 @@ import numpy as np
 
 from softgen.blocks import ClosedLoop
 from softgen.bundles.bundle import BundleOptions, bundle_spec, capabilities, load_bundle
-from softgen.codegen.build import (CFLAGS, LDLIBS, build, cflags, ensure_library,
+from softgen.codegen.build import (CFLAGS, LDLIBS, build, build_level, cflags, ensure_library,
                                    find_compiler, read_manifest)
 from softgen.codegen.generate import render, write_bundle
 from softgen.control.references import SmoothSteps, Sinusoid, sinusoid_block, \
@@ -453,7 +453,7 @@ def _bench_functions(out: dict, model, spec, files, *, calls, flags, stream, pyt
         built = secs > 0
         out["build_cpu_seconds"] = clock.seconds() if built else None
         level = read_manifest(bundle_dir).get("optimization", "-O3")
-        lib_flags = [*cflags(level), *LDLIBS]
+        lib_flags = [*cflags(build_level(level)), *LDLIBS]   # as compiled
         out["flags"] = list(flags) if flags else lib_flags
         print(f"  library {'built in ' + format(out['build_cpu_seconds'], '.2f') + ' CPU-s' if built else 'cached (built earlier)'}; "
               f"C timings (thread CPU clock) with {' '.join(out['flags'])}"

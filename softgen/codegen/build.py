@@ -52,14 +52,32 @@ CFLAGS = ("-O3", "-fPIC", "-shared", "-fno-math-errno", "-fno-semantic-interposi
 #: gcc takes 6.2 s instead of 16.1 s and the code is no slower (11.2 vs 17.3 ms per
 #: 1000 samples), which matters because those loops are compiled on first use.
 OPT_LEVELS = ("-O1", "-O2", "-O3")
+#: ``SOFTGEN_BUILD_LEVEL``: the level every generated library is compiled at instead of
+#: its manifest's, for quick builds (development, the test suite): gcc takes 2.0 CPU-s
+#: at -O0 against 5.6 at -O3 on planar_2link.c (issue 34: the default test suite within
+#: 150 CPU-s). The library is then named with its level (``lib<model>_<hash>.O0.so``)
+#: and its record lists its flags, so it is never loaded as the bundle's own build.
+BUILD_LEVEL_ENV = "SOFTGEN_BUILD_LEVEL"
+BUILD_LEVELS = ("-O0", *OPT_LEVELS)
 
 
 def cflags(optimization: str = "-O3") -> tuple[str, ...]:
-    """The compiler flags for ``optimization`` (one of :data:`OPT_LEVELS`)."""
-    if optimization not in OPT_LEVELS:
+    """The compiler flags for ``optimization`` (one of :data:`OPT_LEVELS`, or -O0 for
+    :func:`build_level`)."""
+    if optimization not in BUILD_LEVELS:
         raise ValueError(f"optimization: expected one of {', '.join(OPT_LEVELS)}, got "
                          f"{optimization!r}")
     return (optimization, *CFLAGS[1:])
+
+
+def build_level(optimization: str = "-O3") -> str:
+    """The level a library asked at ``optimization`` is compiled at: ``$SOFTGEN_BUILD_LEVEL``
+    when set (one of :data:`BUILD_LEVELS`), else ``optimization``."""
+    level = os.environ.get(BUILD_LEVEL_ENV) or optimization
+    if level not in BUILD_LEVELS:
+        raise BuildError(f"{BUILD_LEVEL_ENV}={level!r}: expected one of "
+                         f"{', '.join(BUILD_LEVELS)}")
+    return level
 LDLIBS = ("-lm",)   # gcc merges sin and cos into sincos: the library must link libm
 
 
@@ -186,11 +204,24 @@ def check_source(bundle: Path, manifest: dict) -> Path:
 def library_path(bundle: Path, manifest: dict) -> Path:
     """Where the bundle's compiled library lives: ``<bundle>/build/…``, or, when the
     bundle directory is read-only (an installed package), the same name under the
-    user cache (``softgen.core.paths.cache_dir``)."""
-    local = Path(bundle) / manifest["library"]
+    user cache (``softgen.core.paths.cache_dir``). Built at another level than the
+    manifest's (:func:`build_level`), its name carries that level."""
+    local = Path(bundle) / _leveled(manifest)
     if local.exists() or writable(local.parent):
         return local
-    return cache_dir() / "bundles" / manifest["model"] / manifest["library"]
+    return cache_dir() / "bundles" / manifest["model"] / _leveled(manifest)
+
+
+def _level(manifest: dict) -> str:
+    return build_level(manifest.get("optimization", "-O3"))
+
+
+def _leveled(manifest: dict) -> str:
+    """The manifest's library name, with the level when :func:`build_level` changes it."""
+    name, level = manifest["library"], _level(manifest)
+    if level == manifest.get("optimization", "-O3"):
+        return name
+    return f"{name.removesuffix('.so')}.{level[1:]}.so"
 
 
 def recorded_build_seconds(lib: Path) -> float | None:
@@ -236,6 +267,9 @@ def verify_library(lib: Path, manifest: dict) -> str | None:
         return f"unreadable build record {rec_path.name}"
     if source != manifest.get("source_sha256"):
         return "built from another C source than the manifest's source_sha256"
+    flags = rec.get("cflags")
+    if flags is not None and flags != list(cflags(_level(manifest)) + LDLIBS):
+        return f"built with other flags ({' '.join(map(str, flags))})"
     actual = lib.stat().st_size
     if actual != size:
         return f"size {actual} bytes, recorded {size} (truncated or replaced)"
@@ -248,7 +282,7 @@ def _write_record(lib: Path, manifest: dict, seconds: float | None = None) -> No
     data = json.dumps({"library": lib.name, "size": lib.stat().st_size,
                        "sha256": _sha256_file(lib),
                        "source_sha256": manifest["source_sha256"],
-                       "cflags": list(cflags(manifest.get("optimization", "-O3")) + LDLIBS),
+                       "cflags": list(cflags(_level(manifest)) + LDLIBS),
                        "build_seconds": seconds}, indent=1) + "\n"
     fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.{os.getpid()}.",
                                suffix=".json.tmp")
@@ -322,6 +356,13 @@ def build(bundle: Path, *, cc: str | None = None, force: bool = False) -> tuple[
     return lib, seconds
 
 
+def _tag(lib: Path) -> str:
+    """The level a library's name carries (``.O0`` of ``lib<m>_<hash>.O0.so``), or ''."""
+    stem = lib.name.removesuffix(".so")
+    tag = stem[stem.rfind("."):] if "." in stem else ""
+    return tag if tag[1:] in {lv[1:] for lv in BUILD_LEVELS} else ""
+
+
 def ensure_library(bundle: Path, *, cc: str | None = None,
                    force: bool = False) -> tuple[Path, float, str | None]:
     """:func:`build`, also saying why a cached library was rebuilt.
@@ -351,8 +392,7 @@ def ensure_library(bundle: Path, *, cc: str | None = None,
                                    suffix=".so")
         os.close(fd)
         try:
-            seconds = compile_shared(c_file, Path(tmp), cc=cc,
-                                     optimization=manifest.get("optimization", "-O3"))
+            seconds = compile_shared(c_file, Path(tmp), cc=cc, optimization=_level(manifest))
             # Replace, never overwrite in place: a process that has the old file mapped
             # keeps its (unlinked) copy instead of seeing its pages change under it.
             where = lib
@@ -367,9 +407,10 @@ def ensure_library(bundle: Path, *, cc: str | None = None,
         if isinstance(exc, SoftgenError):
             raise
         raise output_error(where, exc) from None
-    # Old libraries of this bundle are stale by construction (other hash): remove them.
+    # Old libraries of this bundle at this level are stale by construction (other hash):
+    # remove them (those of other levels stay: SOFTGEN_BUILD_LEVEL may be set again).
     for old in lib.parent.glob(f"lib{manifest['model']}_*.so"):
-        if old != lib:
+        if old != lib and _tag(old) == _tag(lib):
             old.unlink(missing_ok=True)
             record_path(old).unlink(missing_ok=True)
     return lib, seconds, (problem if problem not in (None, "missing") else None)

@@ -40,7 +40,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from softgen.bundles.bundle import check_model_unchanged, generate
-from softgen.codegen.build import check_source, compiler_reason, find_compiler, read_manifest
+from softgen.codegen.build import (build_level, check_source, compiler_reason, find_compiler,
+                                   read_manifest)
 from softgen.codegen.generate import BundleSpec, Generated
 from softgen.codegen.generate import render as render_bundle
 from softgen.core import children
@@ -394,12 +395,14 @@ def build_project(out: Path, model: str, compiler: str) -> tuple[float, Path]:
     """Build an exported project with its Makefile; return (seconds, example binary)."""
     make = shutil.which("make")
     t0 = time.perf_counter()
+    # The Makefile's -O2, or $SOFTGEN_BUILD_LEVEL (codegen.build.build_level) when set.
+    level = build_level("-O2")
     if make:
         # make runs in the project folder (cwd): "-C out" on top of it made any relative
         # --out fail (issue 36).
-        cmds = [[make, f"CC={compiler}"]]
+        cmds = [[make, f"CC={compiler}", *([f"CFLAGS={level}"] if level != "-O2" else [])]]
     else:   # the Makefile's commands, without make
-        flags = [compiler, "-std=c99", "-ffp-contract=off", "-O2"]
+        flags = [compiler, "-std=c99", "-ffp-contract=off", level]
         objs = [f"{model}.o", f"{model}_api.o", f"{model}_loop.o", f"{model}_loop_api.o",
                 "main.o"]
         cmds = [[*flags, "-c", "-o", o, o[:-2] + ".c"] for o in objs]
