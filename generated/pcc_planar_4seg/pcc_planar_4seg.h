@@ -283,10 +283,10 @@ const casadi_int* pcc_planar_4seg_theorem10_closed_step_sparsity_in(casadi_int i
 const casadi_int* pcc_planar_4seg_theorem10_closed_step_sparsity_out(casadi_int i);
 int pcc_planar_4seg_theorem10_closed_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int pcc_planar_4seg_theorem10_closed_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pcc_planar_4seg_theorem10_closed_step_SZ_ARG 4
-#define pcc_planar_4seg_theorem10_closed_step_SZ_RES 2
+#define pcc_planar_4seg_theorem10_closed_step_SZ_ARG 23
+#define pcc_planar_4seg_theorem10_closed_step_SZ_RES 8
 #define pcc_planar_4seg_theorem10_closed_step_SZ_IW 0
-#define pcc_planar_4seg_theorem10_closed_step_SZ_W 0
+#define pcc_planar_4seg_theorem10_closed_step_SZ_W 670
 int pcc_planar_4seg_theorem10_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_theorem10_closed_loop_checkout(void);
 void pcc_planar_4seg_theorem10_closed_loop_release(int mem);
@@ -301,10 +301,10 @@ const casadi_int* pcc_planar_4seg_theorem10_closed_loop_sparsity_in(casadi_int i
 const casadi_int* pcc_planar_4seg_theorem10_closed_loop_sparsity_out(casadi_int i);
 int pcc_planar_4seg_theorem10_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int pcc_planar_4seg_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define pcc_planar_4seg_theorem10_closed_loop_SZ_ARG 41
-#define pcc_planar_4seg_theorem10_closed_loop_SZ_RES 26
+#define pcc_planar_4seg_theorem10_closed_loop_SZ_ARG 60
+#define pcc_planar_4seg_theorem10_closed_loop_SZ_RES 32
 #define pcc_planar_4seg_theorem10_closed_loop_SZ_IW 0
-#define pcc_planar_4seg_theorem10_closed_loop_SZ_W 411053
+#define pcc_planar_4seg_theorem10_closed_loop_SZ_W 411403
 int pcc_planar_4seg_theorem10_identified_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_theorem10_identified_step_checkout(void);
 void pcc_planar_4seg_theorem10_identified_step_release(int mem);

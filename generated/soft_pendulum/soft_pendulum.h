@@ -283,10 +283,10 @@ const casadi_int* soft_pendulum_theorem10_closed_step_sparsity_in(casadi_int i);
 const casadi_int* soft_pendulum_theorem10_closed_step_sparsity_out(casadi_int i);
 int soft_pendulum_theorem10_closed_step_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int soft_pendulum_theorem10_closed_step_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define soft_pendulum_theorem10_closed_step_SZ_ARG 4
-#define soft_pendulum_theorem10_closed_step_SZ_RES 2
+#define soft_pendulum_theorem10_closed_step_SZ_ARG 23
+#define soft_pendulum_theorem10_closed_step_SZ_RES 8
 #define soft_pendulum_theorem10_closed_step_SZ_IW 0
-#define soft_pendulum_theorem10_closed_step_SZ_W 0
+#define soft_pendulum_theorem10_closed_step_SZ_W 405
 int soft_pendulum_theorem10_closed_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int soft_pendulum_theorem10_closed_loop_checkout(void);
 void soft_pendulum_theorem10_closed_loop_release(int mem);
@@ -301,10 +301,10 @@ const casadi_int* soft_pendulum_theorem10_closed_loop_sparsity_in(casadi_int i);
 const casadi_int* soft_pendulum_theorem10_closed_loop_sparsity_out(casadi_int i);
 int soft_pendulum_theorem10_closed_loop_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int soft_pendulum_theorem10_closed_loop_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define soft_pendulum_theorem10_closed_loop_SZ_ARG 41
-#define soft_pendulum_theorem10_closed_loop_SZ_RES 26
+#define soft_pendulum_theorem10_closed_loop_SZ_ARG 60
+#define soft_pendulum_theorem10_closed_loop_SZ_RES 32
 #define soft_pendulum_theorem10_closed_loop_SZ_IW 0
-#define soft_pendulum_theorem10_closed_loop_SZ_W 108433
+#define soft_pendulum_theorem10_closed_loop_SZ_W 108281
 int soft_pendulum_theorem10_identified_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int soft_pendulum_theorem10_identified_step_checkout(void);
 void soft_pendulum_theorem10_identified_step_release(int mem);
