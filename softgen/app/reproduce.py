@@ -584,10 +584,12 @@ class Eta:
         return f", about {left:.0f} s left (whole run about {elapsed + left:.0f} s)"
 
 
-#: Wall seconds per unit of cost hint before any experiment has finished: measured over
-#: two full runs with 2 workers on the shared 2-CPU machine (load 5-8), 261 s and 292 s
-#: of wall for 394.5 units (1.32 and 1.48); first estimates within 30 % of both.
-RHO0 = 1.3
+#: Wall seconds per unit of cost hint before any experiment has finished. The hints are
+#: the CPU seconds of a fresh-clone main job at low load (2026-12-06: 134 s of wall for
+#: 268.9 units on 2 workers, 1.0 per unit); loaded runs took 1.32 and 1.48 (load 5-8,
+#: 2026-12-04). 1.15 keeps the first estimate within 30 % of both; the running estimate
+#: then learns the machine's own from the first experiments that finish.
+RHO0 = 1.15
 
 #: Seconds between two "still running" lines of the whole run's time left.
 ETA_EVERY = 20.0

@@ -265,7 +265,7 @@ CAPTIONS = {
 
 EXPERIMENT = Experiment(
     not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS,
-    cost=6.5,  # CPU s, 2026-12-02 fresh clone (wall of a single-threaded run; issue 25)
+    cost=5.5,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     id="ch10-feedback-linearization",
     title="Feedback linearisation against decoupled adaptive control, 1 % parameter error",
     section="10.4, Fig. 10.14",

@@ -264,9 +264,9 @@ EXPERIMENT_1DOF = Experiment(
     "GioSte", "10.3.2-10.3.4, Fig. 10.6-10.11", run_1dof, OneLinkConfig().check(), QUICK_1DOF,
     discussion=DISCUSSION, findings=findings_1dof, not_in_thesis=NOT_IN_THESIS,
     captions=CAPTIONS_1DOF,
-    cost=31.0)  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
+    cost=13.1)  # CPU s, fresh-clone main job of 2026-12-06, load ~1
 EXPERIMENT_2DOF = Experiment(
     "ch10-gioste-2dof", "Theorem 5 on the emulated two-link GioSte", "10.3.5, Fig. 10.12-10.13",
     run_2dof, TwoLinkConfig().check(), QUICK_2DOF, discussion=DISCUSSION, findings=findings_2dof,
     not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS_2DOF,
-    cost=9.0)  # CPU s, 2026-12-02 fresh clone (wall of a single-threaded run; issue 25)
+    cost=6.8)  # CPU s, fresh-clone main job of 2026-12-06, load ~1

@@ -309,7 +309,7 @@ EXPERIMENT_PD = Experiment(
     captions=CAPTIONS)
 
 EXPERIMENT_ADAPTIVE = Experiment(
-    cost=8.0,  # CPU s, 2026-12-02 fresh clone (wall of a single-threaded run; issue 25)
+    cost=7.2,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     id="ch11-electric-adaptive",
     title="Cascaded adaptive position and stiffness control, electric VSAs",
     section="11.2, Fig. 11.4-11.5",

@@ -305,13 +305,13 @@ def run_3d(c: Soft3DConfig, out: Path) -> Metrics:
 # --------------------------------------------------------------------------- findings
 
 EXPERIMENT_PLANAR = Experiment(
-    cost=8.0,  # CPU s, 2026-12-02 fresh clone (wall of a single-threaded run; issue 25)
+    cost=7.1,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     id="ch12-planar-pcc", title="Theorem 10 on a planar 4-segment PCC soft arm",
     section="12.2.1, Fig. 12.2-12.3", run=run_planar, config=PlanarConfig().check(),
     quick={"duration": 20.0, "t_disturbance": 10.0}, findings=findings_planar,
     discussion=DISCUSSION, not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS_PLANAR)
 EXPERIMENT_PENDULUM = Experiment(
-    cost=33.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
+    cost=18.8,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     id="ch12-affine-pendulum", title="Theorem 10 regulating a soft inverted pendulum with "
     "affine curvature", section="12.2.2, Fig. 12.4-12.5", run=run_pendulum,
     config=PendulumConfig().check(),
@@ -319,7 +319,7 @@ EXPERIMENT_PENDULUM = Experiment(
     findings=findings_pendulum, discussion=DISCUSSION, not_in_thesis=NOT_IN_THESIS,
     captions=CAPTIONS_PENDULUM)
 EXPERIMENT_3D = Experiment(
-    cost=48.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
+    cost=21.0,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     id="ch12-3d-pcc", title="Theorem 10 on a 3D 4-segment PCC soft arm",
     section="12.2.3, Fig. 12.6-12.7", run=run_3d, config=Soft3DConfig().check(),
     quick={"duration": 20.0, "t_disturbance": 12.0, "lateral_variant": False},

@@ -232,7 +232,7 @@ def findings(m: Metrics, c: Config | None = None) -> list[dict]:
 
 
 EXPERIMENT = Experiment(
-    cost=10.0,  # CPU s, 2026-12-02 fresh clone (wall of a single-threaded run; issue 25)
+    cost=8.3,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     id="ch6-electric-invasive",
     title="Invasive stiffness estimation, two-link arm with qbmove VSAs (Theorem 2 + RLS)",
     section="6.2.3, Fig. 6.5-6.6, Table 6.1",

@@ -323,7 +323,7 @@ def drift_probes(m: Metrics) -> list[dict]:
 
 
 EXPERIMENT = Experiment(
-    cost=18.0,  # CPU s, issue-32 full run (the drift probes added), load ~8
+    cost=21.9,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     id="ch6-electric-protocol",
     title="Invasive electric estimator on emulated qbmove hardware: three-phase protocol "
           "with and without the RLS update stop",

@@ -118,7 +118,7 @@ EXPERIMENT_1DOF = Experiment(
     captions=_captions("7.2", "one-link qbmove robot"))
 
 EXPERIMENT_2DOF = Experiment(
-    cost=6.0,  # CPU s, 2026-12-02 fresh clone (wall of a single-threaded run; issue 25)
+    cost=4.4,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     id="ch7-noninvasive-2dof",
     title="Non-invasive stiffness estimation, two-link arm with qbmove VSAs (Theorem 4 + RLS)",
     section="7.3, Fig. 7.3", run=run, config=CONFIG_2DOF, quick={"duration": 20.0},

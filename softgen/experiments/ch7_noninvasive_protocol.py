@@ -306,7 +306,7 @@ def _rls_start(m: Metrics) -> list[dict]:
 
 EXPERIMENT = Experiment(
     id="ch7-noninvasive-protocol",
-    cost=26.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
+    cost=17.5,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     title="Non-invasive estimator on emulated qbmove hardware: position+stiffness, then "
           "co-contraction only",
     section="7.4, Fig. 7.5-7.7",

@@ -229,7 +229,7 @@ CAPTIONS = {"estimated_stiffness_feedback.png": "Stiffness and position errors o
 
 EXPERIMENT = Experiment(
     not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS,
-    cost=10.0,  # CPU s, 2026-12-02 fresh clone (wall of a single-threaded run; issue 25)
+    cost=8.3,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     id="ext-estimated-stiffness-feedback",
     title="Adaptive cascade with the stiffness fed back from an online estimator",
     section="softgen (beyond the thesis: ch. 11 + ch. 6-7 estimators)",

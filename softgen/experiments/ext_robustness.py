@@ -308,7 +308,7 @@ EXPERIMENT = Experiment(
     id="ext-robustness-theorem5",
     # CPU s (Experiment.cost): 34 measured at the study of record (406 runs in batches,
     # load 6-8; issue 34), where 170 runs one by one took 92.
-    cost=34.0,
+    cost=30.5,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     title="Theorem 5 under ±30 % actuator and inertial errors (Monte Carlo)",
     section="softgen (beyond 10.2)",
     run=run,

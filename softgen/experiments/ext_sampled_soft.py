@@ -435,7 +435,7 @@ CAPTIONS: dict[str, str] = {}        # it draws no figure
 
 EXPERIMENT = Experiment(
     not_in_thesis=NOT_IN_THESIS, captions=CAPTIONS,
-    cost=69.0,  # CPU s, fresh-clone profile of 2026-12-02 (Experiment.cost)
+    cost=72.9,  # CPU s, fresh-clone main job of 2026-12-06, load ~1
     id="ext-sampled-soft", title="Theorem 10 sampled at 1 ms (linearly implicit, predictor "
     "identified online) vs the continuous loop on four soft bodies", section="softgen (beyond 12.2)", run=run,
     config=SampledConfig().check(), quick={"grid": ()}, findings=findings, case=case_metrics,
