@@ -102,7 +102,7 @@ def theorem10_diagram(dyn: SoftDynamics, lin: LinearRoute, options) -> ClosedLoo
     n, ns = dyn.model.dof, dyn.model.n_segments
     # Composed: the step calls the closed loop's MX function, whose q̈ and W-solve pieces
     # are each one function called twice; inlined into an SX step they were copied twice
-    # (pcc_3d_4seg: 374 kB of C for the step against 249 kB for the function).
+    # (the shipped 3D arm: 374 kB of C for the step against 249 kB for the function).
     return ClosedLoop(f"{dyn.name}_theorem10_closed",
                       [closed_loop_block(dyn, options.loop_dt, lin=lin)],
                       externals=[("ref0", 3 * n), ("ref1", 3 * n), ("f_ext", 3 * ns, "N"),
