@@ -61,7 +61,9 @@ Open: a singular solve while π̂ adapts (measured, issue 32)
     1.61 rad. On the whole grid with 1e-12 rad of initial error on every coordinate,
     28 of 29 track (ratios 0.958-1.27; this plant 65x, and the check, π̂ frozen, does
     not see it), against 29 of 29 (0.992-1.69) from the reference: the grid's count
-    rests on runs that pass near this singularity on that plant. A box projection of
+    rests on runs that pass near this singularity on that plant. With the O(n) plant
+    passes of issue 33 (a change of rounding only), the run from the reference crosses
+    too: 30.7x, 28 of 29 (the fresh-clone main job of 2026-12-06). A box projection of
     π̂ was measured worse before (the worst ratio 1.0 → 3.7x); the law's q̇-Jacobian in
     the solve from the identified model (π̂ replaced by the model file's parameters
     times s, so that no estimate makes the solve singular) tracks that plant at 1.015x
