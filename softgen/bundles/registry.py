@@ -302,6 +302,7 @@ class Context:
     def __init__(self, model, options, dyn):
         self.model, self.options, self.dyn = model, options, dyn
         self.name = model.name
+        self._shared: dict = {}
 
     @cached_property
     def lin(self):
@@ -310,10 +311,9 @@ class Context:
     def shared(self, key: str, make):
         """One object per ``key`` for this model: a function that two capabilities use
         (one exports it, another's composed loop calls it) is then one copy in the C."""
-        cache = self.__dict__.setdefault("_shared", {})
-        if key not in cache:
-            cache[key] = make()
-        return cache[key]
+        if key not in self._shared:
+            self._shared[key] = make()
+        return self._shared[key]
 
     @cached_property
     def mckibben(self):

@@ -290,7 +290,8 @@ def plant_block(dyn: CosseratDynamics, dt: float, *, substeps: int = 1, method: 
     return Block.define(name, dt=dt, state=[("q", n), ("qd", n)],
                         inputs=[("u", dyn.model.n_inputs), ("w", 6)],
                         outputs=[("q", n), ("qd", n), ("tip", 3, "m")], body=body,
-                        doc=f"{dyn.name}, {substeps} {method} step(s) per sample",
+                        doc=f"{dyn.name}, {substeps} {method} step(s) per sample"
+                        if fun is None else f"{dyn.name}, {f.name()} per sample",
                         meta={"model": dyn.name})
 
 

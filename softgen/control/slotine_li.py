@@ -92,10 +92,13 @@ def plant_block(dyn: RigidDynamics, dt: float, *, substeps: int = 1,
     n = dyn.model.dof
     if not isinstance(substeps, int) or substeps < 1:
         raise ValueError(f"substeps: expected a positive integer, got {substeps!r}")
-    rhs = plant_rhs(dyn)
+    if fun is None:
+        rhs = plant_rhs(dyn)
 
-    def step(z, tau, h):
-        return rk4_steps(rhs, z, tau, h, 1) if fun is None else fun(z, tau, h)
+        def step(z, tau, h):
+            return rk4_steps(rhs, z, tau, h, 1)
+    else:
+        step = fun
 
     def body(x, u, p):
         z = ca.vertcat(x["q"], x["qd"])

@@ -80,7 +80,7 @@ from softgen.core.errors import ModelError
 from softgen.symbolic.rigid import FUNCTION_OPTS
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 from softgen.symbolic import pcc_chain
-from softgen.symbolic.pcc_chain import (chain_regressor_products, chain_terms,
+from softgen.symbolic.pcc_chain import (inv3, chain_regressor_products, chain_terms,
                                        inertia_from_blocks)
 from softgen.symbolic.actuated import rk4_steps
 
@@ -264,7 +264,7 @@ def theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, *,
         tau_star = tau_star + known_terms(dyn, q, qd, qd_r, qdd_r)
     if chain:      # closed-form A_i and its adjugate inverse (det A_i = sinc²Δ_i)
         A = chain_terms(dyn.nominal, q, ca.SX.zeros(n)).A
-        tau = ca.vertcat(*[ca.mtimes(_inv3(A_i), tau_star[3 * i:3 * i + 3])
+        tau = ca.vertcat(*[ca.mtimes(inv3(A_i), tau_star[3 * i:3 * i + 3])
                            for i, A_i in enumerate(A)])
     else:
         blocks = [ca.substitute(A, dyn.nominal.q, q) for A in dyn.nominal.actuation_blocks()]
@@ -431,15 +431,6 @@ def spd_solve_scaled(A, b):
     return _ldl_substitute(L, D, b)
 
 
-def _inv3(A):
-    """A⁻¹ of a 3×3 SX matrix by its adjugate (no pivoting: exact wherever det A ≠ 0)."""
-    cof = [[A[(i + 1) % 3, (j + 1) % 3] * A[(i + 2) % 3, (j + 2) % 3]
-            - A[(i + 1) % 3, (j + 2) % 3] * A[(i + 2) % 3, (j + 1) % 3] for j in range(3)]
-           for i in range(3)]
-    det = A[0, 0] * cof[0][0] + A[0, 1] * cof[0][1] + A[0, 2] * cof[0][2]
-    return ca.vertcat(*[ca.horzcat(*[cof[j][i] for j in range(3)]) for i in range(3)]) / det
-
-
 def _block_lower_triangular(J, k: int) -> bool:
     """True if J is square and block lower triangular in k × k blocks (structurally)."""
     return J.shape[0] == J.shape[1] and J.shape[0] % k == 0 and \
@@ -456,7 +447,7 @@ def _triangular_qdd(J, a0, masses, rhs):
     k ≤ j): Jᵀ y = rhs by back-substitution, then a = M⁻¹ y − a0 (the point accelerations
     minus J̇ q̇ − g), J q̈ = a by forward substitution, 3 × 3 adjugate inverses."""
     nb = len(J)
-    inv = [_inv3(J[j][j]) for j in range(nb)]
+    inv = [inv3(J[j][j]) for j in range(nb)]
     y: list = [None] * nb
     for j in reversed(range(nb)):
         r = rhs[3 * j:3 * j + 3]

@@ -96,13 +96,13 @@ import casadi as ca
 import numpy as np
 
 from softgen.blocks import Block
-from softgen.control.soft import (_chain_applies, _inv3, _projector, _units, apply_pinv,
+from softgen.control.soft import (_chain_applies, _projector, _units, apply_pinv,
                                   closed_loop_fun, known_terms, plant_fun, plant_rhs,
                                   regressor_products, theorem10_fun)
 from softgen.core.errors import SoftgenError
 from softgen.symbolic.rigid import FUNCTION_OPTS
 from softgen.symbolic.pcc import LinearRoute, SoftBody, SoftDynamics
-from softgen.symbolic.pcc_chain import (chain_terms,
+from softgen.symbolic.pcc_chain import (chain_terms, inv3,
                                        inertia_from_blocks)
 from softgen.symbolic.smooth import Jets
 
@@ -254,7 +254,7 @@ def implicit_torque(tau0, sigma, q, qd, kd, h, M, u_last, blocks, chain: bool):
     tau_e = tau0 + h * ca.mtimes(J_q, qd)
     w = ca.solve(M - h * ca.mtimes(P, J), ca.mtimes(P, tau_e) - u_last)
     tau_star = tau_e + h * ca.mtimes(J, w)
-    tau = ca.vertcat(*[ca.mtimes(_inv3(A_i), tau_star[3 * i:3 * i + 3])
+    tau = ca.vertcat(*[ca.mtimes(inv3(A_i), tau_star[3 * i:3 * i + 3])
                        for i, A_i in enumerate(blocks)]) if chain else \
         apply_pinv(blocks, tau_star)
     return ca.mtimes(P, tau_star), tau

@@ -423,8 +423,9 @@ class SegmentKinematics:
                                  parts[2 * nm:3 * nm], *parts[3 * nm:])
 
 
-def _inv3(A):
-    """A⁻¹ of a 3 × 3 SX matrix by its adjugate."""
+def inv3(A):
+    """A⁻¹ of a 3 × 3 SX matrix by its adjugate (no pivoting: exact wherever det A ≠ 0);
+    also the controllers' per-segment actuation inverse (control.soft)."""
     cof = [[A[(i + 1) % 3, (j + 1) % 3] * A[(i + 2) % 3, (j + 2) % 3]
             - A[(i + 1) % 3, (j + 2) % 3] * A[(i + 2) % 3, (j + 1) % 3] for j in range(3)]
            for i in range(3)]
@@ -479,7 +480,7 @@ def _forward(local, masses, x, xd, R, w, square: bool):
     kin = SegmentKinematics(masses, R, E, [p[0] for p in pts], [p[1] for p in pts],
                             [p[2] for p in pts], t, ca.vertcat(Jw, Dt),
                             ca.vertcat(_cross(w, wl) + al, bo),
-                            _inv3(pts[0][1]) if square else None)
+                            inv3(pts[0][1]) if square else None)
     return kin, None if R is None else ca.mtimes(R, E), ca.mtimes(E.T, w + wl)
 
 
