@@ -384,3 +384,19 @@ def test_generate_keeps_an_up_to_date_bundle(tmp_path):
     m["hash"] = "0" * 64
     (d / "manifest.json").write_text(json.dumps(m))
     assert not up_to_date(model, d)
+
+
+@pytest.mark.parametrize("first", ["softgen.bundles.rigid", "softgen.bundles.soft",
+                                   "softgen.bundles.spring_pair"])
+def test_capability_order_does_not_depend_on_which_module_is_imported_first(first):
+    """The registry's order is a bundle's function order and its manifest's: a process
+    importing a builder module first gets the same order as ``softgen generate`` (it did
+    not: generated/ compared stale after tests/test_compose.py)."""
+    import sys
+
+    from softgen.bundles.registry import REGISTRY
+    code = (f"import {first}\nfrom softgen.bundles.registry import REGISTRY\n"
+            "print(' '.join(REGISTRY.names()))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == REGISTRY.names()

@@ -17,12 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-# The builder modules register their capabilities on import; nothing else is used here.
-import softgen.bundles.cosserat  # noqa: F401
-import softgen.bundles.floating  # noqa: F401
-import softgen.bundles.rigid  # noqa: F401
-import softgen.bundles.soft  # noqa: F401
-import softgen.bundles.spring_pair  # noqa: F401
+# The builder modules have registered their capabilities (softgen/bundles/__init__.py).
 from softgen.bundles.common import (DEFAULT_OPTIONS, BundleOptions, actuator_record,
                                     identity_bytes, model_chain, model_file_path, model_source)
 from softgen.bundles.floating import model_layout
