@@ -376,7 +376,7 @@ int pcc_3d_4seg_theorem10_identified_loop_step_work_bytes(casadi_int *sz_arg, ca
 #define pcc_3d_4seg_theorem10_identified_loop_step_SZ_ARG 20
 #define pcc_3d_4seg_theorem10_identified_loop_step_SZ_RES 11
 #define pcc_3d_4seg_theorem10_identified_loop_step_SZ_IW 0
-#define pcc_3d_4seg_theorem10_identified_loop_step_SZ_W 1041
+#define pcc_3d_4seg_theorem10_identified_loop_step_SZ_W 1043
 int pcc_3d_4seg_theorem10_identified_loop_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_3d_4seg_theorem10_identified_loop_loop_checkout(void);
 void pcc_3d_4seg_theorem10_identified_loop_loop_release(int mem);
@@ -394,7 +394,7 @@ int pcc_3d_4seg_theorem10_identified_loop_loop_work_bytes(casadi_int *sz_arg, ca
 #define pcc_3d_4seg_theorem10_identified_loop_loop_SZ_ARG 57
 #define pcc_3d_4seg_theorem10_identified_loop_loop_SZ_RES 35
 #define pcc_3d_4seg_theorem10_identified_loop_loop_SZ_IW 0
-#define pcc_3d_4seg_theorem10_identified_loop_loop_SZ_W 1143585
+#define pcc_3d_4seg_theorem10_identified_loop_loop_SZ_W 1143587
 int pcc_3d_4seg_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_3d_4seg_plant_checkout(void);
 void pcc_3d_4seg_plant_release(int mem);

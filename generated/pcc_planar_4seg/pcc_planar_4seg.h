@@ -340,7 +340,7 @@ int pcc_planar_4seg_theorem10_identified_loop_step_work_bytes(casadi_int *sz_arg
 #define pcc_planar_4seg_theorem10_identified_loop_step_SZ_ARG 20
 #define pcc_planar_4seg_theorem10_identified_loop_step_SZ_RES 11
 #define pcc_planar_4seg_theorem10_identified_loop_step_SZ_IW 0
-#define pcc_planar_4seg_theorem10_identified_loop_step_SZ_W 469
+#define pcc_planar_4seg_theorem10_identified_loop_step_SZ_W 472
 int pcc_planar_4seg_theorem10_identified_loop_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_theorem10_identified_loop_loop_checkout(void);
 void pcc_planar_4seg_theorem10_identified_loop_loop_release(int mem);
@@ -358,7 +358,7 @@ int pcc_planar_4seg_theorem10_identified_loop_loop_work_bytes(casadi_int *sz_arg
 #define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_ARG 57
 #define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_RES 35
 #define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_IW 0
-#define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_W 620073
+#define pcc_planar_4seg_theorem10_identified_loop_loop_SZ_W 620076
 int pcc_planar_4seg_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int pcc_planar_4seg_plant_checkout(void);
 void pcc_planar_4seg_plant_release(int mem);

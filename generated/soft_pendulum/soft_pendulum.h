@@ -340,7 +340,7 @@ int soft_pendulum_theorem10_identified_loop_step_work_bytes(casadi_int *sz_arg, 
 #define soft_pendulum_theorem10_identified_loop_step_SZ_ARG 20
 #define soft_pendulum_theorem10_identified_loop_step_SZ_RES 11
 #define soft_pendulum_theorem10_identified_loop_step_SZ_IW 0
-#define soft_pendulum_theorem10_identified_loop_step_SZ_W 567
+#define soft_pendulum_theorem10_identified_loop_step_SZ_W 506
 int soft_pendulum_theorem10_identified_loop_loop(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int soft_pendulum_theorem10_identified_loop_loop_checkout(void);
 void soft_pendulum_theorem10_identified_loop_loop_release(int mem);
@@ -358,7 +358,7 @@ int soft_pendulum_theorem10_identified_loop_loop_work_bytes(casadi_int *sz_arg, 
 #define soft_pendulum_theorem10_identified_loop_loop_SZ_ARG 57
 #define soft_pendulum_theorem10_identified_loop_loop_SZ_RES 35
 #define soft_pendulum_theorem10_identified_loop_loop_SZ_IW 0
-#define soft_pendulum_theorem10_identified_loop_loop_SZ_W 243912
+#define soft_pendulum_theorem10_identified_loop_loop_SZ_W 243851
 int soft_pendulum_plant(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
 int soft_pendulum_plant_checkout(void);
 void soft_pendulum_plant_release(int mem);

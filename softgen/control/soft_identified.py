@@ -45,31 +45,31 @@ The step (:func:`identified_theorem10_fun`), per sample k at h = dt
     ratio 1.0 → 3.7x), an information threshold instead of the sample count as the gate
     (19/29).
 
-Open: a singular solve while π̂ adapts (measured, issue 32)
+The damping cap (the singular solve of issue 32, measured)
     On a damping-dominated (light) mode the solve's matrix M − h P J is about
-    h (s_d D + K_d − D̂): singular when an adapted damping estimate D̂ crosses the
+    h (s_d D + K_d − D̂): singular where an adapted damping estimate D̂ crosses the
     identified plant damping plus K_d, which Theorem 10's adaptation from π̂ = 0 can do
     (the continuous loop's net damping on that mode, D + K_d − D̂, vanishes there too).
     On ``pcc_planar_4seg`` with mass ×10, stiffness ×3, damping ×2.5 (Λ = 5, K_d = 1,
     ext-sampled-soft's planar case) d̂_4 hovers at 1.26-1.41 around s_d d_4 + K_d = 1.25
-    from 1 s on (the continuous loop's d̂_4 too: 1.275 at 1.0 s, 1.1-1.27 to 1.3 s, so
-    that loop is itself at the edge on this plant); the run from the reference tracks
-    (rms 0.0420 vs 0.0248 rad over the last 10 s, ratio 1.69; 0.975 before a change of
-    the law's rounding only), with
-    1e-9 or 1e-6 rad of initial error 0.0242 rad (0.98), with 1e-12 rad the crossing
-    lands on a sample: τ 7.8 → 369 N m in one sample at 1.191 s, |π̂| 1.8 → 1.7e3, rms
-    1.61 rad. On the whole grid with 1e-12 rad of initial error on every coordinate,
-    28 of 29 track (ratios 0.958-1.27; this plant 65x, and the check, π̂ frozen, does
-    not see it), against 29 of 29 (0.992-1.69) from the reference: the grid's count
-    rests on runs that pass near this singularity on that plant. With the O(n) plant
-    passes of issue 33 (a change of rounding only), the run from the reference crosses
-    too: 30.7x, 28 of 29 (the fresh-clone main job of 2026-12-06). A box projection of
-    π̂ was measured worse before (the worst ratio 1.0 → 3.7x); the law's q̇-Jacobian in
-    the solve from the identified model (π̂ replaced by the model file's parameters
-    times s, so that no estimate makes the solve singular) tracks that plant at 1.015x
-    whatever the initial error (0, 1e-12, 1e-9 rad) but 24 of 29 on the grid (not: the
-    planar arm, user arm and pendulum with mass ×0.1; ratios of those that track
-    0.992-1.26), measured with and without the 1e-12 rad offset.
+    from 1 s on; which side of the pole a sample lands on was rounding: 0.975x from the
+    reference before issue 33's plant passes, 30.7x after, 1.61 rad rms with 1e-12 rad
+    of initial error (τ 7.8 → 369 N m in one sample at 1.191 s).
+    So J, in the solve only, takes each damping estimate (:func:`damping_parameters`)
+    capped at the identified plant's damping, min(d̂_i, s_d d_i): the solve's matrix stays
+    about h (s_d D + K_d − min(D̂, s_d D)) ≥ h K_d, and the part of D̂ above the cap acts
+    explicitly, with the sample-to-sample gain (D̂ − s_d D)/K_d on that mode (derivation:
+    :mod:`~softgen.control.soft_sampled`, "A plant off the predictor's model", with the
+    law's velocity gain split into a predicted and an explicit part): below 1 exactly where
+    the continuous loop's D + K_d − D̂ is positive, so the sampled loop keeps the
+    continuous loop's boundary and has no pole. Below the cap nothing changes (tested).
+    Measured (``ext-sampled-soft``'s grid, ``case_metrics`` with its 32 plants, 29 with a
+    finite continuous reference): 29 of 29 track within 2x from the reference (ratios
+    0.988-1.27; that plant 1.018) and 29 of 29 with 1e-12 rad of initial error on every
+    coordinate (the same ratios to the digits printed; that plant 1.018 also with 1e-9);
+    the check agrees on 29 of 29. Tried before and rejected: a box projection of π̂ (the
+    worst ratio 1.0 → 3.7x); the whole J from the identified model instead of π̂ (24 of
+    29: the planar arm, user arm and pendulum with mass ×0.1 do not track).
 
 The check (:func:`identified_loop_jacobian`, :func:`check_identified`)
     The loop of this step and the ROS2 plant off the model, linearised about the
@@ -113,6 +113,26 @@ def factor_bounds() -> tuple[np.ndarray, np.ndarray]:
     :class:`~softgen.control.soft_sampled.ModelScale` order."""
     return (np.array([UNCERTAINTY[g][0] for g in SCALED]),
             np.array([UNCERTAINTY[g][1] for g in SCALED]))
+
+
+def damping_parameters(dyn: SoftDynamics) -> np.ndarray:
+    """Indices of the base parameters that are dampings only: linear in the model file's
+    damping-group parameters (:data:`~softgen.control.soft_sampled.SCALED`) and free of
+    every other parameter, so a plant with damping factor s_d has s_d times their
+    nominal values."""
+    _, p = dyn._symbolic
+    pi = dyn.base.pi
+    damp = [i for i, name in enumerate(dyn.model.uncertain)
+            if name.rstrip("0123456789") in SCALED["damping"]]
+    rest = [i for i in range(p.numel()) if i not in damp]
+    out = []
+    for j in range(pi.numel()):
+        e = pi[j]
+        if (damp and any(ca.depends_on(e, p[i]) for i in damp)
+                and not any(ca.depends_on(e, p[i]) for i in rest)
+                and not ca.depends_on(ca.jacobian(e, p), p)):
+            out.append(j)
+    return np.array(out, dtype=int)
 
 
 #: The factors the identification starts from: the bounds' lower corner (the predictor
@@ -170,7 +190,18 @@ def identified_theorem10_fun(dyn: SoftDynamics, lin: LinearRoute | None = None, 
     u_model = s[0] * bias + s[1] * ca.mtimes(K, q + h * qd) + \
         s[2] * ca.mtimes(D, qd)
     tau0, sigma, _ = _law(dyn, lin, pi_hat, q, qd, q_d, qd_d, qdd_d, lam, kd, chain)
-    u_next, tau = implicit_torque(tau0, sigma, q, qd, kd, h, M, u_model, blocks, chain)
+    # The solve's q̇-Jacobian with each damping estimate capped at the identified plant's
+    # damping (s_d times the model file's): on a damping-dominated mode M − h P J is about
+    # h (s_d D + K_d − D̂), singular where the adapted D̂ crosses s_d D + K_d (module
+    # docstring). Capped, it stays ≥ h K_d there; the part of D̂ above the cap acts
+    # explicitly, with the sample-to-sample gain (D̂ − s_d D) / K_d: below 1 exactly where
+    # the continuous loop's damping D + K_d − D̂ is positive.
+    damp = damping_parameters(dyn)
+    pi_jac = ca.SX(pi_hat)
+    for j in damp:
+        pi_jac[int(j)] = ca.fmin(pi_hat[int(j)], s[2] * float(dyn.parameter_nominal[j]))
+    u_next, tau = implicit_torque(tau0, sigma, q, qd, kd, h, M, u_model, blocks, chain,
+                                  jac_at=(pi_hat, pi_jac) if len(damp) else None)
     # (c), (d) The adaptation on the sample's mean velocity, off for the first samples.
     _, _, yt_s = _law(dyn, lin, pi_hat, q, (q - q_prev) / h, q_d, qd_d, qdd_d, lam, kd, chain)
     pi_next = pi_hat + ca.if_else(count >= gate, h * kpi * yt_s, ca.SX.zeros(r))

@@ -236,18 +236,24 @@ def predictor_terms(dyn: SoftDynamics, q, chain: bool):
     return B, sub(b._quadratic_form("k")), sub(b._quadratic_form("d")), blocks
 
 
-def implicit_torque(tau0, sigma, q, qd, kd, h, M, u_last, blocks, chain: bool):
+def implicit_torque(tau0, sigma, q, qd, kd, h, M, u_last, blocks, chain: bool,
+                    jac_at=None):
     """(u_next = P τ*, τ) of the linearly implicit step (module docstring).
 
     τ* = τ_e + h J w with (M − h P J) w = P τ_e − u_last, τ_e = τ⁰ + h J_q q̇: the law
     τ⁰ (with σ and the gain K_d) holding at the end of the sample predicted by one
-    implicit-Euler step of the predictor M, the plant taken in balance with ``u_last``."""
+    implicit-Euler step of the predictor M, the plant taken in balance with ``u_last``.
+    ``jac_at``: (symbols, values) substituted in J only (the law's q̇-Jacobian taken at
+    other parameter estimates than τ⁰'s; :func:`~softgen.control.soft_identified.
+    identified_theorem10_fun` caps the damping estimates there)."""
     # K_d σ is linear in (q, q̇) and is evaluated at the predicted end state exactly;
     # Y π̂ is linearised in q̇ only (its damping, Coriolis and B̂ Λ terms: the fast
     # ones). Its q-dependence (gravity, elasticity) stays explicit: h K̂ ≪ D, and its
     # Jacobian would double the 3D step's code (60k instructions measured).
     J_q = ca.jacobian(kd * sigma, q)
     J = ca.jacobian(tau0, qd) + h * J_q
+    if jac_at is not None:
+        J = ca.substitute(J, *jac_at)
     P = _projector(blocks)
     # With w = M⁻¹ (P τ* − u_last) (so Δq̇ = h w), τ* = τ_e + h J w, τ_e = τ⁰ + h J_q q̇,
     # and M w = P τ_e + h P J w − u_last: one n × n solve instead of inverting M.
