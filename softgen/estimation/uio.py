@@ -103,7 +103,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import place_poles
 
 from softgen.core.errors import ShapeError
 from softgen.estimation.discretize import as_matrix
@@ -577,6 +576,9 @@ def _injection_gain(Abar: np.ndarray, Cbar: np.ndarray, poles: np.ndarray | None
     Ct = Vtc[:r]
     _, counts = np.unique(poles, return_counts=True)
     if counts.max() <= r:
+        # Imported here: scipy.signal's import takes 1.2 s (its docstring machinery), which
+        # every process importing the bundles (each CLI verb, each worker) paid at start.
+        from scipy.signal import place_poles
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # KNV non-convergence: result still checked
