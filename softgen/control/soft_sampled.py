@@ -557,6 +557,15 @@ class Checker:
         self._jac: dict[tuple[str, float], ca.Function] = {}
         self._cont: ca.Function | None = None
 
+    def with_predictor(self, predictor: ModelScale | None) -> Checker:
+        """A checker of the same model with another predictor, sharing what does not
+        depend on it (the continuous loop's transition matrix, derived once)."""
+        other = Checker(self.dyn, self.lin, predictor=predictor)
+        if self._cont is None:
+            self._cont = continuous_jacobian(self.dyn, self.lin, plant_scale=True)
+        other._cont = self._cont
+        return other
+
     def cached(self, key: tuple[str, float], make) -> ca.Function:
         """The transition-matrix Function under ``key`` (law, d_scale), made once."""
         if key not in self._jac:

@@ -28,6 +28,7 @@ recorded beside.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -196,15 +197,22 @@ def _tag(g) -> str:
     return "m{:g}_k{:g}_d{:g}".format(*g)
 
 
+@functools.lru_cache(maxsize=4)
+def _dynamics(model: str) -> tuple[SoftDynamics, LinearRoute]:
+    """(dynamics, linear route) of a case's model, derived once per process: the grid and
+    the predictor study of the first case share them. A model file path is read from the
+    checkout (the user model lives in tests/data)."""
+    src = _CHECKOUT / model if model.endswith(".toml") else model
+    dyn = SoftDynamics(load_model(src))
+    return dyn, LinearRoute(dyn)
+
+
 def run_case(case: Case, c: SampledConfig) -> tuple[Metrics, dict]:
     """Both loops on one model: the §12.2 records with suffixes ``<tag>_sampled`` and
     ``<tag>_continuous``, the rms ratio and the check's spectral radii; and the traces.
     Then each plant of ``c.grid``: both loops' rms (NaN where a loop diverged), their ratio
     and the check's verdict on that plant (issue 32)."""
-    # A model file path is read from the checkout (the user model lives in tests/data).
-    src = _CHECKOUT / case.model if case.model.endswith(".toml") else case.model
-    dyn = SoftDynamics(load_model(src))
-    lin = LinearRoute(dyn)
+    dyn, lin = _dynamics(case.model)
     ref = reference_block("ref", c.dt, case.amplitude, case.omega, case.phase, unit=case.unit)
     m, traces = Metrics(), {}
     loops = {"continuous": continuous_soft_loop(f"ext_{case.tag}_cont", dyn, ref, c.dt, lin,
@@ -274,11 +282,11 @@ def predictor_records(c: SampledConfig) -> Metrics:
     case = _selected(c)[0] if _selected(c) else None
     if case is None or not c.predictor_study:
         return m
-    src = _CHECKOUT / case.model if case.model.endswith(".toml") else case.model
-    dyn = SoftDynamics(load_model(src))
+    dyn, lin = _dynamics(case.model)
     lam, kd, _ = case.gains
+    base = Checker(dyn, lin)
     for g in c.predictor_study:
-        v = Checker(dyn, predictor=ModelScale(*g)).check("implicit", c.dt, lam, kd)
+        v = base.with_predictor(ModelScale(*g)).check("implicit", c.dt, lam, kd)
         m.add("spectral_radius_predictor", v.rho_zero, "1", suffix=f"{case.tag}_{_tag(g)}")
     return m
 
