@@ -128,6 +128,32 @@ def test_batch_metrics_equal_the_trace_based_case_to_rounding(ch10, need_compile
         assert alone.flat() == got
 
 
+@pytest.mark.compiler
+def test_tabulated_references_give_the_loop_the_same_bits(ch10, need_compiler):
+    """The batches read the references from a table (pneumatic.reference_table) instead of
+    computing them in the loop: across the preset and the first step of q1 (10 s to 10 s
+    + rise), the tabulated loop ends in the same bits as the loop with the reference
+    block."""
+    from types import SimpleNamespace
+
+    from softgen.studies import pneumatic as S
+    from softgen.studies import pneumatic_batch as PB
+    c = _configs(ch10)[1]
+    phases = PB._phases(2, tuple(PB.streamed(2)))
+    arm, tab = PB._setup(c.model, c.rise, c.dt, False, phases)
+    full = S.diagram(arm, "theorem5", SimpleNamespace(rise=c.rise, exact_plant=False), c.dt,
+                     exact_plant=False, monitor=PB.monitor_block(arm, c.dt, phases))
+    x0, params, n_pre, _ = S.case_start(arm, "theorem5", c, c.dt, full)
+    steps = n_pre + int(round((10.5 + c.rise) / c.dt))
+    table = S.reference_table(c, tab.dt, -n_pre, steps)
+    assert tab.dt == full.dt and np.ptp(table[:, 0]) > 0.099     # the whole step is in it
+    a = simulate_batch(full, steps, x0=[x0], params=[params], k0=-n_pre)
+    b = simulate_batch(tab, steps, x0=[x0], params=[params], k0=-n_pre,
+                       externals={"ref_table": table})
+    assert a.steps == b.steps == [steps]
+    assert np.array_equal(a.final_state, b.final_state)
+
+
 def test_batch_declines_metrics_that_need_the_trace(ch10):
     cs = _configs(ch10)[:1]
     assert ch10.batch(cs, ()) is None                                   # every metric

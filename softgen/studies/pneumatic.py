@@ -6,6 +6,9 @@ McKibben arm along smoothed steps, from the preset, and its metric records.
 """
 from __future__ import annotations
 
+import functools
+
+import casadi as ca
 import numpy as np
 
 from softgen.blocks import ClosedLoop
@@ -37,22 +40,84 @@ def steps(keys, rise: float) -> list[SmoothSteps]:
     return [SmoothSteps(*SCHEDULE[k], rise) for k in keys]
 
 
+def reference_block(c):
+    """The scenario's smoothed-step position and stiffness references (block ``ref``)."""
+    return _reference_block(float(c.rise))
+
+
+@functools.lru_cache(maxsize=8)
+def _reference_block(rise: float):
+    return stiffness_reference_block("ref", steps(("q1", "q2"), rise),
+                                     steps(("s1", "s2"), rise))
+
+
 def diagram(arm, kind: str, c, dt: float, *,
-            exact_plant: bool | None = None, monitor=None) -> ClosedLoop:
+            exact_plant: bool | None = None, monitor=None,
+            tabulated: bool = False) -> ClosedLoop:
     """Smoothed-step references -> controller ``kind`` -> McKibben arm (ideal pressures);
     with plant errors, the arm whose true values are parameters (one loop for all).
     ``monitor``: ``(block, wires)`` added to the loop (the in-loop metrics of
-    :mod:`softgen.studies.pneumatic_batch`)."""
-    ref = stiffness_reference_block("ref", steps(("q1", "q2"), c.rise),
-                                    steps(("s1", "s2"), c.rise))
+    :mod:`softgen.studies.pneumatic_batch`). ``tabulated``: the reference block's outputs
+    are read from the external input ``ref_table`` (:func:`reference_table`) instead of
+    computed in the loop: the same numbers, for batches of runs that share them."""
+    ref = reference_block(c)
+    externals = {}
+    if tabulated:
+        ref, externals = tabulated_block(ref), {"ref_table": ref.outputs.size}
     exact = c.exact_plant if exact_plant is None else exact_plant
     plant = plant_block(arm, dt) if exact else uncertain_plant_block(arm, dt)
-    tag = ("" if exact else "_uncertain") + ("" if monitor is None else f"_{monitor[0].name}")
+    tag = ("" if exact else "_uncertain") + ("" if monitor is None else f"_{monitor[0].name}") \
+        + ("_tab" if tabulated else "")
     extra, wires = monitor if monitor is not None else (None, [])
     return ClosedLoop(f"ch10_{arm.name}_{kind}{tag}_{'_'.join(f'{dt:g}'.split('.'))}"
                       .replace("-", "m"), [ref, controller_block(arm, kind, dt), plant,
                                            *([extra] if extra is not None else [])],
-                      [("ctrl.p", "plant.p_cmd"), *wires])
+                      [("ctrl.p", "plant.p_cmd"), *wires], externals=externals)
+
+
+def tabulated_block(block):
+    """A stateless, time-only block (inputs just ``t``, no parameters) as a block of the
+    same name and outputs that reads them from the external input ``ref_table`` (its
+    outputs stacked in order, one row per sample: :func:`reference_table`)."""
+    from softgen.blocks import Block
+    if block.state.size or block.params.size or list(block.inputs.names) != ["t"]:
+        raise ValueError(f"block {block.name}: only a stateless block of t alone can be "
+                         "tabulated")
+    layout = list(block.outputs)
+
+    def body(x, u, p):
+        return {}, block.outputs.split(u["ref_table"])
+
+    return Block.define(block.name, dt=None, inputs={"ref_table": block.outputs.size},
+                        outputs=layout, body=body,
+                        doc=f"{block.doc} (tabulated: read from the external ref_table)")
+
+
+#: Samples per call of the compiled reference table (:func:`reference_table`).
+TABLE_CHUNK = 10_000
+
+
+def reference_table(c, dt: float, k0: int, steps: int) -> np.ndarray:
+    """(steps, outputs) of the reference block at t = k·dt, k = k0 ... k0 + steps − 1
+    (``dt``: the loop's own, :attr:`ClosedLoop.dt`), by the block's own function compiled
+    like the loop (:func:`~softgen.runtime.compiled.compile_functions`): the same IEEE
+    operations on the same t, so a loop reading the table gives the same bits as one
+    computing the references (tested)."""
+    from softgen.runtime.compiled import compile_functions
+    block = reference_block(c)
+    f = block.step.map(TABLE_CHUNK)
+    t_sym = f.mx_in(1)
+    fun = next(iter(compile_functions(f"ch10_reference_table_{TABLE_CHUNK}", [
+        ca.Function(f"ch10_reference_table_{TABLE_CHUNK}_eval", [t_sym],
+                    [f(ca.MX(0, TABLE_CHUNK), t_sym, ca.MX(0, TABLE_CHUNK))[1]],
+                    ["t"], ["y"])]).values()))
+    out = np.empty((steps, block.outputs.size))
+    k = np.arange(TABLE_CHUNK, dtype=float)
+    for a in range(0, steps, TABLE_CHUNK):
+        t = (k0 + a + k) * dt
+        y = np.array(fun(t.reshape(1, -1))).reshape(block.outputs.size, TABLE_CHUNK, order="F")
+        out[a:a + TABLE_CHUNK] = y.T[:steps - a]
+    return out
 
 
 def plant_values(arm, c) -> dict[str, np.ndarray]:
@@ -92,7 +157,7 @@ def case_start(arm, kind: str, c, dt: float, d: ClosedLoop) -> tuple[dict, dict,
     gains = Theorem5Gains.from_stiffness_rate(c.stiffness_rate, lam=c.lam, kd=kd, kpi=0.0)
     pi0 = c.pi_hat0_ratio * arm.Pi_nominal
     # Preset inflation: the ν (and pressures) the actuator model gives σ_preset at rest.
-    ref0 = np.array(d.blocks["ref"].eval(u=[0.0])[1][:6 * n])
+    ref0 = np.array(reference_block(c).eval(u=[0.0])[1][:6 * n])
     ref0[4 * n:5 * n] = c.sigma_preset
     p0, nu0 = arm.preset(pi0, np.zeros(n), ref0, lam=np.full(n, c.lam), kd=kd,
                          kinv=gains.kinv, dt=dt)
