@@ -71,7 +71,7 @@ def bundle_spec(model: RobotModel | SoftModel,
         spec = _assemble(model, options)
     _SPECS[key] = spec
     while len(_SPECS) > _SPECS_KEPT:
-        _SPECS.pop(next(iter(_SPECS)))
+        _SPECS.pop(next(iter(_SPECS)), None)
     return spec
 
 

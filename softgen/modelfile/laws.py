@@ -40,6 +40,7 @@ whether that range has width (a pair of linear springs has one stiffness).
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass, field
@@ -74,23 +75,28 @@ LAW_VARIABLES = {"spring": ("phi",), "pressure": ("q", "p")}
 #: text, the names it is parsed over (its drive's variables and its constants' names, in
 #: order), the constants' exact values (type and float bits), the deflection range and
 #: pressure limit; the law is still parsed once per load (:mod:`softgen.modelfile.model`).
+#: Every shipped and tests/data/user_models model loaded: 216 entries, 6 MB of RSS.
 _MEMO: OrderedDict[Hashable, object] = OrderedDict()
-_MEMO_KEPT = 4096
+_MEMO_KEPT = 1024
+
+
+_MEMO_LOCK = threading.Lock()
 
 
 def _memo(key: Hashable | None, make: Callable[[], object]) -> object:
-    """``make()``, kept under ``key`` (most recently used last); ``key`` None: not kept."""
+    """``make()``, kept under ``key`` (most recently used last); ``key`` None: not kept.
+    ``make`` runs outside the lock (two threads may both make a value; either is kept)."""
     if key is None:
         return make()
-    try:
-        value = _MEMO[key]
-    except KeyError:
-        value = make()
+    with _MEMO_LOCK:
+        if key in _MEMO:
+            _MEMO.move_to_end(key)
+            return _MEMO[key]
+    value = make()
+    with _MEMO_LOCK:
         _MEMO[key] = value
         while len(_MEMO) > _MEMO_KEPT:
             _MEMO.popitem(last=False)
-    else:
-        _MEMO.move_to_end(key)
     return value
 
 
