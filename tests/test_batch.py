@@ -11,6 +11,9 @@ import pytest
 from softgen.blocks import Block, ClosedLoop
 from softgen.runtime.simulate import simulate, simulate_batch
 
+#: Long closed-loop runs: compiled at -O1 (conftest.loops_at_o1; issue 34).
+pytestmark = pytest.mark.usefixtures("loops_at_o1")
+
 
 def _growth(name: str = "growth") -> ClosedLoop:
     """x ← a x (+ a ramp input), an accumulator of x, and a stop flag once x > 10."""

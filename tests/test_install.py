@@ -46,17 +46,19 @@ def test_wheel_installs_and_runs_from_another_directory(tmp_path, need_compiler)
            if not k.startswith("SOFTGEN_") or k == "SOFTGEN_BUILD_LEVEL"}
     env["SOFTGEN_CACHE_DIR"] = str(tmp_path / "cache")
     softgen = str(venv / "bin" / "softgen")
-    where = _run([str(py), "-c", "import softgen.core.paths as p; print(p.MODELS_DIR)"], work, env)
+    # One interpreter for the three checks in Python (each start imports softgen, ~1 CPU-s;
+    # issue 34): where the models are, a bundle loaded and called, the sample log's path.
+    where, sample = _run([str(py), "-c", "import softgen.core.paths as p; print(p.MODELS_DIR); "
+                          "from softgen.bundles.bundle import load_bundle; import numpy as np; "
+                          "a = load_bundle('planar_2link'); z = np.zeros(2); "
+                          "assert abs(a.regressor(z, z, z, z) @ a.parameter_nominal "
+                          "- a.inverse_dynamics(z, z, z, z)).max() < 1e-12; "
+                          "from softgen.app.estimate import sample_log; print(sample_log())"],
+                         work, env).strip().splitlines()
     assert str(venv) in where and str(ROOT) not in where      # the wheel's copy, not ours
     listing = _run([softgen, "list"], work, env)
     assert "planar_2link" in listing and "rigid-2link-adaptive" in listing
     assert "base parameters" in _run([softgen, "info", "planar_2link"], work, env)
-    _run([str(py), "-c", "from softgen.bundles.bundle import load_bundle; import numpy as np; "
-          "a = load_bundle('planar_2link'); z = np.zeros(2); "
-          "assert abs(a.regressor(z, z, z, z) @ a.parameter_nominal "
-          "- a.inverse_dynamics(z, z, z, z)).max() < 1e-12"], work, env)
-    sample = _run([str(py), "-c", "from softgen.app.estimate import sample_log; print(sample_log())"],
-                  work, env).strip()
     assert str(venv) in sample
     _run([softgen, "estimate", "pendulum_qbmove", "--log", sample, "--method", "noninvasive",
           "--out", "est.csv"], work, env)

@@ -13,6 +13,9 @@ from softgen.modelfile.load import load_model
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 from softgen.symbolic.smooth import cosc_w, jet_values, jet_values_from_nu, nu_w, sinc_w
 
+#: Long closed-loop runs: compiled at -O1 (conftest.loops_at_o1; issue 34).
+pytestmark = pytest.mark.usefixtures("loops_at_o1")
+
 DT = 1e-3
 
 

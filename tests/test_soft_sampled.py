@@ -15,6 +15,9 @@ from softgen.control.soft_sampled import (Checker, StabilityCheckError, loop_ste
 from softgen.modelfile.load import load_model
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 
+#: Long closed-loop runs: compiled at -O1 (conftest.loops_at_o1; issue 34).
+pytestmark = pytest.mark.usefixtures("loops_at_o1")
+
 ROOT = Path(__file__).resolve().parents[1]
 USER = ROOT / "tests" / "data" / "user_models" / "pcc_planar_3seg_distributed.toml"
 MODELS = [ROOT / "models" / "pcc_planar_4seg.toml", ROOT / "models" / "soft_pendulum.toml",

@@ -22,6 +22,9 @@ from softgen.control.soft_sampled import (UNCERTAINTY, Checker, ModelScale,
 from softgen.modelfile.load import load_model
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 
+#: Long closed-loop runs: compiled at -O1 (conftest.loops_at_o1; issue 34).
+pytestmark = pytest.mark.usefixtures("loops_at_o1")
+
 ROOT = Path(__file__).resolve().parents[1]
 USER = ROOT / "tests" / "data" / "user_models" / "pcc_planar_3seg_distributed.toml"
 MODELS = [ROOT / "models" / "pcc_planar_4seg.toml", ROOT / "models" / "soft_pendulum.toml",
@@ -282,11 +285,18 @@ def _ratios(path, tag, corners, n=None, offset=0.0):
     return out
 
 
-@pytest.mark.parametrize("corner", [
-    (0.1, 0.3, 0.01),
-    (10.0, 3.0, 2.5),
+_LIGHT, _HEAVY = (0.1, 0.3, 0.01), (10.0, 3.0, 2.5)
+
+
+@pytest.mark.parametrize("offset,corner", [
+    pytest.param(0.0, _LIGHT, id="0.0-corner0"),
+    pytest.param(0.0, _HEAVY, id="0.0-corner1"),
+    # The light corner with the offset runs with -m slow only (5 CPU-s; issue 34): its
+    # plant and loop are [0.0-corner0]'s, and the offset is checked by [1e-12-corner1] at
+    # the heavy corner, the one whose run it moved across the singular solve.
+    pytest.param(1e-12, _LIGHT, id="1e-12-corner0", marks=pytest.mark.slow),
+    pytest.param(1e-12, _HEAVY, id="1e-12-corner1"),
 ])
-@pytest.mark.parametrize("offset", [0.0, 1e-12])
 def test_tracks_within_2x_of_the_continuous_loop_at_grid_corners(corner, offset):
     """The planar arm from π̂ = 0 at two opposite corners of the declared uncertainty
     (light, soft, undamped; heavy, stiff, damped): the sampled loop's rms within 2x the

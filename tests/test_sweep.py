@@ -20,6 +20,9 @@ from softgen.studies.sweep import SweepSpec, dask_available, load_rows, run_swee
 from softgen.studies.sweep.evaluate import Target
 from softgen.studies.sweep.spec import parse_vary, plan
 
+#: Long closed-loop runs: compiled at -O1 (conftest.loops_at_o1; issue 34).
+pytestmark = pytest.mark.usefixtures("loops_at_o1")
+
 
 @dataclass(frozen=True)
 class ToyConfig(Config):

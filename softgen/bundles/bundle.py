@@ -12,7 +12,6 @@ import hashlib
 import json
 import warnings
 from dataclasses import replace
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -53,17 +52,49 @@ def bundle_spec(model: RobotModel | SoftModel,
                 options: BundleOptions = DEFAULT_OPTIONS) -> BundleSpec:
     """The functions, parameter vector and identity of ``model``'s bundle.
 
-    Soft bundles are cached per (model file text, path, options) within a process:
-    the derivation of the 3D bundle takes seconds and several callers (generate, info,
-    tests) ask.
+    Bundles of a model read from a file are kept per process (:data:`_SPECS_KEPT`), keyed
+    by what :func:`derivation` keys on (the bundle's identity: model source and options;
+    the file's path, the chain, the name) and by the model's value: the derivation takes
+    seconds and several callers (generate, info, bench, tests) ask. A model built in
+    memory (no file) is derived each time. The spec returned is shared: callers read it
+    and never change it.
     """
     options.check()
     # Refuse, in microseconds and one line, a model whose derivation would run for many
     # minutes and gigabytes (a 60-link chain, a 40-segment PCC body; issue 23).
     check_expression_size(model)
-    if isinstance(model, (SoftModel, CosseratModel)):
-        return _cached_soft_spec(model.source_text(), model.path, options, model)
-    return _assemble(model, options)
+    key = _spec_key(model, options)
+    if key is None:
+        return _assemble(model, options)
+    spec = _SPECS.pop(key, None)
+    if spec is None:
+        spec = _assemble(model, options)
+    _SPECS[key] = spec
+    while len(_SPECS) > _SPECS_KEPT:
+        _SPECS.pop(next(iter(_SPECS)), None)
+    return spec
+
+
+#: Bundle specs kept per process (:func:`bundle_spec`), most recent last. Every shipped
+#: model's and every tests/data/user_models model's spec together (34) took a process
+#: from 84 to 242 MB (RSS); the 3D PCC arm (~50 MB) and the rod (~30 MB) are the largest.
+_SPECS: dict[tuple, BundleSpec] = {}
+_SPECS_KEPT = 64
+
+
+def _spec_key(model, options: BundleOptions) -> tuple | None:
+    """The key of ``model``'s spec in :data:`_SPECS`, None when it is not kept (no file,
+    or a model whose value cannot be hashed)."""
+    if getattr(model, "path", None) is None:
+        return None
+    try:
+        hash(model)
+    except TypeError:
+        return None
+    # The derivation's key (identity, path, chain, name), the options, and the model
+    # itself (compared by value: a model replaced in memory after loading is another).
+    return (identity_bytes(model.source_text(), options), str(model.path),
+            getattr(model, "chain", None), model.name, options, type(model), model)
 
 
 #: Capabilities whose functions are compiled at :data:`STEP_LEVEL` inside the -O3
@@ -84,15 +115,10 @@ STEP_LEVEL = "-O1"
 #: (issue 34; the measurements are given there).
 
 
-@lru_cache(maxsize=8)
-def _cached_soft_spec(text: str, path, options: BundleOptions, model: SoftModel) -> BundleSpec:
-    del text, path       # the cache key; ``model`` was parsed from them
-    return _assemble(model, options)
-
-
-#: Derivations kept per process (:func:`derivation`), most recent last.
+#: Derivations kept per process (:func:`derivation`), most recent last: as many as the
+#: specs (:data:`_SPECS_KEPT`), each spec's functions being built from its derivation.
 _DERIVATIONS: dict[tuple, Context] = {}
-_DERIVATIONS_KEPT = 8
+_DERIVATIONS_KEPT = 64
 
 
 def derivation(model: RobotModel | SoftModel,

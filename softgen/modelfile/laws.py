@@ -40,7 +40,9 @@ whether that range has width (a pair of linear springs has one stiffness).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -62,6 +64,68 @@ SAMPLES = 1000
 #: What each drive's laws are written over (spring laws over the deflection φ = q − θ,
 #: pressure laws over the joint angle q and the side's pressure p).
 LAW_VARIABLES = {"spring": ("phi",), "pressure": ("q", "p")}
+
+
+# --------------------------------------------------------------------------- memo
+
+#: Results of the law analysis kept per process (issue 34): a model file is loaded many
+#: times in a process (every ``load_model``, each CLI command run in-process, each test)
+#: and judging its laws built ~7 CasADi Functions per spring law and ~40 mapped
+#: bisection calls per pair. Every value below is a pure function of its key: the law's
+#: text, the names it is parsed over (its drive's variables and its constants' names, in
+#: order), the constants' exact values (type and float bits), the deflection range and
+#: pressure limit; the law is still parsed once per load (:mod:`softgen.modelfile.model`).
+#: Every shipped and tests/data/user_models model loaded: 216 entries, 6 MB of RSS.
+_MEMO: OrderedDict[Hashable, object] = OrderedDict()
+_MEMO_KEPT = 1024
+
+
+_MEMO_LOCK = threading.Lock()
+
+
+def _memo(key: Hashable | None, make: Callable[[], object]) -> object:
+    """``make()``, kept under ``key`` (most recently used last); ``key`` None: not kept.
+    ``make`` runs outside the lock (two threads may both make a value; either is kept)."""
+    if key is None:
+        return make()
+    with _MEMO_LOCK:
+        if key in _MEMO:
+            _MEMO.move_to_end(key)
+            return _MEMO[key]
+    value = make()
+    with _MEMO_LOCK:
+        _MEMO[key] = value
+        while len(_MEMO) > _MEMO_KEPT:
+            _MEMO.popitem(last=False)
+    return value
+
+
+def _number_key(v: object) -> tuple[str, str] | None:
+    """A number's exact identity (its type and float bits); None for anything else."""
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        return None
+    return (type(v).__name__, float(v).hex())
+
+
+def _constants_key(constants: Mapping[str, object]) -> tuple | None:
+    """The constants, in order, by name and exact value; None when one is not a number
+    (a symbol: nothing is kept)."""
+    out = []
+    for name, v in constants.items():
+        k = _number_key(v)
+        if k is None:
+            return None
+        out.append((str(name), k))
+    return tuple(out)
+
+
+def _law_key(law: ActuatorLaw) -> tuple | None:
+    """What an :class:`ActuatorLaw`'s analysis depends on (None: not kept)."""
+    consts = _constants_key(law.constant_values)
+    dmax = _number_key(law.deflection_max)
+    if consts is None or dmax is None:
+        return None
+    return (law.text, law.drive, law.parsed.names, consts, dmax)
 
 
 @dataclass(frozen=True)
@@ -152,14 +216,27 @@ class ActuatorLaw:
         """Spring laws: φ -> (τ_e, τ_e', τ_e''), by CasADi."""
         if self.drive != "spring":
             raise ValueError(f"law {self.text!r}: derivatives in φ are for spring laws")
-        phi = ca.SX.sym("phi")
-        tau = self(phi=phi)
-        d1 = ca.jacobian(tau, phi)
-        return ca.Function("spring", [phi], [tau, d1, ca.jacobian(d1, phi)])
+
+        def make() -> ca.Function:
+            phi = ca.SX.sym("phi")
+            tau = self(phi=phi)
+            d1 = ca.jacobian(tau, phi)
+            return ca.Function("spring", [phi], [tau, d1, ca.jacobian(d1, phi)])
+        key = _law_key(self)
+        f = _memo(None if key is None else ("derivatives", key), make)
+        assert isinstance(f, ca.Function)
+        return f
 
     @cached_property
     def properties(self) -> SpringProperties | PressureProperties:
-        return spring_properties(self) if self.drive == "spring" else pressure_properties(self)
+        """The law's properties, judged once per law (text, drive, constants, deflection
+        range) in a process (:func:`_memo`)."""
+        key = _law_key(self)
+        p = _memo(None if key is None else ("properties", key),
+                  lambda: spring_properties(self) if self.drive == "spring"
+                  else pressure_properties(self))
+        assert isinstance(p, (SpringProperties, PressureProperties))
+        return p
 
     @property
     def spring(self) -> SpringProperties:
@@ -178,19 +255,32 @@ class ActuatorLaw:
 
 # --------------------------------------------------------------------------- spring laws
 
+def _jet_key(law: Law, constants: Mapping[str, float]) -> tuple | None:
+    consts = _constants_key(constants)
+    return None if consts is None else ("jet", law.text, law.names, consts)
+
+
 def spring_jet(law: Law, constants: Mapping[str, float]) -> ca.Function:
-    """phi -> (tau(phi), tau'(phi), tau''(phi), tau'''(phi)) of a spring law, by CasADi."""
-    phi = ca.SX.sym("phi")
-    tau = law({**constants, "phi": phi})
-    d1 = ca.jacobian(tau, phi)
-    d2 = ca.jacobian(d1, phi)
-    return ca.Function("spring_jet", [phi], [tau, d1, d2, ca.jacobian(d2, phi)],
-                       ["phi"], ["tau", "d1", "d2", "d3"])
+    """phi -> (tau(phi), tau'(phi), tau''(phi), tau'''(phi)) of a spring law, by CasADi
+    (made once per law text, names and constants in a process: :func:`_memo`)."""
+    def make() -> ca.Function:
+        phi = ca.SX.sym("phi")
+        tau = law({**constants, "phi": phi})
+        d1 = ca.jacobian(tau, phi)
+        d2 = ca.jacobian(d1, phi)
+        return ca.Function("spring_jet", [phi], [tau, d1, d2, ca.jacobian(d2, phi)],
+                           ["phi"], ["tau", "d1", "d2", "d3"])
+    f = _memo(_jet_key(law, constants), make)
+    assert isinstance(f, ca.Function)
+    return f
 
 
 def jet_samples(law: Law, constants: Mapping[str, float], phi: np.ndarray) -> np.ndarray:
     """(4, len(phi)): τ and its first three derivatives at ``phi``."""
-    f = spring_jet(law, constants).map(phi.size)
+    key = _jet_key(law, constants)
+    f = _memo(None if key is None else (key, "map", phi.size),
+              lambda: spring_jet(law, constants).map(phi.size))
+    assert isinstance(f, ca.Function)
     with np.errstate(all="ignore"):
         return np.array([np.asarray(v, float).ravel() for v in f(phi.reshape(1, -1))])
 
@@ -281,7 +371,15 @@ def spring_pair_properties(a: ActuatorLaw, b: ActuatorLaw) -> PairProperties | N
     """Stiffness range of a spring pair at zero joint torque: side a deflected by φ_a ≥ 0
     within its monotone range, side b at the φ_b with τ_b(φ_b) = −τ_a(φ_a) within its
     own (bisection on the increasing law); σ = τ_a'(φ_a) + τ_b'(φ_b). None when a side
-    is not invertible."""
+    is not invertible. Kept per process for the pair of laws (:func:`_law_key`)."""
+    ka, kb = _law_key(a), _law_key(b)
+    key = None if ka is None or kb is None else ("spring_pair", ka, kb)
+    pair = _memo(key, lambda: _spring_pair_properties(a, b))
+    assert pair is None or isinstance(pair, PairProperties)
+    return pair
+
+
+def _spring_pair_properties(a: ActuatorLaw, b: ActuatorLaw) -> PairProperties | None:
     pa, pb = a.spring, b.spring
     if not (pa.invertible and pb.invertible):
         return None
@@ -314,7 +412,18 @@ def pressure_pair_properties(a: ActuatorLaw, b: ActuatorLaw,
     """Stiffness range of a pressure pair at rest (q = 0) and zero torque, with both
     pressures in [0, ``pressure_max``]: σ = −∂(τ_a + τ_b)/∂q. For laws linear in p the
     zero-torque set is a ray p_b = κ p_a; its end is where either pressure reaches the
-    limit. None for laws not linear in p or when no co-contraction holds τ = 0."""
+    limit. None for laws not linear in p or when no co-contraction holds τ = 0. Kept per
+    process for the pair of laws and the limit (:func:`_law_key`)."""
+    ka, kb = _law_key(a), _law_key(b)
+    pk = ("none",) if pressure_max is None else _number_key(pressure_max)
+    key = None if ka is None or kb is None or pk is None else ("pressure_pair", ka, kb, pk)
+    pair = _memo(key, lambda: _pressure_pair_properties(a, b, pressure_max))
+    assert pair is None or isinstance(pair, PairProperties)
+    return pair
+
+
+def _pressure_pair_properties(a: ActuatorLaw, b: ActuatorLaw,
+                              pressure_max: float | None) -> PairProperties | None:
     if not (a.pressure.linear_in_p and b.pressure.linear_in_p):
         return None
     q, p = ca.SX.sym("q"), ca.SX.sym("p")
