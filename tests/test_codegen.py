@@ -400,3 +400,25 @@ def test_capability_order_does_not_depend_on_which_module_is_imported_first(firs
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split()
     assert out == REGISTRY.names()
+
+
+def test_code_size_is_the_largest_straight_line_function_brought():
+    """The -O1 rule's size (codegen.generate.code_size): an SX function's own count; an MX
+    function's largest SX callee, not its few MX nodes (the rod's plant: 22 MX nodes
+    around a 23k-instruction step)."""
+    import casadi as ca
+
+    from softgen.codegen.generate import LARGE_FUNCTION, code_size
+    x = ca.SX.sym("x", 3)
+    e = x
+    for _ in range(LARGE_FUNCTION):
+        e = ca.sin(e) * 1.0001 + x
+    big = ca.Function("big", [x], [e])
+    small = ca.Function("small", [x], [x * 2])
+    assert code_size(big) == big.n_instructions() >= LARGE_FUNCTION
+    xm = ca.MX.sym("x", 3)
+    composed = ca.Function("composed", [xm], [small(big(xm)) + small(xm)])
+    assert composed.n_instructions() < 20
+    assert code_size(composed) == big.n_instructions()
+    only_small = ca.Function("only_small", [xm], [small(small(xm))])
+    assert code_size(only_small) == small.n_instructions()

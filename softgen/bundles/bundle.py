@@ -22,7 +22,8 @@ from softgen.bundles.common import (DEFAULT_OPTIONS, BundleOptions, actuator_rec
 from softgen.bundles.floating import model_layout
 from softgen.bundles.registry import Capability, Context, Decision, merge
 from softgen.bundles.registry import decide as _decide
-from softgen.codegen.generate import LARGE_FUNCTION, BundleSpec, content_hash, write_bundle
+from softgen.codegen.generate import (LARGE_FUNCTION, BundleSpec, code_size, content_hash,
+                                      write_bundle)
 from softgen.core.errors import BundleError, ModelError
 from softgen.core.paths import GENERATED_DIR
 from softgen.modelfile.model import MAX_NAME, RobotModel
@@ -111,8 +112,9 @@ def _spec_key(model, options: BundleOptions) -> tuple | None:
 O1_CAPABILITIES = ("electric_cascade", "theorem10")
 STEP_LEVEL = "-O1"
 #: Functions of at least :data:`~softgen.codegen.generate.LARGE_FUNCTION` CasADi
-#: instructions are compiled at :data:`STEP_LEVEL` too, whatever their capability
-#: (issue 34; the measurements are given there).
+#: instructions, counting those of the SX functions they call
+#: (:func:`~softgen.codegen.generate.code_size`), are compiled at :data:`STEP_LEVEL` too,
+#: whatever their capability (issue 34; the measurements are given there).
 
 
 #: Derivations kept per process (:func:`derivation`), most recent last: as many as the
@@ -161,7 +163,7 @@ def _assemble(model, options: BundleOptions) -> BundleSpec:
         part = cap.build(ctx)
         fns += [replace(g, optimization=g.optimization or STEP_LEVEL)
                 if cap.name in O1_CAPABILITIES
-                or g.function.n_instructions() >= LARGE_FUNCTION else g
+                or code_size(g.function) >= LARGE_FUNCTION else g
                 for g in part.functions]
         merge(extra, part.extra)
     if isinstance(dyn, RigidDynamics):

@@ -259,6 +259,25 @@ def _free_bytes(path: Path) -> int | None:
 #: 2,982 per sample, libm included).
 LARGE_FUNCTION = 5000
 
+
+def code_size(f: ca.Function) -> int:
+    """The CasADi instructions of the largest straight-line (SX) function in ``f``'s C:
+    ``f`` itself, or one it calls. What the :data:`LARGE_FUNCTION` rule is about (gcc's
+    time grows faster than the size of one such function); an MX function (a composed
+    loop, a looped plant) counts a call as one instruction, so its own count says nothing
+    of the code it brings. The Cosserat rod's plant is 22 MX instructions around one
+    ROS2 step of 23k lines of C, which the rule left at -O3: ``benchmarks/
+    function_levels.py rod_tendon_3seg --functions rod_tendon_3seg_plant``, two runs at
+    load 0.7-0.8, -O1 against -O3: compile 4.7 / 9.6 and 5.2 / 10.5 CPU-s, 8.3 / 7.6 and
+    9.3 / 10.4 µs per call (the difference is the machine's noise); the bundle's gcc 19.0
+    -> 14.2 CPU-s. Its forward dynamics, many small per-segment functions (7,157
+    instructions in all, none large), stays at -O3: at -O1 they are not inlined (2.1-2.6
+    against 1.8-1.9 µs)."""
+    if f.is_a("SXFunction"):
+        return f.n_instructions()
+    return max([g.n_instructions() for g in f.find_functions() if g.is_a("SXFunction")],
+               default=0)
+
 #: Per run, what :func:`batch_driver` writes into ``info``: samples run, why the run ended
 #: (:data:`BATCH_REASONS`), and the row of the first non-finite value (y rows first, then
 #: the state's after them; -1 when none).

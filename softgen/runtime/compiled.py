@@ -33,7 +33,7 @@ from typing import Any
 import casadi as ca
 
 from softgen.codegen.build import LDLIBS, cflags, find_compiler
-from softgen.codegen.generate import (LARGE_FUNCTION, BundleSpec, Generated, batch_work,
+from softgen.codegen.generate import (LARGE_FUNCTION, BundleSpec, Generated, batch_work, code_size,
                                      render, signature, write_bundle)
 from softgen.core.atomic import write_text
 from softgen.core.paths import cache_dir
@@ -75,7 +75,7 @@ def compile_batch(name: str, sample: ca.Function) -> BatchDriver | None:
     driver = f"softgen_batch_{name}"
     # A batch runs hundreds of runs of thousands of samples: its compile is paid once
     # for all of them, so it takes the bundles' rule (codegen.generate.LARGE_FUNCTION).
-    level = "-O3" if sample.n_instructions() < LARGE_FUNCTION else "-O1"
+    level = "-O3" if code_size(sample) < LARGE_FUNCTION else "-O1"
     _, bundle, owner = _compile(name, [sample], backend="c", batches={driver: sample},
                                 optimization=level)
     lib = ctypes.CDLL(str(bundle.library))
