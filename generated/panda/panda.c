@@ -43063,6 +43063,11 @@ CASADI_SYMBOL_EXPORT int panda_slotine_li_work_bytes(casadi_int *sz_arg, casadi_
   return 0;
 }
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* panda_slotine_li_step:(x[57],p[57],k,e[21])->(x_next[57],y[65]) */
 static int casadi_f12(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_int i;
@@ -43224,7 +43229,15 @@ CASADI_SYMBOL_EXPORT int panda_slotine_li_step_work_bytes(casadi_int *sz_arg, ca
   if (sz_w) *sz_w = 413*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* one_sample:(xa[58],p[57],e[21])->(xa_next[58],y[65]) */
 static int casadi_f18(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real **res1=res+2, w3, *w5=w+621, *w6=w+678, w7;
@@ -43855,6 +43868,9 @@ CASADI_SYMBOL_EXPORT int panda_slotine_li_loop_work_bytes(casadi_int *sz_arg, ca
   if (sz_w) *sz_w = 518502*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 
 #ifdef __cplusplus

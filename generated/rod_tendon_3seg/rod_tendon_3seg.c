@@ -82108,6 +82108,11 @@ CASADI_SYMBOL_EXPORT int rod_tendon_3seg_tip_adaptive_step_work_bytes(casadi_int
 #pragma GCC pop_options
 #endif
 
+/* softgen: compiled at -O1 (Generated.optimization) */
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC push_options
+#pragma GCC optimize ("O1")
+#endif
 /* stage1:(i0[9],i1[9],i2[4],i3[6],i4)->(o0[18]) */
 static int casadi_f25(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   casadi_real a000, a001, a002, a003, a004, a005, a006, a007, a008, a009, a010, a011;
@@ -119097,6 +119102,9 @@ CASADI_SYMBOL_EXPORT int rod_tendon_3seg_plant_work_bytes(casadi_int *sz_arg, ca
   if (sz_w) *sz_w = 586*sizeof(casadi_real);
   return 0;
 }
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC pop_options
+#endif
 
 /* softgen: compiled at -O1 (Generated.optimization) */
 #if defined(__GNUC__) && !defined(__clang__)
