@@ -28,13 +28,13 @@ recorded beside.
 """
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from softgen.blocks import ClosedLoop
+from softgen.bundles.bundle import derivation
 from softgen.control.soft import reference_block, tip_force_block
 from softgen.control.soft_identified import check_identified, identified_controller_block
 from softgen.control.soft_sampled import (UNCERTAINTY, Checker, ModelScale,
@@ -197,14 +197,14 @@ def _tag(g) -> str:
     return "m{:g}_k{:g}_d{:g}".format(*g)
 
 
-@functools.lru_cache(maxsize=4)
 def _dynamics(model: str) -> tuple[SoftDynamics, LinearRoute]:
-    """(dynamics, linear route) of a case's model, derived once per process: the grid and
-    the predictor study of the first case share them. A model file path is read from the
+    """(dynamics, linear route) of a case's model from its one derivation in the process
+    (:func:`~softgen.bundles.bundle.derivation`, keyed by the file's content): the grid and
+    the predictor study of the first case share it. A model file path is read from the
     checkout (the user model lives in tests/data)."""
     src = _CHECKOUT / model if model.endswith(".toml") else model
-    dyn = SoftDynamics(load_model(src))
-    return dyn, LinearRoute(dyn)
+    ctx = derivation(load_model(src))
+    return ctx.dyn, ctx.lin
 
 
 def run_case(case: Case, c: SampledConfig) -> tuple[Metrics, dict]:
