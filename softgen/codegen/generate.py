@@ -270,7 +270,7 @@ def code_size(f: ca.Function) -> int:
     function_levels.py rod_tendon_3seg --functions rod_tendon_3seg_plant``, two runs at
     load 0.7-0.8, -O1 against -O3: compile 4.7 / 9.6 and 5.2 / 10.5 CPU-s, 8.3 / 7.6 and
     9.3 / 10.4 µs per call (the difference is the machine's noise); the bundle's gcc 19.0
-    -> 14.2 CPU-s. Its forward dynamics, many small per-segment functions (7,157
+    -> 15.1 CPU-s. Its forward dynamics, many small per-segment functions (7,157
     instructions in all, none large), stays at -O3: at -O1 they are not inlined (2.1-2.6
     against 1.8-1.9 µs)."""
     if f.is_a("SXFunction"):
