@@ -17,6 +17,33 @@ from softgen.modelfile.load import load_model
 #: at the shipped flags (issue 34: the default suite within 150 CPU-s).
 os.environ.setdefault(BUILD_LEVEL_ENV, "-O0")
 
+
+def _shared_bytecode() -> None:
+    """The suite's Python subprocesses (CLI runs, interrupted runs, Dask workers, the
+    installed wheel: over a hundred) read compiled bytecode from one cache of the
+    session's instead of each compiling softgen's modules from source again.
+
+    Where ``PYTHONDONTWRITEBYTECODE`` is set (to keep ``__pycache__`` out of the source
+    tree), every interpreter the suite started compiled the ~180 modules it imports, ~0.3
+    CPU-s each time (issue 34). The bytecode goes to ``<cache>/pycache``
+    (``PYTHONPYCACHEPREFIX``: nothing is written beside the sources), which Python checks
+    against each source's mtime and size as usual. A prefix set by the user is kept."""
+    if os.environ.get("PYTHONPYCACHEPREFIX"):
+        return
+    import sys
+
+    from softgen.core.paths import cache_dir
+    prefix = str(cache_dir() / "pycache")
+    os.environ["PYTHONPYCACHEPREFIX"] = prefix
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+    # This process too, for the modules it imports from here on (the subprocesses then
+    # find them compiled).
+    sys.pycache_prefix = prefix
+    sys.dont_write_bytecode = False
+
+
+_shared_bytecode()
+
 #: A spatial 3-joint arm mixing revolute and prismatic joints, with damping and
 #: joint stiffness, off-diagonal inertias and a tilted gravity: exercises every
 #: branch of the mechanics that the shipped planar models do not.

@@ -23,6 +23,18 @@ and flags) -> record -> library bytes.
 Builds write to a temporary file whose name carries the builder's process id
 and rename it into place; temporaries of builders that no longer run (a SIGKILL
 during a compile) are removed by the next build.
+
+Generated C is compiled once per content (issue 34): every library built is also kept
+in the user cache, ``<cache>/libraries/lib<key>.so`` with its record, keyed by the sha256
+of the C source, the flags and the compiler (:func:`content_key`). A bundle whose C is
+already there (the same model generated into another directory, a second checkout, a
+test's copy) takes a copy of that library instead of running the compiler; the entry is
+verified against its record (its own sha256 and size, the manifest's ``source_sha256``,
+the flags) before it is copied, and the copy again after, so a corrupt or replaced entry
+is compiled anew, never loaded. The chain of trust gains one link: manifest ->
+``source_sha256`` -> content key -> cache record -> cached bytes -> the bundle's record.
+Bundles that already live in the cache (run-time loops, keyed by their content in
+``runtime.compiled``; read-only bundles' libraries) are not copied into it again.
 """
 from __future__ import annotations
 
@@ -337,6 +349,83 @@ def clean_orphans(build_dir: Path, prefixes: tuple[str, ...] = (".lib",)) -> lis
     return removed
 
 
+#: The directory of :func:`cache_dir` that holds compiled libraries by content.
+LIBRARY_CACHE = "libraries"
+
+
+def content_key(c_source: bytes, optimization: str, compiler: str) -> str:
+    """The key of a library in the content cache: sha256 of the C source, the flags it is
+    compiled with at ``optimization`` and the compiler's path (another compiler gives
+    other bytes; a record written for other flags is never taken)."""
+    flags = " ".join(cflags(optimization) + LDLIBS)
+    return hashlib.sha256(c_source + b"\0" + flags.encode() + b"\0" + compiler.encode()
+                          ).hexdigest()
+
+
+def _cache_entry(key: str) -> Path:
+    return cache_dir() / LIBRARY_CACHE / f"lib{key[:32]}.so"
+
+
+def _from_cache(key: str, manifest: dict, compiler: str, dest: Path) -> float | None:
+    """Copy the cached library of ``key`` into ``dest`` when its entry matches its record;
+    return the compile seconds the record gives (0.0 if none), or None (no entry, or one
+    that fails verification: the caller compiles)."""
+    entry = _cache_entry(key)
+    try:
+        rec = json.loads(record_path(entry).read_text())
+        if (rec.get("key") != key or rec.get("source_sha256") != manifest["source_sha256"]
+                or rec.get("cflags") != list(cflags(_level(manifest)) + LDLIBS)
+                or rec.get("compiler") != compiler):
+            return None
+        size, digest = int(rec["size"]), str(rec["sha256"])
+        if entry.stat().st_size != size or _sha256_file(entry) != digest:
+            return None
+        shutil.copyfile(entry, dest)
+        # Checked again as copied: the entry may have been replaced since.
+        if dest.stat().st_size != size or _sha256_file(dest) != digest:
+            return None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    seconds = rec.get("build_seconds")
+    return float(seconds) if isinstance(seconds, (int, float)) else 0.0
+
+
+def _to_cache(lib: Path, key: str, manifest: dict, compiler: str,
+              seconds: float | None) -> None:
+    """Keep a copy of the freshly built ``lib`` (and its record) as the cache's entry of
+    ``key``, each written to a temporary and renamed; a cache that cannot be written is
+    no error (the library is built and recorded already)."""
+    entry = _cache_entry(key)
+    if cache_dir().resolve() in Path(lib).resolve().parents:
+        return                        # already in the cache (a run-time loop), by content
+    try:
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        clean_orphans(entry.parent)
+        fd, tmp = tempfile.mkstemp(dir=entry.parent, prefix=f".{entry.name}.{os.getpid()}.",
+                                   suffix=".so")
+        os.close(fd)
+        try:
+            shutil.copyfile(lib, tmp)
+            digest = _sha256_file(Path(tmp))
+            os.replace(tmp, entry)
+        finally:
+            Path(tmp).unlink(missing_ok=True)
+        data = json.dumps({"key": key, "library": entry.name, "size": entry.stat().st_size,
+                           "sha256": digest, "source_sha256": manifest["source_sha256"],
+                           "cflags": list(cflags(_level(manifest)) + LDLIBS),
+                           "compiler": compiler, "build_seconds": seconds}, indent=1) + "\n"
+        fd, tmp = tempfile.mkstemp(dir=entry.parent, prefix=f".{entry.name}.{os.getpid()}.",
+                                   suffix=".json.tmp")
+        try:
+            with os.fdopen(fd, "w") as fh:
+                fh.write(data)
+            os.replace(tmp, record_path(entry))
+        finally:
+            Path(tmp).unlink(missing_ok=True)
+    except OSError:
+        pass
+
+
 def build(bundle: Path, *, cc: str | None = None, force: bool = False) -> tuple[Path, float]:
     """Compile ``bundle``'s C source into its hashed shared library.
 
@@ -372,7 +461,8 @@ def ensure_library(bundle: Path, *, cc: str | None = None,
     (path, seconds, repaired)
         ``repaired`` is None unless a library was present under the right name but
         failed :func:`verify_library`; then it is the reason, and the library has
-        been rebuilt.
+        been rebuilt. ``seconds`` is 0.0 when no compiler ran: the library was
+        current, or copied from the content cache (see the module docstring).
     """
     bundle = Path(bundle)
     manifest = read_manifest(bundle)
@@ -382,7 +472,9 @@ def ensure_library(bundle: Path, *, cc: str | None = None,
     problem = verify_library(lib, manifest)
     if problem is None and not force:
         return lib, 0.0, None
-    require_compiler(cc)   # before creating anything
+    compiler = require_compiler(cc)   # before creating anything
+    key = content_key(c_file.read_bytes(), _level(manifest), compiler)
+    cached: float | None = None
     where = lib.parent
     try:
         lib.parent.mkdir(parents=True, exist_ok=True)
@@ -392,7 +484,14 @@ def ensure_library(bundle: Path, *, cc: str | None = None,
                                    suffix=".so")
         os.close(fd)
         try:
-            seconds = compile_shared(c_file, Path(tmp), cc=cc, optimization=_level(manifest))
+            # The same C compiled before (anywhere, by this user): its verified library.
+            # --force (and bench's timed build) always runs the compiler.
+            cached = None if force else _from_cache(key, manifest, compiler, Path(tmp))
+            if cached is None:
+                seconds = compile_shared(c_file, Path(tmp), cc=cc,
+                                         optimization=_level(manifest))
+            else:
+                seconds = 0.0
             # Replace, never overwrite in place: a process that has the old file mapped
             # keeps its (unlinked) copy instead of seeing its pages change under it.
             where = lib
@@ -400,7 +499,7 @@ def ensure_library(bundle: Path, *, cc: str | None = None,
         finally:
             Path(tmp).unlink(missing_ok=True)
         where = record_path(lib)
-        _write_record(lib, manifest, seconds)
+        _write_record(lib, manifest, seconds if cached is None else cached)
     except OSError as exc:
         # A full or read-only build directory is one line naming it (issue 36: a
         # traceback); a library without its record is never loaded (verify_library).
@@ -413,4 +512,6 @@ def ensure_library(bundle: Path, *, cc: str | None = None,
         if old != lib and _tag(old) == _tag(lib):
             old.unlink(missing_ok=True)
             record_path(old).unlink(missing_ok=True)
+    if cached is None:
+        _to_cache(lib, key, manifest, compiler, seconds)
     return lib, seconds, (problem if problem not in (None, "missing") else None)
