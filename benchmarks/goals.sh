@@ -35,7 +35,7 @@ if wants mainjob; then
   D="$WORK/mainjob"; fresh_clone "$D"; cd "$D"
   export PIP_NO_CACHE_DIR=1 SOFTGEN_CACHE_DIR="$WORK/cache-mainjob"
   rm -rf "$SOFTGEN_CACHE_DIR"
-  /usr/bin/time -v bash -c "$PY -m venv .venv && .venv/bin/pip install -q -e . && \
+  /usr/bin/time -v bash -c "$PY -m venv .venv && .venv/bin/pip install -q --no-compile -e . && \
       .venv/bin/softgen generate --all && .venv/bin/softgen reproduce --out results" \
       > "$WORK/mainjob.log" 2> "$WORK/mainjob.time" || true
   grep -E "Elapsed|User time|System time" "$WORK/mainjob.time"
@@ -47,7 +47,7 @@ fi
 if wants generate; then
   say "generate --all on a fresh clone: compile CPU (bundles up to date: compiles only)"
   D="$WORK/generate"; fresh_clone "$D"; cd "$D"
-  $PY -m venv .venv && .venv/bin/pip install -q -e .
+  $PY -m venv .venv && .venv/bin/pip install -q --no-compile -e .
   /usr/bin/time -v .venv/bin/softgen generate --all > "$WORK/generate.log" 2> "$WORK/generate.time"
   echo "generate --all CPU-s (compiles + Python): $(cpu_of "$WORK/generate.time")   goal: <= 60 CPU-s of compiles"
   cd "$HERE"; uptime
@@ -58,7 +58,7 @@ if wants tests; then
   D="$WORK/tests"; fresh_clone "$D"; cd "$D"
   export SOFTGEN_CACHE_DIR="$WORK/cache-tests" SOFTGEN_TEST_CPU="$WORK/tests-cpu.txt"
   rm -rf "$SOFTGEN_CACHE_DIR" "$SOFTGEN_TEST_CPU"
-  $PY -m venv .venv && .venv/bin/pip install -q -e '.[test,dask]'
+  $PY -m venv .venv && .venv/bin/pip install -q --no-compile -e '.[test,dask]'
   /usr/bin/time -v .venv/bin/python -m pytest -q > "$WORK/tests.log" 2> "$WORK/tests.time" || true
   tail -1 "$WORK/tests.log"
   echo "test suite CPU-s: $(cpu_of "$WORK/tests.time")   goal: <= 150"
@@ -70,7 +70,7 @@ fi
 
 if wants loops || wants robustness || wants peers; then
   D="$WORK/bench"; fresh_clone "$D"; cd "$D"
-  $PY -m venv .venv && .venv/bin/pip install -q -e ".[test,dask]"
+  $PY -m venv .venv && .venv/bin/pip install -q --no-compile -e ".[test,dask]"
   export SOFTGEN_CACHE_DIR="$WORK/cache-bench"
   .venv/bin/softgen generate --all > /dev/null
 fi
