@@ -152,6 +152,17 @@ def bundle_specs():
     return get
 
 
+def soft_derivation(model) -> tuple:
+    """``(dyn, lin)`` of a soft body (a shipped name or a file path) from the process's one
+    derivation (:func:`softgen.bundles.bundle.derivation`, keyed by the file's content), as
+    the bundles and the experiments take them: test files that built their own
+    ``SoftDynamics`` and ``LinearRoute`` derived the same linear route again, ~1.4 CPU-s
+    for the 3D arm each time (issue 34)."""
+    from softgen.bundles.bundle import derivation
+    ctx = derivation(load_model(model))
+    return ctx.dyn, ctx.lin
+
+
 @pytest.fixture(scope="module")
 def loops_at_o1():
     """The module's generated C built at -O1 rather than the suite's -O0: for test files

@@ -11,7 +11,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
-from conftest import one_segment
+from conftest import one_segment, soft_derivation
 
 from softgen.blocks import ClosedLoop
 from softgen.bundles.common import BundleOptions
@@ -24,7 +24,6 @@ from softgen.control.soft_identified import identified_theorem10_fun
 from softgen.core.paths import MODELS_DIR
 from softgen.modelfile.load import load_model
 from softgen.symbolic.cosserat_dynamics import CosseratDynamics
-from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 from softgen.symbolic.rigid import RigidDynamics
 
 #: A user's model (not shipped): three distributed-mass planar segments.
@@ -38,8 +37,7 @@ def inlined(d: ClosedLoop) -> ClosedLoop:
 
 
 def _soft():
-    dyn = SoftDynamics(load_model(USER))
-    lin = LinearRoute(dyn)
+    dyn, lin = soft_derivation(USER)
     ctl, plant = identified_theorem10_fun(dyn, lin), plant_fun(dyn)
     return ctl, plant, theorem10_identified_diagram(dyn, lin, BundleOptions(), ctl, plant)
 

@@ -11,23 +11,21 @@ from softgen.control.soft import (closed_loop_block, closed_loop_fun, controller
                                   tip_force_block)
 from softgen.studies.soft import (SoftCase, convergence_time, noise_sequence,
                                   sampled_loop, shape_trace, tracking_records)
-from softgen.modelfile.load import load_model
 from softgen.runtime.simulate import simulate
-from softgen.symbolic.pcc import LinearRoute, SoftDynamics
+
+from conftest import soft_derivation
 
 DT = 1e-3
 
 
 @pytest.fixture(scope="module")
 def pendulum():
-    dyn = SoftDynamics(load_model("soft_pendulum"))
-    return dyn, LinearRoute(dyn)
+    return soft_derivation("soft_pendulum")
 
 
 @pytest.fixture(scope="module")
 def planar():
-    dyn = SoftDynamics(load_model("pcc_planar_4seg"))
-    return dyn, LinearRoute(dyn)
+    return soft_derivation("pcc_planar_4seg")
 
 
 def _split(block, y):

@@ -14,6 +14,8 @@ from softgen.core.errors import ModelError
 from softgen.modelfile.load import load_model
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 
+from conftest import soft_derivation
+
 DT = 1e-3
 SINGULAR = (0.0, 1e-12, 1e-6, 1e-3)
 
@@ -166,8 +168,7 @@ def test_adapted_loop_finds_a_known_constant_force(seed):
     for f = (0.3, −0.1) N); 1e-3 relative leaves a wide margin and still fails a sign
     error in the columns (f̂ → −f) or a missing one (that component cannot move).
     """
-    dyn = SoftDynamics(load_model("pcc_planar_4seg"))
-    lin = LinearRoute(dyn)
+    dyn, lin = soft_derivation("pcc_planar_4seg")
     F = closed_loop_fun(dyn, lin, forces=("tips",)).expand()   # SX: ~10x faster to step
     n, r = dyn.model.dof, lin.r
     rng = np.random.default_rng(seed)

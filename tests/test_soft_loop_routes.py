@@ -13,6 +13,8 @@ from softgen.modelfile.load import load_model
 from softgen.symbolic.pcc import LinearRoute, SoftDynamics
 from softgen.symbolic.smooth import cosc_w, jet_values, jet_values_from_nu, nu_w, sinc_w
 
+from conftest import soft_derivation
+
 #: Long closed-loop runs: compiled at -O1 (conftest.loops_at_o1; issue 34).
 pytestmark = pytest.mark.usefixtures("loops_at_o1")
 
@@ -143,8 +145,7 @@ def test_chain_pass_equals_the_body_derivatives():
 
 def test_chain_controller_equals_the_linear_route():
     from softgen.control.soft import theorem10_fun
-    dyn = SoftDynamics(load_model("pcc_3d_4seg"))
-    lin = LinearRoute(dyn)
+    dyn, lin = soft_derivation("pcc_3d_4seg")
     n, r = dyn.model.dof, lin.r
     new, old = theorem10_fun(dyn, lin), theorem10_fun(dyn, lin, route="linear")
     assert new.n_instructions() < old.n_instructions()
@@ -184,8 +185,7 @@ def test_chain_plant_equals_the_previous_route(method):
 
 def test_chain_sampled_controller_equals_the_linear_route():
     from softgen.control.soft_sampled import sampled_theorem10_fun
-    dyn = SoftDynamics(load_model("pcc_3d_4seg"))
-    lin = LinearRoute(dyn)
+    dyn, lin = soft_derivation("pcc_3d_4seg")
     n, r = dyn.model.dof, lin.r
     new = sampled_theorem10_fun(dyn, lin)
     old = sampled_theorem10_fun(dyn, lin, route="linear")
@@ -206,8 +206,7 @@ def test_planar_plant_takes_the_passes_and_sampled_controller_keeps_its_route():
     smaller than B formed and solved; the controller's route unchanged."""
     from softgen.control.soft import plant_fun
     from softgen.control.soft_sampled import sampled_theorem10_fun
-    dyn = SoftDynamics(load_model("pcc_planar_4seg"))
-    lin = LinearRoute(dyn)
+    dyn, lin = soft_derivation("pcc_planar_4seg")
     assert plant_fun(dyn).n_instructions() < plant_fun(dyn, route="qr").n_instructions()
     assert sampled_theorem10_fun(dyn, lin).n_instructions() == \
         sampled_theorem10_fun(dyn, lin, route="linear").n_instructions()

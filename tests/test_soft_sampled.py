@@ -13,7 +13,9 @@ from softgen.control.soft import theorem10_fun
 from softgen.control.soft_sampled import (Checker, StabilityCheckError, loop_step_fun,
                                           sampled_theorem10_fun)
 from softgen.modelfile.load import load_model
-from softgen.symbolic.pcc import LinearRoute, SoftDynamics
+from softgen.symbolic.pcc import SoftDynamics
+
+from conftest import soft_derivation
 
 #: Long closed-loop runs: compiled at -O1 (conftest.loops_at_o1; issue 34).
 pytestmark = pytest.mark.usefixtures("loops_at_o1")
@@ -26,8 +28,7 @@ MODELS = [ROOT / "models" / "pcc_planar_4seg.toml", ROOT / "models" / "soft_pend
 
 @cache
 def _dyn(path):
-    dyn = SoftDynamics(load_model(path))
-    return dyn, LinearRoute(dyn)
+    return soft_derivation(path)
 
 
 @cache
@@ -86,8 +87,7 @@ def test_sampled_step_finite_at_singular_points(path, x):
 
 
 def test_sampled_step_finite_on_3d_straight_segments():
-    dyn = SoftDynamics(load_model(ROOT / "models" / "pcc_3d_4seg.toml"))
-    lin = LinearRoute(dyn)
+    dyn, lin = soft_derivation(ROOT / "models" / "pcc_3d_4seg.toml")
     f = sampled_theorem10_fun(dyn, lin)
     a = _inputs(dyn, lin, np.random.default_rng(11))
     for x in (0.0, 1e-12, 1e-6, 1e-3):

@@ -19,8 +19,8 @@ from softgen.control.soft_identified import (GATE, IDENTIFIED_STATE, S0, check_i
                                              identified_theorem10_fun)
 from softgen.control.soft_sampled import (UNCERTAINTY, Checker, ModelScale,
                                           sampled_theorem10_fun)
-from softgen.modelfile.load import load_model
-from softgen.symbolic.pcc import LinearRoute, SoftDynamics
+
+from conftest import soft_derivation
 
 #: Long closed-loop runs: compiled at -O1 (conftest.loops_at_o1; issue 34).
 pytestmark = pytest.mark.usefixtures("loops_at_o1")
@@ -69,8 +69,7 @@ uncertain = ["mass", "length", "stiffness", "damping"]
 
 @cache
 def _dyn(path):
-    dyn = SoftDynamics(load_model(path))
-    return dyn, LinearRoute(dyn)
+    return soft_derivation(path)
 
 
 @cache
