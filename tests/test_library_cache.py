@@ -134,3 +134,24 @@ def test_repaired_bundle_library_comes_from_the_cache(need_compiler, tmp_path, c
     assert compiles == [a / "cc.c"]
     assert verify_library(lib, read_manifest(a)) is None
     assert np.array_equal(Bundle(a, backend="c")["cc_f"](X), np.array(f(X)).ravel())
+
+
+def test_the_cache_keeps_the_most_recently_used_entries(need_compiler, tmp_path, compiles,
+                                                       monkeypatch):
+    """Beyond LIBRARY_CACHE_KEPT entries the least recently used go with their records; an
+    entry that served a build counts as used then."""
+    import os
+    monkeypatch.setattr(build, "LIBRARY_CACHE_KEPT", 2)
+    bundles = [_bundle(tmp_path / f"b{k}", constant=1.0 + k)[0] for k in range(3)]
+    ensure_library(bundles[0])
+    ensure_library(bundles[1])
+    # b0's entry older than b1's on any clock resolution, then b0 serves a build: used.
+    os.utime(_entry(bundles[0]), (1.0, 1.0))
+    os.utime(_entry(bundles[1]), (2.0, 2.0))
+    copy, _ = _bundle(tmp_path / "again", constant=1.0)
+    ensure_library(copy)
+    assert len(compiles) == 2                           # served by b0's entry
+    ensure_library(bundles[2])                          # a third entry: b1's is the oldest
+    assert _entry(bundles[0]).is_file() and _entry(bundles[2]).is_file()
+    assert not _entry(bundles[1]).exists() and not record_path(_entry(bundles[1])).exists()
+    assert len(list(_entry(bundles[0]).parent.glob("lib*.so"))) == 2

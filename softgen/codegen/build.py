@@ -34,7 +34,8 @@ the flags) before it is copied, and the copy again after, so a corrupt or replac
 is compiled anew, never loaded. The chain of trust gains one link: manifest ->
 ``source_sha256`` -> content key -> cache record -> cached bytes -> the bundle's record.
 Bundles that already live in the cache (run-time loops, keyed by their content in
-``runtime.compiled``; read-only bundles' libraries) are not copied into it again.
+``runtime.compiled``; read-only bundles' libraries) are not copied into it again. The
+cache keeps the :data:`LIBRARY_CACHE_KEPT` most recently used entries.
 """
 from __future__ import annotations
 
@@ -351,6 +352,10 @@ def clean_orphans(build_dir: Path, prefixes: tuple[str, ...] = (".lib",)) -> lis
 
 #: The directory of :func:`cache_dir` that holds compiled libraries by content.
 LIBRARY_CACHE = "libraries"
+#: Entries the library cache keeps; beyond it the least recently used go (an entry is
+#: touched when it serves a build). Every model edit adds one, and the shipped bundles'
+#: libraries are 0.2-3 MB each: without a bound the cache only grows.
+LIBRARY_CACHE_KEPT = 200
 
 
 def content_key(c_source: bytes, optimization: str, compiler: str) -> str:
@@ -384,6 +389,7 @@ def _from_cache(key: str, manifest: dict, compiler: str, dest: Path) -> float | 
         # Checked again as copied: the entry may have been replaced since.
         if dest.stat().st_size != size or _sha256_file(dest) != digest:
             return None
+        os.utime(entry)                  # recently used: the bound evicts others first
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
     seconds = rec.get("build_seconds")
@@ -422,8 +428,26 @@ def _to_cache(lib: Path, key: str, manifest: dict, compiler: str,
             os.replace(tmp, record_path(entry))
         finally:
             Path(tmp).unlink(missing_ok=True)
+        _bound_cache(entry.parent)
     except OSError:
         pass
+
+
+def _bound_cache(directory: Path) -> None:
+    """Remove the least recently used entries (and their records) beyond
+    :data:`LIBRARY_CACHE_KEPT`. An entry another process is copying at that moment is
+    only lost to it as a cache hit: it then compiles (:func:`_from_cache` checks what it
+    copied)."""
+    entries = []
+    for lib in directory.glob("lib*.so"):
+        try:
+            entries.append((lib.stat().st_mtime, lib))
+        except OSError:
+            pass
+    entries.sort()
+    for _, lib in entries[:max(0, len(entries) - LIBRARY_CACHE_KEPT)]:
+        lib.unlink(missing_ok=True)
+        record_path(lib).unlink(missing_ok=True)
 
 
 def build(bundle: Path, *, cc: str | None = None, force: bool = False) -> tuple[Path, float]:
