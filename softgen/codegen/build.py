@@ -50,7 +50,7 @@ import time
 from pathlib import Path
 
 from softgen.core import children
-from softgen.core.atomic import output_error
+from softgen.core.atomic import output_error, replacing, write_text
 from softgen.core.paths import cache_dir, writable
 from softgen.core.errors import BuildError, BundleError, SoftgenError
 
@@ -292,19 +292,11 @@ def verify_library(lib: Path, manifest: dict) -> str | None:
 
 
 def _write_record(lib: Path, manifest: dict, seconds: float | None = None) -> None:
-    data = json.dumps({"library": lib.name, "size": lib.stat().st_size,
-                       "sha256": _sha256_file(lib),
-                       "source_sha256": manifest["source_sha256"],
-                       "cflags": list(cflags(_level(manifest)) + LDLIBS),
-                       "build_seconds": seconds}, indent=1) + "\n"
-    fd, tmp = tempfile.mkstemp(dir=lib.parent, prefix=f".{lib.name}.{os.getpid()}.",
-                               suffix=".json.tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(data)
-        os.replace(tmp, record_path(lib))
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    write_text(record_path(lib), json.dumps({
+        "library": lib.name, "size": lib.stat().st_size, "sha256": _sha256_file(lib),
+        "source_sha256": manifest["source_sha256"],
+        "cflags": list(cflags(_level(manifest)) + LDLIBS),
+        "build_seconds": seconds}, indent=1) + "\n")
 
 
 def _pid_alive(pid: int) -> bool:
@@ -407,27 +399,14 @@ def _to_cache(lib: Path, key: str, manifest: dict, compiler: str,
     try:
         entry.parent.mkdir(parents=True, exist_ok=True)
         clean_orphans(entry.parent)
-        fd, tmp = tempfile.mkstemp(dir=entry.parent, prefix=f".{entry.name}.{os.getpid()}.",
-                                   suffix=".so")
-        os.close(fd)
-        try:
+        with replacing(entry) as tmp:
             shutil.copyfile(lib, tmp)
-            digest = _sha256_file(Path(tmp))
-            os.replace(tmp, entry)
-        finally:
-            Path(tmp).unlink(missing_ok=True)
-        data = json.dumps({"key": key, "library": entry.name, "size": entry.stat().st_size,
-                           "sha256": digest, "source_sha256": manifest["source_sha256"],
-                           "cflags": list(cflags(_level(manifest)) + LDLIBS),
-                           "compiler": compiler, "build_seconds": seconds}, indent=1) + "\n"
-        fd, tmp = tempfile.mkstemp(dir=entry.parent, prefix=f".{entry.name}.{os.getpid()}.",
-                                   suffix=".json.tmp")
-        try:
-            with os.fdopen(fd, "w") as fh:
-                fh.write(data)
-            os.replace(tmp, record_path(entry))
-        finally:
-            Path(tmp).unlink(missing_ok=True)
+            digest = _sha256_file(tmp)
+        write_text(record_path(entry), json.dumps({
+            "key": key, "library": entry.name, "size": entry.stat().st_size,
+            "sha256": digest, "source_sha256": manifest["source_sha256"],
+            "cflags": list(cflags(_level(manifest)) + LDLIBS),
+            "compiler": compiler, "build_seconds": seconds}, indent=1) + "\n")
         _bound_cache(entry.parent)
     except OSError:
         pass
