@@ -37,7 +37,16 @@ def main() -> None:
     args = ap.parse_args()
     c = E.SampledConfig()
     tags = args.cases.split(",")
-    counts = [int(s) for s in args.substeps.split(",")]
+    if unknown := sorted(set(tags) - {k.tag for k in c.cases}):
+        ap.error(f"--cases: expected tags among {', '.join(k.tag for k in c.cases)}, got "
+                 f"{', '.join(unknown)}")
+    try:
+        counts = [int(s) for s in args.substeps.split(",")]
+    except ValueError:
+        counts = []
+    if not counts or min(counts) < 1:
+        ap.error(f"--substeps: expected positive integers separated by commas, got "
+                 f"{args.substeps!r}")
     for case in E._selected(c):
         if case.tag not in tags:
             continue
